@@ -1,0 +1,95 @@
+#pragma once
+// The known map: landmarks (id, type, 3D position, uniqueness) and, for the FIRA MiroSot
+// field of the thesis, the field geometry the simulator renders.
+//
+// MiroSot frame: origin at the bottom-left field corner on the floor, x along the length
+// (blue goal at x = 0, yellow goal at x = length), y across, z up. mm.
+#include <Eigen/Core>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace stereoloc {
+
+enum class LandmarkType {
+  GoalCorner,     // vertical edge where the white wall meets a coloured goal (colour transition)
+  MarkingCorner,  // L corner of two white markings
+  Junction,       // T-junction of a marking with the boundary (wall foot)
+  Intersection,   // crossing of two markings (e.g. halfway line and centre circle)
+  WallCorner,     // foot of the vertical edge where a corner triangle meets a wall
+  Point,          // a generic point landmark (e.g. a barcode in real data)
+};
+std::string toString(LandmarkType type);
+// Parses the names written by toString ("goal_corner", ...); throws stereoloc::Error.
+LandmarkType landmarkTypeFromString(const std::string& name);
+
+enum class GoalColor { None, Blue, Yellow };
+std::string toString(GoalColor color);
+GoalColor goalColorFromString(const std::string& name);
+
+struct Landmark {
+  int id = -1;
+  LandmarkType type = LandmarkType::Point;
+  std::string name;                                        // human-readable, e.g. "blue_goal_y450"
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();      // mm, world frame
+  bool unique = false;                                     // identifiable without a pose prior
+  GoalColor color = GoalColor::None;                       // goal corners only
+  Eigen::Vector2d xy() const { return position.head<2>(); }
+};
+
+// Dimensions of a FIRA MiroSot field (all mm).
+struct FieldGeometry {
+  double length = 1500.0;
+  double width = 1300.0;
+  double goal_width = 400.0;
+  double goal_depth = 150.0;
+  double wall_height = 50.0;
+  double corner_triangle = 70.0;     // legs of the isosceles corner triangles
+  double line_width = 10.0;          // white markings
+  double centre_circle_radius = 250.0;
+  double goal_area_depth = 150.0;
+  double goal_area_width = 500.0;
+  double penalty_area_depth = 350.0;
+  double penalty_area_width = 800.0;
+  double goal_corner_height = 25.0;  // z given to goal-corner landmarks (any point on the edge)
+};
+
+struct Bounds {
+  double xmin = 0, ymin = 0, xmax = 0, ymax = 0;  // mm
+  bool contains(const Eigen::Vector2d& p, double margin = 0.0) const {
+    return p.x() >= xmin - margin && p.x() <= xmax + margin && p.y() >= ymin - margin && p.y() <= ymax + margin;
+  }
+};
+
+class FieldMap {
+ public:
+  FieldMap() = default;
+  // Validates: ids unique and >= 0, positions finite and inside the bounds (or in a goal).
+  FieldMap(std::string name, Bounds bounds, std::vector<Landmark> landmarks,
+           std::optional<FieldGeometry> geometry = std::nullopt);
+
+  // The thesis's field: MiroSot Small League, with landmarks derived from the geometry.
+  static FieldMap miroSot(const FieldGeometry& geometry = FieldGeometry());
+
+  // YAML through cv::FileStorage. Errors name the file and key, e.g.
+  // "map.yaml: landmarks[2].x: not a finite number" or "map.yaml: landmarks[4].id: duplicate id 7".
+  static FieldMap load(const std::string& path);
+  void save(const std::string& path) const;
+
+  const std::string& name() const { return name_; }
+  const Bounds& bounds() const { return bounds_; }
+  const std::vector<Landmark>& landmarks() const { return landmarks_; }
+  const std::optional<FieldGeometry>& geometry() const { return geometry_; }
+
+  const Landmark* find(int id) const;       // nullptr when absent
+  const Landmark& at(int id) const;         // throws stereoloc::Error when absent
+  std::vector<const Landmark*> ofType(LandmarkType type) const;
+
+ private:
+  std::string name_;
+  Bounds bounds_;
+  std::vector<Landmark> landmarks_;
+  std::optional<FieldGeometry> geometry_;
+};
+
+}  // namespace stereoloc
