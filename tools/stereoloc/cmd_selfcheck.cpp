@@ -90,7 +90,7 @@ void runSelfcheck(const SelfcheckOptions& o) {
 
 }  // namespace
 
-void addSelfcheckCommand(CLI::App& app) {
+void add_selfcheck_command(CLI::App& app) {
   auto opts = std::make_shared<SelfcheckOptions>();
   CLI::App* sub = app.add_subcommand("selfcheck", "Print the map and rig summary and check the models numerically");
   sub->add_option("--map", opts->map_path, "Field map YAML (default: the built-in MiroSot field)")->check(CLI::ExistingFile);

@@ -11,7 +11,9 @@ int main(int argc, char** argv) {
                "odometry in a known map (units: mm, rad, s)."};
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "Print the help of every subcommand");
-  addSelfcheckCommand(app);
+#define STEREOLOC_COMMAND(name) add_##name##_command(app);
+#include "tools/stereoloc/commands.inc"
+#undef STEREOLOC_COMMAND
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
