@@ -162,7 +162,8 @@ Eigen::Matrix2d StereoRig::rangeBearingCovariance(const StereoPixels& px, double
   if (!(std::isfinite(sigma_px) && sigma_px > 0)) throw Error("rangeBearingCovariance: pixel sigma must be positive");
   Matrix24d J;
   rangeBearing(px, pan, &J);
-  return sigma_px * sigma_px * J * J.transpose();  // (5.32) with Sigma_i = sigma^2 I (5.28)
+  const Eigen::Matrix2d R = sigma_px * sigma_px * J * J.transpose();  // (5.32) with Sigma_i = sigma^2 I (5.28)
+  return 0.5 * (R + R.transpose());
 }
 
 std::optional<StereoPixels> StereoRig::pixelsFromRangeBearing(const RangeBearing& rb, double height_mm,

@@ -1,0 +1,44 @@
+#pragma once
+// Helpers shared by the test programs.
+#include <gtest/gtest.h>
+
+#include <Eigen/Core>
+#include <filesystem>
+#include <random>
+#include <string>
+
+#include "src/numeric_diff.h"
+
+namespace stereoloc::test {
+
+// A fresh empty directory under the system temp dir, removed at scope exit.
+class TempDir {
+ public:
+  explicit TempDir(const std::string& tag = "stereoloc") {
+    std::random_device rd;
+    path_ = std::filesystem::temp_directory_path() / (tag + "_" + std::to_string(rd()) + std::to_string(rd()));
+    std::filesystem::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    std::filesystem::remove_all(path_, ec);
+  }
+  std::string path() const { return path_.string(); }
+  std::string file(const std::string& name) const { return (path_ / name).string(); }
+
+ private:
+  std::filesystem::path path_;
+};
+
+// Fails the test (with both matrices printed) when an analytic Jacobian differs from the
+// numeric one by more than `tol` relative to max(1, |J|).
+template <typename A, typename B>
+::testing::AssertionResult jacobianMatches(const A& analytic, const B& numeric, double tol = 1e-6) {
+  const double err = relativeJacobianError(analytic, numeric);
+  if (err <= tol) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << "relative Jacobian error " << err << " > " << tol << "\nanalytic:\n"
+                                       << analytic << "\nnumeric:\n"
+                                       << numeric;
+}
+
+}  // namespace stereoloc::test
