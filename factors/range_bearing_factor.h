@@ -1,0 +1,57 @@
+#pragma once
+// Range-bearing factor to a known landmark (thesis 5.26-5.32 as a factor).
+//
+//   r = S (h(p, l) [-] z),   h = predictRangeBearingT (5.27)                  2 residuals
+//
+// p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y), world frame, mm.
+// z = (range mm, bearing rad): the observation in the robot frame C0; [-] subtracts the range
+// and wraps the bearing difference. S: upper square-root information of R (2x2, mm^2 / rad^2,
+// from the stereo model 5.32 or the dataset's sigmas). h is the same function the EKF
+// linearises, so the factor and the EKF update share one model. Evaluation fails (returns
+// false, Ceres then shrinks the step) when the pose coincides with the landmark, where the
+// bearing is undefined.
+#include <ceres/autodiff_cost_function.h>
+
+#include <Eigen/Core>
+
+#include "src/angles.h"
+#include "src/gaussian.h"
+#include "src/measurement_model.h"
+
+namespace stereoloc {
+
+struct RangeBearingFactor {
+  RangeBearingFactor(const Eigen::Vector2d& landmark, const Eigen::Vector2d& z,
+                     const Eigen::Matrix2d& sqrt_information_upper)
+      : landmark_(landmark), z_(z), S_(sqrt_information_upper) {}
+
+  template <typename T>
+  bool operator()(const T* pose, T* residual) const {
+    const T dx = T(landmark_[0]) - pose[0], dy = T(landmark_[1]) - pose[1];
+    if (dx * dx + dy * dy < T(kMinSquaredRange)) return false;
+    const T l[2] = {T(landmark_[0]), T(landmark_[1])};
+    T h[2];
+    predictRangeBearingT(pose, l, h);
+    const T e0 = h[0] - T(z_[0]);
+    const T e1 = wrapAngle<T>(h[1] - T(z_[1]));
+    residual[0] = T(S_(0, 0)) * e0 + T(S_(0, 1)) * e1;
+    residual[1] = T(S_(1, 1)) * e1;  // S is upper triangular
+    return true;
+  }
+
+  // landmark (mm), z = (range mm, bearing rad), covariance R of z.
+  static ceres::CostFunction* Create(const Eigen::Vector2d& landmark, const Eigen::Vector2d& z,
+                                     const Eigen::Matrix2d& covariance) {
+    return new ceres::AutoDiffCostFunction<RangeBearingFactor, 2, 3>(
+        new RangeBearingFactor(landmark, z, sqrtInformationUpper<2>(covariance, "range-bearing covariance R")));
+  }
+
+  static constexpr double kMinSquaredRange = 1e-12;  // mm^2, as in predictRangeBearing
+
+ private:
+  Eigen::Vector2d landmark_;
+  Eigen::Vector2d z_;
+  Eigen::Matrix2d S_;
+};
+
+}  // namespace stereoloc
