@@ -1,0 +1,202 @@
+#include "solvers/ekf.h"
+
+#include <Eigen/LU>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <utility>
+
+#include "src/error.h"
+#include "src/gaussian.h"
+#include "src/measurement_model.h"
+
+namespace stereoloc {
+namespace {
+
+std::string where(const Step& step, size_t index) {
+  return "step " + std::to_string(step.step) + ": observation " + std::to_string(index);
+}
+
+void checkObservation(const Step& step, size_t index, const Observation& obs) {
+  if (!std::isfinite(obs.range) || !std::isfinite(obs.bearing)) throw Error(where(step, index) + ": not finite");
+  const Eigen::Matrix2d& R = obs.covariance;
+  if (!R.allFinite() || !(R(0, 0) > 0) || !(R(0, 0) * R(1, 1) - R(0, 1) * R(1, 0) > 0) ||
+      std::fabs(R(0, 1) - R(1, 0)) > 1e-9 * R.cwiseAbs().maxCoeff())
+    throw Error(where(step, index) + ": covariance R is not symmetric positive definite");
+}
+
+}  // namespace
+
+Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
+    : map_(map),
+      odometry_(odometry),
+      config_(std::move(config)),
+      gate_(config_.gate, 2),
+      compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)) {
+  odometry_.validate();
+  if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
+  if (config_.init.mode != InitMode::Global) {
+    if (!config_.init.pose.isFinite() || !config_.init.covariance.allFinite())
+      throw Error("ekf: initial belief is not finite");
+    reset(config_.init.pose, config_.init.covariance);
+  }
+}
+
+void Ekf::reset(const Pose2& pose, const Eigen::Matrix3d& covariance) {
+  pose_ = pose;
+  P_ = 0.5 * (covariance + covariance.transpose());
+  initialised_ = true;
+  lost_ = false;
+  gate_.reset();
+}
+
+void Ekf::predict(double d_left, double d_right) {
+  const PosePrediction pred = predictPose(pose_, P_, d_left, d_right, odometry_);  // (5.7), (5.9)
+  pose_ = pred.pose;
+  P_ = pred.covariance;
+}
+
+EkfUpdateRecord Ekf::updateRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark) {
+  EkfUpdateRecord rec;
+  rec.landmark_id = obs.landmark_id;
+  Matrix23d H;
+  Eigen::Vector2d zhat;
+  try {
+    zhat = predictRangeBearing(pose_, landmark, &H);  // (5.27)
+  } catch (const GeometryError&) {
+    rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
+    return rec;  // the bearing is undefined: nothing to fuse
+  }
+  const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);  // wrapped before gating
+  const Eigen::Matrix<double, 3, 2> PHt = P_ * H.transpose();
+  const Eigen::Matrix2d S = H * PHt + obs.covariance;  // (5.14)
+  const Eigen::Matrix2d Sinv = S.inverse();
+  rec.innovation = nu;
+  rec.innovation_covariance = S;
+  rec.mahalanobis_squared = nu.dot(Sinv * nu);  // (5.20)
+  if (!std::isfinite(rec.mahalanobis_squared)) {
+    rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
+    return rec;
+  }
+  if (config_.gate_enabled && !gate_.accepts(rec.mahalanobis_squared)) return rec;
+  const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;  // (5.19)
+  pose_ = plus(pose_, K * nu);                          // (5.15)
+  const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * H;
+  const Eigen::Matrix3d P = IKH * P_ * IKH.transpose() + K * obs.covariance * K.transpose();  // (5.17)
+  P_ = 0.5 * (P + P.transpose());
+  rec.accepted = true;
+  return rec;
+}
+
+EkfUpdateRecord Ekf::updateCompass(double heading, double sigma) {
+  if (!std::isfinite(heading) || !(std::isfinite(sigma) && sigma > 0))
+    throw Error("ekf: compass heading must be finite and its sigma positive");
+  EkfUpdateRecord rec;
+  rec.compass = true;
+  const double nu = angleDiff(heading, pose_.theta);  // wrapped before gating
+  const double S = P_(2, 2) + sigma * sigma;
+  rec.innovation = Eigen::Vector2d(nu, 0.0);
+  rec.innovation_covariance(0, 0) = S;
+  rec.mahalanobis_squared = nu * nu / S;
+  if (config_.gate_enabled && !(rec.mahalanobis_squared <= compass_threshold_)) return rec;
+  const Eigen::Vector3d K = P_.col(2) / S;  // (5.19) with H = [0 0 1]
+  pose_ = plus(pose_, K * nu);
+  Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity();
+  IKH.col(2) -= K;
+  const Eigen::Matrix3d P = IKH * P_ * IKH.transpose() + (sigma * sigma) * K * K.transpose();  // (5.17)
+  P_ = 0.5 * (P + P.transpose());
+  rec.accepted = true;
+  return rec;
+}
+
+bool Ekf::tryGlobalFix(const Step& step) {
+  if (!config_.global_fix) return false;
+  const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+  if (!fix || !fix->pose.isFinite() || !fix->covariance.allFinite()) return false;
+  reset(fix->pose, fix->covariance);
+  return true;
+}
+
+Estimate Ekf::makeEstimate(const Step& step, EstimateStatus status) const {
+  Estimate e;
+  e.step = step.step;
+  e.t = step.t;
+  e.pose = pose_;
+  e.covariance = initialised_ ? P_ : Eigen::Matrix3d::Zero();
+  e.status = status;
+  return e;
+}
+
+Estimate Ekf::process(const Step& step) {
+  if (have_step_ && step.step <= last_step_)
+    throw Error("ekf: step " + std::to_string(step.step) + " does not follow step " + std::to_string(last_step_));
+  if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right))
+    throw Error("ekf: step " + std::to_string(step.step) + ": wheel increment is not finite");
+  for (size_t i = 0; i < step.observations.size(); ++i) checkObservation(step, i, step.observations[i]);
+  const bool first = !have_step_;
+  have_step_ = true;
+  last_step_ = step.step;
+  updates_.clear();
+
+  auto finishStep = [&](EstimateStatus status) {
+    estimates_.push_back(makeEstimate(step, status));
+    return estimates_.back();
+  };
+
+  if (!initialised_) {  // global initialisation: wait for the first fix (section 6.5)
+    if (tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
+    return finishStep(EstimateStatus::Uninitialised);
+  }
+  if (!first) predict(step.d_left, step.d_right);
+  if (lost_) {  // Fig. 5.6: odometry only until a global fix re-initialises the filter
+    if (config_.reinitialise_when_lost && tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
+    return finishStep(EstimateStatus::Lost);
+  }
+
+  bool fused = false;
+  if (step.compass && config_.use_compass) {
+    EkfUpdateRecord rec = updateCompass(*step.compass, step.compass_sigma);
+    rec.step = step.step;
+    fused |= rec.accepted;
+    updates_.push_back(rec);
+  }
+  std::vector<int> used;
+  for (const Observation& o : step.observations)
+    if (o.landmark_id >= 0) used.push_back(o.landmark_id);
+  for (size_t i = 0; i < step.observations.size(); ++i) {
+    const Observation& obs = step.observations[i];
+    EkfUpdateRecord rec;
+    const Landmark* lm = nullptr;
+    if (obs.landmark_id >= 0) {
+      lm = map_.find(obs.landmark_id);
+      if (!lm) throw Error(where(step, i) + ": unknown landmark id " + std::to_string(obs.landmark_id));
+    } else {
+      const AssociationResult a = associate(obs, pose_, P_, map_, config_.association,
+                                            config_.association.exclusive ? used : std::vector<int>{});
+      if (a.landmark_id >= 0) {
+        lm = &map_.at(a.landmark_id);
+        used.push_back(a.landmark_id);
+      }
+    }
+    if (lm) {
+      Observation identified = obs;
+      identified.landmark_id = lm->id;
+      rec = updateRangeBearing(identified, lm->xy());
+    } else {
+      rec.associated = false;  // nothing of this type inside the gate: as good as a gated observation
+      rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
+    }
+    rec.step = step.step;
+    updates_.push_back(rec);
+    fused |= rec.accepted;
+    if (!config_.gate_enabled) continue;
+    if (gate_.record(rec.accepted)) {  // (5.1.3): too many unexpected observations in a row
+      lost_ = true;
+      if (config_.reinitialise_when_lost && tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
+      return finishStep(EstimateStatus::Lost);
+    }
+  }
+  return finishStep(fused ? EstimateStatus::Tracking : EstimateStatus::Predicted);
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,109 @@
+#pragma once
+// The extended Kalman filter of thesis Algorithm 5 (section 5.1), with the validation gate and
+// kidnap recovery of section 5.1.3.
+//
+//   Prediction (5.7), (5.9):  predictPose (src/odometry_model.h): p = p (+) u (B.16),
+//                             P = J1 P J1^T + J2 U J2^T  with U from the wheel noise (B.10).
+//   Update per observation (sequential, one landmark at a time, each linearised at the current
+//   estimate), with h = predictRangeBearing (5.27) and H = dh/dp:
+//       nu = z [-] h(p)            (bearing wrapped BEFORE gating and fusing)
+//       S  = H P H^T + R           (5.14)
+//       e2 = nu^T S^-1 nu          (5.20)  -> ValidationGate; a gated observation is not fused
+//       K  = P H^T S^-1            (5.19)
+//       p  = p [+] K nu            (5.15)
+//       P  = (I - K H) P (I - K H)^T + K R K^T   (Joseph form, 5.17)
+//   Compass: a scalar update on theta (H = [0 0 1], wrapped innovation), applied before the
+//   landmark observations of the same step.
+//   Lost (5.1.3): GateConfig::lost_after consecutive gated observations declare the robot lost;
+//   from then on the filter predicts from odometry only and asks the global fix service every
+//   step until a fix re-initialises it (Fig. 5.6).
+//
+// With a single observation per step, the update is exactly one Gauss-Newton step of the
+// prior + range-bearing least-squares problem linearised at the prediction; the sliding-window
+// smoother with W = 1 relies on that.
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "solvers/initialisation.h"
+#include "solvers/validation_gate.h"
+#include "src/data_association.h"
+#include "src/estimator.h"
+#include "src/field_map.h"
+#include "src/odometry_model.h"
+
+namespace stereoloc {
+
+struct EkfConfig {
+  InitialBelief init;                // start belief; default: wait for a global fix
+  GateConfig gate;                   // (5.20) probability (2 dof) and lost_after
+  // false reproduces Figs. 5.3-5.5 (every observation fused). A random start (5.1.4) needs it
+  // false: its first updates linearise far from the truth and would be gated, so lost at once.
+  bool gate_enabled = true;
+  AssociationConfig association;     // for observations with landmark_id == -1
+  bool use_compass = true;           // fuse Step::compass when present
+  double compass_gate_probability = 0.99;  // chi-square probability (1 dof) of the compass gate
+  bool reinitialise_when_lost = true;       // ask global_fix when lost; false: stay lost
+  GlobalFixFunction global_fix;      // empty: defaultGlobalFix() (solvers/global_fix.h)
+};
+
+// What one update did: for the kidnap study's plots of the innovation and e^2 (Figs. 5.4, 5.5).
+struct EkfUpdateRecord {
+  long step = 0;
+  int landmark_id = -1;            // -1 for the compass or an observation that could not be associated
+  bool compass = false;
+  bool associated = true;          // false: landmark_id was -1 and no landmark fell inside the gate
+  Eigen::Vector2d innovation = Eigen::Vector2d::Zero();       // (mm, rad); compass: (rad, 0)
+  Eigen::Matrix2d innovation_covariance = Eigen::Matrix2d::Zero();  // S; compass: S(0,0)
+  double mahalanobis_squared = 0.0;  // e^2 (5.20)
+  bool accepted = false;             // passed the gate and was fused
+};
+
+class Ekf : public Estimator {
+ public:
+  Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config = EkfConfig());
+
+  std::string name() const override { return "ekf"; }
+  // The first processed step defines the initial time: its odometry is not applied (the initial
+  // belief is the pose at that step). Throws stereoloc::Error on non-increasing step numbers,
+  // unknown landmark ids or invalid R / compass sigma.
+  Estimate process(const Step& step) override;
+  std::vector<Estimate> finish() override { return estimates_; }
+
+  // Lower-level operations (benchmarks, tests, the smoother comparison). They act on the
+  // current belief regardless of the lost state and do not touch the lost counter.
+  void reset(const Pose2& pose, const Eigen::Matrix3d& covariance);
+  void predict(double d_left, double d_right);
+  // Gates and, if accepted (or the gate is disabled), fuses one range-bearing observation of
+  // a landmark at `landmark` (mm, world). Skipped (not accepted) when h is degenerate.
+  EkfUpdateRecord updateRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark);
+  EkfUpdateRecord updateCompass(double heading, double sigma);
+
+  bool initialised() const { return initialised_; }
+  bool lost() const { return lost_; }
+  const Pose2& pose() const { return pose_; }
+  const Eigen::Matrix3d& covariance() const { return P_; }
+  const ValidationGate& gate() const { return gate_; }
+  // The updates of the last processed step, in order.
+  const std::vector<EkfUpdateRecord>& lastUpdates() const { return updates_; }
+
+ private:
+  bool tryGlobalFix(const Step& step);
+  Estimate makeEstimate(const Step& step, EstimateStatus status) const;
+
+  FieldMap map_;  // a copy: the filter does not depend on the caller's lifetime
+  OdometryParams odometry_;
+  EkfConfig config_;
+  ValidationGate gate_;
+  double compass_threshold_;
+  Pose2 pose_;
+  Eigen::Matrix3d P_ = Eigen::Matrix3d::Zero();
+  bool initialised_ = false;
+  bool lost_ = false;
+  bool have_step_ = false;
+  long last_step_ = 0;
+  std::vector<EkfUpdateRecord> updates_;
+  std::vector<Estimate> estimates_;
+};
+
+}  // namespace stereoloc

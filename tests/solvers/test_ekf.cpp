@@ -1,0 +1,429 @@
+// Tests of the EKF (solvers/ekf.h): hand-computed Kalman filters on linear-Gaussian special
+// cases, the validation gate (5.20) on nominal and outlying observations (also with bearings
+// near +-pi), the lost / re-initialisation policy of section 5.1.3, initialisation modes,
+// data association and long runs without observations.
+#include <gtest/gtest.h>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+#include <cmath>
+#include <random>
+
+#include "solvers/ekf.h"
+#include "src/error.h"
+#include "src/measurement_model.h"
+#include "src/odometry_model.h"
+
+namespace stereoloc {
+namespace {
+
+// A small synthetic run: the robot drives a circle (radius 500 mm around (850, 650), one lap in
+// 100 steps, as the thesis's circle trial) with noisy wheels, and sees the landmarks within
+// max_range and a 60 deg field of view with Gaussian range-bearing noise.
+struct SyntheticRun {
+  std::vector<Step> steps;
+  std::vector<Pose2> truth;
+};
+
+SyntheticRun circleRun(const FieldMap& map, const OdometryParams& odo, int n, uint64_t seed, double sigma_r = 10.0,
+                       double sigma_b = deg2rad(1.0), double max_range = 900.0) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  SyntheticRun run;
+  Pose2 truth(1350.0, 650.0, kPi / 2);
+  const WheelIncrements cmd = wheelIncrementsForArc(kTwoPi * 500.0 / 100.0, kTwoPi / 100.0, odo.wheel_base_mm);
+  for (int k = 0; k < n; ++k) {
+    Step s;
+    s.step = k;
+    s.t = 0.1 * k;
+    if (k > 0) {
+      const Eigen::Matrix2d Sv = wheelCovariance(cmd.d_left, cmd.d_right, odo);
+      const double dl = cmd.d_left + std::sqrt(Sv(0, 0)) * n01(rng);
+      const double dr = cmd.d_right + std::sqrt(Sv(1, 1)) * n01(rng);
+      const Eigen::Vector3d u = controlVector(dl, dr, odo.wheel_base_mm);
+      truth = compose(truth, Pose2(u.x(), u.y(), u.z()));
+      s.d_left = cmd.d_left;
+      s.d_right = cmd.d_right;
+    }
+    for (const Landmark& l : map.landmarks()) {
+      const Eigen::Vector2d z = predictRangeBearing(truth, l.xy());
+      if (z.x() > max_range || std::fabs(z.y()) > deg2rad(30.0)) continue;
+      s.observations.push_back(observationFromRangeBearing(l.id, l.type, z.x() + sigma_r * n01(rng),
+                                                           z.y() + sigma_b * n01(rng), sigma_r, sigma_b));
+    }
+    run.steps.push_back(s);
+    run.truth.push_back(truth);
+  }
+  return run;
+}
+
+EkfConfig knownConfig(const Pose2& pose, const Eigen::Matrix3d& P) {
+  EkfConfig c;
+  c.init = knownBelief(pose, P);
+  return c;
+}
+
+// --- linear-Gaussian special cases ----------------------------------------------------------
+
+// Zero motion makes the prediction linear (J1 = I, J2 U J2^T = the isotropic floor) and the
+// compass is a linear observation of theta: the EKF must equal the scalar Kalman recursion.
+TEST(Ekf, ZeroMotionWithCompassEqualsScalarKalmanFilter) {
+  const FieldMap map = FieldMap::miroSot();
+  OdometryParams odo;
+  odo.control_variance_floor = Eigen::Vector3d(4.0, 4.0, 1e-4);
+  const Eigen::Matrix3d P0 = Eigen::Vector3d(100.0, 400.0, 0.04).asDiagonal();
+  Ekf ekf(map, odo, knownConfig(Pose2(500, 600, 0.1), P0));
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  const double sigma = 0.05;
+  double theta = 0.1, p = 0.04, pxx = 100.0, pyy = 400.0;
+  for (int k = 0; k < 50; ++k) {
+    Step s;
+    s.step = k;
+    s.compass = 0.2 + sigma * n01(rng);
+    s.compass_sigma = sigma;
+    const Estimate e = ekf.process(s);
+    if (k > 0) {  // the first step's odometry is not applied
+      p += 1e-4;
+      pxx += 4.0;
+      pyy += 4.0;
+    }
+    const double K = p / (p + sigma * sigma);
+    theta += K * (*s.compass - theta);
+    p *= (1.0 - K);
+    EXPECT_NEAR(e.pose.theta, theta, 1e-12) << k;
+    EXPECT_NEAR(e.covariance(2, 2), p, 1e-14) << k;
+    EXPECT_NEAR(e.covariance(0, 0), pxx, 1e-9) << k;
+    EXPECT_NEAR(e.covariance(1, 1), pyy, 1e-9) << k;
+    EXPECT_NEAR(e.pose.x, 500.0, 1e-12);
+    EXPECT_EQ(e.status, EstimateStatus::Tracking);
+  }
+}
+
+// Straight motion along theta = 0: p' = p + (d, 0, 0), F = [1 0 0; 0 1 d; 0 0 1], G = I and
+// U from (B.8) at alpha = 0: J_u = [1/2 1/2; -d/(2w) d/(2w); -1/w 1/w].
+TEST(Ekf, StraightLinePredictionEqualsHandComputedLinearisation) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  Eigen::Matrix3d P0;
+  P0 << 100, 10, 0.5, 10, 200, 0.2, 0.5, 0.2, 0.01;
+  Ekf ekf(map, odo, knownConfig(Pose2(300, 400, 0.0), P0));
+  const double d = 12.0, w = odo.wheel_base_mm;
+  ekf.predict(d, d);
+  Eigen::Matrix3d F;
+  F << 1, 0, 0, 0, 1, d, 0, 0, 1;
+  Eigen::Matrix<double, 3, 2> Ju;
+  Ju << 0.5, 0.5, -d / (2 * w), d / (2 * w), -1 / w, 1 / w;
+  const Eigen::Matrix2d Sv = Eigen::Vector2d(odo.k_left * d, odo.k_right * d).asDiagonal();
+  Eigen::Matrix3d U = Ju * Sv * Ju.transpose();
+  U.diagonal() += odo.control_variance_floor;
+  const Eigen::Matrix3d expected = F * P0 * F.transpose() + U;
+  EXPECT_NEAR(ekf.pose().x, 312.0, 1e-12);
+  EXPECT_NEAR(ekf.pose().y, 400.0, 1e-12);
+  EXPECT_NEAR(ekf.pose().theta, 0.0, 1e-15);
+  EXPECT_LT((ekf.covariance() - expected).cwiseAbs().maxCoeff(), 1e-10);
+}
+
+// One range-bearing update equals the information form: P+ = (P^-1 + H^T R^-1 H)^-1,
+// p+ = p + P+ H^T R^-1 nu (exact for the linearised model; one Gauss-Newton step).
+TEST(Ekf, RangeBearingUpdateEqualsInformationForm) {
+  const FieldMap map = FieldMap::miroSot();
+  Eigen::Matrix3d P0;
+  P0 << 400, 50, 0.3, 50, 900, -0.2, 0.3, -0.2, 0.02;
+  const Pose2 prior(700, 500, 2.5);
+  Ekf ekf(map, OdometryParams(), knownConfig(prior, P0));
+  const Eigen::Vector2d lm(150.0, 900.0);
+  Matrix23d H;
+  const Eigen::Vector2d zhat = predictRangeBearing(prior, lm, &H);
+  Observation obs = observationFromRangeBearing(3, LandmarkType::Point, zhat.x() + 15.0, zhat.y() - 0.03, 20.0, 0.02);
+  obs.covariance(0, 1) = obs.covariance(1, 0) = 0.1;  // a correlated R, as (5.32) produces
+  const EkfUpdateRecord rec = ekf.updateRangeBearing(obs, lm);
+  ASSERT_TRUE(rec.accepted);
+  const Eigen::Matrix2d Rinv = obs.covariance.inverse();
+  const Eigen::Matrix3d Ppost = (P0.inverse() + H.transpose() * Rinv * H).inverse();
+  const Eigen::Vector2d nu(15.0, -0.03);
+  const Eigen::Vector3d dx = Ppost * H.transpose() * Rinv * nu;
+  EXPECT_NEAR(ekf.pose().x, prior.x + dx.x(), 1e-9);
+  EXPECT_NEAR(ekf.pose().y, prior.y + dx.y(), 1e-9);
+  EXPECT_NEAR(ekf.pose().theta, prior.theta + dx.z(), 1e-12);
+  EXPECT_LT(((ekf.covariance() - Ppost).array() / Ppost.cwiseAbs().array().max(1e-6)).abs().maxCoeff(), 1e-9);
+  EXPECT_NEAR(rec.mahalanobis_squared, nu.dot((H * P0 * H.transpose() + obs.covariance).inverse() * nu), 1e-12);
+  EXPECT_NEAR(rec.innovation.x(), 15.0, 1e-9);
+  EXPECT_NEAR(rec.innovation.y(), -0.03, 1e-12);
+}
+
+// --- validation gate ------------------------------------------------------------------------
+
+// Draws the truth from the prior and z from the truth; the gate must accept ~99 % (its
+// probability). The second landmark sits behind the robot, so the measured and predicted
+// bearings straddle +-pi in about half of the draws: only a wrapped innovation passes.
+double nominalAcceptance(const Eigen::Vector2d& lm, uint64_t seed, int samples, int* wrapped_count) {
+  const FieldMap map = FieldMap::miroSot();
+  Eigen::Matrix3d P0 = Eigen::Vector3d(25.0, 25.0, 1e-4).asDiagonal();
+  const Pose2 prior(750, 650, 0.0);
+  Ekf ekf(map, OdometryParams(), knownConfig(prior, P0));
+  const Eigen::Matrix3d Lp = P0.llt().matrixL();
+  const double sr = 10.0, sb = 0.01;
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  int accepted = 0;
+  *wrapped_count = 0;
+  for (int i = 0; i < samples; ++i) {
+    const Pose2 truth = plus(prior, Lp * Eigen::Vector3d(n01(rng), n01(rng), n01(rng)));
+    const Eigen::Vector2d z = predictRangeBearing(truth, lm);
+    const Observation obs =
+        observationFromRangeBearing(0, LandmarkType::Point, z.x() + sr * n01(rng), z.y() + sb * n01(rng), sr, sb);
+    ekf.reset(prior, P0);
+    const Eigen::Vector2d zhat = predictRangeBearing(prior, lm);
+    if (std::fabs(obs.bearing - zhat.y()) > kPi) ++*wrapped_count;
+    accepted += ekf.updateRangeBearing(obs, lm).accepted ? 1 : 0;
+  }
+  return static_cast<double>(accepted) / samples;
+}
+
+TEST(EkfGate, AcceptsNominalObservationsAtTheGateProbability) {
+  int wrapped = 0;
+  const double front = nominalAcceptance(Eigen::Vector2d(1250.0, 700.0), 11, 20000, &wrapped);
+  EXPECT_NEAR(front, 0.99, 0.004);
+  EXPECT_EQ(wrapped, 0);
+  // Landmark straight behind: predicted bearing = +-pi exactly.
+  const double behind = nominalAcceptance(Eigen::Vector2d(250.0, 650.0), 12, 20000, &wrapped);
+  EXPECT_NEAR(behind, 0.99, 0.004);
+  EXPECT_GT(wrapped, 5000);  // the case really exercises the wrap
+}
+
+TEST(EkfGate, RejectsInjectedOutliersAndDoesNotFuseThem) {
+  const FieldMap map = FieldMap::miroSot();
+  const Eigen::Matrix3d P0 = Eigen::Vector3d(25.0, 25.0, 1e-4).asDiagonal();
+  const Pose2 prior(750, 650, 3.1);
+  const Eigen::Vector2d lm(250.0, 600.0);  // bearing close to +-pi
+  const Eigen::Vector2d z = predictRangeBearing(prior, lm);
+  Ekf ekf(map, OdometryParams(), knownConfig(prior, P0));
+  for (const Eigen::Vector2d& offset : {Eigen::Vector2d(150.0, 0.0), Eigen::Vector2d(0.0, deg2rad(15.0)),
+                                        Eigen::Vector2d(-120.0, -deg2rad(10.0))}) {
+    ekf.reset(prior, P0);
+    const Observation obs =
+        observationFromRangeBearing(0, LandmarkType::Point, z.x() + offset.x(), z.y() + offset.y(), 10.0, 0.01);
+    const EkfUpdateRecord rec = ekf.updateRangeBearing(obs, lm);
+    EXPECT_FALSE(rec.accepted);
+    EXPECT_GT(rec.mahalanobis_squared, ekf.gate().threshold());
+    EXPECT_EQ(ekf.pose().x, prior.x);
+    EXPECT_EQ(ekf.covariance(), P0);
+  }
+  // The same outlier is fused when the gate is disabled.
+  EkfConfig open = knownConfig(prior, P0);
+  open.gate_enabled = false;
+  Ekf ungated(map, OdometryParams(), open);
+  const Observation obs = observationFromRangeBearing(0, LandmarkType::Point, z.x() + 150.0, z.y(), 10.0, 0.01);
+  EXPECT_TRUE(ungated.updateRangeBearing(obs, lm).accepted);
+  EXPECT_NE(ungated.pose().x, prior.x);
+}
+
+TEST(EkfGate, CompassGateRejectsAWrongHeadingAndAcceptsAcrossPi) {
+  const FieldMap map = FieldMap::miroSot();
+  const Eigen::Matrix3d P0 = Eigen::Vector3d(25.0, 25.0, 1e-4).asDiagonal();
+  Ekf ekf(map, OdometryParams(), knownConfig(Pose2(750, 650, kPi - 0.005), P0));
+  const EkfUpdateRecord ok = ekf.updateCompass(-kPi + 0.005, 0.01);  // 0.01 rad away across the wrap
+  EXPECT_TRUE(ok.accepted);
+  EXPECT_NEAR(ok.innovation.x(), 0.01, 1e-12);
+  EXPECT_NEAR(std::fabs(ekf.pose().theta), kPi, 0.01);
+  EXPECT_FALSE(ekf.updateCompass(kPi / 2, 0.01).accepted);
+}
+
+// --- lost / re-initialisation (5.1.3) ---------------------------------------------------------
+
+TEST(EkfLost, ConsecutiveGatedObservationsDeclareLostAndGlobalFixReinitialises) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  const SyntheticRun run = circleRun(map, odo, 100, 5);
+  bool fix_available = false;
+  int fix_calls = 0;
+  EkfConfig cfg = knownConfig(run.truth[0], Eigen::Vector3d(100.0, 100.0, 0.001).asDiagonal());
+  cfg.global_fix = [&](const Step& s, const FieldMap&) -> std::optional<PoseFix> {
+    ++fix_calls;
+    if (!fix_available) return std::nullopt;
+    return PoseFix{run.truth[static_cast<size_t>(s.step)], Eigen::Vector3d(400.0, 400.0, 0.01).asDiagonal()};
+  };
+  Ekf ekf(map, odo, cfg);
+  // Kidnap: from step 40 on the observations are those the robot would make 400 mm away.
+  int lost_at = -1, reinit_at = -1;
+  for (int k = 0; k < 100; ++k) {
+    Step s = run.steps[static_cast<size_t>(k)];
+    if (k >= 40) {
+      const Pose2 elsewhere = plus(run.truth[static_cast<size_t>(k)], Eigen::Vector3d(400.0, 0.0, 0.0));
+      for (Observation& o : s.observations) {
+        const Eigen::Vector2d z = predictRangeBearing(elsewhere, map.at(o.landmark_id).xy());
+        o.range = z.x();
+        o.bearing = z.y();
+      }
+    }
+    if (k == 60) fix_available = true;
+    const Estimate e = ekf.process(s);
+    if (k < 40) {
+      EXPECT_NE(e.status, EstimateStatus::Lost) << k;
+    }
+    if (e.status == EstimateStatus::Lost && lost_at < 0) lost_at = k;
+    if (e.status == EstimateStatus::Reinitialised && reinit_at < 0) reinit_at = k;
+    if (lost_at >= 0 && reinit_at < 0) {
+      EXPECT_EQ(e.status, EstimateStatus::Lost) << k;
+      EXPECT_TRUE(ekf.lastUpdates().empty() || k == lost_at) << "no update while lost, step " << k;
+    }
+  }
+  ASSERT_GE(lost_at, 40);
+  EXPECT_LE(lost_at, 46);  // three gated observations in a row: within a few observation steps
+  EXPECT_EQ(reinit_at, 60);
+  EXPECT_GT(fix_calls, 0);
+}
+
+TEST(EkfLost, AnAcceptedObservationResetsTheRunOfRejections) {
+  const FieldMap map = FieldMap::miroSot();
+  const Eigen::Matrix3d P0 = Eigen::Vector3d(25.0, 25.0, 1e-4).asDiagonal();
+  const Pose2 pose(750, 650, 0.0);
+  EkfConfig cfg = knownConfig(pose, P0);
+  cfg.reinitialise_when_lost = false;
+  Ekf ekf(map, OdometryParams(), cfg);
+  const Landmark& l = map.landmarks().front();
+  const Eigen::Vector2d z = predictRangeBearing(pose, l.xy());
+  auto obs = [&](double dr) { return observationFromRangeBearing(l.id, l.type, z.x() + dr, z.y(), 10.0, 0.01); };
+  long k = 0;
+  auto step = [&](std::vector<Observation> o) {
+    Step s;
+    s.step = k++;
+    s.observations = std::move(o);
+    return ekf.process(s).status;
+  };
+  EXPECT_EQ(step({obs(500), obs(500)}), EstimateStatus::Predicted);
+  EXPECT_EQ(step({obs(0)}), EstimateStatus::Tracking);
+  EXPECT_EQ(step({obs(500)}), EstimateStatus::Predicted);
+  EXPECT_EQ(step({obs(500)}), EstimateStatus::Predicted);
+  EXPECT_EQ(step({obs(500)}), EstimateStatus::Lost);
+  EXPECT_EQ(step({obs(0)}), EstimateStatus::Lost);  // no fix service: stays lost
+}
+
+// --- initialisation ---------------------------------------------------------------------------
+
+TEST(EkfInit, GlobalModeWaitsForTheFirstFix) {
+  const FieldMap map = FieldMap::miroSot();
+  const SyntheticRun run = circleRun(map, OdometryParams(), 30, 9);
+  EkfConfig cfg;  // default: global
+  cfg.global_fix = [&](const Step& s, const FieldMap&) -> std::optional<PoseFix> {
+    if (s.step < 10) return std::nullopt;
+    return PoseFix{run.truth[static_cast<size_t>(s.step)], Eigen::Vector3d(100.0, 100.0, 0.001).asDiagonal()};
+  };
+  Ekf ekf(map, OdometryParams(), cfg);
+  for (const Step& s : run.steps) {
+    const Estimate e = ekf.process(s);
+    if (s.step < 10) {
+      EXPECT_EQ(e.status, EstimateStatus::Uninitialised);
+    } else if (s.step == 10) {
+      EXPECT_EQ(e.status, EstimateStatus::Reinitialised);
+    } else {
+      EXPECT_TRUE(e.status == EstimateStatus::Tracking || e.status == EstimateStatus::Predicted);
+    }
+  }
+  EXPECT_EQ(ekf.finish().size(), run.steps.size());
+  EXPECT_LT((ekf.pose().translation() - run.truth.back().translation()).norm(), 60.0);
+}
+
+TEST(EkfInit, KnownAndRandomBeliefs) {
+  const FieldMap map = FieldMap::miroSot();
+  std::mt19937_64 rng(1);
+  const InitConfig ic;
+  const InitialBelief known = makeInitialBelief(InitMode::Known, Pose2(100, 200, 0.3), map, ic, rng);
+  EXPECT_EQ(known.mode, InitMode::Known);
+  EXPECT_LT(std::fabs(known.pose.x - 100.0), 6 * ic.known_sigma.x());
+  EXPECT_DOUBLE_EQ(known.covariance(0, 0), ic.known_sigma.x() * ic.known_sigma.x());
+  const InitialBelief random = makeInitialBelief(InitMode::Random, std::nullopt, map, ic, rng);
+  EXPECT_TRUE(map.bounds().contains(random.pose.translation()));
+  EXPECT_DOUBLE_EQ(random.covariance(2, 2), kPi * kPi);
+  EXPECT_THROW(makeInitialBelief(InitMode::Known, std::nullopt, map, ic, rng), Error);
+  EXPECT_EQ(initModeFromString("random"), InitMode::Random);
+  EXPECT_EQ(toString(InitMode::Global), "global");
+  EXPECT_THROW(initModeFromString("magic"), Error);
+}
+
+// Random initialisation (5.1.4): a huge covariance converges once landmarks are seen. The
+// first updates linearise far from the truth, so the gate (which assumes a consistent belief)
+// would declare the robot lost at once; the random start is run ungated, as in section 6.5.
+TEST(EkfInit, RandomStartConvergesOnAWellObservedRun) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  const SyntheticRun run = circleRun(map, odo, 100, 21, 10.0, deg2rad(1.0), 2000.0);
+  EkfConfig cfg;
+  cfg.init = knownBelief(Pose2(400, 300, 0.0), Eigen::Vector3d(1e6, 1e6, kPi * kPi).asDiagonal());
+  cfg.init.mode = InitMode::Random;
+  cfg.gate_enabled = false;
+  Ekf ekf(map, odo, cfg);
+  for (const Step& s : run.steps) ekf.process(s);
+  EXPECT_LT((ekf.pose().translation() - run.truth.back().translation()).norm(), 100.0);
+}
+
+// --- tracking, association, robustness ---------------------------------------------------------
+
+TEST(Ekf, TracksTheCircleWithIdentifiedAndUnidentifiedObservations) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  const SyntheticRun run = circleRun(map, odo, 100, 7);
+  for (bool strip_ids : {false, true}) {
+    Ekf ekf(map, odo, knownConfig(run.truth[0], Eigen::Vector3d(100.0, 100.0, 1e-3).asDiagonal()));
+    double worst = 0;
+    int fused = 0;
+    for (Step s : run.steps) {
+      if (strip_ids)
+        for (Observation& o : s.observations)
+          if (!map.at(o.landmark_id).unique) o.landmark_id = -1;
+      const Estimate e = ekf.process(s);
+      EXPECT_NE(e.status, EstimateStatus::Lost);
+      for (const EkfUpdateRecord& r : ekf.lastUpdates()) fused += r.accepted;
+      worst = std::max(worst, (e.pose.translation() - run.truth[static_cast<size_t>(e.step)].translation()).norm());
+    }
+    EXPECT_GT(fused, 50) << strip_ids;
+    EXPECT_LT(worst, 120.0) << strip_ids;
+  }
+}
+
+TEST(Ekf, NoNanAfterTenThousandStepsWithoutObservations) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  Ekf ekf(map, odo, knownConfig(Pose2(750, 650, 0.0), Eigen::Matrix3d::Identity()));
+  for (long k = 0; k < 10000; ++k) {
+    Step s;
+    s.step = k;
+    s.d_left = 30.0;
+    s.d_right = 33.0 + (k % 7);
+    const Estimate e = ekf.process(s);
+    ASSERT_TRUE(e.pose.isFinite()) << k;
+    ASSERT_TRUE(e.covariance.allFinite()) << k;
+    ASSERT_EQ(e.status, EstimateStatus::Predicted);
+  }
+  EXPECT_GT(ekf.covariance()(0, 0), 1e4);
+  EXPECT_GE(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(ekf.covariance()).eigenvalues().minCoeff(), 0.0);
+}
+
+TEST(Ekf, RejectsBadInputWithAnError) {
+  const FieldMap map = FieldMap::miroSot();
+  Ekf ekf(map, OdometryParams(), knownConfig(Pose2(750, 650, 0.0), Eigen::Matrix3d::Identity()));
+  Step s;
+  s.step = 3;
+  s.observations.push_back(observationFromRangeBearing(999, LandmarkType::Point, 100.0, 0.1, 1.0, 0.01));
+  EXPECT_THROW(ekf.process(s), Error);
+  Step t;
+  t.step = 5;
+  ekf.process(t);
+  t.step = 5;
+  EXPECT_THROW(ekf.process(t), Error);  // not increasing
+  Step u;
+  u.step = 6;
+  u.compass = 0.1;
+  u.compass_sigma = 0.0;
+  EXPECT_THROW(ekf.process(u), Error);
+  Step v;
+  v.step = 7;
+  v.observations.push_back(observationFromRangeBearing(0, LandmarkType::Point, 100.0, 0.1, 1.0, 0.01));
+  v.observations.back().covariance(1, 1) = -1.0;
+  EXPECT_THROW(ekf.process(v), Error);
+}
+
+}  // namespace
+}  // namespace stereoloc
