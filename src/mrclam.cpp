@@ -424,6 +424,11 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
       ++rep.grid_steps;
     }
     while (j < times.size()) merged.push_back(std::move(times[j++]));
+    // A last step at the last odometry row, so that no commanded motion is left out.
+    if (t_end - t0 - merged.back().t > config.merge_tolerance_s) {
+      merged.push_back({t_end - t0, {}});
+      ++rep.grid_steps;
+    }
     times = std::move(merged);
   }
 

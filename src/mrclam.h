@@ -10,7 +10,8 @@
 // RobotN_Groundtruth.dat (t, x, y, theta). Metres become mm on reading.
 //
 // Time base: Step::t is seconds since the first odometry row (ImportReport::epoch_s holds that
-// row's Unix time). Steps: a fixed grid at `rate_hz` from the first to the last odometry row,
+// row's Unix time). Steps: a fixed grid at `rate_hz` from the first to the last odometry row
+// (and a final step at the last row, so the whole commanded motion is in the steps),
 // plus one step at every measurement time (measurements closer than merge_tolerance_s share a
 // step; a grid time that close to a measurement step is replaced by it), so no measurement is
 // moved in time by more than merge_tolerance_s.
