@@ -1,0 +1,240 @@
+#include "solvers/batch_smoother.h"
+
+#include <ceres/covariance.h>
+#include <ceres/solver.h>
+
+#include <algorithm>
+#include <chrono>
+#include <memory>
+#include <utility>
+
+#include "factors/compass_factor.h"
+#include "factors/odometry_factor.h"
+#include "factors/pose_manifold.h"
+#include "factors/pose_prior_factor.h"
+#include "factors/range_bearing_factor.h"
+#include "src/error.h"
+
+namespace stereoloc {
+
+std::string toString(CovarianceStatus status) {
+  switch (status) {
+    case CovarianceStatus::NotComputed: return "not_computed";
+    case CovarianceStatus::Ok: return "ok";
+    case CovarianceStatus::RankDeficient: return "rank_deficient";
+  }
+  return "not_computed";
+}
+
+void BatchSmootherConfig::validate() const {
+  if (max_iterations < 1) throw Error("batch smoother: max_iterations must be >= 1");
+  if (num_threads < 1) throw Error("batch smoother: num_threads must be >= 1");
+  if (!(function_tolerance >= 0 && gradient_tolerance >= 0 && parameter_tolerance >= 0))
+    throw Error("batch smoother: tolerances must be >= 0");
+  makeLossFunction(loss);  // validates the scale
+}
+
+BatchSmoother::BatchSmoother(const FieldMap& map, const OdometryParams& odometry, BatchSmootherConfig config)
+    : map_(map), odometry_(odometry), config_(std::move(config)) {
+  odometry_.validate();
+  config_.validate();
+  if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
+  if (config_.init.mode != InitMode::Global &&
+      (!config_.init.pose.isFinite() || !config_.init.covariance.allFinite()))
+    throw Error("batch smoother: initial belief is not finite");
+}
+
+void BatchSmoother::setInitialEstimates(const std::vector<Estimate>& estimates) {
+  if (!steps_.empty()) throw Error("batch smoother: setInitialEstimates must be called before process()");
+  given_ = estimates;
+  std::stable_sort(given_.begin(), given_.end(), [](const Estimate& a, const Estimate& b) { return a.step < b.step; });
+}
+
+Estimate BatchSmoother::process(const Step& in) {
+  if (!steps_.empty() && in.step <= steps_.back().step)
+    throw Error("batch smoother: step " + std::to_string(in.step) + " does not follow step " +
+                std::to_string(steps_.back().step));
+  validateStep(in, "batch smoother");
+  solved_ = false;
+  Step step = in;
+  Estimate e;
+  e.step = step.step;
+  e.t = step.t;
+  const Estimate* given = nullptr;
+  {
+    auto it = std::lower_bound(given_.begin(), given_.end(), step.step,
+                               [](const Estimate& a, long s) { return a.step < s; });
+    if (it != given_.end() && it->step == step.step && it->status != EstimateStatus::Uninitialised &&
+        it->pose.isFinite())
+      given = &*it;
+  }
+  if (first_index_ < 0) {
+    if (config_.init.mode != InitMode::Global) {
+      prior_pose_ = config_.init.pose;
+      prior_covariance_ = config_.init.covariance;
+      e.status = EstimateStatus::Tracking;
+    } else if (const std::optional<PoseFix> fix = config_.global_fix(step, map_)) {
+      prior_pose_ = fix->pose;
+      prior_covariance_ = fix->covariance;
+      // The fix came from this step's observations: fusing them again would count them twice.
+      step.observations.clear();
+      step.compass.reset();
+      e.status = EstimateStatus::Reinitialised;
+    } else {
+      e.status = EstimateStatus::Uninitialised;
+      ++summary_.uninitialised_steps;
+      steps_.push_back(step);
+      guess_.push_back(e);
+      return e;
+    }
+    first_index_ = static_cast<long>(steps_.size());
+    e.pose = prior_pose_;
+    guess_covariance_ = 0.5 * (prior_covariance_ + prior_covariance_.transpose());
+  } else {
+    const PosePrediction pred =
+        predictPose(guess_.back().pose, guess_covariance_, step.d_left, step.d_right, odometry_);
+    e.pose = pred.pose;
+    guess_covariance_ = pred.covariance;
+    e.status = EstimateStatus::Predicted;
+  }
+  if (given) {
+    e.pose = given->pose;
+    if (given->covariance.allFinite() && given->covariance.trace() > 0) guess_covariance_ = given->covariance;
+  }
+  e.covariance = guess_covariance_;
+  for (size_t i = 0; i < step.observations.size(); ++i) {
+    const int id = step.observations[i].landmark_id;
+    if (id >= 0 && !map_.find(id))
+      throw Error("batch smoother: step " + std::to_string(step.step) + ": observation " + std::to_string(i) +
+                  ": unknown landmark id " + std::to_string(id));
+  }
+  const bool needs_association = std::any_of(step.observations.begin(), step.observations.end(),
+                                             [](const Observation& o) { return o.landmark_id < 0; });
+  if (needs_association)
+    step.observations = associateObservations(step.observations, e.pose, guess_covariance_, map_, config_.association);
+  steps_.push_back(std::move(step));
+  guess_.push_back(e);
+  return e;
+}
+
+std::vector<Estimate> BatchSmoother::finish() {
+  if (!solved_) solve();
+  return result_;
+}
+
+void BatchSmoother::solve() {
+  using Clock = std::chrono::steady_clock;
+  BatchSummary s;
+  s.uninitialised_steps = summary_.uninitialised_steps;
+  result_ = guess_;
+  solved_ = true;
+  if (first_index_ < 0) {
+    s.message = "no initial pose (no global fix): nothing to estimate";
+    summary_ = s;
+    return;
+  }
+  const size_t first = static_cast<size_t>(first_index_);
+  const size_t n = steps_.size() - first;
+  std::vector<double> x(3 * n);
+  for (size_t i = 0; i < n; ++i) {
+    const Pose2& p = guess_[first + i].pose;
+    x[3 * i] = p.x;
+    x[3 * i + 1] = p.y;
+    x[3 * i + 2] = p.theta;
+  }
+  PoseManifold manifold;
+  const std::unique_ptr<ceres::LossFunction> loss = makeLossFunction(config_.loss);
+  ceres::Problem::Options popts;
+  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(popts);
+  for (size_t i = 0; i < n; ++i) problem.AddParameterBlock(&x[3 * i], 3, &manifold);
+  problem.AddResidualBlock(PosePriorFactor::Create(prior_pose_, 0.5 * (prior_covariance_ + prior_covariance_.transpose())),
+                           nullptr, &x[0]);
+  for (size_t i = 0; i < n; ++i) {
+    const Step& st = steps_[first + i];
+    double* p = &x[3 * i];
+    if (i > 0) {
+      problem.AddResidualBlock(OdometryFactor::Create(st.d_left, st.d_right, odometry_), nullptr, p - 3, p);
+      ++s.odometry_factors;
+    }
+    if (st.compass && config_.use_compass) {
+      problem.AddResidualBlock(CompassFactor::Create(*st.compass, st.compass_sigma), nullptr, p);
+      ++s.compass_factors;
+    }
+    for (const Observation& o : st.observations) {
+      if (o.landmark_id < 0) {
+        ++s.unassociated_observations;
+        continue;
+      }
+      problem.AddResidualBlock(RangeBearingFactor::Create(map_.at(o.landmark_id).xy(), o.z(), o.covariance),
+                               loss.get(), p);
+      ++s.observation_factors;
+    }
+  }
+  s.poses = static_cast<int>(n);
+
+  ceres::Solver::Options opts;
+  opts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  opts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
+  opts.minimizer_type = ceres::TRUST_REGION;
+  opts.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  opts.max_num_iterations = config_.max_iterations;
+  opts.function_tolerance = config_.function_tolerance;
+  opts.gradient_tolerance = config_.gradient_tolerance;
+  opts.parameter_tolerance = config_.parameter_tolerance;
+  opts.num_threads = config_.num_threads;
+  opts.logging_type = ceres::SILENT;
+  opts.minimizer_progress_to_stdout = false;
+  ceres::Solver::Summary cs;
+  const auto t0 = Clock::now();
+  ceres::Solve(opts, &problem, &cs);
+  s.solve_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  s.iterations = static_cast<int>(cs.iterations.size()) - 1;
+  s.initial_cost = cs.initial_cost;
+  s.final_cost = cs.final_cost;
+  s.solved = cs.IsSolutionUsable();
+  s.converged = cs.termination_type == ceres::CONVERGENCE;
+  s.message = cs.message;
+  if (!s.solved) throw Error("batch smoother: Ceres failed: " + cs.message);
+
+  for (size_t i = 0; i < n; ++i) {
+    Estimate& e = result_[first + i];
+    e.pose = Pose2(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+    e.covariance.setZero();
+    e.status = EstimateStatus::Tracking;
+  }
+  if (config_.compute_covariance) {
+    const auto t1 = Clock::now();
+    ceres::Covariance::Options copts;
+    copts.algorithm_type = ceres::SPARSE_QR;
+    copts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
+    copts.num_threads = config_.num_threads;
+    copts.apply_loss_function = true;
+    ceres::Covariance covariance(copts);
+    std::vector<std::pair<const double*, const double*>> blocks;
+    blocks.reserve(n);
+    for (size_t i = 0; i < n; ++i) blocks.emplace_back(&x[3 * i], &x[3 * i]);
+    if (covariance.Compute(blocks, &problem)) {
+      s.covariance_status = CovarianceStatus::Ok;
+      for (size_t i = 0; i < n; ++i) {
+        Eigen::Matrix<double, 3, 3, Eigen::RowMajor> C;
+        if (!covariance.GetCovarianceBlockInTangentSpace(&x[3 * i], &x[3 * i], C.data())) {
+          s.covariance_status = CovarianceStatus::RankDeficient;
+          break;
+        }
+        result_[first + i].covariance = 0.5 * (C + C.transpose());
+      }
+    } else {
+      s.covariance_status = CovarianceStatus::RankDeficient;
+    }
+    if (s.covariance_status != CovarianceStatus::Ok) {
+      for (size_t i = 0; i < n; ++i) result_[first + i].covariance.setZero();
+      s.message += "; covariance: the Jacobian is rank deficient, marginal covariances are not available";
+    }
+    s.covariance_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
+  }
+  summary_ = s;
+}
+
+}  // namespace stereoloc

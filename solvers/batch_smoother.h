@@ -1,0 +1,115 @@
+#pragma once
+// Batch smoother: the whole trajectory as one nonlinear least-squares problem on Ceres
+// (offline refinement; `stereoloc refine`, `localize --method batch`).
+//
+//   minimise  |prior(p_0)|^2 + sum_k |odometry(p_{k-1}, p_k)|^2 + sum |compass(p_k)|^2
+//             + sum rho(|range_bearing(p_k, l_j)|^2)
+//
+// with the factors of factors/ (whitened by the upper square-root information), poses on the
+// R^2 x SO(2) manifold (factors/pose_manifold.h), an optional robust loss rho on the
+// observations, SPARSE_NORMAL_CHOLESKY with SuiteSparse, and per-pose marginal covariances from
+// ceres::Covariance. The graph of a known-landmark problem is a chain, so the cost of a solve
+// grows linearly with the number of poses.
+//
+// Use: feed the steps with process() (it returns the initial guess, cheap), then finish()
+// solves and returns one Estimate per processed step. The first processed step is the initial
+// time (its odometry is not applied), as for the EKF. Initial guess: odometry chained from the
+// initial belief (or the first global fix), or given estimates (e.g. the EKF's).
+#include <ceres/problem.h>
+
+#include <Eigen/Core>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "solvers/initialisation.h"
+#include "solvers/smoother_common.h"
+#include "src/data_association.h"
+#include "src/estimator.h"
+#include "src/field_map.h"
+#include "src/odometry_model.h"
+
+namespace stereoloc {
+
+struct BatchSmootherConfig {
+  InitialBelief init;               // prior on the first pose; Global: the first global fix's
+  GlobalFixFunction global_fix;     // empty: defaultGlobalFix() (solvers/initialisation.h)
+  AssociationConfig association;    // for observations with landmark_id == -1 (at the initial guess)
+  bool use_compass = true;          // add a compass factor when Step::compass is set
+  RobustLossConfig loss;            // on the range-bearing factors; scale in whitened units
+  int max_iterations = 100;         // Levenberg-Marquardt iterations
+  double function_tolerance = 1e-10;   // relative cost decrease that stops the solver
+  double gradient_tolerance = 1e-12;
+  double parameter_tolerance = 1e-10;
+  int num_threads = 1;              // results do not depend on it (tested)
+  bool compute_covariance = true;   // per-pose marginals with ceres::Covariance
+
+  void validate() const;            // throws stereoloc::Error naming the field
+};
+
+enum class CovarianceStatus {
+  NotComputed,    // compute_covariance was false, or the solve failed
+  Ok,
+  RankDeficient,  // ceres::Covariance failed: the problem does not determine every pose
+};
+std::string toString(CovarianceStatus status);  // "not_computed", "ok", "rank_deficient"
+
+struct BatchSummary {
+  bool solved = false;            // Ceres returned a usable solution
+  bool converged = false;         // ... and reached a tolerance (not the iteration limit)
+  int iterations = 0;
+  double initial_cost = 0.0;      // 1/2 sum |r|^2 (with the robust loss applied)
+  double final_cost = 0.0;
+  double solve_seconds = 0.0;
+  double covariance_seconds = 0.0;
+  int poses = 0;
+  int odometry_factors = 0;
+  int observation_factors = 0;
+  int compass_factors = 0;
+  int unassociated_observations = 0;  // landmark_id == -1 with no landmark inside the gate
+  int uninitialised_steps = 0;        // before the first global fix: no pose, not estimated
+  CovarianceStatus covariance_status = CovarianceStatus::NotComputed;
+  std::string message;            // Ceres's termination message / covariance failure reason
+};
+
+class BatchSmoother : public Estimator {
+ public:
+  // map and odometry: those of the Dataset (Dataset::map, Dataset::odometry).
+  BatchSmoother(const FieldMap& map, const OdometryParams& odometry, BatchSmootherConfig config = BatchSmootherConfig());
+
+  std::string name() const override { return "batch"; }
+  // Buffers the step and returns the initial guess for it (status Predicted, or Uninitialised
+  // / Reinitialised before and at the first global fix). Throws stereoloc::Error on
+  // non-increasing step numbers, unknown landmark ids and invalid values.
+  Estimate process(const Step& step) override;
+  // Solves and returns the smoothed trajectory, one Estimate per processed step (status
+  // Tracking for estimated poses; covariance zero when it could not be computed, see summary()).
+  // Calling it again returns the same result.
+  std::vector<Estimate> finish() override;
+
+  // Initial guess from other estimates (e.g. the EKF's finish()), matched by step number;
+  // steps without an initialised estimate are chained from the previous pose by odometry.
+  // Call before the first process().
+  void setInitialEstimates(const std::vector<Estimate>& estimates);
+
+  const BatchSummary& summary() const { return summary_; }
+
+ private:
+  void solve();
+
+  FieldMap map_;
+  OdometryParams odometry_;
+  BatchSmootherConfig config_;
+  std::vector<Estimate> given_;   // setInitialEstimates, sorted by step
+  std::vector<Step> steps_;       // buffered, observations identified
+  std::vector<Estimate> guess_;   // initial guess per step
+  long first_index_ = -1;         // index into steps_ of the first initialised step
+  Pose2 prior_pose_;
+  Eigen::Matrix3d prior_covariance_ = Eigen::Matrix3d::Identity();
+  Eigen::Matrix3d guess_covariance_ = Eigen::Matrix3d::Zero();  // dead-reckoned, for association
+  bool solved_ = false;
+  std::vector<Estimate> result_;
+  BatchSummary summary_;
+};
+
+}  // namespace stereoloc

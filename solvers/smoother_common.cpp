@@ -1,0 +1,192 @@
+#include "solvers/smoother_common.h"
+
+#include <Eigen/Cholesky>
+#include <cmath>
+
+#include <algorithm>
+#include <random>
+#include <utility>
+
+#include "src/angles.h"
+#include "src/error.h"
+#include "src/measurement_model.h"
+
+namespace stereoloc {
+namespace {
+
+// The measurement model (5.27); a landmark under the robot is reported at range 0 (never seen).
+Eigen::Vector2d predictRangeBearingNoThrow(const Pose2& pose, const Eigen::Vector2d& landmark) {
+  try {
+    return predictRangeBearing(pose, landmark);
+  } catch (const GeometryError&) {
+    return Eigen::Vector2d::Zero();
+  }
+}
+
+}  // namespace
+
+std::string toString(RobustLoss loss) {
+  switch (loss) {
+    case RobustLoss::None: return "none";
+    case RobustLoss::Huber: return "huber";
+    case RobustLoss::Cauchy: return "cauchy";
+  }
+  return "none";
+}
+
+RobustLoss robustLossFromString(const std::string& name) {
+  for (RobustLoss l : {RobustLoss::None, RobustLoss::Huber, RobustLoss::Cauchy})
+    if (toString(l) == name) return l;
+  throw Error("unknown robust loss '" + name + "' (expected none, huber or cauchy)");
+}
+
+std::unique_ptr<ceres::LossFunction> makeLossFunction(const RobustLossConfig& config) {
+  if (config.type == RobustLoss::None) return nullptr;
+  if (!(std::isfinite(config.scale) && config.scale > 0)) throw Error("robust loss: scale must be a positive number");
+  // Ceres's loss acts on the squared norm s = |r|^2; its parameter a is the residual norm
+  // where the loss changes shape, i.e. the scale in whitened units.
+  if (config.type == RobustLoss::Huber) return std::make_unique<ceres::HuberLoss>(config.scale);
+  return std::make_unique<ceres::CauchyLoss>(config.scale);
+}
+
+void validateStep(const Step& step, const std::string& who) {
+  const std::string at = who + ": step " + std::to_string(step.step);
+  if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right)) throw Error(at + ": wheel increment is not finite");
+  if (step.compass) {
+    if (!std::isfinite(*step.compass)) throw Error(at + ": compass is not finite");
+    if (!(std::isfinite(step.compass_sigma) && step.compass_sigma > 0))
+      throw Error(at + ": compass_sigma must be a positive number");
+  }
+  for (size_t i = 0; i < step.observations.size(); ++i) {
+    const Observation& o = step.observations[i];
+    const std::string oat = at + ": observation " + std::to_string(i);
+    if (!std::isfinite(o.range) || !std::isfinite(o.bearing)) throw Error(oat + ": not finite");
+    const Eigen::Matrix2d& R = o.covariance;
+    if (!R.allFinite() || !(R(0, 0) > 0) || !(R(0, 0) * R(1, 1) - R(0, 1) * R(1, 0) > 0) ||
+        std::fabs(R(0, 1) - R(1, 0)) > 1e-9 * R.cwiseAbs().maxCoeff())
+      throw Error(oat + ": covariance R is not symmetric positive definite");
+  }
+}
+
+bool accumulateNormalEquations(const ceres::CostFunction& cost, const std::vector<const double*>& current,
+                               const std::vector<const double*>& linearisation, const std::vector<int>& offsets,
+                               Eigen::MatrixXd& H, Eigen::VectorXd& g) {
+  using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  const int m = cost.num_residuals();
+  const size_t nb = cost.parameter_block_sizes().size();
+  Eigen::VectorXd r(m);
+  std::vector<RowMajor> J(nb, RowMajor(m, 3));
+  std::vector<double*> jp(nb);
+  for (size_t i = 0; i < nb; ++i) jp[i] = J[i].data();
+  if (!cost.Evaluate(linearisation.data(), r.data(), jp.data())) return false;
+  if (!r.allFinite()) return false;
+  for (size_t i = 0; i < nb; ++i) {
+    if (!J[i].allFinite()) return false;
+    if (current[i] != linearisation[i]) {
+      const double* c = current[i];
+      const double* l = linearisation[i];
+      const Eigen::Vector3d d(c[0] - l[0], c[1] - l[1], wrapAngle(c[2] - l[2]));
+      r += J[i] * d;
+    }
+  }
+  for (size_t i = 0; i < nb; ++i) {
+    g.segment<3>(offsets[i]) += J[i].transpose() * r;
+    for (size_t j = 0; j < nb; ++j) H.block<3, 3>(offsets[i], offsets[j]) += J[i].transpose() * J[j];
+  }
+  return true;
+}
+
+void schurComplement(const Eigen::MatrixXd& H, const Eigen::VectorXd& g, int m, Eigen::MatrixXd* H_marginal,
+                     Eigen::VectorXd* g_marginal) {
+  const int n = static_cast<int>(H.rows());
+  if (m <= 0 || m > n || H.cols() != n || g.size() != n) throw Error("schurComplement: bad dimensions");
+  const int k = n - m;
+  const Eigen::MatrixXd Hmm = 0.5 * (H.topLeftCorner(m, m) + H.topLeftCorner(m, m).transpose());
+  Eigen::LLT<Eigen::MatrixXd> llt(Hmm);
+  if (llt.info() != Eigen::Success || !Hmm.allFinite())
+    throw Error("marginalisation: the information of the marginalised pose is not positive definite (rank deficient)");
+  const Eigen::MatrixXd Hrm = H.bottomLeftCorner(k, m);
+  const Eigen::MatrixXd X = llt.solve(Hrm.transpose());  // H_mm^-1 H_mr
+  *H_marginal = H.bottomRightCorner(k, k) - Hrm * X;
+  *H_marginal = 0.5 * (*H_marginal + H_marginal->transpose());
+  *g_marginal = g.tail(k) - X.transpose() * g.head(m);
+}
+
+}  // namespace stereoloc
+
+namespace stereoloc {
+
+SyntheticProblem makeRandomWalkProblem(const SyntheticProblemOptions& o, uint64_t seed) {
+  if (o.steps < 1 || o.landmarks < 1 || o.landmarks > 10 || o.max_observations < 0)
+    throw Error("makeRandomWalkProblem: steps >= 1, landmarks in 1..10, max_observations >= 0");
+  static const double kLandmarks[10][2] = {{0, 0},       {750, 0},   {1500, 0},   {1500, 650},  {1500, 1300},
+                                           {750, 1300},  {0, 1300},  {0, 650},    {375, 650},   {1125, 650}};
+  std::vector<Landmark> lms;
+  for (int i = 0; i < o.landmarks; ++i) {
+    Landmark l;
+    l.id = i;
+    l.type = LandmarkType::Point;
+    l.name = "lm" + std::to_string(i);
+    l.position = Eigen::Vector3d(kLandmarks[i][0], kLandmarks[i][1], 0.0);
+    l.unique = true;
+    lms.push_back(l);
+  }
+  Bounds bounds;
+  bounds.xmax = 1500;
+  bounds.ymax = 1300;
+  SyntheticProblem p{FieldMap("random_walk", bounds, lms), OdometryParams(), {}, {}};
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> N(0.0, 1.0);
+  std::uniform_real_distribution<double> U(0.0, 1.0);
+  Pose2 truth(750.0, 650.0, 0.3);
+  const double w = p.odometry.wheel_base_mm;
+  for (int k = 0; k < o.steps; ++k) {
+    Step s;
+    s.step = k;
+    s.t = 0.1 * k;
+    if (k > 0) {
+      const double arc = std::max(0.0, o.step_length * (1.0 + 0.25 * N(rng)));
+      double dtheta = o.turn_sigma * N(rng);
+      const Pose2 ahead = compose(truth, Pose2(150.0, 0.0, 0.0));
+      if (!bounds.contains(ahead.translation(), -150.0)) {  // steer back towards the centre
+        const double to_centre = std::atan2(650.0 - truth.y, 750.0 - truth.x);
+        dtheta = std::clamp(angleDiff(to_centre, truth.theta), -0.4, 0.4);
+      }
+      const WheelIncrements d = wheelIncrementsForArc(arc, dtheta, w);
+      const Eigen::Vector3d u = controlVector(d.d_left, d.d_right, w);
+      truth = compose(truth, Pose2(u.x(), u.y(), u.z()));
+      s.d_left = d.d_left;
+      s.d_right = d.d_right;
+      if (o.noisy_odometry) {
+        const Eigen::Matrix2d V = wheelCovariance(d.d_left, d.d_right, p.odometry);
+        s.d_left += std::sqrt(V(0, 0)) * N(rng);
+        s.d_right += std::sqrt(V(1, 1)) * N(rng);
+      }
+    }
+    if (o.compass_sigma > 0) {
+      s.compass = wrapAngle(truth.theta + o.compass_sigma * N(rng));
+      s.compass_sigma = o.compass_sigma;
+    }
+    std::vector<std::pair<double, int>> visible;
+    for (const Landmark& l : lms) {
+      const Eigen::Vector2d z = predictRangeBearingNoThrow(truth, l.xy());
+      if (z(0) > 1.0 && z(0) <= o.max_range && std::fabs(z(1)) <= o.half_fov && U(rng) < o.observation_probability)
+        visible.emplace_back(z(0), l.id);
+    }
+    std::sort(visible.begin(), visible.end());
+    for (size_t i = 0; i < visible.size() && static_cast<int>(i) < o.max_observations; ++i) {
+      const Eigen::Vector2d z = predictRangeBearingNoThrow(truth, lms[static_cast<size_t>(visible[i].second)].xy());
+      double range = z(0) + o.sigma_range * N(rng);
+      const double bearing = wrapAngle(z(1) + o.sigma_bearing * N(rng));
+      if (o.outlier_fraction > 0 && U(rng) < o.outlier_fraction) range *= 1.5;
+      s.observations.push_back(observationFromRangeBearing(visible[i].second, LandmarkType::Point,
+                                                           std::max(range, 1.0), bearing, o.sigma_range,
+                                                           o.sigma_bearing));
+    }
+    p.steps.push_back(std::move(s));
+    p.truth.push_back(truth);
+  }
+  return p;
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,85 @@
+#pragma once
+// Pieces shared by the batch and sliding-window smoothers (solvers/batch_smoother.h,
+// solvers/sliding_window_smoother.h): robust losses, step validation, the dense normal
+// equations of a few factors and the Schur complement that turns them into a marginal prior.
+#include <ceres/cost_function.h>
+#include <ceres/loss_function.h>
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "src/field_map.h"
+#include "src/odometry_model.h"
+#include "src/pose2.h"
+#include "src/types.h"
+
+namespace stereoloc {
+
+enum class RobustLoss { None, Huber, Cauchy };
+std::string toString(RobustLoss loss);                  // "none", "huber", "cauchy"
+RobustLoss robustLossFromString(const std::string& name);  // throws stereoloc::Error
+
+struct RobustLossConfig {
+  RobustLoss type = RobustLoss::None;
+  // Scale in whitened units: a residual block whose whitened norm |S e| exceeds `scale` is
+  // down-weighted (Huber: linear beyond it; Cauchy: logarithmic). 1.345 / 2.3849 are the 95 %
+  // efficiency constants for Huber / Cauchy with unit-variance residuals.
+  double scale = 1.345;
+};
+// nullptr for RobustLoss::None. The caller owns the result.
+std::unique_ptr<ceres::LossFunction> makeLossFunction(const RobustLossConfig& config);
+
+// Throws stereoloc::Error "WHO: step N: ..." when wheel increments, compass or an
+// observation (range, bearing, R) is not finite / not positive definite.
+void validateStep(const Step& step, const std::string& who);
+
+// Adds one factor's Gauss-Newton contribution to the dense normal equations H dx = -g of the
+// variables at `offsets` (3 per pose, tangent order x, y, theta). The factor is linearised at
+// `linearisation` (its Jacobian J and residual r_lin there) and the linear model is moved to
+// the current point: b = r_lin + sum_i J_i (current_i [-] linearisation_i); then H += J^T J and
+// g += J^T b. With linearisation == current this is the usual Gauss-Newton system; with the
+// first estimates it is the first-estimate-Jacobian (FEJ) system. Returns false when the
+// factor cannot be evaluated there.
+bool accumulateNormalEquations(const ceres::CostFunction& cost, const std::vector<const double*>& current,
+                               const std::vector<const double*>& linearisation, const std::vector<int>& offsets,
+                               Eigen::MatrixXd& H, Eigen::VectorXd& g);
+
+// The Schur complement that marginalises the FIRST m variables of (H, g):
+//   H' = H_rr - H_rm H_mm^-1 H_mr,   g' = g_r - H_rm H_mm^-1 g_m.
+// Throws stereoloc::Error when H_mm is not positive definite (the marginalised poses are not
+// determined by their factors: rank deficiency).
+void schurComplement(const Eigen::MatrixXd& H, const Eigen::VectorXd& g, int m, Eigen::MatrixXd* H_marginal,
+                     Eigen::VectorXd* g_marginal);
+
+// A small in-process problem for tests and benchmarks that must not depend on the simulator:
+// a random walk of a differential-drive robot inside a 1500 x 1300 mm field with `landmarks`
+// point landmarks, noisy wheel increments (B.6 with odometry.k_*), range-bearing observations
+// of at most `max_observations` landmarks in a forward field of view, optional compass.
+// Deterministic for a seed (one std::mt19937_64).
+struct SyntheticProblemOptions {
+  int steps = 200;
+  int landmarks = 10;                 // 1..10, fixed positions around and inside the field
+  int max_observations = 2;           // per step, the nearest visible landmarks
+  double max_range = 1000.0;          // mm
+  double half_fov = 1.05;             // rad (about 60 deg)
+  double observation_probability = 1.0;  // each visible landmark is reported with it
+  double sigma_range = 15.0;          // mm
+  double sigma_bearing = 0.02;        // rad
+  double compass_sigma = 0.0;         // rad, 0 = no compass
+  double outlier_fraction = 0.0;      // observations whose range is multiplied by 1.5
+  double step_length = 20.0;          // mm, mean arc length per step
+  double turn_sigma = 0.1;            // rad per step
+  bool noisy_odometry = true;
+};
+struct SyntheticProblem {
+  FieldMap map;
+  OdometryParams odometry;            // the noise model the steps were generated with
+  std::vector<Step> steps;            // step 0 has zero odometry and is the initial pose
+  std::vector<Pose2> truth;           // true pose per step
+};
+SyntheticProblem makeRandomWalkProblem(const SyntheticProblemOptions& options, uint64_t seed);
+
+}  // namespace stereoloc

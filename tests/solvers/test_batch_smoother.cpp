@@ -1,0 +1,205 @@
+// Batch smoother: accuracy against dead reckoning, exact covariance on a prediction-only chain,
+// determinism across thread counts, rank deficiency, robust loss with outliers, initialisation.
+#include <gtest/gtest.h>
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <cmath>
+
+#include "solvers/batch_smoother.h"
+#include "solvers/smoother_common.h"
+#include "src/odometry_model.h"
+
+namespace stereoloc {
+namespace {
+
+BatchSmootherConfig knownStart(const Pose2& pose) {
+  BatchSmootherConfig c;
+  c.init = knownBelief(pose, Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal());
+  return c;
+}
+
+double positionRmse(const std::vector<Estimate>& est, const std::vector<Pose2>& truth) {
+  double s = 0;
+  for (size_t i = 0; i < est.size(); ++i) s += (est[i].pose.translation() - truth[i].translation()).squaredNorm();
+  return std::sqrt(s / static_cast<double>(est.size()));
+}
+
+std::vector<Estimate> run(BatchSmoother& b, const std::vector<Step>& steps) {
+  for (const Step& s : steps) b.process(s);
+  return b.finish();
+}
+
+TEST(BatchSmoother, BeatsDeadReckoningAndReportsConsistentCovariance) {
+  SyntheticProblemOptions o;
+  o.steps = 300;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 11);
+  BatchSmoother b(p.map, p.odometry, knownStart(p.truth[0]));
+  std::vector<Estimate> guess;
+  for (const Step& s : p.steps) guess.push_back(b.process(s));
+  const std::vector<Estimate> est = b.finish();
+  ASSERT_EQ(est.size(), p.steps.size());
+  const BatchSummary& s = b.summary();
+  EXPECT_TRUE(s.solved);
+  EXPECT_TRUE(s.converged) << s.message;
+  EXPECT_EQ(s.poses, o.steps);
+  EXPECT_EQ(s.odometry_factors, o.steps - 1);
+  EXPECT_GT(s.observation_factors, o.steps);
+  EXPECT_EQ(s.covariance_status, CovarianceStatus::Ok);
+  const double rmse = positionRmse(est, p.truth), dr = positionRmse(guess, p.truth);
+  EXPECT_LT(rmse, 0.5 * dr) << rmse << " vs dead reckoning " << dr;
+  EXPECT_LT(rmse, 15.0);
+  // NEES over the trajectory: about 3 on average for a consistent estimator.
+  double nees = 0;
+  for (size_t i = 0; i < est.size(); ++i) {
+    const Eigen::Vector3d e = minus(est[i].pose, p.truth[i]);
+    nees += e.dot(est[i].covariance.ldlt().solve(e));
+    EXPECT_GT(est[i].covariance.determinant(), 0.0);
+  }
+  nees /= static_cast<double>(est.size());
+  EXPECT_GT(nees, 1.0);
+  EXPECT_LT(nees, 6.0);
+  // Calling finish() again returns the same.
+  const std::vector<Estimate> again = b.finish();
+  EXPECT_EQ(again[100].pose.x, est[100].pose.x);
+}
+
+TEST(BatchSmoother, PredictionOnlyChainReproducesPropagatedCovariance) {
+  SyntheticProblemOptions o;
+  o.steps = 40;
+  o.max_observations = 0;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 5);
+  BatchSmootherConfig c = knownStart(p.truth[0]);
+  BatchSmoother b(p.map, p.odometry, c);
+  const std::vector<Estimate> est = run(b, p.steps);
+  Pose2 pose = c.init.pose;
+  Eigen::Matrix3d P = c.init.covariance;
+  for (size_t k = 1; k < p.steps.size(); ++k) {
+    const PosePrediction pr = predictPose(pose, P, p.steps[k].d_left, p.steps[k].d_right, p.odometry);
+    pose = pr.pose;
+    P = pr.covariance;
+    EXPECT_LT(minus(est[k].pose, pose).norm(), 1e-6) << k;
+    EXPECT_LT((est[k].covariance - P).cwiseAbs().maxCoeff(), 1e-6 * P.cwiseAbs().maxCoeff()) << k;
+  }
+}
+
+TEST(BatchSmoother, ThreadCountDoesNotChangeTheResult) {
+  SyntheticProblemOptions o;
+  o.steps = 400;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 3);
+  BatchSmootherConfig c1 = knownStart(p.truth[0]);
+  BatchSmootherConfig c2 = c1;
+  c2.num_threads = 2;
+  BatchSmoother b1(p.map, p.odometry, c1), b2(p.map, p.odometry, c2);
+  const std::vector<Estimate> e1 = run(b1, p.steps), e2 = run(b2, p.steps);
+  ASSERT_EQ(e1.size(), e2.size());
+  for (size_t i = 0; i < e1.size(); ++i) {
+    EXPECT_EQ(e1[i].pose.x, e2[i].pose.x);
+    EXPECT_EQ(e1[i].pose.y, e2[i].pose.y);
+    EXPECT_EQ(e1[i].pose.theta, e2[i].pose.theta);
+    EXPECT_EQ(e1[i].covariance, e2[i].covariance) << i;
+  }
+  EXPECT_EQ(b1.summary().iterations, b2.summary().iterations);
+}
+
+TEST(BatchSmoother, RankDeficientCovarianceIsReportedNotNaN) {
+  SyntheticProblemOptions o;
+  o.steps = 20;
+  o.max_observations = 0;  // nothing but a prior that carries no information
+  const SyntheticProblem p = makeRandomWalkProblem(o, 2);
+  BatchSmootherConfig c;
+  c.init = knownBelief(p.truth[0], Eigen::Vector3d(1e40, 1e40, 1e40).asDiagonal());
+  BatchSmoother b(p.map, p.odometry, c);
+  const std::vector<Estimate> est = run(b, p.steps);
+  EXPECT_EQ(b.summary().covariance_status, CovarianceStatus::RankDeficient);
+  EXPECT_NE(b.summary().message.find("rank deficient"), std::string::npos) << b.summary().message;
+  for (const Estimate& e : est) {
+    EXPECT_TRUE(e.pose.isFinite());
+    EXPECT_TRUE(e.covariance.isZero());
+  }
+}
+
+TEST(BatchSmoother, RobustLossKeepsAccuracyWithTenPercentOutliers) {
+  double clean = 0, robust = 0, plain = 0;
+  for (uint64_t seed = 1; seed <= 3; ++seed) {
+    SyntheticProblemOptions o;
+    o.steps = 300;
+    const SyntheticProblem pc = makeRandomWalkProblem(o, seed);
+    o.outlier_fraction = 0.1;
+    const SyntheticProblem po = makeRandomWalkProblem(o, seed);
+    BatchSmootherConfig c = knownStart(pc.truth[0]);
+    BatchSmoother b0(pc.map, pc.odometry, c);
+    clean += positionRmse(run(b0, pc.steps), pc.truth);
+    BatchSmoother b1(po.map, po.odometry, c);
+    plain += positionRmse(run(b1, po.steps), po.truth);
+    c.loss.type = RobustLoss::Cauchy;
+    c.loss.scale = 2.3849;
+    BatchSmoother b2(po.map, po.odometry, c);
+    robust += positionRmse(run(b2, po.steps), po.truth);
+  }
+  EXPECT_LT(robust, 1.2 * clean) << "robust " << robust / 3 << " clean " << clean / 3;
+  EXPECT_GT(plain, 1.2 * clean) << "the outliers must hurt without a robust loss, else the test proves nothing";
+}
+
+TEST(BatchSmoother, InitialEstimatesAndGlobalFixStart) {
+  SyntheticProblemOptions o;
+  o.steps = 120;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 8);
+  BatchSmoother ref(p.map, p.odometry, knownStart(p.truth[0]));
+  const std::vector<Estimate> r = run(ref, p.steps);
+  // Started from a perturbed copy of the truth: the same optimum.
+  std::vector<Estimate> given;
+  for (size_t i = 0; i < p.truth.size(); ++i) {
+    Estimate e;
+    e.step = p.steps[i].step;
+    e.pose = Pose2(p.truth[i].x + 20.0, p.truth[i].y - 15.0, p.truth[i].theta + 0.05);
+    e.status = EstimateStatus::Tracking;
+    given.push_back(e);
+  }
+  BatchSmoother b(p.map, p.odometry, knownStart(p.truth[0]));
+  b.setInitialEstimates(given);
+  const std::vector<Estimate> e = run(b, p.steps);
+  for (size_t i = 0; i < e.size(); ++i) EXPECT_LT(minus(e[i].pose, r[i].pose).norm(), 1e-4) << i;
+
+  // Global start: the fix arrives at step 3; earlier steps stay Uninitialised.
+  BatchSmootherConfig g;
+  g.global_fix = [&](const Step& s, const FieldMap&) -> std::optional<PoseFix> {
+    if (s.step < 3) return std::nullopt;
+    return PoseFix{p.truth[static_cast<size_t>(s.step)], Eigen::Vector3d(100.0, 100.0, 0.01).asDiagonal()};
+  };
+  BatchSmoother bg(p.map, p.odometry, g);
+  const std::vector<Estimate> eg = run(bg, p.steps);
+  ASSERT_EQ(eg.size(), p.steps.size());
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(eg[static_cast<size_t>(i)].status, EstimateStatus::Uninitialised);
+  EXPECT_EQ(bg.summary().poses, o.steps - 3);
+  EXPECT_EQ(bg.summary().uninitialised_steps, 3);
+  EXPECT_LT(positionRmse(std::vector<Estimate>(eg.begin() + 3, eg.end()),
+                         std::vector<Pose2>(p.truth.begin() + 3, p.truth.end())),
+            20.0);
+}
+
+TEST(BatchSmoother, RejectsBadInput) {
+  const SyntheticProblem p = makeRandomWalkProblem(SyntheticProblemOptions(), 1);
+  BatchSmoother b(p.map, p.odometry, knownStart(p.truth[0]));
+  b.process(p.steps[0]);
+  EXPECT_THROW(b.process(p.steps[0]), Error);
+  Step bad = p.steps[1];
+  bad.observations.push_back(observationFromRangeBearing(99, LandmarkType::Point, 100.0, 0.1, 5.0, 0.01));
+  try {
+    b.process(bad);
+    FAIL() << "unknown landmark accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("unknown landmark id 99"), std::string::npos) << e.what();
+  }
+  Step nan = p.steps[2];
+  nan.d_left = std::nan("");
+  EXPECT_THROW(b.process(nan), Error);
+  BatchSmootherConfig c;
+  c.max_iterations = 0;
+  EXPECT_THROW(BatchSmoother(p.map, p.odometry, c), Error);
+  EXPECT_EQ(robustLossFromString("huber"), RobustLoss::Huber);
+  EXPECT_THROW(robustLossFromString("tukey"), Error);
+}
+
+}  // namespace
+}  // namespace stereoloc
