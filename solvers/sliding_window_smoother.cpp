@@ -1,0 +1,397 @@
+#include "solvers/sliding_window_smoother.h"
+
+#include <ceres/solver.h>
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <algorithm>
+#include <cmath>
+#include <utility>
+
+#include "factors/compass_factor.h"
+#include "factors/marginal_prior_factor.h"
+#include "factors/odometry_factor.h"
+#include "factors/pose_prior_factor.h"
+#include "factors/range_bearing_factor.h"
+#include "src/error.h"
+#include "src/gaussian.h"
+#include "src/measurement_model.h"
+
+namespace stereoloc {
+namespace {
+
+bool positiveDefinite(const Eigen::Matrix3d& C) {
+  if (!C.allFinite()) return false;
+  Eigen::LLT<Eigen::Matrix3d> llt(0.5 * (C + C.transpose()));
+  return llt.info() == Eigen::Success;
+}
+
+Pose2 poseOf(const std::array<double, 3>& x) { return Pose2(x[0], x[1], x[2]); }
+
+}  // namespace
+
+void SlidingWindowConfig::validate() const {
+  if (window < 1) throw Error("sliding window: window must be >= 1");
+  if (max_iterations < 1) throw Error("sliding window: max_iterations must be >= 1");
+  if (final_iterations < 0) throw Error("sliding window: final_iterations must be >= 0");
+  if (!(max_solver_seconds >= 0)) throw Error("sliding window: max_solver_seconds must be >= 0");
+  if (!(compass_gate_probability > 0 && compass_gate_probability < 1))
+    throw Error("sliding window: compass_gate_probability must be in (0, 1)");
+  if (!(gate.probability > 0 && gate.probability < 1)) throw Error("sliding window: gate.probability must be in (0, 1)");
+  if (gate.lost_after < 1) throw Error("sliding window: gate.lost_after must be >= 1");
+}
+
+SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const OdometryParams& odometry,
+                                             SlidingWindowConfig config)
+    : map_(map),
+      odometry_(odometry),
+      config_((config.validate(), std::move(config))),
+      gate_(config_.gate, 2),
+      compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)) {
+  odometry_.validate();
+  if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
+  if (config_.init.mode != InitMode::Global && (!config_.init.pose.isFinite() || !positiveDefinite(config_.init.covariance)))
+    throw Error("sliding window: initial belief is not finite / its covariance not positive definite");
+  ceres::Problem::Options popts;
+  popts.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.enable_fast_removal = true;
+  problem_ = std::make_unique<ceres::Problem>(popts);
+}
+
+SlidingWindowSmoother::~SlidingWindowSmoother() {
+  problem_.reset();  // before the cost functions it refers to
+}
+
+Estimate SlidingWindowSmoother::estimateOf(const Node& n) const {
+  Estimate e;
+  e.step = n.step;
+  e.t = n.t;
+  e.pose = poseOf(n.x);
+  e.covariance = n.covariance;
+  e.status = n.status;
+  return e;
+}
+
+void SlidingWindowSmoother::pushHistory(const Estimate& e) {
+  if (config_.keep_history) history_.push_back(e);
+}
+
+void SlidingWindowSmoother::addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes) {
+  auto f = std::make_unique<Factor>();
+  f->cost.reset(cost);
+  f->nodes = std::move(nodes);
+  std::vector<double*> blocks;
+  for (Node* n : f->nodes) {
+    f->linearisation.push_back(n->x);  // first estimate: the values at creation
+    blocks.push_back(n->x.data());
+  }
+  f->id = problem_->AddResidualBlock(f->cost.get(), nullptr, blocks);
+  factors_.push_back(std::move(f));
+}
+
+void SlidingWindowSmoother::removeFactor(size_t index) {
+  problem_->RemoveResidualBlock(factors_[index]->id);
+  factors_.erase(factors_.begin() + static_cast<long>(index));
+}
+
+void SlidingWindowSmoother::startWindow(const Step& step, const Pose2& pose, const Eigen::Matrix3d& covariance,
+                                        EstimateStatus status) {
+  auto node = std::make_unique<Node>();
+  node->step = step.step;
+  node->t = step.t;
+  node->x = {pose.x, pose.y, pose.theta};
+  node->status = status;
+  node->covariance = 0.5 * (covariance + covariance.transpose());
+  Node* n = node.get();
+  nodes_.push_back(std::move(node));
+  problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
+  addFactor(PosePriorFactor::Create(pose, n->covariance), {n});
+  gate_.reset();
+  lost_ = false;
+}
+
+void SlidingWindowSmoother::dropNewest() {
+  Node* n = nodes_.back().get();
+  for (size_t i = factors_.size(); i-- > 0;)
+    if (std::find(factors_[i]->nodes.begin(), factors_[i]->nodes.end(), n) != factors_[i]->nodes.end()) removeFactor(i);
+  problem_->RemoveParameterBlock(n->x.data());
+  nodes_.pop_back();
+}
+
+void SlidingWindowSmoother::finaliseWindow() {
+  if (nodes_.empty()) return;
+  computeCovariances(true);
+  for (const auto& n : nodes_) history_.push_back(estimateOf(*n));
+  for (size_t i = factors_.size(); i-- > 0;) removeFactor(i);
+  for (const auto& n : nodes_) problem_->RemoveParameterBlock(n->x.data());
+  nodes_.clear();
+}
+
+bool SlidingWindowSmoother::tryGlobalFix(const Step& step, Estimate* out) {
+  if (!config_.global_fix) return false;
+  const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+  if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
+  finaliseWindow();
+  startWindow(step, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
+  ++stats_.reinitialisations;
+  *out = estimateOf(*nodes_.back());
+  return true;
+}
+
+void SlidingWindowSmoother::marginaliseOldest() {
+  Node* o = nodes_.front().get();
+  std::vector<size_t> touching;
+  std::vector<Node*> vars = {o};
+  for (size_t i = 0; i < factors_.size(); ++i) {
+    const Factor& f = *factors_[i];
+    if (std::find(f.nodes.begin(), f.nodes.end(), o) == f.nodes.end()) continue;
+    touching.push_back(i);
+    for (Node* n : f.nodes)
+      if (std::find(vars.begin(), vars.end(), n) == vars.end()) vars.push_back(n);
+  }
+  const int dim = 3 * static_cast<int>(vars.size());
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(dim, dim);
+  Eigen::VectorXd g = Eigen::VectorXd::Zero(dim);
+  for (size_t i : touching) {
+    const Factor& f = *factors_[i];
+    std::vector<const double*> cur, lin;
+    std::vector<int> off;
+    for (size_t j = 0; j < f.nodes.size(); ++j) {
+      cur.push_back(f.nodes[j]->x.data());
+      lin.push_back(config_.first_estimate_jacobians ? f.linearisation[j].data() : f.nodes[j]->x.data());
+      off.push_back(3 * static_cast<int>(std::find(vars.begin(), vars.end(), f.nodes[j]) - vars.begin()));
+    }
+    if (!accumulateNormalEquations(*f.cost, cur, lin, off, H, g))
+      throw Error("sliding window: step " + std::to_string(o->step) + ": a factor cannot be linearised for marginalisation");
+  }
+  MarginalPriorFactor* prior = nullptr;
+  std::vector<Node*> kept(vars.begin() + 1, vars.end());
+  if (!kept.empty()) {
+    Eigen::MatrixXd Hm;
+    Eigen::VectorXd gm;
+    schurComplement(H, g, 3, &Hm, &gm);
+    std::vector<Pose2> x0;
+    for (Node* n : kept) x0.push_back(poseOf(n->x));
+    prior = MarginalPriorFactor::FromInformation(x0, Hm, gm);
+  }
+  pushHistory(estimateOf(*o));
+  for (size_t k = touching.size(); k-- > 0;) removeFactor(touching[k]);
+  problem_->RemoveParameterBlock(o->x.data());
+  nodes_.pop_front();
+  if (prior) addFactor(prior, kept);  // linearisation point == the prior's x0
+  ++stats_.marginalisations;
+}
+
+void SlidingWindowSmoother::solve(int max_iterations) {
+  ceres::Solver::Options opts;
+  opts.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+  opts.minimizer_type = ceres::TRUST_REGION;
+  opts.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  opts.max_num_iterations = max_iterations;
+  if (config_.max_solver_seconds > 0) opts.max_solver_time_in_seconds = config_.max_solver_seconds;
+  opts.function_tolerance = config_.function_tolerance;
+  opts.gradient_tolerance = config_.gradient_tolerance;
+  opts.parameter_tolerance = config_.parameter_tolerance;
+  opts.num_threads = 1;
+  opts.logging_type = ceres::SILENT;
+  opts.minimizer_progress_to_stdout = false;
+  if (config_.gauss_newton) {
+    // LM adds diag(J^T J) / radius: with radius 1e16 the step is the Gauss-Newton step to
+    // machine precision.
+    opts.initial_trust_region_radius = 1e16;
+    opts.max_trust_region_radius = 1e16;
+  }
+  ceres::Solver::Summary summary;
+  ceres::Solve(opts, problem_.get(), &summary);
+  if (!summary.IsSolutionUsable()) throw Error("sliding window: Ceres failed: " + summary.message);
+  stats_.solver_iterations += static_cast<long>(summary.iterations.size()) - 1;
+}
+
+void SlidingWindowSmoother::computeCovariances(bool all) {
+  const int n = static_cast<int>(nodes_.size());
+  if (n == 0) return;
+  for (int i = 0; i < n; ++i) nodes_[static_cast<size_t>(i)]->slot = i;
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(3 * n, 3 * n);
+  Eigen::VectorXd g = Eigen::VectorXd::Zero(3 * n);
+  std::vector<const double*> cur, lin;
+  std::vector<int> off;
+  for (const auto& fp : factors_) {
+    const Factor& f = *fp;
+    cur.clear();
+    lin.clear();
+    off.clear();
+    for (size_t j = 0; j < f.nodes.size(); ++j) {
+      cur.push_back(f.nodes[j]->x.data());
+      lin.push_back(config_.first_estimate_jacobians ? f.linearisation[j].data() : f.nodes[j]->x.data());
+      off.push_back(3 * f.nodes[j]->slot);
+    }
+    if (!accumulateNormalEquations(*f.cost, cur, lin, off, H, g))
+      throw Error("sliding window: a factor cannot be linearised for the covariance");
+  }
+  Eigen::LLT<Eigen::MatrixXd> llt(H);
+  if (llt.info() != Eigen::Success)
+    throw Error("sliding window: the information of the window is not positive definite (rank deficient)");
+  if (all) {
+    const Eigen::MatrixXd C = llt.solve(Eigen::MatrixXd::Identity(3 * n, 3 * n));
+    for (int i = 0; i < n; ++i) {
+      const Eigen::Matrix3d b = C.block<3, 3>(3 * i, 3 * i);
+      nodes_[static_cast<size_t>(i)]->covariance = 0.5 * (b + b.transpose());
+    }
+    return;
+  }
+  Eigen::MatrixXd E = Eigen::MatrixXd::Zero(3 * n, 6);
+  E.block<3, 3>(0, 0).setIdentity();
+  E.block<3, 3>(3 * (n - 1), 3).setIdentity();
+  const Eigen::MatrixXd X = llt.solve(E);
+  const Eigen::Matrix3d oldest = X.block<3, 3>(0, 0);
+  const Eigen::Matrix3d newest = X.block<3, 3>(3 * (n - 1), 3);
+  nodes_.front()->covariance = 0.5 * (oldest + oldest.transpose());
+  nodes_.back()->covariance = 0.5 * (newest + newest.transpose());
+}
+
+Estimate SlidingWindowSmoother::process(const Step& step) {
+  if (finished_) throw Error("sliding window: process() after finish()");
+  if (have_step_ && step.step <= last_step_)
+    throw Error("sliding window: step " + std::to_string(step.step) + " does not follow step " +
+                std::to_string(last_step_));
+  validateStep(step, "sliding window");
+  for (size_t i = 0; i < step.observations.size(); ++i) {
+    const int id = step.observations[i].landmark_id;
+    if (id >= 0 && !map_.find(id))
+      throw Error("sliding window: step " + std::to_string(step.step) + ": observation " + std::to_string(i) +
+                  ": unknown landmark id " + std::to_string(id));
+  }
+  const bool first = !have_step_;
+  have_step_ = true;
+  last_step_ = step.step;
+  ++stats_.steps;
+
+  Estimate out;
+  Pose2 pose;            // the belief used for gating and association (EKF-style)
+  Eigen::Matrix3d P;
+  if (nodes_.empty()) {
+    if (first && config_.init.mode != InitMode::Global) {
+      startWindow(step, config_.init.pose, config_.init.covariance, EstimateStatus::Tracking);
+      pose = config_.init.pose;
+      P = nodes_.back()->covariance;
+    } else {
+      if (tryGlobalFix(step, &out)) return out;
+      out.step = step.step;
+      out.t = step.t;
+      out.status = EstimateStatus::Uninitialised;
+      pushHistory(out);
+      return out;
+    }
+  } else {
+    if (lost_ && config_.reinitialise_when_lost && tryGlobalFix(step, &out)) return out;
+    Node* prev = nodes_.back().get();
+    const PosePrediction pred = predictPose(poseOf(prev->x), prev->covariance, step.d_left, step.d_right, odometry_);
+    auto node = std::make_unique<Node>();
+    node->step = step.step;
+    node->t = step.t;
+    node->x = {pred.pose.x, pred.pose.y, pred.pose.theta};
+    Node* n = node.get();
+    nodes_.push_back(std::move(node));
+    problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
+    addFactor(OdometryFactor::Create(step.d_left, step.d_right, odometry_), {prev, n});
+    pose = pred.pose;
+    P = pred.covariance;
+  }
+  Node* node = nodes_.back().get();
+
+  bool fused = false;
+  if (!lost_) {
+    if (step.compass && config_.use_compass) {
+      const double sigma2 = step.compass_sigma * step.compass_sigma;
+      const double nu = angleDiff(*step.compass, pose.theta);
+      const double S = P(2, 2) + sigma2;
+      if (!config_.gate_enabled || nu * nu / S <= compass_threshold_) {
+        addFactor(CompassFactor::Create(*step.compass, step.compass_sigma), {node});
+        const Eigen::Vector3d K = P.col(2) / S;  // (5.19), H = [0 0 1]
+        pose = plus(pose, K * nu);
+        Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity();
+        IKH.col(2) -= K;
+        P = IKH * P * IKH.transpose() + sigma2 * K * K.transpose();
+        fused = true;
+      }
+    }
+    std::vector<int> used;
+    for (const Observation& o : step.observations)
+      if (o.landmark_id >= 0) used.push_back(o.landmark_id);
+    for (const Observation& obs : step.observations) {
+      const Landmark* lm = nullptr;
+      if (obs.landmark_id >= 0) {
+        lm = map_.find(obs.landmark_id);
+      } else {
+        const AssociationResult a = associate(obs, pose, P, map_, config_.association,
+                                              config_.association.exclusive ? used : std::vector<int>{});
+        if (a.landmark_id >= 0) {
+          lm = &map_.at(a.landmark_id);
+          used.push_back(a.landmark_id);
+        }
+      }
+      bool accepted = false;
+      if (lm) {
+        Matrix23d Hz;
+        bool defined = true;
+        Eigen::Vector2d zhat;
+        try {
+          zhat = predictRangeBearing(pose, lm->xy(), &Hz);  // (5.27)
+        } catch (const GeometryError&) {
+          defined = false;
+        }
+        if (defined) {
+          const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);
+          const Eigen::Matrix<double, 3, 2> PHt = P * Hz.transpose();
+          const Eigen::Matrix2d S = Hz * PHt + obs.covariance;  // (5.14)
+          const Eigen::Matrix2d Sinv = S.inverse();
+          const double d2 = nu.dot(Sinv * nu);  // (5.20)
+          if (std::isfinite(d2) && (!config_.gate_enabled || gate_.accepts(d2))) {
+            addFactor(RangeBearingFactor::Create(lm->xy(), obs.z(), obs.covariance), {node});
+            // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
+            const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
+            pose = plus(pose, K * nu);
+            const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * Hz;
+            P = IKH * P * IKH.transpose() + K * obs.covariance * K.transpose();
+            accepted = true;
+            fused = true;
+          }
+        }
+      }
+      ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
+      if (config_.gate_enabled && gate_.record(accepted)) {  // (5.1.3)
+        lost_ = true;
+        if (config_.reinitialise_when_lost) {
+          // Re-initialise from this step's fix: the predicted pose of this step is replaced.
+          const std::optional<PoseFix> fix = config_.global_fix ? config_.global_fix(step, map_) : std::nullopt;
+          if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
+            dropNewest();
+            finaliseWindow();
+            startWindow(step, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
+            ++stats_.reinitialisations;
+            return estimateOf(*nodes_.back());
+          }
+        }
+        break;
+      }
+    }
+  }
+  node->status = lost_ ? EstimateStatus::Lost : (fused ? EstimateStatus::Tracking : EstimateStatus::Predicted);
+  while (static_cast<int>(nodes_.size()) > config_.window) marginaliseOldest();
+  solve(config_.max_iterations);
+  computeCovariances(false);
+  return estimateOf(*nodes_.back());
+}
+
+std::vector<Estimate> SlidingWindowSmoother::finish() {
+  if (!finished_) {
+    if (!nodes_.empty() && config_.final_iterations > 0) solve(config_.final_iterations);
+    finaliseWindow();
+    finished_ = true;
+  }
+  return history_;
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,154 @@
+#pragma once
+// Sliding-window (fixed-lag) smoother: the real-time form of the factor graph (`localize
+// --method window`, `stream`).
+//
+// The window holds the last W poses. Each step adds a pose (predicted by odometry, B.16), its
+// odometry factor, its compass factor and its range-bearing factors, marginalises the oldest
+// pose(s) when more than W are held, and solves the window with Ceres from the previous
+// solution (warm start) with a bounded number of iterations.
+//
+// Marginalisation: the factors on the oldest pose p_o (its marginal prior, odometry to its
+// neighbour p_n, compass, observations) are linearised and the Gauss-Newton system over
+// (p_o, p_n) is reduced by the Schur complement
+//   H' = H_nn - H_no H_oo^-1 H_on,   g' = g_n - H_no H_oo^-1 g_o,
+// which becomes a MarginalPriorFactor on p_n (S^T S = H', S^T r0 = g') at p_n's current value.
+// First-estimate Jacobians (default): every factor is linearised where it was created - the
+// odometry factor at (p_{k-1}, predicted p_k), an observation at the predicted pose - the
+// linearisation point of the EKF. The marginal priors thus never see a Jacobian evaluated at a
+// later estimate (the FEJ rule that keeps the prior consistent), and with W = 1 and one
+// Gauss-Newton iteration the window is the EKF (5.7)-(5.19) step for step (tested). The
+// reported covariance of the newest pose is the inverse of the same (FEJ) information.
+//
+// Validation gate and lost policy (5.20, 5.1.3): as in the EKF (solvers/ekf.h), each
+// observation is gated against the predicted belief, sequentially updated by the observations
+// accepted before it in the same step (compass first); GateConfig::lost_after consecutive
+// rejections declare the robot lost: odometry only, a global fix asked every step, and a fix
+// restarts the window from the fix's pose and covariance. Unidentified observations
+// (landmark_id == -1) are associated against the same belief.
+//
+// Memory is bounded by W (plus one Estimate per step for finish(), unless keep_history is off).
+#include <ceres/problem.h>
+
+#include <Eigen/Core>
+#include <array>
+#include <deque>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "factors/pose_manifold.h"
+#include "solvers/initialisation.h"
+#include "solvers/smoother_common.h"
+#include "solvers/validation_gate.h"
+#include "src/data_association.h"
+#include "src/estimator.h"
+#include "src/field_map.h"
+#include "src/odometry_model.h"
+
+namespace stereoloc {
+
+struct SlidingWindowConfig {
+  int window = 20;                   // W: poses kept in the window (>= 1)
+  InitialBelief init;                // start belief; default: wait for a global fix
+  GlobalFixFunction global_fix;      // empty: defaultGlobalFix() (solvers/initialisation.h)
+  GateConfig gate;                   // (5.20) probability (2 dof) and lost_after
+  bool gate_enabled = true;          // false: every observation is fused
+  AssociationConfig association;     // for observations with landmark_id == -1
+  bool use_compass = true;           // add a compass factor when Step::compass is set
+  double compass_gate_probability = 0.99;  // chi-square probability (1 dof) of the compass gate
+  bool reinitialise_when_lost = true;      // ask the global fix when lost; false: stay lost
+  int max_iterations = 5;            // per step, Levenberg-Marquardt from the previous solution
+  double max_solver_seconds = 0.0;   // per-step wall-clock bound on the solve; 0 = none (a time
+                                     // bound makes the result depend on the machine)
+  bool gauss_newton = false;         // true: an (almost) infinite trust region, i.e. pure
+                                     // Gauss-Newton steps (the EKF comparison)
+  bool first_estimate_jacobians = true;  // false: linearise at the current estimate instead
+  int final_iterations = 50;         // finish(): iterations of the last solve of the window
+  double function_tolerance = 1e-10;
+  double gradient_tolerance = 1e-12;
+  double parameter_tolerance = 1e-10;
+  bool keep_history = true;          // false: finish() returns only the final window
+
+  void validate() const;             // throws stereoloc::Error naming the field
+};
+
+// Counters for tests and benchmarks.
+struct SlidingWindowStats {
+  long steps = 0;
+  long marginalisations = 0;
+  long reinitialisations = 0;
+  long accepted_observations = 0;
+  long rejected_observations = 0;   // gated or not associable
+  long solver_iterations = 0;       // summed over steps
+};
+
+class SlidingWindowSmoother : public Estimator {
+ public:
+  // map and odometry: those of the Dataset (Dataset::map, Dataset::odometry).
+  SlidingWindowSmoother(const FieldMap& map, const OdometryParams& odometry,
+                        SlidingWindowConfig config = SlidingWindowConfig());
+  ~SlidingWindowSmoother() override;
+  SlidingWindowSmoother(const SlidingWindowSmoother&) = delete;
+  SlidingWindowSmoother& operator=(const SlidingWindowSmoother&) = delete;
+
+  std::string name() const override { return "window"; }
+  // The real-time estimate: the newest pose and its marginal covariance after this step.
+  // The first processed step is the initial time (its odometry is not applied). Throws
+  // stereoloc::Error on non-increasing step numbers, unknown landmark ids, invalid values.
+  Estimate process(const Step& step) override;
+  // Solves the final window (final_iterations) and returns one Estimate per processed step:
+  // poses that left the window keep their estimate and covariance from the time they were
+  // marginalised; the final window is smoothed. Processing may not continue afterwards.
+  std::vector<Estimate> finish() override;
+
+  int windowSize() const { return static_cast<int>(nodes_.size()); }
+  bool initialised() const { return !nodes_.empty(); }
+  bool lost() const { return lost_; }
+  const SlidingWindowStats& stats() const { return stats_; }
+
+ private:
+  struct Node {
+    long step = 0;
+    double t = 0.0;
+    std::array<double, 3> x{};           // current estimate (x, y, theta)
+    EstimateStatus status = EstimateStatus::Tracking;
+    Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  // last marginal computed
+    int slot = 0;                        // position in nodes_, refreshed before linearising
+  };
+  struct Factor {
+    std::unique_ptr<ceres::CostFunction> cost;
+    std::vector<Node*> nodes;
+    std::vector<std::array<double, 3>> linearisation;  // first estimates
+    ceres::ResidualBlockId id = nullptr;
+  };
+
+  void startWindow(const Step& step, const Pose2& pose, const Eigen::Matrix3d& covariance, EstimateStatus status);
+  void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes);
+  void removeFactor(size_t index);
+  void marginaliseOldest();
+  void finaliseWindow();                // moves every window pose into the history, clears the problem
+  void dropNewest();                    // removes the newest pose and its factors
+  void solve(int max_iterations);
+  void computeCovariances(bool all);    // newest and oldest (or all) marginal covariances
+  bool tryGlobalFix(const Step& step, Estimate* out);
+  Estimate estimateOf(const Node& n) const;
+  void pushHistory(const Estimate& e);
+
+  FieldMap map_;
+  OdometryParams odometry_;
+  SlidingWindowConfig config_;
+  ValidationGate gate_;
+  double compass_threshold_;
+  PoseManifold manifold_;
+  std::unique_ptr<ceres::Problem> problem_;
+  std::deque<std::unique_ptr<Node>> nodes_;
+  std::vector<std::unique_ptr<Factor>> factors_;
+  bool lost_ = false;
+  bool have_step_ = false;
+  bool finished_ = false;
+  long last_step_ = 0;
+  std::vector<Estimate> history_;
+  SlidingWindowStats stats_;
+};
+
+}  // namespace stereoloc
