@@ -1,0 +1,383 @@
+#include "solvers/particle_filter.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <utility>
+
+#include "src/error.h"
+#include "src/measurement_model.h"
+
+namespace stereoloc {
+
+std::string toString(ResamplingScheme scheme) {
+  switch (scheme) {
+    case ResamplingScheme::Systematic: return "systematic";
+    case ResamplingScheme::SortedRoulette: return "sorted_roulette";
+  }
+  return "systematic";
+}
+
+ResamplingScheme resamplingSchemeFromString(const std::string& name) {
+  for (ResamplingScheme s : {ResamplingScheme::Systematic, ResamplingScheme::SortedRoulette})
+    if (toString(s) == name) return s;
+  throw Error("unknown resampling scheme '" + name + "' (expected systematic or sorted_roulette)");
+}
+
+std::vector<int> systematicResample(const std::vector<double>& weights, int n, std::mt19937_64& rng) {
+  std::vector<int> idx(static_cast<size_t>(std::max(n, 0)));
+  if (weights.empty() || n <= 0) return idx;
+  const double step = 1.0 / n;
+  double pointer = std::uniform_real_distribution<double>(0.0, step)(rng);
+  double cumulative = weights[0];
+  size_t j = 0;
+  const size_t last = weights.size() - 1;
+  for (int i = 0; i < n; ++i) {
+    while (pointer > cumulative && j < last) cumulative += weights[++j];
+    idx[static_cast<size_t>(i)] = static_cast<int>(j);
+    pointer += step;
+  }
+  return idx;
+}
+
+std::vector<int> sortedRouletteResample(const std::vector<double>& weights, int n, std::mt19937_64& rng) {
+  std::vector<int> idx(static_cast<size_t>(std::max(n, 0)));
+  if (weights.empty() || n <= 0) return idx;
+  std::vector<int> order(weights.size());
+  std::iota(order.begin(), order.end(), 0);
+  // Algorithm 6: sort so that w(i) > w(i+1); stable, so ties keep a reproducible order.
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return weights[a] > weights[b]; });
+  std::vector<double> cumulative(weights.size());
+  double sum = 0.0;
+  for (size_t k = 0; k < order.size(); ++k) cumulative[k] = (sum += weights[static_cast<size_t>(order[k])]);
+  std::uniform_real_distribution<double> u(0.0, sum);
+  for (int i = 0; i < n; ++i) {
+    const size_t k = static_cast<size_t>(std::upper_bound(cumulative.begin(), cumulative.end(), u(rng)) - cumulative.begin());
+    idx[static_cast<size_t>(i)] = order[std::min(k, order.size() - 1)];
+  }
+  return idx;
+}
+
+namespace {
+
+std::string where(const Step& step, size_t index) {
+  return "step " + std::to_string(step.step) + ": observation " + std::to_string(index);
+}
+
+void checkObservation(const Step& step, size_t index, const Observation& obs) {
+  if (!std::isfinite(obs.range) || !std::isfinite(obs.bearing)) throw Error(where(step, index) + ": not finite");
+  const Eigen::Matrix2d& R = obs.covariance;
+  if (!R.allFinite() || !(R(0, 0) > 0) || !(R(0, 0) * R(1, 1) - R(0, 1) * R(1, 0) > 0) ||
+      std::fabs(R(0, 1) - R(1, 0)) > 1e-9 * R.cwiseAbs().maxCoeff())
+    throw Error(where(step, index) + ": covariance R is not symmetric positive definite");
+}
+
+}  // namespace
+
+ParticleFilter::ParticleFilter(const FieldMap& map, const OdometryParams& odometry, ParticleFilterConfig config,
+                               uint64_t seed)
+    : map_(map), odometry_(odometry), config_(std::move(config)), rng_(seed), gate_(config_.gate, 2) {
+  odometry_.validate();
+  if (config_.particles < 1) throw Error("particle filter: particles must be at least 1");
+  if (config_.reinjected < 0 || config_.reinjected > config_.particles)
+    throw Error("particle filter: reinjected must be in [0, particles]");
+  if (!(config_.likelihood_floor > 0 && config_.likelihood_floor <= 1))
+    throw Error("particle filter: likelihood_floor must be in (0, 1]");
+  if (!(config_.resample_ess_fraction >= 0 && config_.resample_ess_fraction <= 1))
+    throw Error("particle filter: resample_ess_fraction must be in [0, 1]");
+  const Bounds& b = map_.bounds();
+  if (!(b.xmax > b.xmin && b.ymax > b.ymin)) throw Error("particle filter: map bounds are empty");
+  log_floor_ = std::log(config_.likelihood_floor);
+  if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
+  switch (config_.init.mode) {
+    case InitMode::Known: initialiseGaussian(config_.init.pose, config_.init.covariance); break;
+    case InitMode::Random: initialiseUniform(); break;
+    case InitMode::Global: break;
+  }
+}
+
+void ParticleFilter::initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d& covariance) {
+  if (!pose.isFinite() || !covariance.allFinite()) throw Error("particle filter: initial belief is not finite");
+  const Eigen::Matrix3d sym = 0.5 * (covariance + covariance.transpose());
+  // A semi-definite covariance (e.g. zero) is allowed: the LDLT factor handles it.
+  Eigen::LDLT<Eigen::Matrix3d> ldlt(sym);
+  if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().array() >= -1e-12 * (sym.norm() + 1.0)).all())
+    throw Error("particle filter: initial covariance is not positive semi-definite");
+  const Eigen::Matrix3d L = ldlt.transpositionsP().transpose() * Eigen::Matrix3d(ldlt.matrixL()) *
+                            ldlt.vectorD().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+  const size_t n = static_cast<size_t>(config_.particles);
+  x_.resize(n);
+  y_.resize(n);
+  th_.resize(n);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  for (size_t i = 0; i < n; ++i) {
+    const double a = n01(rng_), b = n01(rng_), c = n01(rng_);
+    const Eigen::Vector3d d = L * Eigen::Vector3d(a, b, c);
+    x_[i] = pose.x + d.x();
+    y_[i] = pose.y + d.y();
+    th_[i] = wrapAngle(pose.theta + d.z());
+  }
+  logw_.assign(n, -std::log(static_cast<double>(n)));
+  w_.assign(n, 1.0 / static_cast<double>(n));
+  initialised_ = true;
+  gate_.reset();
+  summarise(&mean_, &cov_);
+}
+
+void ParticleFilter::initialiseUniform() {
+  const size_t n = static_cast<size_t>(config_.particles);
+  x_.resize(n);
+  y_.resize(n);
+  th_.resize(n);
+  const Bounds& b = map_.bounds();
+  std::uniform_real_distribution<double> ux(b.xmin, b.xmax), uy(b.ymin, b.ymax), ut(-kPi, kPi);
+  for (size_t i = 0; i < n; ++i) {
+    x_[i] = ux(rng_);
+    y_[i] = uy(rng_);
+    th_[i] = ut(rng_);
+  }
+  logw_.assign(n, -std::log(static_cast<double>(n)));
+  w_.assign(n, 1.0 / static_cast<double>(n));
+  initialised_ = true;
+  gate_.reset();
+  summarise(&mean_, &cov_);
+}
+
+void ParticleFilter::predict(double d_left, double d_right) {
+  const Eigen::Matrix2d Sv = wheelCovariance(d_left, d_right, odometry_);  // (B.6)
+  const double sl = std::sqrt(Sv(0, 0)), sr = std::sqrt(Sv(1, 1));
+  const Eigen::Vector3d sf = odometry_.control_variance_floor.cwiseSqrt();
+  const double w = odometry_.wheel_base_mm;
+  std::normal_distribution<double> n01(0.0, 1.0);
+  for (size_t i = 0; i < x_.size(); ++i) {
+    const double dl = sl > 0 ? d_left + sl * n01(rng_) : d_left;
+    const double dr = sr > 0 ? d_right + sr * n01(rng_) : d_right;
+    Eigen::Vector3d u = controlVector(dl, dr, w);  // (B.4), (B.5)
+    if (sf.x() > 0) u.x() += sf.x() * n01(rng_);
+    if (sf.y() > 0) u.y() += sf.y() * n01(rng_);
+    if (sf.z() > 0) u.z() += sf.z() * n01(rng_);
+    const double c = std::cos(th_[i]), s = std::sin(th_[i]);  // (B.16)
+    x_[i] += c * u.x() - s * u.y();
+    y_[i] += s * u.x() + c * u.y();
+    th_[i] = wrapAngle(th_[i] + u.z());
+  }
+}
+
+void ParticleFilter::weight(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
+                            const std::optional<double>& compass, double compass_sigma) {
+  if (observations.size() != landmarks.size()) throw Error("particle filter: one landmark per observation expected");
+  const size_t n = x_.size();
+  for (size_t k = 0; k < observations.size(); ++k) {
+    const Eigen::Matrix2d Ri = observations[k].covariance.inverse();
+    const double zr = observations[k].range, zb = observations[k].bearing;
+    const double lm[2] = {landmarks[k].x(), landmarks[k].y()};
+    for (size_t i = 0; i < n; ++i) {
+      const double pose[3] = {x_[i], y_[i], th_[i]};
+      double z[2];
+      predictRangeBearingT(pose, lm, z);  // (5.27)
+      const double nr = zr - z[0];
+      const double nb = angleDiff(zb, z[1]);
+      const double e2 = Ri(0, 0) * nr * nr + 2.0 * Ri(0, 1) * nr * nb + Ri(1, 1) * nb * nb;
+      logw_[i] += std::max(-0.5 * e2, log_floor_);  // (5.34) with a floor
+    }
+  }
+  if (compass) {
+    if (!std::isfinite(*compass) || !(std::isfinite(compass_sigma) && compass_sigma > 0))
+      throw Error("particle filter: compass heading must be finite and its sigma positive");
+    const double inv_var = 1.0 / (compass_sigma * compass_sigma);
+    for (size_t i = 0; i < n; ++i) {
+      const double nu = angleDiff(*compass, th_[i]);
+      logw_[i] += std::max(-0.5 * nu * nu * inv_var, log_floor_);
+    }
+  }
+  normalise();
+}
+
+void ParticleFilter::normalise() {
+  // (5.35), (5.36) in the log domain: w = exp(log w - max) / sum.
+  const double m = *std::max_element(logw_.begin(), logw_.end());
+  double sum = 0.0;
+  for (size_t i = 0; i < logw_.size(); ++i) sum += (w_[i] = std::exp(logw_[i] - m));
+  const double log_sum = std::log(sum) + m;
+  for (size_t i = 0; i < logw_.size(); ++i) {
+    w_[i] /= sum;
+    logw_[i] -= log_sum;
+  }
+}
+
+double ParticleFilter::effectiveSampleSize() const {
+  double s = 0.0;
+  for (double w : w_) s += w * w;
+  return s > 0 ? 1.0 / s : 0.0;
+}
+
+void ParticleFilter::resample() {
+  const int n = size();
+  const std::vector<int> idx = config_.resampling == ResamplingScheme::Systematic
+                                   ? systematicResample(w_, n, rng_)
+                                   : sortedRouletteResample(w_, n, rng_);  // (5.38)
+  scratch_x_.resize(x_.size());
+  scratch_y_.resize(y_.size());
+  scratch_th_.resize(th_.size());
+  for (size_t i = 0; i < idx.size(); ++i) {
+    const size_t j = static_cast<size_t>(idx[i]);
+    scratch_x_[i] = x_[j];
+    scratch_y_[i] = y_[j];
+    scratch_th_[i] = th_[j];
+  }
+  x_.swap(scratch_x_);
+  y_.swap(scratch_y_);
+  th_.swap(scratch_th_);
+  logw_.assign(x_.size(), -std::log(static_cast<double>(n)));
+  w_.assign(x_.size(), 1.0 / n);
+}
+
+void ParticleFilter::reinject(int count) {
+  // Replaces `count` particles spread evenly over the set (after resampling they are in
+  // random order only for the roulette, so a stride keeps the choice independent of weight).
+  const int n = size();
+  if (count <= 0 || n == 0) return;
+  const Bounds& b = map_.bounds();
+  std::uniform_real_distribution<double> ux(b.xmin, b.xmax), uy(b.ymin, b.ymax), ut(-kPi, kPi);
+  std::uniform_int_distribution<int> offset(0, n - 1);
+  const int start = offset(rng_);
+  const double stride = static_cast<double>(n) / count;
+  for (int k = 0; k < count; ++k) {
+    const size_t i = static_cast<size_t>((start + static_cast<int>(k * stride)) % n);
+    x_[i] = ux(rng_);
+    y_[i] = uy(rng_);
+    th_[i] = ut(rng_);
+    logw_[i] = -std::log(static_cast<double>(n));  // Algorithm 6: a new particle weighs 1/N
+  }
+  normalise();
+}
+
+void ParticleFilter::summarise(Pose2* mean, Eigen::Matrix3d* covariance) const {
+  double sx = 0, sy = 0, ss = 0, sc = 0;
+  for (size_t i = 0; i < x_.size(); ++i) {
+    sx += w_[i] * x_[i];
+    sy += w_[i] * y_[i];
+    ss += w_[i] * std::sin(th_[i]);
+    sc += w_[i] * std::cos(th_[i]);
+  }
+  // Circular mean; when the headings cancel exactly, any heading is as good as another.
+  const double mt = (ss == 0.0 && sc == 0.0) ? 0.0 : std::atan2(ss, sc);
+  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < x_.size(); ++i) {
+    const Eigen::Vector3d d(x_[i] - sx, y_[i] - sy, angleDiff(th_[i], mt));
+    C.noalias() += w_[i] * d * d.transpose();
+  }
+  *mean = Pose2(sx, sy, mt);
+  *covariance = 0.5 * (C + C.transpose());
+}
+
+bool ParticleFilter::tryGlobalFix(const Step& step) {
+  if (!config_.global_fix) return false;
+  const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+  if (!fix || !fix->pose.isFinite() || !fix->covariance.allFinite()) return false;
+  try {
+    initialiseGaussian(fix->pose, fix->covariance);
+  } catch (const Error&) {
+    return false;  // a fix with an unusable covariance is no fix
+  }
+  return true;
+}
+
+Estimate ParticleFilter::process(const Step& step) {
+  if (have_step_ && step.step <= last_step_)
+    throw Error("particle filter: step " + std::to_string(step.step) + " does not follow step " +
+                std::to_string(last_step_));
+  if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right))
+    throw Error("particle filter: step " + std::to_string(step.step) + ": wheel increment is not finite");
+  for (size_t i = 0; i < step.observations.size(); ++i) checkObservation(step, i, step.observations[i]);
+  if (step.compass && config_.use_compass && !(std::isfinite(step.compass_sigma) && step.compass_sigma > 0))
+    throw Error("particle filter: step " + std::to_string(step.step) + ": compass_sigma must be positive");
+  const bool first = !have_step_;
+  have_step_ = true;
+  last_step_ = step.step;
+
+  auto finishStep = [&](EstimateStatus status) {
+    Estimate e;
+    e.step = step.step;
+    e.t = step.t;
+    e.pose = mean_;
+    e.covariance = initialised_ ? cov_ : Eigen::Matrix3d::Zero();
+    e.status = status;
+    estimates_.push_back(e);
+    return e;
+  };
+
+  if (!initialised_) {
+    if (tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
+    return finishStep(EstimateStatus::Uninitialised);
+  }
+  if (!first) predict(step.d_left, step.d_right);
+
+  // Identify the observations; unidentified ones are associated with the predicted estimate
+  // (the previous summary pushed through the odometry model, as the EKF would predict it).
+  const PosePrediction prior = first ? PosePrediction{mean_, cov_}
+                                     : predictPose(mean_, cov_, step.d_left, step.d_right, odometry_);
+  std::vector<Observation> used_obs;
+  std::vector<Eigen::Vector2d> used_lm;
+  std::vector<int> taken;
+  for (const Observation& o : step.observations)
+    if (o.landmark_id >= 0) taken.push_back(o.landmark_id);
+  int gated = 0, tested = 0;
+  for (size_t i = 0; i < step.observations.size(); ++i) {
+    const Observation& obs = step.observations[i];
+    const Landmark* lm = nullptr;
+    if (obs.landmark_id >= 0) {
+      lm = map_.find(obs.landmark_id);
+      if (!lm) throw Error(where(step, i) + ": unknown landmark id " + std::to_string(obs.landmark_id));
+    } else {
+      const AssociationResult a = associate(obs, prior.pose, prior.covariance, map_, config_.association,
+                                            config_.association.exclusive ? taken : std::vector<int>{});
+      if (a.landmark_id >= 0) {
+        lm = &map_.at(a.landmark_id);
+        taken.push_back(a.landmark_id);
+      }
+    }
+    ++tested;
+    if (!lm) {
+      ++gated;
+      gate_.record(false);
+      continue;
+    }
+    // The gate on the summary (5.20): status only, the likelihood floor handles outliers.
+    Matrix23d H;
+    bool accepted = false;
+    try {
+      const Eigen::Vector2d zhat = predictRangeBearing(prior.pose, lm->xy(), &H);
+      const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);
+      accepted = gate_.accepts(mahalanobisSquared<2>(nu, H * prior.covariance * H.transpose() + obs.covariance));
+    } catch (const GeometryError&) {
+      accepted = false;
+    }
+    gated += accepted ? 0 : 1;
+    gate_.record(accepted);
+    Observation identified = obs;
+    identified.landmark_id = lm->id;
+    used_obs.push_back(identified);
+    used_lm.push_back(lm->xy());
+  }
+  const bool lost = tested > 0 && gate_.consecutiveRejections() >= config_.gate.lost_after;
+  if (lost && tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
+
+  const bool use_compass = step.compass && config_.use_compass;
+  const bool observed = !used_obs.empty() || use_compass;
+  if (observed) {
+    weight(used_obs, used_lm, use_compass ? step.compass : std::nullopt, step.compass_sigma);
+  }
+  summarise(&mean_, &cov_);  // (5.37), before resampling: the weighted set is the posterior
+  if (observed) {
+    if (effectiveSampleSize() < config_.resample_ess_fraction * size() + 1e-9) resample();
+    reinject(config_.reinjected);
+  }
+  if (lost) return finishStep(EstimateStatus::Lost);
+  return finishStep(!used_obs.empty() || use_compass ? EstimateStatus::Tracking : EstimateStatus::Predicted);
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,119 @@
+#pragma once
+// Monte Carlo localisation: the particle filter of thesis Algorithm 6 (section 5.3).
+//
+//   Prediction: each particle draws its own wheel increments from the odometry noise model,
+//     d ~ N(d_measured, Sigma_v)  (B.6),  u = controlVector(d)  (B.4, B.5),
+//     plus N(0, diag(control_variance_floor)) on u, and is compounded: p = p (+) u  (B.16).
+//   Weights (5.34): the Gaussian range-bearing likelihood of each observation, with the bearing
+//     innovation wrapped, floored for robustness to outliers and wrong associations:
+//       log w += max(-e2 / 2, log(likelihood_floor)),   e2 = nu^T R^-1 nu,  nu = z [-] h(p) (5.27)
+//     (the compass contributes the same way on theta). Normalised in the log domain (5.35, 5.36).
+//   Estimate (5.37): the weighted mean, with a circular mean for theta, and the weighted
+//     covariance (theta deviations wrapped about the mean).
+//   Resampling (5.38): systematic / low-variance by default; the thesis's sorted roulette
+//     (multinomial draws on the weights sorted in decreasing order) as an option.
+//   Re-injection: T particles replaced by uniform ones over the map bounds after resampling.
+//     We re-inject only on steps that carried an observation: without one there is no evidence
+//     to remove wrong particles, so re-injection would only dilute the belief.
+// One std::mt19937_64 owned by the filter, seeded by the constructor: deterministic for a seed.
+#include <Eigen/Core>
+#include <cstdint>
+#include <optional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "solvers/initialisation.h"
+#include "solvers/validation_gate.h"
+#include "src/data_association.h"
+#include "src/estimator.h"
+#include "src/field_map.h"
+#include "src/odometry_model.h"
+
+namespace stereoloc {
+
+enum class ResamplingScheme {
+  Systematic,      // low-variance: one uniform offset, N equally spaced pointers
+  SortedRoulette,  // the thesis's: sort by decreasing weight, N independent roulette draws
+};
+std::string toString(ResamplingScheme scheme);  // "systematic", "sorted_roulette"
+ResamplingScheme resamplingSchemeFromString(const std::string& name);
+
+struct ParticleFilterConfig {
+  // Known: particles drawn from N(pose, covariance); Random: uniform over the map bounds and
+  // heading (the pose and covariance are ignored); Global: no particles until the first fix,
+  // then drawn from N(fix pose, fix covariance).
+  InitialBelief init;
+  int particles = 3000;         // N; the thesis saw no gain above 3000 [BDN07]
+  int reinjected = 30;          // T uniform particles per observed step, T << N (0 disables)
+  ResamplingScheme resampling = ResamplingScheme::Systematic;
+  // Resample when the effective sample size 1 / sum w^2 falls below this fraction of N;
+  // 1.0 resamples on every observed step, as Algorithm 6 does.
+  double resample_ess_fraction = 1.0;
+  double likelihood_floor = 1e-3;  // per-observation likelihood floor, relative to the Gaussian's peak (0 < f <= 1)
+  bool use_compass = true;         // weight with Step::compass when present
+  AssociationConfig association;   // for observations with landmark_id == -1 (uses the current estimate)
+  // Lost status (5.1.3): gate each observation against the current estimate (2 dof). When
+  // lost, a global fix (if any) re-draws all particles around it; otherwise re-injection
+  // is what recovers.
+  GateConfig gate;
+  GlobalFixFunction global_fix;    // empty: defaultGlobalFix() (solvers/global_fix.h)
+};
+
+// Resampling primitives (exposed for tests). They return, for each of the n new particles, the
+// index of the particle it copies. `weights` must be normalised (sum 1, non-negative).
+std::vector<int> systematicResample(const std::vector<double>& weights, int n, std::mt19937_64& rng);
+std::vector<int> sortedRouletteResample(const std::vector<double>& weights, int n, std::mt19937_64& rng);
+
+class ParticleFilter : public Estimator {
+ public:
+  ParticleFilter(const FieldMap& map, const OdometryParams& odometry, ParticleFilterConfig config, uint64_t seed);
+
+  std::string name() const override { return "pf"; }
+  // The first processed step defines the initial time: its odometry is not applied.
+  // Throws stereoloc::Error on non-increasing steps, unknown landmark ids or invalid R.
+  Estimate process(const Step& step) override;
+  std::vector<Estimate> finish() override { return estimates_; }
+
+  // Lower-level operations (benchmarks, tests).
+  void initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d& covariance);
+  void initialiseUniform();
+  void predict(double d_left, double d_right);
+  // Multiplies the weights by the likelihood of identified observations (landmark positions
+  // given) and of an optional compass reading; normalises in the log domain.
+  void weight(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
+              const std::optional<double>& compass = std::nullopt, double compass_sigma = 0.0);
+  void resample();
+  void reinject(int count);
+  // Weighted mean (circular for theta) and weighted covariance of the current particles.
+  void summarise(Pose2* mean, Eigen::Matrix3d* covariance) const;
+  double effectiveSampleSize() const;
+
+  bool initialised() const { return initialised_; }
+  int size() const { return static_cast<int>(x_.size()); }
+  const std::vector<double>& xs() const { return x_; }
+  const std::vector<double>& ys() const { return y_; }
+  const std::vector<double>& thetas() const { return th_; }
+  const std::vector<double>& weights() const { return w_; }  // normalised
+
+ private:
+  bool tryGlobalFix(const Step& step);
+  void normalise();
+
+  FieldMap map_;  // a copy: the filter does not depend on the caller's lifetime
+  OdometryParams odometry_;
+  ParticleFilterConfig config_;
+  std::mt19937_64 rng_;
+  ValidationGate gate_;
+  double log_floor_;
+  std::vector<double> x_, y_, th_, logw_, w_;
+  std::vector<double> scratch_x_, scratch_y_, scratch_th_;
+  bool initialised_ = false;
+  bool have_step_ = false;
+  long last_step_ = 0;
+  Pose2 mean_;
+  Eigen::Matrix3d cov_ = Eigen::Matrix3d::Zero();
+  std::vector<Estimate> estimates_;
+};
+
+}  // namespace stereoloc
