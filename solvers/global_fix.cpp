@@ -1,0 +1,464 @@
+#include "solvers/global_fix.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "src/error.h"
+#include "src/measurement_model.h"
+
+namespace stereoloc {
+
+std::string toString(FixStatus status) {
+  switch (status) {
+    case FixStatus::Ok: return "ok";
+    case FixStatus::ApproximateNoIntersection: return "approximate";
+    case FixStatus::NotEnoughLandmarks: return "not_enough_landmarks";
+    case FixStatus::Degenerate: return "degenerate";
+    case FixStatus::Ambiguous: return "ambiguous";
+  }
+  return "degenerate";
+}
+
+FixStatus fixStatusFromString(const std::string& name) {
+  for (FixStatus s : {FixStatus::Ok, FixStatus::ApproximateNoIntersection, FixStatus::NotEnoughLandmarks,
+                      FixStatus::Degenerate, FixStatus::Ambiguous})
+    if (toString(s) == name) return s;
+  throw Error("unknown fix status '" + name + "' (expected ok, approximate, not_enough_landmarks, degenerate or ambiguous)");
+}
+
+std::string toString(FixMethod method) {
+  switch (method) {
+    case FixMethod::OneLandmarkCompass: return "fix1";
+    case FixMethod::TwoLandmarks: return "fix2";
+    case FixMethod::RunningFix: return "running";
+    case FixMethod::MultiLandmark: return "multi";
+  }
+  return "fix2";
+}
+
+FixMethod fixMethodFromString(const std::string& name) {
+  for (FixMethod m : {FixMethod::OneLandmarkCompass, FixMethod::TwoLandmarks, FixMethod::RunningFix,
+                      FixMethod::MultiLandmark})
+    if (toString(m) == name) return m;
+  throw Error("unknown fix method '" + name + "' (expected fix1, fix2, running or multi)");
+}
+
+namespace {
+
+void checkObservation(const Observation& o, const char* what) {
+  if (!(std::isfinite(o.range) && std::isfinite(o.bearing) && o.covariance.allFinite()))
+    throw Error(std::string(what) + ": observation of landmark " + std::to_string(o.landmark_id) +
+                " has a non-finite range, bearing or covariance");
+}
+
+Eigen::Matrix3d symmetrize(const Eigen::Matrix3d& m) { return 0.5 * (m + m.transpose()); }
+
+bool positiveDefinite(const Eigen::Matrix3d& m) {
+  if (!m.allFinite()) return false;
+  Eigen::LLT<Eigen::Matrix3d> llt(m);
+  return llt.info() == Eigen::Success;
+}
+
+// d atan2(q_y, q_x) / d q for q = c - p (so d/dp is its negative).
+Eigen::RowVector2d atan2Gradient(const Eigen::Vector2d& q) {
+  const double rho2 = q.squaredNorm();
+  return Eigen::RowVector2d(-q.y() / rho2, q.x() / rho2);
+}
+
+// Covariance of a pose from the measurements' information when the closed form has no usable
+// Jacobian (tangent or non-intersecting circles): the residuals z_i - h(pose, c_i), whose noise
+// is G dx with G = [dh/dp_xy, I] per centre (h depends on c - p), give W = G Sigma_x G^T and the
+// Gauss-Newton covariance (H^T W^-1 H)^-1, H = dh/dpose.
+bool informationCovariance(const Pose2& pose, const Vector8d& x, const Matrix8d& x_cov, Eigen::Matrix3d* cov) {
+  Eigen::Matrix<double, 4, 3> H;
+  Eigen::Matrix<double, 4, 8> G = Eigen::Matrix<double, 4, 8>::Zero();
+  for (int i = 0; i < 2; ++i) {
+    Matrix23d Hi;
+    try {
+      predictRangeBearing(pose, x.segment<2>(4 * i), &Hi);
+    } catch (const GeometryError&) {
+      return false;
+    }
+    H.block<2, 3>(2 * i, 0) = Hi;
+    G.block<2, 2>(2 * i, 4 * i) = Hi.leftCols<2>();
+    G.block<2, 2>(2 * i, 4 * i + 2) = Eigen::Matrix2d::Identity();
+  }
+  const Eigen::Matrix4d W = G * x_cov * G.transpose();
+  Eigen::LDLT<Eigen::Matrix4d> ldlt(0.5 * (W + W.transpose()));
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || ldlt.vectorD().minCoeff() <= 0) return false;
+  const Eigen::Matrix3d info = H.transpose() * ldlt.solve(H);
+  Eigen::LLT<Eigen::Matrix3d> llt(symmetrize(info));
+  if (llt.info() != Eigen::Success) return false;
+  *cov = symmetrize(llt.solve(Eigen::Matrix3d::Identity()));
+  return positiveDefinite(*cov);
+}
+
+// The point on the line c1 + t e closest (in the weighted sense) to both circles, for circles
+// that do not meet: minimises (|t| - r1)^2 / v1 + (|t - d| - r2)^2 / v2 over the four sign
+// branches. Returns t and the minimal cost (chi-square with 1 dof when the circles should meet).
+std::pair<double, double> closestOnBaseline(double d, double r1, double r2, double v1, double v2) {
+  const double w1 = 1.0 / v1, w2 = 1.0 / v2;
+  double best_t = 0.0, best_cost = std::numeric_limits<double>::infinity();
+  for (int s1 : {-1, 1}) {
+    for (int s2 : {-1, 1}) {
+      const double t = (w1 * s1 * r1 + w2 * (d + s2 * r2)) / (w1 + w2);
+      const double e1 = std::fabs(t) - r1, e2 = std::fabs(t - d) - r2;
+      const double cost = e1 * e1 * w1 + e2 * e2 * w2;
+      if (cost < best_cost) {
+        best_cost = cost;
+        best_t = t;
+      }
+    }
+  }
+  return {best_t, best_cost};
+}
+
+GlobalFix toFix(const TwoCircleSolution& sol, FixMethod method, std::vector<int> ids) {
+  GlobalFix f;
+  f.status = sol.status;
+  f.method = method;
+  f.pose = sol.pose;
+  f.covariance = sol.covariance;
+  f.landmark_ids = std::move(ids);
+  return f;
+}
+
+struct TwoLandmarkProblem {
+  Vector8d x;
+  Matrix8d x_cov;
+  int side = 1;
+  double significance = 0.0;
+};
+
+TwoLandmarkProblem makeTwoLandmarkProblem(const Observation& a, const Observation& b, const Eigen::Vector2d& la,
+                                          const Eigen::Vector2d& lb) {
+  checkObservation(a, "fix2");
+  checkObservation(b, "fix2");
+  if (!la.allFinite() || !lb.allFinite()) throw Error("fix2: landmark position is not finite");
+  TwoLandmarkProblem p;
+  p.x << la.x(), la.y(), a.range, a.bearing, lb.x(), lb.y(), b.range, b.bearing;
+  p.x_cov.setZero();
+  p.x_cov.block<2, 2>(2, 2) = a.covariance;
+  p.x_cov.block<2, 2>(6, 6) = b.covariance;
+  p.side = orderingSide(a.bearing, b.bearing);
+  p.significance =
+      orderingSignificance(a.bearing, b.bearing, std::sqrt(std::max(0.0, a.covariance(1, 1) + b.covariance(1, 1))));
+  return p;
+}
+
+// Ambiguous when the bearing order is not significant AND the mirror solution is further away
+// than the position uncertainty across the baseline (otherwise the choice does not matter).
+bool orderingAmbiguous(const TwoCircleSolution& sol, const Vector8d& x, double significance,
+                       const GlobalFixOptions& options) {
+  if (sol.status != FixStatus::Ok || significance >= options.ordering_min_sigma) return false;
+  const Eigen::Vector2d e = (x.segment<2>(4) - x.segment<2>(0)).normalized();
+  const Eigen::Vector2d n(-e.y(), e.x());
+  const double sigma_n = std::sqrt(std::max(0.0, n.dot(sol.covariance.topLeftCorner<2, 2>() * n)));
+  return sol.half_chord > sigma_n;
+}
+
+}  // namespace
+
+int orderingSide(double psi1, double psi2) { return angleDiff(psi2, psi1) >= 0.0 ? 1 : -1; }
+
+double orderingSignificance(double psi1, double psi2, double sigma_difference) {
+  const double delta = std::fabs(angleDiff(psi2, psi1));
+  const double distance = std::min(delta, kPi - delta);
+  if (!(sigma_difference > 0.0)) return distance > 0.0 ? std::numeric_limits<double>::infinity() : 0.0;
+  return distance / sigma_difference;
+}
+
+TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int side, const GlobalFixOptions& options) {
+  if (!x.allFinite() || !x_cov.allFinite()) throw Error("two-circle fix: input is not finite");
+  if (side != 1 && side != -1) throw Error("two-circle fix: side must be +1 or -1");
+  TwoCircleSolution sol;
+  const Eigen::Vector2d c1 = x.segment<2>(0), c2 = x.segment<2>(4);
+  const double r1 = x(2), r2 = x(6);
+  if (!(r1 > 0.0 && r2 > 0.0)) return sol;  // Degenerate: a range must be positive
+  const double scale = std::max({1.0, r1, r2});
+  const Eigen::Vector2d baseline = c2 - c1;
+  const double d = baseline.norm();
+  if (d <= 1e-9 * scale) return sol;  // Degenerate: concentric circles / coincident landmarks
+  const Eigen::Vector2d e = baseline / d;
+  const Eigen::Vector2d n(-e.y(), e.x());
+  // (4.3), (4.4) in the baseline frame: p = c1 + a e + side h n.
+  const double a = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d);
+  const double h2 = r1 * r1 - a * a;
+  const double tangent_tol = 1e-9 * scale;
+
+  if (h2 > tangent_tol * tangent_tol) {
+    const double h = std::sqrt(h2);
+    const Eigen::Vector2d p = c1 + a * e + side * h * n;
+    // Implicit differentiation of |p - c_i|^2 = r_i^2: (p - c_i)^T (dp - dc_i) = r_i dr_i.
+    Eigen::Matrix2d A;
+    A.row(0) = (p - c1).transpose();
+    A.row(1) = (p - c2).transpose();
+    Eigen::Matrix<double, 2, 8> B = Eigen::Matrix<double, 2, 8>::Zero();
+    B.block<1, 2>(0, 0) = (p - c1).transpose();
+    B(0, 2) = r1;
+    B.block<1, 2>(1, 4) = (p - c2).transpose();
+    B(1, 6) = r2;
+    const Eigen::Matrix<double, 2, 8> J_p_x = A.inverse() * B;  // |det A| = d h > 0
+
+    // (4.6) for each landmark: theta_i = atan2(c_i - p) - psi_i.
+    Eigen::Matrix<double, 2, 8> J_t_x = Eigen::Matrix<double, 2, 8>::Zero();
+    double theta_i[2];
+    for (int i = 0; i < 2; ++i) {
+      const Eigen::Vector2d ci = x.segment<2>(4 * i);
+      const Eigen::Vector2d q = ci - p;
+      const Eigen::RowVector2d g = atan2Gradient(q);
+      theta_i[i] = wrapAngle(std::atan2(q.y(), q.x()) - x(4 * i + 3));
+      J_t_x.row(i) = -g * J_p_x;
+      J_t_x.block<1, 2>(i, 4 * i) += g;
+      J_t_x(i, 4 * i + 3) -= 1.0;
+    }
+    // Best linear unbiased combination of the two (correlated) headings.
+    const Eigen::Matrix2d C = J_t_x * x_cov * J_t_x.transpose();
+    Eigen::Vector2d w(0.5, 0.5);
+    Eigen::LDLT<Eigen::Matrix2d> ldlt(0.5 * (C + C.transpose()));
+    if (ldlt.info() == Eigen::Success && ldlt.isPositive() && ldlt.vectorD().minCoeff() > 0) {
+      const Eigen::Vector2d ci1 = ldlt.solve(Eigen::Vector2d::Ones());
+      const double sum = ci1.sum();
+      if (std::isfinite(sum) && sum > 0) w = ci1 / sum;
+    }
+    const double theta = wrapAngle(theta_i[0] + w(1) * angleDiff(theta_i[1], theta_i[0]));
+
+    sol.pose = Pose2(p.x(), p.y(), theta);
+    sol.J_pose_x.topRows<2>() = J_p_x;
+    sol.J_pose_x.row(2) = w(0) * J_t_x.row(0) + w(1) * J_t_x.row(1);
+    sol.covariance = symmetrize(sol.J_pose_x * x_cov * sol.J_pose_x.transpose());  // (4.18)
+    sol.half_chord = h;
+    sol.status = positiveDefinite(sol.covariance) ? FixStatus::Ok : FixStatus::Degenerate;
+    // A singular covariance (noise-free inputs) is still a valid pose; keep it Ok when the
+    // inputs carry no noise at all, so that exact recovery can be tested.
+    if (sol.status == FixStatus::Degenerate && x_cov.isZero(0.0)) sol.status = FixStatus::Ok;
+    return sol;
+  }
+
+  // Tangent or non-intersecting circles: the closed-form Jacobian is singular (dp/dr ~ 1/h).
+  Eigen::Vector2d p;
+  if (h2 >= -tangent_tol * tangent_tol) {
+    p = c1 + a * e;  // tangent: one intersection, on the baseline
+    sol.status = FixStatus::Ok;
+  } else {
+    const double v_centres = e.dot((x_cov.block<2, 2>(0, 0) + x_cov.block<2, 2>(4, 4)) * e);
+    const double floor = 1e-12 * scale * scale;
+    const double v1 = std::max(floor, x_cov(2, 2) + 0.5 * v_centres);
+    const double v2 = std::max(floor, x_cov(6, 6) + 0.5 * v_centres);
+    const auto [t, cost] = closestOnBaseline(d, r1, r2, v1, v2);
+    p = c1 + t * e;
+    sol.gap_sigma = std::sqrt(cost);
+    sol.status = sol.gap_sigma > options.max_gap_sigma ? FixStatus::Degenerate : FixStatus::ApproximateNoIntersection;
+  }
+  // Heading: circular mean of (4.6) over the landmarks the point is not on top of.
+  double sum_s = 0.0, sum_c = 0.0;
+  for (int i = 0; i < 2; ++i) {
+    const Eigen::Vector2d q = x.segment<2>(4 * i) - p;
+    if (q.norm() <= 1e-9 * scale) continue;
+    const double th = std::atan2(q.y(), q.x()) - x(4 * i + 3);
+    sum_s += std::sin(th);
+    sum_c += std::cos(th);
+  }
+  if (sum_s == 0.0 && sum_c == 0.0) {
+    sol.status = FixStatus::Degenerate;
+    return sol;
+  }
+  sol.pose = Pose2(p.x(), p.y(), std::atan2(sum_s, sum_c));
+  Eigen::Matrix3d cov;
+  if (sol.status != FixStatus::Degenerate) {
+    if (informationCovariance(sol.pose, x, x_cov, &cov)) {
+      sol.covariance = cov;
+    } else if (!x_cov.isZero(0.0)) {
+      sol.status = FixStatus::Degenerate;
+    }
+  }
+  return sol;
+}
+
+GlobalFix fixFromTwoLandmarks(const Observation& a, const Observation& b, const Eigen::Vector2d& landmark_a,
+                              const Eigen::Vector2d& landmark_b, const GlobalFixOptions& options) {
+  const TwoLandmarkProblem prob = makeTwoLandmarkProblem(a, b, landmark_a, landmark_b);
+  const TwoCircleSolution sol = solveTwoCircles(prob.x, prob.x_cov, prob.side, options);
+  GlobalFix f = toFix(sol, FixMethod::TwoLandmarks, {a.landmark_id, b.landmark_id});
+  if (orderingAmbiguous(sol, prob.x, prob.significance, options)) f.status = FixStatus::Ambiguous;
+  return f;
+}
+
+GlobalFix fixFromOneLandmark(const Observation& o, const Eigen::Vector2d& landmark, double compass_theta,
+                             double compass_sigma, const GlobalFixOptions& options) {
+  checkObservation(o, "fix1");
+  if (!landmark.allFinite()) throw Error("fix1: landmark position is not finite");
+  if (!std::isfinite(compass_theta)) throw Error("fix1: compass heading is not finite");
+  if (!(std::isfinite(compass_sigma) && compass_sigma >= 0.0)) throw Error("fix1: compass sigma must be >= 0");
+  GlobalFix f;
+  f.method = FixMethod::OneLandmarkCompass;
+  f.landmark_ids = {o.landmark_id};
+  if (!(o.range > 0.0)) {
+    f.status = FixStatus::Degenerate;
+    return f;
+  }
+  const double sigma = std::max(compass_sigma, options.compass_sigma_floor);
+  // (4.10): p = l - r (cos phi, sin phi), phi = theta + psi.
+  const double phi = compass_theta + o.bearing;
+  const double c = std::cos(phi), s = std::sin(phi), r = o.range;
+  f.pose = Pose2(landmark.x() - r * c, landmark.y() - r * s, compass_theta);
+  // (4.15) with the input (r, psi, theta) instead of (u_l, u_r, theta): J_i of 4.4.1.
+  Eigen::Matrix3d J;
+  J << -c, r * s, r * s,  //
+      -s, -r * c, -r * c,  //
+      0.0, 0.0, 1.0;
+  Eigen::Matrix3d input_cov = Eigen::Matrix3d::Zero();
+  input_cov.topLeftCorner<2, 2>() = o.covariance;
+  input_cov(2, 2) = sigma * sigma;  // (4.14)
+  f.covariance = symmetrize(J * input_cov * J.transpose());
+  f.status = positiveDefinite(f.covariance) ? FixStatus::Ok : FixStatus::Degenerate;
+  return f;
+}
+
+RunningFixResult runningFix(const Observation& earlier, const Observation& later, const Eigen::Vector2d& landmark,
+                            const Eigen::Vector3d& motion_world, const Eigen::Matrix3d& motion_covariance,
+                            const std::optional<Eigen::Vector2d>& coarse_prior, const GlobalFixOptions& options) {
+  checkObservation(earlier, "running fix");
+  checkObservation(later, "running fix");
+  if (earlier.landmark_id >= 0 && later.landmark_id >= 0 && earlier.landmark_id != later.landmark_id)
+    throw Error("running fix: the two observations are of different landmarks (" +
+                std::to_string(earlier.landmark_id) + ", " + std::to_string(later.landmark_id) + ")");
+  if (!landmark.allFinite() || !motion_world.allFinite() || !motion_covariance.allFinite())
+    throw Error("running fix: landmark or motion is not finite");
+  // Inputs y = (r1, psi1, r2, psi2, dx, dy, dtheta); the virtual landmark is l + (dx, dy), seen
+  // from the later pose at bearing psi1 - dtheta (the earlier direction to l, re-expressed).
+  Eigen::Matrix<double, 7, 7> y_cov = Eigen::Matrix<double, 7, 7>::Zero();
+  y_cov.block<2, 2>(0, 0) = earlier.covariance;
+  y_cov.block<2, 2>(2, 2) = later.covariance;
+  y_cov.block<3, 3>(4, 4) = motion_covariance;
+  Eigen::Matrix<double, 8, 7> M = Eigen::Matrix<double, 8, 7>::Zero();
+  M(0, 4) = 1.0;
+  M(1, 5) = 1.0;
+  M(2, 0) = 1.0;
+  M(3, 1) = 1.0;
+  M(3, 6) = -1.0;
+  M(6, 2) = 1.0;
+  M(7, 3) = 1.0;
+  Vector8d x;
+  const double psi_virtual = wrapAngle(earlier.bearing - motion_world.z());
+  x << landmark.x() + motion_world.x(), landmark.y() + motion_world.y(), earlier.range, psi_virtual, landmark.x(),
+      landmark.y(), later.range, later.bearing;
+  const Matrix8d x_cov = M * y_cov * M.transpose();
+
+  RunningFixResult res;
+  const int side = orderingSide(psi_virtual, later.bearing);
+  const double var_diff = x_cov(3, 3) + x_cov(7, 7) - 2.0 * x_cov(3, 7);
+  const double significance = orderingSignificance(psi_virtual, later.bearing, std::sqrt(std::max(0.0, var_diff)));
+  const std::vector<int> ids{later.landmark_id, later.landmark_id};
+  const TwoCircleSolution s0 = solveTwoCircles(x, x_cov, side, options);
+  const TwoCircleSolution s1 = solveTwoCircles(x, x_cov, -side, options);
+  res.candidates[0] = toFix(s0, FixMethod::RunningFix, ids);
+  res.candidates[1] = toFix(s1, FixMethod::RunningFix, ids);
+  if (!res.candidates[0].hasPose()) {
+    res.status = s0.status;
+    return res;
+  }
+  res.status = s0.status;  // Ok or ApproximateNoIntersection
+  if (s0.status != FixStatus::Ok || s0.half_chord == 0.0) {
+    res.preferred = 0;  // tangent / closest point: both candidates coincide
+  } else if (coarse_prior) {
+    const double d0 = (res.candidates[0].pose.translation() - *coarse_prior).norm();
+    const double d1 = (res.candidates[1].pose.translation() - *coarse_prior).norm();
+    res.preferred = d0 <= d1 ? 0 : 1;
+  } else if (!orderingAmbiguous(s0, x, significance, options)) {
+    res.preferred = 0;
+  } else {
+    res.status = FixStatus::Ambiguous;
+    res.preferred = -1;
+  }
+  return res;
+}
+
+namespace {
+
+// Preference among usable fixes: Ok before flagged ones, then the smaller position covariance.
+bool better(const GlobalFix& a, const GlobalFix& b) {
+  if (!b.hasPose()) return a.hasPose();
+  if (!a.hasPose()) return false;
+  const bool a_ok = a.status == FixStatus::Ok, b_ok = b.status == FixStatus::Ok;
+  if (a_ok != b_ok) return a_ok;
+  return a.covariance.topLeftCorner<2, 2>().trace() < b.covariance.topLeftCorner<2, 2>().trace();
+}
+
+// fix2 with the map bounds as the tie-breaker of an ambiguous ordering.
+GlobalFix twoLandmarkFixInMap(const Observation& a, const Observation& b, const Eigen::Vector2d& la,
+                              const Eigen::Vector2d& lb, const Bounds& bounds, const GlobalFixOptions& options) {
+  GlobalFix f = fixFromTwoLandmarks(a, b, la, lb, options);
+  if (f.status != FixStatus::Ambiguous) return f;
+  const TwoLandmarkProblem prob = makeTwoLandmarkProblem(a, b, la, lb);
+  const TwoCircleSolution mirror = solveTwoCircles(prob.x, prob.x_cov, -prob.side, options);
+  const bool in0 = bounds.contains(f.pose.translation(), options.bounds_margin_mm);
+  const bool in1 = mirror.status == FixStatus::Ok && bounds.contains(mirror.pose.translation(), options.bounds_margin_mm);
+  if (in0 && !in1) {
+    f.status = FixStatus::Ok;
+  } else if (in1 && !in0) {
+    f = toFix(mirror, FixMethod::TwoLandmarks, {a.landmark_id, b.landmark_id});
+  }
+  return f;
+}
+
+}  // namespace
+
+GlobalFix globalFix(const Step& step, const FieldMap& map, const GlobalFixOptions& options) {
+  std::vector<Observation> obs;
+  std::vector<Eigen::Vector2d> lms;
+  for (size_t i = 0; i < step.observations.size(); ++i) {
+    const Observation& o = step.observations[i];
+    if (o.landmark_id < 0) continue;
+    const Landmark* l = map.find(o.landmark_id);
+    if (!l)
+      throw Error("global fix: step " + std::to_string(step.step) + ": observations[" + std::to_string(i) +
+                  "]: landmark id " + std::to_string(o.landmark_id) + " is not in map '" + map.name() + "'");
+    obs.push_back(o);
+    lms.push_back(l->xy());
+  }
+  const size_t n = obs.size();
+  const bool has_compass = step.compass.has_value();
+  if (has_compass && !std::isfinite(*step.compass))
+    throw Error("global fix: step " + std::to_string(step.step) + ": compass is not finite");
+  const double compass_sigma = step.compass_sigma > 0.0 ? step.compass_sigma : options.compass_sigma_default;
+
+  GlobalFix best;
+  best.status = FixStatus::NotEnoughLandmarks;
+  FixStatus first_failure = FixStatus::NotEnoughLandmarks;
+  auto consider = [&](const GlobalFix& f) {
+    if (f.hasPose()) {
+      if (better(f, best)) best = f;
+    } else if (first_failure == FixStatus::NotEnoughLandmarks) {
+      first_failure = f.status;
+    }
+  };
+
+  if (options.allow_multi && (n >= 3 || (n >= 2 && has_compass))) {
+    GlobalFix f = fixFromLandmarks(obs, lms, step.compass, compass_sigma, options);
+    if (f.status == FixStatus::Ok) return f;
+    consider(f);
+  }
+  if (options.allow_two_landmarks && n >= 2) {
+    GlobalFix best2;
+    best2.status = FixStatus::NotEnoughLandmarks;
+    for (size_t i = 0; i < n; ++i)
+      for (size_t j = i + 1; j < n; ++j) {
+        GlobalFix f = twoLandmarkFixInMap(obs[i], obs[j], lms[i], lms[j], map.bounds(), options);
+        if (f.hasPose() ? better(f, best2) : false) best2 = f;
+        if (!f.hasPose()) consider(f);
+      }
+    if (best2.status == FixStatus::Ok && !(best.status == FixStatus::Ok)) return best2;
+    consider(best2);
+  }
+  if (options.allow_one_landmark && has_compass && n >= 1 && best.status != FixStatus::Ok) {
+    for (size_t i = 0; i < n; ++i) consider(fixFromOneLandmark(obs[i], lms[i], *step.compass, compass_sigma, options));
+  }
+  if (!best.hasPose()) best.status = first_failure;
+  return best;
+}
+
+}  // namespace stereoloc

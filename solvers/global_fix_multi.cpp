@@ -1,0 +1,213 @@
+// The n-landmark global fix (thesis 4.2.8): nonlinear least squares on range and bearing,
+// solved with Ceres from closed-form starting points, covariance from the Jacobian.
+#include <ceres/autodiff_cost_function.h>
+#include <ceres/problem.h>
+#include <ceres/solver.h>
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "solvers/global_fix.h"
+#include "src/error.h"
+#include "src/gaussian.h"
+#include "src/measurement_model.h"
+
+namespace stereoloc {
+namespace {
+
+// r = S (h(p, l) [-] z), h = predictRangeBearingT (5.27); p = (x, y, theta) world (mm, rad),
+// l landmark (mm), z = (range mm, bearing rad) in C0, S the upper square-root information of R.
+// (The same residual as the smoothers' range-bearing factor; kept local so that the solvers
+// library does not depend on a factors/ header for one functor.)
+struct FixRangeBearingResidual {
+  FixRangeBearingResidual(const Eigen::Vector2d& l, const Eigen::Vector2d& z, const Eigen::Matrix2d& S)
+      : l_(l), z_(z), S_(S) {}
+  template <typename T>
+  bool operator()(const T* pose, T* residual) const {
+    const T dx = T(l_[0]) - pose[0], dy = T(l_[1]) - pose[1];
+    if (dx * dx + dy * dy < T(1e-12)) return false;  // bearing undefined on the landmark
+    const T l[2] = {T(l_[0]), T(l_[1])};
+    T h[2];
+    predictRangeBearingT(pose, l, h);
+    const T e0 = h[0] - T(z_[0]);
+    const T e1 = wrapAngle<T>(h[1] - T(z_[1]));
+    residual[0] = T(S_(0, 0)) * e0 + T(S_(0, 1)) * e1;
+    residual[1] = T(S_(1, 1)) * e1;
+    return true;
+  }
+  Eigen::Vector2d l_, z_;
+  Eigen::Matrix2d S_;
+};
+
+// r = wrap(theta - theta_compass) / sigma: the compass as an absolute heading measurement (4.3.2).
+struct CompassResidual {
+  CompassResidual(double theta, double sigma) : theta_(theta), sigma_(sigma) {}
+  template <typename T>
+  bool operator()(const T* pose, T* residual) const {
+    residual[0] = wrapAngle<T>(pose[2] - T(theta_)) / T(sigma_);
+    return true;
+  }
+  double theta_, sigma_;
+};
+
+struct Solved {
+  bool ok = false;
+  Pose2 pose;
+  double chi2 = std::numeric_limits<double>::infinity();  // 2 * Ceres cost = sum of squared whitened residuals
+};
+
+Solved solveFrom(const Pose2& start, const std::vector<Observation>& obs, const std::vector<Eigen::Vector2d>& lms,
+                 const std::vector<Eigen::Matrix2d>& S, const std::optional<double>& compass, double compass_sigma,
+                 int max_iterations) {
+  double pose[3] = {start.x, start.y, start.theta};
+  ceres::Problem problem;
+  for (size_t i = 0; i < obs.size(); ++i)
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FixRangeBearingResidual, 2, 3>(
+                                 new FixRangeBearingResidual(lms[i], obs[i].z(), S[i])),
+                             nullptr, pose);
+  if (compass)
+    problem.AddResidualBlock(
+        new ceres::AutoDiffCostFunction<CompassResidual, 1, 3>(new CompassResidual(*compass, compass_sigma)), nullptr,
+        pose);
+  ceres::Solver::Options so;
+  so.linear_solver_type = ceres::DENSE_QR;
+  so.max_num_iterations = max_iterations;
+  so.num_threads = 1;
+  so.logging_type = ceres::SILENT;
+  so.minimizer_progress_to_stdout = false;
+  so.function_tolerance = 1e-12;
+  so.gradient_tolerance = 1e-12;
+  so.parameter_tolerance = 1e-12;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  Solved s;
+  if (!summary.IsSolutionUsable() || !std::isfinite(pose[0]) || !std::isfinite(pose[1]) || !std::isfinite(pose[2]))
+    return s;
+  s.ok = true;
+  s.pose = Pose2(pose[0], pose[1], pose[2]);
+  s.chi2 = 2.0 * summary.final_cost;
+  return s;
+}
+
+}  // namespace
+
+GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
+                           const std::optional<double>& compass_theta, double compass_sigma,
+                           const GlobalFixOptions& options) {
+  if (observations.size() != landmarks.size())
+    throw Error("multi fix: " + std::to_string(observations.size()) + " observations but " +
+                std::to_string(landmarks.size()) + " landmark positions");
+  GlobalFix f;
+  f.method = FixMethod::MultiLandmark;
+  for (const Observation& o : observations) f.landmark_ids.push_back(o.landmark_id);
+  const size_t n = observations.size();
+  if (n < 2 || (n < 3 && !compass_theta)) return f;  // NotEnoughLandmarks
+  if (compass_theta && !std::isfinite(*compass_theta)) throw Error("multi fix: compass heading is not finite");
+  if (!(std::isfinite(compass_sigma) && compass_sigma >= 0.0)) throw Error("multi fix: compass sigma must be >= 0");
+  const double sigma_c = std::max(compass_sigma, options.compass_sigma_floor);
+
+  std::vector<Eigen::Matrix2d> S(n);
+  for (size_t i = 0; i < n; ++i) {
+    if (!(std::isfinite(observations[i].range) && std::isfinite(observations[i].bearing)) ||
+        !landmarks[i].allFinite())
+      throw Error("multi fix: observation " + std::to_string(i) + " is not finite");
+    S[i] = sqrtInformationUpper<2>(observations[i].covariance, "multi fix: observation covariance R");
+  }
+
+  // Starting points: both intersections of the best-conditioned pair (so the ordering rule is
+  // not needed: the bearings of all landmarks decide), and the best one-landmark fix.
+  std::vector<Pose2> starts;
+  double best_trace = std::numeric_limits<double>::infinity();
+  Pose2 pair_pose, mirror_pose;
+  bool have_pair = false;
+  for (size_t i = 0; i < n; ++i)
+    for (size_t j = i + 1; j < n; ++j) {
+      Vector8d x;
+      x << landmarks[i].x(), landmarks[i].y(), observations[i].range, observations[i].bearing, landmarks[j].x(),
+          landmarks[j].y(), observations[j].range, observations[j].bearing;
+      Matrix8d x_cov = Matrix8d::Zero();
+      x_cov.block<2, 2>(2, 2) = observations[i].covariance;
+      x_cov.block<2, 2>(6, 6) = observations[j].covariance;
+      const int side = orderingSide(observations[i].bearing, observations[j].bearing);
+      const TwoCircleSolution s = solveTwoCircles(x, x_cov, side, options);
+      if (s.status != FixStatus::Ok && s.status != FixStatus::ApproximateNoIntersection) continue;
+      const double tr = s.covariance.topLeftCorner<2, 2>().trace();
+      if (tr < best_trace) {
+        best_trace = tr;
+        pair_pose = s.pose;
+        const TwoCircleSolution m = solveTwoCircles(x, x_cov, -side, options);
+        mirror_pose = m.status == FixStatus::Degenerate ? s.pose : m.pose;
+        have_pair = true;
+      }
+    }
+  if (have_pair) {
+    starts.push_back(pair_pose);
+    starts.push_back(mirror_pose);
+  }
+  if (compass_theta) {
+    GlobalFix best1;
+    for (size_t i = 0; i < n; ++i) {
+      const GlobalFix g = fixFromOneLandmark(observations[i], landmarks[i], *compass_theta, sigma_c, options);
+      if (g.status == FixStatus::Ok &&
+          (best1.status != FixStatus::Ok ||
+           g.covariance.topLeftCorner<2, 2>().trace() < best1.covariance.topLeftCorner<2, 2>().trace()))
+        best1 = g;
+    }
+    if (best1.status == FixStatus::Ok) starts.push_back(best1.pose);
+  }
+  if (starts.empty()) {
+    f.status = FixStatus::Degenerate;
+    return f;
+  }
+
+  std::vector<Solved> solved;
+  for (const Pose2& s : starts) {
+    Solved r = solveFrom(s, observations, landmarks, S, compass_theta, sigma_c, options.multi_max_iterations);
+    if (r.ok) solved.push_back(r);
+  }
+  if (solved.empty()) {
+    f.status = FixStatus::Degenerate;
+    return f;
+  }
+  std::sort(solved.begin(), solved.end(), [](const Solved& a, const Solved& b) { return a.chi2 < b.chi2; });
+  const Solved& best = solved.front();
+
+  // Covariance (J^T W J)^-1 at the optimum, with the analytic Jacobian of (5.27).
+  Eigen::Matrix3d info = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < n; ++i) {
+    Matrix23d H;
+    try {
+      predictRangeBearing(best.pose, landmarks[i], &H);
+    } catch (const GeometryError&) {
+      f.status = FixStatus::Degenerate;
+      return f;
+    }
+    const Matrix23d SH = S[i] * H;
+    info += SH.transpose() * SH;
+  }
+  if (compass_theta) info(2, 2) += 1.0 / (sigma_c * sigma_c);
+  info = 0.5 * (info + info.transpose());
+  Eigen::LLT<Eigen::Matrix3d> llt(info);
+  // Rank check relative to the largest eigenvalue (e.g. all landmarks on one line through the robot).
+  const double max_diag = info.diagonal().maxCoeff();
+  if (llt.info() != Eigen::Success || !(max_diag > 0) ||
+      llt.matrixL().toDenseMatrix().diagonal().minCoeff() <= 1e-9 * std::sqrt(max_diag)) {
+    f.status = FixStatus::Degenerate;
+    return f;
+  }
+  f.pose = best.pose;
+  f.covariance = llt.solve(Eigen::Matrix3d::Identity());
+  f.covariance = 0.5 * (f.covariance + f.covariance.transpose());
+  f.status = FixStatus::Ok;
+  // A second, clearly different optimum that fits almost as well: the data do not decide.
+  for (size_t k = 1; k < solved.size(); ++k) {
+    const Eigen::Vector3d dpose = minus(solved[k].pose, best.pose);
+    const double separation = mahalanobisSquared<3>(dpose, f.covariance);
+    if (separation > 9.0 && solved[k].chi2 - best.chi2 < 4.0) f.status = FixStatus::Ambiguous;
+  }
+  return f;
+}
+
+}  // namespace stereoloc
