@@ -1,0 +1,36 @@
+#pragma once
+// Stage 5: field-marking classification (Algorithm 3, Fig. 3.8). A white marking on the dark
+// floor shows as two parallel edges of opposite gradient. Our lines are directed (the normal
+// points to the bright side), so the partner of a marking edge is searched only on the bright
+// side, along the normal, up to W' px: this rejects dark stripes between bright areas. A
+// segment is a marking when at least xi_l of its tested pixels (a fraction xi_h of all,
+// evenly spaced) have a partner.
+//
+// W' depends on the row: the widest a marking of width w can appear at image row v is
+// f w / x(v), with x(v) the floor distance seen at that row; the frontend passes
+// W'(v) = clamp(width_factor * f w / x(v), min_width_px, max_width_px). A wall (50 mm high,
+// 5 marking widths) seen at the same distance is then too wide to pass as a marking.
+#include <vector>
+
+#include "frontend/features.h"
+#include "frontend/gradient.h"
+#include "frontend/segments.h"
+
+namespace stereoloc::frontend {
+
+struct ClassifyParams {
+  double width_factor = 1.6;           // W'(v) relative to the widest expected marking at row v
+  double min_width_px = 3.0;           // lower clamp of W' (thin, distant markings)
+  double max_width_px = 24.0;          // upper clamp of W'
+  double opposite_tolerance_deg = 20.0;  // partner direction vs theta + 180 deg
+  double xi_h = 1.0;                   // fraction of the segment's pixels tested
+  double xi_l = 0.5;                   // fraction of tested pixels that must have a partner
+};
+
+// Sets cls, marking_width and marking_score of every segment. max_width_per_row[v] is W'(v);
+// an empty vector means min_width_px everywhere.
+void classifySegments(const GradientStage& grad, const SegmentExtractor& extractor,
+                      const std::vector<float>& max_width_per_row, const ClassifyParams& params,
+                      std::vector<Segment>& segments, std::vector<float>& scratch);
+
+}  // namespace stereoloc::frontend

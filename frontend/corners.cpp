@@ -1,0 +1,208 @@
+#include "frontend/corners.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace stereoloc::frontend {
+namespace {
+
+constexpr double kPi = 3.141592653589793;
+double deg(double d) { return d * kPi / 180.0; }
+
+// Undirected form of a directed line.
+void undirect(double theta, double rho, double& t_out, double& r_out) {
+  if (theta >= kPi) {
+    t_out = theta - kPi;
+    r_out = -rho;
+  } else {
+    t_out = theta;
+    r_out = rho;
+  }
+}
+
+double along(double theta, double x, double y) { return -x * std::sin(theta) + y * std::cos(theta); }
+
+}  // namespace
+
+bool floorPoint(const StereoRig& rig, double u, double v, double& x, double& y) {
+  const double f = rig.focal(), b = rig.params().baseline_mm;
+  const Eigen::Vector3d o = rig.visionToRobot(Eigen::Vector3d(0.0, 0.5 * b, 0.0), 0.0);
+  const Eigen::Vector3d p =
+      rig.visionToRobot(Eigen::Vector3d(1.0, 0.5 * b - (u - rig.principalU()) / f, -(v - rig.principalV()) / f), 0.0);
+  const double dz = p.z() - o.z();
+  if (!(dz < -1e-9)) return false;
+  const double s = -o.z() / dz;
+  x = o.x() + s * (p.x() - o.x());
+  y = o.y() + s * (p.y() - o.y());
+  return true;
+}
+
+void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, std::vector<LineFeature>& lines) {
+  lines.clear();
+  for (size_t i = 0; i < segments.size(); ++i) {
+    const Segment& s = segments[i];
+    LineFeature l;
+    const bool marking = s.cls == SegmentClass::Marking;
+    undirect(s.theta, s.rho + (marking ? 0.5 * s.marking_width : 0.0), l.theta, l.rho);
+    const double t1 = along(l.theta, s.x1, s.y1), t2 = along(l.theta, s.x2, s.y2);
+    l.t_min = std::min(t1, t2);
+    l.t_max = std::max(t1, t2);
+    l.marking = marking;
+    // Bright above (gradient pointing up the image) and not a stripe: the foot of a wall.
+    l.wall_foot = !marking && std::sin(s.theta) < -std::cos(deg(30.0));
+    l.support = s.pixels;
+    l.source = static_cast<int>(i);
+    lines.push_back(l);
+  }
+  // The two edges of one stripe: opposite gradients, nearly the same centre line. Under
+  // perspective they converge, so their centre line is the line through the midpoints of
+  // corresponding points (each edge's end points and their projections on the other edge).
+  std::vector<uint8_t> gone(lines.size(), 0);
+  for (size_t i = 0; i < lines.size(); ++i) {
+    if (!lines[i].marking || gone[i]) continue;
+    const Segment& a = segments[i];
+    for (size_t j = i + 1; j < lines.size(); ++j) {
+      if (!lines[j].marking || gone[j]) continue;
+      const Segment& b = segments[j];
+      if (std::cos(a.theta - b.theta) > -std::cos(deg(prm.centre_merge_deg))) continue;
+      const LineFeature& li = lines[i];
+      const LineFeature& lj = lines[j];
+      const double tol = std::max(prm.centre_merge_px, 0.5 * std::max(a.marking_width, b.marking_width));
+      auto dist = [](const LineFeature& l, double x, double y) {
+        return std::fabs(x * std::cos(l.theta) + y * std::sin(l.theta) - l.rho);
+      };
+      const double tm = 0.5 * (li.t_min + li.t_max);
+      if (dist(lj, li.x(tm), li.y(tm)) > tol) continue;
+      const double u0 = along(lj.theta, li.x(li.t_min), li.y(li.t_min)), u1 = along(lj.theta, li.x(li.t_max), li.y(li.t_max));
+      if (std::max(u0, u1) < lj.t_min - prm.delta_px || std::min(u0, u1) > lj.t_max + prm.delta_px) continue;
+      // Midpoints of corresponding edge points.
+      double mx[4], my[4];
+      int n = 0;
+      for (const Segment* p : {&a, &b}) {
+        const Segment* q = p == &a ? &b : &a;
+        const double qc = std::cos(q->theta), qs = std::sin(q->theta);
+        for (int e = 0; e < 2; ++e) {
+          const double x = e ? p->x2 : p->x1, y = e ? p->y2 : p->y1;
+          const double d = x * qc + y * qs - q->rho;
+          mx[n] = x - 0.5 * d * qc;
+          my[n] = y - 0.5 * d * qs;
+          ++n;
+        }
+      }
+      double cx = 0, cy = 0;
+      for (int k = 0; k < 4; ++k) {
+        cx += mx[k] / 4;
+        cy += my[k] / 4;
+      }
+      double sxx = 0, sxy = 0, syy = 0;
+      for (int k = 0; k < 4; ++k) {
+        sxx += (mx[k] - cx) * (mx[k] - cx);
+        sxy += (mx[k] - cx) * (my[k] - cy);
+        syy += (my[k] - cy) * (my[k] - cy);
+      }
+      const double phi = 0.5 * std::atan2(2 * sxy, sxx - syy);  // direction of the centre line
+      LineFeature m = li;
+      double th = phi + kPi / 2;  // normal
+      while (th < 0) th += kPi;
+      while (th >= kPi) th -= kPi;
+      m.theta = th;
+      m.rho = cx * std::cos(th) + cy * std::sin(th);
+      m.t_min = 1e30;
+      m.t_max = -1e30;
+      for (int k = 0; k < 4; ++k) {
+        const double t = along(th, mx[k], my[k]);
+        m.t_min = std::min(m.t_min, t);
+        m.t_max = std::max(m.t_max, t);
+      }
+      m.support = li.support + lj.support;
+      lines[i] = m;
+      gone[j] = 1;
+      break;
+    }
+  }
+  size_t k = 0;
+  for (size_t i = 0; i < lines.size(); ++i)
+    if (!gone[i]) lines[k++] = lines[i];
+  lines.resize(k);
+}
+
+void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& prm,
+                 std::vector<PointFeature>& features) {
+  features.clear();
+  const double w = rig.params().image_width, h = rig.params().image_height;
+  const double min_sin = std::sin(deg(prm.min_image_angle_deg));
+  std::vector<int> counts;
+  auto floorDir = [&](const LineFeature& l, double& dx, double& dy) {
+    double xa, ya, xb, yb;
+    if (!floorPoint(rig, l.x(l.t_min), l.y(l.t_min), xa, ya) || !floorPoint(rig, l.x(l.t_max), l.y(l.t_max), xb, yb))
+      return false;
+    dx = xb - xa;
+    dy = yb - ya;
+    return std::hypot(dx, dy) > 1e-6;
+  };
+  for (size_t i = 0; i < lines.size(); ++i) {
+    for (size_t j = i + 1; j < lines.size(); ++j) {
+      const LineFeature& a = lines[i];
+      const LineFeature& b = lines[j];
+      if (!a.marking && !b.marking) continue;
+      const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
+      if (std::fabs(det) < min_sin) continue;
+      // (3.12), (3.13)
+      const double px = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;
+      const double py = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;
+      if (px < 0 || py < 0 || px > w - 1 || py > h - 1) continue;
+      const double ta = along(a.theta, px, py), tb = along(b.theta, px, py);
+      if (ta < a.t_min - prm.delta_px || ta > a.t_max + prm.delta_px) continue;
+      if (tb < b.t_min - prm.delta_px || tb > b.t_max + prm.delta_px) continue;
+      const bool a_ends = ta < a.t_min + prm.delta_px || ta > a.t_max - prm.delta_px;
+      const bool b_ends = tb < b.t_min + prm.delta_px || tb > b.t_max - prm.delta_px;
+      LandmarkType type;
+      if (a.marking && b.marking) {
+        double ax, ay, bx, by;
+        if (!floorDir(a, ax, ay) || !floorDir(b, bx, by)) continue;
+        const double ang = std::acos(std::min(1.0, std::fabs(ax * bx + ay * by) / (std::hypot(ax, ay) * std::hypot(bx, by))));
+        if (a_ends && b_ends) {
+          if (std::fabs(ang - kPi / 2) > deg(prm.corner_angle_tol_deg)) continue;
+          type = LandmarkType::MarkingCorner;
+        } else if (!a_ends && !b_ends) {
+          if (ang < deg(prm.min_crossing_angle_deg)) continue;
+          type = LandmarkType::Intersection;
+        } else {
+          continue;
+        }
+      } else {
+        const LineFeature& m = a.marking ? a : b;
+        const LineFeature& o = a.marking ? b : a;
+        const bool m_ends = a.marking ? a_ends : b_ends;
+        if (!o.wall_foot || !m_ends) continue;
+        // The marking must lie on the floor side (below) of the wall foot.
+        const double mid_y = m.y(0.5 * (m.t_min + m.t_max));
+        if (mid_y < py) continue;
+        type = LandmarkType::Junction;
+      }
+      // Average with an existing feature of the same type nearby (3+ lines meeting).
+      bool merged = false;
+      for (size_t k = 0; k < features.size(); ++k) {
+        PointFeature& f = features[k];
+        if (f.type != type || std::hypot(f.u - px, f.v - py) > prm.merge_px) continue;
+        const double n = counts[k];
+        f.u = (f.u * n + px) / (n + 1);
+        f.v = (f.v * n + py) / (n + 1);
+        ++counts[k];
+        merged = true;
+        break;
+      }
+      if (merged) continue;
+      PointFeature f;
+      f.type = type;
+      f.u = px;
+      f.v = py;
+      f.line_a = static_cast<int>(i);
+      f.line_b = static_cast<int>(j);
+      features.push_back(f);
+      counts.push_back(1);
+    }
+  }
+}
+
+}  // namespace stereoloc::frontend

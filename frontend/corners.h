@@ -1,0 +1,50 @@
+#pragma once
+// Stage 6: corners, T-junctions and line intersections from pairs of lines (Algorithm 4, 3.5).
+//
+// Lines: every marking becomes the centre line of its stripe: the line through the midpoints
+// of its two edges when both were found (they converge under perspective), otherwise its edge
+// moved by half the measured width towards the bright side. Other segments stay edge lines. Map landmarks sit on
+// marking centre lines and on the wall foot, so this is where their image positions are.
+//
+// For each pair of lines at an image angle of at least min_image_angle, the intersection p
+// (3.12, 3.13) is kept when it lies inside the image and within delta of both extents
+// (the rotated-x test of Algorithm 4: a line's extent is [t_min, t_max] along its direction).
+// A line "ends" at p when p is within delta of one of its ends (or beyond it), and "passes"
+// p otherwise. Types:
+//   marking ends   + marking ends,   floor angle 90 +- corner_angle_tol  -> MarkingCorner (L)
+//   marking passes + marking passes, floor angle >= min_crossing_angle   -> Intersection (X)
+//   marking ends   + wall foot (ends or passes)                           -> Junction (T)
+// Other combinations (two arc chords, wall/wall, marking T marking) are not map landmarks and
+// are dropped. The floor angle is measured after back-projecting both lines onto the floor
+// with the rig (real marking corners are 90 deg there; the centre circle's chords are not,
+// 6.1). Intersections of the same type closer than merge_px (three or more lines meeting)
+// are averaged.
+#include <vector>
+
+#include "frontend/features.h"
+#include "src/stereo_rig.h"
+
+namespace stereoloc::frontend {
+
+struct CornerParams {
+  double delta_px = 8.0;               // delta (6.1)
+  double min_image_angle_deg = 20.0;   // pairs closer to parallel give unstable intersections
+  double corner_angle_tol_deg = 20.0;  // |floor angle - 90 deg| for an L corner
+  double min_crossing_angle_deg = 45.0;
+  double merge_px = 3.0;               // intersections closer than this are one feature
+  double centre_merge_deg = 12.0;      // two opposite marking edges -> one centre line when this parallel
+  double centre_merge_px = 2.5;        // ... and their centre lines this close (or half the width)
+};
+
+// Segments -> lines (see above). Appends nothing: `lines` is replaced.
+void buildLines(const std::vector<Segment>& segments, const CornerParams& params, std::vector<LineFeature>& lines);
+
+// Lines -> point features (types MarkingCorner, Junction, Intersection); `features` is replaced.
+void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& params,
+                 std::vector<PointFeature>& features);
+
+// Intersection of the left-camera ray through pixel (u, v) with the floor, in the robot frame
+// C0 at head pan 0 (mm). False when the ray does not go down.
+bool floorPoint(const StereoRig& rig, double u, double v, double& x, double& y);
+
+}  // namespace stereoloc::frontend

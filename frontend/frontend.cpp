@@ -1,0 +1,279 @@
+#include "frontend/frontend.h"
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <map>
+#include <opencv2/core.hpp>
+
+#include "src/error.h"
+#include "src/yaml_util.h"
+
+namespace stereoloc::frontend {
+namespace {
+
+// One table of every field, so load, save and the unknown-key check cannot drift apart.
+struct Field {
+  const char* section;
+  const char* key;
+  enum Kind { Double, Int, Bool } kind;
+  void* ptr;
+};
+
+std::vector<Field> fields(FrontendParams& p) {
+  return {
+      {"gradient", "magnitude_threshold", Field::Int, &p.gradient.magnitude_threshold},
+      {"hough", "theta_step_deg", Field::Double, &p.hough.theta_step_deg},
+      {"hough", "rho_step_px", Field::Double, &p.hough.rho_step_px},
+      {"hough", "tolerance_deg", Field::Double, &p.hough.tolerance_deg},
+      {"hough", "weight_by_magnitude", Field::Bool, &p.hough.weight_by_magnitude},
+      {"peaks", "min_votes", Field::Int, &p.peaks.min_votes},
+      {"peaks", "max_peaks", Field::Int, &p.peaks.max_peaks},
+      {"peaks", "window_theta_bins", Field::Int, &p.peaks.window_theta_bins},
+      {"peaks", "window_rho_bins", Field::Int, &p.peaks.window_rho_bins},
+      {"segments", "gap_min_px", Field::Double, &p.segments.gap_min_px},
+      {"segments", "gap_max_px", Field::Double, &p.segments.gap_max_px},
+      {"segments", "min_length_px", Field::Double, &p.segments.min_length_px},
+      {"segments", "min_piece_px", Field::Double, &p.segments.min_piece_px},
+      {"segments", "min_density", Field::Double, &p.segments.min_density},
+      {"segments", "direction_tolerance_deg", Field::Double, &p.segments.direction_tolerance_deg},
+      {"segments", "band_px", Field::Double, &p.segments.band_px},
+      {"segments", "refit_iterations", Field::Int, &p.segments.refit_iterations},
+      {"classify", "width_factor", Field::Double, &p.classify.width_factor},
+      {"classify", "min_width_px", Field::Double, &p.classify.min_width_px},
+      {"classify", "max_width_px", Field::Double, &p.classify.max_width_px},
+      {"classify", "opposite_tolerance_deg", Field::Double, &p.classify.opposite_tolerance_deg},
+      {"classify", "xi_h", Field::Double, &p.classify.xi_h},
+      {"classify", "xi_l", Field::Double, &p.classify.xi_l},
+      {"corners", "delta_px", Field::Double, &p.corners.delta_px},
+      {"corners", "min_image_angle_deg", Field::Double, &p.corners.min_image_angle_deg},
+      {"corners", "corner_angle_tol_deg", Field::Double, &p.corners.corner_angle_tol_deg},
+      {"corners", "min_crossing_angle_deg", Field::Double, &p.corners.min_crossing_angle_deg},
+      {"corners", "merge_px", Field::Double, &p.corners.merge_px},
+      {"corners", "centre_merge_deg", Field::Double, &p.corners.centre_merge_deg},
+      {"corners", "centre_merge_px", Field::Double, &p.corners.centre_merge_px},
+      {"goals", "coarse_step", Field::Int, &p.goals.coarse_step},
+      {"goals", "min_coarse_hits", Field::Int, &p.goals.min_coarse_hits},
+      {"goals", "window_margin_px", Field::Int, &p.goals.window_margin_px},
+      {"goals", "colour_min_score", Field::Int, &p.goals.colour_min_score},
+      {"goals", "white_max_score", Field::Int, &p.goals.white_max_score},
+      {"goals", "white_min_luma", Field::Int, &p.goals.white_min_luma},
+      {"goals", "max_transition_px", Field::Int, &p.goals.max_transition_px},
+      {"goals", "min_rows", Field::Int, &p.goals.min_rows},
+      {"goals", "outlier_px", Field::Double, &p.goals.outlier_px},
+      {"stereo", "min_range_mm", Field::Double, &p.stereo.min_range_mm},
+      {"stereo", "max_range_mm", Field::Double, &p.stereo.max_range_mm},
+      {"stereo", "patch_radius", Field::Int, &p.stereo.patch_radius},
+      {"stereo", "min_zncc", Field::Double, &p.stereo.min_zncc},
+      {"stereo", "uniqueness", Field::Double, &p.stereo.uniqueness},
+      {"stereo", "floor_search_px", Field::Double, &p.stereo.floor_search_px},
+      {"stereo", "corner_pixel_sigma", Field::Double, &p.stereo.corner_pixel_sigma},
+      {"stereo", "goal_pixel_sigma", Field::Double, &p.stereo.goal_pixel_sigma},
+  };
+}
+
+const char* kSections[] = {"gradient", "hough", "peaks", "segments", "classify", "corners", "goals", "stereo"};
+
+}  // namespace
+
+void FrontendParams::validate() const {
+  auto need = [](bool ok, const char* field, const char* what) {
+    if (!ok) throw Error(std::string("frontend params: ") + field + ": " + what);
+  };
+  need(gradient.magnitude_threshold > 0, "gradient.magnitude_threshold", "must be positive");
+  const double n = 360.0 / hough.theta_step_deg;
+  need(hough.theta_step_deg > 0 && std::fabs(n - std::round(n)) < 1e-6, "hough.theta_step_deg",
+       "must be positive and divide 360");
+  need(hough.rho_step_px > 0, "hough.rho_step_px", "must be positive");
+  need(hough.tolerance_deg >= 0 && hough.tolerance_deg < 90, "hough.tolerance_deg", "must be in [0, 90)");
+  need(peaks.min_votes > 0, "peaks.min_votes", "must be positive");
+  need(peaks.max_peaks > 0, "peaks.max_peaks", "must be positive");
+  need(peaks.window_theta_bins >= 0 && peaks.window_rho_bins >= 0, "peaks.window_*", "must not be negative");
+  need(segments.gap_min_px > 0, "segments.gap_min_px", "must be positive");
+  need(segments.gap_max_px >= segments.gap_min_px, "segments.gap_max_px", "must be at least gap_min_px");
+  need(segments.min_length_px > 0, "segments.min_length_px", "must be positive");
+  need(segments.min_piece_px >= 0, "segments.min_piece_px", "must not be negative");
+  need(segments.min_density >= 0 && segments.min_density <= 2, "segments.min_density", "must be in [0, 2]");
+  need(segments.direction_tolerance_deg > 0 && segments.direction_tolerance_deg < 90,
+       "segments.direction_tolerance_deg", "must be in (0, 90)");
+  need(segments.band_px > 0, "segments.band_px", "must be positive");
+  need(segments.refit_iterations >= 1, "segments.refit_iterations", "must be at least 1");
+  need(classify.width_factor > 0, "classify.width_factor", "must be positive");
+  need(classify.min_width_px > 0 && classify.max_width_px >= classify.min_width_px, "classify.min/max_width_px",
+       "need 0 < min <= max");
+  need(classify.xi_h > 0 && classify.xi_h <= 1, "classify.xi_h", "must be in (0, 1]");
+  need(classify.xi_l > 0 && classify.xi_l <= 1, "classify.xi_l", "must be in (0, 1]");
+  need(corners.delta_px >= 0, "corners.delta_px", "must not be negative");
+  need(corners.merge_px >= 0, "corners.merge_px", "must not be negative");
+  need(goals.coarse_step >= 1, "goals.coarse_step", "must be at least 1");
+  need(goals.min_rows >= 1, "goals.min_rows", "must be at least 1");
+  need(goals.max_transition_px >= 1, "goals.max_transition_px", "must be at least 1");
+  need(stereo.min_range_mm > 0, "stereo.min_range_mm", "must be positive");
+  need(stereo.patch_radius >= 1 && stereo.patch_radius <= 15, "stereo.patch_radius", "must be in [1, 15]");
+  need(stereo.corner_pixel_sigma > 0 && stereo.goal_pixel_sigma > 0, "stereo.*_pixel_sigma", "must be positive");
+}
+
+FrontendParams FrontendParams::load(const std::string& path) {
+  FrontendParams p;
+  YamlReader r(path);
+  auto table = fields(p);
+  // Unknown sections or keys are errors, so a misspelt parameter is never silently ignored.
+  for (auto it = r.node().begin(); it != r.node().end(); ++it) {
+    const std::string sec = (*it).name();
+    if (std::find_if(std::begin(kSections), std::end(kSections), [&](const char* s) { return sec == s; }) ==
+        std::end(kSections))
+      r.fail(sec, "unknown section");
+    const YamlNode node = r.child(sec);
+    for (auto kt = node.node().begin(); kt != node.node().end(); ++kt) {
+      const std::string key = (*kt).name();
+      if (std::none_of(table.begin(), table.end(), [&](const Field& f) { return sec == f.section && key == f.key; }))
+        node.fail(key, "unknown parameter");
+    }
+  }
+  for (const Field& f : table) {
+    if (!r.has(f.section)) continue;
+    const YamlNode node = r.child(f.section);
+    switch (f.kind) {
+      case Field::Double: *static_cast<double*>(f.ptr) = node.getDouble(f.key, *static_cast<double*>(f.ptr)); break;
+      case Field::Int: *static_cast<int*>(f.ptr) = node.getInt(f.key, *static_cast<int*>(f.ptr)); break;
+      case Field::Bool: *static_cast<bool*>(f.ptr) = node.getBool(f.key, *static_cast<bool*>(f.ptr)); break;
+    }
+  }
+  try {
+    p.validate();
+  } catch (const Error& e) {
+    throw Error(path + ": " + e.what());
+  }
+  return p;
+}
+
+void FrontendParams::save(const std::string& path) const {
+  FrontendParams copy = *this;
+  auto table = fields(copy);
+  YamlWriter w;
+  w.comment("stereoloc vision frontend parameters (thesis ch. 3, defaults from 6.1). Units: px, deg, mm.");
+  for (const char* sec : kSections) {
+    w.fs() << sec << "{";
+    for (const Field& f : table) {
+      if (std::string(f.section) != sec) continue;
+      switch (f.kind) {
+        case Field::Double: w.fs() << f.key << *static_cast<double*>(f.ptr); break;
+        case Field::Int: w.fs() << f.key << *static_cast<int*>(f.ptr); break;
+        case Field::Bool: w.fs() << f.key << (*static_cast<bool*>(f.ptr) ? 1 : 0); break;
+      }
+    }
+    w.fs() << "}";
+  }
+  w.writeAtomically(path);
+}
+
+Frontend::Frontend(const StereoRig& rig, const FieldMap& map, const FrontendParams& params)
+    : rig_(rig), map_(map), params_(params) {
+  params_.validate();
+  const int w = rig_.params().image_width, h = rig_.params().image_height;
+  acc_.configure(w, h, params_.hough);
+  // W'(v): the widest a marking can look at row v, from the floor distance seen there.
+  const double line_width = map_.geometry() ? map_.geometry()->line_width : 10.0;
+  width_per_row_.assign(static_cast<size_t>(h), static_cast<float>(params_.classify.min_width_px));
+  for (int v = 0; v < h; ++v) {
+    double x, y;
+    if (!floorPoint(rig_, rig_.principalU(), v, x, y)) continue;
+    const double depth = std::max(1.0, x - rig_.params().offset_x_mm);
+    const double wv = params_.classify.width_factor * rig_.focal() * line_width / depth;
+    width_per_row_[v] = static_cast<float>(std::clamp(wv, params_.classify.min_width_px, params_.classify.max_width_px));
+  }
+  // Goal corners: which of a goal's two corners is on the left, seen from inside the field.
+  const Bounds& b = map_.bounds();
+  const Eigen::Vector2d centre(0.5 * (b.xmin + b.xmax), 0.5 * (b.ymin + b.ymax));
+  for (int c = 0; c < 2; ++c) {
+    const GoalColor color = c == 0 ? GoalColor::Blue : GoalColor::Yellow;
+    std::vector<const Landmark*> corners;
+    for (const Landmark* l : map_.ofType(LandmarkType::GoalCorner))
+      if (l->color == color) corners.push_back(l);
+    if (corners.size() != 2) continue;
+    const Eigen::Vector2d mid = 0.5 * (corners[0]->xy() + corners[1]->xy());
+    const Eigen::Vector2d d = mid - centre;
+    for (const Landmark* l : corners) {
+      const Eigen::Vector2d q = l->xy() - mid;
+      const double cross = d.x() * q.y() - d.y() * q.x();
+      goal_ids_[c][cross > 0 ? 0 : 1] = l->id;  // left of the view direction -> image side -1
+    }
+  }
+}
+
+int Frontend::goalCornerLandmark(GoalColor color, int side) const {
+  if (color == GoalColor::None || side == 0) return -1;
+  return goal_ids_[color == GoalColor::Blue ? 0 : 1][side < 0 ? 0 : 1];
+}
+
+void Frontend::checkImage(const cv::Mat& img, const char* which) const {
+  const std::string w = which;
+  if (img.empty()) throw Error(w + " image: empty");
+  if (img.depth() != CV_8U) throw Error(w + " image: expected 8 bits per channel, got depth code " + std::to_string(img.depth()));
+  if (img.channels() != 3) throw Error(w + " image: expected 3 colour channels (BGR), got " + std::to_string(img.channels()));
+  const int ew = rig_.params().image_width, eh = rig_.params().image_height;
+  if (img.cols != ew || img.rows != eh)
+    throw Error(w + " image: size " + std::to_string(img.cols) + "x" + std::to_string(img.rows) + " does not match the rig (" +
+                std::to_string(ew) + "x" + std::to_string(eh) + ")");
+}
+
+const std::vector<Segment>& Frontend::detectSegments(const cv::Mat& bgr) {
+  checkImage(bgr, "input");
+  bgrToLuma(bgr, left_luma_);
+  grad_.compute(left_luma_, params_.gradient);
+  used_.clear();
+  acc_.vote(grad_.edges(), used_);
+  detectPeaks(acc_, params_.peaks, peaks_);
+  extractor_.extract(grad_.edges(), peaks_, params_.hough.rho_step_px, params_.segments, used_, result_.segments);
+  refineEndpoints(left_luma_, result_.segments);
+  classifySegments(grad_, extractor_, width_per_row_, params_.classify, result_.segments, scratch_);
+  return result_.segments;
+}
+
+const FrontendResult& Frontend::process(const cv::Mat& left, const cv::Mat& right, double head_pan) {
+  checkImage(left, "left");
+  checkImage(right, "right");
+  FrontendResult& r = result_;
+  r.features.clear();
+  r.matched.clear();
+  r.observations.clear();
+  detectSegments(left);
+  buildLines(r.segments, params_.corners, r.lines);
+  findCorners(r.lines, rig_, params_.corners, r.features);
+
+  const DisparityRange range = validDisparities(rig_, params_.stereo);
+  if (!r.features.empty()) {
+    bgrToLuma(right, right_luma_);
+    for (const PointFeature& f : r.features) {
+      const auto d = matchFloorFeature(left_luma_, right_luma_, rig_, f.u, f.v, range, params_.stereo);
+      if (!d) continue;
+      r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, f.u - *d, f.v}});
+    }
+  }
+  detectGoalEdges(left, params_.goals, goal_edges_, scratch_);
+  for (const GoalEdge& g : goal_edges_) {
+    PointFeature f;
+    f.type = LandmarkType::GoalCorner;
+    f.u = g.u;
+    f.v = g.v;
+    f.color = g.color;
+    f.side = g.side;
+    f.landmark_id = goalCornerLandmark(g.color, g.side);
+    r.features.push_back(f);
+    const auto ur = matchGoalEdge(right, g, range, params_.goals, scratch_tr_, scratch_);
+    if (ur) r.matched.push_back(StereoFeature{f, StereoPixels{g.u, g.v, *ur, g.v}});
+  }
+  for (const StereoFeature& m : r.matched) {
+    const double sigma = m.feature.type == LandmarkType::GoalCorner ? params_.stereo.goal_pixel_sigma
+                                                                     : params_.stereo.corner_pixel_sigma;
+    try {
+      r.observations.push_back(
+          observationFromPixels(rig_, m.feature.landmark_id, m.feature.type, m.pixels, head_pan, sigma));
+    } catch (const GeometryError&) {
+      // Disparity below the rig's minimum: cannot be triangulated; not an observation.
+    }
+  }
+  return r;
+}
+
+}  // namespace stereoloc::frontend

@@ -1,0 +1,123 @@
+#include "frontend/gradient.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "src/error.h"
+
+namespace stereoloc::frontend {
+
+double Segment::length() const { return std::hypot(x2 - x1, y2 - y1); }
+double LineFeature::x(double t) const { return rho * std::cos(theta) - t * std::sin(theta); }
+double LineFeature::y(double t) const { return rho * std::sin(theta) + t * std::cos(theta); }
+
+void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma) {
+  if (bgr.type() != CV_8UC3) throw Error("bgrToLuma: expected an 8-bit 3-channel BGR image");
+  luma.create(bgr.rows, bgr.cols, CV_8UC1);
+  for (int y = 0; y < bgr.rows; ++y) {
+    const uint8_t* s = bgr.ptr<uint8_t>(y);
+    uint8_t* d = luma.ptr<uint8_t>(y);
+    for (int x = 0; x < bgr.cols; ++x)
+      d[x] = static_cast<uint8_t>((29 * s[3 * x] + 150 * s[3 * x + 1] + 77 * s[3 * x + 2] + 128) >> 8);
+  }
+}
+
+float fastAngle(float y, float x) {
+  const float ax = std::fabs(x), ay = std::fabs(y);
+  const float mn = std::min(ax, ay), mx = std::max(ax, ay);
+  if (mx == 0.0f) return 0.0f;
+  const float a = mn / mx, s = a * a;
+  // Minimax polynomial for atan on [0, 1].
+  float r = ((((0.0208351f * s - 0.0851330f) * s + 0.1801410f) * s - 0.3302995f) * s + 0.9998660f) * a;
+  if (ay > ax) r = 1.57079637f - r;
+  if (x < 0) r = 3.14159274f - r;
+  if (y < 0) r = 6.28318548f - r;
+  if (r >= 6.28318548f) r -= 6.28318548f;
+  return r;
+}
+
+void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
+  if (luma.type() != CV_8UC1) throw Error("GradientStage: expected an 8-bit one-channel image");
+  const int w = luma.cols, h = luma.rows;
+  const size_t n = static_cast<size_t>(w) * h;
+  if (w != w_ || h != h_ || index_.size() != n) {
+    w_ = w;
+    h_ = h;
+    gx_.assign(n, 0);
+    gy_.assign(n, 0);
+    mag2_.assign(n, 0);
+    index_.assign(n, -1);
+    edges_.reserve(n / 8);
+  } else {
+    for (const EdgePixel& e : edges_) index_[static_cast<size_t>(e.iy) * w + e.ix] = -1;
+  }
+  edges_.clear();
+  if (w < 3 || h < 3) return;
+
+  // Integer Sobel; the one-pixel border keeps gradient 0.
+  for (int y = 1; y < h - 1; ++y) {
+    const uint8_t* p0 = luma.ptr<uint8_t>(y - 1);
+    const uint8_t* p1 = luma.ptr<uint8_t>(y);
+    const uint8_t* p2 = luma.ptr<uint8_t>(y + 1);
+    int16_t* gxr = gx_.data() + static_cast<size_t>(y) * w;
+    int16_t* gyr = gy_.data() + static_cast<size_t>(y) * w;
+    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+    for (int x = 1; x < w - 1; ++x) {
+      const int gxv = (p0[x + 1] + 2 * p1[x + 1] + p2[x + 1]) - (p0[x - 1] + 2 * p1[x - 1] + p2[x - 1]);
+      const int gyv = (p2[x - 1] + 2 * p2[x] + p2[x + 1]) - (p0[x - 1] + 2 * p0[x] + p0[x + 1]);
+      gxr[x] = static_cast<int16_t>(gxv);
+      gyr[x] = static_cast<int16_t>(gyv);
+      m2[x] = gxv * gxv + gyv * gyv;
+    }
+  }
+
+  // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
+  // through the three magnitudes. Pixels next to the border are skipped (their neighbours
+  // have no gradient).
+  const int32_t thr2 = params.magnitude_threshold * params.magnitude_threshold;
+  for (int y = 2; y < h - 2; ++y) {
+    const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+    const int16_t* gxr = gx_.data() + static_cast<size_t>(y) * w;
+    const int16_t* gyr = gy_.data() + static_cast<size_t>(y) * w;
+    for (int x = 2; x < w - 2; ++x) {
+      const int32_t c = m2[x];
+      if (c < thr2) continue;
+      const int gxv = gxr[x], gyv = gyr[x];
+      const int ax = std::abs(gxv), ay = std::abs(gyv);
+      int dx, dy;
+      // tan(22.5 deg) ~ 106/256
+      if (ay * 256 <= ax * 106) {
+        dx = 1;
+        dy = 0;
+      } else if (ax * 256 <= ay * 106) {
+        dx = 0;
+        dy = 1;
+      } else {
+        dx = 1;
+        dy = ((gxv > 0) == (gyv > 0)) ? 1 : -1;
+      }
+      const int off = dy * w + dx;
+      const int32_t mp = m2[x + off], mm = m2[x - off];
+      if (!(c > mm && c >= mp)) continue;
+      const float fm = std::sqrt(static_cast<float>(mm)), f0 = std::sqrt(static_cast<float>(c)),
+                  fp = std::sqrt(static_cast<float>(mp));
+      const float den = fm - 2.0f * f0 + fp;
+      float s = den < 0.0f ? 0.5f * (fm - fp) / den : 0.0f;
+      s = std::clamp(s, -0.5f, 0.5f);
+      EdgePixel e;
+      e.ix = static_cast<int16_t>(x);
+      e.iy = static_cast<int16_t>(y);
+      e.x = static_cast<float>(x) + s * static_cast<float>(dx);
+      e.y = static_cast<float>(y) + s * static_cast<float>(dy);
+      e.angle = fastAngle(static_cast<float>(gyv), static_cast<float>(gxv));
+      e.mag = f0;
+      int bin = static_cast<int>(e.angle * (360.0f / 6.28318548f) + 0.5f);
+      if (bin >= 360) bin -= 360;
+      e.dir_bin = static_cast<uint16_t>(bin);
+      index_[static_cast<size_t>(y) * w + x] = static_cast<int32_t>(edges_.size());
+      edges_.push_back(e);
+    }
+  }
+}
+
+}  // namespace stereoloc::frontend

@@ -1,0 +1,43 @@
+#pragma once
+// Stage 1: luma, integer Sobel, non-maximum suppression with a sub-pixel edge position
+// (thesis 3.3.1 and 3.4 use the Sobel operator on the Y channel).
+#include <opencv2/core/mat.hpp>
+#include <vector>
+
+#include "frontend/features.h"
+
+namespace stereoloc::frontend {
+
+struct GradientParams {
+  int magnitude_threshold = 48;  // Sobel magnitude (luma step x 4) an edge pixel must reach
+};
+
+// Luma (ITU-R BT.601 weights, integer) of an 8-bit BGR image into a reused buffer.
+void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma);
+
+// Reusable gradient stage: holds all buffers, so repeated calls on same-size images allocate nothing.
+class GradientStage {
+ public:
+  // luma must be CV_8UC1. Fills edges() and the per-pixel index map.
+  void compute(const cv::Mat& luma, const GradientParams& params);
+
+  const std::vector<EdgePixel>& edges() const { return edges_; }
+  int width() const { return w_; }
+  int height() const { return h_; }
+  // Index into edges() of the edge pixel at integer (x, y), or -1. (x, y) must be inside.
+  int edgeAt(int x, int y) const { return index_[static_cast<size_t>(y) * w_ + x]; }
+  const int16_t* gx() const { return gx_.data(); }
+  const int16_t* gy() const { return gy_.data(); }
+
+ private:
+  int w_ = 0, h_ = 0;
+  std::vector<int16_t> gx_, gy_;
+  std::vector<int32_t> mag2_;
+  std::vector<int32_t> index_;
+  std::vector<EdgePixel> edges_;
+};
+
+// atan2 approximation (error < 2e-5 rad) returning [0, 2 pi).
+float fastAngle(float y, float x);
+
+}  // namespace stereoloc::frontend

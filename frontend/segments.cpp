@@ -1,0 +1,219 @@
+#include "frontend/segments.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace stereoloc::frontend {
+
+bool fitLine(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta_hint, double& theta,
+             double& rho, double* rms) {
+  const long n = end - begin;
+  if (n < 2) return false;
+  double mx = 0, my = 0;
+  for (const int* p = begin; p != end; ++p) {
+    mx += edges[*p].x;
+    my += edges[*p].y;
+  }
+  mx /= n;
+  my /= n;
+  double sxx = 0, sxy = 0, syy = 0;
+  for (const int* p = begin; p != end; ++p) {
+    const double dx = edges[*p].x - mx, dy = edges[*p].y - my;
+    sxx += dx * dx;
+    sxy += dx * dy;
+    syy += dy * dy;
+  }
+  // Direction of the largest spread; the normal is perpendicular to it.
+  const double phi = 0.5 * std::atan2(2.0 * sxy, sxx - syy);
+  if (sxx + syy <= 0) return false;
+  double nx = -std::sin(phi), ny = std::cos(phi);
+  if (nx * std::cos(theta_hint) + ny * std::sin(theta_hint) < 0) {
+    nx = -nx;
+    ny = -ny;
+  }
+  theta = std::atan2(ny, nx);
+  if (theta < 0) theta += kTwoPi;
+  rho = nx * mx + ny * my;
+  if (rms) {
+    double s = 0;
+    for (const int* p = begin; p != end; ++p) {
+      const double d = nx * edges[*p].x + ny * edges[*p].y - rho;
+      s += d * d;
+    }
+    *rms = std::sqrt(s / n);
+  }
+  return true;
+}
+
+namespace {
+double bilinear(const cv::Mat& img, double x, double y) {
+  const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
+  if (x0 < 0 || y0 < 0 || x0 + 1 >= img.cols || y0 + 1 >= img.rows) return -1.0;
+  const double fx = x - x0, fy = y - y0;
+  const uint8_t* r0 = img.ptr<uint8_t>(y0);
+  const uint8_t* r1 = img.ptr<uint8_t>(y0 + 1);
+  return (1 - fy) * ((1 - fx) * r0[x0] + fx * r0[x0 + 1]) + fy * ((1 - fx) * r1[x0] + fx * r1[x0 + 1]);
+}
+}  // namespace
+
+void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments) {
+  constexpr double kSide = 1.5, kStep = 0.25;
+  for (Segment& s : segments) {
+    const double c = std::cos(s.theta), sn = std::sin(s.theta);
+    auto contrast = [&](double x, double y) {
+      const double hi = bilinear(luma, x + kSide * c, y + kSide * sn), lo = bilinear(luma, x - kSide * c, y - kSide * sn);
+      return (hi < 0 || lo < 0) ? -1.0 : hi - lo;
+    };
+    const double len = s.length();
+    if (len < 8) continue;
+    const double dx = (s.x2 - s.x1) / len, dy = (s.y2 - s.y1) / len;
+    const double ref = contrast(0.5 * (s.x1 + s.x2), 0.5 * (s.y1 + s.y2));
+    if (!(ref > 0)) continue;
+    for (int end = 0; end < 2; ++end) {
+      const double ex = end ? s.x2 : s.x1, ey = end ? s.y2 : s.y1;
+      const double ox = end ? dx : -dx, oy = end ? dy : -dy;  // outwards
+      double prev_t = -2.0, prev_c = contrast(ex - 2.0 * ox, ey - 2.0 * oy);
+      if (prev_c < 0.5 * ref) continue;
+      for (double t = -2.0 + kStep; t <= 4.0; t += kStep) {
+        const double ct = contrast(ex + t * ox, ey + t * oy);
+        if (ct < 0) break;  // image border: keep what we have
+        if (ct < 0.5 * ref) {
+          const double tt = prev_t + kStep * (prev_c - 0.5 * ref) / (prev_c - ct);
+          if (end) {
+            s.x2 = ex + tt * ox;
+            s.y2 = ey + tt * oy;
+          } else {
+            s.x1 = ex + tt * ox;
+            s.y1 = ey + tt * oy;
+          }
+          break;
+        }
+        prev_t = t;
+        prev_c = ct;
+      }
+    }
+  }
+}
+
+void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta,
+                               double rho, double band, int tol_bins) {
+  cand_.clear();
+  const double c = std::cos(theta), s = std::sin(theta);
+  const int b0 = static_cast<int>(std::lround(theta * 360.0 / kTwoPi));
+  for (int k = b0 - tol_bins; k <= b0 + tol_bins; ++k) {
+    const int b = ((k % 360) + 360) % 360;
+    for (int j = bucket_start_[b]; j < bucket_start_[b + 1]; ++j) {
+      const int i = bucket_items_[j];
+      if (used[i]) continue;
+      const double d = edges[i].x * c + edges[i].y * s - rho;
+      if (std::fabs(d) <= band) cand_.push_back(i);
+    }
+  }
+}
+
+void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::vector<HoughPeak>& peaks,
+                               double rho_step_px, const SegmentParams& prm, std::vector<uint8_t>& used,
+                               std::vector<Segment>& segments) {
+  used.assign(edges.size(), 0);
+  segments.clear();
+  pix_.clear();
+  off_.assign(1, 0);
+  // Counting sort of the edge pixels by direction bin, so a peak only looks at pixels of
+  // nearly its own direction.
+  bucket_start_.assign(361, 0);
+  for (const EdgePixel& e : edges) ++bucket_start_[e.dir_bin + 1];
+  for (int b = 0; b < 360; ++b) bucket_start_[b + 1] += bucket_start_[b];
+  bucket_items_.resize(edges.size());
+  {
+    std::vector<int>& fill = cand_;
+    fill.assign(bucket_start_.begin(), bucket_start_.end() - 1);
+    for (size_t i = 0; i < edges.size(); ++i) bucket_items_[fill[edges[i].dir_bin]++] = static_cast<int>(i);
+  }
+  const int tol_bins = static_cast<int>(std::ceil(prm.direction_tolerance_deg));
+  const double tol_cos = std::cos(prm.direction_tolerance_deg * kTwoPi / 360.0);
+  const double min_pixels = 0.5 * prm.min_length_px;
+
+  for (const HoughPeak& peak : peaks) {
+    double theta = peak.theta, rho = peak.rho;
+    collect(edges, used, theta, rho, 0.5 * rho_step_px + 1.0, tol_bins);
+    if (cand_.size() < min_pixels) continue;
+    bool ok = true;
+    for (int it = 0; it < std::max(1, prm.refit_iterations) && ok; ++it) {
+      ok = fitLine(edges, cand_.data(), cand_.data() + cand_.size(), theta, theta, rho);
+      if (ok) collect(edges, used, theta, rho, prm.band_px, tol_bins);
+      ok = ok && cand_.size() >= min_pixels;
+    }
+    if (!ok) continue;
+    // Direction check against the refitted line (the buckets are +-1 bin coarse).
+    const double c = std::cos(theta), s = std::sin(theta);
+    proj_.clear();
+    for (int i : cand_) {
+      const float a = edges[i].angle;
+      if (std::cos(a) * c + std::sin(a) * s < tol_cos) continue;
+      proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
+      used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
+    }
+    if (proj_.size() < min_pixels) continue;
+    std::sort(proj_.begin(), proj_.end());
+    // Split at Gap_min, drop noise pieces, merge under Gap_max.
+    merged.clear();
+    size_t start = 0;
+    auto flush = [&](size_t b, size_t e) {
+      const float t0 = proj_[b].first, t1 = proj_[e - 1].first;
+      if (t1 - t0 < prm.min_piece_px) return;
+      if (!merged.empty() && t0 - merged.back().t1 < prm.gap_max_px) {
+        merged.back().e = e;
+        merged.back().t1 = t1;
+      } else {
+        merged.push_back(Piece{b, e, t0, t1});
+      }
+    };
+    for (size_t k = 1; k <= proj_.size(); ++k)
+      if (k == proj_.size() || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
+        flush(start, k);
+        start = k;
+      }
+    for (const Piece& pc : merged) {
+      const double len = pc.t1 - pc.t0;
+      if (len < prm.min_length_px) continue;
+      // Pixels of the piece, excluding the dropped noise pieces inside it.
+      const size_t first = pix_.size();
+      size_t run = pc.b;
+      for (size_t k = pc.b + 1; k <= pc.e; ++k)
+        if (k == pc.e || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
+          if (proj_[k - 1].first - proj_[run].first >= prm.min_piece_px)
+            for (size_t q = run; q < k; ++q) pix_.push_back(proj_[q].second);
+          run = k;
+        }
+      const size_t count = pix_.size() - first;
+      if (count < prm.min_density * len) {
+        pix_.resize(first);
+        continue;
+      }
+      Segment seg;
+      double rms = 0;
+      if (!fitLine(edges, pix_.data() + first, pix_.data() + pix_.size(), theta, seg.theta, seg.rho, &rms)) {
+        pix_.resize(first);
+        continue;
+      }
+      const double cs = std::cos(seg.theta), sn = std::sin(seg.theta);
+      float tmin = 1e30f, tmax = -1e30f;
+      for (size_t q = first; q < pix_.size(); ++q) {
+        const EdgePixel& e = edges[pix_[q]];
+        const float t = static_cast<float>(-e.x * sn + e.y * cs);
+        tmin = std::min(tmin, t);
+        tmax = std::max(tmax, t);
+      }
+      seg.x1 = seg.rho * cs - tmin * sn;
+      seg.y1 = seg.rho * sn + tmin * cs;
+      seg.x2 = seg.rho * cs - tmax * sn;
+      seg.y2 = seg.rho * sn + tmax * cs;
+      seg.pixels = static_cast<int>(count);
+      seg.rms = rms;
+      segments.push_back(seg);
+      off_.push_back(static_cast<int>(pix_.size()));
+    }
+  }
+}
+
+}  // namespace stereoloc::frontend

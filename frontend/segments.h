@@ -1,0 +1,72 @@
+#pragma once
+// Stage 4: peak verification and segment completion (Algorithm 2), with a least-squares refit.
+//
+// For each peak, strongest first:
+//  1. collect the unused edge pixels whose gradient direction is within +-direction_tolerance
+//     of theta and that lie within rho_step/2 + 1 px of the peak's line;
+//  2. fit the line by total least squares, then re-collect within +-band_px of the fitted line
+//     (refit_iterations times): this is the "connected pixels in compliance with theta" step,
+//     done geometrically, and the recomputation of rho and theta that section 3.7 suggests;
+//  3. project the pixels onto the line ("rotate by Omega", Fig. 3.6), sort, split where
+//     consecutive pixels are more than gap_min apart, drop pieces shorter than min_piece_px
+//     (isolated noise), merge pieces closer than gap_max, and keep the results at least
+//     min_length long with at least min_density pixels per px of length;
+//  4. refit each kept segment on its own pixels: sub-pixel theta, rho and endpoints;
+//  5. mark the collected pixels used, so later (weaker) peaks cannot reuse them.
+// Order note: the thesis drops pieces shorter than L_min before merging; we merge first
+// (issue 4's order), so a line broken by noise into short pieces still comes out whole.
+#include <cstdint>
+#include <opencv2/core/mat.hpp>
+#include <vector>
+
+#include "frontend/features.h"
+#include "frontend/peaks.h"
+
+namespace stereoloc::frontend {
+
+struct SegmentParams {
+  double gap_min_px = 3.0;          // Gap_min (6.1)
+  double gap_max_px = 50.0;         // Gap_max (6.1)
+  double min_length_px = 30.0;      // L_min (6.1)
+  double min_piece_px = 4.0;        // pieces shorter than this (after the Gap_min split) are noise
+  double min_density = 0.4;         // supporting pixels per px of segment length
+  double direction_tolerance_deg = 10.0;  // pixel gradient vs line direction
+  double band_px = 1.0;             // max distance of a pixel from the refitted line
+  int refit_iterations = 2;
+};
+
+class SegmentExtractor {
+ public:
+  // `used` has one flag per edge pixel (resized and cleared here). Replaces `segments`.
+  void extract(const std::vector<EdgePixel>& edges, const std::vector<HoughPeak>& peaks, double rho_step_px,
+               const SegmentParams& params, std::vector<uint8_t>& used, std::vector<Segment>& segments);
+  // Edge-pixel indices of segment i of the last extract() call (same order as `segments`).
+  const int* pixelsBegin(size_t i) const { return pix_.data() + off_[i]; }
+  const int* pixelsEnd(size_t i) const { return pix_.data() + off_[i + 1]; }
+
+ private:
+  void collect(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta, double rho,
+               double band, int tol_bins);
+  struct Piece {
+    size_t b, e;
+    float t0, t1;
+  };
+  std::vector<Piece> merged;
+  std::vector<int> bucket_start_, bucket_items_;
+  std::vector<int> cand_;
+  std::vector<std::pair<float, int>> proj_;
+  std::vector<int> pix_, off_;
+};
+
+// Moves each end of a segment to where the step across it fades to half its contrast, by
+// sampling the luma on both sides (+-1.5 px) along the line from 2 px inside to 4 px beyond
+// the last edge pixel. The Sobel window loses the last 1-2 px before a corner (their
+// gradient turns), so the edge pixels alone end short.
+void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments);
+
+// Total-least-squares line through the given edge pixels, directed to agree with
+// theta_hint. Returns false when fewer than 2 pixels or degenerate.
+bool fitLine(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta_hint, double& theta,
+             double& rho, double* rms = nullptr);
+
+}  // namespace stereoloc::frontend

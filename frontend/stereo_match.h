@@ -1,0 +1,53 @@
+#pragma once
+// Stage 8: stereo correspondence along the epipolar row of the rectified pair, then
+// triangulation through the rig model (3.4, 3.5) into Observations with R from (5.32).
+//
+// Goal corners: the same colour and side is searched in the right image on the rows where it
+// was found in the left one, within the valid disparity range; the per-row disparities are
+// combined robustly (median, MAD rejection, mean). Colour and side make the match unique.
+// Corners, junctions, intersections: zero-mean normalised cross-correlation of a
+// (2r+1)^2 luma patch along the row. All of them lie on the floor, where the disparity grows
+// with the row (b/h px per row for an untilted rig): the right patch is sheared by that rate,
+// and the search is restricted to +-floor_search_px around the disparity the floor predicts
+// (the full valid range when the floor does not predict one). A match needs ZNCC >= min_zncc
+// and a margin of `uniqueness` over any other local maximum; it is refined to sub-pixel by a
+// parabola through the three best scores.
+#include <opencv2/core/mat.hpp>
+#include <optional>
+#include <vector>
+
+#include "frontend/goal_corners.h"
+#include "src/stereo_rig.h"
+
+namespace stereoloc::frontend {
+
+struct StereoParams {
+  double min_range_mm = 80.0;    // nearest landmark considered: the largest valid disparity
+  double max_range_mm = 0.0;     // furthest; <= 0 means the rig's max_range_mm
+  int patch_radius = 5;          // ZNCC patch half-size, px
+  double min_zncc = 0.6;
+  double uniqueness = 0.05;      // best score minus any other local maximum
+  double floor_search_px = 4.0;  // half-width of the search around the floor disparity; <= 0: full range
+  double corner_pixel_sigma = 0.5;  // px, sigma of (5.28) for corners and junctions
+  double goal_pixel_sigma = 0.3;    // px, sigma of (5.28) for goal corners
+};
+
+struct DisparityRange {
+  double min = 0, max = 0;  // px
+};
+DisparityRange validDisparities(const StereoRig& rig, const StereoParams& params);
+
+// Right-image column of a left GoalEdge: nullopt when not found or out of the disparity range.
+std::optional<double> matchGoalEdge(const cv::Mat& right_bgr, const GoalEdge& left, const DisparityRange& range,
+                                    const GoalParams& goal_params, std::vector<Transition>& scratch_tr,
+                                    std::vector<float>& scratch);
+
+// Disparity of a floor feature at left pixel (u, v) by ZNCC on the lumas; nullopt when no
+// unique match.
+std::optional<double> matchFloorFeature(const cv::Mat& left_luma, const cv::Mat& right_luma, const StereoRig& rig,
+                                        double u, double v, const DisparityRange& range, const StereoParams& params);
+
+// Disparity the floor point seen at left pixel (u, v) would have; nullopt above the horizon.
+std::optional<double> floorDisparity(const StereoRig& rig, double u, double v);
+
+}  // namespace stereoloc::frontend

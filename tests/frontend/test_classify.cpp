@@ -1,0 +1,63 @@
+// Stage 5: Algorithm 3, white stripes are markings, step edges and dark stripes are not.
+#include <gtest/gtest.h>
+
+#include <opencv2/imgproc.hpp>
+
+#include "frontend/classify.h"
+#include "frontend/gbht.h"
+#include "frontend/gradient.h"
+#include "frontend/peaks.h"
+#include "frontend/segments.h"
+
+using namespace stereoloc::frontend;
+
+namespace {
+std::vector<Segment> classify(const cv::Mat& img, const ClassifyParams& cp = ClassifyParams(), float wmax = 8.0f) {
+  GradientStage g;
+  g.compute(img, GradientParams());
+  HoughAccumulator acc;
+  acc.configure(img.cols, img.rows, HoughParams());
+  acc.vote(g.edges(), {});
+  std::vector<HoughPeak> peaks;
+  detectPeaks(acc, PeakParams(), peaks);
+  SegmentExtractor ex;
+  std::vector<uint8_t> used;
+  std::vector<Segment> segs;
+  ex.extract(g.edges(), peaks, 3.0, SegmentParams(), used, segs);
+  std::vector<float> widths(img.rows, wmax), scratch;
+  classifySegments(g, ex, widths, cp, segs, scratch);
+  return segs;
+}
+}  // namespace
+
+TEST(Classify, WhiteStripeIsAMarkingWithItsWidth) {
+  cv::Mat img(120, 160, CV_8UC1, cv::Scalar(25));
+  cv::line(img, cv::Point(20, 20), cv::Point(140, 100), cv::Scalar(220), 4, cv::LINE_AA);
+  const auto segs = classify(img);
+  ASSERT_EQ(segs.size(), 2u);  // both sides of the stripe
+  for (const Segment& s : segs) {
+    EXPECT_EQ(s.cls, SegmentClass::Marking);
+    EXPECT_NEAR(s.marking_width, 5.0, 1.0);  // cv::line's AA stripe of thickness 4 is ~5 px wide
+    EXPECT_GT(s.marking_score, 0.8);
+  }
+}
+
+TEST(Classify, StepEdgeAndDarkStripeAreNot) {
+  cv::Mat img(120, 160, CV_8UC1, cv::Scalar(25));
+  cv::rectangle(img, cv::Rect(0, 60, 160, 60), cv::Scalar(220), cv::FILLED);  // step edge
+  cv::rectangle(img, cv::Rect(40, 80, 4, 40), cv::Scalar(25), cv::FILLED);    // dark stripe in the white
+  const auto segs = classify(img);
+  ASSERT_GE(segs.size(), 1u);
+  for (const Segment& s : segs) EXPECT_EQ(s.cls, SegmentClass::Other) << s.theta;
+}
+
+TEST(Classify, WideBrightBandIsNotAMarking) {
+  // A wall-like band 20 px high is wider than W' = 8 px.
+  cv::Mat img(120, 160, CV_8UC1, cv::Scalar(25));
+  cv::rectangle(img, cv::Rect(0, 50, 160, 20), cv::Scalar(220), cv::FILLED);
+  for (const Segment& s : classify(img)) EXPECT_EQ(s.cls, SegmentClass::Other);
+  // ... but it is one when W' allows it.
+  ClassifyParams cp;
+  cp.max_width_px = 30;
+  for (const Segment& s : classify(img, cp, 30.0f)) EXPECT_EQ(s.cls, SegmentClass::Marking);
+}

@@ -1,0 +1,132 @@
+// Stage 6: Algorithm 4 on marking centre lines, on images of a synthetic floor seen by the rig.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <functional>
+
+#include "frontend/frontend.h"
+
+using namespace stereoloc;
+using namespace stereoloc::frontend;
+
+namespace {
+
+struct Strip {  // floor marking in C0 (mm): centreline a -> b, half width
+  Eigen::Vector2d a, b;
+  double hw = 5.0;
+};
+
+// Ray-casts a floor scene (dark floor, white strips, optional white region x >= wall_x) into
+// the left or right camera, 4x4 samples per pixel.
+cv::Mat renderFloor(const StereoRig& rig, bool right, const std::vector<Strip>& strips, double wall_x = 1e9) {
+  const int w = rig.params().image_width, h = rig.params().image_height;
+  const double f = rig.focal(), yc = (right ? -0.5 : 0.5) * rig.params().baseline_mm;
+  const Eigen::Vector3d o = rig.visionToRobot(Eigen::Vector3d(0, yc, 0), 0.0);
+  auto dir = [&](double u, double v) -> Eigen::Vector3d {
+    return rig.visionToRobot(Eigen::Vector3d(1.0, yc - (u - rig.principalU()) / f, -(v - rig.principalV()) / f), 0.0) - o;
+  };
+  const Eigen::Vector3d d00 = dir(0, 0), du = dir(1, 0) - d00, dv = dir(0, 1) - d00;
+  auto white = [&](const Eigen::Vector2d& p) {
+    if (p.x() >= wall_x) return true;
+    for (const Strip& s : strips) {
+      const Eigen::Vector2d t = (s.b - s.a).normalized();
+      const double along = (p - s.a).dot(t), across = std::fabs(t.x() * (p - s.a).y() - t.y() * (p - s.a).x());
+      if (along >= -s.hw && along <= (s.b - s.a).norm() + s.hw && across <= s.hw) return true;
+    }
+    return false;
+  };
+  cv::Mat img(h, w, CV_8UC3);
+  for (int v = 0; v < h; ++v)
+    for (int u = 0; u < w; ++u) {
+      int n = 0;
+      for (int k = 0; k < 16; ++k) {
+        const Eigen::Vector3d d = d00 + (u - 0.5 + (k % 4 + 0.5) / 4) * du + (v - 0.5 + (k / 4 + 0.5) / 4) * dv;
+        if (d.z() >= 0) continue;  // sky: dark
+        const double s = -o.z() / d.z();
+        n += white(Eigen::Vector2d(o.x() + s * d.x(), o.y() + s * d.y())) ? 1 : 0;
+      }
+      const uint8_t g = static_cast<uint8_t>(20 + 210 * n / 16);
+      img.at<cv::Vec3b>(v, u) = cv::Vec3b(g, g, g);
+    }
+  return img;
+}
+
+Eigen::Vector2d pixel(const StereoRig& rig, double x, double y) {
+  const auto p = rig.project(Eigen::Vector3d(x, y, 0.0), 0.0);
+  return Eigen::Vector2d(p->u_left, p->v_left);
+}
+
+}  // namespace
+
+TEST(Corners, FloorPointInvertsTheProjection) {
+  const StereoRig rig;
+  for (auto [x, y] : {std::pair{300.0, 40.0}, std::pair{900.0, -200.0}}) {
+    const Eigen::Vector2d px = pixel(rig, x, y);
+    double fx, fy;
+    ASSERT_TRUE(floorPoint(rig, px.x(), px.y(), fx, fy));
+    EXPECT_NEAR(fx, x, 1e-6);
+    EXPECT_NEAR(fy, y, 1e-6);
+  }
+  double fx, fy;
+  EXPECT_FALSE(floorPoint(rig, 160, 100, fx, fy));  // above the horizon of an untilted rig
+}
+
+TEST(Corners, LShapeGivesAMarkingCornerOnTheCentreLines) {
+  const StereoRig rig;
+  const FieldMap map = FieldMap::miroSot();
+  const cv::Mat img = renderFloor(rig, false, {{{250, -150}, {250, 60}}, {{250, 60}, {600, 60}}});
+  Frontend fe(rig, map);
+  fe.detectSegments(img);
+  std::vector<LineFeature> lines;
+  std::vector<PointFeature> feats;
+  buildLines(fe.result().segments, fe.params().corners, lines);
+  findCorners(lines, rig, fe.params().corners, feats);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
+  const Eigen::Vector2d truth = pixel(rig, 250, 60);
+  EXPECT_NEAR(feats[0].u, truth.x(), 0.5);
+  EXPECT_NEAR(feats[0].v, truth.y(), 0.5);
+  // Both stripes are markings, and each became one centre line.
+  int marking_lines = 0;
+  for (const LineFeature& l : lines) marking_lines += l.marking ? 1 : 0;
+  EXPECT_EQ(marking_lines, 2);
+}
+
+TEST(Corners, MarkingEndingOnAWallGivesAJunction) {
+  const StereoRig rig;
+  const cv::Mat img = renderFloor(rig, false, {{{350, -60}, {700, -60}}}, 700.0);
+  Frontend fe(rig, FieldMap::miroSot());
+  fe.detectSegments(img);
+  std::vector<LineFeature> lines;
+  std::vector<PointFeature> feats;
+  buildLines(fe.result().segments, fe.params().corners, lines);
+  findCorners(lines, rig, fe.params().corners, feats);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::Junction);
+  const Eigen::Vector2d truth = pixel(rig, 700, -60);
+  EXPECT_NEAR(feats[0].u, truth.x(), 0.5);
+  EXPECT_NEAR(feats[0].v, truth.y(), 0.5);
+}
+
+TEST(Corners, CrossingGivesAnIntersectionAndShallowAnglesNothing) {
+  const StereoRig rig;
+  // A plus sign: two markings crossing at (500, 0).
+  cv::Mat img = renderFloor(rig, false, {{{250, 0}, {700, 0}}, {{400, -150}, {400, 150}}});
+  Frontend fe(rig, FieldMap::miroSot());
+  fe.detectSegments(img);
+  std::vector<LineFeature> lines;
+  std::vector<PointFeature> feats;
+  buildLines(fe.result().segments, fe.params().corners, lines);
+  findCorners(lines, rig, fe.params().corners, feats);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::Intersection);
+  const Eigen::Vector2d truth = pixel(rig, 400, 0);
+  EXPECT_NEAR(feats[0].u, truth.x(), 0.5);
+  EXPECT_NEAR(feats[0].v, truth.y(), 0.5);
+  // Two chords of an arc meeting at 160 deg on the floor are not a corner.
+  img = renderFloor(rig, false, {{{250, -150}, {350, 0}}, {{350, 0}, {250, 150}}});
+  fe.detectSegments(img);
+  buildLines(fe.result().segments, fe.params().corners, lines);
+  findCorners(lines, rig, fe.params().corners, feats);
+  for (const PointFeature& f : feats) EXPECT_NE(f.type, LandmarkType::MarkingCorner);
+}

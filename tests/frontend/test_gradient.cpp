@@ -1,0 +1,70 @@
+// Stage 1: luma, Sobel, non-maximum suppression and the sub-pixel edge position.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <opencv2/core.hpp>
+
+#include "frontend/gradient.h"
+#include "src/error.h"
+
+using namespace stereoloc::frontend;
+
+namespace {
+// Vertical step edge at sub-pixel column `edge` (dark left, bright right), box-filtered.
+cv::Mat stepImage(double edge, int dark = 30, int bright = 200) {
+  cv::Mat img(40, 60, CV_8UC1);
+  for (int x = 0; x < img.cols; ++x) {
+    const double cover = std::clamp(x + 0.5 - edge, 0.0, 1.0);  // fraction of pixel x right of the edge
+    const int v = static_cast<int>(std::lround(dark + cover * (bright - dark)));
+    img.col(x).setTo(v);
+  }
+  return img;
+}
+}  // namespace
+
+TEST(Gradient, FastAngleMatchesAtan2) {
+  double worst = 0;
+  for (int i = 0; i < 3600; ++i) {
+    const double a = i * kTwoPi / 3600;
+    const float x = static_cast<float>(100 * std::cos(a)), y = static_cast<float>(100 * std::sin(a));
+    double ref = std::atan2(y, x);
+    if (ref < 0) ref += kTwoPi;
+    double d = std::fabs(fastAngle(y, x) - ref);
+    d = std::min(d, kTwoPi - d);
+    worst = std::max(worst, d);
+  }
+  EXPECT_LT(worst, 2e-4);
+}
+
+TEST(Gradient, LumaUsesBt601Weights) {
+  cv::Mat bgr(2, 2, CV_8UC3, cv::Scalar(0, 0, 255)), y;  // pure red
+  bgrToLuma(bgr, y);
+  EXPECT_NEAR(y.at<uint8_t>(0, 0), 0.299 * 255, 1.0);
+  EXPECT_THROW(bgrToLuma(cv::Mat(2, 2, CV_8UC1), y), stereoloc::Error);
+}
+
+TEST(Gradient, StepEdgeGivesOneThinSubPixelEdgePerRow) {
+  for (double edge : {29.5, 29.8, 30.1, 30.35}) {
+    GradientStage g;
+    g.compute(stepImage(edge), GradientParams());
+    ASSERT_EQ(g.edges().size(), static_cast<size_t>(40 - 4)) << edge;  // one per inner row
+    for (const EdgePixel& e : g.edges()) {
+      // Pixel centres at integers: the box-filtered step's Sobel maximum is at the step.
+      EXPECT_NEAR(e.x, edge, 0.1) << edge;
+      EXPECT_NEAR(std::min<double>(e.angle, kTwoPi - e.angle), 0.0, 1e-3);  // bright to the right
+      EXPECT_EQ(g.edgeAt(e.ix, e.iy), &e - g.edges().data());
+    }
+  }
+}
+
+TEST(Gradient, ThresholdRejectsWeakEdgesAndBuffersAreReused) {
+  GradientStage g;
+  g.compute(stepImage(30.0, 100, 105), GradientParams());  // step of 5 grey levels: Sobel 20 < 48
+  EXPECT_TRUE(g.edges().empty());
+  g.compute(stepImage(30.0), GradientParams());
+  EXPECT_FALSE(g.edges().empty());
+  g.compute(stepImage(30.0, 100, 105), GradientParams());
+  EXPECT_TRUE(g.edges().empty());
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x) ASSERT_EQ(g.edgeAt(x, y), -1);
+}

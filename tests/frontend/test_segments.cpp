@@ -1,0 +1,129 @@
+// Stage 4: peak verification and segment completion (Algorithm 2).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+#include "frontend/gbht.h"
+#include "frontend/gradient.h"
+#include "frontend/peaks.h"
+#include "frontend/segments.h"
+
+using namespace stereoloc::frontend;
+
+namespace {
+
+struct Pipeline {
+  GradientStage g;
+  HoughAccumulator acc;
+  SegmentExtractor ex;
+  std::vector<HoughPeak> peaks;
+  std::vector<uint8_t> used;
+  std::vector<Segment> segs;
+  void operator()(const cv::Mat& img, const SegmentParams& sp = SegmentParams()) {
+    g.compute(img, GradientParams());
+    acc.configure(img.cols, img.rows, HoughParams());
+    acc.vote(g.edges(), {});
+    detectPeaks(acc, PeakParams(), peaks);
+    ex.extract(g.edges(), peaks, 3.0, sp, used, segs);
+    refineEndpoints(img, segs);
+  }
+  // Segments whose direction is within 5 deg of theta.
+  std::vector<Segment> along(double theta) const {
+    std::vector<Segment> out;
+    for (const Segment& s : segs)
+      if (std::cos(s.theta - theta) > std::cos(5 * kTwoPi / 360)) out.push_back(s);
+    return out;
+  }
+};
+
+// A bright band y in [y0, y0 + hgt) from x0 to x1, drawn with 4x4 supersampling along a slope.
+cv::Mat slantedBand(double y0, double slope, double x0, double x1, double hgt, int w = 200, int h = 120) {
+  cv::Mat img(h, w, CV_8UC1);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      int in = 0;
+      for (int k = 0; k < 16; ++k) {
+        const double sx = x - 0.5 + (k % 4 + 0.5) / 4, sy = y - 0.5 + (k / 4 + 0.5) / 4;
+        const double top = y0 + slope * sx;
+        in += (sx >= x0 && sx <= x1 && sy >= top && sy < top + hgt) ? 1 : 0;
+      }
+      img.at<uint8_t>(y, x) = static_cast<uint8_t>(30 + 180 * in / 16);
+    }
+  return img;
+}
+
+}  // namespace
+
+TEST(Segments, SubPixelLineAndEndpoints) {
+  // Top edge of a band: y = 40.3 + 0.1 x from x = 20 to 180, bright below (theta ~ 90 deg).
+  Pipeline run;
+  run(slantedBand(40.3, 0.1, 20, 180, 30));
+  const auto top = run.along(std::atan2(1.0, -0.1));
+  ASSERT_EQ(top.size(), 1u);
+  const Segment& s = top[0];
+  // Expected line: -0.1 x + y = 40.3, normalised.
+  const double n = std::hypot(0.1, 1.0);
+  EXPECT_NEAR(s.theta, std::atan2(1.0 / n, -0.1 / n), 0.2 * kTwoPi / 360);
+  EXPECT_NEAR(s.rho, 40.3 / n, 0.15);
+  const double xa = std::min(s.x1, s.x2), xb = std::max(s.x1, s.x2);
+  EXPECT_NEAR(xa, 20.0, 0.5);
+  EXPECT_NEAR(xb, 180.0, 0.5);
+  EXPECT_LT(s.rms, 0.2);
+}
+
+TEST(Segments, OccludedLineBecomesOneSegment) {
+  // A horizontal step edge y = 60 (bright below) hidden by a "ball" (a disc of the bright
+  // colour drawn over it) of 30 px diameter in the middle.
+  cv::Mat img(120, 200, CV_8UC1, cv::Scalar(30));
+  cv::rectangle(img, cv::Rect(10, 60, 180, 60), cv::Scalar(200), cv::FILLED);
+  cv::circle(img, cv::Point(100, 60), 15, cv::Scalar(120), cv::FILLED, cv::LINE_AA);
+  Pipeline run;
+  run(img);
+  const auto segs = run.along(kTwoPi / 4);  // bright below: gradient points down (+y)
+  ASSERT_EQ(segs.size(), 1u);
+  EXPECT_NEAR(std::min(segs[0].x1, segs[0].x2), 11, 2.0);
+  EXPECT_NEAR(std::max(segs[0].x1, segs[0].x2), 188, 2.0);
+}
+
+TEST(Segments, DashedLineSplitsAtGapMinAndMergesUnderGapMax) {
+  // Dashes of 40 px along y = 50 (edge of bright blocks), gaps of `gap` px.
+  auto dashed = [](int gap) {
+    cv::Mat img(100, 320, CV_8UC1, cv::Scalar(30));
+    for (int x = 5; x + 40 < 320; x += 40 + gap) cv::rectangle(img, cv::Rect(x, 50, 40, 30), cv::Scalar(200), cv::FILLED);
+    return img;
+  };
+  Pipeline run;
+  SegmentParams sp;  // Gap_min 3, Gap_max 50, L_min 30
+  run(dashed(20), sp);
+  EXPECT_EQ(run.along(kTwoPi / 4).size(), 1u) << "gaps of 20 px < Gap_max merge";
+  run(dashed(60), sp);
+  EXPECT_GE(run.along(kTwoPi / 4).size(), 3u) << "gaps of 60 px > Gap_max split";
+  sp.gap_max_px = 5;  // below the 20 px gaps: split again
+  run(dashed(20), sp);
+  EXPECT_GE(run.along(kTwoPi / 4).size(), 4u);
+  // Pieces shorter than L_min are dropped.
+  sp = SegmentParams();
+  sp.min_length_px = 300;
+  run(dashed(60), sp);
+  EXPECT_TRUE(run.along(kTwoPi / 4).empty());
+}
+
+TEST(Segments, FitLineIsTotalLeastSquares) {
+  std::vector<EdgePixel> px;
+  for (int i = 0; i < 20; ++i) {
+    EdgePixel e;
+    e.x = static_cast<float>(i);
+    e.y = static_cast<float>(2.0 * i + 5.0 + ((i % 2) ? 0.1 : -0.1));
+    px.push_back(e);
+  }
+  std::vector<int> idx(px.size());
+  for (size_t i = 0; i < idx.size(); ++i) idx[i] = static_cast<int>(i);
+  double theta, rho, rms;
+  ASSERT_TRUE(fitLine(px, idx.data(), idx.data() + idx.size(), 0.0, theta, rho, &rms));
+  // Line y = 2x + 5  <=>  (2x - y) / sqrt5 = -5 / sqrt5, directed to agree with theta_hint 0.
+  EXPECT_NEAR(std::cos(theta), 2 / std::sqrt(5.0), 1e-3);
+  EXPECT_NEAR(rho, -5 / std::sqrt(5.0), 0.05);
+  EXPECT_NEAR(rms, 0.1 / std::sqrt(5.0), 0.01);
+  EXPECT_FALSE(fitLine(px, idx.data(), idx.data() + 1, 0.0, theta, rho));
+}
