@@ -27,6 +27,40 @@ ResamplingScheme resamplingSchemeFromString(const std::string& name) {
   throw Error("unknown resampling scheme '" + name + "' (expected systematic or sorted_roulette)");
 }
 
+ZigguratNormal::ZigguratNormal() {
+  // Layer edges of the 128-layer ziggurat of N(0,1)'s density shape f(x) = exp(-x^2/2): every
+  // layer (and the base strip + tail) has area V.
+  const double R = 3.442619855899, V = 9.91256303526217e-3;
+  auto f = [](double x) { return std::exp(-0.5 * x * x); };
+  x_[0] = V / f(R);
+  x_[1] = R;
+  for (int i = 1; i < 127; ++i) x_[i + 1] = std::sqrt(-2.0 * std::log(V / x_[i] + f(x_[i])));
+  x_[128] = 0.0;
+  for (int i = 0; i <= 128; ++i) f_[i] = f(x_[i]);
+  f_[0] = 0.0;  // the base strip starts at height 0
+}
+
+double ZigguratNormal::slowPath(std::mt19937_64& rng, int i, bool negative, double x) {
+  auto uniform = [&rng] { return (static_cast<double>(rng() >> 11) + 0.5) * 0x1.0p-53; };  // (0, 1)
+  for (;;) {
+    if (i == 0) {  // the tail beyond R = x_[1] (Marsaglia's method)
+      const double R = x_[1];
+      for (;;) {
+        const double t = -std::log(uniform()) / R, y = -std::log(uniform());
+        if (2.0 * y >= t * t) return negative ? -(R + t) : R + t;
+      }
+    }
+    // Wedge of layer i: accept when a uniform height in the layer lies under the density.
+    if (f_[i] + uniform() * (f_[i + 1] - f_[i]) < std::exp(-0.5 * x * x)) return negative ? -x : x;
+    // Rejected: start again with a fresh deviate.
+    const uint64_t b = rng();
+    i = static_cast<int>(b & 127u);
+    negative = (b & 128u) != 0;
+    x = static_cast<double>(b >> 11) * 0x1.0p-53 * x_[i];
+    if (x < x_[i + 1]) return negative ? -x : x;
+  }
+}
+
 std::vector<int> systematicResample(const std::vector<double>& weights, int n, std::mt19937_64& rng) {
   std::vector<int> idx(static_cast<size_t>(std::max(n, 0)));
   if (weights.empty() || n <= 0) return idx;
@@ -109,16 +143,11 @@ void ParticleFilter::initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d
   const Eigen::Matrix3d L = ldlt.transpositionsP().transpose() * Eigen::Matrix3d(ldlt.matrixL()) *
                             ldlt.vectorD().cwiseMax(0.0).cwiseSqrt().asDiagonal();
   const size_t n = static_cast<size_t>(config_.particles);
-  x_.resize(n);
-  y_.resize(n);
-  th_.resize(n);
-  std::normal_distribution<double> n01(0.0, 1.0);
+  resizeParticles(n);
   for (size_t i = 0; i < n; ++i) {
-    const double a = n01(rng_), b = n01(rng_), c = n01(rng_);
+    const double a = normal_(rng_), b = normal_(rng_), c = normal_(rng_);
     const Eigen::Vector3d d = L * Eigen::Vector3d(a, b, c);
-    x_[i] = pose.x + d.x();
-    y_[i] = pose.y + d.y();
-    th_[i] = wrapAngle(pose.theta + d.z());
+    setParticle(i, pose.x + d.x(), pose.y + d.y(), wrapAngle(pose.theta + d.z()));
   }
   logw_.assign(n, -std::log(static_cast<double>(n)));
   w_.assign(n, 1.0 / static_cast<double>(n));
@@ -129,15 +158,12 @@ void ParticleFilter::initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d
 
 void ParticleFilter::initialiseUniform() {
   const size_t n = static_cast<size_t>(config_.particles);
-  x_.resize(n);
-  y_.resize(n);
-  th_.resize(n);
+  resizeParticles(n);
   const Bounds& b = map_.bounds();
   std::uniform_real_distribution<double> ux(b.xmin, b.xmax), uy(b.ymin, b.ymax), ut(-kPi, kPi);
   for (size_t i = 0; i < n; ++i) {
-    x_[i] = ux(rng_);
-    y_[i] = uy(rng_);
-    th_[i] = ut(rng_);
+    const double x = ux(rng_), y = uy(rng_), t = ut(rng_);
+    setParticle(i, x, y, t);
   }
   logw_.assign(n, -std::log(static_cast<double>(n)));
   w_.assign(n, 1.0 / static_cast<double>(n));
@@ -146,23 +172,28 @@ void ParticleFilter::initialiseUniform() {
   summarise(&mean_, &cov_);
 }
 
+void ParticleFilter::resizeParticles(size_t n) {
+  x_.resize(n);
+  y_.resize(n);
+  th_.resize(n);
+  c_.resize(n);
+  s_.resize(n);
+}
+
 void ParticleFilter::predict(double d_left, double d_right) {
   const Eigen::Matrix2d Sv = wheelCovariance(d_left, d_right, odometry_);  // (B.6)
   const double sl = std::sqrt(Sv(0, 0)), sr = std::sqrt(Sv(1, 1));
   const Eigen::Vector3d sf = odometry_.control_variance_floor.cwiseSqrt();
   const double w = odometry_.wheel_base_mm;
-  std::normal_distribution<double> n01(0.0, 1.0);
   for (size_t i = 0; i < x_.size(); ++i) {
-    const double dl = sl > 0 ? d_left + sl * n01(rng_) : d_left;
-    const double dr = sr > 0 ? d_right + sr * n01(rng_) : d_right;
+    const double dl = sl > 0 ? d_left + sl * normal_(rng_) : d_left;
+    const double dr = sr > 0 ? d_right + sr * normal_(rng_) : d_right;
     Eigen::Vector3d u = controlVector(dl, dr, w);  // (B.4), (B.5)
-    if (sf.x() > 0) u.x() += sf.x() * n01(rng_);
-    if (sf.y() > 0) u.y() += sf.y() * n01(rng_);
-    if (sf.z() > 0) u.z() += sf.z() * n01(rng_);
-    const double c = std::cos(th_[i]), s = std::sin(th_[i]);  // (B.16)
-    x_[i] += c * u.x() - s * u.y();
-    y_[i] += s * u.x() + c * u.y();
-    th_[i] = wrapAngle(th_[i] + u.z());
+    if (sf.x() > 0) u.x() += sf.x() * normal_(rng_);
+    if (sf.y() > 0) u.y() += sf.y() * normal_(rng_);
+    if (sf.z() > 0) u.z() += sf.z() * normal_(rng_);
+    const double c = c_[i], s = s_[i];  // (B.16), with the cached cos/sin of the heading
+    setParticle(i, x_[i] + c * u.x() - s * u.y(), y_[i] + s * u.x() + c * u.y(), wrapAngle(th_[i] + u.z()));
   }
 }
 
@@ -222,15 +253,21 @@ void ParticleFilter::resample() {
   scratch_x_.resize(x_.size());
   scratch_y_.resize(y_.size());
   scratch_th_.resize(th_.size());
+  scratch_c_.resize(c_.size());
+  scratch_s_.resize(s_.size());
   for (size_t i = 0; i < idx.size(); ++i) {
     const size_t j = static_cast<size_t>(idx[i]);
     scratch_x_[i] = x_[j];
     scratch_y_[i] = y_[j];
     scratch_th_[i] = th_[j];
+    scratch_c_[i] = c_[j];
+    scratch_s_[i] = s_[j];
   }
   x_.swap(scratch_x_);
   y_.swap(scratch_y_);
   th_.swap(scratch_th_);
+  c_.swap(scratch_c_);
+  s_.swap(scratch_s_);
   logw_.assign(x_.size(), -std::log(static_cast<double>(n)));
   w_.assign(x_.size(), 1.0 / n);
 }
@@ -247,9 +284,8 @@ void ParticleFilter::reinject(int count) {
   const double stride = static_cast<double>(n) / count;
   for (int k = 0; k < count; ++k) {
     const size_t i = static_cast<size_t>((start + static_cast<int>(k * stride)) % n);
-    x_[i] = ux(rng_);
-    y_[i] = uy(rng_);
-    th_[i] = ut(rng_);
+    const double x = ux(rng_), y = uy(rng_), t = ut(rng_);
+    setParticle(i, x, y, t);
     logw_[i] = -std::log(static_cast<double>(n));  // Algorithm 6: a new particle weighs 1/N
   }
   normalise();
@@ -260,8 +296,8 @@ void ParticleFilter::summarise(Pose2* mean, Eigen::Matrix3d* covariance) const {
   for (size_t i = 0; i < x_.size(); ++i) {
     sx += w_[i] * x_[i];
     sy += w_[i] * y_[i];
-    ss += w_[i] * std::sin(th_[i]);
-    sc += w_[i] * std::cos(th_[i]);
+    ss += w_[i] * s_[i];
+    sc += w_[i] * c_[i];
   }
   // Circular mean; when the headings cancel exactly, any heading is as good as another.
   const double mt = (ss == 0.0 && sc == 0.0) ? 0.0 : std::atan2(ss, sc);
