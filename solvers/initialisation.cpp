@@ -70,9 +70,14 @@ InitialBelief makeInitialBelief(InitMode mode, const std::optional<Pose2>& truth
   return globalBelief();
 }
 
-GlobalFixFunction defaultGlobalFix() {
-  // Wired to solvers/global_fix.h once it exists; until then no fix is ever available.
-  return [](const Step&, const FieldMap&) -> std::optional<PoseFix> { return std::nullopt; };
+GlobalFixFunction defaultGlobalFix(const GlobalFixOptions& options, bool accept_approximate) {
+  return [options, accept_approximate](const Step& step, const FieldMap& map) -> std::optional<PoseFix> {
+    const GlobalFix fix = globalFix(step, map, options);
+    const bool usable =
+        fix.status == FixStatus::Ok || (accept_approximate && fix.status == FixStatus::ApproximateNoIntersection);
+    if (!usable || !fix.pose.isFinite() || !fix.covariance.allFinite()) return std::nullopt;
+    return PoseFix{fix.pose, fix.covariance};
+  };
 }
 
 }  // namespace stereoloc

@@ -11,6 +11,7 @@
 #include <random>
 #include <string>
 
+#include "solvers/global_fix.h"
 #include "src/field_map.h"
 #include "src/pose2.h"
 #include "src/types.h"
@@ -60,8 +61,10 @@ struct PoseFix {
 // from one step's observations (and compass), or nullopt when none is possible.
 using GlobalFixFunction = std::function<std::optional<PoseFix>(const Step& step, const FieldMap& map)>;
 
-// The thesis's global fixes (solvers/global_fix.h, chapter 4); only fixes whose status is Ok
-// are accepted.
-GlobalFixFunction defaultGlobalFix();
+// The thesis's global fixes (solvers/global_fix.h, chapter 4: globalFix on the step's
+// identified observations and compass). Fixes with status Ok are accepted, and with
+// accept_approximate also ApproximateNoIntersection (range circles that miss by noise, still
+// within max_gap_sigma); Ambiguous, Degenerate and NotEnoughLandmarks never.
+GlobalFixFunction defaultGlobalFix(const GlobalFixOptions& options = GlobalFixOptions(), bool accept_approximate = true);
 
 }  // namespace stereoloc

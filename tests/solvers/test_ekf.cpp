@@ -28,6 +28,7 @@ struct SyntheticRun {
 
 SyntheticRun circleRun(const FieldMap& map, const OdometryParams& odo, int n, uint64_t seed, double sigma_r = 10.0,
                        double sigma_b = deg2rad(1.0), double max_range = 900.0) {
+  // (Observations closer than 150 mm are not generated: the robot's own body.)
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> n01(0.0, 1.0);
   SyntheticRun run;
@@ -48,7 +49,7 @@ SyntheticRun circleRun(const FieldMap& map, const OdometryParams& odo, int n, ui
     }
     for (const Landmark& l : map.landmarks()) {
       const Eigen::Vector2d z = predictRangeBearing(truth, l.xy());
-      if (z.x() > max_range || std::fabs(z.y()) > deg2rad(30.0)) continue;
+      if (z.x() > max_range || z.x() < 150.0 || std::fabs(z.y()) > deg2rad(30.0)) continue;
       s.observations.push_back(observationFromRangeBearing(l.id, l.type, z.x() + sigma_r * n01(rng),
                                                            z.y() + sigma_b * n01(rng), sigma_r, sigma_b));
     }
@@ -323,6 +324,47 @@ TEST(EkfInit, GlobalModeWaitsForTheFirstFix) {
     }
   }
   EXPECT_EQ(ekf.finish().size(), run.steps.size());
+  EXPECT_LT((ekf.pose().translation() - run.truth.back().translation()).norm(), 60.0);
+}
+
+// The real global fixes (solvers/global_fix.h) behind defaultGlobalFix: they start the filter
+// at the first step with enough identified landmarks and recover it after a kidnap.
+TEST(EkfInit, DefaultGlobalFixInitialisesAndRecoversAfterAKidnap) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  SyntheticRun run = circleRun(map, odo, 100, 13, 10.0, deg2rad(1.0), 2000.0);
+  // Kidnap at step 50: the robot's observations from then on are those of a pose 400 mm away,
+  // and the truth moves with them.
+  for (size_t k = 50; k < run.steps.size(); ++k) {
+    run.truth[k] = plus(run.truth[k], Eigen::Vector3d(-300.0, 250.0, 0.0));
+    std::mt19937_64 rng(k);
+    std::normal_distribution<double> n01(0.0, 1.0);
+    run.steps[k].observations.clear();
+    for (const Landmark& l : map.landmarks()) {
+      const Eigen::Vector2d z = predictRangeBearing(run.truth[k], l.xy());
+      if (z.x() > 2000.0 || z.x() < 150.0 || std::fabs(z.y()) > deg2rad(30.0)) continue;
+      run.steps[k].observations.push_back(observationFromRangeBearing(
+          l.id, l.type, z.x() + 10.0 * n01(rng), z.y() + deg2rad(1.0) * n01(rng), 10.0, deg2rad(1.0)));
+    }
+  }
+  Ekf ekf(map, odo, EkfConfig());  // global initialisation, default fix service
+  int first = -1, lost = -1, reinit = -1;
+  for (const Step& s : run.steps) {
+    const Estimate e = ekf.process(s);
+    if (first < 0 && e.status == EstimateStatus::Reinitialised) first = static_cast<int>(s.step);
+    if (first >= 0 && s.step < 50) {
+      EXPECT_LT((e.pose.translation() - run.truth[static_cast<size_t>(s.step)].translation()).norm(), 60.0) << s.step;
+    }
+    if (s.step >= 50 && lost < 0 && (e.status == EstimateStatus::Lost || e.status == EstimateStatus::Reinitialised))
+      lost = static_cast<int>(s.step);
+    if (s.step >= 50 && reinit < 0 && e.status == EstimateStatus::Reinitialised) reinit = static_cast<int>(s.step);
+  }
+  EXPECT_GE(first, 0);
+  EXPECT_LE(first, 5);
+  EXPECT_GE(lost, 50);
+  EXPECT_LE(lost, 53);
+  EXPECT_GE(reinit, 50);
+  EXPECT_LE(reinit, 55);
   EXPECT_LT((ekf.pose().translation() - run.truth.back().translation()).norm(), 60.0);
 }
 
