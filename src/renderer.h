@@ -1,0 +1,103 @@
+#pragma once
+// Rendered stereo image pairs of the simulated MiroSot world, with exact ground truth.
+//
+// Each pixel is ray-cast (no rasterisation): the per-pixel sample rays are computed once per
+// rig in the camera frame; per pair they are rotated into the world and intersected
+// analytically with the floor plane (markings are analytic strips and rings) and with the
+// convex prisms / spheres of src/simulator_scene.h (walls, goals, corner triangles, obstacles,
+// ball). Every pixel averages samples_per_axis^2 rays (default 2 x 2 = 4) on a regular grid
+// inside the pixel, which anti-aliases the edges. The pixel (u, v) of the image is the point
+// u, v of StereoRig's projection (pixel centres at integer coordinates), so a landmark projected
+// by StereoRig::project lands exactly on the rendered feature.
+//
+// Ground truth per image: the visible pieces of every straight marking centreline, wall, goal
+// and corner-triangle edge (image end points), and the image position of every visible
+// landmark with its id (visible = in front, in the image, line of sight not blocked).
+//
+// Rows are split between `threads` worker threads; each pixel depends only on its own rays, and
+// the noise is drawn afterwards in one thread from RenderOptions::seed, so the images are
+// identical whatever the thread count.
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "src/field_map.h"
+#include "src/pose2.h"
+#include "src/simulator_scene.h"
+#include "src/stereo_rig.h"
+
+namespace stereoloc {
+
+struct Dataset;
+struct SimulationTrace;
+
+struct RenderOptions {
+  int samples_per_axis = 2;     // samples per pixel = samples_per_axis^2 (>= 2 for anti-aliasing)
+  bool shading = true;          // dim surfaces by a fixed light direction (walls vs tops)
+  double noise_sigma = 0.0;     // Gaussian sensor noise, grey levels (0..255), per channel
+  double blur_sigma = 0.0;      // Gaussian blur, px (0 = none)
+  double brightness = 0.0;      // added to every channel, grey levels ("bad illumination", Fig. 6.2)
+  double contrast = 1.0;        // multiplies (value - 128) before the brightness is added
+  uint64_t seed = 0;            // noise engine seed
+  int threads = 2;              // worker threads (result independent of it)
+  SceneColours colours;
+
+  void validate() const;  // throws stereoloc::Error naming the field
+};
+
+struct ImageSegment {
+  std::string kind;   // marking, wall_foot, wall_top, goal_post, goal_foot, goal_top, triangle
+  std::string name;
+  Eigen::Vector2d a = Eigen::Vector2d::Zero(), b = Eigen::Vector2d::Zero();  // px
+};
+
+struct ImageLandmark {
+  int id = -1;
+  std::string type;                           // toString(LandmarkType)
+  Eigen::Vector2d pixel = Eigen::Vector2d::Zero();  // px
+};
+
+struct ImageTruth {
+  std::vector<ImageSegment> segments;
+  std::vector<ImageLandmark> landmarks;
+};
+
+struct StereoTruth {
+  Pose2 robot;
+  double head_pan = 0.0;
+  ImageTruth left, right;
+};
+
+struct StereoImages {
+  cv::Mat left, right;  // CV_8UC3, BGR
+  StereoTruth truth;
+};
+
+// Holds the precomputed per-pixel rays of a rig; reuse it for many pairs.
+class StereoRenderer {
+ public:
+  StereoRenderer(const FieldMap& map, const StereoRig& rig, const RenderOptions& options = RenderOptions());
+  StereoImages render(const Pose2& robot, double head_pan, const std::vector<Obstacle>& obstacles) const;
+  const RenderOptions& options() const { return options_; }
+
+ private:
+  FieldMap map_;
+  StereoRig rig_;
+  RenderOptions options_;
+  Scene static_scene_;
+  std::vector<Eigen::Vector3f> rays_;  // per sample, direction in C2 (x forward), unnormalised
+};
+
+// One-off convenience wrapper around StereoRenderer.
+StereoImages renderStereoPair(const FieldMap& map, const StereoRig& rig, const Pose2& robot, double head_pan,
+                              const std::vector<Obstacle>& obstacles, const RenderOptions& options);
+
+// The ground truth as JSON (units px; documented in docs/dataset_format.md).
+std::string truthToJson(const StereoTruth& truth, long step);
+
+// Renders every step of a simulated dataset into DIR/images/{left,right}_NNNNNN.png and
+// truth_NNNNNN.json. The noise of step s uses seed + s.
+void writeDatasetImages(const Dataset& d, const SimulationTrace& trace, const RenderOptions& options, uint64_t seed,
+                        const std::string& dir);
+
+}  // namespace stereoloc

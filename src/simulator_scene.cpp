@@ -1,0 +1,281 @@
+#include "src/simulator_scene.h"
+
+#include <cmath>
+#include <limits>
+
+#include "src/error.h"
+
+namespace stereoloc {
+namespace {
+
+Prism box(double x0, double y0, double x1, double y1, double z0, double z1, SurfaceClass cls = SurfaceClass::Wall) {
+  Prism p;
+  p.polygon = {{x0, y0}, {x1, y0}, {x1, y1}, {x0, y1}};
+  p.zmin = z0;
+  p.zmax = z1;
+  p.side.assign(4, cls);
+  p.top = cls;
+  p.bottom = cls;
+  return p;
+}
+
+}  // namespace
+
+std::string toString(Obstacle::Kind kind) { return kind == Obstacle::Kind::Robot ? "robot" : "ball"; }
+
+Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles) {
+  if (!map.geometry()) throw Error("map '" + map.name() + "' has no field geometry: cannot build the 3D scene");
+  Scene s;
+  const FieldGeometry& g = *map.geometry();
+  s.geometry_ = g;
+  const double L = g.length, W = g.width, H = g.wall_height, T = kWallThickness, D = g.goal_depth;
+  const double cy = 0.5 * W, y_lo = cy - 0.5 * g.goal_width, y_hi = cy + 0.5 * g.goal_width;
+  const double hw = 0.5 * g.line_width, t = g.corner_triangle;
+
+  // Long walls (with the corners) and the goal-line walls beside the goal mouths.
+  s.prisms_.push_back(box(-T, -T, L + T, 0, 0, H));
+  s.prisms_.push_back(box(-T, W, L + T, W + T, 0, H));
+  s.prisms_.push_back(box(-T, 0, 0, y_lo - T, 0, H));
+  s.prisms_.push_back(box(-T, y_hi + T, 0, W, 0, H));
+  s.prisms_.push_back(box(L, 0, L + T, y_lo - T, 0, H));
+  s.prisms_.push_back(box(L, y_hi + T, L + T, W, 0, H));
+  // Goals: side walls from the mouth to the back, and the back wall. Polygon edges run
+  // (x0,y0)->(x1,y0)->(x1,y1)->(x0,y1): side 0 faces -y, 1 faces +x, 2 faces +y, 3 faces -x.
+  for (int side = 0; side < 2; ++side) {
+    const SurfaceClass c = side == 0 ? SurfaceClass::BlueGoal : SurfaceClass::YellowGoal;
+    const double xm = side == 0 ? 0.0 : L;          // goal line
+    const double xb = side == 0 ? -D : L + D;       // inner face of the back wall
+    const double x0 = std::min(xm, xb), x1 = std::max(xm, xb);
+    Prism lower = box(x0, y_lo - T, x1, y_lo, 0, H);
+    lower.side[2] = c;  // inner face (+y) coloured; the face on the goal line stays white
+    Prism upper = box(x0, y_hi, x1, y_hi + T, 0, H);
+    upper.side[0] = c;
+    Prism back = side == 0 ? box(xb - T, y_lo - T, xb, y_hi + T, 0, H) : box(xb, y_lo - T, xb + T, y_hi + T, 0, H);
+    back.side[side == 0 ? 1 : 3] = c;
+    s.prisms_.push_back(lower);
+    s.prisms_.push_back(upper);
+    s.prisms_.push_back(back);
+  }
+  // Corner triangles (solid 7 cm isosceles triangles, L1906), counter-clockwise.
+  auto triangle = [&](Eigen::Vector2d a, Eigen::Vector2d b, Eigen::Vector2d c) {
+    Prism p;
+    const double cross = (b - a).x() * (c - a).y() - (b - a).y() * (c - a).x();
+    p.polygon = cross > 0 ? std::vector<Eigen::Vector2d>{a, b, c} : std::vector<Eigen::Vector2d>{a, c, b};
+    p.zmin = 0;
+    p.zmax = H;
+    p.side.assign(3, SurfaceClass::Wall);
+    s.prisms_.push_back(p);
+    s.edges_.push_back({"triangle", "triangle_foot", {b.x(), b.y(), 0.0}, {c.x(), c.y(), 0.0}});
+    s.edges_.push_back({"triangle", "triangle_top", {b.x(), b.y(), H}, {c.x(), c.y(), H}});
+  };
+  triangle({0, 0}, {t, 0}, {0, t});
+  triangle({L, 0}, {L - t, 0}, {L, t});
+  triangle({0, W}, {t, W}, {0, W - t});
+  triangle({L, W}, {L - t, W}, {L, W - t});
+
+  // Markings (centrelines; landmarks lie on them).
+  auto strip = [&](const std::string& name, Eigen::Vector2d a, Eigen::Vector2d b, double ea, double eb) {
+    s.strips_.push_back({a, b, hw, ea, eb});
+    s.edges_.push_back({"marking", name, {a.x(), a.y(), 0.0}, {b.x(), b.y(), 0.0}});
+  };
+  strip("halfway_line", {0.5 * L, 0.0}, {0.5 * L, W}, 0, 0);
+  s.rings_.push_back({{0.5 * L, cy}, g.centre_circle_radius, hw});
+  struct Area {
+    const char* name;
+    double depth, width;
+  };
+  for (const Area& a : {Area{"goal_area", g.goal_area_depth, g.goal_area_width},
+                        Area{"penalty_area", g.penalty_area_depth, g.penalty_area_width}}) {
+    for (int side = 0; side < 2; ++side) {
+      const double xg = side == 0 ? 0.0 : L, xd = side == 0 ? a.depth : L - a.depth;
+      const std::string pre = std::string(side == 0 ? "blue_" : "yellow_") + a.name;
+      const double ylo = cy - 0.5 * a.width, yhi = cy + 0.5 * a.width;
+      strip(pre + "_front", {xd, ylo}, {xd, yhi}, hw, hw);
+      strip(pre + "_side_lo", {xg, ylo}, {xd, ylo}, 0, hw);
+      strip(pre + "_side_hi", {xg, yhi}, {xd, yhi}, 0, hw);
+    }
+  }
+  // Wall and goal edges.
+  auto edge = [&](const char* kind, const std::string& name, Eigen::Vector3d a, Eigen::Vector3d b) {
+    s.edges_.push_back({kind, name, a, b});
+  };
+  for (double z : {0.0, H}) {
+    const char* kind = z == 0.0 ? "wall_foot" : "wall_top";
+    edge(kind, "wall_y0", {t, 0, z}, {L - t, 0, z});
+    edge(kind, "wall_y" + std::to_string(static_cast<long>(W)), {t, W, z}, {L - t, W, z});
+    edge(kind, "wall_blue_lo", {0, t, z}, {0, y_lo, z});
+    edge(kind, "wall_blue_hi", {0, y_hi, z}, {0, W - t, z});
+    edge(kind, "wall_yellow_lo", {L, t, z}, {L, y_lo, z});
+    edge(kind, "wall_yellow_hi", {L, y_hi, z}, {L, W - t, z});
+    const char* gkind = z == 0.0 ? "goal_foot" : "goal_top";
+    for (int side = 0; side < 2; ++side) {
+      const double xm = side == 0 ? 0.0 : L, xb = side == 0 ? -D : L + D;
+      const std::string pre = side == 0 ? "blue_goal" : "yellow_goal";
+      edge(gkind, pre + "_side_lo", {xm, y_lo, z}, {xb, y_lo, z});
+      edge(gkind, pre + "_side_hi", {xm, y_hi, z}, {xb, y_hi, z});
+      edge(gkind, pre + "_back", {xb, y_lo, z}, {xb, y_hi, z});
+    }
+  }
+  for (int side = 0; side < 2; ++side) {
+    const double xm = side == 0 ? 0.0 : L;
+    const std::string pre = side == 0 ? "blue_goal" : "yellow_goal";
+    edge("goal_post", pre + "_post_lo", {xm, y_lo, 0}, {xm, y_lo, H});
+    edge("goal_post", pre + "_post_hi", {xm, y_hi, 0}, {xm, y_hi, H});
+  }
+
+  for (const Obstacle& o : obstacles) {
+    if (!(o.position.allFinite() && std::isfinite(o.heading) && std::isfinite(o.size) && o.size > 0))
+      throw Error("obstacle: position, heading and size must be finite, size positive");
+    if (o.kind == Obstacle::Kind::Ball) {
+      s.spheres_.push_back({{o.position.x(), o.position.y(), 0.5 * o.size}, 0.5 * o.size});
+    } else {
+      Prism p;
+      const double h = 0.5 * o.size, c = std::cos(o.heading), sn = std::sin(o.heading);
+      for (auto [lx, ly] : {std::pair{-h, -h}, std::pair{h, -h}, std::pair{h, h}, std::pair{-h, h}})
+        p.polygon.emplace_back(o.position.x() + c * lx - sn * ly, o.position.y() + sn * lx + c * ly);
+      p.zmin = 0;
+      p.zmax = o.size;
+      p.side.assign(4, SurfaceClass::Robot);
+      p.top = SurfaceClass::Robot;
+      p.bottom = SurfaceClass::Robot;
+      s.prisms_.push_back(p);
+    }
+  }
+  return s;
+}
+
+bool Scene::intersectPrism(size_t i, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
+                           double t_max, RayHit* hit) const {
+  const Prism& p = prisms_[i];
+  // Cyrus-Beck clipping against the half-spaces of the convex prism.
+  double t_enter = -std::numeric_limits<double>::infinity(), t_exit = std::numeric_limits<double>::infinity();
+  int enter_face = -3;  // -1 top, -2 bottom, >= 0 side index
+  auto clip = [&](double num, double den, int face) {
+    // Inside when num + t den <= 0.
+    if (den == 0.0) return num <= 0.0;
+    const double tt = -num / den;
+    if (den < 0) {
+      if (tt > t_enter) {
+        t_enter = tt;
+        enter_face = face;
+      }
+    } else if (tt < t_exit) {
+      t_exit = tt;
+    }
+    return t_enter <= t_exit;
+  };
+  if (!clip(o.z() - p.zmax, d.z(), -1)) return false;
+  if (!clip(p.zmin - o.z(), -d.z(), -2)) return false;
+  const size_t n = p.polygon.size();
+  for (size_t k = 0; k < n; ++k) {
+    const Eigen::Vector2d& a = p.polygon[k];
+    const Eigen::Vector2d& b = p.polygon[(k + 1) % n];
+    const double nx = b.y() - a.y(), ny = a.x() - b.x();  // outward normal of a CCW polygon edge
+    if (!clip(nx * (o.x() - a.x()) + ny * (o.y() - a.y()), nx * d.x() + ny * d.y(), static_cast<int>(k))) return false;
+  }
+  if (!(t_enter <= t_exit) || !(t_enter > t_min) || !(t_enter < t_max)) return false;
+  if (hit) {
+    hit->t = t_enter;
+    hit->object = static_cast<int>(i);
+    if (enter_face == -1) {
+      hit->cls = p.top;
+      hit->normal = Eigen::Vector3d(0, 0, 1);
+    } else if (enter_face == -2) {
+      hit->cls = p.bottom;
+      hit->normal = Eigen::Vector3d(0, 0, -1);
+    } else {
+      const Eigen::Vector2d& a = p.polygon[enter_face];
+      const Eigen::Vector2d& b = p.polygon[(enter_face + 1) % n];
+      hit->cls = p.side[enter_face];
+      hit->normal = Eigen::Vector3d(b.y() - a.y(), a.x() - b.x(), 0).normalized();
+    }
+  }
+  return true;
+}
+
+bool Scene::intersectSphere(size_t i, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
+                            double t_max, RayHit* hit) const {
+  const Sphere& s = spheres_[i];
+  const Eigen::Vector3d oc = o - s.centre;
+  const double a = d.squaredNorm(), b = oc.dot(d), c = oc.squaredNorm() - s.radius * s.radius;
+  const double disc = b * b - a * c;
+  if (disc < 0 || a == 0) return false;
+  const double tt = (-b - std::sqrt(disc)) / a;
+  if (!(tt > t_min && tt < t_max)) return false;
+  if (hit) {
+    hit->t = tt;
+    hit->cls = SurfaceClass::Ball;
+    hit->object = static_cast<int>(prisms_.size() + i);
+    hit->normal = (o + tt * d - s.centre).normalized();
+  }
+  return true;
+}
+
+SurfaceClass Scene::floorClass(double x, double y) const {
+  const FieldGeometry& g = geometry_;
+  const double cy = 0.5 * g.width;
+  const bool in_field = x >= 0 && x <= g.length && y >= 0 && y <= g.width;
+  const bool in_goal = std::fabs(y - cy) <= 0.5 * g.goal_width && x >= -g.goal_depth && x <= g.length + g.goal_depth;
+  if (!in_field && !in_goal) return SurfaceClass::Background;
+  for (const MarkingStrip& m : strips_) {
+    const Eigen::Vector2d e = m.b - m.a;
+    const double len = e.norm();
+    const Eigen::Vector2d u = e / len;
+    const double px = x - m.a.x(), py = y - m.a.y();
+    const double along = px * u.x() + py * u.y();
+    if (along < -m.extend_a || along > len + m.extend_b) continue;
+    if (std::fabs(-px * u.y() + py * u.x()) <= m.half_width) return SurfaceClass::Marking;
+  }
+  for (const MarkingRing& r : rings_) {
+    const double dist = std::hypot(x - r.centre.x(), y - r.centre.y());
+    if (std::fabs(dist - r.radius) <= r.half_width) return SurfaceClass::Marking;
+  }
+  return SurfaceClass::Floor;
+}
+
+RayHit Scene::trace(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min, double t_max) const {
+  RayHit best;
+  best.t = t_max;
+  bool any = false;
+  RayHit h;
+  for (size_t i = 0; i < prisms_.size(); ++i)
+    if (intersectPrism(i, o, d, t_min, best.t, &h)) {
+      best = h;
+      any = true;
+    }
+  for (size_t i = 0; i < spheres_.size(); ++i)
+    if (intersectSphere(i, o, d, t_min, best.t, &h)) {
+      best = h;
+      any = true;
+    }
+  if (d.z() < 0 && o.z() > 0) {
+    const double tf = -o.z() / d.z();
+    if (tf > t_min && tf < best.t) {
+      best.t = tf;
+      best.cls = floorClass(o.x() + tf * d.x(), o.y() + tf * d.y());
+      best.normal = Eigen::Vector3d(0, 0, 1);
+      best.object = -1;
+      any = true;
+    }
+  }
+  if (!any) {
+    best.cls = SurfaceClass::Background;
+    best.object = -1;
+    best.t = std::numeric_limits<double>::infinity();
+  }
+  return best;
+}
+
+bool Scene::occluded(const Eigen::Vector3d& from, const Eigen::Vector3d& to, double tolerance_mm) const {
+  const Eigen::Vector3d d = to - from;
+  const double len = d.norm();
+  if (len <= tolerance_mm) return false;
+  const double t_max = 1.0 - tolerance_mm / len;
+  for (size_t i = 0; i < prisms_.size(); ++i)
+    if (intersectPrism(i, from, d, 0.0, t_max, nullptr)) return true;
+  for (size_t i = 0; i < spheres_.size(); ++i)
+    if (intersectSphere(i, from, d, 0.0, t_max, nullptr)) return true;
+  return false;
+}
+
+}  // namespace stereoloc
