@@ -1,0 +1,312 @@
+// `stereoloc realdata DATASET_DIR`: runs every estimator on an imported real dataset (e.g.
+// `stereoloc import mrclam`) from the same initial belief and prints the results table against
+// ground truth: position and theta RMSE, NEES (whether the covariance is honest), ms per step,
+// non-finite estimates, and each estimator's position RMSE relative to the EKF's.
+//
+// Estimators: dead reckoning (odometry only, predictPose), EKF, particle filter, sliding window
+// (W poses; its fixed-lag output from finish() and its real-time output from process()), batch
+// smoother without and with a robust loss on the range-bearing factors.
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <sstream>
+
+#include "solvers/batch_smoother.h"
+#include "solvers/ekf.h"
+#include "solvers/initialisation.h"
+#include "solvers/particle_filter.h"
+#include "solvers/sliding_window_smoother.h"
+#include "src/atomic_file.h"
+#include "src/csv.h"
+#include "src/dataset.h"
+#include "src/evaluation.h"
+#include "src/odometry_model.h"
+#include "tools/stereoloc/cli_common.h"
+
+namespace stereoloc::cli {
+namespace {
+
+struct RealdataOptions {
+  std::string dataset_dir, csv_path;
+  int window = 20;
+  int particles = 2000;
+  unsigned long seed = 1;
+  std::string robust = "huber";
+  double robust_scale = 1.345;
+  long max_steps = 0;                 // 0: all
+  double init_sigma_xy = 50.0;        // mm
+  double init_sigma_theta_deg = 2.0;  // deg
+  std::string batch_guess = "ekf";    // initial guess of the batch: "ekf" or "odometry"
+  std::string only;                   // comma-separated subset of estimator keys
+};
+
+struct Row {
+  std::string key, label;
+  TrajectoryMetrics metrics;
+  double ms_per_step = 0;
+  size_t nonfinite = 0;     // estimates with a non-finite pose or covariance
+  size_t reinitialised = 0; // steps with status Lost or Reinitialised
+  double max_error = 0;     // mm
+};
+
+using Clock = std::chrono::steady_clock;
+double msSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+Row evaluate(const std::string& key, const std::string& label, const std::vector<Estimate>& estimates,
+             const TruthByStep& truth, double total_ms, size_t steps) {
+  Row r;
+  r.key = key;
+  r.label = label;
+  r.ms_per_step = total_ms / static_cast<double>(std::max<size_t>(1, steps));
+  for (const Estimate& e : estimates) {
+    if (!e.pose.isFinite() || !e.covariance.allFinite()) ++r.nonfinite;
+    if (e.status == EstimateStatus::Lost || e.status == EstimateStatus::Reinitialised) ++r.reinitialised;
+  }
+  std::vector<Estimate> finite;
+  finite.reserve(estimates.size());
+  for (const Estimate& e : estimates)
+    if (e.pose.isFinite()) finite.push_back(e);
+  const std::vector<PoseError> errors = poseErrors(finite, truth);
+  r.metrics = trajectoryMetrics(errors);
+  for (const PoseError& pe : errors) r.max_error = std::max(r.max_error, pe.distance);
+  return r;
+}
+
+// Runs an estimator over the steps; `online` (optional) receives the process() outputs.
+std::vector<Estimate> runEstimator(Estimator& est, const std::vector<Step>& steps, double* ms,
+                                   std::vector<Estimate>* online = nullptr) {
+  const Clock::time_point t0 = Clock::now();
+  for (const Step& s : steps) {
+    Estimate e = est.process(s);
+    if (online) online->push_back(e);
+  }
+  std::vector<Estimate> out = est.finish();
+  *ms = msSince(t0);
+  return out;
+}
+
+std::vector<Estimate> deadReckoning(const std::vector<Step>& steps, const OdometryParams& odometry,
+                                    const InitialBelief& init, double* ms) {
+  const Clock::time_point t0 = Clock::now();
+  std::vector<Estimate> out;
+  out.reserve(steps.size());
+  Pose2 pose = init.pose;
+  Eigen::Matrix3d P = init.covariance;
+  for (size_t i = 0; i < steps.size(); ++i) {
+    if (i > 0) {  // the first step is the initial time (as for the estimators)
+      const PosePrediction p = predictPose(pose, P, steps[i].d_left, steps[i].d_right, odometry);
+      pose = p.pose;
+      P = p.covariance;
+    }
+    Estimate e;
+    e.step = steps[i].step;
+    e.t = steps[i].t;
+    e.pose = pose;
+    e.covariance = P;
+    e.status = EstimateStatus::Predicted;
+    out.push_back(e);
+  }
+  *ms = msSince(t0);
+  return out;
+}
+
+bool wanted(const RealdataOptions& o, const std::string& key) {
+  if (o.only.empty()) return true;
+  std::stringstream ss(o.only);
+  std::string k;
+  while (std::getline(ss, k, ','))
+    if (k == key) return true;
+  return false;
+}
+
+void runRealdata(const RealdataOptions& o) {
+  if (o.batch_guess != "ekf" && o.batch_guess != "odometry")
+    throw UsageError("--batch-guess: expected 'ekf' or 'odometry', got '" + o.batch_guess + "'");
+  Dataset d = loadDataset(o.dataset_dir);
+  if (o.max_steps > 0 && static_cast<size_t>(o.max_steps) < d.steps.size()) {
+    d.steps.resize(static_cast<size_t>(o.max_steps));
+    d.groundtruth.resize(static_cast<size_t>(o.max_steps));
+  }
+  if (d.steps.empty()) throw Error(o.dataset_dir + ": no steps");
+  if (!d.initial_pose) {
+    if (d.groundtruth.front()) {
+      d.initial_pose = d.groundtruth.front();
+    } else {
+      throw Error(o.dataset_dir + ": no initial pose and no ground truth at step 0: cannot initialise alike");
+    }
+  }
+  if (o.robust != "huber" && o.robust != "cauchy")
+    throw UsageError("--robust: expected 'huber' or 'cauchy', got '" + o.robust + "'");
+  RobustLossConfig robust;
+  robust.type = robustLossFromString(o.robust);
+  robust.scale = o.robust_scale;
+
+  const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
+  size_t observations = 0;
+  for (const Step& s : d.steps) observations += s.observations.size();
+  std::printf("dataset %s: %zu steps (%.1f s), %zu with ground truth, %zu observations, %zu landmarks\n",
+              d.name.c_str(), d.steps.size(), d.steps.back().t - d.steps.front().t, truth.size(), observations,
+              d.map.landmarks().size());
+  std::printf("odometry model: wheel base %.0f mm, k %.3g / %.3g mm^2/mm, control floor (%.3g, %.3g, %.3g)\n",
+              d.odometry.wheel_base_mm, d.odometry.k_left, d.odometry.k_right, d.odometry.control_variance_floor.x(),
+              d.odometry.control_variance_floor.y(), d.odometry.control_variance_floor.z());
+  // The same initial belief for every estimator: the true pose at step 0 with a small covariance.
+  const double st = deg2rad(o.init_sigma_theta_deg);
+  const InitialBelief init =
+      knownBelief(*d.initial_pose, Eigen::Vector3d(o.init_sigma_xy * o.init_sigma_xy, o.init_sigma_xy * o.init_sigma_xy,
+                                                   st * st)
+                                       .asDiagonal());
+  std::printf("initial belief: ground truth at step 0, sigma (%.0f mm, %.0f mm, %.1f deg)\n", o.init_sigma_xy,
+              o.init_sigma_xy, o.init_sigma_theta_deg);
+  std::fflush(stdout);
+
+  std::vector<Row> rows;
+  auto note = [](const Row& r) {
+    std::fprintf(stderr, "  %-24s done: position RMSE %.0f mm, %.3f ms/step\n", r.label.c_str(),
+                 r.metrics.position_rmse, r.ms_per_step);
+  };
+  double ms = 0;
+  const size_t n = d.steps.size();
+  if (wanted(o, "dead_reckoning")) {
+    rows.push_back(evaluate("dead_reckoning", "dead reckoning", deadReckoning(d.steps, d.odometry, init, &ms), truth,
+                            ms, n));
+    note(rows.back());
+  }
+  std::vector<Estimate> ekf_estimates;
+  if (wanted(o, "ekf") || (o.batch_guess == "ekf" && (wanted(o, "batch") || wanted(o, "batch_robust")))) {
+    EkfConfig c;
+    c.init = init;
+    Ekf ekf(d.map, d.odometry, c);
+    const Clock::time_point t0 = Clock::now();
+    size_t accepted = 0, gated = 0;
+    for (const Step& s : d.steps) {
+      ekf.process(s);
+      for (const EkfUpdateRecord& u : ekf.lastUpdates()) (u.accepted ? accepted : gated) += u.compass ? 0 : 1;
+    }
+    ekf_estimates = ekf.finish();
+    ms = msSince(t0);
+    std::fprintf(stderr, "  EKF: %zu observations fused, %zu gated\n", accepted, gated);
+    if (wanted(o, "ekf")) {
+      rows.push_back(evaluate("ekf", "EKF", ekf_estimates, truth, ms, n));
+      note(rows.back());
+    }
+  }
+  if (wanted(o, "pf")) {
+    ParticleFilterConfig c;
+    c.init = init;
+    c.particles = o.particles;
+    ParticleFilter pf(d.map, d.odometry, c, o.seed);
+    const std::vector<Estimate> e = runEstimator(pf, d.steps, &ms);
+    rows.push_back(evaluate("pf", "PF (" + std::to_string(o.particles) + ")", e, truth, ms, n));
+    note(rows.back());
+  }
+  if (wanted(o, "window") || wanted(o, "window_online")) {
+    SlidingWindowConfig c;
+    c.init = init;
+    c.window = o.window;
+    SlidingWindowSmoother sw(d.map, d.odometry, c);
+    std::vector<Estimate> online;
+    const std::vector<Estimate> e = runEstimator(sw, d.steps, &ms, &online);
+    const std::string w = "W=" + std::to_string(o.window);
+    if (wanted(o, "window")) {
+      rows.push_back(evaluate("window", "window " + w + " (lag)", e, truth, ms, n));
+      note(rows.back());
+    }
+    if (wanted(o, "window_online")) {
+      rows.push_back(evaluate("window_online", "window " + w + " (online)", online, truth, ms, n));
+      note(rows.back());
+    }
+  }
+  for (const bool use_robust : {false, true}) {
+    const std::string key = use_robust ? "batch_robust" : "batch";
+    if (!wanted(o, key)) continue;
+    BatchSmootherConfig c;
+    c.init = init;
+    if (use_robust) c.loss = robust;
+    BatchSmoother batch(d.map, d.odometry, c);
+    if (o.batch_guess == "ekf") batch.setInitialEstimates(ekf_estimates);
+    const std::vector<Estimate> e = runEstimator(batch, d.steps, &ms);
+    const BatchSummary& s = batch.summary();
+    std::fprintf(stderr, "  batch%s: %d iterations, cost %.4g -> %.4g, %s, covariance %s\n",
+                 use_robust ? " (robust)" : "", s.iterations, s.initial_cost, s.final_cost,
+                 s.converged ? "converged" : "NOT converged", toString(s.covariance_status).c_str());
+    rows.push_back(evaluate(key, use_robust ? "batch (" + o.robust + ")" : "batch", e, truth, ms, n));
+    note(rows.back());
+  }
+
+  double ekf_rmse = 0;
+  for (const Row& r : rows)
+    if (r.key == "ekf") ekf_rmse = r.metrics.position_rmse;
+  std::printf("\n%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "estimator", "pos RMSE", "th RMSE", "mean", "NEES",
+              "max err", "ms/step", "pos RMSE", "lost/", "non-");
+  std::printf("%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "", "[mm]", "[deg]", "NEES", "in 95%", "[mm]", "",
+              "/ EKF", "reinit", "finite");
+  for (const Row& r : rows) {
+    char ratio[32] = "-";
+    if (ekf_rmse > 0) std::snprintf(ratio, sizeof ratio, "%.3f", r.metrics.position_rmse / ekf_rmse);
+    std::printf("%-24s %10.1f %10.2f %8.3g %7.0f%% %9.0f %9.3f %9s %6zu %6zu\n", r.label.c_str(),
+                r.metrics.position_rmse, rad2deg(r.metrics.theta_rmse), r.metrics.mean_nees,
+                100.0 * r.metrics.nees_in_band, r.max_error, r.ms_per_step, ratio, r.reinitialised, r.nonfinite);
+  }
+  std::printf("(RMSE over %zu steps with ground truth; NEES of the 3-dof pose error, 3 is honest; the 95%% column is "
+              "the share of steps inside the chi-square(3) 95%% band)\n",
+              rows.empty() ? size_t(0) : rows.front().metrics.count);
+
+  if (!o.csv_path.empty()) {
+    std::ostringstream os;
+    os << "estimator,position_rmse_mm,theta_rmse_rad,mean_nees,nees_in_band,max_error_mm,ms_per_step,"
+          "ratio_to_ekf,reinitialised,nonfinite,count\n";
+    for (const Row& r : rows) {
+      os << r.key << "," << formatDouble(r.metrics.position_rmse) << "," << formatDouble(r.metrics.theta_rmse) << ","
+         << formatDouble(r.metrics.mean_nees) << "," << formatDouble(r.metrics.nees_in_band) << ","
+         << formatDouble(r.max_error) << "," << formatDouble(r.ms_per_step) << ","
+         << formatDouble(ekf_rmse > 0 ? r.metrics.position_rmse / ekf_rmse : 0.0) << "," << r.reinitialised << ","
+         << r.nonfinite << "," << r.metrics.count << "\n";
+    }
+    writeFileAtomically(o.csv_path, os.str());
+  }
+  size_t bad = 0;
+  for (const Row& r : rows) bad += r.nonfinite;
+  if (bad > 0) throw Error("realdata: " + std::to_string(bad) + " non-finite estimates (see the table)");
+}
+
+}  // namespace
+
+void add_realdata_command(CLI::App& app) {
+  auto o = std::make_shared<RealdataOptions>();
+  CLI::App* sub = app.add_subcommand(
+      "realdata", "Run every estimator on a real dataset with ground truth and print RMSE, NEES and timing");
+  sub->add_option("DATASET_DIR", o->dataset_dir, "Dataset directory (e.g. from `stereoloc import mrclam`)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  sub->add_option("--window", o->window, "Sliding-window size W (poses)")->capture_default_str()->check(CLI::Range(1, 10000));
+  sub->add_option("--particles", o->particles, "Particle filter size")->capture_default_str()->check(CLI::Range(10, 1000000));
+  sub->add_option("--seed", o->seed, "Seed of the particle filter")->capture_default_str();
+  sub->add_option("--robust", o->robust, "Robust loss of the second batch run: huber or cauchy")->capture_default_str();
+  sub->add_option("--robust-scale", o->robust_scale, "Robust loss scale (whitened units)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  sub->add_option("--max-steps", o->max_steps, "Use only the first N steps (0: all)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  sub->add_option("--init-sigma-xy", o->init_sigma_xy, "Initial position sigma, mm")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  sub->add_option("--init-sigma-theta-deg", o->init_sigma_theta_deg, "Initial heading sigma, degrees")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  sub->add_option("--batch-guess", o->batch_guess, "Initial guess of the batch smoother: ekf or odometry")
+      ->capture_default_str();
+  sub->add_option("--only", o->only,
+                  "Comma-separated subset: dead_reckoning,ekf,pf,window,window_online,batch,batch_robust");
+  sub->add_option("--csv", o->csv_path, "Also write the table as CSV (units: mm, rad, ms)");
+  sub->callback([o] { runRealdata(*o); });
+}
+
+}  // namespace stereoloc::cli
