@@ -26,6 +26,22 @@ std::string toString(CovarianceStatus status) {
   return "not_computed";
 }
 
+std::string toString(InitialGuess guess) { return guess == InitialGuess::Odometry ? "odometry" : "filter"; }
+
+InitialGuess initialGuessFromString(const std::string& name) {
+  for (InitialGuess g : {InitialGuess::Odometry, InitialGuess::Filter})
+    if (toString(g) == name) return g;
+  throw Error("unknown initial guess '" + name + "' (expected odometry or filter)");
+}
+
+std::string toString(CovarianceMethod method) { return method == CovarianceMethod::Chain ? "chain" : "ceres"; }
+
+CovarianceMethod covarianceMethodFromString(const std::string& name) {
+  for (CovarianceMethod m : {CovarianceMethod::Chain, CovarianceMethod::Ceres})
+    if (toString(m) == name) return m;
+  throw Error("unknown covariance method '" + name + "' (expected chain or ceres)");
+}
+
 void BatchSmootherConfig::validate() const {
   if (max_iterations < 1) throw Error("batch smoother: max_iterations must be >= 1");
   if (num_threads < 1) throw Error("batch smoother: num_threads must be >= 1");
@@ -42,6 +58,15 @@ BatchSmoother::BatchSmoother(const FieldMap& map, const OdometryParams& odometry
   if (config_.init.mode != InitMode::Global &&
       (!config_.init.pose.isFinite() || !config_.init.covariance.allFinite()))
     throw Error("batch smoother: initial belief is not finite");
+  if (config_.initial_guess == InitialGuess::Filter) {
+    EkfConfig ec;
+    ec.init = config_.init;
+    ec.gate = config_.gate;
+    ec.association = config_.association;
+    ec.use_compass = config_.use_compass;
+    ec.global_fix = config_.global_fix;
+    filter_ = std::make_unique<Ekf>(map_, odometry_, ec);
+  }
 }
 
 void BatchSmoother::setInitialEstimates(const std::vector<Estimate>& estimates) {
@@ -68,7 +93,35 @@ Estimate BatchSmoother::process(const Step& in) {
         it->pose.isFinite())
       given = &*it;
   }
-  if (first_index_ < 0) {
+  std::optional<Estimate> filtered;
+  if (filter_) filtered = filter_->process(step);
+  if (first_index_ < 0 && filtered) {
+    if (filtered->status == EstimateStatus::Uninitialised) {
+      e.status = EstimateStatus::Uninitialised;
+      ++summary_.uninitialised_steps;
+      steps_.push_back(step);
+      guess_.push_back(e);
+      return e;
+    }
+    if (config_.init.mode != InitMode::Global) {
+      prior_pose_ = config_.init.pose;
+      prior_covariance_ = config_.init.covariance;
+      e.status = EstimateStatus::Tracking;
+    } else {  // the filter's first estimate is the global fix (it fuses nothing at that step)
+      prior_pose_ = filtered->pose;
+      prior_covariance_ = filtered->covariance;
+      step.observations.clear();
+      step.compass.reset();
+      e.status = EstimateStatus::Reinitialised;
+    }
+    first_index_ = static_cast<long>(steps_.size());
+    e.pose = filtered->pose;
+    guess_covariance_ = filtered->covariance;
+  } else if (first_index_ >= 0 && filtered) {
+    e.pose = filtered->pose;
+    guess_covariance_ = filtered->covariance;
+    e.status = EstimateStatus::Predicted;
+  } else if (first_index_ < 0) {
     if (config_.init.mode != InitMode::Global) {
       prior_pose_ = config_.init.pose;
       prior_covariance_ = config_.init.covariance;
@@ -149,17 +202,30 @@ void BatchSmoother::solve() {
   popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(popts);
   for (size_t i = 0; i < n; ++i) problem.AddParameterBlock(&x[3 * i], 3, &manifold);
-  problem.AddResidualBlock(PosePriorFactor::Create(prior_pose_, 0.5 * (prior_covariance_ + prior_covariance_.transpose())),
-                           nullptr, &x[0]);
+  // Every factor with the poses it links (b = -1: unary), for the chain covariance.
+  struct Link {
+    const ceres::CostFunction* cost;
+    long a, b;
+    bool robust;
+  };
+  std::vector<Link> links;
+  auto add = [&](ceres::CostFunction* cost, ceres::LossFunction* lf, long a, long b) {
+    if (b < 0)
+      problem.AddResidualBlock(cost, lf, &x[3 * static_cast<size_t>(a)]);
+    else
+      problem.AddResidualBlock(cost, lf, &x[3 * static_cast<size_t>(a)], &x[3 * static_cast<size_t>(b)]);
+    links.push_back(Link{cost, a, b, lf != nullptr});
+  };
+  add(PosePriorFactor::Create(prior_pose_, 0.5 * (prior_covariance_ + prior_covariance_.transpose())), nullptr, 0, -1);
   for (size_t i = 0; i < n; ++i) {
     const Step& st = steps_[first + i];
-    double* p = &x[3 * i];
+    const long li = static_cast<long>(i);
     if (i > 0) {
-      problem.AddResidualBlock(OdometryFactor::Create(st.d_left, st.d_right, odometry_), nullptr, p - 3, p);
+      add(OdometryFactor::Create(st.d_left, st.d_right, odometry_), nullptr, li - 1, li);
       ++s.odometry_factors;
     }
     if (st.compass && config_.use_compass) {
-      problem.AddResidualBlock(CompassFactor::Create(*st.compass, st.compass_sigma), nullptr, p);
+      add(CompassFactor::Create(*st.compass, st.compass_sigma), nullptr, li, -1);
       ++s.compass_factors;
     }
     for (const Observation& o : st.observations) {
@@ -167,8 +233,7 @@ void BatchSmoother::solve() {
         ++s.unassociated_observations;
         continue;
       }
-      problem.AddResidualBlock(RangeBearingFactor::Create(map_.at(o.landmark_id).xy(), o.z(), o.covariance),
-                               loss.get(), p);
+      add(RangeBearingFactor::Create(map_.at(o.landmark_id).xy(), o.z(), o.covariance), loss.get(), li, -1);
       ++s.observation_factors;
     }
   }
@@ -204,7 +269,44 @@ void BatchSmoother::solve() {
     e.covariance.setZero();
     e.status = EstimateStatus::Tracking;
   }
-  if (config_.compute_covariance) {
+  if (config_.compute_covariance && config_.covariance_method == CovarianceMethod::Chain) {
+    const auto t1 = Clock::now();
+    std::vector<Eigen::Matrix3d> D(n, Eigen::Matrix3d::Zero()), B(n, Eigen::Matrix3d::Zero());
+    bool ok = true;
+    using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+    for (const Link& l : links) {
+      const int m = l.cost->num_residuals();
+      RowMajor Ja(m, 3), Jb(m, 3);
+      Eigen::VectorXd r(m);
+      const double* params[2] = {&x[3 * static_cast<size_t>(l.a)], l.b >= 0 ? &x[3 * static_cast<size_t>(l.b)] : nullptr};
+      double* jac[2] = {Ja.data(), Jb.data()};
+      if (!l.cost->Evaluate(params, r.data(), jac) || !Ja.allFinite() || !Jb.allFinite()) {
+        ok = false;
+        break;
+      }
+      if (l.robust) {  // the robust weight rho'(s) at the solution (no second-order term)
+        double rho[3];
+        loss->Evaluate(r.squaredNorm(), rho);
+        const double w = std::sqrt(std::max(rho[1], 0.0));
+        Ja *= w;
+        Jb *= w;
+      }
+      D[static_cast<size_t>(l.a)] += Ja.transpose() * Ja;
+      if (l.b >= 0) {
+        D[static_cast<size_t>(l.b)] += Jb.transpose() * Jb;
+        B[static_cast<size_t>(l.b)] += Ja.transpose() * Jb;  // the poses are consecutive: a = b - 1
+      }
+    }
+    std::vector<Eigen::Matrix3d> cov;
+    if (ok && chainMarginalCovariances(D, B, &cov)) {
+      s.covariance_status = CovarianceStatus::Ok;
+      for (size_t i = 0; i < n; ++i) result_[first + i].covariance = cov[i];
+    } else {
+      s.covariance_status = CovarianceStatus::RankDeficient;
+      s.message += "; covariance: the information matrix is rank deficient, marginal covariances are not available";
+    }
+    s.covariance_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
+  } else if (config_.compute_covariance) {
     const auto t1 = Clock::now();
     ceres::Covariance::Options copts;
     copts.algorithm_type = ceres::SPARSE_QR;

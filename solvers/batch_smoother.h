@@ -8,20 +8,22 @@
 // with the factors of factors/ (whitened by the upper square-root information), poses on the
 // R^2 x SO(2) manifold (factors/pose_manifold.h), an optional robust loss rho on the
 // observations, SPARSE_NORMAL_CHOLESKY with SuiteSparse, and per-pose marginal covariances from
-// ceres::Covariance. The graph of a known-landmark problem is a chain, so the cost of a solve
+// marginal covariances (O(N) chain recursion, or ceres::Covariance). The graph of a known-landmark problem is a chain, so the cost of a solve
 // grows linearly with the number of poses.
 //
 // Use: feed the steps with process() (it returns the initial guess, cheap), then finish()
 // solves and returns one Estimate per processed step. The first processed step is the initial
-// time (its odometry is not applied), as for the EKF. Initial guess: odometry chained from the
-// initial belief (or the first global fix), or given estimates (e.g. the EKF's).
+// time (its odometry is not applied), as for the EKF. Initial guess: a forward EKF pass (default),
+// odometry chained from the initial belief (or the first global fix), or given estimates.
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "solvers/ekf.h"
 #include "solvers/initialisation.h"
 #include "solvers/smoother_common.h"
 #include "src/data_association.h"
@@ -30,6 +32,25 @@
 #include "src/odometry_model.h"
 
 namespace stereoloc {
+
+// Where the initial guess of the poses comes from.
+enum class InitialGuess {
+  Odometry,  // odometry chained from the initial belief / first global fix
+  Filter,    // a forward EKF pass (solvers/ekf.h) with the same belief, gate and fixes: a guess
+             // whose error does not grow with the trajectory, so the iterations do not either
+};
+std::string toString(InitialGuess guess);                    // "odometry", "filter"
+InitialGuess initialGuessFromString(const std::string& name);  // throws stereoloc::Error
+
+// How the per-pose marginal covariances are computed.
+enum class CovarianceMethod {
+  Chain,  // O(N): the information of a known-landmark graph is block tridiagonal (poses are
+          // linked only by odometry), so its diagonal inverse blocks follow from one forward and
+          // one backward (RTS) pass (chainMarginalCovariances, solvers/smoother_common.h)
+  Ceres,  // ceres::Covariance with SPARSE_QR (SuiteSparse): general but O(N^2) here
+};
+std::string toString(CovarianceMethod method);                    // "chain", "ceres"
+CovarianceMethod covarianceMethodFromString(const std::string& name);  // throws stereoloc::Error
 
 struct BatchSmootherConfig {
   InitialBelief init;               // prior on the first pose; Global: the first global fix's
@@ -42,7 +63,10 @@ struct BatchSmootherConfig {
   double gradient_tolerance = 1e-12;
   double parameter_tolerance = 1e-10;
   int num_threads = 1;              // results do not depend on it (tested)
-  bool compute_covariance = true;   // per-pose marginals with ceres::Covariance
+  InitialGuess initial_guess = InitialGuess::Filter;
+  GateConfig gate;                  // of the filter pass (InitialGuess::Filter)
+  bool compute_covariance = true;   // per-pose marginal covariances
+  CovarianceMethod covariance_method = CovarianceMethod::Chain;
 
   void validate() const;            // throws stereoloc::Error naming the field
 };
@@ -50,7 +74,7 @@ struct BatchSmootherConfig {
 enum class CovarianceStatus {
   NotComputed,    // compute_covariance was false, or the solve failed
   Ok,
-  RankDeficient,  // ceres::Covariance failed: the problem does not determine every pose
+  RankDeficient,  // the problem does not determine every pose (information singular)
 };
 std::string toString(CovarianceStatus status);  // "not_computed", "ok", "rank_deficient"
 
@@ -96,6 +120,7 @@ class BatchSmoother : public Estimator {
 
  private:
   void solve();
+  std::unique_ptr<Ekf> filter_;   // InitialGuess::Filter
 
   FieldMap map_;
   OdometryParams odometry_;

@@ -186,7 +186,12 @@ void SlidingWindowSmoother::marginaliseOldest() {
 
 void SlidingWindowSmoother::solve(int max_iterations) {
   ceres::Solver::Options opts;
-  opts.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+  if (config_.sparse_solver) {
+    opts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    opts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
+  } else {
+    opts.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+  }
   opts.minimizer_type = ceres::TRUST_REGION;
   opts.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
   opts.max_num_iterations = max_iterations;

@@ -63,6 +63,7 @@ struct SlidingWindowConfig {
   bool gauss_newton = false;         // true: an (almost) infinite trust region, i.e. pure
                                      // Gauss-Newton steps (the EKF comparison)
   bool first_estimate_jacobians = true;  // false: linearise at the current estimate instead
+  bool sparse_solver = true;         // SPARSE_NORMAL_CHOLESKY (SuiteSparse); false: DENSE_NORMAL_CHOLESKY
   int final_iterations = 50;         // finish(): iterations of the last solve of the window
   double function_tolerance = 1e-10;
   double gradient_tolerance = 1e-12;

@@ -1,6 +1,8 @@
 #include "solvers/smoother_common.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <limits>
 #include <cmath>
 
 #include <algorithm>
@@ -92,6 +94,32 @@ bool accumulateNormalEquations(const ceres::CostFunction& cost, const std::vecto
   for (size_t i = 0; i < nb; ++i) {
     g.segment<3>(offsets[i]) += J[i].transpose() * r;
     for (size_t j = 0; j < nb; ++j) H.block<3, 3>(offsets[i], offsets[j]) += J[i].transpose() * J[j];
+  }
+  return true;
+}
+
+bool chainMarginalCovariances(const std::vector<Eigen::Matrix3d>& D, const std::vector<Eigen::Matrix3d>& B,
+                              std::vector<Eigen::Matrix3d>* covariances) {
+  const size_t n = D.size();
+  if (B.size() != n) throw Error("chainMarginalCovariances: D and B must have the same length");
+  std::vector<Eigen::Matrix3d> inv(n);  // Lambda_i^-1
+  Eigen::Matrix3d lambda;
+  for (size_t i = 0; i < n; ++i) {
+    lambda = D[i];
+    if (i > 0) lambda -= B[i].transpose() * inv[i - 1] * B[i];
+    lambda = 0.5 * (lambda + lambda.transpose());
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(lambda);
+    const double scale = std::max(D[i].cwiseAbs().maxCoeff(), std::numeric_limits<double>::min());
+    if (!lambda.allFinite() || eig.info() != Eigen::Success || !(eig.eigenvalues()(0) > 1e-14 * scale)) return false;
+    inv[i] = eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+  }
+  covariances->assign(n, Eigen::Matrix3d::Zero());
+  if (n == 0) return true;
+  (*covariances)[n - 1] = inv[n - 1];
+  for (size_t i = n - 1; i-- > 0;) {
+    const Eigen::Matrix3d G = inv[i] * B[i + 1];
+    const Eigen::Matrix3d S = inv[i] + G * (*covariances)[i + 1] * G.transpose();
+    (*covariances)[i] = 0.5 * (S + S.transpose());
   }
   return true;
 }

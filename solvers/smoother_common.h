@@ -54,6 +54,17 @@ bool accumulateNormalEquations(const ceres::CostFunction& cost, const std::vecto
 void schurComplement(const Eigen::MatrixXd& H, const Eigen::VectorXd& g, int m, Eigen::MatrixXd* H_marginal,
                      Eigen::VectorXd* g_marginal);
 
+// Marginal covariances of a chain: the poses 0..N-1 linked only to their neighbours, so the
+// information matrix is block tridiagonal with diagonal blocks D_i (3x3) and off-diagonal
+// blocks B_i = H(i-1, i) (B_0 unused). Forward elimination Lambda_i = D_i - B_i^T Lambda_{i-1}^-1 B_i
+// (the filtered information), then the backward (Rauch-Tung-Striebel) pass
+//   Sigma_{N-1} = Lambda_{N-1}^-1,  Sigma_i = Lambda_i^-1 + G_i Sigma_{i+1} G_i^T,  G_i = Lambda_i^-1 B_{i+1}
+// gives the diagonal blocks of H^-1 exactly in O(N). Returns false (rank deficient) when a
+// Lambda_i is not positive definite or its reciprocal condition number relative to D_i is
+// below 1e-14 (the threshold ceres::Covariance uses).
+bool chainMarginalCovariances(const std::vector<Eigen::Matrix3d>& D, const std::vector<Eigen::Matrix3d>& B,
+                              std::vector<Eigen::Matrix3d>* covariances);
+
 // A small in-process problem for tests and benchmarks that must not depend on the simulator:
 // a random walk of a differential-drive robot inside a 1500 x 1300 mm field with `landmarks`
 // point landmarks, noisy wheel increments (B.6 with odometry.k_*), range-bearing observations

@@ -1,0 +1,170 @@
+// Speed of the smoothers on an in-process random walk (solvers/smoother_common.h: 2D poses,
+// odometry, at most 2 range-bearing observations per pose to 10 known landmarks) - the problem
+// of the GTSAM 4.3 reference (issue 7): batch LM on 10,000 poses 2.56 s; BatchFixedLagSmoother
+// with lag 20: 1.67 ms median, 3.57 ms p99 per step.
+//   BM_SlidingWindowStep/W   one process() call (add, gate, marginalise, solve, covariance);
+//                            counters median_ms and p99_ms over all timed steps
+//   BM_Batch/N/cov           process() of N steps (with the EKF pass that makes the initial
+//                            guess) + finish(); cov = 0: no covariance, 1: chain marginals,
+//                            2: ceres::Covariance (SPARSE_QR, O(N^2): 1k only)
+// At the end a table prints the medians against the targets and the growth exponent of the
+// batch time, log(t(100k) / t(1k)) / log(100).
+#include <benchmark/benchmark.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "solvers/batch_smoother.h"
+#include "solvers/sliding_window_smoother.h"
+#include "solvers/smoother_common.h"
+
+namespace stereoloc {
+namespace {
+
+const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal();
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const size_t i = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
+  return v[i];
+}
+
+void BM_SlidingWindowStep(benchmark::State& state) {
+  SyntheticProblemOptions o;
+  o.steps = 5000;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 1);
+  SlidingWindowConfig c;
+  c.window = static_cast<int>(state.range(0));
+  c.init = knownBelief(p.truth[0], kP0);
+  c.keep_history = false;
+  auto win = std::make_unique<SlidingWindowSmoother>(p.map, p.odometry, c);
+  size_t k = 0;
+  const size_t warmup = static_cast<size_t>(c.window) + 5;
+  std::vector<double> ms;
+  for (auto _ : state) {
+    if (k == p.steps.size()) {  // start again: a fresh smoother, warmed up outside the timing
+      state.PauseTiming();
+      win = std::make_unique<SlidingWindowSmoother>(p.map, p.odometry, c);
+      for (k = 0; k < warmup; ++k) win->process(p.steps[k]);
+      state.ResumeTiming();
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    benchmark::DoNotOptimize(win->process(p.steps[k]));
+    const double dt = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    if (k >= warmup) ms.push_back(dt);
+    ++k;
+  }
+  state.counters["median_ms"] = percentile(ms, 0.5);
+  state.counters["p99_ms"] = percentile(ms, 0.99);
+  state.counters["obs_per_step"] =
+      static_cast<double>(win->stats().accepted_observations + win->stats().rejected_observations) /
+      static_cast<double>(std::max<long>(1, win->stats().steps));
+}
+BENCHMARK(BM_SlidingWindowStep)->Arg(5)->Arg(10)->Arg(20)->Arg(50)->Unit(benchmark::kMillisecond)->MinTime(2.0);
+
+void BM_Batch(benchmark::State& state) {
+  SyntheticProblemOptions o;
+  o.steps = static_cast<int>(state.range(0));
+  const SyntheticProblem p = makeRandomWalkProblem(o, 2);
+  BatchSmootherConfig c;
+  c.init = knownBelief(p.truth[0], kP0);
+  c.compute_covariance = state.range(1) != 0;
+  c.covariance_method = state.range(1) == 2 ? CovarianceMethod::Ceres : CovarianceMethod::Chain;
+  BatchSummary s;
+  for (auto _ : state) {
+    BatchSmoother b(p.map, p.odometry, c);
+    for (const Step& st : p.steps) b.process(st);
+    benchmark::DoNotOptimize(b.finish());
+    s = b.summary();
+  }
+  state.counters["factors"] = 1 + s.odometry_factors + s.observation_factors;
+  state.counters["iterations"] = s.iterations;
+  state.counters["solve_s"] = s.solve_seconds;
+  state.counters["covariance_s"] = s.covariance_seconds;
+}
+BENCHMARK(BM_Batch)
+    ->Args({1000, 0})
+    ->Args({10000, 0})
+    ->Args({100000, 0})
+    ->Args({1000, 1})
+    ->Args({10000, 1})
+    ->Args({100000, 1})
+    ->Args({1000, 2})
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(3);
+
+// Collects the runs for the summary table printed after the console output.
+class SummaryReporter : public benchmark::ConsoleReporter {
+ public:
+  void ReportRuns(const std::vector<Run>& runs) override {
+    ConsoleReporter::ReportRuns(runs);
+    for (const Run& r : runs) {
+      if (r.run_type != Run::RT_Iteration) continue;
+      Row row;
+      const double unit = r.time_unit == benchmark::kSecond        ? 1.0
+                          : r.time_unit == benchmark::kMillisecond ? 1e-3
+                          : r.time_unit == benchmark::kMicrosecond ? 1e-6
+                                                                   : 1e-9;
+      row.seconds = r.GetAdjustedRealTime() * unit;
+      for (const auto& [name, counter] : r.counters) row.counters[name] = counter.value;
+      rows_[r.benchmark_name()] = row;
+    }
+  }
+  void Finalize() override {
+    ConsoleReporter::Finalize();
+    std::printf("\n%-34s %12s %12s %12s %12s\n", "benchmark", "median", "p99", "target", "GTSAM 4.3");
+    for (int w : {5, 10, 20, 50}) {
+      const auto it = rows_.find("BM_SlidingWindowStep/" + std::to_string(w));
+      if (it == rows_.end()) continue;
+      std::printf("%-34s %9.3f ms %9.3f ms %12s %12s\n", ("window W=" + std::to_string(w) + " step").c_str(),
+                  it->second.counters["median_ms"], it->second.counters["p99_ms"],
+                  w == 20 ? "0.5 / 1 ms" : "", w == 20 ? "1.67/3.57 ms" : "");
+    }
+    std::map<int, double> t;
+    for (int n : {1000, 10000, 100000}) {
+      const auto it = rows_.find("BM_Batch/" + std::to_string(n) + "/0/iterations:3");
+      if (it == rows_.end()) continue;
+      t[n] = it->second.seconds;
+      std::printf("%-34s %10.3f s %12s %12s %12s\n", ("batch " + std::to_string(n) + " steps").c_str(),
+                  it->second.seconds, "", n == 10000 ? "1 s" : "", n == 10000 ? "2.56 s" : "");
+    }
+    for (int n : {1000, 10000, 100000}) {
+      for (int m : {1, 2}) {
+        const auto it = rows_.find("BM_Batch/" + std::to_string(n) + "/" + std::to_string(m) + "/iterations:3");
+        if (it == rows_.end()) continue;
+        std::printf("%-34s %10.3f s   (covariance %.3f s)\n",
+                    ("batch " + std::to_string(n) + (m == 1 ? " + chain cov" : " + ceres::Covariance")).c_str(),
+                    it->second.seconds, it->second.counters["covariance_s"]);
+      }
+    }
+    if (t.count(1000) && t.count(100000))
+      std::printf("batch growth exponent (1k -> 100k): %.3f\n", std::log(t[100000] / t[1000]) / std::log(100.0));
+    else if (t.count(1000) && t.count(10000))
+      std::printf("batch growth exponent (1k -> 10k): %.3f\n", std::log(t[10000] / t[1000]) / std::log(10.0));
+  }
+
+ private:
+  struct Row {
+    double seconds = 0;
+    std::map<std::string, double> counters;
+  };
+  std::map<std::string, Row> rows_;
+};
+
+}  // namespace
+}  // namespace stereoloc
+
+int main(int argc, char** argv) {
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  stereoloc::SummaryReporter reporter;
+  benchmark::RunSpecifiedBenchmarks(&reporter);
+  benchmark::Shutdown();
+  return 0;
+}
