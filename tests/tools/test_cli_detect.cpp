@@ -1,0 +1,80 @@
+// `stereoloc detect`: JSON keys, overlay, and one-line errors for bad input.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "cli_util.h"
+
+namespace stereoloc {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    path = fs::temp_directory_path() / ("stereoloc_detect_" + std::to_string(::getpid()));
+    fs::create_directories(path);
+  }
+  ~TempDir() { fs::remove_all(path); }
+  std::string file(const std::string& name) const { return (path / name).string(); }
+};
+
+// A pair with a yellow goal between white walls (shifted by 8 px in the right image) and a
+// white marking on the dark floor.
+void writePair(const TempDir& d) {
+  for (int cam = 0; cam < 2; ++cam) {
+    cv::Mat img(240, 320, CV_8UC3, cv::Scalar(20, 20, 20));
+    const int shift = cam ? -8 : 0;
+    cv::rectangle(img, cv::Rect(0, 100, 320, 20), cv::Scalar(235, 235, 235), cv::FILLED);
+    cv::rectangle(img, cv::Rect(130 + shift, 100, 60, 20), cv::Scalar(40, 225, 245), cv::FILLED);
+    cv::line(img, cv::Point(60 + shift, 239), cv::Point(150 + shift, 125), cv::Scalar(230, 230, 230), 3, cv::LINE_AA);
+    cv::imwrite(d.file(cam ? "right.png" : "left.png"), img);
+  }
+}
+
+}  // namespace
+
+TEST(CliDetect, JsonHasTheDocumentedKeys) {
+  TempDir d;
+  writePair(d);
+  const test::CliRun r = test::runCli("detect --left " + d.file("left.png") + " --right " + d.file("right.png") +
+                                      " --json --overlay " + d.file("overlay.png"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* key : {"\"segments\"", "\"features\"", "\"observations\"", "\"x1\"", "\"marking\"", "\"type\"",
+                          "\"goal_corner\"", "\"landmark_id\"", "\"range\"", "\"bearing\"", "\"u_left\"", "\"u_right\""})
+    EXPECT_NE(r.output.find(key), std::string::npos) << key << "\n" << r.output;
+  EXPECT_EQ(r.output.front(), '{');
+  EXPECT_TRUE(fs::exists(d.file("overlay.png")));
+  // The table form prints the same observations.
+  const test::CliRun t = test::runCli("detect --left " + d.file("left.png") + " --right " + d.file("right.png"));
+  ASSERT_EQ(t.exit_code, 0) << t.output;
+  EXPECT_NE(t.output.find("goal_corner"), std::string::npos) << t.output;
+}
+
+TEST(CliDetect, BadInputGivesAOneLineErrorAndExit1) {
+  TempDir d;
+  writePair(d);
+  cv::imwrite(d.file("small.png"), cv::Mat(120, 160, CV_8UC3, cv::Scalar(10, 10, 10)));
+  cv::imwrite(d.file("grey.png"), cv::Mat(240, 320, CV_8UC1, cv::Scalar(10)));
+  cv::imwrite(d.file("deep.png"), cv::Mat(240, 320, CV_16UC3, cv::Scalar(1000, 1000, 1000)));
+  {
+    std::FILE* f = std::fopen(d.file("empty.png").c_str(), "w");
+    std::fclose(f);
+  }
+  const std::string L = " --left " + d.file("left.png"), R = " --right " + d.file("right.png");
+  for (const std::string& args :
+       {"detect" + L + " --right " + d.file("small.png"), "detect --left " + d.file("small.png") + " --right " + d.file("small.png"),
+        "detect" + L + " --right " + d.file("grey.png"), "detect" + L + " --right " + d.file("deep.png"),
+        "detect" + L + " --right " + d.file("empty.png"), "detect" + L + " --right " + d.file("missing.png")}) {
+    const test::CliRun r = test::runCli(args);
+    EXPECT_EQ(r.exit_code, 1) << args << "\n" << r.output;
+    EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << args << "\n" << r.output;
+  }
+  EXPECT_EQ(test::runCli("detect" + L).exit_code, 2);  // --right missing: usage error
+}
+
+}  // namespace stereoloc
