@@ -1,0 +1,553 @@
+// bench_frontend: accuracy of the vision frontend (issue 4 targets) on rendered stereo pairs
+// against the renderer's ground truth, then timings (Google Benchmark) of ours against
+// cv::HoughLinesP and cv::createLineSegmentDetector on the same images.
+//
+//   bench_frontend [--pairs=N] [--goal-pairs=M] [--seed=S] [--no-table] [benchmark flags]
+//
+// Test set (seeded): N general pairs at random poses (uniform on the field, any heading), a
+// ball and 0-3 robots at random, half of them with the "bad illumination" of Fig. 6.2
+// (darker, less contrast, more noise); M goal pairs looking towards a goal (+-25 deg) from
+// random positions, for the goal-corner range statistics (thesis Table 6.3).
+//
+// Matching rule (the same for every detector): a detected segment matches a ground-truth
+// segment when the undirected angle differs by at most 2 deg and both end points are within
+// 3 px (either order). The visible pieces of one edge broken by an occluder also match as
+// one segment from the first piece's start to the last piece's end (Fig. 6.1 'b'): that
+// detection recalls every piece. Ground-truth pieces shorter than L_min (30 px) are
+// optional (not counted in recall; a detection of one is correct). Detections on the
+// centre circle (not straight, not in the truth) and on obstacles are ignored.
+// "Centre-line level" compares our output lines (marking centre lines, other edges) with the
+// truth as given. "Edge level" compares raw edges: each marking's truth is replaced by its two
+// side edges (the centre line moved by +-line_width/2 on the floor, projected); ours are the
+// segments before the centre-line stage. HoughLinesP and LSD are scored at edge level.
+#include <benchmark/benchmark.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <map>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "frontend/frontend.h"
+#include "src/field_map.h"
+#include "src/pose2.h"
+#include "src/renderer.h"
+#include "src/stereo_rig.h"
+
+using namespace stereoloc;
+using namespace stereoloc::frontend;
+
+namespace {
+
+constexpr double kPi = 3.141592653589793;
+
+struct Pair {
+  StereoImages img;
+  bool bad_light = false;
+  std::vector<Obstacle> obstacles;
+};
+
+struct Seg {
+  Eigen::Vector2d a, b;
+  bool marking = false;
+  std::string name;
+  bool optional = false;
+};
+
+double segAngle(const Seg& s) { return std::atan2(s.b.y() - s.a.y(), s.b.x() - s.a.x()); }
+
+bool matches(const Seg& d, const Seg& g, double* endpoint_err) {
+  double da = std::fabs(segAngle(d) - segAngle(g));
+  da = std::fmod(da, kPi);
+  da = std::min(da, kPi - da);
+  if (da > 2.0 * kPi / 180) return false;
+  const double e1 = (d.a - g.a).norm() + (d.b - g.b).norm(), e2 = (d.a - g.b).norm() + (d.b - g.a).norm();
+  const bool direct = e1 <= e2;
+  const double ea = direct ? (d.a - g.a).norm() : (d.a - g.b).norm();
+  const double eb = direct ? (d.b - g.b).norm() : (d.b - g.a).norm();
+  if (ea > 3.0 || eb > 3.0) return false;
+  if (endpoint_err) *endpoint_err = 0.5 * (ea + eb);
+  return true;
+}
+
+struct SegStats {
+  long gt = 0, gt_hit = 0, det = 0, det_ok = 0, matched = 0, class_ok = 0;
+  double endpoint_sum = 0;
+  double recall() const { return gt ? double(gt_hit) / gt : 0; }
+  double precision() const { return det ? double(det_ok) / det : 0; }
+  double f() const { return recall() + precision() > 0 ? 2 * recall() * precision() / (recall() + precision()) : 0; }
+  double endpoint() const { return matched ? endpoint_sum / matched : 0; }
+};
+
+// Don't-care mask: centre circle and obstacles, projected into the left image.
+cv::Mat dontCare(const StereoRig& rig, const FieldMap& map, const Pair& p) {
+  cv::Mat mask(rig.params().image_height, rig.params().image_width, CV_8UC1, cv::Scalar(0));
+  const Pose2& robot = p.img.truth.robot;
+  auto toRobot = [&](const Eigen::Vector3d& w) {
+    const Eigen::Vector2d q = transformToLocal(robot, w.head<2>());
+    return Eigen::Vector3d(q.x(), q.y(), w.z());
+  };
+  auto px = [&](const Eigen::Vector3d& w, cv::Point2f& out) {
+    const auto q = rig.project(toRobot(w), p.img.truth.head_pan);
+    if (!q || q->u_left < -500 || q->u_left > 1000 || q->v_left < -500 || q->v_left > 1000) return false;
+    out = cv::Point2f(static_cast<float>(q->u_left), static_cast<float>(q->v_left));
+    return true;
+  };
+  const FieldGeometry g = map.geometry() ? *map.geometry() : FieldGeometry();
+  for (double r : {g.centre_circle_radius}) {
+    std::vector<cv::Point> pts;
+    for (int k = 0; k <= 360; ++k) {
+      cv::Point2f q;
+      const Eigen::Vector3d w(0.5 * g.length + r * std::cos(k * kPi / 180), 0.5 * g.width + r * std::sin(k * kPi / 180), 0);
+      if (px(w, q)) {
+        pts.emplace_back(q);
+      } else if (pts.size() > 1) {
+        cv::polylines(mask, pts, false, cv::Scalar(255), 7);
+        pts.clear();
+      }
+    }
+    if (pts.size() > 1) cv::polylines(mask, pts, false, cv::Scalar(255), 7);
+  }
+  for (const Obstacle& o : p.obstacles) {
+    std::vector<cv::Point2f> pts;
+    const double h = o.kind == Obstacle::Kind::Ball ? 0.5 * o.size : 0.5 * o.size * std::sqrt(2.0);
+    for (int k = 0; k < 16; ++k)
+      for (double z : {0.0, o.size}) {
+        cv::Point2f q;
+        if (px(Eigen::Vector3d(o.position.x() + h * std::cos(k * kPi / 8), o.position.y() + h * std::sin(k * kPi / 8), z), q))
+          pts.push_back(q);
+      }
+    if (pts.size() < 3) continue;
+    std::vector<cv::Point2f> hull;
+    cv::convexHull(pts, hull);
+    std::vector<cv::Point> ih(hull.begin(), hull.end());
+    cv::fillConvexPoly(mask, ih, cv::Scalar(255));
+    cv::polylines(mask, ih, true, cv::Scalar(255), 5);
+  }
+  return mask;
+}
+
+bool inMask(const cv::Mat& mask, const Seg& s) {
+  int in = 0, n = 0;
+  for (double t = 0; t <= 1.0; t += 0.1, ++n) {
+    const Eigen::Vector2d q = s.a + t * (s.b - s.a);
+    const int x = static_cast<int>(std::lround(q.x())), y = static_cast<int>(std::lround(q.y()));
+    if (x >= 0 && y >= 0 && x < mask.cols && y < mask.rows && mask.at<uint8_t>(y, x)) ++in;
+  }
+  return in * 2 >= n;
+}
+
+// Truth at centre-line level (as given) or edge level (markings -> two side edges).
+std::vector<Seg> truthSegments(const StereoRig& rig, const FieldMap& map, const Pair& p, bool edges, double min_len) {
+  std::vector<Seg> out;
+  const double hw = 0.5 * (map.geometry() ? map.geometry()->line_width : 10.0);
+  for (const ImageSegment& s : p.img.truth.left.segments) {
+    const bool marking = s.kind == "marking";
+    if (!edges || !marking) {
+      out.push_back(Seg{s.a, s.b, marking, s.name, (s.b - s.a).norm() < min_len});
+      continue;
+    }
+    double ax, ay, bx, by;
+    if (!floorPoint(rig, s.a.x(), s.a.y(), ax, ay) || !floorPoint(rig, s.b.x(), s.b.y(), bx, by)) continue;
+    const Eigen::Vector2d A(ax, ay), B(bx, by);
+    const Eigen::Vector2d n = Eigen::Vector2d(-(B - A).y(), (B - A).x()).normalized();
+    for (int side : {-1, 1}) {
+      const auto pa = rig.project(Eigen::Vector3d((A + side * hw * n).x(), (A + side * hw * n).y(), 0), 0.0);
+      const auto pb = rig.project(Eigen::Vector3d((B + side * hw * n).x(), (B + side * hw * n).y(), 0), 0.0);
+      if (!pa || !pb) continue;
+      Seg e{Eigen::Vector2d(pa->u_left, pa->v_left), Eigen::Vector2d(pb->u_left, pb->v_left), true,
+            s.name + (side < 0 ? "_a" : "_b"), false};
+      e.optional = (e.b - e.a).norm() < min_len;
+      out.push_back(e);
+    }
+  }
+  return out;
+}
+
+void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, const cv::Mat& mask, SegStats& st) {
+  // Unions of the pieces of one broken edge.
+  std::map<std::string, std::vector<size_t>> groups;
+  for (size_t i = 0; i < gt.size(); ++i) groups[gt[i].name].push_back(i);
+  std::vector<std::pair<Seg, std::vector<size_t>>> unions;
+  for (const auto& [name, idx] : groups) {
+    if (idx.size() < 2) continue;
+    const Eigen::Vector2d dir = (gt[idx[0]].b - gt[idx[0]].a).normalized();
+    Seg u = gt[idx[0]];
+    double tmin = 1e30, tmax = -1e30;
+    for (size_t i : idx)
+      for (const Eigen::Vector2d& q : {gt[i].a, gt[i].b}) {
+        const double t = (q - gt[idx[0]].a).dot(dir);
+        if (t < tmin) {
+          tmin = t;
+          u.a = q;
+        }
+        if (t > tmax) {
+          tmax = t;
+          u.b = q;
+        }
+      }
+    unions.emplace_back(u, idx);
+  }
+  std::vector<uint8_t> hit(gt.size(), 0);
+  for (const Seg& d : det) {
+    bool ok = false;
+    double err = 0;
+    for (size_t i = 0; i < gt.size(); ++i) {
+      double e;
+      if (!matches(d, gt[i], &e)) continue;
+      if (!ok) {
+        ok = true;
+        err = e;
+        ++st.matched;
+        st.endpoint_sum += e;
+        st.class_ok += (d.marking == gt[i].marking) ? 1 : 0;
+      }
+      hit[i] = 1;
+    }
+    for (const auto& [u, idx] : unions) {
+      double e;
+      if (!matches(d, u, &e)) continue;
+      if (!ok) {
+        ok = true;
+        ++st.matched;
+        st.endpoint_sum += e;
+        st.class_ok += (d.marking == u.marking) ? 1 : 0;
+      }
+      for (size_t i : idx) hit[i] = 1;
+    }
+    (void)err;
+    if (!ok && inMask(mask, d)) continue;  // don't care
+    ++st.det;
+    st.det_ok += ok ? 1 : 0;
+  }
+  for (size_t i = 0; i < gt.size(); ++i) {
+    if (gt[i].optional) continue;
+    ++st.gt;
+    st.gt_hit += hit[i];
+  }
+}
+
+struct Setup {
+  FieldMap map = FieldMap::miroSot();
+  StereoRig rig;
+  std::vector<Pair> general, goals;
+};
+
+Setup& setup() {
+  static Setup s;
+  return s;
+}
+
+void buildSets(int n_general, int n_goal, uint64_t seed) {
+  Setup& s = setup();
+  RenderOptions good, bad;
+  good.noise_sigma = 1.5;
+  good.seed = seed;
+  bad.noise_sigma = 3.0;
+  bad.brightness = -40;
+  bad.contrast = 0.7;
+  bad.seed = seed + 1;
+  const StereoRenderer r_good(s.map, s.rig, good), r_bad(s.map, s.rig, bad);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> U(0.0, 1.0);
+  const FieldGeometry g = *s.map.geometry();
+  auto randomObstacles = [&](const Eigen::Vector2d& robot, int max_robots) {
+    std::vector<Obstacle> obs;
+    const int k = static_cast<int>(U(rng) * (max_robots + 1));
+    for (int i = 0; i <= k; ++i) {
+      Obstacle o;
+      o.kind = i == 0 ? Obstacle::Kind::Ball : Obstacle::Kind::Robot;
+      o.size = i == 0 ? 42.7 : 75.0;
+      for (int tries = 0; tries < 50; ++tries) {
+        o.position = Eigen::Vector2d(60 + U(rng) * (g.length - 120), 60 + U(rng) * (g.width - 120));
+        if ((o.position - robot).norm() > 130) break;
+      }
+      o.heading = U(rng) * 2 * kPi;
+      obs.push_back(o);
+    }
+    return obs;
+  };
+  for (int i = 0; i < n_general; ++i) {
+    Pair p;
+    const Pose2 pose(80 + U(rng) * (g.length - 160), 80 + U(rng) * (g.width - 160), -kPi + 2 * kPi * U(rng));
+    p.obstacles = randomObstacles(pose.translation(), 3);
+    p.bad_light = i % 2 == 1;
+    p.img = (p.bad_light ? r_bad : r_good).render(pose, 0.0, p.obstacles);
+    s.general.push_back(std::move(p));
+  }
+  for (int i = 0; i < n_goal; ++i) {
+    Pair p;
+    const Eigen::Vector2d pos(80 + U(rng) * (g.length - 160), 80 + U(rng) * (g.width - 160));
+    const Eigen::Vector2d goal(U(rng) < 0.5 ? 0.0 : g.length, 0.5 * g.width);
+    const double heading = std::atan2(goal.y() - pos.y(), goal.x() - pos.x()) + (U(rng) - 0.5) * 50 * kPi / 180;
+    if (U(rng) < 0.5) p.obstacles = randomObstacles(pos, 2);
+    p.bad_light = i % 2 == 1;
+    p.img = (p.bad_light ? r_bad : r_good).render(Pose2(pos.x(), pos.y(), heading), 0.0, p.obstacles);
+    s.goals.push_back(std::move(p));
+  }
+}
+
+struct RangeStats {
+  std::vector<double> abs_err, norm_err;
+  long wrong_id = 0, gt_visible = 0, detected = 0;
+  std::vector<double> u_err, d_err;
+};
+
+void printRow(const char* name, const SegStats& s) {
+  std::printf("  %-34s %8.2f%% %9.2f%% %7.2f%% %9.3f\n", name, 100 * s.recall(), 100 * s.precision(), 100 * s.f(), s.endpoint());
+}
+
+void describe(const char* what, const std::vector<double>& v, double scale, const char* unit) {
+  if (v.empty()) {
+    std::printf("  %-18s (no measurements)\n", what);
+    return;
+  }
+  double mean = 0;
+  for (double x : v) mean += x;
+  mean /= v.size();
+  double var = 0;
+  for (double x : v) var += (x - mean) * (x - mean);
+  const double sd = v.size() > 1 ? std::sqrt(var / (v.size() - 1)) : 0;
+  std::printf("  %-18s %10.4g%s %10.4g%s %10.4g%s %10.4g%s\n", what, mean * scale, unit, sd * scale, unit,
+              *std::min_element(v.begin(), v.end()) * scale, unit, *std::max_element(v.begin(), v.end()) * scale, unit);
+}
+
+std::vector<Seg> openCvSegments(const std::vector<cv::Vec4f>& lines, double min_len) {
+  std::vector<Seg> out;
+  for (const cv::Vec4f& l : lines) {
+    Seg s{Eigen::Vector2d(l[0], l[1]), Eigen::Vector2d(l[2], l[3]), false, "", false};
+    if ((s.b - s.a).norm() >= min_len) out.push_back(s);
+  }
+  return out;
+}
+
+void houghP(const cv::Mat& luma, cv::Mat& edges, std::vector<cv::Vec4i>& out) {
+  cv::Canny(luma, edges, 50, 150);
+  cv::HoughLinesP(edges, out, 1.0, kPi / 180, 30, 30, 10);
+}
+
+void accuracyTable() {
+  Setup& s = setup();
+  Frontend fe(s.rig, s.map);
+  const double lmin = fe.params().segments.min_length_px;
+  SegStats ours_centre, ours_edge, hough_edge, lsd_edge;
+  SegStats by_light[2];
+  long cls_n = 0, cls_ok = 0;
+  long c_gt = 0, c_hit = 0, c_det = 0, c_ok = 0;
+  double c_err = 0;
+  std::map<std::string, std::pair<long, long>> c_type;  // type -> (gt, hit)
+  cv::Ptr<cv::LineSegmentDetector> lsd = cv::createLineSegmentDetector(cv::LSD_REFINE_STD);
+  cv::Mat luma, canny;
+  RangeStats rs;
+  auto goalRanges = [&](const Pair& p, const FrontendResult& r) {
+    const Pose2& robot = p.img.truth.robot;
+    std::map<int, Eigen::Vector2d> gt_px, gt_right;
+    for (const ImageLandmark& l : p.img.truth.left.landmarks)
+      if (l.type == "goal_corner") gt_px[l.id] = l.pixel;
+    for (const ImageLandmark& l : p.img.truth.right.landmarks)
+      if (l.type == "goal_corner") gt_right[l.id] = l.pixel;
+    rs.gt_visible += static_cast<long>(gt_px.size());
+    for (const Observation& o : r.observations) {
+      if (o.type != LandmarkType::GoalCorner || o.landmark_id < 0) continue;
+      const auto it = gt_px.find(o.landmark_id);
+      if (it == gt_px.end() || std::fabs(it->second.x() - o.pixels->u_left) > 3.0) {
+        ++rs.wrong_id;
+        continue;
+      }
+      ++rs.detected;
+      const double truth = (s.map.at(o.landmark_id).xy() - robot.translation()).norm();
+      rs.abs_err.push_back(std::fabs(o.range - truth));
+      rs.norm_err.push_back(std::fabs(o.range - truth) / truth);
+      rs.u_err.push_back(o.pixels->u_left - it->second.x());
+      const auto jt = gt_right.find(o.landmark_id);
+      if (jt != gt_right.end()) rs.d_err.push_back(o.pixels->disparity() - (it->second.x() - jt->second.x()));
+    }
+  };
+  int dumped = 0;
+  const char* dump = std::getenv("STEREOLOC_BENCH_DUMP");  // directory: writes a few pairs and their truth
+  for (const Pair& p : s.general) {
+    const FrontendResult& r = fe.process(p.img.left, p.img.right, p.img.truth.head_pan);
+    if (dump && dumped < 6) {
+      const std::string base = std::string(dump) + "/pair" + std::to_string(dumped++);
+      cv::imwrite(base + "_left.png", p.img.left);
+      cv::imwrite(base + "_right.png", p.img.right);
+      std::FILE* f = std::fopen((base + "_truth.json").c_str(), "w");
+      if (f) {
+        std::fputs(truthToJson(p.img.truth, 0).c_str(), f);
+        std::fclose(f);
+      }
+    }
+    const cv::Mat mask = dontCare(s.rig, s.map, p);
+    // Centre-line level.
+    std::vector<Seg> det;
+    for (const LineFeature& l : r.lines)
+      det.push_back(Seg{Eigen::Vector2d(l.x(l.t_min), l.y(l.t_min)), Eigen::Vector2d(l.x(l.t_max), l.y(l.t_max)), l.marking, "", false});
+    const std::vector<Seg> gt_c = truthSegments(s.rig, s.map, p, false, lmin);
+    scoreSegments(gt_c, det, mask, ours_centre);
+    scoreSegments(gt_c, det, mask, by_light[p.bad_light ? 1 : 0]);
+    // Edge level, ours and OpenCV.
+    std::vector<Seg> edges;
+    for (const Segment& sg : r.segments)
+      edges.push_back(Seg{Eigen::Vector2d(sg.x1, sg.y1), Eigen::Vector2d(sg.x2, sg.y2), sg.cls == SegmentClass::Marking, "", false});
+    const std::vector<Seg> gt_e = truthSegments(s.rig, s.map, p, true, lmin);
+    SegStats before = ours_edge;
+    scoreSegments(gt_e, edges, mask, ours_edge);
+    cls_n += ours_edge.matched - before.matched;
+    cls_ok += ours_edge.class_ok - before.class_ok;
+    bgrToLuma(p.img.left, luma);
+    std::vector<cv::Vec4i> hp;
+    houghP(luma, canny, hp);
+    std::vector<cv::Vec4f> hpf;
+    for (const cv::Vec4i& l : hp) hpf.emplace_back(l[0], l[1], l[2], l[3]);
+    scoreSegments(gt_e, openCvSegments(hpf, lmin), mask, hough_edge);
+    std::vector<cv::Vec4f> ls;
+    lsd->detect(luma, ls);
+    scoreSegments(gt_e, openCvSegments(ls, lmin), mask, lsd_edge);
+    // Corners, junctions, intersections.
+    std::vector<const ImageLandmark*> gl;
+    for (const ImageLandmark& l : p.img.truth.left.landmarks)
+      if (l.type == "corner" || l.type == "junction" || l.type == "intersection") gl.push_back(&l);
+    std::vector<uint8_t> used(gl.size(), 0);
+    for (const PointFeature& f : r.features) {
+      if (f.type == LandmarkType::GoalCorner) continue;
+      ++c_det;
+      int best = -1;
+      double bd = 3.0;
+      for (size_t k = 0; k < gl.size(); ++k) {
+        const double d = std::hypot(gl[k]->pixel.x() - f.u, gl[k]->pixel.y() - f.v);
+        if (!used[k] && gl[k]->type == toString(f.type) && d <= bd) {
+          bd = d;
+          best = static_cast<int>(k);
+        }
+      }
+      if (best >= 0) {
+        used[best] = 1;
+        ++c_ok;
+        c_err += bd;
+      }
+    }
+    for (size_t k = 0; k < gl.size(); ++k) {
+      ++c_gt;
+      c_hit += used[k];
+      c_type[gl[k]->type].first++;
+      c_type[gl[k]->type].second += used[k];
+    }
+    goalRanges(p, r);
+  }
+  for (const Pair& p : s.goals) goalRanges(p, fe.process(p.img.left, p.img.right, p.img.truth.head_pan));
+
+  std::printf("\nstereoloc vision frontend: accuracy on %zu rendered pairs (%zu with bad illumination) + %zu goal pairs\n",
+              s.general.size(), s.general.size() / 2, s.goals.size());
+  std::printf("matching: angle <= 2 deg, both end points <= 3 px; broken edges match as one; pieces < L_min optional\n\n");
+  std::printf("  %-34s %9s %10s %8s %9s\n", "segments", "recall", "precision", "F", "endpt px");
+  printRow("ours, centre-line level (target)", ours_centre);
+  printRow("  good illumination", by_light[0]);
+  printRow("  bad illumination", by_light[1]);
+  printRow("ours, edge level", ours_edge);
+  printRow("cv::HoughLinesP (Canny), edge level", hough_edge);
+  printRow("cv LSD, edge level", lsd_edge);
+  std::printf("  targets: recall >= 97%%, precision >= 97%%, end-point error <= 1.0 px\n\n");
+  std::printf("  field-marking classification accuracy (matched edges): %.2f%% of %ld (target >= 98%%)\n\n",
+              cls_n ? 100.0 * cls_ok / cls_n : 0.0, cls_n);
+  std::printf("  corners/junctions/intersections: recall %.2f%% (%ld/%ld), precision %.2f%% (%ld/%ld), mean error %.3f px\n",
+              c_gt ? 100.0 * c_hit / c_gt : 0.0, c_hit, c_gt, c_det ? 100.0 * c_ok / c_det : 0.0, c_ok, c_det,
+              c_ok ? c_err / c_ok : 0.0);
+  for (const auto& [type, c] : c_type)
+    std::printf("    %-14s recall %6.2f%% (%ld/%ld)\n", type.c_str(), c.first ? 100.0 * c.second / c.first : 0.0, c.second,
+                c.first);
+  std::printf("  targets: recall >= 95%%, precision >= 95%%, position error <= 0.5 px\n\n");
+  std::printf("goal-corner stereo range (format of thesis Table 6.3), %zu measurements; %ld of %ld visible detected, %ld wrong id\n",
+              rs.abs_err.size(), rs.detected, rs.gt_visible, rs.wrong_id);
+  std::printf("  %-18s %11s %11s %11s %11s\n", "", "Mean", "Std", "Min", "Max");
+  describe("Absolute error", rs.abs_err, 1.0, "  ");
+  describe("Normalized error", rs.norm_err, 100.0, " %");
+  std::printf("  %-18s %11s %11s %11s %11s\n", "thesis Table 6.3", "5.18 %", "4.04 %", "0.0001 %", "35.91 %");
+  std::printf("  target: mean normalized error <= 2.0 %% over >= 2000 measurements\n");
+  describe("u_left error px", rs.u_err, 1.0, "  ");
+  describe("disparity err px", rs.d_err, 1.0, "  ");
+  std::printf("\n");
+}
+
+// ---- timings ----
+void BM_Ours_Full(benchmark::State& st) {
+  Setup& s = setup();
+  Frontend fe(s.rig, s.map);
+  size_t i = 0;
+  for (auto _ : st) {
+    const Pair& p = s.general[i++ % std::min<size_t>(s.general.size(), 32)];
+    benchmark::DoNotOptimize(fe.process(p.img.left, p.img.right, 0.0).observations.size());
+  }
+}
+void BM_Ours_SegmentsOnly(benchmark::State& st) {
+  Setup& s = setup();
+  Frontend fe(s.rig, s.map);
+  size_t i = 0;
+  for (auto _ : st) {
+    const Pair& p = s.general[i++ % std::min<size_t>(s.general.size(), 32)];
+    benchmark::DoNotOptimize(fe.detectSegments(p.img.left).size());
+  }
+}
+void BM_OpenCV_HoughLinesP(benchmark::State& st) {
+  Setup& s = setup();
+  cv::Mat luma, edges;
+  std::vector<cv::Vec4i> out;
+  size_t i = 0;
+  for (auto _ : st) {
+    const Pair& p = s.general[i++ % std::min<size_t>(s.general.size(), 32)];
+    bgrToLuma(p.img.left, luma);
+    houghP(luma, edges, out);
+    benchmark::DoNotOptimize(out.size());
+  }
+}
+void BM_OpenCV_LSD(benchmark::State& st) {
+  Setup& s = setup();
+  cv::Ptr<cv::LineSegmentDetector> lsd = cv::createLineSegmentDetector(cv::LSD_REFINE_STD);
+  cv::Mat luma;
+  std::vector<cv::Vec4f> out;
+  size_t i = 0;
+  for (auto _ : st) {
+    const Pair& p = s.general[i++ % std::min<size_t>(s.general.size(), 32)];
+    bgrToLuma(p.img.left, luma);
+    lsd->detect(luma, out);
+    benchmark::DoNotOptimize(out.size());
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  int pairs = 200, goal_pairs = 1200;
+  uint64_t seed = 4;
+  bool table = true;
+  std::vector<char*> rest;
+  for (int i = 0; i < argc; ++i) {
+    if (std::strncmp(argv[i], "--pairs=", 8) == 0) {
+      pairs = std::max(1, std::atoi(argv[i] + 8));
+    } else if (std::strncmp(argv[i], "--goal-pairs=", 13) == 0) {
+      goal_pairs = std::max(0, std::atoi(argv[i] + 13));
+    } else if (std::strncmp(argv[i], "--seed=", 7) == 0) {
+      seed = std::strtoull(argv[i] + 7, nullptr, 10);
+    } else if (std::strcmp(argv[i], "--no-table") == 0) {
+      table = false;
+    } else {
+      rest.push_back(argv[i]);
+    }
+  }
+  int n = static_cast<int>(rest.size());
+  buildSets(pairs, table ? goal_pairs : 0, seed);
+  if (table) accuracyTable();
+  for (auto [name, fn] : {std::pair{"ours_full_frontend_stereo_pair", &BM_Ours_Full},
+                          std::pair{"ours_segments_only_left", &BM_Ours_SegmentsOnly},
+                          std::pair{"opencv_canny_houghlinesp_left", &BM_OpenCV_HoughLinesP},
+                          std::pair{"opencv_lsd_left", &BM_OpenCV_LSD}})
+    benchmark::RegisterBenchmark(name, fn)->Unit(benchmark::kMicrosecond)->Repetitions(5)->ReportAggregatesOnly(true);
+  benchmark::Initialize(&n, rest.data());
+  benchmark::RunSpecifiedBenchmarks();
+  return 0;
+}
