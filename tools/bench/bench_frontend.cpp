@@ -379,7 +379,7 @@ void accuracyTable() {
       cv::imwrite(base + "_right.png", p.img.right);
       std::FILE* f = std::fopen((base + "_truth.json").c_str(), "w");
       if (f) {
-        std::fputs(truthToJson(p.img.truth, 0).c_str(), f);
+        std::fputs(truthToJson(p.img.truth, 0, p.img.left.cols, p.img.left.rows).c_str(), f);
         std::fclose(f);
       }
     }
