@@ -39,6 +39,7 @@ struct RenderOptions {
   double brightness = 0.0;      // added to every channel, grey levels ("bad illumination", Fig. 6.2)
   double contrast = 1.0;        // multiplies (value - 128) before the brightness is added
   uint64_t seed = 0;            // noise engine seed
+  bool compute_truth = true;    // fill StereoImages::truth (costs a few ms per pair)
   int threads = 2;              // worker threads (result independent of it)
   SceneColours colours;
 
@@ -78,9 +79,16 @@ class StereoRenderer {
  public:
   StereoRenderer(const FieldMap& map, const StereoRig& rig, const RenderOptions& options = RenderOptions());
   StereoImages render(const Pose2& robot, double head_pan, const std::vector<Obstacle>& obstacles) const;
+  // The same with an explicit noise seed (instead of options().seed).
+  StereoImages render(const Pose2& robot, double head_pan, const std::vector<Obstacle>& obstacles,
+                      uint64_t noise_seed) const;
+  // Only the ground truth (no pixels).
+  StereoTruth truth(const Pose2& robot, double head_pan, const std::vector<Obstacle>& obstacles) const;
   const RenderOptions& options() const { return options_; }
 
  private:
+  StereoTruth computeTruth(const Scene& scene, const Pose2& robot, double head_pan) const;
+
   FieldMap map_;
   StereoRig rig_;
   RenderOptions options_;
@@ -93,7 +101,7 @@ StereoImages renderStereoPair(const FieldMap& map, const StereoRig& rig, const P
                               const std::vector<Obstacle>& obstacles, const RenderOptions& options);
 
 // The ground truth as JSON (units px; documented in docs/dataset_format.md).
-std::string truthToJson(const StereoTruth& truth, long step);
+std::string truthToJson(const StereoTruth& truth, long step, int image_width, int image_height);
 
 // Renders every step of a simulated dataset into DIR/images/{left,right}_NNNNNN.png and
 // truth_NNNNNN.json. The noise of step s uses seed + s.

@@ -141,12 +141,79 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
       s.prisms_.push_back(p);
     }
   }
+  s.precompute();
   return s;
+}
+
+void Scene::precompute() {
+  box_rects_.clear();
+  for (const Prism& p : prisms_) {
+    const auto& q = p.polygon;
+    const bool box = q.size() == 4 && q[0].y() == q[1].y() && q[1].x() == q[2].x() && q[2].y() == q[3].y() &&
+                     q[3].x() == q[0].x() && q[0].x() < q[1].x() && q[1].y() < q[2].y();
+    box_rects_.push_back(box ? Eigen::Vector4d(q[0].x(), q[0].y(), q[2].x(), q[2].y())
+                             : Eigen::Vector4d(std::nan(""), 0, 0, 0));
+  }
+  strip_rects_.clear();
+  for (const MarkingStrip& m : strips_) {
+    const Eigen::Vector2d u = (m.b - m.a).normalized();
+    const Eigen::Vector2d lo = m.a - m.extend_a * u, hi = m.b + m.extend_b * u;
+    if (u.x() == 0.0 || u.y() == 0.0) {
+      const double hx = u.x() == 0.0 ? m.half_width : 0.0, hy = u.y() == 0.0 ? m.half_width : 0.0;
+      strip_rects_.emplace_back(std::min(lo.x(), hi.x()) - hx, std::min(lo.y(), hi.y()) - hy,
+                                std::max(lo.x(), hi.x()) + hx, std::max(lo.y(), hi.y()) + hy);
+    } else {
+      strip_rects_.emplace_back(std::nan(""), 0, 0, 0);
+    }
+  }
 }
 
 bool Scene::intersectPrism(size_t i, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
                            double t_max, RayHit* hit) const {
   const Prism& p = prisms_[i];
+  if (i < box_rects_.size() && !std::isnan(box_rects_[i][0])) {
+    // Slab test for axis-aligned boxes (the walls and goals): the common case, kept cheap.
+    const Eigen::Vector4d& r = box_rects_[i];
+    double t0 = t_min, t1 = t_max;
+    int face = -3;
+    auto slab = [&](double o_k, double d_k, double lo, double hi, int face_lo, int face_hi) {
+      if (d_k == 0.0) return o_k >= lo && o_k <= hi;
+      const double inv = 1.0 / d_k;
+      double ta = (lo - o_k) * inv, tb = (hi - o_k) * inv;
+      int fa = face_lo;
+      if (ta > tb) {
+        std::swap(ta, tb);
+        fa = face_hi;
+      }
+      if (ta > t0) {
+        t0 = ta;
+        face = fa;
+      }
+      if (tb < t1) t1 = tb;
+      return t0 <= t1;
+    };
+    // Faces: 0 = -y side, 1 = +x side, 2 = +y side, 3 = -x side, -1 = top, -2 = bottom.
+    if (!slab(o.x(), d.x(), r[0], r[2], 3, 1) || !slab(o.y(), d.y(), r[1], r[3], 0, 2) ||
+        !slab(o.z(), d.z(), p.zmin, p.zmax, -2, -1))
+      return false;
+    if (face == -3 || !(t0 > t_min)) return false;  // starts inside the box: not a visible hit
+    if (hit) {
+      hit->t = t0;
+      hit->object = static_cast<int>(i);
+      static const Eigen::Vector3d normals[4] = {{0, -1, 0}, {1, 0, 0}, {0, 1, 0}, {-1, 0, 0}};
+      if (face == -1) {
+        hit->cls = p.top;
+        hit->normal = Eigen::Vector3d(0, 0, 1);
+      } else if (face == -2) {
+        hit->cls = p.bottom;
+        hit->normal = Eigen::Vector3d(0, 0, -1);
+      } else {
+        hit->cls = p.side[face];
+        hit->normal = normals[face];
+      }
+    }
+    return true;
+  }
   // Cyrus-Beck clipping against the half-spaces of the convex prism.
   double t_enter = -std::numeric_limits<double>::infinity(), t_exit = std::numeric_limits<double>::infinity();
   int enter_face = -3;  // -1 top, -2 bottom, >= 0 side index
@@ -217,7 +284,13 @@ SurfaceClass Scene::floorClass(double x, double y) const {
   const bool in_field = x >= 0 && x <= g.length && y >= 0 && y <= g.width;
   const bool in_goal = std::fabs(y - cy) <= 0.5 * g.goal_width && x >= -g.goal_depth && x <= g.length + g.goal_depth;
   if (!in_field && !in_goal) return SurfaceClass::Background;
-  for (const MarkingStrip& m : strips_) {
+  for (size_t i = 0; i < strips_.size(); ++i) {
+    const Eigen::Vector4d& r = strip_rects_[i];
+    if (!std::isnan(r[0])) {
+      if (x >= r[0] && x <= r[2] && y >= r[1] && y <= r[3]) return SurfaceClass::Marking;
+      continue;
+    }
+    const MarkingStrip& m = strips_[i];
     const Eigen::Vector2d e = m.b - m.a;
     const double len = e.norm();
     const Eigen::Vector2d u = e / len;
@@ -227,8 +300,9 @@ SurfaceClass Scene::floorClass(double x, double y) const {
     if (std::fabs(-px * u.y() + py * u.x()) <= m.half_width) return SurfaceClass::Marking;
   }
   for (const MarkingRing& r : rings_) {
-    const double dist = std::hypot(x - r.centre.x(), y - r.centre.y());
-    if (std::fabs(dist - r.radius) <= r.half_width) return SurfaceClass::Marking;
+    const double dx = x - r.centre.x(), dy = y - r.centre.y(), d2 = dx * dx + dy * dy;
+    const double lo = r.radius - r.half_width, hi = r.radius + r.half_width;
+    if (d2 >= lo * lo && d2 <= hi * hi) return SurfaceClass::Marking;
   }
   return SurfaceClass::Floor;
 }

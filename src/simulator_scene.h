@@ -135,6 +135,10 @@ class Scene {
   std::vector<Prism> prisms_;
   std::vector<Sphere> spheres_;
   std::vector<MarkingStrip> strips_;
+  std::vector<Eigen::Vector4d> strip_rects_;
+  std::vector<Eigen::Vector4d> box_rects_;    // (x0, y0, x1, y1) of prisms that are axis-aligned boxes in the
+                                              // (x0,y0)->(x1,y0)->(x1,y1)->(x0,y1) order, NaN otherwise  // (xmin, ymin, xmax, ymax) of axis-aligned strips, NaN otherwise
+  void precompute();
   std::vector<MarkingRing> rings_;
   std::vector<SceneEdge> edges_;
 };

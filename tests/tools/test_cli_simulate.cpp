@@ -70,6 +70,25 @@ TEST_F(CliSimulate, SameSeedByteIdenticalAndRefusesOverwrite) {
   EXPECT_NE(readFile(root + "/a/dataset.yaml").find("name: line"), std::string::npos);
 }
 
+TEST_F(CliSimulate, ImagesWithGroundTruth) {
+  for (const char* d : {"/i", "/j"}) {
+    const Result r = run("simulate --scenario line --steps 3 --obstacles 1 --images --out " + root + d);
+    ASSERT_EQ(r.code, 0) << r.out;
+  }
+  for (const char* f : {"images/left_000000.png", "images/right_000002.png", "images/truth_000001.json"}) {
+    EXPECT_TRUE(fs::exists(root + "/i/" + f)) << f;
+    EXPECT_EQ(readFile(root + "/i/" + f), readFile(root + "/j/" + f)) << f;
+  }
+  EXPECT_NE(readFile(root + "/i/images/truth_000000.json").find("\"goal_corner\""), std::string::npos);
+  const Result i = run("info " + root + "/i");
+  EXPECT_EQ(i.code, 0) << i.out;
+  EXPECT_NE(i.out.find("images: present"), std::string::npos) << i.out;
+  fs::remove(root + "/i/images/right_000001.png");
+  const Result bad = run("info " + root + "/i");
+  EXPECT_EQ(bad.code, 1);
+  EXPECT_NE(bad.out.find("right_000001.png"), std::string::npos) << bad.out;
+}
+
 TEST_F(CliSimulate, UsageAndDataErrors) {
   EXPECT_EQ(run("simulate --scenario nope --out " + root + "/x").code, 2);
   EXPECT_EQ(run("simulate --scenario rect --trial e --out " + root + "/x").code, 2);

@@ -1,0 +1,222 @@
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <set>
+
+#include <opencv2/imgproc.hpp>
+
+#include "src/renderer.h"
+#include "src/simulator.h"
+
+namespace stereoloc {
+namespace {
+
+RenderOptions plain() {
+  RenderOptions o;
+  o.shading = true;
+  return o;
+}
+
+// Sub-pixel position of the white-wall edge (min of B, G, R: high on the white wall, low on the
+// coloured goal face, the dark goal floor or the background) along row v near u, from the
+// anti-aliased pixel values (each pixel is the box average over [u - 0.5, u + 0.5], so the
+// half-way crossing between the two plateaus is the edge position).
+std::optional<double> colourEdge(const cv::Mat& img, double u, double v, int half_window = 5) {
+  const int row = static_cast<int>(std::lround(v));
+  const int c = static_cast<int>(std::lround(u));
+  std::vector<double> b;
+  const int lo = std::max(0, c - half_window), hi = std::min(img.cols - 1, c + half_window);
+  for (int x = lo; x <= hi; ++x) {
+    const cv::Vec3b p = img.at<cv::Vec3b>(row, x);
+    b.push_back(static_cast<double>(std::min({p[0], p[1], p[2]})));
+  }
+  const double bmin = *std::min_element(b.begin(), b.end()), bmax = *std::max_element(b.begin(), b.end());
+  if (bmax - bmin < 100) return std::nullopt;
+  const double mid = 0.5 * (bmin + bmax);
+  std::optional<double> best;
+  for (size_t i = 0; i + 1 < b.size(); ++i) {
+    if ((b[i] - mid) * (b[i + 1] - mid) <= 0 && b[i] != b[i + 1]) {
+      const double x = lo + i + (mid - b[i]) / (b[i + 1] - b[i]);
+      if (!best || std::fabs(x - u) < std::fabs(*best - u)) best = x;
+    }
+  }
+  return best;
+}
+
+TEST(Renderer, GoalCornerLandsOnTheColourTransitionWithinOnePixel) {
+  const FieldMap map = FieldMap::miroSot();
+  const StereoRig rig;
+  const StereoRenderer renderer(map, rig, plain());
+  const std::vector<std::pair<Pose2, double>> poses = {
+      {Pose2(400, 650, kPi), 0.0},      {Pose2(600, 520, 2.9), 0.0},  {Pose2(350, 800, -2.9), 0.0},
+      {Pose2(1100, 650, 0.0), 0.0},     {Pose2(900, 400, 0.2), 0.1},  {Pose2(700, 650, 0.5), kPi - 0.4},
+      {Pose2(1200, 900, -0.35), -0.05}, {Pose2(250, 420, 2.5), 0.3}};
+  int checked = 0;
+  double worst = 0;
+  for (const auto& [pose, pan] : poses) {
+    const StereoImages im = renderer.render(pose, pan, {});
+    for (int camera = 0; camera < 2; ++camera) {
+      const ImageTruth& t = camera == 0 ? im.truth.left : im.truth.right;
+      for (const ImageLandmark& l : t.landmarks) {
+        if (l.type != "goal_corner") continue;
+        // The truth is StereoRig::project of the landmark.
+        const Eigen::Vector2d local = transformToLocal(pose, map.at(l.id).xy());
+        const auto px = rig.project(Eigen::Vector3d(local.x(), local.y(), map.at(l.id).position.z()), pan);
+        ASSERT_TRUE(px);
+        EXPECT_NEAR(l.pixel.x(), camera == 0 ? px->u_left : px->u_right, 1e-9);
+        EXPECT_NEAR(l.pixel.y(), camera == 0 ? px->v_left : px->v_right, 1e-9);
+        if (l.pixel.x() < 6 || l.pixel.x() > rig.params().image_width - 7) continue;
+        const auto edge = colourEdge(camera == 0 ? im.left : im.right, l.pixel.x(), l.pixel.y());
+        ASSERT_TRUE(edge) << "no colour transition near landmark " << l.id;
+        EXPECT_LT(std::fabs(*edge - l.pixel.x()), 1.0) << "landmark " << l.id << " camera " << camera;
+        worst = std::max(worst, std::fabs(*edge - l.pixel.x()));
+        ++checked;
+      }
+    }
+  }
+  EXPECT_GE(checked, 10);
+  EXPECT_LT(worst, 0.5);
+  std::printf("goal corners checked: %d, worst edge offset %.3f px\n", checked, worst);
+}
+
+TEST(Renderer, TruthLandmarksAgreeWithTheSimulatedSensor) {
+  const FieldMap map = FieldMap::miroSot();
+  const StereoRig rig;
+  const StereoRenderer renderer(map, rig, plain());
+  const Scene scene = Scene::fromMap(map);
+  for (const Pose2& pose : {Pose2(400, 650, kPi), Pose2(750, 650, 0.3), Pose2(1200, 300, 2.2), Pose2(300, 1000, -0.6)}) {
+    const StereoTruth t = renderer.truth(pose, 0.0, {});
+    std::set<int> left, right, both, sensor;
+    for (const auto& l : t.left.landmarks) left.insert(l.id);
+    for (const auto& l : t.right.landmarks) right.insert(l.id);
+    for (int id : left)
+      if (right.count(id)) both.insert(id);
+    for (const auto& v : visibleLandmarks(map, rig, scene, pose, 0.0, LandmarkSet::All)) sensor.insert(v.id);
+    EXPECT_EQ(both, sensor) << pose.x << " " << pose.y;
+    EXPECT_FALSE(both.empty());
+  }
+}
+
+TEST(Renderer, MarkingSegmentsAreOnBrightPixels) {
+  const FieldMap map = FieldMap::miroSot();
+  const StereoRenderer renderer(map, StereoRig(), plain());
+  const StereoImages im = renderer.render(Pose2(900, 600, 2.8), 0.0, {});
+  int checked = 0;
+  for (const ImageSegment& s : im.truth.left.segments) {
+    if (s.kind != "marking" || (s.a - s.b).norm() < 20) continue;
+    for (double f : {0.25, 0.5, 0.75}) {
+      const Eigen::Vector2d p = s.a + f * (s.b - s.a);
+      const int u = static_cast<int>(std::lround(p.x())), v = static_cast<int>(std::lround(p.y()));
+      int best = 0;
+      for (int dv = -1; dv <= 1; ++dv)
+        for (int du = -1; du <= 1; ++du) {
+          const int uu = std::clamp(u + du, 0, im.left.cols - 1), vv = std::clamp(v + dv, 0, im.left.rows - 1);
+          best = std::max(best, static_cast<int>(im.left.at<cv::Vec3b>(vv, uu)[1]));
+        }
+      EXPECT_GT(best, 120) << s.name << " at " << p.transpose();
+      ++checked;
+    }
+  }
+  EXPECT_GE(checked, 6);
+  // Wall, goal and triangle edges are reported too.
+  std::set<std::string> kinds;
+  for (const ImageSegment& s : im.truth.left.segments) kinds.insert(s.kind);
+  EXPECT_TRUE(kinds.count("goal_post"));
+  EXPECT_TRUE(kinds.count("wall_top"));
+  EXPECT_TRUE(kinds.count("marking"));
+}
+
+TEST(Renderer, ObstaclesHideLandmarksInTheImagesAndTheTruth) {
+  const FieldMap map = FieldMap::miroSot();
+  const StereoRenderer renderer(map, StereoRig(), plain());
+  Obstacle o;
+  o.position = Eigen::Vector2d(200, 550);
+  const StereoImages im = renderer.render(Pose2(400, 650, kPi), 0.0, {o});
+  for (const auto& l : im.truth.left.landmarks) EXPECT_NE(l.id, 0);
+  bool robot_pixels = false;
+  for (int v = 0; v < im.left.rows && !robot_pixels; ++v)
+    for (int u = 0; u < im.left.cols; ++u) {
+      const cv::Vec3b p = im.left.at<cv::Vec3b>(v, u);
+      if (std::abs(p[0] - 51 * 0.22 / 0.2) < 20 && p[1] > 35 && p[1] < 60) robot_pixels = true;
+    }
+  EXPECT_TRUE(robot_pixels);
+}
+
+TEST(Renderer, DeterministicWhateverTheThreadCount) {
+  const FieldMap map = FieldMap::miroSot();
+  RenderOptions a = plain(), b = plain();
+  a.threads = 1;
+  b.threads = 2;
+  a.noise_sigma = b.noise_sigma = 4.0;
+  a.seed = b.seed = 17;
+  Obstacle ball;
+  ball.kind = Obstacle::Kind::Ball;
+  ball.size = 42.7;
+  ball.position = Eigen::Vector2d(500, 600);
+  const StereoImages x = StereoRenderer(map, StereoRig(), a).render(Pose2(900, 600, 2.8), 0.1, {ball});
+  const StereoImages y = StereoRenderer(map, StereoRig(), b).render(Pose2(900, 600, 2.8), 0.1, {ball});
+  EXPECT_EQ(cv::norm(x.left, y.left, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(x.right, y.right, cv::NORM_INF), 0.0);
+  const StereoImages z = StereoRenderer(map, StereoRig(), b).render(Pose2(900, 600, 2.8), 0.1, {ball}, 18);
+  EXPECT_GT(cv::norm(x.left, z.left, cv::NORM_INF), 0.0);
+  EXPECT_EQ(x.left.type(), CV_8UC3);
+  EXPECT_EQ(x.left.cols, 320);
+  EXPECT_EQ(x.left.rows, 240);
+}
+
+TEST(Renderer, IlluminationBlurAndNoiseOptions) {
+  const FieldMap map = FieldMap::miroSot();
+  const Pose2 pose(900, 600, 2.8);
+  const StereoImages base = renderStereoPair(map, StereoRig(), pose, 0.0, {}, plain());
+  RenderOptions dark = plain();
+  dark.brightness = -40;
+  dark.contrast = 0.6;
+  const StereoImages d = renderStereoPair(map, StereoRig(), pose, 0.0, {}, dark);
+  EXPECT_LT(cv::mean(d.left)[1], cv::mean(base.left)[1] - 20);
+  RenderOptions blur = plain();
+  blur.blur_sigma = 1.5;
+  const StereoImages bl = renderStereoPair(map, StereoRig(), pose, 0.0, {}, blur);
+  cv::Mat gx0, gx1;
+  cv::Sobel(base.left, gx0, CV_32F, 1, 0);
+  cv::Sobel(bl.left, gx1, CV_32F, 1, 0);
+  EXPECT_LT(cv::norm(gx1, cv::NORM_L1), 0.8 * cv::norm(gx0, cv::NORM_L1));
+  RenderOptions bad = plain();
+  bad.samples_per_axis = 1;
+  EXPECT_THROW(bad.validate(), Error);
+  bad = plain();
+  bad.noise_sigma = -1;
+  EXPECT_THROW(StereoRenderer(map, StereoRig(), bad), Error);
+}
+
+TEST(Renderer, AntiAliasedEdgesHaveIntermediateValues) {
+  const StereoImages im = renderStereoPair(FieldMap::miroSot(), StereoRig(), Pose2(900, 600, 2.8), 0.0, {}, plain());
+  std::set<int> greens;
+  for (int v = 0; v < im.left.rows; ++v)
+    for (int u = 0; u < im.left.cols; ++u) greens.insert(im.left.at<cv::Vec3b>(v, u)[1]);
+  EXPECT_GT(greens.size(), 20u);  // a 1-sample renderer of flat colours would give a handful
+}
+
+TEST(Renderer, TruthJson) {
+  const StereoImages im = renderStereoPair(FieldMap::miroSot(), StereoRig(), Pose2(400, 650, kPi), 0.0, {}, plain());
+  const std::string js = truthToJson(im.truth, 12, 320, 240);
+  EXPECT_NE(js.find("\"step\": 12"), std::string::npos);
+  EXPECT_NE(js.find("\"left\": {"), std::string::npos);
+  EXPECT_NE(js.find("\"right\": {"), std::string::npos);
+  EXPECT_NE(js.find("{\"id\": 0, \"type\": \"goal_corner\""), std::string::npos) << js;
+  EXPECT_NE(js.find("\"kind\": \"goal_post\""), std::string::npos);
+  EXPECT_EQ(std::count(js.begin(), js.end(), '{'), std::count(js.begin(), js.end(), '}'));
+  EXPECT_EQ(std::count(js.begin(), js.end(), '['), std::count(js.begin(), js.end(), ']'));
+}
+
+TEST(Renderer, RequiresFieldGeometry) {
+  Landmark l;
+  l.id = 0;
+  l.position = Eigen::Vector3d(1, 1, 0);
+  const FieldMap bare("bare", Bounds{0, 0, 10, 10}, {l});
+  EXPECT_THROW(StereoRenderer(bare, StereoRig()), Error);
+}
+
+}  // namespace
+}  // namespace stereoloc

@@ -1,0 +1,40 @@
+// Renders one 320x240 stereo pair of the MiroSot field (issue 3: at most 20 ms per pair).
+#include <benchmark/benchmark.h>
+
+#include "src/renderer.h"
+
+namespace {
+
+using namespace stereoloc;
+
+void renderPair(benchmark::State& state, int threads, bool truth, int obstacles) {
+  RenderOptions o;
+  o.threads = threads;
+  o.compute_truth = truth;
+  const FieldMap map = FieldMap::miroSot();
+  const StereoRenderer renderer(map, StereoRig(), o);
+  std::vector<Obstacle> obs;
+  for (int k = 0; k < obstacles; ++k) {
+    Obstacle ob;
+    ob.position = Eigen::Vector2d(300 + 150 * k, 500 + 40 * k);
+    obs.push_back(ob);
+  }
+  const Pose2 pose(900, 600, 2.8);  // looking at the blue goal across the centre circle
+  for (auto _ : state) {
+    StereoImages im = renderer.render(pose, 0.0, obs);
+    benchmark::DoNotOptimize(im.left.data);
+  }
+}
+
+void BM_RenderPair(benchmark::State& s) { renderPair(s, 2, false, 0); }
+void BM_RenderPairOneThread(benchmark::State& s) { renderPair(s, 1, false, 0); }
+void BM_RenderPairWithTruth(benchmark::State& s) { renderPair(s, 2, true, 0); }
+void BM_RenderPairObstacles(benchmark::State& s) { renderPair(s, 2, false, 5); }
+BENCHMARK(BM_RenderPair)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_RenderPairOneThread)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_RenderPairWithTruth)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_RenderPairObstacles)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+}  // namespace
+
+BENCHMARK_MAIN();
