@@ -65,9 +65,11 @@ struct SlidingWindowConfig {
   bool first_estimate_jacobians = true;  // false: linearise at the current estimate instead
   bool sparse_solver = true;         // SPARSE_NORMAL_CHOLESKY (SuiteSparse); false: DENSE_NORMAL_CHOLESKY
   int final_iterations = 50;         // finish(): iterations of the last solve of the window
-  double function_tolerance = 1e-10;
-  double gradient_tolerance = 1e-12;
-  double parameter_tolerance = 1e-10;
+  // Per-step stopping rules: the warm start is already close, so a relative cost decrease of
+  // 1e-6 (far below the noise) ends the step; tighten them for exact comparisons.
+  double function_tolerance = 1e-6;
+  double gradient_tolerance = 1e-10;
+  double parameter_tolerance = 1e-8;
   bool keep_history = true;          // false: finish() returns only the final window
 
   void validate() const;             // throws stereoloc::Error naming the field
