@@ -42,12 +42,12 @@ void HoughAccumulator::vote(const std::vector<EdgePixel>& edges, const std::vect
     if (!used.empty() && used[i]) continue;
     const EdgePixel& e = edges[i];
     const float x = e.x - static_cast<float>(cx_), y = e.y - static_cast<float>(cy_);
-    const int32_t wgt = params_.weight_by_magnitude ? std::min(4, 1 + static_cast<int>(e.mag) / 256) : 1;
+    const uint16_t wgt = static_cast<uint16_t>(params_.weight_by_magnitude ? std::min(4, 1 + static_cast<int>(e.mag) / 256) : 1);
     const int b = static_cast<int>(e.angle * bin_per_rad + 0.5f);
     for (int k = b - tol_bins_; k <= b + tol_bins_; ++k) {
       const int t = k < 0 ? k + n_theta_ : (k >= n_theta_ ? k - n_theta_ : k);
       const int r = static_cast<int>(x * cos_[t] + y * sin_[t] + r0);  // r0 > |rho|/step: positive
-      acc_[static_cast<size_t>(t) * n_rho_ + r] += wgt;
+      acc_[static_cast<size_t>(t) * n_rho_ + r] = static_cast<uint16_t>(acc_[static_cast<size_t>(t) * n_rho_ + r] + wgt);
     }
   }
 }

@@ -27,8 +27,8 @@ class HoughAccumulator {
 
   int numTheta() const { return n_theta_; }
   int numRho() const { return n_rho_; }
-  int32_t at(int theta_bin, int rho_bin) const { return acc_[static_cast<size_t>(theta_bin) * n_rho_ + rho_bin]; }
-  const std::vector<int32_t>& cells() const { return acc_; }
+  int at(int theta_bin, int rho_bin) const { return acc_[static_cast<size_t>(theta_bin) * n_rho_ + rho_bin]; }
+  const std::vector<uint16_t>& cells() const { return acc_; }
   // Cell centre -> line in the convention of features.h (origin at pixel (0, 0)).
   double theta(int theta_bin) const;
   double rho(int theta_bin, int rho_bin) const;
@@ -39,7 +39,7 @@ class HoughAccumulator {
   int w_ = 0, h_ = 0, n_theta_ = 0, n_rho_ = 0, rho0_ = 0, tol_bins_ = 0;
   double cx_ = 0, cy_ = 0;
   std::vector<float> cos_, sin_;
-  std::vector<int32_t> acc_;
+  std::vector<uint16_t> acc_;  // a cell cannot exceed 4 x 1200 votes in 320x240
 };
 
 }  // namespace stereoloc::frontend

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <opencv2/imgproc.hpp>
+
 #include "src/error.h"
 
 namespace stereoloc::frontend {
@@ -13,13 +15,8 @@ double LineFeature::y(double t) const { return rho * std::sin(theta) + t * std::
 
 void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma) {
   if (bgr.type() != CV_8UC3) throw Error("bgrToLuma: expected an 8-bit 3-channel BGR image");
-  luma.create(bgr.rows, bgr.cols, CV_8UC1);
-  for (int y = 0; y < bgr.rows; ++y) {
-    const uint8_t* s = bgr.ptr<uint8_t>(y);
-    uint8_t* d = luma.ptr<uint8_t>(y);
-    for (int x = 0; x < bgr.cols; ++x)
-      d[x] = static_cast<uint8_t>((29 * s[3 * x] + 150 * s[3 * x + 1] + 77 * s[3 * x + 2] + 128) >> 8);
-  }
+  // OpenCV's SIMD conversion, BT.601 weights (the Y channel of the thesis).
+  cv::cvtColor(bgr, luma, cv::COLOR_BGR2GRAY);
 }
 
 float fastAngle(float y, float x) {
@@ -43,8 +40,6 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
   if (w != w_ || h != h_ || index_.size() != n) {
     w_ = w;
     h_ = h;
-    gx_.assign(n, 0);
-    gy_.assign(n, 0);
     mag2_.assign(n, 0);
     index_.assign(n, -1);
     edges_.reserve(n / 8);
@@ -52,23 +47,15 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
     for (const EdgePixel& e : edges_) index_[static_cast<size_t>(e.iy) * w + e.ix] = -1;
   }
   edges_.clear();
-  if (w < 3 || h < 3) return;
+  if (w < 5 || h < 5) return;
 
-  // Integer Sobel; the one-pixel border keeps gradient 0.
-  for (int y = 1; y < h - 1; ++y) {
-    const uint8_t* p0 = luma.ptr<uint8_t>(y - 1);
-    const uint8_t* p1 = luma.ptr<uint8_t>(y);
-    const uint8_t* p2 = luma.ptr<uint8_t>(y + 1);
-    int16_t* gxr = gx_.data() + static_cast<size_t>(y) * w;
-    int16_t* gyr = gy_.data() + static_cast<size_t>(y) * w;
+  // 3x3 Sobel in one SIMD pass (the border rows and columns are never used below).
+  cv::spatialGradient(luma, gx_, gy_, 3);
+  for (int y = 0; y < h; ++y) {
+    const int16_t* gxr = gx_.ptr<int16_t>(y);
+    const int16_t* gyr = gy_.ptr<int16_t>(y);
     int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    for (int x = 1; x < w - 1; ++x) {
-      const int gxv = (p0[x + 1] + 2 * p1[x + 1] + p2[x + 1]) - (p0[x - 1] + 2 * p1[x - 1] + p2[x - 1]);
-      const int gyv = (p2[x - 1] + 2 * p2[x] + p2[x + 1]) - (p0[x - 1] + 2 * p0[x] + p0[x + 1]);
-      gxr[x] = static_cast<int16_t>(gxv);
-      gyr[x] = static_cast<int16_t>(gyv);
-      m2[x] = gxv * gxv + gyv * gyv;
-    }
+    for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
   }
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
@@ -77,8 +64,8 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
   const int32_t thr2 = params.magnitude_threshold * params.magnitude_threshold;
   for (int y = 2; y < h - 2; ++y) {
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    const int16_t* gxr = gx_.data() + static_cast<size_t>(y) * w;
-    const int16_t* gyr = gy_.data() + static_cast<size_t>(y) * w;
+    const int16_t* gxr = gx_.ptr<int16_t>(y);
+    const int16_t* gyr = gy_.ptr<int16_t>(y);
     for (int x = 2; x < w - 2; ++x) {
       const int32_t c = m2[x];
       if (c < thr2) continue;

@@ -12,7 +12,7 @@ struct GradientParams {
   int magnitude_threshold = 48;  // Sobel magnitude (luma step x 4) an edge pixel must reach
 };
 
-// Luma (ITU-R BT.601 weights, integer) of an 8-bit BGR image into a reused buffer.
+// Luma (ITU-R BT.601 weights) of an 8-bit BGR image into a reused buffer.
 void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma);
 
 // Reusable gradient stage: holds all buffers, so repeated calls on same-size images allocate nothing.
@@ -26,12 +26,12 @@ class GradientStage {
   int height() const { return h_; }
   // Index into edges() of the edge pixel at integer (x, y), or -1. (x, y) must be inside.
   int edgeAt(int x, int y) const { return index_[static_cast<size_t>(y) * w_ + x]; }
-  const int16_t* gx() const { return gx_.data(); }
-  const int16_t* gy() const { return gy_.data(); }
+  const cv::Mat& gx() const { return gx_; }  // CV_16S Sobel x
+  const cv::Mat& gy() const { return gy_; }  // CV_16S Sobel y
 
  private:
   int w_ = 0, h_ = 0;
-  std::vector<int16_t> gx_, gy_;
+  cv::Mat gx_, gy_;
   std::vector<int32_t> mag2_;
   std::vector<int32_t> index_;
   std::vector<EdgePixel> edges_;

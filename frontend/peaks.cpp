@@ -7,14 +7,14 @@ namespace stereoloc::frontend {
 void detectPeaks(const HoughAccumulator& acc, const PeakParams& params, std::vector<HoughPeak>& peaks) {
   peaks.clear();
   const int nt = acc.numTheta(), nr = acc.numRho();
-  const int32_t* a = acc.cells().data();
-  const int32_t thr = std::max(1, params.min_votes);
+  const uint16_t* a = acc.cells().data();
+  const int thr = std::max(1, params.min_votes);
   for (int t = 0; t < nt; ++t) {
-    const int32_t* row = a + static_cast<size_t>(t) * nr;
-    const int32_t* prev = a + static_cast<size_t>(t == 0 ? nt - 1 : t - 1) * nr;
-    const int32_t* next = a + static_cast<size_t>(t == nt - 1 ? 0 : t + 1) * nr;
+    const uint16_t* row = a + static_cast<size_t>(t) * nr;
+    const uint16_t* prev = a + static_cast<size_t>(t == 0 ? nt - 1 : t - 1) * nr;
+    const uint16_t* next = a + static_cast<size_t>(t == nt - 1 ? 0 : t + 1) * nr;
     for (int r = 1; r < nr - 1; ++r) {
-      const int32_t v = row[r];
+      const int v = row[r];
       if (v < thr) continue;
       // Ties broken towards the lower index, so a plateau yields one peak.
       if (v < row[r + 1] || v <= row[r - 1]) continue;

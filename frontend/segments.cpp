@@ -76,7 +76,25 @@ void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments) {
       if (prev_c < 0.5 * ref) continue;
       for (double t = -2.0 + kStep; t <= 4.0; t += kStep) {
         const double ct = contrast(ex + t * ox, ey + t * oy);
-        if (ct < 0) break;  // image border: keep what we have
+        if (ct < 0) {
+          // The step still holds where the samples leave the image: the edge runs on to the
+          // image border (-0.5 or size - 0.5), where the renderer's truth clips it too.
+          double tb = 1e9;
+          if (ox > 1e-9) tb = std::min(tb, (luma.cols - 0.5 - ex) / ox);
+          if (ox < -1e-9) tb = std::min(tb, (-0.5 - ex) / ox);
+          if (oy > 1e-9) tb = std::min(tb, (luma.rows - 0.5 - ey) / oy);
+          if (oy < -1e-9) tb = std::min(tb, (-0.5 - ey) / oy);
+          if (tb < 6.0) {
+            if (end) {
+              s.x2 = ex + tb * ox;
+              s.y2 = ey + tb * oy;
+            } else {
+              s.x1 = ex + tb * ox;
+              s.y1 = ey + tb * oy;
+            }
+          }
+          break;
+        }
         if (ct < 0.5 * ref) {
           const double tt = prev_t + kStep * (prev_c - 0.5 * ref) / (prev_c - ct);
           if (end) {

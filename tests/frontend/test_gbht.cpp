@@ -62,7 +62,7 @@ TEST(Gbht, UsedPixelsDoNotVoteAndBadParamsAreRejected) {
   acc.configure(160, 120, HoughParams());
   std::vector<uint8_t> used(g.edges().size(), 1);
   acc.vote(g.edges(), used);
-  for (int32_t c : acc.cells()) ASSERT_EQ(c, 0);
+  for (int c : acc.cells()) ASSERT_EQ(c, 0);
   HoughParams bad;
   bad.theta_step_deg = 7.0;  // does not divide 360
   EXPECT_THROW(acc.configure(160, 120, bad), stereoloc::Error);

@@ -13,7 +13,8 @@
 // segment when the undirected angle differs by at most 2 deg and both end points are within
 // 3 px (either order). The visible pieces of one edge broken by an occluder also match as
 // one segment from the first piece's start to the last piece's end (Fig. 6.1 'b'): that
-// detection recalls every piece. Ground-truth pieces shorter than L_min (30 px) are
+// detection recalls every piece; so do collinear pieces that touch (a wall and a corner
+// triangle in line with it). Ground-truth pieces shorter than L_min (30 px) are
 // optional (not counted in recall; a detection of one is correct). Detections on the
 // centre circle (not straight, not in the truth) and on obstacles are ignored.
 // "Centre-line level" compares our output lines (marking centre lines, other edges) with the
@@ -27,6 +28,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <functional>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -171,11 +173,31 @@ std::vector<Seg> truthSegments(const StereoRig& rig, const FieldMap& map, const 
 }
 
 void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, const cv::Mat& mask, SegStats& st) {
-  // Unions of the pieces of one broken edge.
-  std::map<std::string, std::vector<size_t>> groups;
-  for (size_t i = 0; i < gt.size(); ++i) groups[gt[i].name].push_back(i);
+  // Unions of the pieces of one broken edge, and of collinear pieces that touch (a wall and the
+  // corner triangle's foot in line with it are one edge in the image).
+  std::vector<size_t> parent(gt.size());
+  for (size_t i = 0; i < gt.size(); ++i) parent[i] = i;
+  std::function<size_t(size_t)> root = [&](size_t i) { return parent[i] == i ? i : parent[i] = root(parent[i]); };
+  auto collinear = [&](const Seg& a, const Seg& b) {
+    double da = std::fabs(segAngle(a) - segAngle(b));
+    da = std::fmod(da, kPi);
+    da = std::min(da, kPi - da);
+    if (da > 2.0 * kPi / 180) return false;
+    const Eigen::Vector2d n = Eigen::Vector2d(-(a.b - a.a).y(), (a.b - a.a).x()).normalized();
+    return std::fabs(n.dot(b.a - a.a)) < 1.5 && std::fabs(n.dot(b.b - a.a)) < 1.5;
+  };
+  for (size_t i = 0; i < gt.size(); ++i)
+    for (size_t j = i + 1; j < gt.size(); ++j) {
+      const bool touch = std::min({(gt[i].a - gt[j].a).norm(), (gt[i].a - gt[j].b).norm(), (gt[i].b - gt[j].a).norm(),
+                                   (gt[i].b - gt[j].b).norm()}) < 1.5;
+      if ((gt[i].name == gt[j].name || touch) && gt[i].marking == gt[j].marking && collinear(gt[i], gt[j]))
+        parent[root(i)] = root(j);
+    }
+  std::map<size_t, std::vector<size_t>> groups;
+  for (size_t i = 0; i < gt.size(); ++i) groups[root(i)].push_back(i);
   std::vector<std::pair<Seg, std::vector<size_t>>> unions;
-  for (const auto& [name, idx] : groups) {
+  for (const auto& group : groups) {
+    const std::vector<size_t>& idx = group.second;
     if (idx.size() < 2) continue;
     const Eigen::Vector2d dir = (gt[idx[0]].b - gt[idx[0]].a).normalized();
     Seg u = gt[idx[0]];
@@ -210,7 +232,7 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
       }
       hit[i] = 1;
     }
-    for (const auto& [u, idx] : unions) {
+    for (const auto& [u, members] : unions) {
       double e;
       if (!matches(d, u, &e)) continue;
       if (!ok) {
@@ -219,7 +241,7 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
         st.endpoint_sum += e;
         st.class_ok += (d.marking == u.marking) ? 1 : 0;
       }
-      for (size_t i : idx) hit[i] = 1;
+      for (size_t i : members) hit[i] = 1;
     }
     (void)err;
     if (!ok && inMask(mask, d)) continue;  // don't care
