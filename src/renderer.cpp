@@ -178,17 +178,26 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
     const bool cam_above_outside = cam.z() > outside_top;
     cv::Mat img(H, W, CV_8UC3);
     auto renderRows = [&](int first_row, int step) {
-      std::vector<size_t> candidates;
+      std::vector<size_t> candidates, inside, high;
       candidates.reserve(boxes.size());
+      inside.reserve(boxes.size());
+      high.reserve(boxes.size());
       for (int v = first_row; v < H; v += step) {
         std::vector<size_t> row_objects;
         for (size_t b = 0; b < boxes.size(); ++b)
           if (v >= boxes[b].v0 && v <= boxes[b].v1) row_objects.push_back(b);
         cv::Vec3b* row = img.ptr<cv::Vec3b>(v);
         for (int u = 0; u < W; ++u) {
+          // Candidates of this pixel, split by what a sample ray can possibly hit (see above).
           candidates.clear();
+          inside.clear();
+          high.clear();
           for (size_t b : row_objects)
-            if (u >= boxes[b].u0 && u <= boxes[b].u1) candidates.push_back(b);
+            if (u >= boxes[b].u0 && u <= boxes[b].u1) {
+              candidates.push_back(b);
+              if (!outside[b]) inside.push_back(b);
+              if (!low[b]) high.push_back(b);
+            }
           Colour sum = Colour::Zero();
           const Eigen::Vector3f* ray = &rays_[(static_cast<size_t>(v) * W + u) * spp];
           for (int k = 0; k < spp; ++k) {
@@ -206,8 +215,8 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
               in_column = fx > 0 && fx < g.length && fy > 0 && fy < g.width && tx > 0 && tx < g.length && ty > 0 &&
                           ty < g.width;
             }
-            for (size_t b : candidates) {
-              if ((low[b] && !descending) || (outside[b] && in_column)) continue;
+            const std::vector<size_t>& list = !descending ? high : in_column ? inside : candidates;
+            for (size_t b : list) {
               const bool got = b < n_prisms ? scene.intersectPrism(b, cam, d, 0.0, best.t, &h)
                                             : scene.intersectSphere(b - n_prisms, cam, d, 0.0, best.t, &h);
               if (got) {

@@ -19,6 +19,7 @@ struct SimulateOptions {
   bool images = false, force = false, no_compass = false, quantise = false, head_scan = false;
   double encoder_k = SimulationConfig().encoder_k;
   double compass_sigma_deg = 3.5, compass_bias_deg = 0.0, pixel_sigma = 0.5;
+  RenderOptions render;
 };
 
 // Trials are named by the thesis's letters (a, b, ...) or by 0-based index.
@@ -83,7 +84,12 @@ void runSimulate(const SimulateOptions& o) {
   const Dataset d = simulate(o.scenario, trial, cfg, o.seed, &trace);
   DatasetExtraWriter extra;
   if (o.images) {
-    extra = [&](const std::string& tmp) { writeDatasetImages(d, trace, RenderOptions(), o.seed, tmp); };
+    try {
+      o.render.validate();
+    } catch (const Error& e) {
+      throw UsageError(e.what());
+    }
+    extra = [&](const std::string& tmp) { writeDatasetImages(d, trace, o.render, o.seed, tmp); };
   }
   saveDataset(d, o.out, o.force, extra);
   size_t n_obs = 0, seen = 0;
@@ -124,6 +130,14 @@ void add_simulate_command(CLI::App& app) {
   sub->add_option("--pixel-sigma", o->pixel_sigma, "Pixel noise sigma, px")->capture_default_str()->check(CLI::NonNegativeNumber);
   sub->add_flag("--quantise", o->quantise, "Round observed pixel coordinates to whole pixels");
   sub->add_option("--landmarks", o->landmarks, "Landmarks the detector reports: goal_corners (thesis) or all")
+      ->capture_default_str();
+  sub->add_option("--image-noise", o->render.noise_sigma, "Image sensor noise sigma, grey levels (with --images)")
+      ->capture_default_str();
+  sub->add_option("--image-blur", o->render.blur_sigma, "Image Gaussian blur sigma, px (with --images)")
+      ->capture_default_str();
+  sub->add_option("--brightness", o->render.brightness, "Added to every image channel, grey levels (bad illumination)")
+      ->capture_default_str();
+  sub->add_option("--contrast", o->render.contrast, "Image contrast factor about mid-grey (bad illumination)")
       ->capture_default_str();
   sub->add_flag("--head-scan", o->head_scan, "Sweep the head pan (+-30 deg) instead of looking straight ahead");
   sub->callback([o] { runSimulate(*o); });
