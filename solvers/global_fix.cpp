@@ -72,7 +72,10 @@ Eigen::RowVector2d atan2Gradient(const Eigen::Vector2d& q) {
 // Jacobian (tangent or non-intersecting circles): the residuals z_i - h(pose, c_i), whose noise
 // is G dx with G = [dh/dp_xy, I] per centre (h depends on c - p), give W = G Sigma_x G^T and the
 // Gauss-Newton covariance (H^T W^-1 H)^-1, H = dh/dpose.
-bool informationCovariance(const Pose2& pose, const Vector8d& x, const Matrix8d& x_cov, Eigen::Matrix3d* cov) {
+// Also returns the residuals' chi-square r^T W^-1 r (1 dof: 4 measurements, 3 pose parameters).
+bool informationCovariance(const Pose2& pose, const Vector8d& x, const Matrix8d& x_cov, Eigen::Matrix3d* cov,
+                           double* chi2) {
+  Eigen::Vector4d residual;
   Eigen::Matrix<double, 4, 3> H;
   Eigen::Matrix<double, 4, 8> G = Eigen::Matrix<double, 4, 8>::Zero();
   for (int i = 0; i < 2; ++i) {
@@ -82,6 +85,8 @@ bool informationCovariance(const Pose2& pose, const Vector8d& x, const Matrix8d&
     } catch (const GeometryError&) {
       return false;
     }
+    const Eigen::Vector2d zi = predictRangeBearing(pose, x.segment<2>(4 * i));
+    residual.segment<2>(2 * i) = rangeBearingInnovation(x.segment<2>(4 * i + 2), zi);
     H.block<2, 3>(2 * i, 0) = Hi;
     G.block<2, 2>(2 * i, 4 * i) = Hi.leftCols<2>();
     G.block<2, 2>(2 * i, 4 * i + 2) = Eigen::Matrix2d::Identity();
@@ -89,6 +94,7 @@ bool informationCovariance(const Pose2& pose, const Vector8d& x, const Matrix8d&
   const Eigen::Matrix4d W = G * x_cov * G.transpose();
   Eigen::LDLT<Eigen::Matrix4d> ldlt(0.5 * (W + W.transpose()));
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || ldlt.vectorD().minCoeff() <= 0) return false;
+  *chi2 = residual.dot(ldlt.solve(residual));
   const Eigen::Matrix3d info = H.transpose() * ldlt.solve(H);
   Eigen::LLT<Eigen::Matrix3d> llt(symmetrize(info));
   if (llt.info() != Eigen::Success) return false;
@@ -230,6 +236,20 @@ TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int 
     sol.J_pose_x.topRows<2>() = J_p_x;
     sol.J_pose_x.row(2) = w(0) * J_t_x.row(0) + w(1) * J_t_x.row(1);
     sol.covariance = symmetrize(sol.J_pose_x * x_cov * sol.J_pose_x.transpose());  // (4.18)
+    if (options.second_order_covariance) {
+      // Hessian of theta = sum_i w_i atan2(c_i - p) w.r.t. p; 1/2 tr(H P H P) with P = cov(p).
+      Eigen::Matrix2d H = Eigen::Matrix2d::Zero();
+      for (int i = 0; i < 2; ++i) {
+        const Eigen::Vector2d q = x.segment<2>(4 * i) - p;
+        const double rho4 = q.squaredNorm() * q.squaredNorm();
+        Eigen::Matrix2d Hi;
+        Hi << 2 * q.x() * q.y(), q.y() * q.y() - q.x() * q.x(),  //
+            q.y() * q.y() - q.x() * q.x(), -2 * q.x() * q.y();
+        H += w(i) * Hi / rho4;
+      }
+      const Eigen::Matrix2d P = sol.covariance.topLeftCorner<2, 2>();
+      sol.covariance(2, 2) += 0.5 * (H * P * H * P).trace();
+    }
     sol.half_chord = h;
     sol.status = positiveDefinite(sol.covariance) ? FixStatus::Ok : FixStatus::Degenerate;
     // A singular covariance (noise-free inputs) is still a valid pose; keep it Ok when the
@@ -269,8 +289,13 @@ TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int 
   sol.pose = Pose2(p.x(), p.y(), std::atan2(sum_s, sum_c));
   Eigen::Matrix3d cov;
   if (sol.status != FixStatus::Degenerate) {
-    if (informationCovariance(sol.pose, x, x_cov, &cov)) {
+    double chi2 = 0.0;
+    if (informationCovariance(sol.pose, x, x_cov, &cov, &chi2)) {
       sol.covariance = cov;
+      // The closest point ignores the bearings; when they contradict it (e.g. nested circles
+      // whose closest point lies on the far side of a landmark), there is no fix.
+      if (chi2 > options.max_gap_sigma * options.max_gap_sigma) sol.status = FixStatus::Degenerate;
+      sol.gap_sigma = std::max(sol.gap_sigma, std::sqrt(chi2));
     } else if (!x_cov.isZero(0.0)) {
       sol.status = FixStatus::Degenerate;
     }
@@ -314,6 +339,17 @@ GlobalFix fixFromOneLandmark(const Observation& o, const Eigen::Vector2d& landma
   input_cov.topLeftCorner<2, 2>() = o.covariance;
   input_cov(2, 2) = sigma * sigma;  // (4.14)
   f.covariance = symmetrize(J * input_cov * J.transpose());
+  if (options.second_order_covariance) {
+    // Hessians of x, y of (4.10) w.r.t. (r, psi, theta); theta is linear.
+    Eigen::Matrix3d Hx, Hy;
+    Hx << 0.0, s, s, s, r * c, r * c, s, r * c, r * c;
+    Hy << 0.0, -c, -c, -c, r * s, r * s, -c, r * s, r * s;
+    const Eigen::Matrix3d A = Hx * input_cov, B = Hy * input_cov;
+    f.covariance(0, 0) += 0.5 * (A * A).trace();
+    f.covariance(1, 1) += 0.5 * (B * B).trace();
+    f.covariance(0, 1) += 0.5 * (A * B).trace();
+    f.covariance(1, 0) = f.covariance(0, 1);
+  }
   f.status = positiveDefinite(f.covariance) ? FixStatus::Ok : FixStatus::Degenerate;
   return f;
 }

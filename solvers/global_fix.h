@@ -74,12 +74,20 @@ struct GlobalFixOptions {
   // two-circle solution is Ambiguous (globalFix then tries the map bounds).
   double ordering_min_sigma = 1.0;
   // Circles that miss each other by more than this many standard deviations of the range sum /
-  // difference are inconsistent (wrong association, outlier): Degenerate instead of approximate.
+  // difference, or whose closest point contradicts the measured bearings by more than this
+  // (sqrt of the 1-dof chi-square of all four measurements), are inconsistent (wrong
+  // association, outlier, nested circles): Degenerate instead of approximate.
   double max_gap_sigma = 5.0;
   // A candidate this far (mm) outside the map bounds is impossible (thesis 4.2.1: "one of the
   // solutions lies at impossible locations"); used by globalFix to resolve ambiguity.
   double bounds_margin_mm = 100.0;
   int multi_max_iterations = 50;  // Ceres iterations of the least-squares fix
+  // false: the thesis's first-order propagation (4.15), (4.18). true: add the second-order terms
+  // 1/2 tr(H_k Sigma H_l Sigma) of the dominant curvatures — for fix1 the (range x heading) and
+  // heading^2 terms of (4.10), for fix2 the curvature of atan2 in (4.6) under the position
+  // covariance. The first-order covariance is nearly singular (stereo bearings are ~100x more
+  // precise than ranges), so these terms decide the joint 3-dof consistency (NEES).
+  bool second_order_covariance = false;
 };
 
 // Best available fix from one step's observations (those with landmark_id >= 0; positions
@@ -135,7 +143,7 @@ struct TwoCircleSolution {
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
   Matrix38d J_pose_x = Matrix38d::Zero();    // d pose / d x (valid when status == Ok and not tangent)
   double half_chord = 0.0;                   // h: distance of the intersections from the baseline (mm)
-  double gap_sigma = 0.0;                    // how far the circles miss, in standard deviations
+  double gap_sigma = 0.0;                    // inconsistency of a closest-point solution, in sigmas
 };
 
 // side = +1: the intersection to the left of c1 -> c2 (c2 appears counter-clockwise of c1 from

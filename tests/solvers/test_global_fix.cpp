@@ -4,6 +4,9 @@
 
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
+
+#include <cstdio>
 #include <random>
 
 #include "src/gaussian.h"
@@ -263,6 +266,11 @@ TEST(GlobalFix, DegenerateCasesAreExplicit) {
   const GlobalFix ext = fixFromTwoLandmarks(ta, tb, la, lb);
   EXPECT_EQ(ext.status, FixStatus::Ok);
   EXPECT_LT((ext.pose.translation() - Eigen::Vector2d(0, 1000)).norm(), 1e-6);
+  // Nested circles from noise, but the bearings show a large visual angle: the closest point
+  // (on the baseline's extension, behind a landmark) contradicts them, so there is no fix.
+  Observation fa = exactObservation(0, truth, la, 100.0, 0.001), fb = exactObservation(1, truth, lb, 100.0, 0.001);
+  fa.range = fb.range + 420.0;
+  EXPECT_EQ(fixFromTwoLandmarks(fa, fb, la, lb).status, FixStatus::Degenerate);
   // Zero range, non-finite input.
   Observation zero = oa;
   zero.range = 0.0;
@@ -473,6 +481,45 @@ TEST(GlobalFix, NeesOfRangeBearingMonteCarloIsConsistentInThreeDof) {
   EXPECT_GT(am.n, 0.99 * n);
   for (const auto& [acc, name] : {std::pair{a1, "fix1"}, std::pair{a2, "fix2"}, std::pair{am, "multi"}})
     EXPECT_TRUE(inBand(acc.full, acc.n, 3)) << name;
+}
+
+// Where the first-order covariance is nearly singular (stereo-like bearings, a poor compass,
+// distant landmarks) its joint 3-dof NEES explodes; the second-order terms repair most of it.
+TEST(GlobalFix, SecondOrderCovarianceRepairsTheThinDirection) {
+  const Eigen::Vector2d la(0, 450), lb(0, 850);
+  const Pose2 truth(1000, 600, kPi);
+  const double sr = 40.0, sb = 0.001, sigma_c = deg2rad(5.0);
+  GlobalFixOptions second;
+  second.second_order_covariance = true;
+  std::mt19937_64 rng(17);
+  std::normal_distribution<double> N(0.0, 1.0);
+  auto noisy = [&](int id, const Eigen::Vector2d& l) {
+    const Eigen::Vector2d z = predictRangeBearing(truth, l);
+    return observationFromRangeBearing(id, LandmarkType::Point, z(0) + sr * N(rng), z(1) + sb * N(rng), sr, sb);
+  };
+  const int n = 2000;
+  NeesAccumulator first1, second1, first2, second2;
+  for (int i = 0; i < n; ++i) {
+    const Observation oa = noisy(0, la), ob = noisy(1, lb);
+    const double compass = truth.theta + sigma_c * N(rng);
+    first1.add(fixFromOneLandmark(oa, la, compass, sigma_c), truth);
+    const GlobalFix s1 = fixFromOneLandmark(oa, la, compass, sigma_c, second);
+    second1.add(s1, truth);
+    const GlobalFix f2 = fixFromTwoLandmarks(oa, ob, la, lb), s2 = fixFromTwoLandmarks(oa, ob, la, lb, second);
+    if (f2.status == FixStatus::Ok) first2.add(f2, truth);
+    if (s2.status == FixStatus::Ok) second2.add(s2, truth);
+    // The second-order covariance only adds (a positive semi-definite term).
+    const Eigen::Matrix3d added = s1.covariance - fixFromOneLandmark(oa, la, compass, sigma_c).covariance;
+    EXPECT_GE(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(added).eigenvalues().minCoeff(), -1e-9);
+  }
+  EXPECT_FALSE(inBand(first1.full, first1.n, 3));
+  EXPECT_FALSE(inBand(first2.full, first2.n, 3));
+  EXPECT_LT(second1.full / second1.n, 0.25 * first1.full / first1.n);
+  EXPECT_LT(second2.full / second2.n, 0.25 * first2.full / first2.n);
+  // Position-only NEES is unchanged for fix2 (only theta's variance grows).
+  EXPECT_NEAR(second2.pos / second2.n, first2.pos / first2.n, 1e-9);
+  std::printf("3-dof NEES fix1 first %.2f second %.2f, fix2 first %.2f second %.2f\n", first1.full / first1.n,
+              second1.full / second1.n, first2.full / first2.n, second2.full / second2.n);
 }
 
 TEST(GlobalFix, NeesOfRunningFixMonteCarloIsConsistent) {

@@ -1,0 +1,57 @@
+// `stereoloc fixstudy`: tables in the thesis's format with the thesis's numbers beside ours,
+// deterministic per seed, files written, bad arguments rejected with exit code 2.
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <sstream>
+
+#include "cli_util.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+std::string readFile(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
+  test::TempDir dir("fixstudy");
+  const std::string tables = std::string(STEREOLOC_DATA_DIR) + "/thesis_tables.yaml";
+  const test::CliRun r =
+      test::runCli("fixstudy --category rect --method both --seed 3 --tables " + tables + " --out " + dir.path());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("Table 6.4: two landmarks (fix2), category rect"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("Table 6.9: one landmark + compass (fix1), category rect"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("78.56"), std::string::npos) << "thesis Table 6.4 dx mean missing\n" << r.output;
+  EXPECT_NE(r.output.find("91.51"), std::string::npos) << "thesis Table 6.9 dy mean at 10 deg missing\n" << r.output;
+  EXPECT_NE(r.output.find("fixes: "), std::string::npos);
+  EXPECT_NE(r.output.find("NEES: mean 3-dof"), std::string::npos);
+  const std::string txt = readFile(dir.file("fixstudy.txt"));
+  EXPECT_EQ(txt, r.output);
+  const std::string csv = readFile(dir.file("fixes.csv"));
+  EXPECT_EQ(csv.rfind("category,trial,run,method,compass_sigma_deg,step,status", 0), 0u);
+  EXPECT_NE(csv.find("rect,0,0,fix2,,"), std::string::npos);
+  EXPECT_NE(csv.find("rect,3,0,fix1,3.5,"), std::string::npos);
+
+  // Same seed, same tables; another seed, other numbers.
+  const test::CliRun again = test::runCli("fixstudy --category rect --method both --seed 3 --tables " + tables);
+  EXPECT_EQ(again.output, r.output);
+  const test::CliRun other = test::runCli("fixstudy --category rect --method fix2 --seed 4 --tables " + tables);
+  ASSERT_EQ(other.exit_code, 0) << other.output;
+  EXPECT_EQ(other.output.find("Table 6.9"), std::string::npos);
+  EXPECT_NE(other.output.find("Table 6.4"), std::string::npos);
+}
+
+TEST(CliFixstudy, RejectsBadArguments) {
+  EXPECT_EQ(test::runCli("fixstudy --category circles").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --method fix3").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --pixel-sigma -1").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --runs 0").exit_code, 2);
+}
+
+}  // namespace
+}  // namespace stereoloc

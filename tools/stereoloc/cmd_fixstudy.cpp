@@ -1,0 +1,413 @@
+// `stereoloc fixstudy`: the global-localisation studies of thesis sections 6.3 (two landmarks,
+// Tables 6.4-6.8) and 6.4 (one landmark + compass, Tables 6.9-6.13), reproduced with the
+// simulator's pixel-level observations and printed in the thesis's format beside its numbers.
+//
+// Every step of every trial is an independent attempt (L1979: "the position at each step does
+// not use information acquired at any other step"). fix2 ignores the compass; fix1 is repeated
+// for compass noise 0..10 deg with the SAME observations (the thesis repeats "the experiment
+// for varying level of noise in robot orientation"); the compass noise uses common random
+// numbers across the levels (one N(0,1) draw per step, scaled by each sigma). Besides the
+// thesis's error statistics we report the consistency of the covariances (NEES), overall and
+// by the range of the farthest landmark used, since the linearisation fails for distant
+// landmarks (section 4.4).
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <random>
+#include <sstream>
+
+#include "solvers/global_fix.h"
+#include "src/atomic_file.h"
+#include "src/evaluation.h"
+#include "src/gaussian.h"
+#include "src/simulator.h"
+#include "src/yaml_util.h"
+#include "tools/stereoloc/cli_common.h"
+
+namespace stereoloc::cli {
+namespace {
+
+const std::vector<std::string> kCategories = {"rect", "spin-at", "rect-spin", "line-fixed", "line-turn"};
+const std::vector<double> kCompassLevelsDeg = {0, 1, 2, 3, 3.5, 4, 5, 6, 7, 8, 9, 10};
+const double kRangeBins[] = {600.0, 1000.0};  // mm: NEES by farthest landmark range <600, 600-1000, >1000
+
+struct FixStudyArgs {
+  std::string category = "all";
+  std::string method = "both";
+  double pixel_sigma = 0.5;
+  bool quantise = false;
+  bool second_order = false;
+  uint64_t seed = 1;
+  int runs = 1;
+  std::string out;
+  std::string tables;
+};
+
+// The thesis's numbers of one table: rows keyed by name (and compass level for 6.9-6.13).
+struct ThesisTable {
+  bool found = false;
+  std::map<std::string, std::array<double, 4>> rows;
+  std::string note;
+};
+
+std::string rowKey(const std::string& name, double compass_deg) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%s@%.1f", name.c_str(), compass_deg);
+  return buf;
+}
+
+std::string defaultTablesPath() {
+  std::vector<std::string> candidates;
+  if (const char* env = std::getenv("STEREOLOC_DATA_DIR")) candidates.push_back(std::string(env) + "/thesis_tables.yaml");
+#ifdef STEREOLOC_SOURCE_DATA_DIR
+  candidates.push_back(std::string(STEREOLOC_SOURCE_DATA_DIR) + "/thesis_tables.yaml");
+#endif
+#ifdef STEREOLOC_INSTALL_DATA_DIR
+  candidates.push_back(std::string(STEREOLOC_INSTALL_DATA_DIR) + "/thesis_tables.yaml");
+#endif
+  candidates.push_back("data/thesis_tables.yaml");
+  for (const std::string& c : candidates)
+    if (std::filesystem::exists(c)) return c;
+  return "";
+}
+
+ThesisTable loadThesisTable(const std::string& path, const std::string& id) {
+  ThesisTable t;
+  if (path.empty()) return t;
+  YamlReader in(path);
+  const YamlNode tables = in.child("tables");
+  for (size_t i = 0; i < tables.size(); ++i) {
+    const YamlNode tab = tables.at(i);
+    if (tab.getString("id") != id) continue;
+    t.found = true;
+    t.note = tab.getString("note", "");
+    const YamlNode rows = tab.child("rows");
+    for (size_t j = 0; j < rows.size(); ++j) {
+      const YamlNode r = rows.at(j);
+      const cv::FileNode v = r.node()["values"];
+      if (v.size() < 4) r.fail("values", "expected 4 numbers (Mean, Std, Min, Max)");
+      std::array<double, 4> vals;
+      for (int k = 0; k < 4; ++k) {
+        vals[k] = static_cast<double>(v[k]);
+        if (!std::isfinite(vals[k])) r.fail("values", "not a finite number");
+      }
+      t.rows[rowKey(r.getString("name"), r.getDouble("compass_noise_std_deg", 0.0))] = vals;
+    }
+  }
+  return t;
+}
+
+struct Sample {
+  double dx = 0, dy = 0, dtheta = 0;  // |error|: mm, mm, rad
+  std::optional<double> nees3, nees2;
+  double max_range = 0;  // mm, farthest landmark the fix used
+};
+
+struct Bucket {
+  int attempted = 0;
+  std::vector<Sample> fixes;
+  std::map<FixStatus, int> status_count;
+};
+
+uint64_t mixSeed(uint64_t seed, uint64_t a, uint64_t b, uint64_t c) {
+  // splitmix64 over the tuple: independent, reproducible per-trial seeds.
+  uint64_t z = seed;
+  for (uint64_t v : {a, b, c}) {
+    z += 0x9E3779B97F4A7C15ULL + v;
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+    z ^= z >> 31;
+  }
+  return z;
+}
+
+std::optional<double> neesOf(const Eigen::Vector3d& e, const Eigen::Matrix3d& P, int dof) {
+  try {
+    if (dof == 3) {
+      const Eigen::Matrix3d S = sqrtInformationUpper<3>(P);
+      return (S * e).squaredNorm();
+    }
+    const Eigen::Matrix2d S = sqrtInformationUpper<2>(Eigen::Matrix2d(P.topLeftCorner<2, 2>()));
+    return (S * e.head<2>()).squaredNorm();
+  } catch (const Error&) {
+    return std::nullopt;
+  }
+}
+
+void record(Bucket& b, const GlobalFix& f, const Step& step, const Pose2& truth, std::ostream* csv,
+            const std::string& prefix) {
+  ++b.attempted;
+  ++b.status_count[f.status];
+  if (!f.hasPose()) return;
+  Sample s;
+  const Eigen::Vector3d e = minus(f.pose, truth);
+  s.dx = std::fabs(e(0));
+  s.dy = std::fabs(e(1));
+  s.dtheta = std::fabs(e(2));
+  s.nees3 = neesOf(e, f.covariance, 3);
+  s.nees2 = neesOf(e, f.covariance, 2);
+  for (const Observation& o : step.observations)
+    for (int id : f.landmark_ids)
+      if (o.landmark_id == id) s.max_range = std::max(s.max_range, o.range);
+  b.fixes.push_back(s);
+  if (csv) {
+    char buf[512];
+    std::snprintf(buf, sizeof(buf), "%s,%ld,%s,%.3f,%.3f,%.6f,%.3f,%.3f,%.6f,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.4f,%.4f,%.1f\n",
+                  prefix.c_str(), step.step, toString(f.status).c_str(), truth.x, truth.y, truth.theta, f.pose.x,
+                  f.pose.y, f.pose.theta, f.covariance(0, 0), f.covariance(0, 1), f.covariance(0, 2),
+                  f.covariance(1, 1), f.covariance(1, 2), f.covariance(2, 2), s.nees3.value_or(NAN),
+                  s.nees2.value_or(NAN), s.max_range);
+    *csv << buf;
+  }
+}
+
+std::string statsCells(const ErrorStats& s, double scale = 1.0) {
+  char buf[128];
+  std::snprintf(buf, sizeof(buf), "%8.2f %8.2f %8.3f %8.2f", s.mean * scale, s.std * scale, s.min * scale,
+                s.max * scale);
+  return buf;
+}
+
+std::string thesisCells(const ThesisTable& t, const std::string& key) {
+  const auto it = t.rows.find(key);
+  if (it == t.rows.end()) return "       -        -        -        -";
+  char buf[128];
+  std::snprintf(buf, sizeof(buf), "%8.2f %8.2f %8.3f %8.2f", it->second[0], it->second[1], it->second[2], it->second[3]);
+  return buf;
+}
+
+ErrorStats statsOf(const std::vector<Sample>& v, double Sample::*field) {
+  std::vector<double> x;
+  x.reserve(v.size());
+  for (const Sample& s : v) x.push_back(s.*field);
+  return errorStats(x);
+}
+
+std::string fixRateLine(const Bucket& b) {
+  std::ostringstream os;
+  char buf[160];
+  std::snprintf(buf, sizeof(buf), "fixes: %zu of %d attempted steps (%.1f %%);", b.fixes.size(), b.attempted,
+                b.attempted ? 100.0 * b.fixes.size() / b.attempted : 0.0);
+  os << buf;
+  for (const auto& [status, count] : b.status_count) os << " " << toString(status) << " " << count;
+  return os.str();
+}
+
+// Mean NEES (3 dof and position-only 2 dof), the 95 % band of such a mean, the fraction of
+// single fixes inside their own 95 % bound, and the 3-dof mean by farthest landmark range.
+std::string neesLines(const std::vector<Sample>& v) {
+  std::ostringstream os;
+  double s3 = 0, s2 = 0;
+  int n3 = 0, n2 = 0, in3 = 0;
+  const double q3 = chi2Quantile(0.95, 3);
+  std::array<double, 3> bin_sum{0, 0, 0};
+  std::array<int, 3> bin_n{0, 0, 0};
+  for (const Sample& s : v) {
+    if (s.nees3) {
+      s3 += *s.nees3;
+      ++n3;
+      in3 += *s.nees3 <= q3 ? 1 : 0;
+      const int bin = s.max_range < kRangeBins[0] ? 0 : (s.max_range < kRangeBins[1] ? 1 : 2);
+      bin_sum[bin] += *s.nees3;
+      ++bin_n[bin];
+    }
+    if (s.nees2) {
+      s2 += *s.nees2;
+      ++n2;
+    }
+  }
+  char buf[320];
+  if (n3 > 0) {
+    const NeesBand b3 = neesBand(3, n3), b2 = neesBand(2, std::max(n2, 1));
+    std::snprintf(buf, sizeof(buf),
+                  "NEES: mean 3-dof %.2f (95%% band of the mean [%.2f, %.2f]), position 2-dof %.2f ([%.2f, %.2f]); "
+                  "%.1f %% of fixes within chi2_0.95(3) = %.2f (expected 95 %%)\n",
+                  s3 / n3, b3.lo, b3.hi, n2 ? s2 / n2 : NAN, b2.lo, b2.hi, 100.0 * in3 / n3, q3);
+    os << buf;
+    os << "NEES 3-dof by farthest landmark range:";
+    const char* names[] = {"< 600 mm", "600-1000 mm", ">= 1000 mm"};
+    for (int i = 0; i < 3; ++i) {
+      if (bin_n[i] == 0) {
+        std::snprintf(buf, sizeof(buf), "  %s: -", names[i]);
+      } else {
+        std::snprintf(buf, sizeof(buf), "  %s: %.2f (n=%d)", names[i], bin_sum[i] / bin_n[i], bin_n[i]);
+      }
+      os << buf;
+    }
+    os << "\n";
+  } else {
+    os << "NEES: no fixes\n";
+  }
+  return os.str();
+}
+
+std::string header(const char* first) {
+  char buf[256];
+  std::snprintf(buf, sizeof(buf), "%-14s %-35s | %-35s\n%-14s %8s %8s %8s %8s | %8s %8s %8s %8s\n", "", "ours",
+                "thesis", first, "Mean", "Std", "Min", "Max", "Mean", "Std", "Min", "Max");
+  return buf;
+}
+
+void runFixStudy(const FixStudyArgs& a) {
+  std::vector<std::string> cats;
+  if (a.category == "all") {
+    cats = kCategories;
+  } else {
+    cats = {a.category};
+  }
+  const bool do2 = a.method == "both" || a.method == "fix2";
+  const bool do1 = a.method == "both" || a.method == "fix1";
+  const std::string tables_path = a.tables.empty() ? defaultTablesPath() : a.tables;
+
+  SimulationConfig cfg;
+  cfg.pixel_sigma = a.pixel_sigma;
+  cfg.quantise = a.quantise;
+  cfg.compass = false;  // fix1's compass is drawn here, per noise level
+  cfg.validate();
+
+  GlobalFixOptions opt2;
+  opt2.second_order_covariance = a.second_order;
+  opt2.allow_one_landmark = false;
+  opt2.allow_multi = false;
+  GlobalFixOptions opt1;
+  opt1.second_order_covariance = a.second_order;
+  opt1.allow_two_landmarks = false;
+  opt1.allow_multi = false;
+
+  std::unique_ptr<AtomicOutputFile> csv;
+  if (!a.out.empty()) {
+    std::filesystem::create_directories(a.out);
+    csv = std::make_unique<AtomicOutputFile>(a.out + "/fixes.csv");
+    csv->stream() << "category,trial,run,method,compass_sigma_deg,step,status,true_x,true_y,true_theta,x,y,theta,"
+                     "cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,nees3,nees2,max_range\n";
+  }
+
+  std::ostringstream report;
+  {
+    char buf[400];
+    std::snprintf(buf, sizeof(buf),
+                  "stereoloc fixstudy: thesis sections 6.3 (two landmarks) and 6.4 (one landmark + compass)\n"
+                  "simulator: goal-corner landmarks, pixel sigma %.3f px%s, %d run(s) per trial, seed %llu; "
+                  "%s-order covariance\n"
+                  "errors are |estimate - truth| over all fixes of all trials; thesis numbers from %s\n\n",
+                  a.pixel_sigma, a.quantise ? " + quantisation" : "", a.runs, static_cast<unsigned long long>(a.seed),
+                  a.second_order ? "second" : "first",
+                  tables_path.empty() ? "(not found)" : tables_path.c_str());
+    report << buf;
+  }
+
+  for (const std::string& cat : cats) {
+    const size_t ci = static_cast<size_t>(std::find(kCategories.begin(), kCategories.end(), cat) - kCategories.begin());
+    const int trials = scenarioTrialCount(cat);
+    Bucket b2;
+    std::vector<Bucket> b1(kCompassLevelsDeg.size());
+    for (int trial = 0; trial < trials; ++trial) {
+      for (int run = 0; run < a.runs; ++run) {
+        const uint64_t s = mixSeed(a.seed, ci, static_cast<uint64_t>(trial), static_cast<uint64_t>(run));
+        const Dataset d = simulate(cat, trial, cfg, s);
+        std::mt19937_64 compass_rng(mixSeed(s, 0xC0FFEE, 0, 0));
+        std::normal_distribution<double> N(0.0, 1.0);
+        for (size_t k = 0; k < d.steps.size(); ++k) {
+          const double z = N(compass_rng);  // drawn for every step, fix or not
+          if (k >= d.groundtruth.size() || !d.groundtruth[k]) continue;
+          const Pose2& truth = *d.groundtruth[k];
+          Step st = d.steps[k];
+          st.compass.reset();
+          char prefix[96];
+          if (do2) {
+            std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix2,", cat.c_str(), trial, run);
+            record(b2, globalFix(st, d.map, opt2), st, truth, csv ? &csv->stream() : nullptr, prefix);
+          }
+          if (do1) {
+            for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
+              const double sigma = deg2rad(kCompassLevelsDeg[l]);
+              st.compass = wrapAngle(truth.theta + sigma * z);
+              st.compass_sigma = std::max(sigma, deg2rad(0.01));
+              std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix1,%g", cat.c_str(), trial, run, kCompassLevelsDeg[l]);
+              record(b1[l], globalFix(st, d.map, opt1), st, truth, csv ? &csv->stream() : nullptr, prefix);
+            }
+          }
+        }
+      }
+    }
+
+    char buf[400];
+    if (do2) {
+      const std::string id = "6." + std::to_string(4 + ci);
+      const ThesisTable t = loadThesisTable(tables_path, id);
+      std::snprintf(buf, sizeof(buf), "Table %s: two landmarks (fix2), category %s, %d trials x %d run(s)\n", id.c_str(),
+                    cat.c_str(), trials, a.runs);
+      report << buf << fixRateLine(b2) << "\n" << header("");
+      report << "dx (mm)        " << statsCells(statsOf(b2.fixes, &Sample::dx)) << " | " << thesisCells(t, rowKey("dx_mm", 0))
+             << "\n";
+      report << "dy (mm)        " << statsCells(statsOf(b2.fixes, &Sample::dy)) << " | " << thesisCells(t, rowKey("dy_mm", 0))
+             << "\n";
+      report << "dtheta (deg)   " << statsCells(statsOf(b2.fixes, &Sample::dtheta), rad2deg(1.0)) << " | "
+             << thesisCells(t, rowKey("dtheta_deg", 0)) << "\n";
+      report << neesLines(b2.fixes);
+      if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
+      report << "\n";
+    }
+    if (do1) {
+      const std::string id = "6." + std::to_string(9 + ci);
+      const ThesisTable t = loadThesisTable(tables_path, id);
+      std::snprintf(buf, sizeof(buf), "Table %s: one landmark + compass (fix1), category %s, %d trials x %d run(s)\n",
+                    id.c_str(), cat.c_str(), trials, a.runs);
+      report << buf << fixRateLine(b1[0]) << "\n" << header("compass sigma");
+      for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
+        const double lv = kCompassLevelsDeg[l];
+        std::snprintf(buf, sizeof(buf), "%4.1f deg  dx   ", lv);
+        report << buf << statsCells(statsOf(b1[l].fixes, &Sample::dx)) << " | " << thesisCells(t, rowKey("dx_mm", lv)) << "\n";
+        report << "          dy   " << statsCells(statsOf(b1[l].fixes, &Sample::dy)) << " | "
+               << thesisCells(t, rowKey("dy_mm", lv)) << "\n";
+      }
+      for (size_t l : {size_t{0}, size_t{4}, size_t{11}}) {
+        std::snprintf(buf, sizeof(buf), "at %.1f deg compass: ", kCompassLevelsDeg[l]);
+        report << buf << neesLines(b1[l].fixes);
+      }
+      if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
+      report << "\n";
+    }
+  }
+  std::cout << report.str() << std::flush;
+  if (!a.out.empty()) {
+    writeFileAtomically(a.out + "/fixstudy.txt", report.str());
+    csv->commit();
+  }
+}
+
+}  // namespace
+
+void add_fixstudy_command(CLI::App& app) {
+  auto a = std::make_shared<FixStudyArgs>();
+  CLI::App* sub = app.add_subcommand(
+      "fixstudy", "Reproduce the thesis's global-fix studies (sections 6.3, 6.4; Tables 6.4-6.13) with the simulator");
+  sub->add_option("--category", a->category, "rect, spin-at, rect-spin, line-fixed, line-turn or all")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"rect", "spin-at", "rect-spin", "line-fixed", "line-turn", "all"}));
+  sub->add_option("--method", a->method, "fix1 (one landmark + compass), fix2 (two landmarks) or both")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"fix1", "fix2", "both"}));
+  sub->add_option("--pixel-sigma", a->pixel_sigma, "Gaussian pixel noise on u_l, v_l, u_r, v_r (px)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  sub->add_flag("--quantise", a->quantise, "Round the noisy pixel coordinates to whole pixels");
+  sub->add_flag("--second-order", a->second_order,
+                "Add the second-order covariance terms (GlobalFixOptions::second_order_covariance)");
+  sub->add_option("--seed", a->seed, "Study seed (each trial's seed derives from it)")->capture_default_str();
+  sub->add_option("--runs", a->runs, "Noise realisations per trial (the thesis ran one)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  sub->add_option("--out", a->out, "Directory for fixstudy.txt and fixes.csv (created if missing)");
+  sub->add_option("--tables", a->tables, "Thesis tables YAML (default: data/thesis_tables.yaml)")
+      ->check(CLI::ExistingFile);
+  sub->callback([a] { runFixStudy(*a); });
+}
+
+}  // namespace stereoloc::cli
