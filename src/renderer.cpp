@@ -38,10 +38,13 @@ struct Box {
 Box projectBox(const std::vector<Eigen::Vector3d>& pts, const Eigen::Vector3d& cam, const Eigen::Matrix3d& Rwv,
                double f, double ou, double ov, int W, int H) {
   double umin = 1e300, umax = -1e300, vmin = 1e300, vmax = -1e300;
-  bool any_front = false;
+  bool any_front = false, any_behind = false;
   for (const Eigen::Vector3d& p : pts) {
     const Eigen::Vector3d q = Rwv.transpose() * (p - cam);
-    if (q.x() < 1.0) return {0, W - 1, 0, H - 1};
+    if (q.x() < 1.0) {
+      any_behind = true;
+      continue;
+    }
     any_front = true;
     const double u = ou - f * q.y() / q.x(), v = ov - f * q.z() / q.x();
     umin = std::min(umin, u);
@@ -49,7 +52,10 @@ Box projectBox(const std::vector<Eigen::Vector3d>& pts, const Eigen::Vector3d& c
     vmin = std::min(vmin, v);
     vmax = std::max(vmax, v);
   }
+  // Wholly behind the camera plane: invisible (a convex object behind x = 1 mm cannot reach the
+  // image). Straddling it: its projection is unbounded, so the whole image.
   if (!any_front) return {1, 0, 1, 0};
+  if (any_behind) return {-1, W, -1, H};
   Box b;
   b.u0 = static_cast<int>(std::max(-1.0, std::floor(umin - 1.0)));
   b.u1 = static_cast<int>(std::min(static_cast<double>(W), std::ceil(umax + 1.0)));

@@ -32,13 +32,25 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
   const double cy = 0.5 * W, y_lo = cy - 0.5 * g.goal_width, y_hi = cy + 0.5 * g.goal_width;
   const double hw = 0.5 * g.line_width, t = g.corner_triangle;
 
-  // Long walls (with the corners) and the goal-line walls beside the goal mouths.
-  s.prisms_.push_back(box(-T, -T, L + T, 0, 0, H));
-  s.prisms_.push_back(box(-T, W, L + T, W + T, 0, H));
-  s.prisms_.push_back(box(-T, 0, 0, y_lo - T, 0, H));
-  s.prisms_.push_back(box(-T, y_hi + T, 0, W, 0, H));
-  s.prisms_.push_back(box(L, 0, L + T, y_lo - T, 0, H));
-  s.prisms_.push_back(box(L, y_hi + T, L + T, W, 0, H));
+  // Long walls (with the corners) and the goal-line walls beside the goal mouths. Cut into pieces
+  // of at most kPiece mm along their length: the renderer culls by image bounding box, and a
+  // short piece that lies wholly in front of (or behind) the camera gets a tight (or no) box.
+  constexpr double kPiece = 300.0;
+  auto wall = [&](double x0, double y0, double x1, double y1) {
+    const bool along_x = (x1 - x0) >= (y1 - y0);
+    const double len = along_x ? x1 - x0 : y1 - y0;
+    const int pieces = std::max(1, static_cast<int>(std::ceil(len / kPiece)));
+    for (int k = 0; k < pieces; ++k) {
+      const double a = k * len / pieces, b = (k + 1 == pieces) ? len : (k + 1) * len / pieces;
+      s.prisms_.push_back(along_x ? box(x0 + a, y0, x0 + b, y1, 0, H) : box(x0, y0 + a, x1, y0 + b, 0, H));
+    }
+  };
+  wall(-T, -T, L + T, 0);
+  wall(-T, W, L + T, W + T);
+  wall(-T, 0, 0, y_lo - T);
+  wall(-T, y_hi + T, 0, W);
+  wall(L, 0, L + T, y_lo - T);
+  wall(L, y_hi + T, L + T, W);
   // Goals: side walls from the mouth to the back, and the back wall. Polygon edges run
   // (x0,y0)->(x1,y0)->(x1,y1)->(x0,y1): side 0 faces -y, 1 faces +x, 2 faces +y, 3 faces -x.
   for (int side = 0; side < 2; ++side) {
