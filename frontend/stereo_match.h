@@ -29,7 +29,7 @@ struct StereoParams {
   double uniqueness = 0.05;      // best score minus any other local maximum
   double floor_search_px = 4.0;  // half-width of the search around the floor disparity; <= 0: full range
   double corner_pixel_sigma = 0.5;  // px, sigma of (5.28) for corners and junctions
-  double goal_pixel_sigma = 0.3;    // px, sigma of (5.28) for goal corners
+  double goal_pixel_sigma = 0.15;   // px, sigma of (5.28) for goal corners (calibrated: bench_frontend)
 };
 
 struct DisparityRange {

@@ -544,7 +544,7 @@ void BM_OpenCV_LSD(benchmark::State& st) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  int pairs = 200, goal_pairs = 1200;
+  int pairs = 200, goal_pairs = 1300;
   uint64_t seed = 4;
   bool table = true;
   std::vector<char*> rest;
