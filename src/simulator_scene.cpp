@@ -23,6 +23,12 @@ Prism box(double x0, double y0, double x1, double y1, double z0, double z1, Surf
 
 std::string toString(Obstacle::Kind kind) { return kind == Obstacle::Kind::Robot ? "robot" : "ball"; }
 
+Obstacle::Kind obstacleKindFromString(const std::string& name) {
+  if (name == "robot") return Obstacle::Kind::Robot;
+  if (name == "ball") return Obstacle::Kind::Ball;
+  throw Error("unknown obstacle kind '" + name + "' (expected robot or ball)");
+}
+
 Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles) {
   if (!map.geometry()) throw Error("map '" + map.name() + "' has no field geometry: cannot build the 3D scene");
   Scene s;

@@ -32,7 +32,8 @@ struct Obstacle {
   double heading = 0.0;                                // rad (robots)
   double size = 75.0;  // mm: robot cube side (its height too), or ball diameter (42.7 mm golf ball)
 };
-std::string toString(Obstacle::Kind kind);
+std::string toString(Obstacle::Kind kind);                  // "robot" | "ball"
+Obstacle::Kind obstacleKindFromString(const std::string& name);  // throws stereoloc::Error
 
 // Linear RGB colour, components in [0, 1].
 using Colour = Eigen::Vector3f;

@@ -258,6 +258,9 @@ TEST(Simulator, LandmarkSetNames) {
   EXPECT_EQ(landmarkSetFromString(toString(LandmarkSet::All)), LandmarkSet::All);
   EXPECT_EQ(landmarkSetFromString(toString(LandmarkSet::GoalCorners)), LandmarkSet::GoalCorners);
   EXPECT_THROW(landmarkSetFromString("some"), Error);
+  EXPECT_EQ(obstacleKindFromString(toString(Obstacle::Kind::Ball)), Obstacle::Kind::Ball);
+  EXPECT_EQ(obstacleKindFromString(toString(Obstacle::Kind::Robot)), Obstacle::Kind::Robot);
+  EXPECT_THROW(obstacleKindFromString("cat"), Error);
 }
 
 }  // namespace
