@@ -328,6 +328,7 @@ void MrclamImportConfig::validate() const {
   check(!sigma_range_mm || (std::isfinite(*sigma_range_mm) && *sigma_range_mm > 0), "sigma_range_mm");
   check(!sigma_bearing_rad || (std::isfinite(*sigma_bearing_rad) && *sigma_bearing_rad > 0), "sigma_bearing_rad");
   check(std::isfinite(odometry_window_s) && odometry_window_s > 0, "odometry_window_s");
+  check(std::isfinite(odometry_noise_scale) && odometry_noise_scale > 0, "odometry_noise_scale");
 }
 
 FieldMap mrclamMap(const std::map<int, Eigen::Vector2d>& landmarks, const std::vector<Eigen::Vector2d>& extent,
@@ -497,13 +498,14 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
   params.wheel_base_mm = config.wheel_base_mm;
   const OdometryNoiseFit& fit = rep.odometry_fit;
   if (fit.windows >= 10) {
-    params.k_left = params.k_right = fit.k_heading;
+    params.k_left = params.k_right = config.odometry_noise_scale * fit.k_heading;
     const double n = std::max(1.0, fit.mean_steps);
     const double along = fit.along_error.mad_sigma, lateral = fit.lateral_error.mad_sigma;
     const double explained = fit.k_heading * fit.median_travel_mm / 4.0;
-    params.control_variance_floor = Eigen::Vector3d(std::max(1.0, (along * along - explained) / n),
-                                                    std::max(1.0, lateral * lateral / n),
-                                                    params.control_variance_floor.z());
+    params.control_variance_floor =
+        Eigen::Vector3d(config.odometry_noise_scale * std::max(1.0, (along * along - explained) / n),
+                        config.odometry_noise_scale * std::max(1.0, lateral * lateral / n),
+                        params.control_variance_floor.z());
   }
   rep.odometry = params;
   out.odometry = params;

@@ -304,6 +304,15 @@ TEST_F(MrclamSlice, RowCountsBarcodeMappingAndTimeAlignment) {
   EXPECT_GT(rep.sigma_bearing_rad, 1e-3);
   EXPECT_LT(rep.sigma_bearing_rad, deg2rad(5.0));
   EXPECT_NE(rep.summary().find("of other robots"), std::string::npos);
+
+  // The odometry noise scale multiplies the fitted model and nothing else.
+  ASSERT_GE(rep.odometry_fit.windows, 10u);
+  MrclamImportConfig scaled = config;
+  scaled.odometry_noise_scale = 4.0;
+  const MrclamImport imp4 = importMrclam(dir_.path(), scaled);
+  EXPECT_NEAR(imp4.odometry.k_left, 4.0 * imp.odometry.k_left, 1e-12);
+  EXPECT_NEAR(imp4.odometry.control_variance_floor.x(), 4.0 * imp.odometry.control_variance_floor.x(), 1e-9);
+  EXPECT_EQ(imp4.steps.size(), imp.steps.size());
 }
 
 TEST_F(MrclamSlice, DeadReckoningFollowsGroundTruthOverTheSlice) {

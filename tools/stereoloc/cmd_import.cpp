@@ -20,6 +20,7 @@ struct ImportMrclamOptions {
   double wheel_base_mm = 260.0;
   double sigma_range_mm = 0.0;       // 0: estimate
   double sigma_bearing_deg = 0.0;    // 0: estimate
+  double odometry_noise_scale = 1.0;
   bool force = false;
 };
 
@@ -28,6 +29,7 @@ void runImportMrclam(const ImportMrclamOptions& o) {
   config.robot = o.robot;
   config.rate_hz = o.rate_hz;
   config.wheel_base_mm = o.wheel_base_mm;
+  config.odometry_noise_scale = o.odometry_noise_scale;
   if (o.sigma_range_mm > 0) config.sigma_range_mm = o.sigma_range_mm;
   if (o.sigma_bearing_deg > 0) config.sigma_bearing_rad = deg2rad(o.sigma_bearing_deg);
   const MrclamImport imp = importMrclam(o.src_dir, config);
@@ -78,6 +80,10 @@ void add_import_command(CLI::App& app) {
       ->check(CLI::PositiveNumber);
   m->add_option("--sigma-bearing-deg", opts->sigma_bearing_deg,
                 "Bearing sigma, degrees (default: estimated against ground truth)")
+      ->check(CLI::PositiveNumber);
+  m->add_option("--odometry-noise-scale", opts->odometry_noise_scale,
+                "Multiplies the odometry noise fitted against ground truth (k and the x, y control floors)")
+      ->capture_default_str()
       ->check(CLI::PositiveNumber);
   m->add_option("--out", opts->out_dir, "Output dataset directory (default: print the summary only)");
   m->add_flag("--force", opts->force, "Replace an existing non-empty output directory");
