@@ -180,6 +180,8 @@ TEST(ParticleFilter, ReinjectionRecoversFromAKidnap) {
       ParticleFilterConfig pc;
       pc.init = knownBelief(run.truth[0], Eigen::Vector3d(100.0, 100.0, 0.003).asDiagonal());
       pc.reinjected = reinjected;
+      // No global fixes: only re-injection can find the robot again.
+      pc.global_fix = [](const Step&, const FieldMap&) -> std::optional<PoseFix> { return std::nullopt; };
       ParticleFilter pf(map, odo, pc, 5);
       int recovered = -1;
       for (const Step& s : run.steps) {
