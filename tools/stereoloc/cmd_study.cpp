@@ -1,0 +1,110 @@
+// `stereoloc study`: the accuracy comparison study (the main job; `make demo` runs it), and
+// `stereoloc study merge` for sharded studies.
+#include <CLI/CLI.hpp>
+#include <memory>
+
+#include "tools/stereoloc/cli_common.h"
+#include "tools/stereoloc/study.h"
+
+namespace stereoloc::cli {
+namespace {
+
+std::vector<std::string> splitComma(const std::string& s) {
+  std::vector<std::string> out;
+  size_t start = 0;
+  while (start <= s.size()) {
+    const size_t comma = s.find(',', start);
+    const std::string item = s.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    if (!item.empty()) out.push_back(item);
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  return out;
+}
+
+struct StudyArgs {
+  std::string scenarios = "thesis";
+  std::string methods = "fix1,fix2,ekf,ekf:random,ekf:global,pf,window,batch";
+  std::string shard = "0/1";
+  std::string init = "known";
+  StudyConfig config;
+  std::vector<std::string> merge_dirs;
+  std::string merge_out;
+  bool merge_force = false;
+};
+
+void runFromArgs(StudyArgs& a) {
+  StudyConfig& c = a.config;
+  c.scenarios = a.scenarios == "thesis" ? std::vector<std::string>{"circle", "line", "spin", "kidnap"} : splitComma(a.scenarios);
+  c.methods = splitComma(a.methods);
+  if (c.scenarios.empty()) throw UsageError("--scenarios is empty");
+  if (c.methods.empty()) throw UsageError("--methods is empty");
+  const size_t slash = a.shard.find('/');
+  try {
+    if (slash == std::string::npos) throw std::invalid_argument("no slash");
+    size_t used = 0;
+    c.shard_index = std::stoi(a.shard.substr(0, slash), &used);
+    if (used != slash) throw std::invalid_argument("index");
+    const std::string n = a.shard.substr(slash + 1);
+    c.shard_count = std::stoi(n, &used);
+    if (used != n.size()) throw std::invalid_argument("count");
+  } catch (const std::exception&) {
+    throw UsageError("--shard must be I/N with integers, e.g. 0/4");
+  }
+  try {
+    c.method_options.init = initModeFromString(a.init);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--init: ") + e.what());
+  }
+  runStudy(c);
+}
+
+}  // namespace
+
+void add_study_command(CLI::App& app) {
+  auto a = std::make_shared<StudyArgs>();
+  CLI::App* sub = app.add_subcommand(
+      "study",
+      "Accuracy comparison: simulate each scenario and trial with a deterministic seed, run every method on the same "
+      "data, evaluate against the ground truth; writes trials.csv, steps.csv, summary.csv, report.md and PNG figures");
+  sub->add_option("--scenarios", a->scenarios, "Comma-separated scenario names, or 'thesis' (circle,line,spin,kidnap)")
+      ->capture_default_str();
+  sub->add_option("--methods", a->methods,
+                  "Comma-separated methods: fix1, fix2, ekf, pf, window, batch, deadreckoning; append :known, "
+                  ":random or :global to choose the start (e.g. ekf:random)")
+      ->capture_default_str();
+  sub->add_option("--trials", a->config.trials, "Trials per scenario")->capture_default_str()->check(CLI::PositiveNumber);
+  sub->add_option("--seed", a->config.seed, "Study seed (each trial's seed derives from it)")->capture_default_str();
+  sub->add_option("--frontend", a->config.frontend, "Observations: pixels (simulated stereo pixels) or images")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"pixels", "images"}));
+  sub->add_option("--threads", a->config.threads, "Worker threads (0 = all cores); results do not depend on it")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  sub->add_option("--shard", a->shard, "Run only trials I, I+N, I+2N, ... (0-based I/N); merge with 'study merge'")
+      ->capture_default_str();
+  sub->add_option("--init", a->init, "Default start of the trackers: known, random or global")->capture_default_str();
+  sub->add_option("--particles", a->config.method_options.particles, "Particles of the particle filter")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  sub->add_option("--window", a->config.method_options.window, "Window size W of the sliding-window smoother")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  sub->add_option("--out", a->config.out_dir, "Output directory (required)");
+  sub->add_flag("--force", a->config.force, "Replace a non-empty output directory");
+  sub->add_flag("!--no-progress", a->config.progress, "No progress bar (it is shown only when stderr is a terminal)");
+
+  CLI::App* merge = sub->add_subcommand("merge", "Merge sharded study directories and recompute summary, report and figures");
+  merge->add_option("dirs", a->merge_dirs, "Study directories written with --shard")->required()->check(CLI::ExistingDirectory);
+  merge->add_option("--out", a->merge_out, "Output directory")->required();
+  merge->add_flag("--force", a->merge_force, "Replace a non-empty output directory");
+  merge->callback([a] { mergeStudies(a->merge_dirs, a->merge_out, a->merge_force); });
+
+  sub->callback([a, merge] {
+    if (merge->parsed()) return;
+    if (a->config.out_dir.empty()) throw UsageError("study: --out DIR is required");
+    runFromArgs(*a);
+  });
+}
+
+}  // namespace stereoloc::cli

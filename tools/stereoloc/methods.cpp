@@ -1,0 +1,166 @@
+#include "tools/stereoloc/methods.h"
+
+#include <chrono>
+#include <memory>
+
+#include "solvers/batch_smoother.h"
+#include "solvers/ekf.h"
+#include "solvers/global_fix.h"
+#include "solvers/particle_filter.h"
+#include "solvers/sliding_window_smoother.h"
+#include "src/odometry_model.h"
+#include "tools/stereoloc/cli_common.h"
+
+namespace stereoloc::cli {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point start, size_t steps) {
+  const double ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+  return steps > 0 ? ms / steps : 0.0;
+}
+
+InitialBelief beliefFor(InitMode mode, const Dataset& d, const MethodOptions& o, std::mt19937_64& rng) {
+  std::optional<Pose2> truth = d.initial_pose;
+  if (!truth && !d.groundtruth.empty()) truth = d.groundtruth.front();
+  if (mode == InitMode::Known && !truth)
+    throw UsageError("init 'known' needs the true initial pose, and dataset '" + d.name + "' has none (use :global)");
+  return makeInitialBelief(mode, truth, d.map, o.init_config, rng);
+}
+
+MethodRun runEstimator(Estimator& est, const Dataset& d) {
+  MethodRun run;
+  const auto start = Clock::now();
+  for (const Step& s : d.steps) est.process(s);
+  run.estimates = est.finish();
+  run.ms_per_step = msSince(start, d.steps.size());
+  return run;
+}
+
+// Dead reckoning: the known start chained through the odometry model (B.16), covariance (5.9).
+MethodRun runDeadReckoning(const Dataset& d, const InitialBelief& init) {
+  MethodRun run;
+  if (init.mode == InitMode::Global) throw UsageError("deadreckoning needs a known or random start");
+  const auto start = Clock::now();
+  Pose2 pose = init.pose;
+  Eigen::Matrix3d P = init.covariance;
+  for (size_t i = 0; i < d.steps.size(); ++i) {
+    const Step& s = d.steps[i];
+    if (i > 0) {
+      const PosePrediction pred = predictPose(pose, P, s.d_left, s.d_right, d.odometry);
+      pose = pred.pose;
+      P = pred.covariance;
+    }
+    Estimate e;
+    e.step = s.step;
+    e.t = s.t;
+    e.pose = pose;
+    e.covariance = P;
+    e.status = EstimateStatus::Predicted;
+    run.estimates.push_back(e);
+  }
+  run.ms_per_step = msSince(start, d.steps.size());
+  return run;
+}
+
+// Global fixes alone, every step on its own (thesis 6.3, 6.4).
+MethodRun runFixes(const Dataset& d, bool one_landmark) {
+  MethodRun run;
+  GlobalFixOptions fo;
+  fo.allow_one_landmark = one_landmark;
+  fo.allow_two_landmarks = !one_landmark;
+  fo.allow_multi = false;
+  const auto start = Clock::now();
+  for (const Step& s : d.steps) {
+    Step st = s;
+    if (st.compass && st.compass_sigma <= 0) st.compass_sigma = d.compass_sigma;
+    size_t identified = 0;
+    for (const Observation& o : st.observations) identified += o.landmark_id >= 0 ? 1 : 0;
+    if (identified == 0) continue;
+    ++run.attempted_steps;
+    const GlobalFix fix = globalFix(st, d.map, fo);
+    if (fix.status != FixStatus::Ok) continue;
+    ++run.fixed_steps;
+    Estimate e;
+    e.step = s.step;
+    e.t = s.t;
+    e.pose = fix.pose;
+    e.covariance = fix.covariance;
+    e.status = EstimateStatus::Tracking;
+    run.estimates.push_back(e);
+  }
+  run.ms_per_step = msSince(start, d.steps.size());
+  return run;
+}
+
+}  // namespace
+
+const std::vector<std::string>& methodNames() {
+  static const std::vector<std::string> names = {"fix1", "fix2", "ekf", "pf", "window", "batch", "deadreckoning"};
+  return names;
+}
+
+std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init) {
+  const size_t colon = spec.find(':');
+  const std::string name = spec.substr(0, colon);
+  bool known = false;
+  for (const std::string& n : methodNames()) known |= n == name;
+  if (!known) throw UsageError("unknown method '" + name + "' (expected fix1, fix2, ekf, pf, window, batch or deadreckoning)");
+  InitMode init = default_init;
+  if (colon != std::string::npos) {
+    try {
+      init = initModeFromString(spec.substr(colon + 1));
+    } catch (const Error&) {
+      throw UsageError("method '" + spec + "': unknown init '" + spec.substr(colon + 1) + "' (expected known, random or global)");
+    }
+  }
+  return {name, init};
+}
+
+MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& o) {
+  const auto [name, init_mode] = parseMethodSpec(spec, o.init);
+  std::mt19937_64 rng(seed);
+  MethodRun run;
+  if (name == "fix1" || name == "fix2") {
+    run = runFixes(d, name == "fix1");
+  } else if (name == "deadreckoning") {
+    run = runDeadReckoning(d, beliefFor(init_mode, d, o, rng));
+  } else if (name == "ekf") {
+    EkfConfig c;
+    c.init = beliefFor(init_mode, d, o, rng);
+    c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
+    Ekf ekf(d.map, d.odometry, c);
+    run = runEstimator(ekf, d);
+  } else if (name == "pf") {
+    ParticleFilterConfig c;
+    c.init = beliefFor(init_mode, d, o, rng);
+    c.particles = o.particles;
+    ParticleFilter pf(d.map, d.odometry, c, rng());
+    run = runEstimator(pf, d);
+  } else if (name == "window") {
+    SlidingWindowConfig c;
+    c.window = o.window;
+    c.init = beliefFor(init_mode, d, o, rng);
+    c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
+    SlidingWindowSmoother w(d.map, d.odometry, c);
+    run = runEstimator(w, d);
+  } else {  // batch
+    BatchSmootherConfig c;
+    c.init = beliefFor(init_mode, d, o, rng);
+    c.loss.type = o.loss;
+    c.loss.scale = o.loss_scale;
+    BatchSmoother b(d.map, d.odometry, c);
+    run = runEstimator(b, d);
+  }
+  run.method = spec;
+  if (name != "fix1" && name != "fix2") {
+    for (const Estimate& e : run.estimates) {
+      if (!e.pose.isFinite() || !e.covariance.allFinite())
+        throw Error("method '" + spec + "' produced a non-finite estimate at step " + std::to_string(e.step));
+    }
+  }
+  return run;
+}
+
+}  // namespace stereoloc::cli

@@ -1,0 +1,44 @@
+#pragma once
+// The estimation methods the CLI offers (localize, refine, stream, study, realdata), built
+// from a Dataset by name. A method spec is NAME or NAME:INIT, e.g. "ekf", "ekf:random",
+// "pf:global", "window", "batch", "fix2", "deadreckoning".
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "solvers/initialisation.h"
+#include "solvers/smoother_common.h"
+#include "src/dataset.h"
+#include "src/types.h"
+
+namespace stereoloc::cli {
+
+struct MethodOptions {
+  InitMode init = InitMode::Known;   // overridden by a ":init" suffix in the method spec
+  InitConfig init_config;            // noise of the known start, spread of the random start
+  int particles = 3000;              // pf
+  int window = 20;                   // window
+  RobustLoss loss = RobustLoss::None;  // batch and window range-bearing factors
+  double loss_scale = 2.0;           // whitened units
+  bool gate_enabled = true;          // ekf, window
+};
+
+struct MethodRun {
+  std::string method;                // the spec as given
+  std::vector<Estimate> estimates;   // one per step that produced a pose (fixes: steps with a fix)
+  double ms_per_step = 0;            // wall-clock, mean over steps
+  long attempted_steps = 0;          // fixes: steps with at least one observation
+  long fixed_steps = 0;              // fixes: steps that gave a fix
+};
+
+// The names accepted before the optional ":init".
+const std::vector<std::string>& methodNames();
+
+// Splits "ekf:random" into ("ekf", Random); throws UsageError for an unknown name or init.
+std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init);
+
+// Runs a method over a whole dataset. `seed` drives the known-start noise, the random start and
+// the particle filter, so a run is reproducible.
+MethodRun runMethod(const std::string& spec, const Dataset& dataset, uint64_t seed, const MethodOptions& options);
+
+}  // namespace stereoloc::cli
