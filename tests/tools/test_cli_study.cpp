@@ -1,0 +1,98 @@
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "cli_util.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+std::string slurp(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+const char* kSmall = "study --scenarios circle,spin --methods fix2,ekf,window,batch --trials 4 --seed 7 --no-progress";
+
+}  // namespace
+
+TEST(CliStudy, WritesTablesReportAndFigures) {
+  test::TempDir dir;
+  const test::CliRun r = test::runCli(std::string(kSmall) + " --out " + dir.file("s"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* f : {"trials.csv", "steps.csv", "summary.csv", "report.md", "circle_trajectories.png", "circle_nees.png",
+                        "spin_rmse.png"})
+    EXPECT_TRUE(std::filesystem::exists(dir.file(std::string("s/") + f))) << f;
+  const std::string report = slurp(dir.file("s/report.md"));
+  EXPECT_NE(report.find("Table 6.14"), std::string::npos);
+  EXPECT_NE(report.find("60.41"), std::string::npos) << "thesis EKF known-start mean beside ours";
+  // 2 scenarios x 4 methods summary rows + header.
+  const std::string summary = slurp(dir.file("s/summary.csv"));
+  EXPECT_EQ(std::count(summary.begin(), summary.end(), '\n'), 9);
+}
+
+TEST(CliStudy, IdenticalWhateverTheThreadCountAndShardedMergeEqualsUnsharded) {
+  test::TempDir dir;
+  ASSERT_EQ(test::runCli(std::string(kSmall) + " --threads 1 --out " + dir.file("one")).exit_code, 0);
+  ASSERT_EQ(test::runCli(std::string(kSmall) + " --threads 2 --out " + dir.file("two")).exit_code, 0);
+  // ms/step is wall-clock, so compare trials.csv without its timing column via steps.csv (all numeric results).
+  EXPECT_EQ(slurp(dir.file("one/steps.csv")), slurp(dir.file("two/steps.csv")));
+  ASSERT_EQ(test::runCli(std::string(kSmall) + " --shard 0/2 --out " + dir.file("a")).exit_code, 0);
+  ASSERT_EQ(test::runCli(std::string(kSmall) + " --shard 1/2 --out " + dir.file("b")).exit_code, 0);
+  const test::CliRun m = test::runCli("study merge " + dir.file("a") + " " + dir.file("b") + " --out " + dir.file("m"));
+  ASSERT_EQ(m.exit_code, 0) << m.output;
+  EXPECT_EQ(slurp(dir.file("m/steps.csv")), slurp(dir.file("one/steps.csv")));
+  // Summary columns except ms/step agree exactly.
+  auto dropTiming = [](const std::string& csv) {
+    std::stringstream in(csv), out;
+    std::string line;
+    while (std::getline(in, line)) {
+      std::vector<std::string> f;
+      std::stringstream ls(line);
+      std::string x;
+      while (std::getline(ls, x, ',')) f.push_back(x);
+      f.erase(f.begin() + 11);  // ms_per_step
+      for (const auto& v : f) out << v << ',';
+      out << '\n';
+    }
+    return out.str();
+  };
+  EXPECT_EQ(dropTiming(slurp(dir.file("m/summary.csv"))), dropTiming(slurp(dir.file("one/summary.csv"))));
+}
+
+TEST(CliStudy, UsageErrors) {
+  test::TempDir dir;
+  EXPECT_EQ(test::runCli("study --scenarios circle").exit_code, 2);
+  EXPECT_EQ(test::runCli("study --methods kalman --out " + dir.file("x")).exit_code, 2);
+  EXPECT_EQ(test::runCli("study --scenarios moon --out " + dir.file("x")).exit_code, 2);
+  EXPECT_EQ(test::runCli("study --shard 3/2 --out " + dir.file("x")).exit_code, 2);
+  std::filesystem::create_directories(dir.file("full"));
+  std::ofstream(dir.file("full/keep")) << "x";
+  EXPECT_EQ(test::runCli("study --trials 1 --out " + dir.file("full")).exit_code, 2);
+}
+
+TEST(CliLocalize, EveryMethodWritesEstimatesAndTum) {
+  test::TempDir dir;
+  ASSERT_EQ(test::runCli("simulate --scenario circle --seed 3 --out " + dir.file("d")).exit_code, 0);
+  for (const char* m : {"fix1", "fix2", "ekf", "pf", "window", "batch", "deadreckoning"}) {
+    const test::CliRun r = test::runCli(std::string("localize ") + dir.file("d") + " --method " + m + " --particles 500 --out " +
+                                        dir.file(std::string(m) + ".csv") + " --tum " + dir.file(std::string(m) + ".tum"));
+    ASSERT_EQ(r.exit_code, 0) << m << ": " << r.output;
+    const std::string csv = slurp(dir.file(std::string(m) + ".csv"));
+    EXPECT_EQ(csv.rfind("step,t,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta\n", 0), 0u) << m;
+    EXPECT_GT(std::count(csv.begin(), csv.end(), '\n'), 5) << m;
+    EXPECT_EQ(csv.find("nan"), std::string::npos) << m;
+  }
+  const test::CliRun refine = test::runCli("refine " + dir.file("d") + " --out " + dir.file("r.csv"));
+  EXPECT_EQ(refine.exit_code, 0) << refine.output;
+  EXPECT_EQ(slurp(dir.file("r.csv")), slurp(dir.file("batch.csv")));
+  EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method magic --out " + dir.file("x.csv")).exit_code, 2);
+  EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method ekf:sideways --out " + dir.file("x.csv")).exit_code, 2);
+}
+
+}  // namespace stereoloc
