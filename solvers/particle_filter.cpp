@@ -102,11 +102,7 @@ std::string where(const Step& step, size_t index) {
 }
 
 void checkObservation(const Step& step, size_t index, const Observation& obs) {
-  if (!std::isfinite(obs.range) || !std::isfinite(obs.bearing)) throw Error(where(step, index) + ": not finite");
-  const Eigen::Matrix2d& R = obs.covariance;
-  if (!R.allFinite() || !(R(0, 0) > 0) || !(R(0, 0) * R(1, 1) - R(0, 1) * R(1, 0) > 0) ||
-      std::fabs(R(0, 1) - R(1, 0)) > 1e-9 * R.cwiseAbs().maxCoeff())
-    throw Error(where(step, index) + ": covariance R is not symmetric positive definite");
+  validateObservation(obs, where(step, index));
 }
 
 }  // namespace

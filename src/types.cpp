@@ -35,6 +35,14 @@ Observation observationFromRangeBearing(int landmark_id, LandmarkType type, doub
   return o;
 }
 
+void validateObservation(const Observation& obs, const std::string& where) {
+  if (!std::isfinite(obs.range) || !std::isfinite(obs.bearing)) throw Error(where + ": not finite");
+  const Eigen::Matrix2d& R = obs.covariance;
+  if (!R.allFinite() || !(R(0, 0) > 0) || !(R(0, 0) * R(1, 1) - R(0, 1) * R(1, 0) > 0) ||
+      std::fabs(R(0, 1) - R(1, 0)) > 1e-9 * R.cwiseAbs().maxCoeff())
+    throw Error(where + ": covariance R is not symmetric positive definite");
+}
+
 std::string toString(EstimateStatus status) {
   switch (status) {
     case EstimateStatus::Uninitialised: return "uninitialised";

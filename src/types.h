@@ -33,6 +33,10 @@ Observation observationFromPixels(const StereoRig& rig, int landmark_id, Landmar
 Observation observationFromRangeBearing(int landmark_id, LandmarkType type, double range, double bearing,
                                         double sigma_range, double sigma_bearing);
 
+// Throws stereoloc::Error "<where>: ..." unless range and bearing are finite and R is symmetric
+// positive definite. Every estimator checks its input observations with this.
+void validateObservation(const Observation& obs, const std::string& where);
+
 // One time step: odometry since the previous step, optional compass, observations.
 struct Step {
   long step = 0;                       // index, strictly increasing
