@@ -126,6 +126,34 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
   lines.resize(k);
 }
 
+void clipLinesToImage(int width, int height, std::vector<LineFeature>& lines) {
+  size_t k = 0;
+  for (LineFeature& l : lines) {
+    // Point(t) = (rho cos - t sin, rho sin + t cos); each border is a half-space linear in t.
+    const double c = std::cos(l.theta), s = std::sin(l.theta);
+    double t0 = l.t_min, t1 = l.t_max;
+    const double x0 = l.rho * c, y0 = l.rho * s;
+    auto clip = [&](double p0, double dp, double lo, double hi) {
+      // lo <= p0 + t dp <= hi
+      if (std::fabs(dp) < 1e-12) {
+        if (p0 < lo || p0 > hi) t1 = t0 - 1;
+        return;
+      }
+      double a = (lo - p0) / dp, b = (hi - p0) / dp;
+      if (a > b) std::swap(a, b);
+      t0 = std::max(t0, a);
+      t1 = std::min(t1, b);
+    };
+    clip(x0, -s, -0.5, width - 0.5);
+    clip(y0, c, -0.5, height - 0.5);
+    if (t1 <= t0) continue;
+    l.t_min = t0;
+    l.t_max = t1;
+    lines[k++] = l;
+  }
+  lines.resize(k);
+}
+
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& prm,
                  std::vector<PointFeature>& features) {
   features.clear();

@@ -39,6 +39,12 @@ struct CornerParams {
 // Segments -> lines (see above). Appends nothing: `lines` is replaced.
 void buildLines(const std::vector<Segment>& segments, const CornerParams& params, std::vector<LineFeature>& lines);
 
+// Clips every line's extent to the image [-0.5, width - 0.5] x [-0.5, height - 0.5] (the
+// pixel area, where the renderer's truth is clipped too) and drops lines left with no extent.
+// A stripe's centre line is built from its two edges' end points and their projections on
+// each other, which can lie outside the image where the stripe leaves it at a slant.
+void clipLinesToImage(int width, int height, std::vector<LineFeature>& lines);
+
 // Lines -> point features (types MarkingCorner, Junction, Intersection); `features` is replaced.
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& params,
                  std::vector<PointFeature>& features);

@@ -239,6 +239,7 @@ const FrontendResult& Frontend::process(const cv::Mat& left, const cv::Mat& righ
   r.observations.clear();
   detectSegments(left);
   buildLines(r.segments, params_.corners, r.lines);
+  clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
   findCorners(r.lines, rig_, params_.corners, r.features);
 
   const DisparityRange range = validDisparities(rig_, params_.stereo);

@@ -113,6 +113,65 @@ void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments) {
   }
 }
 
+void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
+                  double tol_px, std::vector<int>& cuts) {
+  const int n = static_cast<int>(end - begin);
+  cuts.clear();
+  cuts.push_back(0);
+  if (n < 4 || !(bin_px > 0)) {
+    cuts.push_back(n);
+    return;
+  }
+  const double c = std::cos(theta), s = std::sin(theta);
+  // Bins along t: mean (t, d) and the index of their first pixel.
+  struct Bin {
+    double t, d;
+    int first;
+  };
+  std::vector<Bin> bins;
+  const double t0 = -edges[begin[0]].x * s + edges[begin[0]].y * c;
+  int k = 0;
+  while (k < n) {
+    const int b = static_cast<int>((-edges[begin[k]].x * s + edges[begin[k]].y * c - t0) / bin_px);
+    double st = 0, sd = 0;
+    int m = 0;
+    const int first = k;
+    while (k < n && static_cast<int>((-edges[begin[k]].x * s + edges[begin[k]].y * c - t0) / bin_px) == b) {
+      st += -edges[begin[k]].x * s + edges[begin[k]].y * c;
+      sd += edges[begin[k]].x * c + edges[begin[k]].y * s;
+      ++m;
+      ++k;
+    }
+    bins.push_back(Bin{st / m, sd / m, first});
+  }
+  // Douglas-Peucker on the bin means (an explicit stack; kept vertices are the cuts).
+  std::vector<uint8_t> keep(bins.size(), 0);
+  std::vector<std::pair<int, int>> stack{{0, static_cast<int>(bins.size()) - 1}};
+  while (!stack.empty()) {
+    const auto [a, b] = stack.back();
+    stack.pop_back();
+    if (b - a < 2) continue;
+    const double dt = bins[b].t - bins[a].t, dd = bins[b].d - bins[a].d, len = std::hypot(dt, dd);
+    if (!(len > 0)) continue;
+    double worst = 0;
+    int at = -1;
+    for (int i = a + 1; i < b; ++i) {
+      const double dist = std::fabs(dt * (bins[i].d - bins[a].d) - dd * (bins[i].t - bins[a].t)) / len;
+      if (dist > worst) {
+        worst = dist;
+        at = i;
+      }
+    }
+    if (worst <= tol_px || at < 0) continue;
+    keep[at] = 1;
+    stack.push_back({a, at});
+    stack.push_back({at, b});
+  }
+  for (size_t i = 1; i + 1 < bins.size(); ++i)
+    if (keep[i]) cuts.push_back(bins[i].first);
+  cuts.push_back(n);
+}
+
 void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta,
                                double rho, double band, int tol_bins) {
   cand_.clear();
@@ -169,7 +228,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
       const float a = edges[i].angle;
       if (std::cos(a) * c + std::sin(a) * s < tol_cos) continue;
       proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
-      used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
+      if (!prm.release_unused) used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
     }
     if (proj_.size() < min_pixels) continue;
     std::sort(proj_.begin(), proj_.end());
@@ -192,44 +251,49 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
         start = k;
       }
     for (const Piece& pc : merged) {
-      const double len = pc.t1 - pc.t0;
-      if (len < prm.min_length_px) continue;
+      if (pc.t1 - pc.t0 < prm.min_length_px) continue;
       // Pixels of the piece, excluding the dropped noise pieces inside it.
-      const size_t first = pix_.size();
+      piece_.clear();
       size_t run = pc.b;
       for (size_t k = pc.b + 1; k <= pc.e; ++k)
         if (k == pc.e || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
           if (proj_[k - 1].first - proj_[run].first >= prm.min_piece_px)
-            for (size_t q = run; q < k; ++q) pix_.push_back(proj_[q].second);
+            for (size_t q = run; q < k; ++q) piece_.push_back(proj_[q].second);
           run = k;
         }
-      const size_t count = pix_.size() - first;
-      if (count < prm.min_density * len) {
-        pix_.resize(first);
-        continue;
+      splitAtBends(edges, piece_.data(), piece_.data() + piece_.size(), theta, prm.straightness_bin_px,
+                   prm.straightness_px, cuts_);
+      for (size_t ci = 0; ci + 1 < cuts_.size(); ++ci) {
+        const int* rb = piece_.data() + cuts_[ci];
+        const int* re = piece_.data() + cuts_[ci + 1];
+        if (re - rb < 2) continue;
+        const auto tOf = [&](int i) { return -edges[i].x * s + edges[i].y * c; };
+        const double len = tOf(*(re - 1)) - tOf(*rb);
+        if (len < prm.min_length_px || (re - rb) < prm.min_density * len) continue;
+        Segment seg;
+        double rms = 0;
+        if (!fitLine(edges, rb, re, theta, seg.theta, seg.rho, &rms)) continue;
+        const double cs = std::cos(seg.theta), sn = std::sin(seg.theta);
+        float tmin = 1e30f, tmax = -1e30f;
+        for (const int* q = rb; q != re; ++q) {
+          const EdgePixel& e = edges[*q];
+          const float t = static_cast<float>(-e.x * sn + e.y * cs);
+          tmin = std::min(tmin, t);
+          tmax = std::max(tmax, t);
+        }
+        seg.x1 = seg.rho * cs - tmin * sn;
+        seg.y1 = seg.rho * sn + tmin * cs;
+        seg.x2 = seg.rho * cs - tmax * sn;
+        seg.y2 = seg.rho * sn + tmax * cs;
+        seg.pixels = static_cast<int>(re - rb);
+        seg.rms = rms;
+        segments.push_back(seg);
+        for (const int* q = rb; q != re; ++q) {
+          pix_.push_back(*q);
+          used[*q] = 1;  // Algorithm 2, line 50: remove F from the feature points
+        }
+        off_.push_back(static_cast<int>(pix_.size()));
       }
-      Segment seg;
-      double rms = 0;
-      if (!fitLine(edges, pix_.data() + first, pix_.data() + pix_.size(), theta, seg.theta, seg.rho, &rms)) {
-        pix_.resize(first);
-        continue;
-      }
-      const double cs = std::cos(seg.theta), sn = std::sin(seg.theta);
-      float tmin = 1e30f, tmax = -1e30f;
-      for (size_t q = first; q < pix_.size(); ++q) {
-        const EdgePixel& e = edges[pix_[q]];
-        const float t = static_cast<float>(-e.x * sn + e.y * cs);
-        tmin = std::min(tmin, t);
-        tmax = std::max(tmax, t);
-      }
-      seg.x1 = seg.rho * cs - tmin * sn;
-      seg.y1 = seg.rho * sn + tmin * cs;
-      seg.x2 = seg.rho * cs - tmax * sn;
-      seg.y2 = seg.rho * sn + tmax * cs;
-      seg.pixels = static_cast<int>(count);
-      seg.rms = rms;
-      segments.push_back(seg);
-      off_.push_back(static_cast<int>(pix_.size()));
     }
   }
 }

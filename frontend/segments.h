@@ -33,7 +33,24 @@ struct SegmentParams {
   double direction_tolerance_deg = 10.0;  // pixel gradient vs line direction
   double band_px = 1.0;             // max distance of a pixel from the refitted line
   int refit_iterations = 2;
+  // A group of collinear-looking pixels is split where it bends or steps by more than this:
+  // far away, a wall foot, a goal foot and a marking lie a pixel or two apart at image angles
+  // of a few degrees, and one Hough cell collects them all.
+  double straightness_px = 0.75;
+  double straightness_bin_px = 4.0;  // pixels are averaged in bins this long along the line
+  // Remove only the pixels of accepted segments (true), or every pixel a peak collected
+  // (false, Algorithm 2 as printed): a peak that straddles two nearby lines must not eat the
+  // pixels of the one it does not keep.
+  bool release_unused = true;
 };
+
+// Splits the pixels [begin, end) (sorted by their coordinate t along the line theta) into
+// straight runs: the mean pixel of every bin_px-long stretch is a vertex of a polyline, which
+// is simplified by Douglas-Peucker with tolerance tol_px; every kept interior vertex is a split.
+// Appends the run boundaries (indices into [begin, end), ascending, first 0, last end-begin) to
+// `cuts`. Runs shorter than 2 bins are never split further.
+void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
+                  double tol_px, std::vector<int>& cuts);
 
 class SegmentExtractor {
  public:
@@ -56,6 +73,7 @@ class SegmentExtractor {
   std::vector<int> cand_;
   std::vector<std::pair<float, int>> proj_;
   std::vector<int> pix_, off_;
+  std::vector<int> piece_, cuts_;
 };
 
 // Moves each end of a segment to where the step across it fades to half its contrast, by

@@ -2,7 +2,8 @@
 // against the renderer's ground truth, then timings (Google Benchmark) of ours against
 // cv::HoughLinesP and cv::createLineSegmentDetector on the same images.
 //
-//   bench_frontend [--pairs=N] [--goal-pairs=M] [--seed=S] [--no-table] [benchmark flags]
+//   bench_frontend [--pairs=N] [--goal-pairs=M] [--seed=S] [--no-table] [--diag] [benchmark flags]
+//   (--diag: per-failure breakdown of the segment matching by reason, kind, length, row, occlusion)
 //
 // Test set (seeded): N general pairs at random poses (uniform on the field, any heading), a
 // ball and 0-3 robots at random, half of them with the "bad illumination" of Fig. 6.2
@@ -60,6 +61,8 @@ struct Seg {
   bool marking = false;
   std::string name;
   bool optional = false;
+  std::string kind;     // truth: the renderer's kind; detections: empty
+  bool broken = false;  // truth: one of several visible pieces of the same edge (occluded)
 };
 
 double segAngle(const Seg& s) { return std::atan2(s.b.y() - s.a.y(), s.b.x() - s.a.x()); }
@@ -78,9 +81,16 @@ bool matches(const Seg& d, const Seg& g, double* endpoint_err) {
   return true;
 }
 
+// Why segments fail: counts per category (printed with --diag).
+struct FailureBreakdown {
+  std::map<std::string, long> missed, spurious;
+  bool verbose = false;  // print every failure (STEREOLOC_BENCH_VERBOSE)
+};
+
 struct SegStats {
   long gt = 0, gt_hit = 0, det = 0, det_ok = 0, matched = 0, class_ok = 0;
   double endpoint_sum = 0;
+  FailureBreakdown* why = nullptr;
   double recall() const { return gt ? double(gt_hit) / gt : 0; }
   double precision() const { return det ? double(det_ok) / det : 0; }
   double f() const { return recall() + precision() > 0 ? 2 * recall() * precision() / (recall() + precision()) : 0; }
@@ -151,8 +161,10 @@ std::vector<Seg> truthSegments(const StereoRig& rig, const FieldMap& map, const 
   const double hw = 0.5 * (map.geometry() ? map.geometry()->line_width : 10.0);
   for (const ImageSegment& s : p.img.truth.left.segments) {
     const bool marking = s.kind == "marking";
+    const bool broken = std::count_if(p.img.truth.left.segments.begin(), p.img.truth.left.segments.end(),
+                                      [&](const ImageSegment& o) { return o.name == s.name && o.kind == s.kind; }) > 1;
     if (!edges || !marking) {
-      out.push_back(Seg{s.a, s.b, marking, s.name, (s.b - s.a).norm() < min_len});
+      out.push_back(Seg{s.a, s.b, marking, s.name, (s.b - s.a).norm() < min_len, s.kind, broken});
       continue;
     }
     double ax, ay, bx, by;
@@ -164,12 +176,138 @@ std::vector<Seg> truthSegments(const StereoRig& rig, const FieldMap& map, const 
       const auto pb = rig.project(Eigen::Vector3d((B + side * hw * n).x(), (B + side * hw * n).y(), 0), 0.0);
       if (!pa || !pb) continue;
       Seg e{Eigen::Vector2d(pa->u_left, pa->v_left), Eigen::Vector2d(pb->u_left, pb->v_left), true,
-            s.name + (side < 0 ? "_a" : "_b"), false};
+            s.name + (side < 0 ? "_a" : "_b"), false, s.kind, broken};
       e.optional = (e.b - e.a).norm() < min_len;
       out.push_back(e);
     }
   }
   return out;
+}
+
+double angleBetween(const Seg& a, const Seg& b) {
+  double da = std::fabs(segAngle(a) - segAngle(b));
+  da = std::fmod(da, kPi);
+  return std::min(da, kPi - da);
+}
+
+// Position of q along g (0 at g.a, |b-a| at g.b) and its distance from g's infinite line.
+void alongAcross(const Seg& g, const Eigen::Vector2d& q, double& t, double& d) {
+  const Eigen::Vector2d u = (g.b - g.a).normalized();
+  t = (q - g.a).dot(u);
+  d = std::fabs(u.x() * (q - g.a).y() - u.y() * (q - g.a).x());
+}
+
+// d lies on g's line (angle <= 3 deg, both ends within 3 px of the line) and overlaps it.
+bool onLine(const Seg& d, const Seg& g) {
+  if (angleBetween(d, g) > 3.0 * kPi / 180) return false;
+  double ta, da, tb, db;
+  alongAcross(g, d.a, ta, da);
+  alongAcross(g, d.b, tb, db);
+  const double len = (g.b - g.a).norm();
+  return da <= 3.0 && db <= 3.0 && std::max(ta, tb) > 0 && std::min(ta, tb) < len;
+}
+
+std::string lengthBin(double len) { return len < 60 ? "30-60" : len < 120 ? "60-120" : ">=120"; }
+std::string rowBin(double y) { return y < 135 ? "<135" : y < 160 ? "135-160" : y < 200 ? "160-200" : ">=200"; }
+
+// Per-failure breakdown: every missed truth segment and every spurious detection gets one
+// reason and its kind, length, mean image row (the horizon of the untilted rig is row 119.5)
+// and whether it is one of several pieces of an occluded edge.
+void explainFailures(const std::vector<Seg>& gt, const std::vector<Seg>& det, const std::vector<uint8_t>& hit,
+                     const std::vector<uint8_t>& det_hit, const cv::Mat& mask, FailureBreakdown& why) {
+  for (size_t i = 0; i < gt.size(); ++i) {
+    if (gt[i].optional || hit[i]) continue;
+    const Seg& g = gt[i];
+    const double len = (g.b - g.a).norm();
+    std::string reason;
+    int on = 0;
+    double lo = 1e9, hi = -1e9;
+    for (const Seg& d : det) {
+      if (!onLine(d, g)) continue;
+      ++on;
+      double ta, da, tb, db;
+      alongAcross(g, d.a, ta, da);
+      alongAcross(g, d.b, tb, db);
+      lo = std::min({lo, ta, tb});
+      hi = std::max({hi, ta, tb});
+    }
+    if (on == 0) {
+      bool near = false;
+      for (const Seg& d : det) {
+        double ta, da, tb, db;
+        alongAcross(g, d.a, ta, da);
+        alongAcross(g, d.b, tb, db);
+        if (angleBetween(d, g) <= 8.0 * kPi / 180 && std::max(da, db) <= 8.0 && std::max(ta, tb) > 0 && std::min(ta, tb) < len)
+          near = true;
+      }
+      reason = near ? "near but off (angle 3-8 deg or 3-8 px away)" : "not detected";
+    } else if (on > 1) {
+      reason = "split into pieces";
+    } else {
+      const double worst = std::max(std::fabs(lo), std::fabs(hi - len));
+      const std::string by = worst < 5 ? " by 3-5 px" : worst < 10 ? " by 5-10 px" : " by >= 10 px";
+      const bool short_a = lo > 3.0, short_b = hi < len - 3.0, long_a = lo < -3.0, long_b = hi > len + 3.0;
+      reason = (short_a || short_b) && !(long_a || long_b) ? "one detection, ends short"
+               : (long_a || long_b) && !(short_a || short_b) ? "one detection, runs past an end"
+                                                              : "one detection, ends off";
+      reason += (short_a || short_b || long_a || long_b) ? by : " (angle or offset)";
+      const Eigen::Vector2d& wend = std::fabs(lo) > std::fabs(hi - len) ? g.a : g.b;
+      if (wend.x() < 0.5 || wend.y() < 0.5 || wend.x() > mask.cols - 1.5 || wend.y() > mask.rows - 1.5) reason += ", at border";
+    }
+    const std::string kind = g.kind.empty() ? "?" : g.kind;
+    if (why.verbose) {
+      std::printf("    missed %-10s %-24s (%.1f,%.1f)-(%.1f,%.1f): %s\n", kind.c_str(), g.name.c_str(), g.a.x(), g.a.y(), g.b.x(),
+                  g.b.y(), reason.c_str());
+      for (const Seg& d : det)
+        if (onLine(d, g)) std::printf("        det (%.1f,%.1f)-(%.1f,%.1f)\n", d.a.x(), d.a.y(), d.b.x(), d.b.y());
+    }
+    why.missed["reason: " + reason]++;
+    why.missed["kind:   " + kind]++;
+    why.missed["length: " + lengthBin(len)]++;
+    why.missed["row:    " + rowBin(0.5 * (g.a.y() + g.b.y()))]++;
+    why.missed[std::string("pieces: ") + (g.broken ? "occluded (several pieces)" : "one piece")]++;
+  }
+  for (size_t k = 0; k < det.size(); ++k) {
+    if (det_hit[k]) continue;
+    const Seg& d = det[k];
+    if (inMask(mask, d)) continue;
+    std::string reason = "phantom (no truth edge within 8 px / 8 deg)", kind = "-";
+    for (const Seg& g : gt)
+      if (onLine(d, g)) {
+        reason = "on a truth edge, extent wrong";
+        kind = g.kind;
+        break;
+      }
+    if (kind == "-")
+      for (const Seg& g : gt) {
+        double ta, da, tb, db;
+        alongAcross(g, d.a, ta, da);
+        alongAcross(g, d.b, tb, db);
+        const double len = (g.b - g.a).norm();
+        if (angleBetween(d, g) <= 8.0 * kPi / 180 && std::max(da, db) <= 8.0 && std::max(ta, tb) > 0 && std::min(ta, tb) < len) {
+          reason = "near a truth edge (3-8 px / 3-8 deg off)";
+          kind = g.kind;
+          break;
+        }
+      }
+    why.spurious["reason: " + reason]++;
+    why.spurious["kind:   " + kind]++;
+    why.spurious["length: " + lengthBin((d.b - d.a).norm())]++;
+    why.spurious["row:    " + rowBin(0.5 * (d.a.y() + d.b.y()))]++;
+  }
+}
+
+void printBreakdown(const char* title, const FailureBreakdown& why) {
+  std::printf("  %s\n", title);
+  for (const auto* m : {&why.missed, &why.spurious}) {
+    std::printf("    %s:\n", m == &why.missed ? "missed truth segments" : "spurious detections");
+    std::string last;
+    for (const auto& [key, n] : *m) {
+      const std::string group = key.substr(0, 7);
+      std::printf("      %s %-50s %6ld\n", group == last ? "       " : group.c_str(), key.substr(8).c_str(), n);
+      last = group;
+    }
+  }
 }
 
 void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, const cv::Mat& mask, SegStats& st) {
@@ -186,11 +324,31 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
     const Eigen::Vector2d n = Eigen::Vector2d(-(a.b - a.a).y(), (a.b - a.a).x()).normalized();
     return std::fabs(n.dot(b.a - a.a)) < 1.5 && std::fabs(n.dot(b.b - a.a)) < 1.5;
   };
+  // Touching pieces whose union is straight to within 1 px (the detector's fitting band) are
+  // one straight image edge: far away, a wall top, a corner triangle's top and the next wall's
+  // top meet at an image angle of a few degrees and bend by less than a pixel.
+  auto straightUnion = [&](const Seg& a, const Seg& b) {
+    const Eigen::Vector2d pts[4] = {a.a, a.b, b.a, b.b};
+    double best = -1;
+    Eigen::Vector2d p0 = a.a, p1 = a.b;
+    for (int u = 0; u < 4; ++u)
+      for (int v = u + 1; v < 4; ++v)
+        if ((pts[u] - pts[v]).norm() > best) {
+          best = (pts[u] - pts[v]).norm();
+          p0 = pts[u];
+          p1 = pts[v];
+        }
+    const Eigen::Vector2d dir = (p1 - p0).normalized();
+    for (const Eigen::Vector2d& q : pts)
+      if (std::fabs(dir.x() * (q - p0).y() - dir.y() * (q - p0).x()) > 1.0) return false;
+    return true;
+  };
   for (size_t i = 0; i < gt.size(); ++i)
     for (size_t j = i + 1; j < gt.size(); ++j) {
       const bool touch = std::min({(gt[i].a - gt[j].a).norm(), (gt[i].a - gt[j].b).norm(), (gt[i].b - gt[j].a).norm(),
                                    (gt[i].b - gt[j].b).norm()}) < 1.5;
-      if ((gt[i].name == gt[j].name || touch) && gt[i].marking == gt[j].marking && collinear(gt[i], gt[j]))
+      if (gt[i].marking != gt[j].marking) continue;
+      if ((gt[i].name == gt[j].name && collinear(gt[i], gt[j])) || (touch && straightUnion(gt[i], gt[j])))
         parent[root(i)] = root(j);
     }
   std::map<size_t, std::vector<size_t>> groups;
@@ -216,7 +374,7 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
       }
     unions.emplace_back(u, idx);
   }
-  std::vector<uint8_t> hit(gt.size(), 0);
+  std::vector<uint8_t> hit(gt.size(), 0), det_hit;
   for (const Seg& d : det) {
     bool ok = false;
     double err = 0;
@@ -244,6 +402,7 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
       for (size_t i : members) hit[i] = 1;
     }
     (void)err;
+    det_hit.push_back(ok ? 1 : 0);
     if (!ok && inMask(mask, d)) continue;  // don't care
     ++st.det;
     st.det_ok += ok ? 1 : 0;
@@ -253,6 +412,7 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
     ++st.gt;
     st.gt_hit += hit[i];
   }
+  if (st.why) explainFailures(gt, det, hit, det_hit, mask, *st.why);
 }
 
 struct Setup {
@@ -343,7 +503,7 @@ void describe(const char* what, const std::vector<double>& v, double scale, cons
 std::vector<Seg> openCvSegments(const std::vector<cv::Vec4f>& lines, double min_len) {
   std::vector<Seg> out;
   for (const cv::Vec4f& l : lines) {
-    Seg s{Eigen::Vector2d(l[0], l[1]), Eigen::Vector2d(l[2], l[3]), false, "", false};
+    Seg s{Eigen::Vector2d(l[0], l[1]), Eigen::Vector2d(l[2], l[3]), false, "", false, "", false};
     if ((s.b - s.a).norm() >= min_len) out.push_back(s);
   }
   return out;
@@ -354,11 +514,15 @@ void houghP(const cv::Mat& luma, cv::Mat& edges, std::vector<cv::Vec4i>& out) {
   cv::HoughLinesP(edges, out, 1.0, kPi / 180, 30, 30, 10);
 }
 
-void accuracyTable() {
+void accuracyTable(bool diag) {
   Setup& s = setup();
   Frontend fe(s.rig, s.map);
   const double lmin = fe.params().segments.min_length_px;
   SegStats ours_centre, ours_edge, hough_edge, lsd_edge;
+  FailureBreakdown why_centre, why_edge;
+  ours_centre.why = &why_centre;
+  ours_edge.why = &why_edge;
+  why_centre.verbose = std::getenv("STEREOLOC_BENCH_VERBOSE") != nullptr;
   SegStats by_light[2];
   long cls_n = 0, cls_ok = 0;
   long c_gt = 0, c_hit = 0, c_det = 0, c_ok = 0;
@@ -409,15 +573,26 @@ void accuracyTable() {
     // Centre-line level.
     std::vector<Seg> det;
     for (const LineFeature& l : r.lines)
-      det.push_back(Seg{Eigen::Vector2d(l.x(l.t_min), l.y(l.t_min)), Eigen::Vector2d(l.x(l.t_max), l.y(l.t_max)), l.marking, "", false});
+      det.push_back(Seg{Eigen::Vector2d(l.x(l.t_min), l.y(l.t_min)), Eigen::Vector2d(l.x(l.t_max), l.y(l.t_max)), l.marking, "", false, "", false});
     const std::vector<Seg> gt_c = truthSegments(s.rig, s.map, p, false, lmin);
     scoreSegments(gt_c, det, mask, ours_centre);
     scoreSegments(gt_c, det, mask, by_light[p.bad_light ? 1 : 0]);
     // Edge level, ours and OpenCV.
     std::vector<Seg> edges;
     for (const Segment& sg : r.segments)
-      edges.push_back(Seg{Eigen::Vector2d(sg.x1, sg.y1), Eigen::Vector2d(sg.x2, sg.y2), sg.cls == SegmentClass::Marking, "", false});
+      edges.push_back(Seg{Eigen::Vector2d(sg.x1, sg.y1), Eigen::Vector2d(sg.x2, sg.y2), sg.cls == SegmentClass::Marking, "", false, "", false});
     const std::vector<Seg> gt_e = truthSegments(s.rig, s.map, p, true, lmin);
+    if (dump && dumped <= 6) {
+      // 4x overlays: truth blue (optional pieces grey), ours red (marking) / green (other).
+      for (int level = 0; level < 2; ++level) {
+        cv::Mat big;
+        cv::resize(p.img.left, big, cv::Size(), 4, 4, cv::INTER_NEAREST);
+        auto P = [](const Eigen::Vector2d& q) { return cv::Point(static_cast<int>(std::lround(4 * q.x() + 1.5)), static_cast<int>(std::lround(4 * q.y() + 1.5))); };
+        for (const Seg& g : level ? gt_e : gt_c) cv::line(big, P(g.a), P(g.b), g.optional ? cv::Scalar(128, 128, 128) : cv::Scalar(255, 0, 0), 1);
+        for (const Seg& d : level ? edges : det) cv::line(big, P(d.a), P(d.b), d.marking ? cv::Scalar(0, 0, 255) : cv::Scalar(0, 255, 0), 1);
+        cv::imwrite(std::string(dump) + "/pair" + std::to_string(dumped - 1) + (level ? "_edges.png" : "_lines.png"), big);
+      }
+    }
     SegStats before = ours_edge;
     scoreSegments(gt_e, edges, mask, ours_edge);
     cls_n += ours_edge.matched - before.matched;
@@ -475,6 +650,11 @@ void accuracyTable() {
   printRow("cv::HoughLinesP (Canny), edge level", hough_edge);
   printRow("cv LSD, edge level", lsd_edge);
   std::printf("  targets: recall >= 97%%, precision >= 97%%, end-point error <= 1.0 px\n\n");
+  if (diag) {
+    printBreakdown("failure breakdown, centre-line level:", why_centre);
+    printBreakdown("failure breakdown, edge level:", why_edge);
+    std::printf("\n");
+  }
   std::printf("  field-marking classification accuracy (matched edges): %.2f%% of %ld (target >= 98%%)\n\n",
               cls_n ? 100.0 * cls_ok / cls_n : 0.0, cls_n);
   std::printf("  corners/junctions/intersections: recall %.2f%% (%ld/%ld), precision %.2f%% (%ld/%ld), mean error %.3f px\n",
@@ -546,7 +726,7 @@ void BM_OpenCV_LSD(benchmark::State& st) {
 int main(int argc, char** argv) {
   int pairs = 200, goal_pairs = 1300;
   uint64_t seed = 4;
-  bool table = true;
+  bool table = true, diag = false;
   std::vector<char*> rest;
   for (int i = 0; i < argc; ++i) {
     if (std::strncmp(argv[i], "--pairs=", 8) == 0) {
@@ -555,6 +735,8 @@ int main(int argc, char** argv) {
       goal_pairs = std::max(0, std::atoi(argv[i] + 13));
     } else if (std::strncmp(argv[i], "--seed=", 7) == 0) {
       seed = std::strtoull(argv[i] + 7, nullptr, 10);
+    } else if (std::strcmp(argv[i], "--diag") == 0) {
+      diag = true;
     } else if (std::strcmp(argv[i], "--no-table") == 0) {
       table = false;
     } else {
@@ -563,7 +745,7 @@ int main(int argc, char** argv) {
   }
   int n = static_cast<int>(rest.size());
   buildSets(pairs, table ? goal_pairs : 0, seed);
-  if (table) accuracyTable();
+  if (table) accuracyTable(diag);
   for (auto [name, fn] : {std::pair{"ours_full_frontend_stereo_pair", &BM_Ours_Full},
                           std::pair{"ours_segments_only_left", &BM_Ours_SegmentsOnly},
                           std::pair{"opencv_canny_houghlinesp_left", &BM_OpenCV_HoughLinesP},
