@@ -26,9 +26,11 @@
 #include "src/atomic_file.h"
 #include "src/evaluation.h"
 #include "src/gaussian.h"
+#include "src/renderer.h"
 #include "src/simulator.h"
 #include "src/yaml_util.h"
 #include "tools/stereoloc/cli_common.h"
+#include "tools/stereoloc/frontend_source.h"
 
 namespace stereoloc::cli {
 namespace {
@@ -47,6 +49,9 @@ struct FixStudyArgs {
   int runs = 1;
   std::string out;
   std::string tables;
+  std::string frontend = "pixels";          // pixels | images | both
+  std::string frontend_landmarks = "all";   // images: which frontend observations (fixes use goal corners only)
+  double image_noise = 1.5;                 // images: sensor noise of the rendered pairs, grey levels
 };
 
 // The thesis's numbers of one table: rows keyed by name (and compass level for 6.9-6.13).
@@ -141,7 +146,7 @@ std::optional<double> neesOf(const Eigen::Vector3d& e, const Eigen::Matrix3d& P,
 }
 
 void record(Bucket& b, const GlobalFix& f, const Step& step, const Pose2& truth, std::ostream* csv,
-            const std::string& prefix) {
+            const std::string& prefix, const std::string& frontend) {
   ++b.attempted;
   ++b.status_count[f.status];
   if (!f.hasPose()) return;
@@ -158,11 +163,11 @@ void record(Bucket& b, const GlobalFix& f, const Step& step, const Pose2& truth,
   b.fixes.push_back(s);
   if (csv) {
     char buf[512];
-    std::snprintf(buf, sizeof(buf), "%s,%ld,%s,%.3f,%.3f,%.6f,%.3f,%.3f,%.6f,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.4f,%.4f,%.1f\n",
+    std::snprintf(buf, sizeof(buf), "%s,%ld,%s,%.3f,%.3f,%.6f,%.3f,%.3f,%.6f,%.6g,%.6g,%.6g,%.6g,%.6g,%.6g,%.4f,%.4f,%.1f,%s\n",
                   prefix.c_str(), step.step, toString(f.status).c_str(), truth.x, truth.y, truth.theta, f.pose.x,
                   f.pose.y, f.pose.theta, f.covariance(0, 0), f.covariance(0, 1), f.covariance(0, 2),
                   f.covariance(1, 1), f.covariance(1, 2), f.covariance(2, 2), s.nees3.value_or(NAN),
-                  s.nees2.value_or(NAN), s.max_range);
+                  s.nees2.value_or(NAN), s.max_range, frontend.c_str());
     *csv << buf;
   }
 }
@@ -247,11 +252,23 @@ std::string neesLines(const std::vector<Sample>& v) {
   return os.str();
 }
 
-std::string header(const char* first) {
+// Column groups: ours for each frontend, then the thesis.
+std::string header(const char* first, const std::vector<std::string>& groups) {
+  std::string top, sub;
   char buf[256];
-  std::snprintf(buf, sizeof(buf), "%-14s %-35s | %-35s\n%-14s %8s %8s %8s %8s | %8s %8s %8s %8s\n", "", "ours",
-                "thesis", first, "Mean", "Std", "Min", "Max", "Mean", "Std", "Min", "Max");
-  return buf;
+  std::snprintf(buf, sizeof(buf), "%-14s", "");
+  top = buf;
+  std::snprintf(buf, sizeof(buf), "%-14s", first);
+  sub = buf;
+  for (size_t g = 0; g <= groups.size(); ++g) {
+    const std::string name = g < groups.size() ? groups[g] : "thesis";
+    std::snprintf(buf, sizeof(buf), "%s%-35s", g ? " | " : " ", name.c_str());
+    top += buf;
+    std::snprintf(buf, sizeof(buf), "%s%8s %8s %8s %8s", g ? " | " : " ", "Mean", "Std", "Min", "Max");
+    sub += buf;
+  }
+  while (!top.empty() && top.back() == ' ') top.pop_back();
+  return top + "\n" + sub + "\n";
 }
 
 void runFixStudy(const FixStudyArgs& a) {
@@ -285,52 +302,90 @@ void runFixStudy(const FixStudyArgs& a) {
     std::filesystem::create_directories(a.out);
     csv = std::make_unique<AtomicOutputFile>(a.out + "/fixes.csv");
     csv->stream() << "category,trial,run,method,compass_sigma_deg,step,status,true_x,true_y,true_theta,x,y,theta,"
-                     "cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,nees3,nees2,max_range\n";
+                     "cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,nees3,nees2,max_range,frontend\n";
   }
+
+  std::vector<FrontendMode> modes;
+  if (a.frontend == "both") {
+    modes = {FrontendMode::Pixels, FrontendMode::Images};
+  } else {
+    modes = {frontendModeFromString(a.frontend)};
+  }
+  std::vector<std::string> groups;
+  for (FrontendMode m : modes) groups.push_back("ours (" + toString(m) + ")");
+  const bool images = std::find(modes.begin(), modes.end(), FrontendMode::Images) != modes.end();
+  ImageFrontendOptions fo;
+  fo.landmarks = frontendLandmarksFromString(a.frontend_landmarks);
+  RenderOptions ro;
+  ro.noise_sigma = a.image_noise;
+  ro.compute_truth = false;
+  std::unique_ptr<StereoRenderer> renderer;
+  if (images) renderer = std::make_unique<StereoRenderer>(cfg.map, StereoRig(cfg.rig), ro);
+  ImageFrontendStats fstats;
 
   std::ostringstream report;
   {
-    char buf[400];
+    char buf[600];
     std::snprintf(buf, sizeof(buf),
                   "stereoloc fixstudy: thesis sections 6.3 (two landmarks) and 6.4 (one landmark + compass)\n"
                   "simulator: goal-corner landmarks, pixel sigma %.3f px%s, %d run(s) per trial, seed %llu; "
                   "%s-order covariance\n"
-                  "errors are |estimate - truth| over all fixes of all trials; thesis numbers from %s\n\n",
+                  "errors are |estimate - truth| over all fixes of all trials; thesis numbers from %s\n",
                   a.pixel_sigma, a.quantise ? " + quantisation" : "", a.runs, static_cast<unsigned long long>(a.seed),
                   a.second_order ? "second" : "first",
                   tables_path.empty() ? "(not found)" : tables_path.c_str());
     report << buf;
+    if (images) {
+      std::snprintf(buf, sizeof(buf),
+                    "images: every step's stereo pair rendered from the true pose (%.1f grey levels of sensor noise) "
+                    "and run through the vision frontend; fixes use its goal corners\n",
+                    a.image_noise);
+      report << buf;
+    }
+    report << "\n";
   }
 
   for (const std::string& cat : cats) {
     const size_t ci = static_cast<size_t>(std::find(kCategories.begin(), kCategories.end(), cat) - kCategories.begin());
     const int trials = scenarioTrialCount(cat);
-    Bucket b2;
-    std::vector<Bucket> b1(kCompassLevelsDeg.size());
+    std::vector<Bucket> b2(modes.size());
+    std::vector<std::vector<Bucket>> b1(modes.size(), std::vector<Bucket>(kCompassLevelsDeg.size()));
     for (int trial = 0; trial < trials; ++trial) {
       for (int run = 0; run < a.runs; ++run) {
         const uint64_t s = mixSeed(a.seed, ci, static_cast<uint64_t>(trial), static_cast<uint64_t>(run));
-        const Dataset d = simulate(cat, trial, cfg, s);
-        std::mt19937_64 compass_rng(mixSeed(s, 0xC0FFEE, 0, 0));
-        std::normal_distribution<double> N(0.0, 1.0);
-        for (size_t k = 0; k < d.steps.size(); ++k) {
-          const double z = N(compass_rng);  // drawn for every step, fix or not
-          if (k >= d.groundtruth.size() || !d.groundtruth[k]) continue;
-          const Pose2& truth = *d.groundtruth[k];
-          Step st = d.steps[k];
-          st.compass.reset();
-          char prefix[96];
-          if (do2) {
-            std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix2,", cat.c_str(), trial, run);
-            record(b2, globalFix(st, d.map, opt2), st, truth, csv ? &csv->stream() : nullptr, prefix);
+        SimulationTrace trace;
+        const Dataset sim = simulate(cat, trial, cfg, s, images ? &trace : nullptr);
+        for (size_t mi = 0; mi < modes.size(); ++mi) {
+          const std::string mode_name = toString(modes[mi]);
+          Dataset image_data;
+          if (modes[mi] == FrontendMode::Images) {
+            image_data = sim;
+            fstats.merge(observeRenderedImages(image_data, trace, *renderer, mixSeed(s, 0x1A6E5, 0, 0), fo));
           }
-          if (do1) {
-            for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
-              const double sigma = deg2rad(kCompassLevelsDeg[l]);
-              st.compass = wrapAngle(truth.theta + sigma * z);
-              st.compass_sigma = std::max(sigma, deg2rad(0.01));
-              std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix1,%g", cat.c_str(), trial, run, kCompassLevelsDeg[l]);
-              record(b1[l], globalFix(st, d.map, opt1), st, truth, csv ? &csv->stream() : nullptr, prefix);
+          const Dataset& d = modes[mi] == FrontendMode::Images ? image_data : sim;
+          // Common random numbers: the same compass draws for both frontends.
+          std::mt19937_64 compass_rng(mixSeed(s, 0xC0FFEE, 0, 0));
+          std::normal_distribution<double> N(0.0, 1.0);
+          for (size_t k = 0; k < d.steps.size(); ++k) {
+            const double z = N(compass_rng);  // drawn for every step, fix or not
+            if (k >= d.groundtruth.size() || !d.groundtruth[k]) continue;
+            const Pose2& truth = *d.groundtruth[k];
+            Step st = d.steps[k];
+            st.compass.reset();
+            char prefix[96];
+            if (do2) {
+              std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix2,", cat.c_str(), trial, run);
+              record(b2[mi], globalFix(st, d.map, opt2), st, truth, csv ? &csv->stream() : nullptr, prefix, mode_name);
+            }
+            if (do1) {
+              for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
+                const double sigma = deg2rad(kCompassLevelsDeg[l]);
+                st.compass = wrapAngle(truth.theta + sigma * z);
+                st.compass_sigma = std::max(sigma, deg2rad(0.01));
+                std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix1,%g", cat.c_str(), trial, run, kCompassLevelsDeg[l]);
+                record(b1[mi][l], globalFix(st, d.map, opt1), st, truth, csv ? &csv->stream() : nullptr, prefix,
+                       mode_name);
+              }
             }
           }
         }
@@ -338,19 +393,28 @@ void runFixStudy(const FixStudyArgs& a) {
     }
 
     char buf[400];
+    auto statsRow = [&](const char* label, auto bucketOf, double Sample::*field, double scale, const ThesisTable& t,
+                        const std::string& key) {
+      std::string line = label;
+      for (size_t mi = 0; mi < modes.size(); ++mi)
+        line += (mi ? " | " : "") + statsCells(statsOf(bucketOf(mi).fixes, field), scale);
+      return line + " | " + thesisCells(t, key) + "\n";
+    };
     if (do2) {
       const std::string id = "6." + std::to_string(4 + ci);
       const ThesisTable t = loadThesisTable(tables_path, id);
       std::snprintf(buf, sizeof(buf), "Table %s: two landmarks (fix2), category %s, %d trials x %d run(s)\n", id.c_str(),
                     cat.c_str(), trials, a.runs);
-      report << buf << fixRateLine(b2) << "\n" << header("");
-      report << "dx (mm)        " << statsCells(statsOf(b2.fixes, &Sample::dx)) << " | " << thesisCells(t, rowKey("dx_mm", 0))
-             << "\n";
-      report << "dy (mm)        " << statsCells(statsOf(b2.fixes, &Sample::dy)) << " | " << thesisCells(t, rowKey("dy_mm", 0))
-             << "\n";
-      report << "dtheta (deg)   " << statsCells(statsOf(b2.fixes, &Sample::dtheta), rad2deg(1.0)) << " | "
-             << thesisCells(t, rowKey("dtheta_deg", 0)) << "\n";
-      report << neesLines(b2.fixes);
+      report << buf;
+      for (size_t mi = 0; mi < modes.size(); ++mi)
+        report << (modes.size() > 1 ? groups[mi] + " " : "") << fixRateLine(b2[mi]) << "\n";
+      report << header("", groups);
+      auto bucket = [&](size_t mi) -> const Bucket& { return b2[mi]; };
+      report << statsRow("dx (mm)        ", bucket, &Sample::dx, 1.0, t, rowKey("dx_mm", 0));
+      report << statsRow("dy (mm)        ", bucket, &Sample::dy, 1.0, t, rowKey("dy_mm", 0));
+      report << statsRow("dtheta (deg)   ", bucket, &Sample::dtheta, rad2deg(1.0), t, rowKey("dtheta_deg", 0));
+      for (size_t mi = 0; mi < modes.size(); ++mi)
+        report << (modes.size() > 1 ? groups[mi] + " " : "") << neesLines(b2[mi].fixes);
       if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
       report << "\n";
     }
@@ -359,21 +423,36 @@ void runFixStudy(const FixStudyArgs& a) {
       const ThesisTable t = loadThesisTable(tables_path, id);
       std::snprintf(buf, sizeof(buf), "Table %s: one landmark + compass (fix1), category %s, %d trials x %d run(s)\n",
                     id.c_str(), cat.c_str(), trials, a.runs);
-      report << buf << fixRateLine(b1[0]) << "\n" << header("compass sigma");
+      report << buf;
+      for (size_t mi = 0; mi < modes.size(); ++mi)
+        report << (modes.size() > 1 ? groups[mi] + " " : "") << fixRateLine(b1[mi][0]) << "\n";
+      report << header("compass sigma", groups);
       for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
         const double lv = kCompassLevelsDeg[l];
+        auto bucket = [&](size_t mi) -> const Bucket& { return b1[mi][l]; };
         std::snprintf(buf, sizeof(buf), "%4.1f deg  dx   ", lv);
-        report << buf << statsCells(statsOf(b1[l].fixes, &Sample::dx)) << " | " << thesisCells(t, rowKey("dx_mm", lv)) << "\n";
-        report << "          dy   " << statsCells(statsOf(b1[l].fixes, &Sample::dy)) << " | "
-               << thesisCells(t, rowKey("dy_mm", lv)) << "\n";
+        report << statsRow(buf, bucket, &Sample::dx, 1.0, t, rowKey("dx_mm", lv));
+        report << statsRow("          dy   ", bucket, &Sample::dy, 1.0, t, rowKey("dy_mm", lv));
       }
-      for (size_t l : {size_t{0}, size_t{4}, size_t{11}}) {
-        std::snprintf(buf, sizeof(buf), "at %.1f deg compass: ", kCompassLevelsDeg[l]);
-        report << buf << neesLines(b1[l].fixes);
+      for (size_t mi = 0; mi < modes.size(); ++mi) {
+        for (size_t l : {size_t{0}, size_t{4}, size_t{11}}) {
+          std::snprintf(buf, sizeof(buf), "at %.1f deg compass: ", kCompassLevelsDeg[l]);
+          report << (modes.size() > 1 ? groups[mi] + " " : "") << buf << neesLines(b1[mi][l].fixes);
+        }
       }
       if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
       report << "\n";
     }
+  }
+  if (images) {
+    char buf[300];
+    std::snprintf(buf, sizeof(buf),
+                  "image frontend: %ld pairs, %.2f goal-corner observations per pair, rendering %.1f ms/pair, "
+                  "frontend %.2f ms/pair\n",
+                  fstats.pairs, fstats.pairs ? static_cast<double>(fstats.identified) / fstats.pairs : 0.0,
+                  fstats.pairs ? fstats.ms_render / fstats.pairs : 0.0, fstats.pairs ? fstats.ms_frontend / fstats.pairs : 0.0);
+    // Timings vary between runs: on stderr, so that the tables stay reproducible.
+    std::cerr << buf;
   }
   std::cout << report.str() << std::flush;
   if (!a.out.empty()) {
@@ -405,6 +484,18 @@ void add_fixstudy_command(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::Range(1, 100000));
   sub->add_option("--out", a->out, "Directory for fixstudy.txt and fixes.csv (created if missing)");
+  sub->add_option("--frontend", a->frontend,
+                  "Observations: pixels (the simulator's noisy pixels), images (each pose's stereo pair rendered and "
+                  "run through the vision frontend) or both (side by side)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"pixels", "images", "both"}));
+  sub->add_option("--frontend-landmarks", a->frontend_landmarks,
+                  "With images: all or goal_corners (the fixes use only identified goal corners either way)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"all", "goal_corners"}));
+  sub->add_option("--image-noise", a->image_noise, "With images: sensor noise of the rendered pairs, grey levels")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   sub->add_option("--tables", a->tables, "Thesis tables YAML (default: data/thesis_tables.yaml)")
       ->check(CLI::ExistingFile);
   sub->callback([a] { runFixStudy(*a); });

@@ -8,7 +8,9 @@
 //   {"step":12,"t":1.2,"x":..,"y":..,"theta":..,"covariance":[9 values, row-major],"status":"tracking"}
 // A malformed line gets one error on stderr naming the line, and the stream goes on; the exit
 // code is then 1 at the end. `--from DIR` replays a dataset the same way. `--smoothed` prints the
-// smoothed trajectory (finish()) after the input ends, marked "smoothed":true.
+// smoothed trajectory (finish()) after the input ends, marked "smoothed":true. `--from DIR
+// --frontend images` replays the dataset's images through the vision frontend instead of its
+// observations.csv (tools/stereoloc/frontend_source.h).
 #include <cmath>
 #include <cstdio>
 #include <iostream>
@@ -25,6 +27,7 @@
 #include "src/field_map.h"
 #include "src/stereo_rig.h"
 #include "tools/stereoloc/cli_common.h"
+#include "tools/stereoloc/localize_common.h"
 
 namespace stereoloc::cli {
 namespace {
@@ -270,6 +273,7 @@ struct StreamArgs {
   double wheel_base = OdometryParams().wheel_base_mm;
   int max_iterations = 5;
   bool no_gate = false, smoothed = false;
+  std::string frontend = "pixels", frontend_landmarks = "all", frontend_params;
 };
 
 void runStream(const StreamArgs& a) {
@@ -278,8 +282,11 @@ void runStream(const StreamArgs& a) {
   OdometryParams odometry;
   std::optional<Pose2> initial_pose;
   std::vector<Step> replay;
+  if (a.frontend != "pixels" && a.from.empty())
+    throw UsageError("--frontend images needs --from DIR (a dataset with images); stdin carries observations");
   if (!a.from.empty()) {
-    Dataset d = loadDataset(a.from);
+    // The frontend's summary goes to stderr: stdout is JSON Lines.
+    Dataset d = loadDatasetWithFrontend(a.from, a.frontend, a.frontend_landmarks, a.frontend_params, stderr);
     map = d.map;
     ctx.rig = d.rig;
     odometry = d.odometry;
@@ -372,6 +379,7 @@ void add_stream_command(CLI::App& app) {
       ->check(CLI::Range(1, 1000));
   sub->add_flag("--no-gate", a->no_gate, "Fuse every observation (no validation gate)");
   sub->add_flag("--smoothed", a->smoothed, "After the input ends, print the smoothed trajectory (\"smoothed\":true)");
+  addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
   sub->callback([a] { runStream(*a); });
 }
 

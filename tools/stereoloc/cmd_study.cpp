@@ -75,9 +75,19 @@ void add_study_command(CLI::App& app) {
       ->capture_default_str();
   sub->add_option("--trials", a->config.trials, "Trials per scenario")->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--seed", a->config.seed, "Study seed (each trial's seed derives from it)")->capture_default_str();
-  sub->add_option("--frontend", a->config.frontend, "Observations: pixels (simulated stereo pixels) or images")
+  sub->add_option("--frontend", a->config.frontend,
+                  "Observations: images (each step's stereo pair rendered and run through the vision frontend) or "
+                  "pixels (the simulator's noisy pixel projections of the goal corners; much faster)")
       ->capture_default_str()
       ->check(CLI::IsMember({"pixels", "images"}));
+  sub->add_option("--frontend-landmarks", a->config.frontend_landmarks,
+                  "With images: all (goal corners + unidentified corners/junctions, associated by each estimator at "
+                  "its current belief) or goal_corners (the thesis's landmarks only)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"all", "goal_corners"}));
+  sub->add_option("--image-noise", a->config.image_noise, "With images: Gaussian sensor noise of the rendered pairs, grey levels")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   sub->add_option("--threads", a->config.threads, "Worker threads (0 = all cores); results do not depend on it")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);

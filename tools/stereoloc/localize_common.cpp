@@ -21,7 +21,7 @@ void runLocalize(const LocalizeArgs& a) {
     throw UsageError(e.what());
   }
   parseMethodSpec(a.method, o.init);  // usage errors before reading data
-  const Dataset d = loadDataset(a.dataset);
+  const Dataset d = loadDatasetWithFrontend(a.dataset, a.frontend, a.frontend_landmarks, a.frontend_params, stdout);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
@@ -31,6 +31,42 @@ void runLocalize(const LocalizeArgs& a) {
   if (m.count > 0)
     std::printf("against ground truth (%zu poses): position RMSE %.1f mm, theta RMSE %.2f deg, mean NEES %.2f\n", m.count,
                 m.position_rmse, rad2deg(m.theta_rmse), m.mean_nees);
+}
+
+void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path) {
+  sub->add_option("--frontend", frontend,
+                  "Observations: pixels (the dataset's observations.csv) or images (the vision frontend on the "
+                  "dataset's images/, written by `simulate --images`)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"pixels", "images"}));
+  sub->add_option("--frontend-landmarks", landmarks,
+                  "With --frontend images: all (goal corners + unidentified corners/junctions, associated by the "
+                  "estimator at its current belief) or goal_corners (the thesis's landmarks only)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"all", "goal_corners"}));
+  sub->add_option("--frontend-params", params_path, "With --frontend images: frontend parameters YAML (default: built-in)")
+      ->check(CLI::ExistingFile);
+}
+
+ImageFrontendOptions frontendOptionsFrom(const std::string& landmarks, const std::string& params_path) {
+  ImageFrontendOptions o;
+  o.landmarks = frontendLandmarksFromString(landmarks);
+  if (!params_path.empty()) o.params = frontend::FrontendParams::load(params_path);  // bad data: exit 1
+  return o;
+}
+
+Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& frontend, const std::string& landmarks,
+                                const std::string& params_path, std::FILE* log) {
+  const FrontendMode mode = frontendModeFromString(frontend);
+  if (mode == FrontendMode::Pixels) return loadDataset(dir);
+  const ImageFrontendOptions options = frontendOptionsFrom(landmarks, params_path);
+  Dataset d = loadDataset(dir);
+  const ImageFrontendStats st = observeDatasetImages(d, dir, options);
+  std::fprintf(log, "frontend on %ld image pairs: %ld observations (%ld goal corners)%s, %.2f ms/pair\n", st.pairs,
+               st.observations, st.identified,
+               st.dropped ? (", " + std::to_string(st.dropped) + " unidentified dropped").c_str() : "",
+               st.pairs ? st.ms_frontend / st.pairs : 0.0);
+  return d;
 }
 
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, bool method_option) {
@@ -47,6 +83,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--seed", a->seed, "Seed of the start noise and the particle filter")->capture_default_str();
   sub->add_option("--out", a->out, "Estimates CSV: step,t,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta")->required();
   sub->add_option("--tum", a->tum, "Also write the trajectory in TUM format (metres), e.g. for evo");
+  addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
 }
 
 }  // namespace stereoloc::cli

@@ -2,9 +2,11 @@
 // What `localize` and `refine` share: their options and the run.
 #include <CLI/CLI.hpp>
 #include <cstdint>
+#include <cstdio>
 #include <memory>
 #include <string>
 
+#include "tools/stereoloc/frontend_source.h"
 #include "tools/stereoloc/methods.h"
 
 namespace stereoloc::cli {
@@ -14,9 +16,21 @@ struct LocalizeArgs {
   uint64_t seed = 1;
   MethodOptions options;
   std::string loss = "none";
+  std::string frontend = "pixels";            // pixels | images (tools/stereoloc/frontend_source.h)
+  std::string frontend_landmarks = "all";     // all | goal_corners (with --frontend images)
+  std::string frontend_params;                // frontend parameters YAML (empty: defaults)
 };
 
 void runLocalize(const LocalizeArgs& args);
+// --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
+void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
+// Checks the three options (UsageError) and builds the frontend options.
+ImageFrontendOptions frontendOptionsFrom(const std::string& landmarks, const std::string& params_path);
+// Loads a dataset and, with --frontend images, replaces its observations by the frontend's on
+// its images; prints a one-line summary of the frontend to `log` (stdout for localize, stderr
+// for stream, whose stdout is JSON Lines).
+Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& frontend, const std::string& landmarks,
+                                const std::string& params_path, std::FILE* log);
 // Adds the options; `method_option` false for refine (always the batch smoother).
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& args, bool method_option);
 

@@ -28,6 +28,7 @@
 #include "src/simulator.h"
 #include "src/yaml_util.h"
 #include "tools/stereoloc/cli_common.h"
+#include "tools/stereoloc/frontend_source.h"
 
 namespace stereoloc::cli {
 namespace fs = std::filesystem;
@@ -145,6 +146,8 @@ void writeStudyYaml(const StudyConfig& c, const std::string& path) {
   w.put("trials", c.trials);
   w.put("seed", std::to_string(c.seed));
   w.put("frontend", c.frontend);
+  w.put("frontend_landmarks", c.frontend_landmarks);
+  w.put("image_noise", c.image_noise);
   w.put("shard_index", c.shard_index);
   w.put("shard_count", c.shard_count);
   w.put("particles", c.method_options.particles);
@@ -165,6 +168,8 @@ StudyConfig readStudyYaml(const std::string& path) {
     in.fail("seed", "not an unsigned integer");
   }
   c.frontend = in.getString("frontend");
+  c.frontend_landmarks = in.getString("frontend_landmarks", "all");
+  c.image_noise = in.getDouble("image_noise", StudyConfig().image_noise);
   c.shard_index = in.getInt("shard_index");
   c.shard_count = in.getInt("shard_count");
   c.method_options.particles = in.getInt("particles");
@@ -194,12 +199,28 @@ struct TrialOutput {
   std::vector<StepRow> steps;
 };
 
-Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int trial) {
+// Simulates one trial. With the image frontend, every step's pair is rendered from the true pose
+// and run through the frontend; the image noise is seeded from the trial seed, so the trial's
+// data do not depend on the thread count. `render_threads` only splits the rendering of a pair.
+Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int trial, int render_threads = 1,
+                      ImageFrontendStats* stats = nullptr) {
   SimulationConfig sim;
-  if (c.frontend == "images") sim.images = true;
   // A study trial is a Monte Carlo run; scenarios with several thesis trials cycle through them.
   const int thesis_trials = std::max(1, scenarioTrialCount(scenario));
-  return simulate(scenario, trial % thesis_trials, sim, trialSeed(c.seed, scenario, trial));
+  const uint64_t seed = trialSeed(c.seed, scenario, trial);
+  if (c.frontend != "images") return simulate(scenario, trial % thesis_trials, sim, seed);
+  SimulationTrace trace;
+  Dataset d = simulate(scenario, trial % thesis_trials, sim, seed, &trace);
+  RenderOptions ro;
+  ro.noise_sigma = c.image_noise;
+  ro.compute_truth = false;
+  ro.threads = render_threads;
+  const StereoRenderer renderer(d.map, d.rig, ro);
+  ImageFrontendOptions fo;
+  fo.landmarks = frontendLandmarksFromString(c.frontend_landmarks);
+  const ImageFrontendStats st = observeRenderedImages(d, trace, renderer, splitmix64(seed ^ hashString("images")), fo);
+  if (stats) *stats = st;
+  return d;
 }
 
 long firstSightingStep(const Dataset& d) {
@@ -456,7 +477,7 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
                             const std::string& dir) {
   std::ostringstream md;
   // Trajectories of trial 0 with 3-sigma ellipses (Figs. 6.26-6.28): re-simulated (deterministic).
-  const Dataset d = simulateTrial(c, scenario, 0);
+  const Dataset d = simulateTrial(c, scenario, 0, 2);  // the workers are done: both cores render
   Plot traj(scenario + ": trajectories of trial 0 with 3-sigma ellipses", "x [mm]", "y [mm]", 1000, 820);
   traj.setEqualAspect(true);
   drawField(traj, d.map);
@@ -594,8 +615,13 @@ void writeReport(const StudyConfig& c, const std::vector<TrialRow>& rows, const 
   std::ostringstream md;
   md << "# stereoloc accuracy study\n\n";
   md << "Scenarios: " << joinList(c.scenarios) << ". Methods: " << joinList(c.methods) << ". Trials per scenario: "
-     << c.trials << ". Seed: " << c.seed << ". Observations: " << c.frontend
-     << " (simulated stereo pixels, 0.5 px noise, goal corners; see README).\n\n";
+     << c.trials << ". Seed: " << c.seed << ". Observations: " << c.frontend;
+  if (c.frontend == "images")
+    md << " (every step's stereo pair rendered with " << fmt("%.1f", c.image_noise)
+       << " grey levels of sensor noise and run through the vision frontend; landmarks: " << c.frontend_landmarks
+       << ", unidentified corners associated by each estimator at its current belief; see README).\n\n";
+  else
+    md << " (simulated stereo pixels of the goal corners, 0.5 px noise; see README).\n\n";
   md << "Position RMSE pools every compared estimate of every trial; mean/std/min/max are the thesis's statistics of the "
         "distance to the true position. NEES is e^T P^-1 e (3 dof): a consistent estimator has mean 3 and about 95 % "
         "of its values inside the two-sided 95 % chi-square band. ms/step is wall-clock on this machine.\n\n";
@@ -711,7 +737,8 @@ void runStudy(const StudyConfig& c) {
   if (c.shard_count < 1 || c.shard_index < 0 || c.shard_index >= c.shard_count)
     throw UsageError("--shard I/N needs 0 <= I < N");
   if (c.frontend != "pixels" && c.frontend != "images") throw UsageError("--frontend must be pixels or images");
-  if (c.frontend == "images") throw UsageError("--frontend images: the image frontend is not wired into the study yet");
+  frontendLandmarksFromString(c.frontend_landmarks);
+  if (!(c.image_noise >= 0) || !std::isfinite(c.image_noise)) throw UsageError("--image-noise must be >= 0");
   const std::vector<std::string> known = scenarioNames();
   for (const std::string& s : c.scenarios)
     if (std::find(known.begin(), known.end(), s) == known.end()) throw UsageError("unknown scenario '" + s + "'");
@@ -803,7 +830,8 @@ void mergeStudies(const std::vector<std::string>& dirs, const std::string& out_d
   for (const std::string& d : dirs) {
     const StudyConfig o = readStudyYaml(d + "/study.yaml");
     if (o.scenarios != c.scenarios || o.methods != c.methods || o.trials != c.trials || o.seed != c.seed ||
-        o.frontend != c.frontend || o.method_options.particles != c.method_options.particles ||
+        o.frontend != c.frontend || o.frontend_landmarks != c.frontend_landmarks || o.image_noise != c.image_noise ||
+        o.method_options.particles != c.method_options.particles ||
         o.method_options.window != c.method_options.window || o.method_options.init != c.method_options.init)
       throw Error(d + "/study.yaml: configuration differs from " + dirs.front() + "/study.yaml");
     std::set<std::pair<std::string, int>> here;

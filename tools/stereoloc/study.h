@@ -14,15 +14,24 @@
 
 namespace stereoloc::cli {
 
+// Trials per scenario of the default study (`make demo`): measured to finish within 2 minutes on
+// a 2-core machine with the image frontend (see README).
+constexpr int kDefaultStudyTrials = 10;
+
 struct StudyConfig {
   std::vector<std::string> scenarios = {"circle", "line", "spin", "kidnap"};
   std::vector<std::string> methods = {"fix1", "fix2", "ekf", "ekf:random", "ekf:global", "pf", "window", "batch"};
-  int trials = 10;
+  int trials = kDefaultStudyTrials;
   uint64_t seed = 1;
   int threads = 0;            // 0 = all cores
   int shard_index = 0;        // this shard runs trials shard_index, shard_index + shard_count, ...
   int shard_count = 1;
-  std::string frontend = "pixels";  // "pixels": simulated pixel observations; "images": rendered + frontend
+  // "images": every step's stereo pair is rendered (src/renderer.h) and the vision frontend
+  // finds the observations (tools/stereoloc/frontend_source.h); "pixels": the simulator's noisy
+  // pixel projections of the visible goal corners.
+  std::string frontend = "images";
+  std::string frontend_landmarks = "all";  // images: all | goal_corners (frontend_source.h)
+  double image_noise = 1.5;   // images: Gaussian sensor noise, grey levels (as bench_frontend's "good" set)
   MethodOptions method_options;
   std::string out_dir;
   bool force = false;
