@@ -1,0 +1,120 @@
+#pragma once
+// The posterior Cramér–Rao bound (CRLB) of a planar trajectory: the lower bound on the error
+// covariance of any unbiased estimator of the poses, from the Fisher information of the data
+// evaluated at the TRUE trajectory (issue 7, section 4).
+//
+// The data are the factors every stereoloc estimator uses, with the project's models:
+//   prior      on pose 0: P0^-1 (the initial belief; its mean is the truth plus N(0, P0), so it
+//              acts as one more Gaussian measurement of pose 0);
+//   odometry   between poses k-1 and k: e = between(p_{k-1}, p_k) [-] u_k, u_k ~ N(., U_k)
+//              (controlVector / controlCovariance, B.4-B.10), information
+//              [Ja Jb]^T U_k^-1 [Ja Jb] with Ja, Jb the Jacobians of between() (pose2.h) at the truth;
+//   range-bearing  H^T R^-1 H with H = d predictRangeBearing / d pose (5.27) at the true pose and
+//              R the observation's covariance (as reported with the data);
+//   compass    1 / sigma^2 on theta.
+// Every factor touches one pose or two consecutive poses, so the information matrix of the
+// whole trajectory is block tridiagonal (3x3 blocks) and every bound below costs O(N)
+// (fixed lag: O(N L)).
+//
+// Bounds, all 3x3 in (x, y, theta) per pose (mm^2, mm rad, rad^2):
+//   smoothing  [J^-1]_kk: the marginal of the inverse of the full information, the bound of an
+//              estimator that uses all the data (the batch smoother).
+//   filtering  J_k^-1 from the recursion of Tichavsky, Muravchik and Nehorai ("Posterior
+//              Cramer-Rao bounds for discrete-time nonlinear filtering", IEEE TSP 46(5), 1998),
+//              written for a between-factor:
+//                 J_0 = prior + unary_0,
+//                 J_k = unary_k + D22_k - D21_k (J_{k-1} + D11_k)^-1 D12_k,
+//              D11 = Ja^T U^-1 Ja, D12 = Ja^T U^-1 Jb, D22 = Jb^T U^-1 Jb. It bounds causal
+//              estimators: the EKF, the particle filter, the sliding window's real-time output.
+//   fixed lag  L: the bound of the estimate of pose k from the data up to step k + L (the
+//              sliding window's history, whose poses leave the window L = W - 1 steps after
+//              they were added). L = 0 is the filtering bound, L >= N - 1 the smoothing bound.
+//              The information of the truncated chain ends in J_m (m = k + L); the backward
+//              (Rauch-Tung-Striebel) pass  Sigma_j = Lambda_j^-1 + G_j Sigma_{j+1} G_j^T,
+//              Lambda_j = J_j + D11_{j+1}, G_j = Lambda_j^-1 D12_{j+1}  gives [J^-1]_kk.
+//
+// The odometry covariance U_k is evaluated by default at the wheel increments that drive the
+// TRUE motion (arcBetween + wheelIncrementsForArc), i.e. at the truth, like the Jacobians. The
+// control variance floor of OdometryParams is part of U: the wheel noise alone has rank 2, so
+// without it the information along one direction would be infinite (the true bound is then
+// slightly below the one computed, by about the floor: 0.1 mm and 1e-3 rad per step).
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "src/dataset.h"
+#include "src/field_map.h"
+#include "src/odometry_model.h"
+#include "src/pose2.h"
+#include "src/types.h"
+
+namespace stereoloc {
+
+// Where U_k (controlCovariance) is evaluated.
+enum class OdometryCovarianceAt {
+  Truth,     // at the wheel increments of the true motion between the true poses
+  Measured,  // at the step's measured wheel increments (what the estimators use)
+};
+std::string toString(OdometryCovarianceAt at);                           // "truth", "measured"
+OdometryCovarianceAt odometryCovarianceAtFromString(const std::string& name);  // throws stereoloc::Error
+
+// Which terms enter the information (all by default; switching some off shows that information
+// adds, and gives the bound of estimators that ignore a sensor).
+struct CrlbOptions {
+  bool prior = true;
+  bool odometry = true;
+  bool observations = true;
+  bool compass = true;
+  OdometryCovarianceAt odometry_covariance = OdometryCovarianceAt::Truth;
+};
+
+// The Fisher information of a trajectory of N poses in block-tridiagonal form.
+struct TrajectoryInformation {
+  std::vector<long> steps;                    // step number of each pose
+  std::vector<Eigen::Matrix3d> unary;         // prior (pose 0), compass and range-bearing on pose k
+  // The odometry factor between poses k-1 and k, stored at index k (index 0 is zero):
+  std::vector<Eigen::Matrix3d> odometry_prev;   // D11 = Ja^T U^-1 Ja   (on pose k-1)
+  std::vector<Eigen::Matrix3d> odometry_cross;  // D12 = Ja^T U^-1 Jb   (pose k-1 row, pose k column)
+  std::vector<Eigen::Matrix3d> odometry_curr;   // D22 = Jb^T U^-1 Jb   (on pose k)
+  long observations_used = 0;
+  long observations_skipped = 0;  // unidentified (landmark_id -1) or degenerate (landmark under the robot)
+  long compass_used = 0;
+
+  size_t size() const { return steps.size(); }
+  // A trajectory with n poses and zero information.
+  static TrajectoryInformation zero(const std::vector<long>& steps);
+  // Information adds: the same poses, blockwise sum. Throws stereoloc::Error on different poses.
+  TrajectoryInformation& operator+=(const TrajectoryInformation& other);
+  // The diagonal blocks D_k and the super-diagonal blocks B_k = J(k-1, k) (B_0 = 0) of the full
+  // information (the form of chainMarginalCovariances, solvers/smoother_common.h).
+  void chainBlocks(std::vector<Eigen::Matrix3d>* D, std::vector<Eigen::Matrix3d>* B) const;
+  // The full 3N x 3N matrix (tests, small problems).
+  Eigen::MatrixXd dense() const;
+};
+
+// The information of one odometry factor between true poses a and b with covariance U: the 6x6
+// [Ja Jb]^T U^-1 [Ja Jb] (pose a first).
+Eigen::Matrix<double, 6, 6> odometryFactorInformation(const Pose2& a, const Pose2& b, const Eigen::Matrix3d& U);
+// The information of one range-bearing observation with covariance R of `landmark` (mm, world)
+// from the true pose: H^T R^-1 H. Throws GeometryError when the landmark is at the robot.
+Eigen::Matrix3d rangeBearingInformation(const Pose2& pose, const Eigen::Vector2d& landmark, const Eigen::Matrix2d& R);
+
+// Builds the information of `steps` at the true poses `truth` (same length). The first step is
+// the initial time (its odometry is not used, as in every estimator); prior_covariance is P0 of
+// the initial belief (unused when options.prior is false). Throws stereoloc::Error on mismatched
+// lengths, an empty trajectory, a prior or U that is not positive definite, unknown landmark ids.
+TrajectoryInformation trajectoryInformation(const std::vector<Step>& steps, const std::vector<Pose2>& truth,
+                                            const FieldMap& map, const OdometryParams& odometry,
+                                            const Eigen::Matrix3d& prior_covariance,
+                                            const CrlbOptions& options = CrlbOptions());
+// The same for a dataset with ground truth at every step (throws stereoloc::Error otherwise).
+TrajectoryInformation trajectoryInformation(const Dataset& dataset, const Eigen::Matrix3d& prior_covariance,
+                                            const CrlbOptions& options = CrlbOptions());
+
+// Per-pose bounds (see the header comment). Throw stereoloc::Error naming the pose when the
+// information is singular there (e.g. no prior and no observation fixes the trajectory).
+std::vector<Eigen::Matrix3d> smoothingBound(const TrajectoryInformation& info);
+std::vector<Eigen::Matrix3d> filteringBound(const TrajectoryInformation& info);
+std::vector<Eigen::Matrix3d> fixedLagBound(const TrajectoryInformation& info, int lag);
+
+}  // namespace stereoloc
