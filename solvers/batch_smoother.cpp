@@ -4,7 +4,9 @@
 #include <ceres/solver.h>
 
 #include <algorithm>
+#include <Eigen/Cholesky>
 #include <chrono>
+#include <cmath>
 #include <memory>
 #include <utility>
 
@@ -14,6 +16,7 @@
 #include "factors/pose_prior_factor.h"
 #include "factors/range_bearing_factor.h"
 #include "src/error.h"
+#include "src/gaussian.h"
 
 namespace stereoloc {
 
@@ -100,6 +103,7 @@ Estimate BatchSmoother::process(const Step& in) {
       e.status = EstimateStatus::Uninitialised;
       ++summary_.uninitialised_steps;
       steps_.push_back(step);
+      raw_observations_.emplace_back();
       guess_.push_back(e);
       return e;
     }
@@ -121,6 +125,10 @@ Estimate BatchSmoother::process(const Step& in) {
     e.pose = filtered->pose;
     guess_covariance_ = filtered->covariance;
     e.status = EstimateStatus::Predicted;
+    if (config_.cut_at_reinitialisation && filtered->status == EstimateStatus::Reinitialised &&
+        cutAtReinitialisation(steps_.size(), *filtered, step))
+      e.status = EstimateStatus::Reinitialised;
+    trackRejections(steps_.size());
   } else if (first_index_ < 0) {
     if (config_.init.mode != InitMode::Global) {
       prior_pose_ = config_.init.pose;
@@ -137,6 +145,7 @@ Estimate BatchSmoother::process(const Step& in) {
       e.status = EstimateStatus::Uninitialised;
       ++summary_.uninitialised_steps;
       steps_.push_back(step);
+      raw_observations_.emplace_back();
       guess_.push_back(e);
       return e;
     }
@@ -163,11 +172,71 @@ Estimate BatchSmoother::process(const Step& in) {
   }
   const bool needs_association = std::any_of(step.observations.begin(), step.observations.end(),
                                              [](const Observation& o) { return o.landmark_id < 0; });
-  if (needs_association)
+  raw_observations_.emplace_back();
+  if (needs_association) {
+    raw_observations_.back() = step.observations;  // re-associated if a kidnap cut moves this pose
     step.observations = associateObservations(step.observations, e.pose, guess_covariance_, map_, config_.association);
+  }
   steps_.push_back(std::move(step));
   guess_.push_back(e);
   return e;
+}
+
+void BatchSmoother::trackRejections(size_t index) {
+  // The last step whose landmark observation passed the filter's gate (5.20): up to there the
+  // odometry chain is confirmed by the map.
+  for (const EkfUpdateRecord& r : filter_->lastUpdates())
+    if (!r.compass && r.accepted) last_accepted_ = static_cast<long>(index);
+}
+
+bool BatchSmoother::cutAtReinitialisation(size_t index, const Estimate& fix, const Step& step) {
+  // The filter declared itself lost and a global fix re-initialised it at `index`. Was the robot
+  // moved (kidnap), or did outliers or a poor linearisation trip the gate? Chain the odometry
+  // from the last confirmed pose (the filter's estimate at the last accepted observation, or
+  // the current segment's first pose) to this step and test the fix against it with the gate's
+  // probability (3 dof): consistent means a false alarm, and the chain stays whole.
+  const size_t lowest = cuts_.empty() ? static_cast<size_t>(first_index_) + 1 : cuts_.back().reinit + 1;
+  const size_t base = std::max(lowest - 1, last_accepted_ >= 0 ? static_cast<size_t>(last_accepted_) : size_t{0});
+  if (base >= index) return false;
+  Pose2 pred = guess_[base].pose;
+  Eigen::Matrix3d P = guess_[base].covariance;
+  for (size_t j = base + 1; j <= index; ++j) {
+    const Step& s = j == index ? step : steps_[j];
+    const PosePrediction pp = predictPose(pred, P, s.d_left, s.d_right, odometry_);  // (5.7), (5.9)
+    pred = pp.pose;
+    P = pp.covariance;
+  }
+  const Eigen::Matrix3d fix_covariance = 0.5 * (fix.covariance + fix.covariance.transpose());
+  const Eigen::Vector3d e = minus(fix.pose, pred);
+  Eigen::LLT<Eigen::Matrix3d> llt(P + fix_covariance);
+  if (llt.info() == Eigen::Success && e.dot(llt.solve(e)) <= chi2Quantile(config_.gate.probability, 3)) return false;
+  // A kidnap candidate. Where in the unobserved stretch after the last confirmed pose the robot
+  // was moved cannot be told from the data (the odometry fits either way); a teleport changes
+  // the view at once, so the confirming observations end at the kidnap: the chain is cut right
+  // after the last confirmed pose and every later pose joins the new segment. The solve
+  // verifies the cut (likelihood-ratio test).
+  const size_t cut = base + 1;
+  cuts_.push_back(Cut{cut, index});
+  // The poses from the cut to the fix belong to the new segment: chain the odometry backwards
+  // from the fix, p_j = p_{j+1} (+) u_{j+1}^-1 (B.16), with the covariance (5.9) of that motion.
+  Pose2 p = fix.pose;
+  P = fix_covariance;
+  for (size_t j = index; j-- > cut;) {
+    const Step& next = j + 1 == index ? step : steps_[j + 1];
+    const Eigen::Vector3d u = controlVector(next.d_left, next.d_right, odometry_.wheel_base_mm);
+    Matrix3d J_inv, J1, J2;
+    const Pose2 u_inv = inverse(Pose2(u.x(), u.y(), u.z()), &J_inv);
+    p = compose(p, u_inv, &J1, &J2);
+    const Eigen::Matrix3d Ju = J2 * J_inv;
+    P = J1 * P * J1.transpose() + Ju * controlCovariance(next.d_left, next.d_right, odometry_) * Ju.transpose();
+    P = 0.5 * (P + P.transpose());
+    guess_[j].pose = p;
+    guess_[j].covariance = P;
+    guess_[j].status = EstimateStatus::Predicted;
+    if (!raw_observations_[j].empty())
+      steps_[j].observations = associateObservations(raw_observations_[j], p, P, map_, config_.association);
+  }
+  return true;
 }
 
 std::vector<Estimate> BatchSmoother::finish() {
@@ -200,8 +269,7 @@ void BatchSmoother::solve() {
   ceres::Problem::Options popts;
   popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  ceres::Problem problem(popts);
-  for (size_t i = 0; i < n; ++i) problem.AddParameterBlock(&x[3 * i], 3, &manifold);
+  std::unique_ptr<ceres::Problem> problem_ptr;
   // Every factor with the poses it links (b = -1: unary), for the chain covariance.
   struct Link {
     const ceres::CostFunction* cost;
@@ -209,35 +277,35 @@ void BatchSmoother::solve() {
     bool robust;
   };
   std::vector<Link> links;
-  auto add = [&](ceres::CostFunction* cost, ceres::LossFunction* lf, long a, long b) {
-    if (b < 0)
-      problem.AddResidualBlock(cost, lf, &x[3 * static_cast<size_t>(a)]);
-    else
-      problem.AddResidualBlock(cost, lf, &x[3 * static_cast<size_t>(a)], &x[3 * static_cast<size_t>(b)]);
-    links.push_back(Link{cost, a, b, lf != nullptr});
-  };
-  add(PosePriorFactor::Create(prior_pose_, 0.5 * (prior_covariance_ + prior_covariance_.transpose())), nullptr, 0, -1);
-  for (size_t i = 0; i < n; ++i) {
-    const Step& st = steps_[first + i];
-    const long li = static_cast<long>(i);
-    if (i > 0) {
-      add(OdometryFactor::Create(st.d_left, st.d_right, odometry_), nullptr, li - 1, li);
-      ++s.odometry_factors;
-    }
-    if (st.compass && config_.use_compass) {
-      add(CompassFactor::Create(*st.compass, st.compass_sigma), nullptr, li, -1);
-      ++s.compass_factors;
-    }
-    for (const Observation& o : st.observations) {
-      if (o.landmark_id < 0) {
-        ++s.unassociated_observations;
-        continue;
+  // The diagonal and super-diagonal 3x3 blocks of the Gauss-Newton information at x (robust
+  // factors weighted by rho'(s) at the solution, no second-order term); false if a factor
+  // cannot be evaluated.
+  auto chainInformation = [&](std::vector<Eigen::Matrix3d>* D, std::vector<Eigen::Matrix3d>* B) {
+    D->assign(n, Eigen::Matrix3d::Zero());
+    B->assign(n, Eigen::Matrix3d::Zero());
+    using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+    for (const Link& l : links) {
+      const int m = l.cost->num_residuals();
+      RowMajor Ja(m, 3), Jb(m, 3);
+      Eigen::VectorXd r(m);
+      const double* params[2] = {&x[3 * static_cast<size_t>(l.a)], l.b >= 0 ? &x[3 * static_cast<size_t>(l.b)] : nullptr};
+      double* jac[2] = {Ja.data(), Jb.data()};
+      if (!l.cost->Evaluate(params, r.data(), jac) || !Ja.allFinite() || !Jb.allFinite()) return false;
+      if (l.robust) {
+        double rho[3];
+        loss->Evaluate(r.squaredNorm(), rho);
+        const double w = std::sqrt(std::max(rho[1], 0.0));
+        Ja *= w;
+        Jb *= w;
       }
-      add(RangeBearingFactor::Create(map_.at(o.landmark_id).xy(), o.z(), o.covariance), loss.get(), li, -1);
-      ++s.observation_factors;
+      (*D)[static_cast<size_t>(l.a)] += Ja.transpose() * Ja;
+      if (l.b >= 0) {
+        (*D)[static_cast<size_t>(l.b)] += Jb.transpose() * Jb;
+        (*B)[static_cast<size_t>(l.b)] += Ja.transpose() * Jb;  // the poses are consecutive: a = b - 1
+      }
     }
-  }
-  s.poses = static_cast<int>(n);
+    return true;
+  };
 
   ceres::Solver::Options opts;
   opts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
@@ -251,17 +319,122 @@ void BatchSmoother::solve() {
   opts.num_threads = config_.num_threads;
   opts.logging_type = ceres::SILENT;
   opts.minimizer_progress_to_stdout = false;
-  ceres::Solver::Summary cs;
-  const auto t0 = Clock::now();
-  ceres::Solve(opts, &problem, &cs);
-  s.solve_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-  s.iterations = static_cast<int>(cs.iterations.size()) - 1;
-  s.initial_cost = cs.initial_cost;
-  s.final_cost = cs.final_cost;
-  s.solved = cs.IsSolutionUsable();
-  s.converged = cs.termination_type == ceres::CONVERGENCE;
-  s.message = cs.message;
-  if (!s.solved) throw Error("batch smoother: Ceres failed: " + cs.message);
+  const int uninitialised = s.uninitialised_steps;
+  double solve_seconds = 0;
+  // Builds and solves the problem with the odometry factors into the poses `cut` removed,
+  // from the current x; returns the final cost.
+  auto solveWith = [&](const std::vector<size_t>& cut) {
+    s = BatchSummary();
+    s.uninitialised_steps = uninitialised;
+    problem_ptr = std::make_unique<ceres::Problem>(popts);
+    ceres::Problem& problem = *problem_ptr;
+    links.clear();
+    for (size_t i = 0; i < n; ++i) problem.AddParameterBlock(&x[3 * i], 3, &manifold);
+    auto add = [&](ceres::CostFunction* cost, ceres::LossFunction* lf, long a, long b) {
+      if (b < 0)
+        problem.AddResidualBlock(cost, lf, &x[3 * static_cast<size_t>(a)]);
+      else
+        problem.AddResidualBlock(cost, lf, &x[3 * static_cast<size_t>(a)], &x[3 * static_cast<size_t>(b)]);
+      links.push_back(Link{cost, a, b, lf != nullptr});
+    };
+    add(PosePriorFactor::Create(prior_pose_, 0.5 * (prior_covariance_ + prior_covariance_.transpose())), nullptr, 0, -1);
+    for (size_t i = 0; i < n; ++i) {
+      const Step& st = steps_[first + i];
+      const long li = static_cast<long>(i);
+      if (i > 0 && std::find(cut.begin(), cut.end(), first + i) == cut.end()) {
+        add(OdometryFactor::Create(st.d_left, st.d_right, odometry_), nullptr, li - 1, li);
+        ++s.odometry_factors;
+      }
+      if (st.compass && config_.use_compass) {
+        add(CompassFactor::Create(*st.compass, st.compass_sigma), nullptr, li, -1);
+        ++s.compass_factors;
+      }
+      for (const Observation& o : st.observations) {
+        if (o.landmark_id < 0) {
+          ++s.unassociated_observations;
+          continue;
+        }
+        add(RangeBearingFactor::Create(map_.at(o.landmark_id).xy(), o.z(), o.covariance), loss.get(), li, -1);
+        ++s.observation_factors;
+      }
+    }
+    s.segments = 1 + static_cast<int>(cut.size());
+    s.poses = static_cast<int>(n);
+    ceres::Solver::Summary cs;
+    const auto t0 = Clock::now();
+    ceres::Solve(opts, &problem, &cs);
+    solve_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
+    s.solve_seconds = solve_seconds;
+    s.iterations = static_cast<int>(cs.iterations.size()) - 1;
+    s.initial_cost = cs.initial_cost;
+    s.final_cost = cs.final_cost;
+    s.solved = cs.IsSolutionUsable();
+    s.converged = cs.termination_type == ceres::CONVERGENCE;
+    s.message = cs.message;
+    if (!s.solved) throw Error("batch smoother: Ceres failed: " + cs.message);
+    return cs.final_cost;
+  };
+  auto cutIndices = [&](const std::vector<Cut>& cuts) {
+    std::vector<size_t> v;
+    for (const Cut& c : cuts)
+      if (c.index > first) v.push_back(c.index);
+    return v;
+  };
+  double cost = solveWith(cutIndices(cuts_));
+  int withdrawn = 0;
+  if (!cuts_.empty()) {
+    // A segment the data do not determine cannot be verified, nor estimated on its own.
+    std::vector<Eigen::Matrix3d> D, B, cov;
+    if (!chainInformation(&D, &B) || !chainMarginalCovariances(D, B, &cov)) {
+      withdrawn += static_cast<int>(cuts_.size());
+      cuts_.clear();
+      cost = solveWith({});
+    }
+    // Model selection for each cut, in step order: a cut frees the 3 degrees of freedom of the
+    // segment after it; by the Bayesian information criterion it is kept only if restoring its
+    // odometry factor raises 2 x cost by more than 3 ln(m), m the number of residuals (and at
+    // least the gate's chi-square(3) quantile). A rare kidnap thus needs strong evidence: one
+    // outlier that a free pose can fit does not cut the chain. Each hypothesis starts from its
+    // own guess: without the cut, the segment after it is moved rigidly to continue the odometry
+    // from the pose before the cut (a robust loss would otherwise keep a misplaced segment).
+    const double threshold = std::max(chi2Quantile(config_.gate.probability, 3),
+                                      3.0 * std::log(std::max(2.0, static_cast<double>(problem_ptr->NumResiduals()))));
+    bool current = true;  // the last solve was with cuts_
+    for (size_t k = 0; k < cuts_.size();) {
+      const std::vector<double> keep = x;
+      const size_t c = cuts_[k].index - first;
+      const size_t end = k + 1 < cuts_.size() ? cuts_[k + 1].index - first : n;
+      const Step& st = steps_[cuts_[k].index];
+      const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
+      const Pose2 target = compose(Pose2(x[3 * c - 3], x[3 * c - 2], x[3 * c - 1]), Pose2(u.x(), u.y(), u.z()));
+      const Pose2 start(x[3 * c], x[3 * c + 1], x[3 * c + 2]);
+      for (size_t j = c; j < end; ++j) {
+        const Pose2 moved = compose(target, between(start, Pose2(x[3 * j], x[3 * j + 1], x[3 * j + 2])));
+        x[3 * j] = moved.x;
+        x[3 * j + 1] = moved.y;
+        x[3 * j + 2] = moved.theta;
+      }
+      std::vector<Cut> trial = cuts_;
+      trial.erase(trial.begin() + static_cast<long>(k));
+      const double restored = solveWith(cutIndices(trial));
+      if (2.0 * (restored - cost) <= threshold) {
+        cuts_ = trial;
+        cost = restored;
+        ++withdrawn;
+        current = true;
+      } else {
+        x = keep;
+        current = false;
+        ++k;
+      }
+    }
+    if (!current) solveWith(cutIndices(cuts_));
+  }
+  s.withdrawn_cuts = withdrawn;
+  for (const Cut& c : cuts_) {
+    s.cut_steps.push_back(steps_[c.index].step);
+    s.reinit_steps.push_back(steps_[c.reinit].step);
+  }
 
   for (size_t i = 0; i < n; ++i) {
     Estimate& e = result_[first + i];
@@ -271,32 +444,8 @@ void BatchSmoother::solve() {
   }
   if (config_.compute_covariance && config_.covariance_method == CovarianceMethod::Chain) {
     const auto t1 = Clock::now();
-    std::vector<Eigen::Matrix3d> D(n, Eigen::Matrix3d::Zero()), B(n, Eigen::Matrix3d::Zero());
-    bool ok = true;
-    using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
-    for (const Link& l : links) {
-      const int m = l.cost->num_residuals();
-      RowMajor Ja(m, 3), Jb(m, 3);
-      Eigen::VectorXd r(m);
-      const double* params[2] = {&x[3 * static_cast<size_t>(l.a)], l.b >= 0 ? &x[3 * static_cast<size_t>(l.b)] : nullptr};
-      double* jac[2] = {Ja.data(), Jb.data()};
-      if (!l.cost->Evaluate(params, r.data(), jac) || !Ja.allFinite() || !Jb.allFinite()) {
-        ok = false;
-        break;
-      }
-      if (l.robust) {  // the robust weight rho'(s) at the solution (no second-order term)
-        double rho[3];
-        loss->Evaluate(r.squaredNorm(), rho);
-        const double w = std::sqrt(std::max(rho[1], 0.0));
-        Ja *= w;
-        Jb *= w;
-      }
-      D[static_cast<size_t>(l.a)] += Ja.transpose() * Ja;
-      if (l.b >= 0) {
-        D[static_cast<size_t>(l.b)] += Jb.transpose() * Jb;
-        B[static_cast<size_t>(l.b)] += Ja.transpose() * Jb;  // the poses are consecutive: a = b - 1
-      }
-    }
+    std::vector<Eigen::Matrix3d> D, B;
+    const bool ok = chainInformation(&D, &B);
     std::vector<Eigen::Matrix3d> cov;
     if (ok && chainMarginalCovariances(D, B, &cov)) {
       s.covariance_status = CovarianceStatus::Ok;
@@ -317,7 +466,7 @@ void BatchSmoother::solve() {
     std::vector<std::pair<const double*, const double*>> blocks;
     blocks.reserve(n);
     for (size_t i = 0; i < n; ++i) blocks.emplace_back(&x[3 * i], &x[3 * i]);
-    if (covariance.Compute(blocks, &problem)) {
+    if (covariance.Compute(blocks, problem_ptr.get())) {
       s.covariance_status = CovarianceStatus::Ok;
       for (size_t i = 0; i < n; ++i) {
         Eigen::Matrix<double, 3, 3, Eigen::RowMajor> C;

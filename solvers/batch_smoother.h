@@ -15,6 +15,8 @@
 // solves and returns one Estimate per processed step. The first processed step is the initial
 // time (its odometry is not applied), as for the EKF. Initial guess: a forward EKF pass (default),
 // odometry chained from the initial belief (or the first global fix), or given estimates.
+// Kidnap (5.1.3): the filter pass's gate detects it; each re-initialisation after "lost" cuts the
+// odometry chain and anchors the new segment on the global fix (cut_at_reinitialisation).
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
@@ -67,6 +69,18 @@ struct BatchSmootherConfig {
   GateConfig gate;                  // of the filter pass (InitialGuess::Filter)
   bool compute_covariance = true;   // per-pose marginal covariances
   CovarianceMethod covariance_method = CovarianceMethod::Chain;
+  // Kidnap (5.1.3): when the filter pass (InitialGuess::Filter) declares itself lost and a global
+  // fix re-initialises it, the fix is tested (gate probability, 3 dof) against the odometry
+  // chained from the last pose confirmed by an accepted observation. If it is inconsistent, the
+  // odometry factor after the last confirmed pose becomes a candidate cut, and the poses from
+  // there to the fix are re-guessed by chaining the odometry backwards from the fix. After the
+  // solve with the cuts, each cut is verified by model selection: the problem is solved again
+  // with that odometry factor restored, and the cut is kept only if it lowers 2 x cost by more
+  // than the Bayesian information criterion's 3 ln(m) (m residuals; at least the gate's
+  // chi-square(3) quantile), so outliers or a poor linearisation that misled the filter do not
+  // cut the chain. A segment the data do not determine (singular information) is never cut
+  // off. false: one unbroken chain.
+  bool cut_at_reinitialisation = true;
 
   void validate() const;            // throws stereoloc::Error naming the field
 };
@@ -93,6 +107,10 @@ struct BatchSummary {
   int unassociated_observations = 0;  // landmark_id == -1 with no landmark inside the gate
   int uninitialised_steps = 0;        // before the first global fix: no pose, not estimated
   CovarianceStatus covariance_status = CovarianceStatus::NotComputed;
+  int segments = 0;               // pieces of the odometry chain (1 + cut_steps.size())
+  std::vector<long> cut_steps;    // steps whose odometry factor was cut (kidnap), in order
+  std::vector<long> reinit_steps; // the filter's re-initialisation step of each kept cut
+  int withdrawn_cuts = 0;         // candidate cuts rejected by the likelihood-ratio test
   std::string message;            // Ceres's termination message / covariance failure reason
 };
 
@@ -120,6 +138,8 @@ class BatchSmoother : public Estimator {
 
  private:
   void solve();
+  void trackRejections(size_t index);
+  bool cutAtReinitialisation(size_t index, const Estimate& fix, const Step& step);  // true: a candidate cut
   std::unique_ptr<Ekf> filter_;   // InitialGuess::Filter
 
   FieldMap map_;
@@ -132,6 +152,14 @@ class BatchSmoother : public Estimator {
   Pose2 prior_pose_;
   Eigen::Matrix3d prior_covariance_ = Eigen::Matrix3d::Identity();
   Eigen::Matrix3d guess_covariance_ = Eigen::Matrix3d::Zero();  // dead-reckoned, for association
+  // Kidnap handling (cut_at_reinitialisation).
+  struct Cut {
+    size_t index;                 // into steps_: the odometry factor into this pose is cut
+    size_t reinit;                // into steps_: the filter's re-initialisation (global fix)
+  };
+  std::vector<Cut> cuts_;         // candidate (then verified) cuts, in step order
+  long last_accepted_ = -1;       // index of the last step with an observation accepted by the filter's gate
+  std::vector<std::vector<Observation>> raw_observations_;  // per step, before association (empty if none needed)
   bool solved_ = false;
   std::vector<Estimate> result_;
   BatchSummary summary_;

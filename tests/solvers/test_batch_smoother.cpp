@@ -5,10 +5,12 @@
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
 #include <cmath>
+#include <random>
 
 #include "solvers/batch_smoother.h"
 #include "solvers/smoother_common.h"
 #include "src/odometry_model.h"
+#include "src/simulator.h"
 
 namespace stereoloc {
 namespace {
@@ -185,6 +187,8 @@ TEST(BatchSmoother, RobustLossKeepsAccuracyWithTenPercentOutliers) {
     c.loss.scale = 2.3849;
     BatchSmoother b2(po.map, po.odometry, c);
     robust += positionRmse(run(b2, po.steps), po.truth);
+    // Outliers mislead the filter pass into re-initialisations; they are not kidnaps.
+    EXPECT_EQ(b2.summary().segments, 1) << "seed " << seed << ", withdrawn " << b2.summary().withdrawn_cuts;
   }
   EXPECT_LT(robust, 1.2 * clean) << "robust " << robust / 3 << " clean " << clean / 3;
   EXPECT_GT(plain, 1.2 * clean) << "the outliers must hurt without a robust loss, else the test proves nothing";
@@ -225,6 +229,62 @@ TEST(BatchSmoother, InitialEstimatesAndGlobalFixStart) {
   EXPECT_LT(positionRmse(std::vector<Estimate>(eg.begin() + 3, eg.end()),
                          std::vector<Pose2>(p.truth.begin() + 3, p.truth.end())),
             20.0);
+}
+
+// Kidnap (thesis 5.1.3): line A -> B, carried back to A at step 100 with the odometry reading 0.
+// One unbroken chain ties the second run to the first (the carried step's odometry factor says
+// "did not move", with the tiny floor covariance); the cut at the filter's re-initialisation
+// restores both runs.
+TEST(BatchSmoother, KidnapCutsTheOdometryChainAtTheReinitialisation) {
+  double se_cut = 0, se_chain = 0, se_ekf = 0;
+  long n = 0;
+  for (uint64_t seed = 1; seed <= 3; ++seed) {
+    SimulationTrace trace;
+    const Dataset d = simulate("kidnap", 0, SimulationConfig(), 1000 + seed, &trace);
+    long kidnap = -1;
+    for (size_t k = 0; k < trace.scenario.carried.size(); ++k)
+      if (trace.scenario.carried[k]) kidnap = static_cast<long>(k);
+    ASSERT_EQ(kidnap, 100);
+    std::mt19937_64 rng(seed);
+    BatchSmootherConfig c;
+    c.init = knownBeliefWithNoise(*d.initial_pose, InitConfig(), rng);
+    BatchSmoother cut(d.map, d.odometry, c);
+    c.cut_at_reinitialisation = false;
+    BatchSmoother chain(d.map, d.odometry, c);
+    EkfConfig ec;
+    ec.init = c.init;
+    Ekf ekf(d.map, d.odometry, ec);
+    for (const Step& s : d.steps) {
+      cut.process(s);
+      chain.process(s);
+      ekf.process(s);
+    }
+    const std::vector<Estimate> ec_est = ekf.finish(), cut_est = cut.finish(), chain_est = chain.finish();
+    const BatchSummary& s = cut.summary();
+    ASSERT_EQ(s.cut_steps.size(), 1u) << "seed " << seed;
+    EXPECT_EQ(s.segments, 2);
+    // The last accepted observation is the step before the kidnap (carried to A, the robot sees
+    // nothing for two steps, then its observations are gated): the cut is at the kidnap.
+    EXPECT_EQ(s.cut_steps[0], kidnap) << "seed " << seed;
+    ASSERT_EQ(s.reinit_steps.size(), 1u);
+    EXPECT_GT(s.reinit_steps[0], kidnap);
+    EXPECT_LE(s.reinit_steps[0], kidnap + 6);
+    EXPECT_EQ(s.withdrawn_cuts, 0);
+    EXPECT_EQ(s.odometry_factors, static_cast<int>(d.steps.size()) - 2);
+    EXPECT_EQ(s.covariance_status, CovarianceStatus::Ok);
+    EXPECT_EQ(chain.summary().segments, 1);
+    for (size_t k = 0; k < d.steps.size(); ++k) {
+      const Pose2& g = *d.groundtruth[k];
+      se_cut += (cut_est[k].pose.translation() - g.translation()).squaredNorm();
+      se_chain += (chain_est[k].pose.translation() - g.translation()).squaredNorm();
+      se_ekf += (ec_est[k].pose.translation() - g.translation()).squaredNorm();
+      ++n;
+    }
+  }
+  const double cut_rmse = std::sqrt(se_cut / n), chain_rmse = std::sqrt(se_chain / n), ekf_rmse = std::sqrt(se_ekf / n);
+  EXPECT_GT(chain_rmse, 100.0) << "without the cut the kidnap must hurt, else the test proves nothing";
+  EXPECT_LT(cut_rmse, 15.0) << "chain " << chain_rmse << " ekf " << ekf_rmse;
+  EXPECT_LT(cut_rmse, 0.8 * ekf_rmse) << "ekf " << ekf_rmse;
 }
 
 TEST(BatchSmoother, RejectsBadInput) {
