@@ -94,6 +94,82 @@ std::string jsonString(const std::string& s) {
   return out + "\"";
 }
 
+// The outline of the wall and goal tops where they meet the background (their outer top
+// edges). Seen from the field with the camera above the walls (70 mm vs 50 mm), the top face is
+// visible and this outline is the wall's silhouette against the background, the strongest edge
+// of the wall; the scene's edges hold only the inner top edges (towards the floor). Every top
+// polygon edge of the static scene is sampled every 5 mm; a sample is on the outline when the
+// point 1 mm outside it is background floor and inside no other prism (so shared faces of the
+// 300 mm wall pieces and of walls and goals drop out). Collinear touching runs are joined.
+std::vector<SceneEdge> topOutlineEdges(const Scene& scene) {
+  const auto& prisms = scene.prisms();
+  auto insidePrism = [&](const Prism& p, const Eigen::Vector2d& q) {
+    for (size_t i = 0; i < p.polygon.size(); ++i) {
+      const Eigen::Vector2d& a = p.polygon[i];
+      const Eigen::Vector2d& b = p.polygon[(i + 1) % p.polygon.size()];
+      if ((b - a).x() * (q - a).y() - (b - a).y() * (q - a).x() < 0) return false;
+    }
+    return true;
+  };
+  std::vector<SceneEdge> runs;
+  for (size_t pi = 0; pi < prisms.size(); ++pi) {
+    const Prism& p = prisms[pi];
+    const size_t n = p.polygon.size();
+    for (size_t i = 0; i < n; ++i) {
+      const Eigen::Vector2d a = p.polygon[i], b = p.polygon[(i + 1) % n];
+      const double len = (b - a).norm();
+      if (!(len > 0)) continue;
+      const Eigen::Vector2d dir = (b - a) / len, out(dir.y(), -dir.x());  // counter-clockwise: outward
+      const int samples = std::max(2, static_cast<int>(std::ceil(len / 5.0)));
+      auto onOutline = [&](double s) {
+        const Eigen::Vector2d q = a + s * (b - a) + out;
+        if (scene.floorClass(q.x(), q.y()) != SurfaceClass::Background) return false;
+        for (size_t pj = 0; pj < prisms.size(); ++pj)
+          if (pj != pi && prisms[pj].zmax >= p.zmax && insidePrism(prisms[pj], q)) return false;
+        return true;
+      };
+      double start = -1;
+      for (int k = 0; k <= samples; ++k) {
+        const double s = static_cast<double>(k) / samples;
+        const bool on = onOutline(std::clamp(s, 0.01, 0.99));
+        if (on && start < 0) start = s;
+        if ((!on || k == samples) && start >= 0) {
+          const double end = on ? s : static_cast<double>(k - 1) / samples;
+          if (end > start) {
+            const Eigen::Vector2d pa = a + start * (b - a), pb = a + end * (b - a);
+            runs.push_back({"top_outline", "top_outline", {pa.x(), pa.y(), p.zmax}, {pb.x(), pb.y(), p.zmax}});
+          }
+          start = -1;
+        }
+      }
+    }
+  }
+  // Join collinear runs that touch (the wall pieces).
+  bool joined = true;
+  while (joined) {
+    joined = false;
+    for (size_t i = 0; i < runs.size() && !joined; ++i)
+      for (size_t j = i + 1; j < runs.size() && !joined; ++j) {
+        SceneEdge& e = runs[i];
+        const SceneEdge& f = runs[j];
+        if (e.a.z() != f.a.z()) continue;
+        const Eigen::Vector3d d = (e.b - e.a).normalized();
+        auto off = [&](const Eigen::Vector3d& q) { return (q - e.a - d * d.dot(q - e.a)).norm(); };
+        if (off(f.a) > 1e-6 || off(f.b) > 1e-6) continue;
+        const double ta = 0, tb = d.dot(e.b - e.a), fa = d.dot(f.a - e.a), fb = d.dot(f.b - e.a);
+        if (std::min(fa, fb) > tb + 1e-6 || std::max(fa, fb) < ta - 1e-6) continue;
+        const double lo = std::min({ta, fa, fb}), hi = std::max({tb, fa, fb});
+        const Eigen::Vector3d a0 = e.a;
+        e.a = a0 + lo * d;
+        e.b = a0 + hi * d;
+        runs.erase(runs.begin() + static_cast<long>(j));
+        joined = true;
+      }
+  }
+  for (size_t i = 0; i < runs.size(); ++i) runs[i].name = "top_outline_" + std::to_string(i);
+  return runs;
+}
+
 }  // namespace
 
 void RenderOptions::validate() const {
@@ -111,6 +187,7 @@ void RenderOptions::validate() const {
 StereoRenderer::StereoRenderer(const FieldMap& map, const StereoRig& rig, const RenderOptions& options)
     : map_(map), rig_(rig), options_(options), static_scene_(Scene::fromMap(map)) {
   options_.validate();
+  outline_edges_ = topOutlineEdges(static_scene_);
   const int W = rig.params().image_width, H = rig.params().image_height, n = options_.samples_per_axis;
   const double f = rig.focal(), ou = rig.principalU(), ov = rig.principalV();
   rays_.resize(static_cast<size_t>(W) * H * n * n);
@@ -302,7 +379,8 @@ StereoTruth StereoRenderer::computeTruth(const Scene& scene, const Pose2& robot,
       if (scene.occluded(cam, l.position, kTolerance)) continue;
       it.landmarks.push_back({l.id, toString(l.type), px});
     }
-    for (const SceneEdge& e : scene.edges()) {
+    for (size_t ei = 0; ei < scene.edges().size() + outline_edges_.size(); ++ei) {
+      const SceneEdge& e = ei < scene.edges().size() ? scene.edges()[ei] : outline_edges_[ei - scene.edges().size()];
       // Clip the segment to the viewing frustum: x >= 1 mm and the four image borders, each a
       // half-space a.q >= 0 that is linear in the segment parameter s.
       const Eigen::Vector3d A = toCam(e.a), B = toCam(e.b);

@@ -11,7 +11,9 @@
 // by StereoRig::project lands exactly on the rendered feature.
 //
 // Ground truth per image: the visible pieces of every straight marking centreline, wall, goal
-// and corner-triangle edge (image end points), and the image position of every visible
+// and corner-triangle edge (image end points), the outline of the wall and goal tops against
+// the background (kind "top_outline": their outer top edges, the walls' silhouette seen from
+// above the wall height), and the image position of every visible
 // landmark with its id (visible = in front, in the image, line of sight not blocked).
 //
 // Rows are split between `threads` worker threads; each pixel depends only on its own rays, and
@@ -47,7 +49,7 @@ struct RenderOptions {
 };
 
 struct ImageSegment {
-  std::string kind;   // marking, wall_foot, wall_top, goal_post, goal_foot, goal_top, triangle
+  std::string kind;   // marking, wall_foot, wall_top, goal_post, goal_foot, goal_top, triangle, top_outline
   std::string name;
   Eigen::Vector2d a = Eigen::Vector2d::Zero(), b = Eigen::Vector2d::Zero();  // px
 };
@@ -93,6 +95,7 @@ class StereoRenderer {
   StereoRig rig_;
   RenderOptions options_;
   Scene static_scene_;
+  std::vector<SceneEdge> outline_edges_;  // top outline of walls and goals (truth only)
   std::vector<Eigen::Vector3f> rays_;  // per sample, direction in C2 (x forward), unnormalised
 };
 

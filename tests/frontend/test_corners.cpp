@@ -130,3 +130,24 @@ TEST(Corners, CrossingGivesAnIntersectionAndShallowAnglesNothing) {
   findCorners(lines, rig, fe.params().corners, feats);
   for (const PointFeature& f : feats) EXPECT_NE(f.type, LandmarkType::MarkingCorner);
 }
+
+// A stripe leaving the image at a slant got a centre line (from its edges' end points and
+// their projections on each other) running up to 4 px beyond the border, where the truth is
+// clipped: lines are now clipped to the pixel area.
+TEST(Corners, LinesAreClippedToTheImage) {
+  std::vector<LineFeature> lines(2);
+  // x cos(45) + y sin(45) = rho through (100, 239.5 + 4) and beyond.
+  LineFeature& l = lines[0];
+  l.theta = frontend::kTwoPi / 8;
+  l.rho = (100 + 243.5) * std::cos(l.theta);
+  const double t_out = -100 * std::sin(l.theta) + 243.5 * std::cos(l.theta);
+  l.t_min = t_out - 50;
+  l.t_max = t_out;
+  lines[1] = l;
+  lines[1].rho = -500;  // wholly outside
+  clipLinesToImage(320, 240, lines);
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NEAR(lines[0].y(lines[0].t_max), 239.5, 1e-9);
+  EXPECT_LT(lines[0].t_max, t_out);
+  EXPECT_NEAR(lines[0].t_min, t_out - 50, 1e-9);
+}

@@ -1,6 +1,7 @@
 // Stage 4: peak verification and segment completion (Algorithm 2).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
@@ -126,4 +127,97 @@ TEST(Segments, FitLineIsTotalLeastSquares) {
   EXPECT_NEAR(rho, -5 / std::sqrt(5.0), 0.05);
   EXPECT_NEAR(rms, 0.1 / std::sqrt(5.0), 0.01);
   EXPECT_FALSE(fitLine(px, idx.data(), idx.data() + 1, 0.0, theta, rho));
+}
+
+namespace {
+// Edge pixels along y = y0 + slope x (theta = 90 deg: gradient pointing down the image).
+void addChain(std::vector<EdgePixel>& e, double x0, double x1, double y0, double slope, double jitter = 0.0) {
+  int k = 0;
+  for (double x = x0; x <= x1; x += 1.0, ++k) {
+    EdgePixel p;
+    p.x = static_cast<float>(x);
+    p.y = static_cast<float>(y0 + slope * x + ((k % 3) - 1) * jitter);
+    p.ix = static_cast<int16_t>(std::lround(p.x));
+    p.iy = static_cast<int16_t>(std::lround(p.y));
+    p.angle = static_cast<float>(kTwoPi / 4);
+    e.push_back(p);
+  }
+}
+std::vector<int> sortedAlong(const std::vector<EdgePixel>& e, double theta) {
+  std::vector<int> idx(e.size());
+  for (size_t i = 0; i < e.size(); ++i) idx[i] = static_cast<int>(i);
+  std::sort(idx.begin(), idx.end(), [&](int a, int b) {
+    return -e[a].x * std::sin(theta) + e[a].y * std::cos(theta) < -e[b].x * std::sin(theta) + e[b].y * std::cos(theta);
+  });
+  return idx;
+}
+}  // namespace
+
+// Far away, a wall foot and the next wall's foot meet at an image angle of ~3 deg; one Hough
+// cell collects both. Before the fix they came out as one segment running past both ends.
+TEST(Segments, SplitAtBendsCutsAShallowBend) {
+  std::vector<EdgePixel> e;
+  addChain(e, 0, 59, 50.0, 0.0, 0.1);
+  addChain(e, 60, 140, 50.0 - 60 * 0.05, 0.05, 0.1);  // +2.9 deg from x = 60 on
+  const double theta = kTwoPi / 4;
+  const std::vector<int> idx = sortedAlong(e, theta);
+  std::vector<int> cuts;
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 0.75, cuts);
+  ASSERT_EQ(cuts.size(), 3u);
+  EXPECT_EQ(cuts.front(), 0);
+  EXPECT_EQ(cuts.back(), static_cast<int>(idx.size()));
+  EXPECT_NEAR(e[idx[cuts[1]]].x, 60.0, 8.0);
+}
+
+TEST(Segments, SplitAtBendsKeepsANoisyStraightLineWhole) {
+  std::vector<EdgePixel> e;
+  addChain(e, 0, 200, 30.0, 0.02, 0.3);
+  const double theta = std::atan2(1.0, -0.02);
+  const std::vector<int> idx = sortedAlong(e, theta);
+  std::vector<int> cuts;
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 0.75, cuts);
+  EXPECT_EQ(cuts.size(), 2u);
+}
+
+// Two parallel edges 2 px apart, end to end (a goal foot recessed behind a wall foot): a step.
+TEST(Segments, SplitAtBendsCutsAStep) {
+  std::vector<EdgePixel> e;
+  addChain(e, 0, 70, 40.0, 0.0);
+  addChain(e, 72, 150, 42.0, 0.0);
+  const double theta = kTwoPi / 4;
+  const std::vector<int> idx = sortedAlong(e, theta);
+  std::vector<int> cuts;
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 0.75, cuts);
+  ASSERT_GE(cuts.size(), 3u);
+  bool near_step = false;
+  for (size_t k = 1; k + 1 < cuts.size(); ++k) near_step |= std::fabs(e[idx[cuts[k]]].x - 71.0) < 6.0;
+  EXPECT_TRUE(near_step);
+}
+
+// A peak straddling two near-collinear edges used to remove the pixels of both; the edge
+// it did not keep must still come out (release_unused).
+TEST(Segments, TwoEdgesMeetingAtAShallowAngleGiveTwoSegments) {
+  cv::Mat img(120, 240, CV_8UC1, cv::Scalar(30));
+  // Bright below a polyline: flat at y = 60 for x < 110, then sloping down at 4 deg.
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x) {
+      int in = 0;
+      for (int k = 0; k < 16; ++k) {
+        const double sx = x - 0.5 + (k % 4 + 0.5) / 4, sy = y - 0.5 + (k / 4 + 0.5) / 4;
+        const double top = sx < 110 ? 60.0 : 60.0 + (sx - 110) * std::tan(4.0 * kTwoPi / 360);
+        in += sy >= top ? 1 : 0;
+      }
+      img.at<uint8_t>(y, x) = static_cast<uint8_t>(30 + 180 * in / 16);
+    }
+  Pipeline run;
+  run(img);
+  const std::vector<Segment> segs = run.along(kTwoPi / 4);
+  int flat = 0, sloped = 0;
+  for (const Segment& s : segs) {
+    const double slope = (s.y2 - s.y1) / (s.x2 - s.x1);
+    if (std::fabs(slope) < 0.01 && std::max(s.x1, s.x2) < 116) ++flat;
+    if (std::fabs(slope - std::tan(4.0 * kTwoPi / 360)) < 0.01 && std::min(s.x1, s.x2) > 104) ++sloped;
+  }
+  EXPECT_EQ(flat, 1);
+  EXPECT_EQ(sloped, 1);
 }

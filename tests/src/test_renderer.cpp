@@ -128,6 +128,37 @@ TEST(Renderer, MarkingSegmentsAreOnBrightPixels) {
   EXPECT_TRUE(kinds.count("marking"));
 }
 
+// The walls' outer top edge (their silhouette against the background, seen from above the
+// wall height) was missing from the truth although it is the strongest edge of a wall: each
+// top_outline segment must separate the bright wall top (below it) from the darker background
+// (above it), and lie above (smaller v) the inner top edge of the same wall.
+TEST(Renderer, TopOutlineIsTheWallSilhouette) {
+  const FieldMap map = FieldMap::miroSot();
+  const StereoRenderer renderer(map, StereoRig(), plain());
+  // 150 mm from the y = 0 wall, looking at it: the inner and outer top edges (25 mm apart on a
+  // wall 20 mm below the camera) are ~6 px apart.
+  const StereoImages im = renderer.render(Pose2(700, 150, -kPi / 2), 0.0, {});
+  int outlines = 0;
+  for (const ImageSegment& s : im.truth.left.segments) {
+    if (s.kind != "top_outline" || (s.a - s.b).norm() < 40) continue;
+    ++outlines;
+    for (double f : {0.3, 0.5, 0.7}) {
+      const Eigen::Vector2d p = s.a + f * (s.b - s.a);
+      const int u = static_cast<int>(std::lround(p.x())), v = static_cast<int>(std::lround(p.y()));
+      const int above = im.left.at<cv::Vec3b>(v - 2, u)[1], below = im.left.at<cv::Vec3b>(v + 2, u)[1];
+      EXPECT_GT(below - above, 40) << "at " << p.transpose();
+    }
+    bool has_inner = false;
+    for (const ImageSegment& w : im.truth.left.segments)
+      if (w.kind == "wall_top" && w.name == "wall_y0") {
+        has_inner = true;
+        EXPECT_LT(0.5 * (s.a.y() + s.b.y()) + 1.0, 0.5 * (w.a.y() + w.b.y()));
+      }
+    EXPECT_TRUE(has_inner);
+  }
+  EXPECT_GE(outlines, 1);
+}
+
 TEST(Renderer, ObstaclesHideLandmarksInTheImagesAndTheTruth) {
   const FieldMap map = FieldMap::miroSot();
   const StereoRenderer renderer(map, StereoRig(), plain());
