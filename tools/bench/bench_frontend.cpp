@@ -310,7 +310,8 @@ void printBreakdown(const char* title, const FailureBreakdown& why) {
   }
 }
 
-void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, const cv::Mat& mask, SegStats& st) {
+void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, const cv::Mat& mask, SegStats& st,
+                   double gap_max) {
   // Unions of the pieces of one broken edge, and of collinear pieces that touch (a wall and the
   // corner triangle's foot in line with it are one edge in the image).
   std::vector<size_t> parent(gt.size());
@@ -324,9 +325,11 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
     const Eigen::Vector2d n = Eigen::Vector2d(-(a.b - a.a).y(), (a.b - a.a).x()).normalized();
     return std::fabs(n.dot(b.a - a.a)) < 1.5 && std::fabs(n.dot(b.b - a.a)) < 1.5;
   };
-  // Touching pieces whose union is straight to within 1 px (the detector's fitting band) are
-  // one straight image edge: far away, a wall top, a corner triangle's top and the next wall's
-  // top meet at an image angle of a few degrees and bend by less than a pixel.
+  // Pieces closer than Gap_max along their line whose union is straight to within 1 px (the
+  // detector's fitting band) are one straight image edge, which Algorithm 2 is specified to
+  // return as one segment (it merges collinear pixel groups under Gap_max): far away, the tops
+  // of a wall, a corner triangle, the next wall and a goal's back lie within a pixel of one
+  // straight silhouette, broken only where the truth's 3D pieces end.
   auto straightUnion = [&](const Seg& a, const Seg& b) {
     const Eigen::Vector2d pts[4] = {a.a, a.b, b.a, b.b};
     double best = -1;
@@ -345,34 +348,51 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
   };
   for (size_t i = 0; i < gt.size(); ++i)
     for (size_t j = i + 1; j < gt.size(); ++j) {
-      const bool touch = std::min({(gt[i].a - gt[j].a).norm(), (gt[i].a - gt[j].b).norm(), (gt[i].b - gt[j].a).norm(),
-                                   (gt[i].b - gt[j].b).norm()}) < 1.5;
+      // Gap between the two pieces along their common line (0 when they overlap or touch).
+      const Eigen::Vector2d dir = (gt[i].b - gt[i].a).normalized();
+      const double ia = 0, ib = (gt[i].b - gt[i].a).dot(dir), ja = (gt[j].a - gt[i].a).dot(dir),
+                   jb = (gt[j].b - gt[i].a).dot(dir);
+      const double gap = std::max({0.0, std::min(ja, jb) - ib, ia - std::max(ja, jb)});
+      const bool touch = gap < gap_max;
       if (gt[i].marking != gt[j].marking) continue;
-      if ((gt[i].name == gt[j].name && collinear(gt[i], gt[j])) || (touch && straightUnion(gt[i], gt[j])))
+      const bool ends_meet = std::min({(gt[i].a - gt[j].a).norm(), (gt[i].a - gt[j].b).norm(), (gt[i].b - gt[j].a).norm(),
+                                       (gt[i].b - gt[j].b).norm()}) < 1.5;
+      if (((gt[i].name == gt[j].name || ends_meet) && collinear(gt[i], gt[j])) || (touch && straightUnion(gt[i], gt[j])))
         parent[root(i)] = root(j);
     }
   std::map<size_t, std::vector<size_t>> groups;
   for (size_t i = 0; i < gt.size(); ++i) groups[root(i)].push_back(i);
+  // Every run of consecutive pieces of a group (sorted along the line) is a candidate union, so
+  // a detection covering two of three pieces still matches those two.
   std::vector<std::pair<Seg, std::vector<size_t>>> unions;
   for (const auto& group : groups) {
-    const std::vector<size_t>& idx = group.second;
+    std::vector<size_t> idx = group.second;
     if (idx.size() < 2) continue;
-    const Eigen::Vector2d dir = (gt[idx[0]].b - gt[idx[0]].a).normalized();
-    Seg u = gt[idx[0]];
-    double tmin = 1e30, tmax = -1e30;
-    for (size_t i : idx)
-      for (const Eigen::Vector2d& q : {gt[i].a, gt[i].b}) {
-        const double t = (q - gt[idx[0]].a).dot(dir);
-        if (t < tmin) {
-          tmin = t;
-          u.a = q;
+    const Eigen::Vector2d origin = gt[idx[0]].a, dir = (gt[idx[0]].b - gt[idx[0]].a).normalized();
+    auto mid = [&](size_t i) { return (0.5 * (gt[i].a + gt[i].b) - origin).dot(dir); };
+    std::sort(idx.begin(), idx.end(), [&](size_t x, size_t y) { return mid(x) < mid(y); });
+    for (size_t first = 0; first < idx.size(); ++first)
+      for (size_t last = first + 1; last < idx.size(); ++last) {
+        Seg u = gt[idx[first]];
+        double tmin = 1e30, tmax = -1e30;
+        std::vector<size_t> members;
+        for (size_t k = first; k <= last; ++k) {
+          const size_t i = idx[k];
+          members.push_back(i);
+          for (const Eigen::Vector2d& q : {gt[i].a, gt[i].b}) {
+            const double t = (q - origin).dot(dir);
+            if (t < tmin) {
+              tmin = t;
+              u.a = q;
+            }
+            if (t > tmax) {
+              tmax = t;
+              u.b = q;
+            }
+          }
         }
-        if (t > tmax) {
-          tmax = t;
-          u.b = q;
-        }
+        unions.emplace_back(u, members);
       }
-    unions.emplace_back(u, idx);
   }
   std::vector<uint8_t> hit(gt.size(), 0), det_hit;
   for (const Seg& d : det) {
@@ -517,7 +537,7 @@ void houghP(const cv::Mat& luma, cv::Mat& edges, std::vector<cv::Vec4i>& out) {
 void accuracyTable(bool diag) {
   Setup& s = setup();
   Frontend fe(s.rig, s.map);
-  const double lmin = fe.params().segments.min_length_px;
+  const double lmin = fe.params().segments.min_length_px, gap_max = fe.params().segments.gap_max_px;
   SegStats ours_centre, ours_edge, hough_edge, lsd_edge;
   FailureBreakdown why_centre, why_edge;
   ours_centre.why = &why_centre;
@@ -555,11 +575,11 @@ void accuracyTable(bool diag) {
       if (jt != gt_right.end()) rs.d_err.push_back(o.pixels->disparity() - (it->second.x() - jt->second.x()));
     }
   };
-  int dumped = 0;
+  int dumped = 0, pair_index = 0;
   const char* dump = std::getenv("STEREOLOC_BENCH_DUMP");  // directory: writes a few pairs and their truth
   for (const Pair& p : s.general) {
     const FrontendResult& r = fe.process(p.img.left, p.img.right, p.img.truth.head_pan);
-    if (dump && dumped < 6) {
+    if (dump && dumped < 6 && (!std::getenv("STEREOLOC_BENCH_DUMP_PAIR") || std::atoi(std::getenv("STEREOLOC_BENCH_DUMP_PAIR")) == pair_index)) {
       const std::string base = std::string(dump) + "/pair" + std::to_string(dumped++);
       cv::imwrite(base + "_left.png", p.img.left);
       cv::imwrite(base + "_right.png", p.img.right);
@@ -569,14 +589,16 @@ void accuracyTable(bool diag) {
         std::fclose(f);
       }
     }
+    if (why_centre.verbose) std::printf("  pair %d\n", pair_index);
+    ++pair_index;
     const cv::Mat mask = dontCare(s.rig, s.map, p);
     // Centre-line level.
     std::vector<Seg> det;
     for (const LineFeature& l : r.lines)
       det.push_back(Seg{Eigen::Vector2d(l.x(l.t_min), l.y(l.t_min)), Eigen::Vector2d(l.x(l.t_max), l.y(l.t_max)), l.marking, "", false, "", false});
     const std::vector<Seg> gt_c = truthSegments(s.rig, s.map, p, false, lmin);
-    scoreSegments(gt_c, det, mask, ours_centre);
-    scoreSegments(gt_c, det, mask, by_light[p.bad_light ? 1 : 0]);
+    scoreSegments(gt_c, det, mask, ours_centre, gap_max);
+    scoreSegments(gt_c, det, mask, by_light[p.bad_light ? 1 : 0], gap_max);
     // Edge level, ours and OpenCV.
     std::vector<Seg> edges;
     for (const Segment& sg : r.segments)
@@ -594,7 +616,7 @@ void accuracyTable(bool diag) {
       }
     }
     SegStats before = ours_edge;
-    scoreSegments(gt_e, edges, mask, ours_edge);
+    scoreSegments(gt_e, edges, mask, ours_edge, gap_max);
     cls_n += ours_edge.matched - before.matched;
     cls_ok += ours_edge.class_ok - before.class_ok;
     bgrToLuma(p.img.left, luma);
@@ -602,10 +624,10 @@ void accuracyTable(bool diag) {
     houghP(luma, canny, hp);
     std::vector<cv::Vec4f> hpf;
     for (const cv::Vec4i& l : hp) hpf.emplace_back(l[0], l[1], l[2], l[3]);
-    scoreSegments(gt_e, openCvSegments(hpf, lmin), mask, hough_edge);
+    scoreSegments(gt_e, openCvSegments(hpf, lmin), mask, hough_edge, gap_max);
     std::vector<cv::Vec4f> ls;
     lsd->detect(luma, ls);
-    scoreSegments(gt_e, openCvSegments(ls, lmin), mask, lsd_edge);
+    scoreSegments(gt_e, openCvSegments(ls, lmin), mask, lsd_edge, gap_max);
     // Corners, junctions, intersections.
     std::vector<const ImageLandmark*> gl;
     for (const ImageLandmark& l : p.img.truth.left.landmarks)
