@@ -9,6 +9,7 @@
 #include <utility>
 
 #include "src/error.h"
+#include "solvers/fast_trig.h"
 #include "src/measurement_model.h"
 
 namespace stereoloc {
@@ -61,9 +62,11 @@ double ZigguratNormal::slowPath(std::mt19937_64& rng, int i, bool negative, doub
   }
 }
 
-std::vector<int> systematicResample(const std::vector<double>& weights, int n, std::mt19937_64& rng) {
-  std::vector<int> idx(static_cast<size_t>(std::max(n, 0)));
-  if (weights.empty() || n <= 0) return idx;
+namespace {
+
+void systematicResampleInto(const std::vector<double>& weights, int n, std::mt19937_64& rng, std::vector<int>& idx) {
+  idx.assign(static_cast<size_t>(std::max(n, 0)), 0);
+  if (weights.empty() || n <= 0) return;
   const double step = 1.0 / n;
   double pointer = std::uniform_real_distribution<double>(0.0, step)(rng);
   double cumulative = weights[0];
@@ -74,6 +77,13 @@ std::vector<int> systematicResample(const std::vector<double>& weights, int n, s
     idx[static_cast<size_t>(i)] = static_cast<int>(j);
     pointer += step;
   }
+}
+
+}  // namespace
+
+std::vector<int> systematicResample(const std::vector<double>& weights, int n, std::mt19937_64& rng) {
+  std::vector<int> idx;
+  systematicResampleInto(weights, n, rng, idx);
   return idx;
 }
 
@@ -147,6 +157,7 @@ void ParticleFilter::initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d
   }
   logw_.assign(n, -std::log(static_cast<double>(n)));
   w_.assign(n, 1.0 / static_cast<double>(n));
+  uniform_weights_ = true;
   initialised_ = true;
   gate_.reset();
   summarise(&mean_, &cov_);
@@ -163,6 +174,7 @@ void ParticleFilter::initialiseUniform() {
   }
   logw_.assign(n, -std::log(static_cast<double>(n)));
   w_.assign(n, 1.0 / static_cast<double>(n));
+  uniform_weights_ = true;
   initialised_ = true;
   gate_.reset();
   summarise(&mean_, &cov_);
@@ -181,15 +193,24 @@ void ParticleFilter::predict(double d_left, double d_right) {
   const double sl = std::sqrt(Sv(0, 0)), sr = std::sqrt(Sv(1, 1));
   const Eigen::Vector3d sf = odometry_.control_variance_floor.cwiseSqrt();
   const double w = odometry_.wheel_base_mm;
-  for (size_t i = 0; i < x_.size(); ++i) {
+  const size_t n = x_.size();
+  double* const px = x_.data();
+  double* const py = y_.data();
+  double* const pt = th_.data();
+  double* const pc = c_.data();
+  double* const ps = s_.data();
+  for (size_t i = 0; i < n; ++i) {
     const double dl = sl > 0 ? d_left + sl * normal_(rng_) : d_left;
     const double dr = sr > 0 ? d_right + sr * normal_(rng_) : d_right;
     Eigen::Vector3d u = controlVector(dl, dr, w);  // (B.4), (B.5)
     if (sf.x() > 0) u.x() += sf.x() * normal_(rng_);
     if (sf.y() > 0) u.y() += sf.y() * normal_(rng_);
     if (sf.z() > 0) u.z() += sf.z() * normal_(rng_);
-    const double c = c_[i], s = s_[i];  // (B.16), with the cached cos/sin of the heading
-    setParticle(i, x_[i] + c * u.x() - s * u.y(), y_[i] + s * u.x() + c * u.y(), wrapAngle(th_[i] + u.z()));
+    const double c = pc[i], s = ps[i];  // (B.16), with the cached cos/sin of the heading
+    px[i] += c * u.x() - s * u.y();
+    py[i] += s * u.x() + c * u.y();
+    pt[i] = wrapAngle(pt[i] + u.z());
+    fast_trig::sinCos(pt[i], &ps[i], &pc[i]);
   }
 }
 
@@ -197,18 +218,31 @@ void ParticleFilter::weight(const std::vector<Observation>& observations, const 
                             const std::optional<double>& compass, double compass_sigma) {
   if (observations.size() != landmarks.size()) throw Error("particle filter: one landmark per observation expected");
   const size_t n = x_.size();
+  const double* const px = x_.data();
+  const double* const py = y_.data();
+  const double* const pc = c_.data();
+  const double* const ps = s_.data();
+  double* const lw = logw_.data();
+  const double log_floor = log_floor_;
   for (size_t k = 0; k < observations.size(); ++k) {
     const Eigen::Matrix2d Ri = observations[k].covariance.inverse();
+    const double i00 = Ri(0, 0), i01 = 2.0 * Ri(0, 1), i11 = Ri(1, 1);
     const double zr = observations[k].range, zb = observations[k].bearing;
-    const double lm[2] = {landmarks[k].x(), landmarks[k].y()};
+    const double cz = std::cos(zb), sz = std::sin(zb);
+    const double lx = landmarks[k].x(), ly = landmarks[k].y();
     for (size_t i = 0; i < n; ++i) {
-      const double pose[3] = {x_[i], y_[i], th_[i]};
-      double z[2];
-      predictRangeBearingT(pose, lm, z);  // (5.27)
-      const double nr = zr - z[0];
-      const double nb = angleDiff(zb, z[1]);
-      const double e2 = Ri(0, 0) * nr * nr + 2.0 * Ri(0, 1) * nr * nb + Ri(1, 1) * nb * nb;
-      logw_[i] += std::max(-0.5 * e2, log_floor_);  // (5.34) with a floor
+      // (5.27) and the wrapped innovation nu = z [-] h(p) without evaluating h's atan2 and a
+      // wrap: rotate the landmark offset d = l - t into the frame whose x axis points along the
+      // measured bearing, phi = theta + psi_z (cos/sin of phi by the angle-sum identities from
+      // the cached heading). The offset's angle there is bearing(h) - psi_z, so
+      //   nu_psi = psi_z - bearing(h) = atan2(d x e_phi, d . e_phi)  in (-pi, pi],
+      // exactly the wrapped bearing innovation (rangeBearingInnovation).
+      const double dx = lx - px[i], dy = ly - py[i];
+      const double cphi = pc[i] * cz - ps[i] * sz, sphi = ps[i] * cz + pc[i] * sz;
+      const double nb = fast_trig::atan2(sphi * dx - cphi * dy, cphi * dx + sphi * dy);
+      const double nr = zr - std::sqrt(dx * dx + dy * dy);
+      const double e2 = i00 * nr * nr + i01 * nr * nb + i11 * nb * nb;
+      lw[i] += std::max(-0.5 * e2, log_floor);  // (5.34) with a floor
     }
   }
   if (compass) {
@@ -217,9 +251,10 @@ void ParticleFilter::weight(const std::vector<Observation>& observations, const 
     const double inv_var = 1.0 / (compass_sigma * compass_sigma);
     for (size_t i = 0; i < n; ++i) {
       const double nu = angleDiff(*compass, th_[i]);
-      logw_[i] += std::max(-0.5 * nu * nu * inv_var, log_floor_);
+      lw[i] += std::max(-0.5 * nu * nu * inv_var, log_floor);
     }
   }
+  uniform_weights_ = false;
   normalise();
 }
 
@@ -243,9 +278,12 @@ double ParticleFilter::effectiveSampleSize() const {
 
 void ParticleFilter::resample() {
   const int n = size();
-  const std::vector<int> idx = config_.resampling == ResamplingScheme::Systematic
-                                   ? systematicResample(w_, n, rng_)
-                                   : sortedRouletteResample(w_, n, rng_);  // (5.38)
+  std::vector<int>& idx = resample_index_;  // (5.38)
+  if (config_.resampling == ResamplingScheme::Systematic) {
+    systematicResampleInto(w_, n, rng_, idx);
+  } else {
+    idx = sortedRouletteResample(w_, n, rng_);
+  }
   scratch_x_.resize(x_.size());
   scratch_y_.resize(y_.size());
   scratch_th_.resize(th_.size());
@@ -266,6 +304,7 @@ void ParticleFilter::resample() {
   s_.swap(scratch_s_);
   logw_.assign(x_.size(), -std::log(static_cast<double>(n)));
   w_.assign(x_.size(), 1.0 / n);
+  uniform_weights_ = true;
 }
 
 void ParticleFilter::reinject(int count) {
@@ -284,7 +323,7 @@ void ParticleFilter::reinject(int count) {
     setParticle(i, x, y, t);
     logw_[i] = -std::log(static_cast<double>(n));  // Algorithm 6: a new particle weighs 1/N
   }
-  normalise();
+  if (!uniform_weights_) normalise();  // after resampling every weight is 1/N already
 }
 
 void ParticleFilter::summarise(Pose2* mean, Eigen::Matrix3d* covariance) const {

@@ -15,6 +15,10 @@
 //   Re-injection: T particles replaced by uniform ones over the map bounds after resampling.
 //     We re-inject only on steps that carried an observation: without one there is no evidence
 //     to remove wrong particles, so re-injection would only dilute the belief.
+// Speed (3000 particles, target 0.5 ms per step): structure-of-arrays particles with the cached
+//   cos/sin of each heading; the bearing innovation is evaluated in the frame of the measured
+//   bearing (an atan2 of cross and dot products, no wrap; see weight()), and the per-particle
+//   sin/cos and atan2 are the inline polynomials of solvers/fast_trig.h instead of libm calls.
 // One std::mt19937_64 owned by the filter, seeded by the constructor: deterministic for a seed.
 #include <Eigen/Core>
 #include <cmath>
@@ -24,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "solvers/fast_trig.h"
 #include "solvers/initialisation.h"
 #include "solvers/validation_gate.h"
 #include "src/data_association.h"
@@ -144,8 +149,7 @@ class ParticleFilter : public Estimator {
     x_[i] = x;
     y_[i] = y;
     th_[i] = theta;
-    c_[i] = std::cos(theta);
-    s_[i] = std::sin(theta);
+    fast_trig::sinCos(theta, &s_[i], &c_[i]);
   }
 
   FieldMap map_;  // a copy: the filter does not depend on the caller's lifetime
@@ -159,6 +163,8 @@ class ParticleFilter : public Estimator {
   // circular mean both need them; log weight and normalised weight.
   std::vector<double> x_, y_, th_, c_, s_, logw_, w_;
   std::vector<double> scratch_x_, scratch_y_, scratch_th_, scratch_c_, scratch_s_;
+  std::vector<int> resample_index_;
+  bool uniform_weights_ = false;  // every weight is exactly 1/N (after resampling)
   bool initialised_ = false;
   bool have_step_ = false;
   long last_step_ = 0;

@@ -39,6 +39,8 @@ void SlidingWindowConfig::validate() const {
     throw Error("sliding window: compass_gate_probability must be in (0, 1)");
   if (!(gate.probability > 0 && gate.probability < 1)) throw Error("sliding window: gate.probability must be in (0, 1)");
   if (gate.lost_after < 1) throw Error("sliding window: gate.lost_after must be >= 1");
+  if (keyframe_max_steps < 1) throw Error("sliding window: keyframe_max_steps must be >= 1");
+  makeLossFunction(robust_loss);  // validates the scale
 }
 
 SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const OdometryParams& odometry,
@@ -47,7 +49,8 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
       odometry_(odometry),
       config_((config.validate(), std::move(config))),
       gate_(config_.gate, 2),
-      compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)) {
+      compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)),
+      loss_(makeLossFunction(config_.robust_loss)) {
   odometry_.validate();
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
   if (config_.init.mode != InitMode::Global && (!config_.init.pose.isFinite() || !positiveDefinite(config_.init.covariance)))
@@ -78,17 +81,74 @@ void SlidingWindowSmoother::pushHistory(const Estimate& e) {
   if (config_.keep_history) history_.push_back(e);
 }
 
-void SlidingWindowSmoother::addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes) {
+void SlidingWindowSmoother::addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes, bool robust) {
   auto f = std::make_unique<Factor>();
   f->cost.reset(cost);
   f->nodes = std::move(nodes);
+  f->robust = robust && loss_ != nullptr;
   std::vector<double*> blocks;
   for (Node* n : f->nodes) {
     f->linearisation.push_back(n->x);  // first estimate: the values at creation
     blocks.push_back(n->x.data());
   }
-  f->id = problem_->AddResidualBlock(f->cost.get(), nullptr, blocks);
+  f->id = problem_->AddResidualBlock(f->cost.get(), f->robust ? loss_.get() : nullptr, blocks);
   factors_.push_back(std::move(f));
+}
+
+bool SlidingWindowSmoother::accumulate(const Factor& f, const std::vector<const double*>& cur,
+                                       const std::vector<const double*>& lin, const std::vector<int>& off,
+                                       Eigen::MatrixXd& H, Eigen::VectorXd& g) const {
+  if (!f.robust) return accumulateNormalEquations(*f.cost, cur, lin, off, H, g);
+  // IRLS weight rho'(|r|^2) at the current estimate.
+  Eigen::VectorXd r(f.cost->num_residuals());
+  if (!f.cost->Evaluate(cur.data(), r.data(), nullptr) || !r.allFinite()) return false;
+  double rho[3];
+  loss_->Evaluate(r.squaredNorm(), rho);
+  const double w = std::max(rho[1], 0.0);
+  Eigen::MatrixXd Hf = Eigen::MatrixXd::Zero(H.rows(), H.cols());
+  Eigen::VectorXd gf = Eigen::VectorXd::Zero(g.size());
+  if (!accumulateNormalEquations(*f.cost, cur, lin, off, Hf, gf)) return false;
+  H += w * Hf;
+  g += w * gf;
+  return true;
+}
+
+void SlidingWindowSmoother::pushIntermediates(const Node& k, const Node* next) {
+  if (!config_.keep_history) return;
+  const Pose2 pk = poseOf(k.x);
+  for (const Intermediate& m : k.after) {
+    Estimate e;
+    e.step = m.step;
+    e.t = m.t;
+    e.status = m.status;
+    Matrix3d A1, A2;
+    if (!next || !k.have_joint_next) {  // the newest keyframe: the real-time prediction
+      e.pose = compose(pk, m.rel, &A1, &A2);
+      const Eigen::Matrix3d P = A1 * k.covariance * A1.transpose() + A2 * m.rel_covariance * A2.transpose();
+      e.covariance = 0.5 * (P + P.transpose());
+      history_.push_back(e);
+      continue;
+    }
+    // Conditioned on both keyframes (see the header).
+    const Pose2 pn = poseOf(next->x);
+    Matrix3d M, Bk, Bn;
+    compose(m.rel, between(m.rel, k.rel_to_next), &M);
+    const Pose2 r_hat = between(pk, pn, &Bk, &Bn);
+    Eigen::Vector3d delta(r_hat.x - k.rel_to_next.x, r_hat.y - k.rel_to_next.y,
+                          angleDiff(r_hat.theta, k.rel_to_next.theta));
+    const Eigen::Matrix3d CjN = m.rel_covariance * M.transpose();
+    const Eigen::LDLT<Eigen::Matrix3d> CN(k.rel_to_next_covariance);
+    const Eigen::Matrix3d G = CN.solve(CjN.transpose()).transpose();  // C_jN C_N^-1
+    const Pose2 rj = plus(m.rel, G * delta);
+    e.pose = compose(pk, rj, &A1, &A2);
+    Eigen::Matrix<double, 3, 6> T;
+    T.leftCols<3>() = A1 + A2 * G * Bk;
+    T.rightCols<3>() = A2 * G * Bn;
+    const Eigen::Matrix3d bridge = m.rel_covariance - G * CjN.transpose();
+    const Eigen::Matrix3d P = T * k.joint_next * T.transpose() + A2 * bridge * A2.transpose();
+    e.covariance = 0.5 * (P + P.transpose());
+    history_.push_back(e);
+  }
 }
 
 void SlidingWindowSmoother::removeFactor(size_t index) {
@@ -110,6 +170,10 @@ void SlidingWindowSmoother::startWindow(const Step& step, const Pose2& pose, con
   addFactor(PosePriorFactor::Create(pose, n->covariance), {n});
   gate_.reset();
   lost_ = false;
+  rel_ = Pose2();
+  rel_covariance_.setZero();
+  steps_since_keyframe_ = 0;
+  ++stats_.keyframes;
 }
 
 void SlidingWindowSmoother::dropNewest() {
@@ -123,7 +187,10 @@ void SlidingWindowSmoother::dropNewest() {
 void SlidingWindowSmoother::finaliseWindow() {
   if (nodes_.empty()) return;
   computeCovariances(true);
-  for (const auto& n : nodes_) history_.push_back(estimateOf(*n));
+  for (size_t i = 0; i < nodes_.size(); ++i) {
+    history_.push_back(estimateOf(*nodes_[i]));  // the final window, with or without keep_history
+    pushIntermediates(*nodes_[i], i + 1 < nodes_.size() ? nodes_[i + 1].get() : nullptr);
+  }
   for (size_t i = factors_.size(); i-- > 0;) removeFactor(i);
   for (const auto& n : nodes_) problem_->RemoveParameterBlock(n->x.data());
   nodes_.clear();
@@ -163,7 +230,7 @@ void SlidingWindowSmoother::marginaliseOldest() {
       lin.push_back(config_.first_estimate_jacobians ? f.linearisation[j].data() : f.nodes[j]->x.data());
       off.push_back(3 * static_cast<int>(std::find(vars.begin(), vars.end(), f.nodes[j]) - vars.begin()));
     }
-    if (!accumulateNormalEquations(*f.cost, cur, lin, off, H, g))
+    if (!accumulate(f, cur, lin, off, H, g))
       throw Error("sliding window: step " + std::to_string(o->step) + ": a factor cannot be linearised for marginalisation");
   }
   MarginalPriorFactor* prior = nullptr;
@@ -177,6 +244,7 @@ void SlidingWindowSmoother::marginaliseOldest() {
     prior = MarginalPriorFactor::FromInformation(x0, Hm, gm);
   }
   pushHistory(estimateOf(*o));
+  pushIntermediates(*o, nodes_.size() > 1 ? nodes_[1].get() : nullptr);
   for (size_t k = touching.size(); k-- > 0;) removeFactor(touching[k]);
   problem_->RemoveParameterBlock(o->x.data());
   nodes_.pop_front();
@@ -232,28 +300,49 @@ void SlidingWindowSmoother::computeCovariances(bool all) {
       lin.push_back(config_.first_estimate_jacobians ? f.linearisation[j].data() : f.nodes[j]->x.data());
       off.push_back(3 * f.nodes[j]->slot);
     }
-    if (!accumulateNormalEquations(*f.cost, cur, lin, off, H, g))
+    if (!accumulate(f, cur, lin, off, H, g))
       throw Error("sliding window: a factor cannot be linearised for the covariance");
   }
   Eigen::LLT<Eigen::MatrixXd> llt(H);
   if (llt.info() != Eigen::Success)
     throw Error("sliding window: the information of the window is not positive definite (rank deficient)");
+  auto setJoint = [&](int i, const Eigen::MatrixXd& C, int row, int col_i, int col_next) {
+    Node& a = *nodes_[static_cast<size_t>(i)];
+    Eigen::Matrix<double, 6, 6> J;
+    J.topLeftCorner<3, 3>() = C.block<3, 3>(row, col_i);
+    J.topRightCorner<3, 3>() = C.block<3, 3>(row, col_next);
+    J.bottomLeftCorner<3, 3>() = J.topRightCorner<3, 3>().transpose();
+    J.bottomRightCorner<3, 3>() = C.block<3, 3>(row + 3, col_next);
+    a.joint_next = 0.5 * (J + J.transpose());
+    a.have_joint_next = true;
+  };
   if (all) {
     const Eigen::MatrixXd C = llt.solve(Eigen::MatrixXd::Identity(3 * n, 3 * n));
     for (int i = 0; i < n; ++i) {
       const Eigen::Matrix3d b = C.block<3, 3>(3 * i, 3 * i);
       nodes_[static_cast<size_t>(i)]->covariance = 0.5 * (b + b.transpose());
+      if (i + 1 < n) setJoint(i, C, 3 * i, 3 * i, 3 * i + 3);
     }
     return;
   }
-  Eigen::MatrixXd E = Eigen::MatrixXd::Zero(3 * n, 6);
+  // The oldest pose with its successor (for the steps between them, see pushIntermediates)
+  // and the newest pose.
+  const bool pair = n > 1 && !nodes_.front()->after.empty();
+  Eigen::MatrixXd E = Eigen::MatrixXd::Zero(3 * n, pair ? 9 : 6);
   E.block<3, 3>(0, 0).setIdentity();
   E.block<3, 3>(3 * (n - 1), 3).setIdentity();
+  if (pair) E.block<3, 3>(3, 6).setIdentity();
   const Eigen::MatrixXd X = llt.solve(E);
   const Eigen::Matrix3d oldest = X.block<3, 3>(0, 0);
   const Eigen::Matrix3d newest = X.block<3, 3>(3 * (n - 1), 3);
   nodes_.front()->covariance = 0.5 * (oldest + oldest.transpose());
   nodes_.back()->covariance = 0.5 * (newest + newest.transpose());
+  if (pair) {
+    Eigen::MatrixXd C(6, 6);  // rows 0..5 of X's columns (oldest, successor)
+    C.leftCols<3>() = X.block(0, 0, 6, 3);
+    C.rightCols<3>() = X.block(0, 6, 6, 3);
+    setJoint(0, C, 0, 0, 3);
+  }
 }
 
 Estimate SlidingWindowSmoother::process(const Step& step) {
@@ -292,17 +381,47 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   } else {
     if (lost_ && config_.reinitialise_when_lost && tryGlobalFix(step, &out)) return out;
     Node* prev = nodes_.back().get();
-    const PosePrediction pred = predictPose(poseOf(prev->x), prev->covariance, step.d_left, step.d_right, odometry_);
+    // The odometry since the newest keyframe (5.9 from the identity), and the prediction
+    // p_K (+) u with P = J1 P_K J1^T + J2 U J2^T: for one step this is predictPose itself.
+    const PosePrediction rel = predictPose(rel_, rel_covariance_, step.d_left, step.d_right, odometry_);
+    rel_ = rel.pose;
+    rel_covariance_ = rel.covariance;
+    ++steps_since_keyframe_;
+    Matrix3d J1, J2;
+    pose = compose(poseOf(prev->x), rel_, &J1, &J2);
+    P = J1 * prev->covariance * J1.transpose() + J2 * rel_covariance_ * J2.transpose();
+    P = 0.5 * (P + P.transpose());
+    const bool keyframe = config_.keyframe_max_steps <= 1 || !step.observations.empty() ||
+                          (step.compass && config_.use_compass) || steps_since_keyframe_ >= config_.keyframe_max_steps;
+    if (!keyframe) {
+      Intermediate m;
+      m.step = step.step;
+      m.t = step.t;
+      m.rel = rel_;
+      m.rel_covariance = rel_covariance_;
+      m.status = lost_ ? EstimateStatus::Lost : EstimateStatus::Predicted;
+      prev->after.push_back(m);
+      out.step = step.step;
+      out.t = step.t;
+      out.pose = pose;
+      out.covariance = P;
+      out.status = m.status;
+      return out;
+    }
     auto node = std::make_unique<Node>();
     node->step = step.step;
     node->t = step.t;
-    node->x = {pred.pose.x, pred.pose.y, pred.pose.theta};
+    node->x = {pose.x, pose.y, pose.theta};
     Node* n = node.get();
     nodes_.push_back(std::move(node));
     problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
-    addFactor(OdometryFactor::Create(step.d_left, step.d_right, odometry_), {prev, n});
-    pose = pred.pose;
-    P = pred.covariance;
+    prev->rel_to_next = rel_;
+    prev->rel_to_next_covariance = rel_covariance_;
+    addFactor(OdometryFactor::Create(Eigen::Vector3d(rel_.x, rel_.y, rel_.theta), rel_covariance_), {prev, n});
+    rel_ = Pose2();
+    rel_covariance_.setZero();
+    steps_since_keyframe_ = 0;
+    ++stats_.keyframes;
   }
   Node* node = nodes_.back().get();
 
@@ -354,7 +473,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
           const Eigen::Matrix2d Sinv = S.inverse();
           const double d2 = nu.dot(Sinv * nu);  // (5.20)
           if (std::isfinite(d2) && (!config_.gate_enabled || gate_.accepts(d2))) {
-            addFactor(RangeBearingFactor::Create(lm->xy(), obs.z(), obs.covariance), {node});
+            addFactor(RangeBearingFactor::Create(lm->xy(), obs.z(), obs.covariance), {node}, true);
             // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
             const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
             pose = plus(pose, K * nu);

@@ -26,6 +26,33 @@
 // restarts the window from the fix's pose and covariance. Unidentified observations
 // (landmark_id == -1) are associated against the same belief.
 //
+// Keyframes (keyframe_max_steps > 1, the default): a step enters the window as a pose only
+// when it carries observations or a compass reading, or when keyframe_max_steps steps have
+// passed since the last keyframe. The odometry of the steps in between is composed into one
+// relative-pose factor between consecutive keyframes: u = u_1 (+) ... (+) u_m with covariance
+// propagated through the odometry model exactly as the EKF prediction does (5.9; predictPose
+// from the identity with zero covariance), which is the factor the chain of per-step odometry
+// factors reduces to when its unobserved poses are marginalised at their predicted values
+// (the FEJ rule). So W keyframes span W observed steps, however sparse the observations (real
+// data: 10 Hz steps with gaps of tens of seconds), for the cost of W poses. The composition is
+// exact for the prediction: the belief at a non-keyframe step is the newest keyframe composed
+// with the odometry since it, p = p_K (+) u, P = J1 P_K J1^T + J2 U J2^T, which equals the
+// EKF's step-by-step prediction (the compounding Jacobians chain). With
+// keyframe_max_steps = 1 every step is a keyframe (the per-step window).
+// finish() gives a non-keyframe step between keyframes K and N the smoothed estimate
+// conditioned on both: in relative coordinates r_j (from K, covariance C_j) and r_N (C_N) are
+// jointly Gaussian with Cov(r_j, r_N) = C_j M^T, M = d(r_j (+) (r_j^-1 (+) r_N)) / d r_j, so
+//   r_j* = r_j + G (between(p_K, p_N) [-] r_N),   G = C_j M^T C_N^-1,
+//   p_j = p_K (+) r_j*,  Sigma_j = T Sigma_KN T^T + J2 (C_j - G M C_j) J2^T,
+// T the Jacobian of p_j w.r.t. (p_K, p_N), Sigma_KN their joint marginal covariance (exact for
+// a linear model: given its two keyframes a step is independent of the observations). Steps
+// after the newest keyframe get p_K (+) r_j, the real-time estimate.
+//
+// Robust loss (robust_loss, default none): Huber or Cauchy on the range-bearing factors in
+// whitened units, as in the batch smoother; marginalisation and covariances weight a robust
+// factor's information by rho'(|r|^2) at the current estimate (iteratively reweighted least
+// squares, no second-order term).
+//
 // Memory is bounded by W (plus one Estimate per step for finish(), unless keep_history is off).
 #include <ceres/problem.h>
 
@@ -71,6 +98,10 @@ struct SlidingWindowConfig {
   double gradient_tolerance = 1e-10;
   double parameter_tolerance = 1e-8;
   bool keep_history = true;          // false: finish() returns only the final window
+  // A step becomes a keyframe (a window pose) when it has observations or a compass reading,
+  // or after this many steps since the last keyframe (>= 1; 1: every step is a keyframe).
+  int keyframe_max_steps = 50;
+  RobustLossConfig robust_loss;      // on the range-bearing factors (whitened units); none by default
 
   void validate() const;             // throws stereoloc::Error naming the field
 };
@@ -83,6 +114,7 @@ struct SlidingWindowStats {
   long accepted_observations = 0;
   long rejected_observations = 0;   // gated or not associable
   long solver_iterations = 0;       // summed over steps
+  long keyframes = 0;               // window poses created (including re-initialisations)
 };
 
 class SlidingWindowSmoother : public Estimator {
@@ -110,6 +142,14 @@ class SlidingWindowSmoother : public Estimator {
   const SlidingWindowStats& stats() const { return stats_; }
 
  private:
+  // A step that is not a keyframe: its odometry relative to the keyframe before it.
+  struct Intermediate {
+    long step = 0;
+    double t = 0.0;
+    Pose2 rel;                             // relative to the keyframe (mm, mm, rad)
+    Eigen::Matrix3d rel_covariance = Eigen::Matrix3d::Zero();
+    EstimateStatus status = EstimateStatus::Predicted;
+  };
   struct Node {
     long step = 0;
     double t = 0.0;
@@ -117,16 +157,29 @@ class SlidingWindowSmoother : public Estimator {
     EstimateStatus status = EstimateStatus::Tracking;
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  // last marginal computed
     int slot = 0;                        // position in nodes_, refreshed before linearising
+    // Joint marginal covariance with the next window pose (6x6: this, next), when computed.
+    Eigen::Matrix<double, 6, 6> joint_next = Eigen::Matrix<double, 6, 6>::Zero();
+    bool have_joint_next = false;
+    std::vector<Intermediate> after;     // the non-keyframe steps that follow this keyframe
+    Pose2 rel_to_next;                   // the composed odometry to the next keyframe and its covariance
+    Eigen::Matrix3d rel_to_next_covariance = Eigen::Matrix3d::Zero();
   };
   struct Factor {
     std::unique_ptr<ceres::CostFunction> cost;
     std::vector<Node*> nodes;
     std::vector<std::array<double, 3>> linearisation;  // first estimates
     ceres::ResidualBlockId id = nullptr;
+    bool robust = false;                                // carries robust_loss
   };
 
   void startWindow(const Step& step, const Pose2& pose, const Eigen::Matrix3d& covariance, EstimateStatus status);
-  void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes);
+  void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes, bool robust = false);
+  // The factor's contribution to the normal equations (accumulateNormalEquations), weighted by
+  // the robust loss when it carries one. Returns false when it cannot be evaluated.
+  bool accumulate(const Factor& f, const std::vector<const double*>& cur, const std::vector<const double*>& lin,
+                  const std::vector<int>& off, Eigen::MatrixXd& H, Eigen::VectorXd& g) const;
+  // Estimates of the non-keyframe steps after node `k` (the next window pose `next`, or none).
+  void pushIntermediates(const Node& k, const Node* next);
   void removeFactor(size_t index);
   void marginaliseOldest();
   void finaliseWindow();                // moves every window pose into the history, clears the problem
@@ -152,6 +205,11 @@ class SlidingWindowSmoother : public Estimator {
   long last_step_ = 0;
   std::vector<Estimate> history_;
   SlidingWindowStats stats_;
+  std::unique_ptr<ceres::LossFunction> loss_;  // nullptr: no robust loss
+  // Odometry composed since the newest keyframe (identity and zero after a keyframe).
+  Pose2 rel_;
+  Eigen::Matrix3d rel_covariance_ = Eigen::Matrix3d::Zero();
+  int steps_since_keyframe_ = 0;
 };
 
 }  // namespace stereoloc

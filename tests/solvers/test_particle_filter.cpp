@@ -3,6 +3,8 @@
 // observations, determinism, initialisation modes and bad input.
 #include <gtest/gtest.h>
 
+#include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -85,6 +87,71 @@ TEST(ZigguratNormal, MatchesTheStandardNormalDistribution) {
     const double p = 0.5 * std::erfc(-points[k] / std::sqrt(2.0));
     EXPECT_NEAR(below[k] / n, p, 5.0 * std::sqrt(p * (1 - p) / n) + 1e-6) << points[k];
   }
+}
+
+// --- inline trigonometry of the particle loops --------------------------------------------------
+
+TEST(FastTrig, AgreesWithTheStandardLibraryToAFewUlp) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> angle(-3.5, 3.5), coord(-3000.0, 3000.0);
+  double worst_sin = 0, worst_cos = 0, worst_atan2 = 0;
+  for (int i = 0; i < 400000; ++i) {
+    double x = angle(rng);
+    if (i % 5 == 0) x *= 1e-7;  // tiny angles
+    if (i % 7 == 0) x *= 30.0;  // several turns
+    double s = 0, c = 0;
+    fast_trig::sinCos(x, &s, &c);
+    worst_sin = std::max(worst_sin, std::fabs(s - std::sin(x)));
+    worst_cos = std::max(worst_cos, std::fabs(c - std::cos(x)));
+    double yy = coord(rng), xx = coord(rng);
+    if (i % 3 == 0) yy *= 1e-9;  // near the x axis, both sides
+    if (i % 11 == 0) xx *= 1e-9;  // near the y axis
+    // atan2 differs from std::atan2 only by the +-pi convention on the negative x axis.
+    worst_atan2 = std::max(worst_atan2, std::fabs(angleDiff(fast_trig::atan2(yy, xx), std::atan2(yy, xx))));
+  }
+  EXPECT_LT(worst_sin, 5e-16);
+  EXPECT_LT(worst_cos, 5e-16);
+  EXPECT_LT(worst_atan2, 1e-15);
+  EXPECT_EQ(fast_trig::atan2(0.0, 0.0), 0.0);
+  EXPECT_NEAR(fast_trig::atan2(1.0, -1.0), 0.75 * kPi, 1e-16);
+  EXPECT_NEAR(fast_trig::atan2(-1e-300, -1.0), -kPi, 1e-15);
+}
+
+// The weights use a rotated-frame form of the bearing innovation (no atan2 of h, no wrap):
+// they must equal (5.34) written with predictRangeBearing and rangeBearingInnovation, including
+// bearings near +-pi where the wrap matters.
+TEST(ParticleFilter, WeightsEqualTheRangeBearingLikelihood) {
+  const FieldMap map = FieldMap::miroSot();
+  ParticleFilterConfig pc;
+  pc.init = knownBelief(Pose2(750.0, 650.0, 3.1), Eigen::Vector3d(300.0, 300.0, 0.5).cwiseAbs2().asDiagonal());
+  pc.particles = 4000;
+  pc.likelihood_floor = 1e-6;
+  ParticleFilter pf(map, OdometryParams(), pc, 3);
+  const std::vector<double> x = pf.xs(), y = pf.ys(), th = pf.thetas();
+  const std::vector<Eigen::Vector2d> lms = {Eigen::Vector2d(100.0, 600.0), Eigen::Vector2d(1400.0, 1200.0),
+                                            Eigen::Vector2d(760.0, 660.0)};
+  std::vector<Observation> obs;
+  const Pose2 ref(750.0, 650.0, 3.1);
+  for (size_t k = 0; k < lms.size(); ++k) {
+    const Eigen::Vector2d z = predictRangeBearing(ref, lms[k]);  // the first is near bearing +-pi
+    Observation o = observationFromRangeBearing(static_cast<int>(k), LandmarkType::Point, z.x() + 7.0,
+                                                wrapAngle(z.y() + 0.03), 40.0, 0.1);
+    o.covariance(0, 1) = o.covariance(1, 0) = 0.3 * 40.0 * 0.1;  // a correlated R as well
+    obs.push_back(o);
+  }
+  pf.weight(obs, lms);
+  std::vector<double> logw(x.size(), 0.0);
+  for (size_t i = 0; i < x.size(); ++i)
+    for (size_t k = 0; k < lms.size(); ++k) {
+      const Eigen::Vector2d nu = rangeBearingInnovation(obs[k].z(), predictRangeBearing(Pose2(x[i], y[i], th[i]), lms[k]));
+      logw[i] += std::max(-0.5 * nu.dot(obs[k].covariance.inverse() * nu), std::log(pc.likelihood_floor));
+    }
+  const double m = *std::max_element(logw.begin(), logw.end());
+  double sum = 0;
+  for (double& l : logw) sum += (l = std::exp(l - m));
+  double worst = 0;
+  for (size_t i = 0; i < x.size(); ++i) worst = std::max(worst, std::fabs(pf.weights()[i] - logw[i] / sum) * x.size());
+  EXPECT_LT(worst, 1e-9);
 }
 
 // --- resampling ------------------------------------------------------------------------------

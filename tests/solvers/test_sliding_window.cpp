@@ -9,6 +9,7 @@
 #include "solvers/ekf.h"
 #include "solvers/sliding_window_smoother.h"
 #include "solvers/smoother_common.h"
+#include "src/error.h"
 
 namespace stereoloc {
 namespace {
@@ -33,28 +34,37 @@ TEST(SlidingWindow, WindowOneWithOneGaussNewtonStepIsTheEkf) {
     if (k % 3 != 0) p.steps[k].compass.reset();
     if (k % 3 == 0 || k % 7 == 0) p.steps[k].observations.clear();  // compass-only and blind steps
   }
-  EkfConfig ec;
-  ec.init = knownBelief(p.truth[0], kP0);
-  Ekf ekf(p.map, p.odometry, ec);
-  SlidingWindowConfig wc;
-  wc.window = 1;
-  wc.max_iterations = 1;
-  wc.gauss_newton = true;
-  wc.init = ec.init;
-  SlidingWindowSmoother win(p.map, p.odometry, wc);
-  int fused = 0;
-  double max_pose = 0, max_cov = 0;
-  for (const Step& s : p.steps) {
-    const Estimate a = ekf.process(s), b = win.process(s);
-    ASSERT_EQ(toString(a.status), toString(b.status)) << "step " << s.step;
-    fused += a.status == EstimateStatus::Tracking;
-    max_pose = std::max(max_pose, minus(a.pose, b.pose).cwiseAbs().maxCoeff());
-    max_cov = std::max(max_cov, (a.covariance - b.covariance).cwiseAbs().maxCoeff() / a.covariance.cwiseAbs().maxCoeff());
+  // Keyframes (the default: blind steps are composed into the next keyframe's odometry
+  // factor) and every step a keyframe (keyframe_max_steps = 1): both are the EKF.
+  for (int keyframe_max_steps : {SlidingWindowConfig().keyframe_max_steps, 1}) {
+    EkfConfig ec;
+    ec.init = knownBelief(p.truth[0], kP0);
+    Ekf ekf(p.map, p.odometry, ec);
+    SlidingWindowConfig wc;
+    wc.window = 1;
+    wc.max_iterations = 1;
+    wc.gauss_newton = true;
+    wc.init = ec.init;
+    wc.keyframe_max_steps = keyframe_max_steps;
+    SlidingWindowSmoother win(p.map, p.odometry, wc);
+    int fused = 0;
+    double max_pose = 0, max_cov = 0;
+    for (const Step& s : p.steps) {
+      const Estimate a = ekf.process(s), b = win.process(s);
+      ASSERT_EQ(toString(a.status), toString(b.status)) << "step " << s.step;
+      fused += a.status == EstimateStatus::Tracking;
+      max_pose = std::max(max_pose, minus(a.pose, b.pose).cwiseAbs().maxCoeff());
+      max_cov =
+          std::max(max_cov, (a.covariance - b.covariance).cwiseAbs().maxCoeff() / a.covariance.cwiseAbs().maxCoeff());
+    }
+    EXPECT_GT(fused, 100);
+    EXPECT_LT(max_pose, 1e-6) << "keyframe_max_steps " << keyframe_max_steps;
+    EXPECT_LT(max_cov, 1e-6) << "keyframe_max_steps " << keyframe_max_steps;
+    EXPECT_EQ(win.windowSize(), 1);
+    if (keyframe_max_steps > 1) {
+      EXPECT_LT(win.stats().keyframes, win.stats().steps);
+    }
   }
-  EXPECT_GT(fused, 100);
-  EXPECT_LT(max_pose, 1e-6);
-  EXPECT_LT(max_cov, 1e-6);
-  EXPECT_EQ(win.windowSize(), 1);
 }
 
 TEST(SlidingWindow, GaussNewtonCheckCanFail) {
@@ -104,6 +114,9 @@ TEST(SlidingWindow, WholeTrajectoryWindowEqualsBatch) {
     wc.max_iterations = 5;
     wc.final_iterations = 100;
     wc.function_tolerance = wc.parameter_tolerance = wc.gradient_tolerance = 1e-16;
+    // Every step a pose, as in the batch (keyframes replace blind poses by composed odometry,
+    // equal to the batch only to first order: KeyframesSpanSparseObservations).
+    wc.keyframe_max_steps = 1;
     SlidingWindowSmoother win(p.map, p.odometry, wc);
     for (const Step& s : p.steps) win.process(s);
     const std::vector<Estimate> ew = win.finish();
@@ -144,7 +157,7 @@ TEST(SlidingWindow, SmoothsBetterThanFilteringAndMarginalisesConsistently) {
       nees += e.dot(realtime.back().covariance.ldlt().solve(e));
       ++count;
     }
-    EXPECT_EQ(win.stats().marginalisations, o.steps - 20);
+    EXPECT_EQ(win.stats().marginalisations, win.stats().keyframes - 20);
     const std::vector<Estimate> smoothed = win.finish();
     ASSERT_EQ(smoothed.size(), p.steps.size());
     rt += positionRmse(realtime, p.truth);
@@ -154,6 +167,97 @@ TEST(SlidingWindow, SmoothsBetterThanFilteringAndMarginalisesConsistently) {
   nees /= count;
   EXPECT_GT(nees, 1.0);
   EXPECT_LT(nees, 6.0);
+}
+
+// Observations on one step in six: W = 10 keyframes span 60 steps. The full-length keyframe
+// window is the batch to first order (the blind poses are marginalised at their predicted
+// values), including the bridged estimates of the blind steps; a short keyframe window beats
+// a short per-step window, and its covariances stay honest.
+TEST(SlidingWindow, KeyframesSpanSparseObservations) {
+  SyntheticProblemOptions o;
+  o.steps = 240;
+  const SyntheticProblem full = makeRandomWalkProblem(o, 41);
+  SyntheticProblem p = full;
+  for (size_t k = 0; k < p.steps.size(); ++k)
+    if (k % 6 != 0) p.steps[k].observations.clear();
+  BatchSmootherConfig bc;
+  bc.init = knownBelief(p.truth[0], kP0);
+  BatchSmoother batch(p.map, p.odometry, bc);
+  for (const Step& s : p.steps) batch.process(s);
+  const std::vector<Estimate> eb = batch.finish();
+  SlidingWindowConfig wc;
+  wc.init = bc.init;
+  wc.gate_enabled = false;
+  wc.window = o.steps;
+  wc.final_iterations = 100;
+  SlidingWindowSmoother all(p.map, p.odometry, wc);
+  for (const Step& s : p.steps) all.process(s);
+  const std::vector<Estimate> ea = all.finish();
+  ASSERT_EQ(ea.size(), eb.size());
+  EXPECT_LE(all.stats().keyframes, o.steps / 6 + 2);
+  double gap = 0, cov_gap = 0;
+  for (size_t i = 0; i < ea.size(); ++i) {
+    ASSERT_EQ(ea[i].step, eb[i].step);
+    const Eigen::Vector3d d = minus(ea[i].pose, eb[i].pose);
+    gap = std::max(gap, std::sqrt(d.dot(eb[i].covariance.ldlt().solve(d))));  // in batch sigmas
+    cov_gap = std::max(cov_gap, (ea[i].covariance - eb[i].covariance).cwiseAbs().maxCoeff() /
+                                    eb[i].covariance.cwiseAbs().maxCoeff());
+  }
+  EXPECT_LT(gap, 0.05);
+  EXPECT_LT(cov_gap, 0.2);
+
+  double rmse_key = 0, rmse_step = 0, nees = 0;
+  int count = 0;
+  for (int kf : {wc.keyframe_max_steps, 1}) {
+    SlidingWindowConfig sc;
+    sc.init = bc.init;
+    sc.window = 10;
+    sc.keyframe_max_steps = kf;
+    SlidingWindowSmoother win(p.map, p.odometry, sc);
+    for (const Step& s : p.steps) {
+      const Estimate e = win.process(s);
+      EXPECT_LE(win.windowSize(), 10);
+      if (kf > 1) {
+        const Eigen::Vector3d d = minus(e.pose, p.truth[static_cast<size_t>(s.step)]);
+        nees += d.dot(e.covariance.ldlt().solve(d));
+        ++count;
+      }
+    }
+    const std::vector<Estimate> lag = win.finish();
+    ASSERT_EQ(lag.size(), p.steps.size());
+    (kf > 1 ? rmse_key : rmse_step) = positionRmse(lag, p.truth);
+  }
+  EXPECT_LT(rmse_key, rmse_step);
+  nees /= count;
+  EXPECT_GT(nees, 1.0);
+  EXPECT_LT(nees, 6.0);
+}
+
+// Range outliers (1.5 x the range on 10 % of the observations) with the gate off: Huber and
+// Cauchy in the window reduce the error against the plain least-squares window.
+TEST(SlidingWindow, RobustLossResistsOutliers) {
+  SyntheticProblemOptions o;
+  o.steps = 300;
+  o.outlier_fraction = 0.1;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 23);
+  auto run = [&](RobustLoss type, double scale) {
+    SlidingWindowConfig wc;
+    wc.init = knownBelief(p.truth[0], kP0);
+    wc.gate_enabled = false;
+    wc.robust_loss.type = type;
+    wc.robust_loss.scale = scale;
+    SlidingWindowSmoother win(p.map, p.odometry, wc);
+    for (const Step& s : p.steps) win.process(s);
+    return positionRmse(win.finish(), p.truth);
+  };
+  const double plain = run(RobustLoss::None, 1.0);
+  const double huber = run(RobustLoss::Huber, 1.345);
+  const double cauchy = run(RobustLoss::Cauchy, 2.3849);
+  EXPECT_LT(huber, 0.8 * plain) << plain;
+  EXPECT_LT(cauchy, 0.8 * plain) << plain;
+  SlidingWindowConfig bad;
+  bad.keyframe_max_steps = 0;
+  EXPECT_THROW(SlidingWindowSmoother(p.map, p.odometry, bad), Error);
 }
 
 TEST(SlidingWindow, BlindStepsGrowTheCovarianceAndRecover) {

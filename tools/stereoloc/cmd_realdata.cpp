@@ -4,8 +4,9 @@
 // non-finite estimates, and each estimator's position RMSE relative to the EKF's.
 //
 // Estimators: dead reckoning (odometry only, predictPose), EKF, particle filter, sliding window
-// (W poses; its fixed-lag output from finish() and its real-time output from process()), batch
-// smoother without and with a robust loss on the range-bearing factors.
+// (W keyframes; its fixed-lag output from finish() and its real-time output from process()),
+// without and with a robust loss, batch smoother without and with a robust loss on the
+// range-bearing factors.
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -33,6 +34,9 @@ namespace {
 struct RealdataOptions {
   std::string dataset_dir, csv_path;
   int window = 20;
+  int keyframe_max_steps = SlidingWindowConfig().keyframe_max_steps;  // 1: every step a window pose
+  int window_lost_after = SlidingWindowConfig().gate.lost_after;
+  bool window_gate = true;
   int particles = 2000;
   unsigned long seed = 1;
   std::string robust = "huber";
@@ -204,20 +208,30 @@ void runRealdata(const RealdataOptions& o) {
     rows.push_back(evaluate("pf", "PF (" + std::to_string(o.particles) + ")", e, truth, ms, n));
     note(rows.back());
   }
-  if (wanted(o, "window") || wanted(o, "window_online")) {
+  for (const bool use_robust : {false, true}) {
+    const std::string key = use_robust ? "window_robust" : "window";
+    if (!wanted(o, key) && !wanted(o, key + "_online")) continue;
     SlidingWindowConfig c;
     c.init = init;
     c.window = o.window;
+    c.keyframe_max_steps = o.keyframe_max_steps;
+    c.gate.lost_after = o.window_lost_after;
+    c.gate_enabled = o.window_gate;
+    if (use_robust) c.robust_loss = robust;
     SlidingWindowSmoother sw(d.map, d.odometry, c);
     std::vector<Estimate> online;
     const std::vector<Estimate> e = runEstimator(sw, d.steps, &ms, &online);
-    const std::string w = "W=" + std::to_string(o.window);
-    if (wanted(o, "window")) {
-      rows.push_back(evaluate("window", "window " + w + " (lag)", e, truth, ms, n));
+    const SlidingWindowStats& wst = sw.stats();
+    std::fprintf(stderr, "  window%s: %ld keyframes, %ld observations fused, %ld gated, %ld re-initialisations\n",
+                 use_robust ? " (robust)" : "", wst.keyframes, wst.accepted_observations, wst.rejected_observations,
+                 wst.reinitialisations);
+    const std::string w = "W=" + std::to_string(o.window) + (use_robust ? " " + o.robust : "");
+    if (wanted(o, key)) {
+      rows.push_back(evaluate(key, "window " + w + " (lag)", e, truth, ms, n));
       note(rows.back());
     }
-    if (wanted(o, "window_online")) {
-      rows.push_back(evaluate("window_online", "window " + w + " (online)", online, truth, ms, n));
+    if (wanted(o, key + "_online")) {
+      rows.push_back(evaluate(key + "_online", "window " + w + " (online)", online, truth, ms, n));
       note(rows.back());
     }
   }
@@ -284,9 +298,19 @@ void add_realdata_command(CLI::App& app) {
       ->required()
       ->check(CLI::ExistingDirectory);
   sub->add_option("--window", o->window, "Sliding-window size W (poses)")->capture_default_str()->check(CLI::Range(1, 10000));
+  sub->add_option("--keyframe-max-steps", o->keyframe_max_steps,
+                  "Sliding window: a step without observations becomes a window pose after this many steps "
+                  "since the last one (1: every step is a window pose)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000000));
+  sub->add_option("--window-lost-after", o->window_lost_after,
+                  "Sliding window: consecutive gated observations that declare it lost")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 1000000));
+  sub->add_flag("!--no-window-gate", o->window_gate, "Sliding window: fuse every observation (no gate, never lost)");
   sub->add_option("--particles", o->particles, "Particle filter size")->capture_default_str()->check(CLI::Range(10, 1000000));
   sub->add_option("--seed", o->seed, "Seed of the particle filter")->capture_default_str();
-  sub->add_option("--robust", o->robust, "Robust loss of the second batch run: huber or cauchy")->capture_default_str();
+  sub->add_option("--robust", o->robust, "Robust loss of the second window and batch runs: huber or cauchy")->capture_default_str();
   sub->add_option("--robust-scale", o->robust_scale, "Robust loss scale (whitened units)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
@@ -303,7 +327,8 @@ void add_realdata_command(CLI::App& app) {
                   "Initial guess of the batch smoother: filter (a forward EKF pass) or odometry")
       ->capture_default_str();
   sub->add_option("--only", o->only,
-                  "Comma-separated subset: dead_reckoning,ekf,pf,window,window_online,batch,batch_robust");
+                  "Comma-separated subset: dead_reckoning,ekf,pf,window,window_online,window_robust,"
+                  "window_robust_online,batch,batch_robust");
   sub->add_option("--csv", o->csv_path, "Also write the table as CSV (units: mm, rad, ms)");
   sub->callback([o] { runRealdata(*o); });
 }
