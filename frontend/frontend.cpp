@@ -39,6 +39,9 @@ std::vector<Field> fields(FrontendParams& p) {
       {"segments", "direction_tolerance_deg", Field::Double, &p.segments.direction_tolerance_deg},
       {"segments", "band_px", Field::Double, &p.segments.band_px},
       {"segments", "refit_iterations", Field::Int, &p.segments.refit_iterations},
+      {"segments", "straightness_px", Field::Double, &p.segments.straightness_px},
+      {"segments", "straightness_bin_px", Field::Double, &p.segments.straightness_bin_px},
+      {"segments", "release_unused", Field::Bool, &p.segments.release_unused},
       {"classify", "width_factor", Field::Double, &p.classify.width_factor},
       {"classify", "min_width_px", Field::Double, &p.classify.min_width_px},
       {"classify", "max_width_px", Field::Double, &p.classify.max_width_px},
@@ -98,6 +101,8 @@ void FrontendParams::validate() const {
        "segments.direction_tolerance_deg", "must be in (0, 90)");
   need(segments.band_px > 0, "segments.band_px", "must be positive");
   need(segments.refit_iterations >= 1, "segments.refit_iterations", "must be at least 1");
+  need(segments.straightness_px > 0, "segments.straightness_px", "must be positive");
+  need(segments.straightness_bin_px > 0, "segments.straightness_bin_px", "must be positive");
   need(classify.width_factor > 0, "classify.width_factor", "must be positive");
   need(classify.min_width_px > 0 && classify.max_width_px >= classify.min_width_px, "classify.min/max_width_px",
        "need 0 < min <= max");

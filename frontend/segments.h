@@ -36,7 +36,7 @@ struct SegmentParams {
   // A group of collinear-looking pixels is split where it bends or steps by more than this:
   // far away, a wall foot, a goal foot and a marking lie a pixel or two apart at image angles
   // of a few degrees, and one Hough cell collects them all.
-  double straightness_px = 0.75;
+  double straightness_px = 1.0;
   double straightness_bin_px = 4.0;  // pixels are averaged in bins this long along the line
   // Remove only the pixels of accepted segments (true), or every pixel a peak collected
   // (false, Algorithm 2 as printed): a peak that straddles two nearby lines must not eat the
