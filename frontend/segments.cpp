@@ -170,6 +170,37 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
   for (size_t i = 1; i + 1 < bins.size(); ++i)
     if (keep[i]) cuts.push_back(bins[i].first);
   cuts.push_back(n);
+  // The polyline vertex is only bin-accurate, and at a shallow bend a bin error is several px
+  // along the line: move each cut to where the two runs' own lines explain the pixels best
+  // (least total |residual|, lines fitted away from the cut, search within +-2 bins).
+  for (size_t ci = 1; ci + 1 < cuts.size(); ++ci) {
+    const int lo = cuts[ci - 1], mid = cuts[ci], hi = cuts[ci + 1];
+    auto tOf = [&](int q) { return -edges[begin[q]].x * s + edges[begin[q]].y * c; };
+    const double t_mid = tOf(mid);
+    int a_end = mid, b_start = mid;
+    while (a_end > lo && tOf(a_end - 1) > t_mid - 2 * bin_px) --a_end;
+    while (b_start < hi && tOf(b_start) < t_mid + 2 * bin_px) ++b_start;
+    double tha, rha, thb, rhb;
+    if (a_end - lo < 4 || hi - b_start < 4 || !fitLine(edges, begin + lo, begin + a_end, theta, tha, rha) ||
+        !fitLine(edges, begin + b_start, begin + hi, theta, thb, rhb))
+      continue;
+    auto res = [&](int q, double th, double rh) {
+      return std::fabs(edges[begin[q]].x * std::cos(th) + edges[begin[q]].y * std::sin(th) - rh);
+    };
+    // cost(k) = sum_{a_end <= j < k} resA(j) + sum_{k <= j < b_start} resB(j)
+    double cost = 0;
+    for (int j = a_end; j < b_start; ++j) cost += res(j, thb, rhb);
+    double best = cost;
+    int at = a_end;
+    for (int q = a_end; q < b_start; ++q) {
+      cost += res(q, tha, rha) - res(q, thb, rhb);
+      if (cost < best) {
+        best = cost;
+        at = q + 1;
+      }
+    }
+    cuts[ci] = at;
+  }
 }
 
 void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta,

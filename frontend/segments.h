@@ -46,7 +46,8 @@ struct SegmentParams {
 
 // Splits the pixels [begin, end) (sorted by their coordinate t along the line theta) into
 // straight runs: the mean pixel of every bin_px-long stretch is a vertex of a polyline, which
-// is simplified by Douglas-Peucker with tolerance tol_px; every kept interior vertex is a split.
+// is simplified by Douglas-Peucker with tolerance tol_px; every kept interior vertex is a split,
+// then moved (within +-2 bins) to where the two runs' own fitted lines explain the pixels best.
 // Appends the run boundaries (indices into [begin, end), ascending, first 0, last end-begin) to
 // `cuts`. Runs shorter than 2 bins are never split further.
 void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,

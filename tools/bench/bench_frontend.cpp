@@ -14,10 +14,17 @@
 // segment when the undirected angle differs by at most 2 deg and both end points are within
 // 3 px (either order). The visible pieces of one edge broken by an occluder also match as
 // one segment from the first piece's start to the last piece's end (Fig. 6.1 'b'): that
-// detection recalls every piece; so do collinear pieces that touch (a wall and a corner
-// triangle in line with it). Ground-truth pieces shorter than L_min (30 px) are
+// detection recalls every piece. The same holds for any run of consecutive truth pieces that
+// lie closer than Gap_max along one line and whose union is straight to within 1 px (the
+// fitting band): Algorithm 2 is specified to merge such collinear pixel groups into one
+// segment, and far away the tops of walls, corner triangles and goals form one such
+// near-straight silhouette. Ground-truth pieces shorter than L_min (30 px) are
 // optional (not counted in recall; a detection of one is correct). Detections on the
-// centre circle (not straight, not in the truth) and on obstacles are ignored.
+// centre circle (not straight, not in the truth) and on obstacles are ignored. The table
+// prints how many truth pieces are optional and how many detections were ignored.
+// Truth kinds: markings (centre lines), wall/goal feet and inner top edges, goal posts,
+// corner triangles, and the top outline of walls and goals (their silhouette against the
+// background; src/renderer.h).
 // "Centre-line level" compares our output lines (marking centre lines, other edges) with the
 // truth as given. "Edge level" compares raw edges: each marking's truth is replaced by its two
 // side edges (the centre line moved by +-line_width/2 on the floor, projected); ours are the
@@ -89,6 +96,7 @@ struct FailureBreakdown {
 
 struct SegStats {
   long gt = 0, gt_hit = 0, det = 0, det_ok = 0, matched = 0, class_ok = 0;
+  long gt_optional = 0, det_ignored = 0;  // excluded: truth pieces < L_min, detections on don't-care areas
   double endpoint_sum = 0;
   FailureBreakdown* why = nullptr;
   double recall() const { return gt ? double(gt_hit) / gt : 0; }
@@ -423,12 +431,18 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
     }
     (void)err;
     det_hit.push_back(ok ? 1 : 0);
-    if (!ok && inMask(mask, d)) continue;  // don't care
+    if (!ok && inMask(mask, d)) {  // don't care
+      ++st.det_ignored;
+      continue;
+    }
     ++st.det;
     st.det_ok += ok ? 1 : 0;
   }
   for (size_t i = 0; i < gt.size(); ++i) {
-    if (gt[i].optional) continue;
+    if (gt[i].optional) {
+      ++st.gt_optional;
+      continue;
+    }
     ++st.gt;
     st.gt_hit += hit[i];
   }
@@ -663,7 +677,12 @@ void accuracyTable(bool diag) {
 
   std::printf("\nstereoloc vision frontend: accuracy on %zu rendered pairs (%zu with bad illumination) + %zu goal pairs\n",
               s.general.size(), s.general.size() / 2, s.goals.size());
-  std::printf("matching: angle <= 2 deg, both end points <= 3 px; broken edges match as one; pieces < L_min optional\n\n");
+  std::printf("matching: angle <= 2 deg, both end points <= 3 px; broken edges match as one; so do runs of truth pieces\n"
+              "closer than Gap_max whose union is straight within 1 px (Algorithm 2 merges them); truth pieces < L_min\n"
+              "optional; unmatched detections on the centre circle or obstacles ignored\n");
+  std::printf("excluded at centre-line level: %ld truth pieces < L_min (of %ld), %ld detections ignored (of %ld)\n\n",
+              ours_centre.gt_optional, ours_centre.gt_optional + ours_centre.gt, ours_centre.det_ignored,
+              ours_centre.det_ignored + ours_centre.det);
   std::printf("  %-34s %9s %10s %8s %9s\n", "segments", "recall", "precision", "F", "endpt px");
   printRow("ours, centre-line level (target)", ours_centre);
   printRow("  good illumination", by_light[0]);
