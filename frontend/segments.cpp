@@ -115,6 +115,12 @@ void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments) {
 
 void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
                   double tol_px, std::vector<int>& cuts) {
+  BendScratch scratch;
+  splitAtBends(edges, begin, end, theta, bin_px, tol_px, cuts, scratch);
+}
+
+void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
+                  double tol_px, std::vector<int>& cuts, BendScratch& scratch) {
   const int n = static_cast<int>(end - begin);
   cuts.clear();
   cuts.push_back(0);
@@ -124,11 +130,8 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
   }
   const double c = std::cos(theta), s = std::sin(theta);
   // Bins along t: mean (t, d) and the index of their first pixel.
-  struct Bin {
-    double t, d;
-    int first;
-  };
-  std::vector<Bin> bins;
+  std::vector<BendScratch::Bin>& bins = scratch.bins;
+  bins.clear();
   const double t0 = -edges[begin[0]].x * s + edges[begin[0]].y * c;
   int k = 0;
   while (k < n) {
@@ -142,11 +145,13 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
       ++m;
       ++k;
     }
-    bins.push_back(Bin{st / m, sd / m, first});
+    bins.push_back(BendScratch::Bin{st / m, sd / m, first});
   }
   // Douglas-Peucker on the bin means (an explicit stack; kept vertices are the cuts).
-  std::vector<uint8_t> keep(bins.size(), 0);
-  std::vector<std::pair<int, int>> stack{{0, static_cast<int>(bins.size()) - 1}};
+  std::vector<uint8_t>& keep = scratch.keep;
+  keep.assign(bins.size(), 0);
+  std::vector<std::pair<int, int>>& stack = scratch.stack;
+  stack.assign(1, {0, static_cast<int>(bins.size()) - 1});
   while (!stack.empty()) {
     const auto [a, b] = stack.back();
     stack.pop_back();
@@ -293,7 +298,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
           run = k;
         }
       splitAtBends(edges, piece_.data(), piece_.data() + piece_.size(), theta, prm.straightness_bin_px,
-                   prm.straightness_px, cuts_);
+                   prm.straightness_px, cuts_, bend_scratch_);
       for (size_t ci = 0; ci + 1 < cuts_.size(); ++ci) {
         const int* rb = piece_.data() + cuts_[ci];
         const int* re = piece_.data() + cuts_[ci + 1];

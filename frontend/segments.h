@@ -17,6 +17,7 @@
 // (issue 4's order), so a line broken by noise into short pieces still comes out whole.
 #include <cstdint>
 #include <opencv2/core/mat.hpp>
+#include <utility>
 #include <vector>
 
 #include "frontend/features.h"
@@ -44,6 +45,17 @@ struct SegmentParams {
   bool release_unused = true;
 };
 
+// Reusable buffers of splitAtBends (no allocation once warmed up).
+struct BendScratch {
+  struct Bin {
+    double t, d;
+    int first;
+  };
+  std::vector<Bin> bins;
+  std::vector<uint8_t> keep;
+  std::vector<std::pair<int, int>> stack;
+};
+
 // Splits the pixels [begin, end) (sorted by their coordinate t along the line theta) into
 // straight runs: the mean pixel of every bin_px-long stretch is a vertex of a polyline, which
 // is simplified by Douglas-Peucker with tolerance tol_px; every kept interior vertex is a split,
@@ -52,6 +64,8 @@ struct SegmentParams {
 // `cuts`. Runs shorter than 2 bins are never split further.
 void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
                   double tol_px, std::vector<int>& cuts);
+void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
+                  double tol_px, std::vector<int>& cuts, BendScratch& scratch);
 
 class SegmentExtractor {
  public:
@@ -75,6 +89,7 @@ class SegmentExtractor {
   std::vector<std::pair<float, int>> proj_;
   std::vector<int> pix_, off_;
   std::vector<int> piece_, cuts_;
+  BendScratch bend_scratch_;
 };
 
 // Moves each end of a segment to where the step across it fades to half its contrast, by
