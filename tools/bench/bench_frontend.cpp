@@ -736,6 +736,20 @@ void BM_Ours_SegmentsOnly(benchmark::State& st) {
     benchmark::DoNotOptimize(fe.detectSegments(p.img.left).size());
   }
 }
+// The same without the bend/step split and with Algorithm 2's pixel removal as printed: the
+// cost of those two stages, measured in the same run.
+void BM_Ours_SegmentsOnly_NoSplit(benchmark::State& st) {
+  Setup& s = setup();
+  FrontendParams prm;
+  prm.segments.straightness_px = 1e9;
+  prm.segments.release_unused = false;
+  Frontend fe(s.rig, s.map, prm);
+  size_t i = 0;
+  for (auto _ : st) {
+    const Pair& p = s.general[i++ % std::min<size_t>(s.general.size(), 32)];
+    benchmark::DoNotOptimize(fe.detectSegments(p.img.left).size());
+  }
+}
 void BM_OpenCV_HoughLinesP(benchmark::State& st) {
   Setup& s = setup();
   cv::Mat luma, edges;
@@ -789,6 +803,7 @@ int main(int argc, char** argv) {
   if (table) accuracyTable(diag);
   for (auto [name, fn] : {std::pair{"ours_full_frontend_stereo_pair", &BM_Ours_Full},
                           std::pair{"ours_segments_only_left", &BM_Ours_SegmentsOnly},
+                          std::pair{"ours_segments_only_left_without_split", &BM_Ours_SegmentsOnly_NoSplit},
                           std::pair{"opencv_canny_houghlinesp_left", &BM_OpenCV_HoughLinesP},
                           std::pair{"opencv_lsd_left", &BM_OpenCV_LSD}})
     benchmark::RegisterBenchmark(name, fn)->Unit(benchmark::kMicrosecond)->Repetitions(5)->ReportAggregatesOnly(true);
