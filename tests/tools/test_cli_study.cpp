@@ -17,7 +17,8 @@ std::string slurp(const std::string& path) {
   return ss.str();
 }
 
-const char* kSmall = "study --scenarios circle,spin --methods fix2,ekf,window,batch --trials 4 --seed 7 --no-progress";
+const char* kSmall =
+    "study --scenarios circle,spin --methods fix2,ekf,window,batch --trials 4 --seed 7 --no-progress --frontend pixels";
 
 }  // namespace
 

@@ -317,8 +317,7 @@ void runFixStudy(const FixStudyArgs& a) {
   ImageFrontendOptions fo;
   fo.landmarks = frontendLandmarksFromString(a.frontend_landmarks);
   RenderOptions ro;
-  ro.noise_sigma = a.image_noise;
-  ro.compute_truth = false;
+  ro.compute_truth = false;  // sensor noise: addSensorNoise in observeRenderedImages
   std::unique_ptr<StereoRenderer> renderer;
   if (images) renderer = std::make_unique<StereoRenderer>(cfg.map, StereoRig(cfg.rig), ro);
   ImageFrontendStats fstats;
@@ -360,7 +359,7 @@ void runFixStudy(const FixStudyArgs& a) {
           Dataset image_data;
           if (modes[mi] == FrontendMode::Images) {
             image_data = sim;
-            fstats.merge(observeRenderedImages(image_data, trace, *renderer, mixSeed(s, 0x1A6E5, 0, 0), fo));
+            fstats.merge(observeRenderedImages(image_data, trace, *renderer, a.image_noise, mixSeed(s, 0x1A6E5, 0, 0), fo));
           }
           const Dataset& d = modes[mi] == FrontendMode::Images ? image_data : sim;
           // Common random numbers: the same compass draws for both frontends.

@@ -1,11 +1,17 @@
 #include "tools/stereoloc/frontend_source.h"
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <random>
+#include <thread>
 #include <filesystem>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "frontend/frontend.h"
 #include "src/error.h"
+#include "src/gaussian.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {
@@ -47,11 +53,14 @@ void ImageFrontendStats::merge(const ImageFrontendStats& o) {
 }
 
 ImageObserver::ImageObserver(const StereoRig& rig, const FieldMap& map, const ImageFrontendOptions& options)
-    : frontend_(rig, map, options.params), landmarks_(options.landmarks) {}
+    : frontend_(std::make_unique<frontend::Frontend>(rig, map, options.params ? *options.params : frontend::FrontendParams())),
+      landmarks_(options.landmarks) {}
+
+ImageObserver::~ImageObserver() = default;
 
 std::vector<Observation> ImageObserver::observe(const cv::Mat& left_bgr, const cv::Mat& right_bgr, double head_pan) {
   const auto start = Clock::now();
-  const frontend::FrontendResult& r = frontend_.process(left_bgr, right_bgr, head_pan);
+  const frontend::FrontendResult& r = frontend_->process(left_bgr, right_bgr, head_pan);
   std::vector<Observation> out;
   out.reserve(r.observations.size());
   for (const Observation& o : r.observations) {
@@ -106,17 +115,116 @@ ImageFrontendStats observeDatasetImages(Dataset& d, const std::string& dir, cons
 }
 
 ImageFrontendStats observeRenderedImages(Dataset& d, const SimulationTrace& trace, const StereoRenderer& renderer,
-                                         uint64_t noise_seed, const ImageFrontendOptions& options) {
+                                         double noise_sigma, uint64_t noise_seed, const ImageFrontendOptions& options) {
   if (trace.scenario.poses.size() != d.steps.size() || trace.obstacles.size() != d.steps.size())
     throw Error("observeRenderedImages: the simulation trace does not match the dataset");
+  if (renderer.options().noise_sigma != 0) throw Error("observeRenderedImages: the renderer must have no sensor noise");
   ImageObserver observer(d.rig, d.map, options);
   double ms_render = 0;
   for (size_t k = 0; k < d.steps.size(); ++k) {
     Step& s = d.steps[k];
     const auto start = Clock::now();
-    const StereoImages im = renderer.render(trace.scenario.poses[k], s.head_pan, trace.obstacles[k], noise_seed + k);
+    StereoImages im = renderer.render(trace.scenario.poses[k], s.head_pan, trace.obstacles[k], 0);
+    addSensorNoise(im.left, im.right, noise_sigma, noise_seed + k);
     ms_render += msSince(start);
     s.observations = observer.observe(im.left, im.right, s.head_pan);
+  }
+  ImageFrontendStats stats = observer.stats();
+  stats.ms_render = ms_render;
+  return stats;
+}
+
+std::shared_ptr<const CleanRenders> renderClean(const SimulationTrace& trace, const StereoRenderer& renderer, int threads) {
+  const RenderOptions& ro = renderer.options();
+  if (ro.noise_sigma != 0 || ro.blur_sigma != 0 || ro.brightness != 0 || ro.contrast != 1.0)
+    throw Error("renderClean: the renderer must have no noise, blur or illumination change");
+  auto out = std::make_shared<CleanRenders>();
+  const size_t n = trace.scenario.poses.size();
+  out->poses = trace.scenario.poses;
+  out->head_pans = trace.scenario.head_pan;
+  out->left.resize(n);
+  out->right.resize(n);
+  for (size_t k = 0; k < n; ++k)
+    if (k < trace.obstacles.size() && !trace.obstacles[k].empty())
+      throw Error("renderClean: scenes with obstacles change per trial and cannot be cached");
+  std::vector<std::string> errors(static_cast<size_t>(std::max(1, threads)));
+  auto work = [&](int t, int stride) {
+    try {
+      for (size_t k = static_cast<size_t>(t); k < n; k += static_cast<size_t>(stride)) {
+        StereoImages im = renderer.render(out->poses[k], k < out->head_pans.size() ? out->head_pans[k] : 0.0, {}, 0);
+        out->left[k] = im.left;
+        out->right[k] = im.right;
+      }
+    } catch (const std::exception& e) {
+      errors[static_cast<size_t>(t)] = e.what();
+    }
+  };
+  const int stride = std::max(1, threads);
+  std::vector<std::thread> pool;
+  for (int t = 1; t < stride; ++t) pool.emplace_back(work, t, stride);
+  work(0, stride);
+  for (std::thread& th : pool) th.join();
+  for (const std::string& e : errors)
+    if (!e.empty()) throw Error(e);
+  return out;
+}
+
+void addSensorNoise(cv::Mat& left, cv::Mat& right, double sigma, uint64_t seed) {
+  if (!(sigma > 0)) return;
+  // Phi^-1(p) = sign(p - 1/2) sqrt(chi2_1^-1(|2p - 1|)), since z^2 ~ chi2(1).
+  static const std::vector<float> quantiles = [] {
+    std::vector<float> q(65536);
+    for (size_t i = 0; i < q.size(); ++i) {
+      const double p = (static_cast<double>(i) + 0.5) / static_cast<double>(q.size());
+      const double z = std::sqrt(chi2Quantile(std::fabs(2.0 * p - 1.0), 1));
+      q[i] = static_cast<float>(p < 0.5 ? -z : z);
+    }
+    return q;
+  }();
+  uint64_t state = seed;
+  uint64_t bits = 0;
+  int left_in_bits = 0;
+  const float s = static_cast<float>(sigma);
+  for (cv::Mat* m : {&left, &right}) {
+    if (m->type() != CV_8UC3) throw Error("addSensorNoise: images must be CV_8UC3");
+    for (int v = 0; v < m->rows; ++v) {
+      uchar* p = m->ptr<uchar>(v);
+      for (int k = 0; k < m->cols * 3; ++k) {
+        if (left_in_bits == 0) {
+          // splitmix64
+          uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+          z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+          z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+          bits = z ^ (z >> 31);
+          left_in_bits = 4;
+        }
+        const float n = quantiles[bits & 0xFFFF];
+        bits >>= 16;
+        --left_in_bits;
+        p[k] = cv::saturate_cast<uchar>(static_cast<float>(p[k]) + s * n);
+      }
+    }
+  }
+}
+
+ImageFrontendStats observeCleanRenders(Dataset& d, const SimulationTrace& trace, const CleanRenders& clean,
+                                       double noise_sigma, uint64_t noise_seed, const ImageFrontendOptions& options) {
+  if (trace.scenario.poses.size() != d.steps.size() || clean.poses.size() != d.steps.size())
+    throw Error("observeCleanRenders: the cached renders do not match the dataset");
+  ImageObserver observer(d.rig, d.map, options);
+  double ms_render = 0;
+  cv::Mat left, right;
+  for (size_t k = 0; k < d.steps.size(); ++k) {
+    const Pose2& p = trace.scenario.poses[k];
+    if (p.x != clean.poses[k].x || p.y != clean.poses[k].y || p.theta != clean.poses[k].theta ||
+        d.steps[k].head_pan != clean.head_pans[k] || (k < trace.obstacles.size() && !trace.obstacles[k].empty()))
+      throw Error("observeCleanRenders: step " + std::to_string(d.steps[k].step) + " differs from the cached render");
+    const auto start = Clock::now();
+    clean.left[k].copyTo(left);
+    clean.right[k].copyTo(right);
+    addSensorNoise(left, right, noise_sigma, noise_seed + k);
+    ms_render += msSince(start);
+    d.steps[k].observations = observer.observe(left, right, d.steps[k].head_pan);
   }
   ImageFrontendStats stats = observer.stats();
   stats.ms_render = ms_render;

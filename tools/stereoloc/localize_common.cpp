@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <memory>
 
+#include "frontend/frontend.h"
 #include "src/dataset.h"
 #include "src/estimate_io.h"
 #include "src/evaluation.h"
@@ -51,7 +52,8 @@ void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landm
 ImageFrontendOptions frontendOptionsFrom(const std::string& landmarks, const std::string& params_path) {
   ImageFrontendOptions o;
   o.landmarks = frontendLandmarksFromString(landmarks);
-  if (!params_path.empty()) o.params = frontend::FrontendParams::load(params_path);  // bad data: exit 1
+  if (!params_path.empty())  // bad data: exit 1
+    o.params = std::make_shared<const frontend::FrontendParams>(frontend::FrontendParams::load(params_path));
   return o;
 }
 

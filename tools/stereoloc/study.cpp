@@ -197,30 +197,74 @@ uint64_t hashString(const std::string& s) {
 struct TrialOutput {
   std::vector<TrialRow> rows;
   std::vector<StepRow> steps;
+  ImageFrontendStats frontend;  // images: what rendering and the frontend did (timings: stderr only)
 };
 
+// Noise-free renders of the scenarios whose true path does not depend on the seed, by
+// "scenario#thesis trial" (see CleanRenders in frontend_source.h).
+using RenderCache = std::map<std::string, std::shared_ptr<const CleanRenders>>;
+
+// A study trial is a Monte Carlo run; scenarios with several thesis trials cycle through them.
+int thesisTrial(const std::string& scenario, int trial) { return trial % std::max(1, scenarioTrialCount(scenario)); }
+
+std::string cacheKey(const std::string& scenario, int trial) {
+  return scenario + "#" + std::to_string(thesisTrial(scenario, trial));
+}
+
 // Simulates one trial. With the image frontend, every step's pair is rendered from the true pose
-// and run through the frontend; the image noise is seeded from the trial seed, so the trial's
-// data do not depend on the thread count. `render_threads` only splits the rendering of a pair.
-Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int trial, int render_threads = 1,
-                      ImageFrontendStats* stats = nullptr) {
+// (or taken from `cache`) with sensor noise seeded from the trial seed and run through the
+// frontend, so the trial's data do not depend on the thread count or on the cache.
+// `render_threads` only splits the rendering of a pair.
+Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache,
+                      int render_threads = 1, ImageFrontendStats* stats = nullptr) {
   SimulationConfig sim;
-  // A study trial is a Monte Carlo run; scenarios with several thesis trials cycle through them.
-  const int thesis_trials = std::max(1, scenarioTrialCount(scenario));
   const uint64_t seed = trialSeed(c.seed, scenario, trial);
-  if (c.frontend != "images") return simulate(scenario, trial % thesis_trials, sim, seed);
+  if (c.frontend != "images") return simulate(scenario, thesisTrial(scenario, trial), sim, seed);
   SimulationTrace trace;
-  Dataset d = simulate(scenario, trial % thesis_trials, sim, seed, &trace);
-  RenderOptions ro;
-  ro.noise_sigma = c.image_noise;
-  ro.compute_truth = false;
-  ro.threads = render_threads;
-  const StereoRenderer renderer(d.map, d.rig, ro);
+  Dataset d = simulate(scenario, thesisTrial(scenario, trial), sim, seed, &trace);
   ImageFrontendOptions fo;
   fo.landmarks = frontendLandmarksFromString(c.frontend_landmarks);
-  const ImageFrontendStats st = observeRenderedImages(d, trace, renderer, splitmix64(seed ^ hashString("images")), fo);
+  const uint64_t noise_seed = splitmix64(seed ^ hashString("images"));
+  ImageFrontendStats st;
+  const auto hit = cache ? cache->find(cacheKey(scenario, trial)) : RenderCache::const_iterator();
+  if (cache && hit != cache->end()) {
+    st = observeCleanRenders(d, trace, *hit->second, c.image_noise, noise_seed, fo);
+  } else {
+    RenderOptions ro;
+    ro.compute_truth = false;
+    ro.threads = render_threads;
+    const StereoRenderer renderer(d.map, d.rig, ro);
+    st = observeRenderedImages(d, trace, renderer, c.image_noise, noise_seed, fo);
+  }
   if (stats) *stats = st;
   return d;
+}
+
+// Renders once, noise-free, every scenario of the study whose true path and head pans are the
+// same for any seed (all thesis scenarios; not random-walk).
+RenderCache buildRenderCache(const StudyConfig& c, int threads) {
+  RenderCache cache;
+  if (c.frontend != "images") return cache;
+  SimulationConfig sim;
+  for (const std::string& sc : c.scenarios) {
+    for (int t = c.shard_index; t < c.trials; t += c.shard_count) {
+      const std::string key = cacheKey(sc, t);
+      if (cache.count(key)) continue;
+      SimulationTrace a, b;
+      const Dataset da = simulate(sc, thesisTrial(sc, t), sim, trialSeed(c.seed, sc, t), &a);
+      simulate(sc, thesisTrial(sc, t), sim, splitmix64(trialSeed(c.seed, sc, t) + 1), &b);
+      bool fixed_path = a.scenario.poses.size() == b.scenario.poses.size() && a.scenario.head_pan == b.scenario.head_pan;
+      for (size_t k = 0; fixed_path && k < a.scenario.poses.size(); ++k)
+        fixed_path = a.scenario.poses[k].x == b.scenario.poses[k].x && a.scenario.poses[k].y == b.scenario.poses[k].y &&
+                     a.scenario.poses[k].theta == b.scenario.poses[k].theta && a.obstacles[k].empty() && b.obstacles[k].empty();
+      if (!fixed_path || a.scenario.poses.empty()) continue;
+      RenderOptions clean;
+      clean.compute_truth = false;
+      clean.threads = 1;
+      cache[key] = renderClean(a, StereoRenderer(da.map, da.rig, clean), threads);
+    }
+  }
+  return cache;
 }
 
 long firstSightingStep(const Dataset& d) {
@@ -229,12 +273,12 @@ long firstSightingStep(const Dataset& d) {
   return -1;
 }
 
-TrialOutput runTrial(const StudyConfig& c, const std::string& scenario, int trial) {
-  const Dataset d = simulateTrial(c, scenario, trial);
+TrialOutput runTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache) {
+  TrialOutput out;
+  const Dataset d = simulateTrial(c, scenario, trial, cache, 1, &out.frontend);
   const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
   const long first = firstSightingStep(d);
   const double band_lo = chi2Quantile(0.025, 3), band_hi = chi2Quantile(0.975, 3);
-  TrialOutput out;
   for (const std::string& method : c.methods) {
     const uint64_t method_seed = splitmix64(trialSeed(c.seed, scenario, trial) ^ hashString(method));
     const MethodRun run = runMethod(method, d, method_seed, c.method_options);
@@ -474,10 +518,11 @@ std::string thesisComparison(const std::vector<SummaryRow>& rows, const std::str
 
 // Figures for one scenario; returns the markdown that embeds them.
 std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, const std::vector<StepRow>& steps,
+                            const RenderCache* cache,
                             const std::string& dir) {
   std::ostringstream md;
   // Trajectories of trial 0 with 3-sigma ellipses (Figs. 6.26-6.28): re-simulated (deterministic).
-  const Dataset d = simulateTrial(c, scenario, 0, 2);  // the workers are done: both cores render
+  const Dataset d = simulateTrial(c, scenario, 0, cache, 2);  // the workers are done: both cores render
   Plot traj(scenario + ": trajectories of trial 0 with 3-sigma ellipses", "x [mm]", "y [mm]", 1000, 820);
   traj.setEqualAspect(true);
   drawField(traj, d.map);
@@ -609,6 +654,7 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
 }
 
 void writeReport(const StudyConfig& c, const std::vector<TrialRow>& rows, const std::vector<StepRow>& steps,
+                 const RenderCache* cache,
                  const std::string& dir) {
   const std::vector<SummaryRow> summary = summarise(c, rows);
   writeSummaryCsv(summary, dir + "/summary.csv");
@@ -627,7 +673,7 @@ void writeReport(const StudyConfig& c, const std::vector<TrialRow>& rows, const 
         "of its values inside the two-sided 95 % chi-square band. ms/step is wall-clock on this machine.\n\n";
   for (const std::string& sc : c.scenarios) {
     md << "## " << sc << "\n\n" << summaryTable(summary, sc) << "\n" << thesisComparison(summary, sc);
-    md << scenarioFigures(c, sc, steps, dir);
+    md << scenarioFigures(c, sc, steps, cache, dir);
   }
   // RMSE per method, per scenario.
   for (const std::string& sc : c.scenarios) {
@@ -765,6 +811,11 @@ void runStudy(const StudyConfig& c) {
   std::condition_variable cv;
   std::atomic<size_t> next{0};
   const int threads = c.threads > 0 ? c.threads : std::max(1u, std::thread::hardware_concurrency());
+  const auto cache_start = std::chrono::steady_clock::now();
+  const RenderCache cache = buildRenderCache(c, threads);
+  if (!cache.empty())
+    std::fprintf(stderr, "study: rendered the noise-free pairs of %zu scenario(s) in %.1f s; each trial adds its own sensor noise\n",
+                 cache.size(), std::chrono::duration<double>(std::chrono::steady_clock::now() - cache_start).count());
   std::vector<std::thread> pool;
   for (int i = 0; i < threads; ++i) {
     pool.emplace_back([&] {
@@ -772,7 +823,7 @@ void runStudy(const StudyConfig& c) {
         TrialOutput out;
         std::string err;
         try {
-          out = runTrial(c, tasks[k].scenario, tasks[k].trial);
+          out = runTrial(c, tasks[k].scenario, tasks[k].trial, &cache);
         } catch (const std::exception& e) {
           err = tasks[k].scenario + " trial " + std::to_string(tasks[k].trial) + ": " + e.what();
         }
@@ -789,6 +840,7 @@ void runStudy(const StudyConfig& c) {
   const auto start = std::chrono::steady_clock::now();
   std::vector<TrialRow> all_rows;
   std::vector<StepRow> all_steps;
+  ImageFrontendStats frontend_stats;
   std::string first_error;
   for (size_t k = 0; k < tasks.size(); ++k) {
     std::unique_lock<std::mutex> lock(mu);
@@ -806,6 +858,7 @@ void runStudy(const StudyConfig& c) {
     steps_csv.flush();
     all_rows.insert(all_rows.end(), out.rows.begin(), out.rows.end());
     all_steps.insert(all_steps.end(), out.steps.begin(), out.steps.end());
+    frontend_stats.merge(out.frontend);
     if (bar) {
       const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       const double eta = el / (k + 1) * (tasks.size() - k - 1);
@@ -817,7 +870,16 @@ void runStudy(const StudyConfig& c) {
   for (std::thread& t : pool) t.join();
   if (bar) std::fprintf(stderr, "\n");
   if (!first_error.empty()) throw Error(first_error);
-  writeReport(c, all_rows, all_steps, c.out_dir);
+  if (frontend_stats.pairs > 0) {
+    const double n = static_cast<double>(frontend_stats.pairs);
+    std::fprintf(stderr,
+                 "image frontend: %ld stereo pairs, %.2f observations per pair (%.2f goal corners), rendering %.1f ms/pair, "
+                 "frontend %.2f ms/pair; trials done in %.1f s\n",
+                 frontend_stats.pairs, frontend_stats.observations / n, frontend_stats.identified / n,
+                 frontend_stats.ms_render / n, frontend_stats.ms_frontend / n,
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  }
+  writeReport(c, all_rows, all_steps, &cache, c.out_dir);
   std::printf("report: %s/report.md\n", c.out_dir.c_str());
 }
 
@@ -859,7 +921,7 @@ void mergeStudies(const std::vector<std::string>& dirs, const std::string& out_d
     t.commit();
     s.commit();
   }
-  writeReport(c, rows, steps, out_dir);
+  writeReport(c, rows, steps, nullptr, out_dir);
   std::printf("merged %zu trial rows from %zu studies; report: %s/report.md\n", rows.size(), dirs.size(), out_dir.c_str());
 }
 
