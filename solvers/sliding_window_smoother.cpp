@@ -49,6 +49,8 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
       odometry_(odometry),
       config_((config.validate(), std::move(config))),
       gate_(config_.gate, 2),
+      gate_enabled_(config_.gate_enabled &&
+                    (config_.robust_loss.type == RobustLoss::None || config_.gate_with_robust_loss)),
       compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)),
       loss_(makeLossFunction(config_.robust_loss)) {
   odometry_.validate();
@@ -431,7 +433,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
       const double sigma2 = step.compass_sigma * step.compass_sigma;
       const double nu = angleDiff(*step.compass, pose.theta);
       const double S = P(2, 2) + sigma2;
-      if (!config_.gate_enabled || nu * nu / S <= compass_threshold_) {
+      if (!gate_enabled_ || nu * nu / S <= compass_threshold_) {
         addFactor(CompassFactor::Create(*step.compass, step.compass_sigma), {node});
         const Eigen::Vector3d K = P.col(2) / S;  // (5.19), H = [0 0 1]
         pose = plus(pose, K * nu);
@@ -472,7 +474,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
           const Eigen::Matrix2d S = Hz * PHt + obs.covariance;  // (5.14)
           const Eigen::Matrix2d Sinv = S.inverse();
           const double d2 = nu.dot(Sinv * nu);  // (5.20)
-          if (std::isfinite(d2) && (!config_.gate_enabled || gate_.accepts(d2))) {
+          if (std::isfinite(d2) && (!gate_enabled_ || gate_.accepts(d2))) {
             addFactor(RangeBearingFactor::Create(lm->xy(), obs.z(), obs.covariance), {node}, true);
             // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
             const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
@@ -485,7 +487,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
         }
       }
       ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
-      if (config_.gate_enabled && gate_.record(accepted)) {  // (5.1.3)
+      if (gate_enabled_ && gate_.record(accepted)) {  // (5.1.3)
         lost_ = true;
         if (config_.reinitialise_when_lost) {
           // Re-initialise from this step's fix: the predicted pose of this step is replaced.

@@ -255,6 +255,20 @@ TEST(SlidingWindow, RobustLossResistsOutliers) {
   const double cauchy = run(RobustLoss::Cauchy, 2.3849);
   EXPECT_LT(huber, 0.8 * plain) << plain;
   EXPECT_LT(cauchy, 0.8 * plain) << plain;
+  // With a robust loss the gate is off unless asked for (gate_with_robust_loss).
+  for (bool keep_gate : {false, true}) {
+    SlidingWindowConfig wc;
+    wc.init = knownBelief(p.truth[0], kP0);
+    wc.robust_loss.type = RobustLoss::Huber;
+    wc.gate_with_robust_loss = keep_gate;
+    SlidingWindowSmoother win(p.map, p.odometry, wc);
+    for (const Step& s : p.steps) win.process(s);
+    if (keep_gate) {
+      EXPECT_GT(win.stats().rejected_observations, 0);
+    } else {
+      EXPECT_EQ(win.stats().rejected_observations, 0);
+    }
+  }
   SlidingWindowConfig bad;
   bad.keyframe_max_steps = 0;
   EXPECT_THROW(SlidingWindowSmoother(p.map, p.odometry, bad), Error);

@@ -36,7 +36,7 @@ struct RealdataOptions {
   int window = 20;
   int keyframe_max_steps = SlidingWindowConfig().keyframe_max_steps;  // 1: every step a window pose
   int window_lost_after = SlidingWindowConfig().gate.lost_after;
-  bool window_gate = true;
+  bool gate = true;                   // false: the EKF and the window fuse every observation
   int particles = 2000;
   unsigned long seed = 1;
   std::string robust = "huber";
@@ -186,6 +186,7 @@ void runRealdata(const RealdataOptions& o) {
   if (wanted(o, "ekf")) {
     EkfConfig c;
     c.init = init;
+    c.gate_enabled = o.gate;
     Ekf ekf(d.map, d.odometry, c);
     const Clock::time_point t0 = Clock::now();
     size_t accepted = 0, gated = 0;
@@ -216,7 +217,7 @@ void runRealdata(const RealdataOptions& o) {
     c.window = o.window;
     c.keyframe_max_steps = o.keyframe_max_steps;
     c.gate.lost_after = o.window_lost_after;
-    c.gate_enabled = o.window_gate;
+    c.gate_enabled = o.gate;
     if (use_robust) c.robust_loss = robust;
     SlidingWindowSmoother sw(d.map, d.odometry, c);
     std::vector<Estimate> online;
@@ -307,7 +308,9 @@ void add_realdata_command(CLI::App& app) {
                   "Sliding window: consecutive gated observations that declare it lost")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000000));
-  sub->add_flag("!--no-window-gate", o->window_gate, "Sliding window: fuse every observation (no gate, never lost)");
+  sub->add_flag("!--no-gate", o->gate,
+                "EKF and sliding window: no validation gate (every observation fused, never lost); the robust "
+                "window runs without the gate anyway (SlidingWindowConfig::gate_with_robust_loss)");
   sub->add_option("--particles", o->particles, "Particle filter size")->capture_default_str()->check(CLI::Range(10, 1000000));
   sub->add_option("--seed", o->seed, "Seed of the particle filter")->capture_default_str();
   sub->add_option("--robust", o->robust, "Robust loss of the second window and batch runs: huber or cauchy")->capture_default_str();
