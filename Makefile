@@ -36,7 +36,7 @@ build: configure
 	cmake --build $(BUILD) -j $(JOBS)
 
 demo: build
-	$(BUILD)/bin/stereoloc study --trials 100 --out $(DEMO_OUT) --force
+	$(BUILD)/bin/stereoloc study --frontend images --trials 40 --out $(DEMO_OUT) --force
 
 test: build
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)

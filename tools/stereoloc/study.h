@@ -16,7 +16,7 @@ namespace stereoloc::cli {
 
 // Trials per scenario of the default study (`make demo`): measured to finish within 2 minutes on
 // a 2-core machine with the image frontend (see README).
-constexpr int kDefaultStudyTrials = 10;
+constexpr int kDefaultStudyTrials = 40;
 
 struct StudyConfig {
   std::vector<std::string> scenarios = {"circle", "line", "spin", "kidnap"};
