@@ -92,12 +92,13 @@ TEST_F(FrontendImages, LocalizeEveryTrackerFromImagesStaysCloseToTruth) {
 }
 
 TEST_F(FrontendImages, GlobalFixesFromImagesAreCloseToTruth) {
-  const std::string out = dir_->file("fix2.csv");
+  // One goal corner + compass (section 4.3.2): `line` sees one goal corner on almost every step.
+  const std::string out = dir_->file("fix1.csv");
   const test::CliRun r =
-      test::runCli("localize " + dir_->file("d") + " --method fix2 --frontend images --out " + out);
+      test::runCli("localize " + dir_->file("d") + " --method fix1 --frontend images --out " + out);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto [worst, n] = maxError(out);
-  EXPECT_GE(n, 10) << "two goal corners are in view on most steps of `line`";
+  EXPECT_GE(n, 20) << r.output;
   EXPECT_GE(worst, 0);
   EXPECT_LT(worst, 200.0);
 }
