@@ -3,7 +3,7 @@
 // its posterior Cramér–Rao bound.
 //
 // For every scenario and trial the simulator drives the scenario with the trial's seed (the
-// seed `stereoloc study` uses for the same scenario and trial, so the datasets are the same),
+// seed `stereoloc study --frontend pixels` uses for the same scenario and trial: the same datasets),
 // and every method runs on the same data from the same known start (common random numbers:
 // one method seed per trial, so the initial-belief noise is shared and the ratios to the EKF
 // are paired). Per method and scenario, over all steps and trials:
@@ -267,7 +267,7 @@ void runSmoothers(const SmoothersArgs& a) {
   const NeesBand band = neesBand(3, a.trials);
   std::string md;
   md += "# Smoothers against filters and the Cramér–Rao bound (issue 7)\n\n";
-  md += fmt("Scenarios %s; %d trials each (seed %llu, the datasets of `stereoloc study` with the same seed); every "
+  md += fmt("Scenarios %s; %d trials each (seed %llu, the simulated pixel-observation datasets of `stereoloc study --frontend pixels` with the same seed); every "
             "method from the same known start (sigma %.0f mm, %.0f mm, %.1f deg; section 6.5); PF %d particles.\n\n",
             a.scenarios.c_str(), a.trials, static_cast<unsigned long long>(a.seed), options.init_config.known_sigma(0),
             options.init_config.known_sigma(1), rad2deg(options.init_config.known_sigma(2)), a.particles);
