@@ -49,7 +49,7 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
     l.t_max = std::max(t1, t2);
     l.marking = marking;
     // Bright above (gradient pointing up the image) and not a stripe: the foot of a wall.
-    l.wall_foot = !marking && std::sin(s.theta) < -std::cos(deg(30.0));
+    l.wall_foot = !marking && std::sin(s.theta) < -std::cos(deg(prm.wall_foot_max_tilt_deg));
     l.support = s.pixels;
     l.source = static_cast<int>(i);
     lines.push_back(l);

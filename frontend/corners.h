@@ -34,6 +34,12 @@ struct CornerParams {
   double merge_px = 3.0;               // intersections closer than this are one feature
   double centre_merge_deg = 12.0;      // two opposite marking edges -> one centre line when this parallel
   double centre_merge_px = 2.5;        // ... and their centre lines this close (or half the width)
+  // A non-marking edge is a wall foot candidate when it is bright above and dark below and its
+  // image direction is within this angle of horizontal (deg). Walls seen obliquely near the
+  // camera have steep feet in the image (a wall running away at 45 deg on the floor images at
+  // 30-60 deg), so 30 deg missed the junctions there; vertical edges (goal posts, triangle
+  // sides) stay excluded.
+  double wall_foot_max_tilt_deg = 75.0;
 };
 
 // Segments -> lines (see above). Appends nothing: `lines` is replaced.

@@ -55,6 +55,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"corners", "merge_px", Field::Double, &p.corners.merge_px},
       {"corners", "centre_merge_deg", Field::Double, &p.corners.centre_merge_deg},
       {"corners", "centre_merge_px", Field::Double, &p.corners.centre_merge_px},
+      {"corners", "wall_foot_max_tilt_deg", Field::Double, &p.corners.wall_foot_max_tilt_deg},
       {"goals", "coarse_step", Field::Int, &p.goals.coarse_step},
       {"goals", "min_coarse_hits", Field::Int, &p.goals.min_coarse_hits},
       {"goals", "window_margin_px", Field::Int, &p.goals.window_margin_px},

@@ -584,6 +584,9 @@ std::string cornerDetectability(const ImageLandmark& l, const std::vector<Seg>& 
   bool any_pair = false;
   const bool ok = l.type == "junction" ? pairOk(marks, feet, any_pair) : pairOk(marks, marks, any_pair);
   if (ok) return "";
+  // The map's intersections are where the halfway line crosses the centre circle; the circle is
+  // not straight and not in the segment truth, so no truth line pair defines them.
+  if (l.type == "intersection") return "intersection with the centre circle (arc not in the segment truth)";
   if (any_pair) return "defining lines at < min_image_angle in the image";
   if (any_short) return "a defining line visible only in pieces < L_min";
   return "a defining line not visible (occluded / out of image)";
