@@ -203,9 +203,12 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
         const LineFeature& o = a.marking ? b : a;
         const bool m_ends = a.marking ? a_ends : b_ends;
         if (!o.wall_foot || !m_ends) continue;
-        // The marking must lie on the floor side (below) of the wall foot.
-        const double mid_y = m.y(0.5 * (m.t_min + m.t_max));
-        if (mid_y < py) continue;
+        // The marking must lie on the floor side of the wall foot: below the foot's line at the
+        // marking's middle column. (Comparing with the junction's row instead rejected far
+        // markings that run nearly parallel to the image rows and slope up towards the wall.)
+        const double tm = 0.5 * (m.t_min + m.t_max), mx = m.x(tm), my = m.y(tm);
+        const double so = std::sin(o.theta);
+        if (std::fabs(so) < 1e-9 || my < (o.rho - mx * std::cos(o.theta)) / so) continue;
         type = LandmarkType::Junction;
       }
       // Average with an existing feature of the same type nearby (3+ lines meeting).

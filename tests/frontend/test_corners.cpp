@@ -151,3 +151,60 @@ TEST(Corners, LinesAreClippedToTheImage) {
   EXPECT_LT(lines[0].t_max, t_out);
   EXPECT_NEAR(lines[0].t_min, t_out - 50, 1e-9);
 }
+
+namespace {
+// Undirected line feature through two image points, extent between them.
+LineFeature lineThrough(double x1, double y1, double x2, double y2, bool marking, bool wall_foot) {
+  LineFeature l;
+  double th = std::atan2(x1 - x2, y2 - y1);  // normal of the direction (x2-x1, y2-y1)
+  while (th < 0) th += 3.141592653589793;
+  while (th >= 3.141592653589793) th -= 3.141592653589793;
+  l.theta = th;
+  l.rho = x1 * std::cos(th) + y1 * std::sin(th);
+  const double t1 = -x1 * std::sin(th) + y1 * std::cos(th), t2 = -x2 * std::sin(th) + y2 * std::cos(th);
+  l.t_min = std::min(t1, t2);
+  l.t_max = std::max(t1, t2);
+  l.marking = marking;
+  l.wall_foot = wall_foot;
+  return l;
+}
+}  // namespace
+
+// Walls seen obliquely have feet tilted 30-60 deg in the image; the wall-foot test accepted
+// only 30 deg, so the junctions on them were lost. Vertical edges (posts) stay excluded.
+TEST(Corners, ObliqueWallFootIsAWallFootButAPostIsNot) {
+  const double pi = 3.141592653589793;
+  std::vector<Segment> segs(3);
+  // Gradient pointing up-left at 50 deg from vertical: bright above, foot tilted 50 deg.
+  segs[0].theta = 1.5 * pi - 50 * pi / 180;
+  segs[0].x1 = 100, segs[0].y1 = 150, segs[0].x2 = 160, segs[0].y2 = 150 - 60 * std::tan(50 * pi / 180);
+  segs[0].rho = segs[0].x1 * std::cos(segs[0].theta) + segs[0].y1 * std::sin(segs[0].theta);
+  // A vertical edge (gradient horizontal) and a bright-below edge.
+  segs[1].theta = 0.0, segs[1].x1 = 50, segs[1].y1 = 100, segs[1].x2 = 50, segs[1].y2 = 200, segs[1].rho = 50;
+  segs[2].theta = 0.5 * pi, segs[2].x1 = 10, segs[2].y1 = 80, segs[2].x2 = 200, segs[2].y2 = 80, segs[2].rho = 80;
+  std::vector<LineFeature> lines;
+  buildLines(segs, CornerParams(), lines);
+  ASSERT_EQ(lines.size(), 3u);
+  EXPECT_TRUE(lines[0].wall_foot);
+  EXPECT_FALSE(lines[1].wall_foot);
+  EXPECT_FALSE(lines[2].wall_foot);
+}
+
+// A far marking nearly along the image rows, ending on a wall foot that rises away from it:
+// its middle is above the junction's row but below the wall foot, on the floor side. The
+// floor-side test compared with the junction's row and dropped it.
+TEST(Corners, JunctionWithAFarMarkingRisingTowardsTheWall) {
+  const StereoRig rig;
+  std::vector<LineFeature> lines{lineThrough(100, 150, 160, 110, false, true),   // wall foot, 34 deg
+                                 lineThrough(100, 150, 220, 147, true, false)};  // marking, ends at it
+  std::vector<PointFeature> feats;
+  findCorners(lines, rig, CornerParams(), feats);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::Junction);
+  EXPECT_NEAR(feats[0].u, 100, 1e-6);
+  EXPECT_NEAR(feats[0].v, 150, 1e-6);
+  // The same marking above the wall foot (beyond the wall) is no junction.
+  lines[1] = lineThrough(100, 150, 40, 100, true, false);
+  findCorners(lines, rig, CornerParams(), feats);
+  EXPECT_TRUE(feats.empty());
+}
