@@ -50,6 +50,7 @@ void BatchSmootherConfig::validate() const {
   if (num_threads < 1) throw Error("batch smoother: num_threads must be >= 1");
   if (!(function_tolerance >= 0 && gradient_tolerance >= 0 && parameter_tolerance >= 0))
     throw Error("batch smoother: tolerances must be >= 0");
+  if (!(cut_min_evidence >= 0)) throw Error("batch smoother: cut_min_evidence must be >= 0");
   makeLossFunction(loss);  // validates the scale
 }
 
@@ -397,8 +398,14 @@ void BatchSmoother::solve() {
     // outlier that a free pose can fit does not cut the chain. Each hypothesis starts from its
     // own guess: without the cut, the segment after it is moved rigidly to continue the odometry
     // from the pose before the cut (a robust loss would otherwise keep a misplaced segment).
-    const double threshold = std::max(chi2Quantile(config_.gate.probability, 3),
-                                      3.0 * std::log(std::max(2.0, static_cast<double>(problem_ptr->NumResiduals()))));
+    const double threshold = std::max({chi2Quantile(config_.gate.probability, 3),
+                                       3.0 * std::log(std::max(2.0, static_cast<double>(problem_ptr->NumResiduals()))),
+                                       config_.cut_min_evidence});
+    // Residual variance factor of the cut model (2 cost / (m - parameters), at least 1): on
+    // mismodelled (e.g. real) data whose whitened residuals are larger than unit, the filter
+    // loses track without a kidnap and an unscaled test would keep every such cut.
+    const double dof = static_cast<double>(problem_ptr->NumResiduals()) - 3.0 * static_cast<double>(n);
+    const double variance_factor = dof > 0 ? std::max(1.0, 2.0 * cost / dof) : 1.0;
     bool current = true;  // the last solve was with cuts_
     for (size_t k = 0; k < cuts_.size();) {
       const std::vector<double> keep = x;
@@ -416,12 +423,24 @@ void BatchSmoother::solve() {
       }
       std::vector<Cut> trial = cuts_;
       trial.erase(trial.begin() + static_cast<long>(k));
-      const double restored = solveWith(cutIndices(trial));
-      if (2.0 * (restored - cost) <= threshold) {
+      double restored = solveWith(cutIndices(trial));
+      // The rigid move can start the uncut problem far from its optimum when the filter lost
+      // track on mismodelled (real) data rather than on a kidnap: also start it from the cut
+      // solution and keep the better optimum, so a cut is kept only on the evidence.
+      const std::vector<double> from_moved = x;
+      x = keep;
+      const double restored_from_cut = solveWith(cutIndices(trial));
+      const bool moved_better = restored < restored_from_cut;
+      if (moved_better) {
+        x = from_moved;
+      } else {
+        restored = restored_from_cut;
+      }
+      if (2.0 * (restored - cost) / variance_factor <= threshold) {
         cuts_ = trial;
         cost = restored;
         ++withdrawn;
-        current = true;
+        current = !moved_better;  // the summary is of the last solve: redo it if that was not the kept one
       } else {
         x = keep;
         current = false;

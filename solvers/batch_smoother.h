@@ -81,6 +81,12 @@ struct BatchSmootherConfig {
   // cut the chain. A segment the data do not determine (singular information) is never cut
   // off. false: one unbroken chain.
   bool cut_at_reinitialisation = true;
+  // Least rise of 2 x cost (whitened, after the residual variance factor) that restoring a cut's
+  // odometry factor must cause for the cut to be kept. A kidnap is a gross event: on the
+  // simulated kidnap the rise is ~1e5, while on real data (MR.CLAM) re-initialisations that are
+  // not kidnaps rise by 50-180 and 10 % outliers without a robust loss by up to ~400; the BIC
+  // alone (3 ln m, ~30) would keep those cuts and lose the odometry between them.
+  double cut_min_evidence = 1000.0;
 
   void validate() const;            // throws stereoloc::Error naming the field
 };

@@ -306,6 +306,9 @@ TEST(BatchSmoother, RejectsBadInput) {
   BatchSmootherConfig c;
   c.max_iterations = 0;
   EXPECT_THROW(BatchSmoother(p.map, p.odometry, c), Error);
+  BatchSmootherConfig negative_evidence;
+  negative_evidence.cut_min_evidence = -1.0;
+  EXPECT_THROW(BatchSmoother(p.map, p.odometry, negative_evidence), Error);
   EXPECT_EQ(robustLossFromString("huber"), RobustLoss::Huber);
   EXPECT_THROW(robustLossFromString("tukey"), Error);
 }

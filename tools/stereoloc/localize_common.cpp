@@ -80,7 +80,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
       ->capture_default_str();
   sub->add_option("--particles", a->options.particles, "Particles of the particle filter")->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--window", a->options.window, "Window size W of the sliding-window smoother")->capture_default_str()->check(CLI::PositiveNumber);
-  sub->add_option("--loss", a->loss, "Robust loss of the batch smoother: none, huber or cauchy")->capture_default_str();
+  sub->add_option("--loss", a->loss, "Robust loss of the batch and window smoothers' range-bearing factors: none, huber or cauchy (the window then runs without the gate)")->capture_default_str();
   sub->add_option("--loss-scale", a->options.loss_scale, "Robust loss scale in whitened units")->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--seed", a->seed, "Seed of the start noise and the particle filter")->capture_default_str();
   sub->add_option("--out", a->out, "Estimates CSV: step,t,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta")->required();

@@ -143,6 +143,8 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.window = o.window;
     c.init = beliefFor(init_mode, d, o, rng);
     c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
+    c.robust_loss.type = o.loss;
+    c.robust_loss.scale = o.loss_scale;
     SlidingWindowSmoother w(d.map, d.odometry, c);
     run = runEstimator(w, d);
   } else {  // batch
