@@ -4,10 +4,30 @@
 #include <cmath>
 
 namespace stereoloc::frontend {
+namespace {
+
+// Luma 2 px outside both edges of the stripe (p's dark side and beyond its partner at `width`
+// along the normal (c, s)) against the stripe's middle: a marking has floor on both sides.
+bool floorOnBothSides(const cv::Mat* luma, const EdgePixel& p, double c, double s, double width, double max_diff) {
+  if (!luma || max_diff <= 0) return true;
+  auto at = [&](double d, int& out) {
+    const int x = static_cast<int>(std::lround(p.x + d * c)), y = static_cast<int>(std::lround(p.y + d * s));
+    if (x < 0 || y < 0 || x >= luma->cols || y >= luma->rows) return false;
+    out = luma->at<uint8_t>(y, x);
+    return true;
+  };
+  int o1, o2, mid;
+  // At the image border one outer side is unseen: keep the partner (the edge test alone).
+  if (!at(-2.0, o1) || !at(width + 2.0, o2) || !at(0.5 * width, mid)) return true;
+  const int contrast = mid - std::max(o1, o2);
+  return contrast > 0 && std::abs(o1 - o2) <= max_diff * contrast;
+}
+
+}  // namespace
 
 void classifySegments(const GradientStage& grad, const SegmentExtractor& extractor,
                       const std::vector<float>& max_width_per_row, const ClassifyParams& prm,
-                      std::vector<Segment>& segments, std::vector<float>& widths) {
+                      std::vector<Segment>& segments, std::vector<float>& widths, const cv::Mat* luma) {
   const auto& edges = grad.edges();
   const int w = grad.width(), h = grad.height();
   const double opp_cos = -std::cos(prm.opposite_tolerance_deg * kTwoPi / 360.0);
@@ -38,7 +58,8 @@ void classifySegments(const GradientStage& grad, const SegmentExtractor& extract
         const EdgePixel& q = edges[qi];
         if (std::cos(q.angle) * c + std::sin(q.angle) * s <= opp_cos) {
           const double width = (q.x - p.x) * c + (q.y - p.y) * s;
-          if (width > 0 && width <= wmax + 0.5) widths.push_back(static_cast<float>(width));
+          if (width > 0 && width <= wmax + 0.5 && floorOnBothSides(luma, p, c, s, width, prm.max_outer_difference))
+            widths.push_back(static_cast<float>(width));
           break;
         }
       }

@@ -47,6 +47,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"classify", "max_width_px", Field::Double, &p.classify.max_width_px},
       {"classify", "opposite_tolerance_deg", Field::Double, &p.classify.opposite_tolerance_deg},
       {"classify", "xi_h", Field::Double, &p.classify.xi_h},
+      {"classify", "max_outer_difference", Field::Double, &p.classify.max_outer_difference},
       {"classify", "xi_l", Field::Double, &p.classify.xi_l},
       {"corners", "delta_px", Field::Double, &p.corners.delta_px},
       {"corners", "min_image_angle_deg", Field::Double, &p.corners.min_image_angle_deg},
@@ -232,7 +233,7 @@ const std::vector<Segment>& Frontend::detectSegments(const cv::Mat& bgr) {
   detectPeaks(acc_, params_.peaks, peaks_);
   extractor_.extract(grad_.edges(), peaks_, params_.hough.rho_step_px, params_.segments, used_, result_.segments);
   refineEndpoints(left_luma_, result_.segments);
-  classifySegments(grad_, extractor_, width_per_row_, params_.classify, result_.segments, scratch_);
+  classifySegments(grad_, extractor_, width_per_row_, params_.classify, result_.segments, scratch_, &left_luma_);
   return result_.segments;
 }
 

@@ -12,7 +12,8 @@
 using namespace stereoloc::frontend;
 
 namespace {
-std::vector<Segment> classify(const cv::Mat& img, const ClassifyParams& cp = ClassifyParams(), float wmax = 8.0f) {
+std::vector<Segment> classify(const cv::Mat& img, const ClassifyParams& cp = ClassifyParams(), float wmax = 8.0f,
+                              bool with_luma = false) {
   GradientStage g;
   g.compute(img, GradientParams());
   HoughAccumulator acc;
@@ -25,7 +26,7 @@ std::vector<Segment> classify(const cv::Mat& img, const ClassifyParams& cp = Cla
   std::vector<Segment> segs;
   ex.extract(g.edges(), peaks, 3.0, SegmentParams(), used, segs);
   std::vector<float> widths(img.rows, wmax), scratch;
-  classifySegments(g, ex, widths, cp, segs, scratch);
+  classifySegments(g, ex, widths, cp, segs, scratch, with_luma ? &img : nullptr);
   return segs;
 }
 }  // namespace
@@ -60,4 +61,28 @@ TEST(Classify, WideBrightBandIsNotAMarking) {
   ClassifyParams cp;
   cp.max_width_px = 30;
   for (const Segment& s : classify(img, cp, 30.0f)) EXPECT_EQ(s.cls, SegmentClass::Marking);
+}
+
+// The top of a wall seen from above the wall height is a bright strip (top, 214) between the
+// wall face (190) and the grey background (115): two parallel opposite edges like a marking,
+// but its outer sides differ. With the image, the outer-side test rejects it; a white stripe
+// on the floor stays a marking.
+TEST(Classify, WallTopStripIsNotAMarkingButAFloorStripeIs) {
+  cv::Mat img(120, 160, CV_8UC1, cv::Scalar(115));                                  // background
+  cv::rectangle(img, cv::Rect(0, 54, 160, 4), cv::Scalar(214), cv::FILLED);        // wall top
+  cv::rectangle(img, cv::Rect(0, 58, 160, 62), cv::Scalar(190), cv::FILLED);       // wall face
+  auto segs = classify(img, ClassifyParams(), 8.0f, false);
+  ASSERT_GE(segs.size(), 2u);
+  int markings = 0;
+  for (const Segment& s : segs) markings += s.cls == SegmentClass::Marking ? 1 : 0;
+  EXPECT_GE(markings, 2);  // the edge test alone is fooled (the regression)
+  segs = classify(img, ClassifyParams(), 8.0f, true);
+  ASSERT_GE(segs.size(), 2u);
+  for (const Segment& s : segs) EXPECT_EQ(s.cls, SegmentClass::Other) << s.theta;
+
+  cv::Mat floor(120, 160, CV_8UC1, cv::Scalar(20));
+  cv::line(floor, cv::Point(20, 20), cv::Point(140, 100), cv::Scalar(235), 4, cv::LINE_AA);
+  segs = classify(floor, ClassifyParams(), 8.0f, true);
+  ASSERT_EQ(segs.size(), 2u);
+  for (const Segment& s : segs) EXPECT_EQ(s.cls, SegmentClass::Marking);
 }
