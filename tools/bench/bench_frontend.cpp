@@ -25,6 +25,11 @@
 // Truth kinds: markings (centre lines), wall/goal feet and inner top edges, goal posts,
 // corner triangles, and the top outline of walls and goals (their silhouette against the
 // background; src/renderer.h).
+// Corner truth follows the segment truth (cornerDetectability): a corner, junction or
+// intersection counts in recall only when two of its defining truth lines are themselves
+// counted segments (>= L_min, reaching it within delta, at >= min_image_angle in the image);
+// the others are listed by reason with their counts, and detections of them are ignored.
+// The map's intersections lie on the centre circle, which is not in the segment truth.
 // "Centre-line level" compares our output lines (marking centre lines, other edges) with the
 // truth as given. "Edge level" compares raw edges: each marking's truth is replaced by its two
 // side edges (the centre line moved by +-line_width/2 on the floor, projected), except a stripe
