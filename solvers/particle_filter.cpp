@@ -199,6 +199,25 @@ void ParticleFilter::predict(double d_left, double d_right) {
   double* const pt = th_.data();
   double* const pc = c_.data();
   double* const ps = s_.data();
+  if (!config_.sample_wheel_increments) {
+    const Eigen::Vector3d u0 = controlVector(d_left, d_right, w);  // (B.4), (B.5)
+    const Eigen::Matrix3d U = controlCovariance(d_left, d_right, odometry_);  // (B.18), floor included
+    const Eigen::LLT<Eigen::Matrix3d> llt(U);
+    if (llt.info() != Eigen::Success) throw Error("particle filter: control covariance is not positive definite");
+    const Eigen::Matrix3d L = llt.matrixL();
+    for (size_t i = 0; i < n; ++i) {
+      const double a = normal_(rng_), b = normal_(rng_), c3 = normal_(rng_);
+      const double ux = u0.x() + L(0, 0) * a;
+      const double uy = u0.y() + L(1, 0) * a + L(1, 1) * b;
+      const double ut = u0.z() + L(2, 0) * a + L(2, 1) * b + L(2, 2) * c3;
+      const double c = pc[i], s = ps[i];  // (B.16), with the cached cos/sin of the heading
+      px[i] += c * ux - s * uy;
+      py[i] += s * ux + c * uy;
+      pt[i] = wrapAngle(pt[i] + ut);
+      fast_trig::sinCos(pt[i], &ps[i], &pc[i]);
+    }
+    return;
+  }
   for (size_t i = 0; i < n; ++i) {
     const double dl = sl > 0 ? d_left + sl * normal_(rng_) : d_left;
     const double dr = sr > 0 ? d_right + sr * normal_(rng_) : d_right;

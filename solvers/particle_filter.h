@@ -61,6 +61,12 @@ struct ParticleFilterConfig {
   double resample_ess_fraction = 1.0;
   double likelihood_floor = 1e-3;  // per-observation likelihood floor, relative to the Gaussian's peak (0 < f <= 1)
   bool use_compass = true;         // weight with Step::compass when present
+  // Odometry sampling (Algorithm 6, line 3). false: u ~ N(u(d), U) with U from (B.18), three
+  // deviates and one Cholesky factor per step, no per-particle controlVector; the wheel noise
+  // (sigma ~ 1 mm per 10 mm step) is far inside the region where (B.18) is linear. true: the
+  // wheel increments are sampled and pushed through (B.4)/(B.5) per particle (exact, ~30 %
+  // slower).
+  bool sample_wheel_increments = false;
   AssociationConfig association;   // for observations with landmark_id == -1 (uses the current estimate)
   // Lost status (5.1.3): gate each observation against the current estimate (2 dof). When
   // lost, a global fix (if any) re-draws all particles around it; otherwise re-injection
