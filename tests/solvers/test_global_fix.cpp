@@ -26,6 +26,13 @@ Eigen::Vector3d poseMinus(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
   return d;
 }
 
+// The thesis's first-order propagation (4.15), (4.18), whatever the library's default.
+GlobalFixOptions firstOrder() {
+  GlobalFixOptions o;
+  o.second_order_covariance = false;
+  return o;
+}
+
 Observation exactObservation(int id, const Pose2& pose, const Eigen::Vector2d& l, double sigma_r = 5.0,
                              double sigma_b = 0.01) {
   const Eigen::Vector2d z = predictRangeBearing(pose, l);
@@ -149,7 +156,7 @@ TEST(GlobalFix, TwoCircleJacobianMatchesCentralDifferences) {
     Vector8d x;
     x << c1, z1, c2, z2;
     const int side = orderingSide(z1(1), z2(1));
-    const TwoCircleSolution sol = solveTwoCircles(x, x_cov, side);
+    const TwoCircleSolution sol = solveTwoCircles(x, x_cov, side, firstOrder());
     ASSERT_EQ(sol.status, FixStatus::Ok);
     auto f = [&](const Vector8d& v) { return solveTwoCircles(v, x_cov, side).pose.vector(); };
     const Eigen::Matrix<double, 3, 8> J = numericJacobian<3, 8>(f, x, poseMinus);
@@ -173,7 +180,7 @@ TEST(GlobalFix, TwoLandmarkCovarianceEqualsPixelLevelPropagation) {
     const auto oa = stereoObservation(rig, 0, truth, la, sigma_px, nullptr);
     const auto ob = stereoObservation(rig, 1, truth, lb, sigma_px, nullptr);
     ASSERT_TRUE(oa && ob);
-    const GlobalFix f = fixFromTwoLandmarks(*oa, *ob, la.head<2>(), lb.head<2>());
+    const GlobalFix f = fixFromTwoLandmarks(*oa, *ob, la.head<2>(), lb.head<2>(), firstOrder());
     ASSERT_EQ(f.status, FixStatus::Ok);
     EXPECT_LT((f.pose.translation() - truth.translation()).norm(), 1e-6);
     Eigen::Matrix<double, 8, 1> px;
@@ -201,7 +208,7 @@ TEST(GlobalFix, OneLandmarkRecoversPoseAndPropagatesPixelsAndCompass) {
   for (const Pose2& truth : {Pose2(1000, 600, 0.1), Pose2(800, 300, 0.3), Pose2(1200, 700, -0.4)}) {
     const auto o = stereoObservation(rig, 2, truth, l, sigma_px, nullptr);
     ASSERT_TRUE(o);
-    const GlobalFix f = fixFromOneLandmark(*o, l.head<2>(), truth.theta, sigma_c);
+    const GlobalFix f = fixFromOneLandmark(*o, l.head<2>(), truth.theta, sigma_c, firstOrder());
     ASSERT_EQ(f.status, FixStatus::Ok);
     EXPECT_EQ(f.method, FixMethod::OneLandmarkCompass);
     EXPECT_LT((f.pose.translation() - truth.translation()).norm(), 1e-6);
@@ -502,14 +509,15 @@ TEST(GlobalFix, SecondOrderCovarianceRepairsTheThinDirection) {
   for (int i = 0; i < n; ++i) {
     const Observation oa = noisy(0, la), ob = noisy(1, lb);
     const double compass = truth.theta + sigma_c * N(rng);
-    first1.add(fixFromOneLandmark(oa, la, compass, sigma_c), truth);
+    first1.add(fixFromOneLandmark(oa, la, compass, sigma_c, firstOrder()), truth);
     const GlobalFix s1 = fixFromOneLandmark(oa, la, compass, sigma_c, second);
     second1.add(s1, truth);
-    const GlobalFix f2 = fixFromTwoLandmarks(oa, ob, la, lb), s2 = fixFromTwoLandmarks(oa, ob, la, lb, second);
+    const GlobalFix f2 = fixFromTwoLandmarks(oa, ob, la, lb, firstOrder());
+    const GlobalFix s2 = fixFromTwoLandmarks(oa, ob, la, lb, second);
     if (f2.status == FixStatus::Ok) first2.add(f2, truth);
     if (s2.status == FixStatus::Ok) second2.add(s2, truth);
     // The second-order covariance only adds (a positive semi-definite term).
-    const Eigen::Matrix3d added = s1.covariance - fixFromOneLandmark(oa, la, compass, sigma_c).covariance;
+    const Eigen::Matrix3d added = s1.covariance - fixFromOneLandmark(oa, la, compass, sigma_c, firstOrder()).covariance;
     EXPECT_GE(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(added).eigenvalues().minCoeff(), -1e-9);
   }
   EXPECT_FALSE(inBand(first1.full, first1.n, 3));

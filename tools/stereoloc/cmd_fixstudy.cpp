@@ -44,7 +44,7 @@ struct FixStudyArgs {
   std::string method = "both";
   double pixel_sigma = 0.5;
   bool quantise = false;
-  bool second_order = false;
+  bool first_order = false;
   uint64_t seed = 1;
   int runs = 1;
   std::string out;
@@ -289,11 +289,11 @@ void runFixStudy(const FixStudyArgs& a) {
   cfg.validate();
 
   GlobalFixOptions opt2;
-  opt2.second_order_covariance = a.second_order;
+  opt2.second_order_covariance = !a.first_order;
   opt2.allow_one_landmark = false;
   opt2.allow_multi = false;
   GlobalFixOptions opt1;
-  opt1.second_order_covariance = a.second_order;
+  opt1.second_order_covariance = !a.first_order;
   opt1.allow_two_landmarks = false;
   opt1.allow_multi = false;
 
@@ -331,7 +331,7 @@ void runFixStudy(const FixStudyArgs& a) {
                   "%s-order covariance\n"
                   "errors are |estimate - truth| over all fixes of all trials; thesis numbers from %s\n",
                   a.pixel_sigma, a.quantise ? " + quantisation" : "", a.runs, static_cast<unsigned long long>(a.seed),
-                  a.second_order ? "second" : "first",
+                  a.first_order ? "first" : "second",
                   tables_path.empty() ? "(not found)" : tables_path.c_str());
     report << buf;
     if (images) {
@@ -476,8 +476,9 @@ void add_fixstudy_command(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
   sub->add_flag("--quantise", a->quantise, "Round the noisy pixel coordinates to whole pixels");
-  sub->add_flag("--second-order", a->second_order,
-                "Add the second-order covariance terms (GlobalFixOptions::second_order_covariance)");
+  sub->add_flag("--first-order", a->first_order,
+                "Covariances by the thesis's first-order propagation only, (4.15) and (4.18) (default: with the "
+                "second-order terms, GlobalFixOptions::second_order_covariance)");
   sub->add_option("--seed", a->seed, "Study seed (each trial's seed derives from it)")->capture_default_str();
   sub->add_option("--runs", a->runs, "Noise realisations per trial (the thesis ran one)")
       ->capture_default_str()
