@@ -117,19 +117,6 @@ std::string fmt(const char* format, ...) {
   return buf;
 }
 
-std::vector<std::string> splitList(const std::string& s) {
-  std::vector<std::string> out;
-  size_t start = 0;
-  while (start <= s.size()) {
-    const size_t comma = s.find(',', start);
-    const std::string item = s.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
-    if (!item.empty()) out.push_back(item);
-    if (comma == std::string::npos) break;
-    start = comma + 1;
-  }
-  return out;
-}
-
 uint64_t mix(uint64_t x) {  // splitmix64: decorrelates the method seed from the simulation seed
   x += 0x9E3779B97F4A7C15ull;
   x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
@@ -201,7 +188,7 @@ void runSmoothers(const SmoothersArgs& a) {
   if (a.trials < 1) throw UsageError("--trials must be at least 1");
   if (a.threads < 0) throw UsageError("--threads must be >= 0");
   if (a.particles < 1) throw UsageError("--particles must be at least 1");
-  const std::vector<std::string> scenarios = splitList(a.scenarios);
+  const std::vector<std::string> scenarios = splitCommaList(a.scenarios);
   if (scenarios.empty()) throw UsageError("--scenarios: no scenario given");
   const std::vector<std::string> drivable = {"circle", "line", "spin", "random-walk"};
   for (const std::string& s : scenarios)
@@ -210,7 +197,7 @@ void runSmoothers(const SmoothersArgs& a) {
                        "' is not a drivable scenario without a kidnap (expected circle, line, spin or random-walk; the "
                        "bound needs one continuous true trajectory)");
   std::vector<int> windows;
-  for (const std::string& w : splitList(a.windows)) {
+  for (const std::string& w : splitCommaList(a.windows)) {
     int v = 0;
     try {
       size_t used = 0;

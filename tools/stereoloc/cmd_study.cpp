@@ -9,19 +9,6 @@
 namespace stereoloc::cli {
 namespace {
 
-std::vector<std::string> splitComma(const std::string& s) {
-  std::vector<std::string> out;
-  size_t start = 0;
-  while (start <= s.size()) {
-    const size_t comma = s.find(',', start);
-    const std::string item = s.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
-    if (!item.empty()) out.push_back(item);
-    if (comma == std::string::npos) break;
-    start = comma + 1;
-  }
-  return out;
-}
-
 struct StudyArgs {
   std::string scenarios = "thesis";
   std::string methods = "fix1,fix2,ekf,ekf:random,ekf:global,pf,window,batch";
@@ -35,8 +22,8 @@ struct StudyArgs {
 
 void runFromArgs(StudyArgs& a) {
   StudyConfig& c = a.config;
-  c.scenarios = a.scenarios == "thesis" ? std::vector<std::string>{"circle", "line", "spin", "kidnap"} : splitComma(a.scenarios);
-  c.methods = splitComma(a.methods);
+  c.scenarios = a.scenarios == "thesis" ? std::vector<std::string>{"circle", "line", "spin", "kidnap"} : splitCommaList(a.scenarios);
+  c.methods = splitCommaList(a.methods);
   if (c.scenarios.empty()) throw UsageError("--scenarios is empty");
   if (c.methods.empty()) throw UsageError("--methods is empty");
   const size_t slash = a.shard.find('/');

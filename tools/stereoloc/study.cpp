@@ -129,15 +129,6 @@ std::string joinList(const std::vector<std::string>& v) {
   return s;
 }
 
-std::vector<std::string> splitList(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ','))
-    if (!item.empty()) out.push_back(item);
-  return out;
-}
-
 void writeStudyYaml(const StudyConfig& c, const std::string& path) {
   YamlWriter w;
   w.comment("stereoloc study configuration (written by `stereoloc study`; read by `study merge`)");
@@ -159,8 +150,8 @@ void writeStudyYaml(const StudyConfig& c, const std::string& path) {
 StudyConfig readStudyYaml(const std::string& path) {
   YamlReader in(path);
   StudyConfig c;
-  c.scenarios = splitList(in.getString("scenarios"));
-  c.methods = splitList(in.getString("methods"));
+  c.scenarios = splitCommaList(in.getString("scenarios"));
+  c.methods = splitCommaList(in.getString("methods"));
   c.trials = in.getInt("trials");
   try {
     c.seed = std::stoull(in.getString("seed"));
@@ -696,7 +687,7 @@ void writeReport(const StudyConfig& c, const std::vector<TrialRow>& rows, const 
 
 std::vector<TrialRow> readTrialRows(const std::string& path) {
   CsvReader in(path);
-  in.expectHeader({splitList(kTrialHeader)});
+  in.expectHeader({splitCommaList(kTrialHeader)});
   std::vector<TrialRow> out;
   while (in.next()) {
     TrialRow r;
@@ -728,7 +719,7 @@ std::vector<TrialRow> readTrialRows(const std::string& path) {
 
 std::vector<StepRow> readStepRows(const std::string& path) {
   CsvReader in(path);
-  in.expectHeader({splitList(kStepHeader)});
+  in.expectHeader({splitCommaList(kStepHeader)});
   std::vector<StepRow> out;
   while (in.next()) {
     StepRow r;
