@@ -46,6 +46,21 @@ FixMethod fixMethodFromString(const std::string& name) {
   throw Error("unknown fix method '" + name + "' (expected fix1, fix2, running or multi)");
 }
 
+std::string toString(FixCovariance model) {
+  switch (model) {
+    case FixCovariance::FirstOrder: return "first_order";
+    case FixCovariance::SecondOrder: return "second_order";
+    case FixCovariance::SigmaPoints: return "sigma_points";
+  }
+  return "sigma_points";
+}
+
+FixCovariance fixCovarianceFromString(const std::string& name) {
+  for (FixCovariance m : {FixCovariance::FirstOrder, FixCovariance::SecondOrder, FixCovariance::SigmaPoints})
+    if (toString(m) == name) return m;
+  throw Error("unknown fix covariance '" + name + "' (expected first_order, second_order or sigma_points)");
+}
+
 namespace {
 
 void checkObservation(const Observation& o, const char* what) {
@@ -67,6 +82,118 @@ Eigen::RowVector2d atan2Gradient(const Eigen::Vector2d& q) {
   const double rho2 = q.squaredNorm();
   return Eigen::RowVector2d(-q.y() / rho2, q.x() / rho2);
 }
+
+// ---- Sigma points (FixCovariance::SigmaPoints).
+//
+// We want P = E[(f(y_hat - n) - f(y_hat))(...)^T], n ~ N(0, C): the spread of the closed form f
+// about the estimate over the measurement noise, i.e. the mean squared error of the estimate when
+// the truth is y_hat - n. With y - y_hat = S u, C = S S^T, u ~ N(0, I_m), the symmetric rule
+//   u = +-sqrt(3) e_k               weight (4 - m) / 18   (2m points)
+//   u = +-sqrt(3) e_k +- sqrt(3) e_l  weight 1 / 36        (2m(m-1) points, k < l)
+// (plus the centre, which contributes nothing about f(y_hat)) reproduces the Gaussian moments
+// E[u_k^2] = 1, E[u_k^4] = 3, E[u_k^2 u_l^2] = 1 and all odd ones (0): it integrates every
+// polynomial of degree <= 5 exactly. (f - f_hat)(f - f_hat)^T of a quadratic f has degree 4, so P
+// is exact for quadratic f, cross-curvatures and squared bias included. For m <= 4 the weights
+// are non-negative (m = 4: the axis points drop out; fix2 has m = 4, fix1 m = 3); for m > 4
+// (the running fix with odometry noise) the axis weight is negative and P may come out
+// indefinite, which the caller detects.
+struct SigmaPointMse {
+  bool ok = false;
+  Eigen::Matrix3d mse = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d bias = Eigen::Vector3d::Zero();  // E[f(y + n)] - f(y) to second order
+};
+
+// S (n x m) with S S^T = cov, dropping null directions (landmark positions, exact inputs);
+// returns m. Pivoted LDL^T: cov = P^T L D L^T P.
+template <int N>
+int covarianceSquareRoot(const Eigen::Matrix<double, N, N>& cov, Eigen::Matrix<double, N, N>* S) {
+  const Eigen::LDLT<Eigen::Matrix<double, N, N>> ldlt(cov);
+  const Eigen::Matrix<double, N, 1> D = ldlt.vectorD();
+  const double dmax = D.maxCoeff();
+  if (!(dmax > 0.0)) return 0;
+  Eigen::Matrix<double, N, N> L = ldlt.matrixL();
+  L = ldlt.transpositionsP().transpose() * L;
+  int m = 0;
+  for (int k = 0; k < N; ++k)
+    if (D(k) > 1e-14 * dmax) S->col(m++) = L.col(k) * std::sqrt(D(k));
+  return m;
+}
+
+// f(y, &pose) returns false outside its domain (the rule is then unusable).
+template <int N, typename F>
+SigmaPointMse sigmaPointMse(const Eigen::Matrix<double, N, 1>& y0, const Eigen::Matrix<double, N, N>& cov,
+                            const Pose2& f0, const F& f) {
+  SigmaPointMse res;
+  Eigen::Matrix<double, N, N> S;
+  const int m = covarianceSquareRoot<N>(cov, &S);
+  if (m == 0) return res;
+  const double s3 = std::sqrt(3.0);
+  bool inside = true;
+  auto add = [&](const Eigen::Matrix<double, N, 1>& dy, double w) {
+    Pose2 g;
+    if (!inside || !f(Eigen::Matrix<double, N, 1>(y0 + dy), &g)) {
+      inside = false;
+      return;
+    }
+    const Eigen::Vector3d d(g.x - f0.x, g.y - f0.y, angleDiff(g.theta, f0.theta));
+    res.mse += w * d * d.transpose();
+    res.bias += w * d;
+  };
+  const double w_axis = (4.0 - m) / 18.0, w_pair = 1.0 / 36.0;
+  if (w_axis != 0.0)
+    for (int k = 0; k < m; ++k)
+      for (double sk : {-s3, s3}) add(sk * S.col(k), w_axis);
+  for (int k = 0; k < m; ++k)
+    for (int l = k + 1; l < m; ++l)
+      for (double sk : {-s3, s3})
+        for (double sl : {-s3, s3}) add(sk * S.col(k) + sl * S.col(l), w_pair);
+  if (!inside) return res;
+  res.mse = symmetrize(res.mse);
+  res.ok = positiveDefinite(res.mse);
+  return res;
+}
+
+// |P_xy^-1/2 b_xy| (GlobalFix::nonlinearity), position only: with stereo bearings the heading is
+// nearly a function of the position along a curved arc, so the 3-dof value is large for every
+// fix (the arc's sagitta is many thin-direction sigmas) although the sigma points capture exactly
+// that curvature; the position block says whether the circle intersection itself is close to
+// linear over the noise. P - b b^T is the sigma points' covariance about their mean, positive
+// semi-definite for non-negative weights, so the value lies in [0, 1).
+double nonlinearityOf(const SigmaPointMse& sp) {
+  const Eigen::Matrix2d P = sp.mse.topLeftCorner<2, 2>();
+  const Eigen::Vector2d b = sp.bias.head<2>();
+  const Eigen::LLT<Eigen::Matrix2d> llt(P);
+  if (llt.info() != Eigen::Success) return 1.0;
+  return std::min(1.0, std::sqrt(std::max(0.0, b.dot(llt.solve(b)))));
+}
+
+// The two-circle closed form without derivatives, at one sigma point: p as in solveTwoCircles
+// with h = sqrt(max(h^2, 0)) (circles that no longer meet continue to the baseline point), theta
+// the fixed combination w of the two headings (4.6). False where it is undefined.
+bool twoCirclePose(const Vector8d& x, int side, const Eigen::Vector2d& w, Pose2* pose) {
+  const Eigen::Vector2d c1 = x.segment<2>(0), c2 = x.segment<2>(4);
+  const double r1 = x(2), r2 = x(6);
+  if (!(r1 > 0.0 && r2 > 0.0)) return false;
+  const Eigen::Vector2d baseline = c2 - c1;
+  const double d = baseline.norm();
+  if (!(d > 0.0)) return false;
+  const Eigen::Vector2d e = baseline / d;
+  const Eigen::Vector2d n(-e.y(), e.x());
+  const double a = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d);
+  const double h = std::sqrt(std::max(0.0, r1 * r1 - a * a));
+  const Eigen::Vector2d p = c1 + a * e + side * h * n;
+  double th[2];
+  for (int i = 0; i < 2; ++i) {
+    const Eigen::Vector2d q = x.segment<2>(4 * i) - p;
+    if (!(q.squaredNorm() > 0.0)) return false;
+    th[i] = std::atan2(q.y(), q.x()) - x(4 * i + 3);
+  }
+  *pose = Pose2(p.x(), p.y(), wrapAngle(th[0] + w(1) * angleDiff(th[1], th[0])));
+  return pose->translation().allFinite();
+}
+
+// Ranges propagated as inverse range (GlobalFixOptions::stereo_inverse_range), per circle.
+using InverseRange = std::array<bool, 2>;
 
 // Covariance of a pose from the measurements' information when the closed form has no usable
 // Jacobian (tangent or non-intersecting circles): the residuals z_i - h(pose, c_i), whose noise
@@ -128,6 +255,7 @@ GlobalFix toFix(const TwoCircleSolution& sol, FixMethod method, std::vector<int>
   f.method = method;
   f.pose = sol.pose;
   f.covariance = sol.covariance;
+  f.nonlinearity = sol.nonlinearity;
   f.landmark_ids = std::move(ids);
   return f;
 }
@@ -137,10 +265,11 @@ struct TwoLandmarkProblem {
   Matrix8d x_cov;
   int side = 1;
   double significance = 0.0;
+  InverseRange inverse_range{false, false};
 };
 
 TwoLandmarkProblem makeTwoLandmarkProblem(const Observation& a, const Observation& b, const Eigen::Vector2d& la,
-                                          const Eigen::Vector2d& lb) {
+                                          const Eigen::Vector2d& lb, const GlobalFixOptions& options) {
   checkObservation(a, "fix2");
   checkObservation(b, "fix2");
   if (!la.allFinite() || !lb.allFinite()) throw Error("fix2: landmark position is not finite");
@@ -149,6 +278,8 @@ TwoLandmarkProblem makeTwoLandmarkProblem(const Observation& a, const Observatio
   p.x_cov.setZero();
   p.x_cov.block<2, 2>(2, 2) = a.covariance;
   p.x_cov.block<2, 2>(6, 6) = b.covariance;
+  p.inverse_range = {options.stereo_inverse_range && a.pixels.has_value(),
+                     options.stereo_inverse_range && b.pixels.has_value()};
   p.side = orderingSide(a.bearing, b.bearing);
   p.significance =
       orderingSignificance(a.bearing, b.bearing, std::sqrt(std::max(0.0, a.covariance(1, 1) + b.covariance(1, 1))));
@@ -177,7 +308,10 @@ double orderingSignificance(double psi1, double psi2, double sigma_difference) {
   return distance / sigma_difference;
 }
 
-TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int side, const GlobalFixOptions& options) {
+namespace {
+
+TwoCircleSolution solveTwoCirclesImpl(const Vector8d& x, const Matrix8d& x_cov, int side,
+                                      const GlobalFixOptions& options, const InverseRange& inverse_range) {
   if (!x.allFinite() || !x_cov.allFinite()) throw Error("two-circle fix: input is not finite");
   if (side != 1 && side != -1) throw Error("two-circle fix: side must be +1 or -1");
   TwoCircleSolution sol;
@@ -236,7 +370,7 @@ TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int 
     sol.J_pose_x.topRows<2>() = J_p_x;
     sol.J_pose_x.row(2) = w(0) * J_t_x.row(0) + w(1) * J_t_x.row(1);
     sol.covariance = symmetrize(sol.J_pose_x * x_cov * sol.J_pose_x.transpose());  // (4.18)
-    if (options.second_order_covariance) {
+    if (options.covariance != FixCovariance::FirstOrder) {
       // Hessian of theta = sum_i w_i atan2(c_i - p) w.r.t. p; 1/2 tr(H P H P) with P = cov(p).
       Eigen::Matrix2d H = Eigen::Matrix2d::Zero();
       for (int i = 0; i < 2; ++i) {
@@ -249,6 +383,34 @@ TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int 
       }
       const Eigen::Matrix2d P = sol.covariance.topLeftCorner<2, 2>();
       sol.covariance(2, 2) += 0.5 * (H * P * H * P).trace();
+    }
+    if (options.covariance == FixCovariance::SigmaPoints && !x_cov.isZero(0.0)) {
+      // Propagation space: x with the flagged ranges replaced by 1 / r, covariance T x_cov T^T.
+      Vector8d y = x;
+      Matrix8d T = Matrix8d::Identity();
+      for (int i = 0; i < 2; ++i) {
+        if (!inverse_range[i]) continue;
+        const int k = 4 * i + 2;
+        y(k) = 1.0 / x(k);
+        T(k, k) = -1.0 / (x(k) * x(k));
+      }
+      const auto f = [&](const Vector8d& yy, Pose2* pose) {
+        Vector8d xx = yy;
+        for (int i = 0; i < 2; ++i) {
+          if (!inverse_range[i]) continue;
+          const int k = 4 * i + 2;
+          if (!(yy(k) > 0.0)) return false;  // the sigma point's range went through infinity
+          xx(k) = 1.0 / yy(k);
+        }
+        return twoCirclePose(xx, side, w, pose);
+      };
+      const SigmaPointMse sp = sigmaPointMse<8>(y, Matrix8d(T * x_cov * T.transpose()), sol.pose, f);
+      if (sp.ok) {
+        sol.covariance = sp.mse;
+        sol.nonlinearity = nonlinearityOf(sp);
+      } else {
+        sol.nonlinearity = 1.0;  // keep the second-order covariance
+      }
     }
     sol.half_chord = h;
     sol.status = positiveDefinite(sol.covariance) ? FixStatus::Ok : FixStatus::Degenerate;
@@ -272,6 +434,8 @@ TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int 
     p = c1 + t * e;
     sol.gap_sigma = std::sqrt(cost);
     sol.status = sol.gap_sigma > options.max_gap_sigma ? FixStatus::Degenerate : FixStatus::ApproximateNoIntersection;
+    // Circles that do not meet: the noise is as large as the geometry, far from linear.
+    if (options.covariance == FixCovariance::SigmaPoints) sol.nonlinearity = 1.0;
   }
   // Heading: circular mean of (4.6) over the landmarks the point is not on top of.
   double sum_s = 0.0, sum_c = 0.0;
@@ -303,10 +467,16 @@ TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int 
   return sol;
 }
 
+}  // namespace
+
+TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int side, const GlobalFixOptions& options) {
+  return solveTwoCirclesImpl(x, x_cov, side, options, InverseRange{false, false});
+}
+
 GlobalFix fixFromTwoLandmarks(const Observation& a, const Observation& b, const Eigen::Vector2d& landmark_a,
                               const Eigen::Vector2d& landmark_b, const GlobalFixOptions& options) {
-  const TwoLandmarkProblem prob = makeTwoLandmarkProblem(a, b, landmark_a, landmark_b);
-  const TwoCircleSolution sol = solveTwoCircles(prob.x, prob.x_cov, prob.side, options);
+  const TwoLandmarkProblem prob = makeTwoLandmarkProblem(a, b, landmark_a, landmark_b, options);
+  const TwoCircleSolution sol = solveTwoCirclesImpl(prob.x, prob.x_cov, prob.side, options, prob.inverse_range);
   GlobalFix f = toFix(sol, FixMethod::TwoLandmarks, {a.landmark_id, b.landmark_id});
   if (orderingAmbiguous(sol, prob.x, prob.significance, options)) f.status = FixStatus::Ambiguous;
   return f;
@@ -339,7 +509,7 @@ GlobalFix fixFromOneLandmark(const Observation& o, const Eigen::Vector2d& landma
   input_cov.topLeftCorner<2, 2>() = o.covariance;
   input_cov(2, 2) = sigma * sigma;  // (4.14)
   f.covariance = symmetrize(J * input_cov * J.transpose());
-  if (options.second_order_covariance) {
+  if (options.covariance != FixCovariance::FirstOrder) {
     // Hessians of x, y of (4.10) w.r.t. (r, psi, theta); theta is linear.
     Eigen::Matrix3d Hx, Hy;
     Hx << 0.0, s, s, s, r * c, r * c, s, r * c, r * c;
@@ -349,6 +519,28 @@ GlobalFix fixFromOneLandmark(const Observation& o, const Eigen::Vector2d& landma
     f.covariance(1, 1) += 0.5 * (B * B).trace();
     f.covariance(0, 1) += 0.5 * (A * B).trace();
     f.covariance(1, 0) = f.covariance(0, 1);
+  }
+  if (options.covariance == FixCovariance::SigmaPoints) {
+    // (4.10) over y = (r or 1/r, psi, theta); see sigmaPointMse.
+    const bool inverse = options.stereo_inverse_range && o.pixels.has_value();
+    Eigen::Vector3d y(inverse ? 1.0 / r : r, o.bearing, compass_theta);
+    Eigen::Matrix3d T = Eigen::Matrix3d::Identity();
+    if (inverse) T(0, 0) = -1.0 / (r * r);
+    const Eigen::Matrix3d y_cov = T * input_cov * T.transpose();
+    const auto g = [&](const Eigen::Vector3d& yy, Pose2* pose) {
+      const double rr = inverse ? (yy(0) > 0.0 ? 1.0 / yy(0) : -1.0) : yy(0);
+      if (!(rr > 0.0)) return false;
+      const double ph = yy(2) + yy(1);
+      *pose = Pose2(landmark.x() - rr * std::cos(ph), landmark.y() - rr * std::sin(ph), wrapAngle(yy(2)));
+      return true;
+    };
+    const SigmaPointMse sp = sigmaPointMse<3>(y, y_cov, f.pose, g);
+    if (sp.ok) {
+      f.covariance = sp.mse;
+      f.nonlinearity = nonlinearityOf(sp);
+    } else {
+      f.nonlinearity = 1.0;  // keep the second-order covariance
+    }
   }
   f.status = positiveDefinite(f.covariance) ? FixStatus::Ok : FixStatus::Degenerate;
   return f;
@@ -389,8 +581,11 @@ RunningFixResult runningFix(const Observation& earlier, const Observation& later
   const double var_diff = x_cov(3, 3) + x_cov(7, 7) - 2.0 * x_cov(3, 7);
   const double significance = orderingSignificance(psi_virtual, later.bearing, std::sqrt(std::max(0.0, var_diff)));
   const std::vector<int> ids{later.landmark_id, later.landmark_id};
-  const TwoCircleSolution s0 = solveTwoCircles(x, x_cov, side, options);
-  const TwoCircleSolution s1 = solveTwoCircles(x, x_cov, -side, options);
+  // x(2) is the earlier range (virtual landmark), x(6) the later one.
+  const InverseRange inverse{options.stereo_inverse_range && earlier.pixels.has_value(),
+                             options.stereo_inverse_range && later.pixels.has_value()};
+  const TwoCircleSolution s0 = solveTwoCirclesImpl(x, x_cov, side, options, inverse);
+  const TwoCircleSolution s1 = solveTwoCirclesImpl(x, x_cov, -side, options, inverse);
   res.candidates[0] = toFix(s0, FixMethod::RunningFix, ids);
   res.candidates[1] = toFix(s1, FixMethod::RunningFix, ids);
   if (!res.candidates[0].hasPose()) {
@@ -429,8 +624,8 @@ GlobalFix twoLandmarkFixInMap(const Observation& a, const Observation& b, const 
                               const Eigen::Vector2d& lb, const Bounds& bounds, const GlobalFixOptions& options) {
   GlobalFix f = fixFromTwoLandmarks(a, b, la, lb, options);
   if (f.status != FixStatus::Ambiguous) return f;
-  const TwoLandmarkProblem prob = makeTwoLandmarkProblem(a, b, la, lb);
-  const TwoCircleSolution mirror = solveTwoCircles(prob.x, prob.x_cov, -prob.side, options);
+  const TwoLandmarkProblem prob = makeTwoLandmarkProblem(a, b, la, lb, options);
+  const TwoCircleSolution mirror = solveTwoCirclesImpl(prob.x, prob.x_cov, -prob.side, options, prob.inverse_range);
   const bool in0 = bounds.contains(f.pose.translation(), options.bounds_margin_mm);
   const bool in1 = mirror.status == FixStatus::Ok && bounds.contains(mirror.pose.translation(), options.bounds_margin_mm);
   if (in0 && !in1) {

@@ -46,12 +46,40 @@ enum class FixMethod { OneLandmarkCompass, TwoLandmarks, RunningFix, MultiLandma
 std::string toString(FixMethod method);  // "fix1", "fix2", "running", "multi"
 FixMethod fixMethodFromString(const std::string& name);  // throws stereoloc::Error
 
+// Covariance of a closed-form fix.
+//   FirstOrder   the thesis's propagation J Sigma J^T, (4.15) and (4.18).
+//   SecondOrder  plus 1/2 tr(H_k Sigma H_l Sigma) of the dominant curvatures (fix1: range x
+//                heading and heading^2 of (4.10); fix2: atan2 of (4.6) under the position
+//                covariance).
+//   SigmaPoints  the mean squared error matrix E[(f(z) - f(z_hat))(...)^T] of the exact closed
+//                form f about the estimate, by a symmetric fifth-degree Gaussian quadrature over
+//                the measurement noise (sigma points at sqrt(3) sigma along each axis and each
+//                pair of axes). Exact for any f that is quadratic in the inputs, including the
+//                squared bias; the stereo range is propagated as inverse range (see
+//                GlobalFixOptions::stereo_inverse_range). Falls back to SecondOrder when the
+//                quadrature does not give a positive-definite matrix.
+// First order is over-confident for stereo: the bearings are ~100x more precise than the
+// ranges, so the 3x3 covariance is nearly singular and the heading / arc curvature that it
+// drops decides the 3-dof NEES (fixstudy measured mean 3-dof NEES 200-1700).
+enum class FixCovariance { FirstOrder, SecondOrder, SigmaPoints };
+std::string toString(FixCovariance model);                       // "first_order", "second_order", "sigma_points"
+FixCovariance fixCovarianceFromString(const std::string& name);  // throws stereoloc::Error
+
 struct GlobalFix {
   FixStatus status = FixStatus::NotEnoughLandmarks;
   FixMethod method = FixMethod::TwoLandmarks;
   Pose2 pose;                                            // mm, rad (meaningful unless NotEnough/Degenerate)
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  // (x, y, theta): mm^2, mm*rad, rad^2
   std::vector<int> landmark_ids;                         // landmarks the fix used
+  // How far the closed form is from linear at this fix, in [0, 1]: |P^-1/2 b| over the position
+  // (x, y), with b the second-order bias E[f(z + n)] - f(z) and P the covariance, both from the
+  // sigma points
+  // (FixCovariance::SigmaPoints; the other models leave it 0). For a 1-D quadratic
+  // f = a n + c n^2 it is |c| sigma^2 / sqrt(a^2 sigma^2 + 3 c^2 sigma^4): 0 when linear, 1/sqrt(3)
+  // when purely quadratic. 1 when the sigma points leave the domain of the closed form (a range
+  // through infinity) and for closest-point fixes of circles that do not meet.
+  double nonlinearity = 0.0;
+  bool linearisationHolds(double max_nonlinearity) const { return nonlinearity <= max_nonlinearity; }
   // Usable: a pose with a positive-definite covariance (Ok, or the flagged approximate /
   // ambiguous outcomes, which callers may accept or not).
   bool hasPose() const {
@@ -82,14 +110,18 @@ struct GlobalFixOptions {
   // solutions lies at impossible locations"); used by globalFix to resolve ambiguity.
   double bounds_margin_mm = 100.0;
   int multi_max_iterations = 50;  // Ceres iterations of the least-squares fix
-  // false: the thesis's first-order propagation (4.15), (4.18). true (default): add the second-order terms
-  // 1/2 tr(H_k Sigma H_l Sigma) of the dominant curvatures — for fix1 the (range x heading) and
-  // heading^2 terms of (4.10), for fix2 the curvature of atan2 in (4.6) under the position
-  // covariance. The first-order covariance is nearly singular (stereo bearings are ~100x more
-  // precise than ranges), so these terms decide the joint 3-dof consistency (NEES): `fixstudy`
-  // measured mean 3-dof NEES 200-1700 first-order against 2.5-3.7 with them for landmarks
-  // closer than 1 m (5-7 beyond 1 m, where the linearisation itself fails, section 4.4).
-  bool second_order_covariance = true;
+  // How the fixes' covariances are computed (see FixCovariance). Default: sigma points.
+  FixCovariance covariance = FixCovariance::SigmaPoints;
+  // SigmaPoints: propagate the range of an observation that came from the stereo rig
+  // (Observation::pixels set) as inverse range rho = 1/r. Stereo range is r = f b / disparity
+  // (3.4, 3.6), so rho is linear in the pixels: its noise is Gaussian with a variance that does
+  // not depend on the (noisy) disparity, whereas r is skewed and its variance R(0,0) ~ r^4 is
+  // evaluated at the noisy range. Observations without pixels (range sensors) keep r.
+  bool stereo_inverse_range = true;
+  // A fix's linearisation "holds" when its nonlinearity (GlobalFix::nonlinearity) is at most this.
+  // Used to split consistency checks (fixstudy, tests); it does not change the fix. 0.05: the
+  // second-order bias is below 5 % of the position sigma (its square below 0.25 % of the MSE).
+  double linear_max_nonlinearity = 0.05;
 };
 
 // Best available fix from one step's observations (those with landmark_id >= 0; positions
@@ -146,6 +178,7 @@ struct TwoCircleSolution {
   Matrix38d J_pose_x = Matrix38d::Zero();    // d pose / d x (valid when status == Ok and not tangent)
   double half_chord = 0.0;                   // h: distance of the intersections from the baseline (mm)
   double gap_sigma = 0.0;                    // inconsistency of a closest-point solution, in sigmas
+  double nonlinearity = 0.0;                 // as GlobalFix::nonlinearity
 };
 
 // side = +1: the intersection to the left of c1 -> c2 (c2 appears counter-clockwise of c1 from
