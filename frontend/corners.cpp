@@ -107,13 +107,20 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
       while (th >= kPi) th -= kPi;
       m.theta = th;
       m.rho = cx * std::cos(th) + cy * std::sin(th);
-      m.t_min = 1e30;
-      m.t_max = -1e30;
+      // Each end of the centre line lies midway between the two edges' ends when they are
+      // within a stripe width of each other (at an L corner the outer edge runs half a width
+      // past the centre-line corner and the inner edge stops half a width short); further
+      // apart, one edge is broken or occluded there and the longer one tells the extent.
+      double ta[2] = {1e30, -1e30}, tb[2] = {1e30, -1e30};
       for (int k = 0; k < 4; ++k) {
-        const double t = along(th, mx[k], my[k]);
-        m.t_min = std::min(m.t_min, t);
-        m.t_max = std::max(m.t_max, t);
+        double* t = k < 2 ? ta : tb;
+        const double v = along(th, mx[k], my[k]);
+        t[0] = std::min(t[0], v);
+        t[1] = std::max(t[1], v);
       }
+      const double agree = std::max(a.marking_width, b.marking_width) + 1.0;
+      m.t_min = std::fabs(ta[0] - tb[0]) <= agree ? 0.5 * (ta[0] + tb[0]) : std::min(ta[0], tb[0]);
+      m.t_max = std::fabs(ta[1] - tb[1]) <= agree ? 0.5 * (ta[1] + tb[1]) : std::max(ta[1], tb[1]);
       m.support = li.support + lj.support;
       lines[i] = m;
       gone[j] = 1;
@@ -152,6 +159,64 @@ void clipLinesToImage(int width, int height, std::vector<LineFeature>& lines) {
     lines[k++] = l;
   }
   lines.resize(k);
+}
+
+void snapLineEnds(int width, int height, const CornerParams& prm, std::vector<LineFeature>& lines) {
+  const double min_sin = std::sin(deg(prm.snap_min_angle_deg));
+  // Best intersection found for each end: (distance moved, new t).
+  std::vector<std::pair<double, double>> best(2 * lines.size(), {1e30, 0.0});
+  for (size_t i = 0; i < lines.size(); ++i)
+    for (size_t j = i + 1; j < lines.size(); ++j) {
+      const LineFeature& a = lines[i];
+      const LineFeature& b = lines[j];
+      const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
+      if (std::fabs(det) < min_sin) continue;
+      // (3.12), (3.13)
+      const double px = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;
+      const double py = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;
+      if (px < -0.5 || py < -0.5 || px > width - 0.5 || py > height - 0.5) continue;
+      const double ta = along(a.theta, px, py), tb = along(b.theta, px, py);
+      // Which end of each line is at p (-1: none); an end is at p within snap_px either way.
+      auto endAt = [&](const LineFeature& l, double t) {
+        if (t < l.t_min - prm.snap_px || t > l.t_max + prm.snap_px) return -2;  // p off the line
+        if (std::fabs(t - l.t_min) <= prm.snap_px && std::fabs(t - l.t_min) <= std::fabs(t - l.t_max)) return 0;
+        if (std::fabs(t - l.t_max) <= prm.snap_px) return 1;
+        return -1;  // p inside the extent, away from both ends: the line passes p
+      };
+      const int ea = endAt(a, ta), eb = endAt(b, tb);
+      if (ea == -2 || eb == -2 || (ea < 0 && eb < 0)) continue;
+      // L: both end at p; T: one ends at p and the other passes it. Both move to p.
+      auto offer = [&](size_t k, int e, const LineFeature& l, double t) {
+        if (e < 0) return;
+        const double moved = std::fabs(t - (e ? l.t_max : l.t_min));
+        std::pair<double, double>& slot = best[2 * k + static_cast<size_t>(e)];
+        if (moved < slot.first) slot = {moved, t};
+      };
+      offer(i, ea, a, ta);
+      offer(j, eb, b, tb);
+    }
+  for (size_t k = 0; k < lines.size(); ++k) {
+    LineFeature& l = lines[k];
+    if (best[2 * k].first < 1e29) l.t_min = best[2 * k].second;
+    if (best[2 * k + 1].first < 1e29) l.t_max = best[2 * k + 1].second;
+    if (l.t_max < l.t_min) std::swap(l.t_min, l.t_max);
+    // No gradient is computed in the outermost 2 px (frontend/gradient.cpp), so an end within
+    // border_snap_px of the image border has no evidence of ending there: the line runs on to
+    // the border, where the renderer's truth is clipped too.
+    const double c = std::cos(l.theta), s = std::sin(l.theta), x0 = l.rho * c, y0 = l.rho * s;
+    double lo = -1e30, hi = 1e30;
+    auto range = [&](double p0, double dp, double pmin, double pmax) {
+      if (std::fabs(dp) < 1e-12) return;
+      double u = (pmin - p0) / dp, v = (pmax - p0) / dp;
+      if (u > v) std::swap(u, v);
+      lo = std::max(lo, u);
+      hi = std::min(hi, v);
+    };
+    range(x0, -s, -0.5, width - 0.5);
+    range(y0, c, -0.5, height - 0.5);
+    if (l.t_min - lo <= prm.border_snap_px) l.t_min = std::max(lo, std::min(l.t_min, lo));
+    if (hi - l.t_max <= prm.border_snap_px) l.t_max = std::min(hi, std::max(l.t_max, hi));
+  }
 }
 
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& prm,

@@ -40,6 +40,12 @@ struct CornerParams {
   // 30-60 deg), so 30 deg missed the junctions there; vertical edges (goal posts, triangle
   // sides) stay excluded.
   double wall_foot_max_tilt_deg = 75.0;
+  // snapLineEnds: a line end within snap_px of its intersection with another line (at an image
+  // angle of at least snap_min_angle) moves onto it; an end within border_snap_px of the image
+  // border moves onto the border.
+  double snap_px = 8.0;              // = delta (6.1), the reach of Algorithm 4's end test
+  double snap_min_angle_deg = 3.0;   // below, 0.05 px of line noise moves p by > 1 px
+  double border_snap_px = 5.5;       // 2 px without gradient + 0.5 to the border + Gap_min
 };
 
 // Segments -> lines (see above). Appends nothing: `lines` is replaced.
@@ -50,6 +56,16 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& params
 // A stripe's centre line is built from its two edges' end points and their projections on
 // each other, which can lie outside the image where the stripe leaves it at a slant.
 void clipLinesToImage(int width, int height, std::vector<LineFeature>& lines);
+
+// Refits the line ends where lines meet (Algorithm 4's intersection (3.12, 3.13), used for the
+// extents): an end within snap_px of the intersection with another line moves onto it, when
+// the other line ends there too (L, a bend of a wall foot or top) or passes it (T: a marking
+// stem at the bar or the wall foot). The edge pixels cannot place such an end: the Sobel
+// window blurs the last 1-2 px before a corner, at a shallow bend the next edge stays within
+// the fitting band for several px, and a stripe's centre line ends half a width inside the
+// bar it meets. Of several candidates the nearest is taken. Ends within border_snap_px of the
+// image border are moved onto it. Run after clipLinesToImage.
+void snapLineEnds(int width, int height, const CornerParams& params, std::vector<LineFeature>& lines);
 
 // Lines -> point features (types MarkingCorner, Junction, Intersection); `features` is replaced.
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& params,

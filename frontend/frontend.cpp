@@ -41,6 +41,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"segments", "refit_iterations", Field::Int, &p.segments.refit_iterations},
       {"segments", "straightness_px", Field::Double, &p.segments.straightness_px},
       {"segments", "straightness_bin_px", Field::Double, &p.segments.straightness_bin_px},
+      {"segments", "rounds_per_peak", Field::Int, &p.segments.rounds_per_peak},
       {"segments", "release_unused", Field::Bool, &p.segments.release_unused},
       {"classify", "width_factor", Field::Double, &p.classify.width_factor},
       {"classify", "min_width_px", Field::Double, &p.classify.min_width_px},
@@ -57,6 +58,9 @@ std::vector<Field> fields(FrontendParams& p) {
       {"corners", "centre_merge_deg", Field::Double, &p.corners.centre_merge_deg},
       {"corners", "centre_merge_px", Field::Double, &p.corners.centre_merge_px},
       {"corners", "wall_foot_max_tilt_deg", Field::Double, &p.corners.wall_foot_max_tilt_deg},
+      {"corners", "snap_px", Field::Double, &p.corners.snap_px},
+      {"corners", "snap_min_angle_deg", Field::Double, &p.corners.snap_min_angle_deg},
+      {"corners", "border_snap_px", Field::Double, &p.corners.border_snap_px},
       {"goals", "coarse_step", Field::Int, &p.goals.coarse_step},
       {"goals", "min_coarse_hits", Field::Int, &p.goals.min_coarse_hits},
       {"goals", "window_margin_px", Field::Int, &p.goals.window_margin_px},
@@ -102,6 +106,7 @@ void FrontendParams::validate() const {
   need(segments.direction_tolerance_deg > 0 && segments.direction_tolerance_deg < 90,
        "segments.direction_tolerance_deg", "must be in (0, 90)");
   need(segments.band_px > 0, "segments.band_px", "must be positive");
+  need(segments.rounds_per_peak >= 1, "segments.rounds_per_peak", "must be at least 1");
   need(segments.refit_iterations >= 1, "segments.refit_iterations", "must be at least 1");
   need(segments.straightness_px > 0, "segments.straightness_px", "must be positive");
   need(segments.straightness_bin_px > 0, "segments.straightness_bin_px", "must be positive");
@@ -111,6 +116,8 @@ void FrontendParams::validate() const {
   need(classify.xi_h > 0 && classify.xi_h <= 1, "classify.xi_h", "must be in (0, 1]");
   need(classify.xi_l > 0 && classify.xi_l <= 1, "classify.xi_l", "must be in (0, 1]");
   need(corners.delta_px >= 0, "corners.delta_px", "must not be negative");
+  need(corners.snap_px >= 0 && corners.border_snap_px >= 0, "corners.snap_px/border_snap_px", "must not be negative");
+  need(corners.snap_min_angle_deg > 0 && corners.snap_min_angle_deg < 90, "corners.snap_min_angle_deg", "must be in (0, 90)");
   need(corners.merge_px >= 0, "corners.merge_px", "must not be negative");
   need(goals.coarse_step >= 1, "goals.coarse_step", "must be at least 1");
   need(goals.min_rows >= 1, "goals.min_rows", "must be at least 1");
@@ -247,6 +254,7 @@ const FrontendResult& Frontend::process(const cv::Mat& left, const cv::Mat& righ
   detectSegments(left);
   buildLines(r.segments, params_.corners, r.lines);
   clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
+  snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);
   findCorners(r.lines, rig_, params_.corners, r.features);
 
   const DisparityRange range = validDisparities(rig_, params_.stereo);

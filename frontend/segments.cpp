@@ -247,89 +247,114 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
   const double min_pixels = 0.5 * prm.min_length_px;
 
   for (const HoughPeak& peak : peaks) {
-    double theta = peak.theta, rho = peak.rho;
-    collect(edges, used, theta, rho, 0.5 * rho_step_px + 1.0, tol_bins);
-    if (cand_.size() < min_pixels) continue;
-    bool ok = true;
-    for (int it = 0; it < std::max(1, prm.refit_iterations) && ok; ++it) {
-      ok = fitLine(edges, cand_.data(), cand_.data() + cand_.size(), theta, theta, rho);
+    for (int round = 0; round < std::max(1, prm.rounds_per_peak); ++round) {
+      double theta = peak.theta, rho = peak.rho;
+      collect(edges, used, theta, rho, 0.5 * rho_step_px + 1.0, tol_bins);
+      if (cand_.size() < min_pixels) break;
+      bool ok = fitLine(edges, cand_.data(), cand_.data() + cand_.size(), theta, theta, rho);
+      if (ok) {
+        // The densest 2 band_px window of the pixels' distances from the fitted line, in bins of
+        // band_px / 2: parallel edges in the cell are separate clusters, the fit lies between.
+        const double bin = 0.5 * prm.band_px, c = std::cos(theta), s = std::sin(theta);
+        const double reach = 0.5 * rho_step_px + 2.0;
+        const int nb = static_cast<int>(std::ceil(2 * reach / bin)) + 1;
+        hist_.assign(static_cast<size_t>(nb), 0);
+        for (int i : cand_) {
+          const int b = static_cast<int>((edges[i].x * c + edges[i].y * s - rho + reach) / bin);
+          if (b >= 0 && b < nb) ++hist_[static_cast<size_t>(b)];
+        }
+        int best = -1, best_n = 0;
+        for (int b = 0; b + 3 < nb; ++b) {
+          const int n = hist_[b] + hist_[b + 1] + hist_[b + 2] + hist_[b + 3];
+          if (n > best_n) {
+            best_n = n;
+            best = b;
+          }
+        }
+        if (best >= 0) rho += (best + 2) * bin - reach;
+      }
+      for (int it = 0; it < std::max(1, prm.refit_iterations) && ok; ++it) {
+        collect(edges, used, theta, rho, prm.band_px, tol_bins);
+        ok = cand_.size() >= min_pixels && fitLine(edges, cand_.data(), cand_.data() + cand_.size(), theta, theta, rho);
+      }
       if (ok) collect(edges, used, theta, rho, prm.band_px, tol_bins);
-      ok = ok && cand_.size() >= min_pixels;
-    }
-    if (!ok) continue;
-    // Direction check against the refitted line (the buckets are +-1 bin coarse).
-    const double c = std::cos(theta), s = std::sin(theta);
-    proj_.clear();
-    for (int i : cand_) {
-      const float a = edges[i].angle;
-      if (std::cos(a) * c + std::sin(a) * s < tol_cos) continue;
-      proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
-      if (!prm.release_unused) used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
-    }
-    if (proj_.size() < min_pixels) continue;
-    std::sort(proj_.begin(), proj_.end());
-    // Split at Gap_min, drop noise pieces, merge under Gap_max.
-    merged.clear();
-    size_t start = 0;
-    auto flush = [&](size_t b, size_t e) {
-      const float t0 = proj_[b].first, t1 = proj_[e - 1].first;
-      if (t1 - t0 < prm.min_piece_px) return;
-      if (!merged.empty() && t0 - merged.back().t1 < prm.gap_max_px) {
-        merged.back().e = e;
-        merged.back().t1 = t1;
-      } else {
-        merged.push_back(Piece{b, e, t0, t1});
+      if (!ok || cand_.size() < min_pixels) break;
+      // Direction check against the refitted line (the buckets are +-1 bin coarse).
+      const double c = std::cos(theta), s = std::sin(theta);
+      proj_.clear();
+      for (int i : cand_) {
+        const float a = edges[i].angle;
+        if (std::cos(a) * c + std::sin(a) * s < tol_cos) continue;
+        proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
+        if (!prm.release_unused) used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
       }
-    };
-    for (size_t k = 1; k <= proj_.size(); ++k)
-      if (k == proj_.size() || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
-        flush(start, k);
-        start = k;
+      if (proj_.size() < min_pixels) break;
+      std::sort(proj_.begin(), proj_.end());
+      // Split at Gap_min, drop noise pieces, merge under Gap_max.
+      merged.clear();
+      size_t start = 0;
+      auto flush = [&](size_t b, size_t e) {
+        const float t0 = proj_[b].first, t1 = proj_[e - 1].first;
+        if (t1 - t0 < prm.min_piece_px) return;
+        if (!merged.empty() && t0 - merged.back().t1 < prm.gap_max_px) {
+          merged.back().e = e;
+          merged.back().t1 = t1;
+        } else {
+          merged.push_back(Piece{b, e, t0, t1});
+        }
+      };
+      for (size_t k = 1; k <= proj_.size(); ++k)
+        if (k == proj_.size() || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
+          flush(start, k);
+          start = k;
+        }
+      const size_t found_before = segments.size();
+      for (const Piece& pc : merged) {
+        if (pc.t1 - pc.t0 < prm.min_length_px) continue;
+        // Pixels of the piece, excluding the dropped noise pieces inside it.
+        piece_.clear();
+        size_t run = pc.b;
+        for (size_t k = pc.b + 1; k <= pc.e; ++k)
+          if (k == pc.e || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
+            if (proj_[k - 1].first - proj_[run].first >= prm.min_piece_px)
+              for (size_t q = run; q < k; ++q) piece_.push_back(proj_[q].second);
+            run = k;
+          }
+        splitAtBends(edges, piece_.data(), piece_.data() + piece_.size(), theta, prm.straightness_bin_px,
+                     prm.straightness_px, cuts_, bend_scratch_);
+        for (size_t ci = 0; ci + 1 < cuts_.size(); ++ci) {
+          const int* rb = piece_.data() + cuts_[ci];
+          const int* re = piece_.data() + cuts_[ci + 1];
+          if (re - rb < 2) continue;
+          const auto tOf = [&](int i) { return -edges[i].x * s + edges[i].y * c; };
+          const double len = tOf(*(re - 1)) - tOf(*rb);
+          if (len < prm.min_length_px || (re - rb) < prm.min_density * len) continue;
+          Segment seg;
+          double rms = 0;
+          if (!fitLine(edges, rb, re, theta, seg.theta, seg.rho, &rms)) continue;
+          const double cs = std::cos(seg.theta), sn = std::sin(seg.theta);
+          float tmin = 1e30f, tmax = -1e30f;
+          for (const int* q = rb; q != re; ++q) {
+            const EdgePixel& e = edges[*q];
+            const float t = static_cast<float>(-e.x * sn + e.y * cs);
+            tmin = std::min(tmin, t);
+            tmax = std::max(tmax, t);
+          }
+          seg.x1 = seg.rho * cs - tmin * sn;
+          seg.y1 = seg.rho * sn + tmin * cs;
+          seg.x2 = seg.rho * cs - tmax * sn;
+          seg.y2 = seg.rho * sn + tmax * cs;
+          seg.pixels = static_cast<int>(re - rb);
+          seg.rms = rms;
+          segments.push_back(seg);
+          for (const int* q = rb; q != re; ++q) {
+            pix_.push_back(*q);
+            used[*q] = 1;  // Algorithm 2, line 50: remove F from the feature points
+          }
+          off_.push_back(static_cast<int>(pix_.size()));
+        }
       }
-    for (const Piece& pc : merged) {
-      if (pc.t1 - pc.t0 < prm.min_length_px) continue;
-      // Pixels of the piece, excluding the dropped noise pieces inside it.
-      piece_.clear();
-      size_t run = pc.b;
-      for (size_t k = pc.b + 1; k <= pc.e; ++k)
-        if (k == pc.e || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
-          if (proj_[k - 1].first - proj_[run].first >= prm.min_piece_px)
-            for (size_t q = run; q < k; ++q) piece_.push_back(proj_[q].second);
-          run = k;
-        }
-      splitAtBends(edges, piece_.data(), piece_.data() + piece_.size(), theta, prm.straightness_bin_px,
-                   prm.straightness_px, cuts_, bend_scratch_);
-      for (size_t ci = 0; ci + 1 < cuts_.size(); ++ci) {
-        const int* rb = piece_.data() + cuts_[ci];
-        const int* re = piece_.data() + cuts_[ci + 1];
-        if (re - rb < 2) continue;
-        const auto tOf = [&](int i) { return -edges[i].x * s + edges[i].y * c; };
-        const double len = tOf(*(re - 1)) - tOf(*rb);
-        if (len < prm.min_length_px || (re - rb) < prm.min_density * len) continue;
-        Segment seg;
-        double rms = 0;
-        if (!fitLine(edges, rb, re, theta, seg.theta, seg.rho, &rms)) continue;
-        const double cs = std::cos(seg.theta), sn = std::sin(seg.theta);
-        float tmin = 1e30f, tmax = -1e30f;
-        for (const int* q = rb; q != re; ++q) {
-          const EdgePixel& e = edges[*q];
-          const float t = static_cast<float>(-e.x * sn + e.y * cs);
-          tmin = std::min(tmin, t);
-          tmax = std::max(tmax, t);
-        }
-        seg.x1 = seg.rho * cs - tmin * sn;
-        seg.y1 = seg.rho * sn + tmin * cs;
-        seg.x2 = seg.rho * cs - tmax * sn;
-        seg.y2 = seg.rho * sn + tmax * cs;
-        seg.pixels = static_cast<int>(re - rb);
-        seg.rms = rms;
-        segments.push_back(seg);
-        for (const int* q = rb; q != re; ++q) {
-          pix_.push_back(*q);
-          used[*q] = 1;  // Algorithm 2, line 50: remove F from the feature points
-        }
-        off_.push_back(static_cast<int>(pix_.size()));
-      }
+      if (segments.size() == found_before) break;  // nothing new: the peak is exhausted
     }
   }
 }

@@ -208,3 +208,71 @@ TEST(Corners, JunctionWithAFarMarkingRisingTowardsTheWall) {
   findCorners(lines, rig, CornerParams(), feats);
   EXPECT_TRUE(feats.empty());
 }
+
+// At an L corner the outer edge of a stripe runs past the centre-line corner and the inner edge
+// stops short; buildLines and snapLineEnds end both centre lines at the corner (the union of
+// the two edges' extents ran 5.5 px past it here).
+TEST(Corners, CentreLineOfAnLCornerEndsAtTheCorner) {
+  const StereoRig rig;
+  const cv::Mat img = renderFloor(rig, false, {{{250, -150}, {250, 60}}, {{250, 60}, {600, 60}}});
+  Frontend fe(rig, FieldMap::miroSot());
+  fe.detectSegments(img);
+  std::vector<LineFeature> lines;
+  buildLines(fe.result().segments, fe.params().corners, lines);
+  const Eigen::Vector2d corner = pixel(rig, 250, 60);
+  clipLinesToImage(rig.params().image_width, rig.params().image_height, lines);
+  snapLineEnds(rig.params().image_width, rig.params().image_height, fe.params().corners, lines);
+  int ends_at_corner = 0;
+  for (const LineFeature& l : lines) {
+    if (!l.marking) continue;
+    const double d0 = std::hypot(l.x(l.t_min) - corner.x(), l.y(l.t_min) - corner.y());
+    const double d1 = std::hypot(l.x(l.t_max) - corner.x(), l.y(l.t_max) - corner.y());
+    EXPECT_LT(std::min(d0, d1), 1.5) << "centre line end " << std::min(d0, d1) << " px from the corner";
+    ends_at_corner += std::min(d0, d1) < 1.5 ? 1 : 0;
+  }
+  EXPECT_EQ(ends_at_corner, 2);
+}
+
+// snapLineEnds: L and T meetings move the ends onto the intersection; nearly parallel lines,
+// far ends and lines passing each other are left alone.
+TEST(Corners, SnapLineEndsAtLAndTMeetings) {
+  const CornerParams prm;  // snap_px 6, snap_min_angle 3 deg
+  // L: a horizontal line stopping 3 px short of x = 100 and a steep one running 4 px past y = 50.
+  std::vector<LineFeature> lines = {lineThrough(20, 50, 97, 50, false, true), lineThrough(100, 150, 100, 46, true, false)};
+  snapLineEnds(320, 240, prm, lines);
+  for (const LineFeature& l : lines) {
+    const double d0 = std::hypot(l.x(l.t_min) - 100, l.y(l.t_min) - 50), d1 = std::hypot(l.x(l.t_max) - 100, l.y(l.t_max) - 50);
+    EXPECT_LT(std::min(d0, d1), 1e-6);
+    EXPECT_GT(std::max(d0, d1), 70);  // the far end did not move
+  }
+  // T: a stem 4 px short of a bar it meets in the bar's middle; the bar keeps its extent.
+  lines = {lineThrough(20, 50, 200, 50, false, true), lineThrough(100, 150, 100, 54, true, false)};
+  snapLineEnds(320, 240, prm, lines);
+  EXPECT_NEAR(std::min(lines[0].x(lines[0].t_min), lines[0].x(lines[0].t_max)), 20, 1e-6);
+  EXPECT_NEAR(std::max(lines[0].x(lines[0].t_min), lines[0].x(lines[0].t_max)), 200, 1e-6);
+  EXPECT_NEAR(std::min(lines[1].y(lines[1].t_min), lines[1].y(lines[1].t_max)), 50, 1e-6);
+  // Too far (10 px short), too parallel (2 deg), or crossing in both interiors: unchanged.
+  const std::vector<std::vector<LineFeature>> untouched = {
+      {lineThrough(20, 50, 90, 50, false, true), lineThrough(100, 150, 100, 60, true, false)},
+      {lineThrough(20, 50, 97, 50, false, true),
+       lineThrough(100, 50, 200, 50 + 100 * std::tan(2 * frontend::kTwoPi / 360), false, true)},
+      {lineThrough(20, 50, 200, 50, false, true), lineThrough(100, 150, 100, 10, true, false)}};
+  for (const std::vector<LineFeature>& pair : untouched) {
+    std::vector<LineFeature> moved = pair;
+    snapLineEnds(320, 240, prm, moved);
+    for (size_t k = 0; k < pair.size(); ++k) {
+      EXPECT_NEAR(moved[k].t_min, pair[k].t_min, 1e-9);
+      EXPECT_NEAR(moved[k].t_max, pair[k].t_max, 1e-9);
+    }
+  }
+}
+
+// No gradient is computed in the outer 2 px, so an end that close to the border runs on to it;
+// an end well inside the image stays.
+TEST(Corners, SnapLineEndsRunsOnToTheImageBorder) {
+  std::vector<LineFeature> lines = {lineThrough(2.0, 100, 150, 110, true, false), lineThrough(20, 200, 150, 190, true, false)};
+  snapLineEnds(320, 240, CornerParams(), lines);
+  EXPECT_NEAR(std::min(lines[0].x(lines[0].t_min), lines[0].x(lines[0].t_max)), -0.5, 1e-6);
+  EXPECT_NEAR(std::max(lines[0].x(lines[0].t_min), lines[0].x(lines[0].t_max)), 150, 1e-6);
+  EXPECT_NEAR(std::min(lines[1].x(lines[1].t_min), lines[1].x(lines[1].t_max)), 20, 1e-6);
+}

@@ -99,7 +99,40 @@ struct FailureBreakdown {
   std::map<std::string, long> missed, spurious;
   std::map<std::string, long> misclassified;  // matched edges with the wrong marking label: truth kind, direction, row
   bool verbose = false;  // print every failure (STEREOLOC_BENCH_VERBOSE)
+  std::map<std::string, std::pair<long, long>> by_kind;  // truth kind -> (counted truth, recalled)
+  cv::Mat luma;  // left luma of the pair being scored (for the contrast of missed truth edges)
 };
+
+// Luma step across a truth segment: the mean over its middle 80 % (1 px steps) of the luma
+// 1.5 px on one side minus 1.5 px on the other (bilinear), absolute. Sensor noise averages out
+// over the samples; a step below the frontend's gradient threshold (48 / 4 = 12 grey levels for
+// an ideal step) is not a detectable edge in this image.
+double truthContrast(const cv::Mat& luma, const Seg& g) {
+  if (luma.empty()) return -1;
+  const Eigen::Vector2d d = (g.b - g.a), u = d.normalized(), n(-u.y(), u.x());
+  const double len = d.norm();
+  auto at = [&](const Eigen::Vector2d& q) {
+    const int x0 = static_cast<int>(std::floor(q.x())), y0 = static_cast<int>(std::floor(q.y()));
+    if (x0 < 0 || y0 < 0 || x0 + 1 >= luma.cols || y0 + 1 >= luma.rows) return -1.0;
+    const double fx = q.x() - x0, fy = q.y() - y0;
+    return (1 - fy) * ((1 - fx) * luma.at<uint8_t>(y0, x0) + fx * luma.at<uint8_t>(y0, x0 + 1)) +
+           fy * ((1 - fx) * luma.at<uint8_t>(y0 + 1, x0) + fx * luma.at<uint8_t>(y0 + 1, x0 + 1));
+  };
+  double sum = 0;
+  int m = 0;
+  for (double t = 0.1 * len; t <= 0.9 * len; t += 1.0) {
+    const Eigen::Vector2d q = g.a + t * u;
+    const double hi = at(q + 1.5 * n), lo = at(q - 1.5 * n);
+    if (hi < 0 || lo < 0) continue;
+    sum += hi - lo;
+    ++m;
+  }
+  return m ? std::fabs(sum / m) : -1;
+}
+
+std::string contrastBin(double c) {
+  return c < 0 ? "unknown" : c < 12 ? "< 12 grey levels" : c < 24 ? "12-24" : c < 48 ? "24-48" : ">= 48";
+}
 
 struct SegStats {
   long gt = 0, gt_hit = 0, det = 0, det_ok = 0, matched = 0, class_ok = 0;
@@ -297,8 +330,8 @@ void explainFailures(const std::vector<Seg>& gt, const std::vector<Seg>& det, co
     }
     const std::string kind = g.kind.empty() ? "?" : g.kind;
     if (why.verbose) {
-      std::printf("    missed %-10s %-24s (%.1f,%.1f)-(%.1f,%.1f): %s\n", kind.c_str(), g.name.c_str(), g.a.x(), g.a.y(), g.b.x(),
-                  g.b.y(), reason.c_str());
+      std::printf("    missed %-10s %-24s (%.1f,%.1f)-(%.1f,%.1f) contrast %.0f: %s\n", kind.c_str(), g.name.c_str(), g.a.x(),
+                  g.a.y(), g.b.x(), g.b.y(), truthContrast(why.luma, g), reason.c_str());
       for (const Seg& d : det)
         if (onLine(d, g)) std::printf("        det (%.1f,%.1f)-(%.1f,%.1f)\n", d.a.x(), d.a.y(), d.b.x(), d.b.y());
     }
@@ -307,6 +340,7 @@ void explainFailures(const std::vector<Seg>& gt, const std::vector<Seg>& det, co
     why.missed["length: " + lengthBin(len)]++;
     why.missed["row:    " + rowBin(0.5 * (g.a.y() + g.b.y()))]++;
     why.missed[std::string("pieces: ") + (g.broken ? "occluded (several pieces)" : "one piece")]++;
+    why.missed["contr.: " + contrastBin(truthContrast(why.luma, g))]++;
   }
   for (size_t k = 0; k < det.size(); ++k) {
     if (det_hit[k]) continue;
@@ -340,6 +374,9 @@ void explainFailures(const std::vector<Seg>& gt, const std::vector<Seg>& det, co
 
 void printBreakdown(const char* title, const FailureBreakdown& why) {
   std::printf("  %s\n", title);
+  std::printf("    recall by truth kind:\n");
+  for (const auto& [kind, c] : why.by_kind)
+    std::printf("      %-14s %6.2f%% (%ld/%ld)\n", kind.c_str(), c.first ? 100.0 * c.second / c.first : 0.0, c.second, c.first);
   for (const auto* m : {&why.missed, &why.spurious}) {
     std::printf("    %s:\n", m == &why.missed ? "missed truth segments" : "spurious detections");
     std::string last;
@@ -484,6 +521,10 @@ void scoreSegments(const std::vector<Seg>& gt, const std::vector<Seg>& det, cons
     }
     ++st.gt;
     st.gt_hit += hit[i];
+    if (st.why) {
+      st.why->by_kind[gt[i].kind].first++;
+      st.why->by_kind[gt[i].kind].second += hit[i];
+    }
   }
   if (st.why) explainFailures(gt, det, hit, det_hit, mask, *st.why);
 }
@@ -502,6 +543,7 @@ Setup& setup() {
 void buildSets(int n_general, int n_goal, uint64_t seed) {
   Setup& s = setup();
   RenderOptions good, bad;
+  good.samples_per_axis = bad.samples_per_axis = std::getenv("STEREOLOC_BENCH_SAMPLES") ? std::atoi(std::getenv("STEREOLOC_BENCH_SAMPLES")) : 2;
   good.noise_sigma = 1.5;
   good.seed = seed;
   bad.noise_sigma = 3.0;
@@ -633,7 +675,9 @@ std::string cornerDetectability(const ImageLandmark& l, const std::vector<Seg>& 
 
 void accuracyTable(bool diag) {
   Setup& s = setup();
-  Frontend fe(s.rig, s.map);
+  // STEREOLOC_BENCH_PARAMS: a frontend parameter YAML to score instead of the defaults.
+  const char* params_path = std::getenv("STEREOLOC_BENCH_PARAMS");
+  Frontend fe(s.rig, s.map, params_path ? FrontendParams::load(params_path) : FrontendParams());
   const double lmin = fe.params().segments.min_length_px, gap_max = fe.params().segments.gap_max_px;
   SegStats ours_centre, ours_edge, hough_edge, lsd_edge;
   FailureBreakdown why_centre, why_edge;
@@ -691,6 +735,8 @@ void accuracyTable(bool diag) {
     if (why_centre.verbose) std::printf("  pair %d\n", pair_index);
     ++pair_index;
     const cv::Mat mask = dontCare(s.rig, s.map, p);
+    bgrToLuma(p.img.left, why_centre.luma);
+    why_edge.luma = why_centre.luma;
     // Centre-line level.
     std::vector<Seg> det;
     for (const LineFeature& l : r.lines)
