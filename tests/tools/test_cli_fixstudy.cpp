@@ -30,6 +30,10 @@ TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
   EXPECT_NE(r.output.find("91.51"), std::string::npos) << "thesis Table 6.9 dy mean at 10 deg missing\n" << r.output;
   EXPECT_NE(r.output.find("fixes: "), std::string::npos);
   EXPECT_NE(r.output.find("NEES: mean 3-dof"), std::string::npos);
+  EXPECT_NE(r.output.find("covariance: sigma_points"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("linearisation holds when the nonlinearity <= 0.05"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("  linearisation holds "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("  linearisation does not "), std::string::npos) << r.output;
   const std::string txt = readFile(dir.file("fixstudy.txt"));
   EXPECT_EQ(txt, r.output);
   const std::string csv = readFile(dir.file("fixes.csv"));
@@ -44,6 +48,22 @@ TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
   ASSERT_EQ(other.exit_code, 0) << other.output;
   EXPECT_EQ(other.output.find("Table 6.9"), std::string::npos);
   EXPECT_NE(other.output.find("Table 6.4"), std::string::npos);
+
+  // The thesis's first-order covariance on the same fixes: same error tables, other NEES, and the
+  // same split (the rule is judged with sigma points whatever the covariance).
+  const test::CliRun first =
+      test::runCli("fixstudy --category rect --method fix2 --seed 3 --covariance first_order --tables " + tables);
+  ASSERT_EQ(first.exit_code, 0) << first.output;
+  EXPECT_NE(first.output.find("covariance: first_order"), std::string::npos);
+  const auto table = [](const std::string& out) { return out.substr(out.find("dx (mm)"), out.find("NEES") - out.find("dx (mm)")); };
+  EXPECT_EQ(table(first.output), table(r.output));
+  const auto count = [](const std::string& out) {
+    const size_t p = out.find("linearisation holds      n=");
+    return out.substr(p, 35);
+  };
+  EXPECT_EQ(count(first.output), count(r.output));
+  EXPECT_EQ(test::runCli("fixstudy --first-order --category rect --method fix2 --seed 3 --tables " + tables).output,
+            first.output);
 }
 
 TEST(CliFixstudy, RejectsBadArguments) {
@@ -51,6 +71,7 @@ TEST(CliFixstudy, RejectsBadArguments) {
   EXPECT_EQ(test::runCli("fixstudy --method fix3").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --pixel-sigma -1").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --runs 0").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --covariance third_order").exit_code, 2);
 }
 
 }  // namespace
