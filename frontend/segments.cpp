@@ -357,6 +357,74 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
       if (segments.size() == found_before) break;  // nothing new: the peak is exhausted
     }
   }
+  mergeCollinearSegments(edges, prm, segments, pix_, off_, merge_pix_);
+}
+
+void mergeCollinearSegments(const std::vector<EdgePixel>& edges, const SegmentParams& prm, std::vector<Segment>& segments,
+                            std::vector<int>& pix_, std::vector<int>& off_, std::vector<int>& merge_pix_) {
+  // See segments.h. A far edge bent by a fraction of a pixel, or broken by noise, votes into
+  // neighbouring cells; the end-point test against the joint fit keeps real bends apart.
+  const double cos_tol = std::cos(2.0 * kTwoPi / 360.0);
+  bool merged_any = true;
+  while (merged_any) {
+    merged_any = false;
+    for (size_t i = 0; i < segments.size() && !merged_any; ++i)
+      for (size_t j = i + 1; j < segments.size() && !merged_any; ++j) {
+        const Segment& a = segments[i];
+        const Segment& b = segments[j];
+        if (std::cos(a.theta - b.theta) < cos_tol) continue;
+        // Along a's direction: extents, gap and overlap.
+        const double c = std::cos(a.theta), sn = std::sin(a.theta);
+        auto tOf = [&](double x, double y) { return -x * sn + y * c; };
+        const double a0 = std::min(tOf(a.x1, a.y1), tOf(a.x2, a.y2)), a1 = std::max(tOf(a.x1, a.y1), tOf(a.x2, a.y2));
+        const double b0 = std::min(tOf(b.x1, b.y1), tOf(b.x2, b.y2)), b1 = std::max(tOf(b.x1, b.y1), tOf(b.x2, b.y2));
+        const double gap = std::max(b0 - a1, a0 - b1);
+        if (gap < -prm.gap_min_px || gap > prm.gap_max_px) continue;  // overlapping (parallel) or too far
+        auto off = [&](const Segment& l, double x, double y) {
+          return std::fabs(x * std::cos(l.theta) + y * std::sin(l.theta) - l.rho);
+        };
+        if (off(a, b.x1, b.y1) > 2 * prm.straightness_px || off(a, b.x2, b.y2) > 2 * prm.straightness_px) continue;
+        // Joint fit over both pixel sets.
+        merge_pix_.assign(pix_.begin() + off_[i], pix_.begin() + off_[i + 1]);
+        merge_pix_.insert(merge_pix_.end(), pix_.begin() + off_[j], pix_.begin() + off_[j + 1]);
+        Segment m;
+        double rms = 0;
+        if (!fitLine(edges, merge_pix_.data(), merge_pix_.data() + merge_pix_.size(), a.theta, m.theta, m.rho, &rms)) continue;
+        if (off(m, a.x1, a.y1) > prm.straightness_px || off(m, a.x2, a.y2) > prm.straightness_px ||
+            off(m, b.x1, b.y1) > prm.straightness_px || off(m, b.x2, b.y2) > prm.straightness_px)
+          continue;
+        const double cs = std::cos(m.theta), ss = std::sin(m.theta);
+        double tmin = 1e30, tmax = -1e30;
+        for (int q : merge_pix_) {
+          const double t = -edges[q].x * ss + edges[q].y * cs;
+          tmin = std::min(tmin, t);
+          tmax = std::max(tmax, t);
+        }
+        m.x1 = m.rho * cs - tmin * ss;
+        m.y1 = m.rho * ss + tmin * cs;
+        m.x2 = m.rho * cs - tmax * ss;
+        m.y2 = m.rho * ss + tmax * cs;
+        m.pixels = static_cast<int>(merge_pix_.size());
+        m.rms = rms;
+        // Rebuild the pixel lists: segment i becomes the merged one, j goes.
+        std::vector<int> pix;
+        std::vector<int> offs(1, 0);
+        pix.reserve(pix_.size());
+        for (size_t k = 0; k < segments.size(); ++k) {
+          if (k == j) continue;
+          if (k == i)
+            pix.insert(pix.end(), merge_pix_.begin(), merge_pix_.end());
+          else
+            pix.insert(pix.end(), pix_.begin() + off_[k], pix_.begin() + off_[k + 1]);
+          offs.push_back(static_cast<int>(pix.size()));
+        }
+        pix_.swap(pix);
+        off_.swap(offs);
+        segments[i] = m;
+        segments.erase(segments.begin() + static_cast<long>(j));
+        merged_any = true;
+      }
+  }
 }
 
 }  // namespace stereoloc::frontend

@@ -15,7 +15,9 @@
 //     min_length long with at least min_density pixels per px of length;
 //  4. refit each kept segment on its own pixels: sub-pixel theta, rho and endpoints;
 //  5. mark the collected pixels used, so later (weaker) peaks cannot reuse them;
-//  6. repeat 1-5 for the same peak on the pixels left (up to rounds_per_peak times).
+//  6. repeat 1-5 for the same peak on the pixels left (up to rounds_per_peak times);
+//  7. merge segments of different peaks that are one line (mergeCollinear in segments.cpp):
+//     collinear within straightness_px, not overlapping, closer than Gap_max.
 // Order note: the thesis drops pieces shorter than L_min before merging; we merge first
 // (issue 4's order), so a line broken by noise into short pieces still comes out whole.
 #include <cstdint>
@@ -93,6 +95,7 @@ class SegmentExtractor {
  private:
   void collect(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta, double rho,
                double band, int tol_bins);
+  std::vector<int> merge_pix_;
   struct Piece {
     size_t b, e;
     float t0, t1;
@@ -106,6 +109,17 @@ class SegmentExtractor {
   std::vector<int> hist_;
   BendScratch bend_scratch_;
 };
+
+// Algorithm 2 merges the pieces of one line closer than Gap_max, but only within one peak's
+// pixels; a line whose pieces voted into neighbouring Hough cells comes out as several
+// segments. This merges two segments of the same gradient direction (within 2 deg) whose end
+// points all lie within straightness_px of the line fitted to both pixel sets, that overlap by
+// at most Gap_min and are less than Gap_max apart, and refits them (repeated until no pair
+// merges). `pix` and `off` hold each segment's edge-pixel indices (segment i is
+// pix[off[i]] .. pix[off[i + 1]]) and are updated with the segments; `scratch` is a buffer.
+void mergeCollinearSegments(const std::vector<EdgePixel>& edges, const SegmentParams& params,
+                            std::vector<Segment>& segments, std::vector<int>& pix, std::vector<int>& off,
+                            std::vector<int>& scratch);
 
 // Moves each end of a segment to where the step across it fades to half its contrast, by
 // sampling the luma on both sides (+-1.5 px) along the line from 2 px inside to 4 px beyond

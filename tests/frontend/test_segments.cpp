@@ -221,3 +221,75 @@ TEST(Segments, TwoEdgesMeetingAtAShallowAngleGiveTwoSegments) {
   EXPECT_EQ(flat, 1);
   EXPECT_EQ(sloped, 1);
 }
+
+namespace {
+// Edge pixels of a horizontal edge y = y0 + slope (x - x0) for x in [x0, x1], gradient down.
+void addEdge(std::vector<EdgePixel>& edges, double x0, double x1, double y0, double slope) {
+  for (int x = static_cast<int>(x0); x <= static_cast<int>(x1); ++x) {
+    EdgePixel e;
+    e.x = static_cast<float>(x);
+    e.y = static_cast<float>(y0 + slope * (x - x0));
+    e.ix = static_cast<int16_t>(x);
+    e.iy = static_cast<int16_t>(std::lround(e.y));
+    e.angle = static_cast<float>(kTwoPi / 4);
+    e.mag = 200;
+    e.dir_bin = 90;
+    edges.push_back(e);
+  }
+}
+
+// Segments over the pixel ranges [ranges[k].first, ranges[k].second) of `edges`.
+void segmentsOf(const std::vector<EdgePixel>& edges, const std::vector<std::pair<int, int>>& ranges,
+                std::vector<Segment>& segs, std::vector<int>& pix, std::vector<int>& off) {
+  segs.clear();
+  pix.clear();
+  off.assign(1, 0);
+  for (const auto& [b, e] : ranges) {
+    for (int i = b; i < e; ++i) pix.push_back(i);
+    Segment s;
+    ASSERT_TRUE(fitLine(edges, pix.data() + off.back(), pix.data() + pix.size(), kTwoPi / 4, s.theta, s.rho));
+    s.x1 = edges[b].x;
+    s.y1 = edges[b].y;
+    s.x2 = edges[e - 1].x;
+    s.y2 = edges[e - 1].y;
+    s.pixels = e - b;
+    segs.push_back(s);
+    off.push_back(static_cast<int>(pix.size()));
+  }
+}
+}  // namespace
+
+// Two pieces of one line (0.3 px apart, 20 px gap) that came from different peaks become one
+// segment over both; a piece stepped by 2 px, one bent by 4 deg, and one of opposite gradient
+// stay apart.
+TEST(Segments, CollinearPiecesOfDifferentPeaksMerge) {
+  std::vector<EdgePixel> edges;
+  addEdge(edges, 20, 100, 50.0, 0.0);   // [0, 81)
+  addEdge(edges, 120, 200, 50.3, 0.0);  // [81, 162)
+  std::vector<Segment> segs;
+  std::vector<int> pix, off, scratch;
+  segmentsOf(edges, {{0, 81}, {81, 162}}, segs, pix, off);
+  mergeCollinearSegments(edges, SegmentParams(), segs, pix, off, scratch);
+  ASSERT_EQ(segs.size(), 1u);
+  EXPECT_NEAR(std::min(segs[0].x1, segs[0].x2), 20, 0.1);
+  EXPECT_NEAR(std::max(segs[0].x1, segs[0].x2), 200, 0.1);
+  EXPECT_EQ(segs[0].pixels, 162);
+  ASSERT_EQ(off.size(), 2u);
+  EXPECT_EQ(off[1], 162);
+
+  for (int variant = 0; variant < 3; ++variant) {
+    edges.clear();
+    addEdge(edges, 20, 100, 50.0, 0.0);
+    if (variant == 0) addEdge(edges, 120, 200, 52.0, 0.0);                           // 2 px step
+    if (variant == 1) addEdge(edges, 101, 181, 50.0, std::tan(4.0 * kTwoPi / 360));  // 4 deg bend
+    if (variant == 2) addEdge(edges, 120, 200, 50.3, 0.0);
+    segmentsOf(edges, {{0, 81}, {81, 162}}, segs, pix, off);
+    if (variant == 2) {  // opposite gradient: the other side of a stripe
+      for (size_t k = 81; k < edges.size(); ++k) edges[k].angle = static_cast<float>(3 * kTwoPi / 4);
+      segs[1].theta += kTwoPi / 2;
+      segs[1].rho = -segs[1].rho;
+    }
+    mergeCollinearSegments(edges, SegmentParams(), segs, pix, off, scratch);
+    EXPECT_EQ(segs.size(), 2u) << "variant " << variant;
+  }
+}
