@@ -699,6 +699,45 @@ TEST(GlobalFix, SigmaPointNeesIsConsistentWhereLinearisationHolds) {
   std::printf("first order 3-dof mean NEES: fix2 %.2f, fix1 %.2f\n", fo2.s3 / n, fo1.s3 / n);
 }
 
+// The running fix's inputs span 7 directions (two ranges and bearings, the motion), where the
+// fifth-degree rule has a negative axis weight; its covariance must still come out positive
+// definite (no fallback: nonlinearity < 1) and consistent. With 20 mm range noise the
+// second-order covariance is measurably over-confident (3-dof mean NEES 3.25) and the sigma
+// points are not (3.01).
+TEST(GlobalFix, RunningFixSigmaPointsAreConsistentWhereSecondOrderIsNot) {
+  const Eigen::Vector2d l(1500, 850);
+  const Pose2 p0(800, 200, 0.6), p1(800, 600, 0.2);
+  const Eigen::Vector3d motion(p1.x - p0.x, p1.y - p0.y, angleDiff(p1.theta, p0.theta));
+  const Eigen::Matrix3d motion_cov = Eigen::Vector3d(4.0, 4.0, 1e-5).asDiagonal();
+  const Eigen::Vector2d z0 = predictRangeBearing(p0, l), z1 = predictRangeBearing(p1, l);
+  const double sr = 20.0, sb = 0.003;
+  GlobalFixOptions second;
+  second.covariance = FixCovariance::SecondOrder;
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> N(0.0, 1.0);
+  NeesMoments sp, so;
+  int fallback = 0;
+  for (int i = 0; i < 5000; ++i) {
+    const Observation o0 =
+        observationFromRangeBearing(4, LandmarkType::Point, z0(0) + sr * N(rng), z0(1) + sb * N(rng), sr, sb);
+    const Observation o1 =
+        observationFromRangeBearing(4, LandmarkType::Point, z1(0) + sr * N(rng), z1(1) + sb * N(rng), sr, sb);
+    const Eigen::Vector3d m = motion + Eigen::Vector3d(2.0 * N(rng), 2.0 * N(rng), std::sqrt(1e-5) * N(rng));
+    const RunningFixResult r = runningFix(o0, o1, l, m, motion_cov);
+    const RunningFixResult r2 = runningFix(o0, o1, l, m, motion_cov, std::nullopt, second);
+    if (r.status != FixStatus::Ok || r.preferred < 0 || r2.status != FixStatus::Ok || r2.preferred < 0) continue;
+    const GlobalFix& f = r.candidates[r.preferred];
+    fallback += f.nonlinearity >= 1.0 ? 1 : 0;
+    sp.add(f, p1);
+    so.add(r2.candidates[r2.preferred], p1);
+  }
+  EXPECT_GT(sp.n, 4900);
+  EXPECT_EQ(fallback, 0);
+  EXPECT_TRUE(sp.consistent(3));
+  EXPECT_TRUE(sp.consistent(2));
+  EXPECT_FALSE(so.consistent(3));
+}
+
 // The rule flags the far, badly conditioned fixes (section 4.4): goal corners seen from 1.3 m.
 TEST(GlobalFix, NonlinearityIsSmallNearAndLargeFar) {
   const StereoRig rig;
