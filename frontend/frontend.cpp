@@ -238,7 +238,8 @@ const std::vector<Segment>& Frontend::detectSegments(const cv::Mat& bgr) {
   used_.clear();
   acc_.vote(grad_.edges(), used_);
   detectPeaks(acc_, params_.peaks, peaks_);
-  extractor_.extract(grad_.edges(), peaks_, params_.hough.rho_step_px, params_.segments, used_, result_.segments);
+  extractor_.extract(grad_.edges(), peaks_, params_.hough.rho_step_px, params_.segments, used_, result_.segments,
+                     left_luma_.cols, left_luma_.rows);
   refineEndpoints(left_luma_, result_.segments);
   classifySegments(grad_, extractor_, width_per_row_, params_.classify, result_.segments, scratch_, &left_luma_);
   return result_.segments;

@@ -226,7 +226,7 @@ void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::v
 
 void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::vector<HoughPeak>& peaks,
                                double rho_step_px, const SegmentParams& prm, std::vector<uint8_t>& used,
-                               std::vector<Segment>& segments) {
+                               std::vector<Segment>& segments, int width, int height) {
   used.assign(edges.size(), 0);
   segments.clear();
   pix_.clear();
@@ -245,6 +245,18 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
   const int tol_bins = static_cast<int>(std::ceil(prm.direction_tolerance_deg));
   const double tol_cos = std::cos(prm.direction_tolerance_deg * kTwoPi / 360.0);
   const double min_pixels = 0.5 * prm.min_length_px;
+  // Length beyond an end pixel (x, y) up to the image border along (dx, dy), when it is within
+  // the unobserved frame (see segments.h), else 0.
+  const double frame = 2.5 + prm.gap_min_px;
+  auto borderCredit = [&](double x, double y, double dx, double dy) {
+    if (width <= 0 || height <= 0) return 0.0;
+    double t = 1e30;
+    if (dx > 1e-9) t = std::min(t, (width - 0.5 - x) / dx);
+    if (dx < -1e-9) t = std::min(t, (-0.5 - x) / dx);
+    if (dy > 1e-9) t = std::min(t, (height - 0.5 - y) / dy);
+    if (dy < -1e-9) t = std::min(t, (-0.5 - y) / dy);
+    return t <= frame ? std::max(0.0, t) : 0.0;
+  };
 
   for (const HoughPeak& peak : peaks) {
     for (int round = 0; round < std::max(1, prm.rounds_per_peak); ++round) {
@@ -309,8 +321,13 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
           start = k;
         }
       const size_t found_before = segments.size();
+      // Point at line coordinate t, and the L_min length of [t0, t1] with the border credit.
+      auto creditedLength = [&](double t0, double t1) {
+        return t1 - t0 + borderCredit(rho * c - t0 * s, rho * s + t0 * c, s, -c) +
+               borderCredit(rho * c - t1 * s, rho * s + t1 * c, -s, c);
+      };
       for (const Piece& pc : merged) {
-        if (pc.t1 - pc.t0 < prm.min_length_px) continue;
+        if (creditedLength(pc.t0, pc.t1) < prm.min_length_px) continue;
         // Pixels of the piece, excluding the dropped noise pieces inside it.
         piece_.clear();
         size_t run = pc.b;
@@ -328,7 +345,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
           if (re - rb < 2) continue;
           const auto tOf = [&](int i) { return -edges[i].x * s + edges[i].y * c; };
           const double len = tOf(*(re - 1)) - tOf(*rb);
-          if (len < prm.min_length_px || (re - rb) < prm.min_density * len) continue;
+          if (creditedLength(tOf(*rb), tOf(*(re - 1))) < prm.min_length_px || (re - rb) < prm.min_density * len) continue;
           Segment seg;
           double rms = 0;
           if (!fitLine(edges, rb, re, theta, seg.theta, seg.rho, &rms)) continue;

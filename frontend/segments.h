@@ -86,8 +86,13 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
 class SegmentExtractor {
  public:
   // `used` has one flag per edge pixel (resized and cleared here). Replaces `segments`.
+  // width, height: the image size (0: unknown). The gradient stage computes no edge pixels in
+  // the outer 2 px, so a piece whose end pixel lies within 2.5 + Gap_min px of the image border
+  // (measured along the line) is credited the length up to the border in the L_min test: a
+  // 30 px edge leaving the image would otherwise show only 27.5 px and be dropped.
   void extract(const std::vector<EdgePixel>& edges, const std::vector<HoughPeak>& peaks, double rho_step_px,
-               const SegmentParams& params, std::vector<uint8_t>& used, std::vector<Segment>& segments);
+               const SegmentParams& params, std::vector<uint8_t>& used, std::vector<Segment>& segments,
+               int width = 0, int height = 0);
   // Edge-pixel indices of segment i of the last extract() call (same order as `segments`).
   const int* pixelsBegin(size_t i) const { return pix_.data() + off_[i]; }
   const int* pixelsEnd(size_t i) const { return pix_.data() + off_[i + 1]; }

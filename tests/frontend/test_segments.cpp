@@ -293,3 +293,31 @@ TEST(Segments, CollinearPiecesOfDifferentPeaksMerge) {
     EXPECT_EQ(segs.size(), 2u) << "variant " << variant;
   }
 }
+
+// An edge 32 px long that leaves the image shows edge pixels over about 28 px only (none in the
+// outer 2 px, and the Sobel window loses the last px before the far corner): with the image
+// size, the L_min test (30 px) credits the unobserved frame; without it the piece is dropped.
+// The same at the right border.
+TEST(Segments, EdgeLeavingTheImageIsCreditedTheUnobservedFrame) {
+  for (int right = 0; right < 2; ++right) {
+    cv::Mat img(120, 200, CV_8UC1, cv::Scalar(30));
+    cv::rectangle(img, cv::Rect(right ? 200 - 32 : 0, 60, 32, 60), cv::Scalar(200), cv::FILLED);
+    GradientStage g;
+    g.compute(img, GradientParams());
+    HoughAccumulator acc;
+    acc.configure(img.cols, img.rows, HoughParams());
+    acc.vote(g.edges(), {});
+    std::vector<HoughPeak> peaks;
+    detectPeaks(acc, PeakParams(), peaks);
+    SegmentExtractor ex;
+    std::vector<uint8_t> used;
+    std::vector<Segment> with_size, without;
+    ex.extract(g.edges(), peaks, 3.0, SegmentParams(), used, with_size, img.cols, img.rows);
+    ex.extract(g.edges(), peaks, 3.0, SegmentParams(), used, without);
+    auto horizontal = [](const std::vector<Segment>& v) {
+      return std::count_if(v.begin(), v.end(), [](const Segment& s) { return std::fabs(s.y1 - s.y2) < 0.5 && std::fabs(s.y1 - 59.5) < 1; });
+    };
+    EXPECT_EQ(horizontal(with_size), 1) << "right " << right;
+    EXPECT_EQ(horizontal(without), 0) << "right " << right;
+  }
+}
