@@ -34,6 +34,7 @@ TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
   EXPECT_NE(r.output.find("linearisation holds when the nonlinearity <= 0.05"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("  linearisation holds "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("  linearisation does not "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("  separation 20-40 deg "), std::string::npos) << r.output;  // fix2 by geometry
   const std::string txt = readFile(dir.file("fixstudy.txt"));
   EXPECT_EQ(txt, r.output);
   const std::string csv = readFile(dir.file("fixes.csv"));

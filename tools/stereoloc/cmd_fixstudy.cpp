@@ -116,6 +116,7 @@ struct Sample {
   double dx = 0, dy = 0, dtheta = 0;  // |error|: mm, mm, rad
   std::optional<double> nees3, nees2;
   double max_range = 0;     // mm, farthest landmark the fix used
+  double separation = -1;   // rad, angle between the two landmarks seen from the robot (fix2; -1 otherwise)
   double nonlinearity = 0;  // GlobalFix::nonlinearity of the sigma-point fix
   bool linear = false;      // nonlinearity <= linear_max_nonlinearity
 };
@@ -169,6 +170,16 @@ void record(Bucket& b, const GlobalFix& f, double nonlinearity, double max_nonli
   for (const Observation& o : step.observations)
     for (int id : f.landmark_ids)
       if (o.landmark_id == id) s.max_range = std::max(s.max_range, o.range);
+  if (f.landmark_ids.size() == 2) {
+    // The circles meet at the inscribed angle between the landmarks: small angles are the
+    // grazing, badly conditioned intersections (dp/dr ~ 1 / sin of this angle).
+    const Observation *first = nullptr, *second = nullptr;
+    for (const Observation& o : step.observations) {
+      if (o.landmark_id == f.landmark_ids[0]) first = &o;
+      if (o.landmark_id == f.landmark_ids[1]) second = &o;
+    }
+    if (first && second) s.separation = std::fabs(angleDiff(second->bearing, first->bearing));
+  }
   b.fixes.push_back(s);
   if (csv) {
     char buf[512];
@@ -268,6 +279,17 @@ std::string neesLines(const std::vector<Sample>& v, double max_nonlinearity) {
   os << neesMeanLine("linearisation does not", nonlin);
   const char* names[] = {"range < 600 mm", "range 600-1000 mm", "range >= 1000 mm"};
   for (int i = 0; i < 3; ++i) os << neesMeanLine(names[i], by_range[i]);
+  std::array<std::vector<const Sample*>, 3> by_sep;
+  bool any_sep = false;
+  for (const Sample& s : v) {
+    if (s.separation < 0) continue;
+    any_sep = true;
+    by_sep[s.separation < deg2rad(20.0) ? 0 : (s.separation < deg2rad(40.0) ? 1 : 2)].push_back(&s);
+  }
+  if (any_sep) {
+    const char* sep_names[] = {"separation < 20 deg", "separation 20-40 deg", "separation >= 40 deg"};
+    for (int i = 0; i < 3; ++i) os << neesMeanLine(sep_names[i], by_sep[i]);
+  }
   return os.str();
 }
 
