@@ -14,7 +14,6 @@
 #include "factors/odometry_factor.h"
 #include "factors/pose_manifold.h"
 #include "factors/pose_prior_factor.h"
-#include "factors/range_bearing_factor.h"
 #include "src/error.h"
 #include "src/gaussian.h"
 
@@ -355,7 +354,7 @@ void BatchSmoother::solve() {
           ++s.unassociated_observations;
           continue;
         }
-        add(RangeBearingFactor::Create(map_.at(o.landmark_id).xy(), o.z(), o.covariance), loss.get(), li, -1);
+        add(makeObservationFactor(o, map_.at(o.landmark_id), config_.observation_model), loss.get(), li, -1);
         ++s.observation_factors;
       }
     }

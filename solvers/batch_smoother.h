@@ -59,7 +59,10 @@ struct BatchSmootherConfig {
   GlobalFixFunction global_fix;     // empty: defaultGlobalFix() (solvers/initialisation.h)
   AssociationConfig association;    // for observations with landmark_id == -1 (at the initial guess)
   bool use_compass = true;          // add a compass factor when Step::compass is set
-  RobustLossConfig loss;            // on the range-bearing factors; scale in whitened units
+  RobustLossConfig loss;            // on the observation factors; scale in whitened units
+  // Range-bearing (the thesis's form) or stereo pixel factors for observations with pixels
+  // (solvers/smoother_common.h); the rig must be the dataset's for the pixel models.
+  ObservationModelConfig observation_model;
   int max_iterations = 100;         // Levenberg-Marquardt iterations
   double function_tolerance = 1e-10;   // relative cost decrease that stops the solver
   double gradient_tolerance = 1e-12;

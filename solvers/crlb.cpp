@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 
 #include "src/error.h"
 #include "src/measurement_model.h"
@@ -141,6 +142,23 @@ Eigen::Matrix3d rangeBearingInformation(const Pose2& pose, const Eigen::Vector2d
   return 0.5 * (I + I.transpose());
 }
 
+Eigen::Matrix3d pixelInformation(const Pose2& pose, const Observation& obs, const Landmark& landmark,
+                                 const ObservationModelConfig& model) {
+  // The Jacobian of the whitened residual does not depend on the measured pixels (they enter
+  // additively), so the factor built from the observation gives J at the true pose.
+  const std::unique_ptr<ceres::CostFunction> cost(makeObservationFactor(obs, landmark, model));
+  const int m = cost->num_residuals();
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> J(m, 3);
+  Eigen::VectorXd r(m);
+  const double p[3] = {pose.x, pose.y, pose.theta};
+  const double* params[1] = {p};
+  double* jac[1] = {J.data()};
+  if (!cost->Evaluate(params, r.data(), jac) || !J.allFinite())
+    throw GeometryError("crlb: the landmark is not in front of the cameras at the true pose");
+  const Eigen::Matrix3d I = J.transpose() * J;
+  return 0.5 * (I + I.transpose());
+}
+
 TrajectoryInformation trajectoryInformation(const std::vector<Step>& steps, const std::vector<Pose2>& truth,
                                             const FieldMap& map, const OdometryParams& odometry,
                                             const Eigen::Matrix3d& prior_covariance, const CrlbOptions& options) {
@@ -199,7 +217,10 @@ TrajectoryInformation trajectoryInformation(const std::vector<Step>& steps, cons
       if (!lm)
         throw Error(at + ": observation " + std::to_string(i) + ": unknown landmark id " + std::to_string(o.landmark_id));
       try {
-        info.unary[k] += rangeBearingInformation(truth[k], lm->xy(), o.covariance);
+        if (options.observation_model.model != ObservationModel::RangeBearing && o.pixels)
+          info.unary[k] += pixelInformation(truth[k], o, *lm, options.observation_model);
+        else
+          info.unary[k] += rangeBearingInformation(truth[k], lm->xy(), o.covariance);
         ++info.observations_used;
       } catch (const GeometryError&) {
         ++info.observations_skipped;  // the true pose is on the landmark: no bearing, no information

@@ -11,6 +11,12 @@
 //              [Ja Jb]^T U_k^-1 [Ja Jb] with Ja, Jb the Jacobians of between() (pose2.h) at the truth;
 //   range-bearing  H^T R^-1 H with H = d predictRangeBearing / d pose (5.27) at the true pose and
 //              R the observation's covariance (as reported with the data);
+//   pixels     (observation model pixel_columns / pixels, for observations with pixels)
+//              J^T J with J the Jacobian of the whitened StereoPixelFactor at the true pose: the
+//              information of the pixels themselves, which is what the data hold. For columns and
+//              an untilted rig it equals the range-bearing information with R evaluated at the
+//              TRUE pixels ((u_l, u_r) and (range, bearing) are one-to-one; a tilted rig's
+//              triangulation also uses v); with the rows it is larger (range from the known heights);
 //   compass    1 / sigma^2 on theta.
 // Every factor touches one pose or two consecutive poses, so the information matrix of the
 // whole trajectory is block tridiagonal (3x3 blocks) and every bound below costs O(N)
@@ -42,6 +48,7 @@
 #include <string>
 #include <vector>
 
+#include "solvers/smoother_common.h"
 #include "src/dataset.h"
 #include "src/field_map.h"
 #include "src/odometry_model.h"
@@ -66,6 +73,7 @@ struct CrlbOptions {
   bool observations = true;
   bool compass = true;
   OdometryCovarianceAt odometry_covariance = OdometryCovarianceAt::Truth;
+  ObservationModelConfig observation_model;  // the information of which data (see the header comment)
 };
 
 // The Fisher information of a trajectory of N poses in block-tridiagonal form.
@@ -98,6 +106,11 @@ Eigen::Matrix<double, 6, 6> odometryFactorInformation(const Pose2& a, const Pose
 // The information of one range-bearing observation with covariance R of `landmark` (mm, world)
 // from the true pose: H^T R^-1 H. Throws GeometryError when the landmark is at the robot.
 Eigen::Matrix3d rangeBearingInformation(const Pose2& pose, const Eigen::Vector2d& landmark, const Eigen::Matrix2d& R);
+// The information of one observation's pixels (it must have pixels and a pixel sigma) from the
+// true pose under a pixel observation model. Throws GeometryError when the landmark is not in
+// front of the cameras there.
+Eigen::Matrix3d pixelInformation(const Pose2& pose, const Observation& obs, const Landmark& landmark,
+                                 const ObservationModelConfig& model);
 
 // Builds the information of `steps` at the true poses `truth` (same length). The first step is
 // the initial time (its odometry is not used, as in every estimator); prior_covariance is P0 of

@@ -12,7 +12,6 @@
 #include "factors/marginal_prior_factor.h"
 #include "factors/odometry_factor.h"
 #include "factors/pose_prior_factor.h"
-#include "factors/range_bearing_factor.h"
 #include "src/error.h"
 #include "src/gaussian.h"
 #include "src/measurement_model.h"
@@ -475,7 +474,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
           const Eigen::Matrix2d Sinv = S.inverse();
           const double d2 = nu.dot(Sinv * nu);  // (5.20)
           if (std::isfinite(d2) && (!gate_enabled_ || gate_.accepts(d2))) {
-            addFactor(RangeBearingFactor::Create(lm->xy(), obs.z(), obs.covariance), {node}, true);
+            addFactor(makeObservationFactor(obs, *lm, config_.observation_model), {node}, true);
             // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
             const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
             pose = plus(pose, K * nu);

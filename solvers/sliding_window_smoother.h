@@ -108,6 +108,9 @@ struct SlidingWindowConfig {
   // or after this many steps since the last keyframe (>= 1; 1: every step is a keyframe).
   int keyframe_max_steps = 50;
   RobustLossConfig robust_loss;      // on the range-bearing factors (whitened units); none by default
+  // Range-bearing (the thesis's form) or stereo pixel factors for observations with pixels
+  // (solvers/smoother_common.h). The gate and the belief update always use range-bearing.
+  ObservationModelConfig observation_model;
   // With a robust loss, the chi-square gate (and with it the lost policy) is off unless this is
   // set: the loss then plays the gate's role (see the header comment).
   bool gate_with_robust_loss = false;

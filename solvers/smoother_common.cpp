@@ -9,6 +9,8 @@
 #include <random>
 #include <utility>
 
+#include "factors/range_bearing_factor.h"
+#include "factors/stereo_pixel_factor.h"
 #include "src/angles.h"
 #include "src/error.h"
 #include "src/measurement_model.h"
@@ -40,6 +42,33 @@ RobustLoss robustLossFromString(const std::string& name) {
   for (RobustLoss l : {RobustLoss::None, RobustLoss::Huber, RobustLoss::Cauchy})
     if (toString(l) == name) return l;
   throw Error("unknown robust loss '" + name + "' (expected none, huber or cauchy)");
+}
+
+std::string toString(ObservationModel model) {
+  switch (model) {
+    case ObservationModel::RangeBearing: return "range_bearing";
+    case ObservationModel::PixelColumns: return "pixel_columns";
+    case ObservationModel::Pixels: return "pixels";
+  }
+  return "range_bearing";
+}
+
+ObservationModel observationModelFromString(const std::string& name) {
+  for (ObservationModel m : {ObservationModel::RangeBearing, ObservationModel::PixelColumns, ObservationModel::Pixels})
+    if (toString(m) == name) return m;
+  throw Error("unknown observation model '" + name + "' (expected range_bearing, pixel_columns or pixels)");
+}
+
+ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,
+                                           const ObservationModelConfig& config) {
+  if (config.model == ObservationModel::RangeBearing || !obs.pixels)
+    return RangeBearingFactor::Create(landmark.xy(), obs.z(), obs.covariance);
+  if (!(std::isfinite(obs.pixel_sigma) && obs.pixel_sigma > 0))
+    throw Error("observation of landmark " + std::to_string(landmark.id) +
+                ": has pixels but no positive pixel sigma (the pixel observation model needs it)");
+  return StereoPixelFactor::Create(config.rig, landmark.position, *obs.pixels, obs.head_pan, obs.pixel_sigma,
+                                   config.model == ObservationModel::Pixels ? PixelResiduals::All
+                                                                            : PixelResiduals::Columns);
 }
 
 std::unique_ptr<ceres::LossFunction> makeLossFunction(const RobustLossConfig& config) {

@@ -14,6 +14,7 @@
 #include "src/field_map.h"
 #include "src/odometry_model.h"
 #include "src/pose2.h"
+#include "src/stereo_rig.h"
 #include "src/types.h"
 
 namespace stereoloc {
@@ -31,6 +32,29 @@ struct RobustLossConfig {
 };
 // nullptr for RobustLoss::None. The caller owns the result.
 std::unique_ptr<ceres::LossFunction> makeLossFunction(const RobustLossConfig& config);
+
+// How an identified observation enters the smoothers (batch and sliding window) and the bound.
+enum class ObservationModel {
+  RangeBearing,  // (range, bearing) with R (3.6, 3.7, 5.32): the thesis's form, and the only one
+                 // for observations without pixels (real range-bearing sensors)
+  PixelColumns,  // StereoPixelFactor on u_l, u_r (factors/stereo_pixel_factor.h): the same data (untilted rig),
+                 // compared where the noise is (no conversion bias, weights at the estimate)
+  Pixels,        // StereoPixelFactor on u_l, v_l, u_r, v_r: also range from the known heights
+};
+std::string toString(ObservationModel model);                       // "range_bearing", "pixel_columns", "pixels"
+ObservationModel observationModelFromString(const std::string& name);  // throws stereoloc::Error
+
+struct ObservationModelConfig {
+  ObservationModel model = ObservationModel::RangeBearing;
+  StereoRig rig;  // the rig that took the pixels (Dataset::rig); used by the pixel models
+};
+
+// The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks
+// for pixels and the observation has them (with its own Observation::pixel_sigma), the
+// range-bearing factor otherwise. The caller owns the result. Throws stereoloc::Error when a
+// pixel observation carries no positive pixel sigma.
+ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,
+                                           const ObservationModelConfig& config);
 
 // Throws stereoloc::Error "WHO: step N: ..." when wheel increments, compass or an
 // observation (range, bearing, R) is not finite / not positive definite.

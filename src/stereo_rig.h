@@ -70,6 +70,8 @@ class StereoRig {
   double focal() const { return f_; }
   double principalU() const { return ou_; }
   double principalV() const { return ov_; }
+  // The axes of C2 expressed in C1: the rotation about y by the tilt beta.
+  const Eigen::Matrix3d& tiltRotation() const { return R_tilt_; }
 
   // p_C2 -> p_C0 (3.5) and back, for head pan gamma.
   Eigen::Vector3d visionToRobot(const Eigen::Vector3d& p_vision, double pan) const;

@@ -16,6 +16,7 @@ Observation observationFromPixels(const StereoRig& rig, int landmark_id, Landmar
   o.bearing = rb.bearing;
   o.covariance = rig.rangeBearingCovariance(pixels, head_pan, pixel_sigma);  // (5.32)
   o.pixels = pixels;
+  o.pixel_sigma = pixel_sigma;
   o.head_pan = head_pan;
   return o;
 }

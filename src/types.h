@@ -19,6 +19,7 @@ struct Observation {
   double bearing = 0.0;                                   // rad (3.7)
   Eigen::Matrix2d covariance = Eigen::Matrix2d::Identity();  // R of (range, bearing), mm^2 / rad^2
   std::optional<StereoPixels> pixels;                     // when it came from the stereo rig
+  double pixel_sigma = 0.0;                               // px, the noise of each pixel coordinate (with pixels)
   double head_pan = 0.0;                                  // rad, gamma at the time of the images
 
   Eigen::Vector2d z() const { return Eigen::Vector2d(range, bearing); }

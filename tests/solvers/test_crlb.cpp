@@ -21,6 +21,7 @@
 #include "src/numeric_diff.h"
 #include "src/odometry_model.h"
 #include "src/scenario.h"
+#include "src/simulator.h"
 
 namespace stereoloc {
 namespace {
@@ -92,6 +93,41 @@ TEST(Crlb, RangeBearingInformationMatchesCentralDifferences) {
     EXPECT_LT(relError(rangeBearingInformation(p, landmark, R), numeric), 1e-6);
   }
   EXPECT_THROW(rangeBearingInformation(Pose2(750, 0, 0), landmark, R), GeometryError);
+}
+
+// For an untilted rig (u_l, u_r) and (range, bearing) are one-to-one, so the information of the
+// pixel columns is the range-bearing information with R (5.32) evaluated at the TRUE pixels; the
+// rows add range information from the known heights (a positive semi-definite difference,
+// strictly positive along range). (A tilted rig's triangulation also uses v, so there the
+// range-bearing form holds some of the rows' noise and information.)
+TEST(Crlb, PixelInformationOfColumnsIsRangeBearingAtTheTruePixels) {
+  StereoRigParams params;
+  params.offset_x_mm = 15.0;
+  const StereoRig rig(params);
+  for (const Pose2& pose : {Pose2(400, 300, 0.2), Pose2(900, 400, kPi - 1e-6), Pose2(100, -200, -1.2)}) {
+    for (double pan : {0.0, 0.3}) {
+      for (double range : {300.0, 900.0, 1800.0}) {
+        const double bearing = pan - 0.2;
+        const Eigen::Vector2d local(range * std::cos(bearing), range * std::sin(bearing));
+        const Eigen::Vector2d world = transformToWorld(pose, local);
+        const std::optional<StereoPixels> px = rig.project(Eigen::Vector3d(local.x(), local.y(), 25.0), pan);
+        ASSERT_TRUE(px.has_value());
+        Landmark lm;
+        lm.id = 0;
+        lm.position = Eigen::Vector3d(world.x(), world.y(), 25.0);
+        const Observation obs = observationFromPixels(rig, 0, LandmarkType::GoalCorner, *px, pan, 0.5);
+        const Eigen::Matrix2d R_true = rig.rangeBearingCovariance(*px, pan, 0.5);
+        const Eigen::Matrix3d rb = rangeBearingInformation(pose, world, R_true);
+        const Eigen::Matrix3d cols = pixelInformation(pose, obs, lm, {ObservationModel::PixelColumns, rig});
+        const Eigen::Matrix3d all = pixelInformation(pose, obs, lm, {ObservationModel::Pixels, rig});
+        EXPECT_LT(relError(cols, rb), 1e-6) << range;
+        const Eigen::Matrix3d extra = all - cols;
+        EXPECT_GT(minEigenRelative(extra, extra.norm()), -1e-9) << range;
+        const Eigen::Vector3d along_range(std::cos(pose.theta + bearing), std::sin(pose.theta + bearing), 0.0);
+        EXPECT_GT(along_range.dot(extra * along_range), 1e-3 * along_range.dot(cols * along_range)) << range;
+      }
+    }
+  }
 }
 
 TEST(Crlb, FilteringBoundEqualsTheKalmanFilterOnALinearGaussianCase) {
@@ -288,6 +324,50 @@ TEST(Crlb, BatchSmootherAttainsTheSmoothingBoundInMonteCarlo) {
   EXPECT_LT(batch_ratio, 1.2);
   EXPECT_GT(ekf_ratio, 0.8);
   EXPECT_LT(bound_smooth, bound_filt);
+}
+
+// The stereo pixel factors on simulated stereo (the `line` scenario, goal corners, 0.5 px):
+// the batch smoother with pixel factors reaches its bound (issue 7: RMSE / sqrt(CRLB) <= 1.15),
+// each model against the bound of the data it uses, and the rows add information.
+TEST(Crlb, BatchSmootherWithPixelFactorsAttainsThePixelBound) {
+  const Eigen::Vector3d sigma0(20.0, 20.0, 0.05);
+  const Eigen::Matrix3d P0 = sigma0.cwiseAbs2().asDiagonal();
+  for (ObservationModel model : {ObservationModel::PixelColumns, ObservationModel::Pixels}) {
+    double se = 0, bound = 0, bound_rb = 0;
+    for (uint64_t seed = 0; seed < 25; ++seed) {
+      const Dataset d = simulate("line", 0, SimulationConfig(), 500 + seed);
+      std::mt19937_64 rng(seed);
+      std::normal_distribution<double> N(0.0, 1.0);
+      const Pose2 truth0 = *d.groundtruth[0];
+      const Pose2 start = plus(truth0, Eigen::Vector3d(sigma0(0) * N(rng), sigma0(1) * N(rng), sigma0(2) * N(rng)));
+      BatchSmootherConfig bc;
+      bc.init = knownBelief(start, P0);
+      bc.observation_model = {model, d.rig};
+      BatchSmoother batch(d.map, d.odometry, bc);
+      for (const Step& s : d.steps) batch.process(s);
+      const std::vector<Estimate> smoothed = batch.finish();
+      ASSERT_EQ(smoothed.size(), d.steps.size());
+      CrlbOptions co;
+      co.observation_model = bc.observation_model;
+      const std::vector<Eigen::Matrix3d> sb = smoothingBound(trajectoryInformation(d, P0, co));
+      const std::vector<Eigen::Matrix3d> rb = smoothingBound(trajectoryInformation(d, P0));
+      for (size_t k = 0; k < d.steps.size(); ++k) {
+        se += (smoothed[k].pose.translation() - d.groundtruth[k]->translation()).squaredNorm();
+        bound += sb[k].topLeftCorner<2, 2>().trace();
+        bound_rb += rb[k].topLeftCorner<2, 2>().trace();
+      }
+    }
+    const double ratio = std::sqrt(se / bound);
+    std::printf("%s: RMSE/sqrt(CRLB) %.3f, bound/range-bearing bound %.3f\n", toString(model).c_str(), ratio,
+                std::sqrt(bound / bound_rb));
+    EXPECT_GT(ratio, 0.8) << toString(model);
+    EXPECT_LT(ratio, 1.15) << toString(model);
+    if (model == ObservationModel::Pixels) {
+      EXPECT_LT(bound, 0.8 * bound_rb);  // range from the known heights
+    } else {
+      EXPECT_NEAR(bound / bound_rb, 1.0, 0.1);  // the same data
+    }
+  }
 }
 
 TEST(Crlb, RejectsBadInput) {

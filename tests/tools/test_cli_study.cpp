@@ -64,6 +64,14 @@ TEST(CliStudy, IdenticalWhateverTheThreadCountAndShardedMergeEqualsUnsharded) {
     return out.str();
   };
   EXPECT_EQ(dropTiming(slurp(dir.file("m/summary.csv"))), dropTiming(slurp(dir.file("one/summary.csv"))));
+  // The observation model is part of the configuration: shards run with another one do not merge.
+  EXPECT_NE(slurp(dir.file("a/study.yaml")).find("observation_model: pixel_columns"), std::string::npos);
+  ASSERT_EQ(test::runCli(std::string(kSmall) + " --shard 1/2 --observation-model range_bearing --out " + dir.file("c"))
+                .exit_code,
+            0);
+  const test::CliRun bad = test::runCli("study merge " + dir.file("a") + " " + dir.file("c") + " --out " + dir.file("n"));
+  EXPECT_EQ(bad.exit_code, 1) << bad.output;
+  EXPECT_NE(bad.output.find("configuration differs"), std::string::npos) << bad.output;
 }
 
 TEST(CliStudy, UsageErrors) {
@@ -72,6 +80,7 @@ TEST(CliStudy, UsageErrors) {
   EXPECT_EQ(test::runCli("study --methods kalman --out " + dir.file("x")).exit_code, 2);
   EXPECT_EQ(test::runCli("study --scenarios moon --out " + dir.file("x")).exit_code, 2);
   EXPECT_EQ(test::runCli("study --shard 3/2 --out " + dir.file("x")).exit_code, 2);
+  EXPECT_EQ(test::runCli("study --observation-model pixel --out " + dir.file("x")).exit_code, 2);
   std::filesystem::create_directories(dir.file("full"));
   std::ofstream(dir.file("full/keep")) << "x";
   EXPECT_EQ(test::runCli("study --trials 1 --out " + dir.file("full")).exit_code, 2);

@@ -56,16 +56,18 @@ TEST(CliSmoothers, PrintsTheComparisonTableWithFiniteFiguresAboveTheBound) {
     std::getline(ss, line);  // blank
     std::getline(ss, line);
     const std::vector<std::string> header = cells(line);
-    ASSERT_EQ(header.size(), 10u) << line;
+    // The default observation model (pixel columns) adds the ratio to the range-bearing bound.
+    ASSERT_EQ(header.size(), 11u) << line;
     EXPECT_EQ(header[9], "RMSE/sqrt(CRLB)");
+    EXPECT_EQ(header[10], "RMSE/sqrt(CRLB r-b)");
     std::getline(ss, line);  // |---|
     for (size_t m = 0; m < methods.size(); ++m) {
       ASSERT_TRUE(std::getline(ss, line));
       const std::vector<std::string> c = cells(line);
-      ASSERT_EQ(c.size(), 10u) << line;
+      ASSERT_EQ(c.size(), 11u) << line;
       EXPECT_EQ(c[0], methods[m]);
       EXPECT_EQ(c[7], bounds[m]);
-      for (size_t i : {1u, 2u, 3u, 4u, 5u, 6u, 8u, 9u}) {
+      for (size_t i : {1u, 2u, 3u, 4u, 5u, 6u, 8u, 9u, 10u}) {
         const double v = std::stod(c[i]);  // "n/a" would throw
         EXPECT_TRUE(std::isfinite(v)) << line;
         EXPECT_GE(v, 0.0) << line;
@@ -90,9 +92,18 @@ TEST(CliSmoothers, PrintsTheComparisonTableWithFiniteFiguresAboveTheBound) {
   EXPECT_EQ(readFile(one.file("smoothers.md")), md);
 }
 
+TEST(CliSmoothers, RangeBearingModelComparesWithItsOwnBound) {
+  const test::CliRun r = test::runCli(
+      "smoothers --scenarios line --trials 2 --windows 5 --particles 100 --threads 2 --observation-model range_bearing");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("Observation model of batch and window: range_bearing"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("RMSE/sqrt(CRLB r-b)"), std::string::npos) << "one bound only: " << r.output;
+}
+
 TEST(CliSmoothers, BadArgumentsAreUsageErrors) {
   for (const char* args : {"smoothers --trials 0", "smoothers --scenarios kidnap", "smoothers --scenarios bogus",
                                   "smoothers --windows 5,x", "smoothers --windows 0", "smoothers --threads -1",
+                                  "smoothers --observation-model pixel",
                                   "smoothers --scenarios ,"}) {
     const test::CliRun r = test::runCli(std::string(args));
     EXPECT_EQ(r.exit_code, 2) << args << "\n" << r.output;

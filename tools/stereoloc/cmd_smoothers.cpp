@@ -52,6 +52,7 @@ struct SmoothersArgs {
   uint64_t seed = 1;
   int threads = 0;  // 0 = all cores
   std::string windows = "5,10,20,50";
+  std::string observation_model = "pixel_columns";
   int particles = 3000;
   std::string out_dir;
 };
@@ -67,7 +68,7 @@ struct MethodSpec {
 
 // Sums over the estimates of one method on one scenario (all trials).
 struct Accumulator {
-  double se_position = 0, se_theta = 0, bound_position = 0;
+  double se_position = 0, se_theta = 0, bound_position = 0, rb_bound_position = 0;
   long count = 0;
   double nees_sum = 0;
   long nees_count = 0, nees_in_interval = 0;
@@ -77,6 +78,7 @@ struct Accumulator {
     se_position += o.se_position;
     se_theta += o.se_theta;
     bound_position += o.bound_position;
+    rb_bound_position += o.rb_bound_position;
     count += o.count;
     nees_sum += o.nees_sum;
     nees_count += o.nees_count;
@@ -90,6 +92,7 @@ struct Accumulator {
   double positionRmse() const { return count ? std::sqrt(se_position / count) : std::nan(""); }
   double thetaRmse() const { return count ? std::sqrt(se_theta / count) : std::nan(""); }
   double sqrtBound() const { return count ? std::sqrt(bound_position / count) : std::nan(""); }
+  double sqrtRangeBearingBound() const { return count ? std::sqrt(rb_bound_position / count) : std::nan(""); }
   double meanNees() const { return nees_count ? nees_sum / nees_count : std::nan(""); }
   double inInterval() const { return nees_count ? static_cast<double>(nees_in_interval) / nees_count : std::nan(""); }
   // Fraction of steps whose NEES averaged over the trials lies in the 95 % band of that average.
@@ -141,11 +144,17 @@ std::vector<Accumulator> runTrial(const std::string& scenario, int trial, const 
   const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
   // The known start's P0 (section 6.5): the prior every method is given, and the CRLB's.
   const Eigen::Matrix3d P0 = options.init_config.known_sigma.cwiseAbs2().asDiagonal();
-  const TrajectoryInformation info = trajectoryInformation(d, P0);
+  // The bound of the data as the smoothers model them (options.observation_model), and the
+  // bound of the range-bearing data (R as reported) for comparison.
+  CrlbOptions crlb;
+  crlb.observation_model = {options.observation_model, d.rig};
+  const TrajectoryInformation info = trajectoryInformation(d, P0, crlb);
+  const TrajectoryInformation rb_info = trajectoryInformation(d, P0);
   std::map<long, size_t> index;
   for (size_t k = 0; k < info.steps.size(); ++k) index[info.steps[k]] = k;
   const std::vector<Eigen::Matrix3d> smoothing = smoothingBound(info), filtering = filteringBound(info);
-  std::map<int, std::vector<Eigen::Matrix3d>> lagged;
+  const std::vector<Eigen::Matrix3d> rb_smoothing = smoothingBound(rb_info), rb_filtering = filteringBound(rb_info);
+  std::map<int, std::vector<Eigen::Matrix3d>> lagged, rb_lagged;
   const double lo = chi2Quantile(0.025, 3), hi = chi2Quantile(0.975, 3);
   const uint64_t method_seed = mix(seed ^ 0x5A0071E5ull);  // shared: the same start noise for every method
   std::vector<Accumulator> out(methods.size());
@@ -155,11 +164,18 @@ std::vector<Accumulator> runTrial(const std::string& scenario, int trial, const 
     if (spec.window > 0) o.window = spec.window;
     const MethodRun run = runMethod(spec.method, d, method_seed, o);
     const std::vector<Eigen::Matrix3d>* bound = &filtering;
-    if (spec.bound == BoundKind::Smoothing) bound = &smoothing;
+    const std::vector<Eigen::Matrix3d>* rb_bound = &rb_filtering;
+    if (spec.bound == BoundKind::Smoothing) {
+      bound = &smoothing;
+      rb_bound = &rb_smoothing;
+    }
     if (spec.bound == BoundKind::FixedLag) {
       auto it = lagged.find(spec.window);
       if (it == lagged.end()) it = lagged.emplace(spec.window, fixedLagBound(info, spec.window - 1)).first;
       bound = &it->second;
+      auto rb = rb_lagged.find(spec.window);
+      if (rb == rb_lagged.end()) rb = rb_lagged.emplace(spec.window, fixedLagBound(rb_info, spec.window - 1)).first;
+      rb_bound = &rb->second;
     }
     Accumulator& acc = out[m];
     for (const PoseError& e : poseErrors(run.estimates, truth)) {
@@ -168,6 +184,7 @@ std::vector<Accumulator> runTrial(const std::string& scenario, int trial, const 
       acc.se_position += e.distance * e.distance;
       acc.se_theta += e.dtheta * e.dtheta;
       acc.bound_position += (*bound)[k->second].topLeftCorner<2, 2>().trace();
+      acc.rb_bound_position += (*rb_bound)[k->second].topLeftCorner<2, 2>().trace();
       ++acc.count;
       if (e.nees) {
         acc.nees_sum += *e.nees;
@@ -216,6 +233,12 @@ void runSmoothers(const SmoothersArgs& a) {
   methods.push_back({"pf", "pf", 0, BoundKind::Filtering});
   MethodOptions options;  // known start (section 6.5), no robust loss, gate on
   options.particles = a.particles;
+  try {
+    options.observation_model = observationModelFromString(a.observation_model);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--observation-model: ") + e.what());
+  }
+  const bool pixel_model = options.observation_model != ObservationModel::RangeBearing;
 
   struct Task {
     size_t scenario;
@@ -265,11 +288,17 @@ void runSmoothers(const SmoothersArgs& a) {
         "for batch; fixed lag W-1 for the window (its output per pose: the estimate when the pose leaves the "
         "window, the final window smoothed); filtering (causal) for EKF and PF. RMSE/sqrt(CRLB): position RMSE over "
         "sqrt of the mean trace of the bound's position block; 1.0 is the physical limit.\n";
+  md += fmt("\nObservation model of batch and window: %s (EKF and PF always use range-bearing). The bound is the "
+            "information of the data in that model%s\n",
+            a.observation_model.c_str(),
+            pixel_model ? "; \"/sqrt(CRLB r-b)\" divides by the bound of the range-bearing data with R as reported."
+                        : ".");
   for (size_t s = 0; s < scenarios.size(); ++s) {
     md += "\n## " + scenarios[s] + "\n\n";
     md += "| method | pos RMSE (mm) | x EKF | theta RMSE (deg) | mean NEES | NEES in 95 % | steps in band | CRLB | "
-          "sqrt(CRLB) pos (mm) | RMSE/sqrt(CRLB) |\n";
-    md += "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|\n";
+          "sqrt(CRLB) pos (mm) | RMSE/sqrt(CRLB) |" +
+          std::string(pixel_model ? " RMSE/sqrt(CRLB r-b) |" : "") + "\n";
+    md += "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|" + std::string(pixel_model ? "---:|" : "") + "\n";
     const double ekf_rmse = acc[s][ekf].positionRmse();
     for (size_t m = 0; m < methods.size(); ++m) {
       const Accumulator& x = acc[s][m];
@@ -277,7 +306,9 @@ void runSmoothers(const SmoothersArgs& a) {
             num(x.positionRmse() / ekf_rmse, "%.2f") + " | " + num(rad2deg(x.thetaRmse()), "%.2f") + " | " +
             num(x.meanNees(), "%.2f") + " | " + num(x.inInterval(), "%.2f") + " | " + num(x.stepsInBand(), "%.2f") +
             " | " + boundName(methods[m]) + " | " + num(x.sqrtBound(), "%.1f") + " | " +
-            num(x.positionRmse() / x.sqrtBound(), "%.2f") + " |\n";
+            num(x.positionRmse() / x.sqrtBound(), "%.2f") + " |" +
+            (pixel_model ? " " + num(x.positionRmse() / x.sqrtRangeBearingBound(), "%.2f") + " |" : std::string()) +
+            "\n";
     }
   }
   // Averages over the scenarios of the per-scenario figures (each scenario weighs the same).
@@ -343,6 +374,10 @@ void add_smoothers_command(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   sub->add_option("--windows", a->windows, "Comma-separated window sizes W of the sliding-window smoother")
+      ->capture_default_str();
+  sub->add_option("--observation-model", a->observation_model,
+                  "How batch and window use the stereo observations, and whose information the bound is: "
+                  "range_bearing, pixel_columns or pixels (see `localize --help`)")
       ->capture_default_str();
   sub->add_option("--particles", a->particles, "Particles of the particle filter")
       ->capture_default_str()

@@ -274,6 +274,7 @@ struct StreamArgs {
   int max_iterations = 5;
   bool no_gate = false, smoothed = false;
   std::string frontend = "pixels", frontend_landmarks = "all", frontend_params;
+  std::string observation_model = "pixel_columns";
 };
 
 void runStream(const StreamArgs& a) {
@@ -307,6 +308,11 @@ void runStream(const StreamArgs& a) {
   if (a.pose_sigma.size() != 3 || !(a.pose_sigma[0] > 0 && a.pose_sigma[1] > 0 && a.pose_sigma[2] > 0))
     throw UsageError("--pose-sigma takes three positive numbers (mm, mm, rad)");
   SlidingWindowConfig c;
+  try {
+    c.observation_model = {observationModelFromString(a.observation_model), ctx.rig};
+  } catch (const Error& e) {
+    throw UsageError(std::string("--observation-model: ") + e.what());
+  }
   c.window = a.window;
   c.max_iterations = a.max_iterations;
   c.gate_enabled = !a.no_gate;
@@ -361,6 +367,10 @@ void add_stream_command(CLI::App& app) {
       "Sliding-window smoother on JSON Lines: one step per line on stdin (or --from DIR), one estimate per line "
       "on stdout as soon as it is computed");
   sub->add_option("--window", a->window, "Window size W (poses)")->capture_default_str()->check(CLI::Range(1, 100000));
+  sub->add_option("--observation-model", a->observation_model,
+                  "How the window uses pixel observations: range_bearing, pixel_columns or pixels (see `localize "
+                  "--help`); range-bearing observations stay range-bearing")
+      ->capture_default_str();
   sub->add_option("--from", a->from, "Replay a dataset directory instead of reading stdin");
   sub->add_option("--map", a->map_path, "Map YAML (default: the MiroSot field); ignored with --from");
   sub->add_option("--rig", a->rig_path, "Stereo rig YAML for pixel observations (default rig); ignored with --from");

@@ -18,6 +18,7 @@ struct StudyArgs {
   std::vector<std::string> merge_dirs;
   std::string merge_out;
   bool merge_force = false;
+  std::string observation_model = toString(MethodOptions().observation_model);
 };
 
 void runFromArgs(StudyArgs& a) {
@@ -42,6 +43,11 @@ void runFromArgs(StudyArgs& a) {
     c.method_options.init = initModeFromString(a.init);
   } catch (const Error& e) {
     throw UsageError(std::string("--init: ") + e.what());
+  }
+  try {
+    c.method_options.observation_model = observationModelFromString(a.observation_model);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--observation-model: ") + e.what());
   }
   runStudy(c);
 }
@@ -87,6 +93,10 @@ void add_study_command(CLI::App& app) {
   sub->add_option("--window", a->config.method_options.window, "Window size W of the sliding-window smoother")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  sub->add_option("--observation-model", a->observation_model,
+                  "How batch and window use the stereo observations: range_bearing (the thesis's form), pixel_columns "
+                  "(u_l, u_r: the same data, no conversion bias) or pixels (also the rows)")
+      ->capture_default_str();
   sub->add_option("--out", a->config.out_dir, "Output directory (required)");
   sub->add_flag("--force", a->config.force, "Replace a non-empty output directory");
   sub->add_flag("!--no-progress", a->config.progress, "No progress bar (it is shown only when stderr is a terminal)");

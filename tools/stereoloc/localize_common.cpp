@@ -18,6 +18,7 @@ void runLocalize(const LocalizeArgs& a) {
   try {
     o.init = initModeFromString(a.init);
     o.loss = robustLossFromString(a.loss);
+    o.observation_model = observationModelFromString(a.observation_model);
   } catch (const Error& e) {
     throw UsageError(e.what());
   }
@@ -80,7 +81,12 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
       ->capture_default_str();
   sub->add_option("--particles", a->options.particles, "Particles of the particle filter")->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--window", a->options.window, "Window size W of the sliding-window smoother")->capture_default_str()->check(CLI::PositiveNumber);
-  sub->add_option("--loss", a->loss, "Robust loss of the batch and window smoothers' range-bearing factors: none, huber or cauchy (the window then runs without the gate)")->capture_default_str();
+  sub->add_option("--loss", a->loss, "Robust loss of the batch and window smoothers' observation factors: none, huber or cauchy (the window then runs without the gate)")->capture_default_str();
+  sub->add_option("--observation-model", a->observation_model,
+                  "How the batch and window smoothers use stereo observations: range_bearing (the thesis's form), "
+                  "pixel_columns (pixel factors on u_l, u_r: the same data, no conversion bias) or pixels (also the "
+                  "rows: range from the known camera and landmark heights); observations without pixels stay range-bearing")
+      ->capture_default_str();
   sub->add_option("--loss-scale", a->options.loss_scale, "Robust loss scale in whitened units")->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--seed", a->seed, "Seed of the start noise and the particle filter")->capture_default_str();
   sub->add_option("--out", a->out, "Estimates CSV: step,t,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta")->required();

@@ -16,6 +16,7 @@ struct LocalizeArgs {
   uint64_t seed = 1;
   MethodOptions options;
   std::string loss = "none";
+  std::string observation_model = "pixel_columns";  // batch and window: range_bearing | pixel_columns | pixels
   std::string frontend = "pixels";            // pixels | images (tools/stereoloc/frontend_source.h)
   std::string frontend_landmarks = "all";     // all | goal_corners (with --frontend images)
   std::string frontend_params;                // frontend parameters YAML (empty: defaults)

@@ -145,6 +145,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
     c.robust_loss.type = o.loss;
     c.robust_loss.scale = o.loss_scale;
+    c.observation_model = {o.observation_model, d.rig};
     SlidingWindowSmoother w(d.map, d.odometry, c);
     run = runEstimator(w, d);
   } else {  // batch
@@ -152,6 +153,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.init = beliefFor(init_mode, d, o, rng);
     c.loss.type = o.loss;
     c.loss.scale = o.loss_scale;
+    c.observation_model = {o.observation_model, d.rig};
     BatchSmoother b(d.map, d.odometry, c);
     run = runEstimator(b, d);
   }

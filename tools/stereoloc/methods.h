@@ -18,7 +18,11 @@ struct MethodOptions {
   InitConfig init_config;            // noise of the known start, spread of the random start
   int particles = 3000;              // pf
   int window = 20;                   // window
-  RobustLoss loss = RobustLoss::None;  // batch and window range-bearing factors
+  RobustLoss loss = RobustLoss::None;  // batch and window observation factors
+  // Batch and window, with the dataset's rig. The CLI default is the pixel columns: the same
+  // data as range-bearing, without the conversion bias (solvers/smoother_common.h); observations
+  // without pixels (real range-bearing data) stay range-bearing.
+  ObservationModel observation_model = ObservationModel::PixelColumns;
   double loss_scale = 2.0;           // whitened units
   bool gate_enabled = true;          // ekf, window
 };

@@ -144,6 +144,7 @@ void writeStudyYaml(const StudyConfig& c, const std::string& path) {
   w.put("particles", c.method_options.particles);
   w.put("window", c.method_options.window);
   w.put("init", toString(c.method_options.init));
+  w.put("observation_model", toString(c.method_options.observation_model));
   w.writeAtomically(path);
 }
 
@@ -166,6 +167,12 @@ StudyConfig readStudyYaml(const std::string& path) {
   c.method_options.particles = in.getInt("particles");
   c.method_options.window = in.getInt("window");
   c.method_options.init = initModeFromString(in.getString("init"));
+  const std::string model = in.getString("observation_model", "range_bearing");  // before it was an option
+  try {
+    c.method_options.observation_model = observationModelFromString(model);
+  } catch (const Error& e) {
+    in.fail("observation_model", e.what());
+  }
   return c;
 }
 
@@ -659,6 +666,9 @@ void writeReport(const StudyConfig& c, const std::vector<TrialRow>& rows, const 
        << ", unidentified corners associated by each estimator at its current belief; see README).\n\n";
   else
     md << " (simulated stereo pixels of the goal corners, 0.5 px noise; see README).\n\n";
+  md << "Batch and window use the observations as " << toString(c.method_options.observation_model)
+     << " (solvers/smoother_common.h: range_bearing is the thesis's form; pixel_columns compares u_l, u_r in the images; "
+        "pixels also the rows); the EKF and PF use range-bearing.\n\n";
   md << "Position RMSE pools every compared estimate of every trial; mean/std/min/max are the thesis's statistics of the "
         "distance to the true position. NEES is e^T P^-1 e (3 dof): a consistent estimator has mean 3 and about 95 % "
         "of its values inside the two-sided 95 % chi-square band. ms/step is wall-clock on this machine.\n\n";
@@ -885,7 +895,8 @@ void mergeStudies(const std::vector<std::string>& dirs, const std::string& out_d
     if (o.scenarios != c.scenarios || o.methods != c.methods || o.trials != c.trials || o.seed != c.seed ||
         o.frontend != c.frontend || o.frontend_landmarks != c.frontend_landmarks || o.image_noise != c.image_noise ||
         o.method_options.particles != c.method_options.particles ||
-        o.method_options.window != c.method_options.window || o.method_options.init != c.method_options.init)
+        o.method_options.window != c.method_options.window || o.method_options.init != c.method_options.init ||
+        o.method_options.observation_model != c.method_options.observation_model)
       throw Error(d + "/study.yaml: configuration differs from " + dirs.front() + "/study.yaml");
     std::set<std::pair<std::string, int>> here;
     for (const TrialRow& r : readTrialRows(d + "/trials.csv")) {

@@ -1,0 +1,118 @@
+#pragma once
+// Stereo pixel factor: a known landmark seen by the stereo rig, compared in the images, where
+// the sensor's noise lives (thesis 3.4-3.7 run forwards, as a factor).
+//
+//   r = (pi(p, l) - z) / sigma                       4 residuals (u_l, v_l, u_r, v_r), px / px
+//                                                    or 2 (u_l, u_r) with PixelResiduals::Columns
+//
+// p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y, z), world frame,
+// mm. pi: the rig's projection (StereoRig::project, src/stereo_rig.h) of l expressed in the
+// robot frame C0, with the head pan of the observation: C0 -> C1 (pan) -> C2 (offset, height,
+// tilt) -> u_l = o_u - f (y - b/2) / x, u_r = o_u - f (y + b/2) / x, v = o_v - f z / x.
+// z: the measured pixels; sigma: the pixel noise of each coordinate (independent, equal), so the
+// upper square-root information is I / sigma.
+//
+// Why a pixel factor beside the range-bearing factor (factors/range_bearing_factor.h): the
+// range-bearing form (3.6, 3.7, 5.32) converts each observation before estimation. The
+// conversion range = f b / d is nonlinear in the disparity d, and R (5.32) is evaluated at the
+// measured pixels, so an observation whose disparity came out large gets a small range AND a
+// small variance (R_rr grows with range^4): the weights correlate with the errors, and the
+// estimate is biased towards short ranges. Here the prediction is made at the estimate and the
+// residual is linear in the noise, which is the maximum-likelihood form of the sensor model.
+// Columns uses the same data as the range-bearing form of an untilted rig (u_l, u_r determine
+// range and bearing; a tilted rig's triangulation 3.4 also uses v);
+// All adds the rows, which carry range through the known heights of camera and landmark (a
+// point below the cameras appears lower the nearer it is) — information the range-bearing
+// form discards, valid as long as the rig's height and tilt are known.
+//
+// Evaluation fails (returns false, Ceres then shrinks the step) when the landmark is not in
+// front of the cameras at the evaluated pose.
+#include <ceres/autodiff_cost_function.h>
+
+#include <Eigen/Core>
+#include <cmath>
+#include <string>
+
+#include "src/error.h"
+#include "src/stereo_rig.h"
+
+namespace stereoloc {
+
+// Which pixel coordinates enter the residual.
+enum class PixelResiduals {
+  Columns,  // u_l, u_r: range and bearing (the data of the range-bearing form)
+  All,      // u_l, v_l, u_r, v_r: also the rows (range from the known heights)
+};
+
+struct StereoPixelFactor {
+  // rig: the stereo rig; landmark: (x, y, z) mm, world; pixels: the measured pixels; pan: head
+  // pan at the time of the images (rad); sigma: pixel noise (px, > 0).
+  StereoPixelFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels, double pan,
+                    double sigma, PixelResiduals residuals)
+      : landmark_(landmark), inv_sigma_(1.0 / sigma), rows_(residuals == PixelResiduals::All) {
+    // p_C2 = R_tilt^T (Rz(pan)^T p_C0 - t), t = (x_c, 0, h): a constant affine map per observation.
+    const double c = std::cos(pan), s = std::sin(pan);
+    Eigen::Matrix3d Rz_T;
+    Rz_T << c, s, 0, -s, c, 0, 0, 0, 1;
+    M_ = rig.tiltRotation().transpose() * Rz_T;
+    m_ = rig.tiltRotation().transpose() *
+         Eigen::Vector3d(rig.params().offset_x_mm, 0.0, rig.params().camera_height_mm);
+    f_ = rig.focal();
+    ou_ = rig.principalU();
+    ov_ = rig.principalV();
+    half_baseline_ = 0.5 * rig.params().baseline_mm;
+    z_ << pixels.u_left, pixels.v_left, pixels.u_right, pixels.v_right;
+  }
+
+  template <typename T>
+  bool operator()(const T* pose, T* residual) const {
+    using std::cos;
+    using std::sin;
+    // The landmark in C0: R(theta)^T (l_xy - t_xy), height unchanged (the floor is the plane z = 0).
+    const T dx = T(landmark_[0]) - pose[0], dy = T(landmark_[1]) - pose[1];
+    const T c = cos(pose[2]), s = sin(pose[2]);
+    const T p0[3] = {c * dx + s * dy, -s * dx + c * dy, T(landmark_[2])};
+    T p2[3];
+    for (int i = 0; i < 3; ++i)
+      p2[i] = T(M_(i, 0)) * p0[0] + T(M_(i, 1)) * p0[1] + T(M_(i, 2)) * p0[2] - T(m_[i]);
+    if (!(p2[0] > T(kMinDepth))) return false;  // behind (or at) the cameras: no projection
+    const T inv_x = T(1.0) / p2[0];
+    const T u_l = T(ou_) - T(f_) * (p2[1] - T(half_baseline_)) * inv_x;
+    const T u_r = T(ou_) - T(f_) * (p2[1] + T(half_baseline_)) * inv_x;
+    if (rows_) {
+      const T v = T(ov_) - T(f_) * p2[2] * inv_x;
+      residual[0] = T(inv_sigma_) * (u_l - T(z_[0]));
+      residual[1] = T(inv_sigma_) * (v - T(z_[1]));
+      residual[2] = T(inv_sigma_) * (u_r - T(z_[2]));
+      residual[3] = T(inv_sigma_) * (v - T(z_[3]));
+    } else {
+      residual[0] = T(inv_sigma_) * (u_l - T(z_[0]));
+      residual[1] = T(inv_sigma_) * (u_r - T(z_[2]));
+    }
+    return true;
+  }
+
+  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                     double pan, double sigma, PixelResiduals residuals) {
+    if (!(std::isfinite(sigma) && sigma > 0)) throw Error("stereo pixel factor: sigma must be a positive number");
+    if (!(std::isfinite(pixels.u_left) && std::isfinite(pixels.v_left) && std::isfinite(pixels.u_right) &&
+          std::isfinite(pixels.v_right) && std::isfinite(pan) && landmark.allFinite()))
+      throw Error("stereo pixel factor: pixels, pan and landmark must be finite");
+    auto* functor = new StereoPixelFactor(rig, landmark, pixels, pan, sigma, residuals);
+    if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<StereoPixelFactor, 4, 3>(functor);
+    return new ceres::AutoDiffCostFunction<StereoPixelFactor, 2, 3>(functor);
+  }
+
+  static constexpr double kMinDepth = 1e-6;  // mm, as StereoRig::project
+
+ private:
+  Eigen::Vector3d landmark_;
+  double inv_sigma_;
+  bool rows_;
+  Eigen::Matrix3d M_;
+  Eigen::Vector3d m_;
+  double f_ = 0, ou_ = 0, ov_ = 0, half_baseline_ = 0;
+  Eigen::Vector4d z_;
+};
+
+}  // namespace stereoloc
