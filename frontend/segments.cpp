@@ -263,7 +263,31 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
       double theta = peak.theta, rho = peak.rho;
       collect(edges, used, theta, rho, 0.5 * rho_step_px + 1.0, tol_bins);
       if (cand_.size() < min_pixels) break;
-      bool ok = fitLine(edges, cand_.data(), cand_.data() + cand_.size(), theta, theta, rho);
+      // Seed: the longest run of the cell's pixels without a gap over Gap_min along the peak's
+      // line. A cell (and its +-1 px margin) often holds pieces of several lines a few degrees
+      // apart (a far wall foot, the corner triangle's foot, the goal's foot); a fit through all
+      // of them has a compromise angle that none of them fits within the band.
+      {
+        const double c = std::cos(theta), s = std::sin(theta);
+        proj_.clear();
+        for (int i : cand_) proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
+        std::sort(proj_.begin(), proj_.end());
+        size_t best_b = 0, best_e = proj_.size(), b = 0;
+        double best_len = -1;
+        for (size_t k = 1; k <= proj_.size(); ++k)
+          if (k == proj_.size() || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
+            if (proj_[k - 1].first - proj_[b].first > best_len) {
+              best_len = proj_[k - 1].first - proj_[b].first;
+              best_b = b;
+              best_e = k;
+            }
+            b = k;
+          }
+        if (best_len < prm.min_piece_px) break;
+        seed_.clear();
+        for (size_t k = best_b; k < best_e; ++k) seed_.push_back(proj_[k].second);
+      }
+      bool ok = fitLine(edges, seed_.data(), seed_.data() + seed_.size(), theta, theta, rho);
       if (ok) {
         // The densest 2 band_px window of the pixels' distances from the fitted line, in bins of
         // band_px / 2: parallel edges in the cell are separate clusters, the fit lies between.

@@ -4,7 +4,9 @@
 // For each peak, strongest first:
 //  1. collect the unused edge pixels whose gradient direction is within +-direction_tolerance
 //     of theta and that lie within rho_step/2 + 1 px of the peak's line;
-//  2. fit the line by total least squares, take the offset where the pixels concentrate at that
+//  2. fit the line by total least squares to the longest run of them without a gap over Gap_min
+//     along the line (the seed: a cell often holds pieces of several lines a few deg apart),
+//     take the offset where the pixels concentrate at that
 //     angle (a histogram of their distances), then re-collect within +-band_px of it and
 //     refit (refit_iterations times): this is the "connected pixels in compliance with theta"
 //     step, done geometrically, and the recomputation of rho and theta that section 3.7
@@ -50,11 +52,10 @@ struct SegmentParams {
   // of a few degrees, and one Hough cell collects them all.
   double straightness_px = 1.0;
   double straightness_bin_px = 4.0;  // pixels are averaged in bins this long along the line
-  // A peak is verified again on its leftover pixels (the next of several parallel edges in
-  // one cell, whose own peak Algorithm 1's window suppressed), at most this many times. On
-  // bench_frontend (200 pairs) 2 raised the segment recall by 0.5 points but lowered the
-  // precision by 2.3 (more short far pieces with wrong ends), so the default is one round.
-  int rounds_per_peak = 1;
+  // A peak is verified again on its leftover pixels (the next of several edges in one cell,
+  // whose own peaks Algorithm 1's window suppressed), at most this many times. Each round fits
+  // from the longest gap-free run of the cell's pixels (the seed), so the others need a round.
+  int rounds_per_peak = 3;
   // Remove only the pixels of accepted segments (true), or every pixel a peak collected
   // (false, Algorithm 2 as printed): a peak that straddles two nearby lines must not eat the
   // pixels of the one it does not keep.
@@ -111,7 +112,7 @@ class SegmentExtractor {
   std::vector<std::pair<float, int>> proj_;
   std::vector<int> pix_, off_;
   std::vector<int> piece_, cuts_;
-  std::vector<int> hist_;
+  std::vector<int> hist_, seed_;
   BendScratch bend_scratch_;
 };
 

@@ -321,3 +321,43 @@ TEST(Segments, EdgeLeavingTheImageIsCreditedTheUnobservedFrame) {
     EXPECT_EQ(horizontal(without), 0) << "right " << right;
   }
 }
+
+// One Hough peak whose cell holds pieces of three lines a few degrees apart (as a far corner
+// triangle's foot, a wall foot and a goal foot): a fit through all of them has a compromise
+// angle that the longest one leaves by more than the band. The fit starts from the longest
+// gap-free run (the seed), so that edge comes out whole with its own angle and ends.
+TEST(Segments, CellWithSeveralLinesSeedsOnTheLongestRun) {
+  std::vector<EdgePixel> edges;
+  auto add = [&](double x0, double x1, double y0, double deg) {
+    const double a = kTwoPi / 4 + deg * kTwoPi / 360;  // gradient direction (down, tilted)
+    for (int x = static_cast<int>(x0); x <= static_cast<int>(x1); ++x) {
+      EdgePixel e;
+      e.x = static_cast<float>(x);
+      e.y = static_cast<float>(y0 + std::tan(deg * kTwoPi / 360) * (x - x0));
+      e.ix = static_cast<int16_t>(x);
+      e.iy = static_cast<int16_t>(std::lround(e.y));
+      e.angle = static_cast<float>(a);
+      e.mag = 200;
+      e.dir_bin = static_cast<uint16_t>(std::lround(a * 360 / kTwoPi) % 360);
+      edges.push_back(e);
+    }
+  };
+  add(10, 50, 52.0, -4.0);   // short piece, tilted the other way
+  add(60, 110, 50.0, 0.0);   // short piece
+  add(160, 300, 50.0, 5.0);  // the long edge: 141 px at 5 deg
+  HoughPeak peak;
+  peak.theta = kTwoPi / 4 + 2.0 * kTwoPi / 360;
+  peak.rho = 150 * std::cos(peak.theta) + 52.0 * std::sin(peak.theta);
+  SegmentExtractor ex;
+  std::vector<uint8_t> used;
+  std::vector<Segment> segs;
+  SegmentParams prm;
+  prm.rounds_per_peak = 1;
+  ex.extract(edges, {peak}, 3.0, prm, used, segs);
+  int long_ok = 0;
+  for (const Segment& s : segs) {
+    const double xa = std::min(s.x1, s.x2), xb = std::max(s.x1, s.x2), sl = (s.y2 - s.y1) / (s.x2 - s.x1);
+    if (std::fabs(xa - 160) < 1 && std::fabs(xb - 300) < 1 && std::fabs(sl - std::tan(5 * kTwoPi / 360)) < 0.002) ++long_ok;
+  }
+  EXPECT_EQ(long_ok, 1);
+}
