@@ -35,6 +35,8 @@ TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
   EXPECT_NE(r.output.find("  linearisation holds "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("  linearisation does not "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("  separation 20-40 deg "), std::string::npos) << r.output;  // fix2 by geometry
+  EXPECT_NE(r.output.find("  holds per fix "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("3-dof variance"), std::string::npos) << r.output;
   const std::string txt = readFile(dir.file("fixstudy.txt"));
   EXPECT_EQ(txt, r.output);
   const std::string csv = readFile(dir.file("fixes.csv"));
