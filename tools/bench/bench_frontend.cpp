@@ -3,7 +3,11 @@
 // cv::HoughLinesP and cv::createLineSegmentDetector on the same images.
 //
 //   bench_frontend [--pairs=N] [--goal-pairs=M] [--seed=S] [--no-table] [--diag] [benchmark flags]
-//   (--diag: per-failure breakdown of the segment matching by reason, kind, length, row, occlusion)
+//   (--diag: per-failure breakdown of the segment matching by reason, kind, length, row, occlusion,
+//    luma contrast across the missed truth edge, and recall per truth kind)
+//   Environment: STEREOLOC_BENCH_PARAMS=file.yaml scores other frontend parameters;
+//   STEREOLOC_BENCH_SAMPLES=n renders with n x n samples per pixel (default 2, the renderer's);
+//   STEREOLOC_BENCH_VERBOSE lists every failure; STEREOLOC_BENCH_DUMP=dir writes a few pairs.
 //
 // Test set (seeded): N general pairs at random poses (uniform on the field, any heading), a
 // ball and 0-3 robots at random, half of them with the "bad illumination" of Fig. 6.2
@@ -19,7 +23,11 @@
 // fitting band): Algorithm 2 is specified to merge such collinear pixel groups into one
 // segment, and far away the tops of walls, corner triangles and goals form one such
 // near-straight silhouette. Ground-truth pieces shorter than L_min (30 px) are
-// optional (not counted in recall; a detection of one is correct). Detections on the
+// optional (not counted in recall; a detection of one is correct), and so is an inner top
+// edge (wall_top, goal_top, triangle_top) that lies within 1 px of the top_outline silhouette
+// over >= 80 % of its length: the top face between them is thinner than a pixel in the image,
+// so they are one image edge with the silhouette's ends (see truthSegments; counted and
+// printed). Detections on the
 // centre circle (not straight, not in the truth) and on obstacles are ignored. The table
 // prints how many truth pieces are optional and how many detections were ignored.
 // Truth kinds: markings (centre lines), wall/goal feet and inner top edges, goal posts,
