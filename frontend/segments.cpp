@@ -425,6 +425,15 @@ void mergeCollinearSegments(const std::vector<EdgePixel>& edges, const SegmentPa
           return std::fabs(x * std::cos(l.theta) + y * std::sin(l.theta) - l.rho);
         };
         if (off(a, b.x1, b.y1) > 2 * prm.straightness_px || off(a, b.x2, b.y2) > 2 * prm.straightness_px) continue;
+        // No step at the gap: each piece's near end within straightness_px of the other's line
+        // (a joint fit alone tilts to pass between two parallel edges stepped by 2 px, a far
+        // wall foot and the goal's foot beside it).
+        const bool a_first = a0 < b0;
+        const double ax = (tOf(a.x1, a.y1) > tOf(a.x2, a.y2)) == a_first ? a.x1 : a.x2;
+        const double ay = (tOf(a.x1, a.y1) > tOf(a.x2, a.y2)) == a_first ? a.y1 : a.y2;
+        const double bx = (tOf(b.x1, b.y1) < tOf(b.x2, b.y2)) == a_first ? b.x1 : b.x2;
+        const double by = (tOf(b.x1, b.y1) < tOf(b.x2, b.y2)) == a_first ? b.y1 : b.y2;
+        if (off(a, bx, by) > prm.straightness_px || off(b, ax, ay) > prm.straightness_px) continue;
         // Joint fit over both pixel sets.
         merge_pix_.assign(pix_.begin() + off_[i], pix_.begin() + off_[i + 1]);
         merge_pix_.insert(merge_pix_.end(), pix_.begin() + off_[j], pix_.begin() + off_[j + 1]);

@@ -260,7 +260,7 @@ void segmentsOf(const std::vector<EdgePixel>& edges, const std::vector<std::pair
 }  // namespace
 
 // Two pieces of one line (0.3 px apart, 20 px gap) that came from different peaks become one
-// segment over both; a piece stepped by 2 px, one bent by 4 deg, and one of opposite gradient
+// segment over both; pieces stepped by 2 px or 1.4 px, bent by 4 deg, or of opposite gradient
 // stay apart.
 TEST(Segments, CollinearPiecesOfDifferentPeaksMerge) {
   std::vector<EdgePixel> edges;
@@ -277,12 +277,13 @@ TEST(Segments, CollinearPiecesOfDifferentPeaksMerge) {
   ASSERT_EQ(off.size(), 2u);
   EXPECT_EQ(off[1], 162);
 
-  for (int variant = 0; variant < 3; ++variant) {
+  for (int variant = 0; variant < 4; ++variant) {
     edges.clear();
     addEdge(edges, 20, 100, 50.0, 0.0);
     if (variant == 0) addEdge(edges, 120, 200, 52.0, 0.0);                           // 2 px step
     if (variant == 1) addEdge(edges, 101, 181, 50.0, std::tan(4.0 * kTwoPi / 360));  // 4 deg bend
     if (variant == 2) addEdge(edges, 120, 200, 50.3, 0.0);
+    if (variant == 3) addEdge(edges, 120, 200, 51.4, 0.0);  // 1.4 px step: a joint fit passes between
     segmentsOf(edges, {{0, 81}, {81, 162}}, segs, pix, off);
     if (variant == 2) {  // opposite gradient: the other side of a stripe
       for (size_t k = 81; k < edges.size(); ++k) edges[k].angle = static_cast<float>(3 * kTwoPi / 4);
