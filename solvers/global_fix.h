@@ -122,8 +122,8 @@ struct GlobalFixOptions {
   int multi_max_iterations = 50;  // Ceres iterations of the least-squares fix
   // How the fixes' covariances are computed (see FixCovariance). Default: sigma points.
   FixCovariance covariance = FixCovariance::SigmaPoints;
-  // SigmaPoints: propagate the range of an observation that came from the stereo rig
-  // (Observation::pixels set) as inverse range rho = 1/r. Stereo range is r = f b / disparity
+  // SigmaPoints, and the least-squares fix's residual: treat the range of an observation that
+  // came from the stereo rig (Observation::pixels set) as inverse range rho = 1/r. Stereo range is r = f b / disparity
   // (3.4, 3.6), so rho is linear in the pixels: its noise is Gaussian with a variance that does
   // not depend on the (noisy) disparity, whereas r is skewed and its variance R(0,0) ~ r^4 is
   // evaluated at the noisy range. Observations without pixels (range sensors) keep r.
@@ -167,7 +167,8 @@ RunningFixResult runningFix(const Observation& earlier, const Observation& later
                             const std::optional<Eigen::Vector2d>& coarse_prior = std::nullopt,
                             const GlobalFixOptions& options = {});
 
-// multi: minimises sum |S_i (h(p, l_i) [-] z_i)|^2 (+ the compass residual) with Ceres, started
+// multi: minimises sum |S_i (h(p, l_i) [-] z_i)|^2 (+ the compass residual; stereo ranges as
+// inverse range, see GlobalFixOptions::stereo_inverse_range) with Ceres, started
 // from both candidates of the best pair (or from fix1 when only one pair is missing), covariance
 // (J^T W J)^-1 at the optimum. Needs n >= 3, or n >= 2 with a compass (nullopt = no compass).
 GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,

@@ -19,11 +19,15 @@ namespace {
 
 // r = S (h(p, l) [-] z), h = predictRangeBearingT (5.27); p = (x, y, theta) world (mm, rad),
 // l landmark (mm), z = (range mm, bearing rad) in C0, S the upper square-root information of R.
+// With `inverse` (stereo observations, GlobalFixOptions::stereo_inverse_range) the range row is
+// in inverse range, 1/h_r - 1/z_r (1/mm), and S whitens T R T^T, T = diag(-1/z_r^2, 1): stereo
+// range is f b / disparity (3.4, 3.6), so the inverse range is linear in the pixels and its noise
+// Gaussian, whereas the range's is skewed and R(0,0) ~ r^4 is evaluated at the noisy range.
 // (The same residual as the smoothers' range-bearing factor; kept local so that the solvers
 // library does not depend on a factors/ header for one functor.)
 struct FixRangeBearingResidual {
-  FixRangeBearingResidual(const Eigen::Vector2d& l, const Eigen::Vector2d& z, const Eigen::Matrix2d& S)
-      : l_(l), z_(z), S_(S) {}
+  FixRangeBearingResidual(const Eigen::Vector2d& l, const Eigen::Vector2d& z, const Eigen::Matrix2d& S, bool inverse)
+      : l_(l), z_(z), S_(S), inverse_(inverse) {}
   template <typename T>
   bool operator()(const T* pose, T* residual) const {
     const T dx = T(l_[0]) - pose[0], dy = T(l_[1]) - pose[1];
@@ -31,7 +35,7 @@ struct FixRangeBearingResidual {
     const T l[2] = {T(l_[0]), T(l_[1])};
     T h[2];
     predictRangeBearingT(pose, l, h);
-    const T e0 = h[0] - T(z_[0]);
+    const T e0 = inverse_ ? T(1.0) / h[0] - T(1.0 / z_[0]) : h[0] - T(z_[0]);
     const T e1 = wrapAngle<T>(h[1] - T(z_[1]));
     residual[0] = T(S_(0, 0)) * e0 + T(S_(0, 1)) * e1;
     residual[1] = T(S_(1, 1)) * e1;
@@ -39,6 +43,7 @@ struct FixRangeBearingResidual {
   }
   Eigen::Vector2d l_, z_;
   Eigen::Matrix2d S_;
+  bool inverse_;
 };
 
 // r = wrap(theta - theta_compass) / sigma: the compass as an absolute heading measurement (4.3.2).
@@ -59,13 +64,13 @@ struct Solved {
 };
 
 Solved solveFrom(const Pose2& start, const std::vector<Observation>& obs, const std::vector<Eigen::Vector2d>& lms,
-                 const std::vector<Eigen::Matrix2d>& S, const std::optional<double>& compass, double compass_sigma,
-                 int max_iterations) {
+                 const std::vector<Eigen::Matrix2d>& S, const std::vector<bool>& inverse,
+                 const std::optional<double>& compass, double compass_sigma, int max_iterations) {
   double pose[3] = {start.x, start.y, start.theta};
   ceres::Problem problem;
   for (size_t i = 0; i < obs.size(); ++i)
     problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FixRangeBearingResidual, 2, 3>(
-                                 new FixRangeBearingResidual(lms[i], obs[i].z(), S[i])),
+                                 new FixRangeBearingResidual(lms[i], obs[i].z(), S[i], inverse[i])),
                              nullptr, pose);
   if (compass)
     problem.AddResidualBlock(
@@ -109,11 +114,16 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
   const double sigma_c = std::max(compass_sigma, options.compass_sigma_floor);
 
   std::vector<Eigen::Matrix2d> S(n);
+  std::vector<bool> inverse(n, false);
   for (size_t i = 0; i < n; ++i) {
     if (!(std::isfinite(observations[i].range) && std::isfinite(observations[i].bearing)) ||
         !landmarks[i].allFinite())
       throw Error("multi fix: observation " + std::to_string(i) + " is not finite");
-    S[i] = sqrtInformationUpper<2>(observations[i].covariance, "multi fix: observation covariance R");
+    inverse[i] = options.stereo_inverse_range && observations[i].pixels.has_value() && observations[i].range > 0.0;
+    Eigen::Matrix2d T = Eigen::Matrix2d::Identity();
+    if (inverse[i]) T(0, 0) = -1.0 / (observations[i].range * observations[i].range);
+    S[i] = sqrtInformationUpper<2>(Eigen::Matrix2d(T * observations[i].covariance * T.transpose()),
+                                   "multi fix: observation covariance R");
   }
 
   // Starting points: both intersections of the best-conditioned pair (so the ordering rule is
@@ -164,7 +174,7 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
 
   std::vector<Solved> solved;
   for (const Pose2& s : starts) {
-    Solved r = solveFrom(s, observations, landmarks, S, compass_theta, sigma_c, options.multi_max_iterations);
+    Solved r = solveFrom(s, observations, landmarks, S, inverse, compass_theta, sigma_c, options.multi_max_iterations);
     if (r.ok) solved.push_back(r);
   }
   if (solved.empty()) {
@@ -174,12 +184,14 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
   std::sort(solved.begin(), solved.end(), [](const Solved& a, const Solved& b) { return a.chi2 < b.chi2; });
   const Solved& best = solved.front();
 
-  // Covariance (J^T W J)^-1 at the optimum, with the analytic Jacobian of (5.27).
+  // Covariance (J^T W J)^-1 at the optimum, with the analytic Jacobian of (5.27); an inverse-range
+  // row is d(1/h_r) = -dh_r / h_r^2.
   Eigen::Matrix3d info = Eigen::Matrix3d::Zero();
   for (size_t i = 0; i < n; ++i) {
     Matrix23d H;
     try {
-      predictRangeBearing(best.pose, landmarks[i], &H);
+      const Eigen::Vector2d h = predictRangeBearing(best.pose, landmarks[i], &H);
+      if (inverse[i]) H.row(0) *= -1.0 / (h(0) * h(0));
     } catch (const GeometryError&) {
       f.status = FixStatus::Degenerate;
       return f;
