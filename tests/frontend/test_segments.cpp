@@ -362,3 +362,36 @@ TEST(Segments, CellWithSeveralLinesSeedsOnTheLongestRun) {
   }
   EXPECT_EQ(long_ok, 1);
 }
+
+// Two parallel edges 1.5 px apart in one Hough cell (far away, a wall foot and a goal foot or
+// marking edge): a least-squares line through all the pixels lies between them and belongs to
+// neither; the offset is put where the pixels concentrate, so the segment is the stronger edge.
+TEST(Segments, ParallelEdgesInOneCellGiveTheDenserEdgeNotTheirMean) {
+  std::vector<EdgePixel> edges;
+  auto add = [&](int x0, int x1, double y) {
+    for (int x = x0; x <= x1; ++x) {
+      EdgePixel e;
+      e.x = static_cast<float>(x);
+      e.y = static_cast<float>(y);
+      e.ix = static_cast<int16_t>(x);
+      e.iy = static_cast<int16_t>(std::lround(y));
+      e.angle = static_cast<float>(kTwoPi / 4);
+      e.mag = 200;
+      e.dir_bin = 90;
+      edges.push_back(e);
+    }
+  };
+  add(20, 139, 50.0);  // 120 px
+  add(40, 99, 51.5);   // 60 px, 1.5 px below
+  HoughPeak peak;
+  peak.theta = kTwoPi / 4;
+  peak.rho = 50.7;
+  SegmentExtractor ex;
+  std::vector<uint8_t> used;
+  std::vector<Segment> segs;
+  ex.extract(edges, {peak}, 3.0, SegmentParams(), used, segs);
+  ASSERT_FALSE(segs.empty());
+  EXPECT_NEAR(segs[0].rho, 50.0, 0.05);
+  EXPECT_NEAR(std::min(segs[0].x1, segs[0].x2), 20, 0.5);
+  EXPECT_NEAR(std::max(segs[0].x1, segs[0].x2), 139, 0.5);
+}
