@@ -128,6 +128,10 @@ ParticleFilter::ParticleFilter(const FieldMap& map, const OdometryParams& odomet
     throw Error("particle filter: likelihood_floor must be in (0, 1]");
   if (!(config_.resample_ess_fraction >= 0 && config_.resample_ess_fraction <= 1))
     throw Error("particle filter: resample_ess_fraction must be in [0, 1]");
+  if (!(config_.regularisation_ess_fraction >= 0 && config_.regularisation_ess_fraction <= 1))
+    throw Error("particle filter: regularisation_ess_fraction must be in [0, 1]");
+  if (!std::isfinite(config_.regularisation_bandwidth))
+    throw Error("particle filter: regularisation_bandwidth must be a number (< 0: automatic, 0: off)");
   const Bounds& b = map_.bounds();
   if (!(b.xmax > b.xmin && b.ymax > b.ymin)) throw Error("particle filter: map bounds are empty");
   log_floor_ = std::log(config_.likelihood_floor);
@@ -326,6 +330,24 @@ void ParticleFilter::resample() {
   uniform_weights_ = true;
 }
 
+void ParticleFilter::regularise(const Pose2& mean, const Eigen::Matrix3d& covariance, double h) {
+  if (!(h > 0 && h < 1)) return;
+  Eigen::LLT<Eigen::Matrix3d> llt(0.5 * (covariance + covariance.transpose()));
+  if (llt.info() != Eigen::Success || !covariance.allFinite()) return;  // a degenerate set: nothing to scale by
+  const Eigen::Matrix3d L = h * Eigen::Matrix3d(llt.matrixL());
+  // Kernel shrinkage (Liu and West, 2001): pulling each particle towards the mean by
+  // a = sqrt(1 - h^2) before adding the kernel keeps the mean and the covariance of the set;
+  // the plain kernel would inflate the covariance by (1 + h^2) at every resampling and, through
+  // the next bandwidth, feed on itself.
+  const double a = config_.regularisation_shrinkage ? std::sqrt(1.0 - h * h) : 1.0;
+  for (size_t i = 0; i < x_.size(); ++i) {
+    const Eigen::Vector3d e(normal_(rng_), normal_(rng_), normal_(rng_));
+    const Eigen::Vector3d d = L * e;
+    setParticle(i, mean.x + a * (x_[i] - mean.x) + d.x(), mean.y + a * (y_[i] - mean.y) + d.y(),
+                wrapAngle(mean.theta + a * angleDiff(th_[i], mean.theta) + d.z()));
+  }
+}
+
 void ParticleFilter::reinject(int count) {
   // Replaces `count` particles spread evenly over the set (after resampling they are in
   // random order only for the roulette, so a stride keeps the choice independent of weight).
@@ -463,7 +485,17 @@ Estimate ParticleFilter::process(const Step& step) {
   }
   summarise(&mean_, &cov_);  // (5.37), before resampling: the weighted set is the posterior
   if (observed) {
-    if (effectiveSampleSize() < config_.resample_ess_fraction * size() + 1e-9) resample();
+    const double ess = effectiveSampleSize();
+    if (ess < config_.resample_ess_fraction * size() + 1e-9) {
+      resample();
+      if (ess < config_.regularisation_ess_fraction * size()) {
+      const double d = 3.0;
+      const double h = config_.regularisation_bandwidth >= 0
+                           ? config_.regularisation_bandwidth
+                           : std::pow(4.0 / (size() * (d + 2.0)), 1.0 / (d + 4.0));
+      regularise(mean_, cov_, h);
+      }
+    }
     reinject(config_.reinjected);
   }
   if (lost) return finishStep(EstimateStatus::Lost);

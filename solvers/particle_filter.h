@@ -59,6 +59,29 @@ struct ParticleFilterConfig {
   // Resample when the effective sample size 1 / sum w^2 falls below this fraction of N;
   // 1.0 resamples on every observed step, as Algorithm 6 does.
   double resample_ess_fraction = 1.0;
+  // Regularisation after resampling (the post-regularised PF of Musso, Oudjane and Le Gland,
+  // "Improving regularised particle filters", 2001, with the kernel shrinkage of Liu and West,
+  // 2001): each resampled particle p moves to m + a (p - m) + N(0, h^2 P), a = sqrt(1 - h^2),
+  // m and P the weighted posterior mean and covariance (5.37) computed before resampling, so the
+  // set keeps its mean and covariance. Resampling
+  // only copies particles, and with stereo bearings (~0.1 deg) far sharper than the prior, a few
+  // particles take all the weight; the copies then differ only by the small odometry noise and
+  // the cloud collapses to a point (NEES in the hundreds). < 0: the Gaussian kernel's optimal
+  // bandwidth h = (4 / (N (d + 2)))^(1 / (d + 4)), d = 3 (0.31 for N = 3000); 0: off (Algorithm 6
+  // as printed).
+  double regularisation_bandwidth = -1.0;
+  // Regularise only resamplings whose effective sample size before resampling was below this
+  // fraction of N (severe degeneracy: the likelihood much sharper than the prediction). There the
+  // posterior is set by the observations, so the kernel cannot feed on itself; with flatter
+  // weights the kernel would add to the prediction's spread at every step (1.0: always).
+  // Measured: simulated stereo (3000 particles) mean NEES 464 -> 13.6 and RMSE 1.60x -> 1.14x
+  // the EKF's; MR.CLAM robot 1 (3000) 1267 -> 438 mm. At 0.1 a 300-particle filter on a 30 s
+  // MR.CLAM slice lost the robot (1.8 m), at 0.03 it does not.
+  double regularisation_ess_fraction = 0.03;
+  // true: shrink towards the mean (Liu and West) so the set keeps its covariance; false: the
+  // plain kernel of Musso et al., which keeps separate modes apart but inflates the covariance
+  // by (1 + h^2).
+  bool regularisation_shrinkage = true;
   double likelihood_floor = 1e-3;  // per-observation likelihood floor, relative to the Gaussian's peak (0 < f <= 1)
   bool use_compass = true;         // weight with Step::compass when present
   // Odometry sampling (Algorithm 6, line 3). false: u ~ N(u(d), U) with U from (B.18), three
@@ -136,6 +159,9 @@ class ParticleFilter : public Estimator {
               const std::optional<double>& compass = std::nullopt, double compass_sigma = 0.0);
   void resample();
   void reinject(int count);
+  // Moves every particle p to mean + a (p - mean) + N(0, h^2 covariance), a = sqrt(1 - h^2)
+  // (see regularisation_bandwidth); 0 < h < 1, otherwise nothing happens.
+  void regularise(const Pose2& mean, const Eigen::Matrix3d& covariance, double h);
   // Weighted mean (circular for theta) and weighted covariance of the current particles.
   void summarise(Pose2* mean, Eigen::Matrix3d* covariance) const;
   double effectiveSampleSize() const;
