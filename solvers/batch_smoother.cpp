@@ -289,14 +289,17 @@ void BatchSmoother::solve() {
       RowMajor Ja(m, 3), Jb(m, 3);
       Eigen::VectorXd r(m);
       const double* params[2] = {&x[3 * static_cast<size_t>(l.a)], l.b >= 0 ? &x[3 * static_cast<size_t>(l.b)] : nullptr};
-      double* jac[2] = {Ja.data(), Jb.data()};
-      if (!l.cost->Evaluate(params, r.data(), jac) || !Ja.allFinite() || !Jb.allFinite()) return false;
+      // A unary factor has one parameter block: Jb is neither written nor read (checking its
+      // uninitialised contents made the result depend on the heap).
+      const bool binary = l.b >= 0;
+      double* jac[2] = {Ja.data(), binary ? Jb.data() : nullptr};
+      if (!l.cost->Evaluate(params, r.data(), jac) || !Ja.allFinite() || (binary && !Jb.allFinite())) return false;
       if (l.robust) {
         double rho[3];
         loss->Evaluate(r.squaredNorm(), rho);
         const double w = std::sqrt(std::max(rho[1], 0.0));
         Ja *= w;
-        Jb *= w;
+        if (binary) Jb *= w;
       }
       (*D)[static_cast<size_t>(l.a)] += Ja.transpose() * Ja;
       if (l.b >= 0) {
