@@ -12,6 +12,7 @@
 #include "src/pose2.h"
 #include "src/stereo_rig.h"
 #include "src/types.h"
+#include "stereo_sighting.h"
 
 namespace stereoloc {
 namespace {
@@ -26,27 +27,9 @@ StereoRig tiltedRig() {
   return StereoRig(p);
 }
 
-Eigen::VectorXd evaluate(const ceres::CostFunction& f, const double* pose) {
-  Eigen::VectorXd r(f.num_residuals());
-  const double* p[1] = {pose};
-  EXPECT_TRUE(f.Evaluate(p, r.data(), nullptr));
-  return r;
-}
-
-// A landmark ahead of the robot at `pose` (within +-0.4 rad of the head direction), and its
-// exact pixels.
-struct Sighting {
-  Eigen::Vector3d landmark;
-  StereoPixels pixels;
-};
-Sighting sight(const StereoRig& rig, const Pose2& pose, double pan, double range, double bearing, double height) {
-  const Eigen::Vector2d world = transformToWorld(pose, Eigen::Vector2d(range * std::cos(pan + bearing),
-                                                                       range * std::sin(pan + bearing)));
-  const Eigen::Vector3d local(range * std::cos(pan + bearing), range * std::sin(pan + bearing), height);
-  const std::optional<StereoPixels> px = rig.project(local, pan);
-  EXPECT_TRUE(px.has_value());
-  return {Eigen::Vector3d(world.x(), world.y(), height), px.value_or(StereoPixels{})};
-}
+using test::evaluateResidual;
+using test::sight;
+using test::Sighting;
 
 const double kHeadings[] = {kPi - 1e-7, -kPi + 1e-7, 0.3, -2.0};
 
@@ -62,7 +45,7 @@ TEST(StereoPixelFactor, ZeroAtTheRigProjectionAndWhitened) {
         const double p[3] = {pose.x, pose.y, pose.theta};
         std::unique_ptr<ceres::CostFunction> f(
             StereoPixelFactor::Create(rig, s.landmark, s.pixels, pan, 0.5, PixelResiduals::All));
-        EXPECT_LT(evaluate(*f, p).norm(), 1e-8) << th;
+        EXPECT_LT(evaluateResidual(*f, p).norm(), 1e-8) << th;
         // Measured pixels off by e: r = -e / sigma, in the order (u_l, v_l, u_r, v_r).
         const Eigen::Vector4d e(0.3, -0.2, 0.1, 0.4);
         const StereoPixels noisy{s.pixels.u_left + e[0], s.pixels.v_left + e[1], s.pixels.u_right + e[2],
@@ -71,7 +54,7 @@ TEST(StereoPixelFactor, ZeroAtTheRigProjectionAndWhitened) {
             StereoPixelFactor::Create(rig, s.landmark, noisy, pan, 0.5, PixelResiduals::All));
         std::unique_ptr<ceres::CostFunction> cols(
             StereoPixelFactor::Create(rig, s.landmark, noisy, pan, 0.5, PixelResiduals::Columns));
-        const Eigen::VectorXd ra = evaluate(*all, p), rc = evaluate(*cols, p);
+        const Eigen::VectorXd ra = evaluateResidual(*all, p), rc = evaluateResidual(*cols, p);
         ASSERT_EQ(ra.size(), 4);
         ASSERT_EQ(rc.size(), 2);
         EXPECT_LT((ra + e / 0.5).norm(), 1e-8);

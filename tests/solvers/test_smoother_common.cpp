@@ -8,31 +8,14 @@
 #include "src/pose2.h"
 #include "src/stereo_rig.h"
 #include "src/types.h"
+#include "stereo_sighting.h"
 
 namespace stereoloc {
 namespace {
 
-Eigen::VectorXd evaluate(const ceres::CostFunction& f, const double* pose) {
-  Eigen::VectorXd r(f.num_residuals());
-  const double* p[1] = {pose};
-  EXPECT_TRUE(f.Evaluate(p, r.data(), nullptr));
-  return r;
-}
-
-// A landmark ahead of the robot at `pose` (within +-0.4 rad of the head direction), and its
-// exact pixels.
-struct Sighting {
-  Eigen::Vector3d landmark;
-  StereoPixels pixels;
-};
-Sighting sight(const StereoRig& rig, const Pose2& pose, double pan, double range, double bearing, double height) {
-  const Eigen::Vector2d world = transformToWorld(pose, Eigen::Vector2d(range * std::cos(pan + bearing),
-                                                                       range * std::sin(pan + bearing)));
-  const Eigen::Vector3d local(range * std::cos(pan + bearing), range * std::sin(pan + bearing), height);
-  const std::optional<StereoPixels> px = rig.project(local, pan);
-  EXPECT_TRUE(px.has_value());
-  return {Eigen::Vector3d(world.x(), world.y(), height), px.value_or(StereoPixels{})};
-}
+using test::evaluateResidual;
+using test::sight;
+using test::Sighting;
 
 TEST(ObservationFactor, ChoosesTheFactorByModelAndData) {
   const StereoRig rig;
@@ -50,7 +33,7 @@ TEST(ObservationFactor, ChoosesTheFactorByModelAndData) {
     std::unique_ptr<ceres::CostFunction> b(makeObservationFactor(range_bearing, lm, config));
     EXPECT_EQ(a->num_residuals(), m == ObservationModel::Pixels ? 4 : 2) << toString(m);
     EXPECT_EQ(b->num_residuals(), 2) << toString(m);  // no pixels: range-bearing whatever the model
-    EXPECT_LT(evaluate(*a, p).norm(), 1e-6) << toString(m);
+    EXPECT_LT(evaluateResidual(*a, p).norm(), 1e-6) << toString(m);
     EXPECT_EQ(observationModelFromString(toString(m)), m);
   }
   Observation no_sigma = with_pixels;
