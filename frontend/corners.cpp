@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 namespace stereoloc::frontend {
 namespace {
@@ -21,6 +22,28 @@ void undirect(double theta, double rho, double& t_out, double& r_out) {
 }
 
 double along(double theta, double x, double y) { return -x * std::sin(theta) + y * std::cos(theta); }
+
+// The interval [lo, hi] of the line parameter t where the line lies inside the image (pixel
+// centres at integers, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]). Point(t) =
+// (rho cos - t sin, rho sin + t cos); each border is a half-space linear in t. lo > hi when the
+// line misses the image.
+std::pair<double, double> imageInterval(const LineFeature& l, int width, int height) {
+  const double c = std::cos(l.theta), s = std::sin(l.theta), x0 = l.rho * c, y0 = l.rho * s;
+  double lo = -1e30, hi = 1e30;
+  auto clip = [&](double p0, double dp, double pmin, double pmax) {  // pmin <= p0 + t dp <= pmax
+    if (std::fabs(dp) < 1e-12) {
+      if (p0 < pmin || p0 > pmax) hi = lo - 1;
+      return;
+    }
+    double a = (pmin - p0) / dp, b = (pmax - p0) / dp;
+    if (a > b) std::swap(a, b);
+    lo = std::max(lo, a);
+    hi = std::min(hi, b);
+  };
+  clip(x0, -s, -0.5, width - 0.5);
+  clip(y0, c, -0.5, height - 0.5);
+  return {lo, hi};
+}
 
 }  // namespace
 
@@ -136,23 +159,8 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
 void clipLinesToImage(int width, int height, std::vector<LineFeature>& lines) {
   size_t k = 0;
   for (LineFeature& l : lines) {
-    // Point(t) = (rho cos - t sin, rho sin + t cos); each border is a half-space linear in t.
-    const double c = std::cos(l.theta), s = std::sin(l.theta);
-    double t0 = l.t_min, t1 = l.t_max;
-    const double x0 = l.rho * c, y0 = l.rho * s;
-    auto clip = [&](double p0, double dp, double lo, double hi) {
-      // lo <= p0 + t dp <= hi
-      if (std::fabs(dp) < 1e-12) {
-        if (p0 < lo || p0 > hi) t1 = t0 - 1;
-        return;
-      }
-      double a = (lo - p0) / dp, b = (hi - p0) / dp;
-      if (a > b) std::swap(a, b);
-      t0 = std::max(t0, a);
-      t1 = std::min(t1, b);
-    };
-    clip(x0, -s, -0.5, width - 0.5);
-    clip(y0, c, -0.5, height - 0.5);
+    const auto [lo, hi] = imageInterval(l, width, height);
+    const double t0 = std::max(l.t_min, lo), t1 = std::min(l.t_max, hi);
     if (t1 <= t0) continue;
     l.t_min = t0;
     l.t_max = t1;
@@ -203,17 +211,8 @@ void snapLineEnds(int width, int height, const CornerParams& prm, std::vector<Li
     // No gradient is computed in the outermost 2 px (frontend/gradient.cpp), so an end within
     // border_snap_px of the image border has no evidence of ending there: the line runs on to
     // the border, where the renderer's truth is clipped too.
-    const double c = std::cos(l.theta), s = std::sin(l.theta), x0 = l.rho * c, y0 = l.rho * s;
-    double lo = -1e30, hi = 1e30;
-    auto range = [&](double p0, double dp, double pmin, double pmax) {
-      if (std::fabs(dp) < 1e-12) return;
-      double u = (pmin - p0) / dp, v = (pmax - p0) / dp;
-      if (u > v) std::swap(u, v);
-      lo = std::max(lo, u);
-      hi = std::min(hi, v);
-    };
-    range(x0, -s, -0.5, width - 0.5);
-    range(y0, c, -0.5, height - 0.5);
+    const auto [lo, hi] = imageInterval(l, width, height);
+    if (hi < lo) continue;  // not in the image at all
     if (l.t_min - lo <= prm.border_snap_px) l.t_min = std::max(lo, std::min(l.t_min, lo));
     if (hi - l.t_max <= prm.border_snap_px) l.t_max = std::min(hi, std::max(l.t_max, hi));
   }
