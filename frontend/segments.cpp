@@ -54,6 +54,23 @@ double bilinear(const cv::Mat& img, double x, double y) {
   const uint8_t* r1 = img.ptr<uint8_t>(y0 + 1);
   return (1 - fy) * ((1 - fx) * r0[x0] + fx * r0[x0 + 1]) + fy * ((1 - fx) * r1[x0] + fx * r1[x0 + 1]);
 }
+
+// A segment's end points: the extreme projections of its pixels [begin, end) onto its fitted
+// line (x cos theta + y sin theta = rho, t along (-sin, cos)); also its pixel count.
+void setExtent(const std::vector<EdgePixel>& edges, const int* begin, const int* end, Segment& seg) {
+  const double cs = std::cos(seg.theta), sn = std::sin(seg.theta);
+  double tmin = 1e30, tmax = -1e30;
+  for (const int* q = begin; q != end; ++q) {
+    const double t = -edges[*q].x * sn + edges[*q].y * cs;
+    tmin = std::min(tmin, t);
+    tmax = std::max(tmax, t);
+  }
+  seg.x1 = seg.rho * cs - tmin * sn;
+  seg.y1 = seg.rho * sn + tmin * cs;
+  seg.x2 = seg.rho * cs - tmax * sn;
+  seg.y2 = seg.rho * sn + tmax * cs;
+  seg.pixels = static_cast<int>(end - begin);
+}
 }  // namespace
 
 void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments) {
@@ -373,19 +390,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
           Segment seg;
           double rms = 0;
           if (!fitLine(edges, rb, re, theta, seg.theta, seg.rho, &rms)) continue;
-          const double cs = std::cos(seg.theta), sn = std::sin(seg.theta);
-          float tmin = 1e30f, tmax = -1e30f;
-          for (const int* q = rb; q != re; ++q) {
-            const EdgePixel& e = edges[*q];
-            const float t = static_cast<float>(-e.x * sn + e.y * cs);
-            tmin = std::min(tmin, t);
-            tmax = std::max(tmax, t);
-          }
-          seg.x1 = seg.rho * cs - tmin * sn;
-          seg.y1 = seg.rho * sn + tmin * cs;
-          seg.x2 = seg.rho * cs - tmax * sn;
-          seg.y2 = seg.rho * sn + tmax * cs;
-          seg.pixels = static_cast<int>(re - rb);
+          setExtent(edges, rb, re, seg);
           seg.rms = rms;
           segments.push_back(seg);
           for (const int* q = rb; q != re; ++q) {
@@ -443,18 +448,7 @@ void mergeCollinearSegments(const std::vector<EdgePixel>& edges, const SegmentPa
         if (off(m, a.x1, a.y1) > prm.straightness_px || off(m, a.x2, a.y2) > prm.straightness_px ||
             off(m, b.x1, b.y1) > prm.straightness_px || off(m, b.x2, b.y2) > prm.straightness_px)
           continue;
-        const double cs = std::cos(m.theta), ss = std::sin(m.theta);
-        double tmin = 1e30, tmax = -1e30;
-        for (int q : merge_pix_) {
-          const double t = -edges[q].x * ss + edges[q].y * cs;
-          tmin = std::min(tmin, t);
-          tmax = std::max(tmax, t);
-        }
-        m.x1 = m.rho * cs - tmin * ss;
-        m.y1 = m.rho * ss + tmin * cs;
-        m.x2 = m.rho * cs - tmax * ss;
-        m.y2 = m.rho * ss + tmax * cs;
-        m.pixels = static_cast<int>(merge_pix_.size());
+        setExtent(edges, merge_pix_.data(), merge_pix_.data() + merge_pix_.size(), m);
         m.rms = rms;
         // Rebuild the pixel lists: segment i becomes the merged one, j goes.
         std::vector<int> pix;
