@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
@@ -17,6 +18,10 @@
 
 namespace stereoloc {
 namespace {
+
+// Two colours (0..1 per channel) differ when a channel differs by more than a fifth of a grey
+// level: surfaces are flat-shaded, so samples on one surface are identical.
+constexpr float kColourTolerance = 0.2f / 255.0f;
 
 // World <- C2 rotation for a robot pose and head pan (tilt included).
 Eigen::Matrix3d visionToWorldRotation(const StereoRig& rig, const Pose2& robot, double pan) {
@@ -174,6 +179,8 @@ std::vector<SceneEdge> topOutlineEdges(const Scene& scene) {
 
 void RenderOptions::validate() const {
   if (samples_per_axis < 2 || samples_per_axis > 8) throw Error("render: samples_per_axis must be in 2..8");
+  if (edge_samples_per_axis != 0 && (edge_samples_per_axis <= samples_per_axis || edge_samples_per_axis > 16))
+    throw Error("render: edge_samples_per_axis must be 0 (off) or in samples_per_axis+1..16");
   auto finite_nonneg = [](double v, const char* name) {
     if (!(std::isfinite(v) && v >= 0)) throw Error(std::string("render: ") + name + " must be a finite number >= 0");
   };
@@ -197,9 +204,18 @@ StereoRenderer::StereoRenderer(const FieldMap& map, const StereoRig& rig, const 
       for (int j = 0; j < n; ++j)
         for (int i = 0; i < n; ++i) {
           // Regular n x n grid inside the pixel [u - 0.5, u + 0.5] x [v - 0.5, v + 0.5].
-          const double su = u - 0.5 + (i + 0.5) / n, sv = v - 0.5 + (j + 0.5) / n;
+          const double su = u - 0.5 + baseSampleOffset(i), sv = v - 0.5 + baseSampleOffset(j);
           rays_[k++] = Eigen::Vector3f(1.0f, static_cast<float>(-(su - ou) / f), static_cast<float>(-(sv - ov) / f));
         }
+}
+
+double StereoRenderer::baseSampleOffset(int i) const {
+  const int n = options_.samples_per_axis, fine = options_.edge_samples_per_axis;
+  if (fine > 0 && fine % n == 0) {
+    const int step = fine / n;
+    return (i * step + step / 2 + 0.5) / fine;
+  }
+  return (i + 0.5) / n;
 }
 
 StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const std::vector<Obstacle>& obstacles) const {
@@ -211,7 +227,9 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
   const Scene dynamic_scene = obstacles.empty() ? Scene() : Scene::fromMap(map_, obstacles);
   const Scene& scene = obstacles.empty() ? static_scene_ : dynamic_scene;
   const int W = rig_.params().image_width, H = rig_.params().image_height, n = options_.samples_per_axis;
-  const int spp = n * n;
+  const int spp = n * n, fine = options_.edge_samples_per_axis;
+  const bool nested = fine > 0 && fine % n == 0;
+  const int fine_step = nested ? fine / n : 1;
   const double f = rig_.focal(), ou = rig_.principalU(), ov = rig_.principalV();
   const Eigen::Matrix3d Rwv = visionToWorldRotation(rig_, robot, head_pan);
   const Eigen::Matrix3f Rf = Rwv.cast<float>();
@@ -259,82 +277,137 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
       if (outside[b]) outside_top = std::max(outside_top, p.zmax);
     }
     const bool cam_above_outside = cam.z() > outside_top;
+    // Colour seen along the sample ray d (world frame) from this camera.
+    auto shade = [&](const Eigen::Vector3d& d, std::vector<size_t>& candidates, std::vector<size_t>& inside,
+                     std::vector<size_t>& high) -> Colour {
+      RayHit best;
+      best.t = std::numeric_limits<double>::infinity();
+      bool hit_object = false;
+      RayHit h;
+      const bool descending = d.z() < 0;
+      bool in_column = false;
+      if (descending && cam_above_outside) {
+        const double tf = -cam.z() / d.z(), tt = (outside_top - cam.z()) / d.z();
+        const double fx = cam.x() + tf * d.x(), fy = cam.y() + tf * d.y();
+        const double tx = cam.x() + tt * d.x(), ty = cam.y() + tt * d.y();
+        in_column = fx > 0 && fx < g.length && fy > 0 && fy < g.width && tx > 0 && tx < g.length && ty > 0 &&
+                    ty < g.width;
+      }
+      const std::vector<size_t>& list = !descending ? high : in_column ? inside : candidates;
+      for (size_t b : list) {
+        const bool got = b < n_prisms ? scene.intersectPrism(b, cam, d, 0.0, best.t, &h)
+                                      : scene.intersectSphere(b - n_prisms, cam, d, 0.0, best.t, &h);
+        if (got) {
+          best = h;
+          hit_object = true;
+        }
+      }
+      if (descending) {
+        const double tf = -cam.z() / d.z();
+        if (tf < best.t) {
+          best.t = tf;
+          best.cls = scene.floorClass(cam.x() + tf * d.x(), cam.y() + tf * d.y());
+          best.normal = Eigen::Vector3d(0, 0, 1);
+          hit_object = true;
+        }
+      }
+      if (!hit_object) best.cls = SurfaceClass::Background;
+      return surfaceColour(best, options_.colours, options_.shading);
+    };
+    // The object candidates of pixel (u, v), split by what a sample ray can possibly hit (see above).
+    auto pixelCandidates = [&](int u, const std::vector<size_t>& row_objects, std::vector<size_t>& candidates,
+                               std::vector<size_t>& inside, std::vector<size_t>& high) {
+      candidates.clear();
+      inside.clear();
+      high.clear();
+      for (size_t b : row_objects)
+        if (u >= boxes[b].u0 && u <= boxes[b].u1) {
+          candidates.push_back(b);
+          if (!outside[b]) inside.push_back(b);
+          if (!low[b]) high.push_back(b);
+        }
+    };
+    auto rowObjects = [&](int v) {
+      std::vector<size_t> row_objects;
+      for (size_t b = 0; b < boxes.size(); ++b)
+        if (v >= boxes[b].v0 && v <= boxes[b].v1) row_objects.push_back(b);
+      return row_objects;
+    };
+    // Pass 1: the base n x n samples of every pixel, their mean, and whether they disagree.
+    std::vector<Colour> mean(static_cast<size_t>(W) * H);
+    std::vector<uint8_t> mixed(static_cast<size_t>(W) * H, 0);
+    auto baseRows = [&](int first_row, int step) {
+      std::vector<size_t> candidates, inside, high;
+      for (int v = first_row; v < H; v += step) {
+        const std::vector<size_t> row_objects = rowObjects(v);
+        for (int u = 0; u < W; ++u) {
+          pixelCandidates(u, row_objects, candidates, inside, high);
+          Colour sum = Colour::Zero(), first = Colour::Zero();
+          bool differ = false;
+          const Eigen::Vector3f* ray = &rays_[(static_cast<size_t>(v) * W + u) * spp];
+          for (int k = 0; k < spp; ++k) {
+            const Colour c = shade((Rf * ray[k]).cast<double>(), candidates, inside, high);
+            if (k == 0) first = c;
+            else differ = differ || (c - first).cwiseAbs().maxCoeff() > kColourTolerance;
+            sum += c;
+          }
+          const size_t i = static_cast<size_t>(v) * W + u;
+          mean[i] = sum / static_cast<float>(spp);
+          mixed[i] = differ ? 1 : 0;
+        }
+      }
+    };
+    // Pass 2: a pixel whose samples disagree, or whose mean differs from a 4-neighbour's (a stripe
+    // thinner than the base grid spacing may fall between this pixel's samples but not the
+    // neighbour's), is re-sampled on the finer edge grid; the others keep the base mean.
     cv::Mat img(H, W, CV_8UC3);
     auto renderRows = [&](int first_row, int step) {
       std::vector<size_t> candidates, inside, high;
-      candidates.reserve(boxes.size());
-      inside.reserve(boxes.size());
-      high.reserve(boxes.size());
       for (int v = first_row; v < H; v += step) {
-        std::vector<size_t> row_objects;
-        for (size_t b = 0; b < boxes.size(); ++b)
-          if (v >= boxes[b].v0 && v <= boxes[b].v1) row_objects.push_back(b);
+        const std::vector<size_t> row_objects = fine > 0 ? rowObjects(v) : std::vector<size_t>();
         cv::Vec3b* row = img.ptr<cv::Vec3b>(v);
         for (int u = 0; u < W; ++u) {
-          // Candidates of this pixel, split by what a sample ray can possibly hit (see above).
-          candidates.clear();
-          inside.clear();
-          high.clear();
-          for (size_t b : row_objects)
-            if (u >= boxes[b].u0 && u <= boxes[b].u1) {
-              candidates.push_back(b);
-              if (!outside[b]) inside.push_back(b);
-              if (!low[b]) high.push_back(b);
-            }
-          Colour sum = Colour::Zero();
-          const Eigen::Vector3f* ray = &rays_[(static_cast<size_t>(v) * W + u) * spp];
-          for (int k = 0; k < spp; ++k) {
-            const Eigen::Vector3d d = (Rf * ray[k]).cast<double>();
-            RayHit best;
-            best.t = std::numeric_limits<double>::infinity();
-            bool hit_object = false;
-            RayHit h;
-            const bool descending = d.z() < 0;
-            bool in_column = false;
-            if (descending && cam_above_outside) {
-              const double tf = -cam.z() / d.z(), tt = (outside_top - cam.z()) / d.z();
-              const double fx = cam.x() + tf * d.x(), fy = cam.y() + tf * d.y();
-              const double tx = cam.x() + tt * d.x(), ty = cam.y() + tt * d.y();
-              in_column = fx > 0 && fx < g.length && fy > 0 && fy < g.width && tx > 0 && tx < g.length && ty > 0 &&
-                          ty < g.width;
-            }
-            const std::vector<size_t>& list = !descending ? high : in_column ? inside : candidates;
-            for (size_t b : list) {
-              const bool got = b < n_prisms ? scene.intersectPrism(b, cam, d, 0.0, best.t, &h)
-                                            : scene.intersectSphere(b - n_prisms, cam, d, 0.0, best.t, &h);
-              if (got) {
-                best = h;
-                hit_object = true;
-              }
-            }
-            if (d.z() < 0) {
-              const double tf = -cam.z() / d.z();
-              if (tf < best.t) {
-                best.t = tf;
-                best.cls = scene.floorClass(cam.x() + tf * d.x(), cam.y() + tf * d.y());
-                best.normal = Eigen::Vector3d(0, 0, 1);
-                hit_object = true;
-              }
-            }
-            if (!hit_object) best.cls = SurfaceClass::Background;
-            sum += surfaceColour(best, options_.colours, options_.shading);
+          const size_t i = static_cast<size_t>(v) * W + u;
+          Colour c = mean[i];
+          bool refine = fine > 0 && mixed[i];
+          // An edge between two sample rows (columns) of neighbouring pixels leaves both uniform
+          // but different: compare with the 4-neighbours.
+          constexpr int kNeighbour[4][2] = {{-1, 0}, {1, 0}, {0, -1}, {0, 1}};
+          for (int k = 0; k < 4 && fine > 0 && !refine; ++k) {
+            const int uu = u + kNeighbour[k][0], vv = v + kNeighbour[k][1];
+            if (uu < 0 || uu >= W || vv < 0 || vv >= H) continue;
+            refine = (mean[static_cast<size_t>(vv) * W + uu] - c).cwiseAbs().maxCoeff() > kColourTolerance;
           }
-          sum *= 255.0f / static_cast<float>(spp);
+          if (refine) {
+            pixelCandidates(u, row_objects, candidates, inside, high);
+            // The base samples are points of the fine grid when it nests them: reuse them.
+            Colour sum = nested ? Colour(c * static_cast<float>(spp)) : Colour::Zero();
+            for (int j = 0; j < fine; ++j)
+              for (int k = 0; k < fine; ++k) {
+                if (nested && j % fine_step == fine_step / 2 && k % fine_step == fine_step / 2) continue;
+                const double su = u - 0.5 + (k + 0.5) / fine, sv = v - 0.5 + (j + 0.5) / fine;
+                const Eigen::Vector3f ray(1.0f, static_cast<float>(-(su - ou) / f), static_cast<float>(-(sv - ov) / f));
+                sum += shade((Rf * ray).cast<double>(), candidates, inside, high);
+              }
+            c = sum / static_cast<float>(fine * fine);
+          }
+          c *= 255.0f;
           // BGR
-          row[u] = cv::Vec3b(cv::saturate_cast<uchar>(sum.z()), cv::saturate_cast<uchar>(sum.y()),
-                             cv::saturate_cast<uchar>(sum.x()));
+          row[u] = cv::Vec3b(cv::saturate_cast<uchar>(c.z()), cv::saturate_cast<uchar>(c.y()),
+                             cv::saturate_cast<uchar>(c.x()));
         }
       }
     };
     const int threads = std::min(options_.threads, H);
-    if (threads <= 1) {
-      renderRows(0, 1);
-    } else {
+    auto runRows = [threads](const std::function<void(int, int)>& rows) {
+      if (threads <= 1) return rows(0, 1);
       std::vector<std::thread> pool;
-      for (int t = 1; t < threads; ++t) pool.emplace_back(renderRows, t, threads);
-      renderRows(0, threads);
+      for (int t = 1; t < threads; ++t) pool.emplace_back(rows, t, threads);
+      rows(0, threads);
       for (std::thread& th : pool) th.join();
-    }
+    };
+    runRows(baseRows);
+    runRows(renderRows);
     (camera == 0 ? out.left : out.right) = img;
     (void)n_spheres;
   }

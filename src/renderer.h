@@ -6,7 +6,11 @@
 // analytically with the floor plane (markings are analytic strips and rings) and with the
 // convex prisms / spheres of src/simulator_scene.h (walls, goals, corner triangles, obstacles,
 // ball). Every pixel averages samples_per_axis^2 rays (default 2 x 2 = 4) on a regular grid
-// inside the pixel, which anti-aliases the edges. The pixel (u, v) of the image is the point
+// inside the pixel, which anti-aliases the edges. Pixels on an edge (their samples disagree, or
+// their mean differs from a neighbour's) are re-sampled on a finer edge_samples_per_axis^2 grid
+// (default 4 x 4): a camera pixel integrates the light over its area, and 2 x 2 point samples
+// give only five coverage levels, which turns a far, nearly horizontal edge into a staircase of
+// 0.5-2 px steps and drops stripes thinner than half a pixel between the samples. The pixel (u, v) of the image is the point
 // u, v of StereoRig's projection (pixel centres at integer coordinates), so a landmark projected
 // by StereoRig::project lands exactly on the rendered feature.
 //
@@ -35,6 +39,7 @@ struct SimulationTrace;
 
 struct RenderOptions {
   int samples_per_axis = 2;     // samples per pixel = samples_per_axis^2 (>= 2 for anti-aliasing)
+  int edge_samples_per_axis = 4;  // finer grid on edge pixels (0 = off, else > samples_per_axis, <= 16)
   bool shading = true;          // dim surfaces by a fixed light direction (walls vs tops)
   double noise_sigma = 0.0;     // Gaussian sensor noise, grey levels (0..255), per channel
   double blur_sigma = 0.0;      // Gaussian blur, px (0 = none)
@@ -90,6 +95,12 @@ class StereoRenderer {
 
  private:
   StereoTruth computeTruth(const Scene& scene, const Pose2& robot, double head_pan) const;
+  // Offset in the pixel (0..1) of base sample i (0..samples_per_axis-1). Centred (i + 0.5) / n,
+  // except when the edge grid nests the base grid (edge_samples_per_axis a multiple of n): then
+  // the base samples are edge-grid points, still 1/n apart across the whole image, and a refined
+  // pixel reuses them. Uniform pixels, the only ones keeping the base samples, do not depend on
+  // where in the pixel they are sampled.
+  double baseSampleOffset(int i) const;
 
   FieldMap map_;
   StereoRig rig_;

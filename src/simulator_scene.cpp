@@ -1,6 +1,8 @@
 #include "src/simulator_scene.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 
 #include "src/error.h"
@@ -184,6 +186,51 @@ void Scene::precompute() {
       strip_rects_.emplace_back(std::nan(""), 0, 0, 0);
     }
   }
+  // Cell grid of floorClass over the only region where the floor is not background.
+  const FieldGeometry& g = geometry_;
+  constexpr double kCell = 20.0, kMargin = 1.0;  // mm; the margin keeps the lists conservative
+  cell_size_ = kCell;
+  cell_x0_ = -g.goal_depth;
+  cell_y0_ = 0.0;
+  cells_nx_ = std::max(1, static_cast<int>(std::ceil((g.length + 2 * g.goal_depth) / kCell)));
+  cells_ny_ = std::max(1, static_cast<int>(std::ceil(g.width / kCell)));
+  std::vector<std::vector<uint32_t>> lists(static_cast<size_t>(cells_nx_) * cells_ny_);
+  auto addBox = [&](double x0, double y0, double x1, double y1, uint32_t item) {
+    const int i0 = std::max(0, static_cast<int>(std::floor((x0 - kMargin - cell_x0_) / kCell)));
+    const int i1 = std::min(cells_nx_ - 1, static_cast<int>(std::floor((x1 + kMargin - cell_x0_) / kCell)));
+    const int j0 = std::max(0, static_cast<int>(std::floor((y0 - kMargin - cell_y0_) / kCell)));
+    const int j1 = std::min(cells_ny_ - 1, static_cast<int>(std::floor((y1 + kMargin - cell_y0_) / kCell)));
+    for (int j = j0; j <= j1; ++j)
+      for (int i = i0; i <= i1; ++i) lists[static_cast<size_t>(j) * cells_nx_ + i].push_back(item);
+  };
+  for (size_t k = 0; k < strips_.size(); ++k) {
+    const MarkingStrip& m = strips_[k];
+    const Eigen::Vector2d u = (m.b - m.a).normalized();
+    const Eigen::Vector2d lo = m.a - m.extend_a * u, hi = m.b + m.extend_b * u;
+    addBox(std::min(lo.x(), hi.x()) - m.half_width, std::min(lo.y(), hi.y()) - m.half_width,
+           std::max(lo.x(), hi.x()) + m.half_width, std::max(lo.y(), hi.y()) + m.half_width, static_cast<uint32_t>(k));
+  }
+  for (size_t k = 0; k < rings_.size(); ++k) {
+    const MarkingRing& r = rings_[k];
+    const double lo = r.radius - r.half_width - kMargin, hi = r.radius + r.half_width + kMargin;
+    for (int j = 0; j < cells_ny_; ++j)
+      for (int i = 0; i < cells_nx_; ++i) {
+        // Distance range from the centre to the cell's box.
+        const double bx0 = cell_x0_ + i * kCell, by0 = cell_y0_ + j * kCell;
+        const double nx = std::clamp(r.centre.x(), bx0, bx0 + kCell) - r.centre.x();
+        const double ny = std::clamp(r.centre.y(), by0, by0 + kCell) - r.centre.y();
+        const double fx = std::max(std::fabs(bx0 - r.centre.x()), std::fabs(bx0 + kCell - r.centre.x()));
+        const double fy = std::max(std::fabs(by0 - r.centre.y()), std::fabs(by0 + kCell - r.centre.y()));
+        if (std::hypot(nx, ny) <= hi && std::hypot(fx, fy) >= lo)
+          lists[static_cast<size_t>(j) * cells_nx_ + i].push_back(static_cast<uint32_t>(strips_.size() + k));
+      }
+  }
+  cell_start_.assign(lists.size() + 1, 0);
+  cell_items_.clear();
+  for (size_t c = 0; c < lists.size(); ++c) {
+    cell_items_.insert(cell_items_.end(), lists[c].begin(), lists[c].end());
+    cell_start_[c + 1] = static_cast<uint32_t>(cell_items_.size());
+  }
 }
 
 bool Scene::intersectPrism(size_t i, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
@@ -296,32 +343,48 @@ bool Scene::intersectSphere(size_t i, const Eigen::Vector3d& o, const Eigen::Vec
   return true;
 }
 
-SurfaceClass Scene::floorClass(double x, double y) const {
+bool Scene::onFloor(double x, double y) const {
   const FieldGeometry& g = geometry_;
-  const double cy = 0.5 * g.width;
   const bool in_field = x >= 0 && x <= g.length && y >= 0 && y <= g.width;
-  const bool in_goal = std::fabs(y - cy) <= 0.5 * g.goal_width && x >= -g.goal_depth && x <= g.length + g.goal_depth;
-  if (!in_field && !in_goal) return SurfaceClass::Background;
-  for (size_t i = 0; i < strips_.size(); ++i) {
-    const Eigen::Vector4d& r = strip_rects_[i];
-    if (!std::isnan(r[0])) {
-      if (x >= r[0] && x <= r[2] && y >= r[1] && y <= r[3]) return SurfaceClass::Marking;
-      continue;
-    }
-    const MarkingStrip& m = strips_[i];
-    const Eigen::Vector2d e = m.b - m.a;
-    const double len = e.norm();
-    const Eigen::Vector2d u = e / len;
-    const double px = x - m.a.x(), py = y - m.a.y();
-    const double along = px * u.x() + py * u.y();
-    if (along < -m.extend_a || along > len + m.extend_b) continue;
-    if (std::fabs(-px * u.y() + py * u.x()) <= m.half_width) return SurfaceClass::Marking;
-  }
-  for (const MarkingRing& r : rings_) {
+  const bool in_goal = std::fabs(y - 0.5 * g.width) <= 0.5 * g.goal_width && x >= -g.goal_depth &&
+                       x <= g.length + g.goal_depth;
+  return in_field || in_goal;
+}
+
+bool Scene::markingCovers(size_t item, double x, double y) const {
+  if (item >= strips_.size()) {
+    const MarkingRing& r = rings_[item - strips_.size()];
     const double dx = x - r.centre.x(), dy = y - r.centre.y(), d2 = dx * dx + dy * dy;
     const double lo = r.radius - r.half_width, hi = r.radius + r.half_width;
-    if (d2 >= lo * lo && d2 <= hi * hi) return SurfaceClass::Marking;
+    return d2 >= lo * lo && d2 <= hi * hi;
   }
+  const Eigen::Vector4d& r = strip_rects_[item];
+  if (!std::isnan(r[0])) return x >= r[0] && x <= r[2] && y >= r[1] && y <= r[3];
+  const MarkingStrip& m = strips_[item];
+  const Eigen::Vector2d e = m.b - m.a;
+  const double len = e.norm();
+  const Eigen::Vector2d u = e / len;
+  const double px = x - m.a.x(), py = y - m.a.y();
+  const double along = px * u.x() + py * u.y();
+  if (along < -m.extend_a || along > len + m.extend_b) return false;
+  return std::fabs(-px * u.y() + py * u.x()) <= m.half_width;
+}
+
+SurfaceClass Scene::floorClassLinearScan(double x, double y) const {
+  if (!onFloor(x, y)) return SurfaceClass::Background;
+  for (size_t i = 0; i < strips_.size() + rings_.size(); ++i)
+    if (markingCovers(i, x, y)) return SurfaceClass::Marking;
+  return SurfaceClass::Floor;
+}
+
+SurfaceClass Scene::floorClass(double x, double y) const {
+  if (!onFloor(x, y)) return SurfaceClass::Background;
+  if (cell_start_.empty()) return SurfaceClass::Floor;  // an empty scene has no markings
+  const int ci = std::clamp(static_cast<int>(std::floor((x - cell_x0_) / cell_size_)), 0, cells_nx_ - 1);
+  const int cj = std::clamp(static_cast<int>(std::floor((y - cell_y0_) / cell_size_)), 0, cells_ny_ - 1);
+  const size_t cell = static_cast<size_t>(cj) * cells_nx_ + ci;
+  for (uint32_t k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k)
+    if (markingCovers(cell_items_[k], x, y)) return SurfaceClass::Marking;
   return SurfaceClass::Floor;
 }
 

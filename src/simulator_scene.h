@@ -126,6 +126,8 @@ class Scene {
                        RayHit* hit) const;
   // The floor at (x, y): Floor, Marking, or Background when outside the field and goals.
   SurfaceClass floorClass(double x, double y) const;
+  // The same by testing every marking (no cell grid): the reference floorClass is tested against.
+  SurfaceClass floorClassLinearScan(double x, double y) const;
 
   // True when a solid object blocks the straight line from `from` to `to` (mm), ignoring the
   // last `tolerance_mm` before `to` (the landmark sits on a surface).
@@ -136,10 +138,19 @@ class Scene {
   std::vector<Prism> prisms_;
   std::vector<Sphere> spheres_;
   std::vector<MarkingStrip> strips_;
-  std::vector<Eigen::Vector4d> strip_rects_;
+  std::vector<Eigen::Vector4d> strip_rects_;  // (xmin, ymin, xmax, ymax) of axis-aligned strips, NaN otherwise
   std::vector<Eigen::Vector4d> box_rects_;    // (x0, y0, x1, y1) of prisms that are axis-aligned boxes in the
-                                              // (x0,y0)->(x1,y0)->(x1,y1)->(x0,y1) order, NaN otherwise  // (xmin, ymin, xmax, ymax) of axis-aligned strips, NaN otherwise
+                                              // (x0,y0)->(x1,y0)->(x1,y1)->(x0,y1) order, NaN otherwise
+  // floorClass's cell grid over the field and goals: the strips (index i) and rings (index
+  // strips_.size() + j) that may cover some point of each cell, so that a floor point tests only
+  // the markings near it (the renderer calls floorClass for every floor sample).
+  double cell_x0_ = 0.0, cell_y0_ = 0.0, cell_size_ = 1.0;
+  int cells_nx_ = 0, cells_ny_ = 0;
+  std::vector<uint32_t> cell_start_;  // cells_nx_ * cells_ny_ + 1 offsets into cell_items_
+  std::vector<uint32_t> cell_items_;
   void precompute();
+  bool onFloor(double x, double y) const;  // inside the field or a goal
+  bool markingCovers(size_t item, double x, double y) const;  // strip item, or ring item - strips_.size()
   std::vector<MarkingRing> rings_;
   std::vector<SceneEdge> edges_;
 };

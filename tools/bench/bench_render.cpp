@@ -1,4 +1,5 @@
 // Renders one 320x240 stereo pair of the MiroSot field (issue 3: at most 20 ms per pair).
+// Run with --benchmark_repetitions=5 and read the medians; compare variants within one run.
 #include <benchmark/benchmark.h>
 
 #include "src/renderer.h"
@@ -7,8 +8,9 @@ namespace {
 
 using namespace stereoloc;
 
-void renderPair(benchmark::State& state, int threads, bool truth, int obstacles) {
+void renderPair(benchmark::State& state, int threads, bool truth, int obstacles, int edge_samples = RenderOptions().edge_samples_per_axis) {
   RenderOptions o;
+  o.edge_samples_per_axis = edge_samples;
   o.threads = threads;
   o.compute_truth = truth;
   const FieldMap map = FieldMap::miroSot();
@@ -28,10 +30,13 @@ void renderPair(benchmark::State& state, int threads, bool truth, int obstacles)
 
 void BM_RenderPair(benchmark::State& s) { renderPair(s, 2, false, 0); }
 void BM_RenderPairOneThread(benchmark::State& s) { renderPair(s, 1, false, 0); }
+// The same without the edge-pixel refinement (2 x 2 samples everywhere): its cost, same run.
+void BM_RenderPairOneThreadNoEdgeRefinement(benchmark::State& s) { renderPair(s, 1, false, 0, 0); }
 void BM_RenderPairWithTruth(benchmark::State& s) { renderPair(s, 2, true, 0); }
 void BM_RenderPairObstacles(benchmark::State& s) { renderPair(s, 2, false, 5); }
 BENCHMARK(BM_RenderPair)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_RenderPairOneThread)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_RenderPairOneThreadNoEdgeRefinement)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_RenderPairWithTruth)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_RenderPairObstacles)->Unit(benchmark::kMillisecond)->UseRealTime();
 
