@@ -37,6 +37,7 @@
 #include "src/angles.h"
 #include "src/field_map.h"
 #include "src/pose2.h"
+#include "src/stereo_rig.h"
 #include "src/types.h"
 
 namespace stereoloc {
@@ -120,6 +121,15 @@ struct GlobalFixOptions {
   // solutions lies at impossible locations"); used by globalFix to resolve ambiguity.
   double bounds_margin_mm = 100.0;
   int multi_max_iterations = 50;  // Ceres iterations of the least-squares fix
+  // The least-squares fix's model of stereo observations. With a rig (the one that took the
+  // pixels, Dataset::rig), an observation that carries pixels and a positive pixel sigma, and
+  // the landmark's 3D position (the overload of fixFromLandmarks with Vector3d landmarks, and
+  // globalFix), the residual is the stereo pixel factor on (u_l, u_r) (factors/stereo_pixel_factor.h,
+  // PixelResiduals::Columns: the same data as range and bearing) whitened by 1 / pixel_sigma:
+  // predicted at the pose being estimated, so that the weights do not depend on the noisy
+  // measurement. Without a rig: range and bearing with R at the measured pixels (5.32).
+  // Measured with `stereoloc fixstudy` (goal corners, 0.5 px, 3.5 deg compass): see README.
+  std::optional<StereoRig> rig;
   // How the fixes' covariances are computed (see FixCovariance). Default: sigma points.
   FixCovariance covariance = FixCovariance::SigmaPoints;
   // SigmaPoints, and the least-squares fix's residual: treat the range of an observation that
@@ -136,8 +146,11 @@ struct GlobalFixOptions {
 
 // Best available fix from one step's observations (those with landmark_id >= 0; positions
 // from the map; an id the map lacks throws stereoloc::Error). Preference: multi (n >= 3, or
-// n >= 2 with a compass), then fix2, then fix1 with the closest landmark (smallest position
-// covariance). Returns NotEnoughLandmarks when no allowed method applies.
+// n >= 2 with a compass), then fix2 with the pair seen furthest apart (largest
+// |sin(psi_j - psi_i)|), then fix1 with the landmark seen closest to the optical axis. The
+// choices use the bearings, not the covariances, which grow with the measured (noisy) ranges:
+// choosing by them selects on the noise and makes the chosen fixes over-confident.
+// Returns NotEnoughLandmarks when no allowed method applies.
 GlobalFix globalFix(const Step& step, const FieldMap& map, const GlobalFixOptions& options = {});
 
 // fix2: the robot is where the circles |p - l_a| = r_a and |p - l_b| = r_b meet; the ordering
@@ -172,6 +185,11 @@ RunningFixResult runningFix(const Observation& earlier, const Observation& later
 // from both candidates of the best pair (or from fix1 when only one pair is missing), covariance
 // (J^T W J)^-1 at the optimum. Needs n >= 3, or n >= 2 with a compass (nullopt = no compass).
 GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
+                           const std::optional<double>& compass_theta, double compass_sigma,
+                           const GlobalFixOptions& options = {});
+// The same with 3D landmark positions (mm, world; z = height above the floor), which the pixel
+// residual needs (GlobalFixOptions::rig).
+GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector3d>& landmarks,
                            const std::optional<double>& compass_theta, double compass_sigma,
                            const GlobalFixOptions& options = {});
 

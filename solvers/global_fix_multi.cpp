@@ -8,7 +8,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 
+#include "factors/stereo_pixel_factor.h"
 #include "solvers/global_fix.h"
 #include "src/error.h"
 #include "src/gaussian.h"
@@ -63,15 +65,150 @@ struct Solved {
   double chi2 = std::numeric_limits<double>::infinity();  // 2 * Ceres cost = sum of squared whitened residuals
 };
 
-Solved solveFrom(const Pose2& start, const std::vector<Observation>& obs, const std::vector<Eigen::Vector2d>& lms,
-                 const std::vector<Eigen::Matrix2d>& S, const std::vector<bool>& inverse,
+// One residual block per observation: the stereo pixel factor or the range-bearing residual.
+struct ObservationCost {
+  bool pixels = false;  // StereoPixelFactor on (u_l, u_r) (GlobalFixOptions::rig)
+  Eigen::Vector2d l2;
+  Eigen::Vector3d l3;
+  Eigen::Vector2d z;
+  Eigen::Matrix2d S;  // range-bearing: upper square-root information (of T R T^T when inverse)
+  bool inverse = false;
+  const Observation* obs = nullptr;
+  // The cost with the measurement moved by `u` in whitened units (u = 0: as measured): pixels
+  // u_l, u_r += sigma u; range-bearing (or inverse range-bearing) += S^-1 u, the square root of
+  // its covariance. nullptr when the moved range is not positive.
+  ceres::CostFunction* create(const std::optional<StereoRig>& rig, const Eigen::Vector2d& u = Eigen::Vector2d::Zero()) const {
+    if (pixels) {
+      StereoPixels px = *obs->pixels;
+      px.u_left += obs->pixel_sigma * u(0);
+      px.u_right += obs->pixel_sigma * u(1);
+      return StereoPixelFactor::Create(*rig, l3, px, obs->head_pan, obs->pixel_sigma, PixelResiduals::Columns);
+    }
+    Eigen::Vector2d zz = z;
+    if (!u.isZero(0.0)) {
+      const Eigen::Vector2d dz = S.triangularView<Eigen::Upper>().solve(u);
+      if (inverse) {
+        const double rho = 1.0 / z(0) + dz(0);
+        if (!(rho > 0.0)) return nullptr;
+        zz(0) = 1.0 / rho;
+      } else {
+        zz(0) = z(0) + dz(0);
+        if (!(zz(0) > 0.0)) return nullptr;
+      }
+      zz(1) = z(1) + dz(1);
+    }
+    return new ceres::AutoDiffCostFunction<FixRangeBearingResidual, 2, 3>(new FixRangeBearingResidual(l2, zz, S, inverse));
+  }
+};
+
+// Gauss-Newton on the (whitened) residuals from `start`, for the sigma points of the covariance:
+// each moves the measurements a little, so the optimum moves a little and a few undamped steps
+// from the measured optimum converge. False when a residual cannot be evaluated or it does not
+// converge in 50 steps.
+bool gaussNewton(const std::vector<std::unique_ptr<ceres::CostFunction>>& costs, const std::optional<double>& compass,
+                 double compass_sigma, Pose2* pose) {
+  double x[3] = {pose->x, pose->y, pose->theta};
+  for (int it = 0; it < 50; ++it) {
+    Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d g = Eigen::Vector3d::Zero();
+    const double* params[] = {x};
+    for (const auto& c : costs) {
+      Eigen::Vector2d r;
+      Eigen::Matrix<double, 2, 3, Eigen::RowMajor> J;
+      double* jac[] = {J.data()};
+      if (!c->Evaluate(params, r.data(), jac)) return false;
+      H += J.transpose() * J;
+      g += J.transpose() * r;
+    }
+    if (compass) {
+      H(2, 2) += 1.0 / (compass_sigma * compass_sigma);
+      g(2) += angleDiff(x[2], *compass) / (compass_sigma * compass_sigma);
+    }
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(H);
+    if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return false;
+    const Eigen::Vector3d dx = -ldlt.solve(g);
+    if (!dx.allFinite()) return false;
+    x[0] += dx(0);
+    x[1] += dx(1);
+    x[2] = wrapAngle(x[2] + dx(2));
+    // Converged when the step is negligible against the estimate's own uncertainty (its
+    // Mahalanobis length under the information H below 1e-6 sigma).
+    if (dx.dot(H * dx) < 1e-12) {
+      *pose = Pose2(x[0], x[1], x[2]);
+      return true;
+    }
+  }
+  return false;
+}
+
+// Covariance of the least-squares fix by sigma points, like the closed forms' (FixCovariance::
+// SigmaPoints, global_fix.cpp): the mean squared error E[(f(z - n) - f(z))(...)^T] of the
+// estimator f = argmin about the estimate, over the measurement noise n, by the symmetric
+// fifth-degree rule in the m whitened noise coordinates (2 per observation, 1 for the compass):
+// points at +-sqrt(3) along each axis (weight (4 - m) / 18) and each pair of axes (1 / 36).
+// Why: with stereo the bearings are ~100x more precise than the ranges, so the bearing
+// difference pins the position to a thin band along the arc of constant inscribed angle
+// (4.2.3) whose curvature over the range uncertainty (sagitta ~ 1-2 mm at 0.5 m) exceeds the
+// band's width; (J^T W J)^-1 treats the arc as straight and is over-confident (fixstudy: mean
+// 2-dof NEES 3.9-4.8, 3-dof 5.9-8.7). False when a point fails or P is not positive definite.
+bool leastSquaresSigmaPoints(const std::vector<ObservationCost>& costs, const std::optional<StereoRig>& rig,
+                             const std::optional<double>& compass, double compass_sigma, const Pose2& estimate,
+                             Eigen::Matrix3d* mse) {
+  const int n = static_cast<int>(costs.size());
+  const int m = 2 * n + (compass ? 1 : 0);
+  const double s3 = std::sqrt(3.0);
+  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
+  Eigen::VectorXd u(m);
+  auto add = [&](double w) {
+    std::vector<std::unique_ptr<ceres::CostFunction>> moved;
+    for (int i = 0; i < n; ++i) {
+      moved.emplace_back(costs[i].create(rig, u.segment<2>(2 * i)));
+      if (!moved.back()) return false;
+    }
+    std::optional<double> c;
+    if (compass) c = *compass + compass_sigma * u(m - 1);
+    Pose2 g = estimate;
+    if (!gaussNewton(moved, c, compass_sigma, &g)) return false;
+    const Eigen::Vector3d d = minus(g, estimate);
+    P += w * d * d.transpose();
+    return true;
+  };
+  const double w_axis = (4.0 - m) / 18.0, w_pair = 1.0 / 36.0;
+  for (int k = 0; k < m; ++k)
+    for (double sk : {-s3, s3}) {
+      u.setZero();
+      u(k) = sk;
+      if (!add(w_axis)) return false;
+    }
+  for (int k = 0; k < m; ++k)
+    for (int l = k + 1; l < m; ++l)
+      for (double sk : {-s3, s3})
+        for (double sl : {-s3, s3}) {
+          u.setZero();
+          u(k) = sk;
+          u(l) = sl;
+          if (!add(w_pair)) return false;
+        }
+  P = 0.5 * (P + P.transpose());
+  Eigen::LLT<Eigen::Matrix3d> llt(P);
+  if (!P.allFinite() || llt.info() != Eigen::Success) return false;
+  *mse = P;
+  return true;
+}
+
+Solved solveFrom(const Pose2& start, const std::vector<ObservationCost>& costs, const std::optional<StereoRig>& rig,
                  const std::optional<double>& compass, double compass_sigma, int max_iterations) {
   double pose[3] = {start.x, start.y, start.theta};
   ceres::Problem problem;
-  for (size_t i = 0; i < obs.size(); ++i)
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<FixRangeBearingResidual, 2, 3>(
-                                 new FixRangeBearingResidual(lms[i], obs[i].z(), S[i], inverse[i])),
-                             nullptr, pose);
+  const double* params[] = {pose};
+  for (const ObservationCost& c : costs) {
+    ceres::CostFunction* cost = c.create(rig);
+    problem.AddResidualBlock(cost, nullptr, pose);
+    // A start where a residual is undefined (a landmark behind the cameras, e.g. the mirror
+    // candidate with the pixel residual) is skipped rather than handed to Ceres.
+    double r[2];
+    if (!cost->Evaluate(params, r, nullptr)) return Solved{};
+  }
   if (compass)
     problem.AddResidualBlock(
         new ceres::AutoDiffCostFunction<CompassResidual, 1, 3>(new CompassResidual(*compass, compass_sigma)), nullptr,
@@ -98,12 +235,16 @@ Solved solveFrom(const Pose2& start, const std::vector<Observation>& obs, const 
 
 }  // namespace
 
-GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
-                           const std::optional<double>& compass_theta, double compass_sigma,
-                           const GlobalFixOptions& options) {
-  if (observations.size() != landmarks.size())
+namespace {
+
+GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations, const std::vector<Eigen::Vector3d>& landmarks3,
+                               bool heights_known, const std::optional<double>& compass_theta, double compass_sigma,
+                               const GlobalFixOptions& options) {
+  if (observations.size() != landmarks3.size())
     throw Error("multi fix: " + std::to_string(observations.size()) + " observations but " +
-                std::to_string(landmarks.size()) + " landmark positions");
+                std::to_string(landmarks3.size()) + " landmark positions");
+  std::vector<Eigen::Vector2d> landmarks;
+  for (const Eigen::Vector3d& l : landmarks3) landmarks.push_back(l.head<2>());
   GlobalFix f;
   f.method = FixMethod::MultiLandmark;
   for (const Observation& o : observations) f.landmark_ids.push_back(o.landmark_id);
@@ -124,6 +265,20 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
     if (inverse[i]) T(0, 0) = -1.0 / (observations[i].range * observations[i].range);
     S[i] = sqrtInformationUpper<2>(Eigen::Matrix2d(T * observations[i].covariance * T.transpose()),
                                    "multi fix: observation covariance R");
+  }
+  std::vector<ObservationCost> costs(n);
+  for (size_t i = 0; i < n; ++i) {
+    const Observation& o = observations[i];
+    ObservationCost& c = costs[i];
+    c.pixels = options.rig.has_value() && heights_known && o.pixels.has_value() && o.pixel_sigma > 0.0;
+    if (c.pixels && !(landmarks3[i].allFinite() && std::isfinite(o.head_pan)))
+      throw Error("multi fix: observation " + std::to_string(i) + ": landmark or head pan is not finite");
+    c.l2 = landmarks[i];
+    c.l3 = landmarks3[i];
+    c.z = o.z();
+    c.S = S[i];
+    c.inverse = inverse[i];
+    c.obs = &o;
   }
 
   // Starting points: both intersections of the best-conditioned pair (so the ordering rule is
@@ -174,7 +329,7 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
 
   std::vector<Solved> solved;
   for (const Pose2& s : starts) {
-    Solved r = solveFrom(s, observations, landmarks, S, inverse, compass_theta, sigma_c, options.multi_max_iterations);
+    Solved r = solveFrom(s, costs, options.rig, compass_theta, sigma_c, options.multi_max_iterations);
     if (r.ok) solved.push_back(r);
   }
   if (solved.empty()) {
@@ -186,8 +341,24 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
 
   // Covariance (J^T W J)^-1 at the optimum, with the analytic Jacobian of (5.27); an inverse-range
   // row is d(1/h_r) = -dh_r / h_r^2.
+  // A pixel residual's Jacobian comes from its cost function (automatic differentiation of the
+  // projection, tested against central differences in tests/factors).
   Eigen::Matrix3d info = Eigen::Matrix3d::Zero();
   for (size_t i = 0; i < n; ++i) {
+    if (costs[i].pixels) {
+      const std::unique_ptr<ceres::CostFunction> cost(costs[i].create(options.rig));
+      const double pose[3] = {best.pose.x, best.pose.y, best.pose.theta};
+      const double* params[] = {pose};
+      Eigen::Vector2d r;
+      Eigen::Matrix<double, 2, 3, Eigen::RowMajor> J;
+      double* jac[] = {J.data()};
+      if (!cost->Evaluate(params, r.data(), jac)) {
+        f.status = FixStatus::Degenerate;
+        return f;
+      }
+      info += J.transpose() * J;
+      continue;
+    }
     Matrix23d H;
     try {
       const Eigen::Vector2d h = predictRangeBearing(best.pose, landmarks[i], &H);
@@ -213,6 +384,14 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
   f.covariance = llt.solve(Eigen::Matrix3d::Identity());
   f.covariance = 0.5 * (f.covariance + f.covariance.transpose());
   f.status = FixStatus::Ok;
+  if (options.covariance == FixCovariance::SigmaPoints) {
+    Eigen::Matrix3d mse;
+    if (leastSquaresSigmaPoints(costs, options.rig, compass_theta, sigma_c, best.pose, &mse)) {
+      f.covariance = mse;
+    } else {
+      f.nonlinearity = 1.0;  // keep (J^T W J)^-1
+    }
+  }
   // A second, clearly different optimum that fits almost as well: the data do not decide.
   for (size_t k = 1; k < solved.size(); ++k) {
     const Eigen::Vector3d dpose = minus(solved[k].pose, best.pose);
@@ -220,6 +399,22 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
     if (separation > 9.0 && solved[k].chi2 - best.chi2 < 4.0) f.status = FixStatus::Ambiguous;
   }
   return f;
+}
+
+}  // namespace
+
+GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
+                           const std::optional<double>& compass_theta, double compass_sigma,
+                           const GlobalFixOptions& options) {
+  std::vector<Eigen::Vector3d> l3;
+  for (const Eigen::Vector2d& l : landmarks) l3.emplace_back(l.x(), l.y(), 0.0);
+  return fixFromLandmarksImpl(observations, l3, false, compass_theta, compass_sigma, options);
+}
+
+GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector3d>& landmarks,
+                           const std::optional<double>& compass_theta, double compass_sigma,
+                           const GlobalFixOptions& options) {
+  return fixFromLandmarksImpl(observations, landmarks, true, compass_theta, compass_sigma, options);
 }
 
 }  // namespace stereoloc

@@ -486,7 +486,8 @@ TEST(GlobalFix, NeesOfRangeBearingMonteCarloIsConsistentInThreeDof) {
     a1.add(fixFromOneLandmark(oa, la, compass, sigma_c), truth);
     const GlobalFix f2 = fixFromTwoLandmarks(oa, ob, la, lb);
     if (f2.status == FixStatus::Ok) a2.add(f2, truth);
-    const GlobalFix fm = fixFromLandmarks({oa, ob, oc}, {la, lb, lc}, std::nullopt, 0.0);
+    const GlobalFix fm =
+        fixFromLandmarks({oa, ob, oc}, std::vector<Eigen::Vector2d>{la, lb, lc}, std::nullopt, 0.0);
     if (fm.status == FixStatus::Ok) am.add(fm, truth);
   }
   EXPECT_GT(a2.n, 0.99 * n);
@@ -743,7 +744,8 @@ TEST(GlobalFix, RunningFixSigmaPointsAreConsistentWhereSecondOrderIsNot) {
 // range row is the range row times -1/r^2 and its information r^4 times larger); with pixel noise
 // the optima differ. (Measured over the fixstudy scenarios with 2+ goal corners and a 3.5 deg
 // compass: position RMSE 56.3 -> 54.9 mm, mean 3-dof NEES 6.59 -> 6.22: the first-order
-// covariance of the least-squares fix stays over-confident with stereo.)
+// covariance of the least-squares fix stays over-confident with stereo; the sigma-point
+// covariance, now the default, is not: see MultiLandmarkSigmaPointsAreConsistentWithStereo.)
 TEST(GlobalFix, MultiLandmarkFitsStereoRangesAsInverseRange) {
   const StereoRig rig;
   const Eigen::Vector3d la(0, 450, 0), lb(0, 850, 0), lc(150, 450, 0);
@@ -757,8 +759,12 @@ TEST(GlobalFix, MultiLandmarkFitsStereoRangesAsInverseRange) {
     exact.push_back(*o);
   }
   const std::vector<Eigen::Vector2d> lms{la.head<2>(), lb.head<2>(), lc.head<2>()};
-  const GlobalFix fi = fixFromLandmarks(exact, lms, std::nullopt, 0.0);
-  const GlobalFix fr = fixFromLandmarks(exact, lms, std::nullopt, 0.0, range_space);
+  // (J^T W J)^-1 for the identity of the two parameterisations (the sigma points move the
+  // measurement in different spaces).
+  GlobalFixOptions inverse_fo = firstOrder(), range_fo = firstOrder();
+  range_fo.stereo_inverse_range = false;
+  const GlobalFix fi = fixFromLandmarks(exact, lms, std::nullopt, 0.0, inverse_fo);
+  const GlobalFix fr = fixFromLandmarks(exact, lms, std::nullopt, 0.0, range_fo);
   ASSERT_EQ(fi.status, FixStatus::Ok);
   ASSERT_EQ(fr.status, FixStatus::Ok);
   EXPECT_LT((fi.pose.translation() - truth.translation()).norm(), 1e-6);
@@ -779,6 +785,139 @@ TEST(GlobalFix, MultiLandmarkFitsStereoRangesAsInverseRange) {
     if (gi.hasPose() && gr.hasPose() && (gi.pose.translation() - gr.pose.translation()).norm() > 1e-3) ++differ;
   }
   EXPECT_GT(differ, 15);
+}
+
+// The least-squares fix with two goal corners and a 3.5 deg compass, stereo pixel noise 0.5 px
+// (the fixstudy setting). (J^T W J)^-1 is over-confident in position: the precise bearing
+// difference confines the position to a thin curved band (fixstudy: mean 2-dof NEES 3.9-4.8);
+// the sigma-point covariance (default) must be consistent in 2 and 3 dof, with the stereo
+// pixel residual (rig set, 3D landmarks) as with inverse range-bearing.
+TEST(GlobalFix, MultiLandmarkSigmaPointsAreConsistentWithStereo) {
+  const StereoRig rig;
+  const double sigma_px = 0.5, sigma_c = deg2rad(3.5);
+  const std::vector<Eigen::Vector3d> l3{{0, 450, 25}, {0, 850, 25}};
+  const Pose2 truth = facing(700, 560, Eigen::Vector2d(0, 650), 0.05);
+  GlobalFixOptions pixels;
+  pixels.rig = rig;
+  GlobalFixOptions jacobian = pixels;
+  jacobian.covariance = FixCovariance::FirstOrder;
+  std::mt19937_64 rng(77);
+  std::normal_distribution<double> N(0.0, 1.0);
+  NeesMoments sp_px, sp_rb, fo;
+  const int n = 600;
+  int fallback = 0;
+  for (int i = 0; i < n; ++i) {
+    std::vector<Observation> obs;
+    for (const Eigen::Vector3d& l : l3) {
+      const auto o = stereoObservation(rig, static_cast<int>(obs.size()), truth, l, sigma_px, &rng);
+      ASSERT_TRUE(o);
+      obs.push_back(*o);
+    }
+    const double compass = truth.theta + sigma_c * N(rng);
+    const GlobalFix a = fixFromLandmarks(obs, l3, compass, sigma_c, pixels);
+    const GlobalFix b = fixFromLandmarks(obs, l3, compass, sigma_c);  // no rig: inverse range-bearing
+    const GlobalFix c = fixFromLandmarks(obs, l3, compass, sigma_c, jacobian);
+    ASSERT_TRUE(a.hasPose() && b.hasPose() && c.hasPose());
+    fallback += a.nonlinearity >= 1.0 ? 1 : 0;  // fell back to (J^T W J)^-1
+    sp_px.add(a, truth);
+    sp_rb.add(b, truth);
+    fo.add(c, truth);
+  }
+  for (const auto& [acc, name] : {std::pair{sp_px, "pixels"}, std::pair{sp_rb, "range-bearing"}}) {
+    const auto c3 = acc.consistent(3), c2 = acc.consistent(2);
+    EXPECT_TRUE(c3) << name;
+    EXPECT_TRUE(c2) << name;
+    std::printf("multi %s sigma points: %s\nmulti %s sigma points: %s\n", name, c3.message(), name, c2.message());
+  }
+  std::printf("multi sigma points: %d of %d fixes fell back to (J^T W J)^-1\n", fallback, n);
+  EXPECT_EQ(fallback, 0);
+  EXPECT_FALSE(fo.consistent(2)) << "(J^T W J)^-1 should be over-confident here";
+  std::printf("multi (J^T W J)^-1: 2-dof mean NEES %.2f\n", fo.s2 / fo.n);
+}
+
+// The pixel residual: noise-free pixels give the exact pose; with noise it is a different
+// estimator from the range-bearing one (the same data, another parameterisation); without a
+// pixel sigma, or through the 2D overload (no heights), the range-bearing residual is used.
+TEST(GlobalFix, MultiLandmarkUsesThePixelResidualWhenItCan) {
+  const StereoRig rig;
+  const std::vector<Eigen::Vector3d> l3{{0, 450, 25}, {0, 850, 25}, {150, 450, 0}};
+  std::vector<Eigen::Vector2d> l2;
+  for (const Eigen::Vector3d& l : l3) l2.push_back(l.head<2>());
+  const Pose2 truth = facing(700, 600, Eigen::Vector2d(0, 650), 0.05);
+  GlobalFixOptions pixels;
+  pixels.rig = rig;
+  std::vector<Observation> exact;
+  for (const Eigen::Vector3d& l : l3) exact.push_back(*stereoObservation(rig, static_cast<int>(exact.size()), truth, l, 0.5, nullptr));
+  const GlobalFix f = fixFromLandmarks(exact, l3, std::nullopt, 0.0, pixels);
+  ASSERT_EQ(f.status, FixStatus::Ok);
+  EXPECT_LT((f.pose.translation() - truth.translation()).norm(), 1e-6);
+  EXPECT_NEAR(angleDiff(f.pose.theta, truth.theta), 0.0, 1e-9);
+
+  std::mt19937_64 rng(5);
+  int differ = 0, same_2d = 0, same_no_sigma = 0;
+  for (int i = 0; i < 10; ++i) {
+    std::vector<Observation> noisy;
+    for (const Eigen::Vector3d& l : l3) noisy.push_back(*stereoObservation(rig, static_cast<int>(noisy.size()), truth, l, 0.5, &rng));
+    const Pose2 px = fixFromLandmarks(noisy, l3, std::nullopt, 0.0, pixels).pose;
+    const Pose2 rb = fixFromLandmarks(noisy, l3, std::nullopt, 0.0).pose;
+    differ += (px.translation() - rb.translation()).norm() > 1e-6 ? 1 : 0;
+    same_2d += (fixFromLandmarks(noisy, l2, std::nullopt, 0.0, pixels).pose.translation() - rb.translation()).norm() < 1e-9 ? 1 : 0;
+    for (Observation& o : noisy) o.pixel_sigma = 0.0;
+    same_no_sigma += (fixFromLandmarks(noisy, l3, std::nullopt, 0.0, pixels).pose.translation() - rb.translation()).norm() < 1e-9 ? 1 : 0;
+  }
+  EXPECT_EQ(differ, 10);
+  EXPECT_EQ(same_2d, 10);
+  EXPECT_EQ(same_no_sigma, 10);
+}
+
+// globalFix chooses among landmarks by their bearings, not by their (noisy) covariances: fix1
+// takes the landmark seen closest to the optical axis, fix2 the pair seen furthest apart.
+TEST(GlobalFix, GlobalFixChoosesLandmarksByBearingNotByCovariance) {
+  const FieldMap map = FieldMap::miroSot();
+  std::vector<const Landmark*> goal;
+  for (const Landmark& l : map.landmarks())
+    if (l.type == LandmarkType::GoalCorner && l.position.x() < 1) goal.push_back(&l);
+  ASSERT_EQ(goal.size(), 2u);
+  // Looking at the far corner; the near one is off-axis, with the smaller covariance.
+  const Landmark* far_l = goal[0]->position.y() > goal[1]->position.y() ? goal[0] : goal[1];
+  const Landmark* near_l = far_l == goal[0] ? goal[1] : goal[0];
+  const Pose2 truth = facing(350, near_l->position.y() - 50, far_l->xy());
+  Step step;
+  step.step = 1;
+  step.compass = truth.theta;
+  step.compass_sigma = deg2rad(2.0);
+  const Observation o_near = exactObservation(near_l->id, truth, near_l->xy(), 5.0, 0.002);
+  const Observation o_far = exactObservation(far_l->id, truth, far_l->xy(), 40.0, 0.002);
+  step.observations = {o_near, o_far};
+  GlobalFixOptions only1;
+  only1.allow_multi = only1.allow_two_landmarks = false;
+  const GlobalFix f1 = globalFix(step, map, only1);
+  ASSERT_EQ(f1.method, FixMethod::OneLandmarkCompass);
+  ASSERT_EQ(f1.landmark_ids.size(), 1u);
+  EXPECT_EQ(f1.landmark_ids[0], far_l->id);  // on the axis, although its covariance is 64x larger
+  // fix2: of three landmarks, the pair with the widest bearing difference.
+  const Landmark* other = nullptr;
+  for (const Landmark& l : map.landmarks())
+    if (l.type == LandmarkType::MarkingCorner && l.position.x() < 300 && std::fabs(l.position.y() - far_l->position.y()) < 300)
+      other = &l;
+  ASSERT_NE(other, nullptr);
+  step.observations.push_back(exactObservation(other->id, truth, other->xy(), 1.0, 0.002));
+  step.compass.reset();
+  GlobalFixOptions only2;
+  only2.allow_multi = only2.allow_one_landmark = false;
+  const GlobalFix f2 = globalFix(step, map, only2);
+  ASSERT_EQ(f2.method, FixMethod::TwoLandmarks);
+  double widest = -1;
+  std::vector<int> widest_ids;
+  for (size_t i = 0; i < step.observations.size(); ++i)
+    for (size_t j = i + 1; j < step.observations.size(); ++j) {
+      const double s = std::fabs(std::sin(angleDiff(step.observations[j].bearing, step.observations[i].bearing)));
+      if (s > widest) {
+        widest = s;
+        widest_ids = {step.observations[i].landmark_id, step.observations[j].landmark_id};
+      }
+    }
+  EXPECT_EQ(f2.landmark_ids, widest_ids);
 }
 
 // The rule flags the far, badly conditioned fixes (section 4.4): goal corners seen from 1.3 m.

@@ -69,6 +69,23 @@ TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
             first.output);
 }
 
+// The least-squares fix's study: both observation models on the same steps, with NEES.
+TEST(CliFixstudy, MultiReportsBothObservationModels) {
+  const std::string tables = std::string(STEREOLOC_DATA_DIR) + "/thesis_tables.yaml";
+  const test::CliRun r = test::runCli("fixstudy --category rect --method multi --seed 3 --tables " + tables);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("Multi-landmark least squares (4.2.8), category rect"), std::string::npos) << r.output;
+  const size_t rb = r.output.find("range-bearing: fixes: "), px = r.output.find("pixels: fixes: ");
+  ASSERT_NE(rb, std::string::npos) << r.output;
+  ASSERT_NE(px, std::string::npos) << r.output;
+  // The same attempted steps for both models.
+  EXPECT_EQ(r.output.substr(rb + 15, 20), r.output.substr(px + 8, 20));
+  EXPECT_NE(r.output.find("NEES: mean 3-dof", px), std::string::npos);
+  EXPECT_EQ(r.output.find("Table 6.4"), std::string::npos);
+  EXPECT_EQ(r.output.find("Table 6.9"), std::string::npos);
+  EXPECT_EQ(test::runCli("fixstudy --category rect --method multi --seed 3 --tables " + tables).output, r.output);
+}
+
 TEST(CliFixstudy, RejectsBadArguments) {
   EXPECT_EQ(test::runCli("fixstudy --category circles").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --method fix3").exit_code, 2);

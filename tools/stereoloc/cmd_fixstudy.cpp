@@ -42,7 +42,8 @@ namespace {
 
 const std::vector<std::string> kCategories = {"rect", "spin-at", "rect-spin", "line-fixed", "line-turn"};
 const std::vector<double> kCompassLevelsDeg = {0, 1, 2, 3, 3.5, 4, 5, 6, 7, 8, 9, 10};
-const double kRangeBins[] = {600.0, 1000.0};  // mm: NEES by farthest landmark range <600, 600-1000, >1000
+const double kRangeBins[] = {600.0, 1000.0};
+const double kMultiCompassDeg = 3.5;  // compass of the multi-landmark study (the thesis's "< 3 deg" standing still)  // mm: NEES by farthest landmark range <600, 600-1000, >1000
 
 struct FixStudyArgs {
   std::string category = "all";
@@ -304,7 +305,7 @@ std::string neesMeanLine(const char* label, const std::vector<const Sample*>& v)
 
 // Mean NEES (3 dof and position-only 2 dof) with the 95 % band of such a mean: all fixes, split
 // by the linearisation rule, and by farthest landmark range.
-std::string neesLines(const std::vector<Sample>& v, double max_nonlinearity) {
+std::string neesLines(const std::vector<Sample>& v, double max_nonlinearity, bool split = true) {
   std::ostringstream os;
   std::vector<const Sample*> all, lin, nonlin, lin_fix, nonlin_fix;
   std::array<std::vector<const Sample*>, 3> by_range;
@@ -316,16 +317,22 @@ std::string neesLines(const std::vector<Sample>& v, double max_nonlinearity) {
   }
   if (all.empty()) return "NEES: no fixes\n";
   char buf[200];
-  std::snprintf(buf, sizeof(buf),
-                "NEES: mean 3-dof and position 2-dof, [95%% band of the mean]; linearisation holds when the "
-                "nonlinearity <= %.3g at the true measurement (per fix: at the fix's own measurement)\n",
-                max_nonlinearity);
+  if (split) {
+    std::snprintf(buf, sizeof(buf),
+                  "NEES: mean 3-dof and position 2-dof, [95%% band of the mean]; linearisation holds when the "
+                  "nonlinearity <= %.3g at the true measurement (per fix: at the fix's own measurement)\n",
+                  max_nonlinearity);
+  } else {
+    std::snprintf(buf, sizeof(buf), "NEES: mean 3-dof and position 2-dof, [95%% band of the mean]\n");
+  }
   os << buf;
   os << neesMeanLine("all fixes", all);
-  os << neesMeanLine("linearisation holds", lin);
-  os << neesMeanLine("linearisation does not", nonlin);
-  os << neesMeanLine("holds per fix", lin_fix);
-  os << neesMeanLine("does not per fix", nonlin_fix);
+  if (split) {
+    os << neesMeanLine("linearisation holds", lin);
+    os << neesMeanLine("linearisation does not", nonlin);
+    os << neesMeanLine("holds per fix", lin_fix);
+    os << neesMeanLine("does not per fix", nonlin_fix);
+  }
   const char* names[] = {"range < 600 mm", "range 600-1000 mm", "range >= 1000 mm"};
   for (int i = 0; i < 3; ++i) os << neesMeanLine(names[i], by_range[i]);
   std::array<std::vector<const Sample*>, 3> by_sep;
@@ -368,8 +375,9 @@ void runFixStudy(const FixStudyArgs& a) {
   } else {
     cats = {a.category};
   }
-  const bool do2 = a.method == "both" || a.method == "fix2";
-  const bool do1 = a.method == "both" || a.method == "fix1";
+  const bool do2 = a.method == "both" || a.method == "all" || a.method == "fix2";
+  const bool do1 = a.method == "both" || a.method == "all" || a.method == "fix1";
+  const bool doM = a.method == "all" || a.method == "multi";
   const std::string tables_path = a.tables.empty() ? defaultTablesPath() : a.tables;
 
   SimulationConfig cfg;
@@ -387,6 +395,10 @@ void runFixStudy(const FixStudyArgs& a) {
   opt1.covariance = model;
   opt1.allow_two_landmarks = false;
   opt1.allow_multi = false;
+  // The least-squares fix (n >= 2 landmarks + the compass at kMultiCompassDeg), with stereo
+  // observations as range-bearing (R at the measured pixels) and as pixels (rig set).
+  GlobalFixOptions optM_rb;
+  optM_rb.allow_one_landmark = optM_rb.allow_two_landmarks = false;
   // The linearisation rule is judged with sigma points for every covariance model.
   GlobalFixOptions sp2 = opt2, sp1 = opt1;
   sp2.covariance = sp1.covariance = FixCovariance::SigmaPoints;
@@ -451,6 +463,7 @@ void runFixStudy(const FixStudyArgs& a) {
     const int trials = scenarioTrialCount(cat);
     std::vector<Bucket> b2(modes.size());
     std::vector<std::vector<Bucket>> b1(modes.size(), std::vector<Bucket>(kCompassLevelsDeg.size()));
+    std::vector<std::array<Bucket, 2>> bm(modes.size());  // multi: [0] range-bearing, [1] pixels
     for (int trial = 0; trial < trials; ++trial) {
       for (int run = 0; run < a.runs; ++run) {
         const uint64_t s = mixSeed(a.seed, ci, static_cast<uint64_t>(trial), static_cast<uint64_t>(run));
@@ -479,6 +492,26 @@ void runFixStudy(const FixStudyArgs& a) {
               Nonlinearity nl;
               const GlobalFix f = fixWith(d, st, truth, opt2, sp2, &nl);
               record(b2[mi], f, nl, max_nl, st, truth, csv ? &csv->stream() : nullptr, prefix, mode_name);
+            }
+            if (doM) {
+              // Steps with at least two identified landmarks (else the method does not apply).
+              int identified = 0;
+              for (const Observation& o : st.observations) identified += o.landmark_id >= 0 ? 1 : 0;
+              if (identified >= 2) {
+                Step sm = st;
+                const double sigma = deg2rad(kMultiCompassDeg);
+                sm.compass = wrapAngle(truth.theta + sigma * z);
+                sm.compass_sigma = sigma;
+                for (int mm = 0; mm < 2; ++mm) {
+                  GlobalFixOptions om = optM_rb;
+                  if (mm == 1) om.rig = d.rig;
+                  std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,multi_%s,%g", cat.c_str(), trial, run,
+                                mm ? "pixels" : "range_bearing", kMultiCompassDeg);
+                  const GlobalFix f = globalFix(sm, d.map, om);
+                  record(bm[mi][mm], f, Nonlinearity{1.0, 1.0}, max_nl, sm, truth, csv ? &csv->stream() : nullptr,
+                         prefix, mode_name);
+                }
+              }
             }
             if (do1) {
               for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
@@ -520,6 +553,27 @@ void runFixStudy(const FixStudyArgs& a) {
       for (size_t mi = 0; mi < modes.size(); ++mi)
         report << (modes.size() > 1 ? groups[mi] + " " : "") << neesLines(b2[mi].fixes, max_nl);
       if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
+      report << "\n";
+    }
+    if (doM) {
+      std::snprintf(buf, sizeof(buf),
+                    "Multi-landmark least squares (4.2.8), category %s: steps with >= 2 identified landmarks and a "
+                    "%.1f deg compass; stereo observations as range-bearing (R at the measured pixels) or as pixels "
+                    "(u_l, u_r predicted at the pose, 1 / pixel sigma)\n",
+                    cat.c_str(), kMultiCompassDeg);
+      report << buf;
+      const char* model_names[] = {"range-bearing", "pixels"};
+      for (size_t mi = 0; mi < modes.size(); ++mi) {
+        for (int mm = 0; mm < 2; ++mm) {
+          const Bucket& b = bm[mi][mm];
+          report << (modes.size() > 1 ? groups[mi] + " " : "") << model_names[mm] << ": " << fixRateLine(b) << "\n";
+          if (b.fixes.empty()) continue;
+          std::snprintf(buf, sizeof(buf), "  mean |dx| %.2f mm, |dy| %.2f mm, |dtheta| %.3f deg\n",
+                        statsOf(b.fixes, &Sample::dx).mean, statsOf(b.fixes, &Sample::dy).mean,
+                        rad2deg(statsOf(b.fixes, &Sample::dtheta).mean));
+          report << buf << neesLines(b.fixes, max_nl, false);
+        }
+      }
       report << "\n";
     }
     if (do1) {
@@ -577,9 +631,11 @@ void add_fixstudy_command(CLI::App& app) {
   sub->add_option("--category", a->category, "rect, spin-at, rect-spin, line-fixed, line-turn or all")
       ->capture_default_str()
       ->check(CLI::IsMember({"rect", "spin-at", "rect-spin", "line-fixed", "line-turn", "all"}));
-  sub->add_option("--method", a->method, "fix1 (one landmark + compass), fix2 (two landmarks) or both")
+  sub->add_option("--method", a->method,
+                  "fix1 (one landmark + compass), fix2 (two landmarks), both, multi (least squares over >= 2 "
+                  "landmarks + compass, range-bearing and pixel models) or all")
       ->capture_default_str()
-      ->check(CLI::IsMember({"fix1", "fix2", "both"}));
+      ->check(CLI::IsMember({"fix1", "fix2", "both", "multi", "all"}));
   sub->add_option("--pixel-sigma", a->pixel_sigma, "Gaussian pixel noise on u_l, v_l, u_r, v_r (px)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
