@@ -6,12 +6,20 @@
 namespace stereoloc::frontend {
 namespace {
 
+// Nearest integer, halves away from zero, as std::lround; that is a libm call, and it sat in
+// the inner loop (the partner search below steps half a pixel at a time).
+inline int nearestInt(double v) {
+  const int t = static_cast<int>(v);  // towards zero
+  const double r = v - t;
+  return r >= 0.5 ? t + 1 : (r <= -0.5 ? t - 1 : t);
+}
+
 // Luma 2 px outside both edges of the stripe (p's dark side and beyond its partner at `width`
 // along the normal (c, s)) against the stripe's middle: a marking has floor on both sides.
 bool floorOnBothSides(const cv::Mat* luma, const EdgePixel& p, double c, double s, double width, double max_diff) {
   if (!luma || max_diff <= 0) return true;
   auto at = [&](double d, int& out) {
-    const int x = static_cast<int>(std::lround(p.x + d * c)), y = static_cast<int>(std::lround(p.y + d * s));
+    const int x = nearestInt(p.x + d * c), y = nearestInt(p.y + d * s);
     if (x < 0 || y < 0 || x >= luma->cols || y >= luma->rows) return false;
     out = luma->at<uint8_t>(y, x);
     return true;
@@ -40,7 +48,16 @@ void classifySegments(const GradientStage& grad, const SegmentExtractor& extract
     const int stride = std::max(1, static_cast<int>(std::lround(1.0 / std::clamp(prm.xi_h, 1e-3, 1.0))));
     widths.clear();
     long tested = 0;
+    // Pixels to test in all; once so few remain that even all of them with a partner cannot
+    // reach xi_l, the segment is not a marking (Algorithm 3 stops at the decision too, on the
+    // accepting side). The score is then the fraction over the pixels tested so far.
+    const long to_test = n > 0 ? (n - 1) / stride + 1 : 0;
+    bool rejected = false;
     for (long k = 0; k < n; k += stride) {
+      if (static_cast<double>(widths.size() + (to_test - tested)) < prm.xi_l * static_cast<double>(to_test)) {
+        rejected = true;
+        break;
+      }
       const EdgePixel& p = edges[b[k]];
       ++tested;
       double wmax = prm.min_width_px;
@@ -48,7 +65,7 @@ void classifySegments(const GradientStage& grad, const SegmentExtractor& extract
       int last_x = p.ix, last_y = p.iy;
       // Half-pixel steps along the normal, so no pixel of a diagonal partner edge is skipped.
       for (double d = 0.5; d <= wmax + 0.5; d += 0.5) {
-        const int qx = static_cast<int>(std::lround(p.x + d * c)), qy = static_cast<int>(std::lround(p.y + d * s));
+        const int qx = nearestInt(p.x + d * c), qy = nearestInt(p.y + d * s);
         if (qx == last_x && qy == last_y) continue;
         last_x = qx;
         last_y = qy;
@@ -65,7 +82,7 @@ void classifySegments(const GradientStage& grad, const SegmentExtractor& extract
       }
     }
     seg.marking_score = tested > 0 ? static_cast<double>(widths.size()) / tested : 0.0;
-    if (tested > 0 && seg.marking_score >= prm.xi_l) {
+    if (!rejected && tested > 0 && seg.marking_score >= prm.xi_l) {
       seg.cls = SegmentClass::Marking;
       std::nth_element(widths.begin(), widths.begin() + widths.size() / 2, widths.end());
       seg.marking_width = widths[widths.size() / 2];

@@ -34,6 +34,7 @@ class GradientStage {
   cv::Mat gx_, gy_;
   std::vector<int32_t> mag2_;
   std::vector<int32_t> index_;
+  std::vector<uint8_t> above_;  // magnitude at the threshold, one byte per pixel, rows padded by 8
   std::vector<EdgePixel> edges_;
 };
 

@@ -2,8 +2,39 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 
 namespace stereoloc::frontend {
+
+namespace {
+// Margins of a peak's pixel pool beyond the first collection's band and bin range: refits move
+// the line by a pixel or two and a degree or so (a speed setting only; see collect()).
+constexpr double kPoolMarginPx = 4.0;
+constexpr int kPoolMarginBins = 2;
+
+// Sorts (t, index) pairs as std::sort would (by t, then index), on one 64-bit key per pair:
+// the float's bits made monotonic in the high half, the index in the low half. Comparing
+// pairs branched twice per comparison; these sorts were a tenth of the frontend's time.
+void sortByPosition(std::vector<std::pair<float, int>>& v, std::vector<uint64_t>& keys) {
+  keys.resize(v.size());
+  for (size_t k = 0; k < v.size(); ++k) {
+    uint32_t u;
+    const float t = v[k].first + 0.0f;  // -0 -> +0: they compare equal as floats
+    std::memcpy(&u, &t, sizeof u);
+    u = (u & 0x80000000u) ? ~u : (u | 0x80000000u);
+    keys[k] = (uint64_t{u} << 32) | static_cast<uint32_t>(v[k].second);
+  }
+  std::sort(keys.begin(), keys.end());
+  for (size_t k = 0; k < v.size(); ++k) {
+    uint32_t u = static_cast<uint32_t>(keys[k] >> 32);
+    u = (u & 0x80000000u) ? (u & 0x7fffffffu) : ~u;
+    float t;
+    std::memcpy(&t, &u, sizeof t);
+    v[k] = {t, static_cast<int>(keys[k] & 0xffffffffu)};
+  }
+}
+}  // namespace
 
 bool fitLine(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta_hint, double& theta,
              double& rho, double* rms) {
@@ -230,15 +261,87 @@ void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::v
   cand_.clear();
   const double c = std::cos(theta), s = std::sin(theta);
   const int b0 = static_cast<int>(std::lround(theta * 360.0 / kTwoPi));
+  // From the peak's pool when it provably holds every pixel this collect can find: the bins
+  // [b0 - tol_bins, b0 + tol_bins] lie in the pool's, and every point of the edge-pixel box
+  // within `band` of this line lies within the pool's band of the peak's line. The difference
+  // of the two distances is linear in the point, so its largest magnitude over that strip is
+  // at the ends of this line clipped to the box grown by `band`, plus band |n - n_pool|. The
+  // pool keeps the bucket order, so cand_ comes out in the same order as from the buckets.
+  if (pool_valid_) {
+    int delta = b0 - pool_b0_;
+    delta = ((delta % 360) + 540) % 360 - 180;
+    if (std::abs(delta) + tol_bins <= pool_tol_bins_) {
+      const double pc = std::cos(pool_theta_), ps = std::sin(pool_theta_);
+      const double x0 = box_[0] - band, y0 = box_[1] - band, x1 = box_[2] + band, y1 = box_[3] + band;
+      // Line points (rho c - t s, rho s + t c); clip t to the grown box.
+      double lo = -1e30, hi = 1e30;
+      auto clip = [&](double p0, double dp, double pmin, double pmax) {
+        if (std::fabs(dp) < 1e-12) {
+          if (p0 < pmin || p0 > pmax) hi = lo - 1;
+          return;
+        }
+        double a = (pmin - p0) / dp, b = (pmax - p0) / dp;
+        if (a > b) std::swap(a, b);
+        lo = std::max(lo, a);
+        hi = std::min(hi, b);
+      };
+      clip(rho * c, -s, x0, x1);
+      clip(rho * s, c, y0, y1);
+      double worst = 0;
+      if (lo <= hi)
+        for (double t : {lo, hi}) {
+          const double x = rho * c - t * s, y = rho * s + t * c;
+          worst = std::max(worst, std::fabs(x * pc + y * ps - pool_rho_));  // its own distance is 0
+        }
+      worst += band * std::hypot(c - pc, s - ps);
+      if (worst + band <= pool_band_) {
+        for (int k = delta - tol_bins; k <= delta + tol_bins; ++k) {
+          const int g = k + pool_tol_bins_;
+          for (int j = pool_off_[g]; j < pool_off_[g + 1]; ++j) {
+            const int i = pool_[j];
+            if (used[i]) continue;
+            const double d = edges[i].x * c + edges[i].y * s - rho;
+            if (std::fabs(d) <= band) cand_.push_back(i);
+          }
+        }
+        return;
+      }
+    }
+  }
+  // Not covered: re-centre the pool on this line (a refit moved it), which the next refits of
+  // the line, close to this one, will hit.
+  fillPool(edges, used, theta, rho, band + kPoolMarginPx, tol_bins + kPoolMarginBins);
+  for (int g = kPoolMarginBins; g <= kPoolMarginBins + 2 * tol_bins; ++g)
+    for (int j = pool_off_[g]; j < pool_off_[g + 1]; ++j) {
+      const int i = pool_[j];
+      const double d = edges[i].x * c + edges[i].y * s - rho;
+      if (std::fabs(d) <= band) cand_.push_back(i);
+    }
+}
+
+void SegmentExtractor::fillPool(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta,
+                                double rho, double band, int tol_bins) {
+  pool_valid_ = false;
+  pool_.clear();
+  pool_off_.assign(1, 0);
+  const double c = std::cos(theta), s = std::sin(theta);
+  const int b0 = static_cast<int>(std::lround(theta * 360.0 / kTwoPi));
   for (int k = b0 - tol_bins; k <= b0 + tol_bins; ++k) {
     const int b = ((k % 360) + 360) % 360;
     for (int j = bucket_start_[b]; j < bucket_start_[b + 1]; ++j) {
       const int i = bucket_items_[j];
-      if (used[i]) continue;
+      if (used[i]) continue;  // never cleared again within extract()
       const double d = edges[i].x * c + edges[i].y * s - rho;
-      if (std::fabs(d) <= band) cand_.push_back(i);
+      if (std::fabs(d) <= band) pool_.push_back(i);
     }
+    pool_off_.push_back(static_cast<int>(pool_.size()));
   }
+  pool_theta_ = theta;
+  pool_rho_ = rho;
+  pool_band_ = band;
+  pool_b0_ = b0;
+  pool_tol_bins_ = tol_bins;
+  pool_valid_ = true;
 }
 
 void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::vector<HoughPeak>& peaks,
@@ -259,6 +362,16 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
     fill.assign(bucket_start_.begin(), bucket_start_.end() - 1);
     for (size_t i = 0; i < edges.size(); ++i) bucket_items_[fill[edges[i].dir_bin]++] = static_cast<int>(i);
   }
+  // Bounding box of the edge pixels (for the pool test in collect()).
+  box_[0] = box_[1] = 1e30;
+  box_[2] = box_[3] = -1e30;
+  for (const EdgePixel& e : edges) {
+    box_[0] = std::min<double>(box_[0], e.x);
+    box_[1] = std::min<double>(box_[1], e.y);
+    box_[2] = std::max<double>(box_[2], e.x);
+    box_[3] = std::max<double>(box_[3], e.y);
+  }
+  pool_valid_ = false;
   const int tol_bins = static_cast<int>(std::ceil(prm.direction_tolerance_deg));
   const double tol_cos = std::cos(prm.direction_tolerance_deg * kTwoPi / 360.0);
   const double min_pixels = 0.5 * prm.min_length_px;
@@ -276,6 +389,10 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
   };
 
   for (const HoughPeak& peak : peaks) {
+    // The peak's pool: the unused pixels of a wider bin range and band around its line, which
+    // the repeated collections of its rounds and refits filter instead of the whole buckets
+    // (collect() checks that the pool covers each one; the result is the same either way).
+    fillPool(edges, used, peak.theta, peak.rho, 0.5 * rho_step_px + 1.0 + kPoolMarginPx, tol_bins + kPoolMarginBins);
     for (int round = 0; round < std::max(1, prm.rounds_per_peak); ++round) {
       double theta = peak.theta, rho = peak.rho;
       collect(edges, used, theta, rho, 0.5 * rho_step_px + 1.0, tol_bins);
@@ -288,7 +405,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
         const double c = std::cos(theta), s = std::sin(theta);
         proj_.clear();
         for (int i : cand_) proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
-        std::sort(proj_.begin(), proj_.end());
+        sortByPosition(proj_, keys_);
         size_t best_b = 0, best_e = proj_.size(), b = 0;
         double best_len = -1;
         for (size_t k = 1; k <= proj_.size(); ++k)
@@ -342,7 +459,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
         if (!prm.release_unused) used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
       }
       if (proj_.size() < min_pixels) break;
-      std::sort(proj_.begin(), proj_.end());
+      sortByPosition(proj_, keys_);
       // Split at Gap_min, drop noise pieces, merge under Gap_max.
       merged.clear();
       size_t start = 0;
@@ -403,6 +520,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
       if (segments.size() == found_before) break;  // nothing new: the peak is exhausted
     }
   }
+  pool_valid_ = false;
   mergeCollinearSegments(edges, prm, segments, pix_, off_, merge_pix_);
 }
 

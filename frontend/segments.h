@@ -101,6 +101,14 @@ class SegmentExtractor {
  private:
   void collect(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta, double rho,
                double band, int tol_bins);
+  void fillPool(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta, double rho,
+                double band, int tol_bins);
+  // The current peak's candidate pixels (bins pool_b0_ +- pool_tol_bins_, offsets per bin).
+  std::vector<int> pool_, pool_off_;
+  double pool_theta_ = 0, pool_rho_ = 0, pool_band_ = 0;
+  int pool_b0_ = 0, pool_tol_bins_ = 0;
+  bool pool_valid_ = false;
+  double box_[4] = {0, 0, 0, 0};  // edge-pixel bounding box x0, y0, x1, y1
   std::vector<int> merge_pix_;
   struct Piece {
     size_t b, e;
@@ -110,6 +118,7 @@ class SegmentExtractor {
   std::vector<int> bucket_start_, bucket_items_;
   std::vector<int> cand_;
   std::vector<std::pair<float, int>> proj_;
+  std::vector<uint64_t> keys_;
   std::vector<int> pix_, off_;
   std::vector<int> piece_, cuts_;
   std::vector<int> hist_, seed_;

@@ -86,3 +86,32 @@ TEST(Classify, WallTopStripIsNotAMarkingButAFloorStripeIs) {
   ASSERT_EQ(segs.size(), 2u);
   for (const Segment& s : segs) EXPECT_EQ(s.cls, SegmentClass::Marking);
 }
+
+// Classification stops testing once the pixels left cannot reach xi_l: that must decide as the
+// full count does, wherever along the edge the partnered pixels lie. One straight top edge,
+// 120 px long, with a white stripe's lower edge (the partner) under a share of it and a wide
+// bright area under the rest; at the start or at the end of the edge.
+TEST(Classify, StoppingEarlyDecidesAsTheFullCount) {
+  for (double share : {0.35, 0.65})
+    for (bool partner_first : {true, false}) {
+      cv::Mat img(120, 160, CV_8UC1, cv::Scalar(25));
+      const int split = 20 + static_cast<int>(share * 120);
+      if (partner_first) {
+        cv::rectangle(img, cv::Rect(20, 60, split - 20, 4), cv::Scalar(220), cv::FILLED);
+        cv::rectangle(img, cv::Rect(split, 60, 140 - split, 40), cv::Scalar(220), cv::FILLED);
+      } else {
+        const int wide_end = 140 - (split - 20);  // the partnered part at the other end
+        cv::rectangle(img, cv::Rect(20, 60, wide_end - 20, 40), cv::Scalar(220), cv::FILLED);
+        cv::rectangle(img, cv::Rect(wide_end, 60, 140 - wide_end, 4), cv::Scalar(220), cv::FILLED);
+      }
+      const auto segs = classify(img);
+      const Segment* top = nullptr;
+      for (const Segment& s : segs)
+        if (std::sin(s.theta) > 0.99 && std::fabs(0.5 * (s.y1 + s.y2) - 59.5) < 1.0 && s.length() > 100) top = &s;
+      ASSERT_NE(top, nullptr) << share << " " << partner_first;
+      EXPECT_EQ(top->cls, share > 0.5 ? SegmentClass::Marking : SegmentClass::Other) << share << " " << partner_first;
+      if (share > 0.5) {
+        EXPECT_NEAR(top->marking_score, share, 0.08) << partner_first;
+      }
+    }
+}

@@ -90,3 +90,39 @@ TEST(Peaks, TwoLinesTwoPeaksStrongestFirstAndThreshold) {
   detectPeaks(acc, pp, peaks);
   EXPECT_TRUE(peaks.empty());
 }
+
+// detectPeaks skips 4 cells at a time when none has a bit at or above the largest power of
+// two <= min_votes: a cell of exactly min_votes votes must still be a peak at every rho
+// position (each phase of the 4-cell words), and one vote fewer must not.
+TEST(Peaks, CellAtTheThresholdIsFoundAtEveryRhoPosition) {
+  const int w = 160, h = 120;
+  HoughAccumulator acc;
+  acc.configure(w, h, HoughParams());
+  for (int n : {16, 17, 18, 31, 32, 33}) {
+    for (int x0 = 2; x0 < w - 2; ++x0) {
+      // n edge pixels on the vertical line x = x0, gradient to the right (theta 0): all n vote
+      // for one cell of theta bin 0 (and perhaps of bin +-1); no cell gets more.
+      std::vector<EdgePixel> edges;
+      for (int k = 0; k < n; ++k) {
+        EdgePixel e;
+        e.x = static_cast<float>(x0);
+        e.y = static_cast<float>(5.0 + k * 110.0 / (n - 1));  // 110 px: > 3 px of rho spread from 2 deg on
+        e.ix = static_cast<int16_t>(x0);
+        e.iy = static_cast<int16_t>(std::lround(e.y));
+        edges.push_back(e);
+      }
+      acc.vote(edges, {});
+      std::vector<HoughPeak> peaks;
+      PeakParams pp;
+      pp.min_votes = n;
+      detectPeaks(acc, pp, peaks);
+      ASSERT_FALSE(peaks.empty()) << n << " " << x0;
+      EXPECT_TRUE(peaks[0].theta_bin <= 1 || peaks[0].theta_bin >= acc.numTheta() - 1) << n << " " << x0;
+      EXPECT_EQ(peaks[0].votes, n) << n << " " << x0;
+      EXPECT_NEAR(peaks[0].rho, x0, 3.0) << n << " " << x0;
+      pp.min_votes = n + 1;
+      detectPeaks(acc, pp, peaks);
+      EXPECT_TRUE(peaks.empty()) << n << " " << x0;
+    }
+  }
+}

@@ -68,3 +68,19 @@ TEST(Gradient, ThresholdRejectsWeakEdgesAndBuffersAreReused) {
   for (int y = 0; y < g.height(); ++y)
     for (int x = 0; x < g.width(); ++x) ASSERT_EQ(g.edgeAt(x, y), -1);
 }
+
+// The suppression loop skips 8 pixels at a time where the byte mask of the threshold is clear:
+// an edge in any column (each phase of the 8-pixel words, and next to the right border) and
+// an image width that is no multiple of 8 must still give one edge pixel per inner row.
+TEST(Gradient, EdgesInEveryColumnSurviveTheWordSkip) {
+  for (int cols : {60, 67}) {
+    for (int col = 3; col <= cols - 4; ++col) {
+      cv::Mat img(20, cols, CV_8UC1);
+      for (int x = 0; x < cols; ++x) img.col(x).setTo(x < col ? 30 : 200);  // step between col - 1 and col
+      GradientStage g;
+      g.compute(img, GradientParams());
+      ASSERT_EQ(g.edges().size(), static_cast<size_t>(20 - 4)) << cols << " " << col;
+      for (const EdgePixel& e : g.edges()) ASSERT_NEAR(e.x, col - 0.5, 0.51) << cols << " " << col;
+    }
+  }
+}
