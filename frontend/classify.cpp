@@ -8,6 +8,9 @@ namespace {
 
 // Nearest integer, halves away from zero, as std::lround; that is a libm call, and it sat in
 // the inner loop (the partner search below steps half a pixel at a time).
+// The gradient stage finds no edge pixels this close to the image border (gradient.cpp).
+constexpr int kNoEdgeFrame = 2;
+
 inline int nearestInt(double v) {
   const int t = static_cast<int>(v);  // towards zero
   const double r = v - t;
@@ -47,29 +50,41 @@ void classifySegments(const GradientStage& grad, const SegmentExtractor& extract
     const double c = std::cos(seg.theta), s = std::sin(seg.theta);
     const int stride = std::max(1, static_cast<int>(std::lround(1.0 / std::clamp(prm.xi_h, 1e-3, 1.0))));
     widths.clear();
-    long tested = 0;
-    // Pixels to test in all; once so few remain that even all of them with a partner cannot
-    // reach xi_l, the segment is not a marking (Algorithm 3 stops at the decision too, on the
-    // accepting side). The score is then the fraction over the pixels tested so far.
+    // A pixel whose search leaves the observed image (the gradient stage has no edge pixels in
+    // the outer 2 px) before W' has no verdict: a stripe running out of the image shows its
+    // partner edge only over part of its length. Such pixels are not counted, so the score is
+    // over the pixels whose search was complete or found a partner; at least min_seen_share of
+    // them must have one.
+    long tested = 0, visited = 0;
     const long to_test = n > 0 ? (n - 1) / stride + 1 : 0;
+    // Once so few pixels remain that even all of them with a partner cannot reach xi_l, the
+    // segment is not a marking (Algorithm 3 stops at the decision too, on the accepting side).
+    // Unseen pixels among the remaining ones could only lower the best reachable score, so the
+    // test assumes none. The score is then the fraction over the pixels tested so far.
     bool rejected = false;
     for (long k = 0; k < n; k += stride) {
-      if (static_cast<double>(widths.size() + (to_test - tested)) < prm.xi_l * static_cast<double>(to_test)) {
+      const long remaining = to_test - visited;
+      if (static_cast<double>(static_cast<long>(widths.size()) + remaining) <
+          prm.xi_l * static_cast<double>(tested + remaining)) {
         rejected = true;
         break;
       }
+      ++visited;
       const EdgePixel& p = edges[b[k]];
-      ++tested;
       double wmax = prm.min_width_px;
       if (!max_width_per_row.empty()) wmax = max_width_per_row[std::clamp<int>(p.iy, 0, h - 1)];
       int last_x = p.ix, last_y = p.iy;
+      bool unseen = false;
       // Half-pixel steps along the normal, so no pixel of a diagonal partner edge is skipped.
       for (double d = 0.5; d <= wmax + 0.5; d += 0.5) {
         const int qx = nearestInt(p.x + d * c), qy = nearestInt(p.y + d * s);
         if (qx == last_x && qy == last_y) continue;
         last_x = qx;
         last_y = qy;
-        if (qx < 0 || qy < 0 || qx >= w || qy >= h) break;
+        if (qx < kNoEdgeFrame || qy < kNoEdgeFrame || qx >= w - kNoEdgeFrame || qy >= h - kNoEdgeFrame) {
+          unseen = true;
+          break;
+        }
         const int qi = grad.edgeAt(qx, qy);
         if (qi < 0) continue;
         const EdgePixel& q = edges[qi];
@@ -77,10 +92,13 @@ void classifySegments(const GradientStage& grad, const SegmentExtractor& extract
           const double width = (q.x - p.x) * c + (q.y - p.y) * s;
           if (width > 0 && width <= wmax + 0.5 && floorOnBothSides(luma, p, c, s, width, prm.max_outer_difference))
             widths.push_back(static_cast<float>(width));
+          unseen = false;
           break;
         }
       }
+      if (!unseen) ++tested;
     }
+    if (static_cast<double>(tested) < prm.min_seen_share * static_cast<double>(to_test)) rejected = true;
     seg.marking_score = tested > 0 ? static_cast<double>(widths.size()) / tested : 0.0;
     if (!rejected && tested > 0 && seg.marking_score >= prm.xi_l) {
       seg.cls = SegmentClass::Marking;

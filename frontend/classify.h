@@ -31,6 +31,11 @@ struct ClassifyParams {
   // and the background (grey): without this test wall tops and the top outline were called
   // markings (36 of 37 misclassified matched edges in bench_frontend). <= 0 disables the test.
   double max_outer_difference = 0.5;
+  // A tested pixel whose partner search runs out of the observed image (within 2 px of the
+  // border) before W' gives no verdict and is not counted: a stripe running out of the image
+  // shows its partner edge only where it is inside. A segment needs a verdict on at least this
+  // share of its tested pixels to be a marking.
+  double min_seen_share = 0.25;
 };
 
 // Sets cls, marking_width and marking_score of every segment. max_width_per_row[v] is W'(v);

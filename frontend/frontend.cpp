@@ -50,6 +50,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"classify", "xi_h", Field::Double, &p.classify.xi_h},
       {"classify", "max_outer_difference", Field::Double, &p.classify.max_outer_difference},
       {"classify", "xi_l", Field::Double, &p.classify.xi_l},
+      {"classify", "min_seen_share", Field::Double, &p.classify.min_seen_share},
       {"corners", "delta_px", Field::Double, &p.corners.delta_px},
       {"corners", "min_image_angle_deg", Field::Double, &p.corners.min_image_angle_deg},
       {"corners", "corner_angle_tol_deg", Field::Double, &p.corners.corner_angle_tol_deg},
@@ -115,6 +116,7 @@ void FrontendParams::validate() const {
        "need 0 < min <= max");
   need(classify.xi_h > 0 && classify.xi_h <= 1, "classify.xi_h", "must be in (0, 1]");
   need(classify.xi_l > 0 && classify.xi_l <= 1, "classify.xi_l", "must be in (0, 1]");
+  need(classify.min_seen_share >= 0 && classify.min_seen_share <= 1, "classify.min_seen_share", "must be in [0, 1]");
   need(corners.delta_px >= 0, "corners.delta_px", "must not be negative");
   need(corners.snap_px >= 0 && corners.border_snap_px >= 0, "corners.snap_px/border_snap_px", "must not be negative");
   need(corners.snap_min_angle_deg > 0 && corners.snap_min_angle_deg < 90, "corners.snap_min_angle_deg", "must be in (0, 90)");

@@ -115,3 +115,31 @@ TEST(Classify, StoppingEarlyDecidesAsTheFullCount) {
       }
     }
 }
+
+// A stripe running out of the image: its partner edge is inside the image over only part of
+// the length. Pixels whose partner search leaves the observed image give no verdict, so the
+// visible edge is still a marking with the stripe's width (thesis Fig. 6.1 shows markings cut
+// by the image border); a step edge along the border is not.
+TEST(Classify, StripeRunningOutOfTheImageIsAMarking) {
+  cv::Mat img(120, 160, CV_8UC1, cv::Scalar(25));
+  cv::line(img, cv::Point(138, 5), cv::Point(168, 115), cv::Scalar(220), 6, cv::LINE_AA);
+  const auto segs = classify(img, ClassifyParams(), 10.0f);
+  const Segment* left = nullptr;
+  for (const Segment& s : segs)
+    if (std::cos(s.theta) > 0.9 && s.length() > 60) left = &s;  // bright to its right
+  ASSERT_NE(left, nullptr);
+  EXPECT_EQ(left->cls, SegmentClass::Marking);
+  EXPECT_NEAR(left->marking_width, 6.5, 1.5);
+  // About half of its pixels have a verdict: not enough when min_seen_share asks for 80 %.
+  ClassifyParams strict;
+  strict.min_seen_share = 0.8;
+  for (const Segment& s : classify(img, strict, 10.0f)) {
+    if (std::cos(s.theta) > 0.9 && s.length() > 60) {
+      EXPECT_EQ(s.cls, SegmentClass::Other);
+    }
+  }
+  // Nothing but the border beyond a step edge 5 px from it: no verdict, not a marking.
+  cv::Mat step(120, 160, CV_8UC1, cv::Scalar(25));
+  cv::rectangle(step, cv::Rect(155, 0, 5, 120), cv::Scalar(220), cv::FILLED);
+  for (const Segment& s : classify(step, ClassifyParams(), 10.0f)) EXPECT_EQ(s.cls, SegmentClass::Other);
+}

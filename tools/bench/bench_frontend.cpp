@@ -857,6 +857,12 @@ void accuracyTable(bool diag) {
         used[best] = 1;
         ++c_ok;
         c_err += bd;
+      } else if (why_centre.verbose) {
+        std::printf("    false %-12s at (%.1f,%.1f); truth within 10 px:", toString(f.type).c_str(), f.u, f.v);
+        for (const ImageLandmark& l : p.img.truth.left.landmarks)
+          if (std::hypot(l.pixel.x() - f.u, l.pixel.y() - f.v) < 10)
+            std::printf(" %s id %d (%.1f,%.1f)", l.type.c_str(), l.id, l.pixel.x(), l.pixel.y());
+        std::printf("\n");
       }
     }
     for (size_t k = 0; k < gl.size(); ++k) {
