@@ -14,7 +14,9 @@
 // whatever --covariance says, so that every model is judged on the same fixes) evaluated at the
 // noise-free measurement (unbiased split; the per-fix split is printed too), by the range of the
 // farthest landmark used, since the linearisation fails for distant landmarks (4.4), and for fix2
-// by the angle between the landmarks.
+// by the angle between the landmarks. `--method multi` (or all) adds the least-squares fix
+// (4.2.8) on the steps with >= 2 identified landmarks and a 3.5 deg compass, with the stereo
+// observations as range-bearing and as pixels (GlobalFixOptions::rig), same steps, same draws.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <array>
