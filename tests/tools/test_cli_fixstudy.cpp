@@ -37,6 +37,7 @@ TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
   EXPECT_NE(r.output.find("  separation 20-40 deg "), std::string::npos) << r.output;  // fix2 by geometry
   EXPECT_NE(r.output.find("  holds per fix "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("3-dof variance"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("band from it ["), std::string::npos) << r.output;  // from the sample variance
   const std::string txt = readFile(dir.file("fixstudy.txt"));
   EXPECT_EQ(txt, r.output);
   const std::string csv = readFile(dir.file("fixes.csv"));
