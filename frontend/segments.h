@@ -49,8 +49,12 @@ struct SegmentParams {
   int refit_iterations = 2;
   // A group of collinear-looking pixels is split where it bends or steps by more than this:
   // far away, a wall foot, a goal foot and a marking lie a pixel or two apart at image angles
-  // of a few degrees, and one Hough cell collects them all.
-  double straightness_px = 1.0;
+  // of a few degrees, and one Hough cell collects them all. 0.9 since the renderer integrates
+  // edge pixels over their area (4 x 4 samples): the edges no longer carry the 0.5-2 px
+  // staircase of 2 x 2 point samples, and 1.0 (tuned on those) let far polylines run on past
+  // their bends (bench_frontend, seed 4: centre-line recall / precision 55.5 / 61.0 % at 1.0,
+  // 58.1 / 63.2 % at 0.9; seed 5: 53.8 / 59.8 -> 55.7 / 61.1 %).
+  double straightness_px = 0.9;
   double straightness_bin_px = 4.0;  // pixels are averaged in bins this long along the line
   // A peak is verified again on its leftover pixels (the next of several edges in one cell,
   // whose own peaks Algorithm 1's window suppressed), at most this many times. Each round fits
