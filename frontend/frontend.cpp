@@ -38,6 +38,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"segments", "min_density", Field::Double, &p.segments.min_density},
       {"segments", "direction_tolerance_deg", Field::Double, &p.segments.direction_tolerance_deg},
       {"segments", "band_px", Field::Double, &p.segments.band_px},
+      {"segments", "member_band_px", Field::Double, &p.segments.member_band_px},
       {"segments", "refit_iterations", Field::Int, &p.segments.refit_iterations},
       {"segments", "straightness_px", Field::Double, &p.segments.straightness_px},
       {"segments", "straightness_bin_px", Field::Double, &p.segments.straightness_bin_px},
@@ -107,6 +108,7 @@ void FrontendParams::validate() const {
   need(segments.direction_tolerance_deg > 0 && segments.direction_tolerance_deg < 90,
        "segments.direction_tolerance_deg", "must be in (0, 90)");
   need(segments.band_px > 0, "segments.band_px", "must be positive");
+  need(segments.member_band_px >= 0, "segments.member_band_px", "must not be negative");
   need(segments.rounds_per_peak >= 1, "segments.rounds_per_peak", "must be at least 1");
   need(segments.refit_iterations >= 1, "segments.refit_iterations", "must be at least 1");
   need(segments.straightness_px > 0, "segments.straightness_px", "must be positive");

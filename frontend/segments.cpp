@@ -447,7 +447,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
         collect(edges, used, theta, rho, prm.band_px, tol_bins);
         ok = cand_.size() >= min_pixels && fitLine(edges, cand_.data(), cand_.data() + cand_.size(), theta, theta, rho);
       }
-      if (ok) collect(edges, used, theta, rho, prm.band_px, tol_bins);
+      if (ok) collect(edges, used, theta, rho, std::max(prm.band_px, prm.member_band_px), tol_bins);
       if (!ok || cand_.size() < min_pixels) break;
       // Direction check against the refitted line (the buckets are +-1 bin coarse).
       const double c = std::cos(theta), s = std::sin(theta);
@@ -460,6 +460,30 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
       }
       if (proj_.size() < min_pixels) break;
       sortByPosition(proj_, keys_);
+      // Beyond band_px (out to member_band_px) a pixel belongs to the line only where it is the
+      // line's nearest pixel at its position along it (1 px cells): a far edge bent by 1-3 deg
+      // strays up to 1.5 px from one fitted line, while a parallel edge beside it has pixels
+      // at the same positions, nearer ones on the line itself.
+      if (prm.member_band_px > prm.band_px) {
+        size_t out = 0, k = 0;
+        while (k < proj_.size()) {
+          const double cell = std::floor(proj_[k].first);
+          size_t e = k;
+          double dmin = 1e30;
+          for (; e < proj_.size() && std::floor(proj_[e].first) == cell; ++e) {
+            const EdgePixel& q = edges[proj_[e].second];
+            dmin = std::min(dmin, std::fabs(q.x * c + q.y * s - rho));
+          }
+          for (size_t j = k; j < e; ++j) {
+            const EdgePixel& q = edges[proj_[j].second];
+            const double d = std::fabs(q.x * c + q.y * s - rho);
+            if (d <= prm.band_px || d == dmin) proj_[out++] = proj_[j];
+          }
+          k = e;
+        }
+        proj_.resize(out);
+        if (proj_.size() < min_pixels) break;
+      }
       // Split at Gap_min, drop noise pieces, merge under Gap_max.
       merged.clear();
       size_t start = 0;

@@ -46,15 +46,21 @@ struct SegmentParams {
   // 2 band_px wide window of their distances at the fitted angle), and only pixels within
   // +-band_px of it, then of its refit, belong to it; the others stay for the next round.
   double band_px = 1.0;
+  // ... and pixels out to this far from it join the line where they are its nearest pixel at
+  // their position along it (1 px cells; see extract()): since the renderer integrates edge
+  // pixels over their area (adc1c70), a far edge's pixels follow its true 1-3 deg bends and its
+  // curl into a corner smoothly and stray 1-2 px from one fitted line, and with band_px alone
+  // the line stopped short. A parallel edge 1-2 px beside it has pixels at the same positions,
+  // nearer ones on the line itself, so the two stay apart. bench_frontend 200 pairs,
+  // centre-line recall / precision without -> with (2.0): seed 4 55.5 / 61.0 -> 61.4 / 65.5 %,
+  // seed 5 53.8 / 59.8 -> 58.4 / 63.8 %, seed 6 54.1 / 58.9 -> 58.6 / 63.5 %; corners within
+  // one landmark of it.
+  double member_band_px = 2.0;
   int refit_iterations = 2;
   // A group of collinear-looking pixels is split where it bends or steps by more than this:
   // far away, a wall foot, a goal foot and a marking lie a pixel or two apart at image angles
-  // of a few degrees, and one Hough cell collects them all. 0.9 since the renderer integrates
-  // edge pixels over their area (4 x 4 samples): the edges no longer carry the 0.5-2 px
-  // staircase of 2 x 2 point samples, and 1.0 (tuned on those) let far polylines run on past
-  // their bends (bench_frontend, seed 4: centre-line recall / precision 55.5 / 61.0 % at 1.0,
-  // 58.1 / 63.2 % at 0.9; seed 5: 53.8 / 59.8 -> 55.7 / 61.1 %).
-  double straightness_px = 0.9;
+  // of a few degrees, and one Hough cell collects them all.
+  double straightness_px = 1.0;
   double straightness_bin_px = 4.0;  // pixels are averaged in bins this long along the line
   // A peak is verified again on its leftover pixels (the next of several edges in one cell,
   // whose own peaks Algorithm 1's window suppressed), at most this many times. Each round fits

@@ -395,3 +395,36 @@ TEST(Segments, ParallelEdgesInOneCellGiveTheDenserEdgeNotTheirMean) {
   EXPECT_NEAR(std::min(segs[0].x1, segs[0].x2), 20, 0.5);
   EXPECT_NEAR(std::max(segs[0].x1, segs[0].x2), 139, 0.5);
 }
+
+// A far edge's last pixels curl by more than band_px (the Sobel window turns at the corner,
+// or the edge bends by a degree or two): beyond band_px they still belong to the line where
+// they are its nearest pixels at their position along it (member_band_px), so the segment
+// keeps its whole extent; with member_band_px 0 it ends 3 px short.
+TEST(Segments, StrayEndPixelsWithinTheMemberBandKeepTheExtent) {
+  std::vector<EdgePixel> edges;
+  for (int x = 20; x <= 139; ++x) {
+    EdgePixel e;
+    e.x = static_cast<float>(x);
+    e.y = static_cast<float>(x >= 137 ? 51.2 : 50.0);
+    e.ix = static_cast<int16_t>(x);
+    e.iy = static_cast<int16_t>(std::lround(e.y));
+    e.angle = static_cast<float>(kTwoPi / 4);
+    e.mag = 200;
+    e.dir_bin = 90;
+    edges.push_back(e);
+  }
+  HoughPeak peak;
+  peak.theta = kTwoPi / 4;
+  peak.rho = 50.0;
+  for (double member : {2.0, 0.0}) {
+    SegmentParams prm;
+    prm.member_band_px = member;
+    SegmentExtractor ex;
+    std::vector<uint8_t> used;
+    std::vector<Segment> segs;
+    ex.extract(edges, {peak}, 3.0, prm, used, segs);
+    ASSERT_EQ(segs.size(), 1u) << member;
+    EXPECT_NEAR(std::min(segs[0].x1, segs[0].x2), 20, 0.5) << member;
+    EXPECT_NEAR(std::max(segs[0].x1, segs[0].x2), member > 0 ? 139 : 136, 0.5) << member;
+  }
+}
