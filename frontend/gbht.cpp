@@ -32,6 +32,19 @@ void HoughAccumulator::configure(int width, int height, const HoughParams& param
     sin_[i] = static_cast<float>(std::sin(i * step) / params.rho_step_px);
   }
   acc_.assign(static_cast<size_t>(n_theta_) * n_rho_, 0);
+  // The votes of a pixel of direction bin b go to bins b - tol .. b + tol, wrapped: the same
+  // per-bin values laid out once more over the unwrapped range [-tol, n_theta + tol] (b can
+  // be n_theta for an angle just below 2 pi), so the voting loop needs no wrap test.
+  const int n_ext = n_theta_ + 1 + 2 * tol_bins_;
+  ext_cos_.resize(n_ext);
+  ext_sin_.resize(n_ext);
+  ext_row_.resize(n_ext);
+  for (int j = 0; j < n_ext; ++j) {
+    const int t = ((j - tol_bins_) % n_theta_ + n_theta_) % n_theta_;
+    ext_cos_[j] = cos_[t];
+    ext_sin_[j] = sin_[t];
+    ext_row_[j] = static_cast<size_t>(t) * n_rho_;
+  }
 }
 
 void HoughAccumulator::vote(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used) {
@@ -43,11 +56,12 @@ void HoughAccumulator::vote(const std::vector<EdgePixel>& edges, const std::vect
     const EdgePixel& e = edges[i];
     const float x = e.x - static_cast<float>(cx_), y = e.y - static_cast<float>(cy_);
     const uint16_t wgt = static_cast<uint16_t>(params_.weight_by_magnitude ? std::min(4, 1 + static_cast<int>(e.mag) / 256) : 1);
-    const int b = static_cast<int>(e.angle * bin_per_rad + 0.5f);
-    for (int k = b - tol_bins_; k <= b + tol_bins_; ++k) {
-      const int t = k < 0 ? k + n_theta_ : (k >= n_theta_ ? k - n_theta_ : k);
-      const int r = static_cast<int>(x * cos_[t] + y * sin_[t] + r0);  // r0 > |rho|/step: positive
-      acc_[static_cast<size_t>(t) * n_rho_ + r] = static_cast<uint16_t>(acc_[static_cast<size_t>(t) * n_rho_ + r] + wgt);
+    const int b = std::min(static_cast<int>(e.angle * bin_per_rad + 0.5f), n_theta_);
+    // Unwrapped index j = k + tol of bins k = b - tol .. b + tol (see configure()).
+    for (int j = b; j <= b + 2 * tol_bins_; ++j) {
+      const int r = static_cast<int>(x * ext_cos_[j] + y * ext_sin_[j] + r0);  // r0 > |rho|/step: positive
+      uint16_t& cell = acc_[ext_row_[j] + r];
+      cell = static_cast<uint16_t>(cell + wgt);
     }
   }
 }

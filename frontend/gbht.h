@@ -39,6 +39,8 @@ class HoughAccumulator {
   int w_ = 0, h_ = 0, n_theta_ = 0, n_rho_ = 0, rho0_ = 0, tol_bins_ = 0;
   double cx_ = 0, cy_ = 0;
   std::vector<float> cos_, sin_;
+  std::vector<float> ext_cos_, ext_sin_;  // cos_, sin_ over the unwrapped bins -tol .. n_theta + tol
+  std::vector<size_t> ext_row_;            // their accumulator row offsets
   std::vector<uint16_t> acc_;  // a cell cannot exceed 4 x 1200 votes in 320x240
 };
 
