@@ -159,13 +159,26 @@ Estimate Ekf::process(const Step& step) {
   std::vector<int> used;
   for (const Observation& o : step.observations)
     if (o.landmark_id >= 0) used.push_back(o.landmark_id);
-  for (size_t i = 0; i < step.observations.size(); ++i) {
+  // Identified observations first: unidentified ones are associated at the belief they improved.
+  std::vector<size_t> order;
+  for (int pass = 0; pass < 2; ++pass)
+    for (size_t i = 0; i < step.observations.size(); ++i)
+      if ((step.observations[i].landmark_id >= 0) == (pass == 0)) order.push_back(i);
+  std::vector<int> joint_ids;
+  for (size_t i : order) {
     const Observation& obs = step.observations[i];
     EkfUpdateRecord rec;
     const Landmark* lm = nullptr;
     if (obs.landmark_id >= 0) {
       lm = map_.find(obs.landmark_id);
       if (!lm) throw Error(where(step, i) + ": unknown landmark id " + std::to_string(obs.landmark_id));
+    } else if (config_.association.exclusive && config_.association.joint) {
+      // All unidentified sightings of the step jointly, once, at the belief after the identified ones.
+      if (joint_ids.empty()) {
+        for (const Observation& o : associateObservations(step.observations, pose_, P_, map_, config_.association))
+          joint_ids.push_back(o.landmark_id);
+      }
+      if (joint_ids[i] >= 0) lm = &map_.at(joint_ids[i]);
     } else {
       const AssociationResult a = associate(obs, pose_, P_, map_, config_.association,
                                             config_.association.exclusive ? used : std::vector<int>{});
