@@ -24,25 +24,10 @@ void undirect(double theta, double rho, double& t_out, double& r_out) {
 double along(double theta, double x, double y) { return -x * std::sin(theta) + y * std::cos(theta); }
 
 // The interval [lo, hi] of the line parameter t where the line lies inside the image (pixel
-// centres at integers, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]). Point(t) =
-// (rho cos - t sin, rho sin + t cos); each border is a half-space linear in t. lo > hi when the
+// centres at integers, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]); lo > hi when the
 // line misses the image.
 std::pair<double, double> imageInterval(const LineFeature& l, int width, int height) {
-  const double c = std::cos(l.theta), s = std::sin(l.theta), x0 = l.rho * c, y0 = l.rho * s;
-  double lo = -1e30, hi = 1e30;
-  auto clip = [&](double p0, double dp, double pmin, double pmax) {  // pmin <= p0 + t dp <= pmax
-    if (std::fabs(dp) < 1e-12) {
-      if (p0 < pmin || p0 > pmax) hi = lo - 1;
-      return;
-    }
-    double a = (pmin - p0) / dp, b = (pmax - p0) / dp;
-    if (a > b) std::swap(a, b);
-    lo = std::max(lo, a);
-    hi = std::min(hi, b);
-  };
-  clip(x0, -s, -0.5, width - 0.5);
-  clip(y0, c, -0.5, height - 0.5);
-  return {lo, hi};
+  return lineBoxInterval(l.rho, l.theta, -0.5, -0.5, width - 0.5, height - 0.5);
 }
 
 }  // namespace

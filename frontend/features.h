@@ -13,6 +13,7 @@
 // what the marking test (Algorithm 3) looks for. The Hough accumulator internally measures rho
 // from the image centre to halve its size; that is private to frontend/gbht.
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "src/field_map.h"
@@ -59,6 +60,12 @@ struct LineFeature {
   double x(double t) const;  // point at line coordinate t
   double y(double t) const;
 };
+
+// The interval [lo, hi] of the line parameter t (point (rho cos - t sin, rho sin + t cos)) where
+// the line lies inside the box [xmin, xmax] x [ymin, ymax]: each side is a half-space linear in
+// t (slab clipping). lo > hi when the line misses the box.
+std::pair<double, double> lineBoxInterval(double rho, double theta, double xmin, double ymin, double xmax,
+                                          double ymax);
 
 // A point feature in the left image.
 struct PointFeature {

@@ -273,20 +273,8 @@ void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::v
     if (std::abs(delta) + tol_bins <= pool_tol_bins_) {
       const double pc = std::cos(pool_theta_), ps = std::sin(pool_theta_);
       const double x0 = box_[0] - band, y0 = box_[1] - band, x1 = box_[2] + band, y1 = box_[3] + band;
-      // Line points (rho c - t s, rho s + t c); clip t to the grown box.
-      double lo = -1e30, hi = 1e30;
-      auto clip = [&](double p0, double dp, double pmin, double pmax) {
-        if (std::fabs(dp) < 1e-12) {
-          if (p0 < pmin || p0 > pmax) hi = lo - 1;
-          return;
-        }
-        double a = (pmin - p0) / dp, b = (pmax - p0) / dp;
-        if (a > b) std::swap(a, b);
-        lo = std::max(lo, a);
-        hi = std::min(hi, b);
-      };
-      clip(rho * c, -s, x0, x1);
-      clip(rho * s, c, y0, y1);
+      // Line points (rho c - t s, rho s + t c); t clipped to the grown box.
+      const auto [lo, hi] = lineBoxInterval(rho, theta, x0, y0, x1, y1);
       double worst = 0;
       if (lo <= hi)
         for (double t : {lo, hi}) {

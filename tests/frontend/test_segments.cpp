@@ -402,17 +402,8 @@ TEST(Segments, ParallelEdgesInOneCellGiveTheDenserEdgeNotTheirMean) {
 // keeps its whole extent; with member_band_px 0 it ends 3 px short.
 TEST(Segments, StrayEndPixelsWithinTheMemberBandKeepTheExtent) {
   std::vector<EdgePixel> edges;
-  for (int x = 20; x <= 139; ++x) {
-    EdgePixel e;
-    e.x = static_cast<float>(x);
-    e.y = static_cast<float>(x >= 137 ? 51.2 : 50.0);
-    e.ix = static_cast<int16_t>(x);
-    e.iy = static_cast<int16_t>(std::lround(e.y));
-    e.angle = static_cast<float>(kTwoPi / 4);
-    e.mag = 200;
-    e.dir_bin = 90;
-    edges.push_back(e);
-  }
+  addEdge(edges, 20, 136, 50.0, 0.0);
+  addEdge(edges, 137, 139, 51.2, 0.0);  // the last three pixels 1.2 px off the line
   HoughPeak peak;
   peak.theta = kTwoPi / 4;
   peak.rho = 50.0;
