@@ -63,7 +63,7 @@ class JointSearch {
   // The pairing (observation index -> landmark id, -1 none) of the best hypothesis.
   std::vector<int> solve() {
     std::vector<int> h(items_.size(), -1);
-    search(0, h, 0);
+    search(0, h, 0, 0.0);
     std::vector<int> out(obs_.size(), -1);
     if (best_.empty()) return out;
     for (size_t k = 0; k < items_.size(); ++k) {
@@ -140,10 +140,10 @@ class JointSearch {
 
   static constexpr int kIterations = 6;  // the last one only evaluates the cost
 
-  void search(size_t k, std::vector<int>& h, int pairings) {
+  // h holds the pairings of observations < k; d2 is their joint distance.
+  void search(size_t k, std::vector<int>& h, int pairings, double d2) {
     if (k == items_.size()) {
       if (pairings == 0) return;
-      const double d2 = jointDistance(h);
       if (pairings > best_pairings_ || (pairings == best_pairings_ && d2 < best_d2_)) {
         if (pairings > best_pairings_) best_.clear();
         best_pairings_ = pairings;
@@ -154,14 +154,16 @@ class JointSearch {
       }
       return;
     }
-    for (const auto& [d2, id] : items_[k].candidates) {
+    for (const auto& candidate : items_[k].candidates) {
+      const int id = candidate.second;
       if (contains(h, id)) continue;
       h[k] = id;
-      if (std::isfinite(jointDistance(h))) search(k + 1, h, pairings + 1);
+      const double joint = jointDistance(h);
+      if (std::isfinite(joint)) search(k + 1, h, pairings + 1, joint);
       h[k] = -1;
     }
     // Leaving observation k out can only help if the rest can still reach the best count.
-    if (pairings + static_cast<int>(items_.size() - k - 1) >= best_pairings_) search(k + 1, h, pairings);
+    if (pairings + static_cast<int>(items_.size() - k - 1) >= best_pairings_) search(k + 1, h, pairings, d2);
   }
 
   const std::vector<Observation>& obs_;
