@@ -30,6 +30,8 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
       gate_(config_.gate, 2),
       compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)) {
   odometry_.validate();
+  if (config_.max_iterations < 1 || !(config_.iteration_tolerance >= 0))
+    throw Error("ekf: max_iterations must be >= 1 and iteration_tolerance >= 0");
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
   if (config_.init.mode != InitMode::Global) {
     if (!config_.init.pose.isFinite() || !config_.init.covariance.allFinite())
@@ -75,8 +77,29 @@ EkfUpdateRecord Ekf::updateRangeBearing(const Observation& obs, const Eigen::Vec
     return rec;
   }
   if (config_.gate_enabled && !gate_.accepts(rec.mahalanobis_squared)) return rec;
-  const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;  // (5.19)
-  pose_ = plus(pose_, K * nu);                          // (5.15)
+  Eigen::Matrix<double, 3, 2> K = PHt * Sinv;  // (5.19)
+  Eigen::Vector3d delta = K * nu;                // (5.15)
+  // Iterated update: relinearise at the updated pose (header comment). A step where the
+  // bearing becomes undefined keeps the previous iterate.
+  for (int it = 1; it < config_.max_iterations; ++it) {
+    Matrix23d Hi;
+    Eigen::Vector2d zi;
+    try {
+      zi = predictRangeBearing(plus(pose_, delta), landmark, &Hi);
+    } catch (const GeometryError&) {
+      break;
+    }
+    const Eigen::Matrix<double, 3, 2> PHit = P_ * Hi.transpose();
+    const Eigen::Matrix<double, 3, 2> Ki = PHit * (Hi * PHit + obs.covariance).inverse();
+    const Eigen::Vector3d next = Ki * (rangeBearingInnovation(obs.z(), zi) + Hi * delta);
+    if (!next.allFinite()) break;
+    const double moved = (next - delta).cwiseAbs().maxCoeff();
+    delta = next;
+    K = Ki;
+    H = Hi;
+    if (moved < config_.iteration_tolerance) break;
+  }
+  pose_ = plus(pose_, delta);
   const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * H;
   const Eigen::Matrix3d P = IKH * P_ * IKH.transpose() + K * obs.covariance * K.transpose();  // (5.17)
   P_ = 0.5 * (P + P.transpose());

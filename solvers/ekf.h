@@ -21,6 +21,18 @@
 // With a single observation per step, the update is exactly one Gauss-Newton step of the
 // prior + range-bearing least-squares problem linearised at the prediction; the sliding-window
 // smoother with W = 1 relies on that.
+//
+// Iterated update (EkfConfig::max_iterations > 1, the `iekf` method; not in the thesis): the
+// same MAP problem solved by Gauss-Newton instead of one step. With delta_i = x_i [-] x^ (x^ the
+// prior, x_0 = x^) and H_i, nu_i = z [-] h(x_i) linearised at x_i:
+//       K_i         = P H_i^T (H_i P H_i^T + R)^-1
+//       delta_{i+1} = K_i (nu_i + H_i delta_i)
+// until |delta_{i+1} - delta_i| is below iteration_tolerance (mm, rad); P is updated with the
+// last K and H (Joseph form). Why: a stereo sighting constrains the pose to a thin curved
+// set (range to ~1 %, bearing to ~0.02 deg), and one step from a prior 30 mm off puts the
+// covariance's thin axis at the wrong angle. In the study's `line` scenario the first update
+// then gave NEES 1250-6400 at one step, and the filter stayed over-confident for tens of steps.
+// The gate still tests the innovation at the prior (5.20).
 #include <Eigen/Core>
 #include <string>
 #include <vector>
@@ -45,6 +57,10 @@ struct EkfConfig {
   double compass_gate_probability = 0.99;  // chi-square probability (1 dof) of the compass gate
   bool reinitialise_when_lost = true;       // ask global_fix when lost; false: stay lost
   GlobalFixFunction global_fix;      // empty: defaultGlobalFix() (solvers/global_fix.h)
+  // Gauss-Newton iterations of each range-bearing update (see the header comment); 1 is
+  // Algorithm 5 as printed.
+  int max_iterations = 1;
+  double iteration_tolerance = 1e-6;  // mm and rad: stop when no component of the step moves more
 };
 
 // What one update did: for the kidnap study's plots of the innovation and e^2 (Figs. 5.4, 5.5).

@@ -154,6 +154,104 @@ TEST(Ekf, RangeBearingUpdateEqualsInformationForm) {
   EXPECT_NEAR(rec.innovation.y(), -0.03, 1e-12);
 }
 
+// The MAP cost of one range-bearing update, (x [-] x^)^T P^-1 (x [-] x^) + |z [-] h(x)|^2_R.
+double updateCost(const Pose2& x, const Pose2& prior, const Eigen::Matrix3d& P, const Observation& obs,
+                  const Eigen::Vector2d& lm) {
+  const Eigen::Vector3d d = minus(x, prior);
+  const Eigen::Vector2d r = rangeBearingInnovation(obs.z(), predictRangeBearing(x, lm));
+  return d.dot(P.inverse() * d) + r.dot(obs.covariance.inverse() * r);
+}
+
+// Central-difference gradient of updateCost, relative to its curvature scale.
+Eigen::Vector3d updateCostGradient(const Pose2& x, const Pose2& prior, const Eigen::Matrix3d& P,
+                                   const Observation& obs, const Eigen::Vector2d& lm) {
+  Eigen::Vector3d g;
+  const Eigen::Vector3d h(1e-4, 1e-4, 1e-7);
+  for (int k = 0; k < 3; ++k) {
+    Eigen::Vector3d e = Eigen::Vector3d::Zero();
+    e(k) = h(k);
+    g(k) = (updateCost(plus(x, e), prior, P, obs, lm) - updateCost(plus(x, -e), prior, P, obs, lm)) / (2 * h(k));
+  }
+  return g;
+}
+
+// The iterated update solves the MAP problem of the step: its gradient vanishes at the result.
+// One step (Algorithm 5) does not, from a prior 60 mm off with a stereo-sharp sighting.
+TEST(Iekf, IteratedUpdateReachesTheMapEstimateWhereOneStepDoesNot) {
+  const FieldMap map = FieldMap::miroSot();
+  const Eigen::Matrix3d P0 = Eigen::Vector3d(900, 900, 0.0025).asDiagonal();
+  const Pose2 prior(250, 550, kPi);
+  const Pose2 truth(190, 560, kPi - 0.03);
+  const Eigen::Vector2d lm(0.0, 450.0);
+  const Eigen::Vector2d z = predictRangeBearing(truth, lm);
+  const Observation obs = observationFromRangeBearing(0, LandmarkType::GoalCorner, z.x(), z.y(), 2.0, 0.0004);
+  Eigen::Vector3d gradient[2];
+  for (int iterated = 0; iterated < 2; ++iterated) {
+    EkfConfig c = knownConfig(prior, P0);
+    c.gate_enabled = false;
+    c.max_iterations = iterated ? 20 : 1;
+    Ekf ekf(map, OdometryParams(), c);
+    ASSERT_TRUE(ekf.updateRangeBearing(obs, lm).accepted);
+    // Scale: the gradient of the prior term alone at the result.
+    gradient[iterated] = updateCostGradient(ekf.pose(), prior, P0, obs, lm);
+    const Eigen::Vector3d d = minus(ekf.pose(), prior);
+    const Eigen::Vector3d prior_gradient = 2 * P0.inverse() * d;
+    if (iterated) {
+      EXPECT_LT(gradient[1].norm(), 1e-3 * prior_gradient.norm()) << gradient[1].transpose();
+      // The range to the landmark is the measured one, within its sigma.
+      EXPECT_NEAR(predictRangeBearing(ekf.pose(), lm).x(), z.x(), 2.0);
+    } else {
+      EXPECT_GT(gradient[0].norm(), 0.1 * prior_gradient.norm()) << gradient[0].transpose();
+    }
+  }
+}
+
+// One update from a prior drawn around the truth: the NEES of the iterated update is near its
+// 3 dof; the one-step update's is far above (the thin axis of its covariance points the wrong
+// way). Measured (seed 11, 400 runs): 211 one step, 4.11 iterated. Not 3: the sighting leaves a
+// curved band of poses (a circle about the landmark, the heading tied to the position), whose
+// sagitta over the prior's 30 mm is ~1 mm against a thin-axis sigma of ~0.2 mm, and a Gaussian
+// at the MAP estimate cannot follow the bend.
+TEST(Iekf, FirstUpdateFromAWidePriorIsConsistent) {
+  const FieldMap map = FieldMap::miroSot();
+  const Eigen::Matrix3d P0 = Eigen::Vector3d(900, 900, std::pow(0.05, 2)).asDiagonal();
+  const Eigen::Matrix3d L0 = P0.llt().matrixL();
+  const Pose2 truth(400, 550, kPi);
+  const Eigen::Vector2d lm(0.0, 450.0);
+  const double sr = 4.0, sb = 0.0004;
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> n01;
+  double nees[2] = {0, 0};
+  const int runs = 400;
+  for (int k = 0; k < runs; ++k) {
+    const Pose2 prior = plus(truth, L0 * Eigen::Vector3d(n01(rng), n01(rng), n01(rng)));
+    const Eigen::Vector2d z = predictRangeBearing(truth, lm) + Eigen::Vector2d(sr * n01(rng), sb * n01(rng));
+    const Observation obs = observationFromRangeBearing(0, LandmarkType::GoalCorner, z.x(), z.y(), sr, sb);
+    for (int iterated = 0; iterated < 2; ++iterated) {
+      EkfConfig c = knownConfig(prior, P0);
+      c.gate_enabled = false;
+      c.max_iterations = iterated ? 10 : 1;
+      Ekf ekf(map, OdometryParams(), c);
+      ekf.updateRangeBearing(obs, lm);
+      const Eigen::Vector3d e = minus(ekf.pose(), truth);
+      nees[iterated] += e.dot(ekf.covariance().inverse() * e) / runs;
+    }
+  }
+  EXPECT_GT(nees[0], 50.0);
+  EXPECT_GT(nees[1], 2.5);
+  EXPECT_LT(nees[1], 4.6) << "one-step " << nees[0];
+}
+
+TEST(Iekf, BadSettingsAreRejected) {
+  const FieldMap map = FieldMap::miroSot();
+  EkfConfig c = knownConfig(Pose2(700, 500, 2.5), Eigen::Vector3d(400, 900, 0.02).asDiagonal());
+  c.max_iterations = 0;
+  EXPECT_THROW(Ekf(map, OdometryParams(), c), Error);
+  c.max_iterations = 3;
+  c.iteration_tolerance = -1;
+  EXPECT_THROW(Ekf(map, OdometryParams(), c), Error);
+}
+
 // --- validation gate ------------------------------------------------------------------------
 
 // Draws the truth from the prior and z from the truth; the gate must accept ~99 % (its

@@ -89,7 +89,7 @@ TEST(CliStudy, UsageErrors) {
 TEST(CliLocalize, EveryMethodWritesEstimatesAndTum) {
   test::TempDir dir;
   ASSERT_EQ(test::runCli("simulate --scenario circle --seed 3 --out " + dir.file("d")).exit_code, 0);
-  for (const char* m : {"fix1", "fix2", "ekf", "pf", "window", "batch", "deadreckoning"}) {
+  for (const char* m : {"fix1", "fix2", "ekf", "iekf", "pf", "window", "batch", "deadreckoning"}) {
     const test::CliRun r = test::runCli(std::string("localize ") + dir.file("d") + " --method " + m + " --particles 500 --out " +
                                         dir.file(std::string(m) + ".csv") + " --tum " + dir.file(std::string(m) + ".tum"));
     ASSERT_EQ(r.exit_code, 0) << m << ": " << r.output;

@@ -11,7 +11,7 @@ namespace {
 
 struct StudyArgs {
   std::string scenarios = "thesis";
-  std::string methods = "fix1,fix2,ekf,ekf:random,ekf:global,pf,window,batch";
+  std::string methods = "fix1,fix2,ekf,iekf,ekf:random,ekf:global,pf,window,batch";
   std::string shard = "0/1";
   std::string init = "known";
   StudyConfig config;
@@ -63,8 +63,8 @@ void add_study_command(CLI::App& app) {
   sub->add_option("--scenarios", a->scenarios, "Comma-separated scenario names, or 'thesis' (circle,line,spin,kidnap)")
       ->capture_default_str();
   sub->add_option("--methods", a->methods,
-                  "Comma-separated methods: fix1, fix2, ekf, pf, window, batch, deadreckoning; append :known, "
-                  ":random or :global to choose the start (e.g. ekf:random)")
+                  "Comma-separated methods: " + methodNamesText() +
+                      "; append :known, :random or :global to choose the start (e.g. ekf:random)")
       ->capture_default_str();
   sub->add_option("--trials", a->config.trials, "Trials per scenario")->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--seed", a->config.seed, "Study seed (each trial's seed derives from it)")->capture_default_str();

@@ -75,7 +75,7 @@ Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& front
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, bool method_option) {
   sub->add_option("dataset", a->dataset, "Dataset directory (see README: dataset format)")->required()->check(CLI::ExistingDirectory);
   if (method_option)
-    sub->add_option("--method", a->method, "fix1, fix2, ekf, pf, window, batch or deadreckoning (optionally :known, :random, :global)")
+    sub->add_option("--method", a->method, methodNamesText() + " (optionally :known, :random, :global)")
         ->capture_default_str();
   sub->add_option("--init", a->init, "Start of the trackers: known (truth + noise), random, or global (first global fix)")
       ->capture_default_str();

@@ -14,6 +14,10 @@
 namespace stereoloc::cli {
 namespace {
 
+// Gauss-Newton iterations of the iterated EKF's updates (solvers/ekf.h); it stops earlier when
+// converged, typically after 2-3.
+constexpr int kIekfIterations = 10;
+
 using Clock = std::chrono::steady_clock;
 
 double msSince(Clock::time_point start, size_t steps) {
@@ -97,8 +101,14 @@ MethodRun runFixes(const Dataset& d, bool one_landmark) {
 }  // namespace
 
 const std::vector<std::string>& methodNames() {
-  static const std::vector<std::string> names = {"fix1", "fix2", "ekf", "pf", "window", "batch", "deadreckoning"};
+  static const std::vector<std::string> names = {"fix1", "fix2", "ekf", "iekf", "pf", "window", "batch", "deadreckoning"};
   return names;
+}
+
+std::string methodNamesText() {
+  std::string text;
+  for (const std::string& n : methodNames()) text += (text.empty() ? "" : ", ") + n;
+  return text;
 }
 
 std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init) {
@@ -106,7 +116,7 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMo
   const std::string name = spec.substr(0, colon);
   bool known = false;
   for (const std::string& n : methodNames()) known |= n == name;
-  if (!known) throw UsageError("unknown method '" + name + "' (expected fix1, fix2, ekf, pf, window, batch or deadreckoning)");
+  if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
   InitMode init = default_init;
   if (colon != std::string::npos) {
     try {
@@ -126,8 +136,9 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     run = runFixes(d, name == "fix1");
   } else if (name == "deadreckoning") {
     run = runDeadReckoning(d, beliefFor(init_mode, d, o, rng));
-  } else if (name == "ekf") {
+  } else if (name == "ekf" || name == "iekf") {
     EkfConfig c;
+    if (name == "iekf") c.max_iterations = kIekfIterations;
     c.init = beliefFor(init_mode, d, o, rng);
     c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
     Ekf ekf(d.map, d.odometry, c);

@@ -35,8 +35,10 @@ struct MethodRun {
   long fixed_steps = 0;              // fixes: steps that gave a fix
 };
 
-// The names accepted before the optional ":init".
+// The names accepted before the optional ":init" ("iekf": the EKF with iterated updates), and
+// them comma-separated for help texts and errors.
 const std::vector<std::string>& methodNames();
+std::string methodNamesText();
 
 // Splits "ekf:random" into ("ekf", Random); throws UsageError for an unknown name or init.
 std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init);
