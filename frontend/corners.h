@@ -19,6 +19,7 @@
 // with the rig (real marking corners are 90 deg there; the centre circle's chords are not,
 // 6.1). Intersections of the same type closer than merge_px (three or more lines meeting)
 // are averaged.
+#include <opencv2/core/mat.hpp>
 #include <vector>
 
 #include "frontend/features.h"
@@ -46,6 +47,20 @@ struct CornerParams {
   double snap_px = 8.0;              // = delta (6.1), the reach of Algorithm 4's end test
   double snap_min_angle_deg = 3.0;   // below, 0.05 px of line noise moves p by > 1 px
   double border_snap_px = 5.5;       // 2 px without gradient + 0.5 to the border + Gap_min
+  // Stripe probe (findCorners with the luma image): a junction or L corner needs its marking's
+  // stripe to really reach the meeting point. snapLineEnds moves an end up to snap_px onto
+  // another line, so a marking that ends at a goal-area corner ~5 px below a wall foot (whose
+  // ~1 px wide far arm was not found) was snapped onto the foot and became a junction (bench
+  // seeds 5 and 6: 10 of the 23 false detections). The centre line is sampled every 1 px from
+  // probe_start_px (plus half the other stripe's width across it, for a corner) to delta_px
+  // from the point; a sample is dark when its contrast (centre minus the darker of the two
+  // sides, 0.5 width + probe_side_px across) is below probe_dark_fraction of the same contrast
+  // at the line's middle (median of 5 samples, 2 px apart); probe_min_run dark samples in a
+  // row reject the feature. probe_min_run <= 0 disables the probe.
+  double probe_start_px = 1.5;       // the wall foot's edge blurs 1 px; start past it
+  double probe_side_px = 2.0;        // side samples this far outside the stripe's edge
+  double probe_dark_fraction = 0.4;  // of the reference contrast
+  int probe_min_run = 2;             // consecutive dark samples (px): a gap, not noise
 };
 
 // Segments -> lines (see above). Appends nothing: `lines` is replaced.
@@ -68,8 +83,16 @@ void clipLinesToImage(int width, int height, std::vector<LineFeature>& lines);
 void snapLineEnds(int width, int height, const CornerParams& params, std::vector<LineFeature>& lines);
 
 // Lines -> point features (types MarkingCorner, Junction, Intersection); `features` is replaced.
+// luma (CV_8UC1, the image of the lines) enables the stripe probe (see CornerParams); without
+// it the types come from the lines alone.
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& params,
-                 std::vector<PointFeature>& features);
+                 std::vector<PointFeature>& features, const cv::Mat* luma = nullptr);
+
+// The stripe probe: true unless marking line m's centre line shows a gap (probe_min_run dark
+// samples) between s0 px and delta_px from the point at line coordinate tp, going into m.
+// Also true when the probe cannot judge (reference contrast below 4 grey levels, or samples
+// outside the image).
+bool stripeReaches(const cv::Mat& luma, const LineFeature& m, double tp, double s0, const CornerParams& params);
 
 // Intersection of the left-camera ray through pixel (u, v) with the floor, in the robot frame
 // C0 at head pan 0 (mm). False when the ray does not go down.

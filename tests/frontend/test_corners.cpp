@@ -2,9 +2,12 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
 #include <functional>
 
 #include "frontend/frontend.h"
+#include "src/error.h"
+#include "test_util.h"
 
 using namespace stereoloc;
 using namespace stereoloc::frontend;
@@ -275,4 +278,105 @@ TEST(Corners, SnapLineEndsRunsOnToTheImageBorder) {
   EXPECT_NEAR(std::min(lines[0].x(lines[0].t_min), lines[0].x(lines[0].t_max)), -0.5, 1e-6);
   EXPECT_NEAR(std::max(lines[0].x(lines[0].t_min), lines[0].x(lines[0].t_max)), 150, 1e-6);
   EXPECT_NEAR(std::min(lines[1].x(lines[1].t_min), lines[1].x(lines[1].t_max)), 20, 1e-6);
+}
+
+// The stripe probe: a marking that stops ~5 px short of a wall foot (the end of a goal-area line
+// whose thin far arm was not found) was snapped onto the foot and reported as a junction. With
+// the image, findCorners finds the floor between them and drops it; a stripe running up to the
+// foot stays a junction.
+TEST(Corners, JunctionNeedsTheStripeToReachTheWallFoot) {
+  const StereoRig rig;  // 320 x 240
+  for (const int gap : {0, 5}) {
+    cv::Mat luma(240, 320, CV_8UC1, cv::Scalar(40));
+    luma.rowRange(0, 100).setTo(200);                                  // wall above row 99.5
+    luma(cv::Rect(158, 100 + gap, 4, 100 - gap)).setTo(200);          // stripe x 157.5..161.5
+    std::vector<LineFeature> lines{lineThrough(20, 99.5, 300, 99.5, false, true),
+                                   lineThrough(159.5, 99.5, 159.5, 199.5, true, false)};  // snapped onto the foot
+    lines[1].width = 4;
+    std::vector<PointFeature> feats;
+    findCorners(lines, rig, CornerParams(), feats);  // without the image: a junction either way
+    ASSERT_EQ(feats.size(), 1u);
+    EXPECT_EQ(feats[0].type, LandmarkType::Junction);
+    findCorners(lines, rig, CornerParams(), feats, &luma);
+    EXPECT_EQ(feats.size(), gap == 0 ? 1u : 0u) << "gap " << gap << " px";
+    CornerParams off;
+    off.probe_min_run = 0;  // disabled
+    findCorners(lines, rig, off, feats, &luma);
+    EXPECT_EQ(feats.size(), 1u);
+  }
+}
+
+// The same probe for an L: a near stripe snapped across a 5 px gap onto a thin far line is no
+// corner; the probe starts beyond the other stripe's half width, so a real L (whose first pixels
+// lie inside the other stripe) is kept.
+TEST(Corners, MarkingCornerNeedsBothStripesToReachIt) {
+  const StereoRig rig;
+  for (const int gap : {0, 5}) {
+    cv::Mat luma(240, 320, CV_8UC1, cv::Scalar(40));
+    luma(cv::Rect(100, 149, 100, 2)).setTo(200);                 // far arm, rows 148.5..150.5
+    luma(cv::Rect(96, 151 + gap, 8, 80 - gap)).setTo(200);       // near arm, x 95.5..103.5
+    luma(cv::Rect(96, 149, 8, 2)).setTo(200);                    // the corner square
+    // Centre lines through the corner (99.5, 149.5): far arm to the right, near arm down.
+    std::vector<LineFeature> lines{lineThrough(99.5, 149.5, 199.5, 149.5, true, false),
+                                   lineThrough(99.5, 149.5, 99.5, 230.5, true, false)};
+    lines[0].width = 2;
+    lines[1].width = 8;
+    std::vector<PointFeature> feats;
+    findCorners(lines, rig, CornerParams(), feats, &luma);
+    if (gap == 0) {
+      ASSERT_EQ(feats.size(), 1u);
+      EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
+    } else {
+      EXPECT_TRUE(feats.empty()) << "gap " << gap << " px";
+    }
+  }
+}
+
+// Near the camera an L seen at a small image angle has its outer edges, and so the centre lines,
+// running past the corner by half the other stripe's width over the sine of the image angle
+// (8-9 px at 35 deg for 8 px stripes): beyond delta, it looked like a crossing (Intersection).
+TEST(Corners, WideLAtASmallImageAngleIsACornerNotACrossing) {
+  const StereoRig rig;
+  // Image lines at +-17.5 deg about the horizontal, meeting at (200, 200), each running 8.5 px past.
+  const double pi = 3.141592653589793, h = 17.5 * pi / 180;
+  auto arm = [&](double sgn) {
+    const double dx = std::cos(h), dy = sgn * std::sin(h);
+    return lineThrough(200 + 8.5 * dx, 200 + 8.5 * dy, 200 - 100 * dx, 200 - 100 * dy, true, false);
+  };
+  std::vector<LineFeature> lines{arm(1), arm(-1)};
+  // The floor angle of these image lines must be near 90 deg for an L, check it is the overshoot
+  // that decides: with no width the pair is a crossing (both pass 8.5 px > delta).
+  CornerParams prm;
+  prm.corner_angle_tol_deg = 90;  // the floor angle is not what is tested here
+  prm.min_crossing_angle_deg = 0;
+  std::vector<PointFeature> feats;
+  findCorners(lines, rig, prm, feats);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::Intersection);
+  lines[0].width = lines[1].width = 8;  // overshoot 4 / sin(35 deg) = 7.0 px allowed beyond delta
+  findCorners(lines, rig, prm, feats);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
+  EXPECT_NEAR(feats[0].u, 200, 1e-6);
+  EXPECT_NEAR(feats[0].v, 200, 1e-6);
+}
+
+// The probe's parameters load from the corners section like the others, and the shipped file
+// holds the defaults.
+TEST(Corners, ProbeParametersLoadFromYaml) {
+  const test::TempDir dir("stereoloc_corners");
+  std::ofstream(dir.file("p.yaml")) << "%YAML:1.0\n---\ncorners:\n  probe_start_px: 2.5\n  probe_side_px: 3.\n"
+                                       "  probe_dark_fraction: 0.3\n  probe_min_run: 0\n";
+  const FrontendParams p = FrontendParams::load(dir.file("p.yaml"));
+  EXPECT_EQ(p.corners.probe_start_px, 2.5);
+  EXPECT_EQ(p.corners.probe_side_px, 3.0);
+  EXPECT_EQ(p.corners.probe_dark_fraction, 0.3);
+  EXPECT_EQ(p.corners.probe_min_run, 0);
+  std::ofstream(dir.file("bad.yaml")) << "%YAML:1.0\n---\ncorners:\n  probe_dark_fraction: 1.5\n";
+  EXPECT_THROW(FrontendParams::load(dir.file("bad.yaml")), Error);
+  const FrontendParams d = FrontendParams::load(std::string(STEREOLOC_DATA_DIR) + "/frontend_default.yaml");
+  EXPECT_EQ(d.corners.probe_start_px, CornerParams().probe_start_px);
+  EXPECT_EQ(d.corners.probe_side_px, CornerParams().probe_side_px);
+  EXPECT_EQ(d.corners.probe_dark_fraction, CornerParams().probe_dark_fraction);
+  EXPECT_EQ(d.corners.probe_min_run, CornerParams().probe_min_run);
 }
