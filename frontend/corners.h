@@ -52,14 +52,17 @@ struct CornerParams {
   // another line, so a marking that ends at a goal-area corner ~5 px below a wall foot (whose
   // ~1 px wide far arm was not found) was snapped onto the foot and became a junction (bench
   // seeds 5 and 6: 10 of the 23 false detections). The centre line is sampled every 1 px from
-  // probe_start_px (plus half the other stripe's width across it, for a corner) to delta_px
-  // from the point; a sample is dark when its contrast (centre minus the darker of the two
-  // sides, 0.5 width + probe_side_px across) is below probe_dark_fraction of the same contrast
-  // at the line's middle (median of 5 samples, 2 px apart); probe_min_run dark samples in a
-  // row reject the feature. probe_min_run <= 0 disables the probe.
-  double probe_start_px = 1.5;       // the wall foot's edge blurs 1 px; start past it
-  double probe_side_px = 2.0;        // side samples this far outside the stripe's edge
-  double probe_dark_fraction = 0.4;  // of the reference contrast
+  // probe_start_px (plus half the other stripe's width over the sine of the image angle, for a
+  // corner) to delta_px from the point; a sample is dark when its luma is below the floor's
+  // plus probe_dark_fraction of the stripe's contrast, both measured at the line's middle
+  // (stripe on the centre line, floor 0.5 width + probe_side_px across); probe_min_run dark
+  // samples in a row reject the feature. Measured: gap samples sit at -3..+4 grey levels of
+  // contrast against 150; a 1-2 px stripe straddling two rows dips to 0.38 of its middle's
+  // contrast (seed 6), so 0.4 lost true corners and 0.25 does not. probe_min_run <= 0
+  // disables the probe.
+  double probe_start_px = 1.5;        // the wall foot's edge blurs 1 px; start past it
+  double probe_side_px = 2.0;         // floor samples this far outside the stripe's edge
+  double probe_dark_fraction = 0.25;  // of the stripe's contrast over the floor
   int probe_min_run = 2;             // consecutive dark samples (px): a gap, not noise
 };
 
