@@ -64,6 +64,18 @@ struct CornerParams {
   double probe_side_px = 2.0;         // floor samples this far outside the stripe's edge
   double probe_dark_fraction = 0.25;  // of the stripe's contrast over the floor
   int probe_min_run = 2;             // consecutive dark samples (px): a gap, not noise
+  // Arm probe (findCorners with the luma image): the far arm of a marking corner is often a
+  // 1-2 px stripe that the segment stage does not find (bench seed 5: 8 of the 14 missed
+  // corners), leaving the other arm with a free end. At each free marking end the missing arm
+  // is looked for where the rig puts it: perpendicular to the marking on the floor. Two luma
+  // profiles parallel to the marking, 0.5 width + 1.5 and + 4.5 px to one side, over
+  // +-delta_px around the end must each show one bounded bump (a stripe crossing, not a wall's
+  // step) brighter than the floor by arm_min_contrast of the marking's contrast, at positions
+  // that agree within 1.5 px on where the arm meets the centre line; the arm must stay bright
+  // for arm_length_px beyond them (one dark sample allowed), nothing may cross on the other
+  // side, and the marking must not run on past the arm. arm_length_px <= 0 disables it.
+  double arm_min_contrast = 0.3;  // thin stripes dip to 0.38 of their contrast (see above)
+  double arm_length_px = 12.0;    // px along the arm, samples every 2 px
 };
 
 // Segments -> lines (see above). Appends nothing: `lines` is replaced.
@@ -90,6 +102,19 @@ void snapLineEnds(int width, int height, const CornerParams& params, std::vector
 // it the types come from the lines alone.
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& params,
                  std::vector<PointFeature>& features, const cv::Mat* luma = nullptr);
+
+// The arm probe (see CornerParams) at one end of marking line m (its t_max end when at_max_end):
+// true with the corner (u, v) on m's centre line when a missing perpendicular arm is found, and
+// the arm's unit image direction in (arm_dx, arm_dy) when given.
+bool probeMissingArm(const cv::Mat& luma, const StereoRig& rig, const LineFeature& m, bool at_max_end,
+                     const CornerParams& params, double& u, double& v, double* arm_dx = nullptr,
+                     double* arm_dy = nullptr);
+
+// Follows an arm found by probeMissingArm (from corner (u, v), unit direction (ax, ay)) to the
+// nearest wall foot among `lines` it crosses more than delta_px away: true with the junction
+// (ju, jv) when the arm's centre line is bright (as in the stripe probe) all the way to it.
+bool traceArmToWallFoot(const cv::Mat& luma, const std::vector<LineFeature>& lines, const LineFeature& m, double u,
+                        double v, double ax, double ay, const CornerParams& params, double& ju, double& jv);
 
 // The stripe probe: true unless marking line m's centre line shows a gap (probe_min_run dark
 // samples) between s0 px and delta_px from the point at line coordinate tp, going into m.

@@ -67,6 +67,8 @@ std::vector<Field> fields(FrontendParams& p) {
       {"corners", "probe_side_px", Field::Double, &p.corners.probe_side_px},
       {"corners", "probe_dark_fraction", Field::Double, &p.corners.probe_dark_fraction},
       {"corners", "probe_min_run", Field::Int, &p.corners.probe_min_run},
+      {"corners", "arm_min_contrast", Field::Double, &p.corners.arm_min_contrast},
+      {"corners", "arm_length_px", Field::Double, &p.corners.arm_length_px},
       {"goals", "coarse_step", Field::Int, &p.goals.coarse_step},
       {"goals", "min_coarse_hits", Field::Int, &p.goals.min_coarse_hits},
       {"goals", "window_margin_px", Field::Int, &p.goals.window_margin_px},
@@ -131,6 +133,7 @@ void FrontendParams::validate() const {
        "must not be negative");
   need(corners.probe_dark_fraction >= 0 && corners.probe_dark_fraction <= 1, "corners.probe_dark_fraction",
        "must be in [0, 1]");
+  need(corners.arm_min_contrast > 0 && corners.arm_min_contrast <= 1, "corners.arm_min_contrast", "must be in (0, 1]");
   need(goals.coarse_step >= 1, "goals.coarse_step", "must be at least 1");
   need(goals.min_rows >= 1, "goals.min_rows", "must be at least 1");
   need(goals.max_transition_px >= 1, "goals.max_transition_px", "must be at least 1");
