@@ -40,29 +40,26 @@ double lumaAt(const cv::Mat& g, double x, double y) {
   return (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
 }
 
-// Luma on line m's centre line at coordinate t and, in `floor`, the darker of the two sides at
-// +-(0.5 width + side) across (the floor even where the other side touches a wall or another
-// stripe). False when a sample leaves the image.
-bool stripeSamples(const cv::Mat& g, const LineFeature& m, double t, double side, double& centre, double& floor) {
-  const double cx = m.x(t), cy = m.y(t), nx = std::cos(m.theta), ny = std::sin(m.theta);
-  const double off = 0.5 * m.width + side;
-  const double c = lumaAt(g, cx, cy), l = lumaAt(g, cx - off * nx, cy - off * ny), r = lumaAt(g, cx + off * nx, cy + off * ny);
-  if (c < 0 || l < 0 || r < 0) return false;
-  centre = c;
-  floor = std::min(l, r);
-  return true;
-}
-
 // References from the middle of line m's extent, where the stripe is what the line was fitted
-// to and its width is the measured one: floor luma and the stripe's contrast over it, medians
-// of 5 (robust to a sample on a crossing line or an occluder). False without a visible stripe
+// to and its width is the measured one: floor luma (the darker of the two sides at
+// +-(0.5 width + side) across: the floor even where the other side touches a wall or another
+// stripe) and the stripe's contrast over it on the centre line, medians of 5 samples 2 px apart
+// (robust to a sample on a crossing line or an occluder). False without a visible stripe
 // (contrast below 4 grey levels) or with samples outside the image.
 bool stripeReference(const cv::Mat& luma, const LineFeature& m, double side, double& floor_ref, double& contrast) {
   const double tm = 0.5 * (m.t_min + m.t_max), half = 0.5 * (m.t_max - m.t_min);
+  const double nx = std::cos(m.theta), ny = std::sin(m.theta), off = 0.5 * m.width + side;
   double cs[5], fs[5];
   int n = 0;
-  for (int k = -2; k <= 2; ++k)
-    if (stripeSamples(luma, m, tm + std::clamp(2.0 * k, -half, half), side, cs[n], fs[n])) ++n;
+  for (int k = -2; k <= 2; ++k) {
+    const double t = tm + std::clamp(2.0 * k, -half, half), cx = nx * m.rho - t * ny, cy = ny * m.rho + t * nx;
+    const double c = lumaAt(luma, cx, cy), l = lumaAt(luma, cx - off * nx, cy - off * ny),
+                 r = lumaAt(luma, cx + off * nx, cy + off * ny);
+    if (c < 0 || l < 0 || r < 0) continue;
+    cs[n] = c;
+    fs[n] = std::min(l, r);
+    ++n;
+  }
   if (n < 3) return false;
   std::nth_element(cs, cs + n / 2, cs + n);
   std::nth_element(fs, fs + n / 2, fs + n);
@@ -84,9 +81,10 @@ bool stripeReaches(const cv::Mat& luma, const LineFeature& m, double tp, double 
   const double dark = floor_ref + prm.probe_dark_fraction * contrast;
   const double dir = tm >= tp ? 1.0 : -1.0;
   const double reach = std::min(prm.delta_px, std::fabs(tm - tp));
+  const double nx = std::cos(m.theta), ny = std::sin(m.theta);
   int run = 0;
   for (double s = s0; s <= reach; s += 1.0) {
-    const double t = tp + dir * s, c = lumaAt(luma, m.x(t), m.y(t));
+    const double t = tp + dir * s, c = lumaAt(luma, nx * m.rho - t * ny, ny * m.rho + t * nx);
     if (c < 0) {
       run = 0;
       continue;
@@ -110,11 +108,19 @@ double bumpCentre(const cv::Mat& luma, const LineFeature& m, double h, double t0
   constexpr int kMax = 96;
   double val[kMax];
   const int n = std::min(kMax, static_cast<int>((t1 - t0) / 0.5) + 1);
+  // A straight profile lies inside the image when both its ends do; then no per-sample check.
   const double nx = std::cos(m.theta), ny = std::sin(m.theta);
+  const double x0 = nx * (m.rho + h) - t0 * ny, y0 = ny * (m.rho + h) + t0 * nx, dx = -0.5 * ny, dy = 0.5 * nx;
+  const double xe = x0 + (n - 1) * dx, ye = y0 + (n - 1) * dy;
+  if (std::min(x0, xe) < 0 || std::min(y0, ye) < 0 || std::max(x0, xe) >= luma.cols - 1 || std::max(y0, ye) >= luma.rows - 1)
+    return std::nan("");
   for (int k = 0; k < n; ++k) {
-    const double t = t0 + 0.5 * k;
-    val[k] = lumaAt(luma, m.x(t) + h * nx, m.y(t) + h * ny);
-    if (val[k] < 0) return std::nan("");
+    const double x = x0 + k * dx, y = y0 + k * dy;
+    const int xi = static_cast<int>(x), yi = static_cast<int>(y);
+    const double fx = x - xi, fy = y - yi;
+    const uint8_t* r0 = luma.ptr<uint8_t>(yi) + xi;
+    const uint8_t* r1 = r0 + luma.step[0];
+    val[k] = (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
   }
   const double level = floor_ref + 0.5 * min_rise;
   int found = 0, best = -1;
@@ -186,8 +192,9 @@ bool probeMissingArm(const cv::Mat& luma, const StereoRig& rig, const LineFeatur
     const double cot = (sx * ux + sy * uy) / std::fabs(an);  // t advance per px of lateral offset
     double w1 = 0, w2 = 0;
     const double c1 = bumpCentre(luma, m, side * h1, t0 + h1 * cot, t1 + h1 * cot, floor_ref, prm.arm_min_contrast * contrast, w1);
+    if (std::isnan(c1)) continue;  // most free ends: no arm, one profile per side
     const double c2 = bumpCentre(luma, m, side * h2, t0 + h2 * cot, t1 + h2 * cot, floor_ref, prm.arm_min_contrast * contrast, w2);
-    if (std::isnan(c1) || std::isnan(c2)) continue;
+    if (std::isnan(c2)) continue;
     const double tc1 = c1 - h1 * cot, tc2 = c2 - h2 * cot;
     if (std::fabs(tc1 - tc2) > 1.5) continue;
     ++found;

@@ -382,3 +382,83 @@ TEST(Corners, ProbeParametersLoadFromYaml) {
   EXPECT_EQ(d.corners.probe_dark_fraction, CornerParams().probe_dark_fraction);
   EXPECT_EQ(d.corners.probe_min_run, CornerParams().probe_min_run);
 }
+
+namespace {
+// Lines of a rendered floor image, keeping only the marking lines through the image of floor
+// point `keep` (within 2 px) and the wall feet: the other arm is "missed", as a thin far arm
+// often is by the segment stage.
+std::vector<LineFeature> linesKeeping(const StereoRig& rig, Frontend& fe, const cv::Mat& img, const Eigen::Vector2d& keep) {
+  fe.detectSegments(img);
+  std::vector<LineFeature> lines;
+  buildLines(fe.result().segments, fe.params().corners, lines);
+  clipLinesToImage(rig.params().image_width, rig.params().image_height, lines);
+  snapLineEnds(rig.params().image_width, rig.params().image_height, fe.params().corners, lines);
+  const Eigen::Vector2d k = pixel(rig, keep.x(), keep.y());
+  std::vector<LineFeature> out;
+  for (const LineFeature& l : lines) {
+    const double d = std::fabs(k.x() * std::cos(l.theta) + k.y() * std::sin(l.theta) - l.rho);
+    if (l.wall_foot || (l.marking && d < 2.0)) out.push_back(l);
+  }
+  return out;
+}
+}  // namespace
+
+// The arm probe: an L whose far arm (a 10 mm line 600 mm away: 0.54 px tall in the image, so
+// about half the contrast of a stripe) is missing from the lines is found from the other arm's
+// free end, on the centre lines' corner; with the arm crossing on both sides (a T of two
+// markings, no map landmark) or without the image, nothing is found.
+TEST(Corners, ArmProbeFindsAMissingThinArm) {
+  const StereoRig rig;
+  Frontend fe(rig, FieldMap::miroSot());
+  cv::Mat luma;
+  const Eigen::Vector2d corner = pixel(rig, 600, 0);
+  // L: near arm along the view (kept), far thin arm to the left (missing).
+  cv::Mat img = renderFloor(rig, false, {{{300, 0}, {600, 0}, 5.0}, {{600, 0}, {600, 200}, 5.0}});
+  bgrToLuma(img, luma);
+  std::vector<LineFeature> lines = linesKeeping(rig, fe, img, {450, 0});
+  ASSERT_EQ(lines.size(), 1u);
+  std::vector<PointFeature> feats;
+  findCorners(lines, rig, fe.params().corners, feats);
+  EXPECT_TRUE(feats.empty());
+  findCorners(lines, rig, fe.params().corners, feats, &luma);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
+  EXPECT_NEAR(feats[0].u, corner.x(), 1.0);
+  EXPECT_NEAR(feats[0].v, corner.y(), 1.0);
+  CornerParams off = fe.params().corners;
+  off.arm_length_px = 0;
+  findCorners(lines, rig, off, feats, &luma);
+  EXPECT_TRUE(feats.empty());
+  // T: the thin line crosses the end of the near arm.
+  img = renderFloor(rig, false, {{{300, 0}, {600, 0}, 5.0}, {{600, -200}, {600, 200}, 5.0}});
+  bgrToLuma(img, luma);
+  lines = linesKeeping(rig, fe, img, {450, 0});
+  ASSERT_EQ(lines.size(), 1u);
+  findCorners(lines, rig, fe.params().corners, feats, &luma);
+  EXPECT_TRUE(feats.empty());
+}
+
+// An arm found by the probe that runs up to a wall also gives the junction where it meets the
+// wall foot (its line was missed with the arm). The junction is placed along the arm's expected
+// direction from the corner, 22 px here, so it is less exact than a two-line intersection
+// (1.3 px here).
+TEST(Corners, ArmFoundByTheProbeIsTracedToTheWallFoot) {
+  const StereoRig rig;
+  Frontend fe(rig, FieldMap::miroSot());
+  // Far line to the right (kept), its arm from (300, 0) up to a wall at x = 450 (missing).
+  const cv::Mat img = renderFloor(rig, false, {{{300, 0}, {300, -200}, 5.0}, {{300, 0}, {450, 0}, 5.0}}, 450.0);
+  cv::Mat luma;
+  bgrToLuma(img, luma);
+  const std::vector<LineFeature> lines = linesKeeping(rig, fe, img, {300, -100});
+  ASSERT_EQ(lines.size(), 2u);  // the far line and the wall foot
+  std::vector<PointFeature> feats;
+  findCorners(lines, rig, fe.params().corners, feats, &luma);
+  ASSERT_EQ(feats.size(), 2u);
+  const Eigen::Vector2d corner = pixel(rig, 300, 0), junction = pixel(rig, 450, 0);
+  EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
+  EXPECT_NEAR(feats[0].u, corner.x(), 1.0);
+  EXPECT_NEAR(feats[0].v, corner.y(), 1.0);
+  EXPECT_EQ(feats[1].type, LandmarkType::Junction);
+  EXPECT_NEAR(feats[1].u, junction.x(), 1.5);
+  EXPECT_NEAR(feats[1].v, junction.y(), 1.5);
+}
