@@ -468,6 +468,29 @@ bool traceArmToWallFoot(const cv::Mat& luma, const std::vector<LineFeature>& lin
   return true;
 }
 
+// True unless the edge o, taken for a wall foot, has no wall above it at (x, y): the luma
+// wall_min_height_px - 1 and wall_min_height_px above o (along its normal, upwards) must be
+// brighter than the floor by probe_dark_fraction of marking m's contrast. The lower edge of a
+// thin far marking whose upper edge was not found is bright above and dark below too; 2-3 px
+// above it is floor again. Also true when the probe cannot judge.
+bool wallAbove(const cv::Mat& luma, const LineFeature& m, const LineFeature& o, double x, double y,
+               const CornerParams& prm) {
+  if (prm.wall_min_height_px <= 0) return true;
+  double floor_ref, contrast;
+  if (!stripeReference(luma, m, prm.probe_side_px, floor_ref, contrast)) return true;
+  double nx = std::cos(o.theta), ny = std::sin(o.theta);
+  if (ny > 0) {
+    nx = -nx;
+    ny = -ny;
+  }
+  const double bright = floor_ref + prm.probe_dark_fraction * contrast;
+  for (const double d : {prm.wall_min_height_px - 1.0, prm.wall_min_height_px}) {
+    const double l = lumaAt(luma, x + d * nx, y + d * ny);
+    if (l >= 0 && l < bright) return false;
+  }
+  return true;
+}
+
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& prm,
                  std::vector<PointFeature>& features, const cv::Mat* luma) {
   features.clear();
@@ -536,8 +559,11 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
         const double tm = 0.5 * (m.t_min + m.t_max), mx = m.x(tm), my = m.y(tm);
         const double so = std::sin(o.theta);
         if (std::fabs(so) < 1e-9 || my < (o.rho - mx * std::cos(o.theta)) / so) continue;
-        // The stripe must run up to the wall foot (a T, Algorithm 4), not stop short of it.
-        if (luma && !stripeReaches(*luma, m, a.marking ? ta : tb, prm.probe_start_px, prm)) continue;
+        // The stripe must run up to the wall foot (a T, Algorithm 4), not stop short of it, and
+        // the foot must have a wall above it.
+        if (luma && (!stripeReaches(*luma, m, a.marking ? ta : tb, prm.probe_start_px, prm) ||
+                     !wallAbove(*luma, m, o, px, py, prm)))
+          continue;
         type = LandmarkType::Junction;
       }
       // Average with an existing feature of the same type nearby (3+ lines meeting).

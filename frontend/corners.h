@@ -76,6 +76,13 @@ struct CornerParams {
   // side, and the marking must not run on past the arm. arm_length_px <= 0 disables it.
   double arm_min_contrast = 0.3;  // thin stripes dip to 0.38 of their contrast (see above)
   double arm_length_px = 12.0;    // px along the arm, samples every 2 px
+  // A junction's wall foot must have a wall above it: the luma wall_min_height_px - 1 and
+  // wall_min_height_px above the junction, across the foot, is not floor (same dark level as
+  // the stripe probe). The lower edge of a thin far marking whose upper edge was not found is
+  // bright above and dark below like a wall foot, and a marking meeting it was a junction
+  // (bench seeds 5, 6: 3 false junctions on a corner). A wall 50 mm tall is >= 8 px tall in
+  // the image up to 1.7 m. <= 0 disables the test.
+  double wall_min_height_px = 3.5;
 };
 
 // Segments -> lines (see above). Appends nothing: `lines` is replaced.

@@ -69,6 +69,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"corners", "probe_min_run", Field::Int, &p.corners.probe_min_run},
       {"corners", "arm_min_contrast", Field::Double, &p.corners.arm_min_contrast},
       {"corners", "arm_length_px", Field::Double, &p.corners.arm_length_px},
+      {"corners", "wall_min_height_px", Field::Double, &p.corners.wall_min_height_px},
       {"goals", "coarse_step", Field::Int, &p.goals.coarse_step},
       {"goals", "min_coarse_hits", Field::Int, &p.goals.min_coarse_hits},
       {"goals", "window_margin_px", Field::Int, &p.goals.window_margin_px},

@@ -368,12 +368,16 @@ TEST(Corners, WideLAtASmallImageAngleIsACornerNotACrossing) {
 TEST(Corners, ProbeParametersLoadFromYaml) {
   const test::TempDir dir("stereoloc_corners");
   std::ofstream(dir.file("p.yaml")) << "%YAML:1.0\n---\ncorners:\n  probe_start_px: 2.5\n  probe_side_px: 3.\n"
-                                       "  probe_dark_fraction: 0.3\n  probe_min_run: 0\n";
+                                       "  probe_dark_fraction: 0.3\n  probe_min_run: 0\n  arm_min_contrast: 0.5\n"
+                                       "  arm_length_px: 20\n  wall_min_height_px: 5\n";
   const FrontendParams p = FrontendParams::load(dir.file("p.yaml"));
   EXPECT_EQ(p.corners.probe_start_px, 2.5);
   EXPECT_EQ(p.corners.probe_side_px, 3.0);
   EXPECT_EQ(p.corners.probe_dark_fraction, 0.3);
   EXPECT_EQ(p.corners.probe_min_run, 0);
+  EXPECT_EQ(p.corners.arm_min_contrast, 0.5);
+  EXPECT_EQ(p.corners.arm_length_px, 20.0);
+  EXPECT_EQ(p.corners.wall_min_height_px, 5.0);
   std::ofstream(dir.file("bad.yaml")) << "%YAML:1.0\n---\ncorners:\n  probe_dark_fraction: 1.5\n";
   EXPECT_THROW(FrontendParams::load(dir.file("bad.yaml")), Error);
   const FrontendParams d = FrontendParams::load(std::string(STEREOLOC_DATA_DIR) + "/frontend_default.yaml");
@@ -381,6 +385,9 @@ TEST(Corners, ProbeParametersLoadFromYaml) {
   EXPECT_EQ(d.corners.probe_side_px, CornerParams().probe_side_px);
   EXPECT_EQ(d.corners.probe_dark_fraction, CornerParams().probe_dark_fraction);
   EXPECT_EQ(d.corners.probe_min_run, CornerParams().probe_min_run);
+  EXPECT_EQ(d.corners.arm_min_contrast, CornerParams().arm_min_contrast);
+  EXPECT_EQ(d.corners.arm_length_px, CornerParams().arm_length_px);
+  EXPECT_EQ(d.corners.wall_min_height_px, CornerParams().wall_min_height_px);
 }
 
 namespace {
@@ -461,4 +468,29 @@ TEST(Corners, ArmFoundByTheProbeIsTracedToTheWallFoot) {
   EXPECT_EQ(feats[1].type, LandmarkType::Junction);
   EXPECT_NEAR(feats[1].u, junction.x(), 1.5);
   EXPECT_NEAR(feats[1].v, junction.y(), 1.5);
+}
+
+// A junction's wall foot needs a wall above it: the lower edge of a thin far marking (bright
+// above, dark below, its upper edge not found) is no wall foot; a real wall is (the gap-0 case
+// of JunctionNeedsTheStripeToReachTheWallFoot).
+TEST(Corners, JunctionNeedsAWallAboveTheFoot) {
+  const StereoRig rig;
+  cv::Mat luma(240, 320, CV_8UC1, cv::Scalar(40));
+  luma.rowRange(98, 100).setTo(200);                      // thin marking, rows 97.5..99.5
+  luma(cv::Rect(158, 100, 4, 100)).setTo(200);            // stripe meeting its lower edge
+  std::vector<LineFeature> lines{lineThrough(20, 99.5, 300, 99.5, false, true),
+                                 lineThrough(159.5, 99.5, 159.5, 199.5, true, false)};
+  lines[1].width = 4;
+  std::vector<PointFeature> feats;
+  findCorners(lines, rig, CornerParams(), feats, &luma);
+  EXPECT_TRUE(feats.empty());
+  CornerParams off;
+  off.wall_min_height_px = 0;
+  findCorners(lines, rig, off, feats, &luma);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::Junction);
+  luma.rowRange(0, 98).setTo(180);  // a wall above: a junction again
+  findCorners(lines, rig, CornerParams(), feats, &luma);
+  ASSERT_EQ(feats.size(), 1u);
+  EXPECT_EQ(feats[0].type, LandmarkType::Junction);
 }
