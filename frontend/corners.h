@@ -19,6 +19,7 @@
 // with the rig (real marking corners are 90 deg there; the centre circle's chords are not,
 // 6.1). Intersections of the same type closer than merge_px (three or more lines meeting)
 // are averaged.
+#include <opencv2/core/mat.hpp>
 #include <vector>
 
 #include "frontend/features.h"
@@ -46,6 +47,42 @@ struct CornerParams {
   double snap_px = 8.0;              // = delta (6.1), the reach of Algorithm 4's end test
   double snap_min_angle_deg = 3.0;   // below, 0.05 px of line noise moves p by > 1 px
   double border_snap_px = 5.5;       // 2 px without gradient + 0.5 to the border + Gap_min
+  // Stripe probe (findCorners with the luma image): a junction or L corner needs its marking's
+  // stripe to really reach the meeting point. snapLineEnds moves an end up to snap_px onto
+  // another line, so a marking that ends at a goal-area corner ~5 px below a wall foot (whose
+  // ~1 px wide far arm was not found) was snapped onto the foot and became a junction (bench
+  // seeds 5 and 6: 10 of the 23 false detections). The centre line is sampled every 1 px from
+  // probe_start_px (plus half the other stripe's width over the sine of the image angle, for a
+  // corner) to delta_px from the point; a sample is dark when its luma is below the floor's
+  // plus probe_dark_fraction of the stripe's contrast, both measured at the line's middle
+  // (stripe on the centre line, floor 0.5 width + probe_side_px across); probe_min_run dark
+  // samples in a row reject the feature. Measured: gap samples sit at -3..+4 grey levels of
+  // contrast against 150; a 1-2 px stripe straddling two rows dips to 0.38 of its middle's
+  // contrast (seed 6), so 0.4 lost true corners and 0.25 does not. probe_min_run <= 0
+  // disables the probe.
+  double probe_start_px = 1.5;        // the wall foot's edge blurs 1 px; start past it
+  double probe_side_px = 2.0;         // floor samples this far outside the stripe's edge
+  double probe_dark_fraction = 0.25;  // of the stripe's contrast over the floor
+  int probe_min_run = 2;             // consecutive dark samples (px): a gap, not noise
+  // Arm probe (findCorners with the luma image): the far arm of a marking corner is often a
+  // 1-2 px stripe that the segment stage does not find (bench seed 5: 8 of the 14 missed
+  // corners), leaving the other arm with a free end. At each free marking end the missing arm
+  // is looked for where the rig puts it: perpendicular to the marking on the floor. Two luma
+  // profiles parallel to the marking, 0.5 width + 1.5 and + 4.5 px to one side, over
+  // +-delta_px around the end must each show one bounded bump (a stripe crossing, not a wall's
+  // step) brighter than the floor by arm_min_contrast of the marking's contrast, at positions
+  // that agree within 1.5 px on where the arm meets the centre line; the arm must stay bright
+  // for arm_length_px beyond them (one dark sample allowed), nothing may cross on the other
+  // side, and the marking must not run on past the arm. arm_length_px <= 0 disables it.
+  double arm_min_contrast = 0.3;  // thin stripes dip to 0.38 of their contrast (see above)
+  double arm_length_px = 12.0;    // px along the arm, samples every 2 px
+  // A junction's wall foot must have a wall above it: the luma wall_min_height_px - 1 and
+  // wall_min_height_px above the junction, across the foot, is not floor (same dark level as
+  // the stripe probe). The lower edge of a thin far marking whose upper edge was not found is
+  // bright above and dark below like a wall foot, and a marking meeting it was a junction
+  // (bench seeds 5, 6: 3 false junctions on a corner). A wall 50 mm tall is >= 8 px tall in
+  // the image up to 1.7 m. <= 0 disables the test.
+  double wall_min_height_px = 3.5;
 };
 
 // Segments -> lines (see above). Appends nothing: `lines` is replaced.
@@ -68,8 +105,29 @@ void clipLinesToImage(int width, int height, std::vector<LineFeature>& lines);
 void snapLineEnds(int width, int height, const CornerParams& params, std::vector<LineFeature>& lines);
 
 // Lines -> point features (types MarkingCorner, Junction, Intersection); `features` is replaced.
+// luma (CV_8UC1, the image of the lines) enables the stripe probe (see CornerParams); without
+// it the types come from the lines alone.
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& params,
-                 std::vector<PointFeature>& features);
+                 std::vector<PointFeature>& features, const cv::Mat* luma = nullptr);
+
+// The arm probe (see CornerParams) at one end of marking line m (its t_max end when at_max_end):
+// true with the corner (u, v) on m's centre line when a missing perpendicular arm is found, and
+// the arm's unit image direction in (arm_dx, arm_dy) when given.
+bool probeMissingArm(const cv::Mat& luma, const StereoRig& rig, const LineFeature& m, bool at_max_end,
+                     const CornerParams& params, double& u, double& v, double* arm_dx = nullptr,
+                     double* arm_dy = nullptr);
+
+// Follows an arm found by probeMissingArm (from corner (u, v), unit direction (ax, ay)) to the
+// nearest wall foot among `lines` it crosses more than delta_px away: true with the junction
+// (ju, jv) when the arm's centre line is bright (as in the stripe probe) all the way to it.
+bool traceArmToWallFoot(const cv::Mat& luma, const std::vector<LineFeature>& lines, const LineFeature& m, double u,
+                        double v, double ax, double ay, const CornerParams& params, double& ju, double& jv);
+
+// The stripe probe: true unless marking line m's centre line shows a gap (probe_min_run dark
+// samples) between s0 px and delta_px from the point at line coordinate tp, going into m.
+// Also true when the probe cannot judge (reference contrast below 4 grey levels, or samples
+// outside the image).
+bool stripeReaches(const cv::Mat& luma, const LineFeature& m, double tp, double s0, const CornerParams& params);
 
 // Intersection of the left-camera ray through pixel (u, v) with the floor, in the robot frame
 // C0 at head pan 0 (mm). False when the ray does not go down.

@@ -55,6 +55,7 @@ struct LineFeature {
   double t_min = 0, t_max = 0;  // extent along the line direction (-sin theta, cos theta), px
   bool marking = false;
   bool wall_foot = false;   // bright above, dark below: the foot of a wall seen from the field
+  double width = 0;         // px, stripe width in the image (markings; the wider of two edges' widths)
   int support = 0;          // pixels
   int source = -1;          // index of the (first) segment it came from
   double x(double t) const;  // point at line coordinate t

@@ -63,6 +63,13 @@ std::vector<Field> fields(FrontendParams& p) {
       {"corners", "snap_px", Field::Double, &p.corners.snap_px},
       {"corners", "snap_min_angle_deg", Field::Double, &p.corners.snap_min_angle_deg},
       {"corners", "border_snap_px", Field::Double, &p.corners.border_snap_px},
+      {"corners", "probe_start_px", Field::Double, &p.corners.probe_start_px},
+      {"corners", "probe_side_px", Field::Double, &p.corners.probe_side_px},
+      {"corners", "probe_dark_fraction", Field::Double, &p.corners.probe_dark_fraction},
+      {"corners", "probe_min_run", Field::Int, &p.corners.probe_min_run},
+      {"corners", "arm_min_contrast", Field::Double, &p.corners.arm_min_contrast},
+      {"corners", "arm_length_px", Field::Double, &p.corners.arm_length_px},
+      {"corners", "wall_min_height_px", Field::Double, &p.corners.wall_min_height_px},
       {"goals", "coarse_step", Field::Int, &p.goals.coarse_step},
       {"goals", "min_coarse_hits", Field::Int, &p.goals.min_coarse_hits},
       {"goals", "window_margin_px", Field::Int, &p.goals.window_margin_px},
@@ -123,6 +130,11 @@ void FrontendParams::validate() const {
   need(corners.snap_px >= 0 && corners.border_snap_px >= 0, "corners.snap_px/border_snap_px", "must not be negative");
   need(corners.snap_min_angle_deg > 0 && corners.snap_min_angle_deg < 90, "corners.snap_min_angle_deg", "must be in (0, 90)");
   need(corners.merge_px >= 0, "corners.merge_px", "must not be negative");
+  need(corners.probe_start_px >= 0 && corners.probe_side_px >= 0, "corners.probe_start_px/probe_side_px",
+       "must not be negative");
+  need(corners.probe_dark_fraction >= 0 && corners.probe_dark_fraction <= 1, "corners.probe_dark_fraction",
+       "must be in [0, 1]");
+  need(corners.arm_min_contrast > 0 && corners.arm_min_contrast <= 1, "corners.arm_min_contrast", "must be in (0, 1]");
   need(goals.coarse_step >= 1, "goals.coarse_step", "must be at least 1");
   need(goals.min_rows >= 1, "goals.min_rows", "must be at least 1");
   need(goals.max_transition_px >= 1, "goals.max_transition_px", "must be at least 1");
@@ -260,7 +272,7 @@ const FrontendResult& Frontend::process(const cv::Mat& left, const cv::Mat& righ
   buildLines(r.segments, params_.corners, r.lines);
   clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
   snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);
-  findCorners(r.lines, rig_, params_.corners, r.features);
+  findCorners(r.lines, rig_, params_.corners, r.features, &left_luma_);
 
   const DisparityRange range = validDisparities(rig_, params_.stereo);
   if (!r.features.empty()) {
