@@ -40,29 +40,50 @@ struct Box {
   int u0, u1, v0, v1;  // inclusive pixel range that may see the object
 };
 
-// Image-space bounding box of a set of world points seen from a camera; the whole image when
-// any point is near or behind the camera plane (the projection is unbounded there).
-Box projectBox(const std::vector<Eigen::Vector3d>& pts, const Eigen::Vector3d& cam, const Eigen::Matrix3d& Rwv,
-               double f, double ou, double ov, int W, int H) {
+// Image-space bounding box of a convex object, given as the vertices and edges of a polytope
+// holding it (world frame), seen from a camera: the projections of the vertices in front of the
+// plane x = 1 mm (camera frame) and of the edges' crossings of that plane. Nothing behind the
+// plane: invisible. An object crossing the plane but farther than `near_mm` from the camera
+// (near_mm bounds the distance of a sample ray's points with x < 1 mm) is hit, if at all, in
+// front of the plane, so the box holds it. The whole image when it comes nearer. (Until session
+// 5 any object crossing the plane got the whole image: with the 5 obstacles of bench_render, a
+// robot 60 mm beside the camera was then tested by every ray and no tile could be settled.)
+Box projectBox(const std::vector<Eigen::Vector3d>& pts, const std::vector<std::pair<int, int>>& edges,
+               const Eigen::Vector3d& cam, const Eigen::Matrix3d& Rwv, double f, double ou, double ov, int W, int H,
+               double near_mm) {
+  constexpr double kPlane = 1.0;  // mm
   double umin = 1e300, umax = -1e300, vmin = 1e300, vmax = -1e300;
   bool any_front = false, any_behind = false;
-  for (const Eigen::Vector3d& p : pts) {
-    const Eigen::Vector3d q = Rwv.transpose() * (p - cam);
-    if (q.x() < 1.0) {
-      any_behind = true;
-      continue;
-    }
-    any_front = true;
+  auto add = [&](const Eigen::Vector3d& q) {
     const double u = ou - f * q.y() / q.x(), v = ov - f * q.z() / q.x();
     umin = std::min(umin, u);
     umax = std::max(umax, u);
     vmin = std::min(vmin, v);
     vmax = std::max(vmax, v);
+  };
+  std::vector<Eigen::Vector3d> q(pts.size());
+  Eigen::Vector3d lo = pts.front(), hi = pts.front();
+  for (size_t k = 0; k < pts.size(); ++k) {
+    q[k] = Rwv.transpose() * (pts[k] - cam);
+    lo = lo.cwiseMin(pts[k]);
+    hi = hi.cwiseMax(pts[k]);
+    if (q[k].x() < kPlane) {
+      any_behind = true;
+      continue;
+    }
+    any_front = true;
+    add(q[k]);
   }
-  // Wholly behind the camera plane: invisible (a convex object behind x = 1 mm cannot reach the
-  // image). Straddling it: its projection is unbounded, so the whole image.
   if (!any_front) return {1, 0, 1, 0};
-  if (any_behind) return {-1, W, -1, H};
+  if (any_behind) {
+    const double distance = (cam.cwiseMax(lo).cwiseMin(hi) - cam).norm();  // to the bounding box
+    if (!(distance > near_mm)) return {-1, W, -1, H};
+    for (const auto& [a, b] : edges) {
+      const Eigen::Vector3d& qa = q[static_cast<size_t>(a)];
+      const Eigen::Vector3d& qb = q[static_cast<size_t>(b)];
+      if ((qa.x() < kPlane) != (qb.x() < kPlane)) add(qa + (kPlane - qa.x()) / (qb.x() - qa.x()) * (qb - qa));
+    }
+  }
   Box b;
   b.u0 = static_cast<int>(std::max(-1.0, std::floor(umin - 1.0)));
   b.u1 = static_cast<int>(std::min(static_cast<double>(W), std::ceil(umax + 1.0)));
@@ -271,21 +292,34 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
 
   for (int camera = 0; camera < 2; ++camera) {
     const Eigen::Vector3d cam = cameraCentreWorld(rig_, robot, head_pan, camera);
-    // Per-object image bounding boxes (culling).
+    // Per-object image bounding boxes (culling). A sample ray at x < 1 mm (camera frame) is
+    // within x * near_factor of the camera (its image point lies in the image, grown 1 px).
+    const double near_factor = std::hypot(1.0, (std::max(ou, W - 1 - ou) + 1.5) / f, (std::max(ov, H - 1 - ov) + 1.5) / f);
+    const double near_mm = 2.0 * near_factor;
     std::vector<Box> boxes;
     for (const Prism& p : scene.prisms()) {
       std::vector<Eigen::Vector3d> pts;
-      for (const Eigen::Vector2d& q : p.polygon) {
-        pts.emplace_back(q.x(), q.y(), p.zmin);
-        pts.emplace_back(q.x(), q.y(), p.zmax);
+      std::vector<std::pair<int, int>> edges;
+      const int m = static_cast<int>(p.polygon.size());
+      for (int k = 0; k < m; ++k) {
+        const Eigen::Vector2d& c = p.polygon[static_cast<size_t>(k)];
+        pts.emplace_back(c.x(), c.y(), p.zmin);
+        pts.emplace_back(c.x(), c.y(), p.zmax);
+        const int next = (k + 1) % m;
+        edges.insert(edges.end(), {{2 * k, 2 * k + 1}, {2 * k, 2 * next}, {2 * k + 1, 2 * next + 1}});
       }
-      boxes.push_back(projectBox(pts, cam, Rwv, f, ou, ov, W, H));
+      boxes.push_back(projectBox(pts, edges, cam, Rwv, f, ou, ov, W, H, near_mm));
     }
     for (const Sphere& s : scene.spheres()) {
+      // Its bounding cube: corners k (bit i: + or - along axis i), edges between corners one bit apart.
       std::vector<Eigen::Vector3d> pts;
-      for (int k = 0; k < 8; ++k)
+      std::vector<std::pair<int, int>> edges;
+      for (int k = 0; k < 8; ++k) {
         pts.push_back(s.centre + s.radius * Eigen::Vector3d(k & 1 ? 1 : -1, k & 2 ? 1 : -1, k & 4 ? 1 : -1));
-      boxes.push_back(projectBox(pts, cam, Rwv, f, ou, ov, W, H));
+        for (int bit = 1; bit < 8; bit <<= 1)
+          if (!(k & bit)) edges.emplace_back(k, k | bit);
+      }
+      boxes.push_back(projectBox(pts, edges, cam, Rwv, f, ou, ov, W, H, near_mm));
     }
     // Ray-independent culling facts per object: `low` objects lie entirely below the camera, so
     // a ray that does not descend misses them; `outside` objects (walls, goals) lie outside the
@@ -315,7 +349,7 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
     // same hits. slab_of[b] indexes `slabs`, -1 for other objects.
     std::vector<int> slab_of(boxes.size(), -1);
     std::vector<SlabBox> slabs;
-    for (size_t b = 0; b < n_prisms && !options_.reference_tracing; ++b) {
+    for (size_t b = 0; b < n_prisms; ++b) {
       const Eigen::Vector4d& r = scene.boxRect(b);
       if (std::isnan(r[0])) continue;
       const Prism& p = scene.prisms()[b];
@@ -452,6 +486,9 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
     // Colour seen along the sample ray d (world frame) from this camera; `column`: the ray is
     // known to be in the column above the open field (a Column tile).
     auto shade = [&](const Eigen::Vector3d& d, const Span& span, bool column) -> Colour {
+      if (options_.reference_tracing)
+        return surfaceColour(scene.trace(cam, d, 0.0, std::numeric_limits<double>::infinity()), options_.colours,
+                             options_.shading);
       const bool descending = d.z() < 0;
       bool in_column = column;
       if (descending && cam_above_outside && !column) {

@@ -24,7 +24,7 @@
 // reach plain floor inside the field, or all rise into an empty sky, takes that colour for every
 // sample (a convexity argument, see render()); the images are the same as tracing every ray
 // (`RenderOptions::reference_tracing`, tested byte for byte). That and per-row object lists cut
-// the work per pair from 250 to 109 million instructions (callgrind, one thread, bench view).
+// the work per pair from 250 to 100 million instructions (callgrind, one thread, bench view).
 //
 // Rows are split between `threads` worker threads; each pixel depends only on its own rays, and
 // the noise is drawn afterwards in one thread from RenderOptions::seed, so the images are
@@ -54,9 +54,9 @@ struct RenderOptions {
   uint64_t seed = 0;            // noise engine seed
   bool compute_truth = true;    // fill StereoImages::truth (costs a few ms per pair)
   int threads = 2;              // worker threads (result independent of it)
-  // true: trace every sample ray with Scene's own intersection tests, without the renderer's
-  // shortcuts (image tiles settled from their corner rays, slab tests with hoisted terms). The
-  // images are the same (tests compare the two), the work per pair is about twice as large.
+  // true: every sample ray is Scene::trace against every object, without the renderer's
+  // shortcuts (object culling by image box and by height, tiles settled from their corner rays,
+  // slab tests with hoisted terms). The same images (tested), 24x the work.
   bool reference_tracing = false;
   SceneColours colours;
 

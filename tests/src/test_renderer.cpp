@@ -275,6 +275,19 @@ TEST(Renderer, ShortcutsGiveTheReferenceImages) {
   ball.kind = Obstacle::Kind::Ball;
   ball.size = 42.7;
   ball.position = Eigen::Vector2d(700, 640);
+  // Objects crossing the camera plane: bench_render's five robots (one 60 mm beside the camera),
+  // and a robot and a ball at the side of the camera, half in front of it.
+  std::vector<Obstacle> bench, beside(2);
+  for (int k = 0; k < 5; ++k) {
+    Obstacle o;
+    o.position = Eigen::Vector2d(300 + 150 * k, 500 + 40 * k);
+    bench.push_back(o);
+  }
+  beside[0].position = Eigen::Vector2d(520, 560);
+  beside[0].heading = 0.3;
+  beside[1].kind = Obstacle::Kind::Ball;
+  beside[1].size = 42.7;
+  beside[1].position = Eigen::Vector2d(505, 735);
   struct Case {
     Pose2 pose;
     double pan;
@@ -285,7 +298,9 @@ TEST(Renderer, ShortcutsGiveTheReferenceImages) {
       {Pose2(900, 600, 2.8), 0.0, {}, 2, 4},          {Pose2(900, 600, 2.8), 0.0, {robot, ball}, 2, 4},
       {Pose2(400, 650, kPi), 0.3, {}, 2, 4},          {Pose2(700, 150, -kPi / 2), 0.0, {}, 2, 4},
       {Pose2(120, 110, -2.4), 0.0, {}, 2, 4},          {Pose2(1300, 1000, 0.7), -0.5, {ball}, 3, 4},
-      {Pose2(750, 650, 1.2), 0.0, {robot}, 2, 0},      {Pose2(1100, 300, -0.3), 0.2, {robot, ball}, 2, 5}};
+      {Pose2(750, 650, 1.2), 0.0, {robot}, 2, 0},      {Pose2(1100, 300, -0.3), 0.2, {robot, ball}, 2, 5},
+      {Pose2(900, 600, 2.8), 0.0, bench, 2, 4},        {Pose2(500, 650, 0.0), 0.0, beside, 2, 4},
+      {Pose2(500, 650, 0.1), 0.0, beside, 2, 4},       {Pose2(40, 300, kPi / 2), 0.0, {}, 2, 4}};
   for (const Case& c : cases) {
     RenderOptions fast = plain(), reference = plain();
     fast.samples_per_axis = reference.samples_per_axis = c.samples;
