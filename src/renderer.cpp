@@ -428,6 +428,20 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
     constexpr double kTileMargin = 0.05, kFieldMargin = 1e-2, kDirection = 1e-9;
     const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
     std::vector<TileMode> tiles(static_cast<size_t>(tiles_x) * tiles_y, TileMode::Traced);
+    // Per tile: does the image box of an object above the camera (bit 0) / not outside the field
+    // (bit 1) overlap it. Marked box by box (testing every object for every tile was 2.4 M
+    // instructions per pair, serial).
+    std::vector<uint8_t> overlap(tiles.size(), 0);
+    for (size_t b = 0; b < boxes.size(); ++b) {
+      const uint8_t bits = static_cast<uint8_t>((low[b] ? 0 : 1) | (outside[b] ? 0 : 2));
+      if (bits == 0 || boxes[b].u0 > std::min(boxes[b].u1, W - 1) || boxes[b].v0 > std::min(boxes[b].v1, H - 1) ||
+          boxes[b].u1 < 0 || boxes[b].v1 < 0)
+        continue;  // off the image
+      const int tx0 = std::max(0, boxes[b].u0) / kTile, tx1 = std::min(W - 1, boxes[b].u1) / kTile;
+      const int ty0 = std::max(0, boxes[b].v0) / kTile, ty1 = std::min(H - 1, boxes[b].v1) / kTile;
+      for (int ty = ty0; ty <= ty1; ++ty)
+        for (int tx = tx0; tx <= tx1; ++tx) overlap[static_cast<size_t>(ty) * tiles_x + tx] |= bits;
+    }
     for (int ty = 0; ty < tiles_y && !options_.reference_tracing; ++ty)
       for (int tx = 0; tx < tiles_x; ++tx) {
         const int u0 = tx * kTile, u1 = std::min(W, u0 + kTile) - 1, v0 = ty * kTile, v1 = std::min(H, v0 + kTile) - 1;
@@ -452,16 +466,12 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
             }
           }
         }
-        auto overlapped = [&](const std::vector<uint8_t>& excluded) {
-          for (size_t b = 0; b < boxes.size(); ++b)
-            if (!excluded[b] && boxes[b].u0 <= u1 && boxes[b].u1 >= u0 && boxes[b].v0 <= v1 && boxes[b].v1 >= v0) return true;
-          return false;
-        };
-        TileMode& mode = tiles[static_cast<size_t>(ty) * tiles_x + tx];
-        if (all_up && !overlapped(low)) {
+        const size_t t = static_cast<size_t>(ty) * tiles_x + tx;
+        TileMode& mode = tiles[t];
+        if (all_up && !(overlap[t] & 1)) {
           mode = TileMode::Sky;
         } else if (all_down && in_field) {
-          mode = !overlapped(outside) && scene.floorIsPlain(x_lo - kFieldMargin, y_lo - kFieldMargin, x_hi + kFieldMargin,
+          mode = !(overlap[t] & 2) && scene.floorIsPlain(x_lo - kFieldMargin, y_lo - kFieldMargin, x_hi + kFieldMargin,
                                                               y_hi + kFieldMargin)
                      ? TileMode::Floor
                      : TileMode::Column;
