@@ -24,7 +24,7 @@
 // reach plain floor inside the field, or all rise into an empty sky, takes that colour for every
 // sample (a convexity argument, see render()); the images are the same as tracing every ray
 // (`RenderOptions::reference_tracing`, tested byte for byte). That and per-row object lists cut
-// the work per pair from 250 to 100 million instructions (callgrind, one thread, bench view).
+// the work per pair from 250 to 102 million instructions (callgrind, one thread, bench view).
 //
 // Rows are split between `threads` worker threads; each pixel depends only on its own rays, and
 // the noise is drawn afterwards in one thread from RenderOptions::seed, so the images are
