@@ -1,6 +1,7 @@
 #include "src/renderer.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -9,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <thread>
+#include <tuple>
 
 #include "src/atomic_file.h"
 #include "src/csv.h"
@@ -38,29 +40,50 @@ struct Box {
   int u0, u1, v0, v1;  // inclusive pixel range that may see the object
 };
 
-// Image-space bounding box of a set of world points seen from a camera; the whole image when
-// any point is near or behind the camera plane (the projection is unbounded there).
-Box projectBox(const std::vector<Eigen::Vector3d>& pts, const Eigen::Vector3d& cam, const Eigen::Matrix3d& Rwv,
-               double f, double ou, double ov, int W, int H) {
+// Image-space bounding box of a convex object, given as the vertices and edges of a polytope
+// holding it (world frame), seen from a camera: the projections of the vertices in front of the
+// plane x = 1 mm (camera frame) and of the edges' crossings of that plane. Nothing behind the
+// plane: invisible. An object crossing the plane but farther than `near_mm` from the camera
+// (near_mm bounds the distance of a sample ray's points with x < 1 mm) is hit, if at all, in
+// front of the plane, so the box holds it. The whole image when it comes nearer. (Until session
+// 5 any object crossing the plane got the whole image: with the 5 obstacles of bench_render, a
+// robot 60 mm beside the camera was then tested by every ray and no tile could be settled.)
+Box projectBox(const std::vector<Eigen::Vector3d>& pts, const std::vector<std::pair<int, int>>& edges,
+               const Eigen::Vector3d& cam, const Eigen::Matrix3d& Rwv, double f, double ou, double ov, int W, int H,
+               double near_mm) {
+  constexpr double kPlane = 1.0;  // mm
   double umin = 1e300, umax = -1e300, vmin = 1e300, vmax = -1e300;
   bool any_front = false, any_behind = false;
-  for (const Eigen::Vector3d& p : pts) {
-    const Eigen::Vector3d q = Rwv.transpose() * (p - cam);
-    if (q.x() < 1.0) {
-      any_behind = true;
-      continue;
-    }
-    any_front = true;
+  auto add = [&](const Eigen::Vector3d& q) {
     const double u = ou - f * q.y() / q.x(), v = ov - f * q.z() / q.x();
     umin = std::min(umin, u);
     umax = std::max(umax, u);
     vmin = std::min(vmin, v);
     vmax = std::max(vmax, v);
+  };
+  std::vector<Eigen::Vector3d> q(pts.size());
+  Eigen::Vector3d lo = pts.front(), hi = pts.front();
+  for (size_t k = 0; k < pts.size(); ++k) {
+    q[k] = Rwv.transpose() * (pts[k] - cam);
+    lo = lo.cwiseMin(pts[k]);
+    hi = hi.cwiseMax(pts[k]);
+    if (q[k].x() < kPlane) {
+      any_behind = true;
+      continue;
+    }
+    any_front = true;
+    add(q[k]);
   }
-  // Wholly behind the camera plane: invisible (a convex object behind x = 1 mm cannot reach the
-  // image). Straddling it: its projection is unbounded, so the whole image.
   if (!any_front) return {1, 0, 1, 0};
-  if (any_behind) return {-1, W, -1, H};
+  if (any_behind) {
+    const double distance = (cam.cwiseMax(lo).cwiseMin(hi) - cam).norm();  // to the bounding box
+    if (!(distance > near_mm)) return {-1, W, -1, H};
+    for (const auto& [a, b] : edges) {
+      const Eigen::Vector3d& qa = q[static_cast<size_t>(a)];
+      const Eigen::Vector3d& qb = q[static_cast<size_t>(b)];
+      if ((qa.x() < kPlane) != (qb.x() < kPlane)) add(qa + (kPlane - qa.x()) / (qb.x() - qa.x()) * (qb - qa));
+    }
+  }
   Box b;
   b.u0 = static_cast<int>(std::max(-1.0, std::floor(umin - 1.0)));
   b.u1 = static_cast<int>(std::min(static_cast<double>(W), std::ceil(umax + 1.0)));
@@ -68,6 +91,19 @@ Box projectBox(const std::vector<Eigen::Vector3d>& pts, const Eigen::Vector3d& c
   b.v1 = static_cast<int>(std::min(static_cast<double>(H), std::ceil(vmax + 1.0)));
   return b;
 }
+
+// An axis-aligned box seen from one camera (see render).
+struct SlabBox {
+  std::array<double, 6> rel;        // x0, x1, y0, y1, zmin, zmax minus the camera's x, x, y, y, z, z
+  std::array<Colour, 6> colour;     // faces -y, +x, +y, -x, top, bottom
+};
+
+// A run [previous span's u_end, u_end) of pixels of one image row with the same object lists,
+// as [begin, end) offsets into one item array.
+struct Span {
+  int u_end = 0;
+  uint32_t all = 0, all_end = 0, inside = 0, inside_end = 0, high = 0, high_end = 0;
+};
 
 Colour surfaceColour(const RayHit& h, const SceneColours& c, bool shading) {
   Colour base;
@@ -197,16 +233,32 @@ StereoRenderer::StereoRenderer(const FieldMap& map, const StereoRig& rig, const 
   outline_edges_ = topOutlineEdges(static_scene_);
   const int W = rig.params().image_width, H = rig.params().image_height, n = options_.samples_per_axis;
   const double f = rig.focal(), ou = rig.principalU(), ov = rig.principalV();
-  rays_.resize(static_cast<size_t>(W) * H * n * n);
-  size_t k = 0;
-  for (int v = 0; v < H; ++v)
-    for (int u = 0; u < W; ++u)
-      for (int j = 0; j < n; ++j)
-        for (int i = 0; i < n; ++i) {
-          // Regular n x n grid inside the pixel [u - 0.5, u + 0.5] x [v - 0.5, v + 0.5].
-          const double su = u - 0.5 + baseSampleOffset(i), sv = v - 0.5 + baseSampleOffset(j);
-          rays_[k++] = Eigen::Vector3f(1.0f, static_cast<float>(-(su - ou) / f), static_cast<float>(-(sv - ov) / f));
-        }
+  const int fine = options_.edge_samples_per_axis;
+  // Regular n x n grid inside the pixel [u - 0.5, u + 0.5] x [v - 0.5, v + 0.5], and the edge grid.
+  base_y_.resize(static_cast<size_t>(W) * n);
+  base_z_.resize(static_cast<size_t>(H) * n);
+  fine_y_.resize(static_cast<size_t>(W) * fine);
+  fine_z_.resize(static_cast<size_t>(H) * fine);
+  for (int u = 0; u < W; ++u) {
+    for (int i = 0; i < n; ++i) {
+      const double su = u - 0.5 + baseSampleOffset(i);
+      base_y_[static_cast<size_t>(u) * n + i] = static_cast<float>(-(su - ou) / f);
+    }
+    for (int k = 0; k < fine; ++k) {
+      const double su = u - 0.5 + (k + 0.5) / fine;
+      fine_y_[static_cast<size_t>(u) * fine + k] = static_cast<float>(-(su - ou) / f);
+    }
+  }
+  for (int v = 0; v < H; ++v) {
+    for (int j = 0; j < n; ++j) {
+      const double sv = v - 0.5 + baseSampleOffset(j);
+      base_z_[static_cast<size_t>(v) * n + j] = static_cast<float>(-(sv - ov) / f);
+    }
+    for (int j = 0; j < fine; ++j) {
+      const double sv = v - 0.5 + (j + 0.5) / fine;
+      fine_z_[static_cast<size_t>(v) * fine + j] = static_cast<float>(-(sv - ov) / f);
+    }
+  }
 }
 
 double StereoRenderer::baseSampleOffset(int i) const {
@@ -236,25 +288,38 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
   StereoImages out;
   out.truth.robot = robot;
   out.truth.head_pan = head_pan;
-  const size_t n_prisms = scene.prisms().size(), n_spheres = scene.spheres().size();
+  const size_t n_prisms = scene.prisms().size();
 
   for (int camera = 0; camera < 2; ++camera) {
     const Eigen::Vector3d cam = cameraCentreWorld(rig_, robot, head_pan, camera);
-    // Per-object image bounding boxes (culling).
+    // Per-object image bounding boxes (culling). A sample ray at x < 1 mm (camera frame) is
+    // within x * near_factor of the camera (its image point lies in the image, grown 1 px).
+    const double near_factor = std::hypot(1.0, (std::max(ou, W - 1 - ou) + 1.5) / f, (std::max(ov, H - 1 - ov) + 1.5) / f);
+    const double near_mm = 2.0 * near_factor;
     std::vector<Box> boxes;
     for (const Prism& p : scene.prisms()) {
       std::vector<Eigen::Vector3d> pts;
-      for (const Eigen::Vector2d& q : p.polygon) {
-        pts.emplace_back(q.x(), q.y(), p.zmin);
-        pts.emplace_back(q.x(), q.y(), p.zmax);
+      std::vector<std::pair<int, int>> edges;
+      const int m = static_cast<int>(p.polygon.size());
+      for (int k = 0; k < m; ++k) {
+        const Eigen::Vector2d& c = p.polygon[static_cast<size_t>(k)];
+        pts.emplace_back(c.x(), c.y(), p.zmin);
+        pts.emplace_back(c.x(), c.y(), p.zmax);
+        const int next = (k + 1) % m;
+        edges.insert(edges.end(), {{2 * k, 2 * k + 1}, {2 * k, 2 * next}, {2 * k + 1, 2 * next + 1}});
       }
-      boxes.push_back(projectBox(pts, cam, Rwv, f, ou, ov, W, H));
+      boxes.push_back(projectBox(pts, edges, cam, Rwv, f, ou, ov, W, H, near_mm));
     }
     for (const Sphere& s : scene.spheres()) {
+      // Its bounding cube: corners k (bit i: + or - along axis i), edges between corners one bit apart.
       std::vector<Eigen::Vector3d> pts;
-      for (int k = 0; k < 8; ++k)
+      std::vector<std::pair<int, int>> edges;
+      for (int k = 0; k < 8; ++k) {
         pts.push_back(s.centre + s.radius * Eigen::Vector3d(k & 1 ? 1 : -1, k & 2 ? 1 : -1, k & 4 ? 1 : -1));
-      boxes.push_back(projectBox(pts, cam, Rwv, f, ou, ov, W, H));
+        for (int bit = 1; bit < 8; bit <<= 1)
+          if (!(k & bit)) edges.emplace_back(k, k | bit);
+      }
+      boxes.push_back(projectBox(pts, edges, cam, Rwv, f, ou, ov, W, H, near_mm));
     }
     // Ray-independent culling facts per object: `low` objects lie entirely below the camera, so
     // a ray that does not descend misses them; `outside` objects (walls, goals) lie outside the
@@ -277,81 +342,263 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
       if (outside[b]) outside_top = std::max(outside_top, p.zmax);
     }
     const bool cam_above_outside = cam.z() > outside_top;
-    // Colour seen along the sample ray d (world frame) from this camera.
-    auto shade = [&](const Eigen::Vector3d& d, std::vector<size_t>& candidates, std::vector<size_t>& inside,
-                     std::vector<size_t>& high) -> Colour {
-      RayHit best;
-      best.t = std::numeric_limits<double>::infinity();
-      bool hit_object = false;
+
+    // Axis-aligned boxes (walls, goals: most tested objects) get Scene::intersectPrism's slab test
+    // inline, with the ray-independent differences (bound - camera) and the face colours computed
+    // once here and 1 / d once per ray instead of per box. Same operations on the same values: the
+    // same hits. slab_of[b] indexes `slabs`, -1 for other objects.
+    std::vector<int> slab_of(boxes.size(), -1);
+    std::vector<SlabBox> slabs;
+    for (size_t b = 0; b < n_prisms; ++b) {
+      const Eigen::Vector4d& r = scene.boxRect(b);
+      if (std::isnan(r[0])) continue;
+      const Prism& p = scene.prisms()[b];
+      SlabBox s;
+      s.rel = {r[0] - cam.x(), r[2] - cam.x(), r[1] - cam.y(), r[3] - cam.y(), p.zmin - cam.z(), p.zmax - cam.z()};
+      static const Eigen::Vector3d normals[6] = {{0, -1, 0}, {1, 0, 0}, {0, 1, 0}, {-1, 0, 0}, {0, 0, 1}, {0, 0, -1}};
+      for (int face = 0; face < 6; ++face) {
+        RayHit h;
+        h.cls = face < 4 ? p.side[face] : face == 4 ? p.top : p.bottom;
+        h.normal = normals[face];
+        s.colour[face] = surfaceColour(h, options_.colours, options_.shading);
+      }
+      slab_of[b] = static_cast<int>(slabs.size());
+      slabs.push_back(s);
+    }
+    auto classColour = [&](SurfaceClass cls) {
       RayHit h;
+      h.cls = cls;
+      h.normal = Eigen::Vector3d(0, 0, 1);
+      return surfaceColour(h, options_.colours, options_.shading);
+    };
+    const Colour background = classColour(SurfaceClass::Background), floor = classColour(SurfaceClass::Floor),
+                 marking = classColour(SurfaceClass::Marking);
+
+    // The objects a sample ray of pixel (u, v) may hit: those whose image box holds the pixel, in
+    // object order (the order decides equal-distance hits), and of them the ones not outside the
+    // field and the ones not below the camera (see above). The lists change only where some box
+    // starts or ends, so each row is cut into spans that share them (instead of filtering every
+    // object for every pixel and pass).
+    std::vector<Span> spans;
+    std::vector<uint32_t> row_first_span(static_cast<size_t>(H) + 1, 0), items;
+    for (int v = 0; v < H; ++v) {
+      std::vector<size_t> row_objects;
+      std::vector<int> cuts = {0, W};
+      for (size_t b = 0; b < boxes.size(); ++b)
+        if (v >= boxes[b].v0 && v <= boxes[b].v1) {
+          row_objects.push_back(b);
+          cuts.push_back(std::clamp(boxes[b].u0, 0, W));
+          cuts.push_back(std::clamp(boxes[b].u1 + 1, 0, W));
+        }
+      std::sort(cuts.begin(), cuts.end());
+      cuts.erase(std::unique(cuts.begin(), cuts.end()), cuts.end());
+      for (size_t c = 0; c + 1 < cuts.size(); ++c) {
+        const int u = cuts[c];
+        Span s;
+        s.u_end = cuts[c + 1];
+        auto add = [&](auto keep) {
+          const uint32_t first = static_cast<uint32_t>(items.size());
+          for (size_t b : row_objects)
+            if (u >= boxes[b].u0 && u <= boxes[b].u1 && keep(b)) items.push_back(static_cast<uint32_t>(b));
+          return std::pair<uint32_t, uint32_t>(first, static_cast<uint32_t>(items.size()));
+        };
+        std::tie(s.all, s.all_end) = add([](size_t) { return true; });
+        std::tie(s.inside, s.inside_end) = add([&](size_t b) { return !outside[b]; });
+        std::tie(s.high, s.high_end) = add([&](size_t b) { return !low[b]; });
+        spans.push_back(s);
+      }
+      row_first_span[static_cast<size_t>(v) + 1] = static_cast<uint32_t>(spans.size());
+    }
+
+    // Image tiles whose every sample ray is known without tracing it. A tile's sample rays lie in
+    // the pyramid of the rays through its corners (grown by kTileMargin px, far more than the
+    // float rounding of the sample rays, ~1e-4 px). Where all four corner rays descend, a ray's
+    // floor point (and its point at the wall-top height) is a projective image of its pixel
+    // position that keeps convexity, so those points of every sample ray lie in the convex hull
+    // of the corners' points:
+    // - Column: the corner points lie inside the open field (1e-2 mm margin), so every ray is
+    //   in the column the per-ray test above would find; that test is skipped.
+    // - Floor: also no object not outside the field overlaps the tile and the floor under the
+    //   corners' bounding rectangle is plain: every sample is floor colour.
+    // - Sky: all four corner rays ascend and no object reaching above the camera overlaps the
+    //   tile: every sample is background.
+    // Other tiles trace every ray. The images are the same either way.
+    enum class TileMode : uint8_t { Traced, Column, Floor, Sky };
+    constexpr int kTile = 4;
+    constexpr double kTileMargin = 0.05, kFieldMargin = 1e-2, kDirection = 1e-9;
+    const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
+    std::vector<TileMode> tiles(static_cast<size_t>(tiles_x) * tiles_y, TileMode::Traced);
+    // Per tile: does the image box of an object above the camera (bit 0) / not outside the field
+    // (bit 1) overlap it. Marked box by box (testing every object for every tile was 2.4 M
+    // instructions per pair, serial).
+    std::vector<uint8_t> overlap(tiles.size(), 0);
+    for (size_t b = 0; b < boxes.size(); ++b) {
+      const uint8_t bits = static_cast<uint8_t>((low[b] ? 0 : 1) | (outside[b] ? 0 : 2));
+      if (bits == 0 || boxes[b].u0 > std::min(boxes[b].u1, W - 1) || boxes[b].v0 > std::min(boxes[b].v1, H - 1) ||
+          boxes[b].u1 < 0 || boxes[b].v1 < 0)
+        continue;  // off the image
+      const int tx0 = std::max(0, boxes[b].u0) / kTile, tx1 = std::min(W - 1, boxes[b].u1) / kTile;
+      const int ty0 = std::max(0, boxes[b].v0) / kTile, ty1 = std::min(H - 1, boxes[b].v1) / kTile;
+      for (int ty = ty0; ty <= ty1; ++ty)
+        for (int tx = tx0; tx <= tx1; ++tx) overlap[static_cast<size_t>(ty) * tiles_x + tx] |= bits;
+    }
+    for (int ty = 0; ty < tiles_y && !options_.reference_tracing; ++ty)
+      for (int tx = 0; tx < tiles_x; ++tx) {
+        const int u0 = tx * kTile, u1 = std::min(W, u0 + kTile) - 1, v0 = ty * kTile, v1 = std::min(H, v0 + kTile) - 1;
+        bool all_down = true, all_up = true, in_field = cam_above_outside;
+        double x_lo = 1e300, x_hi = -1e300, y_lo = 1e300, y_hi = -1e300;
+        for (int corner = 0; corner < 4; ++corner) {
+          const double su = (corner & 1) ? u1 + 0.5 + kTileMargin : u0 - 0.5 - kTileMargin;
+          const double sv = (corner & 2) ? v1 + 0.5 + kTileMargin : v0 - 0.5 - kTileMargin;
+          const Eigen::Vector3d d = Rwv * Eigen::Vector3d(1.0, -(su - ou) / f, -(sv - ov) / f);
+          all_down = all_down && d.z() < -kDirection;
+          all_up = all_up && d.z() > kDirection;
+          if (!all_down) continue;
+          for (double z : {0.0, outside_top}) {
+            const double t = (z - cam.z()) / d.z(), x = cam.x() + t * d.x(), y = cam.y() + t * d.y();
+            in_field = in_field && x > kFieldMargin && x < g.length - kFieldMargin && y > kFieldMargin &&
+                       y < g.width - kFieldMargin;
+            if (z == 0.0) {
+              x_lo = std::min(x_lo, x);
+              x_hi = std::max(x_hi, x);
+              y_lo = std::min(y_lo, y);
+              y_hi = std::max(y_hi, y);
+            }
+          }
+        }
+        const size_t t = static_cast<size_t>(ty) * tiles_x + tx;
+        TileMode& mode = tiles[t];
+        if (all_up && !(overlap[t] & 1)) {
+          mode = TileMode::Sky;
+        } else if (all_down && in_field) {
+          mode = !(overlap[t] & 2) && scene.floorIsPlain(x_lo - kFieldMargin, y_lo - kFieldMargin, x_hi + kFieldMargin,
+                                                              y_hi + kFieldMargin)
+                     ? TileMode::Floor
+                     : TileMode::Column;
+        }
+      }
+    auto tileMode = [&](int u, int v) { return tiles[static_cast<size_t>(v / kTile) * tiles_x + u / kTile]; };
+    // A Floor or Sky tile whose 4-neighbour tiles have its mode too is settled: each of its pixels
+    // and their 4-neighbours have the same uniform mean, so none is refined (pass 2 writes the
+    // uniform value without the neighbour tests).
+    std::vector<uint8_t> settled(tiles.size(), 0);
+    for (int ty = 0; ty < tiles_y; ++ty)
+      for (int tx = 0; tx < tiles_x; ++tx) {
+        const TileMode mode = tiles[static_cast<size_t>(ty) * tiles_x + tx];
+        auto same = [&](int x, int y) {
+          return x < 0 || y < 0 || x >= tiles_x || y >= tiles_y || tiles[static_cast<size_t>(y) * tiles_x + x] == mode;
+        };
+        settled[static_cast<size_t>(ty) * tiles_x + tx] = (mode == TileMode::Floor || mode == TileMode::Sky) &&
+                                                          same(tx - 1, ty) && same(tx + 1, ty) && same(tx, ty - 1) &&
+                                                          same(tx, ty + 1);
+      }
+
+    // Colour seen along the sample ray d (world frame) from this camera; `column`: the ray is
+    // known to be in the column above the open field (a Column tile).
+    auto shade = [&](const Eigen::Vector3d& d, const Span& span, bool column) -> Colour {
+      if (options_.reference_tracing)
+        return surfaceColour(scene.trace(cam, d, 0.0, std::numeric_limits<double>::infinity()), options_.colours,
+                             options_.shading);
       const bool descending = d.z() < 0;
-      bool in_column = false;
-      if (descending && cam_above_outside) {
+      bool in_column = column;
+      if (descending && cam_above_outside && !column) {
         const double tf = -cam.z() / d.z(), tt = (outside_top - cam.z()) / d.z();
         const double fx = cam.x() + tf * d.x(), fy = cam.y() + tf * d.y();
         const double tx = cam.x() + tt * d.x(), ty = cam.y() + tt * d.y();
         in_column = fx > 0 && fx < g.length && fy > 0 && fy < g.width && tx > 0 && tx < g.length && ty > 0 &&
                     ty < g.width;
       }
-      const std::vector<size_t>& list = !descending ? high : in_column ? inside : candidates;
-      for (size_t b : list) {
-        const bool got = b < n_prisms ? scene.intersectPrism(b, cam, d, 0.0, best.t, &h)
-                                      : scene.intersectSphere(b - n_prisms, cam, d, 0.0, best.t, &h);
-        if (got) {
-          best = h;
-          hit_object = true;
+      const uint32_t* first = items.data() + (!descending ? span.high : in_column ? span.inside : span.all);
+      const uint32_t* last = items.data() + (!descending ? span.high_end : in_column ? span.inside_end : span.all_end);
+      double best_t = std::numeric_limits<double>::infinity();
+      Colour colour = background;
+      if (first != last) {
+        const Eigen::Vector3d inv(d.x() != 0.0 ? 1.0 / d.x() : 0.0, d.y() != 0.0 ? 1.0 / d.y() : 0.0,
+                                  d.z() != 0.0 ? 1.0 / d.z() : 0.0);
+        RayHit h;
+        for (const uint32_t* it = first; it != last; ++it) {
+          const size_t b = *it;
+          if (slab_of[b] >= 0) {
+            // Scene::intersectPrism's slab test, term for term.
+            const SlabBox& s = slabs[static_cast<size_t>(slab_of[b])];
+            double t0 = 0.0, t1 = best_t;
+            int face = -3;
+            auto slab = [&](double lo, double hi, double d_k, double inv_k, int face_lo, int face_hi) {
+              if (d_k == 0.0) return lo <= 0.0 && hi >= 0.0;  // o_k >= lo && o_k <= hi
+              double ta = lo * inv_k, tb = hi * inv_k;
+              int fa = face_lo;
+              if (ta > tb) {
+                std::swap(ta, tb);
+                fa = face_hi;
+              }
+              if (ta > t0) {
+                t0 = ta;
+                face = fa;
+              }
+              if (tb < t1) t1 = tb;
+              return t0 <= t1;
+            };
+            if (slab(s.rel[0], s.rel[1], d.x(), inv.x(), 3, 1) && slab(s.rel[2], s.rel[3], d.y(), inv.y(), 0, 2) &&
+                slab(s.rel[4], s.rel[5], d.z(), inv.z(), -2, -1) && face != -3 && t0 > 0.0) {
+              best_t = t0;
+              colour = s.colour[face >= 0 ? face : face == -1 ? 4 : 5];
+            }
+          } else if (b < n_prisms ? scene.intersectPrism(b, cam, d, 0.0, best_t, &h)
+                                  : scene.intersectSphere(b - n_prisms, cam, d, 0.0, best_t, &h)) {
+            best_t = h.t;
+            colour = surfaceColour(h, options_.colours, options_.shading);
+          }
         }
       }
       if (descending) {
         const double tf = -cam.z() / d.z();
-        if (tf < best.t) {
-          best.t = tf;
-          best.cls = scene.floorClass(cam.x() + tf * d.x(), cam.y() + tf * d.y());
-          best.normal = Eigen::Vector3d(0, 0, 1);
-          hit_object = true;
+        if (tf < best_t) {
+          const SurfaceClass cls = scene.floorClass(cam.x() + tf * d.x(), cam.y() + tf * d.y());
+          colour = cls == SurfaceClass::Floor ? floor : cls == SurfaceClass::Marking ? marking : background;
         }
       }
-      if (!hit_object) best.cls = SurfaceClass::Background;
-      return surfaceColour(best, options_.colours, options_.shading);
+      return colour;
     };
-    // The object candidates of pixel (u, v), split by what a sample ray can possibly hit (see above).
-    auto pixelCandidates = [&](int u, const std::vector<size_t>& row_objects, std::vector<size_t>& candidates,
-                               std::vector<size_t>& inside, std::vector<size_t>& high) {
-      candidates.clear();
-      inside.clear();
-      high.clear();
-      for (size_t b : row_objects)
-        if (u >= boxes[b].u0 && u <= boxes[b].u1) {
-          candidates.push_back(b);
-          if (!outside[b]) inside.push_back(b);
-          if (!low[b]) high.push_back(b);
-        }
+    // The mean of a pixel whose base samples all have colour c, summed as for traced samples.
+    auto uniformMean = [&](const Colour& c) {
+      Colour sum = Colour::Zero();
+      for (int k = 0; k < spp; ++k) sum += c;
+      return Colour(sum / static_cast<float>(spp));
     };
-    auto rowObjects = [&](int v) {
-      std::vector<size_t> row_objects;
-      for (size_t b = 0; b < boxes.size(); ++b)
-        if (v >= boxes[b].v0 && v <= boxes[b].v1) row_objects.push_back(b);
-      return row_objects;
+    const Colour floor_mean = uniformMean(floor), sky_mean = uniformMean(background);
+    auto toBgr = [](Colour c) {
+      c *= 255.0f;
+      return cv::Vec3b(cv::saturate_cast<uchar>(c.z()), cv::saturate_cast<uchar>(c.y()), cv::saturate_cast<uchar>(c.x()));
     };
+    const cv::Vec3b floor_bgr = toBgr(floor_mean), sky_bgr = toBgr(sky_mean);
+    // Which points of the edge grid are base samples (their colour is in the pixel's mean).
+    std::vector<uint8_t> on_base(static_cast<size_t>(std::max(fine, 0)), 0);
+    for (int j = 0; j < fine; ++j) on_base[static_cast<size_t>(j)] = nested && j % fine_step == fine_step / 2;
+
     // Pass 1: the base n x n samples of every pixel, their mean, and whether they disagree.
     std::vector<Colour> mean(static_cast<size_t>(W) * H);
     std::vector<uint8_t> mixed(static_cast<size_t>(W) * H, 0);
     auto baseRows = [&](int first_row, int step) {
-      std::vector<size_t> candidates, inside, high;
       for (int v = first_row; v < H; v += step) {
-        const std::vector<size_t> row_objects = rowObjects(v);
+        const Span* span = spans.data() + row_first_span[static_cast<size_t>(v)];
         for (int u = 0; u < W; ++u) {
-          pixelCandidates(u, row_objects, candidates, inside, high);
+          while (u >= span->u_end) ++span;
+          const size_t i = static_cast<size_t>(v) * W + u;
+          const TileMode mode = tileMode(u, v);
+          if (mode == TileMode::Floor || mode == TileMode::Sky) {
+            mean[i] = mode == TileMode::Floor ? floor_mean : sky_mean;
+            continue;
+          }
           Colour sum = Colour::Zero(), first = Colour::Zero();
           bool differ = false;
-          const Eigen::Vector3f* ray = &rays_[(static_cast<size_t>(v) * W + u) * spp];
           for (int k = 0; k < spp; ++k) {
-            const Colour c = shade((Rf * ray[k]).cast<double>(), candidates, inside, high);
+            const Eigen::Vector3f ray(1.0f, base_y_[static_cast<size_t>(u) * n + k % n],
+                                      base_z_[static_cast<size_t>(v) * n + k / n]);
+            const Colour c = shade((Rf * ray).cast<double>(), *span, mode == TileMode::Column);
             if (k == 0) first = c;
             else differ = differ || (c - first).cwiseAbs().maxCoeff() > kColourTolerance;
             sum += c;
           }
-          const size_t i = static_cast<size_t>(v) * W + u;
           mean[i] = sum / static_cast<float>(spp);
           mixed[i] = differ ? 1 : 0;
         }
@@ -362,39 +609,41 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
     // neighbour's), is re-sampled on the finer edge grid; the others keep the base mean.
     cv::Mat img(H, W, CV_8UC3);
     auto renderRows = [&](int first_row, int step) {
-      std::vector<size_t> candidates, inside, high;
       for (int v = first_row; v < H; v += step) {
-        const std::vector<size_t> row_objects = fine > 0 ? rowObjects(v) : std::vector<size_t>();
+        const Span* span = spans.data() + row_first_span[static_cast<size_t>(v)];
         cv::Vec3b* row = img.ptr<cv::Vec3b>(v);
         for (int u = 0; u < W; ++u) {
+          while (u >= span->u_end) ++span;
+          const size_t tile = static_cast<size_t>(v / kTile) * tiles_x + u / kTile;
+          if (settled[tile]) {
+            row[u] = tiles[tile] == TileMode::Floor ? floor_bgr : sky_bgr;
+            continue;
+          }
           const size_t i = static_cast<size_t>(v) * W + u;
           Colour c = mean[i];
-          bool refine = fine > 0 && mixed[i];
           // An edge between two sample rows (columns) of neighbouring pixels leaves both uniform
           // but different: compare with the 4-neighbours.
-          constexpr int kNeighbour[4][2] = {{-1, 0}, {1, 0}, {0, -1}, {0, 1}};
-          for (int k = 0; k < 4 && fine > 0 && !refine; ++k) {
-            const int uu = u + kNeighbour[k][0], vv = v + kNeighbour[k][1];
-            if (uu < 0 || uu >= W || vv < 0 || vv >= H) continue;
-            refine = (mean[static_cast<size_t>(vv) * W + uu] - c).cwiseAbs().maxCoeff() > kColourTolerance;
-          }
+          auto differs = [&](size_t j) { return (mean[j] - c).cwiseAbs().maxCoeff() > kColourTolerance; };
+          const bool refine = fine > 0 && (mixed[i] || (u > 0 && differs(i - 1)) || (u + 1 < W && differs(i + 1)) ||
+                                           (v > 0 && differs(i - W)) || (v + 1 < H && differs(i + W)));
           if (refine) {
-            pixelCandidates(u, row_objects, candidates, inside, high);
+            const TileMode mode = tiles[tile];
             // The base samples are points of the fine grid when it nests them: reuse them.
             Colour sum = nested ? Colour(c * static_cast<float>(spp)) : Colour::Zero();
             for (int j = 0; j < fine; ++j)
               for (int k = 0; k < fine; ++k) {
-                if (nested && j % fine_step == fine_step / 2 && k % fine_step == fine_step / 2) continue;
-                const double su = u - 0.5 + (k + 0.5) / fine, sv = v - 0.5 + (j + 0.5) / fine;
-                const Eigen::Vector3f ray(1.0f, static_cast<float>(-(su - ou) / f), static_cast<float>(-(sv - ov) / f));
-                sum += shade((Rf * ray).cast<double>(), candidates, inside, high);
+                if (on_base[static_cast<size_t>(j)] && on_base[static_cast<size_t>(k)]) continue;
+                if (mode == TileMode::Floor || mode == TileMode::Sky) {
+                  sum += mode == TileMode::Floor ? floor : background;
+                  continue;
+                }
+                const Eigen::Vector3f ray(1.0f, fine_y_[static_cast<size_t>(u) * fine + k],
+                                          fine_z_[static_cast<size_t>(v) * fine + j]);
+                sum += shade((Rf * ray).cast<double>(), *span, mode == TileMode::Column);
               }
             c = sum / static_cast<float>(fine * fine);
           }
-          c *= 255.0f;
-          // BGR
-          row[u] = cv::Vec3b(cv::saturate_cast<uchar>(c.z()), cv::saturate_cast<uchar>(c.y()),
-                             cv::saturate_cast<uchar>(c.x()));
+          row[u] = toBgr(c);
         }
       }
     };
@@ -409,7 +658,6 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
     runRows(baseRows);
     runRows(renderRows);
     (camera == 0 ? out.left : out.right) = img;
-    (void)n_spheres;
   }
 
   // Post-processing: illumination, blur, sensor noise (single-threaded, seeded: deterministic).

@@ -227,10 +227,32 @@ void Scene::precompute() {
   }
   cell_start_.assign(lists.size() + 1, 0);
   cell_items_.clear();
+  cell_state_.assign(lists.size(), kCellTest);
   for (size_t c = 0; c < lists.size(); ++c) {
     cell_items_.insert(cell_items_.end(), lists[c].begin(), lists[c].end());
     cell_start_[c + 1] = static_cast<uint32_t>(cell_items_.size());
+    // The cell grown by the margin against the field and the goals' floor (onFloor).
+    const double x0 = cell_x0_ + static_cast<double>(c % cells_nx_) * kCell - kMargin, x1 = x0 + kCell + 2 * kMargin;
+    const double y0 = cell_y0_ + static_cast<double>(c / cells_nx_) * kCell - kMargin, y1 = y0 + kCell + 2 * kMargin;
+    const double goal_y0 = 0.5 * (g.width - g.goal_width), goal_y1 = 0.5 * (g.width + g.goal_width);
+    const bool in_field = x0 >= 0 && x1 <= g.length && y0 >= 0 && y1 <= g.width;
+    const bool in_goal = y0 >= goal_y0 && y1 <= goal_y1 && x0 >= -g.goal_depth && x1 <= g.length + g.goal_depth;
+    const bool off_field = x1 < 0 || x0 > g.length || y1 < 0 || y0 > g.width;
+    const bool off_goal = y1 < goal_y0 || y0 > goal_y1 || x1 < -g.goal_depth || x0 > g.length + g.goal_depth;
+    if (lists[c].empty() && (in_field || in_goal)) cell_state_[c] = kCellFloor;
+    if (off_field && off_goal) cell_state_[c] = kCellBackground;
   }
+}
+
+bool Scene::floorIsPlain(double x0, double y0, double x1, double y1) const {
+  if (cell_state_.empty() || !(x0 <= x1 && y0 <= y1)) return false;
+  const double fx0 = std::floor((x0 - cell_x0_) / cell_size_), fx1 = std::floor((x1 - cell_x0_) / cell_size_);
+  const double fy0 = std::floor((y0 - cell_y0_) / cell_size_), fy1 = std::floor((y1 - cell_y0_) / cell_size_);
+  if (!(fx0 >= 0 && fy0 >= 0 && fx1 < cells_nx_ && fy1 < cells_ny_)) return false;
+  for (int j = static_cast<int>(fy0); j <= static_cast<int>(fy1); ++j)
+    for (int i = static_cast<int>(fx0); i <= static_cast<int>(fx1); ++i)
+      if (cell_state_[static_cast<size_t>(j) * cells_nx_ + i] != kCellFloor) return false;
+  return true;
 }
 
 bool Scene::intersectPrism(size_t i, const Eigen::Vector3d& o, const Eigen::Vector3d& d, double t_min,
@@ -378,10 +400,22 @@ SurfaceClass Scene::floorClassLinearScan(double x, double y) const {
 }
 
 SurfaceClass Scene::floorClass(double x, double y) const {
+  if (cell_state_.empty()) return onFloor(x, y) ? SurfaceClass::Floor : SurfaceClass::Background;  // no markings
+  const double qx = (x - cell_x0_) / cell_size_, qy = (y - cell_y0_) / cell_size_;
+  if (qx >= 0 && qy >= 0 && qx < cells_nx_ && qy < cells_ny_) {
+    // Truncation is floor here. Most floor samples land in a cell that settles the class (a
+    // point that rounding puts in the neighbouring cell is within that cell's 1 mm margin).
+    const size_t cell = static_cast<size_t>(qy) * cells_nx_ + static_cast<size_t>(qx);
+    if (cell_state_[cell] == kCellFloor) return SurfaceClass::Floor;
+    if (cell_state_[cell] == kCellBackground || !onFloor(x, y)) return SurfaceClass::Background;
+    for (uint32_t k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k)
+      if (markingCovers(cell_items_[k], x, y)) return SurfaceClass::Marking;
+    return SurfaceClass::Floor;
+  }
+  // Outside the grid (it covers every point on the floor, but a point on its far border rounds out).
   if (!onFloor(x, y)) return SurfaceClass::Background;
-  if (cell_start_.empty()) return SurfaceClass::Floor;  // an empty scene has no markings
-  const int ci = std::clamp(static_cast<int>(std::floor((x - cell_x0_) / cell_size_)), 0, cells_nx_ - 1);
-  const int cj = std::clamp(static_cast<int>(std::floor((y - cell_y0_) / cell_size_)), 0, cells_ny_ - 1);
+  const int ci = std::clamp(static_cast<int>(std::floor(qx)), 0, cells_nx_ - 1);
+  const int cj = std::clamp(static_cast<int>(std::floor(qy)), 0, cells_ny_ - 1);
   const size_t cell = static_cast<size_t>(cj) * cells_nx_ + ci;
   for (uint32_t k = cell_start_[cell]; k < cell_start_[cell + 1]; ++k)
     if (markingCovers(cell_items_[k], x, y)) return SurfaceClass::Marking;

@@ -126,6 +126,14 @@ class Scene {
                        RayHit* hit) const;
   // The floor at (x, y): Floor, Marking, or Background when outside the field and goals.
   SurfaceClass floorClass(double x, double y) const;
+  // True only when floorClass is Floor at every point of the rectangle [x0, x1] x [y0, y1] and
+  // within 1 mm of it (conservative: false when unsure). The renderer uses it to know, without
+  // tracing them, the colour of all rays of an image tile that reach plain floor.
+  bool floorIsPlain(double x0, double y0, double x1, double y1) const;
+  // (x0, y0, x1, y1) of prism i when it is an axis-aligned box (the walls and goals), whose
+  // intersectPrism is a slab test; x0 is NaN otherwise. The renderer repeats that slab test with
+  // the ray-independent terms hoisted.
+  const Eigen::Vector4d& boxRect(size_t i) const { return box_rects_[i]; }
   // The same by testing every marking (no cell grid): the reference floorClass is tested against.
   SurfaceClass floorClassLinearScan(double x, double y) const;
 
@@ -148,6 +156,10 @@ class Scene {
   int cells_nx_ = 0, cells_ny_ = 0;
   std::vector<uint32_t> cell_start_;  // cells_nx_ * cells_ny_ + 1 offsets into cell_items_
   std::vector<uint32_t> cell_items_;
+  // Per cell, what floorClass is within 1 mm of it: Floor (no marking near, inside the field or
+  // a goal), Background (outside both), or test (onFloor and the cell's markings).
+  enum : uint8_t { kCellTest = 0, kCellFloor = 1, kCellBackground = 2 };
+  std::vector<uint8_t> cell_state_;
   void precompute();
   bool onFloor(double x, double y) const;  // inside the field or a goal
   bool markingCovers(size_t item, double x, double y) const;  // strip item, or ring item - strips_.size()

@@ -263,6 +263,85 @@ TEST(Renderer, EdgePixelsAreResampledOnTheFinerGrid) {
   EXPECT_NO_THROW(bad.validate());
 }
 
+// The renderer settles image tiles of plain floor and sky from their corner rays, and repeats
+// the slab test of the wall and goal boxes with hoisted terms: the images must be the ones of
+// tracing every sample with Scene's own tests, byte for byte, also with obstacles, head pan, a
+// non-nested edge grid and no refinement.
+TEST(Renderer, ShortcutsGiveTheReferenceImages) {
+  const FieldMap map = FieldMap::miroSot();
+  Obstacle robot, ball;
+  robot.position = Eigen::Vector2d(600, 560);
+  robot.heading = 0.4;
+  ball.kind = Obstacle::Kind::Ball;
+  ball.size = 42.7;
+  ball.position = Eigen::Vector2d(700, 640);
+  // Objects crossing the camera plane: bench_render's five robots (one 60 mm beside the camera),
+  // and a robot and a ball at the side of the camera, half in front of it.
+  std::vector<Obstacle> bench, beside(2);
+  for (int k = 0; k < 5; ++k) {
+    Obstacle o;
+    o.position = Eigen::Vector2d(300 + 150 * k, 500 + 40 * k);
+    bench.push_back(o);
+  }
+  beside[0].position = Eigen::Vector2d(520, 560);
+  beside[0].heading = 0.3;
+  beside[1].kind = Obstacle::Kind::Ball;
+  beside[1].size = 42.7;
+  beside[1].position = Eigen::Vector2d(505, 735);
+  struct Case {
+    Pose2 pose;
+    double pan;
+    std::vector<Obstacle> obstacles;
+    int samples, edge_samples;
+  };
+  const std::vector<Case> cases = {
+      {Pose2(900, 600, 2.8), 0.0, {}, 2, 4},          {Pose2(900, 600, 2.8), 0.0, {robot, ball}, 2, 4},
+      {Pose2(400, 650, kPi), 0.3, {}, 2, 4},          {Pose2(700, 150, -kPi / 2), 0.0, {}, 2, 4},
+      {Pose2(120, 110, -2.4), 0.0, {}, 2, 4},          {Pose2(1300, 1000, 0.7), -0.5, {ball}, 3, 4},
+      {Pose2(750, 650, 1.2), 0.0, {robot}, 2, 0},      {Pose2(1100, 300, -0.3), 0.2, {robot, ball}, 2, 5},
+      {Pose2(900, 600, 2.8), 0.0, bench, 2, 4},        {Pose2(500, 650, 0.0), 0.0, beside, 2, 4},
+      {Pose2(500, 650, 0.1), 0.0, beside, 2, 4},       {Pose2(40, 300, kPi / 2), 0.0, {}, 2, 4}};
+  for (const Case& c : cases) {
+    RenderOptions fast = plain(), reference = plain();
+    fast.samples_per_axis = reference.samples_per_axis = c.samples;
+    fast.edge_samples_per_axis = reference.edge_samples_per_axis = c.edge_samples;
+    fast.compute_truth = reference.compute_truth = false;
+    reference.reference_tracing = true;
+    const StereoImages a = StereoRenderer(map, StereoRig(), fast).render(c.pose, c.pan, c.obstacles);
+    const StereoImages b = StereoRenderer(map, StereoRig(), reference).render(c.pose, c.pan, c.obstacles);
+    EXPECT_EQ(cv::norm(a.left, b.left, cv::NORM_INF), 0.0) << c.pose.x << " " << c.pose.y << " " << c.pose.theta;
+    EXPECT_EQ(cv::norm(a.right, b.right, cv::NORM_INF), 0.0) << c.pose.x << " " << c.pose.y << " " << c.pose.theta;
+  }
+}
+
+// floorIsPlain lets the renderer colour a tile of floor samples without classifying them: when it
+// says yes, every point of the rectangle and within 1 mm of it must be plain floor.
+TEST(Renderer, FloorIsPlainOnlyWhereEveryPointIsFloor) {
+  const Scene scene = Scene::fromMap(FieldMap::miroSot());
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> x(-250.0, 1750.0), y(-100.0, 1400.0), size(0.0, 120.0);
+  int plain = 0, not_plain = 0;
+  for (int k = 0; k < 20000; ++k) {
+    const double x0 = x(rng), y0 = y(rng), x1 = x0 + size(rng), y1 = y0 + size(rng);
+    if (!scene.floorIsPlain(x0, y0, x1, y1)) {
+      ++not_plain;
+      continue;
+    }
+    ++plain;
+    for (double px = x0 - 0.99; px <= x1 + 0.99; px += (x1 - x0 + 1.98) / 12)
+      for (double py = y0 - 0.99; py <= y1 + 0.99; py += (y1 - y0 + 1.98) / 12)
+        ASSERT_EQ(scene.floorClassLinearScan(px, py), SurfaceClass::Floor) << "at (" << px << ", " << py << ") mm";
+  }
+  EXPECT_GT(plain, 2000);
+  EXPECT_GT(not_plain, 2000);
+  const FieldGeometry& g = scene.geometry();
+  EXPECT_TRUE(scene.floorIsPlain(300, 300, 320, 320));
+  EXPECT_FALSE(scene.floorIsPlain(0.5 * g.length - 30, 300, 0.5 * g.length + 30, 320));  // the halfway line
+  EXPECT_FALSE(scene.floorIsPlain(-100, 100, -50, 150));                                 // beside a goal
+  EXPECT_FALSE(scene.floorIsPlain(300, 320, 320, 300));                                  // empty rectangle
+  EXPECT_FALSE(Scene().floorIsPlain(300, 300, 320, 320));
+}
+
 // floorClass looks the markings up in a cell grid; it must agree with testing every marking,
 // everywhere, including points on and next to marking borders.
 TEST(Renderer, FloorClassCellGridAgreesWithTheLinearScan) {
