@@ -162,13 +162,13 @@ void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments) {
 }
 
 void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
-                  double tol_px, std::vector<int>& cuts, double step_px) {
+                  double tol_px, std::vector<int>& cuts, double step_px, double tail_px) {
   BendScratch scratch;
-  splitAtBends(edges, begin, end, theta, bin_px, tol_px, cuts, scratch, step_px);
+  splitAtBends(edges, begin, end, theta, bin_px, tol_px, cuts, scratch, step_px, tail_px);
 }
 
 void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
-                  double tol_px, std::vector<int>& cuts, BendScratch& scratch, double step_px) {
+                  double tol_px, std::vector<int>& cuts, BendScratch& scratch, double step_px, double tail_px) {
   const int n = static_cast<int>(end - begin);
   cuts.clear();
   cuts.push_back(0);
@@ -206,6 +206,8 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
   std::vector<std::pair<int, int>>& stack = scratch.stack;
   stack.assign(1, {0, static_cast<int>(bins.size()) - 1});
   scratch.runs.clear();  // DP's final runs [first bin, end bin) that the step test looks at
+  // The smaller of the step and tail thresholds in use (0: neither test).
+  const double guard = step_px > 0 && tail_px > 0 ? std::min(step_px, tail_px) : std::max(step_px, tail_px);
   while (!stack.empty()) {
     const auto [a, b] = stack.back();
     stack.pop_back();
@@ -225,8 +227,8 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
       // A final run. The step test below only looks at runs whose bins leave the chord by
       // more than step_px / 4: the bins beside a step h lie at least h / 2 off the chord
       // (max(f, 1 - f) h for a step at the fraction f), so straighter runs (nearly all, and
-      // the test's cost) hold none. Run [a, b) for the test; the last one includes bin b.
-      if (step_px > 0 && worst > 0.25 * step_px && b - a + 1 >= 6)
+      // the test's cost) hold none; likewise a bend with a tail off by tail_px. Run [a, b) for the test; the last one includes bin b.
+      if (guard > 0 && worst > 0.25 * guard && b - a + 1 >= 6)
         scratch.runs.push_back({a, b + 1 == static_cast<int>(bins.size()) ? b + 1 : b});
       continue;
     }
@@ -290,7 +292,16 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
       fit(a, at, a1, b1);
       fit(at, b, a2, b2);
       const double tm = 0.5 * (bins[at - 1].t + bins[at].t) - tref;
-      if (std::fabs(a1 + b1 * tm - a2 - b2 * tm) <= step_px) continue;
+      bool split = step_px > 0 && std::fabs(a1 + b1 * tm - a2 - b2 * tm) > step_px;
+      if (!split && tail_px > 0) {
+        // The shorter side's outer bin against the longer side's line, extended: the tail of a
+        // bend, which leaves DP's chord by only half as much in the middle of a run.
+        const bool first_short = at - a < b - at;
+        const double to = (first_short ? bins[a].t : bins[b - 1].t) - tref;
+        const double dev = first_short ? a1 + b1 * to - a2 - b2 * to : a2 + b2 * to - a1 - b1 * to;
+        split = std::fabs(dev) > tail_px;
+      }
+      if (!split) continue;
       cut_at[at] = 1;
       stack.push_back({a, at});
       stack.push_back({at, b});
@@ -593,7 +604,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
             run = k;
           }
         splitAtBends(edges, piece_.data(), piece_.data() + piece_.size(), theta, prm.straightness_bin_px,
-                     prm.straightness_px, cuts_, bend_scratch_, prm.step_px);
+                     prm.straightness_px, cuts_, bend_scratch_, prm.step_px, prm.tail_px);
         for (size_t ci = 0; ci + 1 < cuts_.size(); ++ci) {
           const int* rb = piece_.data() + cuts_[ci];
           const int* re = piece_.data() + cuts_[ci + 1];

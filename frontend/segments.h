@@ -73,6 +73,13 @@ struct SegmentParams {
   // whose truth is one edge where it is straight within 1 px (seed 4: 61.4 / 65.6 %, corner
   // recall 96.0 -> 95.2 %).
   double step_px = 1.5;
+  // ... or where the shorter of those two lines' outer bin lies more than this off the longer
+  // one, extended (a bend DP misses: in the middle of a run the chord passes a bend at half the
+  // tail's deviation). Far away a wall foot runs on into the next wall's or the goal's foot at
+  // 1-3 deg, and the segment ran 10-20 px past its corner. bench_frontend seed 4 (with
+  // step_px 1.5) 61.7 / 65.8 -> 62.3 / 66.9 %, corners 96.0 / 96.0 -> 96.0 / 96.7 %; 0.8
+  // gave 61.8 / 66.5 % but corner recall 94.4 %. 0: off.
+  double tail_px = 1.0;
   // A peak is verified again on its leftover pixels (the next of several edges in one cell,
   // whose own peaks Algorithm 1's window suppressed), at most this many times. Each round fits
   // from the longest gap-free run of the cell's pixels (the seed), so the others need a round.
@@ -102,12 +109,14 @@ struct BendScratch {
 // then moved (within +-2 bins) to where the two runs' own fitted lines explain the pixels best.
 // With step_px > 0 each run is also split where two lines fitted to the bin means on either side
 // of the best split (least squared residual) are more than step_px apart there: a step, which
-// DP misses near a run's end. Appends the run boundaries (indices into [begin, end), ascending,
+// DP misses near a run's end; with tail_px > 0 also where the shorter line's outer bin mean lies
+// more than tail_px off the longer line (a bend). Appends the run boundaries (indices into [begin, end), ascending,
 // first 0, last end-begin) to `cuts`. Runs shorter than 2 bins are never split further.
 void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
-                  double tol_px, std::vector<int>& cuts, double step_px = 0.0);
+                  double tol_px, std::vector<int>& cuts, double step_px = 0.0, double tail_px = 0.0);
 void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
-                  double tol_px, std::vector<int>& cuts, BendScratch& scratch, double step_px = 0.0);
+                  double tol_px, std::vector<int>& cuts, BendScratch& scratch, double step_px = 0.0,
+                  double tail_px = 0.0);
 
 class SegmentExtractor {
  public:

@@ -226,6 +226,31 @@ TEST(Segments, SplitAtBendsStepTestCutsAStepDouglasPeuckerMisses) {
   EXPECT_EQ(cuts.size(), 2u);
 }
 
+// A far wall foot running on into the next wall's foot at 0.9 deg, the bend in the middle: DP's
+// chord passes the bend at 0.73 px (half the tail's 1.46 px), the two lines meet there without
+// a step, and only the tail test (the short line's outer bin against the long line) cuts it.
+TEST(Segments, SplitAtBendsTailTestCutsABendInTheMiddle) {
+  std::vector<EdgePixel> e;
+  addChain(e, 0, 100, 50.0, 0.0);
+  addChain(e, 101, 200, 50.0 - 100 * 0.015, 0.015);
+  const double theta = kTwoPi / 4;
+  const std::vector<int> idx = sortedAlong(e, theta);
+  const SegmentParams prm;
+  std::vector<int> cuts;
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts, prm.step_px, 0.0);
+  EXPECT_EQ(cuts.size(), 2u);
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts, prm.step_px, prm.tail_px);
+  ASSERT_EQ(cuts.size(), 3u);
+  EXPECT_NEAR(e[idx[cuts[1]]].x, 100.5, 3.0);
+  // A straight noisy line stays whole.
+  std::vector<EdgePixel> f;
+  addChain(f, 0, 200, 30.0, 0.02, 0.3);
+  const double th = std::atan2(1.0, -0.02);
+  const std::vector<int> jdx = sortedAlong(f, th);
+  splitAtBends(f, jdx.data(), jdx.data() + jdx.size(), th, 4.0, 1.0, cuts, prm.step_px, prm.tail_px);
+  EXPECT_EQ(cuts.size(), 2u);
+}
+
 // A peak straddling two near-collinear edges used to remove the pixels of both; the edge
 // it did not keep must still come out (release_unused).
 TEST(Segments, TwoEdgesMeetingAtAShallowAngleGiveTwoSegments) {
