@@ -42,6 +42,8 @@ std::vector<Field> fields(FrontendParams& p) {
       {"segments", "refit_iterations", Field::Int, &p.segments.refit_iterations},
       {"segments", "straightness_px", Field::Double, &p.segments.straightness_px},
       {"segments", "straightness_bin_px", Field::Double, &p.segments.straightness_bin_px},
+      {"segments", "step_px", Field::Double, &p.segments.step_px},
+      {"segments", "tail_px", Field::Double, &p.segments.tail_px},
       {"segments", "rounds_per_peak", Field::Int, &p.segments.rounds_per_peak},
       {"segments", "release_unused", Field::Bool, &p.segments.release_unused},
       {"classify", "width_factor", Field::Double, &p.classify.width_factor},
@@ -120,6 +122,8 @@ void FrontendParams::validate() const {
   need(segments.refit_iterations >= 1, "segments.refit_iterations", "must be at least 1");
   need(segments.straightness_px > 0, "segments.straightness_px", "must be positive");
   need(segments.straightness_bin_px > 0, "segments.straightness_bin_px", "must be positive");
+  need(segments.step_px >= 0, "segments.step_px", "must not be negative");
+  need(segments.tail_px >= 0, "segments.tail_px", "must not be negative");
   need(classify.width_factor > 0, "classify.width_factor", "must be positive");
   need(classify.min_width_px > 0 && classify.max_width_px >= classify.min_width_px, "classify.min/max_width_px",
        "need 0 < min <= max");

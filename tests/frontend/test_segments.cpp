@@ -194,6 +194,63 @@ TEST(Segments, SplitAtBendsCutsAStep) {
   EXPECT_TRUE(near_step);
 }
 
+// A far wall foot and the goal foot 1.7 px behind it, end to end with a gap where the weak goal
+// foot has no pixels: Douglas-Peucker's chord passes within 0.85 px of every bin (a step h in
+// the middle deviates by h / 2), so only the two-line step test cuts it, in the gap.
+TEST(Segments, SplitAtBendsStepTestCutsAStepDouglasPeuckerMisses) {
+  std::vector<EdgePixel> e;
+  addChain(e, 0, 60, 40.0, 0.0);
+  addChain(e, 90, 180, 41.7, 0.0);
+  const double theta = kTwoPi / 4;
+  const std::vector<int> idx = sortedAlong(e, theta);
+  std::vector<int> cuts;
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts);  // DP only
+  EXPECT_EQ(cuts.size(), 2u);
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts, SegmentParams().step_px);
+  ASSERT_EQ(cuts.size(), 3u);
+  // In the gap: the pixels on either side of the cut are the runs' ends (t = -x here).
+  EXPECT_EQ(e[idx[cuts[1] - 1]].x, 90.0f);
+  EXPECT_EQ(e[idx[cuts[1]]].x, 60.0f);
+  // A straight noisy line and a shallow bend (no offset where the two lines meet) stay whole.
+  std::vector<EdgePixel> f;
+  addChain(f, 0, 200, 30.0, 0.02, 0.3);
+  const double th = std::atan2(1.0, -0.02);
+  const std::vector<int> jdx = sortedAlong(f, th);
+  splitAtBends(f, jdx.data(), jdx.data() + jdx.size(), th, 4.0, 1.0, cuts, SegmentParams().step_px);
+  EXPECT_EQ(cuts.size(), 2u);
+  std::vector<EdgePixel> g;
+  addChain(g, 0, 100, 50.0, 0.0);
+  addChain(g, 101, 200, 50.0 - 100 * 0.01, 0.01);  // +0.6 deg: 1 px off the chord at most
+  const std::vector<int> gdx = sortedAlong(g, kTwoPi / 4);
+  splitAtBends(g, gdx.data(), gdx.data() + gdx.size(), kTwoPi / 4, 4.0, 1.0, cuts, SegmentParams().step_px);
+  EXPECT_EQ(cuts.size(), 2u);
+}
+
+// A far wall foot running on into the next wall's foot at 0.9 deg, the bend in the middle: DP's
+// chord passes the bend at 0.73 px (half the tail's 1.46 px), the two lines meet there without
+// a step, and only the tail test (the short line's outer bin against the long line) cuts it.
+TEST(Segments, SplitAtBendsTailTestCutsABendInTheMiddle) {
+  std::vector<EdgePixel> e;
+  addChain(e, 0, 100, 50.0, 0.0);
+  addChain(e, 101, 200, 50.0 - 100 * 0.015, 0.015);
+  const double theta = kTwoPi / 4;
+  const std::vector<int> idx = sortedAlong(e, theta);
+  const SegmentParams prm;
+  std::vector<int> cuts;
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts, prm.step_px, 0.0);
+  EXPECT_EQ(cuts.size(), 2u);
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts, prm.step_px, prm.tail_px);
+  ASSERT_EQ(cuts.size(), 3u);
+  EXPECT_NEAR(e[idx[cuts[1]]].x, 100.5, 3.0);
+  // A straight noisy line stays whole.
+  std::vector<EdgePixel> f;
+  addChain(f, 0, 200, 30.0, 0.02, 0.3);
+  const double th = std::atan2(1.0, -0.02);
+  const std::vector<int> jdx = sortedAlong(f, th);
+  splitAtBends(f, jdx.data(), jdx.data() + jdx.size(), th, 4.0, 1.0, cuts, prm.step_px, prm.tail_px);
+  EXPECT_EQ(cuts.size(), 2u);
+}
+
 // A peak straddling two near-collinear edges used to remove the pixels of both; the edge
 // it did not keep must still come out (release_unused).
 TEST(Segments, TwoEdgesMeetingAtAShallowAngleGiveTwoSegments) {
