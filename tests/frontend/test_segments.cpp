@@ -239,7 +239,8 @@ TEST(Segments, SplitAtBendsTailTestCutsABendInTheMiddle) {
   std::vector<int> cuts;
   splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts, prm.step_px, 0.0);
   EXPECT_EQ(cuts.size(), 2u);
-  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts, prm.step_px, prm.tail_px);
+  constexpr double kTailPx = 1.0;  // the setting measured in segments.h (off by default)
+  splitAtBends(e, idx.data(), idx.data() + idx.size(), theta, 4.0, 1.0, cuts, prm.step_px, kTailPx);
   ASSERT_EQ(cuts.size(), 3u);
   EXPECT_NEAR(e[idx[cuts[1]]].x, 100.5, 3.0);
   // A straight noisy line stays whole.
@@ -247,7 +248,7 @@ TEST(Segments, SplitAtBendsTailTestCutsABendInTheMiddle) {
   addChain(f, 0, 200, 30.0, 0.02, 0.3);
   const double th = std::atan2(1.0, -0.02);
   const std::vector<int> jdx = sortedAlong(f, th);
-  splitAtBends(f, jdx.data(), jdx.data() + jdx.size(), th, 4.0, 1.0, cuts, prm.step_px, prm.tail_px);
+  splitAtBends(f, jdx.data(), jdx.data() + jdx.size(), th, 4.0, 1.0, cuts, prm.step_px, kTailPx);
   EXPECT_EQ(cuts.size(), 2u);
 }
 
