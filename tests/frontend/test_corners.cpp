@@ -408,6 +408,12 @@ std::vector<LineFeature> linesKeeping(const StereoRig& rig, Frontend& fe, const 
   }
   return out;
 }
+
+// The arm probe is off by default (corners.h); these tests switch it on at its measured length.
+CornerParams armProbeOn(CornerParams p) {
+  p.arm_length_px = 12.0;
+  return p;
+}
 }  // namespace
 
 // The arm probe: an L whose far arm (a 10 mm line 600 mm away: 0.54 px tall in the image, so
@@ -417,6 +423,7 @@ std::vector<LineFeature> linesKeeping(const StereoRig& rig, Frontend& fe, const 
 TEST(Corners, ArmProbeFindsAMissingThinArm) {
   const StereoRig rig;
   Frontend fe(rig, FieldMap::miroSot());
+  const CornerParams on = armProbeOn(fe.params().corners);
   cv::Mat luma;
   const Eigen::Vector2d corner = pixel(rig, 600, 0);
   // L: near arm along the view (kept), far thin arm to the left (missing).
@@ -427,12 +434,12 @@ TEST(Corners, ArmProbeFindsAMissingThinArm) {
   std::vector<PointFeature> feats;
   findCorners(lines, rig, fe.params().corners, feats);
   EXPECT_TRUE(feats.empty());
-  findCorners(lines, rig, fe.params().corners, feats, &luma);
+  findCorners(lines, rig, on, feats, &luma);
   ASSERT_EQ(feats.size(), 1u);
   EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
   EXPECT_NEAR(feats[0].u, corner.x(), 1.0);
   EXPECT_NEAR(feats[0].v, corner.y(), 1.0);
-  CornerParams off = fe.params().corners;
+  CornerParams off = on;
   off.arm_length_px = 0;
   findCorners(lines, rig, off, feats, &luma);
   EXPECT_TRUE(feats.empty());
@@ -441,7 +448,7 @@ TEST(Corners, ArmProbeFindsAMissingThinArm) {
   bgrToLuma(img, luma);
   lines = linesKeeping(rig, fe, img, {450, 0});
   ASSERT_EQ(lines.size(), 1u);
-  findCorners(lines, rig, fe.params().corners, feats, &luma);
+  findCorners(lines, rig, on, feats, &luma);
   EXPECT_TRUE(feats.empty());
 }
 
@@ -452,6 +459,7 @@ TEST(Corners, ArmProbeFindsAMissingThinArm) {
 TEST(Corners, ArmFoundByTheProbeIsTracedToTheWallFoot) {
   const StereoRig rig;
   Frontend fe(rig, FieldMap::miroSot());
+  const CornerParams on = armProbeOn(fe.params().corners);
   // Far line to the right (kept), its arm from (300, 0) up to a wall at x = 450 (missing).
   const cv::Mat img = renderFloor(rig, false, {{{300, 0}, {300, -200}, 5.0}, {{300, 0}, {450, 0}, 5.0}}, 450.0);
   cv::Mat luma;
@@ -459,7 +467,7 @@ TEST(Corners, ArmFoundByTheProbeIsTracedToTheWallFoot) {
   const std::vector<LineFeature> lines = linesKeeping(rig, fe, img, {300, -100});
   ASSERT_EQ(lines.size(), 2u);  // the far line and the wall foot
   std::vector<PointFeature> feats;
-  findCorners(lines, rig, fe.params().corners, feats, &luma);
+  findCorners(lines, rig, on, feats, &luma);
   ASSERT_EQ(feats.size(), 2u);
   const Eigen::Vector2d corner = pixel(rig, 300, 0), junction = pixel(rig, 450, 0);
   EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
