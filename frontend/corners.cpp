@@ -605,6 +605,15 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
       const double te = at_max ? m.t_max : m.t_min;
       if (te - lo < 0.5 || hi - te < 0.5) continue;  // clipped by the border: no evidence of an end
       if (near(m.x(te), m.y(te))) continue;
+      // A feature found by the arm probe: only its marking line is known.
+      auto addFeature = [&](LandmarkType type, double fu, double fv) {
+        PointFeature f;
+        f.type = type;
+        f.u = fu;
+        f.v = fv;
+        f.line_a = static_cast<int>(i);
+        features.push_back(f);
+      };
       double u, v, ax, ay;
       if (!probeMissingArm(*luma, rig, m, at_max, prm, u, v, &ax, &ay)) continue;
       if (u < 0 || v < 0 || u > w - 1 || v > h - 1 || near(u, v)) continue;
@@ -613,24 +622,14 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
       bool on_wall = false;
       for (double q = 0.0; q <= prm.arm_length_px + 8.0 && !on_wall; q += 2.0) on_wall = aboveWallFoot(lines, u + q * ax, v + q * ay, prm.delta_px);
       if (on_wall) continue;
-      PointFeature f;
-      f.type = LandmarkType::MarkingCorner;
-      f.u = u;
-      f.v = v;
-      f.line_a = static_cast<int>(i);
-      features.push_back(f);
+      addFeature(LandmarkType::MarkingCorner, u, v);
       // The arm was not found as a line, so neither was the junction where it meets a wall
       // (seed 5: 3 of the 5 missed junctions, each beside a corner found this way): follow it
       // to the nearest wall foot it crosses, if it stays bright all the way.
       double jx, jy;
       if (traceArmToWallFoot(*luma, lines, m, u, v, ax, ay, prm, jx, jy) && !near(jx, jy) && jx >= 0 && jy >= 0 &&
           jx <= w - 1 && jy <= h - 1) {
-        PointFeature j;
-        j.type = LandmarkType::Junction;
-        j.u = jx;
-        j.v = jy;
-        j.line_a = static_cast<int>(i);
-        features.push_back(j);
+        addFeature(LandmarkType::Junction, jx, jy);
       }
     }
   }

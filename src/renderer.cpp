@@ -525,18 +525,7 @@ StereoImages StereoRenderer::render(const Pose2& robot, double head_pan, const s
             int face = -3;
             auto slab = [&](double lo, double hi, double d_k, double inv_k, int face_lo, int face_hi) {
               if (d_k == 0.0) return lo <= 0.0 && hi >= 0.0;  // o_k >= lo && o_k <= hi
-              double ta = lo * inv_k, tb = hi * inv_k;
-              int fa = face_lo;
-              if (ta > tb) {
-                std::swap(ta, tb);
-                fa = face_hi;
-              }
-              if (ta > t0) {
-                t0 = ta;
-                face = fa;
-              }
-              if (tb < t1) t1 = tb;
-              return t0 <= t1;
+              return clipSlab(lo * inv_k, hi * inv_k, face_lo, face_hi, t0, t1, face);
             };
             if (slab(s.rel[0], s.rel[1], d.x(), inv.x(), 3, 1) && slab(s.rel[2], s.rel[3], d.y(), inv.y(), 0, 2) &&
                 slab(s.rel[4], s.rel[5], d.z(), inv.z(), -2, -1) && face != -3 && t0 > 0.0) {

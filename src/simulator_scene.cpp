@@ -266,18 +266,7 @@ bool Scene::intersectPrism(size_t i, const Eigen::Vector3d& o, const Eigen::Vect
     auto slab = [&](double o_k, double d_k, double lo, double hi, int face_lo, int face_hi) {
       if (d_k == 0.0) return o_k >= lo && o_k <= hi;
       const double inv = 1.0 / d_k;
-      double ta = (lo - o_k) * inv, tb = (hi - o_k) * inv;
-      int fa = face_lo;
-      if (ta > tb) {
-        std::swap(ta, tb);
-        fa = face_hi;
-      }
-      if (ta > t0) {
-        t0 = ta;
-        face = fa;
-      }
-      if (tb < t1) t1 = tb;
-      return t0 <= t1;
+      return clipSlab((lo - o_k) * inv, (hi - o_k) * inv, face_lo, face_hi, t0, t1, face);
     };
     // Faces: 0 = -y side, 1 = +x side, 2 = +y side, 3 = -x side, -1 = top, -2 = bottom.
     if (!slab(o.x(), d.x(), r[0], r[2], 3, 1) || !slab(o.y(), d.y(), r[1], r[3], 0, 2) ||

@@ -16,6 +16,7 @@
 #include <array>
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "src/field_map.h"
@@ -101,6 +102,25 @@ struct RayHit {
   Eigen::Vector3d normal = Eigen::Vector3d::Zero();
   int object = -1;  // index of the prism / sphere hit (-1 floor or background)
 };
+
+// One axis of the slab test of a ray against an axis-aligned box: [ta, tb] is where the ray is
+// between the two planes of the axis (in either order); the ray's interval [t0, t1] is clipped
+// to it, and `face` becomes face_lo (face_hi when ta > tb) when this axis sets t0. Returns
+// whether the interval is still non-empty. Scene::intersectPrism and the renderer's hoisted
+// test share it, so both give the same hits term for term.
+inline bool clipSlab(double ta, double tb, int face_lo, int face_hi, double& t0, double& t1, int& face) {
+  int fa = face_lo;
+  if (ta > tb) {
+    std::swap(ta, tb);
+    fa = face_hi;
+  }
+  if (ta > t0) {
+    t0 = ta;
+    face = fa;
+  }
+  if (tb < t1) t1 = tb;
+  return t0 <= t1;
+}
 
 class Scene {
  public:
