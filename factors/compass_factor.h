@@ -9,8 +9,8 @@
 
 #include <cmath>
 
-#include "src/angles.h"
-#include "src/error.h"
+#include "src/core/angles.h"
+#include "src/core/error.h"
 
 namespace stereoloc {
 

@@ -1,6 +1,6 @@
 #pragma once
 // checkFactorJacobians: the one-line check that a cost function's Jacobians agree with central
-// differences (src/numeric_diff.h) of its own residuals. Used by every factor test:
+// differences (src/core/numeric_diff.h) of its own residuals. Used by every factor test:
 //   const FactorCheck c = checkFactorJacobians(*cost, {pose_a, pose_b});
 //   EXPECT_TRUE(c.ok) << c.message;
 // The residuals are differentiated with respect to the ambient parameters; for the poses of
@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "src/numeric_diff.h"
+#include "src/core/numeric_diff.h"
 
 namespace stereoloc {
 

@@ -16,9 +16,9 @@
 #include <string>
 #include <vector>
 
-#include "src/angles.h"
-#include "src/error.h"
-#include "src/pose2.h"
+#include "src/core/angles.h"
+#include "src/core/error.h"
+#include "src/core/pose2.h"
 
 namespace stereoloc {
 

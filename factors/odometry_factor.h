@@ -14,10 +14,10 @@
 
 #include <Eigen/Core>
 
-#include "src/angles.h"
-#include "src/gaussian.h"
-#include "src/odometry_model.h"
-#include "src/pose2.h"
+#include "src/core/angles.h"
+#include "src/core/gaussian.h"
+#include "src/core/odometry_model.h"
+#include "src/core/pose2.h"
 
 namespace stereoloc {
 
@@ -39,7 +39,7 @@ struct OdometryFactor {
     return new ceres::AutoDiffCostFunction<OdometryFactor, 3, 3, 3>(
         new OdometryFactor(u, sqrtInformationUpper<3>(covariance, "odometry covariance U")));
   }
-  // From the wheel increments of one step (mm), with the odometry model of src/odometry_model.h.
+  // From the wheel increments of one step (mm), with the odometry model of src/core/odometry_model.h.
   static ceres::CostFunction* Create(double d_left, double d_right, const OdometryParams& params) {
     return Create(controlVector(d_left, d_right, params.wheel_base_mm), controlCovariance(d_left, d_right, params));
   }

@@ -1,5 +1,5 @@
 #pragma once
-// The pose manifold R^2 x SO(2) of src/pose2.h as a ceres::Manifold. Ambient and tangent are
+// The pose manifold R^2 x SO(2) of src/core/pose2.h as a ceres::Manifold. Ambient and tangent are
 // both (x, y, theta) in (mm, mm, rad):
 //   Plus(x, d)  = (x + dx, y + dy, wrapAngle(theta + dtheta))
 //   Minus(y, x) = (y_x - x_x, y_y - x_y, wrapAngle(y_theta - x_theta))
@@ -7,7 +7,7 @@
 // respect to the ambient parameters are already the J_out_pose of the stereoloc convention.
 #include <ceres/manifold.h>
 
-#include "src/angles.h"
+#include "src/core/angles.h"
 
 namespace stereoloc {
 

@@ -9,9 +9,9 @@
 
 #include <Eigen/Core>
 
-#include "src/angles.h"
-#include "src/gaussian.h"
-#include "src/pose2.h"
+#include "src/core/angles.h"
+#include "src/core/gaussian.h"
+#include "src/core/pose2.h"
 
 namespace stereoloc {
 
@@ -26,7 +26,7 @@ class PosePriorFactor final : public ceres::SizedCostFunction<3, 3> {
     Eigen::Map<Eigen::Vector3d> r(residuals);
     r = S_ * e;
     if (jacobians && jacobians[0]) {
-      // d(p [-] mean)/dp is the identity (src/pose2.h convention), so the Jacobian is S.
+      // d(p [-] mean)/dp is the identity (src/core/pose2.h convention), so the Jacobian is S.
       Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> J(jacobians[0]);
       J = S_;
     }

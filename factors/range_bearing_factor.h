@@ -14,9 +14,9 @@
 
 #include <Eigen/Core>
 
-#include "src/angles.h"
-#include "src/gaussian.h"
-#include "src/measurement_model.h"
+#include "src/core/angles.h"
+#include "src/core/gaussian.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 

@@ -6,7 +6,7 @@
 //                                                    or 2 (u_l, u_r) with PixelResiduals::Columns
 //
 // p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y, z), world frame,
-// mm. pi: the rig's projection (StereoRig::project, src/stereo_rig.h) of l expressed in the
+// mm. pi: the rig's projection (StereoRig::project, src/core/stereo_rig.h) of l expressed in the
 // robot frame C0, with the head pan of the observation: C0 -> C1 (pan) -> C2 (offset, height,
 // tilt) -> u_l = o_u - f (y - b/2) / x, u_r = o_u - f (y + b/2) / x, v = o_v - f z / x.
 // z: the measured pixels; sigma: the pixel noise of each coordinate (independent, equal), so the
@@ -33,8 +33,8 @@
 #include <cmath>
 #include <string>
 
-#include "src/error.h"
-#include "src/stereo_rig.h"
+#include "src/core/error.h"
+#include "src/core/stereo_rig.h"
 
 namespace stereoloc {
 

@@ -23,7 +23,7 @@
 #include <vector>
 
 #include "frontend/features.h"
-#include "src/stereo_rig.h"
+#include "src/core/stereo_rig.h"
 
 namespace stereoloc::frontend {
 

@@ -2,7 +2,7 @@
 // Types shared by the stages of the vision frontend (thesis chapter 3).
 //
 // Image coordinates: x = column (u), y = row (v), in px, with pixel centres at integer
-// coordinates (the convention of src/stereo_rig.h). Line convention, used by every stage:
+// coordinates (the convention of src/core/stereo_rig.h). Line convention, used by every stage:
 //
 //     x cos(theta) + y sin(theta) = rho                                        (3.9)
 //
@@ -16,7 +16,7 @@
 #include <utility>
 #include <vector>
 
-#include "src/field_map.h"
+#include "src/core/field_map.h"
 
 namespace stereoloc::frontend {
 

@@ -6,8 +6,8 @@
 #include <map>
 #include <opencv2/core.hpp>
 
-#include "src/error.h"
-#include "src/yaml_util.h"
+#include "src/core/error.h"
+#include "src/core/yaml_util.h"
 
 namespace stereoloc::frontend {
 namespace {

@@ -23,9 +23,9 @@
 #include "frontend/peaks.h"
 #include "frontend/segments.h"
 #include "frontend/stereo_match.h"
-#include "src/field_map.h"
-#include "src/stereo_rig.h"
-#include "src/types.h"
+#include "src/core/field_map.h"
+#include "src/core/stereo_rig.h"
+#include "src/core/types.h"
 
 namespace stereoloc::frontend {
 

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "src/error.h"
+#include "src/core/error.h"
 
 namespace stereoloc::frontend {
 

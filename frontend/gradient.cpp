@@ -6,7 +6,7 @@
 
 #include <opencv2/imgproc.hpp>
 
-#include "src/error.h"
+#include "src/core/error.h"
 
 namespace stereoloc::frontend {
 

@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "frontend/goal_corners.h"
-#include "src/stereo_rig.h"
+#include "src/core/stereo_rig.h"
 
 namespace stereoloc::frontend {
 

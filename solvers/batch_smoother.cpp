@@ -14,8 +14,8 @@
 #include "factors/odometry_factor.h"
 #include "factors/pose_manifold.h"
 #include "factors/pose_prior_factor.h"
-#include "src/error.h"
-#include "src/gaussian.h"
+#include "src/core/error.h"
+#include "src/core/gaussian.h"
 
 namespace stereoloc {
 

@@ -28,10 +28,10 @@
 #include "solvers/ekf.h"
 #include "solvers/initialisation.h"
 #include "solvers/smoother_common.h"
-#include "src/data_association.h"
-#include "src/estimator.h"
-#include "src/field_map.h"
-#include "src/odometry_model.h"
+#include "solvers/data_association.h"
+#include "src/core/estimator.h"
+#include "src/core/field_map.h"
+#include "src/core/odometry_model.h"
 
 namespace stereoloc {
 

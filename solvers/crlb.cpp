@@ -7,9 +7,8 @@
 #include <limits>
 #include <memory>
 
-#include "src/error.h"
-#include "src/measurement_model.h"
-#include "src/scenario.h"
+#include "src/core/error.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 namespace {

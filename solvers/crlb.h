@@ -49,11 +49,11 @@
 #include <vector>
 
 #include "solvers/smoother_common.h"
-#include "src/dataset.h"
-#include "src/field_map.h"
-#include "src/odometry_model.h"
-#include "src/pose2.h"
-#include "src/types.h"
+#include "src/io/dataset.h"
+#include "src/core/field_map.h"
+#include "src/core/odometry_model.h"
+#include "src/core/pose2.h"
+#include "src/core/types.h"
 
 namespace stereoloc {
 

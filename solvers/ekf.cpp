@@ -6,9 +6,9 @@
 #include <string>
 #include <utility>
 
-#include "src/error.h"
-#include "src/gaussian.h"
-#include "src/measurement_model.h"
+#include "src/core/error.h"
+#include "src/core/gaussian.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 namespace {

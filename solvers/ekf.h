@@ -2,7 +2,7 @@
 // The extended Kalman filter of thesis Algorithm 5 (section 5.1), with the validation gate and
 // kidnap recovery of section 5.1.3.
 //
-//   Prediction (5.7), (5.9):  predictPose (src/odometry_model.h): p = p (+) u (B.16),
+//   Prediction (5.7), (5.9):  predictPose (src/core/odometry_model.h): p = p (+) u (B.16),
 //                             P = J1 P J1^T + J2 U J2^T  with U from the wheel noise (B.10).
 //   Update per observation (sequential, one landmark at a time, each linearised at the current
 //   estimate), with h = predictRangeBearing (5.27) and H = dh/dp:
@@ -39,10 +39,10 @@
 
 #include "solvers/initialisation.h"
 #include "solvers/validation_gate.h"
-#include "src/data_association.h"
-#include "src/estimator.h"
-#include "src/field_map.h"
-#include "src/odometry_model.h"
+#include "solvers/data_association.h"
+#include "src/core/estimator.h"
+#include "src/core/field_map.h"
+#include "src/core/odometry_model.h"
 
 namespace stereoloc {
 

@@ -8,7 +8,7 @@
 // intervals) with branch-free range reduction, so the loops carry no calls; they agree with
 // std::sin, std::cos, std::atan2 to a few ulp (tests/solvers/test_particle_filter.cpp).
 // They are not a new angle convention: inputs and outputs are plain radians, and results are
-// wrapped with wrapAngle (src/angles.h) wherever a wrap is needed.
+// wrapped with wrapAngle (src/core/angles.h) wherever a wrap is needed.
 #include <cmath>
 
 namespace stereoloc {

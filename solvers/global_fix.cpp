@@ -6,8 +6,8 @@
 #include <cmath>
 #include <limits>
 
-#include "src/error.h"
-#include "src/measurement_model.h"
+#include "src/core/error.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 

@@ -12,9 +12,9 @@
 
 #include "factors/stereo_pixel_factor.h"
 #include "solvers/global_fix.h"
-#include "src/error.h"
-#include "src/gaussian.h"
-#include "src/measurement_model.h"
+#include "src/core/error.h"
+#include "src/core/gaussian.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 namespace {

@@ -12,9 +12,9 @@
 #include <string>
 
 #include "solvers/global_fix.h"
-#include "src/field_map.h"
-#include "src/pose2.h"
-#include "src/types.h"
+#include "src/core/field_map.h"
+#include "src/core/pose2.h"
+#include "src/core/types.h"
 
 namespace stereoloc {
 

@@ -8,9 +8,9 @@
 #include <numeric>
 #include <utility>
 
-#include "src/error.h"
+#include "src/core/error.h"
 #include "solvers/fast_trig.h"
-#include "src/measurement_model.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 

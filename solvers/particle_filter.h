@@ -31,10 +31,10 @@
 #include "solvers/fast_trig.h"
 #include "solvers/initialisation.h"
 #include "solvers/validation_gate.h"
-#include "src/data_association.h"
-#include "src/estimator.h"
-#include "src/field_map.h"
-#include "src/odometry_model.h"
+#include "solvers/data_association.h"
+#include "src/core/estimator.h"
+#include "src/core/field_map.h"
+#include "src/core/odometry_model.h"
 
 namespace stereoloc {
 

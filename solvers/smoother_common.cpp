@@ -11,9 +11,9 @@
 
 #include "factors/range_bearing_factor.h"
 #include "factors/stereo_pixel_factor.h"
-#include "src/angles.h"
-#include "src/error.h"
-#include "src/measurement_model.h"
+#include "src/core/angles.h"
+#include "src/core/error.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 namespace {

@@ -11,11 +11,11 @@
 #include <string>
 #include <vector>
 
-#include "src/field_map.h"
-#include "src/odometry_model.h"
-#include "src/pose2.h"
-#include "src/stereo_rig.h"
-#include "src/types.h"
+#include "src/core/field_map.h"
+#include "src/core/odometry_model.h"
+#include "src/core/pose2.h"
+#include "src/core/stereo_rig.h"
+#include "src/core/types.h"
 
 namespace stereoloc {
 

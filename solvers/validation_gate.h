@@ -3,7 +3,7 @@
 // (EKF, particle filter, sliding window) so that they declare "lost" under the same rule.
 #include <Eigen/Core>
 
-#include "src/gaussian.h"
+#include "src/core/gaussian.h"
 
 namespace stereoloc {
 

@@ -8,8 +8,8 @@
 #include <cmath>
 #include <optional>
 
-#include "src/pose2.h"
-#include "src/stereo_rig.h"
+#include "src/core/pose2.h"
+#include "src/core/stereo_rig.h"
 
 namespace stereoloc::test {
 

@@ -7,7 +7,7 @@
 #include <random>
 #include <string>
 
-#include "src/numeric_diff.h"
+#include "src/core/numeric_diff.h"
 
 namespace stereoloc::test {
 

@@ -7,7 +7,7 @@
 
 #include "factors/factor_check.h"
 #include "factors/pose_manifold.h"
-#include "src/angles.h"
+#include "src/core/angles.h"
 
 namespace stereoloc {
 namespace {

@@ -11,9 +11,9 @@
 #include "factors/odometry_factor.h"
 #include "factors/pose_prior_factor.h"
 #include "factors/range_bearing_factor.h"
-#include "src/measurement_model.h"
-#include "src/odometry_model.h"
-#include "src/pose2.h"
+#include "src/core/measurement_model.h"
+#include "src/core/odometry_model.h"
+#include "src/core/pose2.h"
 
 namespace stereoloc {
 namespace {
@@ -60,7 +60,7 @@ TEST(OdometryFactor, JacobiansMatchNumericAndB18B19) {
       EXPECT_TRUE(c.ok) << "theta " << th << "\n" << c.message;
     }
   }
-  // At the prediction, the Jacobians are S * J_between (src/pose2.h convention).
+  // At the prediction, the Jacobians are S * J_between (src/core/pose2.h convention).
   const Pose2 pa(100, 50, kPi - 1e-3);
   const Eigen::Vector3d u = controlVector(10.0, 14.0, params.wheel_base_mm);
   const Pose2 pb = compose(pa, Pose2(u.x(), u.y(), u.z()));

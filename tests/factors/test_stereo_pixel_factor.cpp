@@ -9,9 +9,9 @@
 
 #include "factors/factor_check.h"
 #include "factors/stereo_pixel_factor.h"
-#include "src/pose2.h"
-#include "src/stereo_rig.h"
-#include "src/types.h"
+#include "src/core/pose2.h"
+#include "src/core/stereo_rig.h"
+#include "src/core/types.h"
 #include "stereo_sighting.h"
 
 namespace stereoloc {

@@ -6,7 +6,7 @@
 #include <functional>
 
 #include "frontend/frontend.h"
-#include "src/error.h"
+#include "src/core/error.h"
 #include "test_util.h"
 
 using namespace stereoloc;

@@ -8,7 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "frontend/frontend.h"
-#include "src/error.h"
+#include "src/core/error.h"
 
 using namespace stereoloc;
 using namespace stereoloc::frontend;

@@ -7,7 +7,7 @@
 #include "frontend/gbht.h"
 #include "frontend/gradient.h"
 #include "frontend/peaks.h"
-#include "src/error.h"
+#include "src/core/error.h"
 
 using namespace stereoloc::frontend;
 

@@ -5,7 +5,7 @@
 #include <opencv2/core.hpp>
 
 #include "frontend/gradient.h"
-#include "src/error.h"
+#include "src/core/error.h"
 
 using namespace stereoloc::frontend;
 

@@ -9,8 +9,8 @@
 
 #include "solvers/batch_smoother.h"
 #include "solvers/smoother_common.h"
-#include "src/odometry_model.h"
-#include "src/simulator.h"
+#include "src/core/odometry_model.h"
+#include "src/sim/simulator.h"
 
 namespace stereoloc {
 namespace {

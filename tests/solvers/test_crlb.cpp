@@ -17,11 +17,11 @@
 #include "solvers/crlb.h"
 #include "solvers/ekf.h"
 #include "solvers/smoother_common.h"
-#include "src/measurement_model.h"
-#include "src/numeric_diff.h"
-#include "src/odometry_model.h"
-#include "src/scenario.h"
-#include "src/simulator.h"
+#include "src/core/measurement_model.h"
+#include "src/core/numeric_diff.h"
+#include "src/core/odometry_model.h"
+#include "src/sim/scenario.h"
+#include "src/sim/simulator.h"
 
 namespace stereoloc {
 namespace {

@@ -11,9 +11,9 @@
 #include <random>
 
 #include "solvers/ekf.h"
-#include "src/error.h"
-#include "src/measurement_model.h"
-#include "src/odometry_model.h"
+#include "src/core/error.h"
+#include "src/core/measurement_model.h"
+#include "src/core/odometry_model.h"
 
 namespace stereoloc {
 namespace {

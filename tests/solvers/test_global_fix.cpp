@@ -9,10 +9,10 @@
 #include <cstdio>
 #include <random>
 
-#include "src/gaussian.h"
-#include "src/measurement_model.h"
-#include "src/numeric_diff.h"
-#include "src/stereo_rig.h"
+#include "src/core/gaussian.h"
+#include "src/core/measurement_model.h"
+#include "src/core/numeric_diff.h"
+#include "src/core/stereo_rig.h"
 #include "test_util.h"
 
 namespace stereoloc {

@@ -10,10 +10,10 @@
 
 #include "solvers/ekf.h"
 #include "solvers/particle_filter.h"
-#include "src/error.h"
-#include "src/measurement_model.h"
-#include "src/odometry_model.h"
-#include "src/simulator.h"
+#include "src/core/error.h"
+#include "src/core/measurement_model.h"
+#include "src/core/odometry_model.h"
+#include "src/sim/simulator.h"
 
 namespace stereoloc {
 namespace {

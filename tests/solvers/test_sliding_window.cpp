@@ -9,7 +9,7 @@
 #include "solvers/ekf.h"
 #include "solvers/sliding_window_smoother.h"
 #include "solvers/smoother_common.h"
-#include "src/error.h"
+#include "src/core/error.h"
 
 namespace stereoloc {
 namespace {

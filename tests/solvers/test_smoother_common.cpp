@@ -5,9 +5,9 @@
 #include <memory>
 
 #include "solvers/smoother_common.h"
-#include "src/pose2.h"
-#include "src/stereo_rig.h"
-#include "src/types.h"
+#include "src/core/pose2.h"
+#include "src/core/stereo_rig.h"
+#include "src/core/types.h"
 #include "stereo_sighting.h"
 
 namespace stereoloc {

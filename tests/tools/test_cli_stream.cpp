@@ -10,7 +10,7 @@
 
 #include "cli_util.h"
 #include "solvers/smoother_common.h"
-#include "src/dataset.h"
+#include "src/io/dataset.h"
 #include "test_util.h"
 
 namespace stereoloc {

@@ -20,7 +20,7 @@
 #include "solvers/ekf.h"
 #include "solvers/particle_filter.h"
 #include "solvers/smoother_common.h"
-#include "src/measurement_model.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 namespace {

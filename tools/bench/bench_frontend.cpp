@@ -32,7 +32,7 @@
 // prints how many truth pieces are optional and how many detections were ignored.
 // Truth kinds: markings (centre lines), wall/goal feet and inner top edges, goal posts,
 // corner triangles, and the top outline of walls and goals (their silhouette against the
-// background; src/renderer.h).
+// background; src/sim/renderer.h).
 // Corner truth follows the segment truth (cornerDetectability): a corner, junction or
 // intersection counts in recall only when two of its defining truth lines are themselves
 // counted segments (>= L_min, reaching it within delta, at >= min_image_angle in the image);
@@ -59,10 +59,10 @@
 #include <vector>
 
 #include "frontend/frontend.h"
-#include "src/field_map.h"
-#include "src/pose2.h"
-#include "src/renderer.h"
-#include "src/stereo_rig.h"
+#include "src/core/field_map.h"
+#include "src/core/pose2.h"
+#include "src/sim/renderer.h"
+#include "src/core/stereo_rig.h"
 
 using namespace stereoloc;
 using namespace stereoloc::frontend;

@@ -2,7 +2,7 @@
 // Run with --benchmark_repetitions=5 and read the medians; compare variants within one run.
 #include <benchmark/benchmark.h>
 
-#include "src/renderer.h"
+#include "src/sim/renderer.h"
 
 namespace {
 

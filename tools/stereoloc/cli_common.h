@@ -8,7 +8,7 @@
 #include <utility>
 #include <vector>
 
-#include "src/error.h"
+#include "src/core/error.h"
 
 namespace stereoloc::cli {
 

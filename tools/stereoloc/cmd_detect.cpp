@@ -9,9 +9,9 @@
 #include <sstream>
 
 #include "frontend/frontend.h"
-#include "src/atomic_file.h"
-#include "src/field_map.h"
-#include "src/stereo_rig.h"
+#include "src/core/atomic_file.h"
+#include "src/core/field_map.h"
+#include "src/core/stereo_rig.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

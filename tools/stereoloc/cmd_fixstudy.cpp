@@ -30,12 +30,12 @@
 #include <sstream>
 
 #include "solvers/global_fix.h"
-#include "src/atomic_file.h"
-#include "src/evaluation.h"
-#include "src/gaussian.h"
-#include "src/renderer.h"
-#include "src/simulator.h"
-#include "src/yaml_util.h"
+#include "src/core/atomic_file.h"
+#include "src/eval/evaluation.h"
+#include "src/core/gaussian.h"
+#include "src/sim/renderer.h"
+#include "src/sim/simulator.h"
+#include "src/core/yaml_util.h"
 #include "tools/stereoloc/cli_common.h"
 #include "tools/stereoloc/frontend_source.h"
 

@@ -1,13 +1,13 @@
 // `stereoloc import mrclam SRC_DIR --robot N [--rate HZ] [--wheel-base MM] [--out DIR] [--force]`:
-// converts a UTIAS MR.CLAM dataset (src/mrclam.h) into a stereoloc dataset directory and prints
+// converts a UTIAS MR.CLAM dataset (src/io/mrclam.h) into a stereoloc dataset directory and prints
 // the import summary (row counts, dropped measurements, range/bearing error statistics against
 // ground truth, the fitted odometry noise). Without --out it only prints the summary.
 #include <cstdio>
 #include <iostream>
 #include <memory>
 
-#include "src/dataset.h"
-#include "src/mrclam.h"
+#include "src/io/dataset.h"
+#include "src/io/mrclam.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

@@ -4,7 +4,7 @@
 #include <map>
 #include <memory>
 
-#include "src/dataset.h"
+#include "src/io/dataset.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

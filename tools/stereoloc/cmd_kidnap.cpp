@@ -30,8 +30,8 @@
 #include <vector>
 
 #include "solvers/ekf.h"
-#include "src/atomic_file.h"
-#include "src/simulator.h"
+#include "src/core/atomic_file.h"
+#include "src/sim/simulator.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

@@ -21,11 +21,11 @@
 #include "solvers/initialisation.h"
 #include "solvers/particle_filter.h"
 #include "solvers/sliding_window_smoother.h"
-#include "src/atomic_file.h"
-#include "src/csv.h"
-#include "src/dataset.h"
-#include "src/evaluation.h"
-#include "src/odometry_model.h"
+#include "src/core/atomic_file.h"
+#include "src/io/csv.h"
+#include "src/io/dataset.h"
+#include "src/eval/evaluation.h"
+#include "src/core/odometry_model.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

@@ -5,11 +5,11 @@
 #include <map>
 #include <random>
 
-#include "src/field_map.h"
-#include "src/measurement_model.h"
-#include "src/numeric_diff.h"
-#include "src/odometry_model.h"
-#include "src/stereo_rig.h"
+#include "src/core/field_map.h"
+#include "src/core/measurement_model.h"
+#include "src/core/numeric_diff.h"
+#include "src/core/odometry_model.h"
+#include "src/core/stereo_rig.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

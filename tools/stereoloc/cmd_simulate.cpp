@@ -4,9 +4,9 @@
 #include <filesystem>
 #include <memory>
 
-#include "src/dataset.h"
-#include "src/renderer.h"
-#include "src/simulator.h"
+#include "src/io/dataset.h"
+#include "src/sim/renderer.h"
+#include "src/sim/simulator.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

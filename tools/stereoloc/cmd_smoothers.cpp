@@ -35,10 +35,10 @@
 #include <vector>
 
 #include "solvers/crlb.h"
-#include "src/atomic_file.h"
-#include "src/evaluation.h"
-#include "src/gaussian.h"
-#include "src/simulator.h"
+#include "src/core/atomic_file.h"
+#include "src/eval/evaluation.h"
+#include "src/core/gaussian.h"
+#include "src/sim/simulator.h"
 #include "tools/stereoloc/cli_common.h"
 #include "tools/stereoloc/methods.h"
 #include "tools/stereoloc/study.h"

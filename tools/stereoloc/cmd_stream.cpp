@@ -23,9 +23,9 @@
 
 #include "solvers/initialisation.h"
 #include "solvers/sliding_window_smoother.h"
-#include "src/dataset.h"
-#include "src/field_map.h"
-#include "src/stereo_rig.h"
+#include "src/io/dataset.h"
+#include "src/core/field_map.h"
+#include "src/core/stereo_rig.h"
 #include "tools/stereoloc/cli_common.h"
 #include "tools/stereoloc/localize_common.h"
 

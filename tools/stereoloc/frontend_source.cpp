@@ -10,8 +10,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "frontend/frontend.h"
-#include "src/error.h"
-#include "src/gaussian.h"
+#include "src/core/error.h"
+#include "src/core/gaussian.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

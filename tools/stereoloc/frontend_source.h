@@ -5,13 +5,13 @@
 //           simulator's noisy projections of the visible landmarks);
 //   images  the vision frontend (frontend/frontend.h, thesis chapter 3) run on the stereo pair of
 //           every step: the dataset's images/left_NNNNNN.png and right_NNNNNN.png, or, in the
-//           studies, pairs rendered in memory by the renderer (src/renderer.h) from the true
+//           studies, pairs rendered in memory by the renderer (src/sim/renderer.h) from the true
 //           pose of each step. The result replaces Step::observations; odometry and compass stay.
 //
 // Landmark identity. The frontend identifies goal corners (globally unique by colour and side,
 // section 3.6); corners, junctions and intersections of the markings are not unique and come
 // out with landmark_id -1. They are associated with map landmarks by each ESTIMATOR against its
-// own current belief (src/data_association.h, the chi-square gate of (5.20)): the EKF and the
+// own current belief (solvers/data_association.h, the chi-square gate of (5.20)): the EKF and the
 // sliding window at their prior of the step, the particle filter at its predicted estimate, the
 // batch smoother at the dead-reckoned initial guess. The global fixes use only identified
 // observations, i.e. goal corners, as in the thesis (6.3, 6.4). With `landmarks = GoalCorners`
@@ -23,9 +23,9 @@
 #include <string>
 #include <vector>
 
-#include "src/dataset.h"
-#include "src/renderer.h"
-#include "src/simulator.h"
+#include "src/io/dataset.h"
+#include "src/sim/renderer.h"
+#include "src/sim/simulator.h"
 
 namespace stereoloc::frontend {
 class Frontend;

@@ -5,9 +5,9 @@
 #include <memory>
 
 #include "frontend/frontend.h"
-#include "src/dataset.h"
-#include "src/estimate_io.h"
-#include "src/evaluation.h"
+#include "src/io/dataset.h"
+#include "src/io/estimate_io.h"
+#include "src/eval/evaluation.h"
 #include "tools/stereoloc/cli_common.h"
 #include "tools/stereoloc/methods.h"
 

@@ -8,7 +8,7 @@
 #include "solvers/global_fix.h"
 #include "solvers/particle_filter.h"
 #include "solvers/sliding_window_smoother.h"
-#include "src/odometry_model.h"
+#include "src/core/odometry_model.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {

@@ -8,8 +8,8 @@
 
 #include "solvers/initialisation.h"
 #include "solvers/smoother_common.h"
-#include "src/dataset.h"
-#include "src/types.h"
+#include "src/io/dataset.h"
+#include "src/core/types.h"
 
 namespace stereoloc::cli {
 

@@ -19,14 +19,14 @@
 #include <thread>
 
 #include "solvers/ekf.h"
-#include "src/atomic_file.h"
-#include "src/csv.h"
-#include "src/error.h"
-#include "src/evaluation.h"
-#include "src/gaussian.h"
-#include "src/plot.h"
-#include "src/simulator.h"
-#include "src/yaml_util.h"
+#include "src/core/atomic_file.h"
+#include "src/io/csv.h"
+#include "src/core/error.h"
+#include "src/eval/evaluation.h"
+#include "src/core/gaussian.h"
+#include "src/eval/plot.h"
+#include "src/sim/simulator.h"
+#include "src/core/yaml_util.h"
 #include "tools/stereoloc/cli_common.h"
 #include "tools/stereoloc/frontend_source.h"
 

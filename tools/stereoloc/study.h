@@ -26,7 +26,7 @@ struct StudyConfig {
   int threads = 0;            // 0 = all cores
   int shard_index = 0;        // this shard runs trials shard_index, shard_index + shard_count, ...
   int shard_count = 1;
-  // "images": every step's stereo pair is rendered (src/renderer.h) and the vision frontend
+  // "images": every step's stereo pair is rendered (src/sim/renderer.h) and the vision frontend
   // finds the observations (tools/stereoloc/frontend_source.h); "pixels": the simulator's noisy
   // pixel projections of the visible goal corners.
   std::string frontend = "images";

@@ -1,9 +1,9 @@
 // Uses the installed library: the default map, the rig and the odometry model.
 #include <cstdio>
 
-#include "src/field_map.h"
-#include "src/odometry_model.h"
-#include "src/stereo_rig.h"
+#include "src/core/field_map.h"
+#include "src/core/odometry_model.h"
+#include "src/core/stereo_rig.h"
 
 int main() {
   const stereoloc::FieldMap map = stereoloc::FieldMap::miroSot();

@@ -1,0 +1,65 @@
+#include "src/core/types.h"
+
+#include <cmath>
+
+#include "src/core/error.h"
+
+namespace stereoloc {
+
+Observation observationFromPixels(const StereoRig& rig, int landmark_id, LandmarkType type,
+                                  const StereoPixels& pixels, double head_pan, double pixel_sigma) {
+  Observation o;
+  o.landmark_id = landmark_id;
+  o.type = type;
+  const RangeBearing rb = rig.rangeBearing(pixels, head_pan);  // (5.26)
+  o.range = rb.range;
+  o.bearing = rb.bearing;
+  o.covariance = rig.rangeBearingCovariance(pixels, head_pan, pixel_sigma);  // (5.32)
+  o.pixels = pixels;
+  o.pixel_sigma = pixel_sigma;
+  o.head_pan = head_pan;
+  return o;
+}
+
+Observation observationFromRangeBearing(int landmark_id, LandmarkType type, double range, double bearing,
+                                        double sigma_range, double sigma_bearing) {
+  if (!(std::isfinite(range) && range > 0)) throw Error("observation: range must be a positive number");
+  if (!std::isfinite(bearing)) throw Error("observation: bearing is not finite");
+  if (!(std::isfinite(sigma_range) && sigma_range > 0 && std::isfinite(sigma_bearing) && sigma_bearing > 0))
+    throw Error("observation: sigmas must be positive numbers");
+  Observation o;
+  o.landmark_id = landmark_id;
+  o.type = type;
+  o.range = range;
+  o.bearing = wrapAngle(bearing);
+  o.covariance << sigma_range * sigma_range, 0.0, 0.0, sigma_bearing * sigma_bearing;
+  return o;
+}
+
+void validateObservation(const Observation& obs, const std::string& where) {
+  if (!std::isfinite(obs.range) || !std::isfinite(obs.bearing)) throw Error(where + ": not finite");
+  const Eigen::Matrix2d& R = obs.covariance;
+  if (!R.allFinite() || !(R(0, 0) > 0) || !(R(0, 0) * R(1, 1) - R(0, 1) * R(1, 0) > 0) ||
+      std::fabs(R(0, 1) - R(1, 0)) > 1e-9 * R.cwiseAbs().maxCoeff())
+    throw Error(where + ": covariance R is not symmetric positive definite");
+}
+
+std::string toString(EstimateStatus status) {
+  switch (status) {
+    case EstimateStatus::Uninitialised: return "uninitialised";
+    case EstimateStatus::Tracking: return "tracking";
+    case EstimateStatus::Predicted: return "predicted";
+    case EstimateStatus::Lost: return "lost";
+    case EstimateStatus::Reinitialised: return "reinitialised";
+  }
+  return "uninitialised";
+}
+
+EstimateStatus estimateStatusFromString(const std::string& name) {
+  for (EstimateStatus s : {EstimateStatus::Uninitialised, EstimateStatus::Tracking, EstimateStatus::Predicted,
+                           EstimateStatus::Lost, EstimateStatus::Reinitialised})
+    if (toString(s) == name) return s;
+  throw Error("unknown estimate status '" + name + "'");
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,71 @@
+#pragma once
+// The data that flows between stereoloc's parts (see DESIGN.md): Step in, Estimate out.
+#include <Eigen/Core>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "src/core/field_map.h"
+#include "src/core/pose2.h"
+#include "src/core/stereo_rig.h"
+
+namespace stereoloc {
+
+// A range-bearing observation of a landmark, in the robot frame C0.
+struct Observation {
+  int landmark_id = -1;                                   // -1: not identified (needs association)
+  LandmarkType type = LandmarkType::Point;                // what kind of feature was seen
+  double range = 0.0;                                     // mm (3.6)
+  double bearing = 0.0;                                   // rad (3.7)
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Identity();  // R of (range, bearing), mm^2 / rad^2
+  std::optional<StereoPixels> pixels;                     // when it came from the stereo rig
+  double pixel_sigma = 0.0;                               // px, the noise of each pixel coordinate (with pixels)
+  double head_pan = 0.0;                                  // rad, gamma at the time of the images
+
+  Eigen::Vector2d z() const { return Eigen::Vector2d(range, bearing); }
+};
+
+// Turns a stereo pixel observation into range, bearing and R (5.26, 5.32) with the rig model.
+// Throws GeometryError when it cannot be triangulated (disparity too small).
+Observation observationFromPixels(const StereoRig& rig, int landmark_id, LandmarkType type,
+                                  const StereoPixels& pixels, double head_pan, double pixel_sigma);
+
+// A range-bearing observation with independent sigmas (mm, rad), as real sensors report them.
+Observation observationFromRangeBearing(int landmark_id, LandmarkType type, double range, double bearing,
+                                        double sigma_range, double sigma_bearing);
+
+// Throws stereoloc::Error "<where>: ..." unless range and bearing are finite and R is symmetric
+// positive definite. Every estimator checks its input observations with this.
+void validateObservation(const Observation& obs, const std::string& where);
+
+// One time step: odometry since the previous step, optional compass, observations.
+struct Step {
+  long step = 0;                       // index, strictly increasing
+  double t = 0.0;                      // s
+  double d_left = 0.0;                 // mm travelled by the left wheel since the previous step
+  double d_right = 0.0;                // mm travelled by the right wheel since the previous step
+  std::optional<double> compass;       // absolute heading measurement, rad
+  double compass_sigma = 0.0;          // rad (used when compass is set)
+  double head_pan = 0.0;               // rad
+  std::vector<Observation> observations;
+};
+
+enum class EstimateStatus {
+  Uninitialised,  // no pose yet (e.g. waiting for the first global fix)
+  Tracking,       // normal operation
+  Predicted,      // this step had no fused observation
+  Lost,           // too many gated observations; predicting from odometry only
+  Reinitialised,  // this step re-initialised from a global fix
+};
+std::string toString(EstimateStatus status);
+EstimateStatus estimateStatusFromString(const std::string& name);
+
+struct Estimate {
+  long step = 0;
+  double t = 0.0;
+  Pose2 pose;
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  // (x, y, theta): mm^2, mm*rad, rad^2
+  EstimateStatus status = EstimateStatus::Uninitialised;
+};
+
+}  // namespace stereoloc

@@ -1,0 +1,165 @@
+#include "src/io/csv.h"
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+
+#include "src/core/error.h"
+
+namespace stereoloc {
+namespace {
+
+std::vector<std::string> split(const std::string& line) {
+  std::vector<std::string> out;
+  size_t start = 0;
+  while (true) {
+    const size_t comma = line.find(',', start);
+    if (comma == std::string::npos) {
+      out.push_back(line.substr(start));
+      break;
+    }
+    out.push_back(line.substr(start, comma - start));
+    start = comma + 1;
+  }
+  return out;
+}
+
+std::string join(const std::vector<std::string>& v) {
+  std::string s;
+  for (size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + v[i];
+  return s;
+}
+
+}  // namespace
+
+std::string formatDouble(double value) {
+  if (value == 0.0) return "0";  // also turns -0 into 0, so equal values print identically
+  char buf[40];
+  std::snprintf(buf, sizeof(buf), "%.17g", value);
+  return buf;
+}
+
+CsvReader::CsvReader(const std::string& path) : path_(path), in_(path, std::ios::binary) {
+  if (!in_) throw Error(path + ": cannot open");
+  std::string line;
+  while (std::getline(in_, line)) {
+    ++line_;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (!line.empty() && line[0] == '#') continue;
+    if (line.empty()) fail("empty header line");
+    header_ = split(line);
+    for (size_t i = 0; i < header_.size(); ++i)
+      if (header_[i].empty()) fail("empty column name in the header");
+    return;
+  }
+  throw Error(path + ":1: empty file (expected a header line)");
+}
+
+size_t CsvReader::expectHeader(const std::vector<std::vector<std::string>>& options) const {
+  for (size_t i = 0; i < options.size(); ++i)
+    if (header_ == options[i]) return i;
+  std::string expected;
+  for (size_t i = 0; i < options.size(); ++i) expected += (i ? "' or '" : "") + join(options[i]);
+  throw Error(path_ + ":1: expected header '" + expected + "', found '" + join(header_) + "'");
+}
+
+bool CsvReader::next() {
+  std::string line;
+  while (std::getline(in_, line)) {
+    ++line_;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty()) {
+      // A blank line is only allowed as the last thing in the file.
+      if (!pending_blank_) {
+        pending_blank_ = true;
+        blank_line_ = line_;
+      }
+      continue;
+    }
+    if (pending_blank_) {
+      line_ = blank_line_;
+      fail("empty line in the middle of the file");
+    }
+    if (line[0] == '#') continue;
+    fields_ = split(line);
+    if (fields_.size() != header_.size())
+      fail("expected " + std::to_string(header_.size()) + " columns (" + join(header_) + "), found " +
+           std::to_string(fields_.size()));
+    return true;
+  }
+  fields_.clear();
+  return false;
+}
+
+const std::string& CsvReader::field(size_t col) const {
+  if (col >= fields_.size()) fail("internal: column " + std::to_string(col) + " out of range");
+  return fields_[col];
+}
+
+double CsvReader::getDouble(size_t col) const {
+  const std::string& s = field(col);
+  if (s.empty()) failColumn(col, "empty field (expected a number)");
+  const char* begin = s.c_str();
+  char* end = nullptr;
+  errno = 0;
+  const double v = std::strtod(begin, &end);
+  if (end == begin || *end != '\0' || std::isspace(static_cast<unsigned char>(s[0])))
+    failColumn(col, "'" + s + "' is not a number");
+  if (!std::isfinite(v)) failColumn(col, "'" + s + "' is not a finite number");
+  if (errno == ERANGE && std::fabs(v) > 1.0) failColumn(col, "'" + s + "' is out of range");
+  return v;
+}
+
+long CsvReader::getLong(size_t col) const {
+  const std::string& s = field(col);
+  if (s.empty()) failColumn(col, "empty field (expected an integer)");
+  const char* begin = s.c_str();
+  char* end = nullptr;
+  errno = 0;
+  const long v = std::strtol(begin, &end, 10);
+  if (end == begin || *end != '\0' || std::isspace(static_cast<unsigned char>(s[0])))
+    failColumn(col, "'" + s + "' is not an integer");
+  if (errno == ERANGE) failColumn(col, "'" + s + "' is out of range");
+  return v;
+}
+
+void CsvReader::fail(const std::string& reason) const {
+  throw Error(path_ + ":" + std::to_string(line_) + ": " + reason);
+}
+
+void CsvReader::failColumn(size_t col, const std::string& reason) const {
+  const std::string name = col < header_.size() ? header_[col] : std::to_string(col);
+  fail("column '" + name + "': " + reason);
+}
+
+CsvWriter::CsvWriter(const std::vector<std::string>& header) : columns_(header.size()) {
+  if (header.empty()) throw Error("CsvWriter: empty header");
+  text_ = join(header) + "\n";
+}
+
+CsvWriter& CsvWriter::add(double value) {
+  if (!std::isfinite(value)) throw Error("CsvWriter: refusing to write a non-finite number");
+  return add(formatDouble(value));
+}
+
+CsvWriter& CsvWriter::add(long value) { return add(std::to_string(value)); }
+
+CsvWriter& CsvWriter::add(const std::string& value) {
+  if (value.find_first_of(",\n\r") != std::string::npos) throw Error("CsvWriter: field contains a separator");
+  if (in_row_ >= columns_) throw Error("CsvWriter: too many fields in a row");
+  if (in_row_) text_ += ',';
+  text_ += value;
+  ++in_row_;
+  return *this;
+}
+
+void CsvWriter::endRow() {
+  if (in_row_ != columns_)
+    throw Error("CsvWriter: row has " + std::to_string(in_row_) + " fields, expected " + std::to_string(columns_));
+  text_ += '\n';
+  in_row_ = 0;
+  ++rows_;
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,345 @@
+#include "src/io/dataset.h"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <system_error>
+
+#include "src/core/atomic_file.h"
+#include "src/io/csv.h"
+#include "src/core/error.h"
+#include "src/core/yaml_util.h"
+
+namespace stereoloc {
+namespace fs = std::filesystem;
+namespace {
+
+const std::vector<std::string> kOdometryHeader = {"step", "t", "d_left", "d_right"};
+const std::vector<std::string> kOdometryPanHeader = {"step", "t", "d_left", "d_right", "head_pan"};
+const std::vector<std::string> kCompassHeader = {"step", "t", "theta"};
+const std::vector<std::string> kPixelHeader = {"step", "t", "landmark_id", "u_left", "v_left", "u_right", "v_right", "head_pan"};
+const std::vector<std::string> kRangeBearingHeader = {"step",    "t",           "landmark_id",  "range",
+                                                      "bearing", "sigma_range", "sigma_bearing"};
+const std::vector<std::string> kGroundTruthHeader = {"step", "t", "x", "y", "theta"};
+
+std::string join(const std::string& dir, const std::string& file) { return (fs::path(dir) / file).string(); }
+
+// Maps step numbers to indices into Dataset::steps, for the files that refer to odometry steps.
+class StepIndex {
+ public:
+  explicit StepIndex(const std::vector<Step>& steps) : steps_(steps) {
+    for (size_t i = 0; i < steps.size(); ++i) index_[steps[i].step] = i;
+  }
+  // Checks the order (strictly increasing unless `allow_repeat`) and the existence of the step,
+  // and that t agrees with odometry.csv.
+  size_t lookup(CsvReader& in, long step, double t, bool allow_repeat) {
+    if (have_last_ && (step < last_ || (!allow_repeat && step == last_)))
+      in.fail("step " + std::to_string(step) + " out of order (after step " + std::to_string(last_) + ")");
+    have_last_ = true;
+    last_ = step;
+    const auto it = index_.find(step);
+    if (it == index_.end()) in.fail("step " + std::to_string(step) + " is not in odometry.csv");
+    if (std::fabs(steps_[it->second].t - t) > 1e-9 * std::max(1.0, std::fabs(t)))
+      in.failColumn(1, "t " + formatDouble(t) + " does not match odometry.csv (" + formatDouble(steps_[it->second].t) + ")");
+    return it->second;
+  }
+
+ private:
+  const std::vector<Step>& steps_;
+  std::map<long, size_t> index_;
+  bool have_last_ = false;
+  long last_ = 0;
+};
+
+std::string resolve(const std::string& dir, const std::string& file) {
+  return fs::path(file).is_absolute() ? file : join(dir, file);
+}
+
+void requireFile(const YamlNode& node, const std::string& key, const std::string& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) node.fail(key, "referenced file '" + path + "' does not exist");
+}
+
+}  // namespace
+
+std::string imageFileName(const std::string& kind, long step) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "images/%s_%06ld.%s", kind.c_str(), step, kind == "truth" ? "json" : "png");
+  return buf;
+}
+
+Dataset loadDataset(const std::string& dir) {
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) throw Error(dir + ": not a dataset directory");
+  const std::string yaml_path = join(dir, "dataset.yaml");
+  if (!fs::is_regular_file(yaml_path, ec)) throw Error(yaml_path + ": missing (not a stereoloc dataset)");
+  YamlReader y(yaml_path);
+  const std::string format = y.getString("format");
+  if (format != "stereoloc-dataset") y.fail("format", "expected 'stereoloc-dataset', found '" + format + "'");
+  const int version = y.getInt("format_version");
+  if (version != kDatasetFormatVersion)
+    y.fail("format_version", "unsupported version " + std::to_string(version) + " (this build reads " +
+                                 std::to_string(kDatasetFormatVersion) + ")");
+  Dataset d;
+  d.name = y.getString("name");
+  d.description = y.getString("description", "");
+  const std::string map_path = resolve(dir, y.getString("map_file"));
+  requireFile(y, "map_file", map_path);
+  d.map = FieldMap::load(map_path);
+  const std::string rig_path = resolve(dir, y.getString("rig_file"));
+  requireFile(y, "rig_file", rig_path);
+  d.rig = StereoRig::load(rig_path);
+  {
+    const YamlNode r = y.child("robot");
+    d.odometry.wheel_base_mm = r.getDouble("wheel_base_mm");
+    d.odometry.k_left = r.getDouble("k_left");
+    d.odometry.k_right = r.getDouble("k_right");
+    d.odometry.wheel_variance_floor = r.getDouble("wheel_variance_floor", d.odometry.wheel_variance_floor);
+    if (r.has("control_variance_floor")) {
+      const YamlNode f = r.child("control_variance_floor");
+      d.odometry.control_variance_floor =
+          Eigen::Vector3d(f.getDouble("x"), f.getDouble("y"), f.getDouble("theta"));
+    }
+    try {
+      d.odometry.validate();
+    } catch (const Error& e) {
+      r.fail("", e.what());
+    }
+  }
+  const YamlNode noise = y.child("noise");
+  d.compass_sigma = noise.getDouble("compass_sigma");
+  if (d.compass_sigma < 0) noise.fail("compass_sigma", "must be >= 0");
+  if (y.has("initial_pose")) {
+    const YamlNode p = y.child("initial_pose");
+    d.initial_pose = Pose2(p.getDouble("x"), p.getDouble("y"), p.getDouble("theta"));
+  }
+  d.has_images = y.getBool("has_images", false);
+
+  // odometry.csv: the list of steps.
+  {
+    const std::string path = join(dir, "odometry.csv");
+    if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
+    CsvReader in(path);
+    const bool with_pan = in.expectHeader({kOdometryHeader, kOdometryPanHeader}) == 1;
+    while (in.next()) {
+      Step s;
+      s.step = in.getLong(0);
+      s.t = in.getDouble(1);
+      s.d_left = in.getDouble(2);
+      s.d_right = in.getDouble(3);
+      if (with_pan) s.head_pan = in.getDouble(4);
+      if (!d.steps.empty()) {
+        if (s.step <= d.steps.back().step)
+          in.fail("step " + std::to_string(s.step) + " out of order (after step " + std::to_string(d.steps.back().step) + ")");
+        if (s.t < d.steps.back().t) in.failColumn(1, "time goes backwards");
+      }
+      d.steps.push_back(s);
+    }
+    if (d.steps.empty()) in.fail("no steps");
+  }
+  d.groundtruth.assign(d.steps.size(), std::nullopt);
+
+  // compass.csv (optional).
+  {
+    const std::string path = join(dir, "compass.csv");
+    if (fs::exists(path, ec)) {
+      CsvReader in(path);
+      in.expectHeader({kCompassHeader});
+      if (!(d.compass_sigma > 0)) in.fail("compass readings present but dataset.yaml noise.compass_sigma is 0");
+      StepIndex idx(d.steps);
+      while (in.next()) {
+        const long step = in.getLong(0);
+        const double t = in.getDouble(1);
+        const double theta = in.getDouble(2);
+        Step& s = d.steps[idx.lookup(in, step, t, false)];
+        s.compass = wrapAngle(theta);
+        s.compass_sigma = d.compass_sigma;
+      }
+    }
+  }
+
+  // observations.csv: pixels or range-bearing.
+  {
+    const std::string path = join(dir, "observations.csv");
+    if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
+    CsvReader in(path);
+    const bool pixels = in.expectHeader({kPixelHeader, kRangeBearingHeader}) == 0;
+    StepIndex idx(d.steps);
+    while (in.next()) {
+      const long step = in.getLong(0);
+      const double t = in.getDouble(1);
+      const long id = in.getLong(2);
+      double v[5];
+      for (size_t c = 3; c < in.size(); ++c) v[c - 3] = in.getDouble(c);
+      Step& s = d.steps[idx.lookup(in, step, t, true)];
+      LandmarkType type = LandmarkType::Point;
+      if (id != -1) {
+        const Landmark* l = d.map.find(static_cast<int>(id));
+        if (!l) in.failColumn(2, "unknown landmark id " + std::to_string(id) + " (not in the map)");
+        type = l->type;
+      }
+      try {
+        if (pixels) {
+          const StereoPixels px{v[0], v[1], v[2], v[3]};
+          s.observations.push_back(
+              observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], d.rig.params().pixel_sigma));
+        } else {
+          s.observations.push_back(observationFromRangeBearing(static_cast<int>(id), type, v[0], v[1], v[2], v[3]));
+        }
+      } catch (const Error& e) {
+        in.fail(e.what());
+      }
+    }
+  }
+
+  // groundtruth.csv (optional).
+  {
+    const std::string path = join(dir, "groundtruth.csv");
+    if (fs::exists(path, ec)) {
+      CsvReader in(path);
+      in.expectHeader({kGroundTruthHeader});
+      StepIndex idx(d.steps);
+      while (in.next()) {
+        const long step = in.getLong(0);
+        const double t = in.getDouble(1);
+        const Pose2 p(in.getDouble(2), in.getDouble(3), in.getDouble(4));
+        d.groundtruth[idx.lookup(in, step, t, false)] = p;
+      }
+    }
+  }
+
+  if (d.has_images) {
+    for (const Step& s : d.steps)
+      for (const char* kind : {"left", "right"}) {
+        const std::string path = join(dir, imageFileName(kind, s.step));
+        if (!fs::is_regular_file(path, ec)) y.fail("has_images", "referenced file '" + path + "' does not exist");
+      }
+  }
+  return d;
+}
+
+namespace {
+
+void writeFiles(const Dataset& d, const std::string& dir) {
+  if (d.groundtruth.size() != d.steps.size() && !d.groundtruth.empty())
+    throw Error("saveDataset: groundtruth must have one entry per step (or none)");
+  bool all_pixels = true, any_pan = false, any_compass = false;
+  for (size_t i = 0; i < d.steps.size(); ++i) {
+    const Step& s = d.steps[i];
+    if (i > 0 && s.step <= d.steps[i - 1].step) throw Error("saveDataset: step numbers must increase");
+    any_pan |= s.head_pan != 0.0;
+    any_compass |= s.compass.has_value();
+    for (const Observation& o : s.observations) all_pixels &= o.pixels.has_value();
+  }
+  if (any_compass && !(d.compass_sigma > 0))
+    throw Error("saveDataset: steps carry compass readings but compass_sigma is 0");
+
+  d.map.save(join(dir, "map.yaml"));
+  d.rig.save(join(dir, "rig.yaml"));
+
+  YamlWriter y;
+  y.comment("stereoloc dataset (docs/dataset_format.md). Units: mm, rad, s.");
+  cv::FileStorage& f = y.fs();
+  f << "format" << "stereoloc-dataset";
+  f << "format_version" << kDatasetFormatVersion;
+  f << "name" << d.name;
+  f << "description" << d.description;
+  f << "map_file" << "map.yaml";
+  f << "rig_file" << "rig.yaml";
+  const OdometryParams& o = d.odometry;
+  f << "robot" << "{" << "wheel_base_mm" << o.wheel_base_mm << "k_left" << o.k_left << "k_right" << o.k_right
+    << "wheel_variance_floor" << o.wheel_variance_floor << "control_variance_floor" << "{" << "x"
+    << o.control_variance_floor.x() << "y" << o.control_variance_floor.y() << "theta" << o.control_variance_floor.z()
+    << "}" << "}";
+  f << "noise" << "{" << "compass_sigma" << d.compass_sigma << "pixel_sigma" << d.rig.params().pixel_sigma << "}";
+  if (d.initial_pose)
+    f << "initial_pose" << "{" << "x" << d.initial_pose->x << "y" << d.initial_pose->y << "theta"
+      << d.initial_pose->theta << "}";
+  f << "observation_kind" << (all_pixels ? "pixels" : "range_bearing");
+  f << "has_images" << (d.has_images ? 1 : 0);
+  y.writeAtomically(join(dir, "dataset.yaml"));
+
+  CsvWriter odo(any_pan ? kOdometryPanHeader : kOdometryHeader);
+  CsvWriter compass(kCompassHeader);
+  CsvWriter obs(all_pixels ? kPixelHeader : kRangeBearingHeader);
+  CsvWriter gt(kGroundTruthHeader);
+  for (size_t i = 0; i < d.steps.size(); ++i) {
+    const Step& s = d.steps[i];
+    odo.add(s.step).add(s.t).add(s.d_left).add(s.d_right);
+    if (any_pan) odo.add(s.head_pan);
+    odo.endRow();
+    if (s.compass) {
+      compass.add(s.step).add(s.t).add(*s.compass);
+      compass.endRow();
+    }
+    for (const Observation& ob : s.observations) {
+      obs.add(s.step).add(s.t).add(ob.landmark_id);
+      if (all_pixels) {
+        const StereoPixels& p = *ob.pixels;
+        obs.add(p.u_left).add(p.v_left).add(p.u_right).add(p.v_right).add(ob.head_pan);
+      } else {
+        obs.add(ob.range).add(ob.bearing).add(std::sqrt(ob.covariance(0, 0))).add(std::sqrt(ob.covariance(1, 1)));
+      }
+      obs.endRow();
+    }
+    if (!d.groundtruth.empty() && d.groundtruth[i]) {
+      const Pose2& p = *d.groundtruth[i];
+      gt.add(s.step).add(s.t).add(p.x).add(p.y).add(p.theta);
+      gt.endRow();
+    }
+  }
+  writeFileAtomically(join(dir, "odometry.csv"), odo.str());
+  writeFileAtomically(join(dir, "observations.csv"), obs.str());
+  if (any_compass) writeFileAtomically(join(dir, "compass.csv"), compass.str());
+  if (gt.rows() > 0) writeFileAtomically(join(dir, "groundtruth.csv"), gt.str());
+}
+
+}  // namespace
+
+void saveDataset(const Dataset& d, const std::string& dir, bool force) { saveDataset(d, dir, force, nullptr); }
+
+void saveDataset(const Dataset& d, const std::string& dir_in, bool force, const DatasetExtraWriter& extra) {
+  fs::path target = fs::path(dir_in).lexically_normal();
+  if (target.has_filename() == false) target = target.parent_path();
+  const std::string dir = target.string();
+  if (dir.empty()) throw Error("saveDataset: empty output directory");
+  std::error_code ec;
+  const bool exists = fs::exists(target, ec);
+  if (exists) {
+    if (!fs::is_directory(target, ec)) throw Error(dir + ": exists and is not a directory");
+    if (!fs::is_empty(target, ec) && !force)
+      throw Error(dir + ": directory exists and is not empty (use --force to replace it)");
+  }
+  if (target.has_parent_path()) fs::create_directories(target.parent_path(), ec);
+  const std::string pid = std::to_string(static_cast<long>(::getpid()));
+  const fs::path tmp = dir + ".tmp." + pid;
+  fs::remove_all(tmp, ec);
+  if (!fs::create_directories(tmp, ec)) throw Error(tmp.string() + ": cannot create temporary directory");
+  try {
+    writeFiles(d, tmp.string());
+    if (extra) extra(tmp.string());
+    if (exists) {
+      const fs::path old = dir + ".old." + pid;
+      fs::remove_all(old, ec);
+      fs::rename(target, old, ec);
+      if (ec) throw Error(dir + ": cannot move the old directory aside: " + ec.message());
+      fs::rename(tmp, target, ec);
+      if (ec) {
+        fs::rename(old, target);
+        throw Error(dir + ": cannot rename the temporary directory into place: " + ec.message());
+      }
+      fs::remove_all(old, ec);
+    } else {
+      fs::rename(tmp, target, ec);
+      if (ec) throw Error(dir + ": cannot rename the temporary directory into place: " + ec.message());
+    }
+  } catch (...) {
+    fs::remove_all(tmp, ec);
+    throw;
+  }
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,564 @@
+#include "src/io/mrclam.h"
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <limits>
+#include <set>
+#include <sstream>
+
+#include "src/core/angles.h"
+#include "src/core/error.h"
+#include "src/core/measurement_model.h"
+
+namespace stereoloc {
+namespace {
+
+// Median of a chi-square variable with one degree of freedom: a robust variance estimate of
+// zero-mean Gaussian errors is median(e^2) / kChi2Median1.
+constexpr double kChi2Median1 = 0.454936423119572;
+// Scale of the MAD for a Gaussian: sigma = 1.4826 MAD.
+constexpr double kMadToSigma = 1.482602218505602;
+
+std::string where(const std::string& path, long line) { return path + ":" + std::to_string(line); }
+
+double parseNumber(const std::string& token, const std::string& path, long line, const char* field) {
+  errno = 0;
+  char* end = nullptr;
+  const double v = std::strtod(token.c_str(), &end);
+  if (end == token.c_str() || *end != '\0' || errno == ERANGE || !std::isfinite(v))
+    throw Error(where(path, line) + ": " + field + ": '" + token + "' is not a finite number");
+  return v;
+}
+
+int parseInteger(const std::string& token, const std::string& path, long line, const char* field) {
+  const double v = parseNumber(token, path, line, field);
+  if (v != std::floor(v) || std::fabs(v) > 1e9)
+    throw Error(where(path, line) + ": " + field + ": '" + token + "' is not an integer");
+  return static_cast<int>(v);
+}
+
+// Calls f(line, fields) for every data line (comment lines start with '#'); a blank line, a
+// wrong field count or an empty file are errors.
+template <typename F>
+void forEachRow(const std::string& path, size_t n_fields, const std::vector<const char*>& names, F&& f) {
+  std::ifstream in(path);
+  if (!in) throw Error(path + ": cannot open");
+  std::string text;
+  long line = 0, rows = 0;
+  std::vector<std::string> fields;
+  while (std::getline(in, text)) {
+    ++line;
+    if (!text.empty() && text.back() == '\r') text.pop_back();
+    const size_t first = text.find_first_not_of(" \t");
+    if (first == std::string::npos) {
+      // A blank last line is the file's final newline convention; elsewhere it is a hole.
+      if (in.peek() == std::char_traits<char>::eof()) break;
+      throw Error(where(path, line) + ": blank line");
+    }
+    if (text[first] == '#') continue;
+    fields.clear();
+    std::istringstream ss(text);
+    std::string tok;
+    while (ss >> tok) fields.push_back(tok);
+    if (fields.size() != n_fields) {
+      std::string expected;
+      for (const char* n : names) expected += std::string(expected.empty() ? "" : ", ") + n;
+      throw Error(where(path, line) + ": expected " + std::to_string(n_fields) + " fields (" + expected + "), found " +
+                  std::to_string(fields.size()) + " (truncated or malformed row)");
+    }
+    f(line, fields);
+    ++rows;
+  }
+  if (rows == 0) throw Error(path + ": no data rows");
+}
+
+void checkTimeOrder(double t, double previous, bool have_previous, const std::string& path, long line) {
+  if (have_previous && t < previous) {
+    char buf[160];
+    std::snprintf(buf, sizeof buf, ": time %.3f s goes backwards (previous row %.3f s)", t, previous);
+    throw Error(where(path, line) + buf);
+  }
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  const size_t n = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + static_cast<long>(n), v.end());
+  double m = v[n];
+  if (v.size() % 2 == 0) m = 0.5 * (m + *std::max_element(v.begin(), v.begin() + static_cast<long>(n)));
+  return m;
+}
+
+std::string formatStats(const RobustErrorStats& s, double scale, const char* unit) {
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "n %zu, median %+.3g %s, robust sigma %.3g %s (1.4826 MAD), mean %+.3g, std %.3g, max |e| %.3g, "
+                "outliers (>5 sigma) %zu",
+                s.count, s.median * scale, unit, s.mad_sigma * scale, unit, s.mean * scale, s.std * scale,
+                s.max_abs * scale, s.outliers);
+  return buf;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------- readers
+
+std::map<int, int> readMrclamBarcodes(const std::string& path) {
+  std::map<int, int> barcode_to_subject;
+  std::set<int> subjects;
+  forEachRow(path, 2, {"subject", "barcode"}, [&](long line, const std::vector<std::string>& f) {
+    const int subject = parseInteger(f[0], path, line, "subject");
+    const int barcode = parseInteger(f[1], path, line, "barcode");
+    if (!subjects.insert(subject).second) throw Error(where(path, line) + ": subject: duplicate subject " + f[0]);
+    if (!barcode_to_subject.emplace(barcode, subject).second)
+      throw Error(where(path, line) + ": barcode: duplicate barcode " + f[1]);
+  });
+  return barcode_to_subject;
+}
+
+std::map<int, Eigen::Vector2d> readMrclamLandmarks(const std::string& path) {
+  std::map<int, Eigen::Vector2d> landmarks;
+  forEachRow(path, 5, {"subject", "x", "y", "x std-dev", "y std-dev"},
+             [&](long line, const std::vector<std::string>& f) {
+               const int subject = parseInteger(f[0], path, line, "subject");
+               const Eigen::Vector2d xy(1000.0 * parseNumber(f[1], path, line, "x"),
+                                        1000.0 * parseNumber(f[2], path, line, "y"));
+               parseNumber(f[3], path, line, "x std-dev");
+               parseNumber(f[4], path, line, "y std-dev");
+               if (!landmarks.emplace(subject, xy).second)
+                 throw Error(where(path, line) + ": subject: duplicate landmark " + f[0]);
+             });
+  return landmarks;
+}
+
+std::vector<MrclamOdometryRow> readMrclamOdometry(const std::string& path) {
+  std::vector<MrclamOdometryRow> rows;
+  forEachRow(path, 3, {"time", "forward velocity", "angular velocity"},
+             [&](long line, const std::vector<std::string>& f) {
+               MrclamOdometryRow r;
+               r.t = parseNumber(f[0], path, line, "time");
+               r.v = 1000.0 * parseNumber(f[1], path, line, "forward velocity");
+               r.omega = parseNumber(f[2], path, line, "angular velocity");
+               checkTimeOrder(r.t, rows.empty() ? 0.0 : rows.back().t, !rows.empty(), path, line);
+               rows.push_back(r);
+             });
+  return rows;
+}
+
+std::vector<MrclamMeasurementRow> readMrclamMeasurements(const std::string& path) {
+  std::vector<MrclamMeasurementRow> rows;
+  forEachRow(path, 4, {"time", "barcode", "range", "bearing"}, [&](long line, const std::vector<std::string>& f) {
+    MrclamMeasurementRow r;
+    r.t = parseNumber(f[0], path, line, "time");
+    r.barcode = parseInteger(f[1], path, line, "barcode");
+    r.range = 1000.0 * parseNumber(f[2], path, line, "range");
+    r.bearing = parseNumber(f[3], path, line, "bearing");
+    r.line = line;
+    if (!(r.range > 0)) throw Error(where(path, line) + ": range: '" + f[2] + "' is not positive");
+    checkTimeOrder(r.t, rows.empty() ? 0.0 : rows.back().t, !rows.empty(), path, line);
+    rows.push_back(r);
+  });
+  return rows;
+}
+
+std::vector<MrclamPoseRow> readMrclamGroundtruth(const std::string& path) {
+  std::vector<MrclamPoseRow> rows;
+  forEachRow(path, 4, {"time", "x", "y", "orientation"}, [&](long line, const std::vector<std::string>& f) {
+    MrclamPoseRow r;
+    r.t = parseNumber(f[0], path, line, "time");
+    r.pose = Pose2(1000.0 * parseNumber(f[1], path, line, "x"), 1000.0 * parseNumber(f[2], path, line, "y"),
+                   parseNumber(f[3], path, line, "orientation"));
+    checkTimeOrder(r.t, rows.empty() ? 0.0 : rows.back().t, !rows.empty(), path, line);
+    rows.push_back(r);
+  });
+  return rows;
+}
+
+// ---------------------------------------------------------------- odometry
+
+WheelIncrements wheelIncrementsForTwist(double v, double omega, double dt, double wheel_base_mm) {
+  // The wheels sit at -+w/2 from the centre along the axle, so their speeds are v -+ omega w/2;
+  // this is wheelIncrementsForArc(v dt, omega dt, w), the inverse of (B.1), (B.2).
+  return wheelIncrementsForArc(v * dt, omega * dt, wheel_base_mm);
+}
+
+WheelOdometer::WheelOdometer(const std::vector<MrclamOdometryRow>& rows, double wheel_base_mm)
+    : rows_(rows), w_(wheel_base_mm) {
+  if (rows_.empty()) throw Error("odometry: no rows");
+  if (!(std::isfinite(w_) && w_ > 0)) throw Error("odometry: wheel base must be positive");
+  cumulative_.resize(rows_.size());
+  for (size_t i = 1; i < rows_.size(); ++i) {
+    const MrclamOdometryRow& r = rows_[i - 1];
+    const WheelIncrements d = wheelIncrementsForTwist(r.v, r.omega, rows_[i].t - r.t, w_);
+    cumulative_[i] = WheelIncrements{cumulative_[i - 1].d_left + d.d_left, cumulative_[i - 1].d_right + d.d_right};
+  }
+}
+
+WheelIncrements WheelOdometer::travelAt(double t) const {
+  if (t <= rows_.front().t) return cumulative_.front();
+  if (t >= rows_.back().t) return cumulative_.back();
+  // The command of the last row at or before t is in force at t.
+  const auto it = std::upper_bound(rows_.begin(), rows_.end(), t,
+                                   [](double tt, const MrclamOdometryRow& r) { return tt < r.t; });
+  const size_t i = static_cast<size_t>(it - rows_.begin()) - 1;
+  const MrclamOdometryRow& r = rows_[i];
+  const WheelIncrements d = wheelIncrementsForTwist(r.v, r.omega, t - r.t, w_);
+  return WheelIncrements{cumulative_[i].d_left + d.d_left, cumulative_[i].d_right + d.d_right};
+}
+
+WheelIncrements WheelOdometer::between(double t0, double t1) const {
+  const WheelIncrements a = travelAt(t0), b = travelAt(t1);
+  return WheelIncrements{b.d_left - a.d_left, b.d_right - a.d_right};
+}
+
+// ---------------------------------------------------------------- ground truth
+
+std::optional<Pose2> interpolateGroundtruth(const std::vector<MrclamPoseRow>& gt, double t, double max_gap_s) {
+  if (gt.empty() || t < gt.front().t || t > gt.back().t) return std::nullopt;
+  auto it = std::lower_bound(gt.begin(), gt.end(), t, [](const MrclamPoseRow& r, double tt) { return r.t < tt; });
+  if (it->t == t) return it->pose;
+  const MrclamPoseRow& b = *it;
+  const MrclamPoseRow& a = *(it - 1);
+  if (b.t - a.t > max_gap_s) return std::nullopt;
+  const double s = (t - a.t) / (b.t - a.t);
+  // Heading on the circle: along the shorter arc from a to b.
+  return Pose2(a.pose.x + s * (b.pose.x - a.pose.x), a.pose.y + s * (b.pose.y - a.pose.y),
+               a.pose.theta + s * angleDiff(b.pose.theta, a.pose.theta));
+}
+
+// ---------------------------------------------------------------- statistics
+
+RobustErrorStats robustErrorStats(std::vector<double> errors) {
+  RobustErrorStats s;
+  s.count = errors.size();
+  if (errors.empty()) return s;
+  double sum = 0, sum2 = 0;
+  for (double e : errors) {
+    sum += e;
+    s.max_abs = std::max(s.max_abs, std::fabs(e));
+  }
+  s.mean = sum / static_cast<double>(s.count);
+  for (double e : errors) sum2 += (e - s.mean) * (e - s.mean);
+  s.std = std::sqrt(sum2 / static_cast<double>(s.count));
+  s.median = median(errors);
+  std::vector<double> dev(errors.size());
+  for (size_t i = 0; i < errors.size(); ++i) dev[i] = std::fabs(errors[i] - s.median);
+  s.mad_sigma = kMadToSigma * median(dev);
+  for (double d : dev)
+    if (d > 5.0 * s.mad_sigma) ++s.outliers;
+  return s;
+}
+
+OdometryNoiseFit fitOdometryNoise(const std::vector<Step>& steps, const std::vector<std::optional<Pose2>>& groundtruth,
+                                  double wheel_base_mm, double window_s, double min_travel_mm) {
+  if (steps.size() != groundtruth.size()) throw Error("odometry fit: steps and ground truth differ in length");
+  const double w = wheel_base_mm;
+  std::vector<double> q_heading, q_along, e_heading, e_along, e_lateral, lateral_per_m, travels;
+  double step_count = 0;
+  OdometryNoiseFit fit;
+  size_t a = 0;
+  while (a < steps.size()) {
+    if (!groundtruth[a]) {
+      ++a;
+      continue;
+    }
+    size_t b = a + 1;
+    Pose2 rel;  // odometry from a to b in a's frame
+    double travel = 0.0;
+    bool complete = false;
+    for (; b < steps.size(); ++b) {
+      if (!groundtruth[b]) break;
+      const Eigen::Vector3d u = controlVector(steps[b].d_left, steps[b].d_right, w);
+      rel = compose(rel, Pose2(u.x(), u.y(), u.z()));
+      travel += std::fabs(steps[b].d_left) + std::fabs(steps[b].d_right);
+      if (steps[b].t - steps[a].t >= window_s) {
+        complete = true;
+        break;
+      }
+    }
+    if (!complete) {
+      a = b;
+      continue;
+    }
+    if (travel >= min_travel_mm) {
+      const Pose2 truth = between(*groundtruth[a], *groundtruth[b]);
+      const Pose2 err = between(rel, truth);  // truth in the odometry's end frame
+      e_heading.push_back(err.theta);
+      e_along.push_back(err.x);
+      e_lateral.push_back(err.y);
+      // (B.6) summed over the window: var(dtheta) = k S / w^2, var(along) ~= k S / 4.
+      q_heading.push_back(err.theta * err.theta * w * w / travel);
+      q_along.push_back(4.0 * err.x * err.x / travel);
+      lateral_per_m.push_back(err.y / (0.5 * travel / 1000.0));
+      travels.push_back(travel);
+      step_count += static_cast<double>(b - a);
+    }
+    a = b;
+  }
+  fit.windows = q_heading.size();
+  if (fit.windows == 0) return fit;
+  fit.k_heading = median(q_heading) / kChi2Median1;
+  fit.k_along = median(q_along) / kChi2Median1;
+  fit.heading_error = robustErrorStats(e_heading);
+  fit.along_error = robustErrorStats(e_along);
+  fit.lateral_error = robustErrorStats(e_lateral);
+  fit.lateral_sigma_per_m = robustErrorStats(lateral_per_m).mad_sigma;
+  fit.median_travel_mm = median(travels);
+  fit.mean_steps = step_count / static_cast<double>(fit.windows);
+  return fit;
+}
+
+// ---------------------------------------------------------------- map and import
+
+void MrclamImportConfig::validate() const {
+  auto check = [](bool ok, const char* field) {
+    if (!ok) throw Error(std::string("mrclam import: ") + field + " is out of range");
+  };
+  check(robot >= 1 && robot <= kMrclamRobotCount, "robot (1..5)");
+  check(std::isfinite(rate_hz) && rate_hz > 0 && rate_hz <= 1000, "rate_hz");
+  check(std::isfinite(wheel_base_mm) && wheel_base_mm > 0, "wheel_base_mm");
+  check(std::isfinite(merge_tolerance_s) && merge_tolerance_s >= 0 && merge_tolerance_s < 0.5 / rate_hz,
+        "merge_tolerance_s");
+  check(std::isfinite(max_groundtruth_gap_s) && max_groundtruth_gap_s > 0, "max_groundtruth_gap_s");
+  check(std::isfinite(map_margin_mm) && map_margin_mm >= 0, "map_margin_mm");
+  check(!sigma_range_mm || (std::isfinite(*sigma_range_mm) && *sigma_range_mm > 0), "sigma_range_mm");
+  check(!sigma_bearing_rad || (std::isfinite(*sigma_bearing_rad) && *sigma_bearing_rad > 0), "sigma_bearing_rad");
+  check(std::isfinite(odometry_window_s) && odometry_window_s > 0, "odometry_window_s");
+  check(std::isfinite(odometry_noise_scale) && odometry_noise_scale > 0, "odometry_noise_scale");
+}
+
+FieldMap mrclamMap(const std::map<int, Eigen::Vector2d>& landmarks, const std::vector<Eigen::Vector2d>& extent,
+                   double margin_mm, const std::string& name) {
+  if (landmarks.empty()) throw Error("mrclam map: no landmarks");
+  Bounds b;
+  b.xmin = b.ymin = std::numeric_limits<double>::infinity();
+  b.xmax = b.ymax = -std::numeric_limits<double>::infinity();
+  auto grow = [&](const Eigen::Vector2d& p) {
+    b.xmin = std::min(b.xmin, p.x());
+    b.xmax = std::max(b.xmax, p.x());
+    b.ymin = std::min(b.ymin, p.y());
+    b.ymax = std::max(b.ymax, p.y());
+  };
+  std::vector<Landmark> lms;
+  for (const auto& [subject, xy] : landmarks) {
+    grow(xy);
+    Landmark l;
+    l.id = subject;
+    l.type = LandmarkType::Point;
+    l.name = "subject" + std::to_string(subject);
+    l.position = Eigen::Vector3d(xy.x(), xy.y(), 0.0);
+    l.unique = true;  // each barcode identifies its landmark
+    lms.push_back(l);
+  }
+  for (const Eigen::Vector2d& p : extent) grow(p);
+  b.xmin -= margin_mm;
+  b.ymin -= margin_mm;
+  b.xmax += margin_mm;
+  b.ymax += margin_mm;
+  return FieldMap(name, b, std::move(lms));
+}
+
+MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& config) {
+  config.validate();
+  const std::string dir = src_dir.empty() || src_dir.back() == '/' ? src_dir : src_dir + "/";
+  const std::string robot = "Robot" + std::to_string(config.robot) + "_";
+  const std::map<int, int> barcodes = readMrclamBarcodes(dir + "Barcodes.dat");
+  const std::map<int, Eigen::Vector2d> landmarks = readMrclamLandmarks(dir + "Landmark_Groundtruth.dat");
+  const std::vector<MrclamOdometryRow> odo = readMrclamOdometry(dir + robot + "Odometry.dat");
+  const std::vector<MrclamMeasurementRow> meas = readMrclamMeasurements(dir + robot + "Measurement.dat");
+  const std::vector<MrclamPoseRow> gt = readMrclamGroundtruth(dir + robot + "Groundtruth.dat");
+  for (const auto& [subject, xy] : landmarks)
+    if (subject <= kMrclamRobotCount)
+      throw Error(dir + "Landmark_Groundtruth.dat: subject " + std::to_string(subject) + " is a robot, not a landmark");
+
+  MrclamImport out;
+  ImportReport& rep = out.report;
+  rep.robot = config.robot;
+  rep.odometry_rows = odo.size();
+  rep.measurement_rows = meas.size();
+  rep.groundtruth_rows = gt.size();
+  const double t0 = odo.front().t, t_end = odo.back().t;
+  rep.epoch_s = t0;
+
+  // Classify the measurements; keep landmark sightings inside the odometry's span.
+  std::vector<const MrclamMeasurementRow*> kept;
+  for (const MrclamMeasurementRow& m : meas) {
+    const auto it = barcodes.find(m.barcode);
+    if (it == barcodes.end() || (it->second > kMrclamRobotCount && !landmarks.count(it->second))) {
+      ++rep.dropped_unknown_barcode;
+    } else if (it->second <= kMrclamRobotCount) {
+      ++rep.dropped_other_robot;
+    } else if (m.t < t0 || m.t > t_end) {
+      ++rep.dropped_outside_odometry;
+    } else {
+      kept.push_back(&m);
+    }
+  }
+
+  // Step times (relative to t0): measurement clusters, then the grid where no cluster is close.
+  struct StepTime {
+    double t;
+    std::vector<const MrclamMeasurementRow*> meas;
+  };
+  std::vector<StepTime> times;
+  for (const MrclamMeasurementRow* m : kept) {
+    const double tr = m->t - t0;
+    if (times.empty() || tr - times.back().t > config.merge_tolerance_s) times.push_back({tr, {}});
+    rep.max_time_shift_s = std::max(rep.max_time_shift_s, tr - times.back().t);
+    times.back().meas.push_back(m);
+  }
+  rep.measurement_steps = times.size();
+  {
+    std::vector<StepTime> merged;
+    merged.reserve(times.size() + static_cast<size_t>((t_end - t0) * config.rate_hz) + 2);
+    size_t j = 0;
+    const long n_grid = static_cast<long>(std::floor((t_end - t0) * config.rate_hz + 1e-9));
+    for (long k = 0; k <= n_grid; ++k) {
+      const double tg = static_cast<double>(k) / config.rate_hz;
+      while (j < times.size() && times[j].t < tg - config.merge_tolerance_s) merged.push_back(std::move(times[j++]));
+      if (j < times.size() && std::fabs(times[j].t - tg) <= config.merge_tolerance_s) continue;
+      merged.push_back({tg, {}});
+      ++rep.grid_steps;
+    }
+    while (j < times.size()) merged.push_back(std::move(times[j++]));
+    // A last step at the last odometry row, so that no commanded motion is left out.
+    if (t_end - t0 - merged.back().t > config.merge_tolerance_s) {
+      merged.push_back({t_end - t0, {}});
+      ++rep.grid_steps;
+    }
+    times = std::move(merged);
+  }
+
+  // Steps: wheel travel since the previous step, ground truth at the step time.
+  const WheelOdometer odometer(odo, config.wheel_base_mm);
+  out.steps.reserve(times.size());
+  out.groundtruth.reserve(times.size());
+  std::vector<std::pair<size_t, const MrclamMeasurementRow*>> to_observe;  // (step index, row)
+  for (size_t i = 0; i < times.size(); ++i) {
+    Step s;
+    s.step = static_cast<long>(i);
+    s.t = times[i].t;
+    if (i > 0) {
+      const WheelIncrements d = odometer.between(t0 + times[i - 1].t, t0 + times[i].t);
+      s.d_left = d.d_left;
+      s.d_right = d.d_right;
+    }
+    for (const MrclamMeasurementRow* m : times[i].meas) to_observe.emplace_back(i, m);
+    out.steps.push_back(std::move(s));
+    out.groundtruth.push_back(interpolateGroundtruth(gt, t0 + times[i].t, config.max_groundtruth_gap_s));
+    if (out.groundtruth.back()) ++rep.steps_with_groundtruth;
+  }
+  rep.steps = out.steps.size();
+  rep.duration_s = out.steps.back().t;
+
+  // Range and bearing errors against the ground truth at each measurement's own time.
+  std::vector<double> range_err, bearing_err;
+  for (const MrclamMeasurementRow* m : kept) {
+    const std::optional<Pose2> p = interpolateGroundtruth(gt, m->t, config.max_groundtruth_gap_s);
+    if (!p) {
+      ++rep.measurements_outside_groundtruth;
+      continue;
+    }
+    const Eigen::Vector2d& lm = landmarks.at(barcodes.at(m->barcode));
+    if ((lm - p->translation()).norm() < 1e-6) continue;  // bearing undefined; cannot happen for a robot
+    const Eigen::Vector2d z = predictRangeBearing(*p, lm);
+    range_err.push_back(m->range - z.x());
+    bearing_err.push_back(angleDiff(m->bearing, z.y()));
+  }
+  rep.range_error = robustErrorStats(range_err);
+  rep.bearing_error = robustErrorStats(bearing_err);
+  rep.sigmas_estimated = !(config.sigma_range_mm && config.sigma_bearing_rad);
+  if (!config.sigma_range_mm && rep.range_error.count < 10)
+    throw Error(dir + robot + "Measurement.dat: fewer than 10 landmark measurements with ground truth; give the range sigma");
+  if (!config.sigma_bearing_rad && rep.bearing_error.count < 10)
+    throw Error(dir + robot + "Measurement.dat: fewer than 10 landmark measurements with ground truth; give the bearing sigma");
+  // A zero MAD (quantised readings) would give an infinite information: floor at the resolution
+  // of the files (1 mm, 1 mrad).
+  rep.sigma_range_mm = config.sigma_range_mm ? *config.sigma_range_mm : std::max(rep.range_error.mad_sigma, 1.0);
+  rep.sigma_bearing_rad =
+      config.sigma_bearing_rad ? *config.sigma_bearing_rad : std::max(rep.bearing_error.mad_sigma, 1e-3);
+  for (const auto& [i, m] : to_observe) {
+    out.steps[i].observations.push_back(observationFromRangeBearing(barcodes.at(m->barcode), LandmarkType::Point,
+                                                                    m->range, m->bearing, rep.sigma_range_mm,
+                                                                    rep.sigma_bearing_rad));
+  }
+  rep.observations = to_observe.size();
+
+  // Odometry noise from the data (see fitOdometryNoise). Commanded velocities are not measured
+  // wheel travel: their error is mostly a common speed error, which independent wheel noise
+  // (B.6) cannot express. k comes from the heading; the along-track and lateral variance the
+  // wheels do not explain is spread over a window's steps as the per-step control floor (U is
+  // in the previous pose's frame, so floor x is along-track and y cross-track).
+  rep.odometry_fit = fitOdometryNoise(out.steps, out.groundtruth, config.wheel_base_mm, config.odometry_window_s);
+  OdometryParams params;
+  params.wheel_base_mm = config.wheel_base_mm;
+  const OdometryNoiseFit& fit = rep.odometry_fit;
+  if (fit.windows >= 10) {
+    params.k_left = params.k_right = config.odometry_noise_scale * fit.k_heading;
+    const double n = std::max(1.0, fit.mean_steps);
+    const double along = fit.along_error.mad_sigma, lateral = fit.lateral_error.mad_sigma;
+    const double explained = fit.k_heading * fit.median_travel_mm / 4.0;
+    params.control_variance_floor =
+        Eigen::Vector3d(config.odometry_noise_scale * std::max(1.0, (along * along - explained) / n),
+                        config.odometry_noise_scale * std::max(1.0, lateral * lateral / n),
+                        params.control_variance_floor.z());
+  }
+  rep.odometry = params;
+  out.odometry = params;
+
+  std::vector<Eigen::Vector2d> extent;
+  extent.reserve(gt.size());
+  for (const MrclamPoseRow& r : gt) extent.push_back(r.pose.translation());
+  out.name = "mrclam_robot" + std::to_string(config.robot);
+  out.map = mrclamMap(landmarks, extent, config.map_margin_mm, "mrclam");
+  if (!out.groundtruth.empty() && out.groundtruth.front()) out.initial_pose = out.groundtruth.front();
+  return out;
+}
+
+std::string ImportReport::summary() const {
+  std::ostringstream os;
+  char buf[512];
+  std::snprintf(buf, sizeof buf, "MR.CLAM robot %d: epoch %.3f s, %.1f s of odometry\n", robot, epoch_s, duration_s);
+  os << buf;
+  std::snprintf(buf, sizeof buf, "  rows: odometry %zu, measurements %zu, ground truth %zu\n", odometry_rows,
+                measurement_rows, groundtruth_rows);
+  os << buf;
+  std::snprintf(buf, sizeof buf,
+                "  steps: %zu (%zu on the grid, %zu at measurement times), %zu with ground truth, %zu without\n", steps,
+                grid_steps, measurement_steps, steps_with_groundtruth, steps - steps_with_groundtruth);
+  os << buf;
+  std::snprintf(buf, sizeof buf,
+                "  measurements: %zu landmark observations kept; dropped: %zu of other robots, %zu unknown barcode, "
+                "%zu outside the odometry span; %zu kept without ground truth; max time shift %.1f ms\n",
+                observations, dropped_other_robot, dropped_unknown_barcode, dropped_outside_odometry,
+                measurements_outside_groundtruth, 1000.0 * max_time_shift_s);
+  os << buf;
+  os << "  range error [mm]:    " << formatStats(range_error, 1.0, "mm") << "\n";
+  os << "  bearing error [deg]: " << formatStats(bearing_error, 180.0 / kPi, "deg") << "\n";
+  std::snprintf(buf, sizeof buf, "  observation sigmas: range %.1f mm, bearing %.2f deg (%s)\n", sigma_range_mm,
+                rad2deg(sigma_bearing_rad), sigmas_estimated ? "estimated" : "given");
+  os << buf;
+  std::snprintf(buf, sizeof buf,
+                "  odometry noise fit over %zu windows: k_heading %.3g, k_along %.3g mm^2/mm; median travel %.0f mm, "
+                "%.1f steps; window errors (median, robust sigma): heading %+.2f, %.2f deg, along %+.1f, %.1f mm, "
+                "lateral %+.1f, %.1f mm\n",
+                odometry_fit.windows, odometry_fit.k_heading, odometry_fit.k_along, odometry_fit.median_travel_mm,
+                odometry_fit.mean_steps, rad2deg(odometry_fit.heading_error.median),
+                rad2deg(odometry_fit.heading_error.mad_sigma), odometry_fit.along_error.median,
+                odometry_fit.along_error.mad_sigma, odometry_fit.lateral_error.median,
+                odometry_fit.lateral_error.mad_sigma);
+  os << buf;
+  std::snprintf(buf, sizeof buf,
+                "  odometry model: wheel base %.0f mm, k_left = k_right = %.3g mm^2/mm, control floor (%.3g mm^2, "
+                "%.3g mm^2, %.3g rad^2)\n",
+                odometry.wheel_base_mm, odometry.k_left, odometry.control_variance_floor.x(),
+                odometry.control_variance_floor.y(), odometry.control_variance_floor.z());
+  os << buf;
+  return os.str();
+}
+
+}  // namespace stereoloc

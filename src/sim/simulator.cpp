@@ -1,0 +1,202 @@
+#include "src/sim/simulator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "src/core/error.h"
+
+namespace stereoloc {
+namespace {
+
+// Moves the obstacles by one step: robots wander with slowly changing headings, the ball rolls
+// straight; both bounce off the walls and are pushed out of a disc around the simulated robot
+// (so they never overlap it or its cameras).
+void moveObstacles(std::vector<Obstacle>& obs, std::vector<double>& dir, const FieldGeometry& g,
+                   const Pose2& robot, double speed, std::mt19937_64& rng) {
+  std::normal_distribution<double> N(0.0, 1.0);
+  for (size_t i = 0; i < obs.size(); ++i) {
+    Obstacle& o = obs[i];
+    const bool ball = o.kind == Obstacle::Kind::Ball;
+    if (!ball) dir[i] += 0.2 * N(rng);
+    const double v = ball ? 2.0 * speed : speed;
+    Eigen::Vector2d p = o.position + v * Eigen::Vector2d(std::cos(dir[i]), std::sin(dir[i]));
+    const double m = 0.5 * o.size + 5.0;
+    if (p.x() < m || p.x() > g.length - m) {
+      dir[i] = kPi - dir[i];
+      p.x() = std::clamp(p.x(), m, g.length - m);
+    }
+    if (p.y() < m || p.y() > g.width - m) {
+      dir[i] = -dir[i];
+      p.y() = std::clamp(p.y(), m, g.width - m);
+    }
+    const Eigen::Vector2d away = p - robot.translation();
+    const double keep = 0.5 * o.size + 80.0;
+    if (away.norm() < keep) p = robot.translation() + keep * (away.norm() > 1e-9 ? away.normalized() : Eigen::Vector2d(1, 0));
+    dir[i] = wrapAngle(dir[i]);
+    o.position = p;
+    if (!ball) o.heading = wrapAngle(dir[i]);
+  }
+}
+
+}  // namespace
+
+std::string toString(LandmarkSet set) { return set == LandmarkSet::All ? "all" : "goal_corners"; }
+
+LandmarkSet landmarkSetFromString(const std::string& name) {
+  if (name == "all") return LandmarkSet::All;
+  if (name == "goal_corners") return LandmarkSet::GoalCorners;
+  throw Error("unknown landmark set '" + name + "' (expected goal_corners or all)");
+}
+
+void SimulationConfig::validate() const {
+  auto nonneg = [](double v, const char* name) {
+    if (!(std::isfinite(v) && v >= 0)) throw Error(std::string("simulation: ") + name + " must be a finite number >= 0");
+  };
+  nonneg(encoder_k, "encoder_k");
+  nonneg(compass_sigma, "compass_sigma");
+  nonneg(pixel_sigma, "pixel_sigma");
+  nonneg(obstacle_speed, "obstacle_speed");
+  if (!(std::isfinite(compass_bias))) throw Error("simulation: compass_bias must be finite");
+  if (!(std::isfinite(compass_sigma_floor) && compass_sigma_floor > 0))
+    throw Error("simulation: compass_sigma_floor must be positive");
+  if (!(std::isfinite(wheel_base_mm) && wheel_base_mm > 0)) throw Error("simulation: wheel_base_mm must be positive");
+  if (!(std::isfinite(dt) && dt > 0)) throw Error("simulation: dt must be positive");
+  if (obstacles < 0 || obstacles > 100) throw Error("simulation: obstacles must be in 0..100");
+  if (scenario.steps < 0) throw Error("simulation: steps must be >= 0");
+}
+
+Eigen::Vector3d cameraCentreWorld(const StereoRig& rig, const Pose2& robot, double head_pan, int camera) {
+  const double hb = 0.5 * rig.params().baseline_mm;
+  const Eigen::Vector3d c = rig.visionToRobot(Eigen::Vector3d(0.0, camera == 0 ? hb : -hb, 0.0), head_pan);
+  const Eigen::Vector2d w = transformToWorld(robot, c.head<2>());
+  return Eigen::Vector3d(w.x(), w.y(), c.z());
+}
+
+std::vector<VisibleLandmark> visibleLandmarks(const FieldMap& map, const StereoRig& rig, const Scene& scene,
+                                              const Pose2& robot, double head_pan, LandmarkSet set) {
+  std::vector<VisibleLandmark> out;
+  const StereoRigParams& p = rig.params();
+  const Eigen::Vector3d cam_l = cameraCentreWorld(rig, robot, head_pan, 0);
+  const Eigen::Vector3d cam_r = cameraCentreWorld(rig, robot, head_pan, 1);
+  for (const Landmark& l : map.landmarks()) {
+    if (set == LandmarkSet::GoalCorners && l.type != LandmarkType::GoalCorner) continue;
+    const Eigen::Vector2d local = transformToLocal(robot, l.xy());
+    if (local.norm() > p.max_range_mm) continue;
+    const auto px = rig.project(Eigen::Vector3d(local.x(), local.y(), l.position.z()), head_pan);
+    if (!px || !rig.inImages(*px) || px->disparity() < p.min_disparity_px) continue;
+    // Both cameras must be in front (project checks the rig centre only).
+    const Eigen::Vector3d pv = rig.robotToVision(Eigen::Vector3d(local.x(), local.y(), l.position.z()), head_pan);
+    if (pv.x() <= 1.0) continue;
+    if (scene.occluded(cam_l, l.position) || scene.occluded(cam_r, l.position)) continue;
+    out.push_back({l.id, *px});
+  }
+  return out;
+}
+
+Dataset simulate(const std::string& scenario_name, int trial, const SimulationConfig& cfg, uint64_t seed,
+                 SimulationTrace* trace) {
+  cfg.validate();
+  std::mt19937_64 master(seed);
+  std::mt19937_64 rng_scenario(master()), rng_encoder(master()), rng_compass(master()), rng_obstacles(master()),
+      rng_pixels(master());
+  const Scenario sc = makeScenario(scenario_name, trial, cfg.scenario, rng_scenario);
+  const size_t n = sc.poses.size();
+  if (n == 0) throw Error("simulation: scenario has no steps");
+
+  const double q = cfg.quantise ? 1.0 : 0.0;
+  const double sigma_eff = std::sqrt(cfg.pixel_sigma * cfg.pixel_sigma + q / 12.0);
+  StereoRigParams rp = cfg.rig;
+  // The rig must carry a positive sigma even for noise-free pixels: observations need an R.
+  rp.pixel_sigma = std::max(sigma_eff, 1e-3);
+  Dataset d;
+  d.name = scenario_name;
+  d.map = cfg.map;
+  d.rig = StereoRig(rp);
+  d.odometry = OdometryParams();
+  d.odometry.wheel_base_mm = cfg.wheel_base_mm;
+  d.odometry.k_left = d.odometry.k_right = cfg.encoder_k;
+  d.odometry.validate();
+  const double declared_compass = std::max(cfg.compass_sigma, cfg.compass_sigma_floor);
+  d.compass_sigma = cfg.compass ? declared_compass : 0.0;
+  d.initial_pose = sc.poses[0];
+  d.has_images = cfg.images;
+  {
+    char buf[600];
+    std::snprintf(buf, sizeof(buf),
+                  "simulated %s trial %d seed %llu: %s; encoder k %.6g mm^2/mm, compass %s sigma %.6g deg bias %.6g "
+                  "deg, pixel sigma %.6g px%s, landmarks %s, obstacles %d, head scan %s",
+                  scenario_name.c_str(), trial, static_cast<unsigned long long>(seed), sc.description.c_str(),
+                  cfg.encoder_k, cfg.compass ? "on" : "off", rad2deg(cfg.compass_sigma), rad2deg(cfg.compass_bias),
+                  cfg.pixel_sigma, cfg.quantise ? " quantised" : "", toString(cfg.landmarks).c_str(), cfg.obstacles,
+                  cfg.scenario.head_scan ? "on" : "off");
+    d.description = buf;
+  }
+
+  // Obstacles: K robots and a ball at random places away from the robot's start.
+  std::vector<Obstacle> obstacles;
+  std::vector<double> obstacle_dir;
+  const bool have_geometry = cfg.map.geometry().has_value();
+  if (cfg.obstacles > 0) {
+    if (!have_geometry) throw Error("simulation: obstacles need a map with field geometry");
+    const FieldGeometry& g = *cfg.map.geometry();
+    std::uniform_real_distribution<double> ux(100.0, g.length - 100.0), uy(100.0, g.width - 100.0), ua(-kPi, kPi);
+    for (int k = 0; k <= cfg.obstacles; ++k) {
+      Obstacle o;
+      o.kind = k < cfg.obstacles ? Obstacle::Kind::Robot : Obstacle::Kind::Ball;
+      o.size = o.kind == Obstacle::Kind::Robot ? 75.0 : 42.7;
+      do {
+        o.position = Eigen::Vector2d(ux(rng_obstacles), uy(rng_obstacles));
+      } while ((o.position - sc.poses[0].translation()).norm() < 200.0);
+      o.heading = ua(rng_obstacles);
+      obstacles.push_back(o);
+      obstacle_dir.push_back(o.heading);
+    }
+  }
+  if (trace) {
+    trace->scenario = sc;
+    trace->obstacles.clear();
+  }
+
+  std::normal_distribution<double> N(0.0, 1.0);
+  const Scene static_scene = have_geometry ? Scene::fromMap(cfg.map) : Scene();
+  d.steps.resize(n);
+  d.groundtruth.resize(n);
+  for (size_t s = 0; s < n; ++s) {
+    Step& st = d.steps[s];
+    const Pose2& pose = sc.poses[s];
+    st.step = static_cast<long>(s);
+    st.t = static_cast<double>(s) * cfg.dt;
+    st.head_pan = sc.head_pan[s];
+    d.groundtruth[s] = pose;
+    if (s > 0 && !sc.carried[s]) {
+      const Arc arc = arcBetween(sc.poses[s - 1], pose);
+      const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, cfg.wheel_base_mm);
+      // (B.6): independent wheel errors with variance proportional to the distance travelled.
+      st.d_left = w.d_left + std::sqrt(cfg.encoder_k * std::fabs(w.d_left)) * N(rng_encoder);
+      st.d_right = w.d_right + std::sqrt(cfg.encoder_k * std::fabs(w.d_right)) * N(rng_encoder);
+    }
+    if (cfg.compass) {
+      st.compass = wrapAngle(pose.theta + cfg.compass_bias + cfg.compass_sigma * N(rng_compass));
+      st.compass_sigma = declared_compass;
+    }
+    if (!obstacles.empty()) moveObstacles(obstacles, obstacle_dir, *cfg.map.geometry(), pose, cfg.obstacle_speed, rng_obstacles);
+    if (trace) trace->obstacles.push_back(obstacles);
+    const Scene scene = obstacles.empty() ? Scene() : Scene::fromMap(cfg.map, obstacles);
+    const Scene& world = obstacles.empty() ? static_scene : scene;
+    for (const VisibleLandmark& v : visibleLandmarks(d.map, d.rig, world, pose, st.head_pan, cfg.landmarks)) {
+      StereoPixels px = v.pixels;
+      for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) {
+        *c += cfg.pixel_sigma * N(rng_pixels);
+        if (cfg.quantise) *c = std::round(*c);
+      }
+      // A detector cannot triangulate what the noise pushed below the minimum disparity.
+      if (!(px.disparity() >= d.rig.params().min_disparity_px)) continue;
+      st.observations.push_back(
+          observationFromPixels(d.rig, v.id, d.map.at(v.id).type, px, st.head_pan, d.rig.params().pixel_sigma));
+    }
+  }
+  return d;
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,351 @@
+// MR.CLAM import: exact wheel integration, ground-truth interpolation, robust statistics,
+// parser errors, and an import of a short slice of the shared Dataset 6 (skipped when absent).
+#include "src/io/mrclam.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <set>
+#include <sstream>
+
+#include "src/core/angles.h"
+#include "src/core/error.h"
+#include "src/core/odometry_model.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+// The unicycle driven at constant (v, omega) for dt from `p`, integrated in closed form: a
+// circular arc whose chord has length v dt sinc(phi/2) and points along theta + phi/2.
+Pose2 unicycle(const Pose2& p, double v, double omega, double dt) {
+  const double phi = omega * dt;
+  const double sinc = std::fabs(phi) < 1e-6 ? 1.0 - phi * phi / 24.0 : std::sin(phi / 2) / (phi / 2);
+  const double chord = v * dt * sinc;
+  return Pose2(p.x + chord * std::cos(p.theta + phi / 2), p.y + chord * std::sin(p.theta + phi / 2), p.theta + phi);
+}
+
+TEST(MrclamOdometry, ConstantTwistWheelTravelReproducesUnicycleExactly) {
+  const Pose2 start(1200.0, -340.0, 2.9);
+  const double w = 260.0;
+  OdometryParams params;
+  params.wheel_base_mm = w;
+  for (double v : {0.0, 86.0, -50.0, 300.0}) {
+    for (double omega : {0.0, 1e-9, -0.398, 0.408, 2.5}) {
+      for (double dt : {0.015, 0.1, 1.7}) {
+        const WheelIncrements d = wheelIncrementsForTwist(v, omega, dt, w);
+        EXPECT_NEAR(d.d_left, (v - omega * w / 2) * dt, 1e-12);
+        EXPECT_NEAR(d.d_right, (v + omega * w / 2) * dt, 1e-12);
+        const Pose2 got = predictPose(start, Eigen::Matrix3d::Zero(), d.d_left, d.d_right, params).pose;
+        const Pose2 want = unicycle(start, v, omega, dt);
+        EXPECT_NEAR(got.x, want.x, 1e-9) << v << " " << omega << " " << dt;
+        EXPECT_NEAR(got.y, want.y, 1e-9) << v << " " << omega << " " << dt;
+        EXPECT_NEAR(angleDiff(got.theta, want.theta), 0.0, 1e-12);
+      }
+    }
+  }
+}
+
+TEST(MrclamOdometry, OdometerIntegratesPiecewiseConstantCommandsExactly) {
+  const double w = 200.0;
+  // Commands held until the next row; the last row has no duration.
+  const std::vector<MrclamOdometryRow> rows = {{10.0, 100.0, 0.5}, {10.5, 100.0, 0.5}, {11.0, 0.0, -1.0},
+                                               {11.0, 50.0, 0.0},  {12.0, 20.0, 0.2}};
+  const WheelOdometer odo(rows, w);
+  // Total: 1 s at (100, 0.5), then 1 s at (50, 0): left 100 - 50 + 50 = 100 - 0.5*100 + 50.
+  const WheelIncrements total = odo.between(10.0, 12.0);
+  EXPECT_NEAR(total.d_left, (100 - 0.5 * w / 2) * 1.0 + 50.0, 1e-9);
+  EXPECT_NEAR(total.d_right, (100 + 0.5 * w / 2) * 1.0 + 50.0, 1e-9);
+  // Mid-piece query and additivity over an arbitrary split.
+  const WheelIncrements a = odo.between(10.0, 10.75), b = odo.between(10.75, 12.0);
+  EXPECT_NEAR(a.d_left, (100 - 0.5 * w / 2) * 0.75, 1e-9);
+  EXPECT_NEAR(a.d_left + b.d_left, total.d_left, 1e-9);
+  EXPECT_NEAR(a.d_right + b.d_right, total.d_right, 1e-9);
+  // Outside the rows: clamped (no extrapolation of the last command).
+  EXPECT_NEAR(odo.between(12.0, 20.0).d_left, 0.0, 1e-12);
+  EXPECT_NEAR(odo.between(0.0, 10.0).d_right, 0.0, 1e-12);
+  // A step inside one constant piece equals the arc model's exact motion.
+  const WheelIncrements piece = odo.between(10.1, 10.4);
+  const WheelIncrements want = wheelIncrementsForTwist(100.0, 0.5, 0.3, w);
+  EXPECT_NEAR(piece.d_left, want.d_left, 1e-9);
+  EXPECT_NEAR(piece.d_right, want.d_right, 1e-9);
+}
+
+TEST(MrclamGroundtruth, InterpolatesOnTheCircleAndNotOutsideItsSpan) {
+  const std::vector<MrclamPoseRow> gt = {
+      {1.0, Pose2(0, 0, 3.1)}, {2.0, Pose2(100, -200, -3.1)}, {2.5, Pose2(100, -200, 0.0)}, {10.0, Pose2(0, 0, 0)}};
+  const auto mid = interpolateGroundtruth(gt, 1.5, 1.0);
+  ASSERT_TRUE(mid);
+  EXPECT_NEAR(mid->x, 50.0, 1e-9);
+  EXPECT_NEAR(mid->y, -100.0, 1e-9);
+  // Across +-pi along the short arc: halfway between 3.1 and -3.1 is pi, not 0.
+  EXPECT_NEAR(std::fabs(mid->theta), kPi, 1e-9);
+  const auto q = interpolateGroundtruth(gt, 1.25, 1.0);
+  ASSERT_TRUE(q);
+  EXPECT_NEAR(angleDiff(q->theta, 3.1 + 0.25 * (2 * kPi - 6.2)), 0.0, 1e-9);
+  EXPECT_TRUE(interpolateGroundtruth(gt, 1.0, 1.0));   // exactly the first row
+  EXPECT_TRUE(interpolateGroundtruth(gt, 10.0, 10.0)); // exactly the last row
+  EXPECT_FALSE(interpolateGroundtruth(gt, 0.999, 1.0));
+  EXPECT_FALSE(interpolateGroundtruth(gt, 10.001, 1.0));
+  EXPECT_FALSE(interpolateGroundtruth(gt, 5.0, 1.0));  // a 7.5 s Vicon gap
+  EXPECT_TRUE(interpolateGroundtruth(gt, 5.0, 8.0));
+}
+
+TEST(MrclamStatistics, RobustStatsIgnoreOutliers) {
+  std::vector<double> e = {-2, -1, 0, 1, 2, 1000};
+  const RobustErrorStats s = robustErrorStats(e);
+  EXPECT_EQ(s.count, 6u);
+  EXPECT_NEAR(s.median, 0.5, 1e-12);
+  // |e - 0.5| = 2.5 1.5 0.5 0.5 1.5 999.5 -> MAD 1.5
+  EXPECT_NEAR(s.mad_sigma, 1.482602218505602 * 1.5, 1e-9);
+  EXPECT_EQ(s.outliers, 1u);
+  EXPECT_NEAR(s.max_abs, 1000.0, 1e-12);
+  EXPECT_GT(s.std, 300.0);
+}
+
+// ---- parser errors ----
+
+std::string writeFile(const test::TempDir& dir, const std::string& name, const std::string& text) {
+  std::ofstream(dir.file(name)) << text;
+  return dir.file(name);
+}
+
+std::string errorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+const char* kHeader = "# a\n# b\n# c\n# d\n";
+
+TEST(MrclamParser, MalformedRowsNameFileAndLine) {
+  test::TempDir dir("mrclam_parse");
+  const std::string odo = writeFile(dir, "odo.dat", std::string(kHeader) + "1.0 0.1 0.2\n2.0 0.1\n");
+  EXPECT_NE(errorOf([&] { readMrclamOdometry(odo); }).find("odo.dat:6: expected 3 fields"), std::string::npos)
+      << errorOf([&] { readMrclamOdometry(odo); });
+  const std::string nan = writeFile(dir, "nan.dat", std::string(kHeader) + "1.0 nan 0.2\n");
+  EXPECT_NE(errorOf([&] { readMrclamOdometry(nan); }).find("nan.dat:5: forward velocity"), std::string::npos);
+  const std::string text = writeFile(dir, "txt.dat", std::string(kHeader) + "1.0 0.1 0.2x\n");
+  EXPECT_NE(errorOf([&] { readMrclamOdometry(text); }).find("txt.dat:5: angular velocity"), std::string::npos);
+  const std::string back = writeFile(dir, "back.dat", std::string(kHeader) + "2.0 1 1 0\n1.0 1 1 0\n");
+  EXPECT_NE(errorOf([&] { readMrclamGroundtruth(back); }).find("back.dat:6: time"), std::string::npos);
+  const std::string blank = writeFile(dir, "blank.dat", std::string(kHeader) + "2.0 1 1 0\n\n3.0 1 1 0\n");
+  EXPECT_NE(errorOf([&] { readMrclamGroundtruth(blank); }).find("blank.dat:6: blank line"), std::string::npos);
+  const std::string empty = writeFile(dir, "empty.dat", kHeader);
+  EXPECT_NE(errorOf([&] { readMrclamGroundtruth(empty); }).find("empty.dat: no data rows"), std::string::npos);
+  const std::string barcode = writeFile(dir, "bc.dat", std::string(kHeader) + "5 1.5 2 0.1\n");
+  EXPECT_NE(errorOf([&] { readMrclamMeasurements(barcode); }).find("bc.dat:5: barcode"), std::string::npos);
+  const std::string range = writeFile(dir, "range.dat", std::string(kHeader) + "5 15 -2 0.1\n");
+  EXPECT_NE(errorOf([&] { readMrclamMeasurements(range); }).find("range.dat:5: range"), std::string::npos);
+  const std::string dup = writeFile(dir, "dup.dat", std::string(kHeader) + "1 5\n2 5\n");
+  EXPECT_NE(errorOf([&] { readMrclamBarcodes(dup); }).find("dup.dat:6: barcode: duplicate"), std::string::npos);
+  EXPECT_NE(errorOf([&] { readMrclamBarcodes(dir.file("missing.dat")); }).find("missing.dat: cannot open"),
+            std::string::npos);
+  // A truncated last line (no newline, missing fields) is an error, a final newline is not.
+  const std::string trunc = writeFile(dir, "trunc.dat", std::string(kHeader) + "1.0 0.1 0.2\n2.0 0.1 0.");
+  EXPECT_NO_THROW(readMrclamOdometry(trunc));
+  const std::string trunc2 = writeFile(dir, "trunc2.dat", std::string(kHeader) + "1.0 0.1 0.2\n2.0 0.");
+  EXPECT_NE(errorOf([&] { readMrclamOdometry(trunc2); }).find("trunc2.dat:6:"), std::string::npos);
+}
+
+// ---- a slice of the shared Dataset 6 ----
+
+std::string sharedDir() { return std::string(STEREOLOC_SHARED_DIR) + "/data/mrclam6"; }
+
+// Copies the header and the data rows of `src` whose first column (time) lies in [t0, t1],
+// at most max_rows of them. Returns the number of data rows copied.
+size_t copySlice(const std::string& src, const std::string& dst, double t0, double t1, size_t max_rows) {
+  std::ifstream in(src);
+  std::ofstream out(dst);
+  std::string line;
+  size_t n = 0;
+  while (std::getline(in, line)) {
+    if (!line.empty() && line[0] == '#') {
+      out << line << "\n";
+      continue;
+    }
+    const double t = std::stod(line);
+    if (t < t0) continue;
+    if (t > t1 || n >= max_rows) break;
+    out << line << "\n";
+    ++n;
+  }
+  return n;
+}
+
+class MrclamSlice : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (!std::filesystem::exists(sharedDir() + "/Robot1_Odometry.dat"))
+      GTEST_SKIP() << "shared MR.CLAM data not found at " << sharedDir();
+    namespace fs = std::filesystem;
+    fs::copy_file(sharedDir() + "/Barcodes.dat", dir_.file("Barcodes.dat"));
+    fs::copy_file(sharedDir() + "/Landmark_Groundtruth.dat", dir_.file("Landmark_Groundtruth.dat"));
+    // Robot 1: odometry from 1248444187.156; measurements start at 189.599. 20 s of odometry
+    // (~1300 rows at 67 Hz), the measurements inside, and ground truth from just before.
+    const double t0 = 1248444187.156, t1 = t0 + 20.0;
+    odo_rows_ = copySlice(sharedDir() + "/Robot1_Odometry.dat", dir_.file("Robot1_Odometry.dat"), t0, t1, 2000);
+    meas_rows_ = copySlice(sharedDir() + "/Robot1_Measurement.dat", dir_.file("Robot1_Measurement.dat"), t0, t1 - 1, 200);
+    gt_rows_ = copySlice(sharedDir() + "/Robot1_Groundtruth.dat", dir_.file("Robot1_Groundtruth.dat"), t0 - 0.5,
+                         t0 + 15.0, 2000);
+    // What the slice should give, counted independently of the importer.
+    std::ifstream in(dir_.file("Robot1_Measurement.dat"));
+    std::string line;
+    const std::set<int> robots = {5, 14, 41, 32, 23};  // barcodes of subjects 1-5
+    while (std::getline(in, line)) {
+      if (line[0] == '#') continue;
+      std::istringstream ss(line);
+      double t, r, b;
+      int barcode;
+      ss >> t >> barcode >> r >> b;
+      meas_.push_back({t, barcode, 1000 * r, b, 0});
+      if (robots.count(barcode)) ++robot_meas_;
+    }
+  }
+
+  test::TempDir dir_{"mrclam_slice"};
+  size_t odo_rows_ = 0, meas_rows_ = 0, gt_rows_ = 0, robot_meas_ = 0;
+  std::vector<MrclamMeasurementRow> meas_;
+};
+
+TEST_F(MrclamSlice, RowCountsBarcodeMappingAndTimeAlignment) {
+  ASSERT_GT(odo_rows_, 800u);
+  ASSERT_GT(meas_rows_, 20u);
+  MrclamImportConfig config;
+  config.robot = 1;
+  const MrclamImport imp = importMrclam(dir_.path(), config);
+  const ImportReport& rep = imp.report;
+  EXPECT_EQ(rep.odometry_rows, odo_rows_);
+  EXPECT_EQ(rep.measurement_rows, meas_rows_);
+  EXPECT_EQ(rep.groundtruth_rows, gt_rows_);
+  EXPECT_GT(robot_meas_, 0u);
+  EXPECT_EQ(rep.dropped_other_robot, robot_meas_);
+  EXPECT_EQ(rep.observations + rep.dropped_other_robot + rep.dropped_unknown_barcode + rep.dropped_outside_odometry,
+            meas_rows_);
+  EXPECT_DOUBLE_EQ(rep.epoch_s, 1248444187.156);
+
+  // Landmarks: 15, ids = subjects 6..20; barcode 90 is subject 15 at (1.54725918, 2.76939627) m.
+  ASSERT_EQ(imp.map.landmarks().size(), 15u);
+  EXPECT_NEAR(imp.map.at(15).position.x(), 1547.25918, 1e-6);
+  EXPECT_NEAR(imp.map.at(15).position.y(), 2769.39627, 1e-6);
+  EXPECT_TRUE(imp.map.at(15).unique);
+  EXPECT_EQ(imp.map.find(5), nullptr);
+
+  // Steps strictly increasing; the 10 Hz grid is present; every observation sits at its own
+  // measurement time (within the 1.5 ms merge tolerance), in file order, with the mapped id.
+  ASSERT_EQ(imp.steps.size(), imp.groundtruth.size());
+  EXPECT_EQ(imp.steps.front().t, 0.0);
+  EXPECT_EQ(imp.steps.front().d_left, 0.0);
+  for (size_t i = 1; i < imp.steps.size(); ++i) {
+    EXPECT_EQ(imp.steps[i].step, static_cast<long>(i));
+    EXPECT_GT(imp.steps[i].t, imp.steps[i - 1].t);
+    EXPECT_LE(imp.steps[i].t - imp.steps[i - 1].t, 0.1 + 2e-3);
+  }
+  const std::map<int, int> barcode_to_subject = readMrclamBarcodes(dir_.file("Barcodes.dat"));
+  auto isLandmark = [&](int barcode) {
+    const auto it = barcode_to_subject.find(barcode);
+    return it != barcode_to_subject.end() && it->second > 5;
+  };
+  size_t k = 0, matched = 0;
+  for (const Step& s : imp.steps) {
+    for (const Observation& o : s.observations) {
+      while (k < meas_.size() && !isLandmark(meas_[k].barcode)) ++k;
+      ASSERT_LT(k, meas_.size());
+      EXPECT_EQ(o.landmark_id, barcode_to_subject.at(meas_[k].barcode));
+      EXPECT_NEAR(o.range, meas_[k].range, 1e-9);
+      EXPECT_NEAR(s.t, meas_[k].t - rep.epoch_s, 1.5e-3 + 1e-9);
+      EXPECT_NEAR(std::sqrt(o.covariance(0, 0)), rep.sigma_range_mm, 1e-9);
+      ++k;
+      ++matched;
+    }
+  }
+  EXPECT_EQ(matched, rep.observations);
+  EXPECT_EQ(rep.observations, meas_.size() - robot_meas_ - rep.dropped_unknown_barcode);
+  EXPECT_LE(rep.max_time_shift_s, 1.5e-3);
+
+  // Ground truth: only inside its span (t0 - 0.5 .. t0 + 15 s), equal to a direct interpolation.
+  const std::vector<MrclamPoseRow> gt = readMrclamGroundtruth(dir_.file("Robot1_Groundtruth.dat"));
+  size_t with_gt = 0;
+  for (size_t i = 0; i < imp.steps.size(); ++i) {
+    const double t = imp.steps[i].t;
+    if (t > 15.0 + 1e-6) {
+      EXPECT_FALSE(imp.groundtruth[i]) << t;
+    }
+    if (t < 14.9) {
+      ASSERT_TRUE(imp.groundtruth[i]) << t;
+    }
+    if (imp.groundtruth[i]) {
+      ++with_gt;
+      const auto want = interpolateGroundtruth(gt, rep.epoch_s + t, 1.0);
+      ASSERT_TRUE(want);
+      EXPECT_NEAR(imp.groundtruth[i]->x, want->x, 1e-9);
+    }
+  }
+  EXPECT_EQ(with_gt, rep.steps_with_groundtruth);
+  ASSERT_TRUE(imp.initial_pose);
+  EXPECT_NEAR(imp.initial_pose->y, interpolateGroundtruth(gt, rep.epoch_s, 1.0)->y, 1e-9);
+
+  // Odometry: the sum of the step increments equals the integral of the commands.
+  double left = 0;
+  for (const Step& s : imp.steps) left += s.d_left;
+  const WheelOdometer odo(readMrclamOdometry(dir_.file("Robot1_Odometry.dat")), config.wheel_base_mm);
+  EXPECT_NEAR(left, odo.between(rep.epoch_s, rep.epoch_s + 100).d_left, 1e-6);
+
+  // The sigmas are estimated and plausible for a camera reading barcodes metres away.
+  EXPECT_TRUE(rep.sigmas_estimated);
+  EXPECT_GT(rep.sigma_range_mm, 1.0);
+  EXPECT_LT(rep.sigma_range_mm, 500.0);
+  EXPECT_GT(rep.sigma_bearing_rad, 1e-3);
+  EXPECT_LT(rep.sigma_bearing_rad, deg2rad(5.0));
+  EXPECT_NE(rep.summary().find("of other robots"), std::string::npos);
+
+  // The odometry noise scale multiplies the fitted model and nothing else.
+  ASSERT_GE(rep.odometry_fit.windows, 10u);
+  MrclamImportConfig scaled = config;
+  scaled.odometry_noise_scale = 4.0;
+  const MrclamImport imp4 = importMrclam(dir_.path(), scaled);
+  EXPECT_NEAR(imp4.odometry.k_left, 4.0 * imp.odometry.k_left, 1e-12);
+  EXPECT_NEAR(imp4.odometry.control_variance_floor.x(), 4.0 * imp.odometry.control_variance_floor.x(), 1e-9);
+  EXPECT_EQ(imp4.steps.size(), imp.steps.size());
+}
+
+TEST_F(MrclamSlice, DeadReckoningFollowsGroundTruthOverTheSlice) {
+  MrclamImportConfig config;
+  config.robot = 1;
+  config.sigma_range_mm = 100.0;
+  config.sigma_bearing_rad = 0.01;
+  const MrclamImport imp = importMrclam(dir_.path(), config);
+  EXPECT_FALSE(imp.report.sigmas_estimated);
+  ASSERT_TRUE(imp.initial_pose);
+  Pose2 p = *imp.initial_pose;
+  double max_err = 0, path = 0;
+  for (size_t i = 1; i < imp.steps.size() && imp.groundtruth[i]; ++i) {
+    p = predictPose(p, Eigen::Matrix3d::Zero(), imp.steps[i].d_left, imp.steps[i].d_right, imp.odometry).pose;
+    path += 0.5 * std::fabs(imp.steps[i].d_left + imp.steps[i].d_right);
+    max_err = std::max(max_err, (p.translation() - imp.groundtruth[i]->translation()).norm());
+  }
+  // Commanded velocities drift, but over ~13 s (about a metre) the error stays well under it.
+  EXPECT_GT(path, 500.0);
+  EXPECT_LT(max_err, 0.3 * path);
+}
+
+TEST_F(MrclamSlice, MissingRobotFileAndBadConfigAreErrors) {
+  MrclamImportConfig config;
+  config.robot = 2;  // not copied
+  EXPECT_NE(errorOf([&] { importMrclam(dir_.path(), config); }).find("Robot2_Odometry.dat: cannot open"),
+            std::string::npos);
+  config.robot = 7;
+  EXPECT_NE(errorOf([&] { importMrclam(dir_.path(), config); }).find("robot"), std::string::npos);
+  config.robot = 1;
+  config.rate_hz = 0;
+  EXPECT_NE(errorOf([&] { importMrclam(dir_.path(), config); }).find("rate_hz"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace stereoloc
