@@ -41,7 +41,7 @@
 #include "src/sim/simulator.h"
 #include "tools/stereoloc/cli_common.h"
 #include "src/pipeline/methods.h"
-#include "tools/stereoloc/study.h"
+#include "src/study/study.h"
 
 namespace stereoloc::cli {
 namespace {
