@@ -77,7 +77,7 @@ StudyConfig readStudyYaml(const std::string& path) {
   c.method_options.particles = in.getInt("particles");
   c.method_options.window = in.getInt("window");
   c.method_options.init = initModeFromString(in.getString("init"));
-  const std::string model = in.getString("observation_model", "range_bearing");  // before it was an option
+  const std::string model = in.getString("observation_model", "range_bearing");  // study.yaml files without the field
   try {
     c.method_options.observation_model = observationModelFromString(model);
   } catch (const Error& e) {
