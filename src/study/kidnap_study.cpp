@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdarg>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -13,8 +12,9 @@
 
 #include "solvers/ekf.h"
 #include "src/core/atomic_file.h"
-#include "src/sim/simulator.h"
 #include "src/pipeline/usage_error.h"
+#include "src/sim/simulator.h"
+#include "src/study/text_format.h"
 
 namespace stereoloc {
 namespace {
@@ -50,16 +50,6 @@ double positionError(const Estimate& e, const Pose2& truth) {
   return (e.pose.translation() - truth.translation()).norm();
 }
 
-std::string fmt(const char* format, ...) __attribute__((format(printf, 1, 2)));
-std::string fmt(const char* format, ...) {
-  char buf[512];
-  va_list args;
-  va_start(args, format);
-  std::vsnprintf(buf, sizeof(buf), format, args);
-  va_end(args);
-  return buf;
-}
-
 void appendTrace(std::string& csv, const char* run, const Dataset& d, const RunTrace& t, double threshold) {
   for (size_t k = 0; k < t.estimates.size(); ++k) {
     const Estimate& e = t.estimates[k];
@@ -74,15 +64,15 @@ void appendTrace(std::string& csv, const char* run, const Dataset& d, const RunT
       accepted += r.accepted;
       if (std::isfinite(r.mahalanobis_squared)) e2max = std::max(e2max, r.mahalanobis_squared);
     }
-    csv += fmt("%s,%ld,%.3f,%s,%.3f,%.3f,%.6f", run, e.step, e.t, toString(e.status).c_str(), g.x, g.y, g.theta);
+    csv += formatText("%s,%ld,%.3f,%s,%.3f,%.3f,%.6f", run, e.step, e.t, toString(e.status).c_str(), g.x, g.y, g.theta);
     if (has) {
-      csv += fmt(",%.3f,%.3f,%.6f,%.3f,%.3f,%.6f,%.3f,%.3f,%.6f", e.pose.x, e.pose.y, e.pose.theta, e.pose.x - g.x,
+      csv += formatText(",%.3f,%.3f,%.6f,%.3f,%.3f,%.6f,%.3f,%.3f,%.6f", e.pose.x, e.pose.y, e.pose.theta, e.pose.x - g.x,
                  e.pose.y - g.y, angleDiff(e.pose.theta, g.theta), 3 * std::sqrt(std::max(0.0, e.covariance(0, 0))),
                  3 * std::sqrt(std::max(0.0, e.covariance(1, 1))), 3 * std::sqrt(std::max(0.0, e.covariance(2, 2))));
     } else {
       csv += ",,,,,,,,,";
     }
-    csv += fmt(",%d,%d,%.6g,%.6g\n", n, accepted, e2max, threshold);
+    csv += formatText(",%d,%d,%.6g,%.6g\n", n, accepted, e2max, threshold);
   }
 }
 
@@ -91,10 +81,10 @@ void appendInnovations(std::string& csv, const char* run, const RunTrace& t, dou
     for (const EkfUpdateRecord& r : t.updates[k]) {
       if (r.compass) continue;
       if (!r.associated || !std::isfinite(r.mahalanobis_squared)) {
-        csv += fmt("%s,%ld,%d,,,,,,%.6g,0\n", run, r.step, r.landmark_id, threshold);
+        csv += formatText("%s,%ld,%d,,,,,,%.6g,0\n", run, r.step, r.landmark_id, threshold);
         continue;
       }
-      csv += fmt("%s,%ld,%d,%.4f,%.6f,%.4f,%.6f,%.6g,%.6g,%d\n", run, r.step, r.landmark_id, r.innovation.x(),
+      csv += formatText("%s,%ld,%d,%.4f,%.6f,%.4f,%.6f,%.6g,%.6g,%d\n", run, r.step, r.landmark_id, r.innovation.x(),
                  r.innovation.y(), std::sqrt(r.innovation_covariance(0, 0)), std::sqrt(r.innovation_covariance(1, 1)),
                  r.mahalanobis_squared, threshold, r.accepted ? 1 : 0);
     }
@@ -211,7 +201,7 @@ void runKidnapStudy(const KidnapStudyOptions& o) {
     if (r.detection_obs_steps >= 0) delays.push_back(r.detection_obs_steps);
     if (to_recover >= 0) recover_steps.push_back(static_cast<double>(to_recover));
     final_errors.push_back(r.final_error);
-    seeds_csv += fmt("%llu,%ld,%.3f,%ld,%d,%ld,%ld,%ld,%.3f,%ld\n", static_cast<unsigned long long>(r.seed),
+    seeds_csv += formatText("%llu,%ld,%.3f,%ld,%d,%ld,%ld,%ld,%.3f,%ld\n", static_cast<unsigned long long>(r.seed),
                      r.kidnap_step, r.error_at_kidnap, r.detected_step, r.detection_obs_steps, r.reinit_step,
                      r.recovered_step, to_recover, r.final_error, r.false_alarms);
   }
