@@ -118,8 +118,8 @@ Estimate BatchSmoother::processStep(const Step& in) {
     if (filtered->status == EstimateStatus::Uninitialised) {
       e.status = EstimateStatus::Uninitialised;
       ++summary_.uninitialised_steps;
-      steps_.push_back(step);
-      raw_observations_.emplace_back();
+      step.observations.clear();
+      buffer(step);
       guess_.push_back(e);
       return e;
     }
@@ -160,8 +160,8 @@ Estimate BatchSmoother::processStep(const Step& in) {
     } else {
       e.status = EstimateStatus::Uninitialised;
       ++summary_.uninitialised_steps;
-      steps_.push_back(step);
-      raw_observations_.emplace_back();
+      step.observations.clear();
+      buffer(step);
       guess_.push_back(e);
       return e;
     }
@@ -188,14 +188,27 @@ Estimate BatchSmoother::processStep(const Step& in) {
   }
   const bool needs_association = std::any_of(step.observations.begin(), step.observations.end(),
                                              [](const Observation& o) { return o.landmark_id < 0; });
-  raw_observations_.emplace_back();
   if (needs_association) {
-    raw_observations_.back() = step.observations;  // re-associated if a kidnap cut moves this pose
+    raw_observations_.emplace_back(steps_.size(), step.observations);
     step.observations = associateObservations(step.observations, e.pose, guess_covariance_, map_, config_.association);
   }
-  steps_.push_back(std::move(step));
+  buffer(step);
   guess_.push_back(e);
   return e;
+}
+
+void BatchSmoother::buffer(const Step& step) {
+  BufferedStep b;
+  b.step = step.step;
+  b.d_left = step.d_left;
+  b.d_right = step.d_right;
+  if (step.compass) {
+    b.compass = *step.compass;
+    b.compass_sigma = step.compass_sigma;
+  }
+  observations_.insert(observations_.end(), step.observations.begin(), step.observations.end());
+  b.observations_end = observations_.size();
+  steps_.push_back(b);
 }
 
 void BatchSmoother::trackRejections(size_t index) {
@@ -217,8 +230,9 @@ bool BatchSmoother::cutAtReinitialisation(size_t index, const Estimate& fix, con
   Pose2 pred = guess_[base].pose;
   Eigen::Matrix3d P = guess_[base].covariance;
   for (size_t j = base + 1; j <= index; ++j) {
-    const Step& s = j == index ? step : steps_[j];
-    const PosePrediction pp = predictPose(pred, P, s.d_left, s.d_right, odometry_);  // (5.7), (5.9)
+    const double d_left = j == index ? step.d_left : steps_[j].d_left;
+    const double d_right = j == index ? step.d_right : steps_[j].d_right;
+    const PosePrediction pp = predictPose(pred, P, d_left, d_right, odometry_);  // (5.7), (5.9)
     pred = pp.pose;
     P = pp.covariance;
   }
@@ -238,19 +252,24 @@ bool BatchSmoother::cutAtReinitialisation(size_t index, const Estimate& fix, con
   Pose2 p = fix.pose;
   P = fix_covariance;
   for (size_t j = index; j-- > cut;) {
-    const Step& next = j + 1 == index ? step : steps_[j + 1];
-    const Eigen::Vector3d u = controlVector(next.d_left, next.d_right, odometry_.wheel_base_mm);
+    const double d_left = j + 1 == index ? step.d_left : steps_[j + 1].d_left;
+    const double d_right = j + 1 == index ? step.d_right : steps_[j + 1].d_right;
+    const Eigen::Vector3d u = controlVector(d_left, d_right, odometry_.wheel_base_mm);
     Matrix3d J_inv, J1, J2;
     const Pose2 u_inv = inverse(Pose2(u.x(), u.y(), u.z()), &J_inv);
     p = compose(p, u_inv, &J1, &J2);
     const Eigen::Matrix3d Ju = J2 * J_inv;
-    P = J1 * P * J1.transpose() + Ju * controlCovariance(next.d_left, next.d_right, odometry_) * Ju.transpose();
+    P = J1 * P * J1.transpose() + Ju * controlCovariance(d_left, d_right, odometry_) * Ju.transpose();
     P = 0.5 * (P + P.transpose());
     guess_[j].pose = p;
     guess_[j].covariance = P;
     guess_[j].status = EstimateStatus::Predicted;
-    if (!raw_observations_[j].empty())
-      steps_[j].observations = associateObservations(raw_observations_[j], p, P, map_, config_.association);
+    const auto raw = std::lower_bound(raw_observations_.begin(), raw_observations_.end(), j,
+                                      [](const auto& r, size_t i) { return r.first < i; });
+    if (raw != raw_observations_.end() && raw->first == j) {
+      const std::vector<Observation> a = associateObservations(raw->second, p, P, map_, config_.association);
+      std::copy(a.begin(), a.end(), observations_.begin() + static_cast<long>(observationsBegin(j)));
+    }
   }
   return true;
 }
@@ -265,48 +284,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
-
-// The factors of the buffered steps, made on demand (a million-step problem does not hold
-// millions of cost functions). Pose i is steps[first + i].
-class StepFactorSource final : public ChainFactorSource {
- public:
-  StepFactorSource(const std::vector<Step>& steps, size_t first, size_t n, const FieldMap& map,
-                   const OdometryParams& odometry, const BatchSmootherConfig& config, const Pose2& prior_pose,
-                   const Eigen::Matrix3d& prior_covariance)
-      : steps_(steps), first_(first), n_(n), map_(map), odometry_(odometry), config_(config),
-        prior_pose_(prior_pose), prior_covariance_(0.5 * (prior_covariance + prior_covariance.transpose())),
-        cut_(n, 0) {}
-
-  size_t size() const override { return n_; }
-  void unaryFactors(size_t i, std::vector<ChainFactor>* out) const override {
-    if (i == 0) out->push_back({std::unique_ptr<ceres::CostFunction>(PosePriorFactor::Create(prior_pose_, prior_covariance_)), false});
-    const Step& st = steps_[first_ + i];
-    if (st.compass && config_.use_compass)
-      out->push_back({std::unique_ptr<ceres::CostFunction>(CompassFactor::Create(*st.compass, st.compass_sigma)), false});
-    for (const Observation& o : st.observations)
-      if (o.landmark_id >= 0)
-        out->push_back({std::unique_ptr<ceres::CostFunction>(
-                            makeObservationFactor(o, map_.at(o.landmark_id), config_.observation_model)),
-                        true});
-  }
-  std::unique_ptr<ceres::CostFunction> binaryFactor(size_t i) const override {
-    if (i == 0 || cut_[i]) return nullptr;
-    const Step& st = steps_[first_ + i];
-    return std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(st.d_left, st.d_right, odometry_));
-  }
-  // The odometry factor into pose i is removed (true) or restored.
-  void setCut(size_t i, bool cut) { cut_[i] = cut ? 1 : 0; }
-
- private:
-  const std::vector<Step>& steps_;
-  size_t first_, n_;
-  const FieldMap& map_;
-  const OdometryParams& odometry_;
-  const BatchSmootherConfig& config_;
-  Pose2 prior_pose_;
-  Eigen::Matrix3d prior_covariance_;
-  std::vector<uint8_t> cut_;
-};
 
 // The factors touching poses [lo, hi) as a ceres::Problem over those poses, the neighbours
 // lo-1 and hi held constant (BatchSolver::Ceres, and ceres::Covariance).
@@ -339,6 +316,45 @@ std::unique_ptr<ceres::Problem> makeCeresProblem(const ChainFactorSource& source
 
 }  // namespace
 
+// The factors of the buffered steps, made on demand (a million-step problem does not hold
+// millions of cost functions). Pose i is steps_[first + i].
+class BatchSmoother::StepFactorSource final : public ChainFactorSource {
+ public:
+  StepFactorSource(const BatchSmoother& smoother, size_t first, size_t n)
+      : b_(smoother), first_(first), n_(n),
+        prior_covariance_(0.5 * (b_.prior_covariance_ + b_.prior_covariance_.transpose())), cut_(n, 0) {}
+
+  size_t size() const override { return n_; }
+  void unaryFactors(size_t i, std::vector<ChainFactor>* out) const override {
+    if (i == 0)
+      out->push_back({std::unique_ptr<ceres::CostFunction>(PosePriorFactor::Create(b_.prior_pose_, prior_covariance_)), false});
+    const size_t k = first_ + i;
+    const BufferedStep& st = b_.steps_[k];
+    if (st.compass_sigma > 0 && b_.config_.use_compass)
+      out->push_back({std::unique_ptr<ceres::CostFunction>(CompassFactor::Create(st.compass, st.compass_sigma)), false});
+    for (size_t o = b_.observationsBegin(k); o < st.observations_end; ++o) {
+      const Observation& obs = b_.observations_[o];
+      if (obs.landmark_id >= 0)
+        out->push_back({std::unique_ptr<ceres::CostFunction>(
+                            makeObservationFactor(obs, b_.map_.at(obs.landmark_id), b_.config_.observation_model)),
+                        true});
+    }
+  }
+  std::unique_ptr<ceres::CostFunction> binaryFactor(size_t i) const override {
+    if (i == 0 || cut_[i]) return nullptr;
+    const BufferedStep& st = b_.steps_[first_ + i];
+    return std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(st.d_left, st.d_right, b_.odometry_));
+  }
+  // The odometry factor into pose i is removed (true) or restored.
+  void setCut(size_t i, bool cut) { cut_[i] = cut ? 1 : 0; }
+
+ private:
+  const BatchSmoother& b_;
+  size_t first_, n_;
+  Eigen::Matrix3d prior_covariance_;
+  std::vector<uint8_t> cut_;
+};
+
 void BatchSmoother::solve() {
   BatchSummary s;
   s.uninitialised_steps = summary_.uninitialised_steps;
@@ -362,7 +378,7 @@ void BatchSmoother::solve() {
   }
   const PoseManifold manifold;
   const std::unique_ptr<ceres::LossFunction> loss = makeLossFunction(config_.loss);
-  StepFactorSource source(steps_, first, n, map_, odometry_, config_, prior_pose_, prior_covariance_);
+  StepFactorSource source(*this, first, n);
   const ChainProblem chain(source, loss.get());
   auto report = [&](const char* phase, long done, long total, int iteration, double cost) {
     if (!config_.progress) return;
@@ -386,9 +402,9 @@ void BatchSmoother::solve() {
         residuals += f.cost->num_residuals();
         if (f.robust) ++s.observation_factors;
       }
-      const Step& st = steps_[first + i];
-      if (st.compass && config_.use_compass) ++s.compass_factors;
-      for (const Observation& o : st.observations) s.unassociated_observations += o.landmark_id < 0 ? 1 : 0;
+      if (steps_[first + i].compass_sigma > 0 && config_.use_compass) ++s.compass_factors;
+      for (size_t o = observationsBegin(first + i); o < steps_[first + i].observations_end; ++o)
+        s.unassociated_observations += observations_[o].landmark_id < 0 ? 1 : 0;
     }
     residuals -= 3;  // counted with the unary factors of pose 0
   }
@@ -509,7 +525,7 @@ void BatchSmoother::solve() {
         std::vector<double> best(x.begin() + static_cast<long>(3 * lo), x.begin() + static_cast<long>(3 * hi));
         std::copy(keep.begin(), keep.end(), x.begin() + static_cast<long>(3 * lo));
         {
-          const Step& st = steps_[first + c];
+          const BufferedStep& st = steps_[first + c];
           const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
           const Pose2 target = compose(Pose2(x[3 * c - 3], x[3 * c - 2], x[3 * c - 1]), Pose2(u.x(), u.y(), u.z()));
           const Pose2 start(x[3 * c], x[3 * c + 1], x[3 * c + 2]);

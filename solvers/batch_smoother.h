@@ -185,7 +185,19 @@ class BatchSmoother : public Estimator {
   OdometryParams odometry_;
   BatchSmootherConfig config_;
   std::vector<Estimate> given_;   // setInitialEstimates, sorted by step
-  std::vector<Step> steps_;       // buffered, observations identified
+  // The processed steps, compact (about 50 bytes a step plus its observations): a long log is
+  // held once here, without a vector per step.
+  struct BufferedStep {
+    long step = 0;
+    double d_left = 0, d_right = 0;                 // mm
+    double compass = 0, compass_sigma = 0;          // rad; compass_sigma 0: no reading
+    size_t observations_end = 0;                    // observations_[end of the previous step, this)
+  };
+  class StepFactorSource;
+  void buffer(const Step& step);
+  size_t observationsBegin(size_t index) const { return index == 0 ? 0 : steps_[index - 1].observations_end; }
+  std::vector<BufferedStep> steps_;
+  std::vector<Observation> observations_;  // of all buffered steps in order, identified
   std::vector<Estimate> guess_;   // initial guess per step
   long first_index_ = -1;         // index into steps_ of the first initialised step
   Pose2 prior_pose_;
@@ -198,7 +210,9 @@ class BatchSmoother : public Estimator {
   };
   std::vector<Cut> cuts_;         // candidate (then verified) cuts, in step order
   long last_accepted_ = -1;       // index of the last step with an observation accepted by the filter's gate
-  std::vector<std::vector<Observation>> raw_observations_;  // per step, before association (empty if none needed)
+  // (step index, observations before association) of the steps that needed association, in
+  // step order: re-associated if a kidnap cut moves the pose.
+  std::vector<std::pair<size_t, std::vector<Observation>>> raw_observations_;
   bool solved_ = false;
   std::vector<Estimate> result_;
   BatchSummary summary_;
