@@ -206,28 +206,28 @@ void runKidnapStudy(const KidnapStudyOptions& o) {
                      r.recovered_step, to_recover, r.final_error, r.false_alarms);
   }
   const double n = static_cast<double>(results.size());
-  std::printf("kidnap study (thesis 5.1.3): %d seeds from %llu, scenario kidnap (%s), landmarks %s\n", o.seeds,
+  std::fprintf(o.console, "kidnap study (thesis 5.1.3): %d seeds from %llu, scenario kidnap (%s), landmarks %s\n", o.seeds,
               static_cast<unsigned long long>(o.first_seed), "line A->B, carried back to A", o.landmarks.c_str());
-  std::printf("EKF, known start, gate %.0f %% (e2 <= %.2f, 2 dof), lost after %d consecutive gated observations, "
+  std::fprintf(o.console, "EKF, known start, gate %.0f %% (e2 <= %.2f, 2 dof), lost after %d consecutive gated observations, "
               "re-initialised by global fixes\n",
               100 * o.gate_probability, threshold, o.lost_after);
-  std::printf("  position error at the kidnap step:          median %.0f mm\n",
+  std::fprintf(o.console, "  position error at the kidnap step:          median %.0f mm\n",
               median([&] {
                 std::vector<double> v;
                 for (const SeedResult& r : results) v.push_back(r.error_at_kidnap);
                 return v;
               }()));
-  std::printf("  detected within %d observation steps:        %d / %d (%.1f %%)   target >= 95 %%   %s\n",
+  std::fprintf(o.console, "  detected within %d observation steps:        %d / %d (%.1f %%)   target >= 95 %%   %s\n",
               o.detect_within, detected, o.seeds, 100 * detected / n, detected >= 0.95 * n ? "ok" : "MISSED");
-  std::printf("  detection delay (observation steps):        median %.1f, max %.0f\n", median(delays),
+  std::fprintf(o.console, "  detection delay (observation steps):        median %.1f, max %.0f\n", median(delays),
               delays.empty() ? std::nan("") : *std::max_element(delays.begin(), delays.end()));
-  std::printf("  re-initialised by a global fix:             %d / %d\n", reinit, o.seeds);
-  std::printf("  error < %.0f mm within %d steps of re-init:  %d / %d (%.1f %%)   target >= 95 %%   %s\n",
+  std::fprintf(o.console, "  re-initialised by a global fix:             %d / %d\n", reinit, o.seeds);
+  std::fprintf(o.console, "  error < %.0f mm within %d steps of re-init:  %d / %d (%.1f %%)   target >= 95 %%   %s\n",
               o.recover_mm, o.recover_within, recovered, o.seeds, 100 * recovered / n,
               recovered >= 0.95 * n ? "ok" : "MISSED");
-  std::printf("  steps from re-init to error < %.0f mm:        median %.1f\n", o.recover_mm, median(recover_steps));
-  std::printf("  final position error:                       median %.1f mm\n", median(final_errors));
-  std::printf("  false alarms before the kidnap:             %ld steps over all seeds\n", false_alarms);
+  std::fprintf(o.console, "  steps from re-init to error < %.0f mm:        median %.1f\n", o.recover_mm, median(recover_steps));
+  std::fprintf(o.console, "  final position error:                       median %.1f mm\n", median(final_errors));
+  std::fprintf(o.console, "  false alarms before the kidnap:             %ld steps over all seeds\n", false_alarms);
 
   if (!o.out_dir.empty()) {
     std::error_code ec;
@@ -239,7 +239,7 @@ void runKidnapStudy(const KidnapStudyOptions& o) {
       writeFileAtomically((dir / "kidnap_trace.csv").string(), trace_csv);
       writeFileAtomically((dir / "kidnap_innovations.csv").string(), innov_csv);
     }
-    std::printf("wrote %s/kidnap_seeds.csv%s\n", o.out_dir.c_str(),
+    std::fprintf(o.console, "wrote %s/kidnap_seeds.csv%s\n", o.out_dir.c_str(),
                 traced ? ", kidnap_trace.csv, kidnap_innovations.csv (plot seed)" : " (plot seed not in range: no trace)");
   }
 }
