@@ -126,7 +126,7 @@ struct GlobalFixOptions {
   // PixelResiduals::Columns: the same data as range and bearing) whitened by 1 / pixel_sigma:
   // predicted at the pose being estimated, so that the weights do not depend on the noisy
   // measurement. Without a rig: range and bearing with R at the measured pixels (5.32).
-  // Measured with `stereoloc fixstudy` (goal corners, 0.5 px, 3.5 deg compass): see README.
+  // Measured with `stereoloc fixstudy` (goal corners, 0.5 px, 3.5 deg compass): docs/results.md.
   std::optional<StereoRig> rig;
   // How the fixes' covariances are computed (see FixCovariance). Default: sigma points.
   FixCovariance covariance = FixCovariance::SigmaPoints;
