@@ -39,6 +39,7 @@ void SlidingWindowConfig::validate() const {
   if (!(gate.probability > 0 && gate.probability < 1)) throw Error("sliding window: gate.probability must be in (0, 1)");
   if (gate.lost_after < 1) throw Error("sliding window: gate.lost_after must be >= 1");
   if (keyframe_max_steps < 1) throw Error("sliding window: keyframe_max_steps must be >= 1");
+  if (restart_buffer_steps < 0) throw Error("sliding window: restart_buffer_steps must be >= 0");
   makeLossFunction(robust_loss);  // validates the scale
 }
 
@@ -465,6 +466,12 @@ LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::ve
                   ": unknown landmark id " + std::to_string(id));
   }
   LateObservationResult result;
+  if ((nodes_.empty() || (lost_ && config_.reinitialise_when_lost)) && restartLate(step, observations)) {
+    result.status = LateObservationStatus::Inserted;
+    for (const Observation& o : observations) result.accepted += o.landmark_id >= 0;  // the fix's
+    result.estimate = current();
+    return result;
+  }
   if (nodes_.empty() || lost_) {
     result.status = LateObservationStatus::NotTracking;
     result.estimate = current();
@@ -476,6 +483,9 @@ LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::ve
     result.estimate = current();
     return result;
   }
+  result.status = LateObservationStatus::Inserted;
+  result.estimate = current();
+  if (observations.empty()) return result;  // nothing to add: the window stays as it is
   // The window pose of that step, or the keyframe it follows.
   size_t k = nodes_.size() - 1;
   while (nodes_[k]->step > step) --k;
@@ -489,7 +499,6 @@ LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::ve
     ++k;
   }
   ++stats_.late_inserted;
-  result.status = LateObservationStatus::Inserted;
   // The step's belief in the current window: its marginal.
   const Eigen::MatrixXd H = windowInformation();
   const Eigen::LLT<Eigen::MatrixXd> llt(H);
@@ -518,6 +527,29 @@ LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::ve
   computeCovariances(false);
   result.estimate = current();
   return result;
+}
+
+bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation>& observations) {
+  auto it = std::find_if(recent_.begin(), recent_.end(), [step](const Step& s) { return s.step == step; });
+  if (it == recent_.end() || observations.empty() || !config_.global_fix) return false;
+  if (!nodes_.empty() && step < nodes_.front()->step) return false;  // before the window: too late
+  Step at = *it;
+  at.observations = observations;
+  const std::optional<PoseFix> fix = config_.global_fix(at, map_);
+  if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
+  const std::vector<Step> after(it + 1, recent_.end());
+  recent_.erase(it + 1, recent_.end());  // process() takes them again
+  finaliseWindow();
+  while (!history_.empty() && history_.back().step >= step) history_.pop_back();  // replaced below
+  startWindow(at, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
+  ++stats_.reinitialisations;
+  // The odometry since then, as process() would have taken it after this start.
+  const long newest = last_step_;
+  last_step_ = step;
+  for (const Step& s : after) process(s);
+  stats_.steps -= static_cast<long>(after.size());
+  last_step_ = newest;
+  return true;
 }
 
 Estimate SlidingWindowSmoother::current() const {
@@ -556,6 +588,11 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   have_step_ = true;
   last_step_ = step.step;
   ++stats_.steps;
+  if (config_.restart_buffer_steps > 0) {
+    recent_.push_back(step);
+    recent_.back().observations.clear();
+    if (static_cast<int>(recent_.size()) > config_.restart_buffer_steps) recent_.pop_front();
+  }
 
   Estimate out;
   Pose2 pose;            // the belief used for gating and association (EKF-style)

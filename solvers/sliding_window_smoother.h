@@ -71,6 +71,9 @@
 // (tests/solvers/test_sliding_window_late.cpp measures it). Gate and association use the step's
 // belief in the current window (its marginal), which knows more than the prediction the
 // in-order run gates against. Steps older than the window are reported too late, unchanged.
+// Uninitialised or lost, late observations may give a global fix at their step (the
+// re-initialisation of 5.1.3 that in-time ones would have given); the odometry kept since then
+// (restart_buffer_steps) carries it to the newest step.
 //
 // Memory is bounded by W (plus one Estimate per step for finish(), unless keep_history is off).
 #include <ceres/problem.h>
@@ -127,6 +130,10 @@ struct SlidingWindowConfig {
   // With a robust loss, the chi-square gate (and with it the lost policy) is off unless this is
   // set: the loss then plays the gate's role (see the header comment).
   bool gate_with_robust_loss = false;
+  // The odometry (and compass) of the last this-many steps is kept so that late observations
+  // of one of them can start the window, or restart it when lost, from a global fix at their
+  // step (insertLate); 0: late observations cannot.
+  int restart_buffer_steps = 100;
 
   void validate() const;             // throws stereoloc::Error naming the field
 };
@@ -134,6 +141,7 @@ struct SlidingWindowConfig {
 // What insertLate did with the observations of an earlier step.
 enum class LateObservationStatus {
   Inserted,     // the step is in the window: its observations went through gate and association
+                // (none given: nothing changes)
   TooLate,      // the step's pose has left the window (marginalised or before a re-start)
   NotTracking,  // uninitialised or lost: observations are not fused (as in process())
 };
@@ -246,6 +254,9 @@ class SlidingWindowSmoother : public Estimator {
   bool fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P, std::vector<int>& used);
   // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
   Node* promote(size_t k_index, size_t j);
+  // Uninitialised or lost: a global fix from late observations of a recent step restarts the
+  // window there (see insertLate). False when there is no fix.
+  bool restartLate(long step, const std::vector<Observation>& observations);
   bool tryGlobalFix(const Step& step, Estimate* out);
   Estimate estimateOf(const Node& n) const;
   void pushHistory(const Estimate& e);
@@ -271,6 +282,7 @@ class SlidingWindowSmoother : public Estimator {
   Pose2 rel_;
   Eigen::Matrix3d rel_covariance_ = Eigen::Matrix3d::Zero();
   int steps_since_keyframe_ = 0;
+  std::deque<Step> recent_;  // the last restart_buffer_steps steps, without observations
 };
 
 }  // namespace stereoloc

@@ -49,11 +49,21 @@ struct Delivery {
 // Each observation of each step is delivered alone, 1 to 5 steps late (two observations of a
 // step usually on different steps, in either order); the deliveries of one arrival step are
 // shuffled, so steps arrive out of order too.
-std::map<long, std::vector<Delivery>> delayEveryObservation(const SyntheticProblem& p, uint64_t seed) {
+// With `per_step`, the observations of a step travel together.
+std::map<long, std::vector<Delivery>> delayEveryObservation(const SyntheticProblem& p, uint64_t seed,
+                                                            bool per_step = false) {
   std::mt19937_64 rng(seed);
   std::uniform_int_distribution<int> delay(1, 5);
   std::map<long, std::vector<Delivery>> by_arrival;
-  for (const Step& s : p.steps)
+  for (const Step& s : p.steps) {
+    if (per_step && !s.observations.empty()) {
+      Delivery d;
+      d.step = s.step;
+      d.arrival = s.step + delay(rng);
+      d.observations = s.observations;
+      by_arrival[d.arrival].push_back(d);
+      continue;
+    }
     for (const Observation& o : s.observations) {
       Delivery d;
       d.step = s.step;
@@ -61,6 +71,7 @@ std::map<long, std::vector<Delivery>> delayEveryObservation(const SyntheticProbl
       d.observations = {o};
       by_arrival[d.arrival].push_back(d);
     }
+  }
   for (auto& kv : by_arrival) std::shuffle(kv.second.begin(), kv.second.end(), rng);
   return by_arrival;
 }
@@ -71,8 +82,8 @@ struct DelayedRun {
   long inserted = 0;
 };
 
-DelayedRun runDelayed(const SyntheticProblem& p, const SlidingWindowConfig& c, uint64_t seed) {
-  const auto deliveries = delayEveryObservation(p, seed);
+DelayedRun runDelayed(const SyntheticProblem& p, const SlidingWindowConfig& c, uint64_t seed, bool per_step = false) {
+  const auto deliveries = delayEveryObservation(p, seed, per_step);
   SlidingWindowSmoother win(p.map, p.odometry, c);
   DelayedRun run;
   long last = 0;
@@ -139,6 +150,39 @@ TEST(SlidingWindowLate, DelayedObservationsGiveTheInOrderEstimates) {
   }
   EXPECT_LT(fpose, 1e-6);
   EXPECT_LT(fcov, 1e-6);
+}
+
+TEST(SlidingWindowLate, LateObservationsGiveTheFirstGlobalFix) {
+  // A global start: the first fix comes from the late sightings of step 4, and the odometry
+  // kept since then brings the window to the newest step as if they had come in time.
+  const SyntheticProblem p = cameraEveryFourthStep(120, 35);
+  SlidingWindowConfig c = exactConfig(p, 60);
+  c.first_estimate_jacobians = false;
+  c.init = InitialBelief();
+  SlidingWindowSmoother in_order(p.map, p.odometry, c);
+  std::map<long, Estimate> reference;
+  for (const Step& s : p.steps) reference[s.step] = in_order.process(s);
+  const std::vector<Estimate> smoothed = in_order.finish();
+  ASSERT_EQ(in_order.stats().reinitialisations, 1);
+  const DelayedRun run = runDelayed(p, c, 10, true);
+  double pose = 0;
+  int initialised = 0;
+  for (const Estimate& e : run.complete) {
+    EXPECT_EQ(toString(e.status), toString(reference.at(e.step).status)) << "step " << e.step;
+    if (e.status == EstimateStatus::Uninitialised) continue;
+    ++initialised;
+    pose = std::max(pose, maxPoseDifference(e, reference.at(e.step)));
+  }
+  EXPECT_GT(initialised, 10);
+  EXPECT_LT(pose, 1e-6);
+  ASSERT_EQ(run.finished.size(), smoothed.size());
+  for (size_t i = 0; i < smoothed.size(); ++i) {
+    ASSERT_EQ(run.finished[i].step, smoothed[i].step);
+    EXPECT_EQ(toString(run.finished[i].status), toString(smoothed[i].status)) << "step " << smoothed[i].step;
+    if (smoothed[i].status != EstimateStatus::Uninitialised) {
+      EXPECT_LT(maxPoseDifference(run.finished[i], smoothed[i]), 1e-6);
+    }
+  }
 }
 
 TEST(SlidingWindowLate, FirstEstimateJacobiansKeepTheInOrderPoses) {
@@ -212,6 +256,7 @@ TEST(SlidingWindowLate, TooLateNotTrackingAndErrors) {
 
   SlidingWindowConfig g = c;
   g.init = InitialBelief();  // wait for a global fix, which blind steps never give
+  g.restart_buffer_steps = 0;  // and no recent step a late sighting could start from
   SlidingWindowSmoother waiting(p.map, p.odometry, g);
   for (int k = 0; k < 3; ++k) {
     Step s = p.steps[static_cast<size_t>(k)];
