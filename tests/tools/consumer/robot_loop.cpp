@@ -1,6 +1,6 @@
 // A robot's localization loop on the installed stereoloc::Localizer (src/pipeline/localizer.h):
-// wheel encoders every step, a stereo pair whenever the camera has one, the pose with its
-// covariance after each step. The "robot" here replays a recorded run (`stereoloc simulate
+// wheel encoders and compass every step, a stereo pair whenever the camera has one, the pose
+// with its covariance after each step. The "robot" here replays a recorded run (`stereoloc simulate
 // --images`); on a real robot the encoder and camera drivers take the place of the dataset.
 //   robot_loop DATASET_DIR      (prints the last pose; exit 1 on bad data)
 #include <cmath>
@@ -25,7 +25,9 @@ int main(int argc, char** argv) {
     stereoloc::Localizer localizer(config);
     stereoloc::Estimate pose;
     for (const stereoloc::Step& tick : recording.steps) {
-      localizer.addOdometry(tick.step, tick.t, tick.d_left, tick.d_right);  // encoders (mm)
+      stereoloc::Step reading = tick;  // wheel increments (mm), compass (rad) of this step
+      reading.observations.clear();    // the camera's come from the frontend
+      localizer.addStep(reading);
       if (recording.has_images) {
         try {  // a bad frame is lost, the robot goes on
           localizer.addImageFiles(tick.step, dir + "/" + stereoloc::imageFileName("left", tick.step),
