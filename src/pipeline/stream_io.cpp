@@ -6,6 +6,8 @@
 #include <utility>
 
 #include "src/core/error.h"
+#include "src/io/dataset.h"
+#include "src/pipeline/localizer.h"
 
 namespace stereoloc {
 namespace {
@@ -268,6 +270,56 @@ std::string formatStreamEstimate(const Estimate& e, const StreamOutputExtras& x)
   }
   if (x.smoothed) line += ",\"smoothed\":true";
   return line + "}\n";
+}
+
+StreamLineResult feedStreamLine(Localizer& localizer, const StreamLine& s) {
+  StreamLineResult r;
+  if (s.has_odometry) {
+    try {
+      localizer.addStep(s.step);
+    } catch (const Error& e) {
+      r.errors.push_back(e.what());
+      return r;
+    }
+  }
+  StreamOutputExtras x;
+  if (s.hasObservationData()) {
+    try {
+      const ObservationDelivery d =
+          s.left_image.empty() ? localizer.addObservations(s.obs_step, s.observations)
+                               : localizer.addImageFiles(s.obs_step, s.left_image, s.right_image, s.step.head_pan);
+      if (d != ObservationDelivery::WithStep) {
+        x.obs_step = s.obs_step;
+        x.late = toString(d);
+      }
+      if (d == ObservationDelivery::TooLate)
+        r.errors.push_back("observations of step " + std::to_string(s.obs_step) +
+                           " are too late: the step has left the window");
+    } catch (const Error& e) {
+      r.errors.push_back(e.what());
+    }
+  }
+  try {
+    const Estimate e = localizer.estimate();
+    x.compute_ms = localizer.computeMilliseconds();
+    r.output = formatStreamEstimate(e, x);
+  } catch (const Error& e) {
+    r.errors.push_back(e.what());
+  }
+  return r;
+}
+
+StreamLine streamLineOf(const Step& step, const std::string& dataset_dir, bool images) {
+  StreamLine s;
+  s.has_odometry = true;
+  s.step = step;
+  s.obs_step = step.step;
+  if (images) {
+    s.step.observations.clear();
+    s.left_image = dataset_dir + "/" + imageFileName("left", step.step);
+    s.right_image = dataset_dir + "/" + imageFileName("right", step.step);
+  }
+  return s;
 }
 
 }  // namespace stereoloc

@@ -48,6 +48,23 @@ struct StreamOutputExtras {
   bool smoothed = false;                  // a line of the smoothed trajectory after the input
 };
 
+class Localizer;
+
+// What one input line did: the output line (empty when the line's odometry was refused) and one
+// message per problem (an unreadable image, observations too late, ...).
+struct StreamLineResult {
+  std::string output;
+  std::vector<std::string> errors;
+};
+
+// Feeds one line to the Localizer: the step's odometry first (refused: nothing else is done),
+// then its observations or images (refused: the odometry still counts), then the estimate.
+StreamLineResult feedStreamLine(Localizer& localizer, const StreamLine& line);
+
+// The line of a dataset step, with its images at DIR/images/... instead of its observations
+// when `images` (the replay of `stream --from DIR --frontend images`).
+StreamLine streamLineOf(const Step& step, const std::string& dataset_dir, bool images);
+
 // One output line (with the trailing newline); numbers with 17 significant digits, so that
 // reading them back gives the same doubles. An uninitialised estimate has no pose fields.
 std::string formatStreamEstimate(const Estimate& estimate, const StreamOutputExtras& extras = StreamOutputExtras());

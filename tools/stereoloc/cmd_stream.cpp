@@ -63,8 +63,7 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, double* compas
   return c;
 }
 
-void print(const Estimate& e, const StreamOutputExtras& x) {
-  const std::string line = formatStreamEstimate(e, x);
+void print(const std::string& line) {
   std::fwrite(line.data(), 1, line.size(), stdout);
   std::fflush(stdout);  // as soon as it is computed
 }
@@ -80,56 +79,15 @@ void runStream(const StreamArgs& a) {
   double compass_sigma = 0;
   Localizer loc(configFrom(a, d.get(), &compass_sigma));
   long bad = 0;
-  auto fail = [&](const std::string& where, const std::string& what) {
-    ++bad;
-    std::cerr << "stereoloc stream: " << where << ": " << what << std::endl;
-  };
-  // One line: the step's odometry, then its (or an earlier step's) observations or images.
   auto run = [&](const std::string& where, const StreamLine& s) {
-    if (s.has_odometry) {
-      try {
-        loc.addStep(s.step);
-      } catch (const Error& e) {
-        return fail(where, e.what());
-      }
-    }
-    StreamOutputExtras x;
-    if (s.hasObservationData()) {
-      try {
-        const ObservationDelivery r =
-            s.left_image.empty() ? loc.addObservations(s.obs_step, s.observations)
-                                 : loc.addImageFiles(s.obs_step, s.left_image, s.right_image, s.step.head_pan);
-        if (r != ObservationDelivery::WithStep) {
-          x.obs_step = s.obs_step;
-          x.late = toString(r);
-        }
-        if (r == ObservationDelivery::TooLate)
-          fail(where, "observations of step " + std::to_string(s.obs_step) + " are too late: the step has left the window");
-      } catch (const Error& e) {
-        fail(where, e.what());
-      }
-    }
-    try {
-      const Estimate e = loc.estimate();
-      x.compute_ms = loc.computeMilliseconds();
-      print(e, x);
-    } catch (const Error& e) {
-      fail(where, e.what());
-    }
+    const StreamLineResult r = feedStreamLine(loc, s);
+    for (const std::string& e : r.errors) std::cerr << "stereoloc stream: " << where << ": " << e << std::endl;
+    bad += r.errors.empty() ? 0 : 1;
+    print(r.output);
   };
   if (!a.from.empty()) {
-    for (const Step& st : d->steps) {
-      StreamLine s;
-      s.has_odometry = true;
-      s.step = st;
-      s.obs_step = st.step;
-      if (a.frontend == "images") {
-        s.step.observations.clear();
-        s.left_image = a.from + "/" + imageFileName("left", st.step);
-        s.right_image = a.from + "/" + imageFileName("right", st.step);
-      }
-      run(a.from + ": step " + std::to_string(st.step), s);
-    }
+    for (const Step& st : d->steps)
+      run(a.from + ": step " + std::to_string(st.step), streamLineOf(st, a.from, a.frontend == "images"));
   } else {
     std::string line;
     for (long n = 1; std::getline(std::cin, line); ++n) {
@@ -138,7 +96,8 @@ void runStream(const StreamArgs& a) {
       try {
         run(where, parseStreamLine(line, loc.config().rig, compass_sigma));
       } catch (const Error& e) {
-        fail(where, e.what());
+        ++bad;
+        std::cerr << "stereoloc stream: " << where << ": " << e.what() << std::endl;
       }
     }
   }
@@ -146,7 +105,7 @@ void runStream(const StreamArgs& a) {
   if (a.smoothed) {
     StreamOutputExtras x;
     x.smoothed = true;
-    for (const Estimate& e : loc.smoothedTrajectory()) print(e, x);
+    for (const Estimate& e : loc.smoothedTrajectory()) print(formatStreamEstimate(e, x));
   }
   if (bad > 0) throw Error("stream: " + std::to_string(bad) + " bad line(s) (see the messages above)");
 }
