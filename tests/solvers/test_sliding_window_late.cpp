@@ -2,6 +2,7 @@
 // (insertLate) give the in-order solution while their poses are in the window.
 #include <gtest/gtest.h>
 
+#include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -231,6 +232,40 @@ TEST(SlidingWindowLate, MarginalisedWindowStaysCloseToInOrder) {
   EXPECT_GT(run.complete.size(), 50u);
   EXPECT_LT(pose, 0.03 * rmse);
   EXPECT_LT(positionRmse(run.finished, p.truth), 1.05 * rmse);
+}
+
+TEST(SlidingWindowLate, LateObservationsRestartALostWindow) {
+  const SyntheticProblem p = cameraEveryFourthStep(60, 36);
+  size_t k = 40;
+  while (p.steps[k].observations.size() < 2) k += 4;  // a step that gives a two-landmark fix
+  SlidingWindowConfig c = exactConfig(p, 10);
+  c.gate.lost_after = 1;
+  SlidingWindowSmoother win(p.map, p.odometry, c);
+  for (size_t i = 0; i < k; ++i) win.process(p.steps[i]);
+  Step blind = p.steps[k];
+  blind.observations.clear();
+  win.process(blind);
+  std::vector<Observation> outlier = {p.steps[k].observations[0]};
+  outlier[0].range *= 1.5;
+  EXPECT_EQ(win.insertLate(blind.step, outlier).rejected, 1);
+  ASSERT_TRUE(win.lost());
+  for (size_t i = k + 1; i < k + 3; ++i) {
+    Step s = p.steps[i];
+    s.observations.clear();
+    EXPECT_EQ(toString(win.process(s).status), "lost");  // no in-time observation to restart from
+  }
+  const long before = win.stats().reinitialisations;
+  const LateObservationResult r = win.insertLate(blind.step, p.steps[k].observations);
+  EXPECT_EQ(toString(r.status), "inserted");
+  EXPECT_FALSE(win.lost());
+  EXPECT_EQ(win.stats().reinitialisations, before + 1);
+  EXPECT_EQ(r.estimate.step, p.steps[k + 2].step);
+  // The fix's pose carried by two steps of odometry: consistent with its covariance.
+  const Eigen::Vector3d e = minus(p.truth[k + 2], r.estimate.pose);
+  EXPECT_LT(e.dot(r.estimate.covariance.inverse() * e), 16.3);  // chi-square 3 dof, 0.999
+  std::vector<Estimate> all = win.finish();
+  ASSERT_EQ(all.size(), k + 3);
+  for (size_t i = 0; i < all.size(); ++i) EXPECT_EQ(all[i].step, p.steps[i].step);
 }
 
 TEST(SlidingWindowLate, TooLateNotTrackingAndErrors) {
