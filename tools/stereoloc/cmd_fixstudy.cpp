@@ -37,7 +37,7 @@
 #include "src/sim/simulator.h"
 #include "src/core/yaml_util.h"
 #include "tools/stereoloc/cli_common.h"
-#include "tools/stereoloc/frontend_source.h"
+#include "src/pipeline/frontend_source.h"
 
 namespace stereoloc::cli {
 namespace {

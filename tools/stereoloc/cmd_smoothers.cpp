@@ -40,7 +40,7 @@
 #include "src/core/gaussian.h"
 #include "src/sim/simulator.h"
 #include "tools/stereoloc/cli_common.h"
-#include "tools/stereoloc/methods.h"
+#include "src/pipeline/methods.h"
 #include "tools/stereoloc/study.h"
 
 namespace stereoloc::cli {

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "tools/stereoloc/methods.h"
+#include "src/pipeline/methods.h"
 
 namespace stereoloc::cli {
 
@@ -27,7 +27,7 @@ struct StudyConfig {
   int shard_index = 0;        // this shard runs trials shard_index, shard_index + shard_count, ...
   int shard_count = 1;
   // "images": every step's stereo pair is rendered (src/sim/renderer.h) and the vision frontend
-  // finds the observations (tools/stereoloc/frontend_source.h); "pixels": the simulator's noisy
+  // finds the observations (src/pipeline/frontend_source.h); "pixels": the simulator's noisy
   // pixel projections of the visible goal corners.
   std::string frontend = "images";
   std::string frontend_landmarks = "all";  // images: all | goal_corners (frontend_source.h)
