@@ -26,42 +26,56 @@ Eigen::VectorXd evaluate(const ceres::CostFunction& f, const std::vector<const d
   return r;
 }
 
-TEST(OdometryCalibrationFactor, ControlVectorMatchesTheOdometryModel) {
-  for (const auto& [dl, dr] : {std::pair{30.0, 30.0}, {30.0, 30.00001}, {29.0, 33.0}, {-5.0, 5.0}, {12.0, -40.0}}) {
-    double u[3];
-    controlVectorT(dl, dr, 75.0, u);
-    const Eigen::Vector3d ref = controlVector(dl, dr, 75.0);
-    EXPECT_NEAR(u[0], ref[0], 1e-12);
-    EXPECT_NEAR(u[1], ref[1], 1e-12);
-    EXPECT_NEAR(u[2], ref[2], 1e-12);
-  }
+// Readings of a motion with the calibration `cal`: what the encoders report when the wheels
+// roll the arc of (B.1)-(B.5).
+std::pair<double, double> readings(double dl_true, double dr_true, const double* cal) {
+  return {dl_true / cal[0], dr_true / cal[1]};
 }
 
-TEST(OdometryCalibrationFactor, NominalEqualsOdometryFactorAndJacobiansMatch) {
+TEST(OdometryCalibrationFactor, ZeroAtTheTrueCalibrationAndJacobiansMatch) {
   const OdometryParams params;
   std::mt19937_64 rng(11);
   std::uniform_real_distribution<double> U(-1.0, 1.0);
-  for (const auto& [dl, dr] : {std::pair{31.4, 31.4}, {30.0, 30.0 + 1e-6}, {28.0, 34.8}, {-6.0, 6.0}, {20.0, -3.0}}) {
+  const double cal[3] = {1.012, 0.991, 77.5};
+  // Straight, nearly straight, turning, turning on the spot, reversing; headings near +-pi.
+  for (const auto& [dl, dr] : {std::pair{31.4, 31.4}, {30.0, 30.0 + 1e-6}, {28.0, 34.8}, {-6.0, 6.0}, {20.0, -3.0},
+                               {-15.0, -18.0}}) {
     for (double th : {kPi - 1e-7, -kPi + 1e-7, 0.4}) {
       const Pose2 a(300 * U(rng), 300 * U(rng), th);
-      const Pose2 b = compose(a, Pose2::fromVector(controlVector(dl, dr, params.wheel_base_mm)));
-      const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x + 0.3, b.y - 0.2, b.theta + 0.01};
-      const double nominal[3] = {1.0, 1.0, params.wheel_base_mm};
-      std::unique_ptr<ceres::CostFunction> calib(OdometryCalibrationFactor::Create(dl, dr, params));
-      std::unique_ptr<ceres::CostFunction> plain(OdometryFactor::Create(dl, dr, params));
-      EXPECT_LT((evaluate(*calib, {pa, pb, nominal}) - evaluate(*plain, {pa, pb})).norm(), 1e-9);
-      const double off[3] = {1.012, 0.991, 77.5};
-      const FactorCheck c = checkFactorJacobians(*calib, {pa, pb, off});
-      EXPECT_TRUE(c.ok) << c.message;
+      const Pose2 b = compose(a, Pose2::fromVector(controlVector(dl, dr, cal[2])));
+      const auto [ml, mr] = readings(dl, dr, cal);
+      std::unique_ptr<ceres::CostFunction> f(OdometryCalibrationFactor::Create(ml, mr, params));
+      const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
+      EXPECT_LT(evaluate(*f, {pa, pb, cal}).norm(), 1e-7) << dl << " " << dr;
+      const double pb_off[3] = {b.x + 0.3, b.y - 0.2, b.theta + 0.01};
+      const double cal_off[3] = {1.0, 1.003, 75.0};
+      for (const double* c : {cal, cal_off}) {
+        const FactorCheck chk = checkFactorJacobians(*f, {pa, pb_off, c});
+        EXPECT_TRUE(chk.ok) << dl << " " << dr << "\n" << chk.message;
+      }
     }
   }
-  // Zero where the true calibration puts the motion.
-  const double cal[3] = {1.01, 0.98, 78.0};
-  const Pose2 a(10, 20, 0.3);
-  const Pose2 b = compose(a, Pose2::fromVector(controlVector(1.01 * 25.0, 0.98 * 31.0, 78.0)));
-  const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
-  std::unique_ptr<ceres::CostFunction> f(OdometryCalibrationFactor::Create(25.0, 31.0, params));
-  EXPECT_LT(evaluate(*f, {pa, pb, cal}).norm(), 1e-9);
+}
+
+// To first order it carries the information of the control-vector factor: at the nominal
+// calibration, for small pose errors, both give the same Mahalanobis distance up to the floors.
+TEST(OdometryCalibrationFactor, AgreesWithTheControlVectorFactorToFirstOrder) {
+  OdometryParams params;
+  params.control_variance_floor = Eigen::Vector3d(1e-8, 1e-2, 1e-12);
+  const double nominal[3] = {1.0, 1.0, params.wheel_base_mm};
+  const Pose2 a(100, 200, 0.7);
+  const double dl = 28.0, dr = 34.8;
+  const Pose2 b = compose(a, Pose2::fromVector(controlVector(dl, dr, params.wheel_base_mm)));
+  std::unique_ptr<ceres::CostFunction> calib(OdometryCalibrationFactor::Create(dl, dr, params));
+  std::unique_ptr<ceres::CostFunction> plain(OdometryFactor::Create(dl, dr, params));
+  const double pa[3] = {a.x, a.y, a.theta};
+  // A pose error along the arc (both wheels further) and a heading error (one wheel further).
+  for (const Eigen::Vector3d& delta : {Eigen::Vector3d(0.02 * std::cos(b.theta), 0.02 * std::sin(b.theta), 0.0),
+                                       Eigen::Vector3d(0.0, 0.0, 2e-4)}) {
+    const double pb[3] = {b.x + delta.x(), b.y + delta.y(), b.theta + delta.z()};
+    const double c2 = evaluate(*calib, {pa, pb, nominal}).squaredNorm(), p2 = evaluate(*plain, {pa, pb}).squaredNorm();
+    EXPECT_NEAR(c2, p2, 0.05 * p2);
+  }
 }
 
 StereoRig tiltedRig() {
