@@ -265,18 +265,24 @@ const std::vector<Segment>& Frontend::detectSegments(const cv::Mat& bgr) {
   return result_.segments;
 }
 
-const FrontendResult& Frontend::process(const cv::Mat& left, const cv::Mat& right, double head_pan) {
-  checkImage(left, "left");
-  checkImage(right, "right");
+const FrontendResult& Frontend::detectFeatures(const cv::Mat& bgr) {
   FrontendResult& r = result_;
   r.features.clear();
   r.matched.clear();
   r.observations.clear();
-  detectSegments(left);
+  detectSegments(bgr);
   buildLines(r.segments, params_.corners, r.lines);
   clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
   snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);
   findCorners(r.lines, rig_, params_.corners, r.features, &left_luma_);
+  return r;
+}
+
+const FrontendResult& Frontend::process(const cv::Mat& left, const cv::Mat& right, double head_pan) {
+  checkImage(left, "left");
+  checkImage(right, "right");
+  FrontendResult& r = result_;
+  detectFeatures(left);
 
   const DisparityRange range = validDisparities(rig_, params_.stereo);
   if (!r.features.empty()) {
