@@ -46,6 +46,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"segments", "tail_px", Field::Double, &p.segments.tail_px},
       {"segments", "rounds_per_peak", Field::Int, &p.segments.rounds_per_peak},
       {"segments", "release_unused", Field::Bool, &p.segments.release_unused},
+      {"classify", "marking_width_mm", Field::Double, &p.classify.marking_width_mm},
       {"classify", "width_factor", Field::Double, &p.classify.width_factor},
       {"classify", "min_width_px", Field::Double, &p.classify.min_width_px},
       {"classify", "max_width_px", Field::Double, &p.classify.max_width_px},
@@ -124,6 +125,7 @@ void FrontendParams::validate() const {
   need(segments.straightness_bin_px > 0, "segments.straightness_bin_px", "must be positive");
   need(segments.step_px >= 0, "segments.step_px", "must not be negative");
   need(segments.tail_px >= 0, "segments.tail_px", "must not be negative");
+  need(classify.marking_width_mm >= 0, "classify.marking_width_mm", "must not be negative (0: from the map)");
   need(classify.width_factor > 0, "classify.width_factor", "must be positive");
   need(classify.min_width_px > 0 && classify.max_width_px >= classify.min_width_px, "classify.min/max_width_px",
        "need 0 < min <= max");
@@ -207,7 +209,9 @@ Frontend::Frontend(const StereoRig& rig, const FieldMap& map, const FrontendPara
   const int w = rig_.params().image_width, h = rig_.params().image_height;
   acc_.configure(w, h, params_.hough);
   // W'(v): the widest a marking can look at row v, from the floor distance seen there.
-  const double line_width = map_.geometry() ? map_.geometry()->line_width : 10.0;
+  const double line_width = params_.classify.marking_width_mm > 0 ? params_.classify.marking_width_mm
+                            : map_.geometry()                     ? map_.geometry()->line_width
+                                                                  : 10.0;
   width_per_row_.assign(static_cast<size_t>(h), static_cast<float>(params_.classify.min_width_px));
   for (int v = 0; v < h; ++v) {
     double x, y;
