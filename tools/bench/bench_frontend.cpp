@@ -1041,7 +1041,7 @@ RealImage loadReal(const std::string& dir, const std::string& name, double lmin)
       cv::fillPoly(im.mask, std::vector<std::vector<cv::Point>>{p}, cv::Scalar(255));
       cv::polylines(im.mask, p, true, cv::Scalar(255), 5);
     } else if (kind == "curve") {
-      cv::polylines(im.mask, pts(numbers(in)), false, cv::Scalar(255), 13);
+      cv::polylines(im.mask, pts(numbers(in)), false, cv::Scalar(255), 21);
     } else {
       throw Error(where + "unknown label kind \"" + kind + "\"");
     }

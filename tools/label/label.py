@@ -26,7 +26,8 @@ along the centre line falls to half its median; an end within 3 px of the image 
 on the border; an end within 8 px of a labelled corner is the corner. A corner is the
 intersection of the two fitted centre lines nearest to its rough position. Side edges (the edge
 level of the benchmark) are the visible runs of each side line where the image gradient across
-it has the right sign and at least 40 % of the side's median magnitude.
+it has the right sign and at least 40 % of the side's median magnitude; each side line is
+fitted to its own samples (a stripe tapers under perspective).
 """
 import argparse
 import glob
@@ -150,12 +151,13 @@ def fit_marking(lum, p1, p2, where):
     p1, p2 = np.array(p1), np.array(p2)
     c, u = 0.5 * (p1 + p2), (p2 - p1) / np.linalg.norm(p2 - p1)
     half = 0.5 * np.linalg.norm(p2 - p1)
-    reach = 6.0
+    reach = 9.0
     for it in range(3):
         s = stripe_samples(lum, c, u, -half, half, reach)
         if s is None or len(s) < 5:
             fail(where, 'no stripe found across the rough line')
         n = np.array([-u[1], u[0]])
+        c_prev, u_prev, n_prev = c.copy(), u.copy(), n.copy()
         mid = 0.5 * (s[:, 1] + s[:, 2])
         pts = c[None, :] + s[:, 0:1] * u[None, :] + mid[:, None] * n[None, :]
         keep = np.ones(len(pts), bool)
@@ -174,10 +176,26 @@ def fit_marking(lum, p1, p2, where):
         c = cc + 0.5 * (t1 + t2) * uu
         u = uu
         half = 0.5 * (t2 - t1)
-        reach = min(8.0, max(3.0, 1.5 * float(np.median(s[keep, 2] - s[keep, 1])) + 1.5))
+        reach = min(12.0, max(3.0, 1.5 * float(np.median(s[keep, 2] - s[keep, 1])) + 1.5))
     n = np.array([-u[1], u[0]])
     res = (pts[keep] - cc) @ nn
     width = float(np.median(s[keep, 2] - s[keep, 1]))
+    # Side edges fitted on their own samples: under perspective a stripe tapers, so its sides
+    # are not parallel to its centre line.
+    sides = []
+    for col in (1, 2):
+        ep = c_prev[None, :] + s[keep, 0:1] * u_prev[None, :] + s[keep, col][:, None] * n_prev[None, :]
+        ok = np.ones(len(ep), bool)
+        for _ in range(2):
+            ec, eu = tls(ep[ok])
+            en = np.array([-eu[1], eu[0]])
+            ok = np.abs((ep - ec) @ en) <= 1.0
+            if ok.sum() < 3:
+                ok[:] = True
+                break
+        if eu @ u < 0:
+            eu = -eu
+        sides.append((ec, eu))
     # Straightness: 8 px bin means of the residual.
     tk = s[keep, 0]
     dev = 0.0
@@ -185,7 +203,7 @@ def fit_marking(lum, p1, p2, where):
         sel = (tk >= b0) & (tk < b0 + 8)
         if sel.sum() >= 3:
             dev = max(dev, abs(float(res[sel].mean())))
-    return dict(c=c, u=u, half=half, width=width, rms=float(np.sqrt(np.mean(res ** 2))), dev=dev,
+    return dict(c=c, u=u, half=half, width=width, sides=sides, rms=float(np.sqrt(np.mean(res ** 2))), dev=dev,
                 off_p=float(np.median(s[keep, 1] - 0.5 * (s[keep, 1] + s[keep, 2]))),
                 off_m=float(np.median(s[keep, 2] - 0.5 * (s[keep, 1] + s[keep, 2]))),
                 samples=int(keep.sum()), total=len(s), where=where)
@@ -330,8 +348,12 @@ def snap(name):
         edges = []
         ext = 0.5 * m['width'] + 1.0
         ea, eb = c + (ends[0] - ext) * u, c + (ends[1] + ext) * u
-        for off, sign in ((m['off_p'], 1.0), (m['off_m'], -1.0)):
-            for r0, r1 in edge_runs(lum_s, gx, gy, ea + off * n, eb + off * n, n, sign):
+        for (ec, eu), sign in zip(m['sides'], (1.0, -1.0)):
+            en = np.array([-eu[1], eu[0]])
+            # The side line between the points across from the extended ends.
+            qa = ea + ((ec - ea) @ en) / (n @ en) * n
+            qb = eb + ((ec - eb) @ en) / (n @ en) * n
+            for r0, r1 in edge_runs(lum_s, gx, gy, qa, qb, en if en @ n > 0 else -en, sign):
                 edges.append((r0, r1))
         out_marks.append((a, b, m, edges))
         if m['dev'] > 1.0:
@@ -427,8 +449,9 @@ def main():
              if a.all else a.name)
     if a.cmd in ('sheet', 'oversheet'):
         # Up to four images side by side, titled, for labelling or checking in one view.
-        tiles = [grid(n, a.scale, None, write=False) if a.cmd == 'sheet' else overlay(n, a.scale, write=False)
-                 for n in names[:4]]
+        tiles = [grid(n, a.scale, None, write=False)
+                 if a.cmd == 'sheet' or not os.path.exists(os.path.join(DATA, 'labels', n + '.txt'))
+                 else overlay(n, a.scale, write=False) for n in names[:4]]
         for t, n in zip(tiles, names):
             cv2.putText(t, n[-18:], (60, t.shape[0] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 255), 2)
         while len(tiles) < 4:

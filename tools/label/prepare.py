@@ -1,11 +1,14 @@
 #!/usr/bin/python3
 """Builds data/real/images from data/real/sources.txt.
 
-Each line of sources.txt: <owner/repo> <commit> <path> <crop_top_px>. The photograph is read
+Each line of sources.txt: <owner/repo> <commit> <path> <view_centre_y>. The photograph is read
 from a local git snapshot of the repository (--mirror DIR: a bare repository or work tree of
-it), the 4:3 window of full width starting at crop_top_px is cut out (the field part of the
-portrait fisheye frames) and resized to 320x240 with area averaging, then written as JPEG q90
-named <date>_<robot>_<file stem>.jpg. SOURCES.md is regenerated alongside.
+it) and its fisheye distortion removed with the division model of data/real/lens.txt (fitted
+by tools/label/lens.py): the output is a 320x240 pinhole view, `scale` undistorted px per
+output px, centred horizontally and on undistorted row view_centre_y (the field part of the
+portrait frames). The original is blurred first (Gaussian, sigma 0.4 scale) against aliasing,
+then sampled bilinearly. Written as JPEG q90 named <date>_<robot>_<file stem>.jpg;
+SOURCES.md is regenerated alongside.
 
     tools/label/prepare.py --mirror /path/to/robocup_ml.git [--data data/real]
 """
@@ -26,12 +29,48 @@ def image_name(path):
     return '_'.join(parts[:-1] + [stem]) + '.jpg'
 
 
+def read_lens(path):
+    vals = {}
+    with open(path) as f:
+        for ln, line in enumerate(f, 1):
+            t = line.split('#')[0].split()
+            if not t:
+                continue
+            if len(t) != 2:
+                sys.exit(f'{path}:{ln}: expected "name value"')
+            vals[t[0]] = float(t[1])
+    for key in ('k', 'r_norm', 'scale'):
+        if key not in vals:
+            sys.exit(f'{path}: missing {key}')
+    return vals
+
+
+def undistorted_view(img, lens, centre_y):
+    """The 320x240 pinhole view described in the module comment."""
+    h, w = img.shape[:2]
+    c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    s, k, R = lens['scale'], lens['k'], lens['r_norm']
+    u, v = np.meshgrid(np.arange(OUT_W, dtype=np.float64), np.arange(OUT_H, dtype=np.float64))
+    dx = (u - (OUT_W - 1) / 2.0) * s
+    dy = (v - (OUT_H - 1) / 2.0) * s + (centre_y - c[1])
+    ru = np.sqrt(dx ** 2 + dy ** 2) / R
+    # Inverse of r_u = r_d / (1 + k r_d^2) (radii in units of R).
+    with np.errstate(divide='ignore', invalid='ignore'):
+        rd = np.where(np.abs(k * ru) < 1e-12, ru, (1 - np.sqrt(np.maximum(0.0, 1 - 4 * k * ru ** 2))) / (2 * k * ru))
+        f = np.where(ru > 1e-12, rd / ru, 1.0)
+    mx = (c[0] + dx * f).astype(np.float32)
+    my = (c[1] + dy * f).astype(np.float32)
+    blurred = cv2.GaussianBlur(img, (0, 0), 0.4 * s)
+    return cv2.remap(blurred, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument('--mirror', required=True, help='git directory of the source repository snapshot')
     ap.add_argument('--data', default='data/real')
     a = ap.parse_args()
     src = os.path.join(a.data, 'sources.txt')
+    lens = read_lens(os.path.join(a.data, 'lens.txt'))
     rows = []
     with open(src) as f:
         for ln, line in enumerate(f, 1):
@@ -40,7 +79,7 @@ def main():
                 continue
             fields = line.split()
             if len(fields) != 4:
-                sys.exit(f'{src}:{ln}: expected 4 fields (repo commit path crop_top), got {len(fields)}')
+                sys.exit(f'{src}:{ln}: expected 4 fields (repo commit path view_centre_y), got {len(fields)}')
             repo, commit, path, top = fields
             blob = subprocess.run(['git', '--git-dir', a.mirror, 'show', f'{commit}:{path}'], capture_output=True)
             if blob.returncode != 0:
@@ -49,11 +88,11 @@ def main():
             if img is None:
                 sys.exit(f'{src}:{ln}: {path}: not a readable image')
             h, w = img.shape[:2]
-            top = int(top)
-            ch = w * OUT_H // OUT_W
-            if top < 0 or top + ch > h:
-                sys.exit(f'{src}:{ln}: crop_top {top} + {ch} rows exceeds the image height {h}')
-            out = cv2.resize(img[top:top + ch, :], (OUT_W, OUT_H), interpolation=cv2.INTER_AREA)
+            top = float(top)
+            if not 0 <= top < h:
+                sys.exit(f'{src}:{ln}: view_centre_y {top} outside the image height {h}')
+            out = undistorted_view(img, lens, top)
+            ch = 0
             name = image_name(path)
             dst = os.path.join(a.data, 'images', name)
             tmp = dst + '.tmp.jpg'
@@ -67,9 +106,11 @@ def main():
                 '"Robocup data for Machine Learning", Copyright 2019-2024 Andre Pool, '
                 'SPDX-License-Identifier: Apache-2.0 (stated in its README.md). RoboCup Middle Size League '
                 'fields (green carpet, white markings), fisheye robot cameras, 608x800 JPEG originals.\n\n')
-        f.write('Derivation (tools/label/prepare.py): the full-width 4:3 window starting at row `crop_top` '
-                '(608x456 px) resized to 320x240 (area averaging), JPEG quality 90.\n\n')
-        f.write('| image | repository | path | commit | crop_top | licence |\n|---|---|---|---|---|---|\n')
+        f.write('Derivation (tools/label/prepare.py): fisheye distortion removed with the division model of '
+                f'lens.txt (k {lens["k"]}, fitted by tools/label/lens.py on markings straight on the field), '
+                f'a 320x240 pinhole view at {lens["scale"]} undistorted px per px centred on undistorted row '
+                '`view_centre_y`, JPEG quality 90.\n\n')
+        f.write('| image | repository | path | commit | view_centre_y | licence |\n|---|---|---|---|---|---|\n')
         for name, repo, path, commit, w, h, top, ch in rows:
             f.write(f'| {name} | {repo} | {path} | {commit[:12]} | {top} | Apache-2.0 |\n')
     os.replace(md + '.tmp', md)
