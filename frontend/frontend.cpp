@@ -63,6 +63,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"corners", "centre_merge_deg", Field::Double, &p.corners.centre_merge_deg},
       {"corners", "centre_merge_px", Field::Double, &p.corners.centre_merge_px},
       {"corners", "wall_foot_max_tilt_deg", Field::Double, &p.corners.wall_foot_max_tilt_deg},
+      {"corners", "marking_junctions", Field::Bool, &p.corners.marking_junctions},
       {"corners", "snap_px", Field::Double, &p.corners.snap_px},
       {"corners", "snap_min_angle_deg", Field::Double, &p.corners.snap_min_angle_deg},
       {"corners", "border_snap_px", Field::Double, &p.corners.border_snap_px},

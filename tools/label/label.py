@@ -23,7 +23,7 @@ rising and falling derivative (sub-pixel parabola), their mid-point a centre sam
 squares lines are fitted to the centre samples (outliers > 1 px dropped, twice), the profiles
 re-sampled across the fitted line and fitted again. A free end is where the stripe contrast
 along the centre line falls to half its median; an end within 3 px of the image border is put
-on the border; an end within 8 px of a labelled corner is the corner. A corner is the
+on the border (the pixels' outer edge, -0.5 or W-0.5); an end within 8 px of a labelled corner is the corner. A corner is the
 intersection of the two fitted centre lines nearest to its rough position. Side edges (the edge
 level of the benchmark) are the visible runs of each side line where the image gradient across
 it has the right sign and at least 40 % of the side's median magnitude; each side line is
@@ -236,16 +236,16 @@ def free_end(lum, m, t, sign):
 
 
 def border_t(c, u, t, sign):
-    """Line coordinate where the line leaves the image box [0, W-1] x [0, H-1] beyond t."""
+    """Line coordinate where the line leaves the image nearest to t (within 10 px): the image
+    is the box [-0.5, W-0.5] x [-0.5, H-0.5] of the pixels' outer edges (pixel centres are
+    integers), where the frontend clips its lines too."""
     best = None
-    for k, lim in ((0, 0.0), (0, W - 1.0), (1, 0.0), (1, H - 1.0)):
+    for k, lim in ((0, -0.5), (0, W - 0.5), (1, -0.5), (1, H - 0.5)):
         if abs(u[k]) < 1e-9:
             continue
         tt = (lim - c[k]) / u[k]
-        if (tt - t) * sign < -3.5:
-            continue
         q = c + tt * u
-        if -0.01 <= q[0] <= W - 0.99 and -0.01 <= q[1] <= H - 0.99:
+        if -0.51 <= q[0] <= W - 0.49 and -0.51 <= q[1] <= H - 0.49 and abs(tt - t) <= 10:
             if best is None or abs(tt - t) < abs(best - t):
                 best = tt
     return best if best is not None else t
