@@ -23,6 +23,7 @@ struct Field {
 std::vector<Field> fields(FrontendParams& p) {
   return {
       {"gradient", "magnitude_threshold", Field::Int, &p.gradient.magnitude_threshold},
+      {"gradient", "auto_factor", Field::Double, &p.gradient.auto_factor},
       {"hough", "theta_step_deg", Field::Double, &p.hough.theta_step_deg},
       {"hough", "rho_step_px", Field::Double, &p.hough.rho_step_px},
       {"hough", "tolerance_deg", Field::Double, &p.hough.tolerance_deg},
@@ -103,6 +104,7 @@ void FrontendParams::validate() const {
     if (!ok) throw Error(std::string("frontend params: ") + field + ": " + what);
   };
   need(gradient.magnitude_threshold > 0, "gradient.magnitude_threshold", "must be positive");
+  need(gradient.auto_factor >= 0 && gradient.auto_factor <= 50, "gradient.auto_factor", "must be in [0, 50] (0: off)");
   const double n = 360.0 / hough.theta_step_deg;
   need(hough.theta_step_deg > 0 && std::fabs(n - std::round(n)) < 1e-6, "hough.theta_step_deg",
        "must be positive and divide 360");

@@ -1076,7 +1076,7 @@ double timePerImage(const std::vector<const cv::Mat*>& imgs, int reps, F fn) {
   return medianOf(t);
 }
 
-void realTable(const std::string& dir) {
+void realTable(const std::string& dir, bool diag) {
   const std::string rig_path = dir + "/rig.yaml", params_path = dir + "/frontend.yaml";
   const StereoRig rig = std::filesystem::exists(rig_path) ? StereoRig::load(rig_path) : StereoRig();
   const char* env_params = std::getenv("STEREOLOC_BENCH_PARAMS");
@@ -1094,7 +1094,14 @@ void realTable(const std::string& dir) {
   cv::Ptr<cv::LineSegmentDetector> lsd = cv::createLineSegmentDetector(cv::LSD_REFINE_STD);
   cv::Mat luma, canny;
   const bool verbose = std::getenv("STEREOLOC_BENCH_VERBOSE") != nullptr;
+  FailureBreakdown why_centre, why_edge;
+  why_centre.verbose = verbose;
+  ours_centre.why = &why_centre;
+  ours_edge.why = &why_edge;
   for (const RealImage& im : set) {
+    if (verbose) std::printf("  %s\n", im.name.c_str());
+    bgrToLuma(im.bgr, why_centre.luma);
+    why_edge.luma = why_centre.luma;
     const FrontendResult& r = fe.detectFeatures(im.bgr);
     std::vector<Seg> det;
     for (const LineFeature& l : r.lines)
@@ -1185,6 +1192,11 @@ void realTable(const std::string& dir) {
   printRow("cv::HoughLinesP (Canny), edge level", hough_edge);
   printRow("cv LSD, edge level", lsd_edge);
   std::printf("  targets: recall >= 85%%, precision >= 85%%, F above LSD and HoughLinesP\n\n");
+  if (diag) {
+    printBreakdown("failure breakdown, centre-line level:", why_centre);
+    printBreakdown("failure breakdown, edge level:", why_edge);
+    std::printf("\n");
+  }
   std::printf("  field-marking classification (matched marking edges called marking): %.2f%% of %ld (target >= 95%%)\n\n",
               cls_n ? 100.0 * cls_ok / cls_n : 0.0, cls_n);
   std::printf("  corners/junctions/intersections: recall %.2f%% (%ld/%ld), precision %.2f%% (%ld/%ld), mean error %.3f px\n",
@@ -1286,7 +1298,7 @@ int main(int argc, char** argv) {
   }
   if (!real_dir.empty()) {
     try {
-      realTable(real_dir);
+      realTable(real_dir, diag);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "bench_frontend: %s\n", e.what());
       return 1;
