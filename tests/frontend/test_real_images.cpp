@@ -1,6 +1,7 @@
 // The frontend on a few labelled photographs of data/real (RoboCup MSL fields, hand labels
 // snapped to the image gradient by tools/label): the long straight markings must come out as
-// segments classified as markings, and the marking width of the field must be what decides it.
+// marking centre lines (the field's marking width decides it), the labelled L and T as
+// features of their type.
 #include <gtest/gtest.h>
 
 #include <algorithm>
