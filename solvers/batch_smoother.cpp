@@ -11,6 +11,7 @@
 #include <utility>
 
 #include "factors/compass_factor.h"
+#include "solvers/chain_solver.h"
 #include "factors/odometry_factor.h"
 #include "factors/pose_manifold.h"
 #include "factors/pose_prior_factor.h"
@@ -34,6 +35,14 @@ InitialGuess initialGuessFromString(const std::string& name) {
   for (InitialGuess g : {InitialGuess::Odometry, InitialGuess::Filter})
     if (toString(g) == name) return g;
   throw Error("unknown initial guess '" + name + "' (expected odometry or filter)");
+}
+
+std::string toString(BatchSolver solver) { return solver == BatchSolver::Chain ? "chain" : "ceres"; }
+
+BatchSolver batchSolverFromString(const std::string& name) {
+  for (BatchSolver b : {BatchSolver::Chain, BatchSolver::Ceres})
+    if (toString(b) == name) return b;
+  throw Error("unknown batch solver '" + name + "' (expected chain or ceres)");
 }
 
 std::string toString(CovarianceMethod method) { return method == CovarianceMethod::Chain ? "chain" : "ceres"; }
@@ -79,6 +88,13 @@ void BatchSmoother::setInitialEstimates(const std::vector<Estimate>& estimates) 
 }
 
 Estimate BatchSmoother::process(const Step& in) {
+  const auto t0 = std::chrono::steady_clock::now();
+  Estimate e = processStep(in);
+  summary_.filter_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return e;
+}
+
+Estimate BatchSmoother::processStep(const Step& in) {
   if (!steps_.empty() && in.step <= steps_.back().step)
     throw Error("batch smoother: step " + std::to_string(in.step) + " does not follow step " +
                 std::to_string(steps_.back().step));
@@ -102,8 +118,8 @@ Estimate BatchSmoother::process(const Step& in) {
     if (filtered->status == EstimateStatus::Uninitialised) {
       e.status = EstimateStatus::Uninitialised;
       ++summary_.uninitialised_steps;
-      steps_.push_back(step);
-      raw_observations_.emplace_back();
+      step.observations.clear();
+      buffer(step);
       guess_.push_back(e);
       return e;
     }
@@ -144,8 +160,8 @@ Estimate BatchSmoother::process(const Step& in) {
     } else {
       e.status = EstimateStatus::Uninitialised;
       ++summary_.uninitialised_steps;
-      steps_.push_back(step);
-      raw_observations_.emplace_back();
+      step.observations.clear();
+      buffer(step);
       guess_.push_back(e);
       return e;
     }
@@ -172,14 +188,27 @@ Estimate BatchSmoother::process(const Step& in) {
   }
   const bool needs_association = std::any_of(step.observations.begin(), step.observations.end(),
                                              [](const Observation& o) { return o.landmark_id < 0; });
-  raw_observations_.emplace_back();
   if (needs_association) {
-    raw_observations_.back() = step.observations;  // re-associated if a kidnap cut moves this pose
+    raw_observations_.emplace_back(steps_.size(), step.observations);
     step.observations = associateObservations(step.observations, e.pose, guess_covariance_, map_, config_.association);
   }
-  steps_.push_back(std::move(step));
+  buffer(step);
   guess_.push_back(e);
   return e;
+}
+
+void BatchSmoother::buffer(const Step& step) {
+  BufferedStep b;
+  b.step = step.step;
+  b.d_left = step.d_left;
+  b.d_right = step.d_right;
+  if (step.compass) {
+    b.compass = *step.compass;
+    b.compass_sigma = step.compass_sigma;
+  }
+  observations_.insert(observations_.end(), step.observations.begin(), step.observations.end());
+  b.observations_end = observations_.size();
+  steps_.push_back(b);
 }
 
 void BatchSmoother::trackRejections(size_t index) {
@@ -201,8 +230,9 @@ bool BatchSmoother::cutAtReinitialisation(size_t index, const Estimate& fix, con
   Pose2 pred = guess_[base].pose;
   Eigen::Matrix3d P = guess_[base].covariance;
   for (size_t j = base + 1; j <= index; ++j) {
-    const Step& s = j == index ? step : steps_[j];
-    const PosePrediction pp = predictPose(pred, P, s.d_left, s.d_right, odometry_);  // (5.7), (5.9)
+    const double d_left = j == index ? step.d_left : steps_[j].d_left;
+    const double d_right = j == index ? step.d_right : steps_[j].d_right;
+    const PosePrediction pp = predictPose(pred, P, d_left, d_right, odometry_);  // (5.7), (5.9)
     pred = pp.pose;
     P = pp.covariance;
   }
@@ -222,19 +252,24 @@ bool BatchSmoother::cutAtReinitialisation(size_t index, const Estimate& fix, con
   Pose2 p = fix.pose;
   P = fix_covariance;
   for (size_t j = index; j-- > cut;) {
-    const Step& next = j + 1 == index ? step : steps_[j + 1];
-    const Eigen::Vector3d u = controlVector(next.d_left, next.d_right, odometry_.wheel_base_mm);
+    const double d_left = j + 1 == index ? step.d_left : steps_[j + 1].d_left;
+    const double d_right = j + 1 == index ? step.d_right : steps_[j + 1].d_right;
+    const Eigen::Vector3d u = controlVector(d_left, d_right, odometry_.wheel_base_mm);
     Matrix3d J_inv, J1, J2;
     const Pose2 u_inv = inverse(Pose2(u.x(), u.y(), u.z()), &J_inv);
     p = compose(p, u_inv, &J1, &J2);
     const Eigen::Matrix3d Ju = J2 * J_inv;
-    P = J1 * P * J1.transpose() + Ju * controlCovariance(next.d_left, next.d_right, odometry_) * Ju.transpose();
+    P = J1 * P * J1.transpose() + Ju * controlCovariance(d_left, d_right, odometry_) * Ju.transpose();
     P = 0.5 * (P + P.transpose());
     guess_[j].pose = p;
     guess_[j].covariance = P;
     guess_[j].status = EstimateStatus::Predicted;
-    if (!raw_observations_[j].empty())
-      steps_[j].observations = associateObservations(raw_observations_[j], p, P, map_, config_.association);
+    const auto raw = std::lower_bound(raw_observations_.begin(), raw_observations_.end(), j,
+                                      [](const auto& r, size_t i) { return r.first < i; });
+    if (raw != raw_observations_.end() && raw->first == j) {
+      const std::vector<Observation> a = associateObservations(raw->second, p, P, map_, config_.association);
+      std::copy(a.begin(), a.end(), observations_.begin() + static_cast<long>(observationsBegin(j)));
+    }
   }
   return true;
 }
@@ -244,10 +279,86 @@ std::vector<Estimate> BatchSmoother::finish() {
   return result_;
 }
 
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+// The factors touching poses [lo, hi) as a ceres::Problem over those poses, the neighbours
+// lo-1 and hi held constant (BatchSolver::Ceres, and ceres::Covariance).
+std::unique_ptr<ceres::Problem> makeCeresProblem(const ChainFactorSource& source, ceres::LossFunction* loss,
+                                                 const ceres::Manifold* manifold, size_t lo, size_t hi,
+                                                 std::vector<double>* x) {
+  ceres::Problem::Options popts;
+  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  auto problem = std::make_unique<ceres::Problem>(popts);
+  double* X = x->data();
+  for (size_t i = lo; i < hi; ++i) problem->AddParameterBlock(X + 3 * i, 3, const_cast<ceres::Manifold*>(manifold));
+  std::vector<ChainFactor> unary;
+  auto addBinary = [&](size_t i) {
+    std::unique_ptr<ceres::CostFunction> b = source.binaryFactor(i);
+    if (!b) return;
+    problem->AddResidualBlock(b.release(), nullptr, X + 3 * (i - 1), X + 3 * i);
+    for (size_t j : {i - 1, i})
+      if (j < lo || j >= hi) problem->SetParameterBlockConstant(X + 3 * j);
+  };
+  for (size_t i = lo; i < hi; ++i) {
+    unary.clear();
+    source.unaryFactors(i, &unary);
+    for (ChainFactor& f : unary) problem->AddResidualBlock(f.cost.release(), f.robust ? loss : nullptr, X + 3 * i);
+    if (i > 0) addBinary(i);
+  }
+  if (hi < source.size() && hi > lo) addBinary(hi);
+  return problem;
+}
+
+}  // namespace
+
+// The factors of the buffered steps, made on demand (a million-step problem does not hold
+// millions of cost functions). Pose i is steps_[first + i].
+class BatchSmoother::StepFactorSource final : public ChainFactorSource {
+ public:
+  StepFactorSource(const BatchSmoother& smoother, size_t first, size_t n)
+      : b_(smoother), first_(first), n_(n),
+        prior_covariance_(0.5 * (b_.prior_covariance_ + b_.prior_covariance_.transpose())), cut_(n, 0) {}
+
+  size_t size() const override { return n_; }
+  void unaryFactors(size_t i, std::vector<ChainFactor>* out) const override {
+    if (i == 0)
+      out->push_back({std::unique_ptr<ceres::CostFunction>(PosePriorFactor::Create(b_.prior_pose_, prior_covariance_)), false});
+    const size_t k = first_ + i;
+    const BufferedStep& st = b_.steps_[k];
+    if (st.compass_sigma > 0 && b_.config_.use_compass)
+      out->push_back({std::unique_ptr<ceres::CostFunction>(CompassFactor::Create(st.compass, st.compass_sigma)), false});
+    for (size_t o = b_.observationsBegin(k); o < st.observations_end; ++o) {
+      const Observation& obs = b_.observations_[o];
+      if (obs.landmark_id >= 0)
+        out->push_back({std::unique_ptr<ceres::CostFunction>(
+                            makeObservationFactor(obs, b_.map_.at(obs.landmark_id), b_.config_.observation_model)),
+                        true});
+    }
+  }
+  std::unique_ptr<ceres::CostFunction> binaryFactor(size_t i) const override {
+    if (i == 0 || cut_[i]) return nullptr;
+    const BufferedStep& st = b_.steps_[first_ + i];
+    return std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(st.d_left, st.d_right, b_.odometry_));
+  }
+  // The odometry factor into pose i is removed (true) or restored.
+  void setCut(size_t i, bool cut) { cut_[i] = cut ? 1 : 0; }
+
+ private:
+  const BatchSmoother& b_;
+  size_t first_, n_;
+  Eigen::Matrix3d prior_covariance_;
+  std::vector<uint8_t> cut_;
+};
+
 void BatchSmoother::solve() {
-  using Clock = std::chrono::steady_clock;
   BatchSummary s;
   s.uninitialised_steps = summary_.uninitialised_steps;
+  s.filter_seconds = summary_.filter_seconds;
   result_ = guess_;
   solved_ = true;
   if (first_index_ < 0) {
@@ -255,6 +366,7 @@ void BatchSmoother::solve() {
     summary_ = s;
     return;
   }
+  const auto t_solve = Clock::now();
   const size_t first = static_cast<size_t>(first_index_);
   const size_t n = steps_.size() - first;
   std::vector<double> x(3 * n);
@@ -264,194 +376,203 @@ void BatchSmoother::solve() {
     x[3 * i + 1] = p.y;
     x[3 * i + 2] = p.theta;
   }
-  PoseManifold manifold;
+  const PoseManifold manifold;
   const std::unique_ptr<ceres::LossFunction> loss = makeLossFunction(config_.loss);
-  ceres::Problem::Options popts;
-  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  std::unique_ptr<ceres::Problem> problem_ptr;
-  // Every factor with the poses it links (b = -1: unary), for the chain covariance.
-  struct Link {
-    const ceres::CostFunction* cost;
-    long a, b;
-    bool robust;
-  };
-  std::vector<Link> links;
-  // The diagonal and super-diagonal 3x3 blocks of the Gauss-Newton information at x (robust
-  // factors weighted by rho'(s) at the solution, no second-order term); false if a factor
-  // cannot be evaluated.
-  auto chainInformation = [&](std::vector<Eigen::Matrix3d>* D, std::vector<Eigen::Matrix3d>* B) {
-    D->assign(n, Eigen::Matrix3d::Zero());
-    B->assign(n, Eigen::Matrix3d::Zero());
-    using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
-    for (const Link& l : links) {
-      const int m = l.cost->num_residuals();
-      RowMajor Ja(m, 3), Jb(m, 3);
-      Eigen::VectorXd r(m);
-      const double* params[2] = {&x[3 * static_cast<size_t>(l.a)], l.b >= 0 ? &x[3 * static_cast<size_t>(l.b)] : nullptr};
-      // A unary factor has one parameter block: Jb is neither written nor read (checking its
-      // uninitialised contents made the result depend on the heap).
-      const bool binary = l.b >= 0;
-      double* jac[2] = {Ja.data(), binary ? Jb.data() : nullptr};
-      if (!l.cost->Evaluate(params, r.data(), jac) || !Ja.allFinite() || (binary && !Jb.allFinite())) return false;
-      if (l.robust) {
-        double rho[3];
-        loss->Evaluate(r.squaredNorm(), rho);
-        const double w = std::sqrt(std::max(rho[1], 0.0));
-        Ja *= w;
-        if (binary) Jb *= w;
-      }
-      (*D)[static_cast<size_t>(l.a)] += Ja.transpose() * Ja;
-      if (l.b >= 0) {
-        (*D)[static_cast<size_t>(l.b)] += Jb.transpose() * Jb;
-        (*B)[static_cast<size_t>(l.b)] += Ja.transpose() * Jb;  // the poses are consecutive: a = b - 1
-      }
-    }
-    return true;
+  StepFactorSource source(*this, first, n);
+  const ChainProblem chain(source, loss.get());
+  auto report = [&](const char* phase, long done, long total, int iteration, double cost) {
+    if (!config_.progress) return;
+    BatchProgress p;
+    p.phase = phase;
+    p.done = done;
+    p.total = total;
+    p.iteration = iteration;
+    p.cost = cost;
+    config_.progress(p);
   };
 
-  ceres::Solver::Options opts;
-  opts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-  opts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
-  opts.minimizer_type = ceres::TRUST_REGION;
-  opts.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  opts.max_num_iterations = config_.max_iterations;
-  opts.function_tolerance = config_.function_tolerance;
-  opts.gradient_tolerance = config_.gradient_tolerance;
-  opts.parameter_tolerance = config_.parameter_tolerance;
-  opts.num_threads = config_.num_threads;
-  opts.logging_type = ceres::SILENT;
-  opts.minimizer_progress_to_stdout = false;
-  const int uninitialised = s.uninitialised_steps;
-  double solve_seconds = 0;
-  // Builds and solves the problem with the odometry factors into the poses `cut` removed,
-  // from the current x; returns the final cost.
-  auto solveWith = [&](const std::vector<size_t>& cut) {
-    s = BatchSummary();
-    s.uninitialised_steps = uninitialised;
-    problem_ptr = std::make_unique<ceres::Problem>(popts);
-    ceres::Problem& problem = *problem_ptr;
-    links.clear();
-    for (size_t i = 0; i < n; ++i) problem.AddParameterBlock(&x[3 * i], 3, &manifold);
-    auto add = [&](ceres::CostFunction* cost, ceres::LossFunction* lf, long a, long b) {
-      if (b < 0)
-        problem.AddResidualBlock(cost, lf, &x[3 * static_cast<size_t>(a)]);
-      else
-        problem.AddResidualBlock(cost, lf, &x[3 * static_cast<size_t>(a)], &x[3 * static_cast<size_t>(b)]);
-      links.push_back(Link{cost, a, b, lf != nullptr});
-    };
-    add(PosePriorFactor::Create(prior_pose_, 0.5 * (prior_covariance_ + prior_covariance_.transpose())), nullptr, 0, -1);
+  // Counts of the problem (for the summary and the model selection's BIC).
+  long residuals = 3;  // the prior
+  {
+    std::vector<ChainFactor> unary;
     for (size_t i = 0; i < n; ++i) {
-      const Step& st = steps_[first + i];
-      const long li = static_cast<long>(i);
-      if (i > 0 && std::find(cut.begin(), cut.end(), first + i) == cut.end()) {
-        add(OdometryFactor::Create(st.d_left, st.d_right, odometry_), nullptr, li - 1, li);
-        ++s.odometry_factors;
+      unary.clear();
+      source.unaryFactors(i, &unary);
+      for (const ChainFactor& f : unary) {
+        residuals += f.cost->num_residuals();
+        if (f.robust) ++s.observation_factors;
       }
-      if (st.compass && config_.use_compass) {
-        add(CompassFactor::Create(*st.compass, st.compass_sigma), nullptr, li, -1);
-        ++s.compass_factors;
-      }
-      for (const Observation& o : st.observations) {
-        if (o.landmark_id < 0) {
-          ++s.unassociated_observations;
-          continue;
-        }
-        add(makeObservationFactor(o, map_.at(o.landmark_id), config_.observation_model), loss.get(), li, -1);
-        ++s.observation_factors;
-      }
+      if (steps_[first + i].compass_sigma > 0 && config_.use_compass) ++s.compass_factors;
+      for (size_t o = observationsBegin(first + i); o < steps_[first + i].observations_end; ++o)
+        s.unassociated_observations += observations_[o].landmark_id < 0 ? 1 : 0;
     }
-    s.segments = 1 + static_cast<int>(cut.size());
-    s.poses = static_cast<int>(n);
-    ceres::Solver::Summary cs;
-    const auto t0 = Clock::now();
-    ceres::Solve(opts, &problem, &cs);
-    solve_seconds += std::chrono::duration<double>(Clock::now() - t0).count();
-    s.solve_seconds = solve_seconds;
-    s.iterations = static_cast<int>(cs.iterations.size()) - 1;
-    s.initial_cost = cs.initial_cost;
-    s.final_cost = cs.final_cost;
-    s.solved = cs.IsSolutionUsable();
-    s.converged = cs.termination_type == ceres::CONVERGENCE;
-    s.message = cs.message;
-    if (!s.solved) throw Error("batch smoother: Ceres failed: " + cs.message);
-    return cs.final_cost;
+    residuals -= 3;  // counted with the unary factors of pose 0
+  }
+  s.poses = static_cast<int>(n);
+
+  ChainSolverOptions lm;
+  lm.max_iterations = config_.max_iterations;
+  lm.function_tolerance = config_.function_tolerance;
+  lm.gradient_tolerance = config_.gradient_tolerance;
+  lm.parameter_tolerance = config_.parameter_tolerance;
+  // Minimises over poses [lo, hi) with the cuts set in `source`; returns the cost of the factors
+  // touching the range.
+  auto solveRange = [&](size_t lo, size_t hi, bool full) {
+    ChainSolverSummary r;
+    if (config_.solver == BatchSolver::Chain) {
+      ChainSolverOptions o = lm;
+      if (full) o.progress = [&](int it, double cost) { report("solve", it, config_.max_iterations, it, cost); };
+      r = chain.solve(lo, hi, &x, o);
+    } else {
+      const std::unique_ptr<ceres::Problem> problem = makeCeresProblem(source, loss.get(), &manifold, lo, hi, &x);
+      ceres::Solver::Options opts;
+      opts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+      opts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
+      opts.minimizer_type = ceres::TRUST_REGION;
+      opts.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+      opts.max_num_iterations = config_.max_iterations;
+      opts.function_tolerance = config_.function_tolerance;
+      opts.gradient_tolerance = config_.gradient_tolerance;
+      opts.parameter_tolerance = config_.parameter_tolerance;
+      opts.num_threads = config_.num_threads;
+      opts.logging_type = ceres::SILENT;
+      ceres::Solver::Summary cs;
+      ceres::Solve(opts, problem.get(), &cs);
+      r.usable = cs.IsSolutionUsable();
+      r.converged = cs.termination_type == ceres::CONVERGENCE;
+      r.iterations = static_cast<int>(cs.iterations.size()) - 1;
+      r.initial_cost = cs.initial_cost;
+      r.final_cost = cs.final_cost;
+      r.message = cs.message;
+    }
+    if (!r.usable) throw Error("batch smoother: the solver failed: " + r.message);
+    if (full) {
+      s.iterations += r.iterations;
+      s.initial_cost = s.iterations == r.iterations ? r.initial_cost : s.initial_cost;
+      s.final_cost = r.final_cost;
+      s.solved = true;
+      s.converged = r.converged;
+      s.message = r.message;
+    } else {
+      s.cut_test_iterations += r.iterations;
+    }
+    return r.final_cost;
   };
-  auto cutIndices = [&](const std::vector<Cut>& cuts) {
-    std::vector<size_t> v;
+  auto setCuts = [&](const std::vector<Cut>& cuts, bool cut) {
     for (const Cut& c : cuts)
-      if (c.index > first) v.push_back(c.index);
-    return v;
+      if (c.index > first) source.setCut(c.index - first, cut);
   };
-  double cost = solveWith(cutIndices(cuts_));
+  // Drops candidate cuts at the first pose (nothing to cut there).
+  cuts_.erase(std::remove_if(cuts_.begin(), cuts_.end(), [&](const Cut& c) { return c.index <= first; }), cuts_.end());
+  setCuts(cuts_, true);
+  double cost = solveRange(0, n, true);
   int withdrawn = 0;
+  const auto t_cuts = Clock::now();
   if (!cuts_.empty()) {
     // A segment the data do not determine cannot be verified, nor estimated on its own.
     std::vector<Eigen::Matrix3d> D, B, cov;
-    if (!chainInformation(&D, &B) || !chainMarginalCovariances(D, B, &cov)) {
+    std::vector<Eigen::Vector3d> g;
+    double c0 = 0;
+    if (!chain.linearise(0, n, x, &D, &B, &g, &c0) || !chainMarginalCovariances(D, B, &cov)) {
       withdrawn += static_cast<int>(cuts_.size());
+      setCuts(cuts_, false);
       cuts_.clear();
-      cost = solveWith({});
+      cost = solveRange(0, n, true);
     }
+  }
+  if (!cuts_.empty()) {
     // Model selection for each cut, in step order: a cut frees the 3 degrees of freedom of the
     // segment after it; by the Bayesian information criterion it is kept only if restoring its
     // odometry factor raises 2 x cost by more than 3 ln(m), m the number of residuals (and at
     // least the gate's chi-square(3) quantile). A rare kidnap thus needs strong evidence: one
-    // outlier that a free pose can fit does not cut the chain. Each hypothesis starts from its
-    // own guess: without the cut, the segment after it is moved rigidly to continue the odometry
-    // from the pose before the cut (a robust loss would otherwise keep a misplaced segment).
+    // outlier that a free pose can fit does not cut the chain.
     const double threshold = std::max({chi2Quantile(config_.gate.probability, 3),
-                                       3.0 * std::log(std::max(2.0, static_cast<double>(problem_ptr->NumResiduals()))),
+                                       3.0 * std::log(std::max(2.0, static_cast<double>(residuals))),
                                        config_.cut_min_evidence});
     // Residual variance factor of the cut model (2 cost / (m - parameters), at least 1): on
     // mismodelled (e.g. real) data whose whitened residuals are larger than unit, the filter
     // loses track without a kidnap and an unscaled test would keep every such cut.
-    const double dof = static_cast<double>(problem_ptr->NumResiduals()) - 3.0 * static_cast<double>(n);
+    const double dof = static_cast<double>(residuals) - 3.0 * static_cast<double>(n);
     const double variance_factor = dof > 0 ? std::max(1.0, 2.0 * cost / dof) : 1.0;
-    bool current = true;  // the last solve was with cuts_
+    // Restoring a cut changes only the segments it joins (the others stay cut off), and within
+    // them its effect decays along the chain: the test solves a window around the cut and its
+    // unobserved stretch with the poses outside held at the cut solution. Holding them can only
+    // raise the restored cost, so a rise below the threshold withdraws the cut exactly; a rise
+    // above it is confirmed on a window that reaches the neighbouring cuts or whose edge poses
+    // did not move (kWindowEdgeTolerance), growing the window fourfold until then.
+    constexpr size_t kInitialMargin = 256;
+    constexpr double kWindowEdgeTolerance = 1e-6;  // mm and rad
+    const long total_cuts = static_cast<long>(cuts_.size());
+    long tested = 0;
     for (size_t k = 0; k < cuts_.size();) {
-      const std::vector<double> keep = x;
+      report("cut test", tested++, total_cuts, 0, cost);
       const size_t c = cuts_[k].index - first;
-      const size_t end = k + 1 < cuts_.size() ? cuts_[k + 1].index - first : n;
-      const Step& st = steps_[cuts_[k].index];
-      const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
-      const Pose2 target = compose(Pose2(x[3 * c - 3], x[3 * c - 2], x[3 * c - 1]), Pose2(u.x(), u.y(), u.z()));
-      const Pose2 start(x[3 * c], x[3 * c + 1], x[3 * c + 2]);
-      for (size_t j = c; j < end; ++j) {
-        const Pose2 moved = compose(target, between(start, Pose2(x[3 * j], x[3 * j + 1], x[3 * j + 2])));
-        x[3 * j] = moved.x;
-        x[3 * j + 1] = moved.y;
-        x[3 * j + 2] = moved.theta;
+      const size_t r = std::max(c, cuts_[k].reinit - first);
+      const size_t seg_lo = k > 0 ? cuts_[k - 1].index - first : 0;
+      const size_t seg_hi = k + 1 < cuts_.size() ? cuts_[k + 1].index - first : n;
+      bool keep_cut = true;
+      for (size_t margin = kInitialMargin;; margin *= 4) {
+        const size_t lo = c > seg_lo + margin ? c - margin : seg_lo;
+        const size_t hi = std::min(seg_hi, r + margin);
+        const std::vector<double> keep(x.begin() + static_cast<long>(3 * lo), x.begin() + static_cast<long>(3 * hi));
+        double base = 0;
+        if (!chain.cost(lo, hi, x, &base)) throw Error("batch smoother: a factor cannot be evaluated at the solution");
+        source.setCut(c, false);
+        // Two starts: the cut solution, and the segment after the cut moved rigidly to continue
+        // the odometry from the pose before it (a robust loss would otherwise keep a misplaced
+        // segment); the better optimum counts, so a cut is kept only on the evidence.
+        double restored = solveRange(lo, hi, false);
+        std::vector<double> best(x.begin() + static_cast<long>(3 * lo), x.begin() + static_cast<long>(3 * hi));
+        std::copy(keep.begin(), keep.end(), x.begin() + static_cast<long>(3 * lo));
+        {
+          const BufferedStep& st = steps_[first + c];
+          const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
+          const Pose2 target = compose(Pose2(x[3 * c - 3], x[3 * c - 2], x[3 * c - 1]), Pose2(u.x(), u.y(), u.z()));
+          const Pose2 start(x[3 * c], x[3 * c + 1], x[3 * c + 2]);
+          for (size_t j = c; j < hi; ++j) {
+            const Pose2 moved = compose(target, between(start, Pose2(x[3 * j], x[3 * j + 1], x[3 * j + 2])));
+            x[3 * j] = moved.x;
+            x[3 * j + 1] = moved.y;
+            x[3 * j + 2] = moved.theta;
+          }
+        }
+        const double restored_moved = solveRange(lo, hi, false);
+        if (restored_moved < restored) {
+          restored = restored_moved;
+          best.assign(x.begin() + static_cast<long>(3 * lo), x.begin() + static_cast<long>(3 * hi));
+        }
+        std::copy(best.begin(), best.end(), x.begin() + static_cast<long>(3 * lo));
+        const double evidence = 2.0 * (restored - base) / variance_factor;
+        auto edgeMoved = [&](size_t j) {
+          const size_t o = 3 * (j - lo);
+          return std::fabs(x[3 * j] - keep[o]) > kWindowEdgeTolerance ||
+                 std::fabs(x[3 * j + 1] - keep[o + 1]) > kWindowEdgeTolerance ||
+                 std::fabs(wrapAngle(x[3 * j + 2] - keep[o + 2])) > kWindowEdgeTolerance;
+        };
+        const bool exact = (lo == seg_lo || !edgeMoved(lo)) && (hi == seg_hi || !edgeMoved(hi - 1));
+        if (evidence <= threshold) {
+          keep_cut = false;
+          break;
+        }
+        std::copy(keep.begin(), keep.end(), x.begin() + static_cast<long>(3 * lo));
+        source.setCut(c, true);
+        if (exact) break;
       }
-      std::vector<Cut> trial = cuts_;
-      trial.erase(trial.begin() + static_cast<long>(k));
-      double restored = solveWith(cutIndices(trial));
-      // The rigid move can start the uncut problem far from its optimum when the filter lost
-      // track on mismodelled (real) data rather than on a kidnap: also start it from the cut
-      // solution and keep the better optimum, so a cut is kept only on the evidence.
-      const std::vector<double> from_moved = x;
-      x = keep;
-      const double restored_from_cut = solveWith(cutIndices(trial));
-      const bool moved_better = restored < restored_from_cut;
-      if (moved_better) {
-        x = from_moved;
-      } else {
-        restored = restored_from_cut;
-      }
-      if (2.0 * (restored - cost) / variance_factor <= threshold) {
-        cuts_ = trial;
-        cost = restored;
-        ++withdrawn;
-        current = !moved_better;  // the summary is of the last solve: redo it if that was not the kept one
-      } else {
-        x = keep;
-        current = false;
+      if (keep_cut) {
         ++k;
+      } else {
+        cuts_.erase(cuts_.begin() + static_cast<long>(k));
+        ++withdrawn;
       }
     }
-    if (!current) solveWith(cutIndices(cuts_));
+    // The final solve with the kept cuts, from the windows' solutions.
+    cost = solveRange(0, n, true);
   }
+  s.cut_test_seconds = secondsSince(t_cuts);
+  s.solve_seconds = secondsSince(t_solve);
   s.withdrawn_cuts = withdrawn;
+  s.segments = 1 + static_cast<int>(cuts_.size());
+  s.odometry_factors = static_cast<int>(n) - 1 - static_cast<int>(cuts_.size());
   for (const Cut& c : cuts_) {
     s.cut_steps.push_back(steps_[c.index].step);
     s.reinit_steps.push_back(steps_[c.reinit].step);
@@ -463,11 +584,14 @@ void BatchSmoother::solve() {
     e.covariance.setZero();
     e.status = EstimateStatus::Tracking;
   }
+  if (config_.compute_covariance) report("covariance", 0, 1, 0, cost);
   if (config_.compute_covariance && config_.covariance_method == CovarianceMethod::Chain) {
     const auto t1 = Clock::now();
-    std::vector<Eigen::Matrix3d> D, B;
-    const bool ok = chainInformation(&D, &B);
-    std::vector<Eigen::Matrix3d> cov;
+    std::vector<Eigen::Matrix3d> D, B, cov;
+    std::vector<Eigen::Vector3d> g;
+    double c0 = 0;
+    const bool ok = chain.linearise(0, n, x, &D, &B, &g, &c0);
+    g = std::vector<Eigen::Vector3d>();
     if (ok && chainMarginalCovariances(D, B, &cov)) {
       s.covariance_status = CovarianceStatus::Ok;
       for (size_t i = 0; i < n; ++i) result_[first + i].covariance = cov[i];
@@ -475,9 +599,10 @@ void BatchSmoother::solve() {
       s.covariance_status = CovarianceStatus::RankDeficient;
       s.message += "; covariance: the information matrix is rank deficient, marginal covariances are not available";
     }
-    s.covariance_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
+    s.covariance_seconds = secondsSince(t1);
   } else if (config_.compute_covariance) {
     const auto t1 = Clock::now();
+    const std::unique_ptr<ceres::Problem> problem = makeCeresProblem(source, loss.get(), &manifold, 0, n, &x);
     ceres::Covariance::Options copts;
     copts.algorithm_type = ceres::SPARSE_QR;
     copts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
@@ -487,7 +612,7 @@ void BatchSmoother::solve() {
     std::vector<std::pair<const double*, const double*>> blocks;
     blocks.reserve(n);
     for (size_t i = 0; i < n; ++i) blocks.emplace_back(&x[3 * i], &x[3 * i]);
-    if (covariance.Compute(blocks, problem_ptr.get())) {
+    if (covariance.Compute(blocks, problem.get())) {
       s.covariance_status = CovarianceStatus::Ok;
       for (size_t i = 0; i < n; ++i) {
         Eigen::Matrix<double, 3, 3, Eigen::RowMajor> C;
@@ -504,7 +629,7 @@ void BatchSmoother::solve() {
       for (size_t i = 0; i < n; ++i) result_[first + i].covariance.setZero();
       s.message += "; covariance: the Jacobian is rank deficient, marginal covariances are not available";
     }
-    s.covariance_seconds = std::chrono::duration<double>(Clock::now() - t1).count();
+    s.covariance_seconds = secondsSince(t1);
   }
   summary_ = s;
 }

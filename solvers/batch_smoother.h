@@ -7,9 +7,14 @@
 //
 // with the factors of factors/ (whitened by the upper square-root information), poses on the
 // R^2 x SO(2) manifold (factors/pose_manifold.h), an optional robust loss rho on the
-// observations, SPARSE_NORMAL_CHOLESKY with SuiteSparse, and per-pose marginal covariances from
-// marginal covariances (O(N) chain recursion, or ceres::Covariance). The graph of a known-landmark problem is a chain, so the cost of a solve
-// grows linearly with the number of poses.
+// observations, and per-pose marginal covariances (O(N) chain recursion, or ceres::Covariance).
+// The graph of a known-landmark problem is a chain: every factor links one pose or two
+// consecutive ones.
+//
+// The least-squares problem is solved by Levenberg-Marquardt on its block tridiagonal normal
+// equations (solvers/chain_solver.h): time and memory linear in the number of steps (a few
+// hundred bytes per pose), about 2 s for 100,000 steps. BatchSolver::Ceres solves the same
+// problem with Ceres's sparse Cholesky instead (same optimum; for cross-checks).
 //
 // Use: feed the steps with process() (it returns the initial guess, cheap), then finish()
 // solves and returns one Estimate per processed step. The first processed step is the initial
@@ -20,6 +25,7 @@
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -54,6 +60,23 @@ enum class CovarianceMethod {
 std::string toString(CovarianceMethod method);                    // "chain", "ceres"
 CovarianceMethod covarianceMethodFromString(const std::string& name);  // throws stereoloc::Error
 
+// How the least-squares problem is minimised.
+enum class BatchSolver {
+  Chain,  // Levenberg-Marquardt on the block tridiagonal normal equations (solvers/chain_solver.h): O(N)
+  Ceres,  // ceres::Solver, SPARSE_NORMAL_CHOLESKY with SuiteSparse: general, several times slower and larger
+};
+std::string toString(BatchSolver solver);                    // "chain", "ceres"
+BatchSolver batchSolverFromString(const std::string& name);  // throws stereoloc::Error
+
+// Where a long solve is, for a progress display (BatchSmootherConfig::progress).
+struct BatchProgress {
+  std::string phase;   // "solve" (iteration of a full-chain solve), "cut test", "covariance"
+  long done = 0;       // solve: iterations so far; cut test: candidate cuts tested
+  long total = 0;      // solve: the iteration limit; cut test: candidate cuts
+  int iteration = 0;
+  double cost = 0.0;   // current 1/2 sum |r|^2
+};
+
 struct BatchSmootherConfig {
   InitialBelief init;               // prior on the first pose; Global: the first global fix's
   GlobalFixFunction global_fix;     // empty: defaultGlobalFix() (solvers/initialisation.h)
@@ -67,7 +90,10 @@ struct BatchSmootherConfig {
   double function_tolerance = 1e-10;   // relative cost decrease that stops the solver
   double gradient_tolerance = 1e-12;
   double parameter_tolerance = 1e-10;
-  int num_threads = 1;              // results do not depend on it (tested)
+  int num_threads = 1;              // BatchSolver::Ceres; results do not depend on it (tested)
+  BatchSolver solver = BatchSolver::Chain;
+  // Called during finish() (solve iterations, cut tests, covariance); may be empty.
+  std::function<void(const BatchProgress&)> progress;
   InitialGuess initial_guess = InitialGuess::Filter;
   GateConfig gate;                  // of the filter pass (InitialGuess::Filter)
   bool compute_covariance = true;   // per-pose marginal covariances
@@ -104,10 +130,13 @@ std::string toString(CovarianceStatus status);  // "not_computed", "ok", "rank_d
 struct BatchSummary {
   bool solved = false;            // Ceres returned a usable solution
   bool converged = false;         // ... and reached a tolerance (not the iteration limit)
-  int iterations = 0;
+  int iterations = 0;             // of the full-chain solves (the first, and the last after cut tests)
+  int cut_test_iterations = 0;    // of the windowed solves that test the candidate cuts
   double initial_cost = 0.0;      // 1/2 sum |r|^2 (with the robust loss applied)
   double final_cost = 0.0;
-  double solve_seconds = 0.0;
+  double filter_seconds = 0.0;    // in process(): the initial guess (the EKF pass), buffering
+  double solve_seconds = 0.0;     // in finish(): the solves, including the cut tests
+  double cut_test_seconds = 0.0;  // part of solve_seconds
   double covariance_seconds = 0.0;
   int poses = 0;
   int odometry_factors = 0;
@@ -120,7 +149,7 @@ struct BatchSummary {
   std::vector<long> cut_steps;    // steps whose odometry factor was cut (kidnap), in order
   std::vector<long> reinit_steps; // the filter's re-initialisation step of each kept cut
   int withdrawn_cuts = 0;         // candidate cuts rejected by the likelihood-ratio test
-  std::string message;            // Ceres's termination message / covariance failure reason
+  std::string message;            // the solver's termination message / covariance failure reason
 };
 
 class BatchSmoother : public Estimator {
@@ -147,6 +176,7 @@ class BatchSmoother : public Estimator {
 
  private:
   void solve();
+  Estimate processStep(const Step& step);
   void trackRejections(size_t index);
   bool cutAtReinitialisation(size_t index, const Estimate& fix, const Step& step);  // true: a candidate cut
   std::unique_ptr<Ekf> filter_;   // InitialGuess::Filter
@@ -155,7 +185,19 @@ class BatchSmoother : public Estimator {
   OdometryParams odometry_;
   BatchSmootherConfig config_;
   std::vector<Estimate> given_;   // setInitialEstimates, sorted by step
-  std::vector<Step> steps_;       // buffered, observations identified
+  // The processed steps, compact (about 50 bytes a step plus its observations): a long log is
+  // held once here, without a vector per step.
+  struct BufferedStep {
+    long step = 0;
+    double d_left = 0, d_right = 0;                 // mm
+    double compass = 0, compass_sigma = 0;          // rad; compass_sigma 0: no reading
+    size_t observations_end = 0;                    // observations_[end of the previous step, this)
+  };
+  class StepFactorSource;
+  void buffer(const Step& step);
+  size_t observationsBegin(size_t index) const { return index == 0 ? 0 : steps_[index - 1].observations_end; }
+  std::vector<BufferedStep> steps_;
+  std::vector<Observation> observations_;  // of all buffered steps in order, identified
   std::vector<Estimate> guess_;   // initial guess per step
   long first_index_ = -1;         // index into steps_ of the first initialised step
   Pose2 prior_pose_;
@@ -168,7 +210,9 @@ class BatchSmoother : public Estimator {
   };
   std::vector<Cut> cuts_;         // candidate (then verified) cuts, in step order
   long last_accepted_ = -1;       // index of the last step with an observation accepted by the filter's gate
-  std::vector<std::vector<Observation>> raw_observations_;  // per step, before association (empty if none needed)
+  // (step index, observations before association) of the steps that needed association, in
+  // step order: re-associated if a kidnap cut moves the pose.
+  std::vector<std::pair<size_t, std::vector<Observation>>> raw_observations_;
   bool solved_ = false;
   std::vector<Estimate> result_;
   BatchSummary summary_;

@@ -1,49 +1,13 @@
 #pragma once
 // The posterior Cramér–Rao bound (CRLB) of a planar trajectory: the lower bound on the error
 // covariance of any unbiased estimator of the poses, from the Fisher information of the data
-// evaluated at the TRUE trajectory (issue 7, section 4).
-//
-// The data are the factors every stereoloc estimator uses, with the project's models:
-//   prior      on pose 0: P0^-1 (the initial belief; its mean is the truth plus N(0, P0), so it
-//              acts as one more Gaussian measurement of pose 0);
-//   odometry   between poses k-1 and k: e = between(p_{k-1}, p_k) [-] u_k, u_k ~ N(., U_k)
-//              (controlVector / controlCovariance, B.4-B.10), information
-//              [Ja Jb]^T U_k^-1 [Ja Jb] with Ja, Jb the Jacobians of between() (pose2.h) at the truth;
-//   range-bearing  H^T R^-1 H with H = d predictRangeBearing / d pose (5.27) at the true pose and
-//              R the observation's covariance (as reported with the data);
-//   pixels     (observation model pixel_columns / pixels, for observations with pixels)
-//              J^T J with J the Jacobian of the whitened StereoPixelFactor at the true pose: the
-//              information of the pixels themselves, which is what the data hold. For columns and
-//              an untilted rig it equals the range-bearing information with R evaluated at the
-//              TRUE pixels ((u_l, u_r) and (range, bearing) are one-to-one; a tilted rig's
-//              triangulation also uses v); with the rows it is larger (range from the known heights);
-//   compass    1 / sigma^2 on theta.
-// Every factor touches one pose or two consecutive poses, so the information matrix of the
-// whole trajectory is block tridiagonal (3x3 blocks) and every bound below costs O(N)
-// (fixed lag: O(N L)).
-//
-// Bounds, all 3x3 in (x, y, theta) per pose (mm^2, mm rad, rad^2):
-//   smoothing  [J^-1]_kk: the marginal of the inverse of the full information, the bound of an
-//              estimator that uses all the data (the batch smoother).
-//   filtering  J_k^-1 from the recursion of Tichavsky, Muravchik and Nehorai ("Posterior
-//              Cramer-Rao bounds for discrete-time nonlinear filtering", IEEE TSP 46(5), 1998),
-//              written for a between-factor:
-//                 J_0 = prior + unary_0,
-//                 J_k = unary_k + D22_k - D21_k (J_{k-1} + D11_k)^-1 D12_k,
-//              D11 = Ja^T U^-1 Ja, D12 = Ja^T U^-1 Jb, D22 = Jb^T U^-1 Jb. It bounds causal
-//              estimators: the EKF, the particle filter, the sliding window's real-time output.
-//   fixed lag  L: the bound of the estimate of pose k from the data up to step k + L (the
-//              sliding window's history, whose poses leave the window L = W - 1 steps after
-//              they were added). L = 0 is the filtering bound, L >= N - 1 the smoothing bound.
-//              The information of the truncated chain ends in J_m (m = k + L); the backward
-//              (Rauch-Tung-Striebel) pass  Sigma_j = Lambda_j^-1 + G_j Sigma_{j+1} G_j^T,
-//              Lambda_j = J_j + D11_{j+1}, G_j = Lambda_j^-1 D12_{j+1}  gives [J^-1]_kk.
-//
-// The odometry covariance U_k is evaluated by default at the wheel increments that drive the
-// TRUE motion (arcBetween + wheelIncrementsForArc), i.e. at the truth, like the Jacobians. The
-// control variance floor of OdometryParams is part of U: the wheel noise alone has rank 2, so
-// without it the information along one direction would be infinite (the true bound is then
-// slightly below the one computed, by about the floor: 0.1 mm and 1e-3 rad per step).
+// (prior on pose 0, odometry, range-bearing or pixel observations, compass; the project's
+// models) evaluated at the TRUE trajectory. The information is block tridiagonal, so each bound
+// costs O(N). Bounds per pose, 3x3 in (x, y, theta) (mm^2, mm rad, rad^2):
+//   smoothing  [J^-1]_kk: all the data (the batch smoother);
+//   filtering  the Tichavsky-Muravchik-Nehorai recursion: causal estimators (EKF, PF);
+//   fixed lag  L: data up to step k + L (the sliding window's history, L = W - 1).
+// Derivation and the factor informations: docs/estimators.md, "The Cramér–Rao bound".
 #include <Eigen/Core>
 #include <string>
 #include <vector>

@@ -16,14 +16,10 @@
 // checks the identity against a pixel-level propagation.)
 //
 // That first-order covariance is kept (FixCovariance::FirstOrder) but is not the default: with
-// stereo it is far too confident in 3 dof (fixstudy: mean NEES 200-1700). The default propagates
-// the noise through the exact closed forms with sigma points (FixCovariance::SigmaPoints; stereo
-// ranges as inverse range) and reports how nonlinear each fix is (GlobalFix::nonlinearity).
-// Measured with `stereoloc fixstudy --runs 20` (0.5 px): where linearisation holds
-// (nonlinearity <= 0.05) fix2's mean NEES is inside the 95 % band; beyond it (far, grazing
-// circle intersections) the sigma-point covariance is conservative in position (2-dof NEES
-// 1.4-1.8), because the covariance is necessarily evaluated at the noisy measurement of a strongly
-// nonlinear map (even the exact MSE about the estimate gives 1.6 there).
+// stereo it is far too confident in 3 dof. The default propagates the noise through the exact
+// closed forms with sigma points (FixCovariance::SigmaPoints; stereo ranges as inverse range) and
+// reports how nonlinear each fix is (GlobalFix::nonlinearity). Measurements: docs/results.md,
+// "Global fixes"; the reasoning: docs/estimators.md.
 //
 // The printed two-landmark solution (4.5) divides by a = y_l2 - y_l1 and fails for landmarks
 // with equal y; here the intersection is computed in the frame of the landmark baseline, which

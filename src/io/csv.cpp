@@ -1,27 +1,34 @@
 #include "src/io/csv.h"
 
 #include <cerrno>
+#include <charconv>
 #include <cmath>
-#include <cstdio>
 #include <cstdlib>
+#include <system_error>
 
 #include "src/core/error.h"
 
 namespace stereoloc {
 namespace {
 
-std::vector<std::string> split(const std::string& line) {
-  std::vector<std::string> out;
-  size_t start = 0;
+// Splits `line` at the commas into `out`, reusing its strings' storage (rows of a million-line
+// file would otherwise allocate every field anew).
+void split(const std::string& line, std::vector<std::string>* out) {
+  size_t count = 0, start = 0;
   while (true) {
     const size_t comma = line.find(',', start);
-    if (comma == std::string::npos) {
-      out.push_back(line.substr(start));
-      break;
-    }
-    out.push_back(line.substr(start, comma - start));
+    const size_t end = comma == std::string::npos ? line.size() : comma;
+    if (count == out->size()) out->emplace_back();
+    (*out)[count++].assign(line, start, end - start);
+    if (comma == std::string::npos) break;
     start = comma + 1;
   }
+  out->resize(count);
+}
+
+std::vector<std::string> split(const std::string& line) {
+  std::vector<std::string> out;
+  split(line, &out);
   return out;
 }
 
@@ -33,11 +40,34 @@ std::string join(const std::vector<std::string>& v) {
 
 }  // namespace
 
+char* formatDouble(double value, char* out) {
+  if (value == 0.0) {  // also turns -0 into 0, so equal values print identically
+    *out = '0';
+    return out + 1;
+  }
+  // The same digits as printf("%.17g") (the standard specifies general + precision that way).
+  return std::to_chars(out, out + kFormatDoubleMaxChars, value, std::chars_format::general, 17).ptr;
+}
+
 std::string formatDouble(double value) {
-  if (value == 0.0) return "0";  // also turns -0 into 0, so equal values print identically
-  char buf[40];
-  std::snprintf(buf, sizeof(buf), "%.17g", value);
-  return buf;
+  char buf[kFormatDoubleMaxChars];
+  return std::string(buf, formatDouble(value, buf));
+}
+
+char* formatLong(long value, char* out) { return std::to_chars(out, out + kFormatLongMaxChars, value).ptr; }
+
+bool parseDouble(const std::string& s, double* value) {
+  if (s.empty() || std::isspace(static_cast<unsigned char>(s[0]))) return false;
+  const char* begin = s.data();
+  const char* end = begin + s.size();
+  const std::from_chars_result r = std::from_chars(begin, end, *value);
+  if (r.ec == std::errc() && r.ptr == end) return true;
+  // Forms from_chars does not take ('+1', hexadecimal) and under/overflow: as strtod reads them.
+  char* stop = nullptr;
+  errno = 0;
+  *value = std::strtod(begin, &stop);
+  if (stop != end) return false;
+  return !(errno == ERANGE && std::fabs(*value) > 1.0);
 }
 
 CsvReader::CsvReader(const std::string& path) : path_(path), in_(path, std::ios::binary) {
@@ -82,7 +112,7 @@ bool CsvReader::next() {
       fail("empty line in the middle of the file");
     }
     if (line[0] == '#') continue;
-    fields_ = split(line);
+    split(line, &fields_);
     if (fields_.size() != header_.size())
       fail("expected " + std::to_string(header_.size()) + " columns (" + join(header_) + "), found " +
            std::to_string(fields_.size()));
@@ -100,20 +130,26 @@ const std::string& CsvReader::field(size_t col) const {
 double CsvReader::getDouble(size_t col) const {
   const std::string& s = field(col);
   if (s.empty()) failColumn(col, "empty field (expected a number)");
-  const char* begin = s.c_str();
-  char* end = nullptr;
-  errno = 0;
-  const double v = std::strtod(begin, &end);
-  if (end == begin || *end != '\0' || std::isspace(static_cast<unsigned char>(s[0])))
-    failColumn(col, "'" + s + "' is not a number");
+  double v = 0;
+  if (!parseDouble(s, &v)) {
+    char* end = nullptr;
+    (void)std::strtod(s.c_str(), &end);  // only to tell the two errors apart
+    if (end == s.c_str() || *end != '\0' || std::isspace(static_cast<unsigned char>(s[0])))
+      failColumn(col, "'" + s + "' is not a number");
+    failColumn(col, "'" + s + "' is out of range");
+  }
   if (!std::isfinite(v)) failColumn(col, "'" + s + "' is not a finite number");
-  if (errno == ERANGE && std::fabs(v) > 1.0) failColumn(col, "'" + s + "' is out of range");
   return v;
 }
 
 long CsvReader::getLong(size_t col) const {
   const std::string& s = field(col);
   if (s.empty()) failColumn(col, "empty field (expected an integer)");
+  {
+    long v = 0;
+    const std::from_chars_result r = std::from_chars(s.data(), s.data() + s.size(), v);
+    if (r.ec == std::errc() && r.ptr == s.data() + s.size()) return v;
+  }
   const char* begin = s.c_str();
   char* end = nullptr;
   errno = 0;
@@ -140,10 +176,22 @@ CsvWriter::CsvWriter(const std::vector<std::string>& header) : columns_(header.s
 
 CsvWriter& CsvWriter::add(double value) {
   if (!std::isfinite(value)) throw Error("CsvWriter: refusing to write a non-finite number");
-  return add(formatDouble(value));
+  char buf[kFormatDoubleMaxChars];
+  return addField(buf, formatDouble(value, buf));
 }
 
-CsvWriter& CsvWriter::add(long value) { return add(std::to_string(value)); }
+CsvWriter& CsvWriter::add(long value) {
+  char buf[kFormatLongMaxChars];
+  return addField(buf, formatLong(value, buf));
+}
+
+CsvWriter& CsvWriter::addField(const char* begin, const char* end) {
+  if (in_row_ >= columns_) throw Error("CsvWriter: too many fields in a row");
+  if (in_row_) text_ += ',';
+  text_.append(begin, end);
+  ++in_row_;
+  return *this;
+}
 
 CsvWriter& CsvWriter::add(const std::string& value) {
   if (value.find_first_of(",\n\r") != std::string::npos) throw Error("CsvWriter: field contains a separator");

@@ -14,8 +14,18 @@
 
 namespace stereoloc {
 
-// %.17g: enough digits that reading the text back gives the same double (exact round trips).
+// %.17g: enough digits that reading the text back gives the same double (exact round trips);
+// 0 and -0 print as "0". The char* form writes at most kFormatDoubleMaxChars characters to
+// `out` (no terminating NUL) and returns the end: the hot path of the estimate and dataset
+// writers (std::to_chars, no locale or format-string parsing).
+constexpr int kFormatDoubleMaxChars = 32;
+constexpr int kFormatLongMaxChars = 24;
 std::string formatDouble(double value);
+char* formatDouble(double value, char* out);
+char* formatLong(long value, char* out);
+// Reads a whole field as a double, as strtod would (also '+1', hexadecimal, inf / nan; no
+// leading space); false if it is not a number or overflows. std::from_chars on the hot path.
+bool parseDouble(const std::string& text, double* value);
 
 class CsvReader {
  public:
@@ -65,6 +75,7 @@ class CsvWriter {
   size_t rows() const { return rows_; }
 
  private:
+  CsvWriter& addField(const char* begin, const char* end);
   size_t columns_ = 0, in_row_ = 0, rows_ = 0;
   std::string text_;
 };

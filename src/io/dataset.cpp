@@ -5,7 +5,6 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <map>
 #include <system_error>
 
 #include "src/core/atomic_file.h"
@@ -27,12 +26,12 @@ const std::vector<std::string> kGroundTruthHeader = {"step", "t", "x", "y", "the
 
 std::string join(const std::string& dir, const std::string& file) { return (fs::path(dir) / file).string(); }
 
-// Maps step numbers to indices into Dataset::steps, for the files that refer to odometry steps.
+// Maps step numbers to indices into Dataset::steps (strictly increasing), for the files that
+// refer to odometry steps. Their rows come in step order, so the search starts at the previous
+// row's step: amortised O(1) per row, no index held in memory.
 class StepIndex {
  public:
-  explicit StepIndex(const std::vector<Step>& steps) : steps_(steps) {
-    for (size_t i = 0; i < steps.size(); ++i) index_[steps[i].step] = i;
-  }
+  explicit StepIndex(const std::vector<Step>& steps) : steps_(steps) {}
   // Checks the order (strictly increasing unless `allow_repeat`) and the existence of the step,
   // and that t agrees with odometry.csv.
   size_t lookup(CsvReader& in, long step, double t, bool allow_repeat) {
@@ -40,16 +39,17 @@ class StepIndex {
       in.fail("step " + std::to_string(step) + " out of order (after step " + std::to_string(last_) + ")");
     have_last_ = true;
     last_ = step;
-    const auto it = index_.find(step);
-    if (it == index_.end()) in.fail("step " + std::to_string(step) + " is not in odometry.csv");
-    if (std::fabs(steps_[it->second].t - t) > 1e-9 * std::max(1.0, std::fabs(t)))
-      in.failColumn(1, "t " + formatDouble(t) + " does not match odometry.csv (" + formatDouble(steps_[it->second].t) + ")");
-    return it->second;
+    while (cursor_ < steps_.size() && steps_[cursor_].step < step) ++cursor_;
+    if (cursor_ == steps_.size() || steps_[cursor_].step != step)
+      in.fail("step " + std::to_string(step) + " is not in odometry.csv");
+    if (std::fabs(steps_[cursor_].t - t) > 1e-9 * std::max(1.0, std::fabs(t)))
+      in.failColumn(1, "t " + formatDouble(t) + " does not match odometry.csv (" + formatDouble(steps_[cursor_].t) + ")");
+    return cursor_;
   }
 
  private:
   const std::vector<Step>& steps_;
-  std::map<long, size_t> index_;
+  size_t cursor_ = 0;
   bool have_last_ = false;
   long last_ = 0;
 };

@@ -327,7 +327,7 @@ TEST(Crlb, BatchSmootherAttainsTheSmoothingBoundInMonteCarlo) {
 }
 
 // The stereo pixel factors on simulated stereo (the `line` scenario, goal corners, 0.5 px):
-// the batch smoother with pixel factors reaches its bound (issue 7: RMSE / sqrt(CRLB) <= 1.15),
+// the batch smoother with pixel factors reaches its bound (target: RMSE / sqrt(CRLB) <= 1.15),
 // each model against the bound of the data it uses, and the rows add information.
 TEST(Crlb, BatchSmootherWithPixelFactorsAttainsThePixelBound) {
   const Eigen::Vector3d sigma0(20.0, 20.0, 0.05);

@@ -1,5 +1,5 @@
 // `--frontend images`: localize, refine, stream --from and study run the vision frontend on
-// rendered stereo pairs (tools/stereoloc/frontend_source.h) instead of the simulated pixels.
+// rendered stereo pairs (src/pipeline/frontend_source.h) instead of the simulated pixels.
 // Small on purpose (a few dozen pairs); the accuracy study itself is `make demo`.
 #include <gtest/gtest.h>
 

@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdlib>
+#include <filesystem>
 #include <string>
 
 #include "cli_util.h"
@@ -9,7 +10,8 @@
 namespace stereoloc {
 
 // `cmake --install` puts the tool, the libraries and a CMake package config under a prefix;
-// another project then builds with find_package(stereoloc) and links stereoloc::stereoloc.
+// another project then builds with find_package(stereoloc), links stereoloc::stereoloc and runs
+// a small study through the installed API (tests/tools/consumer).
 TEST(Install, ConsumerProjectBuildsAgainstInstalledPackage) {
 #ifdef __SANITIZE_ADDRESS__
   GTEST_SKIP() << "sanitizer build: its static libraries need -fsanitize in the consumer too; checked in the Release build";
@@ -24,7 +26,9 @@ TEST(Install, ConsumerProjectBuildsAgainstInstalledPackage) {
                "' -DCMAKE_PREFIX_PATH='" + prefix + "' -DCMAKE_BUILD_TYPE=Release"),
             0);
   ASSERT_EQ(sh("cmake --build '" + dir.file("cb") + "'"), 0);
-  EXPECT_EQ(sh("'" + dir.file("cb") + "/consumer'"), 0);
+  EXPECT_EQ(sh("'" + dir.file("cb") + "/consumer' '" + dir.file("study") + "'"), 0);
+  EXPECT_TRUE(std::filesystem::exists(dir.file("study/summary.csv")));
+  EXPECT_TRUE(std::filesystem::exists(dir.file("study/circle_trajectories.png")));
 }
 
 }  // namespace stereoloc

@@ -102,6 +102,9 @@ void BM_Batch(benchmark::State& state) {
   state.counters["iterations"] = s.iterations;
   state.counters["solve_s"] = s.solve_seconds;
   state.counters["covariance_s"] = s.covariance_seconds;
+  state.counters["filter_s"] = s.filter_seconds;
+  state.counters["cut_tests_s"] = s.cut_test_seconds;
+  state.counters["cut_tests"] = static_cast<double>(s.cut_steps.size()) + s.withdrawn_cuts;
 }
 BENCHMARK(BM_Batch)
     ->Args({1000, 0})

@@ -1,38 +1,19 @@
 #pragma once
-// Shared conventions of the stereoloc subcommands: exit codes and error types.
+// Shared conventions of the stereoloc subcommands: exit codes and error types
+// (stereoloc::UsageError, src/pipeline/usage_error.h; stereoloc::Error, src/core/error.h).
 //   0  success
 //   1  bad data (unreadable or malformed files, degenerate geometry): stereoloc::Error
 //   2  usage errors (bad or missing arguments): UsageError or a CLI11 parse error
 #include <CLI/CLI.hpp>
-#include <string>
-#include <utility>
-#include <vector>
 
 #include "src/core/error.h"
+#include "src/pipeline/usage_error.h"
 
 namespace stereoloc::cli {
 
 constexpr int kExitBadData = 1;
 constexpr int kExitUsage = 2;
-
-class UsageError : public Error {
- public:
-  explicit UsageError(const std::string& what) : Error(what) {}
-};
-
-// "a,b,,c" -> {"a", "b", "c"}: the comma-separated lists of the options (empty items dropped).
-inline std::vector<std::string> splitCommaList(const std::string& s) {
-  std::vector<std::string> out;
-  size_t start = 0;
-  while (start <= s.size()) {
-    const size_t comma = s.find(',', start);
-    std::string item = s.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
-    if (!item.empty()) out.push_back(std::move(item));
-    if (comma == std::string::npos) break;
-    start = comma + 1;
-  }
-  return out;
-}
+using stereoloc::UsageError;  // exit kExitUsage
 
 // Each subcommand lives in tools/stereoloc/cmd_<name>.cpp and defines
 //   void add_<name>_command(CLI::App& app);

@@ -1,10 +1,11 @@
 // `stereoloc study`: the accuracy comparison study (the main job; `make demo` runs it), and
 // `stereoloc study merge` for sharded studies.
 #include <CLI/CLI.hpp>
+#include <cstdio>
 #include <memory>
 
 #include "tools/stereoloc/cli_common.h"
-#include "tools/stereoloc/study.h"
+#include "src/study/study.h"
 
 namespace stereoloc::cli {
 namespace {
@@ -49,7 +50,9 @@ void runFromArgs(StudyArgs& a) {
   } catch (const Error& e) {
     throw UsageError(std::string("--observation-model: ") + e.what());
   }
-  runStudy(c);
+  const StudyResult r = runStudy(c);
+  std::fputs(study::summaryText(r.summary).c_str(), stdout);
+  std::printf("report: %s\n", r.report.c_str());
 }
 
 }  // namespace
@@ -105,7 +108,11 @@ void add_study_command(CLI::App& app) {
   merge->add_option("dirs", a->merge_dirs, "Study directories written with --shard")->required()->check(CLI::ExistingDirectory);
   merge->add_option("--out", a->merge_out, "Output directory")->required();
   merge->add_flag("--force", a->merge_force, "Replace a non-empty output directory");
-  merge->callback([a] { mergeStudies(a->merge_dirs, a->merge_out, a->merge_force); });
+  merge->callback([a] {
+    const StudyResult r = mergeStudies(a->merge_dirs, a->merge_out, a->merge_force);
+    std::fputs(study::summaryText(r.summary).c_str(), stdout);
+    std::printf("merged %zu trial rows from %zu studies; report: %s\n", r.trial_rows, a->merge_dirs.size(), r.report.c_str());
+  });
 
   sub->callback([a, merge] {
     if (merge->parsed()) return;

@@ -4,12 +4,11 @@
 #include <cstdio>
 #include <memory>
 
-#include "frontend/frontend.h"
 #include "src/io/dataset.h"
 #include "src/io/estimate_io.h"
 #include "src/eval/evaluation.h"
 #include "tools/stereoloc/cli_common.h"
-#include "tools/stereoloc/methods.h"
+#include "src/pipeline/methods.h"
 
 namespace stereoloc::cli {
 
@@ -50,25 +49,13 @@ void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landm
       ->check(CLI::ExistingFile);
 }
 
-ImageFrontendOptions frontendOptionsFrom(const std::string& landmarks, const std::string& params_path) {
-  ImageFrontendOptions o;
-  o.landmarks = frontendLandmarksFromString(landmarks);
-  if (!params_path.empty())  // bad data: exit 1
-    o.params = std::make_shared<const frontend::FrontendParams>(frontend::FrontendParams::load(params_path));
-  return o;
-}
-
 Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& frontend, const std::string& landmarks,
                                 const std::string& params_path, std::FILE* log) {
   const FrontendMode mode = frontendModeFromString(frontend);
   if (mode == FrontendMode::Pixels) return loadDataset(dir);
-  const ImageFrontendOptions options = frontendOptionsFrom(landmarks, params_path);
-  Dataset d = loadDataset(dir);
-  const ImageFrontendStats st = observeDatasetImages(d, dir, options);
-  std::fprintf(log, "frontend on %ld image pairs: %ld observations (%ld goal corners)%s, %.2f ms/pair\n", st.pairs,
-               st.observations, st.identified,
-               st.dropped ? (", " + std::to_string(st.dropped) + " unidentified dropped").c_str() : "",
-               st.pairs ? st.ms_frontend / st.pairs : 0.0);
+  ImageFrontendStats stats;
+  Dataset d = loadDatasetWithFrontend(dir, mode, imageFrontendOptions(landmarks, params_path), &stats);
+  std::fprintf(log, "%s\n", frontendSummary(stats).c_str());
   return d;
 }
 

@@ -6,8 +6,8 @@
 #include <memory>
 #include <string>
 
-#include "tools/stereoloc/frontend_source.h"
-#include "tools/stereoloc/methods.h"
+#include "src/pipeline/frontend_source.h"
+#include "src/pipeline/methods.h"
 
 namespace stereoloc::cli {
 
@@ -17,7 +17,7 @@ struct LocalizeArgs {
   MethodOptions options;
   std::string loss = "none";
   std::string observation_model = "pixel_columns";  // batch and window: range_bearing | pixel_columns | pixels
-  std::string frontend = "pixels";            // pixels | images (tools/stereoloc/frontend_source.h)
+  std::string frontend = "pixels";            // pixels | images (src/pipeline/frontend_source.h)
   std::string frontend_landmarks = "all";     // all | goal_corners (with --frontend images)
   std::string frontend_params;                // frontend parameters YAML (empty: defaults)
 };
@@ -25,8 +25,6 @@ struct LocalizeArgs {
 void runLocalize(const LocalizeArgs& args);
 // --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
-// Checks the three options (UsageError) and builds the frontend options.
-ImageFrontendOptions frontendOptionsFrom(const std::string& landmarks, const std::string& params_path);
 // Loads a dataset and, with --frontend images, replaces its observations by the frontend's on
 // its images; prints a one-line summary of the frontend to `log` (stdout for localize, stderr
 // for stream, whose stdout is JSON Lines).

@@ -1,6 +1,10 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cmath>
+#include <cstdio>
+#include <random>
+
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -333,6 +337,61 @@ TEST(Csv, WriterRoundTripsDoublesExactly) {
     ASSERT_TRUE(r.next());
     EXPECT_EQ(r.getDouble(0), v);
   }
+}
+
+TEST(Csv, FormatDoubleHasThePrintfDigits) {
+  // The files keep their text: the fast formatter prints what printf("%.17g") printed (but 0 for -0).
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> mantissa(-1.0, 1.0);
+  std::uniform_int_distribution<int> exponent(-1070, 1020);  // binary exponents: subnormal to huge
+  std::vector<double> values = {0.1, 1.0 / 3.0, 1e21, 1e-5, 123456789012345678.0, 5e-324, -1.7976931348623157e308};
+  for (int i = 0; i < 20000; ++i) values.push_back(std::ldexp(mantissa(rng), exponent(rng)));
+  for (double v : values) {
+    if (!std::isfinite(v)) continue;
+    char expected[64];
+    std::snprintf(expected, sizeof(expected), "%.17g", v);
+    ASSERT_EQ(formatDouble(v), v == 0.0 ? std::string("0") : std::string(expected));
+    double back = 0;
+    ASSERT_TRUE(parseDouble(formatDouble(v), &back));
+    ASSERT_EQ(back, v == 0.0 ? 0.0 : v);
+  }
+  EXPECT_EQ(formatDouble(-0.0), "0");
+}
+
+TEST(Csv, ParseDoubleReadsWhatStrtodReads) {
+  double v = 0;
+  EXPECT_TRUE(parseDouble("+1.5", &v));
+  EXPECT_EQ(v, 1.5);
+  EXPECT_TRUE(parseDouble("0x10", &v));
+  EXPECT_EQ(v, 16.0);
+  EXPECT_TRUE(parseDouble("1e-400", &v));  // underflow: as strtod, a tiny number
+  EXPECT_FALSE(parseDouble("1e400", &v));  // overflow
+  EXPECT_FALSE(parseDouble(" 1", &v));
+  EXPECT_FALSE(parseDouble("1 ", &v));
+  EXPECT_FALSE(parseDouble("", &v));
+  EXPECT_FALSE(parseDouble("1.5.2", &v));
+  EXPECT_TRUE(parseDouble("nan", &v));  // a number; callers reject non-finite values
+  EXPECT_TRUE(std::isnan(v));
+}
+
+TEST(Csv, ReaderNamesOverflowAndKeepsFieldsPerRow) {
+  TempDir dir;
+  fs::create_directories(dir.path());
+  writeFile(dir / "o.csv", "a,b\n1e400,+7\nlonger-than-the-small-string-buffer-of-std-string,2\n3,4\n");
+  CsvReader r(dir / "o.csv");
+  ASSERT_TRUE(r.next());
+  try {
+    r.getDouble(0);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("o.csv:2: column 'a': '1e400' is out of range"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(r.getLong(1), 7);
+  ASSERT_TRUE(r.next());
+  ASSERT_TRUE(r.next());
+  EXPECT_EQ(r.field(0), "3");
+  EXPECT_EQ(r.getDouble(1), 4.0);
+  EXPECT_EQ(r.size(), 2u);
 }
 
 }  // namespace

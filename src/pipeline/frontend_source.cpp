@@ -1,8 +1,9 @@
-#include "tools/stereoloc/frontend_source.h"
+#include "src/pipeline/frontend_source.h"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <thread>
 #include <filesystem>
@@ -12,9 +13,9 @@
 #include "frontend/frontend.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
-#include "tools/stereoloc/cli_common.h"
+#include "src/pipeline/usage_error.h"
 
-namespace stereoloc::cli {
+namespace stereoloc {
 namespace {
 
 using Clock = std::chrono::steady_clock;
@@ -77,6 +78,23 @@ std::vector<Observation> ImageObserver::observe(const cv::Mat& left_bgr, const c
   return out;
 }
 
+ImageFrontendOptions imageFrontendOptions(const std::string& landmarks, const std::string& params_path) {
+  ImageFrontendOptions o;
+  o.landmarks = frontendLandmarksFromString(landmarks);
+  if (!params_path.empty())
+    o.params = std::make_shared<const frontend::FrontendParams>(frontend::FrontendParams::load(params_path));
+  return o;
+}
+
+std::string frontendSummary(const ImageFrontendStats& st) {
+  char line[256];
+  std::snprintf(line, sizeof line, "frontend on %ld image pairs: %ld observations (%ld goal corners)%s, %.2f ms/pair",
+                st.pairs, st.observations, st.identified,
+                st.dropped ? (", " + std::to_string(st.dropped) + " unidentified dropped").c_str() : "",
+                st.pairs ? st.ms_frontend / st.pairs : 0.0);
+  return line;
+}
+
 cv::Mat readStereoImage(const std::string& path, const StereoRig& rig) {
   // Checked first: OpenCV would print its own warning for a missing file.
   if (!std::filesystem::is_regular_file(path)) throw Error(path + ": cannot read the image (no such file)");
@@ -112,6 +130,15 @@ ImageFrontendStats observeDatasetImages(Dataset& d, const std::string& dir, cons
     }
   }
   return observer.stats();
+}
+
+Dataset loadDatasetWithFrontend(const std::string& dir, FrontendMode mode, const ImageFrontendOptions& options,
+                                ImageFrontendStats* stats) {
+  Dataset d = loadDataset(dir);
+  ImageFrontendStats st;
+  if (mode == FrontendMode::Images) st = observeDatasetImages(d, dir, options);
+  if (stats) *stats = st;
+  return d;
 }
 
 ImageFrontendStats observeRenderedImages(Dataset& d, const SimulationTrace& trace, const StereoRenderer& renderer,
@@ -231,4 +258,4 @@ ImageFrontendStats observeCleanRenders(Dataset& d, const SimulationTrace& trace,
   return stats;
 }
 
-}  // namespace stereoloc::cli
+}  // namespace stereoloc

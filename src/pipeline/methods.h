@@ -1,6 +1,6 @@
 #pragma once
-// The estimation methods the CLI offers (localize, refine, stream, study, realdata), built
-// from a Dataset by name. A method spec is NAME or NAME:INIT, e.g. "ekf", "ekf:random",
+// The estimation methods by name, run over a whole Dataset: what `stereoloc localize`, `refine`
+// and the studies offer. A method spec is NAME or NAME:INIT, e.g. "ekf", "ekf:random",
 // "pf:global", "window", "batch", "fix2", "deadreckoning".
 #include <cstdint>
 #include <string>
@@ -11,7 +11,7 @@
 #include "src/io/dataset.h"
 #include "src/core/types.h"
 
-namespace stereoloc::cli {
+namespace stereoloc {
 
 struct MethodOptions {
   InitMode init = InitMode::Known;   // overridden by a ":init" suffix in the method spec
@@ -47,4 +47,4 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMo
 // the particle filter, so a run is reproducible.
 MethodRun runMethod(const std::string& spec, const Dataset& dataset, uint64_t seed, const MethodOptions& options);
 
-}  // namespace stereoloc::cli
+}  // namespace stereoloc

@@ -32,7 +32,7 @@ class Frontend;
 struct FrontendParams;
 }  // namespace stereoloc::frontend
 
-namespace stereoloc::cli {
+namespace stereoloc {
 
 enum class FrontendMode { Pixels, Images };
 std::string toString(FrontendMode mode);
@@ -83,6 +83,13 @@ class ImageObserver {
   ImageFrontendStats stats_;
 };
 
+// The options from their names: `landmarks` "all" | "goal_corners" (UsageError otherwise), and
+// the frontend parameters YAML at `params_path` ("" = the defaults; a bad file throws Error).
+ImageFrontendOptions imageFrontendOptions(const std::string& landmarks, const std::string& params_path);
+
+// One line for a log: "frontend on N image pairs: M observations (K goal corners), X ms/pair".
+std::string frontendSummary(const ImageFrontendStats& stats);
+
 // Reads one image of a stereo pair for the frontend: 8-bit, 3 channels (4 are converted), the
 // rig's size. Anything else throws stereoloc::Error, one line naming the file.
 cv::Mat readStereoImage(const std::string& path, const StereoRig& rig);
@@ -92,6 +99,12 @@ cv::Mat readStereoImage(const std::string& path, const StereoRig& rig);
 // dataset when it has no images, or naming the file when an image is missing or unusable.
 ImageFrontendStats observeDatasetImages(Dataset& dataset, const std::string& dir,
                                         const ImageFrontendOptions& options = ImageFrontendOptions());
+
+// Loads the dataset at `dir` and, in Images mode, replaces its observations by the frontend's on
+// its images (observeDatasetImages); `stats`, when given, receives what the frontend did (all
+// zero in Pixels mode).
+Dataset loadDatasetWithFrontend(const std::string& dir, FrontendMode mode, const ImageFrontendOptions& options,
+                                ImageFrontendStats* stats = nullptr);
 
 // Studies: renders the stereo pair of every step of a simulated dataset from the true poses,
 // head pans and obstacles of its trace, adds addSensorNoise(noise_sigma, noise_seed + step
@@ -130,4 +143,4 @@ ImageFrontendStats observeCleanRenders(Dataset& dataset, const SimulationTrace& 
                                        double noise_sigma, uint64_t noise_seed,
                                        const ImageFrontendOptions& options = ImageFrontendOptions());
 
-}  // namespace stereoloc::cli
+}  // namespace stereoloc

@@ -1,4 +1,4 @@
-#include "tools/stereoloc/methods.h"
+#include "src/pipeline/methods.h"
 
 #include <chrono>
 #include <memory>
@@ -9,9 +9,9 @@
 #include "solvers/particle_filter.h"
 #include "solvers/sliding_window_smoother.h"
 #include "src/core/odometry_model.h"
-#include "tools/stereoloc/cli_common.h"
+#include "src/pipeline/usage_error.h"
 
-namespace stereoloc::cli {
+namespace stereoloc {
 namespace {
 
 // Gauss-Newton iterations of the iterated EKF's updates (solvers/ekf.h); it stops earlier when
@@ -178,4 +178,4 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   return run;
 }
 
-}  // namespace stereoloc::cli
+}  // namespace stereoloc

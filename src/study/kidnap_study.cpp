@@ -1,0 +1,257 @@
+#include "src/study/kidnap_study.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "solvers/ekf.h"
+#include "src/core/atomic_file.h"
+#include "src/sim/simulator.h"
+#include "src/pipeline/usage_error.h"
+
+namespace stereoloc {
+namespace {
+
+struct SeedResult {
+  uint64_t seed = 0;
+  long kidnap_step = -1;
+  long detected_step = -1;       // first step at or after the kidnap that is Lost or Reinitialised
+  int detection_obs_steps = -1;  // observation steps from the kidnap to detection, inclusive
+  long reinit_step = -1;         // first Reinitialised step at or after the kidnap
+  long recovered_step = -1;      // first step at or after reinit_step with error < recover_mm
+  double error_at_kidnap = 0.0;
+  double final_error = 0.0;
+  long false_alarms = 0;         // Lost/Reinitialised steps before the kidnap
+};
+
+struct RunTrace {
+  std::vector<Estimate> estimates;
+  std::vector<std::vector<EkfUpdateRecord>> updates;  // per step
+};
+
+RunTrace runEkf(const Dataset& d, const EkfConfig& config) {
+  Ekf ekf(d.map, d.odometry, config);
+  RunTrace t;
+  for (const Step& s : d.steps) {
+    t.estimates.push_back(ekf.process(s));
+    t.updates.push_back(ekf.lastUpdates());
+  }
+  return t;
+}
+
+double positionError(const Estimate& e, const Pose2& truth) {
+  return (e.pose.translation() - truth.translation()).norm();
+}
+
+std::string fmt(const char* format, ...) __attribute__((format(printf, 1, 2)));
+std::string fmt(const char* format, ...) {
+  char buf[512];
+  va_list args;
+  va_start(args, format);
+  std::vsnprintf(buf, sizeof(buf), format, args);
+  va_end(args);
+  return buf;
+}
+
+void appendTrace(std::string& csv, const char* run, const Dataset& d, const RunTrace& t, double threshold) {
+  for (size_t k = 0; k < t.estimates.size(); ++k) {
+    const Estimate& e = t.estimates[k];
+    if (!d.groundtruth[k]) continue;
+    const Pose2& g = *d.groundtruth[k];
+    const bool has = e.status != EstimateStatus::Uninitialised;
+    double e2max = 0.0;
+    int n = 0, accepted = 0;
+    for (const EkfUpdateRecord& r : t.updates[k]) {
+      if (r.compass) continue;
+      ++n;
+      accepted += r.accepted;
+      if (std::isfinite(r.mahalanobis_squared)) e2max = std::max(e2max, r.mahalanobis_squared);
+    }
+    csv += fmt("%s,%ld,%.3f,%s,%.3f,%.3f,%.6f", run, e.step, e.t, toString(e.status).c_str(), g.x, g.y, g.theta);
+    if (has) {
+      csv += fmt(",%.3f,%.3f,%.6f,%.3f,%.3f,%.6f,%.3f,%.3f,%.6f", e.pose.x, e.pose.y, e.pose.theta, e.pose.x - g.x,
+                 e.pose.y - g.y, angleDiff(e.pose.theta, g.theta), 3 * std::sqrt(std::max(0.0, e.covariance(0, 0))),
+                 3 * std::sqrt(std::max(0.0, e.covariance(1, 1))), 3 * std::sqrt(std::max(0.0, e.covariance(2, 2))));
+    } else {
+      csv += ",,,,,,,,,";
+    }
+    csv += fmt(",%d,%d,%.6g,%.6g\n", n, accepted, e2max, threshold);
+  }
+}
+
+void appendInnovations(std::string& csv, const char* run, const RunTrace& t, double threshold) {
+  for (size_t k = 0; k < t.updates.size(); ++k)
+    for (const EkfUpdateRecord& r : t.updates[k]) {
+      if (r.compass) continue;
+      if (!r.associated || !std::isfinite(r.mahalanobis_squared)) {
+        csv += fmt("%s,%ld,%d,,,,,,%.6g,0\n", run, r.step, r.landmark_id, threshold);
+        continue;
+      }
+      csv += fmt("%s,%ld,%d,%.4f,%.6f,%.4f,%.6f,%.6g,%.6g,%d\n", run, r.step, r.landmark_id, r.innovation.x(),
+                 r.innovation.y(), std::sqrt(r.innovation_covariance(0, 0)), std::sqrt(r.innovation_covariance(1, 1)),
+                 r.mahalanobis_squared, threshold, r.accepted ? 1 : 0);
+    }
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+}  // namespace
+
+void runKidnapStudy(const KidnapStudyOptions& o) {
+  if (o.seeds < 1) throw UsageError("--seeds must be at least 1");
+  if (!(o.gate_probability > 0 && o.gate_probability < 1)) throw UsageError("--gate-probability must be in (0, 1)");
+  if (o.lost_after < 1) throw UsageError("--lost-after must be at least 1");
+  SimulationConfig sim;
+  try {
+    sim.landmarks = landmarkSetFromString(o.landmarks);
+  } catch (const Error&) {
+    throw UsageError("--landmarks must be goal_corners or all, not '" + o.landmarks + "'");
+  }
+  sim.scenario.steps = o.steps;
+  const uint64_t plot_seed = o.plot_seed < 0 ? o.first_seed : static_cast<uint64_t>(o.plot_seed);
+
+  EkfConfig recovery;
+  recovery.gate.probability = o.gate_probability;
+  recovery.gate.lost_after = o.lost_after;
+  EkfConfig nogate = recovery;
+  nogate.gate_enabled = false;
+  nogate.reinitialise_when_lost = false;
+  const double threshold = ValidationGate(recovery.gate).threshold();
+  const InitConfig init_config;
+
+  std::vector<SeedResult> results;
+  std::string trace_csv =
+      "run,step,t,status,x_true,y_true,theta_true,x,y,theta,err_x,err_y,err_theta,sigma3_x,sigma3_y,sigma3_theta,"
+      "observations,accepted,e2_max,gate_threshold\n";
+  std::string innov_csv =
+      "run,step,landmark_id,innov_range,innov_bearing,sigma_range,sigma_bearing,e2,gate_threshold,accepted\n";
+  bool traced = false;
+  for (int i = 0; i < o.seeds; ++i) {
+    SeedResult r;
+    r.seed = o.first_seed + static_cast<uint64_t>(i);
+    std::mt19937_64 rng(r.seed);  // one engine per trial: the simulation seed, then the start noise
+    SimulationTrace trace;
+    const Dataset d = simulate("kidnap", 0, sim, rng(), &trace);
+    if (!d.initial_pose) throw Error("kidnap: the simulated dataset has no initial pose");
+    for (size_t k = 0; k < trace.scenario.carried.size(); ++k)
+      if (trace.scenario.carried[k]) {
+        r.kidnap_step = d.steps[k].step;
+        break;
+      }
+    if (r.kidnap_step < 0) throw Error("kidnap: the scenario has no kidnap (too few steps?)");
+    EkfConfig c = recovery;
+    c.init = knownBeliefWithNoise(*d.initial_pose, init_config, rng);
+    const RunTrace t = runEkf(d, c);
+    const size_t kidnap_index = static_cast<size_t>(
+        std::find_if(d.steps.begin(), d.steps.end(), [&](const Step& s) { return s.step == r.kidnap_step; }) -
+        d.steps.begin());
+    int obs_steps = 0;
+    for (size_t k = 0; k < t.estimates.size(); ++k) {
+      const Estimate& e = t.estimates[k];
+      const bool alarm = e.status == EstimateStatus::Lost || e.status == EstimateStatus::Reinitialised;
+      if (k < kidnap_index) {
+        r.false_alarms += alarm && k > 0;
+        continue;
+      }
+      if (!d.groundtruth[k]) continue;
+      const double err = positionError(e, *d.groundtruth[k]);
+      if (k == kidnap_index) r.error_at_kidnap = err;
+      if (r.detected_step < 0) {
+        obs_steps += d.steps[k].observations.empty() ? 0 : 1;
+        if (alarm) {
+          r.detected_step = e.step;
+          r.detection_obs_steps = obs_steps;
+        }
+      }
+      if (r.reinit_step < 0 && e.status == EstimateStatus::Reinitialised) r.reinit_step = e.step;
+      if (r.reinit_step >= 0 && r.recovered_step < 0 && err < o.recover_mm) r.recovered_step = e.step;
+      r.final_error = err;
+    }
+    results.push_back(r);
+    if (!o.out_dir.empty() && r.seed == plot_seed) {
+      const RunTrace t0 = runEkf(d, [&] {
+        EkfConfig c0 = nogate;
+        c0.init = c.init;
+        return c0;
+      }());
+      appendTrace(trace_csv, "nogate", d, t0, threshold);
+      appendTrace(trace_csv, "recovery", d, t, threshold);
+      appendInnovations(innov_csv, "nogate", t0, threshold);
+      appendInnovations(innov_csv, "recovery", t, threshold);
+      traced = true;
+    }
+  }
+
+  int detected = 0, recovered = 0, reinit = 0;
+  long false_alarms = 0;
+  std::vector<double> delays, recover_steps, final_errors;
+  std::string seeds_csv =
+      "seed,kidnap_step,error_at_kidnap,detected_step,detection_obs_steps,reinit_step,recovered_step,"
+      "steps_to_recover,final_error,false_alarms\n";
+  for (const SeedResult& r : results) {
+    const bool det = r.detection_obs_steps >= 1 && r.detection_obs_steps <= o.detect_within;
+    const long to_recover = r.recovered_step >= 0 ? r.recovered_step - r.reinit_step : -1;
+    const bool rec = to_recover >= 0 && to_recover <= o.recover_within;
+    detected += det;
+    reinit += r.reinit_step >= 0;
+    recovered += rec;
+    false_alarms += r.false_alarms;
+    if (r.detection_obs_steps >= 0) delays.push_back(r.detection_obs_steps);
+    if (to_recover >= 0) recover_steps.push_back(static_cast<double>(to_recover));
+    final_errors.push_back(r.final_error);
+    seeds_csv += fmt("%llu,%ld,%.3f,%ld,%d,%ld,%ld,%ld,%.3f,%ld\n", static_cast<unsigned long long>(r.seed),
+                     r.kidnap_step, r.error_at_kidnap, r.detected_step, r.detection_obs_steps, r.reinit_step,
+                     r.recovered_step, to_recover, r.final_error, r.false_alarms);
+  }
+  const double n = static_cast<double>(results.size());
+  std::printf("kidnap study (thesis 5.1.3): %d seeds from %llu, scenario kidnap (%s), landmarks %s\n", o.seeds,
+              static_cast<unsigned long long>(o.first_seed), "line A->B, carried back to A", o.landmarks.c_str());
+  std::printf("EKF, known start, gate %.0f %% (e2 <= %.2f, 2 dof), lost after %d consecutive gated observations, "
+              "re-initialised by global fixes\n",
+              100 * o.gate_probability, threshold, o.lost_after);
+  std::printf("  position error at the kidnap step:          median %.0f mm\n",
+              median([&] {
+                std::vector<double> v;
+                for (const SeedResult& r : results) v.push_back(r.error_at_kidnap);
+                return v;
+              }()));
+  std::printf("  detected within %d observation steps:        %d / %d (%.1f %%)   target >= 95 %%   %s\n",
+              o.detect_within, detected, o.seeds, 100 * detected / n, detected >= 0.95 * n ? "ok" : "MISSED");
+  std::printf("  detection delay (observation steps):        median %.1f, max %.0f\n", median(delays),
+              delays.empty() ? std::nan("") : *std::max_element(delays.begin(), delays.end()));
+  std::printf("  re-initialised by a global fix:             %d / %d\n", reinit, o.seeds);
+  std::printf("  error < %.0f mm within %d steps of re-init:  %d / %d (%.1f %%)   target >= 95 %%   %s\n",
+              o.recover_mm, o.recover_within, recovered, o.seeds, 100 * recovered / n,
+              recovered >= 0.95 * n ? "ok" : "MISSED");
+  std::printf("  steps from re-init to error < %.0f mm:        median %.1f\n", o.recover_mm, median(recover_steps));
+  std::printf("  final position error:                       median %.1f mm\n", median(final_errors));
+  std::printf("  false alarms before the kidnap:             %ld steps over all seeds\n", false_alarms);
+
+  if (!o.out_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(o.out_dir, ec);
+    if (ec) throw Error(o.out_dir + ": cannot create directory: " + ec.message());
+    const std::filesystem::path dir(o.out_dir);
+    writeFileAtomically((dir / "kidnap_seeds.csv").string(), seeds_csv);
+    if (traced) {
+      writeFileAtomically((dir / "kidnap_trace.csv").string(), trace_csv);
+      writeFileAtomically((dir / "kidnap_innovations.csv").string(), innov_csv);
+    }
+    std::printf("wrote %s/kidnap_seeds.csv%s\n", o.out_dir.c_str(),
+                traced ? ", kidnap_trace.csv, kidnap_innovations.csv (plot seed)" : " (plot seed not in range: no trace)");
+  }
+}
+
+}  // namespace stereoloc

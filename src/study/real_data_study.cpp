@@ -1,0 +1,270 @@
+#include "src/study/real_data_study.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <sstream>
+
+#include "solvers/batch_smoother.h"
+#include "solvers/ekf.h"
+#include "solvers/initialisation.h"
+#include "solvers/particle_filter.h"
+#include "solvers/sliding_window_smoother.h"
+#include "src/core/atomic_file.h"
+#include "src/io/csv.h"
+#include "src/io/dataset.h"
+#include "src/eval/evaluation.h"
+#include "src/core/odometry_model.h"
+#include "src/pipeline/usage_error.h"
+
+namespace stereoloc {
+namespace {
+
+struct Row {
+  std::string key, label;
+  TrajectoryMetrics metrics;
+  double ms_per_step = 0;
+  size_t nonfinite = 0;     // estimates with a non-finite pose or covariance
+  size_t reinitialised = 0; // steps with status Lost or Reinitialised
+  double max_error = 0;     // mm
+};
+
+using Clock = std::chrono::steady_clock;
+double msSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+Row evaluate(const std::string& key, const std::string& label, const std::vector<Estimate>& estimates,
+             const TruthByStep& truth, double total_ms, size_t steps) {
+  Row r;
+  r.key = key;
+  r.label = label;
+  r.ms_per_step = total_ms / static_cast<double>(std::max<size_t>(1, steps));
+  for (const Estimate& e : estimates) {
+    if (!e.pose.isFinite() || !e.covariance.allFinite()) ++r.nonfinite;
+    if (e.status == EstimateStatus::Lost || e.status == EstimateStatus::Reinitialised) ++r.reinitialised;
+  }
+  std::vector<Estimate> finite;
+  finite.reserve(estimates.size());
+  for (const Estimate& e : estimates)
+    if (e.pose.isFinite()) finite.push_back(e);
+  const std::vector<PoseError> errors = poseErrors(finite, truth);
+  r.metrics = trajectoryMetrics(errors);
+  for (const PoseError& pe : errors) r.max_error = std::max(r.max_error, pe.distance);
+  return r;
+}
+
+// Runs an estimator over the steps; `online` (optional) receives the process() outputs.
+std::vector<Estimate> runEstimator(Estimator& est, const std::vector<Step>& steps, double* ms,
+                                   std::vector<Estimate>* online = nullptr) {
+  const Clock::time_point t0 = Clock::now();
+  for (const Step& s : steps) {
+    Estimate e = est.process(s);
+    if (online) online->push_back(e);
+  }
+  std::vector<Estimate> out = est.finish();
+  *ms = msSince(t0);
+  return out;
+}
+
+std::vector<Estimate> deadReckoning(const std::vector<Step>& steps, const OdometryParams& odometry,
+                                    const InitialBelief& init, double* ms) {
+  const Clock::time_point t0 = Clock::now();
+  std::vector<Estimate> out;
+  out.reserve(steps.size());
+  Pose2 pose = init.pose;
+  Eigen::Matrix3d P = init.covariance;
+  for (size_t i = 0; i < steps.size(); ++i) {
+    if (i > 0) {  // the first step is the initial time (as for the estimators)
+      const PosePrediction p = predictPose(pose, P, steps[i].d_left, steps[i].d_right, odometry);
+      pose = p.pose;
+      P = p.covariance;
+    }
+    Estimate e;
+    e.step = steps[i].step;
+    e.t = steps[i].t;
+    e.pose = pose;
+    e.covariance = P;
+    e.status = EstimateStatus::Predicted;
+    out.push_back(e);
+  }
+  *ms = msSince(t0);
+  return out;
+}
+
+bool wanted(const RealDataStudyOptions& o, const std::string& key) {
+  if (o.only.empty()) return true;
+  std::stringstream ss(o.only);
+  std::string k;
+  while (std::getline(ss, k, ','))
+    if (k == key) return true;
+  return false;
+}
+
+}  // namespace
+
+void runRealDataStudy(const RealDataStudyOptions& o) {
+  if (o.batch_guess != "filter" && o.batch_guess != "odometry")
+    throw UsageError("--batch-guess: expected 'filter' or 'odometry', got '" + o.batch_guess + "'");
+  Dataset d = loadDataset(o.dataset_dir);
+  if (o.max_steps > 0 && static_cast<size_t>(o.max_steps) < d.steps.size()) {
+    d.steps.resize(static_cast<size_t>(o.max_steps));
+    d.groundtruth.resize(static_cast<size_t>(o.max_steps));
+  }
+  if (d.steps.empty()) throw Error(o.dataset_dir + ": no steps");
+  if (!d.initial_pose) {
+    if (d.groundtruth.front()) {
+      d.initial_pose = d.groundtruth.front();
+    } else {
+      throw Error(o.dataset_dir + ": no initial pose and no ground truth at step 0: cannot initialise alike");
+    }
+  }
+  if (o.robust != "huber" && o.robust != "cauchy")
+    throw UsageError("--robust: expected 'huber' or 'cauchy', got '" + o.robust + "'");
+  RobustLossConfig robust;
+  robust.type = robustLossFromString(o.robust);
+  robust.scale = o.robust_scale;
+
+  const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
+  size_t observations = 0;
+  for (const Step& s : d.steps) observations += s.observations.size();
+  std::printf("dataset %s: %zu steps (%.1f s), %zu with ground truth, %zu observations, %zu landmarks\n",
+              d.name.c_str(), d.steps.size(), d.steps.back().t - d.steps.front().t, truth.size(), observations,
+              d.map.landmarks().size());
+  std::printf("odometry model: wheel base %.0f mm, k %.3g / %.3g mm^2/mm, control floor (%.3g, %.3g, %.3g)\n",
+              d.odometry.wheel_base_mm, d.odometry.k_left, d.odometry.k_right, d.odometry.control_variance_floor.x(),
+              d.odometry.control_variance_floor.y(), d.odometry.control_variance_floor.z());
+  // The same initial belief for every estimator: the true pose at step 0 with a small covariance.
+  const double st = deg2rad(o.init_sigma_theta_deg);
+  const InitialBelief init =
+      knownBelief(*d.initial_pose, Eigen::Vector3d(o.init_sigma_xy * o.init_sigma_xy, o.init_sigma_xy * o.init_sigma_xy,
+                                                   st * st)
+                                       .asDiagonal());
+  std::printf("initial belief: ground truth at step 0, sigma (%.0f mm, %.0f mm, %.1f deg)\n", o.init_sigma_xy,
+              o.init_sigma_xy, o.init_sigma_theta_deg);
+  std::fflush(stdout);
+
+  std::vector<Row> rows;
+  auto note = [](const Row& r) {
+    std::fprintf(stderr, "  %-24s done: position RMSE %.0f mm, %.3f ms/step\n", r.label.c_str(),
+                 r.metrics.position_rmse, r.ms_per_step);
+  };
+  double ms = 0;
+  const size_t n = d.steps.size();
+  if (wanted(o, "dead_reckoning")) {
+    rows.push_back(evaluate("dead_reckoning", "dead reckoning", deadReckoning(d.steps, d.odometry, init, &ms), truth,
+                            ms, n));
+    note(rows.back());
+  }
+  std::vector<Estimate> ekf_estimates;
+  if (wanted(o, "ekf")) {
+    EkfConfig c;
+    c.init = init;
+    c.gate_enabled = o.gate;
+    Ekf ekf(d.map, d.odometry, c);
+    const Clock::time_point t0 = Clock::now();
+    size_t accepted = 0, gated = 0;
+    for (const Step& s : d.steps) {
+      ekf.process(s);
+      for (const EkfUpdateRecord& u : ekf.lastUpdates()) (u.accepted ? accepted : gated) += u.compass ? 0 : 1;
+    }
+    ekf_estimates = ekf.finish();
+    ms = msSince(t0);
+    std::fprintf(stderr, "  EKF: %zu observations fused, %zu gated\n", accepted, gated);
+    rows.push_back(evaluate("ekf", "EKF", ekf_estimates, truth, ms, n));
+    note(rows.back());
+  }
+  if (wanted(o, "pf")) {
+    ParticleFilterConfig c;
+    c.init = init;
+    c.particles = o.particles;
+    ParticleFilter pf(d.map, d.odometry, c, o.seed);
+    const std::vector<Estimate> e = runEstimator(pf, d.steps, &ms);
+    rows.push_back(evaluate("pf", "PF (" + std::to_string(o.particles) + ")", e, truth, ms, n));
+    note(rows.back());
+  }
+  for (const bool use_robust : {false, true}) {
+    const std::string key = use_robust ? "window_robust" : "window";
+    if (!wanted(o, key) && !wanted(o, key + "_online")) continue;
+    SlidingWindowConfig c;
+    c.init = init;
+    c.window = o.window;
+    c.keyframe_max_steps = o.keyframe_max_steps;
+    c.gate.lost_after = o.window_lost_after;
+    c.gate_enabled = o.gate;
+    if (use_robust) c.robust_loss = robust;
+    SlidingWindowSmoother sw(d.map, d.odometry, c);
+    std::vector<Estimate> online;
+    const std::vector<Estimate> e = runEstimator(sw, d.steps, &ms, &online);
+    const SlidingWindowStats& wst = sw.stats();
+    std::fprintf(stderr, "  window%s: %ld keyframes, %ld observations fused, %ld gated, %ld re-initialisations\n",
+                 use_robust ? " (robust)" : "", wst.keyframes, wst.accepted_observations, wst.rejected_observations,
+                 wst.reinitialisations);
+    const std::string w = "W=" + std::to_string(o.window) + (use_robust ? " " + o.robust : "");
+    if (wanted(o, key)) {
+      rows.push_back(evaluate(key, "window " + w + " (lag)", e, truth, ms, n));
+      note(rows.back());
+    }
+    if (wanted(o, key + "_online")) {
+      rows.push_back(evaluate(key + "_online", "window " + w + " (online)", online, truth, ms, n));
+      note(rows.back());
+    }
+  }
+  for (const bool use_robust : {false, true}) {
+    const std::string key = use_robust ? "batch_robust" : "batch";
+    if (!wanted(o, key)) continue;
+    BatchSmootherConfig c;
+    c.init = init;
+    if (use_robust) c.loss = robust;
+    c.initial_guess = initialGuessFromString(o.batch_guess);
+    BatchSmoother batch(d.map, d.odometry, c);
+    const std::vector<Estimate> e = runEstimator(batch, d.steps, &ms);
+    const BatchSummary& s = batch.summary();
+    std::fprintf(stderr, "  batch%s: %d iterations, cost %.4g -> %.4g, %s, covariance %s\n",
+                 use_robust ? " (robust)" : "", s.iterations, s.initial_cost, s.final_cost,
+                 s.converged ? "converged" : "NOT converged", toString(s.covariance_status).c_str());
+    rows.push_back(evaluate(key, use_robust ? "batch (" + o.robust + ")" : "batch", e, truth, ms, n));
+    note(rows.back());
+  }
+
+  double ekf_rmse = 0;
+  for (const Row& r : rows)
+    if (r.key == "ekf") ekf_rmse = r.metrics.position_rmse;
+  std::printf("\n%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "estimator", "pos RMSE", "th RMSE", "mean", "NEES",
+              "max err", "ms/step", "pos RMSE", "lost/", "non-");
+  std::printf("%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "", "[mm]", "[deg]", "NEES", "in 95%", "[mm]", "",
+              "/ EKF", "reinit", "finite");
+  for (const Row& r : rows) {
+    char ratio[32] = "-";
+    if (ekf_rmse > 0) std::snprintf(ratio, sizeof ratio, "%.3f", r.metrics.position_rmse / ekf_rmse);
+    std::printf("%-24s %10.1f %10.2f %8.3g %7.0f%% %9.0f %9.3f %9s %6zu %6zu\n", r.label.c_str(),
+                r.metrics.position_rmse, rad2deg(r.metrics.theta_rmse), r.metrics.mean_nees,
+                100.0 * r.metrics.nees_in_band, r.max_error, r.ms_per_step, ratio, r.reinitialised, r.nonfinite);
+  }
+  std::printf("(RMSE over %zu steps with ground truth; NEES of the 3-dof pose error, 3 is honest; the 95%% column is "
+              "the share of steps inside the chi-square(3) 95%% band)\n",
+              rows.empty() ? size_t(0) : rows.front().metrics.count);
+
+  if (!o.csv_path.empty()) {
+    std::ostringstream os;
+    os << "estimator,position_rmse_mm,theta_rmse_rad,mean_nees,nees_in_band,max_error_mm,ms_per_step,"
+          "ratio_to_ekf,reinitialised,nonfinite,count\n";
+    for (const Row& r : rows) {
+      os << r.key << "," << formatDouble(r.metrics.position_rmse) << "," << formatDouble(r.metrics.theta_rmse) << ","
+         << formatDouble(r.metrics.mean_nees) << "," << formatDouble(r.metrics.nees_in_band) << ","
+         << formatDouble(r.max_error) << "," << formatDouble(r.ms_per_step) << ","
+         << formatDouble(ekf_rmse > 0 ? r.metrics.position_rmse / ekf_rmse : 0.0) << "," << r.reinitialised << ","
+         << r.nonfinite << "," << r.metrics.count << "\n";
+    }
+    writeFileAtomically(o.csv_path, os.str());
+  }
+  size_t bad = 0;
+  for (const Row& r : rows) bad += r.nonfinite;
+  if (bad > 0) throw Error("realdata: " + std::to_string(bad) + " non-finite estimates (see the table)");
+}
+
+}  // namespace stereoloc

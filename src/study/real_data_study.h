@@ -1,0 +1,39 @@
+#pragma once
+// `stereoloc realdata DATASET_DIR`: runs every estimator on an imported real dataset (e.g.
+// `stereoloc import mrclam`) from the same initial belief and prints the results table against
+// ground truth: position and theta RMSE, NEES (whether the covariance is honest), ms per step,
+// non-finite estimates, and each estimator's position RMSE relative to the EKF's.
+//
+// Estimators: dead reckoning (odometry only, predictPose), EKF, particle filter, sliding window
+// (W keyframes; its fixed-lag output from finish() and its real-time output from process()),
+// without and with a robust loss, batch smoother without and with a robust loss on the
+// range-bearing factors.
+#include <cstdint>
+#include <string>
+
+#include "solvers/sliding_window_smoother.h"
+
+namespace stereoloc {
+
+struct RealDataStudyOptions {
+  std::string dataset_dir, csv_path;
+  int window = 20;
+  int keyframe_max_steps = SlidingWindowConfig().keyframe_max_steps;  // 1: every step a window pose
+  int window_lost_after = SlidingWindowConfig().gate.lost_after;
+  bool gate = true;                   // false: the EKF and the window fuse every observation
+  int particles = 2000;
+  unsigned long seed = 1;
+  std::string robust = "huber";
+  double robust_scale = 1.345;
+  long max_steps = 0;                 // 0: all
+  double init_sigma_xy = 50.0;        // mm
+  double init_sigma_theta_deg = 2.0;  // deg
+  std::string batch_guess = "filter"; // initial guess of the batch: "filter" (EKF pass) or "odometry"
+  std::string only;                   // comma-separated subset of estimator keys
+};
+
+// Runs the study: prints the settings and the table to stdout, per-estimator progress to
+// stderr, and writes csv_path when set. Bad options throw UsageError; non-finite estimates Error.
+void runRealDataStudy(const RealDataStudyOptions& options);
+
+}  // namespace stereoloc

@@ -1,0 +1,274 @@
+#include "src/study/study.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <optional>
+#include <set>
+#include <thread>
+
+#include "src/core/atomic_file.h"
+#include "src/core/error.h"
+#include "src/core/yaml_util.h"
+#include "src/pipeline/frontend_source.h"
+#include "src/pipeline/usage_error.h"
+#include "src/sim/scenario.h"
+#include "src/study/study_report.h"
+#include "src/study/study_rows.h"
+#include "src/study/study_trial.h"
+
+namespace stereoloc {
+namespace fs = std::filesystem;
+using namespace study;
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// Config persistence (study.yaml), so that merge can check the shards belong together.
+
+std::string joinList(const std::vector<std::string>& v) {
+  std::string s;
+  for (size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + v[i];
+  return s;
+}
+
+void writeStudyYaml(const StudyConfig& c, const std::string& path) {
+  YamlWriter w;
+  w.comment("stereoloc study configuration (written by `stereoloc study`; read by `study merge`)");
+  w.put("scenarios", joinList(c.scenarios));
+  w.put("methods", joinList(c.methods));
+  w.put("trials", c.trials);
+  w.put("seed", std::to_string(c.seed));
+  w.put("frontend", c.frontend);
+  w.put("frontend_landmarks", c.frontend_landmarks);
+  w.put("image_noise", c.image_noise);
+  w.put("shard_index", c.shard_index);
+  w.put("shard_count", c.shard_count);
+  w.put("particles", c.method_options.particles);
+  w.put("window", c.method_options.window);
+  w.put("init", toString(c.method_options.init));
+  w.put("observation_model", toString(c.method_options.observation_model));
+  w.writeAtomically(path);
+}
+
+StudyConfig readStudyYaml(const std::string& path) {
+  YamlReader in(path);
+  StudyConfig c;
+  c.scenarios = splitCommaList(in.getString("scenarios"));
+  c.methods = splitCommaList(in.getString("methods"));
+  c.trials = in.getInt("trials");
+  try {
+    c.seed = std::stoull(in.getString("seed"));
+  } catch (const std::exception&) {
+    in.fail("seed", "not an unsigned integer");
+  }
+  c.frontend = in.getString("frontend");
+  c.frontend_landmarks = in.getString("frontend_landmarks", "all");
+  c.image_noise = in.getDouble("image_noise", StudyConfig().image_noise);
+  c.shard_index = in.getInt("shard_index");
+  c.shard_count = in.getInt("shard_count");
+  c.method_options.particles = in.getInt("particles");
+  c.method_options.window = in.getInt("window");
+  c.method_options.init = initModeFromString(in.getString("init"));
+  const std::string model = in.getString("observation_model", "range_bearing");  // study.yaml files without the field
+  try {
+    c.method_options.observation_model = observationModelFromString(model);
+  } catch (const Error& e) {
+    in.fail("observation_model", e.what());
+  }
+  return c;
+}
+
+void prepareOutDir(const std::string& dir, bool force) {
+  if (dir.empty()) throw UsageError("--out DIR is required");
+  if (fs::exists(dir) && !fs::is_directory(dir)) throw Error(dir + ": exists and is not a directory");
+  if (fs::exists(dir) && !fs::is_empty(dir)) {
+    if (!force) throw UsageError(dir + ": directory is not empty (use --force to overwrite)");
+    for (const auto& e : fs::directory_iterator(dir)) fs::remove_all(e.path());
+  }
+  fs::create_directories(dir);
+}
+
+// Sorts rows into the canonical order (scenario order of the config, trial, method order).
+template <typename Row>
+void canonicalOrder(const StudyConfig& c, std::vector<Row>& rows) {
+  auto index = [](const std::vector<std::string>& v, const std::string& s) {
+    return static_cast<int>(std::find(v.begin(), v.end(), s) - v.begin());
+  };
+  std::stable_sort(rows.begin(), rows.end(), [&](const Row& a, const Row& b) {
+    const int sa = index(c.scenarios, a.scenario), sb = index(c.scenarios, b.scenario);
+    if (sa != sb) return sa < sb;
+    if (a.trial != b.trial) return a.trial < b.trial;
+    return index(c.methods, a.method) < index(c.methods, b.method);
+  });
+}
+
+
+}  // namespace
+
+uint64_t trialSeed(uint64_t study_seed, const std::string& scenario, int trial) {
+  return splitmix64(splitmix64(study_seed) ^ hashString(scenario) ^ splitmix64(static_cast<uint64_t>(trial) + 0x51ED));
+}
+
+StudyResult runStudy(const StudyConfig& c) {
+  if (c.trials < 1) throw UsageError("--trials must be at least 1");
+  if (c.shard_count < 1 || c.shard_index < 0 || c.shard_index >= c.shard_count)
+    throw UsageError("--shard I/N needs 0 <= I < N");
+  if (c.frontend != "pixels" && c.frontend != "images") throw UsageError("--frontend must be pixels or images");
+  frontendLandmarksFromString(c.frontend_landmarks);
+  if (!(c.image_noise >= 0) || !std::isfinite(c.image_noise)) throw UsageError("--image-noise must be >= 0");
+  const std::vector<std::string> known = scenarioNames();
+  for (const std::string& s : c.scenarios)
+    if (std::find(known.begin(), known.end(), s) == known.end()) throw UsageError("unknown scenario '" + s + "'");
+  for (const std::string& m : c.methods) parseMethodSpec(m, c.method_options.init);
+  prepareOutDir(c.out_dir, c.force);
+  writeStudyYaml(c, c.out_dir + "/study.yaml");
+
+  struct Task {
+    std::string scenario;
+    int trial;
+  };
+  std::vector<Task> tasks;
+  for (const std::string& s : c.scenarios)
+    for (int t = c.shard_index; t < c.trials; t += c.shard_count) tasks.push_back({s, t});
+
+  std::ofstream trials_csv(c.out_dir + "/trials.csv"), steps_csv(c.out_dir + "/steps.csv");
+  if (!trials_csv || !steps_csv) throw Error(c.out_dir + ": cannot create trials.csv / steps.csv");
+  trials_csv << kTrialHeader << "\n" << std::flush;
+  steps_csv << kStepHeader << "\n" << std::flush;
+
+  std::vector<std::optional<TrialOutput>> results(tasks.size());
+  std::vector<std::string> errors(tasks.size());
+  std::mutex mu;
+  std::condition_variable cv;
+  std::atomic<size_t> next{0};
+  const int threads = c.threads > 0 ? c.threads : std::max(1u, std::thread::hardware_concurrency());
+  const auto cache_start = std::chrono::steady_clock::now();
+  const RenderCache cache = buildRenderCache(c, threads);
+  if (!cache.empty() && c.log)
+    std::fprintf(c.log, "study: rendered the noise-free pairs of %zu scenario(s) in %.1f s; each trial adds its own sensor noise\n",
+                 cache.size(), std::chrono::duration<double>(std::chrono::steady_clock::now() - cache_start).count());
+  std::vector<std::thread> pool;
+  for (int i = 0; i < threads; ++i) {
+    pool.emplace_back([&] {
+      for (size_t k = next++; k < tasks.size(); k = next++) {
+        TrialOutput out;
+        std::string err;
+        try {
+          out = runTrial(c, tasks[k].scenario, tasks[k].trial, &cache);
+        } catch (const std::exception& e) {
+          err = tasks[k].scenario + " trial " + std::to_string(tasks[k].trial) + ": " + e.what();
+        }
+        std::lock_guard<std::mutex> lock(mu);
+        results[k] = std::move(out);
+        errors[k] = err;
+        cv.notify_all();
+      }
+    });
+  }
+  // Rows are written in task order as soon as they are complete: the files do not depend on the
+  // thread count, and an interrupted study keeps every trial it finished.
+  const bool bar = c.progress && c.log && ::isatty(::fileno(c.log));
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<TrialRow> all_rows;
+  std::vector<StepRow> all_steps;
+  ImageFrontendStats frontend_stats;
+  std::string first_error;
+  for (size_t k = 0; k < tasks.size(); ++k) {
+    std::unique_lock<std::mutex> lock(mu);
+    cv.wait(lock, [&] { return results[k].has_value(); });
+    TrialOutput out = std::move(*results[k]);
+    const std::string err = errors[k];
+    lock.unlock();
+    if (!err.empty()) {
+      if (first_error.empty()) first_error = err;
+      continue;
+    }
+    for (const TrialRow& r : out.rows) trials_csv << toCsv(r) << "\n";
+    for (const StepRow& s : out.steps) steps_csv << toCsv(s) << "\n";
+    trials_csv.flush();
+    steps_csv.flush();
+    all_rows.insert(all_rows.end(), out.rows.begin(), out.rows.end());
+    all_steps.insert(all_steps.end(), out.steps.begin(), out.steps.end());
+    frontend_stats.merge(out.frontend);
+    if (bar) {
+      const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      const double eta = el / (k + 1) * (tasks.size() - k - 1);
+      const int width = 30, filled = static_cast<int>(width * (k + 1) / tasks.size());
+      std::fprintf(c.log, "\r[%s%s] %zu/%zu trials, %.0f s elapsed, ETA %.0f s ", std::string(filled, '#').c_str(),
+                   std::string(width - filled, '.').c_str(), k + 1, tasks.size(), el, eta);
+    }
+  }
+  for (std::thread& t : pool) t.join();
+  if (bar) std::fprintf(c.log, "\n");
+  if (!first_error.empty()) throw Error(first_error);
+  if (frontend_stats.pairs > 0 && c.log) {
+    const double n = static_cast<double>(frontend_stats.pairs);
+    std::fprintf(c.log,
+                 "image frontend: %ld stereo pairs, %.2f observations per pair (%.2f goal corners), rendering %.1f ms/pair, "
+                 "frontend %.2f ms/pair; trials done in %.1f s\n",
+                 frontend_stats.pairs, frontend_stats.observations / n, frontend_stats.identified / n,
+                 frontend_stats.ms_render / n, frontend_stats.ms_frontend / n,
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+  }
+  StudyResult result;
+  result.summary = writeReport(c, all_rows, all_steps, &cache, c.out_dir);
+  result.report = c.out_dir + "/report.md";
+  result.trial_rows = all_rows.size();
+  return result;
+}
+
+StudyResult mergeStudies(const std::vector<std::string>& dirs, const std::string& out_dir, bool force) {
+  if (dirs.empty()) throw UsageError("study merge needs at least one study directory");
+  StudyConfig c = readStudyYaml(dirs.front() + "/study.yaml");
+  std::vector<TrialRow> rows;
+  std::vector<StepRow> steps;
+  std::set<std::pair<std::string, int>> seen;
+  for (const std::string& d : dirs) {
+    const StudyConfig o = readStudyYaml(d + "/study.yaml");
+    if (o.scenarios != c.scenarios || o.methods != c.methods || o.trials != c.trials || o.seed != c.seed ||
+        o.frontend != c.frontend || o.frontend_landmarks != c.frontend_landmarks || o.image_noise != c.image_noise ||
+        o.method_options.particles != c.method_options.particles ||
+        o.method_options.window != c.method_options.window || o.method_options.init != c.method_options.init ||
+        o.method_options.observation_model != c.method_options.observation_model)
+      throw Error(d + "/study.yaml: configuration differs from " + dirs.front() + "/study.yaml");
+    std::set<std::pair<std::string, int>> here;
+    for (const TrialRow& r : readTrialRows(d + "/trials.csv")) {
+      if (seen.count({r.scenario, r.trial}) && !here.count({r.scenario, r.trial}))
+        throw Error(d + "/trials.csv: trial " + std::to_string(r.trial) + " of " + r.scenario + " appears in two studies");
+      here.insert({r.scenario, r.trial});
+      rows.push_back(r);
+    }
+    seen.insert(here.begin(), here.end());
+    for (const StepRow& s : readStepRows(d + "/steps.csv")) steps.push_back(s);
+  }
+  canonicalOrder(c, rows);
+  canonicalOrder(c, steps);
+  c.shard_index = 0;
+  c.shard_count = 1;
+  prepareOutDir(out_dir, force);
+  writeStudyYaml(c, out_dir + "/study.yaml");
+  {
+    AtomicOutputFile t(out_dir + "/trials.csv"), s(out_dir + "/steps.csv");
+    t.stream() << kTrialHeader << "\n";
+    for (const TrialRow& r : rows) t.stream() << toCsv(r) << "\n";
+    s.stream() << kStepHeader << "\n";
+    for (const StepRow& r : steps) s.stream() << toCsv(r) << "\n";
+    t.commit();
+    s.commit();
+  }
+  StudyResult result;
+  result.summary = writeReport(c, rows, steps, nullptr, out_dir);
+  result.report = out_dir + "/report.md";
+  result.trial_rows = rows.size();
+  return result;
+}
+
+}  // namespace stereoloc

@@ -1,0 +1,188 @@
+#include "src/study/study_rows.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <sstream>
+
+#include "src/core/angles.h"
+#include "src/core/atomic_file.h"
+#include "src/io/csv.h"
+#include "src/pipeline/usage_error.h"
+#include "src/study/study.h"
+
+namespace stereoloc::study {
+namespace {
+
+// One printf-formatted line of the console table.
+__attribute__((format(printf, 1, 2))) std::string line(const char* format, ...) {
+  char buf[256];
+  va_list args;
+  va_start(args, format);
+  std::vsnprintf(buf, sizeof(buf), format, args);
+  va_end(args);
+  return buf;
+}
+
+}  // namespace
+
+std::string g17(double v) {
+  char buf[40];
+  std::snprintf(buf, sizeof(buf), "%.17g", v);
+  return buf;
+}
+
+std::string toCsv(const TrialRow& r) {
+  std::ostringstream o;
+  o << r.scenario << ',' << r.trial << ',' << r.method << ',' << r.steps << ',' << r.estimates << ',' << g17(r.sse_position)
+    << ',' << g17(r.sse_theta);
+  for (const WindowSums* w : {&r.distance, &r.window1, &r.window2})
+    o << ',' << w->n << ',' << g17(w->sum) << ',' << g17(w->sum_sq) << ',' << g17(w->min) << ',' << g17(w->max);
+  o << ',' << r.nees_count << ',' << g17(r.nees_sum) << ',' << r.nees_in_band << ',' << g17(r.ms_per_step) << ','
+    << r.attempted << ',' << r.fixed;
+  return o.str();
+}
+
+std::string toCsv(const StepRow& r) {
+  std::ostringstream o;
+  o << r.scenario << ',' << r.trial << ',' << r.method << ',' << r.step << ',' << g17(r.dx) << ',' << g17(r.dy) << ','
+    << g17(r.dtheta) << ',' << g17(r.sx) << ',' << g17(r.sy) << ',' << g17(r.stheta) << ',' << (r.nees ? g17(*r.nees) : "");
+  return o.str();
+}
+
+std::string joinList(const std::vector<std::string>& v) {
+  std::string s;
+  for (size_t i = 0; i < v.size(); ++i) s += (i ? "," : "") + v[i];
+  return s;
+}
+
+std::vector<SummaryRow> summarise(const StudyConfig& c, const std::vector<TrialRow>& rows) {
+  std::vector<SummaryRow> out;
+  for (const std::string& sc : c.scenarios) {
+    for (const std::string& m : c.methods) {
+      SummaryRow s;
+      s.scenario = sc;
+      s.method = m;
+      for (const TrialRow& r : rows) {
+        if (r.scenario != sc || r.method != m) continue;
+        ++s.trials;
+        s.steps += r.steps;
+        s.estimates += r.estimates;
+        s.sse_position += r.sse_position;
+        s.sse_theta += r.sse_theta;
+        s.distance.merge(r.distance);
+        s.window1.merge(r.window1);
+        s.window2.merge(r.window2);
+        s.nees_count += r.nees_count;
+        s.nees_sum += r.nees_sum;
+        s.nees_in_band += r.nees_in_band;
+        s.ms_sum += r.ms_per_step;
+        s.attempted += r.attempted;
+        s.fixed += r.fixed;
+      }
+      out.push_back(s);
+    }
+  }
+  return out;
+}
+
+std::string fmt(const char* f, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), f, v);
+  return buf;
+}
+
+void writeSummaryCsv(const std::vector<SummaryRow>& rows, const std::string& path) {
+  AtomicOutputFile out(path);
+  out.stream() << "scenario,method,trials,position_rmse_mm,dist_mean_mm,dist_std_mm,dist_min_mm,dist_max_mm,"
+                  "theta_rmse_rad,nees_mean,nees_in_band,ms_per_step,fix_rate\n";
+  for (const SummaryRow& s : rows) {
+    out.stream() << s.scenario << ',' << s.method << ',' << s.trials << ',' << g17(s.rmse()) << ',' << g17(s.distance.mean())
+                 << ',' << g17(s.distance.std()) << ',' << g17(s.distance.min) << ',' << g17(s.distance.max) << ','
+                 << g17(s.theta_rmse()) << ',' << g17(s.meanNees()) << ',' << g17(s.inBand()) << ',' << g17(s.msPerStep())
+                 << ',' << g17(s.fixRate()) << '\n';
+  }
+  out.commit();
+}
+
+std::string summaryTable(const std::vector<SummaryRow>& rows, const std::string& scenario) {
+  std::ostringstream o;
+  o << "| method | trials | position RMSE [mm] | mean [mm] | std [mm] | min [mm] | max [mm] | theta RMSE [deg] | mean NEES | NEES in 95% band | ms/step | fix/estimate rate |\n";
+  o << "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const SummaryRow& s : rows) {
+    if (s.scenario != scenario) continue;
+    o << "| " << s.method << " | " << s.trials << " | " << fmt("%.1f", s.rmse()) << " | " << fmt("%.1f", s.distance.mean())
+      << " | " << fmt("%.1f", s.distance.std()) << " | " << fmt("%.1f", s.distance.min) << " | " << fmt("%.1f", s.distance.max)
+      << " | " << fmt("%.2f", rad2deg(s.theta_rmse())) << " | " << (s.nees_count ? fmt("%.2f", s.meanNees()) : "-") << " | "
+      << (s.nees_count ? fmt("%.0f %%", 100 * s.inBand()) : "-") << " | " << fmt("%.3f", s.msPerStep()) << " | "
+      << fmt("%.0f %%", 100 * s.fixRate()) << " |\n";
+  }
+  return o.str();
+}
+
+std::string summaryText(const std::vector<SummaryRow>& rows) {
+  std::string text = line("%-8s %-12s %6s %10s %9s %9s %9s %9s %8s %6s\n", "scenario", "method", "trials", "RMSE[mm]", "mean[mm]",
+              "std[mm]", "max[mm]", "th[deg]", "NEES", "ms/st");
+  for (const SummaryRow& s : rows)
+    text += line("%-8s %-12s %6d %10.1f %9.1f %9.1f %9.1f %9.2f %8.2f %6.3f\n", s.scenario.c_str(), s.method.c_str(),
+                s.trials, s.rmse(), s.distance.mean(), s.distance.std(), s.distance.max, rad2deg(s.theta_rmse()),
+                s.meanNees(), s.msPerStep());
+  return text;
+}
+
+std::vector<TrialRow> readTrialRows(const std::string& path) {
+  CsvReader in(path);
+  in.expectHeader({splitCommaList(kTrialHeader)});
+  std::vector<TrialRow> out;
+  while (in.next()) {
+    TrialRow r;
+    r.scenario = in.field(0);
+    r.trial = static_cast<int>(in.getLong(1));
+    r.method = in.field(2);
+    r.steps = in.getLong(3);
+    r.estimates = in.getLong(4);
+    r.sse_position = in.getDouble(5);
+    r.sse_theta = in.getDouble(6);
+    int k = 7;
+    for (WindowSums* w : {&r.distance, &r.window1, &r.window2}) {
+      w->n = in.getLong(k++);
+      w->sum = in.getDouble(k++);
+      w->sum_sq = in.getDouble(k++);
+      w->min = in.getDouble(k++);
+      w->max = in.getDouble(k++);
+    }
+    r.nees_count = in.getLong(k++);
+    r.nees_sum = in.getDouble(k++);
+    r.nees_in_band = in.getLong(k++);
+    r.ms_per_step = in.getDouble(k++);
+    r.attempted = in.getLong(k++);
+    r.fixed = in.getLong(k++);
+    out.push_back(r);
+  }
+  return out;
+}
+
+std::vector<StepRow> readStepRows(const std::string& path) {
+  CsvReader in(path);
+  in.expectHeader({splitCommaList(kStepHeader)});
+  std::vector<StepRow> out;
+  while (in.next()) {
+    StepRow r;
+    r.scenario = in.field(0);
+    r.trial = static_cast<int>(in.getLong(1));
+    r.method = in.field(2);
+    r.step = in.getLong(3);
+    r.dx = in.getDouble(4);
+    r.dy = in.getDouble(5);
+    r.dtheta = in.getDouble(6);
+    r.sx = in.getDouble(7);
+    r.sy = in.getDouble(8);
+    r.stheta = in.getDouble(9);
+    if (!in.field(10).empty()) r.nees = in.getDouble(10);
+    out.push_back(r);
+  }
+  return out;
+}
+
+}  // namespace stereoloc::study

@@ -1,0 +1,118 @@
+#pragma once
+// The rows of the accuracy study (src/study/study.h): one trial row per method and trial
+// (trials.csv), one step row per compared estimate (steps.csv), and the summary row that pools
+// the trials of a scenario and method (summary.csv). Rows keep sums, not means, so that trials
+// and shards pool exactly. Numbers are written with 17 significant digits (%.17g), so a file
+// read back gives the same doubles.
+#include <algorithm>
+#include <cmath>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace stereoloc {
+struct StudyConfig;
+}
+
+namespace stereoloc::study {
+
+// Statistics of the distance error over a step window, kept as sums so trials pool exactly.
+struct WindowSums {
+  long n = 0;
+  double sum = 0, sum_sq = 0, min = 0, max = 0;
+  void add(double v) {
+    min = n == 0 ? v : std::min(min, v);
+    max = n == 0 ? v : std::max(max, v);
+    ++n;
+    sum += v;
+    sum_sq += v * v;
+  }
+  void merge(const WindowSums& o) {
+    if (o.n == 0) return;
+    min = n == 0 ? o.min : std::min(min, o.min);
+    max = n == 0 ? o.max : std::max(max, o.max);
+    n += o.n;
+    sum += o.sum;
+    sum_sq += o.sum_sq;
+  }
+  double mean() const { return n ? sum / n : 0; }
+  double std() const { return n ? std::sqrt(std::max(0.0, sum_sq / n - mean() * mean())) : 0; }
+};
+
+// One row of trials.csv: one method on one trial.
+struct TrialRow {
+  std::string scenario, method;
+  int trial = 0;
+  long steps = 0;          // steps in the dataset
+  long estimates = 0;      // estimates compared with the truth
+  double sse_position = 0; // sum of squared position errors, mm^2
+  double sse_theta = 0;    // rad^2
+  WindowSums distance;     // all compared estimates, mm
+  WindowSums window1;      // thesis window: first sighting + 1 .. 79
+  WindowSums window2;      // thesis window: 80 .. 100
+  long nees_count = 0;
+  double nees_sum = 0;
+  long nees_in_band = 0;   // per-estimate NEES inside the 95 % chi-square(3) band
+  double ms_per_step = 0;
+  long attempted = 0, fixed = 0;  // global fixes: steps with observations, steps with a fix
+};
+
+
+inline constexpr const char* kTrialHeader =
+    "scenario,trial,method,steps,estimates,sse_position,sse_theta,"
+    "dist_n,dist_sum,dist_sum_sq,dist_min,dist_max,"
+    "w1_n,w1_sum,w1_sum_sq,w1_min,w1_max,w2_n,w2_sum,w2_sum_sq,w2_min,w2_max,"
+    "nees_count,nees_sum,nees_in_band,ms_per_step,attempted,fixed";
+
+// One row of steps.csv: the error of one estimate.
+struct StepRow {
+  std::string scenario, method;
+  int trial = 0;
+  long step = 0;
+  double dx = 0, dy = 0, dtheta = 0;
+  double sx = 0, sy = 0, stheta = 0;  // sqrt of the covariance diagonal
+  std::optional<double> nees;
+};
+
+
+inline constexpr const char* kStepHeader = "scenario,trial,method,step,dx,dy,dtheta,sigma_x,sigma_y,sigma_theta,nees";
+
+struct SummaryRow {
+  std::string scenario, method;
+  int trials = 0;
+  long estimates = 0, steps = 0;
+  double sse_position = 0, sse_theta = 0;
+  WindowSums distance, window1, window2;
+  long nees_count = 0, nees_in_band = 0;
+  double nees_sum = 0, ms_sum = 0;
+  long attempted = 0, fixed = 0;
+  double rmse() const { return estimates ? std::sqrt(sse_position / estimates) : 0; }
+  double theta_rmse() const { return estimates ? std::sqrt(sse_theta / estimates) : 0; }
+  double meanNees() const { return nees_count ? nees_sum / nees_count : 0; }
+  double inBand() const { return nees_count ? static_cast<double>(nees_in_band) / nees_count : 0; }
+  double msPerStep() const { return trials ? ms_sum / trials : 0; }
+  // Global fixes: steps with a fix over steps with observations; trackers: steps with an estimate.
+  double fixRate() const {
+    if (attempted > 0) return static_cast<double>(fixed) / attempted;
+    return steps ? static_cast<double>(estimates) / steps : 0;
+  }
+};
+
+std::string g17(double v);                          // "%.17g"
+std::string fmt(const char* format, double v);      // one number with a printf format
+std::string joinList(const std::vector<std::string>& v);  // {"a", "b"} -> "a,b"
+
+std::string toCsv(const TrialRow& r);
+std::string toCsv(const StepRow& r);
+// Read back trials.csv / steps.csv (Error naming file, line and field on bad input).
+std::vector<TrialRow> readTrialRows(const std::string& path);
+std::vector<StepRow> readStepRows(const std::string& path);
+
+// Pools the rows per (scenario, method) in the config's order.
+std::vector<SummaryRow> summarise(const StudyConfig& c, const std::vector<TrialRow>& rows);
+void writeSummaryCsv(const std::vector<SummaryRow>& rows, const std::string& path);
+// The markdown table of one scenario (report.md) and the console table of all.
+std::string summaryTable(const std::vector<SummaryRow>& rows, const std::string& scenario);
+std::string summaryText(const std::vector<SummaryRow>& rows);
+
+}  // namespace stereoloc::study

@@ -1,0 +1,162 @@
+#include "src/study/study_trial.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "src/core/gaussian.h"
+#include "src/eval/evaluation.h"
+#include "src/pipeline/methods.h"
+#include "src/sim/renderer.h"
+#include "src/sim/scenario.h"
+#include "src/sim/simulator.h"
+
+namespace stereoloc::study {
+
+uint64_t splitmix64(uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+uint64_t hashString(const std::string& s) {
+  uint64_t h = 1469598103934665603ull;  // FNV-1a
+  for (unsigned char ch : s) h = (h ^ ch) * 1099511628211ull;
+  return h;
+}
+
+uint64_t methodSeed(const StudyConfig& c, const std::string& scenario, int trial, const std::string& method) {
+  return splitmix64(trialSeed(c.seed, scenario, trial) ^ hashString(method));
+}
+
+int thesisTrial(const std::string& scenario, int trial) { return trial % std::max(1, scenarioTrialCount(scenario)); }
+
+namespace {
+
+std::string cacheKey(const std::string& scenario, int trial) {
+  return scenario + "#" + std::to_string(thesisTrial(scenario, trial));
+}
+
+}  // namespace
+
+// Simulates one trial. With the image frontend, every step's pair is rendered from the true pose
+// (or taken from `cache`) with sensor noise seeded from the trial seed and run through the
+// frontend, so the trial's data do not depend on the thread count or on the cache.
+// `render_threads` only splits the rendering of a pair.
+Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache,
+                      int render_threads, ImageFrontendStats* stats) {
+  SimulationConfig sim;
+  const uint64_t seed = trialSeed(c.seed, scenario, trial);
+  if (c.frontend != "images") return simulate(scenario, thesisTrial(scenario, trial), sim, seed);
+  SimulationTrace trace;
+  Dataset d = simulate(scenario, thesisTrial(scenario, trial), sim, seed, &trace);
+  ImageFrontendOptions fo;
+  fo.landmarks = frontendLandmarksFromString(c.frontend_landmarks);
+  const uint64_t noise_seed = splitmix64(seed ^ hashString("images"));
+  ImageFrontendStats st;
+  const auto hit = cache ? cache->find(cacheKey(scenario, trial)) : RenderCache::const_iterator();
+  if (cache && hit != cache->end()) {
+    st = observeCleanRenders(d, trace, *hit->second, c.image_noise, noise_seed, fo);
+  } else {
+    RenderOptions ro;
+    ro.compute_truth = false;
+    ro.threads = render_threads;
+    const StereoRenderer renderer(d.map, d.rig, ro);
+    st = observeRenderedImages(d, trace, renderer, c.image_noise, noise_seed, fo);
+  }
+  if (stats) *stats = st;
+  return d;
+}
+
+// Renders once, noise-free, every scenario of the study whose true path and head pans are the
+// same for any seed (all thesis scenarios; not random-walk).
+RenderCache buildRenderCache(const StudyConfig& c, int threads) {
+  RenderCache cache;
+  if (c.frontend != "images") return cache;
+  SimulationConfig sim;
+  for (const std::string& sc : c.scenarios) {
+    for (int t = c.shard_index; t < c.trials; t += c.shard_count) {
+      const std::string key = cacheKey(sc, t);
+      if (cache.count(key)) continue;
+      SimulationTrace a, b;
+      const Dataset da = simulate(sc, thesisTrial(sc, t), sim, trialSeed(c.seed, sc, t), &a);
+      simulate(sc, thesisTrial(sc, t), sim, splitmix64(trialSeed(c.seed, sc, t) + 1), &b);
+      bool fixed_path = a.scenario.poses.size() == b.scenario.poses.size() && a.scenario.head_pan == b.scenario.head_pan;
+      for (size_t k = 0; fixed_path && k < a.scenario.poses.size(); ++k)
+        fixed_path = a.scenario.poses[k].x == b.scenario.poses[k].x && a.scenario.poses[k].y == b.scenario.poses[k].y &&
+                     a.scenario.poses[k].theta == b.scenario.poses[k].theta && a.obstacles[k].empty() && b.obstacles[k].empty();
+      if (!fixed_path || a.scenario.poses.empty()) continue;
+      RenderOptions clean;
+      clean.compute_truth = false;
+      clean.threads = 1;
+      cache[key] = renderClean(a, StereoRenderer(da.map, da.rig, clean), threads);
+    }
+  }
+  return cache;
+}
+
+namespace {
+
+long firstSightingStep(const Dataset& d) {
+  for (const Step& s : d.steps)
+    if (!s.observations.empty()) return s.step;
+  return -1;
+}
+
+}  // namespace
+
+TrialOutput runTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache) {
+  TrialOutput out;
+  const Dataset d = simulateTrial(c, scenario, trial, cache, 1, &out.frontend);
+  const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
+  const long first = firstSightingStep(d);
+  const double band_lo = chi2Quantile(0.025, 3), band_hi = chi2Quantile(0.975, 3);
+  for (const std::string& method : c.methods) {
+    const MethodRun run = runMethod(method, d, methodSeed(c, scenario, trial, method), c.method_options);
+    TrialRow row;
+    row.scenario = scenario;
+    row.trial = trial;
+    row.method = method;
+    row.steps = static_cast<long>(d.steps.size());
+    row.ms_per_step = run.ms_per_step;
+    row.attempted = run.attempted_steps;
+    row.fixed = run.fixed_steps;
+    for (const PoseError& e : poseErrors(run.estimates, truth)) {
+      ++row.estimates;
+      row.sse_position += e.distance * e.distance;
+      row.sse_theta += e.dtheta * e.dtheta;
+      row.distance.add(e.distance);
+      // Thesis Tables 6.14-6.16: steps after the first sighting up to 79, and 80 to 100.
+      if (first >= 0 && e.step > first && e.step <= 79) row.window1.add(e.distance);
+      if (e.step >= 80 && e.step <= 100) row.window2.add(e.distance);
+      if (e.nees) {
+        ++row.nees_count;
+        row.nees_sum += *e.nees;
+        row.nees_in_band += (*e.nees >= band_lo && *e.nees <= band_hi) ? 1 : 0;
+      }
+    }
+    for (const Estimate& est : run.estimates) {
+      const auto it = truth.find(est.step);
+      if (it == truth.end() || est.status == EstimateStatus::Uninitialised) continue;
+      StepRow s;
+      s.scenario = scenario;
+      s.trial = trial;
+      s.method = method;
+      s.step = est.step;
+      const Eigen::Vector3d e = minus(est.pose, it->second);
+      s.dx = e.x();
+      s.dy = e.y();
+      s.dtheta = e.z();
+      const Eigen::Vector3d var = est.covariance.diagonal().cwiseMax(0.0);
+      s.sx = std::sqrt(var.x());
+      s.sy = std::sqrt(var.y());
+      s.stheta = std::sqrt(var.z());
+      s.nees = nees(est.pose, est.covariance, it->second);
+      out.steps.push_back(s);
+    }
+    out.rows.push_back(row);
+  }
+  return out;
+}
+
+}  // namespace stereoloc::study

@@ -1,0 +1,51 @@
+#pragma once
+// One trial of the accuracy study (src/study/study.h): simulate the scenario with the trial's
+// seed, optionally render every step's stereo pair and run the vision frontend, run every
+// method on the same data and compare it with the ground truth. Every random draw derives from
+// trialSeed(), so a trial's rows depend neither on the thread count nor on the render cache.
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "src/io/dataset.h"
+#include "src/pipeline/frontend_source.h"
+#include "src/study/study.h"
+#include "src/study/study_rows.h"
+
+namespace stereoloc::study {
+
+uint64_t splitmix64(uint64_t x);
+uint64_t hashString(const std::string& s);  // FNV-1a
+
+// The seed of one method on one trial: the same for the rows and the report's figures.
+uint64_t methodSeed(const StudyConfig& c, const std::string& scenario, int trial, const std::string& method);
+
+struct TrialOutput {
+  std::vector<TrialRow> rows;
+  std::vector<StepRow> steps;
+  ImageFrontendStats frontend;  // images: what rendering and the frontend did (timings: stderr only)
+};
+
+// Noise-free renders of the scenarios whose true path does not depend on the seed, by
+// "scenario#thesis trial" (see CleanRenders in frontend_source.h).
+using RenderCache = std::map<std::string, std::shared_ptr<const CleanRenders>>;
+
+// A study trial is a Monte Carlo run; scenarios with several thesis trials cycle through them.
+int thesisTrial(const std::string& scenario, int trial);
+
+// Simulates one trial. With the image frontend, every step's pair is rendered from the true pose
+// (or taken from `cache`) with sensor noise seeded from the trial seed and run through the
+// frontend. `render_threads` only splits the rendering of a pair.
+Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache,
+                      int render_threads = 1, ImageFrontendStats* stats = nullptr);
+
+// Renders once, noise-free, every scenario of the study whose true path and head pans are the
+// same for any seed (all thesis scenarios; not random-walk); empty for the pixel frontend.
+RenderCache buildRenderCache(const StudyConfig& c, int threads);
+
+// Runs every method of the config on one trial.
+TrialOutput runTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache);
+
+}  // namespace stereoloc::study

@@ -1,0 +1,82 @@
+// The method registry and the frontend source through the library API.
+#include <gtest/gtest.h>
+
+#include "src/pipeline/frontend_source.h"
+#include "src/pipeline/methods.h"
+#include "src/pipeline/usage_error.h"
+#include "src/sim/simulator.h"
+
+namespace stereoloc {
+namespace {
+
+Dataset circle(int steps) {
+  SimulationConfig cfg;
+  cfg.scenario.steps = steps;
+  return simulate("circle", 0, cfg, 7);
+}
+
+TEST(Methods, SpecSplitsNameAndInit) {
+  EXPECT_EQ(parseMethodSpec("ekf", InitMode::Known), std::make_pair(std::string("ekf"), InitMode::Known));
+  EXPECT_EQ(parseMethodSpec("pf:global", InitMode::Known), std::make_pair(std::string("pf"), InitMode::Global));
+  EXPECT_THROW(parseMethodSpec("kalman", InitMode::Known), UsageError);
+  EXPECT_THROW(parseMethodSpec("ekf:somewhere", InitMode::Known), UsageError);
+}
+
+TEST(Methods, EveryTrackerGivesOneEstimatePerStepAndIsReproducible) {
+  const Dataset d = circle(25);
+  MethodOptions o;
+  o.particles = 300;
+  for (const std::string spec : {"ekf", "iekf", "pf", "window", "batch", "deadreckoning"}) {
+    const MethodRun a = runMethod(spec, d, 3, o), b = runMethod(spec, d, 3, o);
+    ASSERT_EQ(a.estimates.size(), d.steps.size()) << spec;
+    EXPECT_EQ(a.method, spec);
+    for (size_t k = 0; k < a.estimates.size(); ++k) {
+      EXPECT_EQ(a.estimates[k].pose.x, b.estimates[k].pose.x) << spec << " step " << k;
+      EXPECT_EQ(a.estimates[k].pose.theta, b.estimates[k].pose.theta) << spec << " step " << k;
+    }
+  }
+}
+
+TEST(Methods, FixesCountAttemptedAndFixedSteps) {
+  const MethodRun run = runMethod("fix2", circle(25), 1, MethodOptions());
+  EXPECT_GT(run.attempted_steps, 0);
+  EXPECT_LE(run.fixed_steps, run.attempted_steps);
+  EXPECT_EQ(static_cast<long>(run.estimates.size()), run.fixed_steps);
+}
+
+TEST(Methods, KnownStartWithoutTruthIsAUsageError) {
+  Dataset d = circle(5);
+  d.initial_pose.reset();
+  d.groundtruth.clear();
+  EXPECT_THROW(runMethod("ekf", d, 1, MethodOptions()), UsageError);
+  EXPECT_NO_THROW(runMethod("ekf:global", d, 1, MethodOptions()));
+}
+
+TEST(FrontendSource, NamesRoundTripAndUnknownNamesAreUsageErrors) {
+  for (FrontendMode m : {FrontendMode::Pixels, FrontendMode::Images}) EXPECT_EQ(frontendModeFromString(toString(m)), m);
+  for (FrontendLandmarks s : {FrontendLandmarks::All, FrontendLandmarks::GoalCorners})
+    EXPECT_EQ(frontendLandmarksFromString(toString(s)), s);
+  EXPECT_THROW(frontendModeFromString("lidar"), UsageError);
+  EXPECT_THROW(imageFrontendOptions("some", ""), UsageError);
+  EXPECT_EQ(imageFrontendOptions("goal_corners", "").landmarks, FrontendLandmarks::GoalCorners);
+}
+
+TEST(FrontendSource, SummaryNamesPairsObservationsAndDrops) {
+  ImageFrontendStats st;
+  st.pairs = 4;
+  st.observations = 10;
+  st.identified = 6;
+  st.dropped = 2;
+  st.ms_frontend = 8;
+  EXPECT_EQ(frontendSummary(st), "frontend on 4 image pairs: 10 observations (6 goal corners), 2 unidentified dropped, 2.00 ms/pair");
+  st.dropped = 0;
+  EXPECT_EQ(frontendSummary(st), "frontend on 4 image pairs: 10 observations (6 goal corners), 2.00 ms/pair");
+}
+
+TEST(UsageErrorList, SplitDropsEmptyItems) {
+  EXPECT_EQ(splitCommaList("a,b,,c,"), (std::vector<std::string>{"a", "b", "c"}));
+  EXPECT_TRUE(splitCommaList("").empty());
+}
+
+}  // namespace
+}  // namespace stereoloc

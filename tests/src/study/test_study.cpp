@@ -1,0 +1,90 @@
+// The accuracy study's building blocks: seeds, rows and their CSV form, option checks.
+#include <gtest/gtest.h>
+
+#include <fstream>
+
+#include "src/pipeline/usage_error.h"
+#include "src/study/study.h"
+#include "src/study/study_rows.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+TEST(Study, TrialSeedsDifferPerScenarioAndTrialAndRepeat) {
+  EXPECT_EQ(trialSeed(1, "circle", 0), trialSeed(1, "circle", 0));
+  EXPECT_NE(trialSeed(1, "circle", 0), trialSeed(1, "circle", 1));
+  EXPECT_NE(trialSeed(1, "circle", 0), trialSeed(1, "line", 0));
+  EXPECT_NE(trialSeed(1, "circle", 0), trialSeed(2, "circle", 0));
+}
+
+TEST(StudyRows, TrialAndStepRowsSurviveTheirCsvExactly) {
+  test::TempDir dir;
+  study::TrialRow t;
+  t.scenario = "circle";
+  t.method = "ekf:random";
+  t.trial = 3;
+  t.steps = 100;
+  t.estimates = 99;
+  t.sse_position = 1.0 / 3.0;
+  for (double v : {12.5, 0.1, 1e-9}) t.distance.add(v);
+  t.nees_count = 2;
+  t.nees_sum = 6.000000000000001;
+  study::StepRow s;
+  s.scenario = "line";
+  s.method = "batch";
+  s.step = 7;
+  s.dx = -0.1;
+  s.stheta = 2e-17;
+  {
+    std::ofstream out(dir.file("trials.csv"));
+    out << study::kTrialHeader << "\n" << study::toCsv(t) << "\n";
+    std::ofstream steps(dir.file("steps.csv"));
+    steps << study::kStepHeader << "\n" << study::toCsv(s) << "\n";
+  }
+  const std::vector<study::TrialRow> tr = study::readTrialRows(dir.file("trials.csv"));
+  ASSERT_EQ(tr.size(), 1u);
+  EXPECT_EQ(study::toCsv(tr[0]), study::toCsv(t));
+  EXPECT_EQ(tr[0].distance.min, 1e-9);
+  const std::vector<study::StepRow> sr = study::readStepRows(dir.file("steps.csv"));
+  ASSERT_EQ(sr.size(), 1u);
+  EXPECT_EQ(study::toCsv(sr[0]), study::toCsv(s));
+  EXPECT_FALSE(sr[0].nees.has_value());
+}
+
+TEST(StudyRows, SummaryPoolsTrialsBySums) {
+  StudyConfig c;
+  c.scenarios = {"circle"};
+  c.methods = {"ekf"};
+  study::TrialRow a, b;
+  a.scenario = b.scenario = "circle";
+  a.method = b.method = "ekf";
+  a.estimates = 1;
+  a.sse_position = 9;
+  b.estimates = 3;
+  b.sse_position = 7;
+  const std::vector<study::SummaryRow> s = study::summarise(c, {a, b});
+  ASSERT_EQ(s.size(), 1u);
+  EXPECT_EQ(s[0].trials, 2);
+  EXPECT_DOUBLE_EQ(s[0].rmse(), 2.0);  // sqrt(16 / 4)
+}
+
+TEST(Study, BadOptionsAreUsageErrorsBeforeAnyFileIsWritten) {
+  test::TempDir dir;
+  StudyConfig c;
+  c.out_dir = dir.file("s");
+  c.log = nullptr;
+  c.frontend = "pixels";
+  c.trials = 0;
+  EXPECT_THROW(runStudy(c), UsageError);
+  c.trials = 1;
+  c.scenarios = {"moon"};
+  EXPECT_THROW(runStudy(c), UsageError);
+  c.scenarios = {"circle"};
+  c.methods = {"ekf:sideways"};
+  EXPECT_THROW(runStudy(c), UsageError);
+  EXPECT_FALSE(std::filesystem::exists(c.out_dir));
+}
+
+}  // namespace
+}  // namespace stereoloc
