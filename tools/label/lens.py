@@ -75,13 +75,6 @@ def main():
     ap.add_argument('--mirror', required=True)
     ap.add_argument('--data', default='data/real')
     a = ap.parse_args()
-    src = {}
-    with open(os.path.join(a.data, 'sources.txt')) as f:
-        for line in f:
-            t = line.split()
-            if len(t) == 4 and not line.startswith('#'):
-                parts = t[2].split('/')
-                src['_'.join(parts[:-1] + [os.path.splitext(parts[-1])[0]])] = t
     lines, c = [], None
     path = os.path.join(a.data, 'lens_lines.txt')
     with open(path) as f:
@@ -89,9 +82,10 @@ def main():
             t = line.split('#')[0].split()
             if not t:
                 continue
-            if t[0] not in src:
-                sys.exit(f'{path}:{ln}: {t[0]} is not in sources.txt')
-            repo, commit, p, top = src[t[0]]
+            if len(t) < 7 or len(t) % 2 == 0:
+                sys.exit(f'{path}:{ln}: expected commit path crop_top and at least two x y points')
+            commit, p, top = t[0], t[1], t[2]
+            t = t[2:]
             blob = subprocess.run(['git', '--git-dir', a.mirror, 'show', f'{commit}:{p}'], capture_output=True).stdout
             img = cv2.imdecode(np.frombuffer(blob, np.uint8), cv2.IMREAD_COLOR)
             if img is None:
