@@ -43,6 +43,8 @@ class ProgressLine {
 };
 
 void runRefine(const LocalizeArgs& a) {
+  // Self-calibration is its own problem (solvers/self_calibration.h), run as localize runs it.
+  if (!a.calibrate.empty() || !a.calibration_out.empty()) return runLocalize(a);
   MethodOptions o = a.options;
   try {
     o.init = initModeFromString(a.init);
