@@ -401,6 +401,7 @@ void BatchSmoother::solve() {
     return;
   }
   const auto t_solve = Clock::now();
+  observations_.shrink_to_fit();  // before the solver's workspace: the growth slack is not kept
   const size_t first = static_cast<size_t>(first_index_);
   const size_t n = steps_.size() - first;
   std::vector<double> x(3 * n);
@@ -614,31 +615,36 @@ void BatchSmoother::solve() {
     s.reinit_steps.push_back(steps_[c.reinit].step);
   }
 
-  // The result is made only now: during the solves it would be one more copy of the trajectory.
-  result_ = guess_;
-  for (size_t i = 0; i < n; ++i) {
-    Estimate& e = result_[first + i];
-    e.pose = Pose2(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
-    e.covariance.setZero();
-    e.status = EstimateStatus::Tracking;
-  }
+  // The chain marginals first, then the result: each phase holds one more copy of the
+  // trajectory's size, not two (the peak memory of a long run).
+  std::vector<Eigen::Matrix3d> chain_cov;
+  const bool chain_covariance = config_.compute_covariance && config_.covariance_method == CovarianceMethod::Chain;
   if (config_.compute_covariance) report("covariance", 0, 1, 0, cost);
-  if (config_.compute_covariance && config_.covariance_method == CovarianceMethod::Chain) {
+  if (chain_covariance) {
     const auto t1 = Clock::now();
-    std::vector<Eigen::Matrix3d> D, B, cov;
+    std::vector<Eigen::Matrix3d> D, B;
     std::vector<Eigen::Vector3d> g;
     double c0 = 0;
     const bool ok = chain.linearise(0, n, x, &D, &B, &g, &c0);
     g = std::vector<Eigen::Vector3d>();
-    if (ok && chainMarginalCovariances(D, B, &cov)) {
+    if (ok && chainMarginalCovariances(D, B, &chain_cov)) {
       s.covariance_status = CovarianceStatus::Ok;
-      for (size_t i = 0; i < n; ++i) result_[first + i].covariance = cov[i];
     } else {
+      chain_cov.clear();
       s.covariance_status = CovarianceStatus::RankDeficient;
       s.message += "; covariance: the information matrix is rank deficient, marginal covariances are not available";
     }
     s.covariance_seconds = secondsSince(t1);
-  } else if (config_.compute_covariance) {
+  }
+  result_ = guess_;
+  for (size_t i = 0; i < n; ++i) {
+    Estimate& e = result_[first + i];
+    e.pose = Pose2(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+    e.covariance = chain_cov.empty() ? Eigen::Matrix3d::Zero() : chain_cov[i];
+    e.status = EstimateStatus::Tracking;
+  }
+  chain_cov = std::vector<Eigen::Matrix3d>();
+  if (config_.compute_covariance && !chain_covariance) {
     const auto t1 = Clock::now();
     const std::unique_ptr<ceres::Problem> problem = makeCeresProblem(source, loss.get(), &manifold, 0, n, &x);
     ceres::Covariance::Options copts;

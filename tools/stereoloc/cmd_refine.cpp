@@ -43,6 +43,8 @@ class ProgressLine {
 };
 
 void runRefine(const LocalizeArgs& a) {
+  // Self-calibration is its own problem (solvers/self_calibration.h), run as localize runs it.
+  if (!a.calibrate.empty() || !a.calibration_out.empty()) return runLocalize(a);
   MethodOptions o = a.options;
   try {
     o.init = initModeFromString(a.init);
@@ -78,10 +80,10 @@ void runRefine(const LocalizeArgs& a) {
       std::snprintf(line, sizeof(line), "refine: %s", p.phase.c_str());
     progress.show(line);
   };
-  BatchSmoother smoother(d.map, d.odometry, c);
+  auto smoother = std::make_unique<BatchSmoother>(d.map, d.odometry, c);
   const size_t steps = d.steps.size();
   for (size_t i = 0; i < steps; ++i) {
-    smoother.process(d.steps[i]);
+    smoother->process(d.steps[i]);
     if (i % 4096 == 0) {
       std::snprintf(line, sizeof(line), "refine: filter pass %zu / %zu steps", i, steps);
       progress.show(line);
@@ -91,8 +93,9 @@ void runRefine(const LocalizeArgs& a) {
   std::vector<long> step_numbers(steps);
   for (size_t i = 0; i < steps; ++i) step_numbers[i] = d.steps[i].step;
   std::vector<Step>().swap(d.steps);
-  const std::vector<Estimate> estimates = smoother.finish();
-  const BatchSummary& s = smoother.summary();
+  const std::vector<Estimate> estimates = smoother->finish();
+  const BatchSummary s = smoother->summary();
+  smoother.reset();  // its buffers are not needed for writing and the metrics
   for (const Estimate& e : estimates)
     if (!e.pose.isFinite() || !e.covariance.allFinite())
       throw Error("refine: the smoother produced a non-finite estimate at step " + std::to_string(e.step));
