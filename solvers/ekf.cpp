@@ -1,8 +1,10 @@
 #include "solvers/ekf.h"
 
 #include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <string>
 #include <utility>
 
@@ -172,6 +174,20 @@ Estimate Ekf::process(const Step& step) {
     return finishStep(EstimateStatus::Lost);
   }
 
+  // While the belief is wider than the hand-over spread, unidentified sightings are not
+  // associated: their gates hold several landmarks of the type.
+  const bool wide = config_.handover_sigma_mm > 0 && std::sqrt(std::max(P_(0, 0), P_(1, 1))) > config_.handover_sigma_mm;
+  if (wide && !step.observations.empty()) {
+    const double spread = std::sqrt(std::max(P_(0, 0), P_(1, 1)));
+    {
+      const std::optional<PoseFix> fix = config_.global_fix ? config_.global_fix(step, map_) : std::nullopt;
+      if (fix && fix->pose.isFinite() && fix->covariance.allFinite() &&
+          std::sqrt(std::max(fix->covariance(0, 0), fix->covariance(1, 1))) < spread) {
+        reset(fix->pose, fix->covariance);  // the fix used this step's observations: no update on top
+        return finishStep(EstimateStatus::Reinitialised);
+      }
+    }
+  }
   bool fused = false;
   if (step.compass && config_.use_compass) {
     EkfUpdateRecord rec = updateCompass(*step.compass, step.compass_sigma);
@@ -195,6 +211,8 @@ Estimate Ekf::process(const Step& step) {
     if (obs.landmark_id >= 0) {
       lm = map_.find(obs.landmark_id);
       if (!lm) throw Error(where(step, i) + ": unknown landmark id " + std::to_string(obs.landmark_id));
+    } else if (wide) {
+      continue;
     } else if (config_.association.exclusive && config_.association.joint) {
       // All unidentified sightings of the step jointly, once, at the belief after the identified ones.
       if (joint_ids.empty()) {

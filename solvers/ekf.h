@@ -57,6 +57,14 @@ struct EkfConfig {
   double compass_gate_probability = 0.99;  // chi-square probability (1 dof) of the compass gate
   bool reinitialise_when_lost = true;       // ask global_fix when lost; false: stay lost
   GlobalFixFunction global_fix;      // empty: defaultGlobalFix() (solvers/global_fix.h)
+  // Hand-over to the global start: while the belief's larger position standard deviation
+  // exceeds this (mm), every step first asks global_fix, and a fix whose own position spread is
+  // smaller restarts the filter there. With the thesis's random start (section 5.1.4: a
+  // covariance as large as the field) the gate of every sighting holds several landmarks of its
+  // type, so association picks a wrong one and the filter settles on a wrong pose; a fix needs
+  // no prior. Costs one fix attempt per step until then (a few microseconds). 0: off
+  // (Algorithm 5 as printed).
+  double handover_sigma_mm = 150.0;
   // Gauss-Newton iterations of each range-bearing update (see the header comment); 1 is
   // Algorithm 5 as printed.
   int max_iterations = 1;

@@ -6,10 +6,12 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <unordered_set>
 #include <utility>
 
 #include "src/core/error.h"
 #include "solvers/fast_trig.h"
+#include "src/core/gaussian.h"
 #include "src/core/measurement_model.h"
 
 namespace stereoloc {
@@ -136,6 +138,13 @@ ParticleFilter::ParticleFilter(const FieldMap& map, const OdometryParams& odomet
     : map_(map), odometry_(odometry), config_(std::move(config)), rng_(seed), gate_(config_.gate, 2) {
   odometry_.validate();
   if (config_.particles < 1) throw Error("particle filter: particles must be at least 1");
+  if (config_.kld.enabled) {
+    const KldSamplingConfig& k = config_.kld;
+    if (!(k.epsilon > 0 && k.quantile > 0.5 && k.quantile < 1 && k.bin_xy_mm > 0 && k.bin_theta_rad > 0))
+      throw Error("particle filter: KLD-sampling needs epsilon > 0, quantile in (0.5, 1) and positive bin sizes");
+    if (k.min_particles < 1 || k.min_particles > config_.particles)
+      throw Error("particle filter: KLD-sampling min_particles must be in [1, particles]");
+  }
   if (config_.reinjected < 0 || config_.reinjected > config_.particles)
     throw Error("particle filter: reinjected must be in [0, particles]");
   if (!(config_.likelihood_floor > 0 && config_.likelihood_floor <= 1))
@@ -453,14 +462,46 @@ double ParticleFilter::effectiveSampleSize() const {
   return s > 0 ? 1.0 / s : 0.0;
 }
 
+int kldSampleSize(int bins, double epsilon, double quantile) {
+  if (bins < 2) return 1;
+  // Fox (2003), eq. (12): the Wilson-Hilferty approximation of chi^2_(k-1, 1-delta) / (2 epsilon).
+  const double k1 = bins - 1.0, a = 2.0 / (9.0 * k1);
+  const double z = std::sqrt(chi2Quantile(2.0 * quantile - 1.0, 1));  // upper 1 - delta quantile of N(0, 1)
+  const double c = 1.0 - a + std::sqrt(a) * z;
+  const double n = k1 / (2.0 * epsilon) * c * c * c;
+  return n >= std::numeric_limits<int>::max() ? std::numeric_limits<int>::max() : static_cast<int>(std::ceil(n));
+}
+
 void ParticleFilter::resample() {
-  const int n = size();
+  const int n = config_.kld.enabled ? config_.particles : size();
   std::vector<int>& idx = resample_index_;  // (5.38)
   if (config_.resampling == ResamplingScheme::Systematic) {
     systematicResampleInto(w_, n, rng_, idx);
   } else {
     idx = sortedRouletteResample(w_, n, rng_);
   }
+  if (config_.kld.enabled) {
+    // KLD-sampling: take the N_max draws in random order (a uniform subset of a resampled set
+    // is a resampled set) until their count reaches n(k) of the bins they occupy.
+    const KldSamplingConfig& kc = config_.kld;
+    for (size_t i = idx.size(); i > 1; --i) {
+      const size_t j = static_cast<size_t>(std::uniform_int_distribution<size_t>(0, i - 1)(rng_));
+      std::swap(idx[i - 1], idx[j]);
+    }
+    std::unordered_set<uint64_t> bins;
+    int needed = kc.min_particles;
+    size_t taken = 0;
+    for (; taken < idx.size(); ++taken) {
+      if (static_cast<int>(taken) >= needed) break;
+      const size_t j = static_cast<size_t>(idx[taken]);
+      const auto cell = [](double v, double width) { return static_cast<uint64_t>(static_cast<int64_t>(std::floor(v / width)) & 0x1fffff); };
+      const uint64_t key = cell(x_[j], kc.bin_xy_mm) << 42 | cell(y_[j], kc.bin_xy_mm) << 21 |
+                           cell(th_[j] + kPi, kc.bin_theta_rad);
+      if (bins.insert(key).second) needed = std::max(kc.min_particles, kldSampleSize(static_cast<int>(bins.size()), kc.epsilon, kc.quantile));
+    }
+    idx.resize(taken);
+  }
+  const int kept = static_cast<int>(idx.size());
   scratch_x_.resize(x_.size());
   scratch_y_.resize(y_.size());
   scratch_th_.resize(th_.size());
@@ -474,13 +515,18 @@ void ParticleFilter::resample() {
     scratch_c_[i] = c_[j];
     scratch_s_[i] = s_[j];
   }
+  scratch_x_.resize(idx.size());
+  scratch_y_.resize(idx.size());
+  scratch_th_.resize(idx.size());
+  scratch_c_.resize(idx.size());
+  scratch_s_.resize(idx.size());
   x_.swap(scratch_x_);
   y_.swap(scratch_y_);
   th_.swap(scratch_th_);
   c_.swap(scratch_c_);
   s_.swap(scratch_s_);
-  logw_.assign(x_.size(), -std::log(static_cast<double>(n)));
-  w_.assign(x_.size(), 1.0 / n);
+  logw_.assign(x_.size(), -std::log(static_cast<double>(kept)));
+  w_.assign(x_.size(), 1.0 / kept);
   uniform_weights_ = true;
 }
 
@@ -506,6 +552,9 @@ void ParticleFilter::reinject(int count) {
   // Replaces `count` particles spread evenly over the set (after resampling they are in
   // random order only for the roulette, so a stride keeps the choice independent of weight).
   const int n = size();
+  // With KLD-sampling the set shrinks; the re-injected share stays count / particles.
+  if (config_.kld.enabled && count > 0 && n < config_.particles)
+    count = std::max(1, static_cast<int>(std::lround(static_cast<double>(count) * n / config_.particles)));
   if (count <= 0 || n == 0) return;
   const Bounds& b = map_.bounds();
   std::uniform_real_distribution<double> ux(b.xmin, b.xmax), uy(b.ymin, b.ymax), ut(-kPi, kPi);
@@ -573,6 +622,7 @@ Estimate ParticleFilter::process(const Step& step) {
     e.pose = mean_;
     e.covariance = initialised_ ? cov_ : Eigen::Matrix3d::Zero();
     e.status = status;
+    e.particles = initialised_ ? size() : 0;
     estimates_.push_back(e);
     return e;
   };
@@ -583,6 +633,21 @@ Estimate ParticleFilter::process(const Step& step) {
   }
   // The optimal proposal predicts and corrects in one pass once the observations are known.
   const bool optimal = config_.proposal == ParticleProposal::LinearisedOptimal;
+  if (config_.handover_sigma_mm > 0 && !step.observations.empty() && config_.global_fix) {
+    const double spread = std::sqrt(std::max(cov_(0, 0), cov_(1, 1)));
+    if (spread > config_.handover_sigma_mm) {
+      const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+      if (fix && fix->pose.isFinite() && fix->covariance.allFinite() &&
+          std::sqrt(std::max(fix->covariance(0, 0), fix->covariance(1, 1))) < spread) {
+        try {
+          initialiseGaussian(fix->pose, fix->covariance);
+          return finishStep(EstimateStatus::Reinitialised);
+        } catch (const Error&) {
+          // a fix with an unusable covariance is no fix: go on with the set
+        }
+      }
+    }
+  }
   if (!first && !optimal) predict(step.d_left, step.d_right);
 
   // Identify the observations; unidentified ones are associated with the predicted estimate

@@ -57,7 +57,7 @@ ResamplingScheme resamplingSchemeFromString(const std::string& name);
 //     weight is the predictive likelihood N(z; h(x_pred), H G U G^T + R). The weights then vary
 //     only with the particles' spread relative to (one step's odometry noise + R), not relative to
 //     R alone, so they stay flat in the steady state whether the odometry or the stereo is the
-//     sharper (docs/particle_filter.md). Chosen over progressive correction (several tempered
+//     sharper (docs/estimators.md). Chosen over progressive correction (several tempered
 //     resample-and-jitter rounds per step, each a full likelihood pass) because it needs one pass
 //     and no tuning of tempering stages, and over Rao-Blackwellising the heading because the
 //     bearing couples heading and position, so the heading's conditional is not Gaussian in
@@ -147,6 +147,11 @@ struct ParticleFilterConfig {
   // is what recovers.
   GateConfig gate;
   GlobalFixFunction global_fix;    // empty: defaultGlobalFix() (solvers/global_fix.h)
+  // Hand-over to the global start, as EkfConfig::handover_sigma_mm: while the set's larger
+  // position standard deviation exceeds this (mm), a global fix with a smaller spread re-draws
+  // the particles around it. A uniform set (the random start) otherwise needs tens of steps of
+  // re-weighting and resampling to find the one cluster that fits. 0: off.
+  double handover_sigma_mm = 150.0;
 };
 
 // Standard normal deviates by the ziggurat method (Marsaglia & Tsang 2000, 128 layers), drawing
@@ -187,6 +192,9 @@ class ZigguratNormal {
 
 // Resampling primitives (exposed for tests). They return, for each of the n new particles, the
 // index of the particle it copies. `weights` must be normalised (sum 1, non-negative).
+// KLD-sampling's sample size n(k) for k occupied bins (KldSamplingConfig); 1 for k < 2.
+int kldSampleSize(int bins, double epsilon, double quantile);
+
 std::vector<int> systematicResample(const std::vector<double>& weights, int n, std::mt19937_64& rng);
 std::vector<int> sortedRouletteResample(const std::vector<double>& weights, int n, std::mt19937_64& rng);
 

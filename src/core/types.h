@@ -66,6 +66,7 @@ struct Estimate {
   Pose2 pose;
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  // (x, y, theta): mm^2, mm*rad, rad^2
   EstimateStatus status = EstimateStatus::Uninitialised;
+  int particles = 0;  // the particle filter's sample size after this step; 0 for the other estimators
 };
 
 }  // namespace stereoloc

@@ -147,6 +147,8 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     ParticleFilterConfig c;
     c.init = beliefFor(init_mode, d, o, rng);
     c.particles = o.particles;
+    c.proposal = o.pf_proposal;
+    c.kld.enabled = o.pf_kld;
     ParticleFilter pf(d.map, d.odometry, c, rng());
     run = runEstimator(pf, d);
   } else if (name == "window") {

@@ -9,6 +9,7 @@
 #include <optional>
 
 #include "solvers/initialisation.h"
+#include "solvers/particle_filter.h"
 #include "solvers/self_calibration.h"
 #include "solvers/smoother_common.h"
 #include "src/io/dataset.h"
@@ -19,7 +20,9 @@ namespace stereoloc {
 struct MethodOptions {
   InitMode init = InitMode::Known;   // overridden by a ":init" suffix in the method spec
   InitConfig init_config;            // noise of the known start, spread of the random start
-  int particles = 3000;              // pf
+  int particles = 3000;              // pf (the bound N_max with KLD-sampling)
+  ParticleProposal pf_proposal = ParticleProposal::LinearisedOptimal;  // pf; Prior = Algorithm 6 as printed
+  bool pf_kld = false;               // pf: KLD-sampling with KldSamplingConfig's defaults
   int window = 20;                   // window
   RobustLoss loss = RobustLoss::None;  // batch and window observation factors
   // Batch and window, with the dataset's rig. The CLI default is the pixel columns: the same

@@ -55,6 +55,8 @@ void writeStudyYaml(const StudyConfig& c, const std::string& path) {
   w.put("window", c.method_options.window);
   w.put("init", toString(c.method_options.init));
   w.put("observation_model", toString(c.method_options.observation_model));
+  w.put("pf_proposal", toString(c.method_options.pf_proposal));
+  w.put("pf_kld", std::string(c.method_options.pf_kld ? "true" : "false"));
   w.writeAtomically(path);
 }
 
@@ -83,6 +85,16 @@ StudyConfig readStudyYaml(const std::string& path) {
   } catch (const Error& e) {
     in.fail("observation_model", e.what());
   }
+  // Absent fields: the defaults.
+  try {
+    c.method_options.pf_proposal =
+        particleProposalFromString(in.getString("pf_proposal", toString(MethodOptions().pf_proposal)));
+  } catch (const Error& e) {
+    in.fail("pf_proposal", e.what());
+  }
+  const std::string kld = in.getString("pf_kld", "false");
+  if (kld != "true" && kld != "false") in.fail("pf_kld", "expected true or false");
+  c.method_options.pf_kld = kld == "true";
   return c;
 }
 
@@ -237,7 +249,8 @@ StudyResult mergeStudies(const std::vector<std::string>& dirs, const std::string
         o.frontend != c.frontend || o.frontend_landmarks != c.frontend_landmarks || o.image_noise != c.image_noise ||
         o.method_options.particles != c.method_options.particles ||
         o.method_options.window != c.method_options.window || o.method_options.init != c.method_options.init ||
-        o.method_options.observation_model != c.method_options.observation_model)
+        o.method_options.observation_model != c.method_options.observation_model ||
+        o.method_options.pf_proposal != c.method_options.pf_proposal || o.method_options.pf_kld != c.method_options.pf_kld)
       throw Error(d + "/study.yaml: configuration differs from " + dirs.front() + "/study.yaml");
     std::set<std::pair<std::string, int>> here;
     for (const TrialRow& r : readTrialRows(d + "/trials.csv")) {

@@ -34,7 +34,7 @@ std::string toCsv(const TrialRow& r) {
 std::string toCsv(const StepRow& r) {
   std::ostringstream o;
   o << r.scenario << ',' << r.trial << ',' << r.method << ',' << r.step << ',' << g17(r.dx) << ',' << g17(r.dy) << ','
-    << g17(r.dtheta) << ',' << g17(r.sx) << ',' << g17(r.sy) << ',' << g17(r.stheta) << ',' << (r.nees ? g17(*r.nees) : "");
+    << g17(r.dtheta) << ',' << g17(r.sx) << ',' << g17(r.sy) << ',' << g17(r.stheta) << ',' << (r.nees ? g17(*r.nees) : "") << ',' << r.particles;
   return o.str();
 }
 
@@ -67,6 +67,10 @@ std::vector<SummaryRow> summarise(const StudyConfig& c, const std::vector<TrialR
         s.ms_sum += r.ms_per_step;
         s.attempted += r.attempted;
         s.fixed += r.fixed;
+        if (r.window2.n > 0) {
+          ++s.judged;
+          s.converged += r.window2.max <= kConvergedMaxErrorMm ? 1 : 0;
+        }
       }
       out.push_back(s);
     }
@@ -83,38 +87,39 @@ std::string fmt(const char* f, double v) {
 void writeSummaryCsv(const std::vector<SummaryRow>& rows, const std::string& path) {
   AtomicOutputFile out(path);
   out.stream() << "scenario,method,trials,position_rmse_mm,dist_mean_mm,dist_std_mm,dist_min_mm,dist_max_mm,"
-                  "theta_rmse_rad,nees_mean,nees_in_band,ms_per_step,fix_rate\n";
+                  "theta_rmse_rad,nees_mean,nees_in_band,ms_per_step,fix_rate,converged\n";
   for (const SummaryRow& s : rows) {
     out.stream() << s.scenario << ',' << s.method << ',' << s.trials << ',' << g17(s.rmse()) << ',' << g17(s.distance.mean())
                  << ',' << g17(s.distance.std()) << ',' << g17(s.distance.min) << ',' << g17(s.distance.max) << ','
                  << g17(s.theta_rmse()) << ',' << g17(s.meanNees()) << ',' << g17(s.inBand()) << ',' << g17(s.msPerStep())
-                 << ',' << g17(s.fixRate()) << '\n';
+                 << ',' << g17(s.fixRate()) << ',' << g17(s.convergedFraction()) << '\n';
   }
   out.commit();
 }
 
 std::string summaryTable(const std::vector<SummaryRow>& rows, const std::string& scenario) {
   std::ostringstream o;
-  o << "| method | trials | position RMSE [mm] | mean [mm] | std [mm] | min [mm] | max [mm] | theta RMSE [deg] | mean NEES | NEES in 95% band | ms/step | fix/estimate rate |\n";
-  o << "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  o << "| method | trials | position RMSE [mm] | mean [mm] | std [mm] | min [mm] | max [mm] | theta RMSE [deg] | mean NEES | NEES in 95% band | ms/step | fix/estimate rate | converged |\n";
+  o << "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const SummaryRow& s : rows) {
     if (s.scenario != scenario) continue;
     o << "| " << s.method << " | " << s.trials << " | " << fmt("%.1f", s.rmse()) << " | " << fmt("%.1f", s.distance.mean())
       << " | " << fmt("%.1f", s.distance.std()) << " | " << fmt("%.1f", s.distance.min) << " | " << fmt("%.1f", s.distance.max)
       << " | " << fmt("%.2f", rad2deg(s.theta_rmse())) << " | " << (s.nees_count ? fmt("%.2f", s.meanNees()) : "-") << " | "
       << (s.nees_count ? fmt("%.0f %%", 100 * s.inBand()) : "-") << " | " << fmt("%.3f", s.msPerStep()) << " | "
-      << fmt("%.0f %%", 100 * s.fixRate()) << " |\n";
+      << fmt("%.0f %%", 100 * s.fixRate()) << " | "
+      << (s.judged ? fmt("%.0f %%", 100 * s.convergedFraction()) : "-") << " |\n";
   }
   return o.str();
 }
 
 std::string summaryText(const std::vector<SummaryRow>& rows) {
-  std::string text = formatText("%-8s %-12s %6s %10s %9s %9s %9s %9s %8s %6s\n", "scenario", "method", "trials", "RMSE[mm]", "mean[mm]",
-              "std[mm]", "max[mm]", "th[deg]", "NEES", "ms/st");
+  std::string text = formatText("%-8s %-12s %6s %10s %9s %9s %9s %9s %8s %6s %5s\n", "scenario", "method", "trials",
+                                "RMSE[mm]", "mean[mm]", "std[mm]", "max[mm]", "th[deg]", "NEES", "ms/st", "conv");
   for (const SummaryRow& s : rows)
-    text += formatText("%-8s %-12s %6d %10.1f %9.1f %9.1f %9.1f %9.2f %8.2f %6.3f\n", s.scenario.c_str(), s.method.c_str(),
-                s.trials, s.rmse(), s.distance.mean(), s.distance.std(), s.distance.max, rad2deg(s.theta_rmse()),
-                s.meanNees(), s.msPerStep());
+    text += formatText("%-8s %-12s %6d %10.1f %9.1f %9.1f %9.1f %9.2f %8.2f %6.3f %4.0f%%\n", s.scenario.c_str(),
+                       s.method.c_str(), s.trials, s.rmse(), s.distance.mean(), s.distance.std(), s.distance.max,
+                       rad2deg(s.theta_rmse()), s.meanNees(), s.msPerStep(), 100 * s.convergedFraction());
   return text;
 }
 
@@ -167,6 +172,7 @@ std::vector<StepRow> readStepRows(const std::string& path) {
     r.sy = in.getDouble(8);
     r.stheta = in.getDouble(9);
     if (!in.field(10).empty()) r.nees = in.getDouble(10);
+    r.particles = static_cast<int>(in.getLong(11));
     out.push_back(r);
   }
   return out;

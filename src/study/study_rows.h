@@ -72,10 +72,16 @@ struct StepRow {
   double dx = 0, dy = 0, dtheta = 0;
   double sx = 0, sy = 0, stheta = 0;  // sqrt of the covariance diagonal
   std::optional<double> nees;
+  int particles = 0;  // the particle filter's sample size (KLD-sampling adapts it); 0 otherwise
 };
 
 
-inline constexpr const char* kStepHeader = "scenario,trial,method,step,dx,dy,dtheta,sigma_x,sigma_y,sigma_theta,nees";
+inline constexpr const char* kStepHeader =
+    "scenario,trial,method,step,dx,dy,dtheta,sigma_x,sigma_y,sigma_theta,nees,particles";
+
+// A trial has converged when every position error over the thesis's second window (steps
+// 80-100, Table 6.14) is at most this, mm: about ten times the trackers' error there.
+inline constexpr double kConvergedMaxErrorMm = 100.0;
 
 struct SummaryRow {
   std::string scenario, method;
@@ -86,10 +92,13 @@ struct SummaryRow {
   long nees_count = 0, nees_in_band = 0;
   double nees_sum = 0, ms_sum = 0;
   long attempted = 0, fixed = 0;
+  int judged = 0, converged = 0;  // trials with estimates over steps 80-100, and those converged there
   double rmse() const { return estimates ? std::sqrt(sse_position / estimates) : 0; }
   double theta_rmse() const { return estimates ? std::sqrt(sse_theta / estimates) : 0; }
   double meanNees() const { return nees_count ? nees_sum / nees_count : 0; }
   double inBand() const { return nees_count ? static_cast<double>(nees_in_band) / nees_count : 0; }
+  // Fraction of the judged trials that converged (kConvergedMaxErrorMm); 0 when none was judged.
+  double convergedFraction() const { return judged ? static_cast<double>(converged) / judged : 0; }
   double msPerStep() const { return trials ? ms_sum / trials : 0; }
   // Global fixes: steps with a fix over steps with observations; trackers: steps with an estimate.
   double fixRate() const {

@@ -152,6 +152,7 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& scenario, int tria
       s.sy = std::sqrt(var.y());
       s.stheta = std::sqrt(var.z());
       s.nees = nees(est.pose, est.covariance, it->second);
+      s.particles = est.particles;
       out.steps.push_back(s);
     }
     out.rows.push_back(row);

@@ -7,6 +7,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -497,6 +498,53 @@ TEST(EkfInit, RandomStartConvergesOnAWellObservedRun) {
   Ekf ekf(map, odo, cfg);
   for (const Step& s : run.steps) ekf.process(s);
   EXPECT_LT((ekf.pose().translation() - run.truth.back().translation()).norm(), 100.0);
+}
+
+// The thesis's random start (a covariance as large as the field) on a circle whose marking
+// corners and junctions are unidentified: association inside such a gate picks among several
+// landmarks of a type and settles on wrong poses. With the hand-over the filter waits, fusing
+// identified sightings only, for the first global fix (here at step 5, 100 mm off) and then
+// tracks: mean distance over steps first sighting + 1 .. 79 (Table 6.14's window) below 100 mm
+// in every run, where Algorithm 5 as printed is above it on average.
+TEST(EkfInit, RandomStartHandsOverToTheGlobalFix) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  double worst_with = 0, sum_without = 0;
+  for (uint64_t seed = 0; seed < 6; ++seed) {
+    SyntheticRun run = circleRun(map, odo, 100, 60 + seed, 10.0, deg2rad(0.5), 1500.0);
+    for (Step& s : run.steps)
+      for (Observation& o : s.observations)
+        if (!map.at(o.landmark_id).unique) o.landmark_id = -1;
+    std::mt19937_64 rng(seed);
+    const InitialBelief random = makeInitialBelief(InitMode::Random, std::nullopt, map, InitConfig(), rng);
+    for (const bool handover : {true, false}) {
+      EkfConfig cfg;
+      cfg.init = random;
+      cfg.gate_enabled = false;
+      if (!handover) cfg.handover_sigma_mm = 0.0;
+      cfg.global_fix = [&run](const Step& s, const FieldMap&) -> std::optional<PoseFix> {
+        if (s.step < 5) return std::nullopt;
+        const Pose2& t = run.truth[static_cast<size_t>(s.step)];
+        return PoseFix{Pose2(t.x + 60.0, t.y - 80.0, t.theta + 0.02), Eigen::Vector3d(1e4, 1e4, 1e-3).asDiagonal()};
+      };
+      Ekf ekf(map, odo, cfg);
+      double sum = 0;
+      int n = 0, first = -1;
+      for (const Step& s : run.steps) {
+        const Estimate e = ekf.process(s);
+        if (first < 0 && !s.observations.empty()) first = static_cast<int>(s.step);
+        if (first >= 0 && s.step > first && s.step <= 79) {
+          sum += (e.pose.translation() - run.truth[static_cast<size_t>(s.step)].translation()).norm();
+          ++n;
+        }
+      }
+      ASSERT_GT(n, 0);
+      if (handover) worst_with = std::max(worst_with, sum / n);
+      else sum_without += sum / n / 6.0;
+    }
+  }
+  EXPECT_LT(worst_with, 100.0);
+  EXPECT_GT(sum_without, 100.0);
 }
 
 // --- tracking, association, robustness ---------------------------------------------------------

@@ -1,12 +1,14 @@
-// Speed of the recursive filters (issue 6) on the in-process random walk of
+// Speed of the recursive filters on the in-process random walk of
 // solvers/smoother_common.h (at most 2 range-bearing observations per step, 10 landmarks):
 //   BM_EkfPredictUpdate    predict + 2 range-bearing updates on a fixed belief (target <= 2 us)
 //   BM_EkfStep             Ekf::process() of the walk's steps (gate, association check, bookkeeping)
-//   BM_PfStep/N            ParticleFilter::process() with N particles (target <= 0.5 ms at 3000):
-//                          sampling, weighting, estimate, systematic resampling, re-injection
+//   BM_PfStep/N            ParticleFilter::process() with N particles (target <= 1 ms at 3000):
+//                          linearised optimal proposal, estimate, systematic resampling, re-injection
 //   BM_PfStepRoulette/N    the same with the thesis's sorted roulette
 //   BM_PfStepUnregularised/N  the same without the regularisation after resampling (Algorithm 6
 //                          as printed), for the cost of the regularisation in the same run
+//   BM_PfStepPriorProposal/N  the odometry model as proposal (Algorithm 6), for the cost of the
+//                          optimal proposal in the same run
 // At the end a table prints the per-step times against the targets and the PF/EKF ratio (the
 // thesis claims the EKF is at least 10x cheaper than MCL).
 #include <benchmark/benchmark.h>

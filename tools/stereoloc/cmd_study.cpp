@@ -20,6 +20,7 @@ struct StudyArgs {
   std::string merge_out;
   bool merge_force = false;
   std::string observation_model = toString(MethodOptions().observation_model);
+  std::string pf_proposal = toString(MethodOptions().pf_proposal);
 };
 
 void runFromArgs(StudyArgs& a) {
@@ -49,6 +50,11 @@ void runFromArgs(StudyArgs& a) {
     c.method_options.observation_model = observationModelFromString(a.observation_model);
   } catch (const Error& e) {
     throw UsageError(std::string("--observation-model: ") + e.what());
+  }
+  try {
+    c.method_options.pf_proposal = particleProposalFromString(a.pf_proposal);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--pf-proposal: ") + e.what());
   }
   const StudyResult r = runStudy(c);
   std::fputs(study::summaryText(r.summary).c_str(), stdout);
@@ -93,6 +99,12 @@ void add_study_command(CLI::App& app) {
   sub->add_option("--particles", a->config.method_options.particles, "Particles of the particle filter")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  sub->add_option("--pf-proposal", a->pf_proposal,
+                  "Particle filter proposal: linearised_optimal (each particle Kalman-corrected by the observations) or "
+                  "prior (Algorithm 6 as printed)")
+      ->capture_default_str();
+  sub->add_flag("--pf-kld", a->config.method_options.pf_kld,
+                "Particle filter with KLD-sampling: adaptive particle count up to --particles (steps.csv column particles)");
   sub->add_option("--window", a->config.method_options.window, "Window size W of the sliding-window smoother")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
