@@ -75,7 +75,8 @@
 // re-initialisation of 5.1.3 that in-time ones would have given); the odometry kept since then
 // (restart_buffer_steps) carries it to the newest step.
 //
-// Memory is bounded by W (plus one Estimate per step for finish(), unless keep_history is off).
+// Memory is bounded by W and restart_buffer_steps (plus one Estimate per step for finish(),
+// unless keep_history is off).
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
