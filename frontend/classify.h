@@ -19,6 +19,9 @@
 namespace stereoloc::frontend {
 
 struct ClassifyParams {
+  // Width of the field markings on the floor, mm, for W'(v); 0 takes it from the field map
+  // (MiroSot 10 mm). A monocular user on another field states it here (RoboCup MSL: 125 mm).
+  double marking_width_mm = 0.0;
   double width_factor = 1.6;           // W'(v) relative to the widest expected marking at row v
   double min_width_px = 3.0;           // lower clamp of W' (thin, distant markings)
   double max_width_px = 24.0;          // upper clamp of W'

@@ -545,6 +545,16 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
         } else if (!a_ends && !b_ends) {
           if (ang < deg(prm.min_crossing_angle_deg)) continue;
           type = LandmarkType::Intersection;
+        } else if (prm.marking_junctions) {
+          // One stripe ends on the other, which runs on: a T of two markings (RoboCup fields'
+          // penalty and goal areas, the halfway line on the touch line). Perpendicular on the
+          // floor like an L, and the ending stripe must reach the other.
+          if (std::fabs(ang - kPi / 2) > deg(prm.corner_angle_tol_deg)) continue;
+          const LineFeature& m = a_ends ? a : b;
+          const LineFeature& o = a_ends ? b : a;
+          if (luma && !stripeReaches(*luma, m, a_ends ? ta : tb, prm.probe_start_px + 0.5 * o.width / sin_ab, prm))
+            continue;
+          type = LandmarkType::Junction;
         } else {
           continue;
         }

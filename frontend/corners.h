@@ -14,8 +14,10 @@
 //   marking ends   + marking ends,   floor angle 90 +- corner_angle_tol  -> MarkingCorner (L)
 //   marking passes + marking passes, floor angle >= min_crossing_angle   -> Intersection (X)
 //   marking ends   + wall foot (ends or passes)                           -> Junction (T)
-// Other combinations (two arc chords, wall/wall, marking T marking) are not map landmarks and
-// are dropped. The floor angle is measured after back-projecting both lines onto the floor
+//   marking ends   + marking passes, floor angle 90 +- corner_angle_tol   -> Junction (T), only
+//                                                      with marking_junctions (RoboCup fields)
+// Other combinations (two arc chords, wall/wall, marking T marking on MiroSot) are not map
+// landmarks and are dropped. The floor angle is measured after back-projecting both lines onto the floor
 // with the rig (real marking corners are 90 deg there; the centre circle's chords are not,
 // 6.1). Intersections of the same type closer than merge_px (three or more lines meeting)
 // are averaged.
@@ -41,6 +43,11 @@ struct CornerParams {
   // 30-60 deg), so 30 deg missed the junctions there; vertical edges (goal posts, triangle
   // sides) stay excluded.
   double wall_foot_max_tilt_deg = 75.0;
+  // A marking ending on another marking that runs on, perpendicular on the floor, is a
+  // Junction (T) too. MiroSot has no such landmark (its T-junctions are markings on the wall
+  // foot), so off by default; RoboCup fields have them at the penalty and goal areas and the
+  // halfway line.
+  bool marking_junctions = false;
   // snapLineEnds: a line end within snap_px of its intersection with another line (at an image
   // angle of at least snap_min_angle) moves onto it; an end within border_snap_px of the image
   // border moves onto the border.

@@ -23,6 +23,7 @@ struct Field {
 std::vector<Field> fields(FrontendParams& p) {
   return {
       {"gradient", "magnitude_threshold", Field::Int, &p.gradient.magnitude_threshold},
+      {"gradient", "auto_factor", Field::Double, &p.gradient.auto_factor},
       {"hough", "theta_step_deg", Field::Double, &p.hough.theta_step_deg},
       {"hough", "rho_step_px", Field::Double, &p.hough.rho_step_px},
       {"hough", "tolerance_deg", Field::Double, &p.hough.tolerance_deg},
@@ -46,6 +47,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"segments", "tail_px", Field::Double, &p.segments.tail_px},
       {"segments", "rounds_per_peak", Field::Int, &p.segments.rounds_per_peak},
       {"segments", "release_unused", Field::Bool, &p.segments.release_unused},
+      {"classify", "marking_width_mm", Field::Double, &p.classify.marking_width_mm},
       {"classify", "width_factor", Field::Double, &p.classify.width_factor},
       {"classify", "min_width_px", Field::Double, &p.classify.min_width_px},
       {"classify", "max_width_px", Field::Double, &p.classify.max_width_px},
@@ -62,6 +64,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"corners", "centre_merge_deg", Field::Double, &p.corners.centre_merge_deg},
       {"corners", "centre_merge_px", Field::Double, &p.corners.centre_merge_px},
       {"corners", "wall_foot_max_tilt_deg", Field::Double, &p.corners.wall_foot_max_tilt_deg},
+      {"corners", "marking_junctions", Field::Bool, &p.corners.marking_junctions},
       {"corners", "snap_px", Field::Double, &p.corners.snap_px},
       {"corners", "snap_min_angle_deg", Field::Double, &p.corners.snap_min_angle_deg},
       {"corners", "border_snap_px", Field::Double, &p.corners.border_snap_px},
@@ -101,6 +104,7 @@ void FrontendParams::validate() const {
     if (!ok) throw Error(std::string("frontend params: ") + field + ": " + what);
   };
   need(gradient.magnitude_threshold > 0, "gradient.magnitude_threshold", "must be positive");
+  need(gradient.auto_factor >= 0 && gradient.auto_factor <= 50, "gradient.auto_factor", "must be in [0, 50] (0: off)");
   const double n = 360.0 / hough.theta_step_deg;
   need(hough.theta_step_deg > 0 && std::fabs(n - std::round(n)) < 1e-6, "hough.theta_step_deg",
        "must be positive and divide 360");
@@ -124,6 +128,7 @@ void FrontendParams::validate() const {
   need(segments.straightness_bin_px > 0, "segments.straightness_bin_px", "must be positive");
   need(segments.step_px >= 0, "segments.step_px", "must not be negative");
   need(segments.tail_px >= 0, "segments.tail_px", "must not be negative");
+  need(classify.marking_width_mm >= 0, "classify.marking_width_mm", "must not be negative (0: from the map)");
   need(classify.width_factor > 0, "classify.width_factor", "must be positive");
   need(classify.min_width_px > 0 && classify.max_width_px >= classify.min_width_px, "classify.min/max_width_px",
        "need 0 < min <= max");
@@ -208,7 +213,9 @@ Frontend::Frontend(const StereoRig& rig, const FieldMap& map, const FrontendPara
   const int w = rig_.params().image_width, h = rig_.params().image_height;
   acc_.configure(w, h, params_.hough);
   // W'(v): the widest a marking can look at row v, from the floor distance seen there.
-  const double line_width = map_.geometry() ? map_.geometry()->line_width : 10.0;
+  const double line_width = params_.classify.marking_width_mm > 0 ? params_.classify.marking_width_mm
+                            : map_.geometry()                     ? map_.geometry()->line_width
+                                                                  : 10.0;
   width_per_row_.assign(static_cast<size_t>(h), static_cast<float>(params_.classify.min_width_px));
   for (int v = 0; v < h; ++v) {
     double x, y;
@@ -267,6 +274,19 @@ const std::vector<Segment>& Frontend::detectSegments(const cv::Mat& bgr) {
   return result_.segments;
 }
 
+const FrontendResult& Frontend::detectFeatures(const cv::Mat& bgr) {
+  FrontendResult& r = result_;
+  r.features.clear();
+  r.matched.clear();
+  r.observations.clear();
+  detectSegments(bgr);
+  buildLines(r.segments, params_.corners, r.lines);
+  clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
+  snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);
+  findCorners(r.lines, rig_, params_.corners, r.features, &left_luma_);
+  return r;
+}
+
 const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& right_in, double head_pan) {
   checkImage(left_in, "left");
   checkImage(right_in, "right");
@@ -274,14 +294,7 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
   const cv::Mat& left = rectifier_ ? rectifier_->left() : left_in;
   const cv::Mat& right = rectifier_ ? rectifier_->right() : right_in;
   FrontendResult& r = result_;
-  r.features.clear();
-  r.matched.clear();
-  r.observations.clear();
-  detectSegments(left);
-  buildLines(r.segments, params_.corners, r.lines);
-  clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
-  snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);
-  findCorners(r.lines, rig_, params_.corners, r.features, &left_luma_);
+  detectFeatures(left);
 
   const DisparityRange range = validDisparities(rig_, params_.stereo);
   if (!r.features.empty()) {

@@ -77,6 +77,10 @@ class Frontend {
   // calls (no allocation once warmed up).
   const FrontendResult& process(const cv::Mat& left_bgr, const cv::Mat& right_bgr, double head_pan = 0.0);
 
+  // Stages 1-6 on one image (monocular use): segments, lines, corners / junctions /
+  // intersections; no goal corners, stereo match or observations (those are cleared).
+  const FrontendResult& detectFeatures(const cv::Mat& bgr);
+
   // Stages 1-5 only, on one image (the benchmark and tests use it). Returns result().segments.
   const std::vector<Segment>& detectSegments(const cv::Mat& bgr);
 

@@ -74,15 +74,34 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
   // Squared magnitudes and a byte mask of the pixels at the threshold, both in loops the
   // compiler vectorises: most pixels are below it, and a branch per pixel in the suppression
   // loop below was half the stage's time. The mask has 8 zero bytes of padding per row end.
-  const int32_t thr2 = params.magnitude_threshold * params.magnitude_threshold;
-  const size_t stride = static_cast<size_t>(w) + 8;
-  if (above_.size() != stride * h) above_.assign(stride * h, 0);  // only [2, w - 2) is written
   for (int y = 0; y < h; ++y) {
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
     int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
     for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+  }
+  int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
+  if (params.auto_factor > 0) {
+    // The median magnitude measures the image's texture and noise (most pixels are floor);
+    // every 3rd pixel of every 3rd row is plenty for a median.
+    samples_.clear();
+    for (int y = 2; y < h - 2; y += 3) {
+      const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+      for (int x = 2; x < w - 2; x += 3) samples_.push_back(m2[x]);
+    }
+    if (!samples_.empty()) {
+      auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(samples_.size() / 2);
+      std::nth_element(samples_.begin(), mid, samples_.end());
+      const double auto_thr2 = params.auto_factor * params.auto_factor * static_cast<double>(*mid);
+      thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(auto_thr2)));
+    }
+  }
+  threshold_ = std::sqrt(static_cast<double>(thr2));
+  const size_t stride = static_cast<size_t>(w) + 8;
+  if (above_.size() != stride * h) above_.assign(stride * h, 0);  // only [2, w - 2) is written
+  for (int y = 0; y < h; ++y) {
+    const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+    uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
     for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2);
   }
 

@@ -502,3 +502,26 @@ TEST(Corners, JunctionNeedsAWallAboveTheFoot) {
   ASSERT_EQ(feats.size(), 1u);
   EXPECT_EQ(feats[0].type, LandmarkType::Junction);
 }
+
+// A stripe ending on another that runs on (a T of two markings, as at RoboCup penalty areas):
+// a Junction at the centre-line crossing with marking_junctions, nothing without (MiroSot).
+TEST(Corners, MarkingEndingOnAMarkingIsAJunctionOnlyWhenAsked) {
+  const StereoRig rig;
+  const cv::Mat img = renderFloor(rig, false, {{{300, -150}, {300, 150}}, {{300, 0}, {650, 0}}});
+  for (bool on : {false, true}) {
+    FrontendParams prm;
+    prm.corners.marking_junctions = on;
+    Frontend fe(rig, FieldMap::miroSot(), prm);
+    const FrontendResult& r = fe.detectFeatures(img);
+    int junctions = 0;
+    for (const PointFeature& f : r.features) {
+      EXPECT_NE(f.type, LandmarkType::MarkingCorner);
+      if (f.type != LandmarkType::Junction) continue;
+      ++junctions;
+      const Eigen::Vector2d truth = pixel(rig, 300, 0);
+      EXPECT_NEAR(f.u, truth.x(), 1.0);
+      EXPECT_NEAR(f.v, truth.y(), 1.0);
+    }
+    EXPECT_EQ(junctions, on ? 1 : 0);
+  }
+}

@@ -84,3 +84,30 @@ TEST(Gradient, EdgesInEveryColumnSurviveTheWordSkip) {
     }
   }
 }
+
+// The automatic threshold follows the image's texture: on a strong step over a textured floor
+// (Gaussian noise, sigma 10 grey levels, fixed seed) the texture's edges go, the step stays;
+// on a clean image the fixed threshold is the floor and nothing changes.
+TEST(Gradient, AutomaticThresholdRisesWithTextureOnly) {
+  cv::Mat img = stepImage(30.0, 60, 220);
+  cv::Mat noise(img.size(), CV_16S), textured;
+  cv::RNG rng(7);
+  rng.fill(noise, cv::RNG::NORMAL, 0, 10);
+  img.convertTo(textured, CV_16S);
+  textured += noise;
+  textured.convertTo(textured, CV_8U);
+  GradientParams fixed, autop;
+  autop.auto_factor = 6.0;
+  GradientStage g;
+  g.compute(textured, fixed);
+  const size_t fixed_edges = g.edges().size();
+  EXPECT_DOUBLE_EQ(g.threshold(), 48.0);
+  g.compute(textured, autop);
+  EXPECT_GT(g.threshold(), 48.0);
+  EXPECT_LT(g.edges().size(), fixed_edges / 2);
+  int on_step = 0;  // the step at x = 30 keeps one edge pixel per inner row
+  for (const EdgePixel& e : g.edges()) on_step += std::fabs(e.x - 29.5) < 1.0 ? 1 : 0;
+  EXPECT_GE(on_step, g.height() - 4);
+  g.compute(img, autop);  // clean: median 0, the fixed threshold applies
+  EXPECT_DOUBLE_EQ(g.threshold(), 48.0);
+}

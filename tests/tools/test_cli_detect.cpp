@@ -77,4 +77,36 @@ TEST(CliDetect, BadInputGivesAOneLineErrorAndExit1) {
   EXPECT_EQ(test::runCli("detect" + L).exit_code, 2);  // --right missing: usage error
 }
 
+TEST(CliDetect, OneImageGivesSegmentsCornersAndAnOverlayWithoutObservations) {
+  TempDir d;
+  const std::string real = std::string(STEREOLOC_DATA_DIR) + "/real";
+  const std::string args = "detect --image " + real + "/images/20190606_r2_cam0_20190606_204349.jpg --rig " + real +
+                           "/rig.yaml --params " + real + "/frontend.yaml --json --overlay " + d.file("overlay.png");
+  const test::CliRun r = test::runCli(args);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("\"marking\": true"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("\"observations\": []"), std::string::npos) << r.output;
+  const cv::Mat ov = cv::imread(d.file("overlay.png"));
+  ASSERT_FALSE(ov.empty());
+  EXPECT_EQ(ov.cols, 640);  // drawn at twice the input size
+  EXPECT_EQ(ov.rows, 480);
+}
+
+TEST(CliDetect, OneImageBadInputGivesAOneLineError) {
+  TempDir d;
+  writePair(d);
+  cv::imwrite(d.file("small.png"), cv::Mat(120, 160, CV_8UC3, cv::Scalar(10, 10, 10)));
+  for (const std::string& args : {"detect --image " + d.file("small.png"), "detect --image " + d.file("missing.png")}) {
+    const test::CliRun r = test::runCli(args);
+    EXPECT_EQ(r.exit_code, 1) << args << "\n" << r.output;
+    EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << args << "\n" << r.output;
+  }
+  // --image with a pair, or nothing at all: usage errors.
+  EXPECT_EQ(test::runCli("detect --image " + d.file("left.png") + " --left " + d.file("left.png") + " --right " +
+                         d.file("right.png")).exit_code, 2);
+  EXPECT_EQ(test::runCli("detect").exit_code, 2);
+  // A mono image of the rig's size runs with the built-in rig.
+  EXPECT_EQ(test::runCli("detect --image " + d.file("left.png")).exit_code, 0);
+}
+
 }  // namespace stereoloc

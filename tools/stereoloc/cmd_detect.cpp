@@ -1,5 +1,6 @@
-// `stereoloc detect`: runs the vision frontend (thesis ch. 3) on one rectified stereo pair and
-// prints its segments, point features and range-bearing observations (table or JSON).
+// `stereoloc detect`: runs the vision frontend (thesis ch. 3) on one rectified stereo pair (or,
+// with --image, on one monocular image) and prints its segments, point features and
+// range-bearing observations (table or JSON).
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -9,6 +10,7 @@
 #include <sstream>
 
 #include "frontend/frontend.h"
+#include "frontend/overlay.h"
 #include "src/core/atomic_file.h"
 #include "src/core/field_map.h"
 #include "src/core/stereo_rig.h"
@@ -18,7 +20,7 @@ namespace stereoloc::cli {
 namespace {
 
 struct DetectOptions {
-  std::string left, right, rig_path, map_path, params_path, overlay;
+  std::string left, right, image, rig_path, map_path, params_path, overlay;
   double pan = 0.0;
   bool json = false;
 };
@@ -49,24 +51,11 @@ std::string num(double v, int prec = 3) {
   return buf;
 }
 
-void drawOverlay(const cv::Mat& left, const frontend::FrontendResult& r, const std::string& path) {
-  cv::Mat img = left.clone();
-  for (const frontend::LineFeature& l : r.lines) {
-    const cv::Scalar colour = l.marking ? cv::Scalar(0, 0, 255) : cv::Scalar(0, 255, 0);
-    cv::line(img, cv::Point2d(l.x(l.t_min), l.y(l.t_min)), cv::Point2d(l.x(l.t_max), l.y(l.t_max)), colour, 1, cv::LINE_AA);
-  }
-  for (const frontend::PointFeature& f : r.features) {
-    const cv::Scalar colour = f.type == LandmarkType::GoalCorner ? cv::Scalar(255, 0, 255) : cv::Scalar(255, 255, 0);
-    cv::drawMarker(img, cv::Point2d(f.u, f.v), colour, cv::MARKER_CROSS, 7, 1);
-  }
-  for (const Observation& o : r.observations) {
-    if (o.type != LandmarkType::GoalCorner || !o.pixels) continue;
-    cv::putText(img, num(o.range, 0) + " mm", cv::Point2d(o.pixels->u_left + 3, o.pixels->v_left - 4),
-                cv::FONT_HERSHEY_PLAIN, 0.8, cv::Scalar(255, 0, 255), 1, cv::LINE_AA);
-  }
+void writeOverlay(const cv::Mat& img, const frontend::FrontendResult& r, const std::string& path) {
+  const cv::Mat big = frontend::drawDetections(img, r, 2);
   std::vector<uchar> buf;
-  const std::string ext = path.size() > 4 ? path.substr(path.find_last_of('.')) : ".png";
-  if (!cv::imencode(ext, img, buf)) throw Error(path + ": cannot encode the overlay (unknown image extension?)");
+  const std::string ext = path.find('.') != std::string::npos ? path.substr(path.find_last_of('.')) : "";
+  if (ext.empty() || !cv::imencode(ext, big, buf)) throw Error(path + ": cannot encode the overlay (unknown image extension?)");
   writeFileAtomically(path, std::string(buf.begin(), buf.end()));
 }
 
@@ -75,13 +64,22 @@ void runDetect(const DetectOptions& o) {
   const FieldMap map = o.map_path.empty() ? FieldMap::miroSot() : FieldMap::load(o.map_path);
   const frontend::FrontendParams params =
       o.params_path.empty() ? frontend::FrontendParams() : frontend::FrontendParams::load(o.params_path);
-  const cv::Mat left = readImage(o.left, "left"), right = readImage(o.right, "right");
-  if (left.size() != right.size())
-    throw Error(o.right + ": size " + std::to_string(right.cols) + "x" + std::to_string(right.rows) +
-                " differs from the left image's " + std::to_string(left.cols) + "x" + std::to_string(left.rows));
   frontend::Frontend fe(rig, map, params);
-  const frontend::FrontendResult& r = fe.process(left, right, o.pan);
-  if (!o.overlay.empty()) drawOverlay(left, r, o.overlay);
+  const bool mono = !o.image.empty();
+  const cv::Mat left = readImage(mono ? o.image : o.left, mono ? "input" : "left");
+  cv::Mat right;
+  if (!mono) {
+    right = readImage(o.right, "right");
+    if (left.size() != right.size())
+      throw Error(o.right + ": size " + std::to_string(right.cols) + "x" + std::to_string(right.rows) +
+                  " differs from the left image's " + std::to_string(left.cols) + "x" + std::to_string(left.rows));
+  }
+  if (left.cols != rig.params().image_width || left.rows != rig.params().image_height)
+    throw Error((mono ? o.image : o.left) + ": size " + std::to_string(left.cols) + "x" + std::to_string(left.rows) +
+                " does not match the rig's " + std::to_string(rig.params().image_width) + "x" +
+                std::to_string(rig.params().image_height) + " (pass --rig with the camera's calibration)");
+  const frontend::FrontendResult& r = mono ? fe.detectFeatures(left) : fe.process(left, right, o.pan);
+  if (!o.overlay.empty()) writeOverlay(left, r, o.overlay);
 
   std::ostringstream out;
   if (o.json) {
@@ -143,17 +141,28 @@ void runDetect(const DetectOptions& o) {
 
 void add_detect_command(CLI::App& app) {
   auto opts = std::make_shared<DetectOptions>();
-  CLI::App* sub = app.add_subcommand("detect", "Run the vision frontend on one rectified stereo pair (thesis ch. 3)");
-  sub->add_option("--left", opts->left, "Left image (8-bit BGR, the rig's size)")->required();
-  sub->add_option("--right", opts->right, "Right image (8-bit BGR, the rig's size)")->required();
+  CLI::App* sub = app.add_subcommand(
+      "detect", "Run the vision frontend on one rectified stereo pair, or on one image (thesis ch. 3)");
+  CLI::Option* left = sub->add_option("--left", opts->left, "Left image (8-bit BGR, the rig's size)");
+  CLI::Option* right = sub->add_option("--right", opts->right, "Right image (8-bit BGR, the rig's size)");
+  CLI::Option* image = sub->add_option("--image", opts->image,
+                                       "One image (monocular): segments, lines and corners only, no stereo observations");
+  left->needs(right);
+  right->needs(left);
+  image->excludes(left)->excludes(right);
   sub->add_option("--rig", opts->rig_path, "Stereo rig YAML (default: the built-in rig)")->check(CLI::ExistingFile);
   sub->add_option("--map", opts->map_path, "Field map YAML (default: the built-in MiroSot field)")->check(CLI::ExistingFile);
   sub->add_option("--params", opts->params_path, "Frontend parameters YAML (default: data/frontend_default.yaml values)")
       ->check(CLI::ExistingFile);
   sub->add_option("--pan", opts->pan, "Head pan gamma, rad")->capture_default_str();
-  sub->add_option("--overlay", opts->overlay, "Write the left image with the detections drawn (like Fig. 6.1)");
+  sub->add_option("--overlay", opts->overlay,
+                  "Write the (left) image at 2x with the detections drawn: markings red, other edges green, L / T / X / goal "
+                  "corners as distinct markers, with a legend (like Fig. 6.1)");
   sub->add_flag("--json", opts->json, "Print one JSON object instead of tables");
-  sub->callback([opts] { runDetect(*opts); });
+  sub->callback([opts, image, left] {
+    if (image->count() == 0 && left->count() == 0) throw CLI::ValidationError("detect", "give --left and --right, or --image");
+    runDetect(*opts);
+  });
 }
 
 }  // namespace stereoloc::cli

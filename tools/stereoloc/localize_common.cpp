@@ -75,7 +75,7 @@ Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& front
 }
 
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, bool method_option) {
-  sub->add_option("dataset", a->dataset, "Dataset directory (see README: dataset format)")->required()->check(CLI::ExistingDirectory);
+  sub->add_option("dataset", a->dataset, "Dataset directory (docs/dataset_format.md)")->required()->check(CLI::ExistingDirectory);
   if (method_option)
     sub->add_option("--method", a->method, methodNamesText() + " (optionally :known, :random, :global)")
         ->capture_default_str();
