@@ -66,8 +66,8 @@ void Rectifier::rectify(const cv::Mat& left_raw, const cv::Mat& right_raw) {
                   std::to_string(m->rows) + " differs from the calibration's image_size " + std::to_string(size_.width) +
                   "x" + std::to_string(size_.height) + (source_.empty() ? "" : " (" + source_ + ")"));
   // Replicated borders: a constant border would draw a strong straight edge for the line stages.
-  cv::remap(left_raw, left_, map_fixed_[0], map_frac_[0], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-  cv::remap(right_raw, right_, map_fixed_[1], map_frac_[1], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  cv::remap(left_raw, left_.m, map_fixed_[0], map_frac_[0], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  cv::remap(right_raw, right_.m, map_fixed_[1], map_frac_[1], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
 }
 
 double Rectifier::effectiveSigma(int camera, double u, double v, double sigma_px) const {

@@ -23,8 +23,8 @@ class Rectifier {
   // size and type out (references into this object, valid until the next call). Raw images of
   // another size throw stereoloc::Error naming the calibration file and image_size.
   void rectify(const cv::Mat& left_raw, const cv::Mat& right_raw);
-  const cv::Mat& left() const { return left_; }
-  const cv::Mat& right() const { return right_; }
+  const cv::Mat& left() const { return left_.m; }
+  const cv::Mat& right() const { return right_.m; }
 
   // The pixel sigma of a feature at rectified (u, v) of camera 0 (left) or 1 (right) whose raw
   // sigma is `sigma_px`.
@@ -42,7 +42,15 @@ class Rectifier {
   cv::Mat map_fixed_[2], map_frac_[2];  // CV_16SC2 integer part, CV_16UC1 fractional table index
   cv::Mat map_x_[2], map_y_[2];         // CV_32FC1, for rawFromRectified
   cv::Mat scale_[2];                    // CV_32FC1, s of the header comment per rectified pixel
-  cv::Mat left_, right_;
+  // Output images. A copy of a Rectifier shares the read-only maps but gets its own outputs
+  // (cv::Mat copies share pixels, and two copies may rectify in two threads).
+  struct Output {
+    cv::Mat m;
+    Output() = default;
+    Output(const Output&) {}
+    Output& operator=(const Output&) { return *this; }
+  };
+  Output left_, right_;
 };
 
 }  // namespace stereoloc::frontend

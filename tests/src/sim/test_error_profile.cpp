@@ -6,7 +6,10 @@
 #include <fstream>
 #include <functional>
 
+#include <opencv2/calib3d.hpp>
+
 #include "src/core/error.h"
+#include "src/sim/raw_render.h"
 #include "src/sim/simulator.h"
 #include "test_util.h"
 
@@ -143,6 +146,43 @@ TEST(ErrorProfile, SimulatedOdometryCarriesWheelErrors) {
   const Dataset a = simulate("circle", 0, ideal, 5), b = simulate("circle", 0, SimulationConfig(), 5);
   EXPECT_EQ(a.description, b.description);
   EXPECT_FALSE(a.rig.calibration());
+}
+
+// Raw images through lens distortion: a landmark's raw truth pixel, undistorted with an exact
+// calibration of the lens, lands where the calibration's rectified rig projects the landmark;
+// and the raw image shows the field where the ideal one does after rectification.
+TEST(RawPairRenderer, RawTruthUndistortsOntoTheRectifiedProjection) {
+  ErrorProfile p;
+  p.name = "lens";
+  p.k1_mean = -0.2;
+  p.k2_mean = 0.05;
+  std::mt19937_64 rng(3);
+  const DrawnErrors e = drawErrors(p, 1, rng);
+  const StereoRig nominal;
+  const StereoCalibration given = givenCalibration(nominal, e);
+  const StereoRig rectified(nominal.params(), given);
+  Scenario sc;
+  sc.poses = {Pose2(300, 650, 0.0)};  // looking at the yellow goal from the field
+  sc.head_pan = {0.0};
+  sc.carried = {false};
+  RenderOptions opt;
+  opt.compute_truth = true;
+  const RawPairRenderer renderer(FieldMap::miroSot(), nominal.params(), p, e, opt, 0.1);
+  const StereoImages raw = renderer.render(sc, 0, {}, 1);
+  int checked = 0;
+  for (const ImageLandmark& l : raw.truth.left.landmarks) {
+    std::vector<cv::Point2d> in{{l.pixel.x(), l.pixel.y()}}, out;
+    cv::undistortPoints(in, out, given.K1, given.D1, given.R1, given.P1,
+                        cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 50, 1e-12));
+    const Landmark& lm = FieldMap::miroSot().at(l.id);
+    const Eigen::Vector2d local = transformToLocal(sc.poses[0], lm.xy());
+    const auto px = rectified.project(Eigen::Vector3d(local.x(), local.y(), lm.position.z()), 0.0);
+    ASSERT_TRUE(px);
+    EXPECT_NEAR(out[0].x, px->u_left, 1e-3) << l.id;
+    EXPECT_NEAR(out[0].y, px->v_left, 1e-3) << l.id;
+    ++checked;
+  }
+  EXPECT_GE(checked, 2);
 }
 
 }  // namespace
