@@ -7,7 +7,7 @@ DEMO_OUT   ?= out/demo
 # Debian 12 packages the build needs; installed only when missing.
 PACKAGES := cmake ninja-build g++ pkg-config \
             libceres-dev libeigen3-dev libsuitesparse-dev \
-            libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev \
+            libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev libopencv-calib3d-dev \
             libgtest-dev libbenchmark-dev libcli11-dev
 
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)

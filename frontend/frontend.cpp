@@ -209,6 +209,7 @@ void FrontendParams::save(const std::string& path) const {
 Frontend::Frontend(const StereoRig& rig, const FieldMap& map, const FrontendParams& params)
     : rig_(rig), map_(map), params_(params) {
   params_.validate();
+  if (rig_.calibration() && rig_.calibration()->needsRemap()) rectifier_.emplace(*rig_.calibration());
   const int w = rig_.params().image_width, h = rig_.params().image_height;
   acc_.configure(w, h, params_.hough);
   // W'(v): the widest a marking can look at row v, from the floor distance seen there.
@@ -255,7 +256,8 @@ void Frontend::checkImage(const cv::Mat& img, const char* which) const {
   const int ew = rig_.params().image_width, eh = rig_.params().image_height;
   if (img.cols != ew || img.rows != eh)
     throw Error(w + " image: size " + std::to_string(img.cols) + "x" + std::to_string(img.rows) + " does not match the rig (" +
-                std::to_string(ew) + "x" + std::to_string(eh) + ")");
+                std::to_string(ew) + "x" + std::to_string(eh) + ")" +
+                (rig_.calibration() ? ", the image_size of " + rig_.calibration()->source : std::string()));
 }
 
 const std::vector<Segment>& Frontend::detectSegments(const cv::Mat& bgr) {
@@ -285,9 +287,12 @@ const FrontendResult& Frontend::detectFeatures(const cv::Mat& bgr) {
   return r;
 }
 
-const FrontendResult& Frontend::process(const cv::Mat& left, const cv::Mat& right, double head_pan) {
-  checkImage(left, "left");
-  checkImage(right, "right");
+const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& right_in, double head_pan) {
+  checkImage(left_in, "left");
+  checkImage(right_in, "right");
+  if (rectifier_) rectifier_->rectify(left_in, right_in);
+  const cv::Mat& left = rectifier_ ? rectifier_->left() : left_in;
+  const cv::Mat& right = rectifier_ ? rectifier_->right() : right_in;
   FrontendResult& r = result_;
   detectFeatures(left);
 
@@ -314,8 +319,11 @@ const FrontendResult& Frontend::process(const cv::Mat& left, const cv::Mat& righ
     if (ur) r.matched.push_back(StereoFeature{f, StereoPixels{g.u, g.v, *ur, g.v}});
   }
   for (const StereoFeature& m : r.matched) {
-    const double sigma = m.feature.type == LandmarkType::GoalCorner ? params_.stereo.goal_pixel_sigma
-                                                                     : params_.stereo.corner_pixel_sigma;
+    double sigma = m.feature.type == LandmarkType::GoalCorner ? params_.stereo.goal_pixel_sigma
+                                                               : params_.stereo.corner_pixel_sigma;
+    if (rectifier_)
+      sigma = std::max(rectifier_->effectiveSigma(0, m.pixels.u_left, m.pixels.v_left, sigma),
+                       rectifier_->effectiveSigma(1, m.pixels.u_right, m.pixels.v_right, sigma));
     try {
       r.observations.push_back(
           observationFromPixels(rig_, m.feature.landmark_id, m.feature.type, m.pixels, head_pan, sigma));

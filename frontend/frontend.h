@@ -11,7 +11,11 @@
 //   stereo match, triangulation     -> frontend/stereo_match.h
 // Line convention: frontend/features.h. The line stages run on the left image only; the right
 // image is read only around the left features, along their epipolar rows.
+// A rig with an OpenCV calibration that needs it gets its raw pairs rectified first
+// (frontend/rectify.h); the observations then carry rectified pixels and a pixel sigma that
+// includes the resampling.
 #include <opencv2/core/mat.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -21,6 +25,7 @@
 #include "frontend/goal_corners.h"
 #include "frontend/gradient.h"
 #include "frontend/peaks.h"
+#include "frontend/rectify.h"
 #include "frontend/segments.h"
 #include "frontend/stereo_match.h"
 #include "src/core/field_map.h"
@@ -66,7 +71,8 @@ class Frontend {
  public:
   Frontend(const StereoRig& rig, const FieldMap& map, const FrontendParams& params = FrontendParams());
 
-  // Runs the whole pipeline. Both images: CV_8UC3 BGR of the rig's size. Throws
+  // Runs the whole pipeline. Both images: CV_8UC3 BGR of the rig's size (raw images when the rig
+  // carries a calibration that needs rectification). Throws
   // stereoloc::Error with a one-line reason for anything else. The result is reused between
   // calls (no allocation once warmed up).
   const FrontendResult& process(const cv::Mat& left_bgr, const cv::Mat& right_bgr, double head_pan = 0.0);
@@ -81,6 +87,8 @@ class Frontend {
   const FrontendResult& result() const { return result_; }
   const FrontendParams& params() const { return params_; }
   const StereoRig& rig() const { return rig_; }
+  // The rectification of raw pairs; null when the rig's images are used as they are.
+  const Rectifier* rectifier() const { return rectifier_ ? &*rectifier_ : nullptr; }
   const GradientStage& gradient() const { return grad_; }
   // W'(v) of Algorithm 3 for each image row (see classify.h).
   const std::vector<float>& markingWidthPerRow() const { return width_per_row_; }
@@ -94,6 +102,7 @@ class Frontend {
   StereoRig rig_;
   FieldMap map_;
   FrontendParams params_;
+  std::optional<Rectifier> rectifier_;
   std::vector<float> width_per_row_;
   int goal_ids_[2][2] = {{-1, -1}, {-1, -1}};  // [blue/yellow][side -1/+1]
   GradientStage grad_;

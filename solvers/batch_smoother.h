@@ -177,6 +177,7 @@ class BatchSmoother : public Estimator {
  private:
   void solve();
   Estimate processStep(const Step& step);
+  void smoothGuess(size_t first, std::vector<double>* x) const;
   void trackRejections(size_t index);
   bool cutAtReinitialisation(size_t index, const Estimate& fix, const Step& step);  // true: a candidate cut
   std::unique_ptr<Ekf> filter_;   // InitialGuess::Filter

@@ -9,12 +9,15 @@
 namespace stereoloc {
 namespace {
 
-using RowJacobian = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
-
-// ceres::Solver's defaults for LEVENBERG_MARQUARDT: initial trust region radius 1e4 (damping
-// 1 / radius), diagonal of J^T J clamped to [1e-6, 1e32], a step accepted when it achieves
-// 1e-3 of the predicted decrease.
-constexpr double kInitialDamping = 1e-4;
+// As ceres::Solver's LEVENBERG_MARQUARDT: diagonal of J^T J clamped to [1e-6, 1e32], a step
+// accepted when it achieves 1e-3 of the predicted decrease, damping times max(1/3, 1 - (2 rho -
+// 1)^3) after a success and times 2, 4, 8, ... after failures. The initial damping differs:
+// Ceres's 1e-4 (radius 1e4) is far above the smallest eigenvalues of a long chain's
+// information relative to its diagonal (the slow, rigid modes of long stretches), so those
+// converge linearly, ~0.2 per iteration; from the filter's guess the Gauss-Newton step is
+// already good, and 1e-8 halves the iterations (100,000 random-walk steps: 12 -> 6) while a
+// failed step still raises the damping.
+constexpr double kInitialDamping = 1e-8;
 constexpr double kMinDiagonal = 1e-6;
 constexpr double kMaxDiagonal = 1e32;
 constexpr double kMinRelativeDecrease = 1e-3;
@@ -79,6 +82,42 @@ bool ChainProblem::cost(size_t lo, size_t hi, const std::vector<double>& x, doub
   return ok;
 }
 
+namespace {
+
+// Adds one factor's weighted Gauss-Newton blocks, with fixed-size Jacobians for the factor
+// sizes of the smoothers (M = 1..4 residuals): dynamic-size products cost several times more.
+template <int M>
+bool accumulate(const ceres::CostFunction& c, const ceres::LossFunction* loss, bool robust, const double* pa,
+                const double* pb, Eigen::Matrix3d* Da, Eigen::Vector3d* ga, Eigen::Matrix3d* Db, Eigen::Vector3d* gb,
+                Eigen::Matrix3d* Bab, double* sum) {
+  using Jac = Eigen::Matrix<double, M, 3, Eigen::RowMajor>;
+  Jac Ja, Jb;
+  Eigen::Matrix<double, M, 1> r;
+  if constexpr (M == Eigen::Dynamic) {
+    Ja.resize(c.num_residuals(), 3);
+    Jb.resize(c.num_residuals(), 3);
+    r.resize(c.num_residuals());
+  }
+  const double* params[2] = {pa, pb};
+  double* jac[2] = {Ja.data(), pb ? Jb.data() : nullptr};
+  if (!c.Evaluate(params, r.data(), jac) || !r.allFinite() || !Ja.allFinite() || (pb && !Jb.allFinite())) return false;
+  double w = 1.0;
+  *sum += lossOf(loss, robust, r.squaredNorm(), &w);
+  // IRLS weighting: the gradient rho' J^T r is exact; the information drops rho''.
+  if (Da) {
+    Da->noalias() += w * (Ja.transpose() * Ja);
+    ga->noalias() += w * (Ja.transpose() * r);
+  }
+  if (Db) {
+    Db->noalias() += w * (Jb.transpose() * Jb);
+    gb->noalias() += w * (Jb.transpose() * r);
+    if (Bab) Bab->noalias() += w * (Ja.transpose() * Jb);
+  }
+  return true;
+}
+
+}  // namespace
+
 bool ChainProblem::linearise(size_t lo, size_t hi, const std::vector<double>& x, std::vector<Eigen::Matrix3d>* D,
                              std::vector<Eigen::Matrix3d>* B, std::vector<Eigen::Vector3d>* g, double* total) const {
   const size_t len = hi - lo;
@@ -86,33 +125,24 @@ bool ChainProblem::linearise(size_t lo, size_t hi, const std::vector<double>& x,
   B->assign(len, Eigen::Matrix3d::Zero());
   g->assign(len, Eigen::Vector3d::Zero());
   double sum = 0;
-  RowJacobian Ja, Jb;
-  Eigen::VectorXd r;
   const bool ok = forEachFactor(factors_, lo, hi, [&](const ceres::CostFunction& c, bool robust, size_t a, size_t b) {
-    const int m = c.num_residuals();
     const bool binary = b != SIZE_MAX;
-    Ja.resize(m, 3);
-    Jb.resize(m, 3);
-    r.resize(m);
-    const double* params[2] = {&x[3 * a], binary ? &x[3 * b] : nullptr};
-    double* jac[2] = {Ja.data(), binary ? Jb.data() : nullptr};
-    if (!c.Evaluate(params, r.data(), jac) || !r.allFinite() || !Ja.allFinite() || (binary && !Jb.allFinite()))
-      return false;
-    double w = 1.0;
-    sum += lossOf(loss_, robust, r.squaredNorm(), &w);
-    // IRLS weighting: the gradient rho' J^T r is exact; the information drops rho''.
     const bool a_in = a >= lo && a < hi;
     const bool b_in = binary && b >= lo && b < hi;
-    if (a_in) {
-      (*D)[a - lo].noalias() += w * Ja.transpose() * Ja;
-      (*g)[a - lo].noalias() += w * Ja.transpose() * r;
+    Eigen::Matrix3d* Da = a_in ? &(*D)[a - lo] : nullptr;
+    Eigen::Vector3d* ga = a_in ? &(*g)[a - lo] : nullptr;
+    Eigen::Matrix3d* Db = b_in ? &(*D)[b - lo] : nullptr;
+    Eigen::Vector3d* gb = b_in ? &(*g)[b - lo] : nullptr;
+    Eigen::Matrix3d* Bab = a_in && b_in ? &(*B)[b - lo] : nullptr;
+    const double* pa = &x[3 * a];
+    const double* pb = binary ? &x[3 * b] : nullptr;
+    switch (c.num_residuals()) {
+      case 1: return accumulate<1>(c, loss_, robust, pa, pb, Da, ga, Db, gb, Bab, &sum);
+      case 2: return accumulate<2>(c, loss_, robust, pa, pb, Da, ga, Db, gb, Bab, &sum);
+      case 3: return accumulate<3>(c, loss_, robust, pa, pb, Da, ga, Db, gb, Bab, &sum);
+      case 4: return accumulate<4>(c, loss_, robust, pa, pb, Da, ga, Db, gb, Bab, &sum);
+      default: return accumulate<Eigen::Dynamic>(c, loss_, robust, pa, pb, Da, ga, Db, gb, Bab, &sum);
     }
-    if (b_in) {
-      (*D)[b - lo].noalias() += w * Jb.transpose() * Jb;
-      (*g)[b - lo].noalias() += w * Jb.transpose() * r;
-      if (a_in) (*B)[b - lo].noalias() += w * Ja.transpose() * Jb;
-    }
-    return true;
   });
   *total = 0.5 * sum;
   return ok;

@@ -4,15 +4,15 @@
 // observation) or two consecutive poses (odometry). Its Gauss-Newton information is block
 // tridiagonal, so each iteration costs O(N) time and memory: one pass evaluates the factors into
 // the 3x3 blocks D_i = H(i, i), B_i = H(i-1, i) and the gradient g_i, and the damped system is
-// solved by block forward elimination and back substitution (docs/batch_smoother.md). A general
-// sparse solver (Ceres's SPARSE_NORMAL_CHOLESKY) reaches the same optimum with about three times
-// the work per iteration and ten times the memory per pose.
+// solved by block forward elimination and back substitution (solveBlockTridiagonal). A general
+// sparse solver (Ceres's SPARSE_NORMAL_CHOLESKY, BatchSolver::Ceres) reaches the same optimum
+// with several times the work and memory per pose (tools/bench/bench_smoothers.cpp).
 //
 // The factors are Ceres cost functions (factors/), made on demand by a ChainFactorSource so that
 // a million-step problem does not hold millions of them. Poses are (x, y, theta) in mm, mm, rad
 // with the Plus of factors/pose_manifold.h; a robust loss applies to the factors marked robust.
-// Damping, step acceptance and the three stopping tolerances follow ceres::Solver's
-// LEVENBERG_MARQUARDT trust region with Jacobi scaling, so both reach the same point.
+// Damping, step acceptance and the three stopping tolerances are modelled on ceres::Solver's
+// LEVENBERG_MARQUARDT (chain_solver.cpp says where they differ); both reach the same optimum.
 #include <ceres/cost_function.h>
 #include <ceres/loss_function.h>
 

@@ -28,6 +28,20 @@ ResamplingScheme resamplingSchemeFromString(const std::string& name) {
   throw Error("unknown resampling scheme '" + name + "' (expected systematic or sorted_roulette)");
 }
 
+std::string toString(ParticleProposal proposal) {
+  switch (proposal) {
+    case ParticleProposal::Prior: return "prior";
+    case ParticleProposal::LinearisedOptimal: return "linearised_optimal";
+  }
+  return "prior";
+}
+
+ParticleProposal particleProposalFromString(const std::string& name) {
+  for (ParticleProposal p : {ParticleProposal::Prior, ParticleProposal::LinearisedOptimal})
+    if (toString(p) == name) return p;
+  throw Error("unknown particle proposal '" + name + "' (expected prior or linearised_optimal)");
+}
+
 ZigguratNormal::ZigguratNormal() {
   // Layer edges of the 128-layer ziggurat of N(0,1)'s density shape f(x) = exp(-x^2/2): every
   // layer (and the base strip + tail) has area V.
@@ -281,6 +295,146 @@ void ParticleFilter::weight(const std::vector<Observation>& observations, const 
   normalise();
 }
 
+void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& wheels,
+                                      const std::vector<Observation>& observations,
+                                      const std::vector<Eigen::Vector2d>& landmarks, const std::optional<double>& compass,
+                                      double compass_sigma, const ParticleProposalKernel& kernel_config) {
+  if (observations.size() != landmarks.size()) throw Error("particle filter: one landmark per observation expected");
+  if (compass && (!std::isfinite(*compass) || !(std::isfinite(compass_sigma) && compass_sigma > 0)))
+    throw Error("particle filter: compass heading must be finite and its sigma positive");
+  const Eigen::Vector3d u0 = wheels ? controlVector(wheels->x(), wheels->y(), odometry_.wheel_base_mm)  // (B.4), (B.5)
+                                    : Eigen::Vector3d::Zero();
+  const Eigen::Matrix3d U = wheels ? controlCovariance(wheels->x(), wheels->y(), odometry_)  // (B.18), floor included
+                                   : Eigen::Matrix3d::Zero();
+  const double h = kernel_config.h;
+  const Pose2& centre = kernel_config.centre;
+  const Eigen::Matrix3d& spread = kernel_config.spread;
+  const bool kernel = h > 0 && h < 1;
+  const double shrink = kernel ? std::sqrt(1.0 - h * h) : 1.0;
+  const Eigen::Matrix3d kernel_cov = kernel ? Eigen::Matrix3d(h * h * 0.5 * (spread + spread.transpose()))
+                                            : Eigen::Matrix3d::Zero();
+  // The likelihood floor is a density common to all particles: f times the peak of the kernel's
+  // predictive density H h^2 C H^T + R at the set's mean (R alone without a kernel, as in
+  // weight()). Relative to each particle's own peak it would favour the narrow, re-injected
+  // particles over the kernel-widened ones wherever both are outliers.
+  struct Sighting {
+    double zr, cz, sz, lx, ly;
+    Eigen::Matrix2d R;
+    double log_det_ref;
+  };
+  std::vector<Sighting> sightings;
+  sightings.reserve(observations.size());
+  for (size_t k = 0; k < observations.size(); ++k) {
+    const Observation& o = observations[k];
+    Eigen::Matrix2d ref = o.covariance;
+    if (kernel) {
+      try {
+        Matrix23d Hc;
+        predictRangeBearing(centre, landmarks[k], &Hc);
+        ref += Hc * kernel_cov * Hc.transpose();
+      } catch (const GeometryError&) {
+        // the set's mean on the landmark: no bearing there; R alone
+      }
+    }
+    sightings.push_back({o.range, std::cos(o.bearing), std::sin(o.bearing), landmarks[k].x(), landmarks[k].y(),
+                         o.covariance, std::log(ref.determinant())});
+  }
+  const double compass_var = compass ? compass_sigma * compass_sigma : 0.0;
+  const double compass_ref = compass_var + kernel_cov(2, 2);
+  const double log_floor = log_floor_;
+  const size_t n = x_.size();
+  // Particles just re-injected uniformly are no draws from the set: no kernel for them.
+  std::vector<char> no_kernel(n, 0);
+  for (int i : fresh_)
+    if (static_cast<size_t>(i) < n) no_kernel[static_cast<size_t>(i)] = 1;
+  fresh_.clear();
+  for (size_t i = 0; i < n; ++i) {
+    // One step's prediction of this particle (B.16): u ~ N(u0, U) enters linearly given the
+    // heading, so x_pred ~ N(x (+) u0, G U G^T) exactly, G = blockdiag(rotation(theta), 1).
+    const double c0 = c_[i], s0 = s_[i];
+    Eigen::Vector3d m(x_[i] + c0 * u0.x() - s0 * u0.y(), y_[i] + s0 * u0.x() + c0 * u0.y(), th_[i] + u0.z());
+    Eigen::Matrix3d G;
+    G << c0, -s0, 0, s0, c0, 0, 0, 0, 1;
+    Eigen::Matrix3d P = G * U * G.transpose();
+    if (kernel && !no_kernel[i]) {
+      m = Eigen::Vector3d(centre.x + shrink * (m.x() - centre.x), centre.y + shrink * (m.y() - centre.y),
+                          centre.theta + shrink * angleDiff(m.z(), centre.theta));
+      P += kernel_cov;
+    }
+    double cm = 0, sm = 0;
+    fast_trig::sinCos(m.z(), &sm, &cm);
+    double lw = 0.0;
+    for (const Sighting& z : sightings) {
+      const double dx = z.lx - m.x(), dy = z.ly - m.y(), q = dx * dx + dy * dy;
+      if (!(q > 1.0)) {  // within 1 mm of the landmark: no bearing; the floored likelihood, no correction
+        lw += log_floor;
+        continue;
+      }
+      const double r = std::sqrt(q);
+      // Wrapped bearing innovation in the frame of the measured bearing, as in weight().
+      const double cphi = cm * z.cz - sm * z.sz, sphi = sm * z.cz + cm * z.sz;
+      const Eigen::Vector2d nu(z.zr - r, fast_trig::atan2(sphi * dx - cphi * dy, cphi * dx + sphi * dy));
+      Matrix23d H;  // J_z_pose of predictRangeBearing (5.27) at the particle's prediction
+      H << -dx / r, -dy / r, 0.0, dy / q, -dx / q, -1.0;
+      const Eigen::Matrix<double, 3, 2> PHt = P * H.transpose();
+      const Eigen::Matrix2d S = H * PHt + z.R;
+      const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
+      if (!(det > 0)) {
+        lw += log_floor;
+        continue;
+      }
+      Eigen::Matrix2d Si;
+      Si << S(1, 1) / det, -S(0, 1) / det, -S(1, 0) / det, S(0, 0) / det;
+      const double e2 = nu.dot(Si * nu);
+      // log N(nu; 0, S) and the floor, both relative to the reference peak; a floored
+      // observation is an outlier for this particle and moves it nowhere.
+      const double log_l = -0.5 * e2 - 0.5 * (std::log(det) - z.log_det_ref);
+      if (log_l <= log_floor) {
+        lw += log_floor;
+        continue;
+      }
+      lw += log_l;
+      const Eigen::Matrix<double, 3, 2> K = PHt * Si;
+      m += K * nu;
+      P -= K * PHt.transpose();
+      P = 0.5 * (P + P.transpose());
+      m.z() = wrapAngle(m.z());
+      fast_trig::sinCos(m.z(), &sm, &cm);
+    }
+    if (compass) {
+      const double nu = angleDiff(*compass, m.z());
+      const double S = P(2, 2) + compass_var;
+      const double log_l = -0.5 * nu * nu / S - 0.5 * std::log(S / compass_ref);
+      if (log_l <= log_floor) {
+        lw += log_floor;
+      } else {
+        lw += log_l;
+        const Eigen::Vector3d K = P.col(2) / S;
+        m += K * nu;
+        P -= K * K.transpose() * S;
+        P = 0.5 * (P + P.transpose());
+        m.z() = wrapAngle(m.z());
+      }
+    }
+    // Draw from N(m, P); P is positive definite (U holds a floor) up to round-off.
+    Eigen::Matrix3d L = Eigen::Matrix3d::Zero();
+    const double l00 = std::sqrt(std::max(P(0, 0), 0.0));
+    L(0, 0) = l00;
+    L(1, 0) = l00 > 0 ? P(1, 0) / l00 : 0.0;
+    L(2, 0) = l00 > 0 ? P(2, 0) / l00 : 0.0;
+    const double l11 = std::sqrt(std::max(P(1, 1) - L(1, 0) * L(1, 0), 0.0));
+    L(1, 1) = l11;
+    L(2, 1) = l11 > 0 ? (P(2, 1) - L(2, 0) * L(1, 0)) / l11 : 0.0;
+    L(2, 2) = std::sqrt(std::max(P(2, 2) - L(2, 0) * L(2, 0) - L(2, 1) * L(2, 1), 0.0));
+    const double a = normal_(rng_), b = normal_(rng_), c3 = normal_(rng_);
+    setParticle(i, m.x() + L(0, 0) * a, m.y() + L(1, 0) * a + L(1, 1) * b,
+                wrapAngle(m.z() + L(2, 0) * a + L(2, 1) * b + L(2, 2) * c3));
+    logw_[i] += lw;
+  }
+  uniform_weights_ = false;
+  normalise();
+}
+
 void ParticleFilter::normalise() {
   // (5.35), (5.36) in the log domain: w = exp(log w - max) / sum.
   const double m = *std::max_element(logw_.begin(), logw_.end());
@@ -363,6 +517,7 @@ void ParticleFilter::reinject(int count) {
     const double x = ux(rng_), y = uy(rng_), t = ut(rng_);
     setParticle(i, x, y, t);
     logw_[i] = -std::log(static_cast<double>(n));  // Algorithm 6: a new particle weighs 1/N
+    fresh_.push_back(static_cast<int>(i));
   }
   if (!uniform_weights_) normalise();  // after resampling every weight is 1/N already
 }
@@ -426,7 +581,9 @@ Estimate ParticleFilter::process(const Step& step) {
     if (tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
     return finishStep(EstimateStatus::Uninitialised);
   }
-  if (!first) predict(step.d_left, step.d_right);
+  // The optimal proposal predicts and corrects in one pass once the observations are known.
+  const bool optimal = config_.proposal == ParticleProposal::LinearisedOptimal;
+  if (!first && !optimal) predict(step.d_left, step.d_right);
 
   // Identify the observations; unidentified ones are associated with the predicted estimate
   // (the previous summary pushed through the odometry model, as the EKF would predict it).
@@ -435,6 +592,7 @@ Estimate ParticleFilter::process(const Step& step) {
   std::vector<Observation> used_obs;
   std::vector<Eigen::Vector2d> used_lm;
   std::vector<int> taken;
+  std::vector<char> gate_accepted;
   for (const Observation& o : step.observations)
     if (o.landmark_id >= 0) taken.push_back(o.landmark_id);
   int gated = 0, tested = 0;
@@ -474,14 +632,48 @@ Estimate ParticleFilter::process(const Step& step) {
     identified.landmark_id = lm->id;
     used_obs.push_back(identified);
     used_lm.push_back(lm->xy());
+    gate_accepted.push_back(accepted ? 1 : 0);
   }
   const bool lost = tested > 0 && gate_.consecutiveRejections() >= config_.gate.lost_after;
+  if (optimal && !lost) {
+    // An observation outside the belief's gate is floored for the whole set, so the re-injected
+    // particles would weigh as much as the set's and smear the estimate over the field. While
+    // not lost it is dropped; once lost, every observation goes to the particles so that the
+    // re-injected ones that fit can take over (5.1.3).
+    size_t kept = 0;
+    for (size_t k = 0; k < used_obs.size(); ++k) {
+      if (!gate_accepted[k]) continue;
+      used_obs[kept] = used_obs[k];
+      used_lm[kept] = used_lm[k];
+      ++kept;
+    }
+    used_obs.resize(kept);
+    used_lm.resize(kept);
+  }
   if (lost && tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
 
   const bool use_compass = step.compass && config_.use_compass;
   const bool observed = !used_obs.empty() || use_compass;
-  if (observed) {
-    weight(used_obs, used_lm, use_compass ? step.compass : std::nullopt, step.compass_sigma);
+  if (observed && optimal) {
+    // Re-injection before the proposal: the new particles are weighted by this step's
+    // observations at once, so that unweighted uniform particles never enter the estimate. Not
+    // on compass-only steps: a heading says nothing about where the robot is, so the new
+    // particles with the right heading would weigh as much as the set's.
+    if (!used_obs.empty()) reinject(config_.reinjected);
+    // The kernel's spread: the previous posterior's covariance (one step of transport changes a
+    // kernel negligibly), used only while the set is one cluster.
+    const double sp = std::sqrt(std::max(cov_(0, 0), cov_(1, 1))), st = std::sqrt(cov_(2, 2));
+    double h = 0.0;
+    if (sp < config_.proposal_kernel_max_sigma_mm && st < config_.proposal_kernel_max_sigma_theta)
+      h = config_.proposal_kernel_bandwidth >= 0 ? config_.proposal_kernel_bandwidth
+                                                 : std::pow(4.0 / (size() * 5.0), 1.0 / 7.0);
+    const std::optional<Eigen::Vector2d> wheels =
+        first ? std::nullopt : std::optional<Eigen::Vector2d>(Eigen::Vector2d(step.d_left, step.d_right));
+    proposeAndWeight(wheels, used_obs, used_lm, use_compass ? step.compass : std::nullopt, step.compass_sigma,
+                     {h, prior.pose, cov_});
+  } else {
+    if (optimal && !first) predict(step.d_left, step.d_right);
+    if (observed) weight(used_obs, used_lm, use_compass ? step.compass : std::nullopt, step.compass_sigma);
   }
   summarise(&mean_, &cov_);  // (5.37), before resampling: the weighted set is the posterior
   if (observed) {
@@ -496,8 +688,9 @@ Estimate ParticleFilter::process(const Step& step) {
       regularise(mean_, cov_, h);
       }
     }
-    reinject(config_.reinjected);
+    if (!optimal) reinject(config_.reinjected);
   }
+  fresh_.clear();
   if (lost) return finishStep(EstimateStatus::Lost);
   return finishStep(!used_obs.empty() || use_compass ? EstimateStatus::Tracking : EstimateStatus::Predicted);
 }

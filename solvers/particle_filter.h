@@ -45,6 +45,42 @@ enum class ResamplingScheme {
 std::string toString(ResamplingScheme scheme);  // "systematic", "sorted_roulette"
 ResamplingScheme resamplingSchemeFromString(const std::string& name);
 
+// How each particle's new pose is drawn on a step with observations.
+//   Prior: Algorithm 6 as printed, the bootstrap filter: from the odometry model, then weighted
+//     by the likelihood (5.34). Stereo bearings (~0.02-0.1 deg) are far sharper than one step's
+//     odometry spread, so few particles carry the weight and the set starves.
+//   LinearisedOptimal: the optimal importance density p(x_k | x_k-1, z_k) of Doucet, Godsill and
+//     Andrieu ("On sequential Monte Carlo sampling methods for Bayesian filtering", 2000, sec.
+//     II.D), linearised per particle: each particle's one-step Gaussian prediction
+//     N(x_k-1 (+) u, G U G^T) is corrected by its own Kalman update with the observations (H
+//     evaluated at that particle's prediction), the new pose is drawn from the result, and the
+//     weight is the predictive likelihood N(z; h(x_pred), H G U G^T + R). The weights then vary
+//     only with the particles' spread relative to (one step's odometry noise + R), not relative to
+//     R alone, so they stay flat in the steady state whether the odometry or the stereo is the
+//     sharper (docs/particle_filter.md). Chosen over progressive correction (several tempered
+//     resample-and-jitter rounds per step, each a full likelihood pass) because it needs one pass
+//     and no tuning of tempering stages, and over Rao-Blackwellising the heading because the
+//     bearing couples heading and position, so the heading's conditional is not Gaussian in
+//     closed form either.
+enum class ParticleProposal { Prior, LinearisedOptimal };
+std::string toString(ParticleProposal proposal);  // "prior", "linearised_optimal"
+ParticleProposal particleProposalFromString(const std::string& name);
+
+// KLD-sampling (Fox, "Adapting the sample size in particle filters through KLD-sampling", IJRR
+// 2003; as in ROS AMCL): at each resampling, particles are drawn until their number reaches
+//   n(k) = (k - 1) / (2 epsilon) * (1 - 2 / (9 (k - 1)) + sqrt(2 / (9 (k - 1))) z_(1-delta))^3,
+// k the number of histogram bins (bin_xy_mm x bin_xy_mm x bin_theta_rad) holding at least one,
+// so that with probability 1 - delta the Kullback-Leibler divergence between the sample-based
+// and the true posterior stays below epsilon. Clamped to [min_particles, ParticleFilterConfig::particles].
+struct KldSamplingConfig {
+  bool enabled = false;
+  double epsilon = 0.02;         // bound on the KL divergence (AMCL's kld_err is 0.01)
+  double quantile = 0.99;        // 1 - delta, upper standard normal quantile z_(1-delta) (AMCL's kld_z)
+  double bin_xy_mm = 20.0;       // mm, histogram bin edge in x and y
+  double bin_theta_rad = 0.0873; // rad (5 deg), histogram bin in heading
+  int min_particles = 300;       // lower clamp; the set never shrinks below it
+};
+
 struct ParticleFilterConfig {
   // Known: particles drawn from N(pose, covariance); Random: uniform over the map bounds and
   // heading (the pose and covariance are ignored); Global: no particles until the first fix,
@@ -90,6 +126,21 @@ struct ParticleFilterConfig {
   // wheel increments are sampled and pushed through (B.4)/(B.5) per particle (exact, ~30 %
   // slower).
   bool sample_wheel_increments = false;
+  ParticleProposal proposal = ParticleProposal::LinearisedOptimal;
+  // With the optimal proposal: each particle's prediction is widened by a Gaussian kernel of
+  // covariance h^2 C and pulled towards the set's mean by a = sqrt(1 - h^2) (the kernel shrinkage
+  // of Liu and West, 2001: the mixture keeps the set's mean and covariance C), so that a set far
+  // wider than the observations (the start, or a landmark seen again after a stretch of
+  // odometry) still has components that reach the likelihood's peak; the Kalman update then
+  // moves each component there. < 0: the Gaussian kernel's optimal bandwidth
+  // h = (4 / (N (d + 2)))^(1 / (d + 4)), d = 3; 0: no kernel.
+  double proposal_kernel_bandwidth = -1.0;
+  // The kernel is used only while the set is one cluster: its position standard deviation below
+  // this (mm) and its heading's below proposal_kernel_max_sigma_theta (rad). A uniform or
+  // multi-modal set would be smeared across modes and linearised over metres.
+  double proposal_kernel_max_sigma_mm = 150.0;
+  double proposal_kernel_max_sigma_theta = 0.35;
+  KldSamplingConfig kld;
   AssociationConfig association;   // for observations with landmark_id == -1 (uses the current estimate)
   // Lost status (5.1.3): gate each observation against the current estimate (2 dof). When
   // lost, a global fix (if any) re-draws all particles around it; otherwise re-injection
@@ -139,6 +190,13 @@ class ZigguratNormal {
 std::vector<int> systematicResample(const std::vector<double>& weights, int n, std::mt19937_64& rng);
 std::vector<int> sortedRouletteResample(const std::vector<double>& weights, int n, std::mt19937_64& rng);
 
+// The kernel of the optimal proposal (ParticleFilterConfig::proposal_kernel_bandwidth).
+struct ParticleProposalKernel {
+  double h = 0.0;                                    // bandwidth; 0: no kernel
+  Pose2 centre;                                      // the set's predicted mean
+  Eigen::Matrix3d spread = Eigen::Matrix3d::Zero();  // the set's covariance, mm^2, mm rad, rad^2
+};
+
 class ParticleFilter : public Estimator {
  public:
   ParticleFilter(const FieldMap& map, const OdometryParams& odometry, ParticleFilterConfig config, uint64_t seed);
@@ -157,6 +215,16 @@ class ParticleFilter : public Estimator {
   // given) and of an optional compass reading; normalises in the log domain.
   void weight(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
               const std::optional<double>& compass = std::nullopt, double compass_sigma = 0.0);
+  // The linearised optimal proposal (ParticleProposal::LinearisedOptimal) of one step: every
+  // particle is moved by its own Kalman-corrected odometry prediction and weighted by its
+  // predictive likelihood (landmarks as in weight()).
+  // `wheels` (d_left, d_right, mm): the step's odometry; none on the first step (no motion).
+  // With kernel.h > 0 each particle's prediction is first shrunk towards kernel.centre (the set's
+  // predicted mean) by sqrt(1 - h^2) and widened by h^2 kernel.spread (proposal_kernel_bandwidth).
+  void proposeAndWeight(const std::optional<Eigen::Vector2d>& wheels, const std::vector<Observation>& observations,
+                        const std::vector<Eigen::Vector2d>& landmarks, const std::optional<double>& compass = std::nullopt,
+                        double compass_sigma = 0.0, const ParticleProposalKernel& kernel = {});
+  // Resamples to the configured count, or with KLD-sampling enabled to the adaptive count.
   void resample();
   void reinject(int count);
   // Moves every particle p to mean + a (p - mean) + N(0, h^2 covariance), a = sqrt(1 - h^2)
@@ -196,6 +264,7 @@ class ParticleFilter : public Estimator {
   std::vector<double> x_, y_, th_, c_, s_, logw_, w_;
   std::vector<double> scratch_x_, scratch_y_, scratch_th_, scratch_c_, scratch_s_;
   std::vector<int> resample_index_;
+  std::vector<int> fresh_;  // particles re-injected since the last proposal
   bool uniform_weights_ = false;  // every weight is exactly 1/N (after resampling)
   bool initialised_ = false;
   bool have_step_ = false;

@@ -39,6 +39,7 @@ void SlidingWindowConfig::validate() const {
   if (!(gate.probability > 0 && gate.probability < 1)) throw Error("sliding window: gate.probability must be in (0, 1)");
   if (gate.lost_after < 1) throw Error("sliding window: gate.lost_after must be >= 1");
   if (keyframe_max_steps < 1) throw Error("sliding window: keyframe_max_steps must be >= 1");
+  if (restart_buffer_steps < 0) throw Error("sliding window: restart_buffer_steps must be >= 0");
   makeLossFunction(robust_loss);  // validates the scale
 }
 
@@ -283,9 +284,8 @@ void SlidingWindowSmoother::solve(int max_iterations) {
   stats_.solver_iterations += static_cast<long>(summary.iterations.size()) - 1;
 }
 
-void SlidingWindowSmoother::computeCovariances(bool all) {
+Eigen::MatrixXd SlidingWindowSmoother::windowInformation() {
   const int n = static_cast<int>(nodes_.size());
-  if (n == 0) return;
   for (int i = 0; i < n; ++i) nodes_[static_cast<size_t>(i)]->slot = i;
   Eigen::MatrixXd H = Eigen::MatrixXd::Zero(3 * n, 3 * n);
   Eigen::VectorXd g = Eigen::VectorXd::Zero(3 * n);
@@ -304,6 +304,13 @@ void SlidingWindowSmoother::computeCovariances(bool all) {
     if (!accumulate(f, cur, lin, off, H, g))
       throw Error("sliding window: a factor cannot be linearised for the covariance");
   }
+  return H;
+}
+
+void SlidingWindowSmoother::computeCovariances(bool all) {
+  const int n = static_cast<int>(nodes_.size());
+  if (n == 0) return;
+  const Eigen::MatrixXd H = windowInformation();
   Eigen::LLT<Eigen::MatrixXd> llt(H);
   if (llt.info() != Eigen::Success)
     throw Error("sliding window: the information of the window is not positive definite (rank deficient)");
@@ -346,6 +353,225 @@ void SlidingWindowSmoother::computeCovariances(bool all) {
   }
 }
 
+std::string toString(LateObservationStatus status) {
+  switch (status) {
+    case LateObservationStatus::Inserted: return "inserted";
+    case LateObservationStatus::TooLate: return "too_late";
+    case LateObservationStatus::NotTracking: return "not_tracking";
+  }
+  return "unknown";
+}
+
+bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P,
+                                            std::vector<int>& used) {
+  const Landmark* lm = nullptr;
+  if (obs.landmark_id >= 0) {
+    lm = map_.find(obs.landmark_id);
+  } else {
+    const AssociationResult a =
+        associate(obs, pose, P, map_, config_.association, config_.association.exclusive ? used : std::vector<int>{});
+    if (a.landmark_id >= 0) {
+      lm = &map_.at(a.landmark_id);
+      used.push_back(a.landmark_id);
+    }
+  }
+  if (!lm) return false;
+  Matrix23d Hz;
+  Eigen::Vector2d zhat;
+  try {
+    zhat = predictRangeBearing(pose, lm->xy(), &Hz);  // (5.27)
+  } catch (const GeometryError&) {
+    return false;
+  }
+  const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);
+  const Eigen::Matrix<double, 3, 2> PHt = P * Hz.transpose();
+  const Eigen::Matrix2d S = Hz * PHt + obs.covariance;  // (5.14)
+  const Eigen::Matrix2d Sinv = S.inverse();
+  const double d2 = nu.dot(Sinv * nu);  // (5.20)
+  if (!std::isfinite(d2) || (gate_enabled_ && !gate_.accepts(d2))) return false;
+  addFactor(makeObservationFactor(obs, *lm, config_.observation_model), {node}, true);
+  // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
+  const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
+  pose = plus(pose, K * nu);
+  const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * Hz;
+  P = IKH * P * IKH.transpose() + K * obs.covariance * K.transpose();
+  return true;
+}
+
+SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size_t j) {
+  Node* k = nodes_[k_index].get();
+  Node* next = k_index + 1 < nodes_.size() ? nodes_[k_index + 1].get() : nullptr;
+  const Intermediate m = k->after[j];
+  auto node = std::make_unique<Node>();
+  node->step = m.step;
+  node->t = m.t;
+  node->status = m.status;
+  node->d_left = m.d_left;
+  node->d_right = m.d_right;
+  const Pose2 p = compose(poseOf(k->x), m.rel);
+  node->x = {p.x, p.y, p.theta};
+  // The steps after it, composed from it as process() does after a keyframe.
+  Pose2 rel;
+  Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+  for (size_t i = j + 1; i < k->after.size(); ++i) {
+    Intermediate q = k->after[i];
+    const PosePrediction r = predictPose(rel, C, q.d_left, q.d_right, odometry_);
+    rel = r.pose;
+    C = r.covariance;
+    q.rel = rel;
+    q.rel_covariance = C;
+    node->after.push_back(q);
+  }
+  k->after.resize(j);
+  Node* n = node.get();
+  nodes_.insert(nodes_.begin() + static_cast<long>(k_index) + 1, std::move(node));
+  problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
+  if (next) {
+    for (size_t i = 0; i < factors_.size(); ++i)
+      if (factors_[i]->odometry && factors_[i]->nodes[0] == k && factors_[i]->nodes[1] == next) {
+        removeFactor(i);
+        break;
+      }
+    const PosePrediction r = predictPose(rel, C, next->d_left, next->d_right, odometry_);
+    n->rel_to_next = r.pose;
+    n->rel_to_next_covariance = r.covariance;
+    addFactor(OdometryFactor::Create(Eigen::Vector3d(r.pose.x, r.pose.y, r.pose.theta), r.covariance), {n, next});
+    factors_.back()->odometry = true;
+  } else {
+    rel_ = rel;  // the odometry since the newest keyframe, which is now this step
+    rel_covariance_ = C;
+    steps_since_keyframe_ = static_cast<int>(n->after.size());
+  }
+  k->rel_to_next = m.rel;
+  k->rel_to_next_covariance = m.rel_covariance;
+  k->have_joint_next = false;
+  addFactor(OdometryFactor::Create(Eigen::Vector3d(m.rel.x, m.rel.y, m.rel.theta), m.rel_covariance), {k, n});
+  factors_.back()->odometry = true;
+  ++stats_.keyframes;
+  return n;
+}
+
+LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::vector<Observation>& observations) {
+  if (finished_) throw Error("sliding window: insertLate() after finish()");
+  if (!have_step_ || step > last_step_)
+    throw Error("sliding window: observations of step " + std::to_string(step) + ", which was not processed yet");
+  Step check;
+  check.step = step;
+  check.observations = observations;
+  validateStep(check, "sliding window");
+  for (size_t i = 0; i < observations.size(); ++i) {
+    const int id = observations[i].landmark_id;
+    if (id >= 0 && !map_.find(id))
+      throw Error("sliding window: step " + std::to_string(step) + ": observation " + std::to_string(i) +
+                  ": unknown landmark id " + std::to_string(id));
+  }
+  LateObservationResult result;
+  if ((nodes_.empty() || (lost_ && config_.reinitialise_when_lost)) && restartLate(step, observations)) {
+    result.status = LateObservationStatus::Inserted;
+    for (const Observation& o : observations) result.accepted += o.landmark_id >= 0;  // the fix's
+    result.estimate = current();
+    return result;
+  }
+  if (nodes_.empty() || lost_) {
+    result.status = LateObservationStatus::NotTracking;
+    result.estimate = current();
+    return result;
+  }
+  if (step < nodes_.front()->step) {
+    ++stats_.late_too_late;
+    result.status = LateObservationStatus::TooLate;
+    result.estimate = current();
+    return result;
+  }
+  result.status = LateObservationStatus::Inserted;
+  result.estimate = current();
+  if (observations.empty()) return result;  // nothing to add: the window stays as it is
+  // The window pose of that step, or the keyframe it follows.
+  size_t k = nodes_.size() - 1;
+  while (nodes_[k]->step > step) --k;
+  Node* node = nodes_[k].get();
+  if (node->step != step) {
+    size_t j = 0;
+    while (j < node->after.size() && node->after[j].step != step) ++j;
+    if (j == node->after.size())
+      throw Error("sliding window: observations of step " + std::to_string(step) + ", which was not processed");
+    node = promote(k, j);
+    ++k;
+  }
+  ++stats_.late_inserted;
+  // The step's belief in the current window: its marginal.
+  const Eigen::MatrixXd H = windowInformation();
+  const Eigen::LLT<Eigen::MatrixXd> llt(H);
+  if (llt.info() != Eigen::Success)
+    throw Error("sliding window: the information of the window is not positive definite (rank deficient)");
+  Eigen::MatrixXd E = Eigen::MatrixXd::Zero(H.rows(), 3);
+  E.block<3, 3>(3 * static_cast<long>(k), 0).setIdentity();
+  Eigen::Matrix3d P = llt.solve(E).block<3, 3>(3 * static_cast<long>(k), 0);
+  P = 0.5 * (P + P.transpose());
+  Pose2 pose = poseOf(node->x);
+  std::vector<int> used;
+  for (const Observation& o : observations)
+    if (o.landmark_id >= 0) used.push_back(o.landmark_id);
+  for (const Observation& obs : observations) {
+    const bool accepted = fuseObservation(obs, node, pose, P, used);
+    ++(accepted ? result.accepted : result.rejected);
+    ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
+    if (accepted && node->status != EstimateStatus::Reinitialised) node->status = EstimateStatus::Tracking;
+    if (gate_enabled_ && gate_.record(accepted)) {  // (5.1.3): process() asks the global fix next
+      lost_ = true;
+      break;
+    }
+  }
+  while (static_cast<int>(nodes_.size()) > config_.window) marginaliseOldest();
+  solve(config_.max_iterations);
+  computeCovariances(false);
+  result.estimate = current();
+  return result;
+}
+
+bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation>& observations) {
+  auto it = std::find_if(recent_.begin(), recent_.end(), [step](const Step& s) { return s.step == step; });
+  if (it == recent_.end() || observations.empty() || !config_.global_fix) return false;
+  if (!nodes_.empty() && step < nodes_.front()->step) return false;  // before the window: too late
+  Step at = *it;
+  at.observations = observations;
+  const std::optional<PoseFix> fix = config_.global_fix(at, map_);
+  if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
+  const std::vector<Step> after(it + 1, recent_.end());
+  recent_.erase(it + 1, recent_.end());  // process() takes them again
+  finaliseWindow();
+  while (!history_.empty() && history_.back().step >= step) history_.pop_back();  // replaced below
+  startWindow(at, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
+  ++stats_.reinitialisations;
+  // The odometry since then, as process() would have taken it after this start.
+  const long newest = last_step_;
+  last_step_ = step;
+  for (const Step& s : after) process(s);
+  stats_.steps -= static_cast<long>(after.size());
+  last_step_ = newest;
+  return true;
+}
+
+Estimate SlidingWindowSmoother::current() const {
+  Estimate e;
+  if (nodes_.empty()) {
+    e.step = last_step_;
+    e.status = EstimateStatus::Uninitialised;
+    return e;
+  }
+  const Node& k = *nodes_.back();
+  if (k.after.empty() || k.after.back().step != last_step_) return estimateOf(k);
+  const Intermediate& m = k.after.back();
+  Matrix3d J1, J2;
+  e.step = m.step;
+  e.t = m.t;
+  e.status = m.status;
+  e.pose = compose(poseOf(k.x), m.rel, &J1, &J2);
+  const Eigen::Matrix3d P = J1 * k.covariance * J1.transpose() + J2 * m.rel_covariance * J2.transpose();
+  e.covariance = 0.5 * (P + P.transpose());
+  return e;
+}
+
 Estimate SlidingWindowSmoother::process(const Step& step) {
   if (finished_) throw Error("sliding window: process() after finish()");
   if (have_step_ && step.step <= last_step_)
@@ -362,6 +588,11 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   have_step_ = true;
   last_step_ = step.step;
   ++stats_.steps;
+  if (config_.restart_buffer_steps > 0) {
+    recent_.push_back(step);
+    recent_.back().observations.clear();
+    if (static_cast<int>(recent_.size()) > config_.restart_buffer_steps) recent_.pop_front();
+  }
 
   Estimate out;
   Pose2 pose;            // the belief used for gating and association (EKF-style)
@@ -401,6 +632,8 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
       m.rel = rel_;
       m.rel_covariance = rel_covariance_;
       m.status = lost_ ? EstimateStatus::Lost : EstimateStatus::Predicted;
+      m.d_left = step.d_left;
+      m.d_right = step.d_right;
       prev->after.push_back(m);
       out.step = step.step;
       out.t = step.t;
@@ -413,12 +646,15 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     node->step = step.step;
     node->t = step.t;
     node->x = {pose.x, pose.y, pose.theta};
+    node->d_left = step.d_left;
+    node->d_right = step.d_right;
     Node* n = node.get();
     nodes_.push_back(std::move(node));
     problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
     prev->rel_to_next = rel_;
     prev->rel_to_next_covariance = rel_covariance_;
     addFactor(OdometryFactor::Create(Eigen::Vector3d(rel_.x, rel_.y, rel_.theta), rel_covariance_), {prev, n});
+    factors_.back()->odometry = true;
     rel_ = Pose2();
     rel_covariance_.setZero();
     steps_since_keyframe_ = 0;
@@ -446,45 +682,8 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     for (const Observation& o : step.observations)
       if (o.landmark_id >= 0) used.push_back(o.landmark_id);
     for (const Observation& obs : step.observations) {
-      const Landmark* lm = nullptr;
-      if (obs.landmark_id >= 0) {
-        lm = map_.find(obs.landmark_id);
-      } else {
-        const AssociationResult a = associate(obs, pose, P, map_, config_.association,
-                                              config_.association.exclusive ? used : std::vector<int>{});
-        if (a.landmark_id >= 0) {
-          lm = &map_.at(a.landmark_id);
-          used.push_back(a.landmark_id);
-        }
-      }
-      bool accepted = false;
-      if (lm) {
-        Matrix23d Hz;
-        bool defined = true;
-        Eigen::Vector2d zhat;
-        try {
-          zhat = predictRangeBearing(pose, lm->xy(), &Hz);  // (5.27)
-        } catch (const GeometryError&) {
-          defined = false;
-        }
-        if (defined) {
-          const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);
-          const Eigen::Matrix<double, 3, 2> PHt = P * Hz.transpose();
-          const Eigen::Matrix2d S = Hz * PHt + obs.covariance;  // (5.14)
-          const Eigen::Matrix2d Sinv = S.inverse();
-          const double d2 = nu.dot(Sinv * nu);  // (5.20)
-          if (std::isfinite(d2) && (!gate_enabled_ || gate_.accepts(d2))) {
-            addFactor(makeObservationFactor(obs, *lm, config_.observation_model), {node}, true);
-            // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
-            const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
-            pose = plus(pose, K * nu);
-            const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * Hz;
-            P = IKH * P * IKH.transpose() + K * obs.covariance * K.transpose();
-            accepted = true;
-            fused = true;
-          }
-        }
-      }
+      const bool accepted = fuseObservation(obs, node, pose, P, used);
+      fused = fused || accepted;
       ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
       if (gate_enabled_ && gate_.record(accepted)) {  // (5.1.3)
         lost_ = true;

@@ -59,6 +59,22 @@
 // against all the evidence in the window. Without the gate nothing declares the robot lost, so
 // a kidnap is not detected: keep the gate (gate_with_robust_loss) where kidnaps matter.
 //
+// Late observations (insertLate): an observation may arrive after the odometry of later steps
+// (the frontend's latency, a camera slower than the encoders). While its step is in the window
+// it is added at its own pose: a keyframe gets the factor; a non-keyframe step becomes a
+// keyframe, its keyframe's odometry factor split in two at it, the odometry re-composed from
+// the stored wheel increments exactly as if the step had been a keyframe when it arrived. The
+// factor graph is then the one the in-order run builds, and so is the solution as long as no
+// pose left the window while data were outstanding. A marginal prior is a linearisation at the
+// estimates of its time, and a pose that leaves the window keeps its estimate of that time, so
+// with marginalisation the two runs differ by what the late data would have changed then
+// (tests/solvers/test_sliding_window_late.cpp measures it). Gate and association use the step's
+// belief in the current window (its marginal), which knows more than the prediction the
+// in-order run gates against. Steps older than the window are reported too late, unchanged.
+// Uninitialised or lost, late observations may give a global fix at their step (the
+// re-initialisation of 5.1.3 that in-time ones would have given); the odometry kept since then
+// (restart_buffer_steps) carries it to the newest step.
+//
 // Memory is bounded by W (plus one Estimate per step for finish(), unless keep_history is off).
 #include <ceres/problem.h>
 
@@ -114,8 +130,28 @@ struct SlidingWindowConfig {
   // With a robust loss, the chi-square gate (and with it the lost policy) is off unless this is
   // set: the loss then plays the gate's role (see the header comment).
   bool gate_with_robust_loss = false;
+  // The odometry (and compass) of the last this-many steps is kept so that late observations
+  // of one of them can start the window, or restart it when lost, from a global fix at their
+  // step (insertLate); 0: late observations cannot.
+  int restart_buffer_steps = 100;
 
   void validate() const;             // throws stereoloc::Error naming the field
+};
+
+// What insertLate did with the observations of an earlier step.
+enum class LateObservationStatus {
+  Inserted,     // the step is in the window: its observations went through gate and association
+                // (none given: nothing changes)
+  TooLate,      // the step's pose has left the window (marginalised or before a re-start)
+  NotTracking,  // uninitialised or lost: observations are not fused (as in process())
+};
+std::string toString(LateObservationStatus status);
+
+struct LateObservationResult {
+  LateObservationStatus status = LateObservationStatus::TooLate;
+  int accepted = 0;   // observations fused (Inserted only)
+  int rejected = 0;   // gated or not associable (Inserted only)
+  Estimate estimate;  // the real-time estimate of the newest step afterwards (current())
 };
 
 // Counters for tests and benchmarks.
@@ -127,6 +163,8 @@ struct SlidingWindowStats {
   long rejected_observations = 0;   // gated or not associable
   long solver_iterations = 0;       // summed over steps
   long keyframes = 0;               // window poses created (including re-initialisations)
+  long late_inserted = 0;           // insertLate calls whose step was in the window
+  long late_too_late = 0;           // insertLate calls whose step had left the window
 };
 
 class SlidingWindowSmoother : public Estimator {
@@ -147,6 +185,13 @@ class SlidingWindowSmoother : public Estimator {
   // poses that left the window keep their estimate and covariance from the time they were
   // marginalised; the final window is smoothed. Processing may not continue afterwards.
   std::vector<Estimate> finish() override;
+  // Observations of the already processed step `step` (see the header comment): fused at its
+  // own pose when it is in the window, then the window is solved again. Throws stereoloc::Error
+  // for a step that was not processed (later than the newest or skipped) or invalid observations.
+  LateObservationResult insertLate(long step, const std::vector<Observation>& observations);
+  // The real-time estimate of the newest processed step (the newest keyframe composed with the
+  // odometry since it, for a non-keyframe step). Uninitialised before the first pose.
+  Estimate current() const;
 
   int windowSize() const { return static_cast<int>(nodes_.size()); }
   bool initialised() const { return !nodes_.empty(); }
@@ -161,6 +206,7 @@ class SlidingWindowSmoother : public Estimator {
     Pose2 rel;                             // relative to the keyframe (mm, mm, rad)
     Eigen::Matrix3d rel_covariance = Eigen::Matrix3d::Zero();
     EstimateStatus status = EstimateStatus::Predicted;
+    double d_left = 0.0, d_right = 0.0;    // this step's wheel increments (mm), for insertLate
   };
   struct Node {
     long step = 0;
@@ -175,6 +221,7 @@ class SlidingWindowSmoother : public Estimator {
     std::vector<Intermediate> after;     // the non-keyframe steps that follow this keyframe
     Pose2 rel_to_next;                   // the composed odometry to the next keyframe and its covariance
     Eigen::Matrix3d rel_to_next_covariance = Eigen::Matrix3d::Zero();
+    double d_left = 0.0, d_right = 0.0;  // this step's wheel increments (mm), for insertLate
   };
   struct Factor {
     std::unique_ptr<ceres::CostFunction> cost;
@@ -182,6 +229,7 @@ class SlidingWindowSmoother : public Estimator {
     std::vector<std::array<double, 3>> linearisation;  // first estimates
     ceres::ResidualBlockId id = nullptr;
     bool robust = false;                                // carries robust_loss
+    bool odometry = false;                              // the odometry between consecutive poses
   };
 
   void startWindow(const Step& step, const Pose2& pose, const Eigen::Matrix3d& covariance, EstimateStatus status);
@@ -198,6 +246,17 @@ class SlidingWindowSmoother : public Estimator {
   void dropNewest();                    // removes the newest pose and its factors
   void solve(int max_iterations);
   void computeCovariances(bool all);    // newest and oldest (or all) marginal covariances
+  // The Gauss-Newton information of the window (3n x 3n, poses in nodes_ order; refreshes the
+  // slots), factors linearised as for the covariances.
+  Eigen::MatrixXd windowInformation();
+  // Gate, associate and add one observation at `node` with the belief (pose, P), which is
+  // updated as by the EKF's sequential update; `used`: the landmarks already taken this step.
+  bool fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P, std::vector<int>& used);
+  // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
+  Node* promote(size_t k_index, size_t j);
+  // Uninitialised or lost: a global fix from late observations of a recent step restarts the
+  // window there (see insertLate). False when there is no fix.
+  bool restartLate(long step, const std::vector<Observation>& observations);
   bool tryGlobalFix(const Step& step, Estimate* out);
   Estimate estimateOf(const Node& n) const;
   void pushHistory(const Estimate& e);
@@ -223,6 +282,7 @@ class SlidingWindowSmoother : public Estimator {
   Pose2 rel_;
   Eigen::Matrix3d rel_covariance_ = Eigen::Matrix3d::Zero();
   int steps_since_keyframe_ = 0;
+  std::deque<Step> recent_;  // the last restart_buffer_steps steps, without observations
 };
 
 }  // namespace stereoloc

@@ -1,6 +1,7 @@
 #include "solvers/smoother_common.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/LU>
 #include <Eigen/Eigenvalues>
 #include <limits>
 #include <cmath>
@@ -137,10 +138,16 @@ bool chainMarginalCovariances(const std::vector<Eigen::Matrix3d>& D, const std::
     lambda = D[i];
     if (i > 0) lambda -= B[i].transpose() * inv[i - 1] * B[i];
     lambda = 0.5 * (lambda + lambda.transpose());
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(lambda);
+    // Positive definite with its smallest eigenvalue above 1e-14 of D_i's scale. The closed-form
+    // inverse of a 3x3 (a million poses: an eigen-decomposition each would dominate the pass);
+    // 1 / |Lambda^-1|_F is a lower bound of the smallest eigenvalue within sqrt(3).
     const double scale = std::max(D[i].cwiseAbs().maxCoeff(), std::numeric_limits<double>::min());
-    if (!lambda.allFinite() || eig.info() != Eigen::Success || !(eig.eigenvalues()(0) > 1e-14 * scale)) return false;
-    inv[i] = eig.eigenvectors() * eig.eigenvalues().cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
+    const Eigen::LLT<Eigen::Matrix3d> llt(lambda);
+    if (!lambda.allFinite() || llt.info() != Eigen::Success) return false;
+    inv[i] = lambda.inverse();
+    inv[i] = 0.5 * (inv[i] + inv[i].transpose());
+    const double norm = inv[i].norm();
+    if (!inv[i].allFinite() || !(1.0 / norm > 1e-14 * scale)) return false;
   }
   covariances->assign(n, Eigen::Matrix3d::Zero());
   if (n == 0) return true;

@@ -84,8 +84,8 @@ void schurComplement(const Eigen::MatrixXd& H, const Eigen::VectorXd& g, int m, 
 // (the filtered information), then the backward (Rauch-Tung-Striebel) pass
 //   Sigma_{N-1} = Lambda_{N-1}^-1,  Sigma_i = Lambda_i^-1 + G_i Sigma_{i+1} G_i^T,  G_i = Lambda_i^-1 B_{i+1}
 // gives the diagonal blocks of H^-1 exactly in O(N). Returns false (rank deficient) when a
-// Lambda_i is not positive definite or its reciprocal condition number relative to D_i is
-// below 1e-14 (the threshold ceres::Covariance uses).
+// Lambda_i is not positive definite or its smallest eigenvalue (bounded below by
+// 1 / |Lambda_i^-1|_F) is below 1e-14 of D_i's largest entry (the threshold ceres::Covariance uses).
 bool chainMarginalCovariances(const std::vector<Eigen::Matrix3d>& D, const std::vector<Eigen::Matrix3d>& B,
                               std::vector<Eigen::Matrix3d>* covariances);
 

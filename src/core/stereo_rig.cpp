@@ -1,6 +1,7 @@
 #include "src/core/stereo_rig.h"
 
 #include <cmath>
+#include <filesystem>
 #include <opencv2/core/persistence.hpp>
 
 #include "src/core/error.h"
@@ -46,9 +47,55 @@ StereoRig::StereoRig(const StereoRigParams& p) : params_(p) {
   R_tilt_ << c, 0, s, 0, 1, 0, -s, 0, c;
 }
 
+namespace {
+
+StereoRigParams withCalibration(StereoRigParams p, const StereoCalibration& c) {
+  p.image_width = c.image_size.width;
+  p.image_height = c.image_size.height;
+  p.focal_px = c.rectifiedFocal();
+  p.principal_u = c.rectifiedPrincipalU();
+  p.principal_v = c.rectifiedPrincipalV();
+  p.baseline_mm = c.rectifiedBaseline();
+  return p;
+}
+
+}  // namespace
+
+StereoRig::StereoRig(const StereoRigParams& params, const StereoCalibration& calibration)
+    : StereoRig(withCalibration(params, calibration)) {
+  calibration_ = std::make_shared<const StereoCalibration>(calibration);
+}
+
 StereoRig StereoRig::load(const std::string& path) {
   YamlReader in(path);
   StereoRigParams p;
+  if (in.has("calibration_file")) {
+    const std::filesystem::path dir = std::filesystem::path(path).parent_path();
+    auto resolve = [&](const std::string& f) {
+      const std::filesystem::path q(f);
+      return (q.is_absolute() ? q : dir / q).string();
+    };
+    for (const char* k : {"focal_px", "principal_u", "principal_v", "baseline_mm", "hfov_rad"})
+      if (in.has(k)) in.fail(k, "given by calibration_file; remove it from the rig file");
+    const std::string ex = in.has("extrinsics_file") ? resolve(in.getString("extrinsics_file")) : std::string();
+    const StereoCalibration c = StereoCalibration::load(resolve(in.getString("calibration_file")), ex);
+    for (const auto& [key, value] : {std::pair<const char*, int>{"image_width", c.image_size.width},
+                                     std::pair<const char*, int>{"image_height", c.image_size.height}})
+      if (in.has(key) && in.getInt(key) != value)
+        in.fail(key, std::to_string(in.getInt(key)) + " differs from the calibration's image_size (" +
+                         std::to_string(value) + ")");
+    p.camera_height_mm = in.getDouble("camera_height_mm", p.camera_height_mm);
+    p.offset_x_mm = in.getDouble("offset_x_mm", p.offset_x_mm);
+    p.tilt_rad = in.getDouble("tilt_rad", p.tilt_rad);
+    p.pixel_sigma = in.getDouble("pixel_sigma", p.pixel_sigma);
+    p.min_disparity_px = in.getDouble("min_disparity_px", p.min_disparity_px);
+    p.max_range_mm = in.getDouble("max_range_mm", p.max_range_mm);
+    try {
+      return StereoRig(p, c);
+    } catch (const Error& e) {
+      throw Error(path + ": " + e.what());
+    }
+  }
   p.image_width = in.getInt("image_width", p.image_width);
   p.image_height = in.getInt("image_height", p.image_height);
   p.hfov_rad = in.getDouble("hfov_rad", p.hfov_rad);
@@ -72,6 +119,20 @@ StereoRig StereoRig::load(const std::string& path) {
 void StereoRig::save(const std::string& path) const {
   YamlWriter out;
   out.comment("stereoloc stereo rig (thesis 3.2, appendix A). Units: mm, rad, px.");
+  if (calibration_) {
+    const std::filesystem::path p(path);
+    const std::string name = p.stem().string() + "_calibration.yml";
+    calibration_->save((p.parent_path() / name).string());
+    out.put("calibration_file", name);
+    out.put("camera_height_mm", params_.camera_height_mm);
+    out.put("offset_x_mm", params_.offset_x_mm);
+    out.put("tilt_rad", params_.tilt_rad);
+    out.put("pixel_sigma", params_.pixel_sigma);
+    out.put("min_disparity_px", params_.min_disparity_px);
+    out.put("max_range_mm", params_.max_range_mm);
+    out.writeAtomically(path);
+    return;
+  }
   out.put("image_width", params_.image_width);
   out.put("image_height", params_.image_height);
   out.put("hfov_rad", params_.hfov_rad);

@@ -16,12 +16,18 @@
 // offset after the pan; here the head pans about the robot centre and carries the offset
 // camera, which is the physical construction of Fig. 3.1 and agrees with (3.5) when
 // gamma = 0 or x_c = 0.
+//
+// A rig may carry an OpenCV stereo calibration (stereo_calibration.h): then its focal length,
+// principal point, baseline and image size are those of the rectified pair, and the frontend
+// resamples raw images into it (frontend/rectify.h).
 #include <Eigen/Core>
+#include <memory>
 #include <optional>
 #include <string>
 
 #include "src/core/angles.h"
 #include "src/core/pose2.h"
+#include "src/core/stereo_calibration.h"
 
 namespace stereoloc {
 
@@ -61,10 +67,21 @@ class StereoRig {
   using Matrix34d = Eigen::Matrix<double, 3, 4>;
 
   explicit StereoRig(const StereoRigParams& params = StereoRigParams());
+  // The rectified rig of a calibration: image size, focal length, principal point and baseline
+  // come from `calibration` (its P1, P2), the mounting and noise fields from `params`.
+  StereoRig(const StereoRigParams& params, const StereoCalibration& calibration);
 
   // Reads / writes the rig from a cv::FileStorage YAML file; errors name the file and key.
+  // The key calibration_file (and optionally extrinsics_file, for the intrinsics.yml /
+  // extrinsics.yml pair of OpenCV's stereo_calib sample) names an OpenCV calibration, relative
+  // to the rig file's folder; the rig file then must not give focal_px, principal_u/v,
+  // baseline_mm or hfov_rad, and an image size it gives must match the calibration's. save()
+  // writes a carried calibration beside the rig as <rig stem>_calibration.yml.
   static StereoRig load(const std::string& path);
   void save(const std::string& path) const;
+
+  // The OpenCV calibration the rig was built from; null for a plain pinhole rig.
+  const std::shared_ptr<const StereoCalibration>& calibration() const { return calibration_; }
 
   const StereoRigParams& params() const { return params_; }
   double focal() const { return f_; }
@@ -99,6 +116,7 @@ class StereoRig {
 
  private:
   StereoRigParams params_;
+  std::shared_ptr<const StereoCalibration> calibration_;
   double f_ = 0.0, ou_ = 0.0, ov_ = 0.0;
   Eigen::Matrix3d R_tilt_;  // C2 axes expressed in C1 (rotation about y by beta)
 };

@@ -159,6 +159,16 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.observation_model = {o.observation_model, d.rig};
     SlidingWindowSmoother w(d.map, d.odometry, c);
     run = runEstimator(w, d);
+  } else if (o.calibration.odometry || o.calibration.stereo) {
+    if (name != "batch") throw UsageError("--calibrate: only the batch smoother self-calibrates (method '" + spec + "')");
+    if (init_mode != InitMode::Known) throw UsageError("--calibrate: needs a known start (method '" + spec + "')");
+    SelfCalibrationConfig sc = o.calibration;
+    sc.residuals = o.observation_model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+    const auto start = Clock::now();
+    SelfCalibrationResult r = selfCalibratingBatch(d, beliefFor(init_mode, d, o, rng), sc);
+    run.ms_per_step = msSince(start, d.steps.size());
+    run.estimates = std::move(r.trajectory);
+    run.calibration = r.calibration;
   } else {  // batch
     BatchSmootherConfig c;
     c.init = beliefFor(init_mode, d, o, rng);

@@ -6,7 +6,10 @@
 #include <string>
 #include <vector>
 
+#include <optional>
+
 #include "solvers/initialisation.h"
+#include "solvers/self_calibration.h"
 #include "solvers/smoother_common.h"
 #include "src/io/dataset.h"
 #include "src/core/types.h"
@@ -25,6 +28,8 @@ struct MethodOptions {
   ObservationModel observation_model = ObservationModel::PixelColumns;
   double loss_scale = 2.0;           // whitened units
   bool gate_enabled = true;          // ekf, window
+  // batch: self-calibration (solvers/self_calibration.h) when either part is on; known start only.
+  SelfCalibrationConfig calibration;
 };
 
 struct MethodRun {
@@ -33,6 +38,7 @@ struct MethodRun {
   double ms_per_step = 0;            // wall-clock, mean over steps
   long attempted_steps = 0;          // fixes: steps with at least one observation
   long fixed_steps = 0;              // fixes: steps that gave a fix
+  std::optional<CalibrationEstimate> calibration;  // batch with MethodOptions::calibration
 };
 
 // The names accepted before the optional ":init" ("iekf": the EKF with iterated updates), and

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
@@ -16,6 +17,7 @@
 #include "src/io/csv.h"
 #include "src/io/dataset.h"
 #include "src/core/error.h"
+#include "src/sim/raw_render.h"
 #include "src/sim/simulator.h"
 
 namespace stereoloc {
@@ -783,11 +785,15 @@ void writeDatasetImages(const Dataset& d, const SimulationTrace& trace, const Re
   if (trace.scenario.poses.size() != d.steps.size() || trace.obstacles.size() != d.steps.size())
     throw Error("writeDatasetImages: the simulation trace does not match the dataset");
   std::filesystem::create_directories(std::filesystem::path(dir) / "images");
-  const StereoRenderer renderer(d.map, d.rig, options);
+  const bool ideal = trace.profile.isIdeal();
+  const StereoRenderer renderer(d.map, ideal ? d.rig : StereoRig(trace.nominal_rig), options);
+  std::optional<RawPairRenderer> raw;
+  if (!ideal) raw.emplace(d.map, trace.nominal_rig, trace.profile, trace.errors, options, trace.scenario.dt);
   const int W = d.rig.params().image_width, H = d.rig.params().image_height;
   for (size_t s = 0; s < d.steps.size(); ++s) {
     const Step& st = d.steps[s];
-    const StereoImages im = renderer.render(trace.scenario.poses[s], st.head_pan, trace.obstacles[s], seed + s);
+    const StereoImages im = ideal ? renderer.render(trace.scenario.poses[s], st.head_pan, trace.obstacles[s], seed + s)
+                                  : raw->render(trace.scenario, s, trace.obstacles[s], seed + s);
     for (int camera = 0; camera < 2; ++camera) {
       const std::string path = (std::filesystem::path(dir) / imageFileName(camera == 0 ? "left" : "right", st.step)).string();
       std::vector<uchar> png;

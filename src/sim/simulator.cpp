@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include <opencv2/calib3d.hpp>
+
 #include "src/core/error.h"
 
 namespace stereoloc {
@@ -39,6 +41,41 @@ void moveObstacles(std::vector<Obstacle>& obs, std::vector<double>& dir, const F
   }
 }
 
+// The raw (distorted, unrectified) pixels of a point given in C0, through the true cameras of
+// a drawn error profile; nullopt when it is behind either camera.
+std::optional<StereoPixels> trueRawPixels(const StereoRig& true_rig, const DrawnErrors& e, size_t step,
+                                          const Eigen::Vector3d& p_robot, double pan, const StereoRig& nominal) {
+  const Eigen::Vector3d p = true_rig.robotToVision(p_robot, pan);
+  const double hb = 0.5 * true_rig.params().baseline_mm;
+  double uv[2][2];
+  for (int c = 0; c < 2; ++c) {
+    // C2 (x forward, y left, z up) -> the ideal camera's OpenCV axes (x right, y down, z forward).
+    const cv::Mat X = (cv::Mat_<double>(3, 1) << -(p.y() - (c == 0 ? hb : -hb)), -p.z(), p.x());
+    const RawCamera cam = trueCamera(nominal, e, c, step);
+    const cv::Mat Xr = cam.R * X;
+    if (!(Xr.at<double>(2) > 1.0)) return std::nullopt;
+    std::vector<cv::Point2d> out;
+    cv::projectPoints(std::vector<cv::Point3d>{cv::Point3d(Xr.at<double>(0), Xr.at<double>(1), Xr.at<double>(2))},
+                      cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), cam.K, cam.D, out);
+    uv[c][0] = out[0].x;
+    uv[c][1] = out[0].y;
+  }
+  return StereoPixels{uv[0][0], uv[0][1], uv[1][0], uv[1][1]};
+}
+
+// Raw pixels -> rectified pixels of a calibration (in place); false when a point leaves the
+// rectified images.
+bool rectifyPixels(const StereoCalibration& c, StereoPixels& px) {
+  std::vector<cv::Point2d> l{{px.u_left, px.v_left}}, r{{px.u_right, px.v_right}}, lo, ro;
+  const cv::TermCriteria crit(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 50, 1e-10);
+  cv::undistortPoints(l, lo, c.K1, c.D1, c.R1, c.P1, crit);
+  cv::undistortPoints(r, ro, c.K2, c.D2, c.R2, c.P2, crit);
+  px = StereoPixels{lo[0].x, lo[0].y, ro[0].x, ro[0].y};
+  const double w = c.image_size.width - 0.5, h = c.image_size.height - 0.5;
+  auto in = [&](double u, double v) { return u >= -0.5 && u < w && v >= -0.5 && v < h; };
+  return in(px.u_left, px.v_left) && in(px.u_right, px.v_right);
+}
+
 }  // namespace
 
 std::string toString(LandmarkSet set) { return set == LandmarkSet::All ? "all" : "goal_corners"; }
@@ -64,6 +101,23 @@ void SimulationConfig::validate() const {
   if (!(std::isfinite(dt) && dt > 0)) throw Error("simulation: dt must be positive");
   if (obstacles < 0 || obstacles > 100) throw Error("simulation: obstacles must be in 0..100");
   if (scenario.steps < 0) throw Error("simulation: steps must be >= 0");
+  try {
+    profile.validate();
+  } catch (const Error& e) {
+    throw Error("simulation: profile " + profile.name + ": " + e.what());
+  }
+}
+
+Pose2 poseAtStep(const Scenario& sc, double step) {
+  const double last = static_cast<double>(sc.poses.size() - 1);
+  const double t = std::clamp(step, 0.0, last);
+  const size_t k = std::min(static_cast<size_t>(t), sc.poses.size() - 1);
+  const double a = t - static_cast<double>(k);
+  if (a <= 0.0 || k + 1 >= sc.poses.size()) return sc.poses[k];
+  const Arc arc = arcBetween(sc.poses[k], sc.poses[k + 1]);
+  // Any wheel base gives the same arc; 1 mm keeps the increments well scaled.
+  const WheelIncrements w = wheelIncrementsForArc(a * arc.length, a * arc.dtheta, 1.0);
+  return compose(sc.poses[k], Pose2::fromVector(controlVector(w.d_left, w.d_right, 1.0)));
 }
 
 Eigen::Vector3d cameraCentreWorld(const StereoRig& rig, const Pose2& robot, double head_pan, int camera) {
@@ -100,6 +154,7 @@ Dataset simulate(const std::string& scenario_name, int trial, const SimulationCo
   std::mt19937_64 master(seed);
   std::mt19937_64 rng_scenario(master()), rng_encoder(master()), rng_compass(master()), rng_obstacles(master()),
       rng_pixels(master());
+  const bool ideal = cfg.profile.isIdeal();
   const Scenario sc = makeScenario(scenario_name, trial, cfg.scenario, rng_scenario);
   const size_t n = sc.poses.size();
   if (n == 0) throw Error("simulation: scenario has no steps");
@@ -113,6 +168,13 @@ Dataset simulate(const std::string& scenario_name, int trial, const SimulationCo
   d.name = scenario_name;
   d.map = cfg.map;
   d.rig = StereoRig(rp);
+  const StereoRig nominal = d.rig;
+  DrawnErrors drawn;
+  if (!ideal) {
+    std::mt19937_64 rng_profile(master());
+    drawn = drawErrors(cfg.profile, n, rng_profile);
+    d.rig = StereoRig(rp, givenCalibration(nominal, drawn));
+  }
   d.odometry = OdometryParams();
   d.odometry.wheel_base_mm = cfg.wheel_base_mm;
   d.odometry.k_left = d.odometry.k_right = cfg.encoder_k;
@@ -131,6 +193,7 @@ Dataset simulate(const std::string& scenario_name, int trial, const SimulationCo
                   cfg.pixel_sigma, cfg.quantise ? " quantised" : "", toString(cfg.landmarks).c_str(), cfg.obstacles,
                   cfg.scenario.head_scan ? "on" : "off");
     d.description = buf;
+    if (!ideal) d.description += ", error profile " + cfg.profile.name;
   }
 
   // Obstacles: K robots and a ball at random places away from the robot's start.
@@ -156,7 +219,12 @@ Dataset simulate(const std::string& scenario_name, int trial, const SimulationCo
   if (trace) {
     trace->scenario = sc;
     trace->obstacles.clear();
+    trace->profile = cfg.profile;
+    trace->errors = drawn;
+    trace->nominal_rig = rp;
   }
+  const double true_wheel_base = cfg.wheel_base_mm * (1.0 + drawn.wheel_base_rel);
+  const double clock_shift = drawn.time_offset_s / cfg.dt;  // steps
 
   std::normal_distribution<double> N(0.0, 1.0);
   const Scene static_scene = have_geometry ? Scene::fromMap(cfg.map) : Scene();
@@ -169,7 +237,18 @@ Dataset simulate(const std::string& scenario_name, int trial, const SimulationCo
     st.t = static_cast<double>(s) * cfg.dt;
     st.head_pan = sc.head_pan[s];
     d.groundtruth[s] = pose;
-    if (s > 0 && !sc.carried[s]) {
+    if (s > 0 && !sc.carried[s] && !ideal) {
+      // The odometry clock runs `time_offset_s` ahead of the images; the wheels roll the true
+      // arc with the true wheel base, and the encoders convert wheel angle with the nominal
+      // radius (reading = true distance / (1 + e)); a slipping wheel reads more than it moved.
+      const Arc arc = arcBetween(poseAtStep(sc, static_cast<double>(s) - 1.0 + clock_shift),
+                                 poseAtStep(sc, static_cast<double>(s) + clock_shift));
+      const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, true_wheel_base);
+      const double l = w.d_left / (1.0 + drawn.wheel_radius_rel[0]) * (1.0 + drawn.slip_left[s]);
+      const double r = w.d_right / (1.0 + drawn.wheel_radius_rel[1]) * (1.0 + drawn.slip_right[s]);
+      st.d_left = l + std::sqrt(cfg.encoder_k * std::fabs(l)) * N(rng_encoder);
+      st.d_right = r + std::sqrt(cfg.encoder_k * std::fabs(r)) * N(rng_encoder);
+    } else if (s > 0 && !sc.carried[s]) {
       const Arc arc = arcBetween(sc.poses[s - 1], pose);
       const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, cfg.wheel_base_mm);
       // (B.6): independent wheel errors with variance proportional to the distance travelled.
@@ -184,12 +263,21 @@ Dataset simulate(const std::string& scenario_name, int trial, const SimulationCo
     if (trace) trace->obstacles.push_back(obstacles);
     const Scene scene = obstacles.empty() ? Scene() : Scene::fromMap(cfg.map, obstacles);
     const Scene& world = obstacles.empty() ? static_scene : scene;
+    const StereoRig true_rig(trueRigParams(nominal.params(), drawn, s));
     for (const VisibleLandmark& v : visibleLandmarks(d.map, d.rig, world, pose, st.head_pan, cfg.landmarks)) {
       StereoPixels px = v.pixels;
+      if (!ideal) {
+        const Eigen::Vector2d local = transformToLocal(pose, d.map.at(v.id).xy());
+        const auto raw = trueRawPixels(true_rig, drawn, s, Eigen::Vector3d(local.x(), local.y(), d.map.at(v.id).position.z()),
+                                       st.head_pan, nominal);
+        if (!raw) continue;
+        px = *raw;
+      }
       for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) {
         *c += cfg.pixel_sigma * N(rng_pixels);
         if (cfg.quantise) *c = std::round(*c);
       }
+      if (!ideal && !rectifyPixels(*d.rig.calibration(), px)) continue;
       // A detector cannot triangulate what the noise pushed below the minimum disparity.
       if (!(px.disparity() >= d.rig.params().min_disparity_px)) continue;
       st.observations.push_back(

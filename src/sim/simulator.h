@@ -34,6 +34,7 @@
 #include <vector>
 
 #include "src/io/dataset.h"
+#include "src/sim/error_profile.h"
 #include "src/sim/scenario.h"
 #include "src/sim/simulator_scene.h"
 
@@ -66,6 +67,13 @@ struct SimulationConfig {
   bool images = false;                     // render stereo pairs (stage 2: simulate --images)
   ScenarioOptions scenario;                // steps (0 = default), head scan
   double dt = 0.1;                         // s per step (the thesis gives none)
+  // What separates the simulated world from the rig and odometry the dataset declares
+  // (src/sim/error_profile.h). Ideal: the exact world described above. Otherwise the dataset's
+  // rig carries the given calibration (nominal cameras, estimated distortion; its pairs need
+  // rectification), observations are true raw projections undistorted with that calibration,
+  // and odometry reads the true motion through the true wheel radii, wheel base, slip and
+  // clock offset.
+  ErrorProfile profile;
 
   void validate() const;  // throws stereoloc::Error naming the field
 };
@@ -74,7 +82,14 @@ struct SimulationConfig {
 struct SimulationTrace {
   Scenario scenario;
   std::vector<std::vector<Obstacle>> obstacles;  // per step
+  ErrorProfile profile;
+  DrawnErrors errors;                  // all zero for the ideal profile
+  StereoRigParams nominal_rig;         // the rig before the given calibration replaced it
 };
+
+// The true pose at a fractional step (s + a, 0 <= a < 1 between poses s and s + 1), on the arc
+// between them; clamped to the first and last pose.
+Pose2 poseAtStep(const Scenario& scenario, double step);
 
 // Runs a scenario. Deterministic per seed: the same arguments give the same Dataset (and the
 // same files). One std::mt19937_64 seeded with `seed` derives independent engines for the

@@ -581,10 +581,11 @@ void runFixStudy(const FixStudyOptions& a) {
                   "frontend %.2f ms/pair\n",
                   fstats.pairs, fstats.pairs ? static_cast<double>(fstats.identified) / fstats.pairs : 0.0,
                   fstats.pairs ? fstats.ms_render / fstats.pairs : 0.0, fstats.pairs ? fstats.ms_frontend / fstats.pairs : 0.0);
-    // Timings vary between runs: on stderr, so that the tables stay reproducible.
-    std::cerr << buf;
+    // Timings vary between runs: on the log, so that the tables stay reproducible.
+    if (a.log) std::fputs(buf, a.log);
   }
-  std::cout << report.str() << std::flush;
+  std::fputs(report.str().c_str(), a.console);
+  std::fflush(a.console);
   if (!a.out.empty()) {
     writeFileAtomically(a.out + "/fixstudy.txt", report.str());
     csv->commit();

@@ -19,6 +19,7 @@
 // (4.2.8) on the steps with >= 2 identified landmarks and a 3.5 deg compass, with the stereo
 // observations as range-bearing and as pixels (GlobalFixOptions::rig), same steps, same draws.
 #include <cstdint>
+#include <cstdio>
 #include <string>
 
 namespace stereoloc {
@@ -37,10 +38,12 @@ struct FixStudyOptions {
   std::string frontend = "pixels";          // pixels | images | both
   std::string frontend_landmarks = "all";   // images: which frontend observations (fixes use goal corners only)
   double image_noise = 1.5;                 // images: sensor noise of the rendered pairs, grey levels
+  std::FILE* console = stdout;              // the tables
+  std::FILE* log = stderr;                  // image frontend timings; null: none
 };
 
-// Runs the study: prints the tables beside the thesis's numbers to stdout and writes them into
-// out when set. Bad options throw UsageError.
+// Runs the study: prints the tables beside the thesis's numbers to `console` and writes them (and
+// fixes.csv) into the directory `out` names when set. Bad options throw UsageError.
 void runFixStudy(const FixStudyOptions& options);
 
 }  // namespace stereoloc

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdarg>
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -13,8 +12,9 @@
 
 #include "solvers/ekf.h"
 #include "src/core/atomic_file.h"
-#include "src/sim/simulator.h"
 #include "src/pipeline/usage_error.h"
+#include "src/sim/simulator.h"
+#include "src/study/text_format.h"
 
 namespace stereoloc {
 namespace {
@@ -50,16 +50,6 @@ double positionError(const Estimate& e, const Pose2& truth) {
   return (e.pose.translation() - truth.translation()).norm();
 }
 
-std::string fmt(const char* format, ...) __attribute__((format(printf, 1, 2)));
-std::string fmt(const char* format, ...) {
-  char buf[512];
-  va_list args;
-  va_start(args, format);
-  std::vsnprintf(buf, sizeof(buf), format, args);
-  va_end(args);
-  return buf;
-}
-
 void appendTrace(std::string& csv, const char* run, const Dataset& d, const RunTrace& t, double threshold) {
   for (size_t k = 0; k < t.estimates.size(); ++k) {
     const Estimate& e = t.estimates[k];
@@ -74,15 +64,15 @@ void appendTrace(std::string& csv, const char* run, const Dataset& d, const RunT
       accepted += r.accepted;
       if (std::isfinite(r.mahalanobis_squared)) e2max = std::max(e2max, r.mahalanobis_squared);
     }
-    csv += fmt("%s,%ld,%.3f,%s,%.3f,%.3f,%.6f", run, e.step, e.t, toString(e.status).c_str(), g.x, g.y, g.theta);
+    csv += formatText("%s,%ld,%.3f,%s,%.3f,%.3f,%.6f", run, e.step, e.t, toString(e.status).c_str(), g.x, g.y, g.theta);
     if (has) {
-      csv += fmt(",%.3f,%.3f,%.6f,%.3f,%.3f,%.6f,%.3f,%.3f,%.6f", e.pose.x, e.pose.y, e.pose.theta, e.pose.x - g.x,
+      csv += formatText(",%.3f,%.3f,%.6f,%.3f,%.3f,%.6f,%.3f,%.3f,%.6f", e.pose.x, e.pose.y, e.pose.theta, e.pose.x - g.x,
                  e.pose.y - g.y, angleDiff(e.pose.theta, g.theta), 3 * std::sqrt(std::max(0.0, e.covariance(0, 0))),
                  3 * std::sqrt(std::max(0.0, e.covariance(1, 1))), 3 * std::sqrt(std::max(0.0, e.covariance(2, 2))));
     } else {
       csv += ",,,,,,,,,";
     }
-    csv += fmt(",%d,%d,%.6g,%.6g\n", n, accepted, e2max, threshold);
+    csv += formatText(",%d,%d,%.6g,%.6g\n", n, accepted, e2max, threshold);
   }
 }
 
@@ -91,10 +81,10 @@ void appendInnovations(std::string& csv, const char* run, const RunTrace& t, dou
     for (const EkfUpdateRecord& r : t.updates[k]) {
       if (r.compass) continue;
       if (!r.associated || !std::isfinite(r.mahalanobis_squared)) {
-        csv += fmt("%s,%ld,%d,,,,,,%.6g,0\n", run, r.step, r.landmark_id, threshold);
+        csv += formatText("%s,%ld,%d,,,,,,%.6g,0\n", run, r.step, r.landmark_id, threshold);
         continue;
       }
-      csv += fmt("%s,%ld,%d,%.4f,%.6f,%.4f,%.6f,%.6g,%.6g,%d\n", run, r.step, r.landmark_id, r.innovation.x(),
+      csv += formatText("%s,%ld,%d,%.4f,%.6f,%.4f,%.6f,%.6g,%.6g,%d\n", run, r.step, r.landmark_id, r.innovation.x(),
                  r.innovation.y(), std::sqrt(r.innovation_covariance(0, 0)), std::sqrt(r.innovation_covariance(1, 1)),
                  r.mahalanobis_squared, threshold, r.accepted ? 1 : 0);
     }
@@ -211,33 +201,33 @@ void runKidnapStudy(const KidnapStudyOptions& o) {
     if (r.detection_obs_steps >= 0) delays.push_back(r.detection_obs_steps);
     if (to_recover >= 0) recover_steps.push_back(static_cast<double>(to_recover));
     final_errors.push_back(r.final_error);
-    seeds_csv += fmt("%llu,%ld,%.3f,%ld,%d,%ld,%ld,%ld,%.3f,%ld\n", static_cast<unsigned long long>(r.seed),
+    seeds_csv += formatText("%llu,%ld,%.3f,%ld,%d,%ld,%ld,%ld,%.3f,%ld\n", static_cast<unsigned long long>(r.seed),
                      r.kidnap_step, r.error_at_kidnap, r.detected_step, r.detection_obs_steps, r.reinit_step,
                      r.recovered_step, to_recover, r.final_error, r.false_alarms);
   }
   const double n = static_cast<double>(results.size());
-  std::printf("kidnap study (thesis 5.1.3): %d seeds from %llu, scenario kidnap (%s), landmarks %s\n", o.seeds,
+  std::fprintf(o.console, "kidnap study (thesis 5.1.3): %d seeds from %llu, scenario kidnap (%s), landmarks %s\n", o.seeds,
               static_cast<unsigned long long>(o.first_seed), "line A->B, carried back to A", o.landmarks.c_str());
-  std::printf("EKF, known start, gate %.0f %% (e2 <= %.2f, 2 dof), lost after %d consecutive gated observations, "
+  std::fprintf(o.console, "EKF, known start, gate %.0f %% (e2 <= %.2f, 2 dof), lost after %d consecutive gated observations, "
               "re-initialised by global fixes\n",
               100 * o.gate_probability, threshold, o.lost_after);
-  std::printf("  position error at the kidnap step:          median %.0f mm\n",
+  std::fprintf(o.console, "  position error at the kidnap step:          median %.0f mm\n",
               median([&] {
                 std::vector<double> v;
                 for (const SeedResult& r : results) v.push_back(r.error_at_kidnap);
                 return v;
               }()));
-  std::printf("  detected within %d observation steps:        %d / %d (%.1f %%)   target >= 95 %%   %s\n",
+  std::fprintf(o.console, "  detected within %d observation steps:        %d / %d (%.1f %%)   target >= 95 %%   %s\n",
               o.detect_within, detected, o.seeds, 100 * detected / n, detected >= 0.95 * n ? "ok" : "MISSED");
-  std::printf("  detection delay (observation steps):        median %.1f, max %.0f\n", median(delays),
+  std::fprintf(o.console, "  detection delay (observation steps):        median %.1f, max %.0f\n", median(delays),
               delays.empty() ? std::nan("") : *std::max_element(delays.begin(), delays.end()));
-  std::printf("  re-initialised by a global fix:             %d / %d\n", reinit, o.seeds);
-  std::printf("  error < %.0f mm within %d steps of re-init:  %d / %d (%.1f %%)   target >= 95 %%   %s\n",
+  std::fprintf(o.console, "  re-initialised by a global fix:             %d / %d\n", reinit, o.seeds);
+  std::fprintf(o.console, "  error < %.0f mm within %d steps of re-init:  %d / %d (%.1f %%)   target >= 95 %%   %s\n",
               o.recover_mm, o.recover_within, recovered, o.seeds, 100 * recovered / n,
               recovered >= 0.95 * n ? "ok" : "MISSED");
-  std::printf("  steps from re-init to error < %.0f mm:        median %.1f\n", o.recover_mm, median(recover_steps));
-  std::printf("  final position error:                       median %.1f mm\n", median(final_errors));
-  std::printf("  false alarms before the kidnap:             %ld steps over all seeds\n", false_alarms);
+  std::fprintf(o.console, "  steps from re-init to error < %.0f mm:        median %.1f\n", o.recover_mm, median(recover_steps));
+  std::fprintf(o.console, "  final position error:                       median %.1f mm\n", median(final_errors));
+  std::fprintf(o.console, "  false alarms before the kidnap:             %ld steps over all seeds\n", false_alarms);
 
   if (!o.out_dir.empty()) {
     std::error_code ec;
@@ -249,7 +239,7 @@ void runKidnapStudy(const KidnapStudyOptions& o) {
       writeFileAtomically((dir / "kidnap_trace.csv").string(), trace_csv);
       writeFileAtomically((dir / "kidnap_innovations.csv").string(), innov_csv);
     }
-    std::printf("wrote %s/kidnap_seeds.csv%s\n", o.out_dir.c_str(),
+    std::fprintf(o.console, "wrote %s/kidnap_seeds.csv%s\n", o.out_dir.c_str(),
                 traced ? ", kidnap_trace.csv, kidnap_innovations.csv (plot seed)" : " (plot seed not in range: no trace)");
   }
 }

@@ -20,6 +20,7 @@
 //                           its +-1 sigma from S (Fig. 5.4), e^2 (Fig. 5.5), gate threshold,
 //                           accepted.
 #include <cstdint>
+#include <cstdio>
 #include <string>
 
 namespace stereoloc {
@@ -36,10 +37,11 @@ struct KidnapStudyOptions {
   int detect_within = 3;
   int recover_within = 10;
   double recover_mm = 100.0;
+  std::FILE* console = stdout;  // the summary
 };
 
-// Runs the study: prints the per-seed figures and their summary to stdout and writes the CSV
-// files into out_dir when set. Bad options throw UsageError.
+// Runs the study: prints the summary over the seeds to `console` and writes the CSV files into
+// out_dir when set. Bad options throw UsageError.
 void runKidnapStudy(const KidnapStudyOptions& options);
 
 }  // namespace stereoloc

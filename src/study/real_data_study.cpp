@@ -132,10 +132,10 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
   const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
   size_t observations = 0;
   for (const Step& s : d.steps) observations += s.observations.size();
-  std::printf("dataset %s: %zu steps (%.1f s), %zu with ground truth, %zu observations, %zu landmarks\n",
+  std::fprintf(o.console, "dataset %s: %zu steps (%.1f s), %zu with ground truth, %zu observations, %zu landmarks\n",
               d.name.c_str(), d.steps.size(), d.steps.back().t - d.steps.front().t, truth.size(), observations,
               d.map.landmarks().size());
-  std::printf("odometry model: wheel base %.0f mm, k %.3g / %.3g mm^2/mm, control floor (%.3g, %.3g, %.3g)\n",
+  std::fprintf(o.console, "odometry model: wheel base %.0f mm, k %.3g / %.3g mm^2/mm, control floor (%.3g, %.3g, %.3g)\n",
               d.odometry.wheel_base_mm, d.odometry.k_left, d.odometry.k_right, d.odometry.control_variance_floor.x(),
               d.odometry.control_variance_floor.y(), d.odometry.control_variance_floor.z());
   // The same initial belief for every estimator: the true pose at step 0 with a small covariance.
@@ -144,13 +144,13 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
       knownBelief(*d.initial_pose, Eigen::Vector3d(o.init_sigma_xy * o.init_sigma_xy, o.init_sigma_xy * o.init_sigma_xy,
                                                    st * st)
                                        .asDiagonal());
-  std::printf("initial belief: ground truth at step 0, sigma (%.0f mm, %.0f mm, %.1f deg)\n", o.init_sigma_xy,
+  std::fprintf(o.console, "initial belief: ground truth at step 0, sigma (%.0f mm, %.0f mm, %.1f deg)\n", o.init_sigma_xy,
               o.init_sigma_xy, o.init_sigma_theta_deg);
-  std::fflush(stdout);
+  std::fflush(o.console);
 
   std::vector<Row> rows;
-  auto note = [](const Row& r) {
-    std::fprintf(stderr, "  %-24s done: position RMSE %.0f mm, %.3f ms/step\n", r.label.c_str(),
+  auto note = [&o](const Row& r) {
+    if (o.log) std::fprintf(o.log, "  %-24s done: position RMSE %.0f mm, %.3f ms/step\n", r.label.c_str(),
                  r.metrics.position_rmse, r.ms_per_step);
   };
   double ms = 0;
@@ -174,7 +174,7 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
     }
     ekf_estimates = ekf.finish();
     ms = msSince(t0);
-    std::fprintf(stderr, "  EKF: %zu observations fused, %zu gated\n", accepted, gated);
+    if (o.log) std::fprintf(o.log, "  EKF: %zu observations fused, %zu gated\n", accepted, gated);
     rows.push_back(evaluate("ekf", "EKF", ekf_estimates, truth, ms, n));
     note(rows.back());
   }
@@ -201,7 +201,7 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
     std::vector<Estimate> online;
     const std::vector<Estimate> e = runEstimator(sw, d.steps, &ms, &online);
     const SlidingWindowStats& wst = sw.stats();
-    std::fprintf(stderr, "  window%s: %ld keyframes, %ld observations fused, %ld gated, %ld re-initialisations\n",
+    if (o.log) std::fprintf(o.log, "  window%s: %ld keyframes, %ld observations fused, %ld gated, %ld re-initialisations\n",
                  use_robust ? " (robust)" : "", wst.keyframes, wst.accepted_observations, wst.rejected_observations,
                  wst.reinitialisations);
     const std::string w = "W=" + std::to_string(o.window) + (use_robust ? " " + o.robust : "");
@@ -224,7 +224,7 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
     BatchSmoother batch(d.map, d.odometry, c);
     const std::vector<Estimate> e = runEstimator(batch, d.steps, &ms);
     const BatchSummary& s = batch.summary();
-    std::fprintf(stderr, "  batch%s: %d iterations, cost %.4g -> %.4g, %s, covariance %s\n",
+    if (o.log) std::fprintf(o.log, "  batch%s: %d iterations, cost %.4g -> %.4g, %s, covariance %s\n",
                  use_robust ? " (robust)" : "", s.iterations, s.initial_cost, s.final_cost,
                  s.converged ? "converged" : "NOT converged", toString(s.covariance_status).c_str());
     rows.push_back(evaluate(key, use_robust ? "batch (" + o.robust + ")" : "batch", e, truth, ms, n));
@@ -234,18 +234,18 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
   double ekf_rmse = 0;
   for (const Row& r : rows)
     if (r.key == "ekf") ekf_rmse = r.metrics.position_rmse;
-  std::printf("\n%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "estimator", "pos RMSE", "th RMSE", "mean", "NEES",
+  std::fprintf(o.console, "\n%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "estimator", "pos RMSE", "th RMSE", "mean", "NEES",
               "max err", "ms/step", "pos RMSE", "lost/", "non-");
-  std::printf("%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "", "[mm]", "[deg]", "NEES", "in 95%", "[mm]", "",
+  std::fprintf(o.console, "%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "", "[mm]", "[deg]", "NEES", "in 95%", "[mm]", "",
               "/ EKF", "reinit", "finite");
   for (const Row& r : rows) {
     char ratio[32] = "-";
     if (ekf_rmse > 0) std::snprintf(ratio, sizeof ratio, "%.3f", r.metrics.position_rmse / ekf_rmse);
-    std::printf("%-24s %10.1f %10.2f %8.3g %7.0f%% %9.0f %9.3f %9s %6zu %6zu\n", r.label.c_str(),
+    std::fprintf(o.console, "%-24s %10.1f %10.2f %8.3g %7.0f%% %9.0f %9.3f %9s %6zu %6zu\n", r.label.c_str(),
                 r.metrics.position_rmse, rad2deg(r.metrics.theta_rmse), r.metrics.mean_nees,
                 100.0 * r.metrics.nees_in_band, r.max_error, r.ms_per_step, ratio, r.reinitialised, r.nonfinite);
   }
-  std::printf("(RMSE over %zu steps with ground truth; NEES of the 3-dof pose error, 3 is honest; the 95%% column is "
+  std::fprintf(o.console, "(RMSE over %zu steps with ground truth; NEES of the 3-dof pose error, 3 is honest; the 95%% column is "
               "the share of steps inside the chi-square(3) 95%% band)\n",
               rows.empty() ? size_t(0) : rows.front().metrics.count);
 

@@ -9,6 +9,7 @@
 // without and with a robust loss, batch smoother without and with a robust loss on the
 // range-bearing factors.
 #include <cstdint>
+#include <cstdio>
 #include <string>
 
 #include "solvers/sliding_window_smoother.h"
@@ -30,10 +31,12 @@ struct RealDataStudyOptions {
   double init_sigma_theta_deg = 2.0;  // deg
   std::string batch_guess = "filter"; // initial guess of the batch: "filter" (EKF pass) or "odometry"
   std::string only;                   // comma-separated subset of estimator keys
+  std::FILE* console = stdout;        // settings and the table
+  std::FILE* log = stderr;            // per-estimator progress; null: none
 };
 
-// Runs the study: prints the settings and the table to stdout, per-estimator progress to
-// stderr, and writes csv_path when set. Bad options throw UsageError; non-finite estimates Error.
+// Runs the study: prints the settings and the table to `console`, per-estimator progress to `log`,
+// and writes csv_path when set. Bad options throw UsageError; non-finite estimates Error.
 void runRealDataStudy(const RealDataStudyOptions& options);
 
 }  // namespace stereoloc

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <cstdarg>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -16,13 +15,13 @@
 
 #include "solvers/crlb.h"
 #include "src/core/atomic_file.h"
-#include "src/eval/evaluation.h"
 #include "src/core/gaussian.h"
-#include "src/sim/simulator.h"
-#include "src/pipeline/usage_error.h"
-#include "src/study/smoother_study.h"
+#include "src/eval/evaluation.h"
 #include "src/pipeline/methods.h"
+#include "src/pipeline/usage_error.h"
+#include "src/sim/simulator.h"
 #include "src/study/study.h"
+#include "src/study/text_format.h"
 
 namespace stereoloc {
 namespace {
@@ -79,16 +78,6 @@ struct Accumulator {
     return n ? static_cast<double>(in) / n : std::nan("");
   }
 };
-
-std::string fmt(const char* format, ...) __attribute__((format(printf, 1, 2)));
-std::string fmt(const char* format, ...) {
-  char buf[1024];
-  va_list args;
-  va_start(args, format);
-  std::vsnprintf(buf, sizeof(buf), format, args);
-  va_end(args);
-  return buf;
-}
 
 uint64_t mix(uint64_t x) {  // splitmix64: decorrelates the method seed from the simulation seed
   x += 0x9E3779B97F4A7C15ull;
@@ -169,7 +158,7 @@ std::vector<Accumulator> runTrial(const std::string& scenario, int trial, const 
   return out;
 }
 
-std::string num(double v, const char* format) { return std::isfinite(v) ? fmt(format, v) : std::string("n/a"); }
+std::string num(double v, const char* format) { return std::isfinite(v) ? formatText(format, v) : std::string("n/a"); }
 
 }  // namespace
 
@@ -249,7 +238,7 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
   const NeesBand band = neesBand(3, a.trials);
   std::string md;
   md += "# Smoothers against filters and the Cramér–Rao bound\n\n";
-  md += fmt("Scenarios %s; %d trials each (seed %llu, the simulated pixel-observation datasets of `stereoloc study --frontend pixels` with the same seed); every "
+  md += formatText("Scenarios %s; %d trials each (seed %llu, the simulated pixel-observation datasets of `stereoloc study --frontend pixels` with the same seed); every "
             "method from the same known start (sigma %.0f mm, %.0f mm, %.1f deg; section 6.5); PF %d particles.\n\n",
             a.scenarios.c_str(), a.trials, static_cast<unsigned long long>(a.seed), options.init_config.known_sigma(0),
             options.init_config.known_sigma(1), rad2deg(options.init_config.known_sigma(2)), a.particles);
@@ -260,7 +249,7 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
         "for batch; fixed lag W-1 for the window (its output per pose: the estimate when the pose leaves the "
         "window, the final window smoothed); filtering (causal) for EKF and PF. RMSE/sqrt(CRLB): position RMSE over "
         "sqrt of the mean trace of the bound's position block; 1.0 is the physical limit.\n";
-  md += fmt("\nObservation model of batch and window: %s (EKF and PF always use range-bearing). The bound is the "
+  md += formatText("\nObservation model of batch and window: %s (EKF and PF always use range-bearing). The bound is the "
             "information of the data in that model%s\n",
             a.observation_model.c_str(),
             pixel_model ? "; \"/sqrt(CRLB r-b)\" divides by the bound of the range-bearing data with R as reported."
@@ -301,19 +290,19 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
   // The accuracy targets of the smoothers (docs/estimators.md).
   md += "\n## Targets\n\n";
   const auto verdict = [](bool ok) { return ok ? "ok" : "MISSED"; };
-  md += fmt("- batch position RMSE <= 0.6x EKF, mean over the scenarios: %.2f  %s\n", ratio[0], verdict(ratio[0] <= 0.6));
+  md += formatText("- batch position RMSE <= 0.6x EKF, mean over the scenarios: %.2f  %s\n", ratio[0], verdict(ratio[0] <= 0.6));
   for (size_t m = 0; m < methods.size(); ++m)
     if (methods[m].window == 20)
-      md += fmt("- window W=20 position RMSE <= 0.8x EKF, mean over the scenarios: %.2f  %s\n", ratio[m],
+      md += formatText("- window W=20 position RMSE <= 0.8x EKF, mean over the scenarios: %.2f  %s\n", ratio[m],
                 verdict(ratio[m] <= 0.8));
   for (size_t s = 0; s < scenarios.size(); ++s) {
     const double n = acc[s][0].meanNees();
-    md += fmt("- batch mean NEES inside the 95 %% band of the average of %d runs [%.2f, %.2f], %s: %.2f  %s\n",
+    md += formatText("- batch mean NEES inside the 95 %% band of the average of %d runs [%.2f, %.2f], %s: %.2f  %s\n",
               a.trials, band.lo, band.hi, scenarios[s].c_str(), n, verdict(n >= band.lo && n <= band.hi));
   }
   for (size_t s = 0; s < scenarios.size(); ++s) {
     const double r = acc[s][0].positionRmse() / acc[s][0].sqrtBound();
-    md += fmt("- batch RMSE/sqrt(CRLB) <= 1.15, %s: %.2f  %s\n", scenarios[s].c_str(), r, verdict(r <= 1.15));
+    md += formatText("- batch RMSE/sqrt(CRLB) <= 1.15, %s: %.2f  %s\n", scenarios[s].c_str(), r, verdict(r <= 1.15));
   }
 
   if (!a.out_dir.empty()) {

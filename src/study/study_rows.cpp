@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdarg>
 #include <cstdio>
 #include <sstream>
 
@@ -11,21 +10,9 @@
 #include "src/io/csv.h"
 #include "src/pipeline/usage_error.h"
 #include "src/study/study.h"
+#include "src/study/text_format.h"
 
 namespace stereoloc::study {
-namespace {
-
-// One printf-formatted line of the console table.
-__attribute__((format(printf, 1, 2))) std::string line(const char* format, ...) {
-  char buf[256];
-  va_list args;
-  va_start(args, format);
-  std::vsnprintf(buf, sizeof(buf), format, args);
-  va_end(args);
-  return buf;
-}
-
-}  // namespace
 
 std::string g17(double v) {
   char buf[40];
@@ -122,10 +109,10 @@ std::string summaryTable(const std::vector<SummaryRow>& rows, const std::string&
 }
 
 std::string summaryText(const std::vector<SummaryRow>& rows) {
-  std::string text = line("%-8s %-12s %6s %10s %9s %9s %9s %9s %8s %6s\n", "scenario", "method", "trials", "RMSE[mm]", "mean[mm]",
+  std::string text = formatText("%-8s %-12s %6s %10s %9s %9s %9s %9s %8s %6s\n", "scenario", "method", "trials", "RMSE[mm]", "mean[mm]",
               "std[mm]", "max[mm]", "th[deg]", "NEES", "ms/st");
   for (const SummaryRow& s : rows)
-    text += line("%-8s %-12s %6d %10.1f %9.1f %9.1f %9.1f %9.2f %8.2f %6.3f\n", s.scenario.c_str(), s.method.c_str(),
+    text += formatText("%-8s %-12s %6d %10.1f %9.1f %9.1f %9.1f %9.2f %8.2f %6.3f\n", s.scenario.c_str(), s.method.c_str(),
                 s.trials, s.rmse(), s.distance.mean(), s.distance.std(), s.distance.max, rad2deg(s.theta_rmse()),
                 s.meanNees(), s.msPerStep());
   return text;

@@ -1,9 +1,14 @@
 // `stereoloc stream`: JSON Lines in, one estimate line per step out; malformed lines are
-// reported with their line number and the stream goes on; --from replays a dataset.
+// reported with their line number and the stream goes on; --from replays a dataset; images in
+// the stream give the estimates of `localize --frontend images`; late images are inserted.
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
+#include <map>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -130,6 +135,179 @@ TEST(CliStream, ReplaysADatasetAndPrintsTheSmoothedTrajectory) {
   EXPECT_EQ(bad.exit_code, 1) << bad.output;
   const test::CliRun usage = test::runCli("stream --window 0");
   EXPECT_EQ(usage.exit_code, 2) << usage.output;
+}
+
+// A simulated run with images (`line`: it sees a goal's corners from the first step) and the
+// JSON Lines a robot would send for it: odometry, compass and the image files of each step, the
+// images of step k on the line of step k + delay.
+class StreamImages : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new test::TempDir("stream_images");
+    const test::CliRun r = test::runCli("simulate --scenario line --steps 25 --seed 5 --images --out " + ds());
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    dir_ = nullptr;
+  }
+  static std::string ds() { return dir_->file("d"); }
+  static std::string image(const std::string& kind, long step) { return ds() + "/" + imageFileName(kind, step); }
+  static std::string line(const Step& s, long obs_step, const std::string& left, const std::string& right) {
+    std::ostringstream o;
+    o.precision(17);
+    o << "{\"step\":" << s.step << ",\"t\":" << s.t << ",\"d_left\":" << s.d_left << ",\"d_right\":" << s.d_right;
+    if (s.compass) o << ",\"compass\":" << *s.compass << ",\"compass_sigma\":" << s.compass_sigma;
+    o << ",\"head_pan\":" << s.head_pan;
+    if (!left.empty()) {
+      if (obs_step != s.step) o << ",\"obs_step\":" << obs_step;
+      o << ",\"left\":\"" << left << "\",\"right\":\"" << right << "\"";
+    }
+    return o.str() + "}";
+  }
+  static std::string writeLines(const std::string& name, int delay) {
+    const Dataset d = loadDataset(ds());
+    std::ofstream f(dir_->file(name));
+    for (size_t k = 0; k < d.steps.size(); ++k) {
+      const long obs = static_cast<long>(k) - delay;
+      f << line(d.steps[k], obs, obs >= 0 ? image("left", obs) : "", obs >= 0 ? image("right", obs) : "") << "\n";
+    }
+    return dir_->file(name);
+  }
+  static test::TempDir* dir_;
+};
+test::TempDir* StreamImages::dir_ = nullptr;
+
+// step -> (x, y, theta, 9 covariance values) of the smoothed lines of a stream.
+std::map<long, std::vector<double>> smoothedLines(const std::string& output) {
+  std::map<long, std::vector<double>> out;
+  for (const std::string& l : lines(output, "{\"step\":")) {
+    if (l.find("\"smoothed\":true") == std::string::npos || l.find("\"x\"") == std::string::npos) continue;
+    std::vector<double> v = {field(l, "x"), field(l, "y"), field(l, "theta")};
+    std::istringstream cov(l.substr(l.find("\"covariance\":[") + 14));
+    for (int i = 0; i < 9; ++i) {
+      double c = 0;
+      char sep = 0;
+      cov >> c >> sep;
+      v.push_back(c);
+    }
+    out[static_cast<long>(field(l, "step"))] = v;
+  }
+  return out;
+}
+
+TEST_F(StreamImages, ImagesInTheStreamGiveTheEstimatesOfLocalize) {
+  const std::string csv = dir_->file("localize.csv");
+  const test::CliRun loc =
+      test::runCli("localize " + ds() + " --method window --init global --frontend images --out " + csv);
+  ASSERT_EQ(loc.exit_code, 0) << loc.output;
+  std::map<long, std::vector<double>> expected;
+  {
+    std::ifstream in(csv);
+    std::string row;
+    std::getline(in, row);  // header
+    while (std::getline(in, row)) {
+      std::vector<double> v;
+      std::stringstream ls(row);
+      for (std::string f; std::getline(ls, f, ',');) v.push_back(std::stod(f));
+      ASSERT_EQ(v.size(), 11u) << row;  // step,t,x,y,theta, xx,xy,xtheta,yy,ytheta,thetatheta
+      expected[static_cast<long>(v[0])] = {v[2], v[3], v[4], v[5], v[6], v[7], v[6], v[8], v[9], v[7], v[9], v[10]};
+    }
+  }
+  ASSERT_GT(expected.size(), 20u);
+  const test::CliRun on_stdin =
+      test::runCli("stream --setup " + ds() + " --init global --smoothed", writeLines("in_order.jsonl", 0));
+  const test::CliRun replay = test::runCli("stream --from " + ds() + " --frontend images --init global --smoothed");
+  for (const test::CliRun* r : {&on_stdin, &replay}) {
+    ASSERT_EQ(r->exit_code, 0) << r->output;
+    const auto got = smoothedLines(r->output);
+    ASSERT_EQ(got.size(), expected.size()) << r->output;
+    double worst = 0;
+    for (const auto& [step, v] : expected) {
+      ASSERT_EQ(got.count(step), 1u) << step;
+      for (size_t i = 0; i < v.size(); ++i)
+        worst = std::max(worst, std::fabs(got.at(step)[i] - v[i]) / std::max(1.0, std::fabs(v[i])));
+    }
+    EXPECT_LT(worst, 1e-9);
+  }
+  // Every real-time line carries its compute time.
+  for (const std::string& l : lines(on_stdin.output, "{\"step\":"))
+    if (l.find("smoothed") == std::string::npos) {
+      EXPECT_GT(field(l, "compute_ms"), 0.0) << l;
+    }
+}
+
+TEST_F(StreamImages, LateImagesAreInsertedAtTheirStep) {
+  // The images of step k come with the odometry of step k + 3. The run differs from the in-order
+  // one where the gate and the association judge against a different belief (the window's
+  // marginal instead of the prediction): here one re-initialisation happens 3 steps later.
+  const test::CliRun in_order =
+      test::runCli("stream --setup " + ds() + " --init global --window 40 --smoothed", writeLines("in_order.jsonl", 0));
+  const test::CliRun late =
+      test::runCli("stream --setup " + ds() + " --init global --window 40 --smoothed", writeLines("late.jsonl", 3));
+  ASSERT_EQ(in_order.exit_code, 0) << in_order.output;
+  ASSERT_EQ(late.exit_code, 0) << late.output;
+  int inserted = 0, not_tracking = 0;
+  for (const std::string& l : lines(late.output, "{\"step\":")) {
+    inserted += l.find("\"late\":\"inserted\"") != std::string::npos;
+    not_tracking += l.find("\"late\":\"not_tracking\"") != std::string::npos;
+  }
+  // Steps 0 and 1 give no global fix (as in order); step 2's late images start the window.
+  EXPECT_EQ(not_tracking, 2) << late.output;
+  EXPECT_EQ(inserted, 20) << late.output;
+  const Dataset d = loadDataset(ds());
+  auto worstError = [&](const std::map<long, std::vector<double>>& est) {
+    double worst = 0;
+    for (const auto& [step, v] : est)
+      worst = std::max(worst, std::hypot(v[0] - d.groundtruth.at(static_cast<size_t>(step))->x,
+                                         v[1] - d.groundtruth.at(static_cast<size_t>(step))->y));
+    return worst;
+  };
+  const auto a = smoothedLines(in_order.output), b = smoothedLines(late.output);
+  ASSERT_EQ(b.size(), a.size());
+  double diff = 0;
+  for (const auto& [step, v] : a) diff = std::max(diff, std::hypot(v[0] - b.at(step)[0], v[1] - b.at(step)[1]));
+  RecordProperty("max_position_difference_mm", std::to_string(diff));
+  EXPECT_LT(diff, 3.0);
+  EXPECT_LT(worstError(b), worstError(a) + 2.0);
+  const std::vector<std::string> out = lines(late.output, "{\"step\":");
+  EXPECT_NE(out[24].find("\"status\":\"tracking\""), std::string::npos) << out[24];
+}
+
+TEST_F(StreamImages, BadInputNeverStopsTheStream) {
+  const Dataset d = loadDataset(ds());
+  const std::string truncated = dir_->file("truncated.png"), small = dir_->file("small.png");
+  {
+    std::ifstream in(image("left", 2), std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::ofstream(truncated, std::ios::binary) << bytes.substr(0, bytes.size() / 2);
+  }
+  cv::imwrite(small, cv::Mat(120, 160, CV_8UC3, cv::Scalar(0, 128, 0)));
+  {
+    std::ofstream f(dir_->file("bad.jsonl"));
+    f << line(d.steps[0], 0, image("left", 0), image("right", 0)) << "\n";
+    f << line(d.steps[1], 1, dir_->file("missing.png"), image("right", 1)) << "\n";  // 2: missing image
+    f << line(d.steps[2], 2, truncated, image("right", 2)) << "\n";                   // 3: truncated PNG
+    f << line(d.steps[3], 3, image("left", 3), small) << "\n";                        // 4: wrong size
+    f << "this is not JSON\n";                                                       // 5
+    f << line(d.steps[1], 1, image("left", 1), image("right", 1)) << "\n";           // 6: step goes back
+    f << line(d.steps[4], 4, image("left", 4), image("right", 4)) << "\n";
+    f << line(d.steps[5], 0, image("left", 0), image("right", 0)) << "\n";           // 8: older than the window
+    f << line(d.steps[6], 6, image("left", 6), image("right", 6)) << "\n";
+  }
+  const test::CliRun r = test::runCli("stream --setup " + ds() + " --init global --window 2", dir_->file("bad.jsonl"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  for (const std::string& where : {"stdin:2: " + dir_->file("missing.png"), "stdin:3: " + truncated,
+                                  "stdin:4: " + small, std::string("stdin:5: "), std::string("stdin:6: step 1 does not follow"),
+                                  std::string("stdin:8: observations of step 0 are too late")})
+    EXPECT_NE(r.output.find(where), std::string::npos) << where << "\n" << r.output;
+  // One estimate for every line with usable odometry (the steps of lines 2-4 too), in order.
+  const std::vector<std::string> out = lines(r.output, "{\"step\":");
+  ASSERT_EQ(out.size(), 7u) << r.output;
+  for (size_t i = 0; i < out.size(); ++i) EXPECT_EQ(field(out[i], "step"), static_cast<double>(i)) << out[i];
+  EXPECT_NE(out[5].find("\"late\":\"too_late\""), std::string::npos) << out[5];
+  EXPECT_NE(out[6].find("\"status\":\"tracking\""), std::string::npos) << out[6];
+  EXPECT_EQ(r.output.find("null"), std::string::npos) << r.output;
 }
 
 }  // namespace

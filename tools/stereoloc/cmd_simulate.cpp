@@ -13,7 +13,7 @@ namespace stereoloc::cli {
 namespace {
 
 struct SimulateOptions {
-  std::string scenario, trial = "0", out, map_path, rig_path, landmarks = "goal_corners";
+  std::string scenario, trial = "0", out, map_path, rig_path, landmarks = "goal_corners", profile = "ideal";
   int steps = 0, obstacles = 0;
   uint64_t seed = 1;
   bool images = false, force = false, no_compass = false, quantise = false, head_scan = false;
@@ -76,6 +76,11 @@ void runSimulate(const SimulateOptions& o) {
   cfg.scenario.steps = o.steps;
   cfg.scenario.head_scan = o.head_scan;
   try {
+    cfg.profile = ErrorProfile::named(o.profile);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--profile: ") + e.what());
+  }
+  try {
     cfg.validate();
   } catch (const Error& e) {
     throw UsageError(e.what());
@@ -89,8 +94,13 @@ void runSimulate(const SimulateOptions& o) {
     } catch (const Error& e) {
       throw UsageError(e.what());
     }
-    extra = [&](const std::string& tmp) { writeDatasetImages(d, trace, o.render, o.seed, tmp); };
   }
+  if (o.images || !cfg.profile.isIdeal())
+    extra = [&](const std::string& tmp) {
+      if (o.images) writeDatasetImages(d, trace, o.render, o.seed, tmp);
+      // The truth of every drawn error, for scoring what the estimators recover.
+      if (!cfg.profile.isIdeal()) trace.errors.save((std::filesystem::path(tmp) / "errors.yaml").string(), cfg.profile);
+    };
   saveDataset(d, o.out, o.force, extra);
   size_t n_obs = 0, seen = 0;
   for (const Step& s : d.steps) {
@@ -138,6 +148,10 @@ void add_simulate_command(CLI::App& app) {
   sub->add_option("--brightness", o->render.brightness, "Added to every image channel, grey levels (bad illumination)")
       ->capture_default_str();
   sub->add_option("--contrast", o->render.contrast, "Image contrast factor about mid-grey (bad illumination)")
+      ->capture_default_str();
+  sub->add_option("--profile", o->profile,
+                  "Error profile: ideal (exact world), realistic (calibration, lens, blur, vibration and odometry "
+                  "errors; src/sim/error_profile.h) or a profile YAML file")
       ->capture_default_str();
   sub->add_flag("--head-scan", o->head_scan, "Sweep the head pan (+-30 deg) instead of looking straight ahead");
   sub->callback([o] { runSimulate(*o); });

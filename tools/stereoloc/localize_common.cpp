@@ -18,6 +18,7 @@ void runLocalize(const LocalizeArgs& a) {
     o.init = initModeFromString(a.init);
     o.loss = robustLossFromString(a.loss);
     o.observation_model = observationModelFromString(a.observation_model);
+    o.calibration = SelfCalibrationConfig::parse(a.calibrate);
   } catch (const Error& e) {
     throw UsageError(e.what());
   }
@@ -26,6 +27,20 @@ void runLocalize(const LocalizeArgs& a) {
   const MethodRun run = runMethod(a.method, d, a.seed, o);
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
+  if (!a.calibration_out.empty()) {
+    if (!run.calibration) throw UsageError("--calibration-out: needs --calibrate with the batch method");
+    run.calibration->saveAsRig(a.calibration_out, d.rig);
+  }
+  if (run.calibration) {
+    const CalibrationEstimate& c = *run.calibration;
+    if (c.odometry)
+      std::printf("calibration: wheel scales %.5f +- %.5f, %.5f +- %.5f, wheel base %.2f +- %.2f mm\n", c.wheels[0],
+                  std::sqrt(c.wheels_covariance(0, 0)), c.wheels[1], std::sqrt(c.wheels_covariance(1, 1)), c.wheels[2],
+                  std::sqrt(c.wheels_covariance(2, 2)));
+    if (c.stereo)
+      std::printf("calibration: tilt correction %.3f +- %.3f deg, baseline scale %.5f +- %.5f\n", rad2deg(c.head[0]),
+                  rad2deg(std::sqrt(c.head_covariance(0, 0))), c.head[1], std::sqrt(c.head_covariance(1, 1)));
+  }
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);
   const TrajectoryMetrics m = trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth)));
@@ -60,7 +75,7 @@ Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& front
 }
 
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, bool method_option) {
-  sub->add_option("dataset", a->dataset, "Dataset directory (see README: dataset format)")->required()->check(CLI::ExistingDirectory);
+  sub->add_option("dataset", a->dataset, "Dataset directory (docs/dataset_format.md)")->required()->check(CLI::ExistingDirectory);
   if (method_option)
     sub->add_option("--method", a->method, methodNamesText() + " (optionally :known, :random, :global)")
         ->capture_default_str();
@@ -79,6 +94,12 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--out", a->out, "Estimates CSV: step,t,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta")->required();
   sub->add_option("--tum", a->tum, "Also write the trajectory in TUM format (metres), e.g. for evo");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
+  sub->add_option("--calibrate", a->calibrate,
+                  "Batch: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline scale) or "
+                  "odometry,stereo, with priors from the stated uncertainty (known start)");
+  sub->add_option("--calibration-out", a->calibration_out,
+                  "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
+                  "(usable as --rig)");
 }
 
 }  // namespace stereoloc::cli

@@ -20,6 +20,8 @@ struct LocalizeArgs {
   std::string frontend = "pixels";            // pixels | images (src/pipeline/frontend_source.h)
   std::string frontend_landmarks = "all";     // all | goal_corners (with --frontend images)
   std::string frontend_params;                // frontend parameters YAML (empty: defaults)
+  std::string calibrate;                      // "", "odometry", "stereo", "odometry,stereo"
+  std::string calibration_out;                // rig YAML with the calibration estimate
 };
 
 void runLocalize(const LocalizeArgs& args);

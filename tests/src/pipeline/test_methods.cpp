@@ -63,11 +63,15 @@ TEST(FrontendSource, NamesRoundTripAndUnknownNamesAreUsageErrors) {
 
 TEST(FrontendSource, SummaryNamesPairsObservationsAndDrops) {
   ImageFrontendStats st;
-  st.pairs = 4;
-  st.observations = 10;
-  st.identified = 6;
-  st.dropped = 2;
-  st.ms_frontend = 8;
+  for (int pair = 0; pair < 4; ++pair) {
+    ImageFrontendStats one;
+    one.pairs = 1;
+    one.observations = pair < 2 ? 3 : 2;   // 10 in all
+    one.identified = pair < 2 ? 2 : 1;     // 6
+    one.dropped = pair % 2;                // 2
+    one.ms_frontend = 2;                   // 8 ms
+    st.merge(one);
+  }
   EXPECT_EQ(frontendSummary(st), "frontend on 4 image pairs: 10 observations (6 goal corners), 2 unidentified dropped, 2.00 ms/pair");
   st.dropped = 0;
   EXPECT_EQ(frontendSummary(st), "frontend on 4 image pairs: 10 observations (6 goal corners), 2.00 ms/pair");

@@ -1,0 +1,102 @@
+#pragma once
+// Stereo pixel factor with the stereo calibration as parameters (self-calibration): the head
+// tilt and the baseline as the robot really has them, against the rig the user measured.
+//
+//   r = (pi(p, l; beta + dbeta, k b) - z) / sigma          4 residuals (u_l, v_l, u_r, v_r) or
+//                                                          2 (u_l, u_r) with PixelResiduals::Columns
+//
+// p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y, z), world, mm.
+// q = (dbeta, k): calibration block, dbeta the tilt correction (rad, added to the rig's tilt
+// beta; > 0 looks further down) and k the baseline scale (dimensionless, nominally 1). pi: the
+// projection of factors/stereo_pixel_factor.h with C0 -> C1 (pan) -> C2 (offset, height, tilt
+// beta + dbeta): u_l = o_u - f (y - k b/2) / x, u_r = o_u - f (y + k b/2) / x, v = o_v - f z / x.
+// Why these two: range is f b / disparity (3.4), so a baseline error is a range scale error,
+// the dominant systematic range error of a small rig; the tilt sets where the floor and the
+// landmarks appear in the rows and, through the (3.4) -> (3.5) rotation, the range of every
+// point below or above the camera. (A disparity offset would be the third; with a rectified pair
+// it is a principal-point difference, which the calibration file pins down better than a run.)
+// z: measured pixels; sigma: pixel noise (px, > 0), so the upper square-root information is I / sigma.
+// Evaluation fails when the landmark is not in front of the cameras.
+#include <ceres/autodiff_cost_function.h>
+
+#include <Eigen/Core>
+#include <cmath>
+
+#include "factors/stereo_pixel_factor.h"
+#include "src/core/error.h"
+#include "src/core/stereo_rig.h"
+
+namespace stereoloc {
+
+struct StereoPixelCalibrationFactor {
+  StereoPixelCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                               double pan, double sigma, PixelResiduals residuals)
+      : landmark_(landmark), inv_sigma_(1.0 / sigma), rows_(residuals == PixelResiduals::All) {
+    pan_cos_ = std::cos(pan);
+    pan_sin_ = std::sin(pan);
+    t_ = Eigen::Vector3d(rig.params().offset_x_mm, 0.0, rig.params().camera_height_mm);
+    tilt_ = rig.params().tilt_rad;
+    f_ = rig.focal();
+    ou_ = rig.principalU();
+    ov_ = rig.principalV();
+    half_baseline_ = 0.5 * rig.params().baseline_mm;
+    z_ << pixels.u_left, pixels.v_left, pixels.u_right, pixels.v_right;
+  }
+
+  template <typename T>
+  bool operator()(const T* pose, const T* calib, T* residual) const {
+    using std::cos;
+    using std::sin;
+    // C0: R(theta)^T (l_xy - t_xy), height unchanged; C1: Rz(pan)^T; then minus the offset t.
+    const T dx = T(landmark_[0]) - pose[0], dy = T(landmark_[1]) - pose[1];
+    const T c = cos(pose[2]), s = sin(pose[2]);
+    const T x0 = c * dx + s * dy, y0 = -s * dx + c * dy;
+    const T x1 = T(pan_cos_) * x0 + T(pan_sin_) * y0 - T(t_[0]);
+    const T y1 = -T(pan_sin_) * x0 + T(pan_cos_) * y0;
+    const T z1 = T(landmark_[2]) - T(t_[2]);
+    // C2 = R_y(beta)^T C1 (stereo_rig.h: R_tilt = [c 0 s; 0 1 0; -s 0 c]).
+    const T beta = T(tilt_) + calib[0];
+    const T cb = cos(beta), sb = sin(beta);
+    const T x2 = cb * x1 - sb * z1, y2 = y1, z2 = sb * x1 + cb * z1;
+    if (!(x2 > T(StereoPixelFactor::kMinDepth))) return false;
+    const T hb = calib[1] * T(half_baseline_);
+    const T inv_x = T(1.0) / x2;
+    const T u_l = T(ou_) - T(f_) * (y2 - hb) * inv_x;
+    const T u_r = T(ou_) - T(f_) * (y2 + hb) * inv_x;
+    if (rows_) {
+      const T v = T(ov_) - T(f_) * z2 * inv_x;
+      residual[0] = T(inv_sigma_) * (u_l - T(z_[0]));
+      residual[1] = T(inv_sigma_) * (v - T(z_[1]));
+      residual[2] = T(inv_sigma_) * (u_r - T(z_[2]));
+      residual[3] = T(inv_sigma_) * (v - T(z_[3]));
+    } else {
+      residual[0] = T(inv_sigma_) * (u_l - T(z_[0]));
+      residual[1] = T(inv_sigma_) * (u_r - T(z_[2]));
+    }
+    return true;
+  }
+
+  // Blocks: pose (3), stereo calibration (dbeta, k) (2).
+  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                     double pan, double sigma, PixelResiduals residuals) {
+    if (!(std::isfinite(sigma) && sigma > 0)) throw Error("stereo pixel calibration factor: sigma must be a positive number");
+    if (!(std::isfinite(pixels.u_left) && std::isfinite(pixels.v_left) && std::isfinite(pixels.u_right) &&
+          std::isfinite(pixels.v_right) && std::isfinite(pan) && landmark.allFinite()))
+      throw Error("stereo pixel calibration factor: pixels, pan and landmark must be finite");
+    auto* functor = new StereoPixelCalibrationFactor(rig, landmark, pixels, pan, sigma, residuals);
+    if (residuals == PixelResiduals::All)
+      return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 4, 3, 2>(functor);
+    return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 2, 3, 2>(functor);
+  }
+
+ private:
+  Eigen::Vector3d landmark_;
+  double inv_sigma_;
+  bool rows_;
+  double pan_cos_ = 1, pan_sin_ = 0, tilt_ = 0;
+  Eigen::Vector3d t_;
+  double f_ = 0, ou_ = 0, ov_ = 0, half_baseline_ = 0;
+  Eigen::Vector4d z_;
+};
+
+}  // namespace stereoloc

@@ -1,0 +1,206 @@
+#include "src/pipeline/localizer.h"
+
+#include <chrono>
+#include <utility>
+
+#include "solvers/smoother_common.h"
+#include "src/core/error.h"
+
+namespace stereoloc {
+
+// Adds the wall time of one public call to the running total.
+class Localizer::Timer {
+ public:
+  explicit Timer(double& total) : total_(total), start_(std::chrono::steady_clock::now()) {}
+  ~Timer() { total_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start_).count(); }
+  Timer(const Timer&) = delete;
+  Timer& operator=(const Timer&) = delete;
+
+ private:
+  double& total_;
+  std::chrono::steady_clock::time_point start_;
+};
+
+std::string toString(LocalizerMethod method) {
+  switch (method) {
+    case LocalizerMethod::Window: return "window";
+    case LocalizerMethod::Ekf: return "ekf";
+    case LocalizerMethod::ParticleFilter: return "pf";
+  }
+  return "unknown";
+}
+
+LocalizerMethod localizerMethodFromString(const std::string& name) {
+  for (LocalizerMethod m : {LocalizerMethod::Window, LocalizerMethod::Ekf, LocalizerMethod::ParticleFilter})
+    if (toString(m) == name) return m;
+  throw Error("unknown localizer method '" + name + "' (expected window, ekf or pf)");
+}
+
+std::string toString(ObservationDelivery delivery) {
+  switch (delivery) {
+    case ObservationDelivery::WithStep: return "with_step";
+    case ObservationDelivery::Inserted: return "inserted";
+    case ObservationDelivery::TooLate: return "too_late";
+    case ObservationDelivery::NotTracking: return "not_tracking";
+  }
+  return "unknown";
+}
+
+SlidingWindowConfig realTimeWindowConfig() {
+  SlidingWindowConfig c;
+  c.observation_model.model = ObservationModel::PixelColumns;
+  return c;
+}
+
+Localizer::Localizer(LocalizerConfig config) : config_(std::move(config)) {
+  switch (config_.method) {
+    case LocalizerMethod::Window: {
+      SlidingWindowConfig c = config_.window;
+      c.init = config_.init;
+      c.observation_model.rig = config_.rig;
+      auto w = std::make_unique<SlidingWindowSmoother>(config_.map, config_.odometry, c);
+      window_ = w.get();
+      estimator_ = std::move(w);
+      break;
+    }
+    case LocalizerMethod::Ekf: {
+      EkfConfig c = config_.ekf;
+      c.init = config_.init;
+      estimator_ = std::make_unique<Ekf>(config_.map, config_.odometry, c);
+      break;
+    }
+    case LocalizerMethod::ParticleFilter: {
+      ParticleFilterConfig c = config_.particle_filter;
+      c.init = config_.init;
+      estimator_ = std::make_unique<ParticleFilter>(config_.map, config_.odometry, c, config_.seed);
+      break;
+    }
+  }
+}
+
+Localizer::~Localizer() = default;
+
+void Localizer::check(const std::vector<Observation>& observations, long step) const {
+  for (size_t i = 0; i < observations.size(); ++i) {
+    const std::string where = "step " + std::to_string(step) + ": observation " + std::to_string(i);
+    validateObservation(observations[i], where);
+    const int id = observations[i].landmark_id;
+    if (id >= 0 && !config_.map.find(id)) throw Error(where + ": unknown landmark id " + std::to_string(id));
+  }
+}
+
+void Localizer::flush() {
+  if (!pending_) return;
+  Step step = std::move(*pending_);
+  pending_.reset();  // a step the estimator refuses is dropped, not retried with the next one
+  last_ = estimator_->process(step);
+}
+
+void Localizer::addStep(const Step& step) {
+  const Timer timer(running_ms_);
+  if (finished_) throw Error("localizer: step " + std::to_string(step.step) + " after smoothedTrajectory()");
+  if (have_step_ && step.step <= newest_step_)
+    throw Error("step " + std::to_string(step.step) + " does not follow step " + std::to_string(newest_step_));
+  validateStep(step, "localizer");
+  check(step.observations, step.step);
+  const long previous = newest_step_;
+  std::string failure;
+  try {
+    flush();
+  } catch (const Error& e) {  // reported, but the new step is still taken
+    failure = e.what();
+  }
+  pending_ = step;
+  newest_step_ = step.step;
+  have_step_ = true;
+  if (!failure.empty()) throw Error("step " + std::to_string(previous) + ": " + failure);
+}
+
+void Localizer::addOdometry(long step, double t, double d_left, double d_right) {
+  Step s;
+  s.step = step;
+  s.t = t;
+  s.d_left = d_left;
+  s.d_right = d_right;
+  addStep(s);
+}
+
+ObservationDelivery Localizer::deliver(long step, const std::vector<Observation>& observations) {
+  if (finished_) throw Error("localizer: observations after smoothedTrajectory()");
+  if (!have_step_ || step > newest_step_)
+    throw Error("observations of step " + std::to_string(step) + " before its odometry" +
+                (have_step_ ? " (the newest step is " + std::to_string(newest_step_) + ")" : ""));
+  check(observations, step);
+  if (pending_ && pending_->step == step) {
+    pending_->observations.insert(pending_->observations.end(), observations.begin(), observations.end());
+    return ObservationDelivery::WithStep;
+  }
+  if (!window_) return ObservationDelivery::TooLate;
+  const LateObservationResult r = window_->insertLate(step, observations);
+  switch (r.status) {
+    case LateObservationStatus::Inserted:
+      // The newest estimate is the window's; a waiting step is processed on top of it.
+      if (!pending_) last_ = r.estimate;
+      return ObservationDelivery::Inserted;
+    case LateObservationStatus::TooLate: return ObservationDelivery::TooLate;
+    case LateObservationStatus::NotTracking: return ObservationDelivery::NotTracking;
+  }
+  return ObservationDelivery::TooLate;
+}
+
+ObservationDelivery Localizer::addObservations(long step, const std::vector<Observation>& observations) {
+  const Timer timer(running_ms_);
+  return deliver(step, observations);
+}
+
+ImageObserver& Localizer::observer() {
+  if (!observer_) observer_ = std::make_unique<ImageObserver>(config_.rig, config_.map, config_.frontend);
+  return *observer_;
+}
+
+ObservationDelivery Localizer::addImages(long step, const cv::Mat& left, const cv::Mat& right, double head_pan) {
+  const Timer timer(running_ms_);
+  if (!have_step_ || step > newest_step_)  // before running the frontend for nothing
+    return deliver(step, {});
+  const cv::Size size(config_.rig.params().image_width, config_.rig.params().image_height);
+  if (left.type() != CV_8UC3 || right.type() != CV_8UC3 || left.size() != size || right.size() != size)
+    throw Error("step " + std::to_string(step) + ": images must be 8-bit BGR of the rig's size " +
+                std::to_string(size.width) + "x" + std::to_string(size.height));
+  return deliver(step, observer().observe(left, right, head_pan));
+}
+
+ObservationDelivery Localizer::addImageFiles(long step, const std::string& left_path, const std::string& right_path,
+                                             double head_pan) {
+  const Timer timer(running_ms_);
+  if (!have_step_ || step > newest_step_) return deliver(step, {});
+  const cv::Mat left = readStereoImage(left_path, config_.rig);
+  const cv::Mat right = readStereoImage(right_path, config_.rig);
+  return deliver(step, observer().observe(left, right, head_pan));
+}
+
+Estimate Localizer::estimate() {
+  {
+    const Timer timer(running_ms_);
+    flush();
+    if (window_ && have_step_) last_ = window_->current();
+  }
+  compute_ms_ = running_ms_;
+  running_ms_ = 0;
+  if (!have_step_) {
+    Estimate e;
+    e.status = EstimateStatus::Uninitialised;
+    return e;
+  }
+  return last_;
+}
+
+std::vector<Estimate> Localizer::smoothedTrajectory() {
+  const Timer timer(running_ms_);
+  flush();
+  finished_ = true;
+  return estimator_->finish();
+}
+
+ImageFrontendStats Localizer::frontendStats() const { return observer_ ? observer_->stats() : ImageFrontendStats(); }
+
+}  // namespace stereoloc

@@ -1,0 +1,132 @@
+#pragma once
+// stereoloc::Localizer: the real-time pipeline a robot program embeds -- the vision frontend
+// (thesis chapter 3) and a tracker (the sliding-window smoother by default) behind a few calls.
+//
+//   stereoloc::LocalizerConfig config;                 // map, rig, odometry model, estimator
+//   config.init = stereoloc::knownBelief(start, P0);   // or the default: wait for a global fix
+//   stereoloc::Localizer loc(config);
+//   loc.addOdometry(step, t, d_left, d_right);         // every encoder reading (mm, s)
+//   loc.addImages(frame_step, left, right, head_pan);  // a rectified BGR pair, possibly late
+//   const stereoloc::Estimate e = loc.estimate();      // pose and 3x3 covariance now
+//   ... loc.smoothedTrajectory();                      // at the end
+//
+// Steps. The caller numbers its odometry readings, strictly increasing. A step is processed
+// when its data are complete: at the next addOdometry/addStep or at estimate(). Observations or
+// images of the newest step given before that are fused with it, exactly as the dataset
+// commands fuse a step's observations (so `stream` on a replayed run equals `localize`). Those
+// of an earlier step are late: the sliding window inserts them at their own pose while it is in
+// the window (SlidingWindowSmoother::insertLate) and reports them too late otherwise; the EKF
+// and the particle filter cannot go back (robot_localization replays its filter for this) and
+// report any late observation too late.
+//
+// Errors: bad input (a step that does not follow the newest, non-finite values, an unknown
+// landmark id, an unreadable or wrong-size image) throws stereoloc::Error with one line and
+// changes nothing, so the caller can go on: an unreadable image loses the frame, not the
+// step's odometry.
+// Memory: bounded by the window W when window.keep_history is false (an unbounded stream);
+// otherwise one Estimate per step is kept for smoothedTrajectory().
+// Timing: computeMilliseconds() is the wall time spent inside the Localizer since the previous
+// estimate() up to the end of the last one (image decoding, frontend, estimator): the latency
+// the robot pays for the step.
+// Not thread-safe: one Localizer per thread. Deterministic: same calls, same results.
+#include <opencv2/core/mat.hpp>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "solvers/ekf.h"
+#include "solvers/particle_filter.h"
+#include "solvers/sliding_window_smoother.h"
+#include "src/core/field_map.h"
+#include "src/core/odometry_model.h"
+#include "src/core/stereo_rig.h"
+#include "src/core/types.h"
+#include "src/pipeline/frontend_source.h"
+
+namespace stereoloc {
+
+enum class LocalizerMethod { Window, Ekf, ParticleFilter };
+std::string toString(LocalizerMethod method);                       // "window", "ekf", "pf"
+LocalizerMethod localizerMethodFromString(const std::string& name);  // throws stereoloc::Error
+
+// What happened to observations or images handed to the Localizer.
+enum class ObservationDelivery {
+  WithStep,     // of the newest step, not processed yet: fused with its odometry
+  Inserted,     // late, inserted at their own pose in the window
+  TooLate,      // late, and their step has left the window (or the estimator cannot go back)
+  NotTracking,  // late, while the tracker is uninitialised or lost (not fused, as in-time ones)
+};
+std::string toString(ObservationDelivery delivery);  // "with_step", "inserted", "too_late", "not_tracking"
+
+// The sliding window of `localize --method window`: pixel-column factors for pixel observations.
+SlidingWindowConfig realTimeWindowConfig();
+
+struct LocalizerConfig {
+  FieldMap map = FieldMap::miroSot();
+  StereoRig rig;                     // calibration of the frontend and of pixel observations
+  OdometryParams odometry;           // wheel base (mm) and wheel noise
+  InitialBelief init;                // start belief of the estimator; default: wait for a global fix
+  LocalizerMethod method = LocalizerMethod::Window;
+  SlidingWindowConfig window = realTimeWindowConfig();  // its init is replaced by `init`, its rig by `rig`
+  EkfConfig ekf;                     // method Ekf (max_iterations > 1: the iterated EKF); init replaced
+  ParticleFilterConfig particle_filter;  // method ParticleFilter; init replaced
+  uint64_t seed = 1;                 // the particle filter's random stream
+  ImageFrontendOptions frontend;     // frontend parameters and which landmarks it reports
+};
+
+class Localizer {
+ public:
+  explicit Localizer(LocalizerConfig config);  // throws stereoloc::Error for an invalid config
+  ~Localizer();
+  Localizer(const Localizer&) = delete;
+  Localizer& operator=(const Localizer&) = delete;
+
+  // A new step: its wheel increments (mm since the previous step), time (s), optional compass
+  // and head pan, and the observations it already has. The previous step is processed now.
+  void addStep(const Step& step);
+  void addOdometry(long step, double t, double d_left, double d_right);
+  // Observations of step `step` (the newest or an earlier one), in the robot frame.
+  ObservationDelivery addObservations(long step, const std::vector<Observation>& observations);
+  // The frontend on a rectified 8-bit BGR pair of the rig's size taken at step `step` with the
+  // head at `head_pan` (rad); its observations then go as addObservations.
+  ObservationDelivery addImages(long step, const cv::Mat& left, const cv::Mat& right, double head_pan = 0.0);
+  // The same from image files (PNG, ...); errors name the file.
+  ObservationDelivery addImageFiles(long step, const std::string& left_path, const std::string& right_path,
+                                    double head_pan = 0.0);
+
+  // Processes the newest step if it is waiting and returns the real-time estimate of it
+  // (status Uninitialised before the first pose or before the first step).
+  Estimate estimate();
+  // See the header comment; 0 before the first estimate().
+  double computeMilliseconds() const { return compute_ms_; }
+  // The whole trajectory, smoothed by the smoothers (finish()); nothing may be added afterwards.
+  std::vector<Estimate> smoothedTrajectory();
+
+  long newestStep() const { return newest_step_; }  // -1 before the first step
+  const LocalizerConfig& config() const { return config_; }
+  ImageFrontendStats frontendStats() const;  // what the frontend did so far
+  // The window, for its statistics (nullptr for the other methods).
+  const SlidingWindowSmoother* window() const { return window_; }
+
+ private:
+  class Timer;
+  void flush();
+  void check(const std::vector<Observation>& observations, long step) const;
+  ObservationDelivery deliver(long step, const std::vector<Observation>& observations);
+  ImageObserver& observer();
+
+  LocalizerConfig config_;
+  std::unique_ptr<Estimator> estimator_;
+  SlidingWindowSmoother* window_ = nullptr;  // estimator_, when it is the window
+  std::unique_ptr<ImageObserver> observer_;  // created with the first images
+  std::optional<Step> pending_;              // the newest step, not processed yet
+  Estimate last_;                            // the newest estimate
+  long newest_step_ = -1;
+  bool have_step_ = false;
+  bool finished_ = false;
+  double running_ms_ = 0;  // time spent since the previous estimate()
+  double compute_ms_ = 0;
+};
+
+}  // namespace stereoloc

@@ -1,0 +1,135 @@
+// Self-calibration factors: each reduces to its plain factor at the nominal calibration, is zero
+// at the true calibration's prediction, and has Jacobians (poses and calibration blocks) that
+// agree with central differences, on straight lines (alpha -> 0), turns and headings near +-pi.
+#include <gtest/gtest.h>
+
+#include <Eigen/LU>
+#include <memory>
+#include <random>
+
+#include "factors/calibration_prior_factor.h"
+#include "factors/factor_check.h"
+#include "factors/odometry_calibration_factor.h"
+#include "factors/odometry_factor.h"
+#include "factors/stereo_pixel_calibration_factor.h"
+#include "factors/stereo_pixel_factor.h"
+#include "src/core/pose2.h"
+#include "src/core/stereo_rig.h"
+#include "stereo_sighting.h"
+
+namespace stereoloc {
+namespace {
+
+Eigen::VectorXd evaluate(const ceres::CostFunction& f, const std::vector<const double*>& blocks) {
+  Eigen::VectorXd r(f.num_residuals());
+  EXPECT_TRUE(f.Evaluate(blocks.data(), r.data(), nullptr));
+  return r;
+}
+
+// Readings of a motion with the calibration `cal`: what the encoders report when the wheels
+// roll the arc of (B.1)-(B.5).
+std::pair<double, double> readings(double dl_true, double dr_true, const double* cal) {
+  return {dl_true / cal[0], dr_true / cal[1]};
+}
+
+TEST(OdometryCalibrationFactor, ZeroAtTheTrueCalibrationAndJacobiansMatch) {
+  const OdometryParams params;
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  const double cal[3] = {1.012, 0.991, 77.5};
+  // Straight, nearly straight, turning, turning on the spot, reversing; headings near +-pi.
+  for (const auto& [dl, dr] : {std::pair{31.4, 31.4}, {30.0, 30.0 + 1e-6}, {28.0, 34.8}, {-6.0, 6.0}, {20.0, -3.0},
+                               {-15.0, -18.0}}) {
+    for (double th : {kPi - 1e-7, -kPi + 1e-7, 0.4}) {
+      const Pose2 a(300 * U(rng), 300 * U(rng), th);
+      const Pose2 b = compose(a, Pose2::fromVector(controlVector(dl, dr, cal[2])));
+      const auto [ml, mr] = readings(dl, dr, cal);
+      std::unique_ptr<ceres::CostFunction> f(OdometryCalibrationFactor::Create(ml, mr, params));
+      const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
+      EXPECT_LT(evaluate(*f, {pa, pb, cal}).norm(), 1e-7) << dl << " " << dr;
+      const double pb_off[3] = {b.x + 0.3, b.y - 0.2, b.theta + 0.01};
+      const double cal_off[3] = {1.0, 1.003, 75.0};
+      for (const double* c : {cal, cal_off}) {
+        const FactorCheck chk = checkFactorJacobians(*f, {pa, pb_off, c});
+        EXPECT_TRUE(chk.ok) << dl << " " << dr << "\n" << chk.message;
+      }
+    }
+  }
+}
+
+// To first order it carries the information of the control-vector factor: at the nominal
+// calibration, for small pose errors, both give the same Mahalanobis distance up to the floors.
+TEST(OdometryCalibrationFactor, AgreesWithTheControlVectorFactorToFirstOrder) {
+  OdometryParams params;
+  params.control_variance_floor = Eigen::Vector3d(1e-8, 1e-2, 1e-12);
+  const double nominal[3] = {1.0, 1.0, params.wheel_base_mm};
+  const Pose2 a(100, 200, 0.7);
+  const double dl = 28.0, dr = 34.8;
+  const Pose2 b = compose(a, Pose2::fromVector(controlVector(dl, dr, params.wheel_base_mm)));
+  std::unique_ptr<ceres::CostFunction> calib(OdometryCalibrationFactor::Create(dl, dr, params));
+  std::unique_ptr<ceres::CostFunction> plain(OdometryFactor::Create(dl, dr, params));
+  const double pa[3] = {a.x, a.y, a.theta};
+  // A pose error along the arc (both wheels further) and a heading error (one wheel further).
+  for (const Eigen::Vector3d& delta : {Eigen::Vector3d(0.02 * std::cos(b.theta), 0.02 * std::sin(b.theta), 0.0),
+                                       Eigen::Vector3d(0.0, 0.0, 2e-4)}) {
+    const double pb[3] = {b.x + delta.x(), b.y + delta.y(), b.theta + delta.z()};
+    const double c2 = evaluate(*calib, {pa, pb, nominal}).squaredNorm(), p2 = evaluate(*plain, {pa, pb}).squaredNorm();
+    EXPECT_NEAR(c2, p2, 0.05 * p2);
+  }
+}
+
+StereoRig tiltedRig() {
+  StereoRigParams p;
+  p.tilt_rad = 0.2;
+  p.offset_x_mm = 15.0;
+  p.camera_height_mm = 80.0;
+  return StereoRig(p);
+}
+
+TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobiansMatch) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  for (const StereoRig& rig : {StereoRig(), tiltedRig()}) {
+    for (double th : {kPi - 1e-7, -kPi + 1e-7, 0.3, -2.0}) {
+      for (PixelResiduals mode : {PixelResiduals::All, PixelResiduals::Columns}) {
+        const Pose2 pose(600 * U(rng), 500 * U(rng), th);
+        const double pan = 0.4 * U(rng);
+        const test::Sighting s = test::sight(rig, pose, pan, 700 + 300 * U(rng), 0.4 * U(rng), 25.0);
+        const double p[3] = {pose.x, pose.y, pose.theta};
+        const double nominal[2] = {0.0, 1.0};
+        std::unique_ptr<ceres::CostFunction> calib(
+            StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.5, mode));
+        std::unique_ptr<ceres::CostFunction> plain(StereoPixelFactor::Create(rig, s.landmark, s.pixels, pan, 0.5, mode));
+        EXPECT_LT((evaluate(*calib, {p, nominal}) - evaluate(*plain, {p})).norm(), 1e-9);
+        const double off[2] = {0.01, 1.02};
+        const FactorCheck c = checkFactorJacobians(*calib, {p, off});
+        EXPECT_TRUE(c.ok) << c.message;
+        // Pixels of a rig with the tilt and baseline of `off` are explained exactly by `off`.
+        StereoRigParams tp = rig.params();
+        tp.tilt_rad += off[0];
+        tp.baseline_mm *= off[1];
+        const StereoRig truth(tp);
+        const Eigen::Vector2d local = transformToLocal(pose, s.landmark.head<2>());
+        const auto px = truth.project(Eigen::Vector3d(local.x(), local.y(), s.landmark.z()), pan);
+        ASSERT_TRUE(px);
+        std::unique_ptr<ceres::CostFunction> f(StereoPixelCalibrationFactor::Create(rig, s.landmark, *px, pan, 0.5, mode));
+        EXPECT_LT(evaluate(*f, {p, off}).norm(), 1e-8);
+      }
+    }
+  }
+}
+
+TEST(CalibrationPriorFactor, WhitensAndJacobianMatches) {
+  Eigen::Matrix3d C;
+  C << 1e-4, 2e-5, 0, 2e-5, 4e-4, 0, 0, 0, 2.25;
+  std::unique_ptr<ceres::CostFunction> f(CalibrationPriorFactor<3>::Create(Eigen::Vector3d(1, 1, 75), C));
+  const double c[3] = {1.01, 0.98, 76.5};
+  const Eigen::VectorXd r = evaluate(*f, {c});
+  const Eigen::Vector3d e(0.01, -0.02, 1.5);
+  EXPECT_NEAR(r.squaredNorm(), e.dot(C.inverse() * e), 1e-9);
+  const FactorCheck chk = checkFactorJacobians(*f, {c});
+  EXPECT_TRUE(chk.ok) << chk.message;
+}
+
+}  // namespace
+}  // namespace stereoloc

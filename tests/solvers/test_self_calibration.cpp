@@ -1,0 +1,72 @@
+// Self-calibration recovers planted wheel and head errors on a long simulated run, within their
+// reported uncertainty, and estimates the poses better than the nominal calibration does.
+#include "solvers/self_calibration.h"
+
+#include <gtest/gtest.h>
+
+#include "src/core/error.h"
+#include "src/sim/simulator.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+double positionRmse(const std::vector<Estimate>& est, const Dataset& d) {
+  double s = 0;
+  for (size_t k = 0; k < est.size(); ++k) s += (est[k].pose.translation() - d.groundtruth[k]->translation()).squaredNorm();
+  return std::sqrt(s / static_cast<double>(est.size()));
+}
+
+TEST(SelfCalibration, ParsesTheList) {
+  const SelfCalibrationConfig c = SelfCalibrationConfig::parse("stereo,odometry");
+  EXPECT_TRUE(c.odometry && c.stereo);
+  EXPECT_FALSE(SelfCalibrationConfig::parse("none").odometry);
+  EXPECT_THROW(SelfCalibrationConfig::parse("odometry,lens"), Error);
+}
+
+TEST(SelfCalibration, RecoversPlantedParametersOnALongRun) {
+  SimulationConfig cfg;
+  cfg.landmarks = LandmarkSet::All;
+  cfg.scenario.steps = 1500;
+  cfg.profile.name = "planted";
+  cfg.profile.wheel_radius_rel_sigma = 0.01;
+  cfg.profile.wheel_base_rel_sigma = 0.03;
+  cfg.profile.tilt_sigma_rad = deg2rad(0.5);
+  cfg.profile.baseline_rel_sigma = 0.01;
+  SimulationTrace trace;
+  const Dataset d = simulate("random-walk", 0, cfg, 22, &trace);
+  const DrawnErrors& e = trace.errors;
+  const InitialBelief start = knownBelief(*d.initial_pose, Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
+
+  SelfCalibrationConfig on = SelfCalibrationConfig::parse("odometry,stereo");
+  const SelfCalibrationResult r = selfCalibratingBatch(d, start, on);
+  ASSERT_TRUE(r.converged);
+  ASSERT_TRUE(r.covariance_ok);
+  const CalibrationEstimate& c = r.calibration;
+  const double truth[5] = {1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel),
+                           e.tilt_rad, 1 + e.baseline_rel};
+  const double est[5] = {c.wheels[0], c.wheels[1], c.wheels[2], c.head[0], c.head[1]};
+  const double sd[5] = {std::sqrt(c.wheels_covariance(0, 0)), std::sqrt(c.wheels_covariance(1, 1)),
+                        std::sqrt(c.wheels_covariance(2, 2)), std::sqrt(c.head_covariance(0, 0)),
+                        std::sqrt(c.head_covariance(1, 1))};
+  // Planted errors are several sigma of what the run determines ...
+  const double planted[5] = {e.wheel_radius_rel[0], e.wheel_radius_rel[1], 75.0 * e.wheel_base_rel, e.tilt_rad,
+                             e.baseline_rel};
+  for (int i = 0; i < 5; ++i) {
+    EXPECT_NEAR(est[i], truth[i], 3.0 * sd[i]) << "parameter " << i << " planted " << planted[i];
+    EXPECT_LT(sd[i], std::fabs(planted[i])) << "parameter " << i << " is not determined by the run";
+  }
+  // ... and the poses are better for knowing them.
+  const SelfCalibrationResult off = selfCalibratingBatch(d, start, SelfCalibrationConfig());
+  EXPECT_LT(positionRmse(r.trajectory, d), 0.8 * positionRmse(off.trajectory, d));
+
+  // The written rig carries the estimate and reads back as a rig.
+  test::TempDir dir;
+  c.saveAsRig(dir.file("rig.yaml"), d.rig);
+  const StereoRig back = StereoRig::load(dir.file("rig.yaml"));
+  EXPECT_NEAR(back.params().tilt_rad, d.rig.params().tilt_rad + c.head[0], 1e-12);
+  EXPECT_NEAR(back.params().baseline_mm, d.rig.params().baseline_mm * c.head[1], 1e-9);
+}
+
+}  // namespace
+}  // namespace stereoloc

@@ -1,0 +1,236 @@
+// The embeddable pipeline (src/pipeline/localizer.h): the same estimates as its estimator fed
+// directly, observations of the newest step joining it, late ones inserted or reported too
+// late, bad input refused without harm, images through the frontend, memory bounded by W.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include "solvers/smoother_common.h"
+#include "src/core/error.h"
+#include "src/core/measurement_model.h"
+#include "src/pipeline/localizer.h"
+#include "src/sim/renderer.h"
+
+namespace stereoloc {
+namespace {
+
+const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal();
+
+// Resident set size now and its peak since the last resetPeakRss(), in kB.
+long rssKb() {
+  std::ifstream statm("/proc/self/statm");
+  long pages = 0, resident = 0;
+  statm >> pages >> resident;
+  return resident * (sysconf(_SC_PAGESIZE) / 1024);
+}
+long peakRssKb() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stol(line.substr(6));
+  return -1;
+}
+void resetPeakRss() { std::ofstream("/proc/self/clear_refs") << "5"; }
+
+// A closed circle of constant wheel increments through the MiroSot field, with exact
+// range-bearing sightings of the two nearest landmarks in front of the robot.
+struct Circle {
+  FieldMap map = FieldMap::miroSot();
+  OdometryParams odometry;
+  Pose2 start{750.0, 350.0, 0.0};
+  double d_left = 1.903125, d_right = 2.296875;  // mm per step: a circle of radius 400 mm around (750, 750)
+  std::vector<Observation> sight(const Pose2& pose) const {
+    std::multimap<double, const Landmark*> near;
+    for (const Landmark& lm : map.landmarks()) {
+      const Eigen::Vector2d z = predictRangeBearing(pose, lm.xy());
+      if (std::fabs(z[1]) < 1.0) near.emplace(z[0], &lm);
+    }
+    std::vector<Observation> out;
+    for (auto it = near.begin(); it != near.end() && out.size() < 2; ++it) {
+      const Eigen::Vector2d z = predictRangeBearing(pose, it->second->xy());
+      out.push_back(observationFromRangeBearing(it->second->id, it->second->type, z[0], z[1], 10.0, 0.01));
+    }
+    return out;
+  }
+};
+
+LocalizerConfig windowConfig(const SyntheticProblem& p) {
+  LocalizerConfig c;
+  c.map = p.map;
+  c.odometry = p.odometry;
+  c.init = knownBelief(p.truth[0], kP0);
+  c.window.window = 10;
+  return c;
+}
+
+void expectSame(const Estimate& a, const Estimate& b) {
+  EXPECT_EQ(a.step, b.step);
+  EXPECT_EQ(toString(a.status), toString(b.status)) << "step " << a.step;
+  EXPECT_EQ(a.pose.x, b.pose.x) << "step " << a.step;
+  EXPECT_EQ(a.pose.y, b.pose.y) << "step " << a.step;
+  EXPECT_EQ(a.pose.theta, b.pose.theta) << "step " << a.step;
+  EXPECT_EQ((a.covariance - b.covariance).cwiseAbs().maxCoeff(), 0.0) << "step " << a.step;
+}
+
+TEST(Localizer, MemoryIsBoundedByTheWindow) {
+  // 1,000,000 odometry steps at 100 Hz (2.8 hours), a sighting every 20th: the RSS peak over the
+  // whole run stays within 10 % of the RSS after 100,000 steps. keep_history off: nothing is
+  // kept per step. About 2.5 s of CPU: the length is what makes a leak of a few bytes per step
+  // visible.
+  const Circle c;
+  LocalizerConfig config;
+  config.init = knownBelief(c.start, kP0);
+  config.window.window = 5;  // the bound is what is tested; W = 20 costs 4 times as much
+  config.window.keep_history = false;
+  config.window.observation_model.model = ObservationModel::RangeBearing;
+  config.window.sparse_solver = false;  // cheaper for 60 variables
+  config.window.max_iterations = 1;     // exact data: the prediction is the solution
+  Localizer loc(config);
+  resetPeakRss();
+  Pose2 truth = c.start;
+  long rss_100k = 0;
+  long tracking = 0;
+  for (long k = 0; k < 1000000; ++k) {
+    if (k > 0) truth = predictPose(truth, Eigen::Matrix3d::Zero(), c.d_left, c.d_right, c.odometry).pose;
+    loc.addOdometry(k, 0.01 * static_cast<double>(k), k > 0 ? c.d_left : 0.0, k > 0 ? c.d_right : 0.0);
+    if (k % 20 == 0) loc.addObservations(k, c.sight(truth));
+    const Estimate e = loc.estimate();
+    if (k % 20 == 0) tracking += e.status == EstimateStatus::Tracking;
+    if (k == 100000) rss_100k = rssKb();
+  }
+  const long peak = peakRssKb();
+  RecordProperty("rss_100k_kb", std::to_string(rss_100k));
+  RecordProperty("peak_rss_kb", std::to_string(peak));
+  EXPECT_GT(tracking, 49000);  // the run is tracked, not lost and predicting
+  EXPECT_LT(std::hypot(loc.estimate().pose.x - truth.x, loc.estimate().pose.y - truth.y), 1.0);
+  ASSERT_GT(rss_100k, 0);
+  EXPECT_LE(static_cast<double>(peak), 1.10 * static_cast<double>(rss_100k)) << "kB";
+  EXPECT_EQ(loc.window()->windowSize(), 5);
+}
+
+TEST(Localizer, StepsGiveTheEstimatesOfTheWindowFedDirectly) {
+  SyntheticProblemOptions o;
+  o.steps = 120;
+  o.compass_sigma = 0.05;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 5);
+  const LocalizerConfig config = windowConfig(p);
+  Localizer whole(config), split(config);
+  SlidingWindowConfig wc = config.window;
+  wc.init = config.init;
+  SlidingWindowSmoother direct(p.map, p.odometry, wc);
+  for (const Step& s : p.steps) {
+    const Estimate ref = direct.process(s);
+    whole.addStep(s);
+    expectSame(whole.estimate(), ref);
+    // Odometry first, then the same step's observations: fused with it.
+    Step odometry = s;
+    odometry.observations.clear();
+    split.addStep(odometry);
+    if (!s.observations.empty()) {
+      EXPECT_EQ(toString(split.addObservations(s.step, s.observations)), "with_step");
+    }
+    expectSame(split.estimate(), ref);
+    EXPECT_GT(split.computeMilliseconds(), 0.0);
+  }
+  const std::vector<Estimate> a = direct.finish(), b = whole.smoothedTrajectory();
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) expectSame(b[i], a[i]);
+  EXPECT_THROW(whole.addOdometry(1000, 0, 1, 1), Error);  // after the end
+}
+
+TEST(Localizer, LateObservationsAreInsertedOrTooLate) {
+  SyntheticProblemOptions o;
+  o.steps = 80;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 6);
+  LocalizerConfig config = windowConfig(p);
+  config.window.window = 4;
+  Localizer loc(config);
+  SlidingWindowConfig wc = config.window;
+  wc.init = config.init;
+  SlidingWindowSmoother direct(p.map, p.odometry, wc);
+  int inserted = 0;
+  for (size_t k = 0; k < p.steps.size(); ++k) {
+    Step s = p.steps[k];
+    s.observations.clear();
+    loc.addStep(s);
+    direct.process(s);
+    if (k >= 3 && k % 3 == 0) {  // the sightings of three steps ago
+      const Step& late = p.steps[k - 3];
+      const ObservationDelivery r = loc.addObservations(late.step, late.observations);
+      const LateObservationResult ref = direct.insertLate(late.step, late.observations);
+      EXPECT_EQ(toString(r), toString(ref.status)) << "step " << late.step;
+      inserted += r == ObservationDelivery::Inserted;
+      expectSame(loc.estimate(), ref.estimate);
+    }
+  }
+  EXPECT_GT(inserted, 20);
+  // Observations of a step long gone, and of a step whose odometry has not come yet.
+  EXPECT_EQ(toString(loc.addObservations(2, p.steps[2].observations)), "too_late");
+  EXPECT_THROW(loc.addObservations(p.steps.back().step + 1, p.steps[2].observations), Error);
+
+  LocalizerConfig ekf = config;
+  ekf.method = LocalizerMethod::Ekf;
+  Localizer filter(ekf);
+  filter.addStep(p.steps[0]);
+  filter.addStep(p.steps[1]);
+  EXPECT_EQ(toString(filter.addObservations(0, p.steps[0].observations)), "too_late");
+  EXPECT_EQ(toString(filter.estimate().status), "tracking");
+}
+
+TEST(Localizer, BadInputIsRefusedAndChangesNothing) {
+  SyntheticProblemOptions o;
+  o.steps = 12;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 7);
+  Localizer loc(windowConfig(p)), ref(windowConfig(p));
+  for (size_t k = 0; k < 8; ++k) {
+    loc.addStep(p.steps[k]);
+    ref.addStep(p.steps[k]);
+  }
+  EXPECT_THROW(loc.addStep(p.steps[3]), Error);  // a step going backwards
+  Step nan = p.steps[8];
+  nan.d_left = std::nan("");
+  EXPECT_THROW(loc.addStep(nan), Error);
+  std::vector<Observation> unknown = p.steps[7].observations;
+  ASSERT_FALSE(unknown.empty());
+  unknown[0].landmark_id = 4242;
+  EXPECT_THROW(loc.addObservations(7, unknown), Error);
+  const cv::Mat small(120, 160, CV_8UC3, cv::Scalar(0, 0, 0));
+  EXPECT_THROW(loc.addImages(7, small, small), Error);
+  EXPECT_THROW(loc.addImageFiles(7, "/nonexistent/left.png", "/nonexistent/right.png"), Error);
+  for (size_t k = 8; k < p.steps.size(); ++k) {
+    loc.addStep(p.steps[k]);
+    ref.addStep(p.steps[k]);
+    expectSame(loc.estimate(), ref.estimate());
+  }
+  EXPECT_THROW(localizerMethodFromString("kalman"), Error);
+  EXPECT_EQ(toString(localizerMethodFromString("pf")), "pf");
+}
+
+TEST(Localizer, ImagesGoThroughTheFrontend) {
+  LocalizerConfig config;
+  const Pose2 pose(300.0, 650.0, 0.0);  // facing the right goal from the left half
+  config.init = knownBelief(pose, kP0);
+  RenderOptions ro;
+  ro.compute_truth = false;
+  const StereoRenderer renderer(config.map, config.rig, ro);
+  const StereoImages img = renderer.render(pose, 0.0, {});
+  Localizer loc(config);
+  loc.addOdometry(0, 0.0, 0.0, 0.0);
+  EXPECT_EQ(toString(loc.addImages(0, img.left, img.right)), "with_step");
+  const Estimate e = loc.estimate();
+  ImageObserver observer(config.rig, config.map, config.frontend);
+  const std::vector<Observation> expected = observer.observe(img.left, img.right, 0.0);
+  ASSERT_FALSE(expected.empty());
+  EXPECT_EQ(loc.frontendStats().pairs, 1);
+  EXPECT_EQ(loc.frontendStats().observations, static_cast<long>(expected.size()));
+  EXPECT_EQ(toString(e.status), "tracking");
+  EXPECT_LT(std::hypot(e.pose.x - pose.x, e.pose.y - pose.y), 10.0);
+}
+
+}  // namespace
+}  // namespace stereoloc

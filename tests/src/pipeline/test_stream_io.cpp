@@ -1,0 +1,94 @@
+// JSON Lines of the real-time stream (src/pipeline/stream_io.h): what a line may carry, the
+// one-line errors, and estimates written so that they read back exactly.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+#include "src/core/error.h"
+#include "src/pipeline/stream_io.h"
+
+namespace stereoloc {
+namespace {
+
+std::string errorOf(const std::string& line) {
+  try {
+    parseStreamLine(line, StereoRig(), 0.0);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(StreamIo, ParsesOdometryObservationsAndLateImages) {
+  const StereoRig rig;
+  const StreamLine a = parseStreamLine(
+      R"({"step":12,"t":1.2,"d_left":10.5,"d_right":-3,"compass":0.3,"head_pan":0.1,)"
+      R"("observations":[{"landmark_id":3,"range":800,"bearing":-0.2,"sigma_range":20,"sigma_bearing":0.01}]})",
+      rig, 0.05);
+  EXPECT_TRUE(a.has_odometry);
+  EXPECT_EQ(a.step.step, 12);
+  EXPECT_EQ(a.obs_step, 12);
+  EXPECT_EQ(a.step.d_right, -3.0);
+  EXPECT_EQ(a.step.compass_sigma, 0.05);  // the default sigma
+  ASSERT_EQ(a.observations.size(), 1u);
+  EXPECT_EQ(a.observations[0].landmark_id, 3);
+  EXPECT_EQ(a.observations[0].covariance(0, 0), 400.0);
+  EXPECT_TRUE(a.observations[0].covariance.allFinite());
+
+  const StreamLine b =
+      parseStreamLine(R"({"step":13,"d_left":1,"d_right":1,"obs_step":11,"left":"l.png","right":"r.png"})", rig, 0);
+  EXPECT_EQ(b.obs_step, 11);
+  EXPECT_EQ(b.left_image, "l.png");
+  EXPECT_TRUE(b.hasObservationData());
+
+  const StreamLine c = parseStreamLine(R"({"obs_step":9,"observations":[{"range":500,"bearing":0.1,)"
+                                       R"("sigma_range":5,"sigma_bearing":0.01,"type":"point"}]})",
+                                       rig, 0);
+  EXPECT_FALSE(c.has_odometry);
+  EXPECT_EQ(c.obs_step, 9);
+  EXPECT_EQ(c.observations.at(0).landmark_id, -1);
+}
+
+TEST(StreamIo, BadLinesSayWhatIsWrong) {
+  EXPECT_NE(errorOf("not json").find("column 1"), std::string::npos);
+  EXPECT_NE(errorOf("[1,2]").find("JSON object"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"step":1,"d_left":1})").find("\"d_right\""), std::string::npos);
+  EXPECT_NE(errorOf(R"({"step":1.5,"d_left":1,"d_right":1})").find("integer"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"obs_step":4,"left":"a","right":"b"})").find("after"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"left":"a"})").find("together"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"obs_step":3})").find("without observations"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"t":3})").find("missing"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"left":"a","right":"b","observations":[]})").find("not both"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"observations":[{"range":-1,"bearing":0,)"
+                    R"("sigma_range":1,"sigma_bearing":1}]})")
+                .find("observations[0]"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"compass":0.1})").find("compass_sigma"), std::string::npos);
+}
+
+TEST(StreamIo, EstimatesReadBackExactly) {
+  Estimate e;
+  e.step = 7;
+  e.t = 0.1;
+  e.pose = Pose2(1.0 / 3.0, -2.0e-7, 3.0);
+  e.covariance = Eigen::Matrix3d::Identity() * (1.0 / 7.0);
+  e.status = EstimateStatus::Tracking;
+  StreamOutputExtras x;
+  x.compute_ms = 1.25;
+  x.obs_step = 5;
+  x.late = "inserted";
+  const std::string line = formatStreamEstimate(e, x);
+  const std::string back = R"({"step":7,"t":0.10000000000000001,"x":0.33333333333333331,"y":-1.9999999999999999e-07,)"
+                           R"("theta":3,"covariance":[0.14285714285714285,0,0,0,0.14285714285714285,0,0,0,)"
+                           R"(0.14285714285714285],"status":"tracking","compute_ms":1.2500,"obs_step":5,"late":"inserted"})"
+                           "\n";
+  EXPECT_EQ(line, back);
+  Estimate none;
+  EXPECT_EQ(formatStreamEstimate(none), "{\"step\":0,\"t\":0,\"status\":\"uninitialised\"}\n");
+}
+
+}  // namespace
+}  // namespace stereoloc

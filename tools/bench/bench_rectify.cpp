@@ -1,0 +1,128 @@
+// bench_rectify: cost of rectifying a raw 320x240 stereo pair (frontend/rectify.h) and of the
+// whole frontend on raw pairs of a distorted, unrectified calibration, on rendered MiroSot views.
+//
+//   bench_rectify [benchmark flags]   (e.g. --benchmark_repetitions=5 --benchmark_report_aggregates_only)
+//
+// The raw images are rendered ideal pinhole pairs (the rectified rig of the calibration) warped
+// into the raw cameras by the calibration's own model (cv::undistortPoints of every raw pixel),
+// so the frontend sees the lens distortion and camera rotation a real pair would have.
+#include <benchmark/benchmark.h>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <random>
+#include <vector>
+
+#include "frontend/frontend.h"
+#include "frontend/rectify.h"
+#include "src/core/field_map.h"
+#include "src/core/stereo_rig.h"
+#include "src/sim/renderer.h"
+
+using namespace stereoloc;
+
+namespace {
+
+// A 60 deg small CMOS pair: barrel distortion, slightly different cameras, a rotated right camera.
+StereoCalibration benchCalibration() {
+  StereoCalibration c;
+  c.K1 = (cv::Mat_<double>(3, 3) << 279.0, 0, 161.2, 0, 278.1, 118.7, 0, 0, 1);
+  c.K2 = (cv::Mat_<double>(3, 3) << 276.4, 0, 158.9, 0, 276.0, 120.8, 0, 0, 1);
+  c.D1 = (cv::Mat_<double>(1, 5) << -0.21, 0.06, 0.0008, -0.0005, 0.0);
+  c.D2 = (cv::Mat_<double>(1, 5) << -0.19, 0.05, -0.0004, 0.0006, 0.0);
+  cv::Rodrigues(cv::Vec3d(0.002, -0.004, 0.0015), c.R);
+  c.T = (cv::Mat_<double>(3, 1) << -30.2, 0.25, -0.1);
+  c.image_size = cv::Size(320, 240);
+  c.rectify();
+  return c;
+}
+
+// Raw image of camera i from the rectified one: each raw pixel looks up where the calibration
+// says its ray lands in the rectified image.
+cv::Mat toRaw(const cv::Mat& rectified, const StereoCalibration& c, int i) {
+  std::vector<cv::Point2f> raw, rect;
+  for (int v = 0; v < c.image_size.height; ++v)
+    for (int u = 0; u < c.image_size.width; ++u) raw.emplace_back(static_cast<float>(u), static_cast<float>(v));
+  cv::undistortPoints(raw, rect, i == 0 ? c.K1 : c.K2, i == 0 ? c.D1 : c.D2, i == 0 ? c.R1 : c.R2, i == 0 ? c.P1 : c.P2);
+  cv::Mat mx(c.image_size, CV_32FC1), my(c.image_size, CV_32FC1);
+  for (size_t k = 0; k < rect.size(); ++k) {
+    mx.at<float>(static_cast<int>(k / c.image_size.width), static_cast<int>(k % c.image_size.width)) = rect[k].x;
+    my.at<float>(static_cast<int>(k / c.image_size.width), static_cast<int>(k % c.image_size.width)) = rect[k].y;
+  }
+  cv::Mat out;
+  cv::remap(rectified, out, mx, my, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  return out;
+}
+
+struct RawPairs {
+  StereoRig rig;
+  std::vector<std::pair<cv::Mat, cv::Mat>> pairs;
+};
+
+const RawPairs& rawPairs() {
+  static const RawPairs data = [] {
+    RawPairs d{StereoRig(StereoRigParams(), benchCalibration()), {}};
+    StereoRig pinhole(d.rig.params());  // the rectified rig without the calibration
+    const FieldMap map = FieldMap::miroSot();
+    StereoRenderer renderer(map, pinhole);
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> ux(150, 1350), uy(150, 1150), ua(-3.14159, 3.14159);
+    for (int k = 0; k < 16; ++k) {
+      const StereoImages img = renderer.render(Pose2(ux(rng), uy(rng), ua(rng)), 0.0, {}, 100 + k);
+      d.pairs.emplace_back(toRaw(img.left, *d.rig.calibration(), 0), toRaw(img.right, *d.rig.calibration(), 1));
+    }
+    return d;
+  }();
+  return data;
+}
+
+void BM_Rectify(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  frontend::Rectifier rect(*d.rig.calibration());
+  size_t k = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    rect.rectify(p.first, p.second);
+    benchmark::DoNotOptimize(rect.left().data);
+  }
+}
+BENCHMARK(BM_Rectify)->Unit(benchmark::kMillisecond);
+
+void BM_FrontendRawPair(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  frontend::Frontend fe(d.rig, FieldMap::miroSot());
+  size_t k = 0, obs = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    obs += fe.process(p.first, p.second).observations.size();
+  }
+  state.counters["obs_per_pair"] = static_cast<double>(obs) / static_cast<double>(k);
+}
+BENCHMARK(BM_FrontendRawPair)->Unit(benchmark::kMillisecond);
+
+void BM_FrontendRectifiedPair(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  // Reference: the same views rendered straight into the rectified rig, no rectification.
+  static const std::vector<std::pair<cv::Mat, cv::Mat>> ideal = [&] {
+    std::vector<std::pair<cv::Mat, cv::Mat>> v;
+    StereoRenderer renderer(FieldMap::miroSot(), StereoRig(d.rig.params()));
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> ux(150, 1350), uy(150, 1150), ua(-3.14159, 3.14159);
+    for (int k = 0; k < 16; ++k) {
+      const StereoImages img = renderer.render(Pose2(ux(rng), uy(rng), ua(rng)), 0.0, {}, 100 + k);
+      v.emplace_back(img.left, img.right);
+    }
+    return v;
+  }();
+  frontend::Frontend fe(StereoRig(d.rig.params()), FieldMap::miroSot());
+  size_t k = 0;
+  for (auto _ : state) {
+    const auto& p = ideal[k++ % ideal.size()];
+    benchmark::DoNotOptimize(fe.process(p.first, p.second).observations.size());
+  }
+}
+BENCHMARK(BM_FrontendRectifiedPair)->Unit(benchmark::kMillisecond);
+
+}  // namespace
+
+BENCHMARK_MAIN();
