@@ -20,8 +20,8 @@
 //  6. repeat 1-5 for the same peak on the pixels left (up to rounds_per_peak times);
 //  7. merge segments of different peaks that are one line (mergeCollinear in segments.cpp):
 //     collinear within straightness_px, not overlapping, closer than Gap_max.
-// Order note: the thesis drops pieces shorter than L_min before merging; we merge first
-// (issue 4's order), so a line broken by noise into short pieces still comes out whole.
+// Order note: the thesis drops pieces shorter than L_min before merging; we merge first, so a
+// line broken by noise into short pieces still comes out whole.
 #include <cstdint>
 #include <opencv2/core/mat.hpp>
 #include <utility>

@@ -47,9 +47,7 @@ struct Box {
 // plane x = 1 mm (camera frame) and of the edges' crossings of that plane. Nothing behind the
 // plane: invisible. An object crossing the plane but farther than `near_mm` from the camera
 // (near_mm bounds the distance of a sample ray's points with x < 1 mm) is hit, if at all, in
-// front of the plane, so the box holds it. The whole image when it comes nearer. (Until session
-// 5 any object crossing the plane got the whole image: with the 5 obstacles of bench_render, a
-// robot 60 mm beside the camera was then tested by every ray and no tile could be settled.)
+// front of the plane, so the box holds it. The whole image when it comes nearer.
 Box projectBox(const std::vector<Eigen::Vector3d>& pts, const std::vector<std::pair<int, int>>& edges,
                const Eigen::Vector3d& cam, const Eigen::Matrix3d& Rwv, double f, double ou, double ov, int W, int H,
                double near_mm) {

@@ -1,4 +1,4 @@
-// bench_frontend: accuracy of the vision frontend (issue 4 targets) on rendered stereo pairs
+// bench_frontend: accuracy of the vision frontend on rendered stereo pairs
 // against the renderer's ground truth, then timings (Google Benchmark) of ours against
 // cv::HoughLinesP and cv::createLineSegmentDetector on the same images.
 //

@@ -1,4 +1,4 @@
-// Renders one 320x240 stereo pair of the MiroSot field (issue 3: at most 20 ms per pair).
+// Renders one 320x240 stereo pair of the MiroSot field (target: at most 20 ms per pair).
 // Run with --benchmark_repetitions=5 and read the medians; compare variants within one run.
 #include <benchmark/benchmark.h>
 

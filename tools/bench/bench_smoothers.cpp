@@ -1,6 +1,6 @@
 // Speed of the smoothers on an in-process random walk (solvers/smoother_common.h: 2D poses,
 // odometry, at most 2 range-bearing observations per pose to 10 known landmarks) - the problem
-// of the GTSAM 4.3 reference (issue 7): batch LM on 10,000 poses 2.56 s; BatchFixedLagSmoother
+// of the GTSAM 4.3 reference: batch LM on 10,000 poses 2.56 s; BatchFixedLagSmoother
 // with lag 20: 1.67 ms median, 3.57 ms p99 per step.
 //   BM_SlidingWindowStep/W   one process() call (add, gate, marginalise, solve, covariance);
 //                            counters median_ms and p99_ms over all timed steps
