@@ -1,34 +1,14 @@
 #pragma once
 // Rendered stereo image pairs of the simulated MiroSot world, with exact ground truth.
 //
-// Each pixel is ray-cast (no rasterisation): the sample rays are computed once per rig in the
-// camera frame; per pair they are rotated into the world and intersected
-// analytically with the floor plane (markings are analytic strips and rings) and with the
-// convex prisms / spheres of src/sim/simulator_scene.h (walls, goals, corner triangles, obstacles,
-// ball). Every pixel averages samples_per_axis^2 rays (default 2 x 2 = 4) on a regular grid
-// inside the pixel, which anti-aliases the edges. Pixels on an edge (their samples disagree, or
-// their mean differs from a neighbour's) are re-sampled on a finer edge_samples_per_axis^2 grid
-// (default 4 x 4): a camera pixel integrates the light over its area, and 2 x 2 point samples
-// give only five coverage levels, which turns a far, nearly horizontal edge into a staircase of
-// 0.5-2 px steps and drops stripes thinner than half a pixel between the samples. The pixel (u, v) of the image is the point
-// u, v of StereoRig's projection (pixel centres at integer coordinates), so a landmark projected
-// by StereoRig::project lands exactly on the rendered feature.
-//
-// Ground truth per image: the visible pieces of every straight marking centreline, wall, goal
-// and corner-triangle edge (image end points), the outline of the wall and goal tops against
-// the background (kind "top_outline": their outer top edges, the walls' silhouette seen from
-// above the wall height), and the image position of every visible
-// landmark with its id (visible = in front, in the image, line of sight not blocked).
-//
-// Most sample rays are not traced one by one: an image tile (4 x 4 px) whose corner rays all
-// reach plain floor inside the field, or all rise into an empty sky, takes that colour for every
-// sample (a convexity argument, see render()); the images are the same as tracing every ray
-// (`RenderOptions::reference_tracing`, tested byte for byte). That and per-row object lists cut
-// the work per pair from 250 to 102 million instructions (callgrind, one thread, bench view).
-//
-// Rows are split between `threads` worker threads; each pixel depends only on its own rays, and
-// the noise is drawn afterwards in one thread from RenderOptions::seed, so the images are
-// identical whatever the thread count.
+// Each pixel is ray-cast against the analytic floor (markings as strips and rings) and the convex
+// objects of src/sim/simulator_scene.h, averaging a grid of sample rays, re-sampled more finely on
+// edges (a pixel integrates light over its area). Pixel (u, v) is the point u, v of
+// StereoRig::project, so a projected landmark lands exactly on the rendered feature.
+// Ground truth per image: the visible pieces of every straight edge (image end points) and the
+// image position of every visible landmark with its id. Images are identical whatever the thread
+// count (noise is drawn afterwards from RenderOptions::seed). Sampling, tile shortcuts and the
+// truth's rules: docs/frontend.md, "Renderer".
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
