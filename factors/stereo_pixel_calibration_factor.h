@@ -58,31 +58,14 @@ struct StereoPixelCalibrationFactor {
     const T beta = T(tilt_) + calib[0];
     const T cb = cos(beta), sb = sin(beta);
     const T x2 = cb * x1 - sb * z1, y2 = y1, z2 = sb * x1 + cb * z1;
-    if (!(x2 > T(StereoPixelFactor::kMinDepth))) return false;
-    const T hb = calib[1] * T(half_baseline_);
-    const T inv_x = T(1.0) / x2;
-    const T u_l = T(ou_) - T(f_) * (y2 - hb) * inv_x;
-    const T u_r = T(ou_) - T(f_) * (y2 + hb) * inv_x;
-    if (rows_) {
-      const T v = T(ov_) - T(f_) * z2 * inv_x;
-      residual[0] = T(inv_sigma_) * (u_l - T(z_[0]));
-      residual[1] = T(inv_sigma_) * (v - T(z_[1]));
-      residual[2] = T(inv_sigma_) * (u_r - T(z_[2]));
-      residual[3] = T(inv_sigma_) * (v - T(z_[3]));
-    } else {
-      residual[0] = T(inv_sigma_) * (u_l - T(z_[0]));
-      residual[1] = T(inv_sigma_) * (u_r - T(z_[2]));
-    }
-    return true;
+    return stereo_pixel::whitenedResiduals(x2, y2, z2, calib[1] * T(half_baseline_), f_, ou_, ov_, inv_sigma_, rows_, z_,
+                                           residual);
   }
 
   // Blocks: pose (3), stereo calibration (dbeta, k) (2).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double pan, double sigma, PixelResiduals residuals) {
-    if (!(std::isfinite(sigma) && sigma > 0)) throw Error("stereo pixel calibration factor: sigma must be a positive number");
-    if (!(std::isfinite(pixels.u_left) && std::isfinite(pixels.v_left) && std::isfinite(pixels.u_right) &&
-          std::isfinite(pixels.v_right) && std::isfinite(pan) && landmark.allFinite()))
-      throw Error("stereo pixel calibration factor: pixels, pan and landmark must be finite");
+    stereo_pixel::checkInputs("stereo pixel calibration factor", pixels, pan, sigma, landmark);
     auto* functor = new StereoPixelCalibrationFactor(rig, landmark, pixels, pan, sigma, residuals);
     if (residuals == PixelResiduals::All)
       return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 4, 3, 2>(functor);

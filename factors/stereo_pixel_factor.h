@@ -44,6 +44,42 @@ enum class PixelResiduals {
   All,      // u_l, v_l, u_r, v_r: also the rows (range from the known heights)
 };
 
+// The parts the stereo pixel factors share: the whitened residuals of a point in the rectified
+// camera frame C2 (x forward, y left, z up; mm) against the measured pixels z = (u_l, v_l, u_r,
+// v_r), and the check of a factor's inputs. Returns false behind (or at) the cameras.
+namespace stereo_pixel {
+inline constexpr double kMinDepth = 1e-6;  // mm, as StereoRig::project
+
+template <typename T>
+bool whitenedResiduals(const T& x2, const T& y2, const T& z2, const T& half_baseline, double f, double ou, double ov,
+                       double inv_sigma, bool rows, const Eigen::Vector4d& z, T* residual) {
+  if (!(x2 > T(kMinDepth))) return false;
+  const T inv_x = T(1.0) / x2;
+  const T u_l = T(ou) - T(f) * (y2 - half_baseline) * inv_x;
+  const T u_r = T(ou) - T(f) * (y2 + half_baseline) * inv_x;
+  if (rows) {
+    const T v = T(ov) - T(f) * z2 * inv_x;
+    residual[0] = T(inv_sigma) * (u_l - T(z[0]));
+    residual[1] = T(inv_sigma) * (v - T(z[1]));
+    residual[2] = T(inv_sigma) * (u_r - T(z[2]));
+    residual[3] = T(inv_sigma) * (v - T(z[3]));
+  } else {
+    residual[0] = T(inv_sigma) * (u_l - T(z[0]));
+    residual[1] = T(inv_sigma) * (u_r - T(z[2]));
+  }
+  return true;
+}
+
+// Throws stereoloc::Error "<who>: ..." unless sigma > 0 and the pixels, pan and landmark are finite.
+inline void checkInputs(const char* who, const StereoPixels& pixels, double pan, double sigma,
+                        const Eigen::Vector3d& landmark) {
+  if (!(std::isfinite(sigma) && sigma > 0)) throw Error(std::string(who) + ": sigma must be a positive number");
+  if (!(std::isfinite(pixels.u_left) && std::isfinite(pixels.v_left) && std::isfinite(pixels.u_right) &&
+        std::isfinite(pixels.v_right) && std::isfinite(pan) && landmark.allFinite()))
+    throw Error(std::string(who) + ": pixels, pan and landmark must be finite");
+}
+}  // namespace stereo_pixel
+
 struct StereoPixelFactor {
   // rig: the stereo rig; landmark: (x, y, z) mm, world; pixels: the measured pixels; pan: head
   // pan at the time of the images (rad); sigma: pixel noise (px, > 0).
@@ -75,35 +111,19 @@ struct StereoPixelFactor {
     T p2[3];
     for (int i = 0; i < 3; ++i)
       p2[i] = T(M_(i, 0)) * p0[0] + T(M_(i, 1)) * p0[1] + T(M_(i, 2)) * p0[2] - T(m_[i]);
-    if (!(p2[0] > T(kMinDepth))) return false;  // behind (or at) the cameras: no projection
-    const T inv_x = T(1.0) / p2[0];
-    const T u_l = T(ou_) - T(f_) * (p2[1] - T(half_baseline_)) * inv_x;
-    const T u_r = T(ou_) - T(f_) * (p2[1] + T(half_baseline_)) * inv_x;
-    if (rows_) {
-      const T v = T(ov_) - T(f_) * p2[2] * inv_x;
-      residual[0] = T(inv_sigma_) * (u_l - T(z_[0]));
-      residual[1] = T(inv_sigma_) * (v - T(z_[1]));
-      residual[2] = T(inv_sigma_) * (u_r - T(z_[2]));
-      residual[3] = T(inv_sigma_) * (v - T(z_[3]));
-    } else {
-      residual[0] = T(inv_sigma_) * (u_l - T(z_[0]));
-      residual[1] = T(inv_sigma_) * (u_r - T(z_[2]));
-    }
-    return true;
+    return stereo_pixel::whitenedResiduals(p2[0], p2[1], p2[2], T(half_baseline_), f_, ou_, ov_, inv_sigma_, rows_, z_,
+                                           residual);
   }
 
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double pan, double sigma, PixelResiduals residuals) {
-    if (!(std::isfinite(sigma) && sigma > 0)) throw Error("stereo pixel factor: sigma must be a positive number");
-    if (!(std::isfinite(pixels.u_left) && std::isfinite(pixels.v_left) && std::isfinite(pixels.u_right) &&
-          std::isfinite(pixels.v_right) && std::isfinite(pan) && landmark.allFinite()))
-      throw Error("stereo pixel factor: pixels, pan and landmark must be finite");
+    stereo_pixel::checkInputs("stereo pixel factor", pixels, pan, sigma, landmark);
     auto* functor = new StereoPixelFactor(rig, landmark, pixels, pan, sigma, residuals);
     if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<StereoPixelFactor, 4, 3>(functor);
     return new ceres::AutoDiffCostFunction<StereoPixelFactor, 2, 3>(functor);
   }
 
-  static constexpr double kMinDepth = 1e-6;  // mm, as StereoRig::project
+  static constexpr double kMinDepth = stereo_pixel::kMinDepth;
 
  private:
   Eigen::Vector3d landmark_;

@@ -124,22 +124,16 @@ void StereoRig::save(const std::string& path) const {
     const std::string name = p.stem().string() + "_calibration.yml";
     calibration_->save((p.parent_path() / name).string());
     out.put("calibration_file", name);
-    out.put("camera_height_mm", params_.camera_height_mm);
-    out.put("offset_x_mm", params_.offset_x_mm);
-    out.put("tilt_rad", params_.tilt_rad);
-    out.put("pixel_sigma", params_.pixel_sigma);
-    out.put("min_disparity_px", params_.min_disparity_px);
-    out.put("max_range_mm", params_.max_range_mm);
-    out.writeAtomically(path);
-    return;
+  } else {
+    out.put("image_width", params_.image_width);
+    out.put("image_height", params_.image_height);
+    out.put("hfov_rad", params_.hfov_rad);
+    out.put("focal_px", f_);
+    out.put("principal_u", ou_);
+    out.put("principal_v", ov_);
+    out.put("baseline_mm", params_.baseline_mm);
   }
-  out.put("image_width", params_.image_width);
-  out.put("image_height", params_.image_height);
-  out.put("hfov_rad", params_.hfov_rad);
-  out.put("focal_px", f_);
-  out.put("principal_u", ou_);
-  out.put("principal_v", ov_);
-  out.put("baseline_mm", params_.baseline_mm);
+  // The robot mounting (appendix A) is ours whichever file holds the cameras.
   out.put("camera_height_mm", params_.camera_height_mm);
   out.put("offset_x_mm", params_.offset_x_mm);
   out.put("tilt_rad", params_.tilt_rad);

@@ -128,6 +128,17 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMo
   return {name, init};
 }
 
+BatchSmootherConfig batchConfigFor(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& o) {
+  const InitMode init_mode = parseMethodSpec(spec, o.init).second;
+  std::mt19937_64 rng(seed);
+  BatchSmootherConfig c;
+  c.init = beliefFor(init_mode, d, o, rng);
+  c.loss.type = o.loss;
+  c.loss.scale = o.loss_scale;
+  c.observation_model = {o.observation_model, d.rig};
+  return c;
+}
+
 MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& o) {
   const auto [name, init_mode] = parseMethodSpec(spec, o.init);
   std::mt19937_64 rng(seed);
@@ -172,12 +183,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     run.estimates = std::move(r.trajectory);
     run.calibration = r.calibration;
   } else {  // batch
-    BatchSmootherConfig c;
-    c.init = beliefFor(init_mode, d, o, rng);
-    c.loss.type = o.loss;
-    c.loss.scale = o.loss_scale;
-    c.observation_model = {o.observation_model, d.rig};
-    BatchSmoother b(d.map, d.odometry, c);
+    BatchSmoother b(d.map, d.odometry, batchConfigFor(spec, d, seed, o));
     run = runEstimator(b, d);
   }
   run.method = spec;

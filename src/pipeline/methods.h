@@ -8,6 +8,7 @@
 
 #include <optional>
 
+#include "solvers/batch_smoother.h"
 #include "solvers/initialisation.h"
 #include "solvers/particle_filter.h"
 #include "solvers/self_calibration.h"
@@ -51,6 +52,12 @@ std::string methodNamesText();
 
 // Splits "ekf:random" into ("ekf", Random); throws UsageError for an unknown name or init.
 std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init);
+
+// The batch smoother's configuration as runMethod makes it for `spec` ("batch", "batch:global"):
+// the start belief (drawn from `seed`), the loss and the observation model. `refine` runs the same
+// smoother with progress reports.
+BatchSmootherConfig batchConfigFor(const std::string& spec, const Dataset& dataset, uint64_t seed,
+                                   const MethodOptions& options);
 
 // Runs a method over a whole dataset. `seed` drives the known-start noise, the random start and
 // the particle filter, so a run is reproducible.

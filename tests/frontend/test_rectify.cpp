@@ -4,6 +4,7 @@
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <string>
 
 #include "frontend/frontend.h"
 #include "src/core/error.h"
@@ -13,16 +14,7 @@ namespace stereoloc::frontend {
 namespace {
 
 StereoCalibration rawCalibration() {
-  StereoCalibration c;
-  c.K1 = (cv::Mat_<double>(3, 3) << 279.0, 0, 161.2, 0, 278.1, 118.7, 0, 0, 1);
-  c.K2 = (cv::Mat_<double>(3, 3) << 276.4, 0, 158.9, 0, 276.0, 120.8, 0, 0, 1);
-  c.D1 = (cv::Mat_<double>(1, 5) << -0.21, 0.06, 0.0008, -0.0005, 0.0);
-  c.D2 = (cv::Mat_<double>(1, 5) << -0.19, 0.05, -0.0004, 0.0006, 0.0);
-  cv::Rodrigues(cv::Vec3d(0.002, -0.004, 0.0015), c.R);
-  c.T = (cv::Mat_<double>(3, 1) << -30.2, 0.25, -0.1);
-  c.image_size = cv::Size(320, 240);
-  c.rectify();
-  return c;
+  return StereoCalibration::load(std::string(STEREOLOC_DATA_DIR) + "/stereo_calibration_example.yml");
 }
 
 // Intensity-weighted centroid of a bright blob in a grey image.

@@ -29,24 +29,15 @@
 #include "src/pipeline/localizer.h"
 #include "src/sim/renderer.h"
 #include "src/sim/simulator.h"
+#include "tools/bench/bench_util.h"
 
 namespace stereoloc {
 namespace {
 
 constexpr int kOdometryPerFrame = 20;  // 100 Hz odometry, 5 Hz frames
 
-double threadCpuMs() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
-}
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const size_t i = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
-  return v[i];
-}
+using bench::percentile;
+using bench::threadCpuMs;
 
 struct Recording {
   Dataset dataset;                   // wheel increments and compass per frame

@@ -15,26 +15,22 @@
 
 #include "frontend/frontend.h"
 #include "frontend/rectify.h"
+#include "src/core/error.h"
 #include "src/core/field_map.h"
 #include "src/core/stereo_rig.h"
 #include "src/sim/renderer.h"
+#include "src/study/data_files.h"
 
 using namespace stereoloc;
 
 namespace {
 
-// A 60 deg small CMOS pair: barrel distortion, slightly different cameras, a rotated right camera.
+// A 60 deg small CMOS pair (data/stereo_calibration_example.yml): barrel distortion, slightly
+// different cameras, a rotated right camera.
 StereoCalibration benchCalibration() {
-  StereoCalibration c;
-  c.K1 = (cv::Mat_<double>(3, 3) << 279.0, 0, 161.2, 0, 278.1, 118.7, 0, 0, 1);
-  c.K2 = (cv::Mat_<double>(3, 3) << 276.4, 0, 158.9, 0, 276.0, 120.8, 0, 0, 1);
-  c.D1 = (cv::Mat_<double>(1, 5) << -0.21, 0.06, 0.0008, -0.0005, 0.0);
-  c.D2 = (cv::Mat_<double>(1, 5) << -0.19, 0.05, -0.0004, 0.0006, 0.0);
-  cv::Rodrigues(cv::Vec3d(0.002, -0.004, 0.0015), c.R);
-  c.T = (cv::Mat_<double>(3, 1) << -30.2, 0.25, -0.1);
-  c.image_size = cv::Size(320, 240);
-  c.rectify();
-  return c;
+  const std::string path = findDataFile("stereo_calibration_example.yml");
+  if (path.empty()) throw Error("bench_rectify: data file stereo_calibration_example.yml not found");
+  return StereoCalibration::load(path);
 }
 
 // Raw image of camera i from the rectified one: each raw pixel looks up where the calibration

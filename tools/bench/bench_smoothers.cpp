@@ -26,26 +26,15 @@
 #include "solvers/batch_smoother.h"
 #include "solvers/sliding_window_smoother.h"
 #include "solvers/smoother_common.h"
+#include "tools/bench/bench_util.h"
 
 namespace stereoloc {
 namespace {
 
 const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal();
 
-// CPU time of this thread (ms): unlike the wall clock, not inflated when other processes
-// preempt the benchmark on a shared machine.
-double threadCpuMs() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return 1e3 * static_cast<double>(ts.tv_sec) + 1e-6 * static_cast<double>(ts.tv_nsec);
-}
-
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const size_t i = std::min(v.size() - 1, static_cast<size_t>(q * static_cast<double>(v.size() - 1) + 0.5));
-  return v[i];
-}
+using bench::percentile;
+using bench::threadCpuMs;
 
 void BM_SlidingWindowStep(benchmark::State& state) {
   SyntheticProblemOptions o;

@@ -6,7 +6,6 @@
 #include <chrono>
 #include <cstdio>
 #include <memory>
-#include <random>
 
 #include "solvers/batch_smoother.h"
 #include "src/eval/evaluation.h"
@@ -53,22 +52,11 @@ void runRefine(const LocalizeArgs& a) {
   } catch (const Error& e) {
     throw UsageError(e.what());
   }
-  const InitMode init_mode = parseMethodSpec("batch", o.init).second;
+  parseMethodSpec("batch", o.init);  // usage errors before reading data
   const auto t_load = Clock::now();
   Dataset d = loadDatasetWithFrontend(a.dataset, a.frontend, a.frontend_landmarks, a.frontend_params, stdout);
   const double load_s = secondsSince(t_load);
-
-  // The configuration of `localize --method batch` (src/pipeline/methods.cpp), so both agree.
-  std::mt19937_64 rng(a.seed);
-  std::optional<Pose2> truth = d.initial_pose;
-  if (!truth && !d.groundtruth.empty()) truth = d.groundtruth.front();
-  if (init_mode == InitMode::Known && !truth)
-    throw UsageError("init 'known' needs the true initial pose, and dataset '" + d.name + "' has none (use --init global)");
-  BatchSmootherConfig c;
-  c.init = makeInitialBelief(init_mode, truth, d.map, o.init_config, rng);
-  c.loss.type = o.loss;
-  c.loss.scale = o.loss_scale;
-  c.observation_model = {o.observation_model, d.rig};
+  BatchSmootherConfig c = batchConfigFor("batch", d, a.seed, o);
   ProgressLine progress;
   char line[128];
   c.progress = [&](const BatchProgress& p) {
