@@ -1,82 +1,17 @@
 #pragma once
 // Sliding-window (fixed-lag) smoother: the real-time form of the factor graph (`localize
-// --method window`, `stream`).
+// --method window`, `stream`, `Localizer`).
 //
-// The window holds the last W poses. Each step adds a pose (predicted by odometry, B.16), its
-// odometry factor, its compass factor and its range-bearing factors, marginalises the oldest
-// pose(s) when more than W are held, and solves the window with Ceres from the previous
-// solution (warm start) with a bounded number of iterations.
-//
-// Marginalisation: the factors on the oldest pose p_o (its marginal prior, odometry to its
-// neighbour p_n, compass, observations) are linearised and the Gauss-Newton system over
-// (p_o, p_n) is reduced by the Schur complement
-//   H' = H_nn - H_no H_oo^-1 H_on,   g' = g_n - H_no H_oo^-1 g_o,
-// which becomes a MarginalPriorFactor on p_n (S^T S = H', S^T r0 = g') at p_n's current value.
-// First-estimate Jacobians (default): every factor is linearised where it was created - the
-// odometry factor at (p_{k-1}, predicted p_k), an observation at the predicted pose - the
-// linearisation point of the EKF. The marginal priors thus never see a Jacobian evaluated at a
-// later estimate (the FEJ rule that keeps the prior consistent), and with W = 1 and one
-// Gauss-Newton iteration the window is the EKF (5.7)-(5.19) step for step (tested). The
-// reported covariance of the newest pose is the inverse of the same (FEJ) information.
-//
-// Validation gate and lost policy (5.20, 5.1.3): as in the EKF (solvers/ekf.h), each
-// observation is gated against the predicted belief, sequentially updated by the observations
-// accepted before it in the same step (compass first); GateConfig::lost_after consecutive
-// rejections declare the robot lost: odometry only, a global fix asked every step, and a fix
-// restarts the window from the fix's pose and covariance. Unidentified observations
-// (landmark_id == -1) are associated against the same belief.
-//
-// Keyframes (keyframe_max_steps > 1, the default): a step enters the window as a pose only
-// when it carries observations or a compass reading, or when keyframe_max_steps steps have
-// passed since the last keyframe. The odometry of the steps in between is composed into one
-// relative-pose factor between consecutive keyframes: u = u_1 (+) ... (+) u_m with covariance
-// propagated through the odometry model exactly as the EKF prediction does (5.9; predictPose
-// from the identity with zero covariance), which is the factor the chain of per-step odometry
-// factors reduces to when its unobserved poses are marginalised at their predicted values
-// (the FEJ rule). So W keyframes span W observed steps, however sparse the observations (real
-// data: 10 Hz steps with gaps of tens of seconds), for the cost of W poses. The composition is
-// exact for the prediction: the belief at a non-keyframe step is the newest keyframe composed
-// with the odometry since it, p = p_K (+) u, P = J1 P_K J1^T + J2 U J2^T, which equals the
-// EKF's step-by-step prediction (the compounding Jacobians chain). With
-// keyframe_max_steps = 1 every step is a keyframe (the per-step window).
-// finish() gives a non-keyframe step between keyframes K and N the smoothed estimate
-// conditioned on both: in relative coordinates r_j (from K, covariance C_j) and r_N (C_N) are
-// jointly Gaussian with Cov(r_j, r_N) = C_j M^T, M = d(r_j (+) (r_j^-1 (+) r_N)) / d r_j, so
-//   r_j* = r_j + G (between(p_K, p_N) [-] r_N),   G = C_j M^T C_N^-1,
-//   p_j = p_K (+) r_j*,  Sigma_j = T Sigma_KN T^T + J2 (C_j - G M C_j) J2^T,
-// T the Jacobian of p_j w.r.t. (p_K, p_N), Sigma_KN their joint marginal covariance (exact for
-// a linear model: given its two keyframes a step is independent of the observations). Steps
-// after the newest keyframe get p_K (+) r_j, the real-time estimate.
-//
-// Robust loss (robust_loss, default none): Huber or Cauchy on the range-bearing factors in
-// whitened units, as in the batch smoother; marginalisation and covariances weight a robust
-// factor's information by rho'(|r|^2) at the current estimate (iteratively reweighted least
-// squares, no second-order term). With a robust loss the hard gate is off by default
-// (gate_with_robust_loss): the gate judges an observation once, against the one-step prediction,
-// and discards it for good, which on real data with an over-confident prediction (MR.CLAM: NEES
-// 30-80 after long blind gaps) rejects about half of the good observations and makes the
-// estimate drift further; the robust loss instead re-weights every observation at each solve
-// against all the evidence in the window. Without the gate nothing declares the robot lost, so
-// a kidnap is not detected: keep the gate (gate_with_robust_loss) where kidnaps matter.
-//
-// Late observations (insertLate): an observation may arrive after the odometry of later steps
-// (the frontend's latency, a camera slower than the encoders). While its step is in the window
-// it is added at its own pose: a keyframe gets the factor; a non-keyframe step becomes a
-// keyframe, its keyframe's odometry factor split in two at it, the odometry re-composed from
-// the stored wheel increments exactly as if the step had been a keyframe when it arrived. The
-// factor graph is then the one the in-order run builds, and so is the solution as long as no
-// pose left the window while data were outstanding. A marginal prior is a linearisation at the
-// estimates of its time, and a pose that leaves the window keeps its estimate of that time, so
-// with marginalisation the two runs differ by what the late data would have changed then
-// (tests/solvers/test_sliding_window_late.cpp measures it). Gate and association use the step's
-// belief in the current window (its marginal), which knows more than the prediction the
-// in-order run gates against. Steps older than the window are reported too late, unchanged.
-// Uninitialised or lost, late observations may give a global fix at their step (the
-// re-initialisation of 5.1.3 that in-time ones would have given); the odometry kept since then
-// (restart_buffer_steps) carries it to the newest step.
-//
-// Memory is bounded by W and restart_buffer_steps (plus one Estimate per step for finish(),
-// unless keep_history is off).
+// The window holds the last W keyframe poses with their odometry, compass and observation
+// factors; each step marginalises the oldest pose(s) into a MarginalPriorFactor (Schur
+// complement, first-estimate Jacobians) and solves the window from the previous solution. With
+// W = 1 and one Gauss-Newton iteration it is the EKF (5.7)-(5.19) step for step (tested). Gate and
+// lost policy as in the EKF (5.20, 5.1.3). Steps without observations are composed into one
+// odometry factor between keyframes (5.9); finish() smooths them given both keyframes.
+// insertLate() adds an observation that arrives after later odometry at its own pose while that
+// pose is in the window (exactly the in-order graph until a pose leaves the window), and reports
+// older ones too late. Memory is bounded by W and restart_buffer_steps (plus one Estimate per
+// step for finish() unless keep_history is off). Derivations: docs/estimators.md, "Smoothers".
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
