@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <optional>
 #include <opencv2/core/persistence.hpp>
 
 #include "src/core/error.h"
@@ -69,6 +70,14 @@ StereoRig::StereoRig(const StereoRigParams& params, const StereoCalibration& cal
 StereoRig StereoRig::load(const std::string& path) {
   YamlReader in(path);
   StereoRigParams p;
+  // The robot mounting (appendix A) is ours whichever file holds the cameras.
+  p.camera_height_mm = in.getDouble("camera_height_mm", p.camera_height_mm);
+  p.offset_x_mm = in.getDouble("offset_x_mm", p.offset_x_mm);
+  p.tilt_rad = in.getDouble("tilt_rad", p.tilt_rad);
+  p.pixel_sigma = in.getDouble("pixel_sigma", p.pixel_sigma);
+  p.min_disparity_px = in.getDouble("min_disparity_px", p.min_disparity_px);
+  p.max_range_mm = in.getDouble("max_range_mm", p.max_range_mm);
+  std::optional<StereoCalibration> calibration;
   if (in.has("calibration_file")) {
     const std::filesystem::path dir = std::filesystem::path(path).parent_path();
     auto resolve = [&](const std::string& f) {
@@ -78,39 +87,23 @@ StereoRig StereoRig::load(const std::string& path) {
     for (const char* k : {"focal_px", "principal_u", "principal_v", "baseline_mm", "hfov_rad"})
       if (in.has(k)) in.fail(k, "given by calibration_file; remove it from the rig file");
     const std::string ex = in.has("extrinsics_file") ? resolve(in.getString("extrinsics_file")) : std::string();
-    const StereoCalibration c = StereoCalibration::load(resolve(in.getString("calibration_file")), ex);
-    for (const auto& [key, value] : {std::pair<const char*, int>{"image_width", c.image_size.width},
-                                     std::pair<const char*, int>{"image_height", c.image_size.height}})
+    calibration = StereoCalibration::load(resolve(in.getString("calibration_file")), ex);
+    for (const auto& [key, value] : {std::pair<const char*, int>{"image_width", calibration->image_size.width},
+                                     std::pair<const char*, int>{"image_height", calibration->image_size.height}})
       if (in.has(key) && in.getInt(key) != value)
         in.fail(key, std::to_string(in.getInt(key)) + " differs from the calibration's image_size (" +
                          std::to_string(value) + ")");
-    p.camera_height_mm = in.getDouble("camera_height_mm", p.camera_height_mm);
-    p.offset_x_mm = in.getDouble("offset_x_mm", p.offset_x_mm);
-    p.tilt_rad = in.getDouble("tilt_rad", p.tilt_rad);
-    p.pixel_sigma = in.getDouble("pixel_sigma", p.pixel_sigma);
-    p.min_disparity_px = in.getDouble("min_disparity_px", p.min_disparity_px);
-    p.max_range_mm = in.getDouble("max_range_mm", p.max_range_mm);
-    try {
-      return StereoRig(p, c);
-    } catch (const Error& e) {
-      throw Error(path + ": " + e.what());
-    }
+  } else {
+    p.image_width = in.getInt("image_width", p.image_width);
+    p.image_height = in.getInt("image_height", p.image_height);
+    p.hfov_rad = in.getDouble("hfov_rad", p.hfov_rad);
+    p.focal_px = in.getDouble("focal_px", p.focal_px);
+    p.principal_u = in.getDouble("principal_u", p.principal_u);
+    p.principal_v = in.getDouble("principal_v", p.principal_v);
+    p.baseline_mm = in.getDouble("baseline_mm", p.baseline_mm);
   }
-  p.image_width = in.getInt("image_width", p.image_width);
-  p.image_height = in.getInt("image_height", p.image_height);
-  p.hfov_rad = in.getDouble("hfov_rad", p.hfov_rad);
-  p.focal_px = in.getDouble("focal_px", p.focal_px);
-  p.principal_u = in.getDouble("principal_u", p.principal_u);
-  p.principal_v = in.getDouble("principal_v", p.principal_v);
-  p.baseline_mm = in.getDouble("baseline_mm", p.baseline_mm);
-  p.camera_height_mm = in.getDouble("camera_height_mm", p.camera_height_mm);
-  p.offset_x_mm = in.getDouble("offset_x_mm", p.offset_x_mm);
-  p.tilt_rad = in.getDouble("tilt_rad", p.tilt_rad);
-  p.pixel_sigma = in.getDouble("pixel_sigma", p.pixel_sigma);
-  p.min_disparity_px = in.getDouble("min_disparity_px", p.min_disparity_px);
-  p.max_range_mm = in.getDouble("max_range_mm", p.max_range_mm);
   try {
-    return StereoRig(p);
+    return calibration ? StereoRig(p, *calibration) : StereoRig(p);
   } catch (const Error& e) {
     throw Error(path + ": " + e.what());
   }
