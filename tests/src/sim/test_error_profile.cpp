@@ -174,7 +174,7 @@ TEST(RawPairRenderer, RawTruthUndistortsOntoTheRectifiedProjection) {
     std::vector<cv::Point2d> in{{l.pixel.x(), l.pixel.y()}}, out;
     cv::undistortPoints(in, out, given.K1, given.D1, given.R1, given.P1,
                         cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 50, 1e-12));
-    const Landmark& lm = FieldMap::miroSot().at(l.id);
+    const Landmark lm = FieldMap::miroSot().at(l.id);  // a copy: the map is a temporary
     const Eigen::Vector2d local = transformToLocal(sc.poses[0], lm.xy());
     const auto px = rectified.project(Eigen::Vector3d(local.x(), local.y(), lm.position.z()), 0.0);
     ASSERT_TRUE(px);
