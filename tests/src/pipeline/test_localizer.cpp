@@ -78,6 +78,9 @@ void expectSame(const Estimate& a, const Estimate& b) {
 }
 
 TEST(Localizer, MemoryIsBoundedByTheWindow) {
+#ifdef __SANITIZE_ADDRESS__
+  GTEST_SKIP() << "sanitizer build: the address sanitizer's quarantine holds freed memory, so RSS grows; checked in the Release build";
+#endif
   // 1,000,000 odometry steps at 100 Hz (2.8 hours), a sighting every 20th: the RSS peak over the
   // whole run stays within 10 % of the RSS after 100,000 steps. keep_history off: nothing is
   // kept per step. About 2.5 s of CPU: the length is what makes a leak of a few bytes per step
