@@ -14,12 +14,14 @@
 #include <optional>
 #include <set>
 #include <thread>
+#include <tuple>
 
 #include "src/core/atomic_file.h"
 #include "src/core/error.h"
 #include "src/core/yaml_util.h"
 #include "src/pipeline/frontend_source.h"
 #include "src/pipeline/usage_error.h"
+#include "src/sim/error_profile.h"
 #include "src/sim/scenario.h"
 #include "src/study/study_report.h"
 #include "src/study/study_rows.h"
@@ -46,6 +48,7 @@ void writeStudyYaml(const StudyConfig& c, const std::string& path) {
   w.put("methods", joinList(c.methods));
   w.put("trials", c.trials);
   w.put("seed", std::to_string(c.seed));
+  w.put("profiles", joinList(c.profiles));
   w.put("frontend", c.frontend);
   w.put("frontend_landmarks", c.frontend_landmarks);
   w.put("image_noise", c.image_noise);
@@ -71,6 +74,7 @@ StudyConfig readStudyYaml(const std::string& path) {
   } catch (const std::exception&) {
     in.fail("seed", "not an unsigned integer");
   }
+  c.profiles = splitCommaList(in.getString("profiles", "ideal"));
   c.frontend = in.getString("frontend");
   c.frontend_landmarks = in.getString("frontend_landmarks", "all");
   c.image_noise = in.getDouble("image_noise", StudyConfig().image_noise);
@@ -117,6 +121,8 @@ void canonicalOrder(const StudyConfig& c, std::vector<Row>& rows) {
   std::stable_sort(rows.begin(), rows.end(), [&](const Row& a, const Row& b) {
     const int sa = index(c.scenarios, a.scenario), sb = index(c.scenarios, b.scenario);
     if (sa != sb) return sa < sb;
+    const int pa = index(c.profiles, a.profile), pb = index(c.profiles, b.profile);
+    if (pa != pb) return pa < pb;
     if (a.trial != b.trial) return a.trial < b.trial;
     return index(c.methods, a.method) < index(c.methods, b.method);
   });
@@ -140,16 +146,26 @@ StudyResult runStudy(const StudyConfig& c) {
   for (const std::string& s : c.scenarios)
     if (std::find(known.begin(), known.end(), s) == known.end()) throw UsageError("unknown scenario '" + s + "'");
   for (const std::string& m : c.methods) parseMethodSpec(m, c.method_options.init);
+  if (c.profiles.empty()) throw UsageError("--profile is empty");
+  for (const std::string& p : c.profiles) {
+    if (std::count(c.profiles.begin(), c.profiles.end(), p) > 1) throw UsageError("--profile: '" + p + "' appears twice");
+    try {
+      ErrorProfile::named(p);
+    } catch (const Error& e) {
+      throw UsageError(std::string("--profile: ") + e.what());
+    }
+  }
   prepareOutDir(c.out_dir, c.force);
   writeStudyYaml(c, c.out_dir + "/study.yaml");
 
   struct Task {
-    std::string scenario;
+    std::string scenario, profile;
     int trial;
   };
   std::vector<Task> tasks;
   for (const std::string& s : c.scenarios)
-    for (int t = c.shard_index; t < c.trials; t += c.shard_count) tasks.push_back({s, t});
+    for (const std::string& p : c.profiles)
+      for (int t = c.shard_index; t < c.trials; t += c.shard_count) tasks.push_back({s, p, t});
 
   std::ofstream trials_csv(c.out_dir + "/trials.csv"), steps_csv(c.out_dir + "/steps.csv");
   if (!trials_csv || !steps_csv) throw Error(c.out_dir + ": cannot create trials.csv / steps.csv");
@@ -174,9 +190,10 @@ StudyResult runStudy(const StudyConfig& c) {
         TrialOutput out;
         std::string err;
         try {
-          out = runTrial(c, tasks[k].scenario, tasks[k].trial, &cache);
+          out = runTrial(c, tasks[k].profile, tasks[k].scenario, tasks[k].trial, &cache);
         } catch (const std::exception& e) {
-          err = tasks[k].scenario + " trial " + std::to_string(tasks[k].trial) + ": " + e.what();
+          err = tasks[k].scenario + (tasks[k].profile == "ideal" ? "" : " (" + tasks[k].profile + ")") + " trial " +
+                std::to_string(tasks[k].trial) + ": " + e.what();
         }
         std::lock_guard<std::mutex> lock(mu);
         results[k] = std::move(out);
@@ -242,21 +259,23 @@ StudyResult mergeStudies(const std::vector<std::string>& dirs, const std::string
   StudyConfig c = readStudyYaml(dirs.front() + "/study.yaml");
   std::vector<TrialRow> rows;
   std::vector<StepRow> steps;
-  std::set<std::pair<std::string, int>> seen;
+  using TrialKey = std::tuple<std::string, std::string, int>;  // scenario, profile, trial
+  std::set<TrialKey> seen;
   for (const std::string& d : dirs) {
     const StudyConfig o = readStudyYaml(d + "/study.yaml");
-    if (o.scenarios != c.scenarios || o.methods != c.methods || o.trials != c.trials || o.seed != c.seed ||
+    if (o.scenarios != c.scenarios || o.profiles != c.profiles || o.methods != c.methods || o.trials != c.trials || o.seed != c.seed ||
         o.frontend != c.frontend || o.frontend_landmarks != c.frontend_landmarks || o.image_noise != c.image_noise ||
         o.method_options.particles != c.method_options.particles ||
         o.method_options.window != c.method_options.window || o.method_options.init != c.method_options.init ||
         o.method_options.observation_model != c.method_options.observation_model ||
         o.method_options.pf_proposal != c.method_options.pf_proposal || o.method_options.pf_kld != c.method_options.pf_kld)
       throw Error(d + "/study.yaml: configuration differs from " + dirs.front() + "/study.yaml");
-    std::set<std::pair<std::string, int>> here;
+    std::set<TrialKey> here;
     for (const TrialRow& r : readTrialRows(d + "/trials.csv")) {
-      if (seen.count({r.scenario, r.trial}) && !here.count({r.scenario, r.trial}))
+      const TrialKey key{r.scenario, r.profile, r.trial};
+      if (seen.count(key) && !here.count(key))
         throw Error(d + "/trials.csv: trial " + std::to_string(r.trial) + " of " + r.scenario + " appears in two studies");
-      here.insert({r.scenario, r.trial});
+      here.insert(key);
       rows.push_back(r);
     }
     seen.insert(here.begin(), here.end());

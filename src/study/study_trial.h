@@ -19,7 +19,9 @@ namespace stereoloc::study {
 uint64_t splitmix64(uint64_t x);
 uint64_t hashString(const std::string& s);  // FNV-1a
 
-// The seed of one method on one trial: the same for the rows and the report's figures.
+// The seed of one method on one trial: the same for the rows and the report's figures, and the
+// same for a method and its self-calibrating variant ("batch", "batch:calib"), so that the two
+// start from the same known-start draw.
 uint64_t methodSeed(const StudyConfig& c, const std::string& scenario, int trial, const std::string& method);
 
 struct TrialOutput {
@@ -35,17 +37,22 @@ using RenderCache = std::map<std::string, std::shared_ptr<const CleanRenders>>;
 // A study trial is a Monte Carlo run; scenarios with several thesis trials cycle through them.
 int thesisTrial(const std::string& scenario, int trial);
 
-// Simulates one trial. With the image frontend, every step's pair is rendered from the true pose
-// (or taken from `cache`) with sensor noise seeded from the trial seed and run through the
-// frontend. `render_threads` only splits the rendering of a pair.
-Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache,
-                      int render_threads = 1, ImageFrontendStats* stats = nullptr);
+// Simulates one trial in the world of `profile` (StudyConfig::profiles). With the image
+// frontend, every step's pair is rendered from the true pose (or taken from `cache`, ideal world
+// only) with sensor noise seeded from the trial seed and run through the frontend; a non-ideal
+// profile renders raw pairs through the true cameras (src/sim/raw_render.h), which the frontend
+// rectifies with the given calibration. `render_threads` only splits the rendering of a pair.
+// `trace`, when given, receives the simulation trace (the drawn errors).
+Dataset simulateTrial(const StudyConfig& c, const std::string& profile, const std::string& scenario, int trial,
+                      const RenderCache* cache, int render_threads = 1, ImageFrontendStats* stats = nullptr,
+                      SimulationTrace* trace = nullptr);
 
 // Renders once, noise-free, every scenario of the study whose true path and head pans are the
 // same for any seed (all thesis scenarios; not random-walk); empty for the pixel frontend.
 RenderCache buildRenderCache(const StudyConfig& c, int threads);
 
-// Runs every method of the config on one trial.
-TrialOutput runTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache);
+// Runs every method of the config on one trial in the world of `profile`.
+TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std::string& scenario, int trial,
+                     const RenderCache* cache);
 
 }  // namespace stereoloc::study
