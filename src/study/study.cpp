@@ -220,6 +220,10 @@ StudyResult runStudy(const StudyConfig& c) {
       if (first_error.empty()) first_error = err;
       continue;
     }
+    if (c.log)
+      for (const std::string& f : out.failures)
+        std::fprintf(c.log, "%sstudy: %s%s trial %d: %s\n", bar ? "\n" : "", tasks[k].scenario.c_str(),
+                     tasks[k].profile == "ideal" ? "" : (" (" + tasks[k].profile + ")").c_str(), tasks[k].trial, f.c_str());
     for (const TrialRow& r : out.rows) trials_csv << toCsv(r) << "\n";
     for (const StepRow& s : out.steps) steps_csv << toCsv(s) << "\n";
     trials_csv.flush();

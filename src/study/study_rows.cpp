@@ -27,7 +27,7 @@ std::string toCsv(const TrialRow& r) {
   for (const WindowSums* w : {&r.distance, &r.window1, &r.window2})
     o << ',' << w->n << ',' << g17(w->sum) << ',' << g17(w->sum_sq) << ',' << g17(w->min) << ',' << g17(w->max);
   o << ',' << r.nees_count << ',' << g17(r.nees_sum) << ',' << r.nees_in_band << ',' << g17(r.ms_per_step) << ','
-    << r.attempted << ',' << r.fixed;
+    << r.attempted << ',' << r.fixed << ',' << r.failed;
   return o.str();
 }
 
@@ -69,6 +69,7 @@ std::vector<SummaryRow> summarise(const StudyConfig& c, const std::vector<TrialR
           s.ms_sum += r.ms_per_step;
           s.attempted += r.attempted;
           s.fixed += r.fixed;
+          s.failed += r.failed;
           if (r.estimates > 0) {
             const double rmse = std::sqrt(r.sse_position / static_cast<double>(r.estimates));
             ++s.rmse_trials;
@@ -96,13 +97,13 @@ std::string fmt(const char* f, double v) {
 void writeSummaryCsv(const std::vector<SummaryRow>& rows, const std::string& path) {
   AtomicOutputFile out(path);
   out.stream() << "scenario,profile,method,trials,position_rmse_mm,dist_mean_mm,dist_std_mm,dist_min_mm,dist_max_mm,"
-                  "theta_rmse_rad,nees_mean,nees_in_band,ms_per_step,fix_rate,converged,trial_rmse_mean_mm,trial_rmse_ci95_mm\n";
+                  "theta_rmse_rad,nees_mean,nees_in_band,ms_per_step,fix_rate,converged,trial_rmse_mean_mm,trial_rmse_ci95_mm,failed\n";
   for (const SummaryRow& s : rows) {
     out.stream() << s.scenario << ',' << s.profile << ',' << s.method << ',' << s.trials << ',' << g17(s.rmse()) << ',' << g17(s.distance.mean())
                  << ',' << g17(s.distance.std()) << ',' << g17(s.distance.min) << ',' << g17(s.distance.max) << ','
                  << g17(s.theta_rmse()) << ',' << g17(s.meanNees()) << ',' << g17(s.inBand()) << ',' << g17(s.msPerStep())
                  << ',' << g17(s.fixRate()) << ',' << g17(s.convergedFraction()) << ',' << g17(s.meanTrialRmse()) << ','
-                 << g17(s.trialRmseHalfWidth95()) << '\n';
+                 << g17(s.trialRmseHalfWidth95()) << ',' << s.failed << '\n';
   }
   out.commit();
 }
@@ -139,19 +140,23 @@ std::string profileComparisonTable(const std::vector<SummaryRow>& rows, const st
   std::ostringstream o;
   o << "| method |";
   for (const std::string& p : profiles) o << " RMSE " << p << " [mm] | NEES " << p << " | ms/step " << p << " |";
+  o << " failed trials |";
   o << "\n|---|";
   for (size_t i = 0; i < profiles.size(); ++i) o << "---|---|---|";
-  o << "\n";
+  o << "---|\n";
   std::vector<std::string> methods;
   for (const SummaryRow& s : rows)
     if (s.scenario == scenario && std::find(methods.begin(), methods.end(), s.method) == methods.end())
       methods.push_back(s.method);
   for (const std::string& m : methods) {
     o << "| " << m << " |";
+    std::string failed;
     for (const std::string& p : profiles) {
       const auto it = std::find_if(rows.begin(), rows.end(), [&](const SummaryRow& s) {
         return s.scenario == scenario && s.profile == p && s.method == m;
       });
+      if (it != rows.end() && it->failed > 0)
+        failed += (failed.empty() ? "" : ", ") + p + " " + std::to_string(it->failed) + "/" + std::to_string(it->trials);
       if (it == rows.end() || it->rmse_trials == 0) {
         o << " - | - | - |";
         continue;
@@ -159,7 +164,7 @@ std::string profileComparisonTable(const std::vector<SummaryRow>& rows, const st
       o << " " << fmt("%.1f", it->meanTrialRmse()) << " +- " << fmt("%.1f", it->trialRmseHalfWidth95()) << " | "
         << (it->nees_count ? fmt("%.2f", it->meanNees()) : "-") << " | " << fmt("%.3f", it->msPerStep()) << " |";
     }
-    o << "\n";
+    o << " " << (failed.empty() ? "0" : failed) << " |\n";
   }
   return o.str();
 }
@@ -206,6 +211,7 @@ std::vector<TrialRow> readTrialRows(const std::string& path) {
     r.ms_per_step = in.getDouble(k++);
     r.attempted = in.getLong(k++);
     r.fixed = in.getLong(k++);
+    r.failed = static_cast<int>(in.getLong(k++));
     out.push_back(r);
   }
   return out;

@@ -55,6 +55,7 @@ struct TrialRow {
   long nees_in_band = 0;   // per-estimate NEES inside the 95 % chi-square(3) band
   double ms_per_step = 0;
   long attempted = 0, fixed = 0;  // global fixes: steps with observations, steps with a fix
+  int failed = 0;          // 1: the method failed on this trial (no estimates)
 };
 
 
@@ -62,7 +63,7 @@ inline constexpr const char* kTrialHeader =
     "scenario,profile,trial,method,steps,estimates,sse_position,sse_theta,"
     "dist_n,dist_sum,dist_sum_sq,dist_min,dist_max,"
     "w1_n,w1_sum,w1_sum_sq,w1_min,w1_max,w2_n,w2_sum,w2_sum_sq,w2_min,w2_max,"
-    "nees_count,nees_sum,nees_in_band,ms_per_step,attempted,fixed";
+    "nees_count,nees_sum,nees_in_band,ms_per_step,attempted,fixed,failed";
 
 // One row of steps.csv: the error of one estimate.
 struct StepRow {
@@ -96,6 +97,7 @@ struct SummaryRow {
   double nees_sum = 0, ms_sum = 0;
   long attempted = 0, fixed = 0;
   int judged = 0, converged = 0;  // trials with estimates over steps 80-100, and those converged there
+  int failed = 0;                 // trials on which the method failed
   double rmse() const { return estimates ? std::sqrt(sse_position / estimates) : 0; }
   double theta_rmse() const { return estimates ? std::sqrt(sse_theta / estimates) : 0; }
   double meanNees() const { return nees_count ? nees_sum / nees_count : 0; }

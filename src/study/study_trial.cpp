@@ -7,6 +7,8 @@
 #include "src/core/gaussian.h"
 #include "src/eval/evaluation.h"
 #include "src/pipeline/methods.h"
+#include "src/pipeline/usage_error.h"
+#include "src/core/error.h"
 #include "src/sim/raw_render.h"
 #include "src/sim/renderer.h"
 #include "src/sim/scenario.h"
@@ -134,8 +136,20 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std
   const long first = firstSightingStep(d);
   const double band_lo = chi2Quantile(0.025, 3), band_hi = chi2Quantile(0.975, 3);
   for (const std::string& method : c.methods) {
-    const MethodRun run = runMethod(method, d, methodSeed(c, scenario, trial, method), c.method_options);
+    MethodRun run;
+    bool failed = false;
+    try {
+      run = runMethod(method, d, methodSeed(c, scenario, trial, method), c.method_options);
+    } catch (const UsageError&) {
+      throw;
+    } catch (const Error& e) {
+      // A method that cannot run on a trial's data (e.g. its solver finds no valid start in a
+      // realistic world) is a result of the study: a row without estimates, marked failed.
+      failed = true;
+      out.failures.push_back(method + ": " + e.what());
+    }
     TrialRow row;
+    row.failed = failed ? 1 : 0;
     row.scenario = scenario;
     row.profile = profile;
     row.trial = trial;

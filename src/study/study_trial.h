@@ -28,6 +28,7 @@ struct TrialOutput {
   std::vector<TrialRow> rows;
   std::vector<StepRow> steps;
   ImageFrontendStats frontend;  // images: what rendering and the frontend did (timings: stderr only)
+  std::vector<std::string> failures;  // "method: reason" of each method that failed on the trial
 };
 
 // Noise-free renders of the scenarios whose true path does not depend on the seed, by
