@@ -129,6 +129,15 @@ void canonicalOrder(const StudyConfig& c, std::vector<Row>& rows) {
 }
 
 
+// calibration.csv, only when a method self-calibrates.
+void writeCalibrationCsv(const std::vector<CalibrationRow>& rows, const std::string& path) {
+  if (rows.empty()) return;
+  AtomicOutputFile out(path);
+  out.stream() << kCalibrationHeader << "\n";
+  for (const CalibrationRow& r : rows) out.stream() << toCsv(r) << "\n";
+  out.commit();
+}
+
 }  // namespace
 
 uint64_t trialSeed(uint64_t study_seed, const std::string& scenario, int trial) {
@@ -208,6 +217,7 @@ StudyResult runStudy(const StudyConfig& c) {
   const auto start = std::chrono::steady_clock::now();
   std::vector<TrialRow> all_rows;
   std::vector<StepRow> all_steps;
+  std::vector<CalibrationRow> all_calibration;
   ImageFrontendStats frontend_stats;
   std::string first_error;
   for (size_t k = 0; k < tasks.size(); ++k) {
@@ -230,6 +240,7 @@ StudyResult runStudy(const StudyConfig& c) {
     steps_csv.flush();
     all_rows.insert(all_rows.end(), out.rows.begin(), out.rows.end());
     all_steps.insert(all_steps.end(), out.steps.begin(), out.steps.end());
+    all_calibration.insert(all_calibration.end(), out.calibration.begin(), out.calibration.end());
     frontend_stats.merge(out.frontend);
     if (bar) {
       const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -251,8 +262,9 @@ StudyResult runStudy(const StudyConfig& c) {
                  frontend_stats.ms_render / n, frontend_stats.ms_frontend / n,
                  std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   }
+  writeCalibrationCsv(all_calibration, c.out_dir + "/calibration.csv");
   StudyResult result;
-  result.summary = writeReport(c, all_rows, all_steps, &cache, c.out_dir);
+  result.summary = writeReport(c, all_rows, all_steps, all_calibration, &cache, c.out_dir);
   result.report = c.out_dir + "/report.md";
   result.trial_rows = all_rows.size();
   return result;
@@ -263,6 +275,7 @@ StudyResult mergeStudies(const std::vector<std::string>& dirs, const std::string
   StudyConfig c = readStudyYaml(dirs.front() + "/study.yaml");
   std::vector<TrialRow> rows;
   std::vector<StepRow> steps;
+  std::vector<CalibrationRow> calibration;
   using TrialKey = std::tuple<std::string, std::string, int>;  // scenario, profile, trial
   std::set<TrialKey> seen;
   for (const std::string& d : dirs) {
@@ -284,9 +297,12 @@ StudyResult mergeStudies(const std::vector<std::string>& dirs, const std::string
     }
     seen.insert(here.begin(), here.end());
     for (const StepRow& s : readStepRows(d + "/steps.csv")) steps.push_back(s);
+    if (fs::exists(d + "/calibration.csv"))
+      for (const CalibrationRow& r : readCalibrationRows(d + "/calibration.csv")) calibration.push_back(r);
   }
   canonicalOrder(c, rows);
   canonicalOrder(c, steps);
+  canonicalOrder(c, calibration);
   c.shard_index = 0;
   c.shard_count = 1;
   prepareOutDir(out_dir, force);
@@ -300,8 +316,9 @@ StudyResult mergeStudies(const std::vector<std::string>& dirs, const std::string
     t.commit();
     s.commit();
   }
+  writeCalibrationCsv(calibration, out_dir + "/calibration.csv");
   StudyResult result;
-  result.summary = writeReport(c, rows, steps, nullptr, out_dir);
+  result.summary = writeReport(c, rows, steps, calibration, nullptr, out_dir);
   result.report = out_dir + "/report.md";
   result.trial_rows = rows.size();
   return result;

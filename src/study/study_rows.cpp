@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <map>
 #include <sstream>
 
 #include "src/core/angles.h"
@@ -35,6 +36,40 @@ std::string toCsv(const StepRow& r) {
   std::ostringstream o;
   o << r.scenario << ',' << r.profile << ',' << r.trial << ',' << r.method << ',' << r.step << ',' << g17(r.dx) << ',' << g17(r.dy) << ','
     << g17(r.dtheta) << ',' << g17(r.sx) << ',' << g17(r.sy) << ',' << g17(r.stheta) << ',' << (r.nees ? g17(*r.nees) : "") << ',' << r.particles;
+  return o.str();
+}
+
+std::string toCsv(const CalibrationRow& r) {
+  std::ostringstream o;
+  o << r.scenario << ',' << r.profile << ',' << r.trial << ',' << r.method << ',' << r.parameter << ',' << g17(r.truth) << ','
+    << g17(r.estimate) << ',' << g17(r.sigma);
+  return o.str();
+}
+
+std::string calibrationTable(const std::vector<CalibrationRow>& rows) {
+  struct Acc {
+    int n = 0, within = 0;
+    double err = 0, sigma = 0;
+  };
+  std::vector<std::string> keys;
+  std::map<std::string, Acc> acc;
+  for (const CalibrationRow& r : rows) {
+    const std::string key = "| " + r.scenario + " | " + r.profile + " | " + r.method + " | " + r.parameter + " |";
+    if (!acc.count(key)) keys.push_back(key);
+    Acc& a = acc[key];
+    ++a.n;
+    a.within += std::fabs(r.estimate - r.truth) <= 2 * r.sigma ? 1 : 0;
+    a.err += r.estimate - r.truth;
+    a.sigma += r.sigma;
+  }
+  std::ostringstream o;
+  o << "| scenario | profile | method | parameter | trials | within 2 sigma | mean error | mean sigma |\n";
+  o << "|---|---|---|---|---|---|---|---|\n";
+  for (const std::string& k : keys) {
+    const Acc& a = acc[k];
+    o << k << ' ' << a.n << " | " << fmt("%.0f %%", 100.0 * a.within / a.n) << " | " << fmt("%.3g", a.err / a.n) << " | "
+      << fmt("%.3g", a.sigma / a.n) << " |\n";
+  }
   return o.str();
 }
 
@@ -236,6 +271,25 @@ std::vector<StepRow> readStepRows(const std::string& path) {
     r.stheta = in.getDouble(10);
     if (!in.field(11).empty()) r.nees = in.getDouble(11);
     r.particles = static_cast<int>(in.getLong(12));
+    out.push_back(r);
+  }
+  return out;
+}
+
+std::vector<CalibrationRow> readCalibrationRows(const std::string& path) {
+  CsvReader in(path);
+  in.expectHeader({splitCommaList(kCalibrationHeader)});
+  std::vector<CalibrationRow> out;
+  while (in.next()) {
+    CalibrationRow r;
+    r.scenario = in.field(0);
+    r.profile = in.field(1);
+    r.trial = static_cast<int>(in.getLong(2));
+    r.method = in.field(3);
+    r.parameter = in.field(4);
+    r.truth = in.getDouble(5);
+    r.estimate = in.getDouble(6);
+    r.sigma = in.getDouble(7);
     out.push_back(r);
   }
   return out;

@@ -80,6 +80,20 @@ struct StepRow {
 inline constexpr const char* kStepHeader =
     "scenario,profile,trial,method,step,dx,dy,dtheta,sigma_x,sigma_y,sigma_theta,nees,particles";
 
+// One row of calibration.csv: one calibration parameter of a self-calibrating method
+// (solvers/self_calibration.h) on one trial, against the world's drawn truth.
+struct CalibrationRow {
+  std::string scenario, profile = "ideal", method, parameter;
+  int trial = 0;
+  double truth = 0, estimate = 0, sigma = 0;  // parameter units (wheel base mm, tilt rad)
+};
+
+inline constexpr const char* kCalibrationHeader = "scenario,profile,trial,method,parameter,truth,estimate,sigma";
+
+// The parameters in calibration.csv's order.
+inline constexpr const char* kCalibrationParameters[5] = {"wheel_scale_left", "wheel_scale_right", "wheel_base_mm",
+                                                          "tilt_correction_rad", "baseline_scale"};
+
 // A trial has converged when every position error over the thesis's second window (steps
 // 80-100, Table 6.14) is at most this, mm: about ten times the trackers' error there.
 inline constexpr double kConvergedMaxErrorMm = 100.0;
@@ -126,9 +140,15 @@ std::string joinList(const std::vector<std::string>& v);  // {"a", "b"} -> "a,b"
 
 std::string toCsv(const TrialRow& r);
 std::string toCsv(const StepRow& r);
+std::string toCsv(const CalibrationRow& r);
 // Read back trials.csv / steps.csv (Error naming file, line and field on bad input).
 std::vector<TrialRow> readTrialRows(const std::string& path);
 std::vector<StepRow> readStepRows(const std::string& path);
+std::vector<CalibrationRow> readCalibrationRows(const std::string& path);
+
+// Per scenario, profile, method and parameter: the trials, the fraction whose estimate is within
+// 2 sigma of the truth, the mean error and the mean sigma (report.md).
+std::string calibrationTable(const std::vector<CalibrationRow>& rows);
 
 // Pools the rows per (scenario, profile, method) in the config's order.
 std::vector<SummaryRow> summarise(const StudyConfig& c, const std::vector<TrialRow>& rows);

@@ -128,10 +128,18 @@ long firstSightingStep(const Dataset& d) {
 
 }  // namespace
 
+std::array<double, 5> trueCalibration(const Dataset& d, const SimulationTrace& trace) {
+  const DrawnErrors& e = trace.errors;
+  return {1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], d.odometry.wheel_base_mm * (1 + e.wheel_base_rel),
+          e.tilt_rad, 1 + e.baseline_rel};
+}
+
 TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std::string& scenario, int trial,
                      const RenderCache* cache) {
   TrialOutput out;
-  const Dataset d = simulateTrial(c, profile, scenario, trial, cache, 1, &out.frontend);
+  SimulationTrace trace;
+  const Dataset d = simulateTrial(c, profile, scenario, trial, cache, 1, &out.frontend, &trace);
+  const std::array<double, 5> truth_calibration = trueCalibration(d, trace);
   const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
   const long first = firstSightingStep(d);
   const double band_lo = chi2Quantile(0.025, 3), band_hi = chi2Quantile(0.975, 3);
@@ -147,6 +155,26 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std
       // realistic world) is a result of the study: a row without estimates, marked failed.
       failed = true;
       out.failures.push_back(method + ": " + e.what());
+    }
+    if (run.calibration) {
+      const CalibrationEstimate& ce = *run.calibration;
+      const double v[5] = {ce.wheels[0], ce.wheels[1], ce.wheels[2], ce.head[0], ce.head[1]};
+      const double var[5] = {ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
+                             ce.head_covariance(0, 0), ce.head_covariance(1, 1)};
+      const bool estimated[5] = {ce.odometry, ce.odometry, ce.odometry, ce.stereo, ce.stereo};
+      for (int i = 0; i < 5; ++i) {
+        if (!estimated[i]) continue;
+        CalibrationRow cr;
+        cr.scenario = scenario;
+        cr.profile = profile;
+        cr.trial = trial;
+        cr.method = method;
+        cr.parameter = kCalibrationParameters[i];
+        cr.truth = truth_calibration[static_cast<size_t>(i)];
+        cr.estimate = v[i];
+        cr.sigma = std::sqrt(std::max(0.0, var[i]));
+        out.calibration.push_back(cr);
+      }
     }
     TrialRow row;
     row.failed = failed ? 1 : 0;

@@ -3,6 +3,7 @@
 // seed, optionally render every step's stereo pair and run the vision frontend, run every
 // method on the same data and compare it with the ground truth. Every random draw derives from
 // trialSeed(), so a trial's rows depend neither on the thread count nor on the render cache.
+#include <array>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -29,7 +30,13 @@ struct TrialOutput {
   std::vector<StepRow> steps;
   ImageFrontendStats frontend;  // images: what rendering and the frontend did (timings: stderr only)
   std::vector<std::string> failures;  // "method: reason" of each method that failed on the trial
+  std::vector<CalibrationRow> calibration;  // self-calibrating methods: estimate against truth
 };
+
+// The calibration of the world a trace drew, in the parameters of solvers/self_calibration.h
+// (kCalibrationParameters): wheel scales c_l, c_r, wheel base w (mm), tilt correction dbeta
+// (rad), baseline scale k. The ideal world's is the nominal one.
+std::array<double, 5> trueCalibration(const Dataset& d, const SimulationTrace& trace);
 
 // Noise-free renders of the scenarios whose true path does not depend on the seed, by
 // "scenario#thesis trial" (see CleanRenders in frontend_source.h).
