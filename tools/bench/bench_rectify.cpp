@@ -103,6 +103,29 @@ void BM_Rectify(benchmark::State& state) {
 }
 BENCHMARK(BM_Rectify)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
+// Reference in the same run: the pair as two cv::remap calls one after the other on the
+// calling thread (the same fixed-point maps and interpolation as the Rectifier).
+void BM_RemapPairSerial(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  const StereoCalibration& c = *d.rig.calibration();
+  cv::Mat fixed[2], frac[2], out[2];
+  for (int i = 0; i < 2; ++i) {
+    cv::Mat mx, my;
+    cv::initUndistortRectifyMap(i == 0 ? c.K1 : c.K2, i == 0 ? c.D1 : c.D2, i == 0 ? c.R1 : c.R2, i == 0 ? c.P1 : c.P2,
+                                c.image_size, CV_32FC1, mx, my);
+    cv::convertMaps(mx, my, fixed[i], frac[i], CV_16SC2, false);
+  }
+  const OpenCvThreads threads(1);
+  size_t k = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    cv::remap(p.first, out[0], fixed[0], frac[0], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    cv::remap(p.second, out[1], fixed[1], frac[1], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    benchmark::DoNotOptimize(out[1].data);
+  }
+}
+BENCHMARK(BM_RemapPairSerial)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
 void BM_FrontendRawPair(benchmark::State& state) {
   const RawPairs& d = rawPairs();
   const OpenCvThreads threads(static_cast<int>(state.range(0)));
