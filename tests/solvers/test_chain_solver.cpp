@@ -90,10 +90,10 @@ class TestChain : public ChainFactorSource {
                           landmarks_[l], z_[landmarks_.size() * i + l], Eigen::Vector2d(25.0, 1e-4).asDiagonal())),
                       true});
   }
-  std::unique_ptr<ceres::CostFunction> binaryFactor(size_t i) const override {
-    if (i == 0 || i == cut_at) return nullptr;
-    return std::unique_ptr<ceres::CostFunction>(
-        OdometryFactor::Create(u_[i], Eigen::Vector3d(0.09, 0.09, 1e-5).asDiagonal()));
+  ChainFactor binaryFactor(size_t i) const override {
+    if (i == 0 || i == cut_at) return {};
+    return {std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(u_[i], Eigen::Vector3d(0.09, 0.09, 1e-5).asDiagonal())),
+            false};
   }
   const std::vector<Pose2>& truth() const { return truth_; }
   size_t cut_at = 0;
