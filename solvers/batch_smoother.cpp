@@ -436,9 +436,10 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
                       false, odometry_block_});
     }
     if (stereo_block_ >= 0) {
-      const Eigen::Vector4d sigma(c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px,
-                                  c.column_offset_sigma_px);
-      out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<4>::Create(
+      CalibrationEstimate::StereoVector sigma;
+      sigma << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
+          c.focal_ratio_sigma;
+      out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<kStereo>::Create(
                           nominalHead(), sigma.cwiseAbs2().asDiagonal().toDenseMatrix())),
                       false, stereo_block_});
     }
@@ -447,9 +448,9 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   std::vector<double> nominalGlobals() const {
     std::vector<double> g;
     const Eigen::Vector3d wheels = nominalWheels();
-    const Eigen::Vector4d head = nominalHead();
+    const CalibrationEstimate::StereoVector head = nominalHead();
     if (odometry_block_ >= 0) g.insert(g.end(), wheels.data(), wheels.data() + 3);
-    if (stereo_block_ >= 0) g.insert(g.end(), head.data(), head.data() + 4);
+    if (stereo_block_ >= 0) g.insert(g.end(), head.data(), head.data() + kStereo);
     return g;
   }
   int odometryBlock() const { return odometry_block_; }
@@ -465,7 +466,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   std::vector<int> sizes_;
   int odometry_block_ = -1, stereo_block_ = -1;
   Eigen::Vector3d nominalWheels() const { return Eigen::Vector3d(1.0, 1.0, b_.odometry_.wheel_base_mm); }
-  static Eigen::Vector4d nominalHead() { return Eigen::Vector4d(0.0, 1.0, 0.0, 0.0); }
+  static CalibrationEstimate::StereoVector nominalHead() { return CalibrationEstimate().head; }
+  static constexpr int kStereo = StereoPixelCalibrationFactor::kCalibrationSize;
 };
 
 void BatchSmoother::solve() {
@@ -795,8 +797,8 @@ void BatchSmoother::solve() {
       offset += 3;
     }
     if (cal.stereo) {
-      cal.head = c.segment<4>(offset);
-      cal.head_covariance = global_covariance.block<4, 4>(offset, offset);
+      cal.head = c.segment<5>(offset);
+      cal.head_covariance = global_covariance.block<5, 5>(offset, offset);
     }
   }
   summary_ = s;

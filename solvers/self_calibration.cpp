@@ -35,6 +35,7 @@ void SelfCalibrationConfig::validate() const {
   pos(baseline_scale_sigma, "baseline_scale_sigma");
   pos(disparity_offset_sigma_px, "disparity_offset_sigma_px");
   pos(column_offset_sigma_px, "column_offset_sigma_px");
+  pos(focal_ratio_sigma, "focal_ratio_sigma");
   if (max_iterations < 1) throw Error("self-calibration: max_iterations must be at least 1");
 }
 
@@ -75,6 +76,8 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
     w.put("disparity_offset_sigma_px", std::sqrt(head_covariance(2, 2)));
     w.put("column_offset_px", head[3]);
     w.put("column_offset_sigma_px", std::sqrt(head_covariance(3, 3)));
+    w.put("focal_ratio", head[4]);
+    w.put("focal_ratio_sigma", std::sqrt(head_covariance(4, 4)));
   }
   if (odometry) {
     w.put("wheel_scale_left", wheels[0]);

@@ -5,8 +5,9 @@
 //
 //   odometry  c = (c_l, c_r, w): wheel scales and effective wheel base
 //             (factors/odometry_calibration_factor.h)
-//   stereo    q = (dbeta, k, delta_d, delta_u): head tilt correction, baseline scale, disparity
-//             offset and column offset, entering every pixel factor
+//   stereo    q = (dbeta, k, delta_d, delta_u, phi): head tilt correction, baseline scale,
+//             disparity offset, column offset and the right camera's focal length error,
+//             entering every pixel factor
 //             (factors/stereo_pixel_calibration_factor.h); observations without pixels stay
 //             range-bearing factors, which do not see q
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
@@ -28,7 +29,7 @@ namespace stereoloc {
 
 struct SelfCalibrationConfig {
   bool odometry = false;  // estimate wheel scales and wheel base
-  bool stereo = false;    // estimate tilt correction, baseline scale, disparity and column offsets
+  bool stereo = false;    // estimate tilt correction, baseline scale, pixel offsets, focal ratio
   // Prior 1-sigma: twice the spread of the realistic error profile (src/sim/error_profile.h),
   // so that the prior does not pull a real robot's parameters back.
   double wheel_scale_sigma = 0.01;          // dimensionless
@@ -40,6 +41,8 @@ struct SelfCalibrationConfig {
   // and a head pan offset.
   double disparity_offset_sigma_px = 3.0;   // px
   double column_offset_sigma_px = 2.0;      // px
+  // The focal lengths' difference: 0.5 % per camera, 0.7 % between them.
+  double focal_ratio_sigma = 0.014;         // dimensionless
   // selfCalibratingBatch only (the batch smoother takes them from its own configuration).
   PixelResiduals residuals = PixelResiduals::All;
   bool use_compass = true;
@@ -54,12 +57,14 @@ struct CalibrationEstimate {
   bool odometry = false, stereo = false;               // which blocks were estimated
   Eigen::Vector3d wheels = Eigen::Vector3d(1, 1, 75);  // c_l, c_r, w (mm)
   Eigen::Matrix3d wheels_covariance = Eigen::Matrix3d::Zero();
-  // dbeta (rad), k, delta_d (px), delta_u (px): factors/stereo_pixel_calibration_factor.h
-  Eigen::Vector4d head = Eigen::Vector4d(0, 1, 0, 0);
-  Eigen::Matrix4d head_covariance = Eigen::Matrix4d::Zero();
+  // dbeta (rad), k, delta_d (px), delta_u (px), phi: factors/stereo_pixel_calibration_factor.h
+  using StereoVector = Eigen::Matrix<double, 5, 1>;
+  using StereoMatrix = Eigen::Matrix<double, 5, 5>;
+  StereoVector head = (StereoVector() << 0, 1, 0, 0, 0).finished();
+  StereoMatrix head_covariance = StereoMatrix::Zero();
 
-  // The rig with the estimated tilt and baseline (and the pixel offsets, the odometry estimate
-  // and every standard deviation as extra keys: disparity_offset_px, column_offset_px,
+  // The rig with the estimated tilt and baseline (and the pixel offsets, focal ratio, the odometry estimate
+  // and every standard deviation as extra keys: disparity_offset_px, column_offset_px, focal_ratio,
   // wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma), in the rig YAML a user can pass
   // back as --rig. A rig carrying an OpenCV calibration gets its T and P2 scaled.
   void saveAsRig(const std::string& path, const StereoRig& rig) const;
