@@ -40,6 +40,8 @@ import numpy as np
 
 DATA = 'data/real'
 W, H = 320, 240
+# Free-end search (free_end): px inside / beyond the rough end, reference stretch, run below.
+END_IN, END_OUT, END_REF, END_RUN = 10.0, 40.0, 15.0, 2.0
 
 
 def fail(where, msg):
@@ -231,18 +233,42 @@ def stripe_contrast(lum, c, u, ts, width):
 
 
 def free_end(lum, m, t, sign):
-    """Sub-pixel end of the stripe near line coordinate t, the stripe lying towards -sign."""
+    """Sub-pixel end of the stripe near line coordinate t, the stripe lying towards -sign.
+
+    The rough end is a hand-given point and may lie well short of or past the stripe's end (a
+    far stripe fades over tens of px), so the end is searched from END_IN px inside the rough
+    end out to END_OUT px beyond it: the first place where the stripe contrast falls below half
+    the contrast just inside it (the END_REF px before the search start, or the whole body when
+    that is shorter) and stays below for END_RUN px; the rough end stands when the stripe is
+    already faint where the search starts. A stripe is brighter than both sides, so a
+    robot, its shadow, the field boundary's wall or the image border all end it."""
     c, u, w = m['c'], m['u'], m['width']
-    body = np.arange(-m['half'] + 3, m['half'] - 3, 1.0)
-    ref = float(np.median(stripe_contrast(lum, c, u, body, w))) if len(body) else 0.0
-    ts = np.arange(t - 5.0 * sign, t + 5.0 * sign + 1e-9 * sign, 0.25 * sign)
-    ts = ts[(ts >= -(m['half'] + 6)) & (ts <= m['half'] + 6)]
+    lo, hi = -m['half'], m['half']
+    start = t - END_IN * sign
+    ref_ts = np.arange(start - END_REF * sign, start, 0.5 * sign)
+    ref_ts = ref_ts[(ref_ts >= lo) & (ref_ts <= hi)]
+    if len(ref_ts) < 8:
+        ref_ts = np.arange(lo + 3, hi - 3, 1.0)
+    ref = float(np.median(stripe_contrast(lum, c, u, ref_ts, w))) if len(ref_ts) else 0.0
+    ts = np.arange(start, t + END_OUT * sign + 1e-9 * sign, 0.25 * sign)
+    pts = c[None, :] + ts[:, None] * u[None, :]
+    inside = (pts[:, 0] >= 0) & (pts[:, 0] <= W - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= H - 1)
+    if not inside.all():
+        ts = ts[:int(np.argmin(inside))]
+    if len(ts) < 2 or ref <= 0:
+        return t
     con = stripe_contrast(lum, c, u, ts, w)
+    below = con < 0.5 * ref
+    run = int(round(END_RUN / 0.25))
     for i in range(1, len(ts)):
-        if con[i - 1] >= 0.5 * ref > con[i]:
+        if below[i] and not below[i - 1] and below[i:i + run].all():
             f = (con[i - 1] - 0.5 * ref) / (con[i - 1] - con[i])
             return ts[i - 1] + f * (ts[i] - ts[i - 1])
-    return t
+    if below[0]:
+        # Already faint inside the rough end (a crossing stripe brightens both sides, or the
+        # reference stretch is not stripe): the hand-given end stands.
+        return t
+    return ts[-1]
 
 
 def border_t(c, u, t, sign):
