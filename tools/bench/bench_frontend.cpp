@@ -413,6 +413,8 @@ void explainFailures(const std::vector<Seg>& gt, const std::vector<Seg>& det, co
           break;
         }
       }
+    if (why.verbose)
+      std::printf("    spurious (%.1f,%.1f)-(%.1f,%.1f): %s\n", d.a.x(), d.a.y(), d.b.x(), d.b.y(), reason.c_str());
     why.spurious["reason: " + reason]++;
     why.spurious["kind:   " + kind]++;
     why.spurious["length: " + lengthBin((d.b - d.a).norm())]++;

@@ -42,6 +42,8 @@ DATA = 'data/real'
 W, H = 320, 240
 # Free-end search (free_end): px inside / beyond the rough end, reference stretch, run below.
 END_IN, END_OUT, END_REF, END_RUN = 10.0, 40.0, 15.0, 2.0
+# Curve snapping (snap_curve): sample spacing, search reach, ridge side offset, px; min ridge, grey levels.
+CURVE_STEP, CURVE_REACH, CURVE_SIDE, CURVE_MIN = 4.0, 12.0, 5.0, 12.0
 
 
 def fail(where, msg):
@@ -325,6 +327,32 @@ def edge_runs(lum, gx, gy, a, b, normal, sign):
     return runs
 
 
+def snap_curve(lum, v):
+    """A hand-given curve polyline moved onto its stripe: resampled every CURVE_STEP px, each
+    sample moved along the polyline's normal (up to CURVE_REACH px) to the brightest ridge
+    (luma there minus the mean luma CURVE_SIDE px to either side, after the blur of `lum`);
+    samples without a ridge of at least CURVE_MIN grey levels stay where they are. The curve is
+    a don't-care stroke, so it must lie on the stripe, not beside it."""
+    pts = np.array(v, dtype=float).reshape(-1, 2)
+    out = []
+    for p0, p1 in zip(pts[:-1], pts[1:]):
+        L = np.linalg.norm(p1 - p0)
+        if L < 1e-9:
+            continue
+        u = (p1 - p0) / L
+        n = np.array([-u[1], u[0]])
+        for t in np.arange(0.0, L, CURVE_STEP):
+            q = p0 + t * u
+            offs = np.arange(-CURVE_REACH, CURVE_REACH + 1e-9, 0.5)
+            cx, cy = q[0] + offs * n[0], q[1] + offs * n[1]
+            ridge = bilinear(lum, cx, cy) - 0.5 * (bilinear(lum, cx + CURVE_SIDE * n[0], cy + CURVE_SIDE * n[1]) +
+                                                   bilinear(lum, cx - CURVE_SIDE * n[0], cy - CURVE_SIDE * n[1]))
+            k = int(np.argmax(ridge))
+            out.append(q + offs[k] * n if ridge[k] >= CURVE_MIN else q)
+    out.append(pts[-1])
+    return [float(np.clip(c, 0, (W - 1) if i % 2 == 0 else (H - 1))) for i, c in enumerate(np.array(out).ravel())]
+
+
 def snap(name):
     img = cv2.imread(os.path.join(DATA, 'images', name + '.jpg'))
     if img is None:
@@ -406,6 +434,8 @@ def snap(name):
             f.write(f'corner {typ} {p[0]:.2f} {p[1]:.2f}\n')
         names = {'b': 'boundary', 'o': 'dontcare', 'k': 'curve'}
         for kind, v, extra, where in items:
+            if kind == 'k':
+                v = snap_curve(lum_s, v)
             if kind in names:
                 f.write(names[kind] + ' ' + ' '.join(f'{x:.1f}' for x in v) + '\n')
     os.replace(path + '.tmp', path)
