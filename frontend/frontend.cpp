@@ -287,6 +287,14 @@ const FrontendResult& Frontend::detectFeatures(const cv::Mat& bgr) {
   return r;
 }
 
+const FrontendResult& Frontend::detectFeaturesRaw(const cv::Mat& raw_bgr) {
+  if (!rectifier_) return detectFeatures(raw_bgr);
+  checkImage(raw_bgr, "input");
+  // The rectifier maps pairs; the right map's output of the same image is not used.
+  rectifier_->rectify(raw_bgr, raw_bgr);
+  return detectFeatures(rectifier_->left());
+}
+
 const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& right_in, double head_pan) {
   checkImage(left_in, "left");
   checkImage(right_in, "right");

@@ -80,6 +80,9 @@ class Frontend {
   // Stages 1-6 on one image (monocular use): segments, lines, corners / junctions /
   // intersections; no goal corners, stereo match or observations (those are cleared).
   const FrontendResult& detectFeatures(const cv::Mat& bgr);
+  // The same on a raw image of the left camera: rectified first when the rig's calibration needs
+  // it (see rectifier()), so the features are in rectified pixels as process() gives them.
+  const FrontendResult& detectFeaturesRaw(const cv::Mat& raw_bgr);
 
   // Stages 1-5 only, on one image (the benchmark and tests use it). Returns result().segments.
   const std::vector<Segment>& detectSegments(const cv::Mat& bgr);
