@@ -53,7 +53,7 @@ float fastAngle(float y, float x) {
   return r;
 }
 
-void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
+void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, const int16_t* top) {
   if (luma.type() != CV_8UC1) throw Error("GradientStage: expected an 8-bit one-channel image");
   const int w = luma.cols, h = luma.rows;
   const size_t n = static_cast<size_t>(w) * h;
@@ -103,6 +103,8 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
     for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2);
+    if (top)
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(ab[x] & (y >= top[x]));
   }
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
