@@ -6,7 +6,7 @@
 // and goals above the floor carry landmarks (wall feet, goal corners) and the carpet is dark.
 //
 // On a grid of every step_px-th pixel: the floor's chromaticity (b, g, r) / (b + g + r) and
-// luma are the medians of the grid samples in the bottom third of the image (the floor fills
+// luma are the medians of every other grid sample in the bottom third of the image (the floor fills
 // most of it); a sample is floor when its chromaticity lies within chroma_tolerance (L1) of the
 // floor's and its luma within [luma_low, luma_high] times the floor's. A marking is white,
 // i.e. not floor, but it lies on the floor: the boundary of a grid column is its topmost run
