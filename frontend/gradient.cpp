@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <climits>
 #include <cstring>
 
 #include <opencv2/imgproc.hpp>
@@ -106,6 +107,9 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     }
   }
   threshold_ = std::sqrt(static_cast<double>(thr2));
+  // A 32-bit threshold keeps the comparison below in 32-bit lanes (vectorised); squared Sobel
+  // magnitudes of 8-bit images stay below 2^22.
+  const int32_t thr2_32 = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
   const size_t stride = static_cast<size_t>(w) + 8;
   if (above_.size() != stride * h) above_.assign(stride * h, 0);  // only [2, w - 2) is written
   for (int y = 0; y < h; ++y) {
@@ -115,7 +119,7 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
       std::fill(ab + 2, ab + std::max(2, w - 2), uint8_t{0});
       continue;
     }
-    for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2);
+    for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
     if (top)
       for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(ab[x] & (y >= top[x]));
   }
