@@ -94,18 +94,19 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   }
   if (hull_.empty()) return;
   // Image columns: on the hull, raised by one grid step (the boundary lies between the last
-  // non-floor sample and the first floor one) and by the margin. Columns outside the hull's
-  // extent keep the whole column.
+  // non-floor sample and the first floor one) and by the margin. Columns within a grid step
+  // beyond the hull's ends take its end value; the others keep the whole column.
   size_t k = 0;
-  for (int x = 0; x < w; ++x) {
-    if (x < hull_.front().first || x > hull_.back().first) continue;
+  for (int xi = 0; xi < w; ++xi) {
+    if (xi < hull_.front().first - step || xi > hull_.back().first + step) continue;
+    const double x = std::clamp(static_cast<double>(xi), hull_.front().first, hull_.back().first);
     while (k + 1 < hull_.size() && hull_[k + 1].first < x) ++k;
     const auto& a = hull_[k];
     const auto& b = k + 1 < hull_.size() ? hull_[k + 1] : hull_[k];
     const double f = b.first > a.first ? (x - a.first) / (b.first - a.first) : 0.0;
     const double row = (1.0 - f) * a.second + f * b.second - step - p.margin_px;
-    top_[x] = static_cast<int16_t>(std::clamp(static_cast<int>(std::floor(row)), 0, h));
-    restricted_ = restricted_ || top_[x] > 0;
+    top_[xi] = static_cast<int16_t>(std::clamp(static_cast<int>(std::floor(row)), 0, h));
+    restricted_ = restricted_ || top_[xi] > 0;
   }
 }
 
