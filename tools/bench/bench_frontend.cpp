@@ -3,7 +3,9 @@
 // cv::HoughLinesP and cv::createLineSegmentDetector on the same images.
 //
 //   bench_frontend [--pairs=N] [--goal-pairs=M] [--seed=S] [--no-table] [--diag] [benchmark flags]
-//   bench_frontend --real=data/real   (the same table on the labelled photographs; see realTable)
+//   bench_frontend --real=data/real   (the same table on the labelled photographs; see realTable;
+//    matched on the parts outside the don't-care mask, collinear pieces of one stripe count once:
+//    ScoreRules; STEREOLOC_BENCH_LABEL_EXTENT=1 matches whole labels and single detections instead)
 //   (--diag: per-failure breakdown of the segment matching by reason, kind, length, row, occlusion,
 //    luma contrast across the missed truth edge, and recall per truth kind)
 //   Environment: STEREOLOC_BENCH_PARAMS=file.yaml scores other frontend parameters;
