@@ -147,7 +147,10 @@ BatchSmootherConfig batchConfigFor(const std::string& spec, const Dataset& d, ui
   c.init = beliefFor(init_mode, d, o, rng);
   c.loss.type = o.loss;
   c.loss.scale = o.loss_scale;
-  c.observation_model = {o.observation_model, d.rig};
+  c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
+  c.calibration = o.calibration;
+  if (c.calibration.stereo && o.observation_model == ObservationModel::RangeBearing)
+    throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
   return c;
 }
 
@@ -157,6 +160,8 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   if (hasCalibrationSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
   std::mt19937_64 rng(seed);
   MethodRun run;
+  if ((o.calibration.odometry || o.calibration.stereo) && name != "batch" && name != "window")
+    throw UsageError("--calibrate: only the smoothers self-calibrate (method '" + spec + "')");
   if (name == "fix1" || name == "fix2") {
     run = runFixes(d, name == "fix1");
   } else if (name == "deadreckoning") {
@@ -183,22 +188,13 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
     c.robust_loss.type = o.loss;
     c.robust_loss.scale = o.loss_scale;
-    c.observation_model = {o.observation_model, d.rig};
+    c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
     SlidingWindowSmoother w(d.map, d.odometry, c);
     run = runEstimator(w, d);
-  } else if (o.calibration.odometry || o.calibration.stereo) {
-    if (name != "batch") throw UsageError("--calibrate: only the batch smoother self-calibrates (method '" + spec + "')");
-    if (init_mode != InitMode::Known) throw UsageError("--calibrate: needs a known start (method '" + spec + "')");
-    SelfCalibrationConfig sc = o.calibration;
-    sc.residuals = o.observation_model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    const auto start = Clock::now();
-    SelfCalibrationResult r = selfCalibratingBatch(d, beliefFor(init_mode, d, o, rng), sc);
-    run.ms_per_step = msSince(start, d.steps.size());
-    run.estimates = std::move(r.trajectory);
-    run.calibration = r.calibration;
   } else {  // batch
     BatchSmoother b(d.map, d.odometry, batchConfigFor(spec, d, seed, o));
     run = runEstimator(b, d);
+    if (o.calibration.odometry || o.calibration.stereo) run.calibration = b.calibration();
   }
   run.method = spec;
   if (name != "fix1" && name != "fix2") {

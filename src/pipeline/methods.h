@@ -32,8 +32,11 @@ struct MethodOptions {
   ObservationModel observation_model = ObservationModel::PixelColumns;
   double loss_scale = 2.0;           // whitened units
   bool gate_enabled = true;          // ekf, window
-  // batch: self-calibration (solvers/self_calibration.h) when either part is on; known start only.
+  // batch: self-calibration (solvers/self_calibration.h) when either part is on.
   SelfCalibrationConfig calibration;
+  // Batch and window pixel models: px, > 0 replaces the observations' own pixel sigma (an
+  // honest noise for a world with vibration and blur, docs/realistic_world.md); 0 keeps theirs.
+  double pixel_sigma = 0.0;
 };
 
 struct MethodRun {
