@@ -111,12 +111,24 @@ std::string methodNamesText() {
   return text;
 }
 
-std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init) {
+bool hasCalibrationSuffix(const std::string& spec) {
+  static const std::string suffix = ":calib";
+  return spec.size() > suffix.size() && spec.compare(spec.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+std::string withoutCalibrationSuffix(const std::string& spec) {
+  return hasCalibrationSuffix(spec) ? spec.substr(0, spec.size() - 6) : spec;
+}
+
+std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, InitMode default_init) {
+  const std::string spec = withoutCalibrationSuffix(full_spec);
   const size_t colon = spec.find(':');
   const std::string name = spec.substr(0, colon);
   bool known = false;
   for (const std::string& n : methodNames()) known |= n == name;
   if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
+  if (hasCalibrationSuffix(full_spec) && name != "batch")
+    throw UsageError("method '" + full_spec + "': only the batch smoother self-calibrates");
   InitMode init = default_init;
   if (colon != std::string::npos) {
     try {
@@ -142,8 +154,10 @@ BatchSmootherConfig batchConfigFor(const std::string& spec, const Dataset& d, ui
   return c;
 }
 
-MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& o) {
-  const auto [name, init_mode] = parseMethodSpec(spec, o.init);
+MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& options) {
+  const auto [name, init_mode] = parseMethodSpec(spec, options.init);
+  MethodOptions o = options;
+  if (hasCalibrationSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
   std::mt19937_64 rng(seed);
   MethodRun run;
   if ((o.calibration.odometry || o.calibration.stereo) && name != "batch" && name != "window")

@@ -53,6 +53,11 @@ struct MethodRun {
 const std::vector<std::string>& methodNames();
 std::string methodNamesText();
 
+// A spec may end in ":calib" ("batch:calib", "batch:known:calib"): the method with odometry and
+// stereo self-calibration (MethodOptions::calibration), for the studies' calibrated variants.
+bool hasCalibrationSuffix(const std::string& spec);
+std::string withoutCalibrationSuffix(const std::string& spec);
+
 // Splits "ekf:random" into ("ekf", Random); throws UsageError for an unknown name or init.
 std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init);
 
