@@ -35,10 +35,10 @@ Pose2 poseOf(const std::array<double, 3>& x) { return Pose2(x[0], x[1], x[2]); }
 // (x, y, theta) blocks, whose angle difference is wrapped; the others are Euclidean.
 // The stereo block's prior standard deviations, in the order of
 // factors/stereo_pixel_calibration_factor.h.
-template <typename Block>
-Block stereoPriorSigmaOf(const SelfCalibrationConfig& c) {
-  Block s;
-  s << c.tilt_sigma_rad, c.baseline_scale_sigma;
+CalibrationEstimate::StereoVector stereoPriorSigma(const SelfCalibrationConfig& c) {
+  CalibrationEstimate::StereoVector s;
+  s << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
+      c.focal_ratio_sigma;
   return s;
 }
 
@@ -128,7 +128,7 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   }
   if (cal.stereo) {
     problem_->AddParameterBlock(head_.data(), calibSize(Calib::Head));
-    const StereoBlock sig = stereoPriorSigmaOf<StereoBlock>(cal);
+    const StereoBlock sig = stereoPriorSigma(cal);
     addFactor(CalibrationPriorFactor<StereoBlock::RowsAtCompileTime>::Create(
                   head_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()),
               {}, false, {Calib::Head});
@@ -145,7 +145,7 @@ std::vector<SlidingWindowSmoother::Calib> SlidingWindowSmoother::calibBlocks() c
 }
 
 int SlidingWindowSmoother::calibDim() const {
-  return (config_.calibration.odometry ? 3 : 0) + (config_.calibration.stereo ? 2 : 0);
+  return (config_.calibration.odometry ? 3 : 0) + (config_.calibration.stereo ? calibSize(Calib::Head) : 0);
 }
 
 void SlidingWindowSmoother::relinearise() {
@@ -623,8 +623,9 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, 
   if (config_.calibration.stereo && obs.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+    const double sigma = config_.observation_model.pixel_sigma > 0 ? config_.observation_model.pixel_sigma : obs.pixel_sigma;
     addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *obs.pixels, obs.head_pan,
-                                                   obs.pixel_sigma, residuals),
+                                                   sigma, residuals),
               {node}, true, {Calib::Head});
   } else {
     addFactor(makeObservationFactor(obs, *lm, config_.observation_model), {node}, true);

@@ -199,7 +199,7 @@ class SlidingWindowSmoother : public Estimator {
   void startWindow(const Step& step, const Pose2& pose, const Eigen::Matrix3d& covariance, EstimateStatus status);
   void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes, bool robust = false,
                  std::vector<Calib> calib = {});
-  using StereoBlock = decltype(CalibrationEstimate::head);
+  using StereoBlock = CalibrationEstimate::StereoVector;
   double* calibData(Calib c) { return c == Calib::Wheels ? wheels_.data() : head_.data(); }
   static int calibSize(Calib c) { return c == Calib::Wheels ? 3 : static_cast<int>(StereoBlock::RowsAtCompileTime); }
   std::vector<Calib> calibBlocks() const;  // the enabled ones, in variable order
