@@ -3,8 +3,8 @@
 // with the wheel scales and the wheel base unknown), written where the noise lives: in the
 // encoder readings.
 //
-//   r = ( (d_l(p_{k-1}, p_k; w) / c_l - m_l) / sigma_l,                         3 residuals
-//         (d_r(p_{k-1}, p_k; w) / c_r - m_r) / sigma_r,
+//   r = ( S [d_l(p_{k-1}, p_k; w) / c_l - m_l;                                   3 residuals
+//            d_r(p_{k-1}, p_k; w) / c_r - m_r],
 //         lateral(p_{k-1}, p_k) / sigma_lat )
 //
 // p_{k-1}, p_k: poses (x, y, theta), world frame (mm, mm, rad). c = (c_l, c_r, w): calibration
@@ -14,10 +14,13 @@
 // betweenT(p_{k-1}, p_k), is read as the arc of (B.1)-(B.5): with h = dtheta / 2 its chord leaves
 // at angle h, so along = rel_x cos h + rel_y sin h is the chord (signed) and lateral =
 // -rel_x sin h + rel_y cos h is zero on an arc; the arc length is L = along h / sin h and the
-// wheels roll d_l = L - w h, d_r = L + w h (the inverse of B.1, B.2). sigma_l^2, sigma_r^2: (B.6)
-// at the readings (wheelCovariance) plus the control variance floor's x term, which keeps a
-// wheel that did not turn from getting infinite weight; sigma_lat: the lateral slip the model
-// allows, the square root of the floor's y term (src/core/odometry_model.h).
+// wheels roll d_l = L - w h, d_r = L + w h (the inverse of B.1, B.2). S: upper square-root
+// information of the readings' 2x2 covariance, (B.6) at the readings (wheelCovariance) plus the
+// control variance floor's x and theta terms carried into wheel space (L = (d_l + d_r) / 2,
+// dtheta = (d_r - d_l) / w: floor_x [1 1; 1 1] + floor_theta w^2 / 4 [1 -1; -1 1], w nominal), so
+// that at the nominal calibration the factor weighs a motion as the control-vector factor does,
+// standstill included; sigma_lat: the lateral slip the model allows, the square root of the
+// floor's y term (src/core/odometry_model.h).
 // Why wheel space, not the control-vector form of factors/odometry_factor.h: with the wheel base
 // unknown, the control form's weight U ~ 1 / w^2 would have to move with w; held fixed, its
 // estimate of w is that of a regression on noisy regressors and comes out too large (on a
@@ -31,15 +34,16 @@
 
 #include "src/core/angles.h"
 #include "src/core/error.h"
+#include "src/core/gaussian.h"
 #include "src/core/odometry_model.h"
 #include "src/core/pose2.h"
 
 namespace stereoloc {
 
 struct OdometryCalibrationFactor {
-  OdometryCalibrationFactor(double m_left, double m_right, double sigma_left, double sigma_right, double sigma_lateral)
-      : m_left_(m_left), m_right_(m_right), inv_l_(1.0 / sigma_left), inv_r_(1.0 / sigma_right),
-        inv_lat_(1.0 / sigma_lateral) {}
+  // sqrt_information: upper square-root information of the readings' 2x2 covariance.
+  OdometryCalibrationFactor(double m_left, double m_right, const Eigen::Matrix2d& sqrt_information, double sigma_lateral)
+      : m_left_(m_left), m_right_(m_right), S_(sqrt_information), inv_lat_(1.0 / sigma_lateral) {}
 
   template <typename T>
   bool operator()(const T* prev, const T* curr, const T* calib, T* residual) const {
@@ -57,8 +61,9 @@ struct OdometryCalibrationFactor {
     const T ratio = abs(h) < T(1e-4) ? T(1.0) + h2 / 6.0 + 7.0 * h2 * h2 / 360.0 : h / sh;  // h / sin h
     const T L = along * ratio;
     const T d_left = L - calib[2] * h, d_right = L + calib[2] * h;
-    residual[0] = T(inv_l_) * (d_left / calib[0] - T(m_left_));
-    residual[1] = T(inv_r_) * (d_right / calib[1] - T(m_right_));
+    const T e_left = d_left / calib[0] - T(m_left_), e_right = d_right / calib[1] - T(m_right_);
+    residual[0] = T(S_(0, 0)) * e_left + T(S_(0, 1)) * e_right;
+    residual[1] = T(S_(1, 1)) * e_right;
     residual[2] = T(inv_lat_) * lateral;
     return true;
   }
@@ -67,17 +72,24 @@ struct OdometryCalibrationFactor {
   static ceres::CostFunction* Create(double m_left, double m_right, const OdometryParams& params) {
     params.validate();
     Eigen::Matrix2d S = wheelCovariance(m_left, m_right, params);
-    S.diagonal().array() += params.control_variance_floor.x();
+    const double fx = params.control_variance_floor.x();
+    const double ft = params.control_variance_floor.z() * 0.25 * params.wheel_base_mm * params.wheel_base_mm;
+    S += fx * Eigen::Matrix2d::Ones();
+    S += ft * (Eigen::Matrix2d() << 1.0, -1.0, -1.0, 1.0).finished();
     const double lat = params.control_variance_floor.y();
-    if (!(std::isfinite(m_left) && std::isfinite(m_right) && S(0, 0) > 0 && S(1, 1) > 0 && lat > 0))
+    if (!(std::isfinite(m_left) && std::isfinite(m_right) && S(0, 0) > 0 && S(1, 1) > 0 &&
+          S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0) > 0 && lat > 0))
       throw Error(
-          "odometry calibration factor: readings must be finite, wheel variances and the lateral floor positive");
-    return new ceres::AutoDiffCostFunction<OdometryCalibrationFactor, 3, 3, 3, 3>(
-        new OdometryCalibrationFactor(m_left, m_right, std::sqrt(S(0, 0)), std::sqrt(S(1, 1)), std::sqrt(lat)));
+          "odometry calibration factor: readings must be finite, the wheel covariance positive definite and the "
+          "lateral floor positive");
+    return new ceres::AutoDiffCostFunction<OdometryCalibrationFactor, 3, 3, 3, 3>(new OdometryCalibrationFactor(
+        m_left, m_right, sqrtInformationUpper<2>(S, "odometry calibration factor: wheel covariance"), std::sqrt(lat)));
   }
 
  private:
-  double m_left_, m_right_, inv_l_, inv_r_, inv_lat_;
+  double m_left_, m_right_;
+  Eigen::Matrix2d S_;
+  double inv_lat_;
 };
 
 }  // namespace stereoloc

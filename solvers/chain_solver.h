@@ -16,8 +16,8 @@
 // (an arrow): H = [T E; E^T C], T block tridiagonal over the poses, E dense 3N x K, C K x K.
 // Each iteration eliminates the poses' tridiagonal part for the K + 1 right-hand sides
 // [g_x, E] in one O(N K^2) pass, solves the Schur complement S = C - E^T T^-1 E for the global
-// step, and back-substitutes (solveBorderedBlockTridiagonal); docs/estimators.md has the
-// derivation. Poses are (x, y, theta) in mm, mm, rad
+// step, and back-substitutes (solveBorderedBlockTridiagonal); docs/realistic_world.md
+// ("Self-calibration") has the derivation. Poses are (x, y, theta) in mm, mm, rad
 // with the Plus of factors/pose_manifold.h; a robust loss applies to the factors marked robust.
 // Damping, step acceptance and the three stopping tolerances are modelled on ceres::Solver's
 // LEVENBERG_MARQUARDT (chain_solver.cpp says where they differ); both reach the same optimum.

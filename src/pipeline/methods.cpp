@@ -160,8 +160,8 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   if (hasCalibrationSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
   std::mt19937_64 rng(seed);
   MethodRun run;
-  if ((o.calibration.odometry || o.calibration.stereo) && name != "batch" && name != "window")
-    throw UsageError("--calibrate: only the smoothers self-calibrate (method '" + spec + "')");
+  if ((o.calibration.odometry || o.calibration.stereo) && name != "batch")
+    throw UsageError("--calibrate: only the batch smoother self-calibrates (method '" + spec + "')");
   if (name == "fix1" || name == "fix2") {
     run = runFixes(d, name == "fix1");
   } else if (name == "deadreckoning") {

@@ -9,6 +9,11 @@
 //                          as printed), for the cost of the regularisation in the same run
 //   BM_PfStepPriorProposal/N  the odometry model as proposal (Algorithm 6), for the cost of the
 //                          optimal proposal in the same run
+//   BM_HypothesisSpawn     the random start's multi-hypothesis bank (solvers/global_fix_hypotheses.h)
+//                          spawned from a step with three unidentified sightings and the compass on
+//                          the MiroSot field (one-landmark fixes over every landmark of each type)
+//   BM_HypothesisStep      one step of a bank holding one hypothesis per marking corner (a single
+//                          unidentified sighting, still ambiguous): what a wide filter pays per step
 // At the end a table prints the per-step times against the targets and the PF/EKF ratio (the
 // thesis claims the EKF is at least 10x cheaper than MCL).
 #include <benchmark/benchmark.h>
@@ -20,6 +25,7 @@
 #include <string>
 
 #include "solvers/ekf.h"
+#include "solvers/global_fix_hypotheses.h"
 #include "solvers/particle_filter.h"
 #include "solvers/smoother_common.h"
 #include "src/core/measurement_model.h"
@@ -111,6 +117,45 @@ BENCHMARK(BM_PfStepRoulette)->Arg(3000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PfStepUnregularised)->Arg(3000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PfStepPriorProposal)->Arg(3000)->Unit(benchmark::kMicrosecond);
 
+// Unidentified sightings of the given MiroSot landmarks from `pose`, with an exact compass.
+Step ambiguousStep(const FieldMap& map, const Pose2& pose, const std::vector<int>& ids) {
+  Step s;
+  s.compass = pose.theta;
+  s.compass_sigma = deg2rad(3.5);
+  for (int id : ids) {
+    const Eigen::Vector2d z = predictRangeBearing(pose, map.at(id).xy());
+    s.observations.push_back(observationFromRangeBearing(-1, map.at(id).type, z.x(), z.y(), 10.0, 0.002));
+  }
+  return s;
+}
+
+void BM_HypothesisSpawn(benchmark::State& state) {
+  const FieldMap map = FieldMap::miroSot();
+  HypothesisBank bank(map, OdometryParams());
+  const Step s = ambiguousStep(map, Pose2(950.0, 650.0, 0.3), {9, 11, 17});
+  for (auto _ : state) {
+    bank.clear();
+    bank.process(s, true);
+    benchmark::DoNotOptimize(bank.hypotheses().data());
+  }
+  state.counters["hypotheses"] = static_cast<double>(bank.hypotheses().size());
+}
+BENCHMARK(BM_HypothesisSpawn)->Unit(benchmark::kMicrosecond);
+
+void BM_HypothesisStep(benchmark::State& state) {
+  const FieldMap map = FieldMap::miroSot();
+  HypothesisBank bank(map, OdometryParams());
+  Step s = ambiguousStep(map, Pose2(800.0, 1200.0, 0.3), {9});
+  bank.process(s, true);
+  s.step = 1;  // standing still: every hypothesis explains the sighting again
+  for (auto _ : state) {
+    bank.process(s, false);
+    benchmark::DoNotOptimize(bank.hypotheses().data());
+  }
+  state.counters["hypotheses"] = static_cast<double>(bank.hypotheses().size());
+}
+BENCHMARK(BM_HypothesisStep)->Unit(benchmark::kMicrosecond);
+
 // Collects the mean wall and CPU time per iteration (ns) of every run for the summary table.
 // CPU time is the figure to compare with the targets on a shared machine (wall time includes
 // waiting for the core).
@@ -158,6 +203,8 @@ int main(int argc, char** argv) {
   line("PF 3000 sorted roulette", "BM_PfStepRoulette/3000", -1, "");
   line("PF 3000 without regularisation", "BM_PfStepUnregularised/3000", -1, "");
   line("PF 3000 prior (Algorithm 6)", "BM_PfStepPriorProposal/3000", -1, "");
+  line("random start: bank spawn", "BM_HypothesisSpawn", -1, "");
+  line("random start: bank step", "BM_HypothesisStep", -1, "");
   const double pf = reporter.cpuNs("BM_PfStep/3000"), ekf_step = reporter.cpuNs("BM_EkfStep");
   if (pf > 0 && ekf_step > 0)
     std::printf("  ratio PF(3000) / EKF process() step: %.0f x (CPU; thesis: the EKF is at least 10x cheaper)\n",
