@@ -13,7 +13,12 @@
 // odometry factor between keyframes (5.9); finish() smooths them given both keyframes.
 // insertLate() adds an observation that arrives after later odometry at its own pose while that
 // pose is in the window (exactly the in-order graph until a pose leaves the window), and reports
-// older ones too late. Memory is bounded by W and restart_buffer_steps (plus one Estimate per
+// older ones too late. Self-calibration (`calibration`, solvers/self_calibration.h): the wheel
+// scales and wheel base, and the head tilt and baseline scale, are global parameter blocks with
+// the factors of the self-calibrating batch; they are never marginalised, the marginal prior spans
+// (oldest kept pose, calibration) so the information of marginalised poses on them is carried,
+// and with odometry calibration every step is a keyframe (the calibrated odometry factor is per
+// step). Memory is bounded by W and restart_buffer_steps (plus one Estimate per
 // step for finish() unless keep_history is off). Derivations: docs/estimators.md, "Smoothers".
 #include <ceres/problem.h>
 
@@ -21,11 +26,13 @@
 #include <array>
 #include <deque>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "factors/pose_manifold.h"
 #include "solvers/initialisation.h"
+#include "solvers/self_calibration.h"
 #include "solvers/smoother_common.h"
 #include "solvers/validation_gate.h"
 #include "solvers/data_association.h"
@@ -54,7 +61,8 @@ struct SlidingWindowConfig {
                                      // bound makes the result depend on the machine)
   bool gauss_newton = false;         // true: an (almost) infinite trust region, i.e. pure
                                      // Gauss-Newton steps (the EKF comparison)
-  bool first_estimate_jacobians = true;  // false: linearise at the current estimate instead
+  bool first_estimate_jacobians = true;  // false: linearise at the current estimate instead (always
+                                         // with self-calibration, see the .cpp)
   bool sparse_solver = true;         // SPARSE_NORMAL_CHOLESKY (SuiteSparse); false: DENSE_NORMAL_CHOLESKY
   int final_iterations = 50;         // finish(): iterations of the last solve of the window
   // Per-step stopping rules: the warm start is already close, so a relative cost decrease of
@@ -77,6 +85,10 @@ struct SlidingWindowConfig {
   // of one of them can start the window, or restart it when lost, from a global fix at their
   // step (insertLate); 0: late observations cannot.
   int restart_buffer_steps = 100;
+  // Self-calibration: odometry and/or stereo blocks with the priors of SelfCalibrationConfig (its
+  // sigmas; `residuals`, `use_compass` and `max_iterations` are taken from this config:
+  // pixel columns unless observation_model is Pixels). Stereo needs observation_model.rig.
+  SelfCalibrationConfig calibration;
 
   void validate() const;             // throws stereoloc::Error naming the field
 };
@@ -139,6 +151,9 @@ class SlidingWindowSmoother : public Estimator {
 
   int windowSize() const { return static_cast<int>(nodes_.size()); }
   bool initialised() const { return !nodes_.empty(); }
+  // The calibration estimate with its marginal covariance after the last step (after finish():
+  // the final window's); nullopt without self-calibration.
+  std::optional<CalibrationEstimate> calibration() const;
   bool lost() const { return lost_; }
   const SlidingWindowStats& stats() const { return stats_; }
 
@@ -168,17 +183,31 @@ class SlidingWindowSmoother : public Estimator {
     double d_left = 0.0, d_right = 0.0;  // this step's wheel increments (mm), for insertLate
     std::vector<Observation> gated;      // observations the gate rejected here, for reanchor()
   };
+  // Self-calibration blocks, after the poses in a factor's block order and in the window's
+  // variables (wheels before head).
+  enum class Calib { Wheels, Head };
   struct Factor {
     std::unique_ptr<ceres::CostFunction> cost;
     std::vector<Node*> nodes;
-    std::vector<std::array<double, 3>> linearisation;  // first estimates
+    std::vector<Calib> calib;                           // calibration blocks after the nodes
+    std::vector<std::array<double, 3>> linearisation;  // first estimates of the nodes
     ceres::ResidualBlockId id = nullptr;
     bool robust = false;                                // carries robust_loss
     bool odometry = false;                              // the odometry between consecutive poses
   };
 
   void startWindow(const Step& step, const Pose2& pose, const Eigen::Matrix3d& covariance, EstimateStatus status);
-  void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes, bool robust = false);
+  void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes, bool robust = false,
+                 std::vector<Calib> calib = {});
+  using StereoBlock = CalibrationEstimate::StereoVector;
+  double* calibData(Calib c) { return c == Calib::Wheels ? wheels_.data() : head_.data(); }
+  static int calibSize(Calib c) { return c == Calib::Wheels ? 3 : static_cast<int>(StereoBlock::RowsAtCompileTime); }
+  std::vector<Calib> calibBlocks() const;  // the enabled ones, in variable order
+  int calibDim() const;
+  void relinearise();                      // every factor's linearisation point := current values
+  // The odometry prediction of one step with the current wheel calibration (the nominal one
+  // without odometry calibration).
+  PosePrediction predictStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right) const;
   // The factor's contribution to the normal equations (accumulateNormalEquations), weighted by
   // the robust loss when it carries one. Returns false when it cannot be evaluated.
   bool accumulate(const Factor& f, const std::vector<const double*>& cur, const std::vector<const double*>& lin,
@@ -234,6 +263,13 @@ class SlidingWindowSmoother : public Estimator {
   Eigen::Matrix3d rel_covariance_ = Eigen::Matrix3d::Zero();
   int steps_since_keyframe_ = 0;
   std::deque<Step> recent_;  // the last restart_buffer_steps steps, without observations
+  // Self-calibration blocks (factors/odometry_calibration_factor.h: c_l, c_r, w (mm);
+  // factors/stereo_pixel_calibration_factor.h) and their joint marginal covariance (wheels then
+  // head, enabled blocks only) from the last covariance computation.
+  Eigen::Vector3d wheels_ = Eigen::Vector3d(1.0, 1.0, 0.0);
+  StereoBlock head_ = CalibrationEstimate().head;
+  Eigen::MatrixXd calib_covariance_;
+  bool fej_ = true;  // first-estimate Jacobians in effect
 };
 
 }  // namespace stereoloc

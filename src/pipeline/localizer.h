@@ -108,6 +108,11 @@ class Localizer {
   ImageFrontendStats frontendStats() const;  // what the frontend did so far
   // The window, for its statistics (nullptr for the other methods).
   const SlidingWindowSmoother* window() const { return window_; }
+  // The window's self-calibration estimate with its covariance after the newest step
+  // (window.calibration); nullopt without it or for the other methods.
+  std::optional<CalibrationEstimate> calibration() const {
+    return window_ ? window_->calibration() : std::nullopt;
+  }
 
  private:
   class Timer;

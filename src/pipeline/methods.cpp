@@ -127,8 +127,8 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, I
   bool known = false;
   for (const std::string& n : methodNames()) known |= n == name;
   if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
-  if (hasCalibrationSuffix(full_spec) && name != "batch")
-    throw UsageError("method '" + full_spec + "': only the batch smoother self-calibrates");
+  if (hasCalibrationSuffix(full_spec) && name != "batch" && name != "window")
+    throw UsageError("method '" + full_spec + "': only the smoothers (batch, window) self-calibrate");
   InitMode init = default_init;
   if (colon != std::string::npos) {
     try {
@@ -189,8 +189,12 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.robust_loss.type = o.loss;
     c.robust_loss.scale = o.loss_scale;
     c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
+    c.calibration = o.calibration;
+    if (c.calibration.stereo && o.observation_model == ObservationModel::RangeBearing)
+      throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
     SlidingWindowSmoother w(d.map, d.odometry, c);
     run = runEstimator(w, d);
+    run.calibration = w.calibration();
   } else {  // batch
     BatchSmoother b(d.map, d.odometry, batchConfigFor(spec, d, seed, o));
     run = runEstimator(b, d);

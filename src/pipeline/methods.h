@@ -32,7 +32,7 @@ struct MethodOptions {
   ObservationModel observation_model = ObservationModel::PixelColumns;
   double loss_scale = 2.0;           // whitened units
   bool gate_enabled = true;          // ekf, window
-  // batch: self-calibration (solvers/self_calibration.h) when either part is on.
+  // batch and window: self-calibration (solvers/self_calibration.h) when either part is on.
   SelfCalibrationConfig calibration;
   // Batch and window pixel models: px, > 0 replaces the observations' own pixel sigma (an
   // honest noise for a world with vibration and blur, docs/realistic_world.md); 0 keeps theirs.
@@ -45,7 +45,7 @@ struct MethodRun {
   double ms_per_step = 0;            // wall-clock, mean over steps
   long attempted_steps = 0;          // fixes: steps with at least one observation
   long fixed_steps = 0;              // fixes: steps that gave a fix
-  std::optional<CalibrationEstimate> calibration;  // batch with MethodOptions::calibration
+  std::optional<CalibrationEstimate> calibration;  // batch or window with MethodOptions::calibration
 };
 
 // The names accepted before the optional ":init" ("iekf": the EKF with iterated updates), and
@@ -53,7 +53,7 @@ struct MethodRun {
 const std::vector<std::string>& methodNames();
 std::string methodNamesText();
 
-// A spec may end in ":calib" ("batch:calib", "batch:known:calib"): the method with odometry and
+// A spec may end in ":calib" ("batch:calib", "window:known:calib"): the method with odometry and
 // stereo self-calibration (MethodOptions::calibration), for the studies' calibrated variants.
 bool hasCalibrationSuffix(const std::string& spec);
 std::string withoutCalibrationSuffix(const std::string& spec);

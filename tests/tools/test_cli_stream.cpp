@@ -137,6 +137,30 @@ TEST(CliStream, ReplaysADatasetAndPrintsTheSmoothedTrajectory) {
   EXPECT_EQ(usage.exit_code, 2) << usage.output;
 }
 
+TEST(CliStream, SelfCalibratesAndWritesTheCalibration) {
+  // A realistic line (wrong wheel radii, baseline, tilt, ...) replayed with the window's
+  // self-calibration: the rig YAML with the estimate and its standard deviations is written.
+  test::TempDir dir("stream_calib");
+  const test::CliRun sim =
+      test::runCli("simulate --scenario line --steps 40 --seed 7 --profile realistic --out " + dir.file("ds"));
+  ASSERT_EQ(sim.exit_code, 0) << sim.output;
+  const test::CliRun r = test::runCli("stream --from " + dir.file("ds") +
+                                      " --calibrate odometry,stereo --calibration-out " + dir.file("calib.yaml"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(lines(r.output, "{\"step\":").size(), 40u) << r.output;
+  const StereoRig rig = StereoRig::load(dir.file("calib.yaml"));  // usable as --rig
+  EXPECT_GT(rig.params().baseline_mm, 0.0);
+  std::ifstream in(dir.file("calib.yaml"));
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  for (const char* key : {"wheel_base_mm", "wheel_base_sigma_mm", "baseline_scale", "baseline_scale_sigma"})
+    EXPECT_NE(text.find(key), std::string::npos) << key;
+  const test::CliRun usage = test::runCli("stream --from " + dir.file("ds") + " --calibration-out " + dir.file("x.yaml"));
+  EXPECT_EQ(usage.exit_code, 2) << usage.output;
+  const test::CliRun rb = test::runCli("stream --from " + dir.file("ds") +
+                                       " --calibrate stereo --observation-model range_bearing");
+  EXPECT_EQ(rb.exit_code, 2) << rb.output;
+}
+
 // A simulated run with images (`line`: it sees a goal's corners from the first step) and the
 // JSON Lines a robot would send for it: odometry, compass and the image files of each step, the
 // images of step k on the line of step k + delay.

@@ -25,6 +25,7 @@ struct StreamArgs {
   double compass_sigma = 0, wheel_base = OdometryParams().wheel_base_mm;
   bool no_gate = false, smoothed = false;
   std::string frontend = "pixels", frontend_landmarks = "all", frontend_params, observation_model = "pixel_columns";
+  std::string calibrate, calibration_out;
 };
 
 LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, double* compass_sigma) {
@@ -55,6 +56,15 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, double* compas
   } catch (const Error& e) {
     throw UsageError(std::string("--observation-model: ") + e.what());
   }
+  try {
+    c.window.calibration = SelfCalibrationConfig::parse(a.calibrate);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--calibrate: ") + e.what());
+  }
+  if (c.window.calibration.stereo && c.window.observation_model.model == ObservationModel::RangeBearing)
+    throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
+  if (!a.calibration_out.empty() && !c.window.calibration.odometry && !c.window.calibration.stereo)
+    throw UsageError("--calibration-out: needs --calibrate");
   c.window.window = a.window;
   c.window.max_iterations = a.max_iterations;
   c.window.gate_enabled = !a.no_gate;
@@ -107,6 +117,7 @@ void runStream(const StreamArgs& a) {
     x.smoothed = true;
     for (const Estimate& e : loc.smoothedTrajectory()) print(formatStreamEstimate(e, x));
   }
+  if (!a.calibration_out.empty()) loc.calibration()->saveAsRig(a.calibration_out, loc.config().rig);
   if (bad > 0) throw Error("stream: " + std::to_string(bad) + " bad line(s) (see the messages above)");
 }
 
@@ -144,6 +155,12 @@ void add_stream_command(CLI::App& app) {
   sub->add_flag("--no-gate", a->no_gate, "Fuse every observation (no validation gate)");
   sub->add_flag("--smoothed", a->smoothed, "After the input ends, print the smoothed trajectory (\"smoothed\":true)");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
+  sub->add_option("--calibrate", a->calibrate,
+                  "Self-calibrate in the window: odometry (wheel scales, wheel base), stereo (head tilt, baseline "
+                  "scale, pixel offsets, focal ratio; a pixel observation model) or odometry,stereo");
+  sub->add_option("--calibration-out", a->calibration_out,
+                  "With --calibrate: after the input ends, write the rig YAML with the window's calibration estimate "
+                  "and its standard deviations (usable as --rig)");
   sub->callback([a] { runStream(*a); });
 }
 

@@ -110,7 +110,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--tum", a->tum, "Also write the trajectory in TUM format (metres), e.g. for evo");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
   sub->add_option("--calibrate", a->calibrate,
-                  "Batch: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline scale, "
+                  "Batch and window: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline scale, "
                   "disparity and column offsets; needs a pixel observation model) or odometry,stereo, with priors "
                   "from the stated uncertainty");
   sub->add_option("--pixel-sigma", a->options.pixel_sigma,

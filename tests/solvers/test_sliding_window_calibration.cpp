@@ -1,0 +1,176 @@
+// Self-calibration in the sliding window: a window as long as the data is the self-calibrating
+// batch (solvers/self_calibration.h), poses, calibration and covariances; a short window carries
+// the calibration's information through its marginal prior (it recovers the planted wheel and
+// stereo errors on a realistic run, and its calibration covariance shrinks as data come); the
+// block marginal prior factor against central differences.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "factors/block_marginal_prior_factor.h"
+#include "factors/factor_check.h"
+#include "solvers/batch_smoother.h"
+#include "solvers/self_calibration.h"
+#include "solvers/sliding_window_smoother.h"
+#include "src/sim/simulator.h"
+
+namespace stereoloc {
+namespace {
+
+const Eigen::Matrix3d kP0 = Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal();
+
+Dataset realisticRun(uint64_t seed, const std::string& scenario, int steps) {
+  SimulationConfig sc;
+  sc.profile = ErrorProfile::realistic();
+  sc.scenario.steps = steps;
+  Dataset d = simulate(scenario, 0, sc, seed);
+  for (Step& s : d.steps) {  // the batch uses identified landmarks only
+    std::vector<Observation> kept;
+    for (const Observation& o : s.observations)
+      if (o.landmark_id >= 0) kept.push_back(o);
+    s.observations = kept;
+  }
+  return d;
+}
+
+SlidingWindowConfig calibratingWindow(const Dataset& d, int window) {
+  SlidingWindowConfig c;
+  c.window = window;
+  c.init = knownBelief(*d.groundtruth.front(), kP0);
+  c.observation_model = {ObservationModel::PixelColumns, d.rig};
+  c.calibration = SelfCalibrationConfig::parse("odometry,stereo");
+  return c;
+}
+
+double relDiff(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
+  return (a - b).cwiseAbs().maxCoeff() / std::max(1e-300, b.cwiseAbs().maxCoeff());
+}
+
+TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
+  const Dataset d = realisticRun(3, "random-walk", 100);
+  // Both solved to the limit of double precision, so that only the formulation could differ.
+  BatchSmootherConfig bc;
+  bc.init = knownBelief(*d.groundtruth.front(), kP0);
+  bc.observation_model = {ObservationModel::PixelColumns, d.rig};
+  bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
+  bc.cut_at_reinitialisation = false;
+  bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
+  BatchSmoother b(d.map, d.odometry, bc);
+  for (const Step& s : d.steps) b.process(s);
+  SelfCalibrationResult batch;
+  batch.trajectory = b.finish();
+  batch.calibration = b.calibration();
+
+  SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
+  c.gate_enabled = false;
+  c.first_estimate_jacobians = false;  // covariances at the optimum, as ceres::Covariance
+  c.final_iterations = 100;
+  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
+  SlidingWindowSmoother win(d.map, d.odometry, c);
+  for (const Step& s : d.steps) win.process(s);
+  const std::vector<Estimate> ew = win.finish();
+  EXPECT_EQ(win.stats().marginalisations, 0);
+  ASSERT_EQ(ew.size(), batch.trajectory.size());
+  double pose = 0, cov = 0;
+  for (size_t i = 0; i < ew.size(); ++i) {
+    ASSERT_EQ(ew[i].step, batch.trajectory[i].step);
+    pose = std::max(pose, minus(ew[i].pose, batch.trajectory[i].pose).cwiseAbs().maxCoeff());
+    cov = std::max(cov, relDiff(ew[i].covariance, batch.trajectory[i].covariance));
+  }
+  EXPECT_LT(pose, 1e-6);
+  EXPECT_LT(cov, 1e-6);
+  const std::optional<CalibrationEstimate> cw = win.calibration();
+  ASSERT_TRUE(cw.has_value());
+  const CalibrationEstimate& cb = batch.calibration;
+  EXPECT_LT((cw->wheels - cb.wheels).cwiseAbs().maxCoeff(), 1e-6);
+  EXPECT_LT((cw->head - cb.head).cwiseAbs().maxCoeff(), 1e-6);
+  EXPECT_LT(relDiff(cw->wheels_covariance, cb.wheels_covariance), 1e-6);
+  EXPECT_LT(relDiff(cw->head_covariance, cb.head_covariance), 1e-6);
+  // The estimate moved off the nominal calibration (the realistic profile plants errors).
+  EXPECT_GT((cw->wheels - Eigen::Vector3d(1, 1, d.odometry.wheel_base_mm)).cwiseAbs().maxCoeff(), 1e-4);
+}
+
+TEST(SlidingWindowCalibration, ShortWindowCarriesTheCalibrationThroughTheMarginalPrior) {
+  // A random walk in a world with only the errors the blocks model (wheel radii and base, head
+  // tilt, baseline), W = 20: the calibration stays in the window and the marginal prior carries
+  // what the marginalised poses knew of it, so its uncertainty keeps shrinking long after the
+  // first poses left and ends near the whole-data batch's (a window that dropped it would keep
+  // a window's worth of information).
+  SimulationConfig sc;
+  sc.profile.name = "modelled";
+  sc.profile.wheel_radius_rel_sigma = 0.005;
+  sc.profile.wheel_base_rel_sigma = 0.02;
+  sc.profile.baseline_rel_sigma = 0.01;
+  sc.profile.tilt_sigma_rad = deg2rad(0.5);
+  sc.scenario.steps = 400;
+  const Dataset d = simulate("random-walk", 0, sc, 5);
+  SlidingWindowConfig c = calibratingWindow(d, 20);
+  SlidingWindowSmoother win(d.map, d.odometry, c);
+  Eigen::VectorXd early;
+  for (size_t k = 0; k < d.steps.size(); ++k) {
+    win.process(d.steps[k]);
+    if (k == 60) {
+      const CalibrationEstimate e = *win.calibration();
+      early.resize(3 + e.head.size());
+      early << e.wheels_covariance.diagonal(), e.head_covariance.diagonal();
+    }
+  }
+  win.finish();
+  EXPECT_GT(win.stats().marginalisations, 300);
+  EXPECT_EQ(win.stats().reinitialisations, 0);
+  const CalibrationEstimate cw = *win.calibration();
+  SelfCalibrationConfig bc = SelfCalibrationConfig::parse("odometry,stereo");
+  bc.residuals = PixelResiduals::Columns;
+  const SelfCalibrationResult batch = selfCalibratingBatch(d, c.init, bc);
+  const CalibrationEstimate& cb = batch.calibration;
+  const int n = 3 + static_cast<int>(cw.head.size());
+  Eigen::VectorXd vw(n), vb(n), xw(n), xb(n);
+  vw << cw.wheels_covariance.diagonal(), cw.head_covariance.diagonal();
+  vb << cb.wheels_covariance.diagonal(), cb.head_covariance.diagonal();
+  xw << cw.wheels, cw.head;
+  xb << cb.wheels, cb.head;
+  for (int i = 0; i < n; ++i) {
+    if (i != 3) {  // pixel columns hardly see the tilt
+      EXPECT_LT(vw(i), 0.5 * early(i)) << "parameter " << i;
+    }
+    EXPECT_LT(std::sqrt(vw(i)), 1.5 * std::sqrt(vb(i))) << "parameter " << i;
+    EXPECT_LT(std::abs(xw(i) - xb(i)), 2.0 * std::sqrt(vw(i))) << "parameter " << i;
+  }
+}
+
+TEST(SlidingWindowCalibration, BlockMarginalPriorJacobianMatchesCentralDifferences) {
+  std::vector<BlockMarginalPriorFactor::Block> blocks = {{Eigen::Vector3d(100.0, -50.0, 3.1), true},
+                                                         {Eigen::Vector3d(1.01, 0.99, 76.0), false},
+                                                         {Eigen::Vector2d(0.01, 1.02), false}};
+  Eigen::MatrixXd A = Eigen::MatrixXd::Random(8, 8);
+  const Eigen::MatrixXd H = A * A.transpose() + 8.0 * Eigen::MatrixXd::Identity(8, 8);
+  const Eigen::VectorXd g = Eigen::VectorXd::LinSpaced(8, -1.0, 1.0);
+  std::unique_ptr<ceres::CostFunction> f(BlockMarginalPriorFactor::FromInformation(blocks, H, g));
+  // Across the angle wrap of the pose block: the wrapped difference keeps the residual smooth.
+  const double p[3] = {101.0, -49.0, -3.1}, w[3] = {1.0, 1.0, 75.0}, h[2] = {0.0, 1.0};
+  const FactorCheck check = checkFactorJacobians(*f, {p, w, h});
+  EXPECT_TRUE(check.ok) << check.message;
+  EXPECT_LT(check.max_relative_error, 1e-6);
+  // At x0 the residual is r0, and 1/2 |r|^2 has gradient g there.
+  std::vector<std::vector<double>> x0 = {{100.0, -50.0, 3.1}, {1.01, 0.99, 76.0}, {0.01, 1.02}};
+  std::vector<const double*> ptr;
+  for (auto& v : x0) ptr.push_back(v.data());
+  Eigen::VectorXd r(8);
+  ASSERT_TRUE(f->Evaluate(ptr.data(), r.data(), nullptr));
+  const auto* prior = static_cast<const BlockMarginalPriorFactor*>(f.get());
+  EXPECT_LT((prior->sqrtInformation().transpose() * r - g).norm(), 1e-9);
+  EXPECT_THROW(BlockMarginalPriorFactor::FromInformation(blocks, -H, g), Error);
+  // Singular information (no information on the head block): the eigen square root keeps
+  // S^T S = H and S^T r0 = g for g in the range of H.
+  Eigen::MatrixXd Hsing = H;
+  Hsing.rightCols<2>().setZero();
+  Hsing.bottomRows<2>().setZero();
+  Eigen::VectorXd gsing = g;
+  gsing.tail<2>().setZero();
+  std::unique_ptr<BlockMarginalPriorFactor> sing(BlockMarginalPriorFactor::FromInformation(blocks, Hsing, gsing));
+  EXPECT_LT((sing->sqrtInformation().transpose() * sing->sqrtInformation() - Hsing).cwiseAbs().maxCoeff(), 1e-9 * H.norm());
+  EXPECT_LT((sing->sqrtInformation().transpose() * sing->r0() - gsing).norm(), 1e-9);
+}
+
+}  // namespace
+}  // namespace stereoloc
