@@ -2,7 +2,7 @@
 // Stereo pixel factor with the stereo calibration as parameters (self-calibration): the head
 // tilt and the baseline as the robot really has them, against the rig the user measured.
 //
-//   r = (pi(p, l; beta + dbeta, k b) - z) / sigma          4 residuals (u_l, v_l, u_r, v_r) or
+//   r = S (pi(p, l; beta + dbeta, k b) - z)                4 residuals (u_l, v_l, u_r, v_r) or
 //                                                          2 (u_l, u_r) with PixelResiduals::Columns
 //
 // p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y, z), world, mm.
@@ -15,7 +15,8 @@
 // landmarks appear in the rows and, through the (3.4) -> (3.5) rotation, the range of every
 // point below or above the camera. (A disparity offset would be the third; with a rectified pair
 // it is a principal-point difference, which the calibration file pins down better than a run.)
-// z: measured pixels; sigma: pixel noise (px, > 0), so the upper square-root information is I / sigma.
+// z: measured pixels; S: the upper square-root information of their covariance, as in
+// factors/stereo_pixel_factor.h.
 // Evaluation fails when the landmark is not in front of the cameras.
 #include <ceres/autodiff_cost_function.h>
 
@@ -30,8 +31,8 @@ namespace stereoloc {
 
 struct StereoPixelCalibrationFactor {
   StereoPixelCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                               double pan, double sigma, PixelResiduals residuals)
-      : landmark_(landmark), inv_sigma_(1.0 / sigma), rows_(residuals == PixelResiduals::All) {
+                               double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals)
+      : landmark_(landmark), sqrt_info_(sqrt_information), rows_(residuals == PixelResiduals::All) {
     pan_cos_ = std::cos(pan);
     pan_sin_ = std::sin(pan);
     t_ = Eigen::Vector3d(rig.params().offset_x_mm, 0.0, rig.params().camera_height_mm);
@@ -58,23 +59,32 @@ struct StereoPixelCalibrationFactor {
     const T beta = T(tilt_) + calib[0];
     const T cb = cos(beta), sb = sin(beta);
     const T x2 = cb * x1 - sb * z1, y2 = y1, z2 = sb * x1 + cb * z1;
-    return stereo_pixel::whitenedResiduals(x2, y2, z2, calib[1] * T(half_baseline_), f_, ou_, ov_, inv_sigma_, rows_, z_,
+    return stereo_pixel::whitenedResiduals(x2, y2, z2, calib[1] * T(half_baseline_), f_, ou_, ov_, sqrt_info_, rows_, z_,
                                            residual);
   }
 
   // Blocks: pose (3), stereo calibration (dbeta, k) (2).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                                     double pan, double sigma, PixelResiduals residuals) {
-    stereo_pixel::checkInputs("stereo pixel calibration factor", pixels, pan, sigma, landmark);
-    auto* functor = new StereoPixelCalibrationFactor(rig, landmark, pixels, pan, sigma, residuals);
+                                     double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals) {
+    constexpr const char* kWho = "stereo pixel calibration factor";
+    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    auto* functor = new StereoPixelCalibrationFactor(
+        rig, landmark, pixels, pan,
+        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals);
     if (residuals == PixelResiduals::All)
       return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 4, 3, 2>(functor);
     return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 2, 3, 2>(functor);
   }
+  // The same with independent pixels of noise sigma (px, > 0).
+  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                     double pan, double sigma, PixelResiduals residuals) {
+    return Create(rig, landmark, pixels, pan,
+                  stereo_pixel::covarianceFromSigma("stereo pixel calibration factor", sigma), residuals);
+  }
 
  private:
   Eigen::Vector3d landmark_;
-  double inv_sigma_;
+  Eigen::Matrix4d sqrt_info_;
   bool rows_;
   double pan_cos_ = 1, pan_sin_ = 0, tilt_ = 0;
   Eigen::Vector3d t_;

@@ -152,11 +152,11 @@ SelfCalibrationResult selfCalibratingBatch(const Dataset& d, const InitialBelief
       if (o.pixels) {
         if (config.stereo)
           problem.AddResidualBlock(StereoPixelCalibrationFactor::Create(d.rig, l.position, *o.pixels, o.head_pan,
-                                                                        o.pixel_sigma, config.residuals),
+                                                                        o.pixel_covariance, config.residuals),
                                    nullptr, poses[k].data(), head.data());
         else
           problem.AddResidualBlock(
-              StereoPixelFactor::Create(d.rig, l.position, *o.pixels, o.head_pan, o.pixel_sigma, config.residuals),
+              StereoPixelFactor::Create(d.rig, l.position, *o.pixels, o.head_pan, o.pixel_covariance, config.residuals),
               nullptr, poses[k].data());
       } else {
         problem.AddResidualBlock(RangeBearingFactor::Create(l.xy(), o.z(), o.covariance), nullptr, poses[k].data());

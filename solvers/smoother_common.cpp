@@ -64,10 +64,10 @@ ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmar
                                            const ObservationModelConfig& config) {
   if (config.model == ObservationModel::RangeBearing || !obs.pixels)
     return RangeBearingFactor::Create(landmark.xy(), obs.z(), obs.covariance);
-  if (!(std::isfinite(obs.pixel_sigma) && obs.pixel_sigma > 0))
+  if (!(obs.pixel_covariance.diagonal().minCoeff() > 0))
     throw Error("observation of landmark " + std::to_string(landmark.id) +
-                ": has pixels but no positive pixel sigma (the pixel observation model needs it)");
-  return StereoPixelFactor::Create(config.rig, landmark.position, *obs.pixels, obs.head_pan, obs.pixel_sigma,
+                ": has pixels but no pixel covariance (the pixel observation model needs it)");
+  return StereoPixelFactor::Create(config.rig, landmark.position, *obs.pixels, obs.head_pan, obs.pixel_covariance,
                                    config.model == ObservationModel::Pixels ? PixelResiduals::All
                                                                             : PixelResiduals::Columns);
 }

@@ -50,9 +50,9 @@ struct ObservationModelConfig {
 };
 
 // The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks
-// for pixels and the observation has them (with its own Observation::pixel_sigma), the
+// for pixels and the observation has them (with its own Observation::pixel_covariance), the
 // range-bearing factor otherwise. The caller owns the result. Throws stereoloc::Error when a
-// pixel observation carries no positive pixel sigma.
+// pixel observation carries no pixel covariance.
 ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,
                                            const ObservationModelConfig& config);
 
