@@ -197,16 +197,18 @@ Dataset loadDataset(const std::string& dir) {
         if (!l) in.failColumn(2, "unknown landmark id " + std::to_string(id) + " (not in the map)");
         type = l->type;
       }
+      if (covariance) {
+        try {
+          checkPixelCovariance(covarianceFromUpper(v + kCovarianceColumn - 3), "pixel covariance");
+        } catch (const Error& e) {
+          in.failColumn(kCovarianceColumn, e.what());
+        }
+      }
       try {
         if (pixels) {
           const StereoPixels px{v[0], v[1], v[2], v[3]};
           if (covariance) {
             const Eigen::Matrix4d C = covarianceFromUpper(v + kCovarianceColumn - 3);
-            try {
-              checkPixelCovariance(C, "pixel covariance");
-            } catch (const Error& e) {
-              in.failColumn(kCovarianceColumn, e.what());
-            }
             s.observations.push_back(observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], C));
           } else {
             s.observations.push_back(

@@ -3,7 +3,7 @@
 // at random poses on the field, the studies' sensor noise is added (addSensorNoise), the frontend
 // runs, and each of its stereo features is compared with the exact projection (StereoRig::project,
 // which the renderer shares) of the map landmark it shows. The result calibrates the per-type
-// pixel covariance of the frontend (frontend/stereo_match.h, docs/frontend.md "Pixel noise").
+// pixel covariance of the frontend (frontend/stereo_match.h, docs/estimators.md "Observation covariance").
 //
 // Matching: a goal corner by its identity; a corner, junction or intersection with the landmark
 // of its type whose left projection is nearest, when that one lies within `match_px` and every

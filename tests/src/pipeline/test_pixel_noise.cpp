@@ -1,7 +1,6 @@
 // The frontend's pixel covariance model against a Monte Carlo of its errors on rendered pairs.
 #include <gtest/gtest.h>
 
-#include <Eigen/LU>
 #include <cmath>
 
 #include "frontend/frontend.h"
@@ -28,17 +27,10 @@ const Sample& sample() {
   return s;
 }
 
-// Mean of e^T C^-1 e over the (u_l, u_r) block, the data the range-bearing form and the
-// pixel-column factors use: 2 for a model that matches the errors' second moments.
-double meanMahalanobisColumns(const std::vector<PixelErrorSample>& s, const Eigen::Matrix4d& C) {
-  Eigen::Matrix2d C2;
-  C2 << C(0, 0), C(0, 2), C(2, 0), C(2, 2);
-  const Eigen::Matrix2d I = C2.inverse();
+// Mean square of a linear combination w of the pixel errors (w^T e)^2, and the model's w^T C w.
+double meanSquare(const std::vector<PixelErrorSample>& s, const Eigen::Vector4d& w) {
   double sum = 0;
-  for (const PixelErrorSample& e : s) {
-    const Eigen::Vector2d x(e.error[0], e.error[2]);
-    sum += x.dot(I * x);
-  }
+  for (const PixelErrorSample& e : s) sum += w.dot(e.error) * w.dot(e.error);
   return sum / static_cast<double>(s.size());
 }
 
@@ -55,22 +47,21 @@ TEST(PixelNoise, ModelCovarianceMatchesTheFrontendsErrors) {
   const frontend::FrontendParams params;
   const auto by_type = samplesByType(sample().errors);
   int checked = 0;
+  const Eigen::Vector4d disparity(1, 0, -1, 0), column(0.5, 0, 0.5, 0);
   for (const auto& [type, s] : by_type) {
     if (s.size() < 40) continue;
     ++checked;
     const Eigen::Matrix4d C = params.stereo.pixelCovariance(type);
-    const double m = meanMahalanobisColumns(s, C);
-    // The mean of n chi-square(2) values has standard deviation 2 / sqrt(n); the frontend's
-    // errors have heavier tails, so the band is wider than that.
-    EXPECT_GT(m, 1.2) << toString(type) << " n=" << s.size();
-    EXPECT_LT(m, 3.0) << toString(type) << " n=" << s.size();
-    // The disparity direction on its own: its variance within a factor 2.5 of the model's.
-    double sd2 = 0;
-    for (const PixelErrorSample& e : s) sd2 += (e.error[0] - e.error[2]) * (e.error[0] - e.error[2]);
-    sd2 /= static_cast<double>(s.size());
-    const double model_d2 = C(0, 0) - 2 * C(0, 2) + C(2, 2);
-    EXPECT_GT(sd2 / model_d2, 1.0 / 2.5) << toString(type);
-    EXPECT_LT(sd2 / model_d2, 2.5) << toString(type);
+    // Disparity (range): the model's variance is the measured one (heavy-tailed errors and a
+    // few dozen samples: within a factor 4).
+    const double d_ratio = meanSquare(s, disparity) / disparity.dot(C * disparity);
+    EXPECT_GT(d_ratio, 0.25) << toString(type) << " n=" << s.size();
+    EXPECT_LT(d_ratio, 4.0) << toString(type) << " n=" << s.size();
+    // Mean column (bearing): at least as wide as measured (the model adds the error that
+    // repeats over consecutive views, docs/estimators.md), at most 2.5x in sigma.
+    const double c_ratio = column.dot(C * column) / meanSquare(s, column);
+    EXPECT_GT(c_ratio, 1.0) << toString(type) << " n=" << s.size();
+    EXPECT_LT(c_ratio, 6.25) << toString(type) << " n=" << s.size();
   }
   EXPECT_GE(checked, 2);
 }
