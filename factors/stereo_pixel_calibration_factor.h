@@ -1,20 +1,32 @@
 #pragma once
 // Stereo pixel factor with the stereo calibration as parameters (self-calibration): the head
-// tilt and the baseline as the robot really has them, against the rig the user measured.
+// tilt, the baseline and the pixel offsets of the pair as the robot really has them, against
+// the rig the user measured.
 //
-//   r = S (pi(p, l; beta + dbeta, k b) - z)                4 residuals (u_l, v_l, u_r, v_r) or
+//   r = S (pi(p, l; q) - z)                                4 residuals (u_l, v_l, u_r, v_r) or
 //                                                          2 (u_l, u_r) with PixelResiduals::Columns
 //
 // p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y, z), world, mm.
-// q = (dbeta, k): calibration block, dbeta the tilt correction (rad, added to the rig's tilt
-// beta; > 0 looks further down) and k the baseline scale (dimensionless, nominally 1). pi: the
+// q = (dbeta, k, delta_d, delta_u, phi): calibration block; dbeta the tilt correction (rad,
+// added to the rig's tilt beta; > 0 looks further down), k the baseline scale (dimensionless,
+// nominally 1), delta_d the disparity offset and delta_u the column offset (px, nominally 0),
+// phi the right camera's relative focal length error (dimensionless, nominally 0). pi: the
 // projection of factors/stereo_pixel_factor.h with C0 -> C1 (pan) -> C2 (offset, height, tilt
-// beta + dbeta): u_l = o_u - f (y - k b/2) / x, u_r = o_u - f (y + k b/2) / x, v = o_v - f z / x.
-// Why these two: range is f b / disparity (3.4), so a baseline error is a range scale error,
-// the dominant systematic range error of a small rig; the tilt sets where the floor and the
-// landmarks appear in the rows and, through the (3.4) -> (3.5) rotation, the range of every
-// point below or above the camera. (A disparity offset would be the third; with a rectified pair
-// it is a principal-point difference, which the calibration file pins down better than a run.)
+// beta + dbeta), then
+//   u_l = o_u + delta_u + delta_d / 2 - f (y - k b/2) / x,
+//   u_r = o_u + delta_u - delta_d / 2 - f (1 + phi) (y + k b/2) / x,   v = o_v - f z / x,
+// so the disparity u_l - u_r is f k b / x + delta_d (+ phi f (y + k b/2) / x) and the mean
+// column moves by delta_u.
+// Why these: range is f b / disparity (3.4), so a baseline error is a range scale error and a
+// disparity offset a range error growing with range^2 (a difference of the principal points,
+// or a relative yaw eps of the cameras, f eps: 0.1 deg is ~0.5 px at f = 277 px, a large
+// fraction of the disparity of a far landmark); a focal length difference of the two cameras
+// is a disparity error proportional to the bearing's tangent (0.7 % of 277 px: 1.1 px at 30 deg);
+// delta_u is a bearing offset (mean principal point, head pan); the tilt sets where the floor
+// and the landmarks appear in the rows and, through the (3.4) -> (3.5) rotation, the range of
+// every point below or above the camera. The columns enter through an equivalent point in C2:
+// any (u_l, u_r) is the projection of y' = (2 o_u - u_l - u_r) x / (2 f) with half baseline
+// (u_l - u_r) x / (2 f), so v is unchanged and the shared residual code applies.
 // z: measured pixels; S: the upper square-root information of their covariance, as in
 // factors/stereo_pixel_factor.h.
 // Evaluation fails when the landmark is not in front of the cameras.
@@ -58,12 +70,22 @@ struct StereoPixelCalibrationFactor {
     // C2 = R_y(beta)^T C1 (stereo_rig.h: R_tilt = [c 0 s; 0 1 0; -s 0 c]).
     const T beta = T(tilt_) + calib[0];
     const T cb = cos(beta), sb = sin(beta);
-    const T x2 = cb * x1 - sb * z1, y2 = y1, z2 = sb * x1 + cb * z1;
-    return stereo_pixel::whitenedResiduals(x2, y2, z2, calib[1] * T(half_baseline_), f_, ou_, ov_, sqrt_info_, rows_, z_,
-                                           residual);
+    const T x2 = cb * x1 - sb * z1, z2 = sb * x1 + cb * z1;
+    if (!(x2 > T(stereo_pixel::kMinDepth))) return false;
+    const T hb = calib[1] * T(half_baseline_);
+    const T f(f_);
+    // Columns relative to o_u.
+    const T cl = calib[3] + 0.5 * calib[2] - f * (y1 - hb) / x2;
+    const T cr = calib[3] - 0.5 * calib[2] - f * (T(1.0) + calib[4]) * (y1 + hb) / x2;
+    const T per_px = x2 / f;  // mm in C2 per pixel of column at this depth
+    const T y2 = -0.5 * (cl + cr) * per_px;
+    const T half_baseline = 0.5 * (cl - cr) * per_px;
+    return stereo_pixel::whitenedResiduals(x2, y2, z2, half_baseline, f_, ou_, ov_, sqrt_info_, rows_, z_, residual);
   }
 
-  // Blocks: pose (3), stereo calibration (dbeta, k) (2).
+  static constexpr int kCalibrationSize = 5;  // (dbeta, k, delta_d, delta_u, phi)
+
+  // Blocks: pose (3), stereo calibration (dbeta, k, delta_d, delta_u, phi) (5).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals) {
     constexpr const char* kWho = "stereo pixel calibration factor";
@@ -72,8 +94,8 @@ struct StereoPixelCalibrationFactor {
         rig, landmark, pixels, pan,
         stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals);
     if (residuals == PixelResiduals::All)
-      return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 4, 3, 2>(functor);
-    return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 2, 3, 2>(functor);
+      return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 4, 3, kCalibrationSize>(functor);
+    return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 2, 3, kCalibrationSize>(functor);
   }
   // The same with independent pixels of noise sigma (px, > 0).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,

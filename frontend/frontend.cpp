@@ -22,6 +22,14 @@ struct Field {
 
 std::vector<Field> fields(FrontendParams& p) {
   return {
+      {"field", "enabled", Field::Bool, &p.field.enabled},
+      {"field", "step_px", Field::Int, &p.field.step_px},
+      {"field", "chroma_tolerance", Field::Double, &p.field.chroma_tolerance},
+      {"field", "luma_low", Field::Double, &p.field.luma_low},
+      {"field", "luma_high", Field::Double, &p.field.luma_high},
+      {"field", "min_run", Field::Int, &p.field.min_run},
+      {"field", "smooth_columns", Field::Int, &p.field.smooth_columns},
+      {"field", "margin_px", Field::Double, &p.field.margin_px},
       {"gradient", "magnitude_threshold", Field::Int, &p.gradient.magnitude_threshold},
       {"gradient", "auto_factor", Field::Double, &p.gradient.auto_factor},
       {"hough", "theta_step_deg", Field::Double, &p.hough.theta_step_deg},
@@ -109,14 +117,20 @@ std::vector<Field> fields(FrontendParams& p) {
   };
 }
 
-const char* kSections[] = {"gradient", "hough", "peaks", "segments", "classify", "corners", "goals", "stereo"};
+const char* kSections[] = {"field", "gradient", "hough", "peaks", "segments", "classify", "corners", "goals", "stereo"};
 
 }  // namespace
 
 void FrontendParams::validate() const {
-  auto need = [](bool ok, const char* field, const char* what) {
-    if (!ok) throw Error(std::string("frontend params: ") + field + ": " + what);
+  auto need = [](bool ok, const char* key, const char* what) {
+    if (!ok) throw Error(std::string("frontend params: ") + key + ": " + what);
   };
+  need(field.step_px >= 1 && field.step_px <= 32, "field.step_px", "must be in [1, 32]");
+  need(field.chroma_tolerance > 0 && field.chroma_tolerance <= 2, "field.chroma_tolerance", "must be in (0, 2]");
+  need(field.luma_low >= 0 && field.luma_high > field.luma_low, "field.luma_low/luma_high", "need 0 <= low < high");
+  need(field.min_run >= 1, "field.min_run", "must be at least 1");
+  need(field.smooth_columns >= 0, "field.smooth_columns", "must not be negative");
+  need(field.margin_px >= 0, "field.margin_px", "must not be negative");
   need(gradient.magnitude_threshold > 0, "gradient.magnitude_threshold", "must be positive");
   need(gradient.auto_factor >= 0 && gradient.auto_factor <= 50, "gradient.auto_factor", "must be in [0, 50] (0: off)");
   const double n = 360.0 / hough.theta_step_deg;
@@ -280,7 +294,8 @@ void Frontend::checkImage(const cv::Mat& img, const char* which) const {
 const std::vector<Segment>& Frontend::detectSegments(const cv::Mat& bgr) {
   checkImage(bgr, "input");
   bgrToLuma(bgr, left_luma_);
-  grad_.compute(left_luma_, params_.gradient);
+  region_.compute(bgr, params_.field);
+  grad_.compute(left_luma_, params_.gradient, region_.restricted() ? region_.top().data() : nullptr);
   used_.clear();
   acc_.vote(grad_.edges(), used_);
   detectPeaks(acc_, params_.peaks, peaks_);
@@ -302,6 +317,14 @@ const FrontendResult& Frontend::detectFeatures(const cv::Mat& bgr) {
   snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);
   findCorners(r.lines, rig_, params_.corners, r.features, &left_luma_);
   return r;
+}
+
+const FrontendResult& Frontend::detectFeaturesRaw(const cv::Mat& raw_bgr) {
+  if (!rectifier_) return detectFeatures(raw_bgr);
+  checkImage(raw_bgr, "input");
+  // The rectifier maps pairs; the right map's output of the same image is not used.
+  rectifier_->rectify(raw_bgr, raw_bgr);
+  return detectFeatures(rectifier_->left());
 }
 
 const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& right_in, double head_pan) {

@@ -21,6 +21,7 @@
 
 #include "frontend/classify.h"
 #include "frontend/corners.h"
+#include "frontend/field_region.h"
 #include "frontend/gbht.h"
 #include "frontend/goal_corners.h"
 #include "frontend/gradient.h"
@@ -36,6 +37,7 @@ namespace stereoloc::frontend {
 
 // Every parameter of the frontend, with the thesis's defaults (6.1) where it gives them.
 struct FrontendParams {
+  FieldRegionParams field;
   GradientParams gradient;
   HoughParams hough;
   PeakParams peaks;
@@ -45,7 +47,7 @@ struct FrontendParams {
   GoalParams goals;
   StereoParams stereo;
 
-  // YAML through cv::FileStorage: sections gradient, hough, peaks, segments, classify, corners,
+  // YAML through cv::FileStorage: sections field, gradient, hough, peaks, segments, classify, corners,
   // goals, stereo holding the fields above by name; missing keys keep their defaults, unknown
   // keys and out-of-range values are errors naming file and key.
   static FrontendParams load(const std::string& path);
@@ -80,6 +82,9 @@ class Frontend {
   // Stages 1-6 on one image (monocular use): segments, lines, corners / junctions /
   // intersections; no goal corners, stereo match or observations (those are cleared).
   const FrontendResult& detectFeatures(const cv::Mat& bgr);
+  // The same on a raw image of the left camera: rectified first when the rig's calibration needs
+  // it (see rectifier()), so the features are in rectified pixels as process() gives them.
+  const FrontendResult& detectFeaturesRaw(const cv::Mat& raw_bgr);
 
   // Stages 1-5 only, on one image (the benchmark and tests use it). Returns result().segments.
   const std::vector<Segment>& detectSegments(const cv::Mat& bgr);
@@ -90,6 +95,8 @@ class Frontend {
   // The rectification of raw pairs; null when the rig's images are used as they are.
   const Rectifier* rectifier() const { return rectifier_ ? &*rectifier_ : nullptr; }
   const GradientStage& gradient() const { return grad_; }
+  // The region of interest of the last image (whole image unless params().field.enabled).
+  const FieldRegion& fieldRegion() const { return region_; }
   // W'(v) of Algorithm 3 for each image row (see classify.h).
   const std::vector<float>& markingWidthPerRow() const { return width_per_row_; }
 
@@ -105,6 +112,7 @@ class Frontend {
   std::optional<Rectifier> rectifier_;
   std::vector<float> width_per_row_;
   int goal_ids_[2][2] = {{-1, -1}, {-1, -1}};  // [blue/yellow][side -1/+1]
+  FieldRegion region_;
   GradientStage grad_;
   HoughAccumulator acc_;
   SegmentExtractor extractor_;

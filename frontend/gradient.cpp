@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <climits>
 #include <cstring>
 
 #include <opencv2/imgproc.hpp>
@@ -53,7 +54,7 @@ float fastAngle(float y, float x) {
   return r;
 }
 
-void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
+void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, const int16_t* top) {
   if (luma.type() != CV_8UC1) throw Error("GradientStage: expected an 8-bit one-channel image");
   const int w = luma.cols, h = luma.rows;
   const size_t n = static_cast<size_t>(w) * h;
@@ -74,7 +75,15 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
   // Squared magnitudes and a byte mask of the pixels at the threshold, both in loops the
   // compiler vectorises: most pixels are below it, and a branch per pixel in the suppression
   // loop below was half the stage's time. The mask has 8 zero bytes of padding per row end.
-  for (int y = 0; y < h; ++y) {
+  // With a region of interest, rows above its highest column top give no edge pixels; the
+  // suppression below reads one row above the first it tests.
+  int y_first = 0;
+  if (top) {
+    y_first = h;
+    for (int x = 0; x < w; ++x) y_first = std::min<int>(y_first, top[x]);
+    y_first = std::max(0, y_first - 1);
+  }
+  for (int y = y_first; y < h; ++y) {
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
     int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
@@ -83,11 +92,12 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
   int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
   if (params.auto_factor > 0) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
-    // every 3rd pixel of every 3rd row is plenty for a median.
+    // every 3rd pixel of every 3rd row of the whole image is plenty for a median.
     samples_.clear();
     for (int y = 2; y < h - 2; y += 3) {
-      const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-      for (int x = 2; x < w - 2; x += 3) samples_.push_back(m2[x]);
+      const int16_t* gxr = gx_.ptr<int16_t>(y);
+      const int16_t* gyr = gy_.ptr<int16_t>(y);
+      for (int x = 2; x < w - 2; x += 3) samples_.push_back(int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x]);
     }
     if (!samples_.empty()) {
       auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(samples_.size() / 2);
@@ -97,18 +107,27 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params) {
     }
   }
   threshold_ = std::sqrt(static_cast<double>(thr2));
+  // A 32-bit threshold keeps the comparison below in 32-bit lanes (vectorised); squared Sobel
+  // magnitudes of 8-bit images stay below 2^22.
+  const int32_t thr2_32 = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
   const size_t stride = static_cast<size_t>(w) + 8;
   if (above_.size() != stride * h) above_.assign(stride * h, 0);  // only [2, w - 2) is written
   for (int y = 0; y < h; ++y) {
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
-    for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2);
+    if (y < y_first + 1) {
+      std::fill(ab + 2, ab + std::max(2, w - 2), uint8_t{0});
+      continue;
+    }
+    for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
+    if (top)
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(ab[x] & (y >= top[x]));
   }
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
   // through the three magnitudes. Pixels next to the border are skipped (their neighbours
   // have no gradient).
-  for (int y = 2; y < h - 2; ++y) {
+  for (int y = std::max(2, y_first + 1); y < h - 2; ++y) {
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);

@@ -23,8 +23,9 @@ void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma);
 // Reusable gradient stage: holds all buffers, so repeated calls on same-size images allocate nothing.
 class GradientStage {
  public:
-  // luma must be CV_8UC1. Fills edges() and the per-pixel index map.
-  void compute(const cv::Mat& luma, const GradientParams& params);
+  // luma must be CV_8UC1. Fills edges() and the per-pixel index map. top (optional, one entry
+  // per column): pixels above row top[x] give no edge pixels (frontend/field_region.h).
+  void compute(const cv::Mat& luma, const GradientParams& params, const int16_t* top = nullptr);
 
   const std::vector<EdgePixel>& edges() const { return edges_; }
   int width() const { return w_; }

@@ -10,7 +10,10 @@
 #include <memory>
 #include <utility>
 
+#include "factors/calibration_prior_factor.h"
 #include "factors/compass_factor.h"
+#include "factors/odometry_calibration_factor.h"
+#include "factors/stereo_pixel_calibration_factor.h"
 #include "solvers/chain_solver.h"
 #include "factors/odometry_factor.h"
 #include "factors/pose_manifold.h"
@@ -60,6 +63,11 @@ void BatchSmootherConfig::validate() const {
     throw Error("batch smoother: tolerances must be >= 0");
   if (!(cut_min_evidence >= 0)) throw Error("batch smoother: cut_min_evidence must be >= 0");
   makeLossFunction(loss);  // validates the scale
+  if (!(std::isfinite(observation_model.pixel_sigma) && observation_model.pixel_sigma >= 0))
+    throw Error("batch smoother: observation_model.pixel_sigma must be >= 0 (0: the observations' own)");
+  calibration.validate();
+  if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
+    throw Error("batch smoother: stereo self-calibration needs a pixel observation model (pixel_columns or pixels)");
 }
 
 BatchSmoother::BatchSmoother(const FieldMap& map, const OdometryParams& odometry, BatchSmootherConfig config)
@@ -320,31 +328,50 @@ using Clock = std::chrono::steady_clock;
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 // The factors touching poses [lo, hi) as a ceres::Problem over those poses, the neighbours
-// lo-1 and hi held constant (BatchSolver::Ceres, and ceres::Covariance).
+// lo-1 and hi held constant, and over the global blocks (held constant unless free_globals)
+// (BatchSolver::Ceres, and ceres::Covariance).
 std::unique_ptr<ceres::Problem> makeCeresProblem(const ChainFactorSource& source, ceres::LossFunction* loss,
                                                  const ceres::Manifold* manifold, size_t lo, size_t hi,
-                                                 std::vector<double>* x) {
+                                                 std::vector<double>* x, std::vector<double>* globals,
+                                                 bool free_globals) {
   ceres::Problem::Options popts;
   popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   auto problem = std::make_unique<ceres::Problem>(popts);
   double* X = x->data();
   for (size_t i = lo; i < hi; ++i) problem->AddParameterBlock(X + 3 * i, 3, const_cast<ceres::Manifold*>(manifold));
+  std::vector<double*> global_blocks;
+  {
+    int offset = 0;
+    for (int size : source.globalBlockSizes()) {
+      global_blocks.push_back(globals->data() + offset);
+      problem->AddParameterBlock(global_blocks.back(), size);
+      if (!free_globals) problem->SetParameterBlockConstant(global_blocks.back());
+      offset += size;
+    }
+  }
+  auto add = [&](ChainFactor& f, std::vector<double*> blocks) {
+    if (f.global >= 0) blocks.push_back(global_blocks[static_cast<size_t>(f.global)]);
+    problem->AddResidualBlock(f.cost.release(), f.robust ? loss : nullptr, blocks);
+  };
   std::vector<ChainFactor> unary;
   auto addBinary = [&](size_t i) {
-    std::unique_ptr<ceres::CostFunction> b = source.binaryFactor(i);
-    if (!b) return;
-    problem->AddResidualBlock(b.release(), nullptr, X + 3 * (i - 1), X + 3 * i);
+    ChainFactor b = source.binaryFactor(i);
+    if (!b.cost) return;
+    add(b, {X + 3 * (i - 1), X + 3 * i});
     for (size_t j : {i - 1, i})
       if (j < lo || j >= hi) problem->SetParameterBlockConstant(X + 3 * j);
   };
   for (size_t i = lo; i < hi; ++i) {
     unary.clear();
     source.unaryFactors(i, &unary);
-    for (ChainFactor& f : unary) problem->AddResidualBlock(f.cost.release(), f.robust ? loss : nullptr, X + 3 * i);
+    for (ChainFactor& f : unary) add(f, {X + 3 * i});
     if (i > 0) addBinary(i);
   }
   if (hi < source.size() && hi > lo) addBinary(hi);
+  unary.clear();
+  source.globalFactors(&unary);
+  for (ChainFactor& f : unary) add(f, {});
   return problem;
 }
 
@@ -356,7 +383,16 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
  public:
   StepFactorSource(const BatchSmoother& smoother, size_t first, size_t n)
       : b_(smoother), first_(first), n_(n),
-        prior_covariance_(0.5 * (b_.prior_covariance_ + b_.prior_covariance_.transpose())), cut_(n, 0) {}
+        prior_covariance_(0.5 * (b_.prior_covariance_ + b_.prior_covariance_.transpose())), cut_(n, 0) {
+    if (b_.config_.calibration.odometry) {
+      odometry_block_ = static_cast<int>(sizes_.size());
+      sizes_.push_back(3);
+    }
+    if (b_.config_.calibration.stereo) {
+      stereo_block_ = static_cast<int>(sizes_.size());
+      sizes_.push_back(StereoPixelCalibrationFactor::kCalibrationSize);
+    }
+  }
 
   size_t size() const override { return n_; }
   void unaryFactors(size_t i, std::vector<ChainFactor>* out) const override {
@@ -366,19 +402,60 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     const BufferedStep& st = b_.steps_[k];
     if (st.compass_sigma > 0 && b_.config_.use_compass)
       out->push_back({std::unique_ptr<ceres::CostFunction>(CompassFactor::Create(st.compass, st.compass_sigma)), false});
+    const ObservationModelConfig& model = b_.config_.observation_model;
     for (size_t o = b_.observationsBegin(k); o < st.observations_end; ++o) {
       const Observation& obs = b_.observations_[o];
-      if (obs.landmark_id >= 0)
-        out->push_back({std::unique_ptr<ceres::CostFunction>(
-                            makeObservationFactor(obs, b_.map_.at(obs.landmark_id), b_.config_.observation_model)),
-                        true});
+      if (obs.landmark_id < 0) continue;
+      const Landmark& landmark = b_.map_.at(obs.landmark_id);
+      if (stereo_block_ >= 0 && obs.pixels) {
+        const Eigen::Matrix4d C = model.pixel_sigma > 0 ? isotropicPixelCovariance(model.pixel_sigma)
+                                                        : obs.pixel_covariance;
+        out->push_back({std::unique_ptr<ceres::CostFunction>(StereoPixelCalibrationFactor::Create(
+                            model.rig, landmark.position, *obs.pixels, obs.head_pan, C,
+                            model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns)),
+                        true, stereo_block_});
+      } else {
+        out->push_back({std::unique_ptr<ceres::CostFunction>(makeObservationFactor(obs, landmark, model)), true});
+      }
     }
   }
-  std::unique_ptr<ceres::CostFunction> binaryFactor(size_t i) const override {
-    if (i == 0 || cut_[i]) return nullptr;
+  ChainFactor binaryFactor(size_t i) const override {
+    if (i == 0 || cut_[i]) return {};
     const BufferedStep& st = b_.steps_[first_ + i];
-    return std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(st.d_left, st.d_right, b_.odometry_));
+    if (odometry_block_ >= 0)
+      return {std::unique_ptr<ceres::CostFunction>(OdometryCalibrationFactor::Create(st.d_left, st.d_right, b_.odometry_)),
+              false, odometry_block_};
+    return {std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(st.d_left, st.d_right, b_.odometry_)), false};
   }
+  std::vector<int> globalBlockSizes() const override { return sizes_; }
+  void globalFactors(std::vector<ChainFactor>* out) const override {
+    const SelfCalibrationConfig& c = b_.config_.calibration;
+    if (odometry_block_ >= 0) {
+      const Eigen::Vector3d sigma(c.wheel_scale_sigma, c.wheel_scale_sigma, c.wheel_base_rel_sigma * b_.odometry_.wheel_base_mm);
+      out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<3>::Create(
+                          nominalWheels(), sigma.cwiseAbs2().asDiagonal().toDenseMatrix())),
+                      false, odometry_block_});
+    }
+    if (stereo_block_ >= 0) {
+      CalibrationEstimate::StereoVector sigma;
+      sigma << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
+          c.focal_ratio_sigma;
+      out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<kStereo>::Create(
+                          nominalHead(), sigma.cwiseAbs2().asDiagonal().toDenseMatrix())),
+                      false, stereo_block_});
+    }
+  }
+  // The global blocks' nominal values, concatenated (the solver's start).
+  std::vector<double> nominalGlobals() const {
+    std::vector<double> g;
+    const Eigen::Vector3d wheels = nominalWheels();
+    const CalibrationEstimate::StereoVector head = nominalHead();
+    if (odometry_block_ >= 0) g.insert(g.end(), wheels.data(), wheels.data() + 3);
+    if (stereo_block_ >= 0) g.insert(g.end(), head.data(), head.data() + kStereo);
+    return g;
+  }
+  int odometryBlock() const { return odometry_block_; }
+  int stereoBlock() const { return stereo_block_; }
   // The odometry factor into pose i is removed (true) or restored.
   void setCut(size_t i, bool cut) { cut_[i] = cut ? 1 : 0; }
 
@@ -387,6 +464,11 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   size_t first_, n_;
   Eigen::Matrix3d prior_covariance_;
   std::vector<uint8_t> cut_;
+  std::vector<int> sizes_;
+  int odometry_block_ = -1, stereo_block_ = -1;
+  Eigen::Vector3d nominalWheels() const { return Eigen::Vector3d(1.0, 1.0, b_.odometry_.wheel_base_mm); }
+  static CalibrationEstimate::StereoVector nominalHead() { return CalibrationEstimate().head; }
+  static constexpr int kStereo = StereoPixelCalibrationFactor::kCalibrationSize;
 };
 
 void BatchSmoother::solve() {
@@ -415,7 +497,8 @@ void BatchSmoother::solve() {
   const PoseManifold manifold;
   const std::unique_ptr<ceres::LossFunction> loss = makeLossFunction(config_.loss);
   StepFactorSource source(*this, first, n);
-  const ChainProblem chain(source, loss.get());
+  std::vector<double> globals = source.nominalGlobals();  // the calibration blocks, concatenated
+  const ChainProblem chain(source, loss.get(), &globals);
   auto report = [&](const char* phase, long done, long total, int iteration, double cost) {
     if (!config_.progress) return;
     BatchProgress p;
@@ -457,10 +540,12 @@ void BatchSmoother::solve() {
     ChainSolverSummary r;
     if (config_.solver == BatchSolver::Chain) {
       ChainSolverOptions o = lm;
+      o.solve_globals = full;  // the cut tests' windows hold the calibration
       if (full) o.progress = [&](int it, double cost) { report("solve", it, config_.max_iterations, it, cost); };
       r = chain.solve(lo, hi, &x, o);
     } else {
-      const std::unique_ptr<ceres::Problem> problem = makeCeresProblem(source, loss.get(), &manifold, lo, hi, &x);
+      const std::unique_ptr<ceres::Problem> problem =
+          makeCeresProblem(source, loss.get(), &manifold, lo, hi, &x, &globals, full);
       ceres::Solver::Options opts;
       opts.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
       opts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
@@ -618,19 +703,29 @@ void BatchSmoother::solve() {
   // The chain marginals first, then the result: each phase holds one more copy of the
   // trajectory's size, not two (the peak memory of a long run).
   std::vector<Eigen::Matrix3d> chain_cov;
+  Eigen::MatrixXd global_covariance = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(globals.size()),
+                                                            static_cast<Eigen::Index>(globals.size()));
   const bool chain_covariance = config_.compute_covariance && config_.covariance_method == CovarianceMethod::Chain;
   if (config_.compute_covariance) report("covariance", 0, 1, 0, cost);
   if (chain_covariance) {
     const auto t1 = Clock::now();
-    std::vector<Eigen::Matrix3d> D, B;
-    std::vector<Eigen::Vector3d> g;
+    bool ok = false;
     double c0 = 0;
-    const bool ok = chain.linearise(0, n, x, &D, &B, &g, &c0);
-    g = std::vector<Eigen::Vector3d>();
-    if (ok && chainMarginalCovariances(D, B, &chain_cov)) {
+    if (globals.empty()) {
+      std::vector<Eigen::Matrix3d> D, B;
+      std::vector<Eigen::Vector3d> g;
+      ok = chain.linearise(0, n, x, &D, &B, &g, &c0);
+      g = std::vector<Eigen::Vector3d>();
+      ok = ok && chainMarginalCovariances(D, B, &chain_cov);
+    } else {
+      BorderedSystem h;
+      ok = chain.linearise(0, n, x, &h, &c0) && borderedMarginalCovariances(h, &chain_cov, &global_covariance);
+    }
+    if (ok) {
       s.covariance_status = CovarianceStatus::Ok;
     } else {
       chain_cov.clear();
+      global_covariance.setZero();
       s.covariance_status = CovarianceStatus::RankDeficient;
       s.message += "; covariance: the information matrix is rank deficient, marginal covariances are not available";
     }
@@ -646,7 +741,8 @@ void BatchSmoother::solve() {
   chain_cov = std::vector<Eigen::Matrix3d>();
   if (config_.compute_covariance && !chain_covariance) {
     const auto t1 = Clock::now();
-    const std::unique_ptr<ceres::Problem> problem = makeCeresProblem(source, loss.get(), &manifold, 0, n, &x);
+    const std::unique_ptr<ceres::Problem> problem =
+        makeCeresProblem(source, loss.get(), &manifold, 0, n, &x, &globals, true);
     ceres::Covariance::Options copts;
     copts.algorithm_type = ceres::SPARSE_QR;
     copts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
@@ -656,8 +752,20 @@ void BatchSmoother::solve() {
     std::vector<std::pair<const double*, const double*>> blocks;
     blocks.reserve(n);
     for (size_t i = 0; i < n; ++i) blocks.emplace_back(&x[3 * i], &x[3 * i]);
+    const std::vector<int> sizes = source.globalBlockSizes();
+    std::vector<double*> global_blocks;
+    for (size_t k = 0, offset = 0; k < sizes.size(); offset += static_cast<size_t>(sizes[k]), ++k)
+      global_blocks.push_back(globals.data() + offset);
+    for (double* a : global_blocks)
+      for (double* b : global_blocks) blocks.emplace_back(a, b);
     if (covariance.Compute(blocks, problem.get())) {
       s.covariance_status = CovarianceStatus::Ok;
+      for (size_t a = 0, oa = 0; a < sizes.size(); oa += static_cast<size_t>(sizes[a]), ++a)
+        for (size_t b = 0, ob = 0; b < sizes.size(); ob += static_cast<size_t>(sizes[b]), ++b) {
+          Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> C(sizes[a], sizes[b]);
+          covariance.GetCovarianceBlock(global_blocks[a], global_blocks[b], C.data());
+          global_covariance.block(static_cast<Eigen::Index>(oa), static_cast<Eigen::Index>(ob), sizes[a], sizes[b]) = C;
+        }
       for (size_t i = 0; i < n; ++i) {
         Eigen::Matrix<double, 3, 3, Eigen::RowMajor> C;
         if (!covariance.GetCovarianceBlockInTangentSpace(&x[3 * i], &x[3 * i], C.data())) {
@@ -671,9 +779,28 @@ void BatchSmoother::solve() {
     }
     if (s.covariance_status != CovarianceStatus::Ok) {
       for (size_t i = 0; i < n; ++i) result_[first + i].covariance.setZero();
+      global_covariance.setZero();
       s.message += "; covariance: the Jacobian is rank deficient, marginal covariances are not available";
     }
     s.covariance_seconds = secondsSince(t1);
+  }
+  CalibrationEstimate& cal = calibration_;
+  cal = CalibrationEstimate();
+  cal.wheels.z() = odometry_.wheel_base_mm;
+  cal.odometry = source.odometryBlock() >= 0;
+  cal.stereo = source.stereoBlock() >= 0;
+  {
+    Eigen::Index offset = 0;
+    const Eigen::Map<const Eigen::VectorXd> c(globals.data(), static_cast<Eigen::Index>(globals.size()));
+    if (cal.odometry) {
+      cal.wheels = c.segment<3>(offset);
+      cal.wheels_covariance = global_covariance.block<3, 3>(offset, offset);
+      offset += 3;
+    }
+    if (cal.stereo) {
+      cal.head = c.segment<5>(offset);
+      cal.head_covariance = global_covariance.block<5, 5>(offset, offset);
+    }
   }
   summary_ = s;
 }

@@ -22,6 +22,10 @@
 // odometry chained from the initial belief (or the first global fix), or given estimates.
 // Kidnap (5.1.3): the filter pass's gate detects it; each re-initialisation after "lost" cuts the
 // odometry chain and anchors the new segment on the global fix (cut_at_reinitialisation).
+// Self-calibration (BatchSmootherConfig::calibration, solvers/self_calibration.h): the odometry
+// and stereo calibration as global parameter blocks of the same problem; the chain solver then
+// solves the bordered system (a few dense columns beside the tridiagonal poses) in O(N), and
+// calibration() returns the estimate with its marginal covariance.
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
@@ -33,6 +37,7 @@
 
 #include "solvers/ekf.h"
 #include "solvers/initialisation.h"
+#include "solvers/self_calibration.h"
 #include "solvers/smoother_common.h"
 #include "solvers/data_association.h"
 #include "src/core/estimator.h"
@@ -116,6 +121,10 @@ struct BatchSmootherConfig {
   // not kidnaps rise by 50-180 and 10 % outliers without a robust loss by up to ~400; the BIC
   // alone (3 ln m, ~30) would keep those cuts and lose the odometry between them.
   double cut_min_evidence = 1000.0;
+  // Self-calibration: the odometry block replaces every odometry factor by its calibrated form,
+  // the stereo block every pixel factor (needs a pixel observation model). Only the part's
+  // switches and prior sigmas are used here. The filter pass runs with the nominal calibration.
+  SelfCalibrationConfig calibration;
 
   void validate() const;            // throws stereoloc::Error naming the field
 };
@@ -173,6 +182,9 @@ class BatchSmoother : public Estimator {
   void setInitialEstimates(const std::vector<Estimate>& estimates);
 
   const BatchSummary& summary() const { return summary_; }
+  // The calibration estimate of finish() (config.calibration); its covariance is zero when the
+  // marginal covariances could not be computed.
+  const CalibrationEstimate& calibration() const { return calibration_; }
 
  private:
   void solve();
@@ -217,6 +229,7 @@ class BatchSmoother : public Estimator {
   bool solved_ = false;
   std::vector<Estimate> result_;
   BatchSummary summary_;
+  CalibrationEstimate calibration_;
 };
 
 }  // namespace stereoloc

@@ -30,7 +30,8 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
       odometry_(odometry),
       config_(std::move(config)),
       gate_(config_.gate, 2),
-      compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)) {
+      compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)),
+      bank_(map, odometry, config_.hypotheses) {
   odometry_.validate();
   if (config_.max_iterations < 1 || !(config_.iteration_tolerance >= 0))
     throw Error("ekf: max_iterations must be >= 1 and iteration_tolerance >= 0");
@@ -176,16 +177,27 @@ Estimate Ekf::process(const Step& step) {
 
   // While the belief is wider than the hand-over spread, unidentified sightings are not
   // associated: their gates hold several landmarks of the type.
-  const bool wide = config_.handover_sigma_mm > 0 && std::sqrt(std::max(P_(0, 0), P_(1, 1))) > config_.handover_sigma_mm;
-  if (wide && !step.observations.empty()) {
-    const double spread = std::sqrt(std::max(P_(0, 0), P_(1, 1)));
-    {
-      const std::optional<PoseFix> fix = config_.global_fix ? config_.global_fix(step, map_) : std::nullopt;
-      if (fix && fix->pose.isFinite() && fix->covariance.allFinite() &&
-          std::sqrt(std::max(fix->covariance(0, 0), fix->covariance(1, 1))) < spread) {
-        reset(fix->pose, fix->covariance);  // the fix used this step's observations: no update on top
-        return finishStep(EstimateStatus::Reinitialised);
-      }
+  const auto spreadOf = [](const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0, 0), P(1, 1))); };
+  const bool wide = config_.handover_sigma_mm > 0 && spreadOf(P_) > config_.handover_sigma_mm;
+  if (wide && !step.observations.empty() && config_.global_fix) {
+    const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+    if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && spreadOf(fix->covariance) < spreadOf(P_)) {
+      bank_.clear();
+      reset(fix->pose, fix->covariance);  // the fix used this step's observations: no update on top
+      return finishStep(EstimateStatus::Reinitialised);
+    }
+  }
+  if (wide && config_.multi_hypothesis_start) {
+    bank_.process(step, first);
+    if (!bank_.empty()) {
+      const PoseFix m = bank_.mixture();
+      pose_ = m.pose;
+      P_ = m.covariance;
+      if (spreadOf(P_) > config_.handover_sigma_mm)
+        return finishStep(step.observations.empty() ? EstimateStatus::Predicted : EstimateStatus::Tracking);
+      bank_.clear();  // one mode left: the filter goes on from it
+      gate_.reset();
+      return finishStep(EstimateStatus::Reinitialised);
     }
   }
   bool fused = false;

@@ -37,6 +37,7 @@
 #include <string>
 #include <vector>
 
+#include "solvers/global_fix_hypotheses.h"
 #include "solvers/initialisation.h"
 #include "solvers/validation_gate.h"
 #include "solvers/data_association.h"
@@ -65,6 +66,14 @@ struct EkfConfig {
   // no prior. Costs one fix attempt per step until then (a few microseconds). 0: off
   // (Algorithm 5 as printed).
   double handover_sigma_mm = 150.0;
+  // While the belief is that wide and no global fix is possible (no identifiable landmark in
+  // view), the filter follows a bank of hypotheses spawned from the one-landmark fixes of each
+  // ambiguous sighting with the compass over every landmark of its type (solvers/
+  // global_fix_hypotheses.h) and reports the mixture's mean and covariance; once the mixture's
+  // position spread is below handover_sigma_mm, the filter goes on from it. false: wait for a
+  // global fix.
+  bool multi_hypothesis_start = true;
+  HypothesisConfig hypotheses;
   // Gauss-Newton iterations of each range-bearing update (see the header comment); 1 is
   // Algorithm 5 as printed.
   int max_iterations = 1;
@@ -128,6 +137,7 @@ class Ekf : public Estimator {
   long last_step_ = 0;
   std::vector<EkfUpdateRecord> updates_;
   std::vector<Estimate> estimates_;
+  HypothesisBank bank_;
 };
 
 }  // namespace stereoloc

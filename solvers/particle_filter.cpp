@@ -135,7 +135,12 @@ void checkObservation(const Step& step, size_t index, const Observation& obs) {
 
 ParticleFilter::ParticleFilter(const FieldMap& map, const OdometryParams& odometry, ParticleFilterConfig config,
                                uint64_t seed)
-    : map_(map), odometry_(odometry), config_(std::move(config)), rng_(seed), gate_(config_.gate, 2) {
+    : map_(map),
+      odometry_(odometry),
+      config_(std::move(config)),
+      rng_(seed),
+      gate_(config_.gate, 2),
+      bank_(map, odometry, config_.hypotheses) {
   odometry_.validate();
   if (config_.particles < 1) throw Error("particle filter: particles must be at least 1");
   if (config_.kld.enabled) {
@@ -166,7 +171,7 @@ ParticleFilter::ParticleFilter(const FieldMap& map, const OdometryParams& odomet
   }
 }
 
-void ParticleFilter::initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d& covariance) {
+void ParticleFilter::drawGaussian(size_t begin, size_t end, const Pose2& pose, const Eigen::Matrix3d& covariance) {
   if (!pose.isFinite() || !covariance.allFinite()) throw Error("particle filter: initial belief is not finite");
   const Eigen::Matrix3d sym = 0.5 * (covariance + covariance.transpose());
   // A semi-definite covariance (e.g. zero) is allowed: the LDLT factor handles it.
@@ -175,19 +180,53 @@ void ParticleFilter::initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d
     throw Error("particle filter: initial covariance is not positive semi-definite");
   const Eigen::Matrix3d L = ldlt.transpositionsP().transpose() * Eigen::Matrix3d(ldlt.matrixL()) *
                             ldlt.vectorD().cwiseMax(0.0).cwiseSqrt().asDiagonal();
-  const size_t n = static_cast<size_t>(config_.particles);
-  resizeParticles(n);
-  for (size_t i = 0; i < n; ++i) {
+  for (size_t i = begin; i < end; ++i) {
     const double a = normal_(rng_), b = normal_(rng_), c = normal_(rng_);
     const Eigen::Vector3d d = L * Eigen::Vector3d(a, b, c);
     setParticle(i, pose.x + d.x(), pose.y + d.y(), wrapAngle(pose.theta + d.z()));
   }
+}
+
+void ParticleFilter::finishInitialisation() {
+  const size_t n = x_.size();
   logw_.assign(n, -std::log(static_cast<double>(n)));
   w_.assign(n, 1.0 / static_cast<double>(n));
   uniform_weights_ = true;
   initialised_ = true;
   gate_.reset();
   summarise(&mean_, &cov_);
+}
+
+void ParticleFilter::initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d& covariance) {
+  const size_t n = static_cast<size_t>(config_.particles);
+  resizeParticles(n);
+  drawGaussian(0, n, pose, covariance);
+  finishInitialisation();
+}
+
+void ParticleFilter::initialiseMixture(const std::vector<PoseHypothesis>& components, const std::vector<double>& weights) {
+  if (components.empty() || components.size() != weights.size())
+    throw Error("particle filter: a mixture needs one weight per component and at least one component");
+  const size_t n = static_cast<size_t>(config_.particles);
+  std::vector<size_t> counts(components.size());
+  size_t total = 0;
+  for (size_t i = 0; i < components.size(); ++i) {
+    counts[i] = static_cast<size_t>(std::floor(weights[i] * static_cast<double>(n) + 0.5));
+    total += counts[i];
+  }
+  while (total > n) {  // rounding: take the excess from the largest counts
+    const size_t k = static_cast<size_t>(std::max_element(counts.begin(), counts.end()) - counts.begin());
+    --counts[k];
+    --total;
+  }
+  counts[static_cast<size_t>(std::max_element(weights.begin(), weights.end()) - weights.begin())] += n - total;
+  resizeParticles(n);
+  size_t begin = 0;
+  for (size_t i = 0; i < components.size(); ++i) {
+    drawGaussian(begin, begin + counts[i], components[i].pose, components[i].covariance);
+    begin += counts[i];
+  }
+  finishInitialisation();
 }
 
 void ParticleFilter::initialiseUniform() {
@@ -633,19 +672,34 @@ Estimate ParticleFilter::process(const Step& step) {
   }
   // The optimal proposal predicts and corrects in one pass once the observations are known.
   const bool optimal = config_.proposal == ParticleProposal::LinearisedOptimal;
-  if (config_.handover_sigma_mm > 0 && !step.observations.empty() && config_.global_fix) {
-    const double spread = std::sqrt(std::max(cov_(0, 0), cov_(1, 1)));
-    if (spread > config_.handover_sigma_mm) {
-      const std::optional<PoseFix> fix = config_.global_fix(step, map_);
-      if (fix && fix->pose.isFinite() && fix->covariance.allFinite() &&
-          std::sqrt(std::max(fix->covariance(0, 0), fix->covariance(1, 1))) < spread) {
-        try {
-          initialiseGaussian(fix->pose, fix->covariance);
-          return finishStep(EstimateStatus::Reinitialised);
-        } catch (const Error&) {
-          // a fix with an unusable covariance is no fix: go on with the set
-        }
+  const auto spreadOf = [](const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0, 0), P(1, 1))); };
+  const bool wide = config_.handover_sigma_mm > 0 && spreadOf(cov_) > config_.handover_sigma_mm;
+  if (wide && !step.observations.empty() && config_.global_fix) {
+    const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+    if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && spreadOf(fix->covariance) < spreadOf(cov_)) {
+      try {
+        initialiseGaussian(fix->pose, fix->covariance);
+        bank_.clear();
+        return finishStep(EstimateStatus::Reinitialised);
+      } catch (const Error&) {
+        // a fix with an unusable covariance is no fix: go on with the set
       }
+    }
+  }
+  if (wide && config_.multi_hypothesis_start) {
+    bank_.process(step, first);
+    if (!bank_.empty()) {
+      const PoseFix m = bank_.mixture();
+      if (spreadOf(m.covariance) > config_.handover_sigma_mm) {
+        // The set stays as it is (a uniform set is unchanged by the motion); the estimate is the
+        // mixture's.
+        mean_ = m.pose;
+        cov_ = m.covariance;
+        return finishStep(step.observations.empty() ? EstimateStatus::Predicted : EstimateStatus::Tracking);
+      }
+      initialiseMixture(bank_.hypotheses(), bank_.weights());
+      bank_.clear();
+      return finishStep(EstimateStatus::Reinitialised);
     }
   }
   if (!first && !optimal) predict(step.d_left, step.d_right);

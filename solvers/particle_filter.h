@@ -29,6 +29,7 @@
 #include <vector>
 
 #include "solvers/fast_trig.h"
+#include "solvers/global_fix_hypotheses.h"
 #include "solvers/initialisation.h"
 #include "solvers/validation_gate.h"
 #include "solvers/data_association.h"
@@ -152,6 +153,13 @@ struct ParticleFilterConfig {
   // the particles around it. A uniform set (the random start) otherwise needs tens of steps of
   // re-weighting and resampling to find the one cluster that fits. 0: off.
   double handover_sigma_mm = 150.0;
+  // As EkfConfig::multi_hypothesis_start: while the set is that wide and no global fix is
+  // possible, the filter reports the mixture of the hypotheses spawned from ambiguous sightings
+  // with the compass (solvers/global_fix_hypotheses.h); once the mixture's position spread is
+  // below handover_sigma_mm, the particles are drawn from all its hypotheses, in proportion to
+  // their weights.
+  bool multi_hypothesis_start = true;
+  HypothesisConfig hypotheses;
 };
 
 // Standard normal deviates by the ziggurat method (Marsaglia & Tsang 2000, 128 layers), drawing
@@ -218,6 +226,8 @@ class ParticleFilter : public Estimator {
   // Lower-level operations (benchmarks, tests).
   void initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d& covariance);
   void initialiseUniform();
+  // Particles drawn from a Gaussian mixture: round(N w_i) from hypothesis i (weights normalised).
+  void initialiseMixture(const std::vector<PoseHypothesis>& components, const std::vector<double>& weights);
   void predict(double d_left, double d_right);
   // Multiplies the weights by the likelihood of identified observations (landmark positions
   // given) and of an optional compass reading; normalises in the log domain.
@@ -251,6 +261,10 @@ class ParticleFilter : public Estimator {
 
  private:
   bool tryGlobalFix(const Step& step);
+  // Particles [begin, end) drawn from N(pose, covariance); throws stereoloc::Error when it is not
+  // finite or not positive semi-definite.
+  void drawGaussian(size_t begin, size_t end, const Pose2& pose, const Eigen::Matrix3d& covariance);
+  void finishInitialisation();  // uniform weights, summary, gate reset
   void normalise();
   void resizeParticles(size_t n);
   void setParticle(size_t i, double x, double y, double theta) {
@@ -280,6 +294,7 @@ class ParticleFilter : public Estimator {
   Pose2 mean_;
   Eigen::Matrix3d cov_ = Eigen::Matrix3d::Zero();
   std::vector<Estimate> estimates_;
+  HypothesisBank bank_;
 };
 
 }  // namespace stereoloc

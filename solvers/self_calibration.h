@@ -1,18 +1,19 @@
 #pragma once
-// Self-calibration: the batch problem of solvers/batch_smoother.h (known start, odometry,
-// compass, stereo observations) with the robot's calibration as extra global parameter blocks,
-// so that systematic odometry and stereo errors are estimated instead of absorbed by the poses.
+// Self-calibration: the robot's calibration as global parameter blocks of the batch smoother
+// (solvers/batch_smoother.h, BatchSmootherConfig::calibration), so that systematic odometry and
+// stereo errors are estimated instead of absorbed by the poses.
 //
 //   odometry  c = (c_l, c_r, w): wheel scales and effective wheel base
 //             (factors/odometry_calibration_factor.h)
-//   stereo    q = (dbeta, k): head tilt correction and baseline scale, entering every pixel
-//             factor (factors/stereo_pixel_calibration_factor.h); observations without pixels
-//             stay range-bearing factors, which do not see q
+//   stereo    q = (dbeta, k, delta_d, delta_u, phi): head tilt correction, baseline scale,
+//             disparity offset, column offset and the right camera's focal length error,
+//             entering every pixel factor
+//             (factors/stereo_pixel_calibration_factor.h); observations without pixels stay
+//             range-bearing factors, which do not see q
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
 // calibration with the stated uncertainty of SelfCalibrationConfig, so a run that does not
-// excite a parameter leaves it at its prior. Poses and calibration come with their marginal
-// covariances (ceres::Covariance). Observations of unidentified landmarks (landmark_id -1) are
-// not used here and are counted in the result.
+// excite a parameter leaves it at its prior. The smoother returns the estimate with its marginal
+// covariance beside the poses' (CalibrationEstimate).
 #include <string>
 #include <vector>
 
@@ -28,13 +29,21 @@ namespace stereoloc {
 
 struct SelfCalibrationConfig {
   bool odometry = false;  // estimate wheel scales and wheel base
-  bool stereo = false;    // estimate tilt correction and baseline scale
+  bool stereo = false;    // estimate tilt correction, baseline scale, pixel offsets, focal ratio
   // Prior 1-sigma: twice the spread of the realistic error profile (src/sim/error_profile.h),
   // so that the prior does not pull a real robot's parameters back.
   double wheel_scale_sigma = 0.01;          // dimensionless
   double wheel_base_rel_sigma = 0.04;       // fraction of the nominal wheel base
   double tilt_sigma_rad = deg2rad(1.0);     // rad
   double baseline_scale_sigma = 0.02;       // dimensionless
+  // Disparity offset: the principal points' difference (1 px each) and the cameras' relative
+  // yaw (0.1 deg, f * 0.1 deg ~ 0.5 px), ~1.5 px together; column offset: their mean (~0.7 px)
+  // and a head pan offset.
+  double disparity_offset_sigma_px = 3.0;   // px
+  double column_offset_sigma_px = 2.0;      // px
+  // The focal lengths' difference: 0.5 % per camera, 0.7 % between them.
+  double focal_ratio_sigma = 0.014;         // dimensionless
+  // selfCalibratingBatch only (the batch smoother takes them from its own configuration).
   PixelResiduals residuals = PixelResiduals::All;
   bool use_compass = true;
   int max_iterations = 100;
@@ -48,13 +57,16 @@ struct CalibrationEstimate {
   bool odometry = false, stereo = false;               // which blocks were estimated
   Eigen::Vector3d wheels = Eigen::Vector3d(1, 1, 75);  // c_l, c_r, w (mm)
   Eigen::Matrix3d wheels_covariance = Eigen::Matrix3d::Zero();
-  Eigen::Vector2d head = Eigen::Vector2d(0, 1);        // dbeta (rad), k
-  Eigen::Matrix2d head_covariance = Eigen::Matrix2d::Zero();
+  // dbeta (rad), k, delta_d (px), delta_u (px), phi: factors/stereo_pixel_calibration_factor.h
+  using StereoVector = Eigen::Matrix<double, 5, 1>;
+  using StereoMatrix = Eigen::Matrix<double, 5, 5>;
+  StereoVector head = (StereoVector() << 0, 1, 0, 0, 0).finished();
+  StereoMatrix head_covariance = StereoMatrix::Zero();
 
-  // The rig with the estimated tilt and baseline (and the odometry estimate with its standard
-  // deviations as extra keys wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma), in
-  // the rig YAML a user can pass back as --rig. A rig carrying an OpenCV calibration gets its T
-  // and P2 scaled.
+  // The rig with the estimated tilt and baseline (and the pixel offsets, focal ratio, the odometry estimate
+  // and every standard deviation as extra keys: disparity_offset_px, column_offset_px, focal_ratio,
+  // wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma), in the rig YAML a user can pass
+  // back as --rig. A rig carrying an OpenCV calibration gets its T and P2 scaled.
   void saveAsRig(const std::string& path, const StereoRig& rig) const;
 };
 
@@ -67,6 +79,8 @@ struct SelfCalibrationResult {
   bool covariance_ok = false;
 };
 
+// The batch smoother with `config` over a whole dataset from a known start (pixel observation
+// model of config.residuals, no robust loss, no kidnap cuts).
 SelfCalibrationResult selfCalibratingBatch(const Dataset& dataset, const InitialBelief& start,
                                            const SelfCalibrationConfig& config);
 

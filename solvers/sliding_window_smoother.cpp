@@ -39,6 +39,8 @@ void SlidingWindowConfig::validate() const {
   if (!(gate.probability > 0 && gate.probability < 1)) throw Error("sliding window: gate.probability must be in (0, 1)");
   if (gate.lost_after < 1) throw Error("sliding window: gate.lost_after must be >= 1");
   if (keyframe_max_steps < 1) throw Error("sliding window: keyframe_max_steps must be >= 1");
+  if (!(reanchor_probability >= 0 && reanchor_probability < 1))
+    throw Error("sliding window: reanchor_probability must be in [0, 1)");
   if (restart_buffer_steps < 0) throw Error("sliding window: restart_buffer_steps must be >= 0");
   makeLossFunction(robust_loss);  // validates the scale
 }
@@ -206,6 +208,60 @@ bool SlidingWindowSmoother::tryGlobalFix(const Step& step, Estimate* out) {
   startWindow(step, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
   ++stats_.reinitialisations;
   *out = estimateOf(*nodes_.back());
+  return true;
+}
+
+bool SlidingWindowSmoother::reanchor(const PoseFix& fix, const Pose2& pred, const Eigen::Matrix3d& P_pred) {
+  if (!(config_.reanchor_probability > 0)) return false;
+  const Eigen::Vector3d v(fix.pose.x - pred.x, fix.pose.y - pred.y, angleDiff(fix.pose.theta, pred.theta));
+  const Eigen::Matrix3d S = P_pred + fix.covariance;
+  const Eigen::LDLT<Eigen::Matrix3d> ldlt(0.5 * (S + S.transpose()));
+  const double d2 = v.dot(ldlt.solve(v));
+  if (!std::isfinite(d2) || d2 > chi2Quantile(config_.reanchor_probability, 3)) return false;
+  // The rigid motion that takes the newest pose onto the fix, applied to the whole window: the
+  // initial guess, since the odometry between the poses is what the window trusts.
+  Node* newest = nodes_.back().get();
+  const Pose2 anchor = poseOf(newest->x);
+  for (const auto& n : nodes_) {
+    const Pose2 q = compose(fix.pose, between(anchor, poseOf(n->x)));
+    n->x = {q.x, q.y, q.theta};
+  }
+  // The first-estimate Jacobians move with the poses (the old ones belong to the wrong place).
+  for (const auto& f : factors_)
+    for (size_t j = 0; j < f->nodes.size(); ++j) f->linearisation[j] = f->nodes[j]->x;
+  gate_.reset();
+  lost_ = false;
+  ++stats_.reanchorings;
+  // The newest pose's gated observations against the fix, the others against the marginals of
+  // the window solved with them.
+  std::vector<int> used;
+  for (const Observation& o : newest->gated)
+    if (o.landmark_id >= 0) used.push_back(o.landmark_id);
+  auto refuse = [&](Node* n, Pose2 pose, Eigen::Matrix3d P) {
+    std::vector<Observation> gated;
+    gated.swap(n->gated);
+    for (const Observation& obs : gated) {
+      const bool accepted = fuseObservation(obs, n, pose, P, used);
+      ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
+      --stats_.rejected_observations;  // counted once, when it was gated
+      if (!accepted) n->gated.push_back(obs);
+    }
+  };
+  refuse(newest, fix.pose, fix.covariance);
+  newest->status = EstimateStatus::Reinitialised;
+  solve(config_.max_iterations);
+  computeCovariances(true);
+  for (const auto& n : nodes_) {
+    if (n.get() == newest || n->gated.empty()) continue;
+    used.clear();
+    refuse(n.get(), poseOf(n->x), n->covariance);
+    if (n->status == EstimateStatus::Predicted && n->gated.empty()) n->status = EstimateStatus::Tracking;
+  }
+  for (const auto& f : factors_)
+    for (size_t j = 0; j < f->nodes.size(); ++j) f->linearisation[j] = f->nodes[j]->x;
+  while (static_cast<int>(nodes_.size()) > config_.window) marginaliseOldest();
+  solve(config_.max_iterations);
+  computeCovariances(false);
   return true;
 }
 
@@ -515,6 +571,7 @@ LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::ve
   for (const Observation& obs : observations) {
     const bool accepted = fuseObservation(obs, node, pose, P, used);
     ++(accepted ? result.accepted : result.rejected);
+    if (!accepted) node->gated.push_back(obs);
     ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
     if (accepted && node->status != EstimateStatus::Reinitialised) node->status = EstimateStatus::Tracking;
     if (gate_enabled_ && gate_.record(accepted)) {  // (5.1.3): process() asks the global fix next
@@ -597,11 +654,15 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   Estimate out;
   Pose2 pose;            // the belief used for gating and association (EKF-style)
   Eigen::Matrix3d P;
+  Pose2 pred_pose;       // the prediction of this step, before its measurements
+  Eigen::Matrix3d pred_P = Eigen::Matrix3d::Zero();
   if (nodes_.empty()) {
     if (first && config_.init.mode != InitMode::Global) {
       startWindow(step, config_.init.pose, config_.init.covariance, EstimateStatus::Tracking);
       pose = config_.init.pose;
       P = nodes_.back()->covariance;
+      pred_pose = pose;
+      pred_P = P;
     } else {
       if (tryGlobalFix(step, &out)) return out;
       out.step = step.step;
@@ -623,6 +684,8 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     pose = compose(poseOf(prev->x), rel_, &J1, &J2);
     P = J1 * prev->covariance * J1.transpose() + J2 * rel_covariance_ * J2.transpose();
     P = 0.5 * (P + P.transpose());
+    pred_pose = pose;
+    pred_P = P;
     const bool keyframe = config_.keyframe_max_steps <= 1 || !step.observations.empty() ||
                           (step.compass && config_.use_compass) || steps_since_keyframe_ >= config_.keyframe_max_steps;
     if (!keyframe) {
@@ -681,16 +744,22 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     std::vector<int> used;
     for (const Observation& o : step.observations)
       if (o.landmark_id >= 0) used.push_back(o.landmark_id);
-    for (const Observation& obs : step.observations) {
+    for (size_t i = 0; i < step.observations.size(); ++i) {
+      const Observation& obs = step.observations[i];
       const bool accepted = fuseObservation(obs, node, pose, P, used);
       fused = fused || accepted;
       ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
+      if (!accepted) node->gated.push_back(obs);
       if (gate_enabled_ && gate_.record(accepted)) {  // (5.1.3)
         lost_ = true;
         if (config_.reinitialise_when_lost) {
-          // Re-initialise from this step's fix: the predicted pose of this step is replaced.
           const std::optional<PoseFix> fix = config_.global_fix ? config_.global_fix(step, map_) : std::nullopt;
           if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
+            node->gated.insert(node->gated.end(), step.observations.begin() + static_cast<long>(i) + 1,
+                               step.observations.end());
+            stats_.rejected_observations += static_cast<long>(step.observations.size() - i - 1);
+            if (reanchor(*fix, pred_pose, pred_P)) return estimateOf(*nodes_.back());
+            // Re-initialise from this step's fix: the predicted pose of this step is replaced.
             dropNewest();
             finaliseWindow();
             startWindow(step, fix->pose, fix->covariance, EstimateStatus::Reinitialised);

@@ -6,7 +6,10 @@
 // factors; each step marginalises the oldest pose(s) into a MarginalPriorFactor (Schur
 // complement, first-estimate Jacobians) and solves the window from the previous solution. With
 // W = 1 and one Gauss-Newton iteration it is the EKF (5.7)-(5.19) step for step (tested). Gate and
-// lost policy as in the EKF (5.20, 5.1.3). Steps without observations are composed into one
+// lost policy as in the EKF (5.20, 5.1.3), except that a global fix which agrees with the
+// window's own prediction (the gate was fooled by a start belief far in its tail, not by a
+// kidnap) re-anchors the window instead of restarting it: the poses and the gated observations
+// stay, so no step keeps its unsmoothed prior (docs/estimators.md, "Re-anchoring"). Steps without observations are composed into one
 // odometry factor between keyframes (5.9); finish() smooths them given both keyframes.
 // insertLate() adds an observation that arrives after later odometry at its own pose while that
 // pose is in the window (exactly the in-order graph until a pose leaves the window), and reports
@@ -42,6 +45,10 @@ struct SlidingWindowConfig {
   bool use_compass = true;           // add a compass factor when Step::compass is set
   double compass_gate_probability = 0.99;  // chi-square probability (1 dof) of the compass gate
   bool reinitialise_when_lost = true;      // ask the global fix when lost; false: stay lost
+  // When lost, a global fix whose distance to the prediction, chi-square (3 dof) with the sum of
+  // both covariances, is within this probability re-anchors the window (see the header); 0: a
+  // loss always restarts the window, as the EKF does.
+  double reanchor_probability = 0.999;
   int max_iterations = 5;            // per step, Levenberg-Marquardt from the previous solution
   double max_solver_seconds = 0.0;   // per-step wall-clock bound on the solve; 0 = none (a time
                                      // bound makes the result depend on the machine)
@@ -101,6 +108,7 @@ struct SlidingWindowStats {
   long keyframes = 0;               // window poses created (including re-initialisations)
   long late_inserted = 0;           // insertLate calls whose step was in the window
   long late_too_late = 0;           // insertLate calls whose step had left the window
+  long reanchorings = 0;            // losses resolved by a global fix that agreed with the window
 };
 
 class SlidingWindowSmoother : public Estimator {
@@ -158,6 +166,7 @@ class SlidingWindowSmoother : public Estimator {
     Pose2 rel_to_next;                   // the composed odometry to the next keyframe and its covariance
     Eigen::Matrix3d rel_to_next_covariance = Eigen::Matrix3d::Zero();
     double d_left = 0.0, d_right = 0.0;  // this step's wheel increments (mm), for insertLate
+    std::vector<Observation> gated;      // observations the gate rejected here, for reanchor()
   };
   struct Factor {
     std::unique_ptr<ceres::CostFunction> cost;
@@ -194,6 +203,12 @@ class SlidingWindowSmoother : public Estimator {
   // window there (see insertLate). False when there is no fix.
   bool restartLate(long step, const std::vector<Observation>& observations);
   bool tryGlobalFix(const Step& step, Estimate* out);
+  // The gate declared the robot lost at the newest pose, whose prediction was (pred, P_pred), and
+  // the global fix agrees with that prediction (chi-square test): the belief, not the window, was
+  // wrong. Moves the window rigidly onto the fix, re-tests the gated observations of the window
+  // against the re-solved marginals and keeps every pose. False (nothing changed) when the fix
+  // disagrees: a real loss, which restarts the window.
+  bool reanchor(const PoseFix& fix, const Pose2& pred, const Eigen::Matrix3d& P_pred);
   Estimate estimateOf(const Node& n) const;
   void pushHistory(const Estimate& e);
 

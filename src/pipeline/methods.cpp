@@ -111,12 +111,24 @@ std::string methodNamesText() {
   return text;
 }
 
-std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init) {
+bool hasCalibrationSuffix(const std::string& spec) {
+  static const std::string suffix = ":calib";
+  return spec.size() > suffix.size() && spec.compare(spec.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+std::string withoutCalibrationSuffix(const std::string& spec) {
+  return hasCalibrationSuffix(spec) ? spec.substr(0, spec.size() - 6) : spec;
+}
+
+std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, InitMode default_init) {
+  const std::string spec = withoutCalibrationSuffix(full_spec);
   const size_t colon = spec.find(':');
   const std::string name = spec.substr(0, colon);
   bool known = false;
   for (const std::string& n : methodNames()) known |= n == name;
   if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
+  if (hasCalibrationSuffix(full_spec) && name != "batch")
+    throw UsageError("method '" + full_spec + "': only the batch smoother self-calibrates");
   InitMode init = default_init;
   if (colon != std::string::npos) {
     try {
@@ -135,14 +147,21 @@ BatchSmootherConfig batchConfigFor(const std::string& spec, const Dataset& d, ui
   c.init = beliefFor(init_mode, d, o, rng);
   c.loss.type = o.loss;
   c.loss.scale = o.loss_scale;
-  c.observation_model = {o.observation_model, d.rig};
+  c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
+  c.calibration = o.calibration;
+  if (c.calibration.stereo && o.observation_model == ObservationModel::RangeBearing)
+    throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
   return c;
 }
 
-MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& o) {
-  const auto [name, init_mode] = parseMethodSpec(spec, o.init);
+MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& options) {
+  const auto [name, init_mode] = parseMethodSpec(spec, options.init);
+  MethodOptions o = options;
+  if (hasCalibrationSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
   std::mt19937_64 rng(seed);
   MethodRun run;
+  if ((o.calibration.odometry || o.calibration.stereo) && name != "batch" && name != "window")
+    throw UsageError("--calibrate: only the smoothers self-calibrate (method '" + spec + "')");
   if (name == "fix1" || name == "fix2") {
     run = runFixes(d, name == "fix1");
   } else if (name == "deadreckoning") {
@@ -169,22 +188,13 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
     c.robust_loss.type = o.loss;
     c.robust_loss.scale = o.loss_scale;
-    c.observation_model = {o.observation_model, d.rig};
+    c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
     SlidingWindowSmoother w(d.map, d.odometry, c);
     run = runEstimator(w, d);
-  } else if (o.calibration.odometry || o.calibration.stereo) {
-    if (name != "batch") throw UsageError("--calibrate: only the batch smoother self-calibrates (method '" + spec + "')");
-    if (init_mode != InitMode::Known) throw UsageError("--calibrate: needs a known start (method '" + spec + "')");
-    SelfCalibrationConfig sc = o.calibration;
-    sc.residuals = o.observation_model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    const auto start = Clock::now();
-    SelfCalibrationResult r = selfCalibratingBatch(d, beliefFor(init_mode, d, o, rng), sc);
-    run.ms_per_step = msSince(start, d.steps.size());
-    run.estimates = std::move(r.trajectory);
-    run.calibration = r.calibration;
   } else {  // batch
     BatchSmoother b(d.map, d.odometry, batchConfigFor(spec, d, seed, o));
     run = runEstimator(b, d);
+    if (o.calibration.odometry || o.calibration.stereo) run.calibration = b.calibration();
   }
   run.method = spec;
   if (name != "fix1" && name != "fix2") {

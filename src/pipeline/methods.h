@@ -32,8 +32,11 @@ struct MethodOptions {
   ObservationModel observation_model = ObservationModel::PixelColumns;
   double loss_scale = 2.0;           // whitened units
   bool gate_enabled = true;          // ekf, window
-  // batch: self-calibration (solvers/self_calibration.h) when either part is on; known start only.
+  // batch: self-calibration (solvers/self_calibration.h) when either part is on.
   SelfCalibrationConfig calibration;
+  // Batch and window pixel models: px, > 0 replaces the observations' own pixel sigma (an
+  // honest noise for a world with vibration and blur, docs/realistic_world.md); 0 keeps theirs.
+  double pixel_sigma = 0.0;
 };
 
 struct MethodRun {
@@ -49,6 +52,11 @@ struct MethodRun {
 // them comma-separated for help texts and errors.
 const std::vector<std::string>& methodNames();
 std::string methodNamesText();
+
+// A spec may end in ":calib" ("batch:calib", "batch:known:calib"): the method with odometry and
+// stereo self-calibration (MethodOptions::calibration), for the studies' calibrated variants.
+bool hasCalibrationSuffix(const std::string& spec);
+std::string withoutCalibrationSuffix(const std::string& spec);
 
 // Splits "ekf:random" into ("ekf", Random); throws UsageError for an unknown name or init.
 std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init);

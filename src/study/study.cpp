@@ -14,12 +14,14 @@
 #include <optional>
 #include <set>
 #include <thread>
+#include <tuple>
 
 #include "src/core/atomic_file.h"
 #include "src/core/error.h"
 #include "src/core/yaml_util.h"
 #include "src/pipeline/frontend_source.h"
 #include "src/pipeline/usage_error.h"
+#include "src/sim/error_profile.h"
 #include "src/sim/scenario.h"
 #include "src/study/study_report.h"
 #include "src/study/study_rows.h"
@@ -46,6 +48,7 @@ void writeStudyYaml(const StudyConfig& c, const std::string& path) {
   w.put("methods", joinList(c.methods));
   w.put("trials", c.trials);
   w.put("seed", std::to_string(c.seed));
+  w.put("profiles", joinList(c.profiles));
   w.put("frontend", c.frontend);
   w.put("frontend_landmarks", c.frontend_landmarks);
   w.put("image_noise", c.image_noise);
@@ -71,6 +74,7 @@ StudyConfig readStudyYaml(const std::string& path) {
   } catch (const std::exception&) {
     in.fail("seed", "not an unsigned integer");
   }
+  c.profiles = splitCommaList(in.getString("profiles", "ideal"));
   c.frontend = in.getString("frontend");
   c.frontend_landmarks = in.getString("frontend_landmarks", "all");
   c.image_noise = in.getDouble("image_noise", StudyConfig().image_noise);
@@ -117,11 +121,22 @@ void canonicalOrder(const StudyConfig& c, std::vector<Row>& rows) {
   std::stable_sort(rows.begin(), rows.end(), [&](const Row& a, const Row& b) {
     const int sa = index(c.scenarios, a.scenario), sb = index(c.scenarios, b.scenario);
     if (sa != sb) return sa < sb;
+    const int pa = index(c.profiles, a.profile), pb = index(c.profiles, b.profile);
+    if (pa != pb) return pa < pb;
     if (a.trial != b.trial) return a.trial < b.trial;
     return index(c.methods, a.method) < index(c.methods, b.method);
   });
 }
 
+
+// calibration.csv, only when a method self-calibrates.
+void writeCalibrationCsv(const std::vector<CalibrationRow>& rows, const std::string& path) {
+  if (rows.empty()) return;
+  AtomicOutputFile out(path);
+  out.stream() << kCalibrationHeader << "\n";
+  for (const CalibrationRow& r : rows) out.stream() << toCsv(r) << "\n";
+  out.commit();
+}
 
 }  // namespace
 
@@ -140,16 +155,26 @@ StudyResult runStudy(const StudyConfig& c) {
   for (const std::string& s : c.scenarios)
     if (std::find(known.begin(), known.end(), s) == known.end()) throw UsageError("unknown scenario '" + s + "'");
   for (const std::string& m : c.methods) parseMethodSpec(m, c.method_options.init);
+  if (c.profiles.empty()) throw UsageError("--profile is empty");
+  for (const std::string& p : c.profiles) {
+    if (std::count(c.profiles.begin(), c.profiles.end(), p) > 1) throw UsageError("--profile: '" + p + "' appears twice");
+    try {
+      ErrorProfile::named(p);
+    } catch (const Error& e) {
+      throw UsageError(std::string("--profile: ") + e.what());
+    }
+  }
   prepareOutDir(c.out_dir, c.force);
   writeStudyYaml(c, c.out_dir + "/study.yaml");
 
   struct Task {
-    std::string scenario;
+    std::string scenario, profile;
     int trial;
   };
   std::vector<Task> tasks;
   for (const std::string& s : c.scenarios)
-    for (int t = c.shard_index; t < c.trials; t += c.shard_count) tasks.push_back({s, t});
+    for (const std::string& p : c.profiles)
+      for (int t = c.shard_index; t < c.trials; t += c.shard_count) tasks.push_back({s, p, t});
 
   std::ofstream trials_csv(c.out_dir + "/trials.csv"), steps_csv(c.out_dir + "/steps.csv");
   if (!trials_csv || !steps_csv) throw Error(c.out_dir + ": cannot create trials.csv / steps.csv");
@@ -174,9 +199,10 @@ StudyResult runStudy(const StudyConfig& c) {
         TrialOutput out;
         std::string err;
         try {
-          out = runTrial(c, tasks[k].scenario, tasks[k].trial, &cache);
+          out = runTrial(c, tasks[k].profile, tasks[k].scenario, tasks[k].trial, &cache);
         } catch (const std::exception& e) {
-          err = tasks[k].scenario + " trial " + std::to_string(tasks[k].trial) + ": " + e.what();
+          err = tasks[k].scenario + (tasks[k].profile == "ideal" ? "" : " (" + tasks[k].profile + ")") + " trial " +
+                std::to_string(tasks[k].trial) + ": " + e.what();
         }
         std::lock_guard<std::mutex> lock(mu);
         results[k] = std::move(out);
@@ -191,6 +217,7 @@ StudyResult runStudy(const StudyConfig& c) {
   const auto start = std::chrono::steady_clock::now();
   std::vector<TrialRow> all_rows;
   std::vector<StepRow> all_steps;
+  std::vector<CalibrationRow> all_calibration;
   ImageFrontendStats frontend_stats;
   std::string first_error;
   for (size_t k = 0; k < tasks.size(); ++k) {
@@ -203,12 +230,17 @@ StudyResult runStudy(const StudyConfig& c) {
       if (first_error.empty()) first_error = err;
       continue;
     }
+    if (c.log)
+      for (const std::string& f : out.failures)
+        std::fprintf(c.log, "%sstudy: %s%s trial %d: %s\n", bar ? "\n" : "", tasks[k].scenario.c_str(),
+                     tasks[k].profile == "ideal" ? "" : (" (" + tasks[k].profile + ")").c_str(), tasks[k].trial, f.c_str());
     for (const TrialRow& r : out.rows) trials_csv << toCsv(r) << "\n";
     for (const StepRow& s : out.steps) steps_csv << toCsv(s) << "\n";
     trials_csv.flush();
     steps_csv.flush();
     all_rows.insert(all_rows.end(), out.rows.begin(), out.rows.end());
     all_steps.insert(all_steps.end(), out.steps.begin(), out.steps.end());
+    all_calibration.insert(all_calibration.end(), out.calibration.begin(), out.calibration.end());
     frontend_stats.merge(out.frontend);
     if (bar) {
       const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -230,8 +262,9 @@ StudyResult runStudy(const StudyConfig& c) {
                  frontend_stats.ms_render / n, frontend_stats.ms_frontend / n,
                  std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
   }
+  writeCalibrationCsv(all_calibration, c.out_dir + "/calibration.csv");
   StudyResult result;
-  result.summary = writeReport(c, all_rows, all_steps, &cache, c.out_dir);
+  result.summary = writeReport(c, all_rows, all_steps, all_calibration, &cache, c.out_dir);
   result.report = c.out_dir + "/report.md";
   result.trial_rows = all_rows.size();
   return result;
@@ -242,28 +275,34 @@ StudyResult mergeStudies(const std::vector<std::string>& dirs, const std::string
   StudyConfig c = readStudyYaml(dirs.front() + "/study.yaml");
   std::vector<TrialRow> rows;
   std::vector<StepRow> steps;
-  std::set<std::pair<std::string, int>> seen;
+  std::vector<CalibrationRow> calibration;
+  using TrialKey = std::tuple<std::string, std::string, int>;  // scenario, profile, trial
+  std::set<TrialKey> seen;
   for (const std::string& d : dirs) {
     const StudyConfig o = readStudyYaml(d + "/study.yaml");
-    if (o.scenarios != c.scenarios || o.methods != c.methods || o.trials != c.trials || o.seed != c.seed ||
+    if (o.scenarios != c.scenarios || o.profiles != c.profiles || o.methods != c.methods || o.trials != c.trials || o.seed != c.seed ||
         o.frontend != c.frontend || o.frontend_landmarks != c.frontend_landmarks || o.image_noise != c.image_noise ||
         o.method_options.particles != c.method_options.particles ||
         o.method_options.window != c.method_options.window || o.method_options.init != c.method_options.init ||
         o.method_options.observation_model != c.method_options.observation_model ||
         o.method_options.pf_proposal != c.method_options.pf_proposal || o.method_options.pf_kld != c.method_options.pf_kld)
       throw Error(d + "/study.yaml: configuration differs from " + dirs.front() + "/study.yaml");
-    std::set<std::pair<std::string, int>> here;
+    std::set<TrialKey> here;
     for (const TrialRow& r : readTrialRows(d + "/trials.csv")) {
-      if (seen.count({r.scenario, r.trial}) && !here.count({r.scenario, r.trial}))
+      const TrialKey key{r.scenario, r.profile, r.trial};
+      if (seen.count(key) && !here.count(key))
         throw Error(d + "/trials.csv: trial " + std::to_string(r.trial) + " of " + r.scenario + " appears in two studies");
-      here.insert({r.scenario, r.trial});
+      here.insert(key);
       rows.push_back(r);
     }
     seen.insert(here.begin(), here.end());
     for (const StepRow& s : readStepRows(d + "/steps.csv")) steps.push_back(s);
+    if (fs::exists(d + "/calibration.csv"))
+      for (const CalibrationRow& r : readCalibrationRows(d + "/calibration.csv")) calibration.push_back(r);
   }
   canonicalOrder(c, rows);
   canonicalOrder(c, steps);
+  canonicalOrder(c, calibration);
   c.shard_index = 0;
   c.shard_count = 1;
   prepareOutDir(out_dir, force);
@@ -277,8 +316,9 @@ StudyResult mergeStudies(const std::vector<std::string>& dirs, const std::string
     t.commit();
     s.commit();
   }
+  writeCalibrationCsv(calibration, out_dir + "/calibration.csv");
   StudyResult result;
-  result.summary = writeReport(c, rows, steps, nullptr, out_dir);
+  result.summary = writeReport(c, rows, steps, calibration, nullptr, out_dir);
   result.report = out_dir + "/report.md";
   result.trial_rows = rows.size();
   return result;

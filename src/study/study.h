@@ -7,6 +7,8 @@
 //   c.frontend = "pixels";  c.out_dir = "out/study";
 //   const StudyResult r = runStudy(c);   // r.summary: one row per scenario and method
 //
+// With several error profiles (StudyConfig::profiles) every trial runs in each world; the rows
+// carry a profile column and the report puts the worlds side by side.
 // Writes into out_dir: study.yaml (the config), trials.csv (appended and flushed per trial, so an
 // interrupted study keeps its completed rows), steps.csv (per-step errors and NEES), summary.csv,
 // report.md and PNG figures. Results depend only on the config (not on threads or shards);
@@ -41,6 +43,10 @@ struct StudyConfig {
   // finds the observations (src/pipeline/frontend_source.h); "pixels": the simulator's noisy
   // pixel projections of the visible goal corners.
   std::string frontend = "images";
+  // Error profiles of the simulated world (src/sim/error_profile.h): "ideal", "realistic" or a
+  // profile YAML file. Every method runs on every profile with the same trial seeds, so the
+  // worlds are compared on the same noise draws; the rows carry the profile.
+  std::vector<std::string> profiles = {"ideal"};
   std::string frontend_landmarks = "all";  // images: all | goal_corners (frontend_source.h)
   double image_noise = 1.5;   // images: Gaussian sensor noise, grey levels
   MethodOptions method_options;

@@ -1,7 +1,9 @@
 #include "src/study/study_report.h"
 
 #include <algorithm>
+#include <array>
 #include <cctype>
+#include <filesystem>
 #include <map>
 #include <set>
 #include <sstream>
@@ -64,7 +66,7 @@ std::string lower(std::string s) {
 }
 
 // The thesis's EKF/MCL with known/random/global start beside our methods.
-std::string thesisComparison(const std::vector<SummaryRow>& rows, const std::string& scenario) {
+std::string thesisComparison(const std::vector<SummaryRow>& rows, const std::string& scenario, const std::string& profile) {
   const std::map<std::string, std::string> table_of = {{"circle", "6.14"}, {"line", "6.15"}, {"spin", "6.16"}};
   const auto it = table_of.find(scenario);
   if (it == table_of.end()) return "";
@@ -75,7 +77,7 @@ std::string thesisComparison(const std::vector<SummaryRow>& rows, const std::str
   o << "| start | method | steps | ours mean | ours std | ours min | ours max | thesis method | thesis mean | thesis std | thesis min | thesis max |\n";
   o << "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const SummaryRow& s : rows) {
-    if (s.scenario != scenario) continue;
+    if (s.scenario != scenario || s.profile != profile) continue;
     const auto [name, init] = parseMethodSpec(s.method, InitMode::Known);
     if (name == "fix1" || name == "fix2" || name == "deadreckoning") continue;
     const std::string init_name = toString(init);
@@ -98,14 +100,84 @@ std::string thesisComparison(const std::vector<SummaryRow>& rows, const std::str
   return o.str() + "\n";
 }
 
-// Figures for one scenario; returns the markdown that embeds them.
-std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, const std::vector<StepRow>& steps,
-                            const RenderCache* cache,
-                            const std::string& dir) {
+// The part of a figure's file name and title that names a profile: nothing for the ideal world
+// (the files of a single-world study keep their names), else "_NAME" / " (NAME)" with NAME the
+// profile or the stem of its file.
+std::string profileStem(const std::string& profile) {
+  std::string stem = std::filesystem::path(profile).stem().string();
+  for (char& ch : stem)
+    if (!std::isalnum(static_cast<unsigned char>(ch)) && ch != '-') ch = '_';
+  return stem;
+}
+std::string profileFileTag(const std::string& profile) { return profile == "ideal" ? "" : "_" + profileStem(profile); }
+std::string profileTitleTag(const std::string& profile) { return profile == "ideal" ? "" : " (" + profileStem(profile) + ")"; }
+
+// Self-calibrating methods: the calibration estimate of trial 0 on the first n steps for growing
+// n, with its 3-sigma band, against the world's true calibration. One figure per method.
+std::string calibrationFigures(const StudyConfig& c, const std::string& scenario, const std::string& profile,
+                               const Dataset& d, const SimulationTrace& trace, const std::string& dir) {
   std::ostringstream md;
+  const std::array<double, 5> truth = trueCalibration(d, trace);
+  const char* names[5] = {"wheel scale left", "wheel scale right", "wheel base [mm]", "tilt correction [deg]",
+                          "baseline scale"};
+  for (const std::string& m : c.methods) {
+    if (!hasCalibrationSuffix(m) || d.steps.size() < 10) continue;
+    std::vector<double> n_steps;
+    std::array<std::vector<double>, 5> est, lo, hi;
+    const size_t N = d.steps.size();
+    for (int k = 1; k <= 10; ++k) {
+      const size_t n = std::max<size_t>(5, N * static_cast<size_t>(k) / 10);
+      Dataset part = d;
+      part.steps.resize(n);
+      part.groundtruth.resize(std::min(part.groundtruth.size(), n));
+      MethodRun run;
+      try {
+        run = runMethod(m, part, methodSeed(c, scenario, 0, m), c.method_options);
+      } catch (const Error&) {
+        continue;  // too few observations on a short prefix to fix the problem
+      }
+      if (!run.calibration) continue;
+      const CalibrationEstimate& ce = *run.calibration;
+      const double v[5] = {ce.wheels[0], ce.wheels[1], ce.wheels[2], ce.head[0], ce.head[1]};
+      const double var[5] = {ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
+                             ce.head_covariance(0, 0), ce.head_covariance(1, 1)};
+      n_steps.push_back(static_cast<double>(n));
+      for (int i = 0; i < 5; ++i) {
+        const double scale = i == 3 ? rad2deg(1.0) : 1.0, sd = std::sqrt(std::max(0.0, var[i]));
+        est[i].push_back(v[i] * scale);
+        lo[i].push_back((v[i] - 3 * sd) * scale);
+        hi[i].push_back((v[i] + 3 * sd) * scale);
+      }
+    }
+    if (n_steps.empty()) continue;
+    std::string safe = scenario + profileFileTag(profile) + "_" + m + "_calibration";
+    std::replace(safe.begin(), safe.end(), ':', '_');
+    for (int i = 0; i < 5; ++i) {
+      const double scale = i == 3 ? rad2deg(1.0) : 1.0;
+      Plot p(scenario + profileTitleTag(profile) + ": " + m + " " + names[i] + " on the first n steps (trial 0)",
+             "steps used", names[i], 900, 360);
+      p.band(n_steps, lo[i], hi[i], "+-3 sigma", plotColor(1));
+      p.line(n_steps, est[i], "estimate", plotColor(0), LineStyle::Solid, 2);
+      p.hline(truth[i] * scale, "truth (the world's draw)", cv::Scalar(0, 0, 0));
+      const std::string file = safe + "_" + std::to_string(i) + ".png";
+      p.savePng(dir + "/" + file);
+      md << "![" << file << "](" << file << ")\n";
+    }
+    md << "\n";
+  }
+  return md.str();
+}
+
+// Figures for one scenario in one world; returns the markdown that embeds them.
+std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, const std::string& profile,
+                            const std::vector<StepRow>& steps, const RenderCache* cache, const std::string& dir) {
+  std::ostringstream md;
+  const std::string ftag = profileFileTag(profile), ttag = profileTitleTag(profile);
+  const std::string base = scenario + ftag;
   // Trajectories of trial 0 with 3-sigma ellipses (Figs. 6.26-6.28): re-simulated (deterministic).
-  const Dataset d = simulateTrial(c, scenario, 0, cache, 2);  // the workers are done: both cores render
-  Plot traj(scenario + ": trajectories of trial 0 with 3-sigma ellipses", "x [mm]", "y [mm]", 1000, 820);
+  SimulationTrace trace;
+  const Dataset d = simulateTrial(c, profile, scenario, 0, cache, 2, nullptr, &trace);  // the workers are done: both cores render
+  Plot traj(scenario + ttag + ": trajectories of trial 0 with 3-sigma ellipses", "x [mm]", "y [mm]", 1000, 820);
   traj.setEqualAspect(true);
   drawField(traj, d.map);
   std::vector<double> tx, ty;
@@ -130,8 +202,8 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
         traj.ellipse(e.pose.translation(), e.covariance.topLeftCorner<2, 2>(), 3.0, col);
     }
   }
-  traj.savePng(dir + "/" + scenario + "_trajectories.png");
-  md << "![" << scenario << " trajectories](" << scenario << "_trajectories.png)\n\n";
+  traj.savePng(dir + "/" + base + "_trajectories.png");
+  md << "![" << base << " trajectories](" << base << "_trajectories.png)\n\n";
 
   // Error against step with +-3 sigma for x, y, theta (Fig. 5.3), trial 0, first tracker.
   std::string tracker;
@@ -147,7 +219,7 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
     for (int k = 0; k < 3; ++k) {
       std::vector<double> st, err, lo, hi;
       for (const StepRow& s : steps) {
-        if (s.scenario != scenario || s.trial != 0 || s.method != tracker) continue;
+        if (s.scenario != scenario || s.profile != profile || s.trial != 0 || s.method != tracker) continue;
         const double scale = k == 2 ? rad2deg(1.0) : 1.0;
         const double e = (k == 0 ? s.dx : k == 1 ? s.dy : s.dtheta) * scale;
         const double sg = (k == 0 ? s.sx : k == 1 ? s.sy : s.stheta) * scale;
@@ -158,11 +230,11 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
         hi.push_back(3 * sg);
       }
       if (st.empty()) continue;
-      Plot p(scenario + ": " + tracker + " error in " + comp[k] + " (trial 0)", "step", std::string("error ") + comp[k], 900, 420);
+      Plot p(scenario + ttag + ": " + tracker + " error in " + comp[k] + " (trial 0)", "step", std::string("error ") + comp[k], 900, 420);
       p.band(st, lo, hi, "+-3 sigma", plotColor(1));
       p.line(st, err, "error", plotColor(0));
       p.hline(0, "", cv::Scalar(80, 80, 80));
-      const std::string name = scenario + "_" + tracker + "_error_" + std::string("xyt").substr(k, 1) + ".png";
+      const std::string name = base + "_" + tracker + "_error_" + std::string("xyt").substr(k, 1) + ".png";
       std::string safe = name;
       std::replace(safe.begin(), safe.end(), ':', '_');
       p.savePng(dir + "/" + safe);
@@ -172,14 +244,14 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
   }
 
   // NEES per step, averaged over trials, with the chi-square band for that many trials.
-  Plot np(scenario + ": mean NEES per step over trials (3 dof)", "step", "NEES", 900, 480);
+  Plot np(scenario + ttag + ": mean NEES per step over trials (3 dof)", "step", "NEES", 900, 480);
   color = 0;
   int max_trials = 0;
   for (const std::string& m : c.methods) {
     std::map<long, std::pair<double, int>> acc;
     std::set<int> trials_seen;
     for (const StepRow& s : steps)
-      if (s.scenario == scenario && s.method == m && s.nees) {
+      if (s.scenario == scenario && s.profile == profile && s.method == m && s.nees) {
         acc[s.step].first += *s.nees;
         ++acc[s.step].second;
         trials_seen.insert(s.trial);
@@ -198,12 +270,14 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
     const NeesBand band = neesBand(3, max_trials);
     np.hline(band.lo, "95% band, " + std::to_string(max_trials) + " trials", cv::Scalar(0, 0, 200));
     np.hline(band.hi, "", cv::Scalar(0, 0, 200));
-    np.savePng(dir + "/" + scenario + "_nees.png");
-    md << "![" << scenario << " NEES](" << scenario << "_nees.png)\n\n";
+    np.savePng(dir + "/" + base + "_nees.png");
+    md << "![" << base << " NEES](" << base << "_nees.png)\n\n";
   }
 
   // Kidnap: innovation and e^2 of the EKF (Figs. 5.4, 5.5).
-  if (scenario == "kidnap") {
+  md << calibrationFigures(c, scenario, profile, d, trace, dir);
+
+  if (scenario == "kidnap" && profile == c.profiles.front()) {
     EkfConfig ec;
     std::mt19937_64 rng(splitmix64(trialSeed(c.seed, scenario, 0)));
     std::optional<Pose2> truth = d.initial_pose ? d.initial_pose : d.groundtruth.front();
@@ -237,7 +311,8 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
 }  // namespace
 
 std::vector<SummaryRow> writeReport(const StudyConfig& c, const std::vector<TrialRow>& rows, const std::vector<StepRow>& steps,
-                                    const RenderCache* cache, const std::string& dir) {
+                                    const std::vector<CalibrationRow>& calibration, const RenderCache* cache,
+                                    const std::string& dir) {
   const std::vector<SummaryRow> summary = summarise(c, rows);
   writeSummaryCsv(summary, dir + "/summary.csv");
   std::ostringstream md;
@@ -256,20 +331,40 @@ std::vector<SummaryRow> writeReport(const StudyConfig& c, const std::vector<Tria
   md << "Position RMSE pools every compared estimate of every trial; mean/std/min/max are the thesis's statistics of the "
         "distance to the true position. NEES is e^T P^-1 e (3 dof): a consistent estimator has mean 3 and about 95 % "
         "of its values inside the two-sided 95 % chi-square band. ms/step is wall-clock on this machine.\n\n";
+  const bool several = c.profiles.size() > 1 || c.profiles.front() != "ideal";
+  if (several)
+    md << "Worlds (error profiles, src/sim/error_profile.h): " << joinList(c.profiles)
+       << ". Every trial runs in each world with the same seeds. A non-ideal world hands the estimators the "
+          "nominal rig and odometry and a calibration with a slightly wrong distortion estimate; its images are raw "
+          "pairs of the true cameras, rectified by the frontend. RMSE columns of the side-by-side table: mean of the "
+          "per-trial position RMSE +- the half width of its 95 % interval.\n\n";
   for (const std::string& sc : c.scenarios) {
-    md << "## " << sc << "\n\n" << summaryTable(summary, sc) << "\n" << thesisComparison(summary, sc);
-    md << scenarioFigures(c, sc, steps, cache, dir);
+    md << "## " << sc << "\n\n";
+    if (several) md << profileComparisonTable(summary, sc, c.profiles) << "\n";
+    md << summaryTable(summary, sc) << "\n" << thesisComparison(summary, sc, c.profiles.front());
+    for (const std::string& pr : c.profiles) {
+      if (several) md << "### " << sc << ", " << pr << "\n\n";
+      md << scenarioFigures(c, sc, pr, steps, cache, dir);
+    }
   }
   // RMSE per method, per scenario.
   for (const std::string& sc : c.scenarios) {
     std::vector<std::string> names;
     std::vector<double> values;
     for (const SummaryRow& s : summary)
-      if (s.scenario == sc && s.estimates > 0) names.push_back(s.method), values.push_back(s.rmse());
+      if (s.scenario == sc && s.estimates > 0)
+        names.push_back(s.method + profileTitleTag(s.profile)), values.push_back(s.rmse());
     Plot bars(sc + ": position RMSE per method", "method", "RMSE [mm]", 1000, 480);
     bars.bars(names, values, plotColor(0));
     bars.savePng(dir + "/" + sc + "_rmse.png");
   }
+  if (!calibration.empty())
+    md << "## Self-calibration against the drawn truth\n\n"
+       << "Every trial's final calibration estimate of the self-calibrating methods (solvers/self_calibration.h) "
+          "against the value the world drew (errors.yaml of a simulated dataset; nominal in the ideal world). Other "
+          "errors of a realistic world (focal length, principal point, distortion estimate, slip) are not parameters, "
+          "so the tilt and baseline absorb part of them.\n\n"
+       << calibrationTable(calibration) << "\n";
   md << "## Position RMSE per method\n\n";
   for (const std::string& sc : c.scenarios) md << "![" << sc << " RMSE](" << sc << "_rmse.png)\n";
   writeFileAtomically(dir + "/report.md", md.str());

@@ -13,8 +13,10 @@
 namespace stereoloc::study {
 
 // Writes summary.csv, report.md and the PNG figures into `dir`; returns the summary rows.
-// `cache` (may be null) only speeds up re-simulating trial 0 for the figures.
+// `calibration`: the self-calibrating methods' rows (calibration.csv), may be empty. `cache`
+// (may be null) only speeds up re-simulating trial 0 for the figures.
 std::vector<SummaryRow> writeReport(const StudyConfig& c, const std::vector<TrialRow>& rows, const std::vector<StepRow>& steps,
-                                    const RenderCache* cache, const std::string& dir);
+                                    const std::vector<CalibrationRow>& calibration, const RenderCache* cache,
+                                    const std::string& dir);
 
 }  // namespace stereoloc::study

@@ -41,7 +41,7 @@ struct WindowSums {
 
 // One row of trials.csv: one method on one trial.
 struct TrialRow {
-  std::string scenario, method;
+  std::string scenario, profile = "ideal", method;
   int trial = 0;
   long steps = 0;          // steps in the dataset
   long estimates = 0;      // estimates compared with the truth
@@ -55,18 +55,19 @@ struct TrialRow {
   long nees_in_band = 0;   // per-estimate NEES inside the 95 % chi-square(3) band
   double ms_per_step = 0;
   long attempted = 0, fixed = 0;  // global fixes: steps with observations, steps with a fix
+  int failed = 0;          // 1: the method failed on this trial (no estimates)
 };
 
 
 inline constexpr const char* kTrialHeader =
-    "scenario,trial,method,steps,estimates,sse_position,sse_theta,"
+    "scenario,profile,trial,method,steps,estimates,sse_position,sse_theta,"
     "dist_n,dist_sum,dist_sum_sq,dist_min,dist_max,"
     "w1_n,w1_sum,w1_sum_sq,w1_min,w1_max,w2_n,w2_sum,w2_sum_sq,w2_min,w2_max,"
-    "nees_count,nees_sum,nees_in_band,ms_per_step,attempted,fixed";
+    "nees_count,nees_sum,nees_in_band,ms_per_step,attempted,fixed,failed";
 
 // One row of steps.csv: the error of one estimate.
 struct StepRow {
-  std::string scenario, method;
+  std::string scenario, profile = "ideal", method;
   int trial = 0;
   long step = 0;
   double dx = 0, dy = 0, dtheta = 0;
@@ -77,15 +78,32 @@ struct StepRow {
 
 
 inline constexpr const char* kStepHeader =
-    "scenario,trial,method,step,dx,dy,dtheta,sigma_x,sigma_y,sigma_theta,nees,particles";
+    "scenario,profile,trial,method,step,dx,dy,dtheta,sigma_x,sigma_y,sigma_theta,nees,particles";
+
+// One row of calibration.csv: one calibration parameter of a self-calibrating method
+// (solvers/self_calibration.h) on one trial, against the world's drawn truth.
+struct CalibrationRow {
+  std::string scenario, profile = "ideal", method, parameter;
+  int trial = 0;
+  double truth = 0, estimate = 0, sigma = 0;  // parameter units (wheel base mm, tilt rad)
+};
+
+inline constexpr const char* kCalibrationHeader = "scenario,profile,trial,method,parameter,truth,estimate,sigma";
+
+// The parameters in calibration.csv's order.
+inline constexpr const char* kCalibrationParameters[5] = {"wheel_scale_left", "wheel_scale_right", "wheel_base_mm",
+                                                          "tilt_correction_rad", "baseline_scale"};
 
 // A trial has converged when every position error over the thesis's second window (steps
 // 80-100, Table 6.14) is at most this, mm: about ten times the trackers' error there.
 inline constexpr double kConvergedMaxErrorMm = 100.0;
 
 struct SummaryRow {
-  std::string scenario, method;
+  std::string scenario, profile = "ideal", method;
   int trials = 0;
+  // Per-trial position RMSE over the trials with estimates: sums for its mean and spread.
+  int rmse_trials = 0;
+  double trial_rmse_sum = 0, trial_rmse_sum_sq = 0;
   long estimates = 0, steps = 0;
   double sse_position = 0, sse_theta = 0;
   WindowSums distance, window1, window2;
@@ -93,6 +111,7 @@ struct SummaryRow {
   double nees_sum = 0, ms_sum = 0;
   long attempted = 0, fixed = 0;
   int judged = 0, converged = 0;  // trials with estimates over steps 80-100, and those converged there
+  int failed = 0;                 // trials on which the method failed
   double rmse() const { return estimates ? std::sqrt(sse_position / estimates) : 0; }
   double theta_rmse() const { return estimates ? std::sqrt(sse_theta / estimates) : 0; }
   double meanNees() const { return nees_count ? nees_sum / nees_count : 0; }
@@ -100,6 +119,14 @@ struct SummaryRow {
   // Fraction of the judged trials that converged (kConvergedMaxErrorMm); 0 when none was judged.
   double convergedFraction() const { return judged ? static_cast<double>(converged) / judged : 0; }
   double msPerStep() const { return trials ? ms_sum / trials : 0; }
+  // Mean per-trial RMSE and the half width of its 95 % confidence interval (normal
+  // approximation over the trials: 1.96 s / sqrt(n)); 0 with fewer than two trials.
+  double meanTrialRmse() const { return rmse_trials ? trial_rmse_sum / rmse_trials : 0; }
+  double trialRmseHalfWidth95() const {
+    if (rmse_trials < 2) return 0;
+    const double n = rmse_trials, m = meanTrialRmse();
+    return 1.96 * std::sqrt(std::max(0.0, (trial_rmse_sum_sq - n * m * m) / (n - 1)) / n);
+  }
   // Global fixes: steps with a fix over steps with observations; trackers: steps with an estimate.
   double fixRate() const {
     if (attempted > 0) return static_cast<double>(fixed) / attempted;
@@ -113,15 +140,26 @@ std::string joinList(const std::vector<std::string>& v);  // {"a", "b"} -> "a,b"
 
 std::string toCsv(const TrialRow& r);
 std::string toCsv(const StepRow& r);
+std::string toCsv(const CalibrationRow& r);
 // Read back trials.csv / steps.csv (Error naming file, line and field on bad input).
 std::vector<TrialRow> readTrialRows(const std::string& path);
 std::vector<StepRow> readStepRows(const std::string& path);
+std::vector<CalibrationRow> readCalibrationRows(const std::string& path);
 
-// Pools the rows per (scenario, method) in the config's order.
+// Per scenario, profile, method and parameter: the trials, the fraction whose estimate is within
+// 2 sigma of the truth, the mean error and the mean sigma (report.md).
+std::string calibrationTable(const std::vector<CalibrationRow>& rows);
+
+// Pools the rows per (scenario, profile, method) in the config's order.
 std::vector<SummaryRow> summarise(const StudyConfig& c, const std::vector<TrialRow>& rows);
 void writeSummaryCsv(const std::vector<SummaryRow>& rows, const std::string& path);
-// The markdown table of one scenario (report.md) and the console table of all.
+// The markdown table of one scenario (report.md; with a profile column when a row is not of the
+// ideal world) and the console table of all.
 std::string summaryTable(const std::vector<SummaryRow>& rows, const std::string& scenario);
+// The worlds side by side for one scenario: per method, the mean per-trial RMSE with its 95 %
+// interval, the mean NEES and ms/step of each profile in `profiles`.
+std::string profileComparisonTable(const std::vector<SummaryRow>& rows, const std::string& scenario,
+                                   const std::vector<std::string>& profiles);
 std::string summaryText(const std::vector<SummaryRow>& rows);
 
 }  // namespace stereoloc::study

@@ -1,11 +1,15 @@
 #include "src/study/study_trial.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 #include "src/core/gaussian.h"
 #include "src/eval/evaluation.h"
 #include "src/pipeline/methods.h"
+#include "src/pipeline/usage_error.h"
+#include "src/core/error.h"
+#include "src/sim/raw_render.h"
 #include "src/sim/renderer.h"
 #include "src/sim/scenario.h"
 #include "src/sim/simulator.h"
@@ -26,7 +30,7 @@ uint64_t hashString(const std::string& s) {
 }
 
 uint64_t methodSeed(const StudyConfig& c, const std::string& scenario, int trial, const std::string& method) {
-  return splitmix64(trialSeed(c.seed, scenario, trial) ^ hashString(method));
+  return splitmix64(trialSeed(c.seed, scenario, trial) ^ hashString(withoutCalibrationSuffix(method)));
 }
 
 int thesisTrial(const std::string& scenario, int trial) { return trial % std::max(1, scenarioTrialCount(scenario)); }
@@ -39,32 +43,50 @@ std::string cacheKey(const std::string& scenario, int trial) {
 
 }  // namespace
 
-// Simulates one trial. With the image frontend, every step's pair is rendered from the true pose
-// (or taken from `cache`) with sensor noise seeded from the trial seed and run through the
-// frontend, so the trial's data do not depend on the thread count or on the cache.
-// `render_threads` only splits the rendering of a pair.
-Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache,
-                      int render_threads, ImageFrontendStats* stats) {
+Dataset simulateTrial(const StudyConfig& c, const std::string& profile, const std::string& scenario, int trial,
+                      const RenderCache* cache, int render_threads, ImageFrontendStats* stats, SimulationTrace* trace_out) {
   SimulationConfig sim;
+  sim.profile = ErrorProfile::named(profile);
+  const bool ideal = sim.profile.isIdeal();
   const uint64_t seed = trialSeed(c.seed, scenario, trial);
-  if (c.frontend != "images") return simulate(scenario, thesisTrial(scenario, trial), sim, seed);
   SimulationTrace trace;
   Dataset d = simulate(scenario, thesisTrial(scenario, trial), sim, seed, &trace);
-  ImageFrontendOptions fo;
-  fo.landmarks = frontendLandmarksFromString(c.frontend_landmarks);
-  const uint64_t noise_seed = splitmix64(seed ^ hashString("images"));
-  ImageFrontendStats st;
-  const auto hit = cache ? cache->find(cacheKey(scenario, trial)) : RenderCache::const_iterator();
-  if (cache && hit != cache->end()) {
-    st = observeCleanRenders(d, trace, *hit->second, c.image_noise, noise_seed, fo);
-  } else {
-    RenderOptions ro;
-    ro.compute_truth = false;
-    ro.threads = render_threads;
-    const StereoRenderer renderer(d.map, d.rig, ro);
-    st = observeRenderedImages(d, trace, renderer, c.image_noise, noise_seed, fo);
+  if (c.frontend == "images") {
+    ImageFrontendOptions fo;
+    fo.landmarks = frontendLandmarksFromString(c.frontend_landmarks);
+    const uint64_t noise_seed = splitmix64(seed ^ hashString("images"));
+    ImageFrontendStats st;
+    const auto hit = cache && ideal ? cache->find(cacheKey(scenario, trial)) : RenderCache::const_iterator();
+    if (cache && ideal && hit != cache->end()) {
+      st = observeCleanRenders(d, trace, *hit->second, c.image_noise, noise_seed, fo);
+    } else if (ideal) {
+      RenderOptions ro;
+      ro.compute_truth = false;
+      ro.threads = render_threads;
+      const StereoRenderer renderer(d.map, d.rig, ro);
+      st = observeRenderedImages(d, trace, renderer, c.image_noise, noise_seed, fo);
+    } else {
+      // Raw pairs of the true cameras; the dataset's rig carries the given calibration, so the
+      // frontend rectifies them.
+      RenderOptions ro;
+      ro.compute_truth = false;
+      ro.threads = render_threads;
+      ro.noise_sigma = c.image_noise;
+      const RawPairRenderer raw(d.map, trace.nominal_rig, trace.profile, trace.errors, ro, trace.scenario.dt);
+      ImageObserver observer(d.rig, d.map, fo);
+      double ms_render = 0;
+      for (size_t k = 0; k < d.steps.size(); ++k) {
+        const auto start = std::chrono::steady_clock::now();
+        const StereoImages im = raw.render(trace.scenario, k, trace.obstacles[k], noise_seed + k);
+        ms_render += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+        d.steps[k].observations = observer.observe(im.left, im.right, d.steps[k].head_pan);
+      }
+      st = observer.stats();
+      st.ms_render = ms_render;
+    }
+    if (stats) *stats = st;
   }
-  if (stats) *stats = st;
+  if (trace_out) *trace_out = std::move(trace);
   return d;
 }
 
@@ -72,7 +94,8 @@ Dataset simulateTrial(const StudyConfig& c, const std::string& scenario, int tri
 // same for any seed (all thesis scenarios; not random-walk).
 RenderCache buildRenderCache(const StudyConfig& c, int threads) {
   RenderCache cache;
-  if (c.frontend != "images") return cache;
+  // Only the ideal world is cached: another profile draws its true rig per trial.
+  if (c.frontend != "images" || std::find(c.profiles.begin(), c.profiles.end(), "ideal") == c.profiles.end()) return cache;
   SimulationConfig sim;
   for (const std::string& sc : c.scenarios) {
     for (int t = c.shard_index; t < c.trials; t += c.shard_count) {
@@ -105,16 +128,58 @@ long firstSightingStep(const Dataset& d) {
 
 }  // namespace
 
-TrialOutput runTrial(const StudyConfig& c, const std::string& scenario, int trial, const RenderCache* cache) {
+std::array<double, 5> trueCalibration(const Dataset& d, const SimulationTrace& trace) {
+  const DrawnErrors& e = trace.errors;
+  return {1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], d.odometry.wheel_base_mm * (1 + e.wheel_base_rel),
+          e.tilt_rad, 1 + e.baseline_rel};
+}
+
+TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std::string& scenario, int trial,
+                     const RenderCache* cache) {
   TrialOutput out;
-  const Dataset d = simulateTrial(c, scenario, trial, cache, 1, &out.frontend);
+  SimulationTrace trace;
+  const Dataset d = simulateTrial(c, profile, scenario, trial, cache, 1, &out.frontend, &trace);
+  const std::array<double, 5> truth_calibration = trueCalibration(d, trace);
   const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
   const long first = firstSightingStep(d);
   const double band_lo = chi2Quantile(0.025, 3), band_hi = chi2Quantile(0.975, 3);
   for (const std::string& method : c.methods) {
-    const MethodRun run = runMethod(method, d, methodSeed(c, scenario, trial, method), c.method_options);
+    MethodRun run;
+    bool failed = false;
+    try {
+      run = runMethod(method, d, methodSeed(c, scenario, trial, method), c.method_options);
+    } catch (const UsageError&) {
+      throw;
+    } catch (const Error& e) {
+      // A method that cannot run on a trial's data (e.g. its solver finds no valid start in a
+      // realistic world) is a result of the study: a row without estimates, marked failed.
+      failed = true;
+      out.failures.push_back(method + ": " + e.what());
+    }
+    if (run.calibration) {
+      const CalibrationEstimate& ce = *run.calibration;
+      const double v[5] = {ce.wheels[0], ce.wheels[1], ce.wheels[2], ce.head[0], ce.head[1]};
+      const double var[5] = {ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
+                             ce.head_covariance(0, 0), ce.head_covariance(1, 1)};
+      const bool estimated[5] = {ce.odometry, ce.odometry, ce.odometry, ce.stereo, ce.stereo};
+      for (int i = 0; i < 5; ++i) {
+        if (!estimated[i]) continue;
+        CalibrationRow cr;
+        cr.scenario = scenario;
+        cr.profile = profile;
+        cr.trial = trial;
+        cr.method = method;
+        cr.parameter = kCalibrationParameters[i];
+        cr.truth = truth_calibration[static_cast<size_t>(i)];
+        cr.estimate = v[i];
+        cr.sigma = std::sqrt(std::max(0.0, var[i]));
+        out.calibration.push_back(cr);
+      }
+    }
     TrialRow row;
+    row.failed = failed ? 1 : 0;
     row.scenario = scenario;
+    row.profile = profile;
     row.trial = trial;
     row.method = method;
     row.steps = static_cast<long>(d.steps.size());
@@ -140,6 +205,7 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& scenario, int tria
       if (it == truth.end() || est.status == EstimateStatus::Uninitialised) continue;
       StepRow s;
       s.scenario = scenario;
+      s.profile = profile;
       s.trial = trial;
       s.method = method;
       s.step = est.step;

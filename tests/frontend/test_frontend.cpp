@@ -143,3 +143,31 @@ TEST(Frontend, GoalCornerObservationsFromASyntheticPair) {
   }
   EXPECT_NE(r.observations[0].landmark_id, r.observations[1].landmark_id);
 }
+
+// Monocular use on a raw image of a calibrated rig: the image is rectified before detection,
+// so the lines are those found on the rectified image, not on the distorted one.
+TEST(Frontend, RawMonocularImageIsRectifiedFirst) {
+  const StereoCalibration c =
+      StereoCalibration::load(std::string(STEREOLOC_DATA_DIR) + "/stereo_calibration_example.yml");
+  const StereoRig rig(StereoRigParams(), c);
+  Frontend fe(rig, FieldMap::miroSot());
+  ASSERT_NE(fe.rectifier(), nullptr);
+  const int w = rig.params().image_width, h = rig.params().image_height;
+  cv::Mat raw(h, w, CV_8UC3, cv::Scalar(30, 60, 30));
+  cv::line(raw, cv::Point(20, h - 30), cv::Point(w - 60, h / 2 + 10), cv::Scalar(235, 235, 235), 5, cv::LINE_AA);
+  cv::line(raw, cv::Point(40, h / 2 + 30), cv::Point(w / 2, h - 10), cv::Scalar(235, 235, 235), 5, cv::LINE_AA);
+  const std::vector<LineFeature> from_raw = fe.detectFeaturesRaw(raw).lines;
+  ASSERT_FALSE(from_raw.empty());
+  const cv::Mat rectified = fe.rectifier()->left().clone();
+  const std::vector<LineFeature> direct = fe.detectFeatures(rectified).lines;
+  ASSERT_EQ(from_raw.size(), direct.size());
+  for (size_t i = 0; i < direct.size(); ++i) {
+    EXPECT_DOUBLE_EQ(from_raw[i].rho, direct[i].rho);
+    EXPECT_DOUBLE_EQ(from_raw[i].theta, direct[i].theta);
+  }
+  // The distorted image itself gives other lines (the map is not the identity).
+  const std::vector<LineFeature> unrectified = fe.detectFeatures(raw).lines;
+  bool differs = unrectified.size() != direct.size();
+  for (size_t i = 0; !differs && i < direct.size(); ++i) differs = std::fabs(unrectified[i].rho - direct[i].rho) > 0.5;
+  EXPECT_TRUE(differs);
+}

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <opencv2/calib3d.hpp>
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 #include <string>
 
@@ -75,6 +76,37 @@ TEST(Rectifier, SigmaAccountsForStretchAndMapGrid) {
   EXPECT_GT(rect.effectiveSigma(0, 5, 5, 0.5), 1.02 * centre);
   // A tiny raw sigma leaves the 1/32 px map grid.
   EXPECT_NEAR(rect.effectiveSigma(1, 160, 120, 0.0), 1.0 / 32 / std::sqrt(12.0), 1e-9);
+}
+
+// The two cameras run as two tasks of OpenCV's pool: the pair is the same whatever the thread
+// count, and each image is the bilinear fixed-point remap of its own raw image.
+TEST(Rectifier, SameImagesWhateverTheThreadCount) {
+  const StereoCalibration c = rawCalibration();
+  cv::Mat left(c.image_size, CV_8UC3), right(c.image_size, CV_8UC3);
+  cv::RNG rng(3);
+  rng.fill(left, cv::RNG::UNIFORM, 0, 256);
+  rng.fill(right, cv::RNG::UNIFORM, 0, 256);
+  cv::GaussianBlur(left, left, cv::Size(5, 5), 1.2);
+  cv::GaussianBlur(right, right, cv::Size(5, 5), 1.2);
+  const int saved = cv::getNumThreads();
+  cv::Mat out[2][2];
+  for (int t = 0; t < 2; ++t) {
+    cv::setNumThreads(t + 1);
+    Rectifier rect(c);
+    rect.rectify(left, right);
+    out[t][0] = rect.left().clone();
+    out[t][1] = rect.right().clone();
+  }
+  cv::setNumThreads(saved);
+  for (int i = 0; i < 2; ++i) {
+    EXPECT_EQ(cv::norm(out[0][i], out[1][i], cv::NORM_INF), 0.0) << "camera " << i;
+    cv::Mat mx, my, ref;
+    cv::initUndistortRectifyMap(i == 0 ? c.K1 : c.K2, i == 0 ? c.D1 : c.D2, i == 0 ? c.R1 : c.R2, i == 0 ? c.P1 : c.P2,
+                                c.image_size, CV_32FC1, mx, my);
+    cv::remap(i == 0 ? left : right, ref, mx, my, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    // Float maps against the 1/32 px fixed-point ones: at most one grey level apart.
+    EXPECT_LE(cv::norm(out[0][i], ref, cv::NORM_INF), 1.0) << "camera " << i;
+  }
 }
 
 TEST(Rectifier, FrontendRectifiesAndRejectsWrongSize) {

@@ -1,5 +1,6 @@
 // Batch smoother: accuracy against dead reckoning, exact covariance on a prediction-only chain,
-// determinism across thread counts, rank deficiency, robust loss with outliers, initialisation.
+// determinism across thread counts, rank deficiency, robust loss with outliers, initialisation,
+// self-calibration against Ceres.
 #include <gtest/gtest.h>
 
 #include <Eigen/Cholesky>
@@ -323,6 +324,64 @@ TEST(BatchSmoother, ChainSolverReachesTheCeresOptimum) {
   EXPECT_EQ(batchSolverFromString("ceres"), BatchSolver::Ceres);
   EXPECT_EQ(toString(BatchSolver::Chain), "chain");
   EXPECT_THROW(batchSolverFromString("dense"), Error);
+}
+
+// Self-calibration on a simulated run with planted rig and wheel errors: the chain solver's
+// bordered system (calibration columns beside the tridiagonal poses) reaches Ceres's optimum,
+// and its marginal covariances of poses and calibration equal ceres::Covariance's.
+TEST(BatchSmoother, CalibratingChainSolverEqualsCeres) {
+  SimulationConfig cfg;
+  cfg.landmarks = LandmarkSet::All;
+  cfg.scenario.steps = 300;
+  cfg.profile.name = "planted";
+  cfg.profile.wheel_radius_rel_sigma = 0.01;
+  cfg.profile.wheel_base_rel_sigma = 0.03;
+  cfg.profile.principal_sigma_px = 1.0;
+  cfg.profile.relative_rotation_sigma_rad = deg2rad(0.1);
+  cfg.profile.focal_rel_sigma = 0.005;
+  const Dataset d = simulate("random-walk", 0, cfg, 31);
+  for (ObservationModel model : {ObservationModel::PixelColumns, ObservationModel::Pixels}) {
+    BatchSmootherConfig c = knownStart(*d.initial_pose);
+    c.observation_model = {model, d.rig, 0.0};
+    c.calibration = SelfCalibrationConfig::parse("odometry,stereo");
+    c.function_tolerance = 0;
+    c.gradient_tolerance = 1e-9;
+    c.parameter_tolerance = 1e-16;
+    BatchSmoother chain(d.map, d.odometry, c);
+    c.solver = BatchSolver::Ceres;
+    c.covariance_method = CovarianceMethod::Ceres;
+    BatchSmoother ceres(d.map, d.odometry, c);
+    const std::vector<Estimate> a = run(chain, d.steps), b = run(ceres, d.steps);
+    ASSERT_EQ(a.size(), b.size());
+    ASSERT_EQ(chain.summary().covariance_status, CovarianceStatus::Ok);
+    ASSERT_EQ(ceres.summary().covariance_status, CovarianceStatus::Ok);
+    double worst_mm = 0, worst_rad = 0, worst_cov = 0;
+    for (size_t i = 0; i < a.size(); ++i) {
+      worst_mm = std::max(worst_mm, (a[i].pose.translation() - b[i].pose.translation()).cwiseAbs().maxCoeff());
+      worst_rad = std::max(worst_rad, std::fabs(wrapAngle(a[i].pose.theta - b[i].pose.theta)));
+      worst_cov = std::max(worst_cov, (a[i].covariance - b[i].covariance).cwiseAbs().maxCoeff() /
+                                          b[i].covariance.cwiseAbs().maxCoeff());
+    }
+    EXPECT_LT(worst_mm, 1e-6) << toString(model);
+    EXPECT_LT(worst_rad, 1e-8) << toString(model);
+    EXPECT_LT(worst_cov, 1e-6) << toString(model);
+    const CalibrationEstimate &ca = chain.calibration(), &cb = ceres.calibration();
+    ASSERT_TRUE(ca.odometry && ca.stereo);
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(ca.wheels[k], cb.wheels[k], 1e-6 * std::fabs(cb.wheels[k])) << k;
+    for (int k = 0; k < 5; ++k) EXPECT_NEAR(ca.head[k], cb.head[k], 1e-6 * std::max(1.0, std::fabs(cb.head[k]))) << k;
+    EXPECT_LT((ca.wheels_covariance - cb.wheels_covariance).cwiseAbs().maxCoeff(),
+              1e-6 * cb.wheels_covariance.cwiseAbs().maxCoeff());
+    for (int i = 0; i < 5; ++i)
+      for (int j = 0; j < 5; ++j)
+        EXPECT_NEAR(ca.head_covariance(i, j), cb.head_covariance(i, j),
+                    1e-6 * std::sqrt(cb.head_covariance(i, i) * cb.head_covariance(j, j)))
+            << i << " " << j;
+    EXPECT_NEAR(chain.summary().final_cost, ceres.summary().final_cost, 1e-9 * ceres.summary().final_cost);
+  }
+  // Stereo calibration needs the pixel factors.
+  BatchSmootherConfig bad = knownStart(*d.initial_pose);
+  bad.calibration.stereo = true;
+  EXPECT_THROW(BatchSmoother(d.map, d.odometry, bad), Error);
 }
 
 TEST(BatchSmoother, ThesisScenariosGiveTheCeresAccuracy) {

@@ -4,6 +4,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
+#include <Eigen/LU>
 #include <random>
 
 #include "factors/compass_factor.h"
@@ -56,6 +57,63 @@ TEST(ChainSolver, BlockTridiagonalSolveEqualsDenseSolve) {
   EXPECT_FALSE(solveBlockTridiagonal(Z, Z, rhs, 0.0, &G, &dx));
 }
 
+// The bordered (arrow) system of a chain with global columns, against the dense solve and the
+// dense inverse.
+TEST(ChainSolver, BorderedSolveAndCovariancesEqualDense) {
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> N(0.0, 1.0);
+  const size_t n = 9;
+  const int K = 4;
+  const int m = 3 * static_cast<int>(n) + K;
+  // J^T J of random factors on one pose, two consecutive poses, a pose and the globals, the globals alone.
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(m, m);
+  auto add = [&](const std::vector<int>& columns) {
+    Eigen::MatrixXd J(3, columns.size());
+    for (int k = 0; k < J.size(); ++k) J(k) = N(rng);
+    const Eigen::MatrixXd h = J.transpose() * J;
+    for (size_t a = 0; a < columns.size(); ++a)
+      for (size_t b = 0; b < columns.size(); ++b) H(columns[a], columns[b]) += h(a, b);
+  };
+  for (size_t i = 0; i < n; ++i) {
+    const int p = 3 * static_cast<int>(i);
+    add({p, p + 1, p + 2});
+    if (i > 0) add({p - 3, p - 2, p - 1, p, p + 1, p + 2});
+    add({p, p + 1, p + 2, m - 4, m - 3, m - 2, m - 1});
+  }
+  add({m - 4, m - 3, m - 2, m - 1});
+  BorderedSystem h;
+  h.D.assign(n, Eigen::Matrix3d::Zero());
+  h.B.assign(n, Eigen::Matrix3d::Zero());
+  for (size_t i = 0; i < n; ++i) {
+    h.D[i] = H.block<3, 3>(3 * i, 3 * i);
+    if (i > 0) h.B[i] = H.block<3, 3>(3 * i - 3, 3 * i);
+  }
+  h.E = H.topRightCorner(3 * n, K);
+  h.C = H.bottomRightCorner(K, K);
+  Eigen::VectorXd b(m);
+  for (int k = 0; k < m; ++k) b(k) = N(rng);
+  for (const double damping : {0.0, 1e-3, 10.0}) {
+    Eigen::MatrixXd A = H;
+    for (int k = 0; k < m; ++k) A(k, k) += damping * std::max(H(k, k), 1e-6);
+    const Eigen::VectorXd expected = A.llt().solve(b);
+    Eigen::VectorXd dx, dc;
+    ASSERT_TRUE(solveBorderedBlockTridiagonal(h, b.head(3 * n), b.tail(K), damping, &dx, &dc));
+    EXPECT_LT((dx - expected.head(3 * n)).norm(), 1e-9 * expected.norm()) << damping;
+    EXPECT_LT((dc - expected.tail(K)).norm(), 1e-9 * expected.norm()) << damping;
+  }
+  const Eigen::MatrixXd inverse = H.inverse();
+  std::vector<Eigen::Matrix3d> cov;
+  Eigen::MatrixXd global_cov;
+  ASSERT_TRUE(borderedMarginalCovariances(h, &cov, &global_cov));
+  for (size_t i = 0; i < n; ++i)
+    EXPECT_LT((cov[i] - inverse.block<3, 3>(3 * i, 3 * i)).norm(), 1e-9 * inverse.norm()) << i;
+  EXPECT_LT((global_cov - inverse.bottomRightCorner(K, K)).norm(), 1e-9 * inverse.norm());
+  // Globals no factor determines: rank deficient, reported.
+  h.E.setZero();
+  h.C.setZero();
+  EXPECT_FALSE(borderedMarginalCovariances(h, &cov, &global_cov));
+}
+
 // A small chain: a prior, odometry, a compass on every third pose and range-bearing observations
 // of two landmarks; cut_at can remove one odometry factor.
 class TestChain : public ChainFactorSource {
@@ -90,10 +148,10 @@ class TestChain : public ChainFactorSource {
                           landmarks_[l], z_[landmarks_.size() * i + l], Eigen::Vector2d(25.0, 1e-4).asDiagonal())),
                       true});
   }
-  std::unique_ptr<ceres::CostFunction> binaryFactor(size_t i) const override {
-    if (i == 0 || i == cut_at) return nullptr;
-    return std::unique_ptr<ceres::CostFunction>(
-        OdometryFactor::Create(u_[i], Eigen::Vector3d(0.09, 0.09, 1e-5).asDiagonal()));
+  ChainFactor binaryFactor(size_t i) const override {
+    if (i == 0 || i == cut_at) return {};
+    return {std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(u_[i], Eigen::Vector3d(0.09, 0.09, 1e-5).asDiagonal())),
+            false};
   }
   const std::vector<Pose2>& truth() const { return truth_; }
   size_t cut_at = 0;

@@ -1,6 +1,7 @@
 // Global fixes (thesis chapter 4): exact recovery, the ordering rule, Jacobians against central
 // differences, the pixel-level propagation (4.16-4.18), degenerate cases and NEES over Monte Carlo.
 #include "solvers/global_fix.h"
+#include "solvers/global_fix_hypotheses.h"
 
 #include <gtest/gtest.h>
 
@@ -942,6 +943,89 @@ TEST(GlobalFix, NonlinearityIsSmallNearAndLargeFar) {
                                 firstOrder())
                 .nonlinearity,
             0.0);
+}
+
+// --- multi-hypothesis start from ambiguous sightings -----------------------------------------
+
+// A step at the true pose seeing the given landmarks unidentified (range sigma 5 mm, bearing
+// 0.2 deg, no noise added), with an exact compass of declared sigma 3.5 deg.
+Step ambiguousStep(const FieldMap& map, const Pose2& truth, const std::vector<int>& ids) {
+  Step s;
+  s.compass = truth.theta;
+  s.compass_sigma = deg2rad(3.5);
+  for (int id : ids) {
+    const Landmark& l = map.at(id);
+    const Eigen::Vector2d z = predictRangeBearing(truth, l.xy());
+    s.observations.push_back(observationFromRangeBearing(-1, l.type, z.x(), z.y(), 5.0, deg2rad(0.2)));
+  }
+  return s;
+}
+
+// One marking corner with the compass: one hypothesis per marking corner whose one-landmark fix
+// (4.10) lies in the field (with its margin), all equally likely, and the mixture is their mean.
+TEST(HypothesisBank, OneAmbiguousSightingSpawnsOneHypothesisPerCandidateInsideTheField) {
+  const FieldMap map = FieldMap::miroSot();
+  const Pose2 truth(800.0, 1200.0, 0.3);
+  HypothesisBank bank(map, OdometryParams());
+  bank.process(ambiguousStep(map, truth, {9}), true);  // corner (1350, 900)
+  // The candidates are the truth shifted by l_i - l_9, for the corners i that keep it inside the
+  // map bounds (the field and the goals) with the 100 mm margin.
+  size_t inside = 0;
+  for (const Landmark* l : map.ofType(LandmarkType::MarkingCorner))
+    inside += map.bounds().contains(truth.translation() + l->xy() - map.at(9).xy(), 100.0) ? 1 : 0;
+  ASSERT_LT(inside, map.ofType(LandmarkType::MarkingCorner).size());
+  ASSERT_EQ(bank.hypotheses().size(), inside);
+  const double n = static_cast<double>(inside);
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  double nearest = 1e9;
+  for (size_t i = 0; i < bank.hypotheses().size(); ++i) {
+    EXPECT_NEAR(bank.weights()[i], 1.0 / n, 1e-12);
+    mean += bank.hypotheses()[i].pose.translation() / n;
+    nearest = std::min(nearest, (bank.hypotheses()[i].pose.translation() - truth.translation()).norm());
+  }
+  EXPECT_LT(nearest, 1.0);
+  const PoseFix m = bank.mixture();
+  EXPECT_LT((m.pose.translation() - mean).norm(), 1e-6);
+  // The covariance holds the hypotheses' spread (they are hundreds of mm apart).
+  EXPECT_GT(std::sqrt(m.covariance(0, 0)), 300.0);
+}
+
+// Three sightings (two corners and a junction) leave one hypothesis that explains them all; the
+// one that explains all but one (the field's mirror about y = 650 is also a junction) keeps a
+// weight of exp(-chi2_gate / 2); the others are pruned. The next step's odometry and sighting
+// keep the survivor on the truth.
+TEST(HypothesisBank, SightingsTheHypothesesCannotExplainPruneThem) {
+  const FieldMap map = FieldMap::miroSot();
+  const Pose2 truth(950.0, 650.0, 0.3);
+  HypothesisBank bank(map, OdometryParams());
+  bank.process(ambiguousStep(map, truth, {9, 11, 17}), true);  // corner, junction (1500, 900), corner
+  ASSERT_GE(bank.hypotheses().size(), 1u);
+  EXPECT_LT((bank.hypotheses().front().pose.translation() - truth.translation()).norm(), 5.0);
+  EXPECT_GT(bank.weights().front(), 0.999);
+  EXPECT_LT((bank.mixture().pose.translation() - truth.translation()).norm(), 5.0);
+
+  const double d = 20.0;  // straight ahead
+  const Pose2 next = compose(truth, Pose2(d, 0.0, 0.0));
+  Step s = ambiguousStep(map, next, {9});
+  s.d_left = d;
+  s.d_right = d;
+  bank.process(s, false);
+  ASSERT_FALSE(bank.empty());
+  EXPECT_LT((bank.hypotheses().front().pose.translation() - next.translation()).norm(), 5.0);
+}
+
+// Without a compass nothing is spawned (a one-landmark fix needs the heading); bad settings throw.
+TEST(HypothesisBank, NeedsTheCompassToSpawnAndRejectsBadSettings) {
+  const FieldMap map = FieldMap::miroSot();
+  HypothesisBank bank(map, OdometryParams());
+  Step s = ambiguousStep(map, Pose2(950.0, 650.0, 0.3), {9, 11});
+  s.compass.reset();
+  bank.process(s, true);
+  EXPECT_TRUE(bank.empty());
+  EXPECT_THROW(bank.mixture(), Error);
+  HypothesisConfig bad;
+  bad.max_hypotheses = 0;
+  EXPECT_THROW(HypothesisBank(map, OdometryParams(), bad), Error);
 }
 
 }  // namespace

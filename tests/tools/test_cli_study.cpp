@@ -57,7 +57,7 @@ TEST(CliStudy, IdenticalWhateverTheThreadCountAndShardedMergeEqualsUnsharded) {
       std::stringstream ls(line);
       std::string x;
       while (std::getline(ls, x, ',')) f.push_back(x);
-      f.erase(f.begin() + 11);  // ms_per_step
+      f.erase(f.begin() + 12);  // ms_per_step
       for (const auto& v : f) out << v << ',';
       out << '\n';
     }
@@ -74,6 +74,35 @@ TEST(CliStudy, IdenticalWhateverTheThreadCountAndShardedMergeEqualsUnsharded) {
   EXPECT_NE(bad.output.find("configuration differs"), std::string::npos) << bad.output;
 }
 
+// Two worlds side by side: the ideal rows are those of an ideal-only study, the realistic rows
+// carry their profile, and the self-calibrating batch gets its convergence figures.
+TEST(CliStudy, ProfilesSideBySide) {
+  test::TempDir dir;
+  const std::string args = "study --scenarios circle --methods ekf,batch:calib --trials 2 --seed 3 --no-progress --frontend pixels";
+  const test::CliRun both = test::runCli(args + " --profile ideal,realistic --out " + dir.file("both"));
+  ASSERT_EQ(both.exit_code, 0) << both.output;
+  ASSERT_EQ(test::runCli(args + " --out " + dir.file("ideal")).exit_code, 0);
+  const std::string steps_both = slurp(dir.file("both/steps.csv")), steps_ideal = slurp(dir.file("ideal/steps.csv"));
+  EXPECT_EQ(steps_both.rfind("scenario,profile,trial,method,step,", 0), 0u);
+  // The ideal rows come first (profile order) and equal the ideal-only study's.
+  ASSERT_GT(steps_both.size(), steps_ideal.size());
+  EXPECT_EQ(steps_both.substr(0, steps_ideal.size()), steps_ideal);
+  EXPECT_NE(steps_both.find("\ncircle,realistic,0,batch:calib,"), std::string::npos);
+  const std::string summary = slurp(dir.file("both/summary.csv"));
+  EXPECT_EQ(std::count(summary.begin(), summary.end(), '\n'), 5);  // 2 profiles x 2 methods + header
+  const std::string report = slurp(dir.file("both/report.md"));
+  EXPECT_NE(report.find("| RMSE ideal [mm] | NEES ideal | ms/step ideal | RMSE realistic [mm] |"), std::string::npos) << report;
+  for (const char* f : {"circle_realistic_trajectories.png", "circle_realistic_batch_calib_calibration_4.png",
+                        "circle_batch_calib_calibration_0.png"})
+    EXPECT_TRUE(std::filesystem::exists(dir.file(std::string("both/") + f))) << f;
+  EXPECT_NE(summary.find("\ncircle,realistic,ekf,2,"), std::string::npos);
+  // Every trial's calibration estimate against the drawn truth: 2 profiles x 2 trials x 5 parameters.
+  const std::string calibration = slurp(dir.file("both/calibration.csv"));
+  EXPECT_EQ(calibration.rfind("scenario,profile,trial,method,parameter,truth,estimate,sigma\n", 0), 0u);
+  EXPECT_EQ(std::count(calibration.begin(), calibration.end(), '\n'), 21);
+  EXPECT_NE(report.find("## Self-calibration against the drawn truth"), std::string::npos);
+}
+
 TEST(CliStudy, UsageErrors) {
   test::TempDir dir;
   EXPECT_EQ(test::runCli("study --scenarios circle").exit_code, 2);
@@ -81,6 +110,9 @@ TEST(CliStudy, UsageErrors) {
   EXPECT_EQ(test::runCli("study --scenarios moon --out " + dir.file("x")).exit_code, 2);
   EXPECT_EQ(test::runCli("study --shard 3/2 --out " + dir.file("x")).exit_code, 2);
   EXPECT_EQ(test::runCli("study --observation-model pixel --out " + dir.file("x")).exit_code, 2);
+  EXPECT_EQ(test::runCli("study --profile sunny --out " + dir.file("x")).exit_code, 2);
+  EXPECT_EQ(test::runCli("study --profile ideal,ideal --out " + dir.file("x")).exit_code, 2);
+  EXPECT_EQ(test::runCli("study --methods ekf:calib --out " + dir.file("x")).exit_code, 2);
   std::filesystem::create_directories(dir.file("full"));
   std::ofstream(dir.file("full/keep")) << "x";
   EXPECT_EQ(test::runCli("study --trials 1 --out " + dir.file("full")).exit_code, 2);

@@ -3,12 +3,18 @@
 //
 //   bench_rectify [benchmark flags]   (e.g. --benchmark_repetitions=5 --benchmark_report_aggregates_only)
 //
+// The argument of the raw-pair benchmarks is OpenCV's thread count (cv::setNumThreads): the
+// rectifier runs the two cameras as two tasks of OpenCV's pool. Times are wall clock ("Time")
+// and the CPU time of the whole process over all threads ("CPU"), so that a second thread's
+// work is counted.
+//
 // The raw images are rendered ideal pinhole pairs (the rectified rig of the calibration) warped
 // into the raw cameras by the calibration's own model (cv::undistortPoints of every raw pixel),
 // so the frontend sees the lens distortion and camera rotation a real pair would have.
 #include <benchmark/benchmark.h>
 
 #include <opencv2/calib3d.hpp>
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <vector>
@@ -72,8 +78,21 @@ const RawPairs& rawPairs() {
   return data;
 }
 
+// Sets OpenCV's thread count for one benchmark and restores it.
+class OpenCvThreads {
+ public:
+  explicit OpenCvThreads(int n) : saved_(cv::getNumThreads()) { cv::setNumThreads(n); }
+  ~OpenCvThreads() { cv::setNumThreads(saved_); }
+  OpenCvThreads(const OpenCvThreads&) = delete;
+  OpenCvThreads& operator=(const OpenCvThreads&) = delete;
+
+ private:
+  int saved_;
+};
+
 void BM_Rectify(benchmark::State& state) {
   const RawPairs& d = rawPairs();
+  const OpenCvThreads threads(static_cast<int>(state.range(0)));
   frontend::Rectifier rect(*d.rig.calibration());
   size_t k = 0;
   for (auto _ : state) {
@@ -82,10 +101,34 @@ void BM_Rectify(benchmark::State& state) {
     benchmark::DoNotOptimize(rect.left().data);
   }
 }
-BENCHMARK(BM_Rectify)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Rectify)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
+// Reference in the same run: the pair as two cv::remap calls one after the other on the
+// calling thread (the same fixed-point maps and interpolation as the Rectifier).
+void BM_RemapPairSerial(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  const StereoCalibration& c = *d.rig.calibration();
+  cv::Mat fixed[2], frac[2], out[2];
+  for (int i = 0; i < 2; ++i) {
+    cv::Mat mx, my;
+    cv::initUndistortRectifyMap(i == 0 ? c.K1 : c.K2, i == 0 ? c.D1 : c.D2, i == 0 ? c.R1 : c.R2, i == 0 ? c.P1 : c.P2,
+                                c.image_size, CV_32FC1, mx, my);
+    cv::convertMaps(mx, my, fixed[i], frac[i], CV_16SC2, false);
+  }
+  const OpenCvThreads threads(1);
+  size_t k = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    cv::remap(p.first, out[0], fixed[0], frac[0], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    cv::remap(p.second, out[1], fixed[1], frac[1], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    benchmark::DoNotOptimize(out[1].data);
+  }
+}
+BENCHMARK(BM_RemapPairSerial)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 void BM_FrontendRawPair(benchmark::State& state) {
   const RawPairs& d = rawPairs();
+  const OpenCvThreads threads(static_cast<int>(state.range(0)));
   frontend::Frontend fe(d.rig, FieldMap::miroSot());
   size_t k = 0, obs = 0;
   for (auto _ : state) {
@@ -94,7 +137,7 @@ void BM_FrontendRawPair(benchmark::State& state) {
   }
   state.counters["obs_per_pair"] = static_cast<double>(obs) / static_cast<double>(k);
 }
-BENCHMARK(BM_FrontendRawPair)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_FrontendRawPair)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 void BM_FrontendRectifiedPair(benchmark::State& state) {
   const RawPairs& d = rawPairs();
@@ -117,7 +160,7 @@ void BM_FrontendRectifiedPair(benchmark::State& state) {
     benchmark::DoNotOptimize(fe.process(p.first, p.second).observations.size());
   }
 }
-BENCHMARK(BM_FrontendRectifiedPair)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_FrontendRectifiedPair)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 }  // namespace
 

@@ -40,6 +40,10 @@ import numpy as np
 
 DATA = 'data/real'
 W, H = 320, 240
+# Free-end search (free_end): px inside / beyond the rough end, reference stretch, run below.
+END_IN, END_OUT, END_REF, END_RUN = 10.0, 40.0, 15.0, 2.0
+# Curve snapping (snap_curve): sample spacing, search reach, ridge side offset, px; min ridge, grey levels.
+CURVE_STEP, CURVE_REACH, CURVE_SIDE, CURVE_MIN = 4.0, 12.0, 5.0, 12.0
 
 
 def fail(where, msg):
@@ -231,18 +235,42 @@ def stripe_contrast(lum, c, u, ts, width):
 
 
 def free_end(lum, m, t, sign):
-    """Sub-pixel end of the stripe near line coordinate t, the stripe lying towards -sign."""
+    """Sub-pixel end of the stripe near line coordinate t, the stripe lying towards -sign.
+
+    The rough end is a hand-given point and may lie well short of or past the stripe's end (a
+    far stripe fades over tens of px), so the end is searched from END_IN px inside the rough
+    end out to END_OUT px beyond it: the first place where the stripe contrast falls below half
+    the contrast just inside it (the END_REF px before the search start, or the whole body when
+    that is shorter) and stays below for END_RUN px; the rough end stands when the stripe is
+    already faint where the search starts. A stripe is brighter than both sides, so a
+    robot, its shadow, the field boundary's wall or the image border all end it."""
     c, u, w = m['c'], m['u'], m['width']
-    body = np.arange(-m['half'] + 3, m['half'] - 3, 1.0)
-    ref = float(np.median(stripe_contrast(lum, c, u, body, w))) if len(body) else 0.0
-    ts = np.arange(t - 5.0 * sign, t + 5.0 * sign + 1e-9 * sign, 0.25 * sign)
-    ts = ts[(ts >= -(m['half'] + 6)) & (ts <= m['half'] + 6)]
+    lo, hi = -m['half'], m['half']
+    start = t - END_IN * sign
+    ref_ts = np.arange(start - END_REF * sign, start, 0.5 * sign)
+    ref_ts = ref_ts[(ref_ts >= lo) & (ref_ts <= hi)]
+    if len(ref_ts) < 8:
+        ref_ts = np.arange(lo + 3, hi - 3, 1.0)
+    ref = float(np.median(stripe_contrast(lum, c, u, ref_ts, w))) if len(ref_ts) else 0.0
+    ts = np.arange(start, t + END_OUT * sign + 1e-9 * sign, 0.25 * sign)
+    pts = c[None, :] + ts[:, None] * u[None, :]
+    inside = (pts[:, 0] >= 0) & (pts[:, 0] <= W - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= H - 1)
+    if not inside.all():
+        ts = ts[:int(np.argmin(inside))]
+    if len(ts) < 2 or ref <= 0:
+        return t
     con = stripe_contrast(lum, c, u, ts, w)
+    below = con < 0.5 * ref
+    run = int(round(END_RUN / 0.25))
     for i in range(1, len(ts)):
-        if con[i - 1] >= 0.5 * ref > con[i]:
+        if below[i] and not below[i - 1] and below[i:i + run].all():
             f = (con[i - 1] - 0.5 * ref) / (con[i - 1] - con[i])
             return ts[i - 1] + f * (ts[i] - ts[i - 1])
-    return t
+    if below[0]:
+        # Already faint inside the rough end (a crossing stripe brightens both sides, or the
+        # reference stretch is not stripe): the hand-given end stands.
+        return t
+    return ts[-1]
 
 
 def border_t(c, u, t, sign):
@@ -297,6 +325,32 @@ def edge_runs(lum, gx, gy, a, b, normal, sign):
             runs.append((a + ts[i] * u, a + ts[j] * u))
         i = j + 1
     return runs
+
+
+def snap_curve(lum, v):
+    """A hand-given curve polyline moved onto its stripe: resampled every CURVE_STEP px, each
+    sample moved along the polyline's normal (up to CURVE_REACH px) to the brightest ridge
+    (luma there minus the mean luma CURVE_SIDE px to either side, after the blur of `lum`);
+    samples without a ridge of at least CURVE_MIN grey levels stay where they are. The curve is
+    a don't-care stroke, so it must lie on the stripe, not beside it."""
+    pts = np.array(v, dtype=float).reshape(-1, 2)
+    out = []
+    for p0, p1 in zip(pts[:-1], pts[1:]):
+        L = np.linalg.norm(p1 - p0)
+        if L < 1e-9:
+            continue
+        u = (p1 - p0) / L
+        n = np.array([-u[1], u[0]])
+        for t in np.arange(0.0, L, CURVE_STEP):
+            q = p0 + t * u
+            offs = np.arange(-CURVE_REACH, CURVE_REACH + 1e-9, 0.5)
+            cx, cy = q[0] + offs * n[0], q[1] + offs * n[1]
+            ridge = bilinear(lum, cx, cy) - 0.5 * (bilinear(lum, cx + CURVE_SIDE * n[0], cy + CURVE_SIDE * n[1]) +
+                                                   bilinear(lum, cx - CURVE_SIDE * n[0], cy - CURVE_SIDE * n[1]))
+            k = int(np.argmax(ridge))
+            out.append(q + offs[k] * n if ridge[k] >= CURVE_MIN else q)
+    out.append(pts[-1])
+    return [float(np.clip(c, 0, (W - 1) if i % 2 == 0 else (H - 1))) for i, c in enumerate(np.array(out).ravel())]
 
 
 def snap(name):
@@ -380,6 +434,8 @@ def snap(name):
             f.write(f'corner {typ} {p[0]:.2f} {p[1]:.2f}\n')
         names = {'b': 'boundary', 'o': 'dontcare', 'k': 'curve'}
         for kind, v, extra, where in items:
+            if kind == 'k':
+                v = snap_curve(lum_s, v)
             if kind in names:
                 f.write(names[kind] + ' ' + ' '.join(f'{x:.1f}' for x in v) + '\n')
     os.replace(path + '.tmp', path)

@@ -78,8 +78,9 @@ void runDetect(const DetectOptions& o) {
     throw Error((mono ? o.image : o.left) + ": size " + std::to_string(left.cols) + "x" + std::to_string(left.rows) +
                 " does not match the rig's " + std::to_string(rig.params().image_width) + "x" +
                 std::to_string(rig.params().image_height) + " (pass --rig with the camera's calibration)");
-  const frontend::FrontendResult& r = mono ? fe.detectFeatures(left) : fe.process(left, right, o.pan);
-  if (!o.overlay.empty()) writeOverlay(left, r, o.overlay);
+  const frontend::FrontendResult& r = mono ? fe.detectFeaturesRaw(left) : fe.process(left, right, o.pan);
+  // The features are in rectified pixels: draw them on the rectified image.
+  if (!o.overlay.empty()) writeOverlay(fe.rectifier() ? fe.rectifier()->left() : left, r, o.overlay);
 
   std::ostringstream out;
   if (o.json) {

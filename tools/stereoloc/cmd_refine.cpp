@@ -42,16 +42,7 @@ class ProgressLine {
 };
 
 void runRefine(const LocalizeArgs& a) {
-  // Self-calibration is its own problem (solvers/self_calibration.h), run as localize runs it.
-  if (!a.calibrate.empty() || !a.calibration_out.empty()) return runLocalize(a);
-  MethodOptions o = a.options;
-  try {
-    o.init = initModeFromString(a.init);
-    o.loss = robustLossFromString(a.loss);
-    o.observation_model = observationModelFromString(a.observation_model);
-  } catch (const Error& e) {
-    throw UsageError(e.what());
-  }
+  const MethodOptions o = parseMethodOptions(a);
   parseMethodSpec("batch", o.init);  // usage errors before reading data
   const auto t_load = Clock::now();
   Dataset d = loadDatasetWithFrontend(a.dataset, a.frontend, a.frontend_landmarks, a.frontend_params, stdout);
@@ -83,6 +74,7 @@ void runRefine(const LocalizeArgs& a) {
   std::vector<Step>().swap(d.steps);
   const std::vector<Estimate> estimates = smoother->finish();
   const BatchSummary s = smoother->summary();
+  const CalibrationEstimate calibration = smoother->calibration();
   smoother.reset();  // its buffers are not needed for writing and the metrics
   for (const Estimate& e : estimates)
     if (!e.pose.isFinite() || !e.covariance.allFinite())
@@ -91,6 +83,7 @@ void runRefine(const LocalizeArgs& a) {
   const auto t_write = Clock::now();
   writeEstimatesCsv(a.out, estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, estimates);
+  reportCalibration(a, o.calibration.odometry || o.calibration.stereo ? &calibration : nullptr, d.rig);
   const double write_s = secondsSince(t_write);
   progress.clear();
   std::printf("batch: %zu estimates for %zu steps written to %s\n", estimates.size(), steps, a.out.c_str());

@@ -15,6 +15,7 @@ struct StudyArgs {
   std::string methods = "fix1,fix2,ekf,iekf,ekf:random,ekf:global,pf,window,batch";
   std::string shard = "0/1";
   std::string init = "known";
+  std::string profiles = "ideal";
   StudyConfig config;
   std::vector<std::string> merge_dirs;
   std::string merge_out;
@@ -27,6 +28,7 @@ void runFromArgs(StudyArgs& a) {
   StudyConfig& c = a.config;
   c.scenarios = a.scenarios == "thesis" ? std::vector<std::string>{"circle", "line", "spin", "kidnap"} : splitCommaList(a.scenarios);
   c.methods = splitCommaList(a.methods);
+  c.profiles = splitCommaList(a.profiles);
   if (c.scenarios.empty()) throw UsageError("--scenarios is empty");
   if (c.methods.empty()) throw UsageError("--methods is empty");
   const size_t slash = a.shard.find('/');
@@ -73,7 +75,13 @@ void add_study_command(CLI::App& app) {
       ->capture_default_str();
   sub->add_option("--methods", a->methods,
                   "Comma-separated methods: " + methodNamesText() +
-                      "; append :known, :random or :global to choose the start (e.g. ekf:random)")
+                      "; append :known, :random or :global to choose the start (e.g. ekf:random), and :calib "
+                      "for the batch with odometry and stereo self-calibration (batch:calib)")
+      ->capture_default_str();
+  sub->add_option("--profile", a->profiles,
+                  "Comma-separated error profiles of the simulated world: ideal (exact), realistic (calibration, lens, "
+                  "blur, vibration and odometry errors; src/sim/error_profile.h) or profile YAML files; every method "
+                  "runs in each, side by side in the report")
       ->capture_default_str();
   sub->add_option("--trials", a->config.trials, "Trials per scenario")->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--seed", a->config.seed, "Study seed (each trial's seed derives from it)")->capture_default_str();

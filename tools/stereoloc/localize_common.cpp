@@ -1,6 +1,8 @@
 #include "tools/stereoloc/localize_common.h"
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <memory>
 
@@ -12,7 +14,7 @@
 
 namespace stereoloc::cli {
 
-void runLocalize(const LocalizeArgs& a) {
+MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   MethodOptions o = a.options;
   try {
     o.init = initModeFromString(a.init);
@@ -22,25 +24,38 @@ void runLocalize(const LocalizeArgs& a) {
   } catch (const Error& e) {
     throw UsageError(e.what());
   }
+  if (!a.calibration_out.empty() && !o.calibration.odometry && !o.calibration.stereo)
+    throw UsageError("--calibration-out: needs --calibrate");
+  return o;
+}
+
+void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibration, const StereoRig& rig) {
+  if (!calibration) return;
+  const CalibrationEstimate& c = *calibration;
+  if (!a.calibration_out.empty()) c.saveAsRig(a.calibration_out, rig);
+  auto sd = [](double variance) { return std::sqrt(std::max(variance, 0.0)); };
+  if (c.odometry)
+    std::printf("calibration: wheel scales %.5f +- %.5f, %.5f +- %.5f, wheel base %.2f +- %.2f mm\n", c.wheels[0],
+                sd(c.wheels_covariance(0, 0)), c.wheels[1], sd(c.wheels_covariance(1, 1)), c.wheels[2],
+                sd(c.wheels_covariance(2, 2)));
+  if (c.stereo)
+    std::printf(
+        "calibration: tilt correction %.3f +- %.3f deg, baseline scale %.5f +- %.5f, disparity offset %.2f +- %.2f px, "
+        "column offset %.2f +- %.2f px, focal ratio %.5f +- %.5f\n",
+        rad2deg(c.head[0]), rad2deg(sd(c.head_covariance(0, 0))), c.head[1], sd(c.head_covariance(1, 1)), c.head[2],
+        sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)));
+}
+
+void runLocalize(const LocalizeArgs& a) {
+  const MethodOptions o = parseMethodOptions(a);
   parseMethodSpec(a.method, o.init);  // usage errors before reading data
   const Dataset d = loadDatasetWithFrontend(a.dataset, a.frontend, a.frontend_landmarks, a.frontend_params, stdout);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
-  if (!a.calibration_out.empty()) {
-    if (!run.calibration) throw UsageError("--calibration-out: needs --calibrate with the batch method");
-    run.calibration->saveAsRig(a.calibration_out, d.rig);
-  }
-  if (run.calibration) {
-    const CalibrationEstimate& c = *run.calibration;
-    if (c.odometry)
-      std::printf("calibration: wheel scales %.5f +- %.5f, %.5f +- %.5f, wheel base %.2f +- %.2f mm\n", c.wheels[0],
-                  std::sqrt(c.wheels_covariance(0, 0)), c.wheels[1], std::sqrt(c.wheels_covariance(1, 1)), c.wheels[2],
-                  std::sqrt(c.wheels_covariance(2, 2)));
-    if (c.stereo)
-      std::printf("calibration: tilt correction %.3f +- %.3f deg, baseline scale %.5f +- %.5f\n", rad2deg(c.head[0]),
-                  rad2deg(std::sqrt(c.head_covariance(0, 0))), c.head[1], std::sqrt(c.head_covariance(1, 1)));
-  }
+  if (!a.calibration_out.empty() && !run.calibration)
+    throw UsageError("--calibration-out: needs --calibrate with a smoother");
+  reportCalibration(a, run.calibration ? &*run.calibration : nullptr, d.rig);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);
   const TrajectoryMetrics m = trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth)));
@@ -95,8 +110,14 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--tum", a->tum, "Also write the trajectory in TUM format (metres), e.g. for evo");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
   sub->add_option("--calibrate", a->calibrate,
-                  "Batch: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline scale) or "
-                  "odometry,stereo, with priors from the stated uncertainty (known start)");
+                  "Batch: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline scale, "
+                  "disparity and column offsets; needs a pixel observation model) or odometry,stereo, with priors "
+                  "from the stated uncertainty");
+  sub->add_option("--pixel-sigma", a->options.pixel_sigma,
+                  "Batch and window pixel models: pixel noise [px] replacing the observations' own (0: theirs); "
+                  "about 1 px for the realistic error profile (docs/realistic_world.md)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
                   "(usable as --rig)");

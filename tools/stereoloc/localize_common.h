@@ -22,9 +22,16 @@ struct LocalizeArgs {
   std::string frontend_params;                // frontend parameters YAML (empty: defaults)
   std::string calibrate;                      // "", "odometry", "stereo", "odometry,stereo"
   std::string calibration_out;                // rig YAML with the calibration estimate
+
 };
 
 void runLocalize(const LocalizeArgs& args);
+// The method options with the parsed --init, --loss, --observation-model and --calibrate;
+// throws UsageError.
+MethodOptions parseMethodOptions(const LocalizeArgs& args);
+// Writes --calibration-out and prints the estimate (calibration null: no --calibrate, and
+// --calibration-out is then a usage error).
+void reportCalibration(const LocalizeArgs& args, const CalibrationEstimate* calibration, const StereoRig& rig);
 // --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
 // Loads a dataset and, with --frontend images, replaces its observations by the frontend's on
