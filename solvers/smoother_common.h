@@ -47,8 +47,9 @@ ObservationModel observationModelFromString(const std::string& name);  // throws
 struct ObservationModelConfig {
   ObservationModel model = ObservationModel::RangeBearing;
   StereoRig rig;  // the rig that took the pixels (Dataset::rig); used by the pixel models
-  // px; > 0 replaces every observation's own pixel covariance by sigma^2 I in the pixel models: an honest noise
-  // for a world the ideal sigma understates (vibration, blur, unsynchronised cameras).
+  // px; > 0 replaces every observation's own pixel covariance by sigma^2 I in the pixel models:
+  // an honest noise for a world the ideal sigma understates (vibration, blur, unsynchronised
+  // cameras).
   double pixel_sigma = 0.0;
 };
 
