@@ -17,6 +17,7 @@
 #include <opencv2/core/mat.hpp>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "frontend/classify.h"
@@ -106,6 +107,11 @@ class Frontend {
 
  private:
   void checkImage(const cv::Mat& img, const char* which) const;
+  // Stages 1-5 on left_luma_; bgr (the same image in colour) serves the field region only.
+  const std::vector<Segment>& segmentsFromLuma(const cv::Mat& bgr);
+  void featuresFromSegments();  // stage 6 on result_.segments
+  // Raw pairs: rectifies the right luma on the rows the stereo match of result_.features reads.
+  void rectifyRightLumaAroundFeatures();
   StereoRig rig_;
   FieldMap map_;
   FrontendParams params_;
@@ -122,6 +128,7 @@ class Frontend {
   std::vector<Transition> scratch_tr_;
   std::vector<GoalEdge> goal_edges_;
   cv::Mat left_luma_, right_luma_;
+  std::vector<std::pair<int, int>> row_spans_;
   FrontendResult result_;
 };
 

@@ -4,7 +4,14 @@
 //   bench_rectify [benchmark flags]   (e.g. --benchmark_repetitions=5 --benchmark_report_aggregates_only)
 //
 // The argument of the raw-pair benchmarks is OpenCV's thread count (cv::setNumThreads): the
-// rectifier runs the two cameras as two tasks of OpenCV's pool. Times are wall clock ("Time")
+// rectifier runs two tasks of OpenCV's pool (the two cameras, or the two halves of the left luma).
+//
+//   BM_Rectify            whole-image colour rectification of a pair (Rectifier::rectify)
+//   BM_RectifyLuma        the luma path's rectification of a pair: the whole left luma, and the
+//                         whole right luma as an upper bound of what the frontend asks for
+//   BM_FrontendRawPair    the frontend on a raw pair (luma path)
+//   BM_FrontendRawPairColourRectified  the same pair rectified whole in colour, then the frontend
+//                         on the rectified pair (the reference for the luma path) Times are wall clock ("Time")
 // and the CPU time of the whole process over all threads ("CPU"), so that a second thread's
 // work is counted.
 //
@@ -103,6 +110,21 @@ void BM_Rectify(benchmark::State& state) {
 }
 BENCHMARK(BM_Rectify)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
+void BM_RectifyLuma(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  const OpenCvThreads threads(static_cast<int>(state.range(0)));
+  frontend::Rectifier rect(*d.rig.calibration());
+  cv::Mat left, right;
+  size_t k = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    rect.beginPair(p.first, p.second, left);
+    rect.rightLumaRows(0, left.rows, right);
+    benchmark::DoNotOptimize(right.data);
+  }
+}
+BENCHMARK(BM_RectifyLuma)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
 // Reference in the same run: the pair as two cv::remap calls one after the other on the
 // calling thread (the same fixed-point maps and interpolation as the Rectifier).
 void BM_RemapPairSerial(benchmark::State& state) {
@@ -138,6 +160,21 @@ void BM_FrontendRawPair(benchmark::State& state) {
   state.counters["obs_per_pair"] = static_cast<double>(obs) / static_cast<double>(k);
 }
 BENCHMARK(BM_FrontendRawPair)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
+void BM_FrontendRawPairColourRectified(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  const OpenCvThreads threads(static_cast<int>(state.range(0)));
+  frontend::Rectifier rect(*d.rig.calibration());
+  frontend::Frontend fe(StereoRig(d.rig.params()), FieldMap::miroSot());
+  size_t k = 0, obs = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    rect.rectify(p.first, p.second);
+    obs += fe.process(rect.left(), rect.right()).observations.size();
+  }
+  state.counters["obs_per_pair"] = static_cast<double>(obs) / static_cast<double>(k);
+}
+BENCHMARK(BM_FrontendRawPairColourRectified)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 void BM_FrontendRectifiedPair(benchmark::State& state) {
   const RawPairs& d = rawPairs();
