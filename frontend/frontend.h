@@ -12,8 +12,9 @@
 // Line convention: frontend/features.h. The line stages run on the left image only; the right
 // image is read only around the left features, along their epipolar rows.
 // A rig with an OpenCV calibration that needs it gets its raw pairs rectified first
-// (frontend/rectify.h); the observations then carry rectified pixels and a pixel sigma that
-// includes the resampling.
+// (frontend/rectify.h: the left luma whole, the right luma and the colour only where the stages
+// read them); the observations then carry rectified pixels and a pixel sigma that includes the
+// resampling.
 #include <opencv2/core/mat.hpp>
 #include <optional>
 #include <string>
@@ -93,7 +94,9 @@ class Frontend {
   const FrontendResult& result() const { return result_; }
   const FrontendParams& params() const { return params_; }
   const StereoRig& rig() const { return rig_; }
-  // The rectification of raw pairs; null when the rig's images are used as they are.
+  // The rectification of raw pairs; null when the rig's images are used as they are. After
+  // process() its colour images hold only the pixels the frontend read (rectify.h); use
+  // rectifiedCopy() for a whole rectified image.
   const Rectifier* rectifier() const { return rectifier_ ? &*rectifier_ : nullptr; }
   const GradientStage& gradient() const { return grad_; }
   // The region of interest of the last image (whole image unless params().field.enabled).
