@@ -338,6 +338,9 @@ std::string header(const char* first, const std::vector<std::string>& groups) {
   return top + "\n" + sub + "\n";
 }
 
+// A world's name in the column titles: ideal, realistic or the stem of a profile file.
+std::string worldName(const std::string& profile) { return std::filesystem::path(profile).stem().string(); }
+
 // Table 6.3 on the frontend's goal corners of one world, and their recall against the goal
 // corners the simulator finds visible (in front of both cameras, inside both images, within the
 // rig's range and disparity limits, line of sight free).
@@ -463,7 +466,7 @@ void runFixStudy(const FixStudyOptions& a) {
   for (size_t w = 0; w < a.profiles.size(); ++w)
     for (FrontendMode m : modes) {
       gs.push_back({w, m});
-      groups.push_back("ours (" + toString(m) + (ideal_only ? "" : ", " + a.profiles[w]) + ")");
+      groups.push_back("ours (" + toString(m) + (ideal_only ? "" : ", " + worldName(a.profiles[w])) + ")");
     }
   std::vector<RangeStats> ranges(gs.size());
   const bool images = std::find(modes.begin(), modes.end(), FrontendMode::Images) != modes.end();
