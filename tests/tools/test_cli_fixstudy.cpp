@@ -113,6 +113,8 @@ TEST(CliFixstudy, RealisticProfileAddsRangeTableBesideIdeal) {
   EXPECT_NE(norm_row.find("5.18     4.04"), std::string::npos) << norm_row;
   EXPECT_NE(out.find("43.91", t63), std::string::npos) << out;
   EXPECT_NE(out.find("signed norm (%)", t63), std::string::npos) << out;
+  EXPECT_NE(out.find("trial bias (%)", t63), std::string::npos) << out;
+  EXPECT_NE(out.find("|e - bias| (%)", t63), std::string::npos) << out;
   // Ranges measured in both worlds (8 pairs each): the row has two groups of four numbers.
   double ideal_mean = -1, real_mean = -1;
   ASSERT_EQ(std::sscanf(norm_row.c_str(), "normalised (%%) %lf %*f %*f %*f | %lf", &ideal_mean, &real_mean), 2) << norm_row;
