@@ -152,6 +152,11 @@ struct BatchSummary {
   int observation_factors = 0;
   int compass_factors = 0;
   int unassociated_observations = 0;  // landmark_id == -1 with no landmark inside the gate
+  // Identified observations whose factor could not be evaluated at the initial guess (a pixel
+  // factor's landmark behind the cameras): left out of the first solve, readmitted when a
+  // solution brings the landmark into view.
+  int observations_left_out_at_guess = 0;
+  int observations_left_out = 0;      // ... of them, still not evaluable at the solution: not used
   int uninitialised_steps = 0;        // before the first global fix: no pose, not estimated
   CovarianceStatus covariance_status = CovarianceStatus::NotComputed;
   int segments = 0;               // pieces of the odometry chain (1 + cut_steps.size())
