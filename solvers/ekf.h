@@ -70,8 +70,8 @@ struct EkfConfig {
   // view), the filter follows a bank of hypotheses spawned from the one-landmark fixes of each
   // ambiguous sighting with the compass over every landmark of its type (solvers/
   // global_fix_hypotheses.h) and reports the mixture's mean and covariance; once the mixture's
-  // position spread is below handover_sigma_mm, the filter goes on from it. false: wait for a
-  // global fix.
+  // position spread is below handover_sigma_mm, the filter goes on from it. Only until the belief
+  // has been narrower than handover_sigma_mm once (a wide start). false: wait for a global fix.
   bool multi_hypothesis_start = true;
   HypothesisConfig hypotheses;
   // Gauss-Newton iterations of each range-bearing update (see the header comment); 1 is
@@ -138,6 +138,7 @@ class Ekf : public Estimator {
   std::vector<EkfUpdateRecord> updates_;
   std::vector<Estimate> estimates_;
   HypothesisBank bank_;
+  bool localised_ = false;  // the belief has been narrower than handover_sigma_mm once
 };
 
 }  // namespace stereoloc

@@ -686,7 +686,11 @@ Estimate ParticleFilter::process(const Step& step) {
       }
     }
   }
-  if (wide && config_.multi_hypothesis_start) {
+  // The bank only serves a wide start: once localised, a filter that widens again (a stretch
+  // without sightings, a few stray particles) still carries its own belief, which a bank built
+  // from one ambiguous sighting would throw away.
+  if (!wide) localised_ = true;
+  if (wide && !localised_ && config_.multi_hypothesis_start) {
     bank_.process(step, first);
     if (!bank_.empty()) {
       const PoseFix m = bank_.mixture();

@@ -157,7 +157,7 @@ struct ParticleFilterConfig {
   // possible, the filter reports the mixture of the hypotheses spawned from ambiguous sightings
   // with the compass (solvers/global_fix_hypotheses.h); once the mixture's position spread is
   // below handover_sigma_mm, the particles are drawn from all its hypotheses, in proportion to
-  // their weights.
+  // their weights. Only until the set has been narrower than handover_sigma_mm once.
   bool multi_hypothesis_start = true;
   HypothesisConfig hypotheses;
 };
@@ -295,6 +295,7 @@ class ParticleFilter : public Estimator {
   Eigen::Matrix3d cov_ = Eigen::Matrix3d::Zero();
   std::vector<Estimate> estimates_;
   HypothesisBank bank_;
+  bool localised_ = false;  // the belief has been narrower than handover_sigma_mm once
 };
 
 }  // namespace stereoloc

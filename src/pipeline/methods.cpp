@@ -98,6 +98,12 @@ MethodRun runFixes(const Dataset& d, bool one_landmark) {
   return run;
 }
 
+// The stereo calibration block enters through the pixel factors only.
+void requirePixelModelForStereoCalibration(const MethodOptions& o) {
+  if (o.calibration.stereo && o.observation_model == ObservationModel::RangeBearing)
+    throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
+}
+
 }  // namespace
 
 const std::vector<std::string>& methodNames() {
@@ -149,8 +155,7 @@ BatchSmootherConfig batchConfigFor(const std::string& spec, const Dataset& d, ui
   c.loss.scale = o.loss_scale;
   c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
   c.calibration = o.calibration;
-  if (c.calibration.stereo && o.observation_model == ObservationModel::RangeBearing)
-    throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
+  requirePixelModelForStereoCalibration(o);
   return c;
 }
 
@@ -160,8 +165,8 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   if (hasCalibrationSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
   std::mt19937_64 rng(seed);
   MethodRun run;
-  if ((o.calibration.odometry || o.calibration.stereo) && name != "batch")
-    throw UsageError("--calibrate: only the batch smoother self-calibrates (method '" + spec + "')");
+  if ((o.calibration.odometry || o.calibration.stereo) && name != "batch" && name != "window")
+    throw UsageError("--calibrate: only the smoothers (batch, window) self-calibrate (method '" + spec + "')");
   if (name == "fix1" || name == "fix2") {
     run = runFixes(d, name == "fix1");
   } else if (name == "deadreckoning") {
@@ -190,8 +195,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.robust_loss.scale = o.loss_scale;
     c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
     c.calibration = o.calibration;
-    if (c.calibration.stereo && o.observation_model == ObservationModel::RangeBearing)
-      throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
+    requirePixelModelForStereoCalibration(o);
     SlidingWindowSmoother w(d.map, d.odometry, c);
     run = runEstimator(w, d);
     run.calibration = w.calibration();
