@@ -423,6 +423,25 @@ TEST(BatchSmoother, ObservationsBehindTheCamerasAtTheGuessRejoinAtTheSolution) {
   }
 }
 
+// The filter pass (and every tracker) re-initialises from defaultGlobalFix: a fix that puts the
+// robot outside the field (here a distant landmark's range twice too long, as a miscalibrated
+// disparity gives it) is no fix; the same observation at a plausible range is.
+TEST(BatchSmoother, DefaultGlobalFixRejectsAPoseOutsideTheField) {
+  const Dataset d = simulate("circle", 0, SimulationConfig(), 7);
+  const Landmark& l = d.map.at(2);  // a goal corner on the x = 0 goal line
+  const GlobalFixFunction fix = defaultGlobalFix();
+  Step step;
+  step.compass = kPi;  // looking towards -x, at the landmark
+  step.compass_sigma = deg2rad(2.0);
+  step.observations = {observationFromRangeBearing(l.id, l.type, 600.0, 0.0, 20.0, 0.01)};
+  const std::optional<PoseFix> inside = fix(step, d.map);
+  ASSERT_TRUE(inside.has_value());
+  EXPECT_NEAR(inside->pose.x, l.position.x() + 600.0, 1e-6);
+  EXPECT_NEAR(inside->pose.y, l.position.y(), 1e-6);
+  step.observations = {observationFromRangeBearing(l.id, l.type, d.map.bounds().xmax - l.position.x() + 300.0, 0.0, 20.0, 0.01)};
+  EXPECT_FALSE(fix(step, d.map).has_value());
+}
+
 TEST(BatchSmoother, ThesisScenariosGiveTheCeresAccuracy) {
   // The same RMSE and NEES as the general sparse solver on the thesis's scenarios (and the
   // kidnap, with its cut), at the default tolerances.
