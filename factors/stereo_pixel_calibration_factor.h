@@ -3,7 +3,7 @@
 // tilt, the baseline and the pixel offsets of the pair as the robot really has them, against
 // the rig the user measured.
 //
-//   r = (pi(p, l; q) - z) / sigma                          4 residuals (u_l, v_l, u_r, v_r) or
+//   r = S (pi(p, l; q) - z)                                4 residuals (u_l, v_l, u_r, v_r) or
 //                                                          2 (u_l, u_r) with PixelResiduals::Columns
 //
 // p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y, z), world, mm.
@@ -27,7 +27,8 @@
 // every point below or above the camera. The columns enter through an equivalent point in C2:
 // any (u_l, u_r) is the projection of y' = (2 o_u - u_l - u_r) x / (2 f) with half baseline
 // (u_l - u_r) x / (2 f), so v is unchanged and the shared residual code applies.
-// z: measured pixels; sigma: pixel noise (px, > 0), so the upper square-root information is I / sigma.
+// z: measured pixels; S: the upper square-root information of their covariance, as in
+// factors/stereo_pixel_factor.h.
 // Evaluation fails when the landmark is not in front of the cameras.
 #include <ceres/autodiff_cost_function.h>
 
@@ -42,8 +43,8 @@ namespace stereoloc {
 
 struct StereoPixelCalibrationFactor {
   StereoPixelCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                               double pan, double sigma, PixelResiduals residuals)
-      : landmark_(landmark), inv_sigma_(1.0 / sigma), rows_(residuals == PixelResiduals::All) {
+                               double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals)
+      : landmark_(landmark), sqrt_info_(sqrt_information), rows_(residuals == PixelResiduals::All) {
     pan_cos_ = std::cos(pan);
     pan_sin_ = std::sin(pan);
     t_ = Eigen::Vector3d(rig.params().offset_x_mm, 0.0, rig.params().camera_height_mm);
@@ -79,24 +80,33 @@ struct StereoPixelCalibrationFactor {
     const T per_px = x2 / f;  // mm in C2 per pixel of column at this depth
     const T y2 = -0.5 * (cl + cr) * per_px;
     const T half_baseline = 0.5 * (cl - cr) * per_px;
-    return stereo_pixel::whitenedResiduals(x2, y2, z2, half_baseline, f_, ou_, ov_, inv_sigma_, rows_, z_, residual);
+    return stereo_pixel::whitenedResiduals(x2, y2, z2, half_baseline, f_, ou_, ov_, sqrt_info_, rows_, z_, residual);
   }
 
   static constexpr int kCalibrationSize = 5;  // (dbeta, k, delta_d, delta_u, phi)
 
   // Blocks: pose (3), stereo calibration (dbeta, k, delta_d, delta_u, phi) (5).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                                     double pan, double sigma, PixelResiduals residuals) {
-    stereo_pixel::checkInputs("stereo pixel calibration factor", pixels, pan, sigma, landmark);
-    auto* functor = new StereoPixelCalibrationFactor(rig, landmark, pixels, pan, sigma, residuals);
+                                     double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals) {
+    constexpr const char* kWho = "stereo pixel calibration factor";
+    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    auto* functor = new StereoPixelCalibrationFactor(
+        rig, landmark, pixels, pan,
+        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals);
     if (residuals == PixelResiduals::All)
       return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 4, 3, kCalibrationSize>(functor);
     return new ceres::AutoDiffCostFunction<StereoPixelCalibrationFactor, 2, 3, kCalibrationSize>(functor);
   }
+  // The same with independent pixels of noise sigma (px, > 0).
+  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                     double pan, double sigma, PixelResiduals residuals) {
+    return Create(rig, landmark, pixels, pan,
+                  stereo_pixel::covarianceFromSigma("stereo pixel calibration factor", sigma), residuals);
+  }
 
  private:
   Eigen::Vector3d landmark_;
-  double inv_sigma_;
+  Eigen::Matrix4d sqrt_info_;
   bool rows_;
   double pan_cos_ = 1, pan_sin_ = 0, tilt_ = 0;
   Eigen::Vector3d t_;

@@ -2,15 +2,18 @@
 // Stereo pixel factor: a known landmark seen by the stereo rig, compared in the images, where
 // the sensor's noise lives (thesis 3.4-3.7 run forwards, as a factor).
 //
-//   r = (pi(p, l) - z) / sigma                       4 residuals (u_l, v_l, u_r, v_r), px / px
+//   r = S (pi(p, l) - z)                             4 residuals (u_l, v_l, u_r, v_r), px / px
 //                                                    or 2 (u_l, u_r) with PixelResiduals::Columns
 //
 // p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y, z), world frame,
 // mm. pi: the rig's projection (StereoRig::project, src/core/stereo_rig.h) of l expressed in the
 // robot frame C0, with the head pan of the observation: C0 -> C1 (pan) -> C2 (offset, height,
 // tilt) -> u_l = o_u - f (y - b/2) / x, u_r = o_u - f (y + b/2) / x, v = o_v - f z / x.
-// z: the measured pixels; sigma: the pixel noise of each coordinate (independent, equal), so the
-// upper square-root information is I / sigma.
+// z: the measured pixels; C: their covariance (px^2, Observation::pixel_covariance, order u_l,
+// v_l, u_r, v_r; src/core/measurement_model.h); S: the upper Cholesky factor of the information
+// C^-1 (S^T S = C^-1), or of the inverse of C's (u_l, u_r) block with Columns. The frontend's
+// left and right column errors are strongly correlated (a corner's sub-pixel error is common to
+// both images), so S is not diagonal; sigma^2 I gives the thesis's independent pixels (5.28).
 //
 // Why a pixel factor beside the range-bearing factor (factors/range_bearing_factor.h): the
 // range-bearing form (3.6, 3.7, 5.32) converts each observation before estimation. The
@@ -29,11 +32,13 @@
 // front of the cameras at the evaluated pose.
 #include <ceres/autodiff_cost_function.h>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <cmath>
 #include <string>
 
 #include "src/core/error.h"
+#include "src/core/measurement_model.h"
 #include "src/core/stereo_rig.h"
 
 namespace stereoloc {
@@ -50,42 +55,69 @@ enum class PixelResiduals {
 namespace stereo_pixel {
 inline constexpr double kMinDepth = 1e-6;  // mm, as StereoRig::project
 
+// The upper square-root information S of the residuals (see the file comment): 4x4 with rows,
+// else the 2x2 of (u_l, u_r) in the top-left corner (the rest zero). Throws stereoloc::Error
+// "<who>: ..." unless C is finite, symmetric and positive definite.
+inline Eigen::Matrix4d sqrtInformation(const char* who, const Eigen::Matrix4d& C, bool rows) {
+  checkPixelCovariance(C, who);
+  Eigen::Matrix4d S = Eigen::Matrix4d::Zero();
+  if (rows) {
+    const Eigen::Matrix4d info = Eigen::LLT<Eigen::Matrix4d>(C).solve(Eigen::Matrix4d::Identity());
+    S = Eigen::LLT<Eigen::Matrix4d>(0.5 * (info + info.transpose())).matrixU();
+  } else {
+    Eigen::Matrix2d C2;
+    C2 << C(0, 0), C(0, 2), C(2, 0), C(2, 2);
+    const Eigen::Matrix2d info = Eigen::LLT<Eigen::Matrix2d>(C2).solve(Eigen::Matrix2d::Identity());
+    S.topLeftCorner<2, 2>() = Eigen::LLT<Eigen::Matrix2d>(0.5 * (info + info.transpose())).matrixU();
+  }
+  if (!S.allFinite()) throw Error(std::string(who) + ": pixel covariance is not positive definite");
+  return S;
+}
+
 template <typename T>
 bool whitenedResiduals(const T& x2, const T& y2, const T& z2, const T& half_baseline, double f, double ou, double ov,
-                       double inv_sigma, bool rows, const Eigen::Vector4d& z, T* residual) {
+                       const Eigen::Matrix4d& sqrt_information, bool rows, const Eigen::Vector4d& z, T* residual) {
   if (!(x2 > T(kMinDepth))) return false;
   const T inv_x = T(1.0) / x2;
   const T u_l = T(ou) - T(f) * (y2 - half_baseline) * inv_x;
   const T u_r = T(ou) - T(f) * (y2 + half_baseline) * inv_x;
+  const Eigen::Matrix4d& S = sqrt_information;
   if (rows) {
     const T v = T(ov) - T(f) * z2 * inv_x;
-    residual[0] = T(inv_sigma) * (u_l - T(z[0]));
-    residual[1] = T(inv_sigma) * (v - T(z[1]));
-    residual[2] = T(inv_sigma) * (u_r - T(z[2]));
-    residual[3] = T(inv_sigma) * (v - T(z[3]));
+    const T e[4] = {u_l - T(z[0]), v - T(z[1]), u_r - T(z[2]), v - T(z[3])};
+    for (int i = 0; i < 4; ++i) {
+      residual[i] = T(S(i, i)) * e[i];
+      for (int j = i + 1; j < 4; ++j) residual[i] += T(S(i, j)) * e[j];
+    }
   } else {
-    residual[0] = T(inv_sigma) * (u_l - T(z[0]));
-    residual[1] = T(inv_sigma) * (u_r - T(z[2]));
+    const T e0 = u_l - T(z[0]), e1 = u_r - T(z[2]);
+    residual[0] = T(S(0, 0)) * e0 + T(S(0, 1)) * e1;
+    residual[1] = T(S(1, 1)) * e1;
   }
   return true;
 }
 
-// Throws stereoloc::Error "<who>: ..." unless sigma > 0 and the pixels, pan and landmark are finite.
-inline void checkInputs(const char* who, const StereoPixels& pixels, double pan, double sigma,
-                        const Eigen::Vector3d& landmark) {
-  if (!(std::isfinite(sigma) && sigma > 0)) throw Error(std::string(who) + ": sigma must be a positive number");
+// Throws stereoloc::Error "<who>: ..." unless the pixels, pan and landmark are finite.
+inline void checkInputs(const char* who, const StereoPixels& pixels, double pan, const Eigen::Vector3d& landmark) {
   if (!(std::isfinite(pixels.u_left) && std::isfinite(pixels.v_left) && std::isfinite(pixels.u_right) &&
         std::isfinite(pixels.v_right) && std::isfinite(pan) && landmark.allFinite()))
     throw Error(std::string(who) + ": pixels, pan and landmark must be finite");
+}
+
+// C from a scalar sigma (the thesis's 5.28), with the scalar overloads' error message.
+inline Eigen::Matrix4d covarianceFromSigma(const char* who, double sigma) {
+  if (!(std::isfinite(sigma) && sigma > 0)) throw Error(std::string(who) + ": sigma must be a positive number");
+  return sigma * sigma * Eigen::Matrix4d::Identity();
 }
 }  // namespace stereo_pixel
 
 struct StereoPixelFactor {
   // rig: the stereo rig; landmark: (x, y, z) mm, world; pixels: the measured pixels; pan: head
-  // pan at the time of the images (rad); sigma: pixel noise (px, > 0).
+  // pan at the time of the images (rad); sqrt_information: S of the file comment
+  // (stereo_pixel::sqrtInformation).
   StereoPixelFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels, double pan,
-                    double sigma, PixelResiduals residuals)
-      : landmark_(landmark), inv_sigma_(1.0 / sigma), rows_(residuals == PixelResiduals::All) {
+                    const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals)
+      : landmark_(landmark), sqrt_info_(sqrt_information), rows_(residuals == PixelResiduals::All) {
     // p_C2 = R_tilt^T (Rz(pan)^T p_C0 - t), t = (x_c, 0, h): a constant affine map per observation.
     const double c = std::cos(pan), s = std::sin(pan);
     Eigen::Matrix3d Rz_T;
@@ -111,23 +143,33 @@ struct StereoPixelFactor {
     T p2[3];
     for (int i = 0; i < 3; ++i)
       p2[i] = T(M_(i, 0)) * p0[0] + T(M_(i, 1)) * p0[1] + T(M_(i, 2)) * p0[2] - T(m_[i]);
-    return stereo_pixel::whitenedResiduals(p2[0], p2[1], p2[2], T(half_baseline_), f_, ou_, ov_, inv_sigma_, rows_, z_,
+    return stereo_pixel::whitenedResiduals(p2[0], p2[1], p2[2], T(half_baseline_), f_, ou_, ov_, sqrt_info_, rows_, z_,
                                            residual);
   }
 
+  // pixel_covariance: C of the file comment (px^2, symmetric positive definite).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                                     double pan, double sigma, PixelResiduals residuals) {
-    stereo_pixel::checkInputs("stereo pixel factor", pixels, pan, sigma, landmark);
-    auto* functor = new StereoPixelFactor(rig, landmark, pixels, pan, sigma, residuals);
+                                     double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals) {
+    constexpr const char* kWho = "stereo pixel factor";
+    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    auto* functor = new StereoPixelFactor(
+        rig, landmark, pixels, pan,
+        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals);
     if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<StereoPixelFactor, 4, 3>(functor);
     return new ceres::AutoDiffCostFunction<StereoPixelFactor, 2, 3>(functor);
+  }
+  // The same with independent pixels of noise sigma (px, > 0): C = sigma^2 I.
+  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                     double pan, double sigma, PixelResiduals residuals) {
+    return Create(rig, landmark, pixels, pan, stereo_pixel::covarianceFromSigma("stereo pixel factor", sigma),
+                  residuals);
   }
 
   static constexpr double kMinDepth = stereo_pixel::kMinDepth;
 
  private:
   Eigen::Vector3d landmark_;
-  double inv_sigma_;
+  Eigen::Matrix4d sqrt_info_;
   bool rows_;
   Eigen::Matrix3d M_;
   Eigen::Vector3d m_;

@@ -98,8 +98,22 @@ std::vector<Field> fields(FrontendParams& p) {
       {"stereo", "min_zncc", Field::Double, &p.stereo.min_zncc},
       {"stereo", "uniqueness", Field::Double, &p.stereo.uniqueness},
       {"stereo", "floor_search_px", Field::Double, &p.stereo.floor_search_px},
-      {"stereo", "corner_pixel_sigma", Field::Double, &p.stereo.corner_pixel_sigma},
-      {"stereo", "goal_pixel_sigma", Field::Double, &p.stereo.goal_pixel_sigma},
+      {"stereo", "corner_sigma_u", Field::Double, &p.stereo.corner_noise.sigma_u},
+      {"stereo", "corner_sigma_v", Field::Double, &p.stereo.corner_noise.sigma_v},
+      {"stereo", "corner_sigma_d", Field::Double, &p.stereo.corner_noise.sigma_d},
+      {"stereo", "corner_corr_ud", Field::Double, &p.stereo.corner_noise.corr_ud},
+      {"stereo", "junction_sigma_u", Field::Double, &p.stereo.junction_noise.sigma_u},
+      {"stereo", "junction_sigma_v", Field::Double, &p.stereo.junction_noise.sigma_v},
+      {"stereo", "junction_sigma_d", Field::Double, &p.stereo.junction_noise.sigma_d},
+      {"stereo", "junction_corr_ud", Field::Double, &p.stereo.junction_noise.corr_ud},
+      {"stereo", "intersection_sigma_u", Field::Double, &p.stereo.intersection_noise.sigma_u},
+      {"stereo", "intersection_sigma_v", Field::Double, &p.stereo.intersection_noise.sigma_v},
+      {"stereo", "intersection_sigma_d", Field::Double, &p.stereo.intersection_noise.sigma_d},
+      {"stereo", "intersection_corr_ud", Field::Double, &p.stereo.intersection_noise.corr_ud},
+      {"stereo", "goal_sigma_u", Field::Double, &p.stereo.goal_noise.sigma_u},
+      {"stereo", "goal_sigma_v", Field::Double, &p.stereo.goal_noise.sigma_v},
+      {"stereo", "goal_sigma_d", Field::Double, &p.stereo.goal_noise.sigma_d},
+      {"stereo", "goal_corr_ud", Field::Double, &p.stereo.goal_noise.corr_ud},
   };
 }
 
@@ -163,7 +177,10 @@ void FrontendParams::validate() const {
   need(goals.max_transition_px >= 1, "goals.max_transition_px", "must be at least 1");
   need(stereo.min_range_mm > 0, "stereo.min_range_mm", "must be positive");
   need(stereo.patch_radius >= 1 && stereo.patch_radius <= 15, "stereo.patch_radius", "must be in [1, 15]");
-  need(stereo.corner_pixel_sigma > 0 && stereo.goal_pixel_sigma > 0, "stereo.*_pixel_sigma", "must be positive");
+  for (const PixelNoise* pn : {&stereo.corner_noise, &stereo.junction_noise, &stereo.intersection_noise, &stereo.goal_noise}) {
+    need(pn->sigma_u > 0 && pn->sigma_v > 0 && pn->sigma_d > 0, "stereo.*_sigma_u/v/d", "must be positive");
+    need(std::fabs(pn->corr_ud) < 1, "stereo.*_corr_ud", "must be in (-1, 1)");
+  }
 }
 
 FrontendParams FrontendParams::load(const std::string& path) {
@@ -342,14 +359,23 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
     if (ur) r.matched.push_back(StereoFeature{f, StereoPixels{g.u, g.v, *ur, g.v}});
   }
   for (const StereoFeature& m : r.matched) {
-    double sigma = m.feature.type == LandmarkType::GoalCorner ? params_.stereo.goal_pixel_sigma
-                                                               : params_.stereo.corner_pixel_sigma;
-    if (rectifier_)
-      sigma = std::max(rectifier_->effectiveSigma(0, m.pixels.u_left, m.pixels.v_left, sigma),
-                       rectifier_->effectiveSigma(1, m.pixels.u_right, m.pixels.v_right, sigma));
+    Eigen::Matrix4d C = params_.stereo.pixelCovariance(m.feature.type);
+    if (rectifier_) {
+      // Resampling stretches the errors by the map's scale s (the larger of the two images, an
+      // isotropic bound) and adds the map grid's rounding independently per image and axis.
+      double s2 = 0, rounding2 = 0;
+      const double u[2] = {m.pixels.u_left, m.pixels.u_right}, v[2] = {m.pixels.v_left, m.pixels.v_right};
+      for (int cam = 0; cam < 2; ++cam) {
+        const double r0 = rectifier_->effectiveSigma(cam, u[cam], v[cam], 0.0);
+        const double r1 = rectifier_->effectiveSigma(cam, u[cam], v[cam], 1.0);
+        s2 = std::max(s2, r1 * r1 - r0 * r0);
+        rounding2 = std::max(rounding2, r0 * r0);
+      }
+      C = s2 * C + rounding2 * Eigen::Matrix4d::Identity();
+    }
     try {
       r.observations.push_back(
-          observationFromPixels(rig_, m.feature.landmark_id, m.feature.type, m.pixels, head_pan, sigma));
+          observationFromPixels(rig_, m.feature.landmark_id, m.feature.type, m.pixels, head_pan, C));
     } catch (const GeometryError&) {
       // Disparity below the rig's minimum: cannot be triangulated; not an observation.
     }

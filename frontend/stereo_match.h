@@ -12,14 +12,29 @@
 // (the full valid range when the floor does not predict one). A match needs ZNCC >= min_zncc
 // and a margin of `uniqueness` over any other local maximum; it is refined to sub-pixel by a
 // parabola through the three best scores.
+#include <Eigen/Core>
 #include <opencv2/core/mat.hpp>
 #include <optional>
 #include <vector>
 
 #include "frontend/goal_corners.h"
+#include "src/core/field_map.h"
+#include "src/core/measurement_model.h"
 #include "src/core/stereo_rig.h"
 
 namespace stereoloc::frontend {
+
+// The pixel noise of one kind of stereo feature in (u, v, d): its left-image column u and row v
+// and its disparity d = u_l - u_r (src/core/measurement_model.h stereoPixelCovariance). Measured
+// with bench_pixel_noise on rendered pairs (docs/estimators.md, "Observation covariance").
+struct PixelNoise {
+  double sigma_u = 0.5;  // px, left column
+  double sigma_v = 0.5;  // px, row (shared by both images)
+  double sigma_d = 0.5;  // px, disparity
+  double corr_ud = 0.0;  // correlation of the u and d errors, in (-1, 1)
+  // px^2, of (u_l, v_l, u_r, v_r)
+  Eigen::Matrix4d covariance() const { return stereoPixelCovariance(sigma_u, sigma_v, sigma_d, corr_ud); }
+};
 
 struct StereoParams {
   double min_range_mm = 80.0;    // nearest landmark considered: the largest valid disparity
@@ -28,8 +43,28 @@ struct StereoParams {
   double min_zncc = 0.6;
   double uniqueness = 0.05;      // best score minus any other local maximum
   double floor_search_px = 4.0;  // half-width of the search around the floor disparity; <= 0: full range
-  double corner_pixel_sigma = 0.5;  // px, sigma of (5.28) for corners and junctions
-  double goal_pixel_sigma = 0.15;   // px, sigma of (5.28) for goal corners (calibrated: bench_frontend)
+  // Pixel noise per feature kind (replaces the thesis's sigma of 5.28); YAML keys
+  // <kind>_sigma_u, <kind>_sigma_v, <kind>_sigma_d, <kind>_corr_ud with kind corner (marking
+  // L corners, and any other point feature), junction (T-junctions), intersection (X crossings)
+  // and goal (goal corners; their row is anywhere on a vertical edge, hence the large sigma_v).
+  // sigma_v, corr_ud: second moments about zero of bench_pixel_noise --pairs=1500 --seed=1.
+  // sigma_u and sigma_d: wider than those white figures, because a feature's errors repeat over
+  // consecutive views of the same geometry, which the estimators treat as independent sightings,
+  // and the EKF's single linearisation diverges with a sharper disparity (docs/estimators.md,
+  // "Observation covariance").
+  PixelNoise corner_noise{0.45, 0.13, 0.5, 0.08};
+  PixelNoise junction_noise{0.45, 0.05, 0.5, -0.13};
+  PixelNoise intersection_noise{0.5, 0.24, 0.5, -0.13};
+  PixelNoise goal_noise{0.15, 0.61, 0.21, 0.707};
+  const PixelNoise& noise(LandmarkType type) const {
+    switch (type) {
+      case LandmarkType::GoalCorner: return goal_noise;
+      case LandmarkType::Junction: return junction_noise;
+      case LandmarkType::Intersection: return intersection_noise;
+      default: return corner_noise;
+    }
+  }
+  Eigen::Matrix4d pixelCovariance(LandmarkType type) const { return noise(type).covariance(); }
 };
 
 struct DisparityRange {

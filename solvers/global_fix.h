@@ -120,10 +120,10 @@ struct GlobalFixOptions {
   double bounds_margin_mm = 100.0;
   int multi_max_iterations = 50;  // Ceres iterations of the least-squares fix
   // The least-squares fix's model of stereo observations. With a rig (the one that took the
-  // pixels, Dataset::rig), an observation that carries pixels and a positive pixel sigma, and
+  // pixels, Dataset::rig), an observation that carries pixels and a pixel covariance, and
   // the landmark's 3D position (the overload of fixFromLandmarks with Vector3d landmarks, and
   // globalFix), the residual is the stereo pixel factor on (u_l, u_r) (factors/stereo_pixel_factor.h,
-  // PixelResiduals::Columns: the same data as range and bearing) whitened by 1 / pixel_sigma:
+  // PixelResiduals::Columns: the same data as range and bearing) whitened by its pixel covariance:
   // predicted at the pose being estimated, so that the weights do not depend on the noisy
   // measurement. Without a rig: range and bearing with R at the measured pixels (5.32).
   // Measured with `stereoloc fixstudy` (goal corners, 0.5 px, 3.5 deg compass): docs/results.md.

@@ -75,14 +75,18 @@ struct ObservationCost {
   bool inverse = false;
   const Observation* obs = nullptr;
   // The cost with the measurement moved by `u` in whitened units (u = 0: as measured): pixels
-  // u_l, u_r += sigma u; range-bearing (or inverse range-bearing) += S^-1 u, the square root of
+  // (u_l, u_r) += L u with L L^T their covariance; range-bearing (or inverse range-bearing) += S^-1 u, the square root of
   // its covariance. nullptr when the moved range is not positive.
   ceres::CostFunction* create(const std::optional<StereoRig>& rig, const Eigen::Vector2d& u = Eigen::Vector2d::Zero()) const {
     if (pixels) {
       StereoPixels px = *obs->pixels;
-      px.u_left += obs->pixel_sigma * u(0);
-      px.u_right += obs->pixel_sigma * u(1);
-      return StereoPixelFactor::Create(*rig, l3, px, obs->head_pan, obs->pixel_sigma, PixelResiduals::Columns);
+      const Eigen::Matrix4d& C = obs->pixel_covariance;
+      Eigen::Matrix2d C2;
+      C2 << C(0, 0), C(0, 2), C(2, 0), C(2, 2);
+      const Eigen::Vector2d du = Eigen::LLT<Eigen::Matrix2d>(C2).matrixL() * u;
+      px.u_left += du(0);
+      px.u_right += du(1);
+      return StereoPixelFactor::Create(*rig, l3, px, obs->head_pan, C, PixelResiduals::Columns);
     }
     Eigen::Vector2d zz = z;
     if (!u.isZero(0.0)) {
@@ -270,7 +274,8 @@ GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations, con
   for (size_t i = 0; i < n; ++i) {
     const Observation& o = observations[i];
     ObservationCost& c = costs[i];
-    c.pixels = options.rig.has_value() && heights_known && o.pixels.has_value() && o.pixel_sigma > 0.0;
+    c.pixels = options.rig.has_value() && heights_known && o.pixels.has_value() &&
+               o.pixel_covariance.diagonal().minCoeff() > 0.0;
     if (c.pixels && !(landmarks3[i].allFinite() && std::isfinite(o.head_pan)))
       throw Error("multi fix: observation " + std::to_string(i) + ": landmark or head pan is not finite");
     c.l2 = landmarks[i];

@@ -64,11 +64,12 @@ ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmar
                                            const ObservationModelConfig& config) {
   if (config.model == ObservationModel::RangeBearing || !obs.pixels)
     return RangeBearingFactor::Create(landmark.xy(), obs.z(), obs.covariance);
-  const double sigma = config.pixel_sigma > 0 ? config.pixel_sigma : obs.pixel_sigma;
-  if (!(std::isfinite(sigma) && sigma > 0))
+  const bool own = !(config.pixel_sigma > 0);
+  if (own && !(obs.pixel_covariance.diagonal().minCoeff() > 0))
     throw Error("observation of landmark " + std::to_string(landmark.id) +
-                ": has pixels but no positive pixel sigma (the pixel observation model needs it)");
-  return StereoPixelFactor::Create(config.rig, landmark.position, *obs.pixels, obs.head_pan, sigma,
+                ": has pixels but no pixel covariance (the pixel observation model needs it)");
+  const Eigen::Matrix4d C = own ? obs.pixel_covariance : isotropicPixelCovariance(config.pixel_sigma);
+  return StereoPixelFactor::Create(config.rig, landmark.position, *obs.pixels, obs.head_pan, C,
                                    config.model == ObservationModel::Pixels ? PixelResiduals::All
                                                                             : PixelResiduals::Columns);
 }

@@ -47,15 +47,16 @@ ObservationModel observationModelFromString(const std::string& name);  // throws
 struct ObservationModelConfig {
   ObservationModel model = ObservationModel::RangeBearing;
   StereoRig rig;  // the rig that took the pixels (Dataset::rig); used by the pixel models
-  // px; > 0 replaces every observation's own pixel sigma in the pixel models: an honest noise
-  // for a world the ideal sigma understates (vibration, blur, unsynchronised cameras).
+  // px; > 0 replaces every observation's own pixel covariance by sigma^2 I in the pixel models:
+  // an honest noise for a world the ideal sigma understates (vibration, blur, unsynchronised
+  // cameras).
   double pixel_sigma = 0.0;
 };
 
 // The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks
-// for pixels and the observation has them (with its own Observation::pixel_sigma), the
+// for pixels and the observation has them (with its own Observation::pixel_covariance), the
 // range-bearing factor otherwise. The caller owns the result. Throws stereoloc::Error when a
-// pixel observation carries no positive pixel sigma.
+// pixel observation carries no pixel covariance.
 ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,
                                            const ObservationModelConfig& config);
 

@@ -4,9 +4,11 @@
 // all call these functions, so they linearise the same model.
 #include <Eigen/Core>
 #include <cmath>
+#include <string>
 
 #include "src/core/angles.h"
 #include "src/core/pose2.h"
+#include "src/core/stereo_rig.h"
 
 namespace stereoloc {
 
@@ -37,5 +39,31 @@ inline Eigen::Vector2d landmarkFromRangeBearing(const Pose2& pose, double range,
   const double phi = pose.theta + bearing;
   return Eigen::Vector2d(pose.x + range * std::cos(phi), pose.y + range * std::sin(phi));
 }
+
+// Stereo pixel covariance. A stereo observation's pixel errors are a 4-vector in the order
+// (u_left, v_left, u_right, v_right), px; its covariance C (px^2) replaces the thesis's
+// Sigma_i = sigma^2 I of (5.28). The frontend's errors are not independent: a corner's sub-pixel
+// position error is common to both images (the same geometry is found in both), the stereo
+// match adds a smaller disparity error, and the right feature is searched on the left's row.
+// Its model is therefore given in (u, v, d), the left column and row and the disparity
+// d = u_l - u_r, with u_l = u, v_l = v, u_r = u - d, v_r = v + delta, where delta, the row
+// difference, is independent with the small sigma kRowDifferenceSigma (the frontend's rows are
+// identical; the floor keeps C invertible, and the residual along v_l - v_r is zero for a
+// rectified pair whatever weight it gets). Derivation: docs/estimators.md, "Observation covariance".
+inline constexpr double kRowDifferenceSigma = 0.01;  // px
+
+// C from the (u, v, d) model: sigmas in px, corr_ud the correlation of the u and d errors (|.| < 1).
+// Throws stereoloc::Error naming the field for a non-positive sigma or |corr_ud| >= 1.
+Eigen::Matrix4d stereoPixelCovariance(double sigma_u, double sigma_v, double sigma_d, double corr_ud);
+// sigma^2 I: each pixel coordinate independent with the same sigma (the thesis's 5.28).
+Eigen::Matrix4d isotropicPixelCovariance(double sigma);
+// Throws stereoloc::Error "<where>: ..." unless C is finite, symmetric and positive definite.
+void checkPixelCovariance(const Eigen::Matrix4d& C, const std::string& where);
+
+// (5.32) with a full pixel covariance: R = J C J^T, J = d(range, bearing) / d(u_l, v_l, u_r, v_r)
+// at the measured pixels (the general form of 5.30, StereoRig::rangeBearing). Throws
+// GeometryError when the pixels cannot be triangulated.
+Eigen::Matrix2d rangeBearingCovariance(const StereoRig& rig, const StereoPixels& px, double pan,
+                                       const Eigen::Matrix4d& pixel_covariance);
 
 }  // namespace stereoloc

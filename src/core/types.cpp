@@ -3,22 +3,28 @@
 #include <cmath>
 
 #include "src/core/error.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 
 Observation observationFromPixels(const StereoRig& rig, int landmark_id, LandmarkType type,
-                                  const StereoPixels& pixels, double head_pan, double pixel_sigma) {
+                                  const StereoPixels& pixels, double head_pan, const Eigen::Matrix4d& pixel_covariance) {
   Observation o;
   o.landmark_id = landmark_id;
   o.type = type;
   const RangeBearing rb = rig.rangeBearing(pixels, head_pan);  // (5.26)
   o.range = rb.range;
   o.bearing = rb.bearing;
-  o.covariance = rig.rangeBearingCovariance(pixels, head_pan, pixel_sigma);  // (5.32)
+  o.covariance = rangeBearingCovariance(rig, pixels, head_pan, pixel_covariance);  // (5.32)
   o.pixels = pixels;
-  o.pixel_sigma = pixel_sigma;
+  o.pixel_covariance = pixel_covariance;
   o.head_pan = head_pan;
   return o;
+}
+
+Observation observationFromPixels(const StereoRig& rig, int landmark_id, LandmarkType type,
+                                  const StereoPixels& pixels, double head_pan, double pixel_sigma) {
+  return observationFromPixels(rig, landmark_id, type, pixels, head_pan, isotropicPixelCovariance(pixel_sigma));
 }
 
 Observation observationFromRangeBearing(int landmark_id, LandmarkType type, double range, double bearing,

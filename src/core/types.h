@@ -19,14 +19,21 @@ struct Observation {
   double bearing = 0.0;                                   // rad (3.7)
   Eigen::Matrix2d covariance = Eigen::Matrix2d::Identity();  // R of (range, bearing), mm^2 / rad^2
   std::optional<StereoPixels> pixels;                     // when it came from the stereo rig
-  double pixel_sigma = 0.0;                               // px, the noise of each pixel coordinate (with pixels)
+  // px^2, covariance of the pixel errors (u_l, v_l, u_r, v_r) (src/core/measurement_model.h);
+  // set with pixels, zero without.
+  Eigen::Matrix4d pixel_covariance = Eigen::Matrix4d::Zero();
   double head_pan = 0.0;                                  // rad, gamma at the time of the images
 
   Eigen::Vector2d z() const { return Eigen::Vector2d(range, bearing); }
 };
 
-// Turns a stereo pixel observation into range, bearing and R (5.26, 5.32) with the rig model.
-// Throws GeometryError when it cannot be triangulated (disparity too small).
+// Turns a stereo pixel observation into range, bearing and R (5.26, 5.32) with the rig model,
+// R = J C J^T from the pixel covariance C (px^2, order u_l, v_l, u_r, v_r). Throws
+// GeometryError when it cannot be triangulated (disparity too small), Error for a C that is not
+// symmetric positive definite.
+Observation observationFromPixels(const StereoRig& rig, int landmark_id, LandmarkType type,
+                                  const StereoPixels& pixels, double head_pan, const Eigen::Matrix4d& pixel_covariance);
+// The same with each pixel coordinate independent with sigma `pixel_sigma` (px): C = sigma^2 I (5.28).
 Observation observationFromPixels(const StereoRig& rig, int landmark_id, LandmarkType type,
                                   const StereoPixels& pixels, double head_pan, double pixel_sigma);
 

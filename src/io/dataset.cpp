@@ -10,6 +10,7 @@
 #include "src/core/atomic_file.h"
 #include "src/io/csv.h"
 #include "src/core/error.h"
+#include "src/core/measurement_model.h"
 #include "src/core/yaml_util.h"
 
 namespace stereoloc {
@@ -20,6 +21,20 @@ const std::vector<std::string> kOdometryHeader = {"step", "t", "d_left", "d_righ
 const std::vector<std::string> kOdometryPanHeader = {"step", "t", "d_left", "d_right", "head_pan"};
 const std::vector<std::string> kCompassHeader = {"step", "t", "theta"};
 const std::vector<std::string> kPixelHeader = {"step", "t", "landmark_id", "u_left", "v_left", "u_right", "v_right", "head_pan"};
+// Pixels with their own covariance (px^2): the upper triangle of C row by row, in the order
+// (u_l, v_l, u_r, v_r) of Observation::pixel_covariance.
+const std::vector<std::string> kPixelCovarianceHeader = {
+    "step",      "t",         "landmark_id", "u_left",    "v_left",    "u_right",   "v_right",   "head_pan",
+    "cov_ul_ul", "cov_ul_vl", "cov_ul_ur",   "cov_ul_vr", "cov_vl_vl", "cov_vl_ur", "cov_vl_vr", "cov_ur_ur",
+    "cov_ur_vr", "cov_vr_vr"};
+constexpr int kCovarianceColumn = 8;
+
+Eigen::Matrix4d covarianceFromUpper(const double* c) {
+  Eigen::Matrix4d C;
+  for (int i = 0, k = 0; i < 4; ++i)
+    for (int j = i; j < 4; ++j, ++k) C(i, j) = C(j, i) = c[k];
+  return C;
+}
 const std::vector<std::string> kRangeBearingHeader = {"step",    "t",           "landmark_id",  "range",
                                                       "bearing", "sigma_range", "sigma_bearing"};
 const std::vector<std::string> kGroundTruthHeader = {"step", "t", "x", "y", "theta"};
@@ -166,13 +181,14 @@ Dataset loadDataset(const std::string& dir) {
     const std::string path = join(dir, "observations.csv");
     if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
     CsvReader in(path);
-    const bool pixels = in.expectHeader({kPixelHeader, kRangeBearingHeader}) == 0;
+    const size_t header = in.expectHeader({kPixelHeader, kRangeBearingHeader, kPixelCovarianceHeader});
+    const bool pixels = header != 1, covariance = header == 2;
     StepIndex idx(d.steps);
     while (in.next()) {
       const long step = in.getLong(0);
       const double t = in.getDouble(1);
       const long id = in.getLong(2);
-      double v[5];
+      double v[15];
       for (size_t c = 3; c < in.size(); ++c) v[c - 3] = in.getDouble(c);
       Step& s = d.steps[idx.lookup(in, step, t, true)];
       LandmarkType type = LandmarkType::Point;
@@ -181,11 +197,23 @@ Dataset loadDataset(const std::string& dir) {
         if (!l) in.failColumn(2, "unknown landmark id " + std::to_string(id) + " (not in the map)");
         type = l->type;
       }
+      if (covariance) {
+        try {
+          checkPixelCovariance(covarianceFromUpper(v + kCovarianceColumn - 3), "pixel covariance");
+        } catch (const Error& e) {
+          in.failColumn(kCovarianceColumn, e.what());
+        }
+      }
       try {
         if (pixels) {
           const StereoPixels px{v[0], v[1], v[2], v[3]};
-          s.observations.push_back(
-              observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], d.rig.params().pixel_sigma));
+          if (covariance) {
+            const Eigen::Matrix4d C = covarianceFromUpper(v + kCovarianceColumn - 3);
+            s.observations.push_back(observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], C));
+          } else {
+            s.observations.push_back(
+                observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], d.rig.params().pixel_sigma));
+          }
         } else {
           s.observations.push_back(observationFromRangeBearing(static_cast<int>(id), type, v[0], v[1], v[2], v[3]));
         }
@@ -226,14 +254,21 @@ namespace {
 void writeFiles(const Dataset& d, const std::string& dir) {
   if (d.groundtruth.size() != d.steps.size() && !d.groundtruth.empty())
     throw Error("saveDataset: groundtruth must have one entry per step (or none)");
-  bool all_pixels = true, any_pan = false, any_compass = false;
+  bool all_pixels = true, any_pan = false, any_compass = false, own_covariance = false;
+  const Eigen::Matrix4d rig_covariance =
+      d.rig.params().pixel_sigma * d.rig.params().pixel_sigma * Eigen::Matrix4d::Identity();
   for (size_t i = 0; i < d.steps.size(); ++i) {
     const Step& s = d.steps[i];
     if (i > 0 && s.step <= d.steps[i - 1].step) throw Error("saveDataset: step numbers must increase");
     any_pan |= s.head_pan != 0.0;
     any_compass |= s.compass.has_value();
-    for (const Observation& o : s.observations) all_pixels &= o.pixels.has_value();
+    for (const Observation& o : s.observations) {
+      all_pixels &= o.pixels.has_value();
+      own_covariance |= o.pixels.has_value() && o.pixel_covariance != rig_covariance;
+    }
   }
+  // Pixel observations whose covariance is not the rig's sigma^2 I carry it in their rows.
+  own_covariance &= all_pixels;
   if (any_compass && !(d.compass_sigma > 0))
     throw Error("saveDataset: steps carry compass readings but compass_sigma is 0");
 
@@ -264,7 +299,7 @@ void writeFiles(const Dataset& d, const std::string& dir) {
 
   CsvWriter odo(any_pan ? kOdometryPanHeader : kOdometryHeader);
   CsvWriter compass(kCompassHeader);
-  CsvWriter obs(all_pixels ? kPixelHeader : kRangeBearingHeader);
+  CsvWriter obs(own_covariance ? kPixelCovarianceHeader : all_pixels ? kPixelHeader : kRangeBearingHeader);
   CsvWriter gt(kGroundTruthHeader);
   for (size_t i = 0; i < d.steps.size(); ++i) {
     const Step& s = d.steps[i];
@@ -280,6 +315,9 @@ void writeFiles(const Dataset& d, const std::string& dir) {
       if (all_pixels) {
         const StereoPixels& p = *ob.pixels;
         obs.add(p.u_left).add(p.v_left).add(p.u_right).add(p.v_right).add(ob.head_pan);
+        if (own_covariance)
+          for (int r = 0; r < 4; ++r)
+            for (int c = r; c < 4; ++c) obs.add(ob.pixel_covariance(r, c));
       } else {
         obs.add(ob.range).add(ob.bearing).add(std::sqrt(ob.covariance(0, 0))).add(std::sqrt(ob.covariance(1, 1)));
       }

@@ -6,6 +6,7 @@
 #include <utility>
 
 #include "src/core/error.h"
+#include "src/core/measurement_model.h"
 #include "src/io/dataset.h"
 #include "src/pipeline/localizer.h"
 
@@ -199,6 +200,21 @@ Observation parseObservation(const Json& o, const std::string& where, const Ster
       px.v_left = number(o, "v_left", where);
       px.u_right = number(o, "u_right", where);
       px.v_right = number(o, "v_right", where);
+      if (const Json* c = o.get("pixel_covariance")) {
+        if (o.get("pixel_sigma")) throw Error(where + ": give \"pixel_sigma\" or \"pixel_covariance\", not both");
+        if (c->kind != Json::Array || c->arr.size() != 10)
+          throw Error(where + ": \"pixel_covariance\" must be an array of 10 numbers");
+        Eigen::Matrix4d C;
+        for (int i = 0, k = 0; i < 4; ++i)
+          for (int j = i; j < 4; ++j, ++k) {
+            const Json& e = c->arr[static_cast<size_t>(k)];
+            if (e.kind != Json::Number || !std::isfinite(e.num))
+              throw Error(where + ": \"pixel_covariance\" holds a value that is not a finite number");
+            C(i, j) = C(j, i) = e.num;
+          }
+        checkPixelCovariance(C, where);
+        return observationFromPixels(rig, lid, type, px, head_pan, C);
+      }
       const double sigma = optionalNumber(o, "pixel_sigma", where).value_or(rig.params().pixel_sigma);
       return observationFromPixels(rig, lid, type, px, head_pan, sigma);
     }

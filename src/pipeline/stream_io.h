@@ -10,7 +10,9 @@
 //   {"step":13,"t":1.3,"d_left":10.0,"d_right":10.2,"obs_step":11,"left":"l11.png","right":"r11.png"}
 //   {"obs_step":11,"observations":[...]}            (observations alone, between odometry lines)
 // An observation may carry its pixels instead, {"landmark_id":3,"u_left":..,"v_left":..,"u_right":..,
-// "v_right":..} (optionally "pixel_sigma"); range, bearing and R then come from the rig (5.26-5.32).
+// "v_right":..} (optionally "pixel_sigma", px, or "pixel_covariance", px^2: the 10 values of the
+// upper triangle row by row in the order u_l, v_l, u_r, v_r); range, bearing and R then come
+// from the rig (5.26-5.32).
 // "landmark_id" -1 or absent: not identified (associated by the estimator), with an optional "type".
 //
 // Output line: {"step":12,"t":1.2,"x":..,"y":..,"theta":..,"covariance":[9 values, row-major],

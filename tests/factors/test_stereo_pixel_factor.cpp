@@ -4,11 +4,13 @@
 // input.
 #include <gtest/gtest.h>
 
+#include <Eigen/LU>
 #include <memory>
 #include <random>
 
 #include "factors/factor_check.h"
 #include "factors/stereo_pixel_factor.h"
+#include "src/core/measurement_model.h"
 #include "src/core/pose2.h"
 #include "src/core/stereo_rig.h"
 #include "src/core/types.h"
@@ -99,6 +101,41 @@ TEST(StereoPixelFactor, FailsBehindTheCamerasAndRejectsBadInput) {
   StereoPixels bad = s.pixels;
   bad.u_left = std::nan("");
   EXPECT_THROW(StereoPixelFactor::Create(rig, s.landmark, bad, 0.0, 0.5, PixelResiduals::All), Error);
+}
+
+TEST(StereoPixelFactor, CorrelatedCovarianceWhitensToTheMahalanobisDistance) {
+  const StereoRig rig = tiltedRig();
+  const Pose2 pose(100, -50, 0.4);
+  const Sighting s = sight(rig, pose, 0.2, 700, 0.2, 25.0);
+  const double p[3] = {pose.x, pose.y, pose.theta};
+  const Eigen::Matrix4d C = stereoPixelCovariance(0.3, 0.15, 0.06, -0.3);
+  const Eigen::Vector4d e(0.3, -0.2, 0.25, -0.2);
+  const StereoPixels noisy{s.pixels.u_left + e[0], s.pixels.v_left + e[1], s.pixels.u_right + e[2],
+                           s.pixels.v_right + e[3]};
+  std::unique_ptr<ceres::CostFunction> all(
+      StereoPixelFactor::Create(rig, s.landmark, noisy, 0.2, C, PixelResiduals::All));
+  std::unique_ptr<ceres::CostFunction> cols(
+      StereoPixelFactor::Create(rig, s.landmark, noisy, 0.2, C, PixelResiduals::Columns));
+  const Eigen::VectorXd ra = evaluateResidual(*all, p), rc = evaluateResidual(*cols, p);
+  EXPECT_NEAR(ra.squaredNorm(), e.dot(C.inverse() * e), 1e-6 * e.dot(C.inverse() * e));
+  Eigen::Matrix2d C2;
+  C2 << C(0, 0), C(0, 2), C(2, 0), C(2, 2);
+  const Eigen::Vector2d e2(e[0], e[2]);
+  EXPECT_NEAR(rc.squaredNorm(), e2.dot(C2.inverse() * e2), 1e-6 * e2.dot(C2.inverse() * e2));
+  // The scalar form is the isotropic covariance.
+  std::unique_ptr<ceres::CostFunction> iso(
+      StereoPixelFactor::Create(rig, s.landmark, noisy, 0.2, isotropicPixelCovariance(0.5), PixelResiduals::All));
+  EXPECT_LT((evaluateResidual(*iso, p) + e / 0.5).norm(), 1e-8);
+  // Jacobians with the correlated whitening.
+  for (const auto* f : {all.get(), cols.get()}) {
+    const FactorCheck c = checkFactorJacobians(*f, {p});
+    EXPECT_TRUE(c.ok) << c.message;
+  }
+  Eigen::Matrix4d singular = C;
+  singular(0, 2) = singular(2, 0) = std::sqrt(C(0, 0) * C(2, 2));
+  EXPECT_THROW(StereoPixelFactor::Create(rig, s.landmark, s.pixels, 0.2, singular, PixelResiduals::Columns), Error);
+  EXPECT_THROW(StereoPixelFactor::Create(rig, s.landmark, s.pixels, 0.2, Eigen::Matrix4d::Zero(), PixelResiduals::All),
+               Error);
 }
 
 }  // namespace

@@ -863,7 +863,7 @@ TEST(GlobalFix, MultiLandmarkUsesThePixelResidualWhenItCan) {
     const Pose2 rb = fixFromLandmarks(noisy, l3, std::nullopt, 0.0).pose;
     differ += (px.translation() - rb.translation()).norm() > 1e-6 ? 1 : 0;
     same_2d += (fixFromLandmarks(noisy, l2, std::nullopt, 0.0, pixels).pose.translation() - rb.translation()).norm() < 1e-9 ? 1 : 0;
-    for (Observation& o : noisy) o.pixel_sigma = 0.0;
+    for (Observation& o : noisy) o.pixel_covariance.setZero();
     same_no_sigma += (fixFromLandmarks(noisy, l3, std::nullopt, 0.0, pixels).pose.translation() - rb.translation()).norm() < 1e-9 ? 1 : 0;
   }
   EXPECT_EQ(differ, 10);

@@ -37,7 +37,7 @@ TEST(ObservationFactor, ChoosesTheFactorByModelAndData) {
     EXPECT_EQ(observationModelFromString(toString(m)), m);
   }
   Observation no_sigma = with_pixels;
-  no_sigma.pixel_sigma = 0.0;
+  no_sigma.pixel_covariance.setZero();
   EXPECT_THROW(makeObservationFactor(no_sigma, lm, {ObservationModel::Pixels, rig}), Error);
   EXPECT_THROW(observationModelFromString("pixel"), Error);
 }

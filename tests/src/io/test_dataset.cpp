@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "src/io/csv.h"
+#include "src/core/measurement_model.h"
 #include "src/io/dataset.h"
 #include "src/core/error.h"
 #include "src/sim/simulator.h"
@@ -95,6 +96,7 @@ void expectSame(const Dataset& a, const Dataset& b) {
       EXPECT_EQ(o.range, p.range);
       EXPECT_EQ(o.bearing, p.bearing);
       EXPECT_EQ(o.covariance, p.covariance);
+      EXPECT_EQ(o.pixel_covariance, p.pixel_covariance);
       EXPECT_EQ(o.head_pan, p.head_pan);
     }
     ASSERT_EQ(a.groundtruth[i].has_value(), b.groundtruth[i].has_value());
@@ -124,6 +126,29 @@ TEST(Dataset, PixelRoundTripIsExact) {
   EXPECT_TRUE(fs::exists(dir / "compass.csv"));
   EXPECT_TRUE(fs::exists(dir / "groundtruth.csv"));
   EXPECT_EQ(readFile(dir / "observations.csv").rfind("step,t,landmark_id,u_left", 0), 0u);
+}
+
+TEST(Dataset, PixelCovarianceRoundTripsAndBadOnesNameTheRow) {
+  TempDir dir;
+  Dataset d = sample();
+  const Eigen::Matrix4d C = stereoPixelCovariance(0.3, 0.12, 0.07, 0.1);
+  for (Step& s : d.steps)
+    for (Observation& o : s.observations) o = observationFromPixels(d.rig, o.landmark_id, o.type, *o.pixels, o.head_pan, C);
+  saveDataset(d, dir.path(), false);
+  EXPECT_NE(readFile(dir / "observations.csv").find("cov_ul_ul"), std::string::npos);
+  expectSame(d, loadDataset(dir.path()));
+  // A covariance that is not positive definite: one line naming the file, row and column.
+  const std::string text = readFile(dir / "observations.csv");
+  const size_t row2 = text.find('\n') + 1;
+  std::string line = text.substr(row2, text.find('\n', row2) - row2);
+  std::vector<std::string> cells;
+  std::stringstream ss(line);
+  for (std::string c; std::getline(ss, c, ',');) cells.push_back(c);
+  cells[8] = "-1";  // cov_ul_ul
+  std::string bad;
+  for (size_t i = 0; i < cells.size(); ++i) bad += (i ? "," : "") + cells[i];
+  replaceLine(dir / "observations.csv", 2, bad);
+  expectError(dir.path(), "observations.csv", "cov_ul_ul");
 }
 
 TEST(Dataset, RangeBearingRoundTripIsExact) {
