@@ -19,7 +19,9 @@
 // Use: feed the steps with process() (it returns the initial guess, cheap), then finish()
 // solves and returns one Estimate per processed step. The first processed step is the initial
 // time (its odometry is not applied), as for the EKF. Initial guess: a forward EKF pass (default),
-// odometry chained from the initial belief (or the first global fix), or given estimates.
+// odometry chained from the initial belief (or the first global fix), or given estimates. An
+// observation whose factor cannot be evaluated at the guess (a pixel factor's landmark behind
+// the cameras) waits outside the solve until a solution brings it into view (docs/estimators.md).
 // Kidnap (5.1.3): the filter pass's gate detects it; each re-initialisation after "lost" cuts the
 // odometry chain and anchors the new segment on the global fix (cut_at_reinitialisation).
 // Self-calibration (BatchSmootherConfig::calibration, solvers/self_calibration.h): the odometry
