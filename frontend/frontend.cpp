@@ -294,6 +294,10 @@ void Frontend::checkImage(const cv::Mat& img, const char* which) const {
 const std::vector<Segment>& Frontend::detectSegments(const cv::Mat& bgr) {
   checkImage(bgr, "input");
   bgrToLuma(bgr, left_luma_);
+  return segmentsFromLuma(bgr);
+}
+
+const std::vector<Segment>& Frontend::segmentsFromLuma(const cv::Mat& bgr) {
   region_.compute(bgr, params_.field);
   grad_.compute(left_luma_, params_.gradient, region_.restricted() ? region_.top().data() : nullptr);
   used_.clear();
@@ -312,11 +316,16 @@ const FrontendResult& Frontend::detectFeatures(const cv::Mat& bgr) {
   r.matched.clear();
   r.observations.clear();
   detectSegments(bgr);
+  featuresFromSegments();
+  return r;
+}
+
+void Frontend::featuresFromSegments() {
+  FrontendResult& r = result_;
   buildLines(r.segments, params_.corners, r.lines);
   clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
   snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);
   findCorners(r.lines, rig_, params_.corners, r.features, &left_luma_);
-  return r;
 }
 
 const FrontendResult& Frontend::detectFeaturesRaw(const cv::Mat& raw_bgr) {
@@ -330,22 +339,38 @@ const FrontendResult& Frontend::detectFeaturesRaw(const cv::Mat& raw_bgr) {
 const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& right_in, double head_pan) {
   checkImage(left_in, "left");
   checkImage(right_in, "right");
-  if (rectifier_) rectifier_->rectify(left_in, right_in);
-  const cv::Mat& left = rectifier_ ? rectifier_->left() : left_in;
-  const cv::Mat& right = rectifier_ ? rectifier_->right() : right_in;
   FrontendResult& r = result_;
-  detectFeatures(left);
+  if (rectifier_) {
+    // Luma path (rectify.h): only the left luma is rectified whole; the right luma and the
+    // colour are rectified where the stages below read them.
+    r.features.clear();
+    r.matched.clear();
+    r.observations.clear();
+    rectifier_->beginPair(left_in, right_in, left_luma_);
+    if (params_.field.enabled)
+      rectifier_->colour(0, cv::Rect(0, 0, left_luma_.cols, left_luma_.rows), params_.field.step_px);
+    segmentsFromLuma(rectifier_->colourImage(0));
+    featuresFromSegments();
+  } else {
+    detectFeatures(left_in);
+  }
+  const cv::Mat& left = rectifier_ ? rectifier_->colourImage(0) : left_in;
+  const cv::Mat& right = rectifier_ ? rectifier_->colourImage(1) : right_in;
 
   const DisparityRange range = validDisparities(rig_, params_.stereo);
   if (!r.features.empty()) {
-    bgrToLuma(right, right_luma_);
+    if (rectifier_)
+      rectifyRightLumaAroundFeatures();
+    else
+      bgrToLuma(right, right_luma_);
     for (const PointFeature& f : r.features) {
       const auto d = matchFloorFeature(left_luma_, right_luma_, rig_, f.u, f.v, range, params_.stereo);
       if (!d) continue;
       r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, f.u - *d, f.v}});
     }
   }
-  detectGoalEdges(left, params_.goals, goal_edges_, scratch_);
+  const ColourPrepare prepare_left = [this](const cv::Rect& rect, int step) { rectifier_->colour(0, rect, step); };
+  detectGoalEdges(left, params_.goals, goal_edges_, scratch_, rectifier_ ? &prepare_left : nullptr);
   for (const GoalEdge& g : goal_edges_) {
     PointFeature f;
     f.type = LandmarkType::GoalCorner;
@@ -355,6 +380,11 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
     f.side = g.side;
     f.landmark_id = goalCornerLandmark(g.color, g.side);
     r.features.push_back(f);
+    if (rectifier_ && !g.transitions.empty()) {
+      // matchGoalEdge scans the right image on rows of the left transitions.
+      const int row0 = g.transitions.front().row, row1 = g.transitions.back().row;
+      rectifier_->colour(1, cv::Rect(0, row0, right.cols, row1 - row0 + 1));
+    }
     const auto ur = matchGoalEdge(right, g, range, params_.goals, scratch_tr_, scratch_);
     if (ur) r.matched.push_back(StereoFeature{f, StereoPixels{g.u, g.v, *ur, g.v}});
   }
@@ -381,6 +411,26 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
     }
   }
   return r;
+}
+
+void Frontend::rectifyRightLumaAroundFeatures() {
+  // matchFloorFeature reads the right luma on the rows of its patch around the feature's row.
+  const int rad = params_.stereo.patch_radius;
+  row_spans_.clear();
+  for (const PointFeature& f : result_.features) {
+    const int vc = static_cast<int>(std::lround(f.v));
+    row_spans_.emplace_back(vc - rad, vc + rad + 1);
+  }
+  std::sort(row_spans_.begin(), row_spans_.end());
+  std::pair<int, int> cur = row_spans_.front();
+  for (size_t k = 1; k <= row_spans_.size(); ++k) {
+    if (k < row_spans_.size() && row_spans_[k].first <= cur.second) {
+      cur.second = std::max(cur.second, row_spans_[k].second);
+      continue;
+    }
+    rectifier_->rightLumaRows(cur.first, cur.second, right_luma_);
+    if (k < row_spans_.size()) cur = row_spans_[k];
+  }
 }
 
 }  // namespace stereoloc::frontend

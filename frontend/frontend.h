@@ -12,11 +12,13 @@
 // Line convention: frontend/features.h. The line stages run on the left image only; the right
 // image is read only around the left features, along their epipolar rows.
 // A rig with an OpenCV calibration that needs it gets its raw pairs rectified first
-// (frontend/rectify.h); the observations then carry rectified pixels and a pixel sigma that
-// includes the resampling.
+// (frontend/rectify.h: the left luma whole, the right luma and the colour only where the stages
+// read them); the observations then carry rectified pixels and a pixel sigma that includes the
+// resampling.
 #include <opencv2/core/mat.hpp>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "frontend/classify.h"
@@ -92,7 +94,9 @@ class Frontend {
   const FrontendResult& result() const { return result_; }
   const FrontendParams& params() const { return params_; }
   const StereoRig& rig() const { return rig_; }
-  // The rectification of raw pairs; null when the rig's images are used as they are.
+  // The rectification of raw pairs; null when the rig's images are used as they are. After
+  // process() its colour images hold only the pixels the frontend read (rectify.h); use
+  // rectifiedCopy() for a whole rectified image.
   const Rectifier* rectifier() const { return rectifier_ ? &*rectifier_ : nullptr; }
   const GradientStage& gradient() const { return grad_; }
   // The region of interest of the last image (whole image unless params().field.enabled).
@@ -106,6 +110,11 @@ class Frontend {
 
  private:
   void checkImage(const cv::Mat& img, const char* which) const;
+  // Stages 1-5 on left_luma_; bgr (the same image in colour) serves the field region only.
+  const std::vector<Segment>& segmentsFromLuma(const cv::Mat& bgr);
+  void featuresFromSegments();  // stage 6 on result_.segments
+  // Raw pairs: rectifies the right luma on the rows the stereo match of result_.features reads.
+  void rectifyRightLumaAroundFeatures();
   StereoRig rig_;
   FieldMap map_;
   FrontendParams params_;
@@ -122,6 +131,7 @@ class Frontend {
   std::vector<Transition> scratch_tr_;
   std::vector<GoalEdge> goal_edges_;
   cv::Mat left_luma_, right_luma_;
+  std::vector<std::pair<int, int>> row_spans_;
   FrontendResult result_;
 };
 

@@ -90,9 +90,10 @@ bool robustColumn(const std::vector<Transition>& tr, const GoalParams& prm, doub
 }
 
 void detectGoalEdges(const cv::Mat& bgr, const GoalParams& prm, std::vector<GoalEdge>& edges,
-                     std::vector<float>& scratch) {
+                     std::vector<float>& scratch, const ColourPrepare* prepare) {
   edges.clear();
   const int step = std::max(1, prm.coarse_step);
+  if (prepare) (*prepare)(cv::Rect(step / 2, step / 2, bgr.cols - step / 2, bgr.rows - step / 2), step);
   for (GoalColor color : {GoalColor::Blue, GoalColor::Yellow}) {
     int xmin = bgr.cols, xmax = -1, ymin = bgr.rows, ymax = -1, hits = 0;
     for (int y = step / 2; y < bgr.rows; y += step) {
@@ -108,6 +109,10 @@ void detectGoalEdges(const cv::Mat& bgr, const GoalParams& prm, std::vector<Goal
     }
     if (hits < prm.min_coarse_hits) continue;
     const int m = prm.window_margin_px;
+    if (prepare) {
+      const int y0 = std::max(0, ymin - m), x0 = std::max(0, xmin - m);
+      (*prepare)(cv::Rect(x0, y0, std::min(bgr.cols, xmax + m + 1) - x0, std::min(bgr.rows - 1, ymax + m) + 1 - y0), 1);
+    }
     for (int side : {-1, 1}) {
       GoalEdge ge;
       ge.color = color;

@@ -14,6 +14,7 @@
 //
 // Side: -1 when the colour lies to the right of the white (the left edge of the goal in the
 // image), +1 when it lies to the left.
+#include <functional>
 #include <opencv2/core/mat.hpp>
 #include <vector>
 
@@ -58,8 +59,13 @@ void scanRowTransitions(const cv::Mat& bgr, int row, int x0, int x1, GoalColor c
 bool robustColumn(const std::vector<Transition>& tr, const GoalParams& params, double& u, double& v, int& rows,
                   std::vector<float>& scratch);
 
-// Coarse search and fine scan of the left image: up to one GoalEdge per colour and side.
+// For an image resampled on demand (frontend/rectify.h): makes the pixels (rect.x + i step,
+// rect.y + j step) inside rect valid in the image the stage reads.
+using ColourPrepare = std::function<void(const cv::Rect& rect, int step)>;
+
+// Coarse search and fine scan of the left image: up to one GoalEdge per colour and side. With
+// `prepare`, bgr is valid only where prepare was asked for: the coarse grid, then each window.
 void detectGoalEdges(const cv::Mat& bgr, const GoalParams& params, std::vector<GoalEdge>& edges,
-                     std::vector<float>& scratch);
+                     std::vector<float>& scratch, const ColourPrepare* prepare = nullptr);
 
 }  // namespace stereoloc::frontend

@@ -623,9 +623,8 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, 
   if (config_.calibration.stereo && obs.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    const double sigma = config_.observation_model.pixel_sigma > 0 ? config_.observation_model.pixel_sigma : obs.pixel_sigma;
     addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *obs.pixels, obs.head_pan,
-                                                   sigma, residuals),
+                                                   pixelCovarianceFor(obs, *lm, config_.observation_model), residuals),
               {node}, true, {Calib::Head});
   } else {
     addFactor(makeObservationFactor(obs, *lm, config_.observation_model), {node}, true);

@@ -60,16 +60,20 @@ ObservationModel observationModelFromString(const std::string& name) {
   throw Error("unknown observation model '" + name + "' (expected range_bearing, pixel_columns or pixels)");
 }
 
+Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config) {
+  if (config.pixel_sigma > 0) return isotropicPixelCovariance(config.pixel_sigma);
+  if (!(obs.pixel_covariance.diagonal().minCoeff() > 0))
+    throw Error("observation of landmark " + std::to_string(landmark.id) +
+                ": has pixels but no pixel covariance (the pixel observation model needs it)");
+  return obs.pixel_covariance;
+}
+
 ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,
                                            const ObservationModelConfig& config) {
   if (config.model == ObservationModel::RangeBearing || !obs.pixels)
     return RangeBearingFactor::Create(landmark.xy(), obs.z(), obs.covariance);
-  const bool own = !(config.pixel_sigma > 0);
-  if (own && !(obs.pixel_covariance.diagonal().minCoeff() > 0))
-    throw Error("observation of landmark " + std::to_string(landmark.id) +
-                ": has pixels but no pixel covariance (the pixel observation model needs it)");
-  const Eigen::Matrix4d C = own ? obs.pixel_covariance : isotropicPixelCovariance(config.pixel_sigma);
-  return StereoPixelFactor::Create(config.rig, landmark.position, *obs.pixels, obs.head_pan, C,
+  return StereoPixelFactor::Create(config.rig, landmark.position, *obs.pixels, obs.head_pan,
+                                   pixelCovarianceFor(obs, landmark, config),
                                    config.model == ObservationModel::Pixels ? PixelResiduals::All
                                                                             : PixelResiduals::Columns);
 }

@@ -53,6 +53,10 @@ struct ObservationModelConfig {
   double pixel_sigma = 0.0;
 };
 
+// The pixel covariance the pixel models use for `obs`: its own, or sigma^2 I when
+// config.pixel_sigma > 0. Throws stereoloc::Error when the observation carries none.
+Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config);
+
 // The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks
 // for pixels and the observation has them (with its own Observation::pixel_covariance), the
 // range-bearing factor otherwise. The caller owns the result. Throws stereoloc::Error when a

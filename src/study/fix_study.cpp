@@ -9,6 +9,7 @@
 #include <map>
 #include <memory>
 #include <random>
+#include <set>
 #include <sstream>
 
 #include "solvers/global_fix.h"
@@ -21,6 +22,8 @@
 #include "src/pipeline/usage_error.h"
 #include "src/study/data_files.h"
 #include "src/pipeline/frontend_source.h"
+#include "src/sim/error_profile.h"
+#include "src/study/study_trial.h"
 
 namespace stereoloc {
 namespace {
@@ -335,6 +338,58 @@ std::string header(const char* first, const std::vector<std::string>& groups) {
   return top + "\n" + sub + "\n";
 }
 
+// A world's name in the column titles: ideal, realistic or the stem of a profile file.
+std::string worldName(const std::string& profile) { return std::filesystem::path(profile).stem().string(); }
+
+// Table 6.3 on the frontend's goal corners of one world, and their recall against the goal
+// corners the simulator finds visible (in front of both cameras, inside both images, within the
+// rig's range and disparity limits, line of sight free).
+struct RangeStats {
+  long visible = 0;    // visible goal corners (the simulator's observations)
+  long detected = 0;   // of those, found by the frontend with the right id
+  long unmatched = 0;  // frontend goal corners with no visible corner of that id within kMatchPx
+  std::vector<double> abs_err, norm_err, signed_norm;  // mm; fractions of the true range
+  std::vector<double> trial_bias;  // per trial (one calibration draw): mean signed normalised error
+  std::vector<double> unbiased;    // |signed normalised error - its trial's bias|
+};
+
+// A detection is the visible corner of its id when its left column is within this of the
+// simulator's (pixel noise, vibration and the calibration error move it by ~1-2 px).
+constexpr double kMatchPx = 5.0;
+
+void addRanges(RangeStats& r, const Dataset& visible, const Dataset& images) {
+  const size_t first = r.signed_norm.size();
+  for (size_t k = 0; k < images.steps.size() && k < visible.steps.size(); ++k) {
+    if (k >= images.groundtruth.size() || !images.groundtruth[k]) continue;
+    const Pose2& truth = *images.groundtruth[k];
+    std::map<int, double> seen;  // id -> left column
+    for (const Observation& o : visible.steps[k].observations)
+      if (o.landmark_id >= 0 && o.type == LandmarkType::GoalCorner && o.pixels) seen[o.landmark_id] = o.pixels->u_left;
+    r.visible += static_cast<long>(seen.size());
+    std::set<int> found;
+    for (const Observation& o : images.steps[k].observations) {
+      if (o.landmark_id < 0 || o.type != LandmarkType::GoalCorner) continue;
+      const auto it = seen.find(o.landmark_id);
+      if (it == seen.end() || !o.pixels || std::fabs(o.pixels->u_left - it->second) > kMatchPx ||
+          !found.insert(o.landmark_id).second) {
+        ++r.unmatched;
+        continue;
+      }
+      ++r.detected;
+      const double range = (images.map.at(o.landmark_id).xy() - truth.translation()).norm();
+      r.abs_err.push_back(std::fabs(o.range - range));
+      r.norm_err.push_back(std::fabs(o.range - range) / range);
+      r.signed_norm.push_back((o.range - range) / range);
+    }
+  }
+  if (r.signed_norm.size() == first) return;
+  double bias = 0;
+  for (size_t i = first; i < r.signed_norm.size(); ++i) bias += r.signed_norm[i];
+  bias /= static_cast<double>(r.signed_norm.size() - first);
+  r.trial_bias.push_back(bias);
+  for (size_t i = first; i < r.signed_norm.size(); ++i) r.unbiased.push_back(std::fabs(r.signed_norm[i] - bias));
+}
+
 }  // namespace
 
 void runFixStudy(const FixStudyOptions& a) {
@@ -353,7 +408,22 @@ void runFixStudy(const FixStudyOptions& a) {
   cfg.pixel_sigma = a.pixel_sigma;
   cfg.quantise = a.quantise;
   cfg.compass = false;  // fix1's compass is drawn here, per noise level
+  cfg.scenario.steps = a.steps;
+  if (a.steps < 0) throw UsageError("--steps must be >= 0");
   cfg.validate();
+  if (a.profiles.empty()) throw UsageError("--profile is empty");
+  std::vector<SimulationConfig> world_cfg;
+  for (const std::string& p : a.profiles) {
+    if (std::count(a.profiles.begin(), a.profiles.end(), p) > 1) throw UsageError("--profile: '" + p + "' appears twice");
+    world_cfg.push_back(cfg);
+    try {
+      world_cfg.back().profile = ErrorProfile::named(p);
+    } catch (const Error& e) {
+      throw UsageError(std::string("--profile: ") + e.what());
+    }
+  }
+  // The ideal world alone prints exactly the thesis's tables; other worlds add a column each.
+  const bool ideal_only = a.profiles.size() == 1 && a.profiles.front() == "ideal";
 
   const FixCovariance model = a.first_order ? FixCovariance::FirstOrder : fixCovarianceFromString(a.covariance);
   GlobalFixOptions opt2;
@@ -385,7 +455,8 @@ void runFixStudy(const FixStudyOptions& a) {
     std::filesystem::create_directories(a.out);
     csv = std::make_unique<AtomicOutputFile>(a.out + "/fixes.csv");
     csv->stream() << "category,trial,run,method,compass_sigma_deg,step,status,true_x,true_y,true_theta,x,y,theta,"
-                     "cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,nees3,nees2,max_range,nonlinearity,nonlinearity_true,frontend\n";
+                     "cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,nees3,nees2,max_range,nonlinearity,nonlinearity_true,frontend"
+                  << (ideal_only ? "" : ",profile") << "\n";
   }
 
   std::vector<FrontendMode> modes;
@@ -394,8 +465,19 @@ void runFixStudy(const FixStudyOptions& a) {
   } else {
     modes = {frontendModeFromString(a.frontend)};
   }
+  // One column per (world, frontend).
+  struct Group {
+    size_t world;
+    FrontendMode mode;
+  };
+  std::vector<Group> gs;
   std::vector<std::string> groups;
-  for (FrontendMode m : modes) groups.push_back("ours (" + toString(m) + ")");
+  for (size_t w = 0; w < a.profiles.size(); ++w)
+    for (FrontendMode m : modes) {
+      gs.push_back({w, m});
+      groups.push_back("ours (" + toString(m) + (ideal_only ? "" : ", " + worldName(a.profiles[w])) + ")");
+    }
+  std::vector<RangeStats> ranges(gs.size());
   const bool images = std::find(modes.begin(), modes.end(), FrontendMode::Images) != modes.end();
   ImageFrontendOptions fo;
   fo.landmarks = frontendLandmarksFromString(a.frontend_landmarks);
@@ -424,73 +506,89 @@ void runFixStudy(const FixStudyOptions& a) {
                     a.image_noise);
       report << buf;
     }
+    if (!ideal_only) {
+      std::string list;
+      for (const std::string& p : a.profiles) list += (list.empty() ? "" : ", ") + p;
+      report << "worlds: " << list
+             << " (src/sim/error_profile.h), same trial seeds; in a non-ideal world the true rig is drawn per trial, "
+                "the simulated pixels are true raw projections undistorted with the given calibration and the images "
+                "raw pairs of the true cameras (distortion, blur, vibration) that the frontend rectifies with the given "
+                "calibration\n";
+    }
     report << "\n";
   }
 
   for (const std::string& cat : cats) {
     const size_t ci = static_cast<size_t>(std::find(kCategories.begin(), kCategories.end(), cat) - kCategories.begin());
     const int trials = scenarioTrialCount(cat);
-    std::vector<Bucket> b2(modes.size());
-    std::vector<std::vector<Bucket>> b1(modes.size(), std::vector<Bucket>(kCompassLevelsDeg.size()));
-    std::vector<std::array<Bucket, 2>> bm(modes.size());  // multi: [0] range-bearing, [1] pixels
+    std::vector<Bucket> b2(gs.size());
+    std::vector<std::vector<Bucket>> b1(gs.size(), std::vector<Bucket>(kCompassLevelsDeg.size()));
+    std::vector<std::array<Bucket, 2>> bm(gs.size());  // multi: [0] range-bearing, [1] pixels
     for (int trial = 0; trial < trials; ++trial) {
       for (int run = 0; run < a.runs; ++run) {
         const uint64_t s = mixSeed(a.seed, ci, static_cast<uint64_t>(trial), static_cast<uint64_t>(run));
-        SimulationTrace trace;
-        const Dataset sim = simulate(cat, trial, cfg, s, images ? &trace : nullptr);
-        for (size_t mi = 0; mi < modes.size(); ++mi) {
-          const std::string mode_name = toString(modes[mi]);
-          Dataset image_data;
-          if (modes[mi] == FrontendMode::Images) {
-            image_data = sim;
-            fstats.merge(observeRenderedImages(image_data, trace, *renderer, a.image_noise, mixSeed(s, 0x1A6E5, 0, 0), fo));
-          }
-          const Dataset& d = modes[mi] == FrontendMode::Images ? image_data : sim;
-          // Common random numbers: the same compass draws for both frontends.
-          std::mt19937_64 compass_rng(mixSeed(s, 0xC0FFEE, 0, 0));
-          std::normal_distribution<double> N(0.0, 1.0);
-          for (size_t k = 0; k < d.steps.size(); ++k) {
-            const double z = N(compass_rng);  // drawn for every step, fix or not
-            if (k >= d.groundtruth.size() || !d.groundtruth[k]) continue;
-            const Pose2& truth = *d.groundtruth[k];
-            Step st = d.steps[k];
-            st.compass.reset();
-            char prefix[96];
-            if (do2) {
-              std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix2,", cat.c_str(), trial, run);
-              Nonlinearity nl;
-              const GlobalFix f = fixWith(d, st, truth, opt2, sp2, &nl);
-              record(b2[mi], f, nl, max_nl, st, truth, csv ? &csv->stream() : nullptr, prefix, mode_name);
+        for (size_t w = 0; w < a.profiles.size(); ++w) {
+          SimulationTrace trace;
+          const Dataset sim = simulate(cat, trial, world_cfg[w], s, images ? &trace : nullptr);
+          const bool ideal_world = world_cfg[w].profile.isIdeal();
+          for (size_t mi = 0; mi < gs.size(); ++mi) {
+            if (gs[mi].world != w) continue;
+            const std::string mode_name = toString(gs[mi].mode) + (ideal_only ? "" : "," + a.profiles[w]);
+            Dataset image_data;
+            if (gs[mi].mode == FrontendMode::Images) {
+              image_data = sim;
+              const uint64_t noise_seed = mixSeed(s, 0x1A6E5, 0, 0);
+              fstats.merge(ideal_world ? observeRenderedImages(image_data, trace, *renderer, a.image_noise, noise_seed, fo)
+                                       : study::observeRawImages(image_data, trace, a.image_noise, noise_seed, fo));
+              if (!ideal_only) addRanges(ranges[mi], sim, image_data);
             }
-            if (doM) {
-              // Steps with at least two identified landmarks (else the method does not apply).
-              int identified = 0;
-              for (const Observation& o : st.observations) identified += o.landmark_id >= 0 ? 1 : 0;
-              if (identified >= 2) {
-                Step sm = st;
-                const double sigma = deg2rad(kMultiCompassDeg);
-                sm.compass = wrapAngle(truth.theta + sigma * z);
-                sm.compass_sigma = sigma;
-                for (int mm = 0; mm < 2; ++mm) {
-                  GlobalFixOptions om = optM_rb;
-                  if (mm == 1) om.rig = d.rig;
-                  std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,multi_%s,%g", cat.c_str(), trial, run,
-                                mm ? "pixels" : "range_bearing", kMultiCompassDeg);
-                  const GlobalFix f = globalFix(sm, d.map, om);
-                  record(bm[mi][mm], f, Nonlinearity{1.0, 1.0}, max_nl, sm, truth, csv ? &csv->stream() : nullptr,
-                         prefix, mode_name);
+            const Dataset& d = gs[mi].mode == FrontendMode::Images ? image_data : sim;
+            // Common random numbers: the same compass draws for both frontends.
+            std::mt19937_64 compass_rng(mixSeed(s, 0xC0FFEE, 0, 0));
+            std::normal_distribution<double> N(0.0, 1.0);
+            for (size_t k = 0; k < d.steps.size(); ++k) {
+              const double z = N(compass_rng);  // drawn for every step, fix or not
+              if (k >= d.groundtruth.size() || !d.groundtruth[k]) continue;
+              const Pose2& truth = *d.groundtruth[k];
+              Step st = d.steps[k];
+              st.compass.reset();
+              char prefix[96];
+              if (do2) {
+                std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix2,", cat.c_str(), trial, run);
+                Nonlinearity nl;
+                const GlobalFix f = fixWith(d, st, truth, opt2, sp2, &nl);
+                record(b2[mi], f, nl, max_nl, st, truth, csv ? &csv->stream() : nullptr, prefix, mode_name);
+              }
+              if (doM) {
+                // Steps with at least two identified landmarks (else the method does not apply).
+                int identified = 0;
+                for (const Observation& o : st.observations) identified += o.landmark_id >= 0 ? 1 : 0;
+                if (identified >= 2) {
+                  Step sm = st;
+                  const double sigma = deg2rad(kMultiCompassDeg);
+                  sm.compass = wrapAngle(truth.theta + sigma * z);
+                  sm.compass_sigma = sigma;
+                  for (int mm = 0; mm < 2; ++mm) {
+                    GlobalFixOptions om = optM_rb;
+                    if (mm == 1) om.rig = d.rig;
+                    std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,multi_%s,%g", cat.c_str(), trial, run,
+                                  mm ? "pixels" : "range_bearing", kMultiCompassDeg);
+                    const GlobalFix f = globalFix(sm, d.map, om);
+                    record(bm[mi][mm], f, Nonlinearity{1.0, 1.0}, max_nl, sm, truth, csv ? &csv->stream() : nullptr,
+                           prefix, mode_name);
+                  }
                 }
               }
-            }
-            if (do1) {
-              for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
-                const double sigma = deg2rad(kCompassLevelsDeg[l]);
-                st.compass = wrapAngle(truth.theta + sigma * z);
-                st.compass_sigma = std::max(sigma, deg2rad(0.01));
-                std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix1,%g", cat.c_str(), trial, run, kCompassLevelsDeg[l]);
-                Nonlinearity nl;
-                const GlobalFix f = fixWith(d, st, truth, opt1, sp1, &nl);
-                record(b1[mi][l], f, nl, max_nl, st, truth, csv ? &csv->stream() : nullptr, prefix, mode_name);
+              if (do1) {
+                for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
+                  const double sigma = deg2rad(kCompassLevelsDeg[l]);
+                  st.compass = wrapAngle(truth.theta + sigma * z);
+                  st.compass_sigma = std::max(sigma, deg2rad(0.01));
+                  std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix1,%g", cat.c_str(), trial, run, kCompassLevelsDeg[l]);
+                  Nonlinearity nl;
+                  const GlobalFix f = fixWith(d, st, truth, opt1, sp1, &nl);
+                  record(b1[mi][l], f, nl, max_nl, st, truth, csv ? &csv->stream() : nullptr, prefix, mode_name);
+                }
               }
             }
           }
@@ -502,7 +600,7 @@ void runFixStudy(const FixStudyOptions& a) {
     auto statsRow = [&](const char* label, auto bucketOf, double Sample::*field, double scale, const ThesisTable& t,
                         const std::string& key) {
       std::string line = label;
-      for (size_t mi = 0; mi < modes.size(); ++mi)
+      for (size_t mi = 0; mi < gs.size(); ++mi)
         line += (mi ? " | " : "") + statsCells(statsOf(bucketOf(mi).fixes, field), scale);
       return line + " | " + thesisCells(t, key) + "\n";
     };
@@ -512,15 +610,15 @@ void runFixStudy(const FixStudyOptions& a) {
       std::snprintf(buf, sizeof(buf), "Table %s: two landmarks (fix2), category %s, %d trials x %d run(s)\n", id.c_str(),
                     cat.c_str(), trials, a.runs);
       report << buf;
-      for (size_t mi = 0; mi < modes.size(); ++mi)
-        report << (modes.size() > 1 ? groups[mi] + " " : "") << fixRateLine(b2[mi]) << "\n";
+      for (size_t mi = 0; mi < gs.size(); ++mi)
+        report << (gs.size() > 1 ? groups[mi] + " " : "") << fixRateLine(b2[mi]) << "\n";
       report << header("", groups);
       auto bucket = [&](size_t mi) -> const Bucket& { return b2[mi]; };
       report << statsRow("dx (mm)        ", bucket, &Sample::dx, 1.0, t, rowKey("dx_mm", 0));
       report << statsRow("dy (mm)        ", bucket, &Sample::dy, 1.0, t, rowKey("dy_mm", 0));
       report << statsRow("dtheta (deg)   ", bucket, &Sample::dtheta, rad2deg(1.0), t, rowKey("dtheta_deg", 0));
-      for (size_t mi = 0; mi < modes.size(); ++mi)
-        report << (modes.size() > 1 ? groups[mi] + " " : "") << neesLines(b2[mi].fixes, max_nl);
+      for (size_t mi = 0; mi < gs.size(); ++mi)
+        report << (gs.size() > 1 ? groups[mi] + " " : "") << neesLines(b2[mi].fixes, max_nl);
       if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
       report << "\n";
     }
@@ -532,10 +630,10 @@ void runFixStudy(const FixStudyOptions& a) {
                     cat.c_str(), kMultiCompassDeg);
       report << buf;
       const char* model_names[] = {"range-bearing", "pixels"};
-      for (size_t mi = 0; mi < modes.size(); ++mi) {
+      for (size_t mi = 0; mi < gs.size(); ++mi) {
         for (int mm = 0; mm < 2; ++mm) {
           const Bucket& b = bm[mi][mm];
-          report << (modes.size() > 1 ? groups[mi] + " " : "") << model_names[mm] << ": " << fixRateLine(b) << "\n";
+          report << (gs.size() > 1 ? groups[mi] + " " : "") << model_names[mm] << ": " << fixRateLine(b) << "\n";
           if (b.fixes.empty()) continue;
           std::snprintf(buf, sizeof(buf), "  mean |dx| %.2f mm, |dy| %.2f mm, |dtheta| %.3f deg\n",
                         statsOf(b.fixes, &Sample::dx).mean, statsOf(b.fixes, &Sample::dy).mean,
@@ -551,8 +649,8 @@ void runFixStudy(const FixStudyOptions& a) {
       std::snprintf(buf, sizeof(buf), "Table %s: one landmark + compass (fix1), category %s, %d trials x %d run(s)\n",
                     id.c_str(), cat.c_str(), trials, a.runs);
       report << buf;
-      for (size_t mi = 0; mi < modes.size(); ++mi)
-        report << (modes.size() > 1 ? groups[mi] + " " : "") << fixRateLine(b1[mi][0]) << "\n";
+      for (size_t mi = 0; mi < gs.size(); ++mi)
+        report << (gs.size() > 1 ? groups[mi] + " " : "") << fixRateLine(b1[mi][0]) << "\n";
       report << header("compass sigma", groups);
       for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
         const double lv = kCompassLevelsDeg[l];
@@ -561,18 +659,59 @@ void runFixStudy(const FixStudyOptions& a) {
         report << statsRow(buf, bucket, &Sample::dx, 1.0, t, rowKey("dx_mm", lv));
         report << statsRow("          dy   ", bucket, &Sample::dy, 1.0, t, rowKey("dy_mm", lv));
       }
-      for (size_t mi = 0; mi < modes.size(); ++mi) {
+      for (size_t mi = 0; mi < gs.size(); ++mi) {
         for (size_t l : {size_t{0}, size_t{4}, size_t{11}}) {
           // At 0 deg the compass reading is exact but declares a floor sigma, so its heading error
           // is 0 and the 3-dof mean is expected near 2, not 3.
           std::snprintf(buf, sizeof(buf), "at %.1f deg compass%s: ", kCompassLevelsDeg[l],
                         kCompassLevelsDeg[l] == 0.0 ? " (exact heading: 3-dof mean expected near 2)" : "");
-          report << (modes.size() > 1 ? groups[mi] + " " : "") << buf << neesLines(b1[mi][l].fixes, max_nl);
+          report << (gs.size() > 1 ? groups[mi] + " " : "") << buf << neesLines(b1[mi][l].fixes, max_nl);
         }
       }
       if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
       report << "\n";
     }
+  }
+  if (images && !ideal_only) {
+    // Table 6.3 per world, pooled over the categories run; the thesis's figures beside.
+    std::vector<std::string> names;
+    std::vector<size_t> image_groups;
+    for (size_t g = 0; g < gs.size(); ++g)
+      if (gs[g].mode == FrontendMode::Images) {
+        image_groups.push_back(g);
+        names.push_back(groups[g]);
+      }
+    const ThesisTable t = loadThesisTable(tables_path, "6.3");
+    report << "Table 6.3: goal-corner range error of the image frontend, all categories run (range from the robot "
+              "centre; normalised = |error| / true range)\n";
+    for (size_t g : image_groups) {
+      const RangeStats& r = ranges[g];
+      char buf[400];
+      std::snprintf(buf, sizeof(buf),
+                    "%s: %zu measurements; recall %.1f %% (%ld of %ld visible goal corners found with their id within "
+                    "%.0f px); %ld goal-corner detections not matched to a visible corner\n",
+                    groups[g].c_str(), r.abs_err.size(), r.visible ? 100.0 * r.detected / r.visible : 0.0, r.detected,
+                    r.visible, kMatchPx, r.unmatched);
+      report << buf;
+    }
+    report << header("", names);
+    auto row = [&](const char* label, std::vector<double> RangeStats::*field, double scale, const std::string& key) {
+      std::string line = label;
+      for (size_t i = 0; i < image_groups.size(); ++i)
+        line += (i ? " | " : "") + statsCells(errorStats(ranges[image_groups[i]].*field), scale);
+      return line + " | " + thesisCells(t, key) + "\n";
+    };
+    report << row("abs (mm)       ", &RangeStats::abs_err, 1.0, rowKey("abs_error_mm", 0));
+    report << row("normalised (%) ", &RangeStats::norm_err, 100.0, rowKey("norm_error_pct", 0));
+    // The signed error separates a range bias (a disparity offset or scale of the given
+    // calibration) from the spread.
+    report << row("signed norm (%)", &RangeStats::signed_norm, 100.0, rowKey("", 0));
+    // A world's calibration is drawn per trial: the per-trial mean of the signed error is the
+    // range bias of that calibration, the error about it what blur, vibration and noise add.
+    report << row("trial bias (%) ", &RangeStats::trial_bias, 100.0, rowKey("", 0));
+    report << row("|e - bias| (%) ", &RangeStats::unbiased, 100.0, rowKey("", 0));
+    if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
+    report << "\n";
   }
   if (images) {
     char buf[300];

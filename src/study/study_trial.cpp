@@ -66,28 +66,33 @@ Dataset simulateTrial(const StudyConfig& c, const std::string& profile, const st
       const StereoRenderer renderer(d.map, d.rig, ro);
       st = observeRenderedImages(d, trace, renderer, c.image_noise, noise_seed, fo);
     } else {
-      // Raw pairs of the true cameras; the dataset's rig carries the given calibration, so the
-      // frontend rectifies them.
-      RenderOptions ro;
-      ro.compute_truth = false;
-      ro.threads = render_threads;
-      ro.noise_sigma = c.image_noise;
-      const RawPairRenderer raw(d.map, trace.nominal_rig, trace.profile, trace.errors, ro, trace.scenario.dt);
-      ImageObserver observer(d.rig, d.map, fo);
-      double ms_render = 0;
-      for (size_t k = 0; k < d.steps.size(); ++k) {
-        const auto start = std::chrono::steady_clock::now();
-        const StereoImages im = raw.render(trace.scenario, k, trace.obstacles[k], noise_seed + k);
-        ms_render += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-        d.steps[k].observations = observer.observe(im.left, im.right, d.steps[k].head_pan);
-      }
-      st = observer.stats();
-      st.ms_render = ms_render;
+      st = observeRawImages(d, trace, c.image_noise, noise_seed, fo, render_threads);
     }
     if (stats) *stats = st;
   }
   if (trace_out) *trace_out = std::move(trace);
   return d;
+}
+
+ImageFrontendStats observeRawImages(Dataset& d, const SimulationTrace& trace, double image_noise, uint64_t noise_seed,
+                                    const ImageFrontendOptions& options, int render_threads) {
+  RenderOptions ro;
+  ro.compute_truth = false;
+  ro.threads = render_threads;
+  ro.noise_sigma = image_noise;
+  const RawPairRenderer raw(d.map, trace.nominal_rig, trace.profile, trace.errors, ro, trace.scenario.dt);
+  // The dataset's rig carries the given calibration, so the frontend rectifies the raw pairs.
+  ImageObserver observer(d.rig, d.map, options);
+  double ms_render = 0;
+  for (size_t k = 0; k < d.steps.size(); ++k) {
+    const auto start = std::chrono::steady_clock::now();
+    const StereoImages im = raw.render(trace.scenario, k, trace.obstacles[k], noise_seed + k);
+    ms_render += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    d.steps[k].observations = observer.observe(im.left, im.right, d.steps[k].head_pan);
+  }
+  ImageFrontendStats st = observer.stats();
+  st.ms_render = ms_render;
+  return st;
 }
 
 // Renders once, noise-free, every scenario of the study whose true path and head pans are the

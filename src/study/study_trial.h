@@ -55,6 +55,13 @@ Dataset simulateTrial(const StudyConfig& c, const std::string& profile, const st
                       const RenderCache* cache, int render_threads = 1, ImageFrontendStats* stats = nullptr,
                       SimulationTrace* trace = nullptr);
 
+// The frontend's observations of a non-ideal world (trace.profile): every step's raw pair rendered
+// through the true cameras (src/sim/raw_render.h) with sensor noise `image_noise` seeded
+// noise_seed + step index, rectified by the frontend with the dataset's (given) calibration.
+// Replaces the observations of `d`, the dataset simulated with `trace`.
+ImageFrontendStats observeRawImages(Dataset& d, const SimulationTrace& trace, double image_noise, uint64_t noise_seed,
+                                    const ImageFrontendOptions& options, int render_threads = 1);
+
 // Renders once, noise-free, every scenario of the study whose true path and head pans are the
 // same for any seed (all thesis scenarios; not random-walk); empty for the pixel frontend.
 RenderCache buildRenderCache(const StudyConfig& c, int threads);

@@ -2,6 +2,8 @@
 // deterministic per seed, files written, bad arguments rejected with exit code 2.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cstdio>
 #include <fstream>
 #include <sstream>
 
@@ -87,12 +89,70 @@ TEST(CliFixstudy, MultiReportsBothObservationModels) {
   EXPECT_EQ(test::runCli("fixstudy --category rect --method multi --seed 3 --tables " + tables).output, r.output);
 }
 
+// Both worlds side by side on images: fixes and Table 6.3 per world, the ideal column equal to the
+// ideal world run alone, and the ideal world alone printing no range table.
+TEST(CliFixstudy, RealisticProfileAddsRangeTableBesideIdeal) {
+  test::TempDir dir("fixstudy_profile");
+  const std::string tables = std::string(STEREOLOC_DATA_DIR) + "/thesis_tables.yaml";
+  const std::string common = "fixstudy --category rect --method fix2 --frontend images --steps 2 --seed 3 --tables " + tables;
+  const test::CliRun both = test::runCli(common + " --profile ideal,realistic --out " + dir.path());
+  ASSERT_EQ(both.exit_code, 0) << both.output;
+  const std::string& out = both.output;
+  EXPECT_NE(out.find("worlds: ideal, realistic"), std::string::npos) << out;
+  EXPECT_NE(out.find("ours (images, ideal)"), std::string::npos) << out;
+  EXPECT_NE(out.find("ours (images, realistic)"), std::string::npos) << out;
+  const size_t t63 = out.find("Table 6.3: goal-corner range error");
+  ASSERT_NE(t63, std::string::npos) << out;
+  EXPECT_NE(out.find("ours (images, ideal): ", t63), std::string::npos) << out;
+  EXPECT_NE(out.find("ours (images, realistic): ", t63), std::string::npos) << out;
+  EXPECT_NE(out.find("recall ", t63), std::string::npos) << out;
+  // Thesis Table 6.3 beside ours: 5.18 % / 4.04 % normalised, 43.91 mm absolute.
+  const size_t norm = out.find("normalised (%)", t63);
+  ASSERT_NE(norm, std::string::npos) << out;
+  const std::string norm_row = out.substr(norm, out.find('\n', norm) - norm);
+  EXPECT_NE(norm_row.find("5.18     4.04"), std::string::npos) << norm_row;
+  EXPECT_NE(out.find("43.91", t63), std::string::npos) << out;
+  EXPECT_NE(out.find("signed norm (%)", t63), std::string::npos) << out;
+  EXPECT_NE(out.find("trial bias (%)", t63), std::string::npos) << out;
+  EXPECT_NE(out.find("|e - bias| (%)", t63), std::string::npos) << out;
+  // Ranges measured in both worlds (8 pairs each): the row has two groups of four numbers.
+  double ideal_mean = -1, real_mean = -1;
+  ASSERT_EQ(std::sscanf(norm_row.c_str(), "normalised (%%) %lf %*f %*f %*f | %lf", &ideal_mean, &real_mean), 2) << norm_row;
+  EXPECT_GT(ideal_mean, 0.0);
+  EXPECT_GT(real_mean, 0.0);
+  EXPECT_NE(ideal_mean, real_mean);
+  const std::string csv = readFile(dir.file("fixes.csv"));
+  EXPECT_NE(csv.find(",frontend,profile\n"), std::string::npos);
+  EXPECT_NE(csv.find(",images,realistic\n"), std::string::npos);
+
+  // The ideal world alone: the same ideal column, no world column names, no range table, and the
+  // same output as without --profile.
+  const test::CliRun ideal = test::runCli(common + " --profile ideal");
+  ASSERT_EQ(ideal.exit_code, 0) << ideal.output;
+  // (the timing line on stderr varies between runs)
+  const auto tablesOf = [](const std::string& s) { return s.substr(std::min(s.size(), s.find("stereoloc fixstudy:"))); };
+  EXPECT_EQ(tablesOf(ideal.output), tablesOf(test::runCli(common).output));
+  EXPECT_EQ(ideal.output.find("Table 6.3"), std::string::npos) << ideal.output;
+  EXPECT_EQ(ideal.output.find("worlds:"), std::string::npos) << ideal.output;
+  const auto firstCells = [](const std::string& s, const char* row) {
+    const size_t p = s.find(row);
+    return p == std::string::npos ? std::string() : s.substr(p, 51);  // the label and the first group's 4 cells
+  };
+  EXPECT_EQ(firstCells(ideal.output, "dx (mm)"), firstCells(out, "dx (mm)")) << ideal.output << out;
+  EXPECT_EQ(firstCells(ideal.output, "dy (mm)"), firstCells(out, "dy (mm)"));
+  EXPECT_FALSE(firstCells(out, "dx (mm)").empty());
+}
+
 TEST(CliFixstudy, RejectsBadArguments) {
   EXPECT_EQ(test::runCli("fixstudy --category circles").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --method fix3").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --pixel-sigma -1").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --runs 0").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --covariance third_order").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --profile nowhere.yaml").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --profile realistic,realistic").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --profile ,").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --steps -1").exit_code, 2);
 }
 
 }  // namespace

@@ -4,7 +4,14 @@
 //   bench_rectify [benchmark flags]   (e.g. --benchmark_repetitions=5 --benchmark_report_aggregates_only)
 //
 // The argument of the raw-pair benchmarks is OpenCV's thread count (cv::setNumThreads): the
-// rectifier runs the two cameras as two tasks of OpenCV's pool. Times are wall clock ("Time")
+// rectifier runs two tasks of OpenCV's pool (the two cameras, or the two halves of the left luma).
+//
+//   BM_Rectify            whole-image colour rectification of a pair (Rectifier::rectify)
+//   BM_RectifyLuma        the luma path's rectification of a pair: the whole left luma, and the
+//                         whole right luma as an upper bound of what the frontend asks for
+//   BM_FrontendRawPair    the frontend on a raw pair (luma path)
+//   BM_FrontendRawPairColourRectified  the same pair rectified whole in colour, then the frontend
+//                         on the rectified pair (the reference for the luma path) Times are wall clock ("Time")
 // and the CPU time of the whole process over all threads ("CPU"), so that a second thread's
 // work is counted.
 //
@@ -23,6 +30,7 @@
 #include "frontend/rectify.h"
 #include "src/core/error.h"
 #include "src/core/field_map.h"
+#include "src/core/measurement_model.h"
 #include "src/core/stereo_rig.h"
 #include "src/sim/renderer.h"
 #include "src/study/data_files.h"
@@ -59,23 +67,63 @@ cv::Mat toRaw(const cv::Mat& rectified, const StereoCalibration& c, int i) {
 struct RawPairs {
   StereoRig rig;
   std::vector<std::pair<cv::Mat, cv::Mat>> pairs;
+  std::vector<Pose2> poses;
 };
 
 const RawPairs& rawPairs() {
   static const RawPairs data = [] {
-    RawPairs d{StereoRig(StereoRigParams(), benchCalibration()), {}};
+    RawPairs d{StereoRig(StereoRigParams(), benchCalibration()), {}, {}};
     StereoRig pinhole(d.rig.params());  // the rectified rig without the calibration
     const FieldMap map = FieldMap::miroSot();
     StereoRenderer renderer(map, pinhole);
     std::mt19937_64 rng(7);
     std::uniform_real_distribution<double> ux(150, 1350), uy(150, 1150), ua(-3.14159, 3.14159);
     for (int k = 0; k < 16; ++k) {
-      const StereoImages img = renderer.render(Pose2(ux(rng), uy(rng), ua(rng)), 0.0, {}, 100 + k);
+      d.poses.emplace_back(ux(rng), uy(rng), ua(rng));
+      const StereoImages img = renderer.render(d.poses.back(), 0.0, {}, 100 + k);
       d.pairs.emplace_back(toRaw(img.left, *d.rig.calibration(), 0), toRaw(img.right, *d.rig.calibration(), 1));
     }
     return d;
   }();
   return data;
+}
+
+// Accuracy of a frontend path on the 16 raw pairs against the rendered truth: observations per
+// pair, the share of them within 100 mm of a map landmark of their type (goal corners: of their
+// identified landmark), and the mean normalised range error |r - r_true| / r_true of those.
+struct Accuracy {
+  double obs_per_pair = 0, associated = 0, mean_range_error = 0;
+};
+
+template <typename Process>
+Accuracy accuracy(const RawPairs& d, Process process) {
+  const FieldMap map = FieldMap::miroSot();
+  Accuracy a;
+  size_t n = 0, m = 0;
+  for (size_t k = 0; k < d.pairs.size(); ++k)
+    for (const Observation& o : process(d.pairs[k].first, d.pairs[k].second)) {
+      ++n;
+      const Eigen::Vector2d at = landmarkFromRangeBearing(d.poses[k], o.range, o.bearing);
+      const Landmark* best = nullptr;
+      for (const Landmark& l : map.landmarks())
+        if (l.type == o.type && (o.landmark_id < 0 || o.landmark_id == l.id) &&
+            (!best || (l.xy() - at).norm() < (best->xy() - at).norm()))
+          best = &l;
+      if (!best || (best->xy() - at).norm() > 100.0) continue;
+      ++m;
+      const double r_true = (best->xy() - Eigen::Vector2d(d.poses[k].x, d.poses[k].y)).norm();
+      a.mean_range_error += std::fabs(o.range - r_true) / r_true;
+    }
+  a.obs_per_pair = static_cast<double>(n) / static_cast<double>(d.pairs.size());
+  a.associated = n ? static_cast<double>(m) / static_cast<double>(n) : 0.0;
+  a.mean_range_error = m ? a.mean_range_error / static_cast<double>(m) : 0.0;
+  return a;
+}
+
+void setCounters(benchmark::State& state, const Accuracy& a) {
+  state.counters["obs_per_pair"] = a.obs_per_pair;
+  state.counters["associated"] = a.associated;
+  state.counters["range_err"] = a.mean_range_error;
 }
 
 // Sets OpenCV's thread count for one benchmark and restores it.
@@ -102,6 +150,21 @@ void BM_Rectify(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_Rectify)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
+void BM_RectifyLuma(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  const OpenCvThreads threads(static_cast<int>(state.range(0)));
+  frontend::Rectifier rect(*d.rig.calibration());
+  cv::Mat left, right;
+  size_t k = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    rect.beginPair(p.first, p.second, left);
+    rect.rightLumaRows(0, left.rows, right);
+    benchmark::DoNotOptimize(right.data);
+  }
+}
+BENCHMARK(BM_RectifyLuma)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 // Reference in the same run: the pair as two cv::remap calls one after the other on the
 // calling thread (the same fixed-point maps and interpolation as the Rectifier).
@@ -130,14 +193,32 @@ void BM_FrontendRawPair(benchmark::State& state) {
   const RawPairs& d = rawPairs();
   const OpenCvThreads threads(static_cast<int>(state.range(0)));
   frontend::Frontend fe(d.rig, FieldMap::miroSot());
-  size_t k = 0, obs = 0;
+  size_t k = 0;
   for (auto _ : state) {
     const auto& p = d.pairs[k++ % d.pairs.size()];
-    obs += fe.process(p.first, p.second).observations.size();
+    benchmark::DoNotOptimize(fe.process(p.first, p.second).observations.size());
   }
-  state.counters["obs_per_pair"] = static_cast<double>(obs) / static_cast<double>(k);
+  setCounters(state, accuracy(d, [&](const cv::Mat& l, const cv::Mat& r) { return fe.process(l, r).observations; }));
 }
 BENCHMARK(BM_FrontendRawPair)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
+void BM_FrontendRawPairColourRectified(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  const OpenCvThreads threads(static_cast<int>(state.range(0)));
+  frontend::Rectifier rect(*d.rig.calibration());
+  frontend::Frontend fe(StereoRig(d.rig.params()), FieldMap::miroSot());
+  size_t k = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    rect.rectify(p.first, p.second);
+    benchmark::DoNotOptimize(fe.process(rect.left(), rect.right()).observations.size());
+  }
+  setCounters(state, accuracy(d, [&](const cv::Mat& l, const cv::Mat& r) {
+    rect.rectify(l, r);
+    return fe.process(rect.left(), rect.right()).observations;
+  }));
+}
+BENCHMARK(BM_FrontendRawPairColourRectified)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 void BM_FrontendRectifiedPair(benchmark::State& state) {
   const RawPairs& d = rawPairs();

@@ -80,7 +80,7 @@ void runDetect(const DetectOptions& o) {
                 std::to_string(rig.params().image_height) + " (pass --rig with the camera's calibration)");
   const frontend::FrontendResult& r = mono ? fe.detectFeaturesRaw(left) : fe.process(left, right, o.pan);
   // The features are in rectified pixels: draw them on the rectified image.
-  if (!o.overlay.empty()) writeOverlay(fe.rectifier() ? fe.rectifier()->left() : left, r, o.overlay);
+  if (!o.overlay.empty()) writeOverlay(fe.rectifier() ? fe.rectifier()->rectifiedCopy(0, left) : left, r, o.overlay);
 
   std::ostringstream out;
   if (o.json) {

@@ -3,6 +3,7 @@
 #include <CLI/CLI.hpp>
 #include <memory>
 
+#include "src/pipeline/usage_error.h"
 #include "src/study/fix_study.h"
 #include "tools/stereoloc/cli_common.h"
 
@@ -47,9 +48,21 @@ void add_fixstudy_command(CLI::App& app) {
   sub->add_option("--image-noise", a->image_noise, "With images: sensor noise of the rendered pairs, grey levels")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
+  auto profile = std::make_shared<std::string>("ideal");
+  sub->add_option("--profile", *profile,
+                  "Worlds, comma-separated: ideal, realistic or error-profile YAML files (see simulate --profile); "
+                  "each runs on the same seeds, side by side. Unless only ideal: with images, Table 6.3 (goal-corner "
+                  "range error) and the goal-corner recall per world; raw pairs rectified with the given calibration")
+      ->capture_default_str();
+  sub->add_option("--steps", a->steps, "Poses per trial (0 = the scenario's 100)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   sub->add_option("--tables", a->tables, "Thesis tables YAML (default: data/thesis_tables.yaml)")
       ->check(CLI::ExistingFile);
-  sub->callback([a] { runFixStudy(*a); });
+  sub->callback([a, profile] {
+    a->profiles = splitCommaList(*profile);
+    runFixStudy(*a);
+  });
 }
 
 }  // namespace stereoloc::cli
