@@ -414,10 +414,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     const Observation& obs = b_.observations_[o];
     const Landmark& landmark = b_.map_.at(obs.landmark_id);
     if (stereo_block_ >= 0 && obs.pixels) {
-      const Eigen::Matrix4d C = model.pixel_sigma > 0 ? isotropicPixelCovariance(model.pixel_sigma)
-                                                      : obs.pixel_covariance;
       return {std::unique_ptr<ceres::CostFunction>(StereoPixelCalibrationFactor::Create(
-                  model.rig, landmark.position, *obs.pixels, obs.head_pan, C,
+                  model.rig, landmark.position, *obs.pixels, obs.head_pan, pixelCovarianceFor(obs, landmark, model),
                   model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns)),
               true, stereo_block_};
     }
