@@ -7,6 +7,7 @@
 #include <Eigen/Cholesky>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <utility>
 
@@ -383,7 +384,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
  public:
   StepFactorSource(const BatchSmoother& smoother, size_t first, size_t n)
       : b_(smoother), first_(first), n_(n),
-        prior_covariance_(0.5 * (b_.prior_covariance_ + b_.prior_covariance_.transpose())), cut_(n, 0) {
+        prior_covariance_(0.5 * (b_.prior_covariance_ + b_.prior_covariance_.transpose())), cut_(n, 0),
+        left_out_(b_.observations_.size(), 0) {
     if (b_.config_.calibration.odometry) {
       odometry_block_ = static_cast<int>(sizes_.size());
       sizes_.push_back(3);
@@ -402,23 +404,41 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     const BufferedStep& st = b_.steps_[k];
     if (st.compass_sigma > 0 && b_.config_.use_compass)
       out->push_back({std::unique_ptr<ceres::CostFunction>(CompassFactor::Create(st.compass, st.compass_sigma)), false});
-    const ObservationModelConfig& model = b_.config_.observation_model;
-    for (size_t o = b_.observationsBegin(k); o < st.observations_end; ++o) {
-      const Observation& obs = b_.observations_[o];
-      if (obs.landmark_id < 0) continue;
-      const Landmark& landmark = b_.map_.at(obs.landmark_id);
-      if (stereo_block_ >= 0 && obs.pixels) {
-        const Eigen::Matrix4d C = model.pixel_sigma > 0 ? isotropicPixelCovariance(model.pixel_sigma)
-                                                        : obs.pixel_covariance;
-        out->push_back({std::unique_ptr<ceres::CostFunction>(StereoPixelCalibrationFactor::Create(
-                            model.rig, landmark.position, *obs.pixels, obs.head_pan, C,
-                            model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns)),
-                        true, stereo_block_});
-      } else {
-        out->push_back({std::unique_ptr<ceres::CostFunction>(makeObservationFactor(obs, landmark, model)), true});
-      }
-    }
+    for (size_t o = b_.observationsBegin(k); o < st.observations_end; ++o)
+      if (b_.observations_[o].landmark_id >= 0 && !left_out_[o]) out->push_back(observationFactor(o));
   }
+  // The factor of observation o (index into observations_, identified), on its pose and, with
+  // stereo self-calibration and pixels, the stereo block.
+  ChainFactor observationFactor(size_t o) const {
+    const ObservationModelConfig& model = b_.config_.observation_model;
+    const Observation& obs = b_.observations_[o];
+    const Landmark& landmark = b_.map_.at(obs.landmark_id);
+    if (stereo_block_ >= 0 && obs.pixels) {
+      return {std::unique_ptr<ceres::CostFunction>(StereoPixelCalibrationFactor::Create(
+                  model.rig, landmark.position, *obs.pixels, obs.head_pan, pixelCovarianceFor(obs, landmark, model),
+                  model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns)),
+              true, stereo_block_};
+    }
+    return {std::unique_ptr<ceres::CostFunction>(makeObservationFactor(obs, landmark, model)), true};
+  }
+  // Whether observation o's factor can be evaluated with pose i at `pose` and the global blocks
+  // at `globals` (a pixel factor cannot when the landmark is behind the cameras).
+  bool evaluable(size_t o, const double* pose, const std::vector<double>& globals) const {
+    const ChainFactor f = observationFactor(o);
+    const double* params[2] = {pose, nullptr};
+    if (f.global >= 0) {
+      size_t offset = 0;
+      for (int k = 0; k < f.global; ++k) offset += static_cast<size_t>(sizes_[static_cast<size_t>(k)]);
+      params[1] = globals.data() + offset;
+    }
+    const int m = f.cost->num_residuals();
+    std::vector<double> r(static_cast<size_t>(m));
+    if (!f.cost->Evaluate(params, r.data(), nullptr)) return false;
+    return std::all_of(r.begin(), r.end(), [](double v) { return std::isfinite(v); });
+  }
+  // Observation o (index into observations_) is left out of the problem (true) or in it.
+  void setLeftOut(size_t o, bool left_out) { left_out_[o] = left_out ? 1 : 0; }
+  bool leftOut(size_t o) const { return left_out_[o] != 0; }
   ChainFactor binaryFactor(size_t i) const override {
     if (i == 0 || cut_[i]) return {};
     const BufferedStep& st = b_.steps_[first_ + i];
@@ -464,6 +484,7 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   size_t first_, n_;
   Eigen::Matrix3d prior_covariance_;
   std::vector<uint8_t> cut_;
+  std::vector<uint8_t> left_out_;  // per observation in observations_
   std::vector<int> sizes_;
   int odometry_block_ = -1, stereo_block_ = -1;
   Eigen::Vector3d nominalWheels() const { return Eigen::Vector3d(1.0, 1.0, b_.odometry_.wheel_base_mm); }
@@ -510,9 +531,42 @@ void BatchSmoother::solve() {
     config_.progress(p);
   };
 
+  // An observation whose factor cannot be evaluated at the initial guess (a pixel factor whose
+  // landmark is behind the cameras: the guess is off by more than the view allows, e.g. after a
+  // filter pass misled by a miscalibrated rig) would stop the solver before its first step. It
+  // is left out of the first solve and tested again at each solution (admitLeftOut): the
+  // problem is the same as from a better guess, provided the other factors bring the poses
+  // to where the landmark is in view; one still behind the cameras at the solution contradicts
+  // the estimate and stays out (summary().observations_left_out).
+  auto forEachObservation = [&](auto&& f) {
+    for (size_t i = 0; i < n; ++i)
+      for (size_t o = observationsBegin(first + i); o < steps_[first + i].observations_end; ++o)
+        if (observations_[o].landmark_id >= 0) f(i, o);
+  };
+  forEachObservation([&](size_t i, size_t o) {
+    if (!source.evaluable(o, &x[3 * i], globals)) {
+      source.setLeftOut(o, true);
+      ++s.observations_left_out_at_guess;
+    }
+  });
+  // Readmits the left-out observations evaluable at x; returns how many.
+  auto admitLeftOut = [&] {
+    int admitted = 0;
+    if (s.observations_left_out_at_guess == 0) return admitted;
+    forEachObservation([&](size_t i, size_t o) {
+      if (source.leftOut(o) && source.evaluable(o, &x[3 * i], globals)) {
+        source.setLeftOut(o, false);
+        ++admitted;
+      }
+    });
+    return admitted;
+  };
+
   // Counts of the problem (for the summary and the model selection's BIC).
   long residuals = 3;  // the prior
-  {
+  auto countFactors = [&] {
+    residuals = 3;
+    s.observation_factors = s.compass_factors = s.unassociated_observations = 0;
     std::vector<ChainFactor> unary;
     for (size_t i = 0; i < n; ++i) {
       unary.clear();
@@ -526,7 +580,9 @@ void BatchSmoother::solve() {
         s.unassociated_observations += observations_[o].landmark_id < 0 ? 1 : 0;
     }
     residuals -= 3;  // counted with the unary factors of pose 0
-  }
+    s.observations_left_out = 0;
+    forEachObservation([&](size_t, size_t o) { s.observations_left_out += source.leftOut(o) ? 1 : 0; });
+  };
   s.poses = static_cast<int>(n);
 
   ChainSolverOptions lm;
@@ -536,7 +592,9 @@ void BatchSmoother::solve() {
   lm.parameter_tolerance = config_.parameter_tolerance;
   // Minimises over poses [lo, hi) with the cuts set in `source`; returns the cost of the factors
   // touching the range.
-  auto solveRange = [&](size_t lo, size_t hi, bool full) {
+  // An unusable solve (a factor not evaluable at the start) throws, or with `may_fail` returns
+  // +infinity and leaves x unchanged.
+  auto solveRange = [&](size_t lo, size_t hi, bool full, bool may_fail = false) {
     ChainSolverSummary r;
     if (config_.solver == BatchSolver::Chain) {
       ChainSolverOptions o = lm;
@@ -566,6 +624,7 @@ void BatchSmoother::solve() {
       r.final_cost = cs.final_cost;
       r.message = cs.message;
     }
+    if (!r.usable && may_fail) return std::numeric_limits<double>::infinity();
     if (!r.usable) throw Error("batch smoother: the solver failed: " + r.message);
     if (full) {
       s.iterations += r.iterations;
@@ -586,7 +645,14 @@ void BatchSmoother::solve() {
   // Drops candidate cuts at the first pose (nothing to cut there).
   cuts_.erase(std::remove_if(cuts_.begin(), cuts_.end(), [&](const Cut& c) { return c.index <= first; }), cuts_.end());
   setCuts(cuts_, true);
-  double cost = solveRange(0, n, true);
+  // Solves the whole chain, readmitting the left-out observations its solution brings into view.
+  auto solveAll = [&] {
+    double c = solveRange(0, n, true);
+    while (admitLeftOut() > 0) c = solveRange(0, n, true);
+    return c;
+  };
+  double cost = solveAll();
+  countFactors();
   int withdrawn = 0;
   const auto t_cuts = Clock::now();
   if (!cuts_.empty()) {
@@ -598,7 +664,7 @@ void BatchSmoother::solve() {
       withdrawn += static_cast<int>(cuts_.size());
       setCuts(cuts_, false);
       cuts_.clear();
-      cost = solveRange(0, n, true);
+      cost = solveAll();
     }
   }
   if (!cuts_.empty()) {
@@ -659,7 +725,7 @@ void BatchSmoother::solve() {
             x[3 * j + 1] = moved.y;
             x[3 * j + 2] = moved.theta;
           }
-          const double restored_moved = solveRange(lo, hi, false);
+          const double restored_moved = solveRange(lo, hi, false, true);
           if (restored_moved < restored)
             restored = restored_moved;
           else
@@ -689,8 +755,9 @@ void BatchSmoother::solve() {
     }
     s.cut_test_seconds = secondsSince(t_cuts);
     // The final solve with the kept cuts, from the windows' solutions.
-    cost = solveRange(0, n, true);
+    cost = solveAll();
   }
+  countFactors();
   s.solve_seconds = secondsSince(t_solve);
   s.withdrawn_cuts = withdrawn;
   s.segments = 1 + static_cast<int>(cuts_.size());

@@ -19,7 +19,9 @@
 // Use: feed the steps with process() (it returns the initial guess, cheap), then finish()
 // solves and returns one Estimate per processed step. The first processed step is the initial
 // time (its odometry is not applied), as for the EKF. Initial guess: a forward EKF pass (default),
-// odometry chained from the initial belief (or the first global fix), or given estimates.
+// odometry chained from the initial belief (or the first global fix), or given estimates. An
+// observation whose factor cannot be evaluated at the guess (a pixel factor's landmark behind
+// the cameras) waits outside the solve until a solution brings it into view (docs/estimators.md).
 // Kidnap (5.1.3): the filter pass's gate detects it; each re-initialisation after "lost" cuts the
 // odometry chain and anchors the new segment on the global fix (cut_at_reinitialisation).
 // Self-calibration (BatchSmootherConfig::calibration, solvers/self_calibration.h): the odometry
@@ -152,6 +154,11 @@ struct BatchSummary {
   int observation_factors = 0;
   int compass_factors = 0;
   int unassociated_observations = 0;  // landmark_id == -1 with no landmark inside the gate
+  // Identified observations whose factor could not be evaluated at the initial guess (a pixel
+  // factor's landmark behind the cameras): left out of the first solve, readmitted when a
+  // solution brings the landmark into view.
+  int observations_left_out_at_guess = 0;
+  int observations_left_out = 0;      // ... of them, still not evaluable at the solution: not used
   int uninitialised_steps = 0;        // before the first global fix: no pose, not estimated
   CovarianceStatus covariance_status = CovarianceStatus::NotComputed;
   int segments = 0;               // pieces of the odometry chain (1 + cut_steps.size())

@@ -76,6 +76,11 @@ GlobalFixFunction defaultGlobalFix(const GlobalFixOptions& options, bool accept_
     const bool usable =
         fix.status == FixStatus::Ok || (accept_approximate && fix.status == FixStatus::ApproximateNoIntersection);
     if (!usable || !fix.pose.isFinite() || !fix.covariance.allFinite()) return std::nullopt;
+    // The robot is inside the field: a fix outside it rests on a grossly wrong observation (e.g.
+    // the range of a distant landmark from a miscalibrated disparity) and would mislead the
+    // tracker it re-initialises; the next step's observations get another chance.
+    const Bounds& b = map.bounds();
+    if (fix.pose.x < b.xmin || fix.pose.x > b.xmax || fix.pose.y < b.ymin || fix.pose.y > b.ymax) return std::nullopt;
     return PoseFix{fix.pose, fix.covariance};
   };
 }

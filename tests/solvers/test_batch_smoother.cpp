@@ -384,6 +384,64 @@ TEST(BatchSmoother, CalibratingChainSolverEqualsCeres) {
   EXPECT_THROW(BatchSmoother(d.map, d.odometry, bad), Error);
 }
 
+// A guess turned around on a stretch of observed steps puts the landmarks behind the cameras,
+// where a pixel factor cannot be evaluated: those observations wait outside the first solve and
+// rejoin when its solution brings them into view, so the batch reaches the optimum of a good
+// guess instead of stopping.
+TEST(BatchSmoother, ObservationsBehindTheCamerasAtTheGuessRejoinAtTheSolution) {
+  const Dataset d = simulate("circle", 0, SimulationConfig(), 7);
+  size_t seen = 0;
+  while (seen < d.steps.size() && d.steps[seen].observations.empty()) ++seen;
+  ASSERT_LT(seen + 5, d.steps.size());
+  for (const bool calibrate : {false, true}) {
+    BatchSmootherConfig c = knownStart(*d.initial_pose);
+    c.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0};
+    if (calibrate) c.calibration = SelfCalibrationConfig::parse("odometry,stereo");
+    c.function_tolerance = 0;
+    c.gradient_tolerance = 1e-10;
+    c.parameter_tolerance = 1e-14;
+    std::vector<Estimate> good, turned;
+    for (size_t k = 0; k < d.steps.size(); ++k) {
+      Estimate e;
+      e.step = d.steps[k].step;
+      e.pose = *d.groundtruth[k];
+      e.status = EstimateStatus::Tracking;
+      good.push_back(e);
+      if (k >= seen && k < seen + 5) e.pose.theta = wrapAngle(e.pose.theta + kPi);
+      turned.push_back(e);
+    }
+    BatchSmoother ref(d.map, d.odometry, c), b(d.map, d.odometry, c);
+    ref.setInitialEstimates(good);
+    b.setInitialEstimates(turned);
+    const std::vector<Estimate> r = run(ref, d.steps), e = run(b, d.steps);
+    EXPECT_EQ(ref.summary().observations_left_out_at_guess, 0);
+    EXPECT_GE(b.summary().observations_left_out_at_guess, 5) << "the guess must put landmarks behind the cameras";
+    EXPECT_EQ(b.summary().observations_left_out, 0);
+    EXPECT_EQ(b.summary().observation_factors, ref.summary().observation_factors);
+    ASSERT_EQ(e.size(), r.size());
+    for (size_t i = 0; i < e.size(); ++i) EXPECT_LT(minus(e[i].pose, r[i].pose).norm(), 1e-4) << i;
+  }
+}
+
+// The filter pass (and every tracker) re-initialises from defaultGlobalFix: a fix that puts the
+// robot outside the field (here a distant landmark's range twice too long, as a miscalibrated
+// disparity gives it) is no fix; the same observation at a plausible range is.
+TEST(BatchSmoother, DefaultGlobalFixRejectsAPoseOutsideTheField) {
+  const Dataset d = simulate("circle", 0, SimulationConfig(), 7);
+  const Landmark& l = d.map.at(2);  // a goal corner on the x = 0 goal line
+  const GlobalFixFunction fix = defaultGlobalFix();
+  Step step;
+  step.compass = kPi;  // looking towards -x, at the landmark
+  step.compass_sigma = deg2rad(2.0);
+  step.observations = {observationFromRangeBearing(l.id, l.type, 600.0, 0.0, 20.0, 0.01)};
+  const std::optional<PoseFix> inside = fix(step, d.map);
+  ASSERT_TRUE(inside.has_value());
+  EXPECT_NEAR(inside->pose.x, l.position.x() + 600.0, 1e-6);
+  EXPECT_NEAR(inside->pose.y, l.position.y(), 1e-6);
+  step.observations = {observationFromRangeBearing(l.id, l.type, d.map.bounds().xmax - l.position.x() + 300.0, 0.0, 20.0, 0.01)};
+  EXPECT_FALSE(fix(step, d.map).has_value());
+}
+
 TEST(BatchSmoother, ThesisScenariosGiveTheCeresAccuracy) {
   // The same RMSE and NEES as the general sparse solver on the thesis's scenarios (and the
   // kidnap, with its cut), at the default tolerances.
