@@ -35,6 +35,8 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
   odometry_.validate();
   if (config_.max_iterations < 1 || !(config_.iteration_tolerance >= 0))
     throw Error("ekf: max_iterations must be >= 1 and iteration_tolerance >= 0");
+  iteration_.max_iterations = config_.max_iterations;
+  iteration_.tolerance = config_.iteration_tolerance;
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
   if (config_.init.mode != InitMode::Global) {
     if (!config_.init.pose.isFinite() || !config_.init.covariance.allFinite())
@@ -58,69 +60,46 @@ void Ekf::predict(double d_left, double d_right) {
 }
 
 EkfUpdateRecord Ekf::updateRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark) {
+  return fuseRangeBearing(obs, landmark, pose_, P_);
+}
+
+EkfUpdateRecord Ekf::updateCompass(double heading, double sigma) { return fuseCompass(heading, sigma, pose_, P_); }
+
+EkfUpdateRecord Ekf::fuseRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark, const Pose2& gate_pose,
+                                      const Eigen::Matrix3d& gate_covariance) {
   EkfUpdateRecord rec;
   rec.landmark_id = obs.landmark_id;
-  Matrix23d H;
-  Eigen::Vector2d zhat;
-  try {
-    zhat = predictRangeBearing(pose_, landmark, &H);  // (5.27)
-  } catch (const GeometryError&) {
-    rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
-    return rec;  // the bearing is undefined: nothing to fuse
-  }
-  const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);  // wrapped before gating
-  const Eigen::Matrix<double, 3, 2> PHt = P_ * H.transpose();
-  const Eigen::Matrix2d S = H * PHt + obs.covariance;  // (5.14)
-  const Eigen::Matrix2d Sinv = S.inverse();
-  rec.innovation = nu;
-  rec.innovation_covariance = S;
-  rec.mahalanobis_squared = nu.dot(Sinv * nu);  // (5.20)
-  if (!std::isfinite(rec.mahalanobis_squared)) {
-    rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
-    return rec;
-  }
+  rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
+  const std::optional<RangeBearingInnovation> g =
+      rangeBearingInnovationAt(gate_pose, gate_covariance, obs.z(), obs.covariance, landmark);  // (5.14), (5.20)
+  if (!g) return rec;  // the bearing is undefined: nothing to fuse
+  rec.innovation = g->innovation;
+  rec.innovation_covariance = g->covariance;
+  rec.mahalanobis_squared = g->mahalanobis_squared;
   if (config_.gate_enabled && !gate_.accepts(rec.mahalanobis_squared)) return rec;
-  Eigen::Matrix<double, 3, 2> K = PHt * Sinv;  // (5.19)
-  Eigen::Vector3d delta = K * nu;                // (5.15)
-  // Iterated update: relinearise at the updated pose (header comment). A step where the
-  // bearing becomes undefined keeps the previous iterate.
-  for (int it = 1; it < config_.max_iterations; ++it) {
-    Matrix23d Hi;
-    Eigen::Vector2d zi;
-    try {
-      zi = predictRangeBearing(plus(pose_, delta), landmark, &Hi);
-    } catch (const GeometryError&) {
-      break;
-    }
-    const Eigen::Matrix<double, 3, 2> PHit = P_ * Hi.transpose();
-    const Eigen::Matrix<double, 3, 2> Ki = PHit * (Hi * PHit + obs.covariance).inverse();
-    const Eigen::Vector3d next = Ki * (rangeBearingInnovation(obs.z(), zi) + Hi * delta);
-    if (!next.allFinite()) break;
-    const double moved = (next - delta).cwiseAbs().maxCoeff();
-    delta = next;
-    K = Ki;
-    H = Hi;
-    if (moved < config_.iteration_tolerance) break;
-  }
-  pose_ = plus(pose_, delta);
-  const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * H;
-  const Eigen::Matrix3d P = IKH * P_ * IKH.transpose() + K * obs.covariance * K.transpose();  // (5.17)
-  P_ = 0.5 * (P + P.transpose());
+  const std::optional<RangeBearingPosterior> post =
+      updateRangeBearingBelief(pose_, P_, obs.z(), obs.covariance, landmark, iteration_);
+  if (!post || !post->pose.isFinite() || !post->covariance.allFinite()) return rec;
+  pose_ = post->pose;
+  P_ = post->covariance;
   rec.accepted = true;
   return rec;
 }
 
-EkfUpdateRecord Ekf::updateCompass(double heading, double sigma) {
+EkfUpdateRecord Ekf::fuseCompass(double heading, double sigma, const Pose2& gate_pose,
+                                 const Eigen::Matrix3d& gate_covariance) {
   if (!std::isfinite(heading) || !(std::isfinite(sigma) && sigma > 0))
     throw Error("ekf: compass heading must be finite and its sigma positive");
   EkfUpdateRecord rec;
   rec.compass = true;
-  const double nu = angleDiff(heading, pose_.theta);  // wrapped before gating
-  const double S = P_(2, 2) + sigma * sigma;
-  rec.innovation = Eigen::Vector2d(nu, 0.0);
-  rec.innovation_covariance(0, 0) = S;
-  rec.mahalanobis_squared = nu * nu / S;
+  const double gate_nu = angleDiff(heading, gate_pose.theta);  // wrapped before gating
+  const double gate_S = gate_covariance(2, 2) + sigma * sigma;
+  rec.innovation = Eigen::Vector2d(gate_nu, 0.0);
+  rec.innovation_covariance(0, 0) = gate_S;
+  rec.mahalanobis_squared = gate_nu * gate_nu / gate_S;
   if (config_.gate_enabled && !(rec.mahalanobis_squared <= compass_threshold_)) return rec;
+  const double nu = angleDiff(heading, pose_.theta);
+  const double S = P_(2, 2) + sigma * sigma;
   const Eigen::Vector3d K = P_.col(2) / S;  // (5.19) with H = [0 0 1]
   pose_ = plus(pose_, K * nu);
   Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity();
@@ -204,9 +183,16 @@ Estimate Ekf::process(const Step& step) {
       return finishStep(EstimateStatus::Reinitialised);
     }
   }
+  // Every observation of the step is gated on its innovation at the prediction, z~_{k|k-1} of
+  // (5.20), and fused into the belief the earlier ones improved. Gating at that improved belief
+  // instead would let one observation veto the next: a compass reading 2.3 sigma off (a 3.5 deg
+  // compass) turns the heading of a prior 75 mm off enough that the stereo sightings, each well
+  // inside its gate at the prediction, fall outside it, and the filter is declared lost.
+  const Pose2 predicted = pose_;
+  const Eigen::Matrix3d predicted_covariance = P_;
   bool fused = false;
   if (step.compass && config_.use_compass) {
-    EkfUpdateRecord rec = updateCompass(*step.compass, step.compass_sigma);
+    EkfUpdateRecord rec = fuseCompass(*step.compass, step.compass_sigma, predicted, predicted_covariance);
     rec.step = step.step;
     fused |= rec.accepted;
     updates_.push_back(rec);
@@ -247,7 +233,7 @@ Estimate Ekf::process(const Step& step) {
     if (lm) {
       Observation identified = obs;
       identified.landmark_id = lm->id;
-      rec = updateRangeBearing(identified, lm->xy());
+      rec = fuseRangeBearing(identified, lm->xy(), predicted, predicted_covariance);
     } else {
       rec.associated = false;  // nothing of this type inside the gate: as good as a gated observation
       rec.mahalanobis_squared = std::numeric_limits<double>::infinity();

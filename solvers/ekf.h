@@ -38,9 +38,10 @@
 #include <vector>
 
 #include "solvers/global_fix_hypotheses.h"
-#include "solvers/initialisation.h"
-#include "solvers/validation_gate.h"
 #include "solvers/data_association.h"
+#include "solvers/initialisation.h"
+#include "solvers/iterated_update.h"
+#include "solvers/validation_gate.h"
 #include "src/core/estimator.h"
 #include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
@@ -121,12 +122,18 @@ class Ekf : public Estimator {
   const std::vector<EkfUpdateRecord>& lastUpdates() const { return updates_; }
 
  private:
+  // Gate on the innovation at (gate_pose, gate_covariance), (5.20); fuse into the current belief.
+  EkfUpdateRecord fuseRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark, const Pose2& gate_pose,
+                                   const Eigen::Matrix3d& gate_covariance);
+  EkfUpdateRecord fuseCompass(double heading, double sigma, const Pose2& gate_pose,
+                              const Eigen::Matrix3d& gate_covariance);
   bool tryGlobalFix(const Step& step);
   Estimate makeEstimate(const Step& step, EstimateStatus status) const;
 
   FieldMap map_;  // a copy: the filter does not depend on the caller's lifetime
   OdometryParams odometry_;
   EkfConfig config_;
+  IteratedUpdateOptions iteration_;
   ValidationGate gate_;
   double compass_threshold_;
   Pose2 pose_;
