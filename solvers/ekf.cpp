@@ -60,23 +60,24 @@ void Ekf::predict(double d_left, double d_right) {
 }
 
 EkfUpdateRecord Ekf::updateRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark) {
-  return fuseRangeBearing(obs, landmark, pose_, P_);
+  return fuseRangeBearing(obs, landmark, config_.gate_enabled, true);
 }
 
-EkfUpdateRecord Ekf::updateCompass(double heading, double sigma) { return fuseCompass(heading, sigma, pose_, P_); }
+EkfUpdateRecord Ekf::updateCompass(double heading, double sigma) {
+  return fuseCompass(heading, sigma, config_.gate_enabled, true);
+}
 
-EkfUpdateRecord Ekf::fuseRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark, const Pose2& gate_pose,
-                                      const Eigen::Matrix3d& gate_covariance) {
+EkfUpdateRecord Ekf::fuseRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark, bool gated, bool fuse) {
   EkfUpdateRecord rec;
   rec.landmark_id = obs.landmark_id;
   rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
   const std::optional<RangeBearingInnovation> g =
-      rangeBearingInnovationAt(gate_pose, gate_covariance, obs.z(), obs.covariance, landmark);  // (5.14), (5.20)
+      rangeBearingInnovationAt(pose_, P_, obs.z(), obs.covariance, landmark);  // (5.14), (5.20)
   if (!g) return rec;  // the bearing is undefined: nothing to fuse
   rec.innovation = g->innovation;
   rec.innovation_covariance = g->covariance;
   rec.mahalanobis_squared = g->mahalanobis_squared;
-  if (config_.gate_enabled && !gate_.accepts(rec.mahalanobis_squared)) return rec;
+  if (!fuse || (gated && !gate_.accepts(rec.mahalanobis_squared))) return rec;
   const std::optional<RangeBearingPosterior> post =
       updateRangeBearingBelief(pose_, P_, obs.z(), obs.covariance, landmark, iteration_);
   if (!post || !post->pose.isFinite() || !post->covariance.allFinite()) return rec;
@@ -86,20 +87,17 @@ EkfUpdateRecord Ekf::fuseRangeBearing(const Observation& obs, const Eigen::Vecto
   return rec;
 }
 
-EkfUpdateRecord Ekf::fuseCompass(double heading, double sigma, const Pose2& gate_pose,
-                                 const Eigen::Matrix3d& gate_covariance) {
+EkfUpdateRecord Ekf::fuseCompass(double heading, double sigma, bool gated, bool fuse) {
   if (!std::isfinite(heading) || !(std::isfinite(sigma) && sigma > 0))
     throw Error("ekf: compass heading must be finite and its sigma positive");
   EkfUpdateRecord rec;
   rec.compass = true;
-  const double gate_nu = angleDiff(heading, gate_pose.theta);  // wrapped before gating
-  const double gate_S = gate_covariance(2, 2) + sigma * sigma;
-  rec.innovation = Eigen::Vector2d(gate_nu, 0.0);
-  rec.innovation_covariance(0, 0) = gate_S;
-  rec.mahalanobis_squared = gate_nu * gate_nu / gate_S;
-  if (config_.gate_enabled && !(rec.mahalanobis_squared <= compass_threshold_)) return rec;
-  const double nu = angleDiff(heading, pose_.theta);
+  const double nu = angleDiff(heading, pose_.theta);  // wrapped before gating
   const double S = P_(2, 2) + sigma * sigma;
+  rec.innovation = Eigen::Vector2d(nu, 0.0);
+  rec.innovation_covariance(0, 0) = S;
+  rec.mahalanobis_squared = nu * nu / S;
+  if (!fuse || (gated && !(rec.mahalanobis_squared <= compass_threshold_))) return rec;
   const Eigen::Vector3d K = P_.col(2) / S;  // (5.19) with H = [0 0 1]
   pose_ = plus(pose_, K * nu);
   Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity();
@@ -108,6 +106,71 @@ EkfUpdateRecord Ekf::fuseCompass(double heading, double sigma, const Pose2& gate
   P_ = 0.5 * (P + P.transpose());
   rec.accepted = true;
   return rec;
+}
+
+std::vector<EkfUpdateRecord> Ekf::fuseStep(const Step& step, bool wide, const std::vector<bool>& excluded,
+                                           double* joint_e2, int* joint_dof) {
+  *joint_e2 = 0.0;
+  *joint_dof = 0;
+  std::vector<EkfUpdateRecord> recs;
+  const size_t n = step.observations.size();
+  const auto add = [&](EkfUpdateRecord rec, int dof) {
+    if (rec.accepted) {
+      *joint_e2 += rec.mahalanobis_squared;  // at the belief the earlier ones left: a sequential innovation
+      *joint_dof += dof;
+    }
+    rec.step = step.step;
+    recs.push_back(rec);
+  };
+  if (step.compass && config_.use_compass) {
+    // Set aside: recorded with its innovation at the current belief, not fused.
+    add(fuseCompass(*step.compass, step.compass_sigma, false, !excluded[n]), 1);
+  }
+  std::vector<int> used;
+  for (const Observation& o : step.observations)
+    if (o.landmark_id >= 0) used.push_back(o.landmark_id);
+  // Identified observations first: unidentified ones are associated at the belief they improved.
+  std::vector<size_t> order;
+  for (int pass = 0; pass < 2; ++pass)
+    for (size_t i = 0; i < n; ++i)
+      if ((step.observations[i].landmark_id >= 0) == (pass == 0)) order.push_back(i);
+  std::vector<int> joint_ids;
+  for (size_t i : order) {
+    const Observation& obs = step.observations[i];
+    EkfUpdateRecord rec;
+    const Landmark* lm = nullptr;
+    if (obs.landmark_id >= 0) {
+      lm = map_.find(obs.landmark_id);
+      if (!lm) throw Error(where(step, i) + ": unknown landmark id " + std::to_string(obs.landmark_id));
+    } else if (wide) {
+      continue;
+    } else if (config_.association.exclusive && config_.association.joint) {
+      // All unidentified sightings of the step jointly, once, at the belief after the identified ones.
+      if (joint_ids.empty()) {
+        for (const Observation& o : associateObservations(step.observations, pose_, P_, map_, config_.association))
+          joint_ids.push_back(o.landmark_id);
+      }
+      if (joint_ids[i] >= 0) lm = &map_.at(joint_ids[i]);
+    } else {
+      const AssociationResult a = associate(obs, pose_, P_, map_, config_.association,
+                                            config_.association.exclusive ? used : std::vector<int>{});
+      if (a.landmark_id >= 0) {
+        lm = &map_.at(a.landmark_id);
+        used.push_back(a.landmark_id);
+      }
+    }
+    if (!lm) {
+      rec.associated = false;  // nothing of this type inside the gate: as good as a gated observation
+      rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
+      add(rec, 0);
+      continue;
+    }
+    Observation identified = obs;
+    identified.landmark_id = lm->id;
+    add(fuseRangeBearing(identified, lm->xy(), false, !excluded[i]), 2);
+    recs.back().observation_index = static_cast<int>(i);
+  }
+  return recs;
 }
 
 bool Ekf::tryGlobalFix(const Step& step) {
@@ -183,65 +246,58 @@ Estimate Ekf::process(const Step& step) {
       return finishStep(EstimateStatus::Reinitialised);
     }
   }
-  // Every observation of the step is gated on its innovation at the prediction, z~_{k|k-1} of
-  // (5.20), and fused into the belief the earlier ones improved. Gating at that improved belief
-  // instead would let one observation veto the next: a compass reading 2.3 sigma off (a 3.5 deg
-  // compass) turns the heading of a prior 75 mm off enough that the stereo sightings, each well
-  // inside its gate at the prediction, fall outside it, and the filter is declared lost.
+  // The step's observations are tested jointly (5.20): fused one after the other, each at the
+  // belief the earlier ones left, their sequential innovations are independent and the sum of
+  // their e^2 is the e^2 of the stacked innovation at the prediction, chi-square with the summed
+  // degrees of freedom. While that sum fails the gate, the observation least compatible with the
+  // prediction (largest e^2 at it) is set aside and the step fused again from the prediction. Why
+  // not one gate per observation: with stereo sightings far sharper than the belief, the
+  // innovations of one step share the belief's error, so a prior at its 1 % tail fails every
+  // sighting's gate at once and the filter is declared lost (lost_after) for a belief that is
+  // merely unlucky; which sightings fail then depends on whether the compass is fused before
+  // them. Joint compatibility after Neira and Tardos, IEEE T-RA 17(6), 2001.
   const Pose2 predicted = pose_;
   const Eigen::Matrix3d predicted_covariance = P_;
-  bool fused = false;
-  if (step.compass && config_.use_compass) {
-    EkfUpdateRecord rec = fuseCompass(*step.compass, step.compass_sigma, predicted, predicted_covariance);
-    rec.step = step.step;
-    fused |= rec.accepted;
-    updates_.push_back(rec);
+  const size_t n = step.observations.size();
+  std::vector<bool> excluded(n + 1, false);  // n: the compass
+  std::vector<EkfUpdateRecord> recs;
+  for (;;) {
+    pose_ = predicted;
+    P_ = predicted_covariance;
+    double e2 = 0.0;
+    int dof = 0;
+    recs = fuseStep(step, wide, excluded, &e2, &dof);
+    if (!config_.gate_enabled || dof == 0 || e2 <= chi2Quantile(config_.gate.probability, dof)) break;
+    // The fused observation with the largest e^2 at the prediction is set aside.
+    double worst = -1.0;
+    size_t worst_index = n;
+    for (const EkfUpdateRecord& r : recs) {
+      if (!r.accepted) continue;
+      double e2p;
+      size_t index;
+      if (r.compass) {
+        index = n;
+        e2p = std::pow(angleDiff(*step.compass, predicted.theta), 2) /
+              (predicted_covariance(2, 2) + step.compass_sigma * step.compass_sigma);
+      } else {
+        index = static_cast<size_t>(r.observation_index);
+        const Observation& o = step.observations[index];
+        const auto g = rangeBearingInnovationAt(predicted, predicted_covariance, o.z(), o.covariance,
+                                                map_.at(r.landmark_id).xy());
+        e2p = g ? g->mahalanobis_squared : std::numeric_limits<double>::infinity();
+      }
+      if (e2p > worst) {
+        worst = e2p;
+        worst_index = index;
+      }
+    }
+    excluded[worst_index] = true;
   }
-  std::vector<int> used;
-  for (const Observation& o : step.observations)
-    if (o.landmark_id >= 0) used.push_back(o.landmark_id);
-  // Identified observations first: unidentified ones are associated at the belief they improved.
-  std::vector<size_t> order;
-  for (int pass = 0; pass < 2; ++pass)
-    for (size_t i = 0; i < step.observations.size(); ++i)
-      if ((step.observations[i].landmark_id >= 0) == (pass == 0)) order.push_back(i);
-  std::vector<int> joint_ids;
-  for (size_t i : order) {
-    const Observation& obs = step.observations[i];
-    EkfUpdateRecord rec;
-    const Landmark* lm = nullptr;
-    if (obs.landmark_id >= 0) {
-      lm = map_.find(obs.landmark_id);
-      if (!lm) throw Error(where(step, i) + ": unknown landmark id " + std::to_string(obs.landmark_id));
-    } else if (wide) {
-      continue;
-    } else if (config_.association.exclusive && config_.association.joint) {
-      // All unidentified sightings of the step jointly, once, at the belief after the identified ones.
-      if (joint_ids.empty()) {
-        for (const Observation& o : associateObservations(step.observations, pose_, P_, map_, config_.association))
-          joint_ids.push_back(o.landmark_id);
-      }
-      if (joint_ids[i] >= 0) lm = &map_.at(joint_ids[i]);
-    } else {
-      const AssociationResult a = associate(obs, pose_, P_, map_, config_.association,
-                                            config_.association.exclusive ? used : std::vector<int>{});
-      if (a.landmark_id >= 0) {
-        lm = &map_.at(a.landmark_id);
-        used.push_back(a.landmark_id);
-      }
-    }
-    if (lm) {
-      Observation identified = obs;
-      identified.landmark_id = lm->id;
-      rec = fuseRangeBearing(identified, lm->xy(), predicted, predicted_covariance);
-    } else {
-      rec.associated = false;  // nothing of this type inside the gate: as good as a gated observation
-      rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
-    }
-    rec.step = step.step;
+  bool fused = false;
+  for (const EkfUpdateRecord& rec : recs) {
     updates_.push_back(rec);
     fused |= rec.accepted;
-    if (!config_.gate_enabled) continue;
+    if (!config_.gate_enabled || rec.compass) continue;
     if (gate_.record(rec.accepted)) {  // (5.1.3): too many unexpected observations in a row
       lost_ = true;
       if (config_.reinitialise_when_lost && tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);

@@ -91,6 +91,7 @@ struct EkfUpdateRecord {
   Eigen::Matrix2d innovation_covariance = Eigen::Matrix2d::Zero();  // S; compass: S(0,0)
   double mahalanobis_squared = 0.0;  // e^2 (5.20)
   bool accepted = false;             // passed the gate and was fused
+  int observation_index = -1;        // in Step::observations; -1 for the compass
 };
 
 class Ekf : public Estimator {
@@ -122,11 +123,15 @@ class Ekf : public Estimator {
   const std::vector<EkfUpdateRecord>& lastUpdates() const { return updates_; }
 
  private:
-  // Gate on the innovation at (gate_pose, gate_covariance), (5.20); fuse into the current belief.
-  EkfUpdateRecord fuseRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark, const Pose2& gate_pose,
-                                   const Eigen::Matrix3d& gate_covariance);
-  EkfUpdateRecord fuseCompass(double heading, double sigma, const Pose2& gate_pose,
-                              const Eigen::Matrix3d& gate_covariance);
+  // One observation's innovation at the current belief; fused if `fuse` and (unless `gated` is
+  // false) it passes the gate (5.20).
+  EkfUpdateRecord fuseRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark, bool gated, bool fuse);
+  EkfUpdateRecord fuseCompass(double heading, double sigma, bool gated, bool fuse);
+  // The step's compass and sightings (except the `excluded` ones; index size(): the compass)
+  // fused ungated from the current belief, in order; sums the e^2 and degrees of freedom of the
+  // fused ones. Unidentified sightings are associated at the belief the earlier ones left.
+  std::vector<EkfUpdateRecord> fuseStep(const Step& step, bool wide, const std::vector<bool>& excluded,
+                                        double* joint_e2, int* joint_dof);
   bool tryGlobalFix(const Step& step);
   Estimate makeEstimate(const Step& step, EstimateStatus status) const;
 
