@@ -41,7 +41,7 @@ constexpr size_t kLumaPadding = 16;
 // A block whose top-left neighbours lie on two raw rows (`crossing`) takes its pairs from the
 // next row where `next_row` is set.
 template <bool crossing>
-__attribute__((target("ssse3"))) inline void blendBlock(const uint8_t* top_row, int w, const uint8_t* shuffle,
+__attribute__((target("ssse3"), always_inline)) inline void blendBlock(const uint8_t* top_row, int w, const uint8_t* shuffle,
                                                         const uint8_t* next_row, const int8_t* wx, const int16_t* fy,
                                                         uint8_t* dst) {
   const __m128i s = _mm_load_si128(reinterpret_cast<const __m128i*>(shuffle));
@@ -64,6 +64,23 @@ __attribute__((target("ssse3"))) inline void blendBlock(const uint8_t* top_row, 
       _mm_add_epi32(_mm_madd_epi16(_mm_unpackhi_epi16(top, bottom), _mm_unpackhi_epi16(y0, y1)), half), 10);
   const __m128i packed = _mm_packs_epi32(lo, hi);
   _mm_storel_epi64(reinterpret_cast<__m128i*>(dst), _mm_packus_epi16(packed, packed));
+}
+
+// The vector blocks of rows [row0, row1); the scalar ones are left to the caller.
+template <typename Block>
+__attribute__((target("ssse3"))) void blendRows(const Block* blocks, int blocks_per_row, int row0, int row1,
+                                                const uint8_t* raw, int w, uint8_t* out, size_t out_step) {
+  for (int v = row0; v < row1; ++v) {
+    const Block* b = blocks + static_cast<size_t>(v) * blocks_per_row;
+    uint8_t* dst = out + static_cast<size_t>(v) * out_step;
+    for (int j = 0; j < blocks_per_row; ++j) {
+      if (b[j].base < 0) continue;
+      if (b[j].crossing)
+        blendBlock<true>(raw + b[j].base, w, b[j].shuffle, b[j].next_row, b[j].wx, b[j].fy, dst + 8 * j);
+      else
+        blendBlock<false>(raw + b[j].base, w, b[j].shuffle, b[j].next_row, b[j].wx, b[j].fy, dst + 8 * j);
+    }
+  }
 }
 #endif
 
@@ -155,6 +172,9 @@ Rectifier::Rectifier(const StereoCalibration& c) : size_(c.image_size), source_(
         b.crossing = y_max > y_min;
       }
     }
+    scalar_blocks_[i].clear();
+    for (size_t k = 0; k < blocks_[i].size(); ++k)
+      if (blocks_[i][k].base < 0) scalar_blocks_[i].push_back(static_cast<int32_t>(k));
     raw_luma_[i].assign(static_cast<size_t>(w) * h + kLumaPadding, 0);
     // The rows bilinear interpolation reads, clamped as BORDER_REPLICATE clamps them.
     raw_row_min_[i].assign(static_cast<size_t>(size_.height), size_.height - 1);
@@ -310,19 +330,15 @@ void Rectifier::remapLumaRows(int camera, const cv::Mat& raw, int row0, int row1
 #ifdef STEREOLOC_RECTIFY_SSSE3
   if (vector_kernel_) {
     const int blocks_per_row = w / 8;
-    for (int v = row0; v < row1; ++v) {
-      const Block* b = blocks_[i].data() + static_cast<size_t>(v) * blocks_per_row;
-      uint8_t* dst = out.ptr<uint8_t>(v);
-      for (int j = 0; j < blocks_per_row; ++j) {
-        if (b[j].base < 0)
-          remapLumaPixels(i, raw, v, 8 * j, 8 * j + 8, dst);
-        else if (b[j].crossing)
-          blendBlock<true>(raw.data + b[j].base, w, b[j].shuffle, b[j].next_row, b[j].wx, b[j].fy, dst + 8 * j);
-        else
-          blendBlock<false>(raw.data + b[j].base, w, b[j].shuffle, b[j].next_row, b[j].wx, b[j].fy, dst + 8 * j);
-      }
-      remapLumaPixels(i, raw, v, 8 * blocks_per_row, w, dst);
+    blendRows(blocks_[i].data(), blocks_per_row, row0, row1, raw.data, w, out.data, out.step);
+    const auto& scalar = scalar_blocks_[i];
+    for (auto it = std::lower_bound(scalar.begin(), scalar.end(), row0 * blocks_per_row);
+         it != scalar.end() && *it < row1 * blocks_per_row; ++it) {
+      const int v = *it / blocks_per_row, u0 = 8 * (*it % blocks_per_row);
+      remapLumaPixels(i, raw, v, u0, u0 + 8, out.ptr<uint8_t>(v));
     }
+    if (w % 8)
+      for (int v = row0; v < row1; ++v) remapLumaPixels(i, raw, v, 8 * blocks_per_row, w, out.ptr<uint8_t>(v));
     return;
   }
 #endif

@@ -98,6 +98,7 @@ class Rectifier {
     bool crossing = false; // the top-left neighbours lie on two raw rows
   };
   std::vector<Block> blocks_[2];
+  std::vector<int32_t> scalar_blocks_[2];  // indices of the blocks the scalar loop does, ascending
   bool vector_kernel_ = false;
   void checkSize(const cv::Mat& left_raw, const cv::Mat& right_raw) const;
   void remapLumaRows(int camera, const cv::Mat& raw_luma, int row0, int row1, cv::Mat& out) const;
