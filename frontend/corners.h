@@ -37,6 +37,10 @@ struct CornerParams {
   double merge_px = 3.0;               // intersections closer than this are one feature
   double centre_merge_deg = 12.0;      // two opposite marking edges -> one centre line when this parallel
   double centre_merge_px = 2.5;        // ... and their centre lines this close (or half the width)
+  // Further pieces of either edge of a stripe, within centre_merge_px of that edge's line and
+  // at most this far beyond the stripe's extent (an occluder's width), extend its centre line.
+  // 0 disables it.
+  double piece_gap_px = 50.0;
   // A non-marking edge is a wall foot candidate when it is bright above and dark below and its
   // image direction is within this angle of horizontal (deg). Walls seen obliquely near the
   // camera have steep feet in the image (a wall running away at 45 deg on the floor images at
