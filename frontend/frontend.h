@@ -131,6 +131,7 @@ class Frontend {
   std::vector<uint8_t> used_;
   std::vector<float> scratch_;
   std::vector<Transition> scratch_tr_;
+  StripeEndScratch ends_scratch_;
   std::vector<GoalEdge> goal_edges_;
   cv::Mat left_luma_, right_luma_;
   std::vector<std::pair<int, int>> row_spans_;

@@ -7,39 +7,45 @@ namespace stereoloc::frontend {
 namespace {
 
 // Bilinear luma; -1 outside the image.
-double sampleLuma(const cv::Mat& g, double x, double y) {
+float sampleLuma(const cv::Mat& g, double x, double y) {
   const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
-  if (x0 < 0 || y0 < 0 || x0 + 1 >= g.cols || y0 + 1 >= g.rows) return -1.0;
-  const double fx = x - x0, fy = y - y0;
+  if (x0 < 0 || y0 < 0 || x0 + 1 >= g.cols || y0 + 1 >= g.rows) return -1.0f;
+  const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
   const uint8_t* r0 = g.ptr<uint8_t>(y0) + x0;
   const uint8_t* r1 = g.ptr<uint8_t>(y0 + 1) + x0;
   return (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
 }
 
-double median(std::vector<double> v) {
+float median(std::vector<float>& v) {  // reorders v
   std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
   return v[v.size() / 2];
 }
 
 }  // namespace
 
-void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector<LineFeature>& lines) {
+void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector<LineFeature>& lines,
+                    StripeEndScratch& sc) {
   if (!prm.enabled) return;
-  std::vector<double> centre, dark, bright;
-  std::vector<uint8_t> present;
+  auto& centre = sc.centre;
+  auto& dark = sc.dark;
+  auto& bright = sc.bright;
+  auto& contrast = sc.contrast;
+  auto& floor = sc.floor;
+  auto& present = sc.present;
   for (LineFeature& l : lines) {
     if (!l.marking || l.t_max - l.t_min < 4.0) continue;
     const double nx = std::cos(l.theta), ny = std::sin(l.theta);
     const double off = 0.5 * l.width + prm.side_px;
     const int n = static_cast<int>(std::floor(l.t_max - l.t_min)) + 1;
-    centre.assign(n, -1.0);
-    dark.assign(n, -1.0);
-    bright.assign(n, -1.0);
-    std::vector<double> contrast, floor;
+    centre.assign(n, -1.0f);
+    dark.assign(n, -1.0f);
+    bright.assign(n, -1.0f);
+    contrast.clear();
+    floor.clear();
     for (int k = 0; k < n; ++k) {
       const double t = l.t_min + k, x = l.x(t), y = l.y(t);
-      const double c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
-                   s2 = sampleLuma(luma, x - off * nx, y - off * ny);
+      const float c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
+                  s2 = sampleLuma(luma, x - off * nx, y - off * ny);
       if (c < 0 || s1 < 0 || s2 < 0) continue;
       centre[k] = c;
       dark[k] = std::min(s1, s2);

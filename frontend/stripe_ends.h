@@ -10,6 +10,7 @@
 // medians over the line. An end whose first min_run_px samples lack the stripe moves inward
 // to where the stripe has been present on two consecutive samples.
 #include <opencv2/core/mat.hpp>
+#include <cstdint>
 #include <vector>
 
 #include "frontend/features.h"
@@ -24,8 +25,15 @@ struct StripeEndParams {
   double min_contrast = 6.0;   // grey levels: below, the line's stripe cannot be judged
 };
 
+// Buffers of trimStripeEnds, kept between calls so that a warmed-up frontend does not allocate.
+struct StripeEndScratch {
+  std::vector<float> centre, dark, bright, contrast, floor;
+  std::vector<uint8_t> present;
+};
+
 // Moves the ends of the marking lines of `lines` (see above); other lines are left alone. luma:
 // CV_8UC1, the image the lines were found in.
-void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& params, std::vector<LineFeature>& lines);
+void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& params, std::vector<LineFeature>& lines,
+                    StripeEndScratch& scratch);
 
 }  // namespace stereoloc::frontend

@@ -30,62 +30,67 @@ double xMax(const LineFeature& l) { return -l.t_min; }
 
 cv::Mat floorImage() { return cv::Mat(120, 240, CV_8UC1, cv::Scalar(90)); }
 
+class StripeEnds : public ::testing::Test {
+ protected:
+  StripeEndScratch scratch_;
+};
+
 StripeEndParams on() {
   StripeEndParams p;
   p.enabled = true;
   return p;
 }
 
-TEST(StripeEnds, AnEndCarriedPastTheStripeMovesToWhereItStops) {
+TEST_F(StripeEnds, AnEndCarriedPastTheStripeMovesToWhereItStops) {
   cv::Mat img = floorImage();
   cv::rectangle(img, cv::Point(20, 58), cv::Point(139, 62), cv::Scalar(200), cv::FILLED);  // stripe x 20..139
   // A step of the floor in line with the stripe's lower edge carries the edge on to x = 200.
   cv::rectangle(img, cv::Point(140, 63), cv::Point(200, 80), cv::Scalar(60), cv::FILLED);
   std::vector<LineFeature> lines{horizontal(60, 20, 200, 5)};
-  trimStripeEnds(img, on(), lines);
+  trimStripeEnds(img, on(), lines, scratch_);
   EXPECT_NEAR(xMin(lines[0]), 20.0, 1.0);
   EXPECT_NEAR(xMax(lines[0]), 139.5, 1.0);
 }
 
-TEST(StripeEnds, OffLeavesTheEnds) {
+TEST_F(StripeEnds, OffLeavesTheEnds) {
   cv::Mat img = floorImage();
   cv::rectangle(img, cv::Point(20, 58), cv::Point(139, 62), cv::Scalar(200), cv::FILLED);
   std::vector<LineFeature> lines{horizontal(60, 20, 200, 5)};
-  trimStripeEnds(img, StripeEndParams(), lines);
+  trimStripeEnds(img, StripeEndParams(), lines, scratch_);
   EXPECT_DOUBLE_EQ(xMax(lines[0]), 200.0);
 }
 
-TEST(StripeEnds, AnEndInsideACrossingBarStays) {
+TEST_F(StripeEnds, AnEndInsideACrossingBarStays) {
   cv::Mat img = floorImage();
   cv::rectangle(img, cv::Point(20, 58), cv::Point(150, 62), cv::Scalar(200), cv::FILLED);
   cv::rectangle(img, cv::Point(140, 10), cv::Point(160, 110), cv::Scalar(200), cv::FILLED);  // a wide bar
   std::vector<LineFeature> lines{horizontal(60, 20, 150, 5)};
-  trimStripeEnds(img, on(), lines);
+  trimStripeEnds(img, on(), lines, scratch_);
   EXPECT_NEAR(xMax(lines[0]), 150.0, 0.01);
 }
 
-TEST(StripeEnds, AStripeSeenBeyondAnOccluderKeepsItsEndAShortBrightPieceDoesNot) {
+TEST_F(StripeEnds, AStripeSeenBeyondAnOccluderKeepsItsEndAShortBrightPieceDoesNot) {
   cv::Mat img = floorImage();
   cv::rectangle(img, cv::Point(20, 58), cv::Point(200, 62), cv::Scalar(200), cv::FILLED);
   cv::rectangle(img, cv::Point(100, 30), cv::Point(119, 90), cv::Scalar(20), cv::FILLED);  // a robot, 20 px
   std::vector<LineFeature> lines{horizontal(60, 20, 200, 5)};
-  trimStripeEnds(img, on(), lines);
+  trimStripeEnds(img, on(), lines, scratch_);
   EXPECT_NEAR(xMax(lines[0]), 200.0, 0.01) << "80 px of stripe beyond a 20 px occluder";
 
   cv::Mat img2 = floorImage();
   cv::rectangle(img2, cv::Point(20, 58), cv::Point(200, 62), cv::Scalar(200), cv::FILLED);
   cv::rectangle(img2, cv::Point(150, 30), cv::Point(189, 90), cv::Scalar(20), cv::FILLED);  // 40 px, 10 px beyond
   std::vector<LineFeature> lines2{horizontal(60, 20, 200, 5)};
-  trimStripeEnds(img2, on(), lines2);
+  trimStripeEnds(img2, on(), lines2, scratch_);
   EXPECT_NEAR(xMax(lines2[0]), 149.5, 1.0);
 }
 
-TEST(StripeEnds, OtherLinesAndFaintStripesAreLeftAlone) {
+TEST_F(StripeEnds, OtherLinesAndFaintStripesAreLeftAlone) {
   cv::Mat img = floorImage();
   cv::rectangle(img, cv::Point(20, 58), cv::Point(139, 62), cv::Scalar(93), cv::FILLED);  // 3 grey levels
   std::vector<LineFeature> lines{horizontal(60, 20, 200, 5), horizontal(60, 20, 200, 5)};
   lines[1].marking = false;
-  trimStripeEnds(img, on(), lines);
+  trimStripeEnds(img, on(), lines, scratch_);
   EXPECT_DOUBLE_EQ(xMax(lines[0]), 200.0);
   EXPECT_DOUBLE_EQ(xMax(lines[1]), 200.0);
 }
