@@ -285,9 +285,10 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
   for (size_t i = 0; i < lines.size(); ++i) {
     if (!lines[i].marking || gone[i]) continue;
     const Segment& a = segments[i];
-    // The partner is the opposite edge that overlaps this one the most: a stripe whose one edge
-    // is broken by an occluder has several opposite pieces, and the first one found may be a
-    // short piece beyond the occluder, leaving the long piece to become a second centre line.
+    // With piece_gap_px > 0 the partner is the opposite edge that overlaps this one the most: a
+    // stripe whose one edge is broken by an occluder has several opposite pieces, and the first
+    // one found may be a short piece beyond the occluder, leaving the long piece to become a
+    // second centre line.
     size_t best = lines.size();
     double best_overlap = -1e30;
     for (size_t j = i + 1; j < lines.size(); ++j) {
@@ -301,6 +302,10 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
       if (dist(lj, li.x(tm), li.y(tm)) > tol) continue;
       const double u0 = along(lj.theta, li.x(li.t_min), li.y(li.t_min)), u1 = along(lj.theta, li.x(li.t_max), li.y(li.t_max));
       if (std::max(u0, u1) < lj.t_min - prm.delta_px || std::min(u0, u1) > lj.t_max + prm.delta_px) continue;
+      if (prm.piece_gap_px <= 0) {  // pieces off: the first opposite edge found
+        best = j;
+        break;
+      }
       const double overlap = std::min(std::max(u0, u1), lj.t_max) - std::max(std::min(u0, u1), lj.t_min);
       if (overlap > best_overlap) {
         best_overlap = overlap;
@@ -361,8 +366,8 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
       m.t_max = std::fabs(ta[1] - tb[1]) <= agree ? 0.5 * (ta[1] + tb[1]) : std::max(ta[1], tb[1]);
       m.support = li.support + lj.support;
       m.width = std::max(a.marking_width, b.marking_width);
-      // Further pieces of either edge beyond an occluder (collinear with it, within Gap_max of
-      // the stripe's extent) belong to the same stripe: they extend the centre line rather than
+      // Further pieces of either edge beyond an occluder (collinear with it, within piece_gap_px
+      // of the stripe's extent) belong to the same stripe: they extend the centre line rather than
       // becoming a second one half a width off.
       for (size_t k = i + 1; prm.piece_gap_px > 0 && k < lines.size(); ++k) {
         if (k == j || !lines[k].marking || gone[k]) continue;

@@ -8,7 +8,8 @@
 // min_fraction of the stripe's contrast, or above the line's floor level by that much (so a
 // crossing or a T-bar, bright on both sides, keeps it). The contrast and floor level are
 // medians over the line. An end whose first min_run_px samples lack the stripe moves inward
-// to where the stripe has been present on two consecutive samples.
+// to where the stripe has been present on two consecutive samples; a piece at an end shorter
+// than the gap behind it (a bright board beyond a robot) is dropped with the gap.
 #include <opencv2/core/mat.hpp>
 #include <cstdint>
 #include <vector>

@@ -547,16 +547,16 @@ TEST(Corners, AStripeWithOneEdgeBrokenByAnOccluderIsOneCentreLine) {
     std::vector<Segment> segs{edge(102, false, 60, 260), edge(98, true, 230, 300), edge(98, true, 20, 180)};
     if (order) std::swap(segs[1], segs[2]);
     std::vector<LineFeature> lines;
-    buildLines(segs, CornerParams(), lines);
+    CornerParams on;
+    on.piece_gap_px = 50;
+    buildLines(segs, on, lines);
     ASSERT_EQ(lines.size(), 1u) << "order " << order;
     const LineFeature& l = lines[0];
     EXPECT_NEAR(std::min(l.x(l.t_min), l.x(l.t_max)), 20, 1e-6);
     EXPECT_NEAR(std::max(l.x(l.t_min), l.x(l.t_max)), 300, 1e-6);
     EXPECT_NEAR(l.y(l.t_min), 100, 1e-6);
-    // Without the pieces' merge the short piece stays a centre line of its own.
-    CornerParams off;
-    off.piece_gap_px = 0;
-    buildLines(segs, off, lines);
+    // Without (the default) one piece stays a centre line of its own.
+    buildLines(segs, CornerParams(), lines);
     EXPECT_EQ(lines.size(), 2u) << "order " << order;
   }
 }
