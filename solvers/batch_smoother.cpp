@@ -459,7 +459,7 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (stereo_block_ >= 0) {
       CalibrationEstimate::StereoVector sigma;
       sigma << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
-          c.focal_ratio_sigma;
+          c.focal_ratio_sigma, c.focal_scale_sigma;
       out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<kStereo>::Create(
                           nominalHead(), sigma.cwiseAbs2().asDiagonal().toDenseMatrix())),
                       false, stereo_block_});
@@ -865,8 +865,9 @@ void BatchSmoother::solve() {
       offset += 3;
     }
     if (cal.stereo) {
-      cal.head = c.segment<5>(offset);
-      cal.head_covariance = global_covariance.block<5, 5>(offset, offset);
+      constexpr int k = StereoPixelCalibrationFactor::kCalibrationSize;
+      cal.head = c.segment<k>(offset);
+      cal.head_covariance = global_covariance.block<k, k>(offset, offset);
     }
   }
   summary_ = s;

@@ -41,9 +41,10 @@ void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibra
   if (c.stereo)
     std::printf(
         "calibration: tilt correction %.3f +- %.3f deg, baseline scale %.5f +- %.5f, disparity offset %.2f +- %.2f px, "
-        "column offset %.2f +- %.2f px, focal ratio %.5f +- %.5f\n",
+        "column offset %.2f +- %.2f px, focal ratio %.5f +- %.5f, focal scale %.5f +- %.5f\n",
         rad2deg(c.head[0]), rad2deg(sd(c.head_covariance(0, 0))), c.head[1], sd(c.head_covariance(1, 1)), c.head[2],
-        sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)));
+        sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)),
+        c.head[5], sd(c.head_covariance(5, 5)));
 }
 
 void runLocalize(const LocalizeArgs& a) {
