@@ -133,7 +133,7 @@ std::string calibrationFigures(const StudyConfig& c, const std::string& scenario
       part.groundtruth.resize(std::min(part.groundtruth.size(), n));
       MethodRun run;
       try {
-        run = runMethod(m, part, methodSeed(c, scenario, 0, m), c.method_options);
+        run = runMethod(m, part, methodSeed(c, scenario, 0, m), methodOptionsFor(c, profile, d));
       } catch (const Error&) {
         continue;  // too few observations on a short prefix to fix the problem
       }
@@ -188,7 +188,7 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
   size_t color = 0;
   std::map<std::string, MethodRun> runs;
   for (const std::string& m : c.methods) {
-    runs[m] = runMethod(m, d, methodSeed(c, scenario, 0, m), c.method_options);
+    runs[m] = runMethod(m, d, methodSeed(c, scenario, 0, m), methodOptionsFor(c, profile, d));
     const MethodRun& run = runs[m];
     std::vector<double> x, y;
     for (const Estimate& e : run.estimates)

@@ -139,6 +139,12 @@ std::array<double, kCalibrationParameterCount> trueCalibration(const Dataset& d,
           e.tilt_rad, 1 + e.baseline_rel, e.focal_rel[0]};
 }
 
+MethodOptions methodOptionsFor(const StudyConfig& c, const std::string& profile, const Dataset& d) {
+  MethodOptions o = c.method_options;
+  applyErrorProfile(ErrorProfile::named(profile), d.rig.focal(), o);
+  return o;
+}
+
 TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std::string& scenario, int trial,
                      const RenderCache* cache) {
   TrialOutput out;
@@ -148,11 +154,12 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std
   const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
   const long first = firstSightingStep(d);
   const double band_lo = chi2Quantile(0.025, 3), band_hi = chi2Quantile(0.975, 3);
+  const MethodOptions options = methodOptionsFor(c, profile, d);
   for (const std::string& method : c.methods) {
     MethodRun run;
     bool failed = false;
     try {
-      run = runMethod(method, d, methodSeed(c, scenario, trial, method), c.method_options);
+      run = runMethod(method, d, methodSeed(c, scenario, trial, method), options);
     } catch (const UsageError&) {
       throw;
     } catch (const Error& e) {

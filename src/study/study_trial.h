@@ -39,6 +39,10 @@ struct TrialOutput {
 // world's is the nominal one.
 std::array<double, kCalibrationParameterCount> trueCalibration(const Dataset& d, const SimulationTrace& trace);
 
+// The study's method options in the world of `profile`: its stated sigmas as the noise model
+// and calibration priors (applyErrorProfile, src/pipeline/methods.h) on the dataset's rig.
+MethodOptions methodOptionsFor(const StudyConfig& c, const std::string& profile, const Dataset& d);
+
 // Noise-free renders of the scenarios whose true path does not depend on the seed, by
 // "scenario#thesis trial" (see CleanRenders in frontend_source.h).
 using RenderCache = std::map<std::string, std::shared_ptr<const CleanRenders>>;

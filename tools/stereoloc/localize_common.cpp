@@ -26,6 +26,7 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   }
   if (!a.calibration_out.empty() && !o.calibration.odometry && !o.calibration.stereo)
     throw UsageError("--calibration-out: needs --calibrate");
+  if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);
   return o;
 }
 
@@ -119,6 +120,9 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "about 1 px for the realistic error profile (docs/realistic_world.md)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
+  sub->add_option("--noise-model", a->noise_model,
+                  "Batch and window: YAML of the noise the rig and odometry do not state (lens distortion estimate "
+                  "error, camera vibration, wheel slip; data/noise_realistic.yaml, docs/realistic_world.md)");
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
                   "(usable as --rig)");
