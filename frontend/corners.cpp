@@ -279,9 +279,18 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
   // perspective they converge, so their centre line is the line through the midpoints of
   // corresponding points (each edge's end points and their projections on the other edge).
   std::vector<uint8_t> gone(lines.size(), 0);
+  auto dist = [](const LineFeature& l, double x, double y) {
+    return std::fabs(x * std::cos(l.theta) + y * std::sin(l.theta) - l.rho);
+  };
   for (size_t i = 0; i < lines.size(); ++i) {
     if (!lines[i].marking || gone[i]) continue;
     const Segment& a = segments[i];
+    // With piece_gap_px > 0 the partner is the opposite edge that overlaps this one the most: a
+    // stripe whose one edge is broken by an occluder has several opposite pieces, and the first
+    // one found may be a short piece beyond the occluder, leaving the long piece to become a
+    // second centre line.
+    size_t best = lines.size();
+    double best_overlap = -1e30;
     for (size_t j = i + 1; j < lines.size(); ++j) {
       if (!lines[j].marking || gone[j]) continue;
       const Segment& b = segments[j];
@@ -289,13 +298,26 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
       const LineFeature& li = lines[i];
       const LineFeature& lj = lines[j];
       const double tol = std::max(prm.centre_merge_px, 0.5 * std::max(a.marking_width, b.marking_width));
-      auto dist = [](const LineFeature& l, double x, double y) {
-        return std::fabs(x * std::cos(l.theta) + y * std::sin(l.theta) - l.rho);
-      };
       const double tm = 0.5 * (li.t_min + li.t_max);
       if (dist(lj, li.x(tm), li.y(tm)) > tol) continue;
       const double u0 = along(lj.theta, li.x(li.t_min), li.y(li.t_min)), u1 = along(lj.theta, li.x(li.t_max), li.y(li.t_max));
       if (std::max(u0, u1) < lj.t_min - prm.delta_px || std::min(u0, u1) > lj.t_max + prm.delta_px) continue;
+      if (prm.piece_gap_px <= 0) {  // pieces off: the first opposite edge found
+        best = j;
+        break;
+      }
+      const double overlap = std::min(std::max(u0, u1), lj.t_max) - std::max(std::min(u0, u1), lj.t_min);
+      if (overlap > best_overlap) {
+        best_overlap = overlap;
+        best = j;
+      }
+    }
+    if (best == lines.size()) continue;
+    {
+      const size_t j = best;
+      const Segment& b = segments[j];
+      const LineFeature& li = lines[i];
+      const LineFeature& lj = lines[j];
       // Midpoints of corresponding edge points.
       double mx[4], my[4];
       int n = 0;
@@ -344,9 +366,28 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
       m.t_max = std::fabs(ta[1] - tb[1]) <= agree ? 0.5 * (ta[1] + tb[1]) : std::max(ta[1], tb[1]);
       m.support = li.support + lj.support;
       m.width = std::max(a.marking_width, b.marking_width);
+      // Further pieces of either edge beyond an occluder (collinear with it, within piece_gap_px
+      // of the stripe's extent) belong to the same stripe: they extend the centre line rather than
+      // becoming a second one half a width off.
+      for (size_t k = i + 1; prm.piece_gap_px > 0 && k < lines.size(); ++k) {
+        if (k == j || !lines[k].marking || gone[k]) continue;
+        const Segment& c = segments[k];
+        const Segment& same = std::cos(c.theta - a.theta) > 0 ? a : b;
+        if (std::cos(c.theta - same.theta) < std::cos(deg(prm.centre_merge_deg))) continue;
+        const double sc = std::cos(same.theta), ss = std::sin(same.theta);
+        if (std::fabs(c.x1 * sc + c.y1 * ss - same.rho) > prm.centre_merge_px ||
+            std::fabs(c.x2 * sc + c.y2 * ss - same.rho) > prm.centre_merge_px)
+          continue;
+        const double c0 = along(th, c.x1, c.y1), c1 = along(th, c.x2, c.y2);
+        const double lo = std::min(c0, c1), hi = std::max(c0, c1);
+        if (lo > m.t_max + prm.piece_gap_px || hi < m.t_min - prm.piece_gap_px) continue;
+        m.t_min = std::min(m.t_min, lo);
+        m.t_max = std::max(m.t_max, hi);
+        m.support += lines[k].support;
+        gone[k] = 1;
+      }
       lines[i] = m;
       gone[j] = 1;
-      break;
     }
   }
   size_t k = 0;

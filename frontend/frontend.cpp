@@ -64,6 +64,11 @@ std::vector<Field> fields(FrontendParams& p) {
       {"classify", "max_outer_difference", Field::Double, &p.classify.max_outer_difference},
       {"classify", "xi_l", Field::Double, &p.classify.xi_l},
       {"classify", "min_seen_share", Field::Double, &p.classify.min_seen_share},
+      {"ends", "enabled", Field::Bool, &p.ends.enabled},
+      {"ends", "side_px", Field::Double, &p.ends.side_px},
+      {"ends", "min_fraction", Field::Double, &p.ends.min_fraction},
+      {"ends", "min_run_px", Field::Double, &p.ends.min_run_px},
+      {"ends", "min_contrast", Field::Double, &p.ends.min_contrast},
       {"corners", "delta_px", Field::Double, &p.corners.delta_px},
       {"corners", "min_image_angle_deg", Field::Double, &p.corners.min_image_angle_deg},
       {"corners", "corner_angle_tol_deg", Field::Double, &p.corners.corner_angle_tol_deg},
@@ -71,6 +76,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"corners", "merge_px", Field::Double, &p.corners.merge_px},
       {"corners", "centre_merge_deg", Field::Double, &p.corners.centre_merge_deg},
       {"corners", "centre_merge_px", Field::Double, &p.corners.centre_merge_px},
+      {"corners", "piece_gap_px", Field::Double, &p.corners.piece_gap_px},
       {"corners", "wall_foot_max_tilt_deg", Field::Double, &p.corners.wall_foot_max_tilt_deg},
       {"corners", "marking_junctions", Field::Bool, &p.corners.marking_junctions},
       {"corners", "snap_px", Field::Double, &p.corners.snap_px},
@@ -117,7 +123,7 @@ std::vector<Field> fields(FrontendParams& p) {
   };
 }
 
-const char* kSections[] = {"field", "gradient", "hough", "peaks", "segments", "classify", "corners", "goals", "stereo"};
+const char* kSections[] = {"field", "gradient", "hough", "peaks", "segments", "classify", "ends", "corners", "goals", "stereo"};
 
 }  // namespace
 
@@ -163,10 +169,15 @@ void FrontendParams::validate() const {
   need(classify.xi_h > 0 && classify.xi_h <= 1, "classify.xi_h", "must be in (0, 1]");
   need(classify.xi_l > 0 && classify.xi_l <= 1, "classify.xi_l", "must be in (0, 1]");
   need(classify.min_seen_share >= 0 && classify.min_seen_share <= 1, "classify.min_seen_share", "must be in [0, 1]");
+  need(ends.side_px >= 0, "ends.side_px", "must not be negative");
+  need(ends.min_fraction > 0 && ends.min_fraction <= 1, "ends.min_fraction", "must be in (0, 1]");
+  need(ends.min_run_px >= 1, "ends.min_run_px", "must be at least 1");
+  need(ends.min_contrast >= 0, "ends.min_contrast", "must not be negative");
   need(corners.delta_px >= 0, "corners.delta_px", "must not be negative");
   need(corners.snap_px >= 0 && corners.border_snap_px >= 0, "corners.snap_px/border_snap_px", "must not be negative");
   need(corners.snap_min_angle_deg > 0 && corners.snap_min_angle_deg < 90, "corners.snap_min_angle_deg", "must be in (0, 90)");
   need(corners.merge_px >= 0, "corners.merge_px", "must not be negative");
+  need(corners.piece_gap_px >= 0, "corners.piece_gap_px", "must not be negative");
   need(corners.probe_start_px >= 0 && corners.probe_side_px >= 0, "corners.probe_start_px/probe_side_px",
        "must not be negative");
   need(corners.probe_dark_fraction >= 0 && corners.probe_dark_fraction <= 1, "corners.probe_dark_fraction",
@@ -324,6 +335,7 @@ void Frontend::featuresFromSegments() {
   FrontendResult& r = result_;
   buildLines(r.segments, params_.corners, r.lines);
   clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
+  trimStripeEnds(left_luma_, params_.ends, r.lines, ends_scratch_);
   snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);
   findCorners(r.lines, rig_, params_.corners, r.features, &left_luma_);
 }

@@ -31,6 +31,7 @@
 #include "frontend/rectify.h"
 #include "frontend/segments.h"
 #include "frontend/stereo_match.h"
+#include "frontend/stripe_ends.h"
 #include "src/core/field_map.h"
 #include "src/core/stereo_rig.h"
 #include "src/core/types.h"
@@ -45,11 +46,12 @@ struct FrontendParams {
   PeakParams peaks;
   SegmentParams segments;
   ClassifyParams classify;
+  StripeEndParams ends;
   CornerParams corners;
   GoalParams goals;
   StereoParams stereo;
 
-  // YAML through cv::FileStorage: sections field, gradient, hough, peaks, segments, classify, corners,
+  // YAML through cv::FileStorage: sections field, gradient, hough, peaks, segments, classify, ends, corners,
   // goals, stereo holding the fields above by name; missing keys keep their defaults, unknown
   // keys and out-of-range values are errors naming file and key.
   static FrontendParams load(const std::string& path);
@@ -129,6 +131,7 @@ class Frontend {
   std::vector<uint8_t> used_;
   std::vector<float> scratch_;
   std::vector<Transition> scratch_tr_;
+  StripeEndScratch ends_scratch_;
   std::vector<GoalEdge> goal_edges_;
   cv::Mat left_luma_, right_luma_;
   std::vector<std::pair<int, int>> row_spans_;

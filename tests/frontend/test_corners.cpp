@@ -525,3 +525,40 @@ TEST(Corners, MarkingEndingOnAMarkingIsAJunctionOnlyWhenAsked) {
     EXPECT_EQ(junctions, on ? 1 : 0);
   }
 }
+
+namespace stereoloc::frontend {
+
+// A horizontal stripe (rows 98..102) whose upper edge is broken by an occluder into a short
+// piece beyond it and a long piece overlapping the lower edge: one centre line over all of it,
+// whatever the order of the pieces.
+TEST(Corners, AStripeWithOneEdgeBrokenByAnOccluderIsOneCentreLine) {
+  const double pi = 3.141592653589793;
+  auto edge = [&](double y, bool upper, double x1, double x2) {
+    Segment s;
+    s.theta = upper ? 0.5 * pi : 1.5 * pi;  // the gradient points into the stripe
+    s.rho = upper ? y : -y;
+    s.x1 = x1, s.y1 = y, s.x2 = x2, s.y2 = y;
+    s.cls = SegmentClass::Marking;
+    s.marking_width = 4.0;
+    s.pixels = static_cast<int>(x2 - x1);
+    return s;
+  };
+  for (int order = 0; order < 2; ++order) {
+    std::vector<Segment> segs{edge(102, false, 60, 260), edge(98, true, 230, 300), edge(98, true, 20, 180)};
+    if (order) std::swap(segs[1], segs[2]);
+    std::vector<LineFeature> lines;
+    CornerParams on;
+    on.piece_gap_px = 50;
+    buildLines(segs, on, lines);
+    ASSERT_EQ(lines.size(), 1u) << "order " << order;
+    const LineFeature& l = lines[0];
+    EXPECT_NEAR(std::min(l.x(l.t_min), l.x(l.t_max)), 20, 1e-6);
+    EXPECT_NEAR(std::max(l.x(l.t_min), l.x(l.t_max)), 300, 1e-6);
+    EXPECT_NEAR(l.y(l.t_min), 100, 1e-6);
+    // Without (the default) one piece stays a centre line of its own.
+    buildLines(segs, CornerParams(), lines);
+    EXPECT_EQ(lines.size(), 2u) << "order " << order;
+  }
+}
+
+}  // namespace stereoloc::frontend

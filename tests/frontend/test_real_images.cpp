@@ -158,3 +158,45 @@ TEST(RealImages, FieldRegionKeepsTheMarkingsAndDropsTheStands) {
 
 }  // namespace
 }  // namespace stereoloc::frontend
+
+namespace stereoloc::frontend {
+namespace {
+
+// Labelled markings of one photograph with a marking centre line ending within 3 px of both
+// its ends (either order).
+int markingsWithBothEnds(const FrontendParams& prm, const std::string& name) {
+  const StereoRig rig = StereoRig::load(kReal + "/rig.yaml");
+  Frontend fe(rig, FieldMap::miroSot(), prm);
+  const cv::Mat img = cv::imread(kReal + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+  EXPECT_FALSE(img.empty()) << name;
+  if (img.empty()) return 0;
+  const std::vector<LineFeature>& lines = fe.detectFeatures(img).lines;
+  int found = 0;
+  for (const Label& l : markings(name))
+    for (const LineFeature& f : lines) {
+      if (!f.marking) continue;
+      const double ax = f.x(f.t_min), ay = f.y(f.t_min), bx = f.x(f.t_max), by = f.y(f.t_max);
+      const bool same = std::hypot(ax - l.x1, ay - l.y1) <= 3 && std::hypot(bx - l.x2, by - l.y2) <= 3;
+      const bool swapped = std::hypot(ax - l.x2, ay - l.y2) <= 3 && std::hypot(bx - l.x1, by - l.y1) <= 3;
+      if (same || swapped) {
+        ++found;
+        break;
+      }
+    }
+  return found;
+}
+
+}  // namespace
+
+// The far stripe of this photograph ends at a robot; the edge pixels its centre line was fitted
+// to run on past the robot for 24 px. The stripe-end test ends the line where the stripe stops.
+TEST(RealImages, AStripeEndsWhereTheStripeStopsNotWhereItsEdgeDoes) {
+  const char* name = "20190606_r2_cam0_20190606_204410";
+  FrontendParams prm = FrontendParams::load(kReal + "/frontend.yaml");
+  ASSERT_TRUE(prm.ends.enabled);
+  EXPECT_EQ(markingsWithBothEnds(prm, name), 2);
+  prm.ends.enabled = false;
+  EXPECT_EQ(markingsWithBothEnds(prm, name), 1);
+}
+
+}  // namespace stereoloc::frontend

@@ -16,6 +16,8 @@ Rough label lines (px in the 320x240 image, # comments):
     b x1 y1 x2 y2 ...     the field boundary (far edge of the field floor), left to right
     o x1 y1 x2 y2 ...     a don't-care polygon (robot, person, ball, lens border); two points: a box
     k x1 y1 x2 y2 ...     a curved marking (centre circle, lens-bent line): don't-care polyline
+    K x1 y1 x2 y2 ...     the same, written as given (not snapped): an arc within 12 px of a brighter
+                          stripe, onto which the snap would move it
 
 Refinement ("snap"), per marking: luma profiles across the rough line every 1 px, smoothed
 (Gaussian, sigma 0.7 px) and sampled every 0.1 px; the stripe's two sides are the strongest
@@ -70,7 +72,7 @@ def load_rough(name):
                     if len(rest) != 3 or rest[2] not in ('L', 'T', 'X'):
                         fail(where, 'c needs x y L|T|X')
                     items.append(('c', [float(rest[0]), float(rest[1])], rest[2], where))
-                elif kind in ('b', 'o', 'k'):
+                elif kind in ('b', 'o', 'k', 'K'):
                     if len(rest) < 4 or len(rest) % 2:
                         fail(where, f'{kind} needs an even number (>= 4) of coordinates')
                     v = [float(x) for x in rest]
@@ -78,7 +80,7 @@ def load_rough(name):
                         v = [v[0], v[1], v[2], v[1], v[2], v[3], v[0], v[3]]
                     items.append((kind, v, None, where))
                 else:
-                    fail(where, f'unknown label kind "{kind}" (m, c, b, o, k)')
+                    fail(where, f'unknown label kind "{kind}" (m, c, b, o, k, K)')
             except ValueError as e:
                 fail(where, f'not a number: {e}')
     return items
@@ -432,7 +434,7 @@ def snap(name):
                 f.write(f'edge {r0[0]:.2f} {r0[1]:.2f} {r1[0]:.2f} {r1[1]:.2f} of {i}\n')
         for typ, p, _ in corners:
             f.write(f'corner {typ} {p[0]:.2f} {p[1]:.2f}\n')
-        names = {'b': 'boundary', 'o': 'dontcare', 'k': 'curve'}
+        names = {'b': 'boundary', 'o': 'dontcare', 'k': 'curve', 'K': 'curve'}
         for kind, v, extra, where in items:
             if kind == 'k':
                 v = snap_curve(lum_s, v)

@@ -1,0 +1,92 @@
+#include "frontend/stripe_ends.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace stereoloc::frontend {
+namespace {
+
+// Bilinear luma; -1 outside the image.
+float sampleLuma(const cv::Mat& g, double x, double y) {
+  const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
+  if (x0 < 0 || y0 < 0 || x0 + 1 >= g.cols || y0 + 1 >= g.rows) return -1.0f;
+  const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
+  const uint8_t* r0 = g.ptr<uint8_t>(y0) + x0;
+  const uint8_t* r1 = g.ptr<uint8_t>(y0 + 1) + x0;
+  return (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
+}
+
+float median(std::vector<float>& v) {  // reorders v
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+}  // namespace
+
+void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector<LineFeature>& lines,
+                    StripeEndScratch& sc) {
+  if (!prm.enabled) return;
+  auto& centre = sc.centre;
+  auto& dark = sc.dark;
+  auto& bright = sc.bright;
+  auto& contrast = sc.contrast;
+  auto& floor = sc.floor;
+  auto& present = sc.present;
+  for (LineFeature& l : lines) {
+    if (!l.marking || l.t_max - l.t_min < 4.0) continue;
+    const double nx = std::cos(l.theta), ny = std::sin(l.theta);
+    const double off = 0.5 * l.width + prm.side_px;
+    const int n = static_cast<int>(std::floor(l.t_max - l.t_min)) + 1;
+    centre.assign(n, -1.0f);
+    dark.assign(n, -1.0f);
+    bright.assign(n, -1.0f);
+    contrast.clear();
+    floor.clear();
+    for (int k = 0; k < n; ++k) {
+      const double t = l.t_min + k, x = l.x(t), y = l.y(t);
+      const float c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
+                  s2 = sampleLuma(luma, x - off * nx, y - off * ny);
+      if (c < 0 || s1 < 0 || s2 < 0) continue;
+      centre[k] = c;
+      dark[k] = std::min(s1, s2);
+      bright[k] = std::max(s1, s2);
+      contrast.push_back(c - bright[k]);
+      floor.push_back(dark[k]);
+    }
+    if (contrast.size() < 4) continue;
+    const double c_ref = median(contrast), floor_ref = median(floor);
+    if (c_ref < prm.min_contrast) continue;
+    const double need = prm.min_fraction * c_ref;
+    present.assign(n, 1);  // samples outside the image: no verdict, kept
+    for (int k = 0; k < n; ++k)
+      if (centre[k] >= 0) present[k] = centre[k] - bright[k] >= need || centre[k] >= floor_ref + need;
+    // First index from an end (step +1 or -1) where the stripe is present twice in a row.
+    auto firstRun = [&](int start, int step) {
+      for (int k = start; k >= 0 && k + step >= 0 && k < n && k + step < n; k += step)
+        if (present[k] && present[k + step]) return k;
+      return -1;
+    };
+    // A piece at an end that is shorter than the gap without the stripe behind it is not the
+    // stripe continuing beyond an occluder (a stripe seen past a robot shows more of itself than
+    // the robot hides); it is the bright wall or board the line's edge ran into.
+    auto dropShortPiece = [&](int k, int step) {
+      while (k >= 0) {
+        int a = k;
+        while (a >= 0 && a < n && present[a]) a += step;
+        int b = a;
+        while (b >= 0 && b < n && !present[b]) b += step;
+        if (b < 0 || b >= n || std::abs(b - a) < prm.min_run_px || std::abs(a - k) >= std::abs(b - a)) return k;
+        k = firstRun(b, step);
+      }
+      return k;
+    };
+    const int lo = dropShortPiece(firstRun(0, 1), 1), hi = dropShortPiece(firstRun(n - 1, -1), -1);
+    if (lo < 0 || hi < 0 || hi - lo < 4) continue;  // no stripe along it to judge the ends by
+    // The end goes half a sample outside the first present one: the stripe stops between them.
+    const double t0 = l.t_min;
+    if (lo >= prm.min_run_px) l.t_min = t0 + lo - 0.5;
+    if (n - 1 - hi >= prm.min_run_px) l.t_max = t0 + hi + 0.5;
+  }
+}
+
+}  // namespace stereoloc::frontend
