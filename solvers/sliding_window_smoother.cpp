@@ -74,6 +74,22 @@ bool accumulateBlocks(const ceres::CostFunction& cost, const std::vector<const d
 
 }  // namespace
 
+std::string toString(WindowLinearisation l) {
+  switch (l) {
+    case WindowLinearisation::PriorPoint: return "prior_point";
+    case WindowLinearisation::FirstEstimates: return "first_estimates";
+    case WindowLinearisation::Current: return "current";
+  }
+  return "prior_point";
+}
+
+WindowLinearisation windowLinearisationFromString(const std::string& name) {
+  for (WindowLinearisation l :
+       {WindowLinearisation::PriorPoint, WindowLinearisation::FirstEstimates, WindowLinearisation::Current})
+    if (toString(l) == name) return l;
+  throw Error("unknown window linearisation '" + name + "' (expected prior_point, first_estimates or current)");
+}
+
 void SlidingWindowConfig::validate() const {
   if (window < 1) throw Error("sliding window: window must be >= 1");
   if (max_iterations < 1) throw Error("sliding window: max_iterations must be >= 1");
@@ -84,6 +100,8 @@ void SlidingWindowConfig::validate() const {
   if (!(gate.probability > 0 && gate.probability < 1)) throw Error("sliding window: gate.probability must be in (0, 1)");
   if (gate.lost_after < 1) throw Error("sliding window: gate.lost_after must be >= 1");
   if (keyframe_max_steps < 1) throw Error("sliding window: keyframe_max_steps must be >= 1");
+  if (!(retest_probability > 0 && retest_probability < 1))
+    throw Error("sliding window: retest_probability must be in (0, 1)");
   if (!(reanchor_probability >= 0 && reanchor_probability < 1))
     throw Error("sliding window: reanchor_probability must be in [0, 1)");
   if (restart_buffer_steps < 0) throw Error("sliding window: restart_buffer_steps must be >= 0");
@@ -100,6 +118,8 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
       gate_enabled_(config_.gate_enabled &&
                     (config_.robust_loss.type == RobustLoss::None || config_.gate_with_robust_loss)),
       compass_threshold_(chi2Quantile(config_.compass_gate_probability, 1)),
+      retest_threshold_(chi2Quantile(config_.retest_probability, 2)),
+      retest_threshold_compass_(chi2Quantile(config_.retest_probability, 1)),
       loss_(makeLossFunction(config_.robust_loss)) {
   odometry_.validate();
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
@@ -119,7 +139,7 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   // those differences become information the data do not have (on a 400-step circle, W = 20:
   // the wheel base drifted from 75 to 92 mm with a standard deviation below the batch's, while
   // linearising at the estimate stays within 0.1 mm and 1 % of the batch's).
-  fej_ = config_.first_estimate_jacobians && calibDim() == 0;
+  linearisation_ = calibDim() == 0 ? config_.linearisation : WindowLinearisation::Current;
   if (cal.odometry) {
     problem_->AddParameterBlock(wheels_.data(), 3);
     const Eigen::Vector3d sig(cal.wheel_scale_sigma, cal.wheel_scale_sigma, cal.wheel_base_rel_sigma * wheels_[2]);
@@ -148,7 +168,19 @@ int SlidingWindowSmoother::calibDim() const {
   return (config_.calibration.odometry ? 3 : 0) + (config_.calibration.stereo ? calibSize(Calib::Head) : 0);
 }
 
+const double* SlidingWindowSmoother::linearisationPoint(const Factor& f, size_t j) const {
+  const Node& n = *f.nodes[j];
+  switch (linearisation_) {
+    case WindowLinearisation::FirstEstimates: return f.linearisation[j].data();
+    case WindowLinearisation::PriorPoint: return n.prior_point ? n.prior_point->data() : n.x.data();
+    case WindowLinearisation::Current: break;
+  }
+  return n.x.data();
+}
+
 void SlidingWindowSmoother::relinearise() {
+  for (const auto& n : nodes_)
+    if (n->prior_point) n->prior_point = n->x;
   for (const auto& f : factors_) {
     size_t j = 0;
     for (; j < f->nodes.size(); ++j) f->linearisation[j] = f->nodes[j]->x;
@@ -209,7 +241,7 @@ void SlidingWindowSmoother::addFactor(ceres::CostFunction* cost, std::vector<Nod
     f->linearisation.push_back(n->x);  // first estimate: the values at creation
     blocks.push_back(n->x.data());
   }
-  for (Calib c : f->calib) blocks.push_back(calibData(c));  // linearised at the estimate (fej_)
+  for (Calib c : f->calib) blocks.push_back(calibData(c));  // always linearised at the estimate
   f->id = problem_->AddResidualBlock(f->cost.get(), f->robust ? loss_.get() : nullptr, blocks);
   factors_.push_back(std::move(f));
 }
@@ -431,7 +463,7 @@ void SlidingWindowSmoother::marginaliseOldest() {
     std::vector<int> off;
     for (size_t j = 0; j < f.nodes.size(); ++j) {
       cur.push_back(f.nodes[j]->x.data());
-      lin.push_back(fej_ ? f.linearisation[j].data() : f.nodes[j]->x.data());
+      lin.push_back(linearisationPoint(f, j));
       off.push_back(3 * static_cast<int>(std::find(vars.begin(), vars.end(), f.nodes[j]) - vars.begin()));
     }
     for (size_t j = 0; j < f.calib.size(); ++j) {
@@ -465,7 +497,13 @@ void SlidingWindowSmoother::marginaliseOldest() {
   for (size_t k = touching.size(); k-- > 0;) removeFactor(touching[k]);
   problem_->RemoveParameterBlock(o->x.data());
   nodes_.pop_front();
-  if (prior) addFactor(prior, kept, false, calib);  // linearisation point == the prior's x0
+  if (prior) {
+    addFactor(prior, kept, false, calib);  // linearisation point == the prior's x0
+    // The prior fixed these poses' linearisation: their other factors must use the same point,
+    // or the window would count information along directions the prior linearised differently.
+    for (Node* n : kept)
+      if (!n->prior_point) n->prior_point = n->x;
+  }
   ++stats_.marginalisations;
 }
 
@@ -515,7 +553,7 @@ Eigen::MatrixXd SlidingWindowSmoother::windowInformation() {
     off.clear();
     for (size_t j = 0; j < f.nodes.size(); ++j) {
       cur.push_back(f.nodes[j]->x.data());
-      lin.push_back(fej_ ? f.linearisation[j].data() : f.nodes[j]->x.data());
+      lin.push_back(linearisationPoint(f, j));
       off.push_back(3 * f.nodes[j]->slot);
     }
     for (size_t j = 0; j < f.calib.size(); ++j) {
@@ -594,7 +632,7 @@ std::string toString(LateObservationStatus status) {
 }
 
 bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P,
-                                            std::vector<int>& used) {
+                                            std::vector<int>& used, bool retest) {
   const Landmark* lm = nullptr;
   if (obs.landmark_id >= 0) {
     lm = map_.find(obs.landmark_id);
@@ -619,7 +657,8 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, 
   const Eigen::Matrix2d S = Hz * PHt + obs.covariance;  // (5.14)
   const Eigen::Matrix2d Sinv = S.inverse();
   const double d2 = nu.dot(Sinv * nu);  // (5.20)
-  if (!std::isfinite(d2) || (gate_enabled_ && !gate_.accepts(d2))) return false;
+  if (!std::isfinite(d2)) return false;
+  if (gate_enabled_ && !(retest ? d2 <= retest_threshold_ : gate_.accepts(d2))) return false;
   if (config_.calibration.stereo && obs.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
@@ -629,12 +668,61 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, 
   } else {
     addFactor(makeObservationFactor(obs, *lm, config_.observation_model), {node}, true);
   }
+  node->landmarks.push_back(lm->id);
   // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
   const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
   pose = plus(pose, K * nu);
   const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * Hz;
   P = IKH * P * IKH.transpose() + K * obs.covariance * K.transpose();
   return true;
+}
+
+int SlidingWindowSmoother::retestGated() {
+  if (lost_ || !gate_enabled_ || !config_.retest_gated) return 0;
+  if (std::none_of(nodes_.begin(), nodes_.end(),
+                   [](const auto& n) { return !n->gated.empty() || n->gated_compass.has_value(); }))
+    return 0;
+  computeCovariances(true);
+  int fused = 0;
+  for (const auto& n : nodes_) {
+    const int before = fused;
+    if (n->gated_compass) {
+      const auto [compass, sigma] = *n->gated_compass;
+      const double nu = angleDiff(compass, n->x[2]);
+      if (nu * nu / (n->covariance(2, 2) + sigma * sigma) <= retest_threshold_compass_) {
+        addFactor(CompassFactor::Create(compass, sigma), {n.get()});
+        n->gated_compass.reset();
+        ++fused;
+      }
+    }
+    if (!n->gated.empty()) fused += retestObservations(*n);
+    if (fused > before && n->status == EstimateStatus::Predicted) n->status = EstimateStatus::Tracking;
+  }
+  if (fused > 0) solve(config_.max_iterations);
+  return fused;
+}
+
+int SlidingWindowSmoother::retestObservations(Node& node) {
+  // The marginal holds all the window's data but these observations: a valid prediction of them.
+  Pose2 pose = poseOf(node.x);
+  Eigen::Matrix3d P = node.covariance;
+  std::vector<int> used = node.landmarks;
+  for (const Observation& o : node.gated)
+    if (o.landmark_id >= 0) used.push_back(o.landmark_id);
+  std::vector<Observation> gated;
+  gated.swap(node.gated);
+  int fused = 0;
+  for (const Observation& obs : gated) {
+    if (fuseObservation(obs, &node, pose, P, used, true)) {
+      ++fused;
+      ++stats_.accepted_observations;
+      --stats_.rejected_observations;
+      ++stats_.readmitted_observations;
+    } else {
+      node.gated.push_back(obs);
+    }
+  }
+  return fused;
 }
 
 SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size_t j) {
@@ -926,6 +1014,8 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
         IKH.col(2) -= K;
         P = IKH * P * IKH.transpose() + sigma2 * K * K.transpose();
         fused = true;
+      } else {
+        node->gated_compass = {*step.compass, step.compass_sigma};
       }
     }
     std::vector<int> used;
@@ -961,6 +1051,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   node->status = lost_ ? EstimateStatus::Lost : (fused ? EstimateStatus::Tracking : EstimateStatus::Predicted);
   while (static_cast<int>(nodes_.size()) > config_.window) marginaliseOldest();
   solve(config_.max_iterations);
+  retestGated();
   computeCovariances(false);
   return estimateOf(*nodes_.back());
 }

@@ -4,9 +4,13 @@
 //
 // The window holds the last W keyframe poses with their odometry, compass and observation
 // factors; each step marginalises the oldest pose(s) into a MarginalPriorFactor (Schur
-// complement, first-estimate Jacobians) and solves the window from the previous solution. With
-// W = 1 and one Gauss-Newton iteration it is the EKF (5.7)-(5.19) step for step (tested). Gate and
-// lost policy as in the EKF (5.20, 5.1.3), except that a global fix which agrees with the
+// complement) and solves the window from the previous solution. A pose's factors are linearised
+// at its current estimate until it enters a marginal prior, then at that prior's point
+// (WindowLinearisation); with first estimates instead, W = 1 and one Gauss-Newton iteration it is
+// the EKF (5.7)-(5.19) step for step (tested). Gate and lost policy as in the EKF (5.20, 5.1.3);
+// an observation the gate rejected against the one-step prediction is tested again against its
+// pose's marginal in each later window and fused when it passes, so a prediction that was off
+// does not cost the observations that correct it. A global fix which agrees with the
 // window's own prediction (the gate was fooled by a start belief far in its tail, not by a
 // kidnap) re-anchors the window instead of restarting it: the poses and the gated observations
 // stay, so no step keeps its unsmoothed prior (docs/estimators.md, "Re-anchoring"). Steps without observations are composed into one
@@ -28,6 +32,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "factors/pose_manifold.h"
@@ -41,6 +46,20 @@
 #include "src/core/odometry_model.h"
 
 namespace stereoloc {
+
+// The linearisation point of a window pose's factors in the marginalisation and the covariances.
+enum class WindowLinearisation {
+  // The current estimate until the pose is in a marginal prior, then the prior's linearisation
+  // point, in every factor on it: one point per pose, the prior's own (default).
+  PriorPoint,
+  // Each factor where it was created (an observation at the predicted pose): with W = 1 and one
+  // Gauss-Newton iteration the EKF step for step.
+  FirstEstimates,
+  // The current estimate in every factor, also on a pose a marginal prior linearised elsewhere.
+  Current,
+};
+std::string toString(WindowLinearisation l);                       // "prior_point", "first_estimates", "current"
+WindowLinearisation windowLinearisationFromString(const std::string& name);  // throws stereoloc::Error
 
 struct SlidingWindowConfig {
   int window = 20;                   // W: poses kept in the window (>= 1)
@@ -61,8 +80,16 @@ struct SlidingWindowConfig {
                                      // bound makes the result depend on the machine)
   bool gauss_newton = false;         // true: an (almost) infinite trust region, i.e. pure
                                      // Gauss-Newton steps (the EKF comparison)
-  bool first_estimate_jacobians = true;  // false: linearise at the current estimate instead (always
-                                         // with self-calibration, see the .cpp)
+  // Where the factors are linearised for the marginal priors and the covariances (the solve
+  // itself always uses the current estimate); see WindowLinearisation. Self-calibration always
+  // linearises at the current estimate (see the .cpp).
+  WindowLinearisation linearisation = WindowLinearisation::PriorPoint;
+  // Observations the gate rejected against the one-step prediction are tested again after each
+  // solve against their pose's marginal in the window, and fused when they pass (see the header).
+  bool retest_gated = true;
+  // Chi-square probability of that test (2 dof; 1 dof for the compass). Far wider than the gate:
+  // against the window's marginal it only has to catch outliers (docs/estimators.md, "Gate").
+  double retest_probability = 0.9999;
   bool sparse_solver = true;         // SPARSE_NORMAL_CHOLESKY (SuiteSparse); false: DENSE_NORMAL_CHOLESKY
   int final_iterations = 50;         // finish(): iterations of the last solve of the window
   // Per-step stopping rules: the warm start is already close, so a relative cost decrease of
@@ -121,6 +148,7 @@ struct SlidingWindowStats {
   long late_inserted = 0;           // insertLate calls whose step was in the window
   long late_too_late = 0;           // insertLate calls whose step had left the window
   long reanchorings = 0;            // losses resolved by a global fix that agreed with the window
+  long readmitted_observations = 0;  // gated at first, fused when tested against a later window
 };
 
 class SlidingWindowSmoother : public Estimator {
@@ -181,7 +209,12 @@ class SlidingWindowSmoother : public Estimator {
     Pose2 rel_to_next;                   // the composed odometry to the next keyframe and its covariance
     Eigen::Matrix3d rel_to_next_covariance = Eigen::Matrix3d::Zero();
     double d_left = 0.0, d_right = 0.0;  // this step's wheel increments (mm), for insertLate
-    std::vector<Observation> gated;      // observations the gate rejected here, for reanchor()
+    std::vector<Observation> gated;      // observations the gate rejected here (reanchor, retestGated)
+    std::vector<int> landmarks;          // the landmarks of the observations fused here
+    std::optional<std::pair<double, double>> gated_compass;  // a gated reading and its sigma (rad)
+    // Set when the pose enters a marginal prior: that prior's linearisation point of it
+    // (WindowLinearisation::PriorPoint).
+    std::optional<std::array<double, 3>> prior_point;
   };
   // Self-calibration blocks, after the poses in a factor's block order and in the window's
   // variables (wheels before head).
@@ -212,6 +245,8 @@ class SlidingWindowSmoother : public Estimator {
   // the robust loss when it carries one. Returns false when it cannot be evaluated.
   bool accumulate(const Factor& f, const std::vector<const double*>& cur, const std::vector<const double*>& lin,
                   const std::vector<int>& off, Eigen::MatrixXd& H, Eigen::VectorXd& g) const;
+  // Where factor f's j-th pose is linearised for marginalisation and covariances (config linearisation).
+  const double* linearisationPoint(const Factor& f, size_t j) const;
   // Estimates of the non-keyframe steps after node `k` (the next window pose `next`, or none).
   void pushIntermediates(const Node& k, const Node* next);
   void removeFactor(size_t index);
@@ -225,7 +260,9 @@ class SlidingWindowSmoother : public Estimator {
   Eigen::MatrixXd windowInformation();
   // Gate, associate and add one observation at `node` with the belief (pose, P), which is
   // updated as by the EKF's sequential update; `used`: the landmarks already taken this step.
-  bool fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P, std::vector<int>& used);
+  // retest: the test of retestGated (retest_probability) instead of the gate.
+  bool fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P, std::vector<int>& used,
+                       bool retest = false);
   // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
   Node* promote(size_t k_index, size_t j);
   // Uninitialised or lost: a global fix from late observations of a recent step restarts the
@@ -238,6 +275,10 @@ class SlidingWindowSmoother : public Estimator {
   // against the re-solved marginals and keeps every pose. False (nothing changed) when the fix
   // disagrees: a real loss, which restarts the window.
   bool reanchor(const PoseFix& fix, const Pose2& pred, const Eigen::Matrix3d& P_pred);
+  // After a solve: each window pose's gated observations against its marginal in the window;
+  // those that pass are fused and the window is solved again. Returns how many were fused.
+  int retestGated();
+  int retestObservations(Node& node);  // its gated observations (retestGated); returns how many were fused
   Estimate estimateOf(const Node& n) const;
   void pushHistory(const Estimate& e);
 
@@ -247,6 +288,8 @@ class SlidingWindowSmoother : public Estimator {
   ValidationGate gate_;
   bool gate_enabled_;  // gate_enabled, and no robust loss unless gate_with_robust_loss
   double compass_threshold_;
+  double retest_threshold_;
+  double retest_threshold_compass_;
   PoseManifold manifold_;
   std::unique_ptr<ceres::Problem> problem_;
   std::deque<std::unique_ptr<Node>> nodes_;
@@ -269,7 +312,7 @@ class SlidingWindowSmoother : public Estimator {
   Eigen::Vector3d wheels_ = Eigen::Vector3d(1.0, 1.0, 0.0);
   StereoBlock head_ = CalibrationEstimate().head;
   Eigen::MatrixXd calib_covariance_;
-  bool fej_ = true;  // first-estimate Jacobians in effect
+  WindowLinearisation linearisation_ = WindowLinearisation::PriorPoint;  // in effect
 };
 
 }  // namespace stereoloc

@@ -3,10 +3,15 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <map>
+#include <utility>
+
+#include <Eigen/Cholesky>
 
 #include <opencv2/calib3d.hpp>
 
 #include "src/core/error.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 namespace {
@@ -78,6 +83,25 @@ bool rectifyPixels(const StereoCalibration& c, StereoPixels& px) {
 
 }  // namespace
 
+Eigen::Matrix4d StereoPixelNoise::covariance() const { return stereoPixelCovariance(sigma_u, sigma_v, sigma_d, corr_ud); }
+
+std::string toString(PixelNoiseModel model) { return model == PixelNoiseModel::PerKind ? "per_kind" : "independent"; }
+
+PixelNoiseModel pixelNoiseModelFromString(const std::string& name) {
+  if (name == "per_kind") return PixelNoiseModel::PerKind;
+  if (name == "independent") return PixelNoiseModel::Independent;
+  throw Error("unknown pixel noise model '" + name + "' (expected independent or per_kind)");
+}
+
+const StereoPixelNoise& KindPixelNoise::of(LandmarkType type) const {
+  switch (type) {
+    case LandmarkType::GoalCorner: return goal;
+    case LandmarkType::Junction: return junction;
+    case LandmarkType::Intersection: return intersection;
+    default: return corner;
+  }
+}
+
 std::string toString(LandmarkSet set) { return set == LandmarkSet::All ? "all" : "goal_corners"; }
 
 LandmarkSet landmarkSetFromString(const std::string& name) {
@@ -93,6 +117,18 @@ void SimulationConfig::validate() const {
   nonneg(encoder_k, "encoder_k");
   nonneg(compass_sigma, "compass_sigma");
   nonneg(pixel_sigma, "pixel_sigma");
+  if (pixel_noise == PixelNoiseModel::PerKind) {
+    for (const auto& [name, n] : {std::pair<const char*, const StereoPixelNoise*>{"corner", &kind_noise.corner},
+                                  {"junction", &kind_noise.junction},
+                                  {"intersection", &kind_noise.intersection},
+                                  {"goal", &kind_noise.goal}}) {
+      try {
+        n->covariance();
+      } catch (const Error& e) {
+        throw Error(std::string("simulation: kind_noise.") + name + ": " + e.what());
+      }
+    }
+  }
   nonneg(obstacle_speed, "obstacle_speed");
   if (!(std::isfinite(compass_bias))) throw Error("simulation: compass_bias must be finite");
   if (!(std::isfinite(compass_sigma_floor) && compass_sigma_floor > 0))
@@ -227,6 +263,14 @@ Dataset simulate(const std::string& scenario_name, int trial, const SimulationCo
   const double clock_shift = drawn.time_offset_s / cfg.dt;  // steps
 
   std::normal_distribution<double> N(0.0, 1.0);
+  // Per-kind model: C per landmark type and its lower Cholesky factor (C = L L^T).
+  std::map<LandmarkType, std::pair<Eigen::Matrix4d, Eigen::Matrix4d>> kind_model;
+  if (cfg.pixel_noise == PixelNoiseModel::PerKind)
+    for (const Landmark& l : cfg.map.landmarks())
+      if (!kind_model.count(l.type)) {
+        const Eigen::Matrix4d C = cfg.kind_noise.of(l.type).covariance();
+        kind_model[l.type] = {C + (q / 12.0) * Eigen::Matrix4d::Identity(), C.llt().matrixL()};
+      }
   const Scene static_scene = have_geometry ? Scene::fromMap(cfg.map) : Scene();
   d.steps.resize(n);
   d.groundtruth.resize(n);
@@ -273,15 +317,32 @@ Dataset simulate(const std::string& scenario_name, int trial, const SimulationCo
         if (!raw) continue;
         px = *raw;
       }
-      for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) {
-        *c += cfg.pixel_sigma * N(rng_pixels);
-        if (cfg.quantise) *c = std::round(*c);
+      const auto kind = kind_model.find(d.map.at(v.id).type);
+      if (kind != kind_model.end()) {
+        Eigen::Vector4d white;
+        for (int i = 0; i < 4; ++i) white(i) = N(rng_pixels);
+        const Eigen::Vector4d e = kind->second.second * white;
+        px.u_left += e(0);
+        px.v_left += e(1);
+        px.u_right += e(2);
+        px.v_right += e(3);
+        if (cfg.quantise)
+          for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) *c = std::round(*c);
+      } else {
+        for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) {
+          *c += cfg.pixel_sigma * N(rng_pixels);
+          if (cfg.quantise) *c = std::round(*c);
+        }
       }
       if (!ideal && !rectifyPixels(*d.rig.calibration(), px)) continue;
       // A detector cannot triangulate what the noise pushed below the minimum disparity.
       if (!(px.disparity() >= d.rig.params().min_disparity_px)) continue;
-      st.observations.push_back(
-          observationFromPixels(d.rig, v.id, d.map.at(v.id).type, px, st.head_pan, d.rig.params().pixel_sigma));
+      if (kind != kind_model.end())
+        st.observations.push_back(
+            observationFromPixels(d.rig, v.id, d.map.at(v.id).type, px, st.head_pan, kind->second.first));
+      else
+        st.observations.push_back(
+            observationFromPixels(d.rig, v.id, d.map.at(v.id).type, px, st.head_pan, d.rig.params().pixel_sigma));
     }
   }
   return d;

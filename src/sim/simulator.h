@@ -12,10 +12,18 @@
 //             would get there": it keeps the chord length and the heading change but not the
 //             lateral offset, so odometry and ground truth disagree there by construction.
 //   compass   theta_meas = wrap(theta_true + bias + N(0, sigma^2)) (section 6.4).
-//   stereo    the exact projection of every visible landmark (StereoRig::project) plus
-//             independent N(0, sigma_px^2) on u_l, v_l, u_r, v_r, optionally rounded to whole
-//             pixels (quantisation, "the major source of error", L1213). The effective pixel
-//             sigma written to the rig is sqrt(sigma_px^2 + q/12), q = 1 when quantised.
+//   stereo    the exact projection of every visible landmark (StereoRig::project) plus pixel
+//             noise from one of two models (PixelNoiseModel), optionally rounded to whole pixels
+//             (quantisation, "the major source of error", L1213):
+//             independent  N(0, sigma_px^2) on each of u_l, v_l, u_r, v_r (the thesis's 5.28);
+//                          the effective sigma written to the rig and the observations is
+//                          sqrt(sigma_px^2 + q/12), q = 1 when quantised;
+//             per_kind     the vision frontend's model: per landmark kind a Gaussian in (u, v, d)
+//                          with correlated column and disparity errors (StereoPixelNoise,
+//                          src/core/measurement_model.h stereoPixelCovariance), drawn as L n with
+//                          L the lower Cholesky factor of its 4x4 covariance C; each observation
+//                          carries C (+ q/12 I when quantised) as its pixel covariance, so the
+//                          estimators model exactly the noise that was drawn.
 // Visibility: in front of both cameras, inside both images, horizontal range from the robot
 // centre <= rig max_range_mm, disparity >= rig min_disparity_px, and the line of sight from
 // EACH camera not blocked by walls, goals, corner triangles or obstacles (src/sim/simulator_scene.h).
@@ -27,6 +35,7 @@
 // 6.26-6.31 are 100 mm and 7.5 deg -- so an EKF with a known start has errors of the order of
 // Table 6.14 (mean 60 mm over steps 33-79, 33 mm over 80-100). k = 0.02 gives 42 mm, 4.8 deg;
 // k = 0.1 gives 96 mm, 10.7 deg. See docs/dataset_format.md.
+#include <Eigen/Core>
 #include <cstdint>
 #include <optional>
 #include <random>
@@ -39,6 +48,31 @@
 #include "src/sim/simulator_scene.h"
 
 namespace stereoloc {
+
+// The pixel noise of one landmark kind in (u, v, d): left column, row, disparity (px) and the
+// correlation of the u and d errors (src/core/measurement_model.h).
+struct StereoPixelNoise {
+  double sigma_u = 0.5, sigma_v = 0.5, sigma_d = 0.5, corr_ud = 0.0;
+  Eigen::Matrix4d covariance() const;  // px^2, of (u_l, v_l, u_r, v_r); throws Error when invalid
+};
+
+// The simulated detector's pixel noise (see the header comment).
+enum class PixelNoiseModel {
+  Independent,  // pixel_sigma on each coordinate
+  PerKind,      // SimulationConfig::kind_noise
+};
+std::string toString(PixelNoiseModel model);                   // "independent", "per_kind"
+PixelNoiseModel pixelNoiseModelFromString(const std::string& name);  // throws stereoloc::Error
+
+// Per-kind pixel noise; the defaults are the vision frontend's (frontend/stereo_match.h
+// StereoParams, measured in docs/estimators.md "Observation covariance"; a test keeps the two equal).
+struct KindPixelNoise {
+  StereoPixelNoise corner{0.45, 0.13, 0.5, 0.08};      // marking L corners and other point features
+  StereoPixelNoise junction{0.45, 0.05, 0.5, -0.13};   // T-junctions
+  StereoPixelNoise intersection{0.5, 0.24, 0.5, -0.13};  // X crossings
+  StereoPixelNoise goal{0.15, 0.61, 0.21, 0.707};      // goal corners
+  const StereoPixelNoise& of(LandmarkType type) const;
+};
 
 // Which landmarks the simulated detector reports.
 enum class LandmarkSet {
@@ -59,7 +93,9 @@ struct SimulationConfig {
   // The sigma DECLARED with the readings is max(compass_sigma, compass_sigma_floor), so that a
   // noise-free compass (Table 6.9, row 0 deg) still has a usable positive sigma.
   double compass_sigma_floor = deg2rad(0.01);  // rad
-  double pixel_sigma = 0.5;                // px, Gaussian noise on each of u_l, v_l, u_r, v_r
+  PixelNoiseModel pixel_noise = PixelNoiseModel::Independent;
+  double pixel_sigma = 0.5;                // px, independent model: noise on each of u_l, v_l, u_r, v_r
+  KindPixelNoise kind_noise;               // per_kind model
   bool quantise = false;                   // round the noisy pixel coordinates to whole pixels
   LandmarkSet landmarks = LandmarkSet::GoalCorners;
   int obstacles = 0;                       // K other robots (75 mm cubes) plus, if K > 0, a ball

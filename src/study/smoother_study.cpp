@@ -99,7 +99,9 @@ std::string boundName(const MethodSpec& m) {
 std::vector<Accumulator> runTrial(const std::string& scenario, int trial, const SmootherStudyConfig& a,
                                   const std::vector<MethodSpec>& methods, const MethodOptions& options) {
   const uint64_t seed = trialSeed(a.seed, scenario, trial);
-  const Dataset d = simulate(scenario, trial % std::max(1, scenarioTrialCount(scenario)), SimulationConfig(), seed);
+  SimulationConfig sim;
+  sim.pixel_noise = pixelNoiseModelFromString(a.pixel_noise);
+  const Dataset d = simulate(scenario, trial % std::max(1, scenarioTrialCount(scenario)), sim, seed);
   const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
   // The known start's P0 (section 6.5): the prior every method is given, and the CRLB's.
   const Eigen::Matrix3d P0 = options.init_config.known_sigma.cwiseAbs2().asDiagonal();
@@ -200,6 +202,11 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
     throw UsageError(std::string("--observation-model: ") + e.what());
   }
   const bool pixel_model = options.observation_model != ObservationModel::RangeBearing;
+  try {
+    pixelNoiseModelFromString(a.pixel_noise);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--pixel-noise: ") + e.what());
+  }
 
   struct Task {
     size_t scenario;
@@ -239,9 +246,10 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
   std::string md;
   md += "# Smoothers against filters and the Cramér–Rao bound\n\n";
   md += formatText("Scenarios %s; %d trials each (seed %llu, the simulated pixel-observation datasets of `stereoloc study --frontend pixels` with the same seed); every "
-            "method from the same known start (sigma %.0f mm, %.0f mm, %.1f deg; section 6.5); PF %d particles.\n\n",
+            "method from the same known start (sigma %.0f mm, %.0f mm, %.1f deg; section 6.5); PF %d particles; simulated pixel noise %s.\n\n",
             a.scenarios.c_str(), a.trials, static_cast<unsigned long long>(a.seed), options.init_config.known_sigma(0),
-            options.init_config.known_sigma(1), rad2deg(options.init_config.known_sigma(2)), a.particles);
+            options.init_config.known_sigma(1), rad2deg(options.init_config.known_sigma(2)), a.particles,
+            a.pixel_noise.c_str());
   md += "RMSE over all steps and trials. NEES: 3 dof; \"in 95 %\" is the fraction of estimates inside the two-sided "
         "95 % chi-square(3) interval (0.95 when consistent); \"steps in band\" the fraction of steps whose NEES "
         "averaged over the trials lies inside the 95 % band of that average (chi2(3N)/N). CRLB: the posterior "

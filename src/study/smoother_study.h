@@ -32,6 +32,9 @@ struct SmootherStudyConfig {
   int threads = 0;  // 0 = all cores
   std::string windows = "5,10,20,50";           // comma-separated window sizes W
   std::string observation_model = "pixel_columns";  // batch and window: range_bearing | pixel_columns | pixels
+  // The simulator's pixel noise (src/sim/simulator.h): independent (0.5 px per coordinate, the
+  // thesis's) or per_kind (the frontend's correlated (u, v, d) model); the observations carry it.
+  std::string pixel_noise = "independent";
   int particles = 3000;                         // particle filter
   std::string out_dir;  // when set: out_dir/smoothers.md (created atomically)
 };

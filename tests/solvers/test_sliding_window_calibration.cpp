@@ -63,7 +63,7 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
 
   SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
   c.gate_enabled = false;
-  c.first_estimate_jacobians = false;  // covariances at the optimum, as ceres::Covariance
+  c.linearisation = WindowLinearisation::Current;  // covariances at the optimum, as ceres::Covariance
   c.final_iterations = 100;
   c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
   SlidingWindowSmoother win(d.map, d.odometry, c);

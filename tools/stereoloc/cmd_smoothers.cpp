@@ -30,6 +30,10 @@ void add_smoothers_command(CLI::App& app) {
                   "How batch and window use the stereo observations, and whose information the bound is: "
                   "range_bearing, pixel_columns or pixels (see `localize --help`)")
       ->capture_default_str();
+  sub->add_option("--pixel-noise", a->pixel_noise,
+                  "The simulator's pixel noise: independent (0.5 px per coordinate, the thesis's) or per_kind (the "
+                  "vision frontend's correlated (u, v, disparity) model per landmark kind)")
+      ->capture_default_str();
   sub->add_option("--particles", a->particles, "Particles of the particle filter")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);

@@ -1,7 +1,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <map>
 
+#include "frontend/stereo_match.h"
+
+#include "src/core/error.h"
 #include "src/core/measurement_model.h"
 #include "src/core/odometry_model.h"
 #include "src/sim/simulator.h"
@@ -143,6 +147,71 @@ TEST(Simulator, PixelNoiseAndQuantisation) {
     }
   EXPECT_GT(count, 0u);
   EXPECT_NEAR(d.rig.params().pixel_sigma, std::sqrt(0.25 + 1.0 / 12.0), 1e-12);
+}
+
+TEST(Simulator, PerKindPixelNoiseHasTheModelsCovariance) {
+  // Monte Carlo: the drawn pixel errors (noisy minus exact, matched by step and landmark) of each
+  // landmark kind have the sample covariance of its (u, v, d) model, correlations included.
+  SimulationConfig noisy = noiseFree();
+  noisy.landmarks = LandmarkSet::All;
+  noisy.pixel_noise = PixelNoiseModel::PerKind;
+  noisy.scenario.steps = 1500;
+  SimulationConfig exact = noisy;
+  exact.pixel_noise = PixelNoiseModel::Independent;
+  const Dataset a = simulate("random-walk", 0, noisy, 5), b = simulate("random-walk", 0, exact, 5);
+  const Dataset again = simulate("random-walk", 0, noisy, 5);
+  std::map<LandmarkType, Eigen::Matrix4d> second;
+  std::map<LandmarkType, long> n;
+  for (size_t s = 0; s < a.steps.size(); ++s) {
+    ASSERT_EQ(a.steps[s].observations.size(), again.steps[s].observations.size());
+    for (size_t k = 0; k < a.steps[s].observations.size(); ++k) {
+      const Observation& o = a.steps[s].observations[k];
+      EXPECT_EQ(o.z(), again.steps[s].observations[k].z());  // deterministic per seed
+      EXPECT_EQ(o.pixel_covariance, noisy.kind_noise.of(o.type).covariance());
+      for (const Observation& t : b.steps[s].observations) {
+        if (t.landmark_id != o.landmark_id) continue;
+        const Eigen::Vector4d e(o.pixels->u_left - t.pixels->u_left, o.pixels->v_left - t.pixels->v_left,
+                                o.pixels->u_right - t.pixels->u_right, o.pixels->v_right - t.pixels->v_right);
+        second.try_emplace(o.type, Eigen::Matrix4d::Zero()).first->second += e * e.transpose();
+        ++n[o.type];
+      }
+    }
+  }
+  ASSERT_GE(n.size(), 3u);
+  for (const auto& [type, count] : n) {
+    ASSERT_GT(count, 200) << toString(type);
+    const Eigen::Matrix4d S = second.at(type) / static_cast<double>(count);
+    const Eigen::Matrix4d C = noisy.kind_noise.of(type).covariance();
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) {
+        // Standard error of a sample covariance entry of a Gaussian: sqrt((C_ii C_jj + C_ij^2) / n).
+        const double se = std::sqrt((C(i, i) * C(j, j) + C(i, j) * C(i, j)) / static_cast<double>(count));
+        EXPECT_NEAR(S(i, j), C(i, j), 4.5 * se) << toString(type) << " (" << i << ", " << j << ")";
+      }
+    // The marking features' left and right columns are strongly correlated in the model (0.6-0.7;
+    // a goal corner's nearly not), which independent noise would miss.
+    if (type != LandmarkType::GoalCorner) {
+      EXPECT_GT(S(0, 2) / std::sqrt(S(0, 0) * S(2, 2)), 0.5) << toString(type);
+    }
+  }
+}
+
+TEST(Simulator, PerKindDefaultsAreTheFrontendModel) {
+  const KindPixelNoise sim;
+  const frontend::StereoParams fe;
+  for (LandmarkType t : {LandmarkType::MarkingCorner, LandmarkType::Junction, LandmarkType::Intersection, LandmarkType::GoalCorner}) {
+    EXPECT_EQ(sim.of(t).sigma_u, fe.noise(t).sigma_u) << toString(t);
+    EXPECT_EQ(sim.of(t).sigma_v, fe.noise(t).sigma_v) << toString(t);
+    EXPECT_EQ(sim.of(t).sigma_d, fe.noise(t).sigma_d) << toString(t);
+    EXPECT_EQ(sim.of(t).corr_ud, fe.noise(t).corr_ud) << toString(t);
+  }
+  EXPECT_EQ(pixelNoiseModelFromString(toString(PixelNoiseModel::PerKind)), PixelNoiseModel::PerKind);
+  EXPECT_EQ(pixelNoiseModelFromString("independent"), PixelNoiseModel::Independent);
+  EXPECT_THROW(pixelNoiseModelFromString("perkind"), Error);
+  SimulationConfig bad;
+  bad.pixel_noise = PixelNoiseModel::PerKind;
+  bad.kind_noise.junction.corr_ud = 1.0;
+  EXPECT_THROW(bad.validate(), Error);
 }
 
 TEST(Simulator, VisibilityRespectsFieldOfViewRangeAndOcclusion) {
