@@ -7,22 +7,26 @@
 //                                                          2 (u_l, u_r) with PixelResiduals::Columns
 //
 // p: robot pose (x, y, theta), world frame (mm, mm, rad). l: landmark (x, y, z), world, mm.
-// q = (dbeta, k, delta_d, delta_u, phi): calibration block; dbeta the tilt correction (rad,
-// added to the rig's tilt beta; > 0 looks further down), k the baseline scale (dimensionless,
-// nominally 1), delta_d the disparity offset and delta_u the column offset (px, nominally 0),
-// phi the right camera's relative focal length error (dimensionless, nominally 0). pi: the
-// projection of factors/stereo_pixel_factor.h with C0 -> C1 (pan) -> C2 (offset, height, tilt
-// beta + dbeta), then
-//   u_l = o_u + delta_u + delta_d / 2 - f (y - k b/2) / x,
-//   u_r = o_u + delta_u - delta_d / 2 - f (1 + phi) (y + k b/2) / x,   v = o_v - f z / x,
-// so the disparity u_l - u_r is f k b / x + delta_d (+ phi f (y + k b/2) / x) and the mean
+// q = (dbeta, k, delta_d, delta_u, phi, psi): calibration block; dbeta the tilt correction
+// (rad, added to the rig's tilt beta; > 0 looks further down), k the baseline scale
+// (dimensionless, nominally 1), delta_d the disparity offset and delta_u the column offset (px,
+// nominally 0), phi the right camera's focal length error relative to the left's and psi the
+// left camera's focal length error (dimensionless, nominally 0). pi: the projection of
+// factors/stereo_pixel_factor.h with C0 -> C1 (pan) -> C2 (offset, height, tilt beta + dbeta),
+// then, with F = f (1 + psi),
+//   u_l = o_u + delta_u + delta_d / 2 - F (y - k b/2) / x,
+//   u_r = o_u + delta_u - delta_d / 2 - F (1 + phi) (y + k b/2) / x,   v = o_v - F z / x,
+// so the disparity u_l - u_r is F k b / x + delta_d (+ phi F (y + k b/2) / x) and the mean
 // column moves by delta_u.
 // Why these: range is f b / disparity (3.4), so a baseline error is a range scale error and a
 // disparity offset a range error growing with range^2 (a difference of the principal points,
 // or a relative yaw eps of the cameras, f eps: 0.1 deg is ~0.5 px at f = 277 px, a large
 // fraction of the disparity of a far landmark); a focal length difference of the two cameras
 // is a disparity error proportional to the bearing's tangent (0.7 % of 277 px: 1.1 px at 30 deg);
-// delta_u is a bearing offset (mean principal point, head pan); the tilt sets where the floor
+// delta_u is a bearing offset (mean principal point, head pan); a focal length error common to
+// both cameras (psi; 0.5 % of 277 px is 0.8 px at 30 deg) scales the tangent of every bearing,
+// which a baseline scale cannot absorb: F k b is the range scale, F alone the bearing scale, so
+// a known map separates the two; the tilt sets where the floor
 // and the landmarks appear in the rows and, through the (3.4) -> (3.5) rotation, the range of
 // every point below or above the camera. The columns enter through an equivalent point in C2:
 // any (u_l, u_r) is the projection of y' = (2 o_u - u_l - u_r) x / (2 f) with half baseline
@@ -73,19 +77,21 @@ struct StereoPixelCalibrationFactor {
     const T x2 = cb * x1 - sb * z1, z2 = sb * x1 + cb * z1;
     if (!(x2 > T(stereo_pixel::kMinDepth))) return false;
     const T hb = calib[1] * T(half_baseline_);
-    const T f(f_);
+    const T f = T(f_) * (T(1.0) + calib[5]);
     // Columns relative to o_u.
     const T cl = calib[3] + 0.5 * calib[2] - f * (y1 - hb) / x2;
     const T cr = calib[3] - 0.5 * calib[2] - f * (T(1.0) + calib[4]) * (y1 + hb) / x2;
-    const T per_px = x2 / f;  // mm in C2 per pixel of column at this depth
+    const T per_px = x2 / T(f_);  // mm in C2 per pixel of column at this depth, for the shared code's f
     const T y2 = -0.5 * (cl + cr) * per_px;
     const T half_baseline = 0.5 * (cl - cr) * per_px;
-    return stereo_pixel::whitenedResiduals(x2, y2, z2, half_baseline, f_, ou_, ov_, sqrt_info_, rows_, z_, residual);
+    // The rows through the same F: the shared code projects with the nominal f, so z scales.
+    return stereo_pixel::whitenedResiduals(x2, y2, (T(1.0) + calib[5]) * z2, half_baseline, f_, ou_, ov_, sqrt_info_,
+                                           rows_, z_, residual);
   }
 
-  static constexpr int kCalibrationSize = 5;  // (dbeta, k, delta_d, delta_u, phi)
+  static constexpr int kCalibrationSize = 6;  // (dbeta, k, delta_d, delta_u, phi, psi)
 
-  // Blocks: pose (3), stereo calibration (dbeta, k, delta_d, delta_u, phi) (5).
+  // Blocks: pose (3), stereo calibration (dbeta, k, delta_d, delta_u, phi, psi) (6).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals) {
     constexpr const char* kWho = "stereo pixel calibration factor";

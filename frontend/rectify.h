@@ -7,8 +7,12 @@
 // The frontend needs colour only at a few pixels (goal-corner colours, the field region), so it
 // uses the luma path: beginPair() converts the raw left image to luma and rectifies that one
 // channel whole; the right luma and both colour images are rectified only where they are read
-// (rightLumaRows(), colour()). Every pixel so produced equals the one a whole-image cv::remap of
-// the same input gives. rectify() is the whole-image colour path (overlays, monocular use).
+// (rightLumaRows(), colour()). The one-channel remap is this file's own: 8 pixels at a time
+// from two 16-byte loads and byte shuffles (SSSE3), since the top-left neighbours of 8
+// consecutive rectified pixels lie within 16 bytes of one or two raw rows; blocks near the image
+// border take a scalar loop. Every pixel so produced equals the one a whole-image cv::remap of
+// the same input gives (tested). rectify() is the whole-image colour path (overlays, monocular
+// use). Cost: docs/realistic_world.md.
 //
 // Resampling changes the pixel noise of a feature found in the rectified image: an error e in
 // the raw image becomes J e in the rectified one (J = d rect / d raw, the inverse of the map's
@@ -60,6 +64,13 @@ class Rectifier {
 
   const cv::Size& size() const { return size_; }
 
+  // The one-channel remap of the luma path: Auto takes the SSSE3 kernel when the CPU has it
+  // (x86), Scalar the portable loop. Both give the same pixels (integer arithmetic of
+  // cv::remap's INTER_LINEAR); Scalar is for tests and comparisons.
+  enum class Kernel { Auto, Scalar };
+  void setKernel(Kernel kernel);
+  bool vectorKernel() const { return vector_kernel_; }
+
  private:
   cv::Size size_;
   std::string source_;
@@ -70,12 +81,29 @@ class Rectifier {
   std::vector<int> raw_row_min_[2], raw_row_max_[2];
   // The one-channel remap's tables per rectified pixel: raw offset of the top-left neighbour
   // (column and row clamped so that its 2x2 neighbourhood is inside) and the 1/32 px fraction
-  // index; the pixels whose neighbourhood leaves the image, handled apart with replicated borders.
+  // index, flagged for the pixels whose neighbourhood leaves the image (replicated borders).
   std::vector<int32_t> luma_offset_[2];
   std::vector<uint16_t> luma_frac_[2];
-  std::vector<int32_t> border_pixels_[2];
+  // The vector kernel's tables, per 8 rectified pixels of a row (w / 8 blocks per row; the
+  // remaining w % 8 pixels of a row go through the scalar loop): when the 8 top-left neighbours
+  // share one raw row and span at most 15 columns, two 16-byte loads of that raw row and the
+  // next, byte shuffles and the same integer weights give the 8 pixels; other blocks (border,
+  // a row crossing) take the scalar loop.
+  struct alignas(16) Block {
+    uint8_t shuffle[16];   // byte pairs (top-left, top-right) per pixel, relative to `base`
+    uint8_t next_row[16];  // 0xFF for the pairs of a pixel whose top-left neighbour is a row lower
+    int8_t wx[16];         // (32 - fx, fx) per pixel
+    int16_t fy[8];         // fy per pixel
+    int32_t base = -1;     // raw offset of the 16-byte loads; -1: scalar block
+    bool crossing = false; // the top-left neighbours lie on two raw rows
+  };
+  std::vector<Block> blocks_[2];
+  std::vector<int32_t> scalar_blocks_[2];  // indices of the blocks the scalar loop does, ascending
+  bool vector_kernel_ = false;
   void checkSize(const cv::Mat& left_raw, const cv::Mat& right_raw) const;
   void remapLumaRows(int camera, const cv::Mat& raw_luma, int row0, int row1, cv::Mat& out) const;
+  // Pixels [u0, u1) of rectified row v by the scalar loop.
+  void remapLumaPixels(int camera, const cv::Mat& raw, int v, int u0, int u1, uint8_t* dst) const;
   // Output images. A copy of a Rectifier shares the read-only maps but gets its own outputs
   // (cv::Mat copies share pixels, and two copies may rectify in two threads).
   struct Output {
@@ -85,7 +113,10 @@ class Rectifier {
     Output& operator=(const Output&) { return *this; }
   };
   Output left_, right_;
-  Output raw_luma_[2];       // raw luma: left whole, right in the rows rightLumaRows() needed
+  // Raw luma: left whole, right in the rows rightLumaRows() needed; padded and zeroed, so that
+  // the vector kernel's 16-byte loads stay inside initialised memory.
+  std::vector<uint8_t> raw_luma_[2];
+  cv::Mat rawLuma(int camera);  // a header on raw_luma_[camera]
   Output grid_map_, grid_frac_, grid_out_;  // sparse colour samples
   Output raw_[2];            // the current raw pair (headers sharing the caller's pixels)
 };

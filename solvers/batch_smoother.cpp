@@ -67,6 +67,9 @@ void BatchSmootherConfig::validate() const {
   if (!(std::isfinite(observation_model.pixel_sigma) && observation_model.pixel_sigma >= 0))
     throw Error("batch smoother: observation_model.pixel_sigma must be >= 0 (0: the observations' own)");
   calibration.validate();
+  observation_model.unmodelled.validate();
+  if (!(std::isfinite(slip_rel_sigma) && slip_rel_sigma >= 0))
+    throw Error("batch smoother: slip_rel_sigma must be a finite number >= 0");
   if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
     throw Error("batch smoother: stereo self-calibration needs a pixel observation model (pixel_columns or pixels)");
 }
@@ -442,10 +445,11 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   ChainFactor binaryFactor(size_t i) const override {
     if (i == 0 || cut_[i]) return {};
     const BufferedStep& st = b_.steps_[first_ + i];
+    const OdometryParams odometry = withSlip(b_.odometry_, st.d_left, st.d_right, b_.config_.slip_rel_sigma);
     if (odometry_block_ >= 0)
-      return {std::unique_ptr<ceres::CostFunction>(OdometryCalibrationFactor::Create(st.d_left, st.d_right, b_.odometry_)),
+      return {std::unique_ptr<ceres::CostFunction>(OdometryCalibrationFactor::Create(st.d_left, st.d_right, odometry)),
               false, odometry_block_};
-    return {std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(st.d_left, st.d_right, b_.odometry_)), false};
+    return {std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(st.d_left, st.d_right, odometry)), false};
   }
   std::vector<int> globalBlockSizes() const override { return sizes_; }
   void globalFactors(std::vector<ChainFactor>* out) const override {
@@ -459,7 +463,7 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (stereo_block_ >= 0) {
       CalibrationEstimate::StereoVector sigma;
       sigma << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
-          c.focal_ratio_sigma;
+          c.focal_ratio_sigma, c.focal_scale_sigma;
       out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<kStereo>::Create(
                           nominalHead(), sigma.cwiseAbs2().asDiagonal().toDenseMatrix())),
                       false, stereo_block_});
@@ -865,8 +869,9 @@ void BatchSmoother::solve() {
       offset += 3;
     }
     if (cal.stereo) {
-      cal.head = c.segment<5>(offset);
-      cal.head_covariance = global_covariance.block<5, 5>(offset, offset);
+      constexpr int k = StereoPixelCalibrationFactor::kCalibrationSize;
+      cal.head = c.segment<k>(offset);
+      cal.head_covariance = global_covariance.block<k, k>(offset, offset);
     }
   }
   summary_ = s;

@@ -93,6 +93,9 @@ struct BatchSmootherConfig {
   // Range-bearing (the thesis's form) or stereo pixel factors for observations with pixels
   // (solvers/smoother_common.h); the rig must be the dataset's for the pixel models.
   ObservationModelConfig observation_model;
+  // Wheel slip the odometry's k |d| does not state (UnmodelledNoise::slip_rel_sigma,
+  // solvers/smoother_common.h): fraction of each increment, added to the odometry factors.
+  double slip_rel_sigma = 0.0;
   int max_iterations = 100;         // Levenberg-Marquardt iterations
   double function_tolerance = 1e-10;   // relative cost decrease that stops the solver
   double gradient_tolerance = 1e-12;

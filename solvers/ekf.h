@@ -8,12 +8,17 @@
 //   estimate), with h = predictRangeBearing (5.27) and H = dh/dp:
 //       nu = z [-] h(p)            (bearing wrapped BEFORE gating and fusing)
 //       S  = H P H^T + R           (5.14)
-//       e2 = nu^T S^-1 nu          (5.20)  -> ValidationGate; a gated observation is not fused
+//       e2 = nu^T S^-1 nu          (5.20)
 //       K  = P H^T S^-1            (5.19)
 //       p  = p [+] K nu            (5.15)
 //       P  = (I - K H) P (I - K H)^T + K R K^T   (Joseph form, 5.17)
 //   Compass: a scalar update on theta (H = [0 0 1], wrapped innovation), applied before the
 //   landmark observations of the same step.
+//   Gate (5.20), per step: the sum of the fused observations' e2 (sequential innovations, so the
+//   e2 of the stacked innovation at the prediction) against chi-square with their summed degrees
+//   of freedom; while it fails, the observation with the largest e2 at the prediction is set
+//   aside (not fused, a rejection) and the step fused again. One observation alone: (5.20).
+//   Why jointly: docs/estimators.md, "Gate: joint compatibility of the step".
 //   Lost (5.1.3): GateConfig::lost_after consecutive gated observations declare the robot lost;
 //   from then on the filter predicts from odometry only and asks the global fix service every
 //   step until a fix re-initialises it (Fig. 5.6).
@@ -23,24 +28,20 @@
 // smoother with W = 1 relies on that.
 //
 // Iterated update (EkfConfig::max_iterations > 1, the `iekf` method; not in the thesis): the
-// same MAP problem solved by Gauss-Newton instead of one step. With delta_i = x_i [-] x^ (x^ the
-// prior, x_0 = x^) and H_i, nu_i = z [-] h(x_i) linearised at x_i:
-//       K_i         = P H_i^T (H_i P H_i^T + R)^-1
-//       delta_{i+1} = K_i (nu_i + H_i delta_i)
-// until |delta_{i+1} - delta_i| is below iteration_tolerance (mm, rad); P is updated with the
-// last K and H (Joseph form). Why: a stereo sighting constrains the pose to a thin curved
-// set (range to ~1 %, bearing to ~0.02 deg), and one step from a prior 30 mm off puts the
+// same MAP problem solved by Gauss-Newton with step control instead of one step
+// (solvers/iterated_update.h). Why: a stereo sighting constrains the pose to a thin curved set
+// (range to ~1 %, bearing to ~0.02 deg), and one step from a prior 30 mm off puts the
 // covariance's thin axis at the wrong angle. In the study's `line` scenario the first update
 // then gave NEES 1250-6400 at one step, and the filter stayed over-confident for tens of steps.
-// The gate still tests the innovation at the prior (5.20).
 #include <Eigen/Core>
 #include <string>
 #include <vector>
 
 #include "solvers/global_fix_hypotheses.h"
-#include "solvers/initialisation.h"
-#include "solvers/validation_gate.h"
 #include "solvers/data_association.h"
+#include "solvers/initialisation.h"
+#include "solvers/iterated_update.h"
+#include "solvers/validation_gate.h"
 #include "src/core/estimator.h"
 #include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
@@ -55,7 +56,9 @@ struct EkfConfig {
   bool gate_enabled = true;
   AssociationConfig association;     // for observations with landmark_id == -1
   bool use_compass = true;           // fuse Step::compass when present
-  double compass_gate_probability = 0.99;  // chi-square probability (1 dof) of the compass gate
+  // Chi-square probability (1 dof) of updateCompass's gate; process() tests the compass with the
+  // step's sightings at GateConfig::probability.
+  double compass_gate_probability = 0.99;
   bool reinitialise_when_lost = true;       // ask global_fix when lost; false: stay lost
   GlobalFixFunction global_fix;      // empty: defaultGlobalFix() (solvers/global_fix.h)
   // Hand-over to the global start: while the belief's larger position standard deviation
@@ -74,7 +77,7 @@ struct EkfConfig {
   // has been narrower than handover_sigma_mm once (a wide start). false: wait for a global fix.
   bool multi_hypothesis_start = true;
   HypothesisConfig hypotheses;
-  // Gauss-Newton iterations of each range-bearing update (see the header comment); 1 is
+  // Gauss-Newton steps of each range-bearing update (solvers/iterated_update.h); 1 is
   // Algorithm 5 as printed.
   int max_iterations = 1;
   double iteration_tolerance = 1e-6;  // mm and rad: stop when no component of the step moves more
@@ -86,10 +89,12 @@ struct EkfUpdateRecord {
   int landmark_id = -1;            // -1 for the compass or an observation that could not be associated
   bool compass = false;
   bool associated = true;          // false: landmark_id was -1 and no landmark fell inside the gate
+  // At the belief the step's earlier observations left (for the first one: the prediction).
   Eigen::Vector2d innovation = Eigen::Vector2d::Zero();       // (mm, rad); compass: (rad, 0)
   Eigen::Matrix2d innovation_covariance = Eigen::Matrix2d::Zero();  // S; compass: S(0,0)
   double mahalanobis_squared = 0.0;  // e^2 (5.20)
   bool accepted = false;             // passed the gate and was fused
+  int observation_index = -1;        // in Step::observations; -1 for the compass
 };
 
 class Ekf : public Estimator {
@@ -107,8 +112,9 @@ class Ekf : public Estimator {
   // current belief regardless of the lost state and do not touch the lost counter.
   void reset(const Pose2& pose, const Eigen::Matrix3d& covariance);
   void predict(double d_left, double d_right);
-  // Gates and, if accepted (or the gate is disabled), fuses one range-bearing observation of
-  // a landmark at `landmark` (mm, world). Skipped (not accepted) when h is degenerate.
+  // Gates (alone, at the current belief) and, if accepted (or the gate is disabled), fuses one
+  // range-bearing observation of a landmark at `landmark` (mm, world). Skipped (not accepted)
+  // when h is degenerate.
   EkfUpdateRecord updateRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark);
   EkfUpdateRecord updateCompass(double heading, double sigma);
 
@@ -121,14 +127,26 @@ class Ekf : public Estimator {
   const std::vector<EkfUpdateRecord>& lastUpdates() const { return updates_; }
 
  private:
+  // One observation's innovation at the current belief; fused if `fuse` and (unless `gated` is
+  // false) it passes the gate (5.20).
+  EkfUpdateRecord fuseRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark, bool gated, bool fuse);
+  EkfUpdateRecord fuseCompass(double heading, double sigma, bool gated, bool fuse);
+  // The step's compass and sightings (except the `excluded` ones; index size(): the compass)
+  // fused ungated from the current belief, in order; sums the e^2 and degrees of freedom of the
+  // fused ones. Unidentified sightings are associated at the belief the earlier ones left.
+  std::vector<EkfUpdateRecord> fuseStep(const Step& step, bool wide, const std::vector<bool>& excluded,
+                                        double* joint_e2, int* joint_dof);
+  double jointThreshold(int dof);  // chi2Quantile(gate.probability, dof), computed once per dof
   bool tryGlobalFix(const Step& step);
   Estimate makeEstimate(const Step& step, EstimateStatus status) const;
 
   FieldMap map_;  // a copy: the filter does not depend on the caller's lifetime
   OdometryParams odometry_;
   EkfConfig config_;
+  IteratedUpdateOptions iteration_;
   ValidationGate gate_;
   double compass_threshold_;
+  std::vector<double> joint_thresholds_;  // chi-square quantile of the gate by degrees of freedom
   Pose2 pose_;
   Eigen::Matrix3d P_ = Eigen::Matrix3d::Zero();
   bool initialised_ = false;

@@ -3,9 +3,11 @@
 #include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <string>
 #include <utility>
 
+#include "solvers/iterated_update.h"
 #include "src/core/angles.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
@@ -24,41 +26,8 @@ HypothesisBank::HypothesisBank(const FieldMap& map, const OdometryParams& odomet
   if (!(config_.prune_log_ratio > 0) || config_.max_hypotheses < 1 || config_.max_iterations < 1 ||
       config_.max_misses < 1)
     throw Error("hypotheses: prune_log_ratio must be positive, max_hypotheses, max_iterations and max_misses >= 1");
+  iteration_.max_iterations = config_.max_iterations;
 }
-
-namespace {
-
-// One sighting's iterated update (the MAP of prior + range-bearing, solvers/ekf.h), Joseph form.
-void fuse(PoseHypothesis& h, const Observation& obs, const Eigen::Vector2d& landmark, int iterations) {
-  Matrix23d H;
-  predictRangeBearing(h.pose, landmark, &H);
-  Eigen::Matrix<double, 3, 2> K = Eigen::Matrix<double, 3, 2>::Zero();
-  Eigen::Vector3d delta = Eigen::Vector3d::Zero();
-  for (int it = 0; it < iterations; ++it) {
-    Matrix23d Hi;
-    Eigen::Vector2d zi;
-    try {
-      zi = predictRangeBearing(plus(h.pose, delta), landmark, &Hi);
-    } catch (const GeometryError&) {
-      break;
-    }
-    const Eigen::Matrix<double, 3, 2> PHt = h.covariance * Hi.transpose();
-    const Eigen::Matrix<double, 3, 2> Ki = PHt * (Hi * PHt + obs.covariance).inverse();
-    const Eigen::Vector3d next = Ki * (rangeBearingInnovation(obs.z(), zi) + Hi * delta);
-    if (!next.allFinite()) break;
-    const double moved = (next - delta).cwiseAbs().maxCoeff();
-    delta = next;
-    K = Ki;
-    H = Hi;
-    if (moved < 1e-6) break;
-  }
-  h.pose = plus(h.pose, delta);
-  const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * H;
-  const Eigen::Matrix3d P = IKH * h.covariance * IKH.transpose() + K * obs.covariance * K.transpose();  // (5.17)
-  h.covariance = 0.5 * (P + P.transpose());
-}
-
-}  // namespace
 
 bool HypothesisBank::update(PoseHypothesis& h, const std::vector<Observation>& observations, int skip) const {
   const std::vector<Observation> assoc =
@@ -69,18 +38,17 @@ bool HypothesisBank::update(PoseHypothesis& h, const std::vector<Observation>& o
     const Observation& o = assoc[k];
     const Landmark* lm = o.landmark_id >= 0 ? map_.find(o.landmark_id) : nullptr;
     if (o.landmark_id >= 0 && !lm) throw Error("hypotheses: unknown landmark id " + std::to_string(o.landmark_id));
-    double e2 = gate_threshold_ + 1.0;
-    if (lm) {
-      try {
-        Matrix23d H;
-        const Eigen::Vector2d nu = rangeBearingInnovation(o.z(), predictRangeBearing(h.pose, lm->xy(), &H));
-        e2 = mahalanobisSquared<2>(nu, H * h.covariance * H.transpose() + o.covariance);  // (5.20)
-      } catch (const GeometryError&) {
-        e2 = gate_threshold_ + 1.0;
-      }
-    }
+    // Gated at the hypothesis's belief after the step's earlier sightings: these sequential
+    // innovations are independent, so their e2 add up to the log-likelihood of the step.
+    std::optional<RangeBearingInnovation> g;
+    if (lm) g = rangeBearingInnovationAt(h.pose, h.covariance, o.z(), o.covariance, lm->xy());  // (5.20)
+    const double e2 = g ? g->mahalanobis_squared : gate_threshold_ + 1.0;
     if (std::isfinite(e2) && e2 <= gate_threshold_) {
-      fuse(h, o, lm->xy(), config_.max_iterations);
+      const std::optional<RangeBearingPosterior> post =
+          updateRangeBearingBelief(h.pose, h.covariance, o.z(), o.covariance, lm->xy(), iteration_);
+      if (!post) return false;  // unreachable: h was defined at this belief for the gate
+      h.pose = post->pose;
+      h.covariance = post->covariance;
       h.log_likelihood -= 0.5 * e2;
       explained_any = true;
     } else {

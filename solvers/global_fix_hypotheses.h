@@ -29,6 +29,7 @@
 #include "solvers/data_association.h"
 #include "solvers/global_fix.h"
 #include "solvers/initialisation.h"
+#include "solvers/iterated_update.h"
 #include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
 #include "src/core/pose2.h"
@@ -44,7 +45,7 @@ struct HypothesisConfig {
   double prune_log_ratio = 13.8;
   double merge_probability = 0.99;  // two hypotheses within this 3-dof gate of each other are one
   int max_hypotheses = 64;          // the most likely are kept
-  int max_iterations = 5;           // Gauss-Newton iterations of each sighting's update (solvers/ekf.h)
+  int max_iterations = 5;           // Gauss-Newton steps of each sighting's update (solvers/iterated_update.h)
   // A hypothesis that explains none of the sightings of this many observed steps in a row is
   // dropped even when it is the best (all of them wrong: the bank empties and spawns again).
   int max_misses = 3;
@@ -86,6 +87,7 @@ class HypothesisBank {
   OdometryParams odometry_;
   HypothesisConfig config_;
   double gate_threshold_, compass_threshold_, merge_threshold_;
+  IteratedUpdateOptions iteration_;
   std::vector<PoseHypothesis> hypotheses_;
 };
 

@@ -36,6 +36,7 @@ void SelfCalibrationConfig::validate() const {
   pos(disparity_offset_sigma_px, "disparity_offset_sigma_px");
   pos(column_offset_sigma_px, "column_offset_sigma_px");
   pos(focal_ratio_sigma, "focal_ratio_sigma");
+  pos(focal_scale_sigma, "focal_scale_sigma");
   if (max_iterations < 1) throw Error("self-calibration: max_iterations must be at least 1");
 }
 
@@ -78,6 +79,8 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
     w.put("column_offset_sigma_px", std::sqrt(head_covariance(3, 3)));
     w.put("focal_ratio", head[4]);
     w.put("focal_ratio_sigma", std::sqrt(head_covariance(4, 4)));
+    w.put("focal_scale", head[5]);
+    w.put("focal_scale_sigma", std::sqrt(head_covariance(5, 5)));
   }
   if (odometry) {
     w.put("wheel_scale_left", wheels[0]);

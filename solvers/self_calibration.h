@@ -5,8 +5,9 @@
 //
 //   odometry  c = (c_l, c_r, w): wheel scales and effective wheel base
 //             (factors/odometry_calibration_factor.h)
-//   stereo    q = (dbeta, k, delta_d, delta_u, phi): head tilt correction, baseline scale,
-//             disparity offset, column offset and the right camera's focal length error,
+//   stereo    q = (dbeta, k, delta_d, delta_u, phi, psi): head tilt correction, baseline scale,
+//             disparity offset, column offset, the right camera's focal length error relative
+//             to the left's and the left camera's focal length error,
 //             entering every pixel factor
 //             (factors/stereo_pixel_calibration_factor.h); observations without pixels stay
 //             range-bearing factors, which do not see q
@@ -29,7 +30,7 @@ namespace stereoloc {
 
 struct SelfCalibrationConfig {
   bool odometry = false;  // estimate wheel scales and wheel base
-  bool stereo = false;    // estimate tilt correction, baseline scale, pixel offsets, focal ratio
+  bool stereo = false;    // estimate tilt correction, baseline scale, pixel offsets, focal errors
   // Prior 1-sigma: twice the spread of the realistic error profile (src/sim/error_profile.h),
   // so that the prior does not pull a real robot's parameters back.
   double wheel_scale_sigma = 0.01;          // dimensionless
@@ -43,6 +44,8 @@ struct SelfCalibrationConfig {
   double column_offset_sigma_px = 2.0;      // px
   // The focal lengths' difference: 0.5 % per camera, 0.7 % between them.
   double focal_ratio_sigma = 0.014;         // dimensionless
+  // The left camera's focal length: 0.5 % per camera.
+  double focal_scale_sigma = 0.01;          // dimensionless
   // selfCalibratingBatch only (the batch smoother takes them from its own configuration).
   PixelResiduals residuals = PixelResiduals::All;
   bool use_compass = true;
@@ -57,15 +60,15 @@ struct CalibrationEstimate {
   bool odometry = false, stereo = false;               // which blocks were estimated
   Eigen::Vector3d wheels = Eigen::Vector3d(1, 1, 75);  // c_l, c_r, w (mm)
   Eigen::Matrix3d wheels_covariance = Eigen::Matrix3d::Zero();
-  // dbeta (rad), k, delta_d (px), delta_u (px), phi: factors/stereo_pixel_calibration_factor.h
-  using StereoVector = Eigen::Matrix<double, 5, 1>;
-  using StereoMatrix = Eigen::Matrix<double, 5, 5>;
-  StereoVector head = (StereoVector() << 0, 1, 0, 0, 0).finished();
+  // dbeta (rad), k, delta_d (px), delta_u (px), phi, psi: factors/stereo_pixel_calibration_factor.h
+  using StereoVector = Eigen::Matrix<double, 6, 1>;
+  using StereoMatrix = Eigen::Matrix<double, 6, 6>;
+  StereoVector head = (StereoVector() << 0, 1, 0, 0, 0, 0).finished();
   StereoMatrix head_covariance = StereoMatrix::Zero();
 
-  // The rig with the estimated tilt and baseline (and the pixel offsets, focal ratio, the odometry estimate
-  // and every standard deviation as extra keys: disparity_offset_px, column_offset_px, focal_ratio,
-  // wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma), in the rig YAML a user can pass
+  // The rig with the estimated tilt and baseline (and the pixel offsets, focal ratio and scale, the
+  // odometry estimate and every standard deviation as extra keys: disparity_offset_px,
+  // column_offset_px, focal_ratio, focal_scale, wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma), in the rig YAML a user can pass
   // back as --rig. A rig carrying an OpenCV calibration gets its T and P2 scaled.
   void saveAsRig(const std::string& path, const StereoRig& rig) const;
 };

@@ -38,7 +38,7 @@ Pose2 poseOf(const std::array<double, 3>& x) { return Pose2(x[0], x[1], x[2]); }
 CalibrationEstimate::StereoVector stereoPriorSigma(const SelfCalibrationConfig& c) {
   CalibrationEstimate::StereoVector s;
   s << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
-      c.focal_ratio_sigma;
+      c.focal_ratio_sigma, c.focal_scale_sigma;
   return s;
 }
 

@@ -15,6 +15,7 @@
 #include "src/core/angles.h"
 #include "src/core/error.h"
 #include "src/core/measurement_model.h"
+#include "src/core/yaml_util.h"
 
 namespace stereoloc {
 namespace {
@@ -60,12 +61,91 @@ ObservationModel observationModelFromString(const std::string& name) {
   throw Error("unknown observation model '" + name + "' (expected range_bearing, pixel_columns or pixels)");
 }
 
+bool UnmodelledNoise::isZero() const {
+  return k1_sigma == 0 && k2_sigma == 0 && tangential_sigma == 0 && pitch_sigma_rad == 0 && roll_sigma_rad == 0 &&
+         slip_rel_sigma == 0;
+}
+
+namespace {
+const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
+    {"k1_sigma", &UnmodelledNoise::k1_sigma},
+    {"k2_sigma", &UnmodelledNoise::k2_sigma},
+    {"tangential_sigma", &UnmodelledNoise::tangential_sigma},
+    {"pitch_sigma_rad", &UnmodelledNoise::pitch_sigma_rad},
+    {"roll_sigma_rad", &UnmodelledNoise::roll_sigma_rad},
+    {"slip_rel_sigma", &UnmodelledNoise::slip_rel_sigma},
+};
+}  // namespace
+
+void UnmodelledNoise::validate() const {
+  for (const auto& [key, field] : kNoiseKeys)
+    if (!(std::isfinite(this->*field) && this->*field >= 0))
+      throw Error(std::string("noise model: ") + key + " must be a finite number >= 0");
+}
+
+UnmodelledNoise UnmodelledNoise::load(const std::string& path) {
+  const YamlReader in(path);
+  UnmodelledNoise n;
+  for (const auto& [key, field] : kNoiseKeys) {
+    n.*field = in.getDouble(key, 0.0);
+    if (!(n.*field >= 0)) in.fail(key, "must be >= 0");
+  }
+  return n;
+}
+
+void UnmodelledNoise::save(const std::string& path) const {
+  validate();
+  YamlWriter w;
+  w.comment("stereoloc noise model (solvers/smoother_common.h UnmodelledNoise); rad, fractions");
+  for (const auto& [key, field] : kNoiseKeys) w.put(key, this->*field);
+  w.writeAtomically(path);
+}
+
+Eigen::Matrix4d unmodelledPixelCovariance(const StereoRig& rig, const StereoPixels& px, const UnmodelledNoise& noise) {
+  const double f = rig.focal(), ou = rig.principalU(), ov = rig.principalV();
+  Eigen::Matrix4d C = Eigen::Matrix4d::Zero();
+  Eigen::Matrix<double, 4, 2> J_vib;  // d(u_l, v_l, u_r, v_r) / d(pitch, roll)
+  const double u[2] = {px.u_left, px.u_right}, v[2] = {px.v_left, px.v_right};
+  for (int c = 0; c < 2; ++c) {
+    // Normalised coordinates of the (rectified ~ undistorted) point; OpenCV's distortion model
+    // x' = x (1 + k1 r^2 + k2 r^4) + 2 p1 x y + p2 (r^2 + 2 x^2), y' likewise with p1, p2 swapped.
+    const double x = (u[c] - ou) / f, y = (v[c] - ov) / f, r2 = x * x + y * y;
+    Eigen::Matrix<double, 2, 4> J_lens;  // d(u, v) / d(k1, k2, p1, p2)
+    J_lens << f * x * r2, f * x * r2 * r2, f * 2 * x * y, f * (r2 + 2 * x * x),  //
+        f * y * r2, f * y * r2 * r2, f * (r2 + 2 * y * y), f * 2 * x * y;
+    const Eigen::Vector4d var(noise.k1_sigma * noise.k1_sigma, noise.k2_sigma * noise.k2_sigma,
+                              noise.tangential_sigma * noise.tangential_sigma,
+                              noise.tangential_sigma * noise.tangential_sigma);
+    C.block<2, 2>(2 * c, 2 * c) += J_lens * var.asDiagonal() * J_lens.transpose();
+    // A small rotation of the camera: pitch about its x axis moves (u, v) by f (x y, 1 + y^2),
+    // roll about its optical axis by f (-y, x); the pair shares them (one head).
+    J_vib.row(2 * c) << f * x * y, -f * y;
+    J_vib.row(2 * c + 1) << f * (1 + y * y), f * x;
+  }
+  const Eigen::Vector2d vib(noise.pitch_sigma_rad * noise.pitch_sigma_rad, noise.roll_sigma_rad * noise.roll_sigma_rad);
+  C += J_vib * vib.asDiagonal() * J_vib.transpose();
+  return 0.5 * (C + C.transpose());
+}
+
+OdometryParams withSlip(const OdometryParams& params, double d_left, double d_right, double slip_rel_sigma) {
+  OdometryParams p = params;
+  const double d = std::max(std::fabs(d_left), std::fabs(d_right));
+  p.wheel_variance_floor += slip_rel_sigma * slip_rel_sigma * d * d;
+  return p;
+}
+
 Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config) {
-  if (config.pixel_sigma > 0) return isotropicPixelCovariance(config.pixel_sigma);
-  if (!(obs.pixel_covariance.diagonal().minCoeff() > 0))
-    throw Error("observation of landmark " + std::to_string(landmark.id) +
-                ": has pixels but no pixel covariance (the pixel observation model needs it)");
-  return obs.pixel_covariance;
+  Eigen::Matrix4d C;
+  if (config.pixel_sigma > 0) {
+    C = isotropicPixelCovariance(config.pixel_sigma);
+  } else {
+    if (!(obs.pixel_covariance.diagonal().minCoeff() > 0))
+      throw Error("observation of landmark " + std::to_string(landmark.id) +
+                  ": has pixels but no pixel covariance (the pixel observation model needs it)");
+    C = obs.pixel_covariance;
+  }
+  if (obs.pixels && !config.unmodelled.isZero()) C += unmodelledPixelCovariance(config.rig, *obs.pixels, config.unmodelled);
+  return C;
 }
 
 ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,

@@ -44,6 +44,38 @@ enum class ObservationModel {
 std::string toString(ObservationModel model);                       // "range_bearing", "pixel_columns", "pixels"
 ObservationModel observationModelFromString(const std::string& name);  // throws stereoloc::Error
 
+// Errors of a real robot that neither the rig's pixel sigma nor the odometry's k |d| states and
+// the self-calibration does not estimate, stated as the noise they add (docs/realistic_world.md,
+// "Noise model"): the error left in the calibration's lens distortion estimate, per-step camera
+// vibration and wheel slip. All 0 (the default) adds nothing. A YAML file (cv::FileStorage) with
+// these keys, missing keys 0, is what a user writes for a robot (data/noise_realistic.yaml).
+struct UnmodelledNoise {
+  double k1_sigma = 0.0;          // error of each camera's calibrated radial k1 (dimensionless)
+  double k2_sigma = 0.0;          // ... k2
+  double tangential_sigma = 0.0;  // ... p1 and p2
+  double pitch_sigma_rad = 0.0;   // camera pitch vibration per image pair, rad (both cameras)
+  double roll_sigma_rad = 0.0;    // camera roll vibration per image pair, rad (both cameras)
+  // Wheel slip: a wheel's increment's error sigma as a fraction of the increment, added in
+  // quadrature to (B.6)'s k |d| (slip on a fraction p of the steps, one wheel at a time, reading
+  // (1 + s) times the motion: sqrt(p / 2 E[s^2])).
+  double slip_rel_sigma = 0.0;
+
+  bool isZero() const;
+  void validate() const;  // throws stereoloc::Error naming the field
+  static UnmodelledNoise load(const std::string& path);  // errors name the file and key
+  void save(const std::string& path) const;
+};
+
+// The pixel covariance (u_l, v_l, u_r, v_r; px^2) the lens and vibration terms of `noise` add to
+// an observation at rectified pixels `px` of `rig`: J diag(sigma^2) J^T, J the pixels' first-order
+// change with each camera's k1, k2, p1, p2 (independent between the cameras) and with the pair's
+// common pitch and roll.
+Eigen::Matrix4d unmodelledPixelCovariance(const StereoRig& rig, const StereoPixels& px, const UnmodelledNoise& noise);
+
+// The odometry parameters of one step with the slip term: each wheel's variance grows by
+// (slip_rel_sigma d)^2; as the floor of both wheels, it takes the larger increment's.
+OdometryParams withSlip(const OdometryParams& params, double d_left, double d_right, double slip_rel_sigma);
+
 struct ObservationModelConfig {
   ObservationModel model = ObservationModel::RangeBearing;
   StereoRig rig;  // the rig that took the pixels (Dataset::rig); used by the pixel models
@@ -51,10 +83,12 @@ struct ObservationModelConfig {
   // an honest noise for a world the ideal sigma understates (vibration, blur, unsynchronised
   // cameras).
   double pixel_sigma = 0.0;
+  // Pixel noise the rig does not state (the lens and vibration terms; slip is the odometry's).
+  UnmodelledNoise unmodelled{};
 };
 
 // The pixel covariance the pixel models use for `obs`: its own, or sigma^2 I when
-// config.pixel_sigma > 0. Throws stereoloc::Error when the observation carries none.
+// config.pixel_sigma > 0, plus unmodelledPixelCovariance of config.unmodelled. Throws stereoloc::Error when the observation carries none.
 Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config);
 
 // The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks

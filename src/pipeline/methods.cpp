@@ -1,6 +1,7 @@
 #include "src/pipeline/methods.h"
 
 #include <chrono>
+#include <cmath>
 #include <memory>
 
 #include "solvers/batch_smoother.h"
@@ -153,10 +154,41 @@ BatchSmootherConfig batchConfigFor(const std::string& spec, const Dataset& d, ui
   c.init = beliefFor(init_mode, d, o, rng);
   c.loss.type = o.loss;
   c.loss.scale = o.loss_scale;
-  c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
+  c.observation_model = {o.observation_model, d.rig, o.pixel_sigma, o.noise};
+  c.slip_rel_sigma = o.noise.slip_rel_sigma;
   c.calibration = o.calibration;
   requirePixelModelForStereoCalibration(o);
   return c;
+}
+
+void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o) {
+  if (p.isIdeal()) return;
+  UnmodelledNoise& n = o.noise;
+  n.k1_sigma = p.k1_estimate_sigma;
+  n.k2_sigma = p.k2_estimate_sigma;
+  n.tangential_sigma = p.tangential_estimate_sigma;
+  n.pitch_sigma_rad = p.pitch_sigma_rad;
+  n.roll_sigma_rad = p.roll_sigma_rad;
+  // One wheel at a time on a fraction p of the steps, s uniform in [a, b]: E[s^2] per wheel
+  // p / 2 (a^2 + a b + b^2) / 3.
+  const double a = p.slip_min, b = p.slip_max;
+  n.slip_rel_sigma = std::sqrt(0.5 * p.slip_probability * (a * a + a * b + b * b) / 3.0);
+  // Priors: the calibration's stated uncertainty. The disparity offset is the principal points'
+  // u difference and f times the cameras' relative yaw, the column offset their means; a
+  // profile without an error keeps the default prior.
+  SelfCalibrationConfig& k = o.calibration;
+  auto set = [](double& prior, double sigma) {
+    if (sigma > 0) prior = sigma;
+  };
+  const double pp = p.principal_sigma_px, rot = focal_px * p.relative_rotation_sigma_rad;
+  set(k.wheel_scale_sigma, p.wheel_radius_rel_sigma);
+  set(k.wheel_base_rel_sigma, p.wheel_base_rel_sigma);
+  set(k.tilt_sigma_rad, p.tilt_sigma_rad);
+  set(k.baseline_scale_sigma, p.baseline_rel_sigma);
+  set(k.disparity_offset_sigma_px, std::sqrt(2 * pp * pp + rot * rot));
+  set(k.column_offset_sigma_px, std::sqrt(0.5 * pp * pp + 0.25 * rot * rot));
+  set(k.focal_ratio_sigma, std::sqrt(2.0) * p.focal_rel_sigma);
+  set(k.focal_scale_sigma, p.focal_rel_sigma);
 }
 
 MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& options) {
@@ -193,7 +225,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
     c.robust_loss.type = o.loss;
     c.robust_loss.scale = o.loss_scale;
-    c.observation_model = {o.observation_model, d.rig, o.pixel_sigma};
+    c.observation_model = {o.observation_model, d.rig, o.pixel_sigma, o.noise};
     c.calibration = o.calibration;
     requirePixelModelForStereoCalibration(o);
     SlidingWindowSmoother w(d.map, d.odometry, c);

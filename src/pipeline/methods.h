@@ -15,6 +15,7 @@
 #include "solvers/smoother_common.h"
 #include "src/io/dataset.h"
 #include "src/core/types.h"
+#include "src/sim/error_profile.h"
 
 namespace stereoloc {
 
@@ -37,7 +38,16 @@ struct MethodOptions {
   // Batch and window pixel models: px, > 0 replaces the observations' own pixel sigma (an
   // honest noise for a world with vibration and blur, docs/realistic_world.md); 0 keeps theirs.
   double pixel_sigma = 0.0;
+  // Batch and window: the errors the rig and odometry do not state (lens estimate, vibration:
+  // the pixel models; slip: the batch's odometry factors). Zero: none.
+  UnmodelledNoise noise{};
 };
+
+// What the user of a robot with error profile `profile` states (its sigmas, not its draws):
+// the noise model (the distortion estimate's error, vibration, slip) and the self-calibration's
+// priors (the calibration's uncertainty), on a rig of focal length `focal_px`
+// (docs/realistic_world.md, "Noise model"). An ideal profile leaves `options` as they are.
+void applyErrorProfile(const ErrorProfile& profile, double focal_px, MethodOptions& options);
 
 struct MethodRun {
   std::string method;                // the spec as given

@@ -20,7 +20,10 @@
 // observations as range-bearing and as pixels (GlobalFixOptions::rig), same steps, same draws.
 // With images in a world other than the ideal one, Table 6.3 (goal-corner range error, absolute
 // and normalised by the true range, pooled over the categories) is printed per world beside the
-// thesis's, with the recall of the goal corners the simulator finds visible.
+// thesis's, with the recall of the goal corners the simulator finds visible, and a self-calibrated
+// column: the same raw pairs through the frontend with the rig the batch smoother's
+// self-calibration (solvers/self_calibration.h) estimated on the trial's own sequence
+// (src/study/fix_study_rig.h).
 #include <cstdint>
 #include <cstdio>
 #include <string>
@@ -49,6 +52,10 @@ struct FixStudyOptions {
   // {"ideal"}, the tables get one column per world and, with images, the goal-corner range
   // statistics of thesis Table 6.3 and the goal-corner recall are added.
   std::vector<std::string> profiles = {"ideal"};
+  // Self-calibration parts (SelfCalibrationConfig::parse: stereo or odometry,stereo; none): with
+  // images, each non-ideal world also gets a column of the same raw pairs through the frontend
+  // with the rig the self-calibrating batch estimated on the trial's own image sequence.
+  std::string calibrate = "stereo";
   int steps = 0;                            // poses per trial; 0 = the scenario's default (100)
   std::FILE* console = stdout;              // the tables
   std::FILE* log = stderr;                  // image frontend timings; null: none

@@ -117,13 +117,14 @@ std::string profileTitleTag(const std::string& profile) { return profile == "ide
 std::string calibrationFigures(const StudyConfig& c, const std::string& scenario, const std::string& profile,
                                const Dataset& d, const SimulationTrace& trace, const std::string& dir) {
   std::ostringstream md;
-  const std::array<double, 5> truth = trueCalibration(d, trace);
-  const char* names[5] = {"wheel scale left", "wheel scale right", "wheel base [mm]", "tilt correction [deg]",
-                          "baseline scale"};
+  constexpr int K = kCalibrationParameterCount;
+  const std::array<double, K> truth = trueCalibration(d, trace);
+  const char* names[K] = {"wheel scale left", "wheel scale right", "wheel base [mm]", "tilt correction [deg]",
+                          "baseline scale", "focal scale"};
   for (const std::string& m : c.methods) {
     if (!hasCalibrationSuffix(m) || d.steps.size() < 10) continue;
     std::vector<double> n_steps;
-    std::array<std::vector<double>, 5> est, lo, hi;
+    std::array<std::vector<double>, K> est, lo, hi;
     const size_t N = d.steps.size();
     for (int k = 1; k <= 10; ++k) {
       const size_t n = std::max<size_t>(5, N * static_cast<size_t>(k) / 10);
@@ -132,17 +133,17 @@ std::string calibrationFigures(const StudyConfig& c, const std::string& scenario
       part.groundtruth.resize(std::min(part.groundtruth.size(), n));
       MethodRun run;
       try {
-        run = runMethod(m, part, methodSeed(c, scenario, 0, m), c.method_options);
+        run = runMethod(m, part, methodSeed(c, scenario, 0, m), methodOptionsFor(c, profile, d));
       } catch (const Error&) {
         continue;  // too few observations on a short prefix to fix the problem
       }
       if (!run.calibration) continue;
       const CalibrationEstimate& ce = *run.calibration;
-      const double v[5] = {ce.wheels[0], ce.wheels[1], ce.wheels[2], ce.head[0], ce.head[1]};
-      const double var[5] = {ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
-                             ce.head_covariance(0, 0), ce.head_covariance(1, 1)};
+      const double v[K] = {ce.wheels[0], ce.wheels[1], ce.wheels[2], ce.head[0], ce.head[1], ce.head[5]};
+      const double var[K] = {ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
+                             ce.head_covariance(0, 0),   ce.head_covariance(1, 1),   ce.head_covariance(5, 5)};
       n_steps.push_back(static_cast<double>(n));
-      for (int i = 0; i < 5; ++i) {
+      for (int i = 0; i < K; ++i) {
         const double scale = i == 3 ? rad2deg(1.0) : 1.0, sd = std::sqrt(std::max(0.0, var[i]));
         est[i].push_back(v[i] * scale);
         lo[i].push_back((v[i] - 3 * sd) * scale);
@@ -152,7 +153,7 @@ std::string calibrationFigures(const StudyConfig& c, const std::string& scenario
     if (n_steps.empty()) continue;
     std::string safe = scenario + profileFileTag(profile) + "_" + m + "_calibration";
     std::replace(safe.begin(), safe.end(), ':', '_');
-    for (int i = 0; i < 5; ++i) {
+    for (int i = 0; i < K; ++i) {
       const double scale = i == 3 ? rad2deg(1.0) : 1.0;
       Plot p(scenario + profileTitleTag(profile) + ": " + m + " " + names[i] + " on the first n steps (trial 0)",
              "steps used", names[i], 900, 360);
@@ -187,7 +188,7 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
   size_t color = 0;
   std::map<std::string, MethodRun> runs;
   for (const std::string& m : c.methods) {
-    runs[m] = runMethod(m, d, methodSeed(c, scenario, 0, m), c.method_options);
+    runs[m] = runMethod(m, d, methodSeed(c, scenario, 0, m), methodOptionsFor(c, profile, d));
     const MethodRun& run = runs[m];
     std::vector<double> x, y;
     for (const Estimate& e : run.estimates)

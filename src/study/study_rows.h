@@ -91,8 +91,9 @@ struct CalibrationRow {
 inline constexpr const char* kCalibrationHeader = "scenario,profile,trial,method,parameter,truth,estimate,sigma";
 
 // The parameters in calibration.csv's order.
-inline constexpr const char* kCalibrationParameters[5] = {"wheel_scale_left", "wheel_scale_right", "wheel_base_mm",
-                                                          "tilt_correction_rad", "baseline_scale"};
+inline constexpr int kCalibrationParameterCount = 6;
+inline constexpr const char* kCalibrationParameters[kCalibrationParameterCount] = {
+    "wheel_scale_left", "wheel_scale_right", "wheel_base_mm", "tilt_correction_rad", "baseline_scale", "focal_scale"};
 
 // A trial has converged when every position error over the thesis's second window (steps
 // 80-100, Table 6.14) is at most this, mm: about ten times the trackers' error there.

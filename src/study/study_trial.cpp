@@ -133,10 +133,16 @@ long firstSightingStep(const Dataset& d) {
 
 }  // namespace
 
-std::array<double, 5> trueCalibration(const Dataset& d, const SimulationTrace& trace) {
+std::array<double, kCalibrationParameterCount> trueCalibration(const Dataset& d, const SimulationTrace& trace) {
   const DrawnErrors& e = trace.errors;
   return {1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], d.odometry.wheel_base_mm * (1 + e.wheel_base_rel),
-          e.tilt_rad, 1 + e.baseline_rel};
+          e.tilt_rad, 1 + e.baseline_rel, e.focal_rel[0]};
+}
+
+MethodOptions methodOptionsFor(const StudyConfig& c, const std::string& profile, const Dataset& d) {
+  MethodOptions o = c.method_options;
+  applyErrorProfile(ErrorProfile::named(profile), d.rig.focal(), o);
+  return o;
 }
 
 TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std::string& scenario, int trial,
@@ -144,15 +150,16 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std
   TrialOutput out;
   SimulationTrace trace;
   const Dataset d = simulateTrial(c, profile, scenario, trial, cache, 1, &out.frontend, &trace);
-  const std::array<double, 5> truth_calibration = trueCalibration(d, trace);
+  const std::array<double, kCalibrationParameterCount> truth_calibration = trueCalibration(d, trace);
   const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
   const long first = firstSightingStep(d);
   const double band_lo = chi2Quantile(0.025, 3), band_hi = chi2Quantile(0.975, 3);
+  const MethodOptions options = methodOptionsFor(c, profile, d);
   for (const std::string& method : c.methods) {
     MethodRun run;
     bool failed = false;
     try {
-      run = runMethod(method, d, methodSeed(c, scenario, trial, method), c.method_options);
+      run = runMethod(method, d, methodSeed(c, scenario, trial, method), options);
     } catch (const UsageError&) {
       throw;
     } catch (const Error& e) {
@@ -163,11 +170,14 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std
     }
     if (run.calibration) {
       const CalibrationEstimate& ce = *run.calibration;
-      const double v[5] = {ce.wheels[0], ce.wheels[1], ce.wheels[2], ce.head[0], ce.head[1]};
-      const double var[5] = {ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
-                             ce.head_covariance(0, 0), ce.head_covariance(1, 1)};
-      const bool estimated[5] = {ce.odometry, ce.odometry, ce.odometry, ce.stereo, ce.stereo};
-      for (int i = 0; i < 5; ++i) {
+      const double v[kCalibrationParameterCount] = {ce.wheels[0], ce.wheels[1], ce.wheels[2],
+                                                    ce.head[0],   ce.head[1],   ce.head[5]};
+      const double var[kCalibrationParameterCount] = {
+          ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
+          ce.head_covariance(0, 0),   ce.head_covariance(1, 1),   ce.head_covariance(5, 5)};
+      const bool estimated[kCalibrationParameterCount] = {ce.odometry, ce.odometry, ce.odometry,
+                                                          ce.stereo,   ce.stereo,   ce.stereo};
+      for (int i = 0; i < kCalibrationParameterCount; ++i) {
         if (!estimated[i]) continue;
         CalibrationRow cr;
         cr.scenario = scenario;

@@ -35,8 +35,13 @@ struct TrialOutput {
 
 // The calibration of the world a trace drew, in the parameters of solvers/self_calibration.h
 // (kCalibrationParameters): wheel scales c_l, c_r, wheel base w (mm), tilt correction dbeta
-// (rad), baseline scale k. The ideal world's is the nominal one.
-std::array<double, 5> trueCalibration(const Dataset& d, const SimulationTrace& trace);
+// (rad), baseline scale k, focal scale psi (the left camera's focal length error). The ideal
+// world's is the nominal one.
+std::array<double, kCalibrationParameterCount> trueCalibration(const Dataset& d, const SimulationTrace& trace);
+
+// The study's method options in the world of `profile`: its stated sigmas as the noise model
+// and calibration priors (applyErrorProfile, src/pipeline/methods.h) on the dataset's rig.
+MethodOptions methodOptionsFor(const StudyConfig& c, const std::string& profile, const Dataset& d);
 
 // Noise-free renders of the scenarios whose true path does not depend on the seed, by
 // "scenario#thesis trial" (see CleanRenders in frontend_source.h).

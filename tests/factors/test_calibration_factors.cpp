@@ -96,14 +96,15 @@ TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobian
         const double pan = 0.4 * U(rng);
         const test::Sighting s = test::sight(rig, pose, pan, 700 + 300 * U(rng), 0.4 * U(rng), 25.0);
         const double p[3] = {pose.x, pose.y, pose.theta};
-        const double nominal[5] = {0.0, 1.0, 0.0, 0.0, 0.0};
+        const double nominal[6] = {0.0, 1.0, 0.0, 0.0, 0.0, 0.0};
         std::unique_ptr<ceres::CostFunction> calib(
             StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.5, mode));
         std::unique_ptr<ceres::CostFunction> plain(StereoPixelFactor::Create(rig, s.landmark, s.pixels, pan, 0.5, mode));
         EXPECT_LT((evaluate(*calib, {p, nominal}) - evaluate(*plain, {p})).norm(), 1e-9);
-        const double off[5] = {0.01, 1.02, 0.0, 0.0, 0.0};
-        const double off_px[5] = {-0.008, 0.985, 1.3, -0.7, 0.006};
-        for (const double* q : {off, off_px}) {
+        const double off[6] = {0.01, 1.02, 0.0, 0.0, 0.0, 0.0};
+        const double off_px[6] = {-0.008, 0.985, 1.3, -0.7, 0.006, 0.0};
+        const double off_f[6] = {0.004, 1.01, -0.9, 0.4, -0.005, 0.008};
+        for (const double* q : {off, off_px, off_f}) {
           const FactorCheck c = checkFactorJacobians(*calib, {p, q});
           EXPECT_TRUE(c.ok) << c.message;
         }
@@ -117,21 +118,27 @@ TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobian
         ASSERT_TRUE(px);
         std::unique_ptr<ceres::CostFunction> f(StereoPixelCalibrationFactor::Create(rig, s.landmark, *px, pan, 0.5, mode));
         EXPECT_LT(evaluate(*f, {p, off}).norm(), 1e-8);
-        // ... and with the pixel offsets and focal ratio of `off_px` too: the disparity grows by
-        // delta_d, both columns move by delta_u, the right column's distance from o_u scales by
-        // 1 + phi, the rows stay.
-        StereoRigParams tq = rig.params();
-        tq.tilt_rad += off_px[0];
-        tq.baseline_mm *= off_px[1];
-        const auto qx = StereoRig(tq).project(Eigen::Vector3d(local.x(), local.y(), s.landmark.z()), pan);
-        ASSERT_TRUE(qx);
-        StereoPixels shifted = *qx;
-        shifted.u_left += off_px[3] + 0.5 * off_px[2];
-        shifted.u_right = StereoRig(tq).principalU() + (1.0 + off_px[4]) * (shifted.u_right - StereoRig(tq).principalU()) +
-                          off_px[3] - 0.5 * off_px[2];
-        std::unique_ptr<ceres::CostFunction> g(
-            StereoPixelCalibrationFactor::Create(rig, s.landmark, shifted, pan, 0.5, mode));
-        EXPECT_LT(evaluate(*g, {p, off_px}).norm(), 1e-8);
+        // ... and with the pixel offsets, focal ratio and focal scale of `off_px` and `off_f`
+        // too: both cameras' focal length is f (1 + psi) (columns and rows), the disparity grows
+        // by delta_d, both columns move by delta_u, the right column's distance from o_u scales
+        // by 1 + phi.
+        for (const double* q : {off_px, off_f}) {
+          StereoRigParams tq = rig.params();
+          tq.tilt_rad += q[0];
+          tq.baseline_mm *= q[1];
+          tq.focal_px = rig.focal() * (1.0 + q[5]);
+          tq.principal_u = rig.principalU();
+          tq.principal_v = rig.principalV();
+          const StereoRig tq_rig(tq);
+          const auto qx = tq_rig.project(Eigen::Vector3d(local.x(), local.y(), s.landmark.z()), pan);
+          ASSERT_TRUE(qx);
+          StereoPixels shifted = *qx;
+          shifted.u_left += q[3] + 0.5 * q[2];
+          shifted.u_right = tq_rig.principalU() + (1.0 + q[4]) * (shifted.u_right - tq_rig.principalU()) + q[3] - 0.5 * q[2];
+          std::unique_ptr<ceres::CostFunction> g(
+              StereoPixelCalibrationFactor::Create(rig, s.landmark, shifted, pan, 0.5, mode));
+          EXPECT_LT(evaluate(*g, {p, q}).norm(), 1e-8);
+        }
       }
     }
   }

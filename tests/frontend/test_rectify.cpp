@@ -143,11 +143,14 @@ cv::Mat referenceRemap(const StereoCalibration& c, int i, const cv::Mat& src) {
 }
 
 // The luma path gives exactly cv::remap(cvtColor(raw)) on the rows it rectifies, borders
-// included, whatever the thread count; the colour samples are exactly the whole-image remap's.
+// included, whatever the thread count and with either kernel; the colour samples are exactly the
+// whole-image remap's.
 TEST(Rectifier, LumaPathAndColourSamplesEqualWholeImageRemap) {
   const int saved = cv::getNumThreads();
-  for (const double scale : {1.0, 0.7}) {
-    const StereoCalibration c = zoomed(scale);
+  // The third calibration's rows end in pixels outside the 8-pixel blocks of the vector kernel.
+  for (const double scale : {1.0, 0.7, 0.9}) {
+    StereoCalibration c = zoomed(scale);
+    if (scale == 0.9) c.image_size = cv::Size(317, 237);
     const cv::Mat left = randomImage(c.image_size, 5), right = randomImage(c.image_size, 6);
     cv::Mat grey[2];
     cv::cvtColor(left, grey[0], cv::COLOR_BGR2GRAY);
@@ -159,22 +162,31 @@ TEST(Rectifier, LumaPathAndColourSamplesEqualWholeImageRemap) {
       cv::remap(grey[0], constant, mx, my, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
       ASSERT_GT(cv::countNonZero(constant == 0), 100) << "the zoomed maps must leave the raw image";
     }
-    for (int threads : {1, 2}) {
+    for (int run = 0; run < 3; ++run) {
+      const int threads = run == 1 ? 2 : 1;
       cv::setNumThreads(threads);
       Rectifier rect(c);
+      if (run == 2) {
+        rect.setKernel(Rectifier::Kernel::Scalar);
+        EXPECT_FALSE(rect.vectorKernel());
+      } else {
+#if defined(__x86_64__) || defined(__i386__)
+        EXPECT_EQ(rect.vectorKernel(), static_cast<bool>(__builtin_cpu_supports("ssse3")));
+#endif
+      }
       cv::Mat luma_l, luma_r;
       rect.beginPair(left, right, luma_l);
-      EXPECT_EQ(cv::norm(luma_l, ref_l, cv::NORM_INF), 0.0) << "scale " << scale << " threads " << threads;
+      EXPECT_EQ(cv::norm(luma_l, ref_l, cv::NORM_INF), 0.0) << "scale " << scale << " run " << run;
       rect.rightLumaRows(0, 7, luma_r);
       rect.rightLumaRows(100, 131, luma_r);
       rect.rightLumaRows(230, 300, luma_r);
-      for (const cv::Range rows : {cv::Range(0, 7), cv::Range(100, 131), cv::Range(230, 240)})
+      for (const cv::Range rows : {cv::Range(0, 7), cv::Range(100, 131), cv::Range(230, c.image_size.height)})
         EXPECT_EQ(cv::norm(luma_r.rowRange(rows), ref_r.rowRange(rows), cv::NORM_INF), 0.0) << "rows " << rows.start;
       const cv::Mat full_l = referenceRemap(c, 0, left), full_r = referenceRemap(c, 1, right);
       rect.colour(0, cv::Rect(2, 2, 318, 238), 4);
       rect.colour(1, cv::Rect(40, 60, 100, 20));
-      for (int v = 2; v < 240; v += 4)
-        for (int u = 2; u < 320; u += 4)
+      for (int v = 2; v < c.image_size.height; v += 4)
+        for (int u = 2; u < c.image_size.width; u += 4)
           ASSERT_EQ(rect.colourImage(0).at<cv::Vec3b>(v, u), full_l.at<cv::Vec3b>(v, u)) << u << "," << v;
       EXPECT_EQ(cv::norm(rect.colourImage(1)(cv::Rect(40, 60, 100, 20)), full_r(cv::Rect(40, 60, 100, 20)), cv::NORM_INF),
                 0.0);

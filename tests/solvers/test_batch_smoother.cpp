@@ -368,7 +368,7 @@ TEST(BatchSmoother, CalibratingChainSolverEqualsCeres) {
     const CalibrationEstimate &ca = chain.calibration(), &cb = ceres.calibration();
     ASSERT_TRUE(ca.odometry && ca.stereo);
     for (int k = 0; k < 3; ++k) EXPECT_NEAR(ca.wheels[k], cb.wheels[k], 1e-6 * std::fabs(cb.wheels[k])) << k;
-    for (int k = 0; k < 5; ++k) EXPECT_NEAR(ca.head[k], cb.head[k], 1e-6 * std::max(1.0, std::fabs(cb.head[k]))) << k;
+    for (int k = 0; k < 6; ++k) EXPECT_NEAR(ca.head[k], cb.head[k], 1e-6 * std::max(1.0, std::fabs(cb.head[k]))) << k;
     EXPECT_LT((ca.wheels_covariance - cb.wheels_covariance).cwiseAbs().maxCoeff(),
               1e-6 * cb.wheels_covariance.cwiseAbs().maxCoeff());
     for (int i = 0; i < 5; ++i)

@@ -2,12 +2,18 @@
 // data, and the model names.
 #include <gtest/gtest.h>
 
+#include <fstream>
 #include <memory>
 
 #include "solvers/smoother_common.h"
 #include "src/core/pose2.h"
 #include "src/core/stereo_rig.h"
 #include "src/core/types.h"
+#include "src/core/numeric_diff.h"
+#include "src/core/error.h"
+#include "test_util.h"
+
+#include <opencv2/calib3d.hpp>
 #include "stereo_sighting.h"
 
 namespace stereoloc {
@@ -40,6 +46,99 @@ TEST(ObservationFactor, ChoosesTheFactorByModelAndData) {
   no_sigma.pixel_covariance.setZero();
   EXPECT_THROW(makeObservationFactor(no_sigma, lm, {ObservationModel::Pixels, rig}), Error);
   EXPECT_THROW(observationModelFromString("pixel"), Error);
+}
+
+// The pixels of a point at normalised (x, y) of camera c through OpenCV's projection with
+// distortion D (k1 k2 p1 p2) after rotating its ray by the rotation vector w (camera axes).
+Eigen::Vector2d projectWithOpenCv(const StereoRig& rig, double x, double y, const Eigen::Vector4d& D,
+                                  const Eigen::Vector3d& w) {
+  const cv::Mat K = (cv::Mat_<double>(3, 3) << rig.focal(), 0, rig.principalU(), 0, rig.focal(), rig.principalV(), 0, 0, 1);
+  std::vector<cv::Point2d> out;
+  cv::projectPoints(std::vector<cv::Point3d>{cv::Point3d(x, y, 1.0)}, cv::Vec3d(w.x(), w.y(), w.z()), cv::Vec3d(0, 0, 0),
+                    K, cv::Mat(std::vector<double>{D[0], D[1], D[2], D[3]}), out);
+  return Eigen::Vector2d(out[0].x, out[0].y);
+}
+
+TEST(UnmodelledNoise, PixelCovarianceIsTheLensAndVibrationJacobiansOfOpenCvsProjection) {
+  const StereoRig rig;
+  const double f = rig.focal(), ou = rig.principalU(), ov = rig.principalV();
+  // A point off-centre in both images (left and right columns differ by the disparity).
+  const StereoPixels px{ou + 120.0, ov + 70.0, ou + 104.0, ov + 70.0};
+  UnmodelledNoise n;
+  n.k1_sigma = 0.01;
+  n.k2_sigma = 0.005;
+  n.tangential_sigma = 3e-4;
+  n.pitch_sigma_rad = 0.0035;
+  n.roll_sigma_rad = 0.002;
+  Eigen::Matrix4d expected = Eigen::Matrix4d::Zero();
+  Eigen::Matrix<double, 4, 2> J_vib;
+  const double u[2] = {px.u_left, px.u_right}, v[2] = {px.v_left, px.v_right};
+  for (int c = 0; c < 2; ++c) {
+    const double x = (u[c] - ou) / f, y = (v[c] - ov) / f;
+    const auto lens = [&](const Eigen::Vector4d& D) { return projectWithOpenCv(rig, x, y, D, Eigen::Vector3d::Zero()); };
+    const Eigen::Matrix<double, 2, 4> J_lens = numericJacobian<2, 4>(lens, Eigen::Vector4d::Zero(), 1e-6);
+    const Eigen::Vector4d var(1e-4, 2.5e-5, 9e-8, 9e-8);
+    expected.block<2, 2>(2 * c, 2 * c) += J_lens * var.asDiagonal() * J_lens.transpose();
+    const auto rot = [&](const Eigen::Vector2d& a) {
+      return projectWithOpenCv(rig, x, y, Eigen::Vector4d::Zero(), Eigen::Vector3d(a[0], 0.0, a[1]));
+    };
+    J_vib.block<2, 2>(2 * c, 0) = numericJacobian<2, 2>(rot, Eigen::Vector2d::Zero(), 1e-7);
+  }
+  expected += J_vib * Eigen::Vector2d(0.0035 * 0.0035, 0.002 * 0.002).asDiagonal() * J_vib.transpose();
+  const Eigen::Matrix4d C = unmodelledPixelCovariance(rig, px, n);
+  EXPECT_LT((C - expected).cwiseAbs().maxCoeff(), 1e-4 * expected.cwiseAbs().maxCoeff()) << C << "\n\n" << expected;
+  // The vibration moves both cameras' pixels together: u_l and u_r are correlated.
+  EXPECT_GT(C(0, 2), 0.0);
+  EXPECT_TRUE(unmodelledPixelCovariance(rig, px, UnmodelledNoise()).isZero());
+}
+
+TEST(UnmodelledNoise, EntersThePixelCovarianceAndTheOdometry) {
+  const StereoRig rig;
+  const Sighting s = sight(rig, Pose2(100, 200, 0.2), 0.0, 700, -0.3, 25.0);
+  Landmark lm;
+  lm.id = 4;
+  lm.position = s.landmark;
+  const Observation obs = observationFromPixels(rig, 4, LandmarkType::GoalCorner, s.pixels, 0.0, 0.5);
+  ObservationModelConfig config{ObservationModel::PixelColumns, rig};
+  const Eigen::Matrix4d plain = pixelCovarianceFor(obs, lm, config);
+  config.unmodelled.k1_sigma = 0.01;
+  config.unmodelled.roll_sigma_rad = 0.0035;
+  EXPECT_LT((pixelCovarianceFor(obs, lm, config) - plain - unmodelledPixelCovariance(rig, s.pixels, config.unmodelled))
+                .cwiseAbs()
+                .maxCoeff(),
+            1e-12);
+  EXPECT_GT(pixelCovarianceFor(obs, lm, config)(0, 0), plain(0, 0));
+
+  OdometryParams p;
+  const OdometryParams q = withSlip(p, 20.0, -30.0, 0.02);
+  const Eigen::Matrix2d grown = wheelCovariance(20.0, -30.0, q) - wheelCovariance(20.0, -30.0, p);
+  EXPECT_NEAR(grown(0, 0), 0.36, 1e-12);  // (0.02 * 30)^2 on both wheels
+  EXPECT_NEAR(grown(1, 1), 0.36, 1e-12);
+}
+
+TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
+  test::TempDir dir;
+  UnmodelledNoise n;
+  n.k1_sigma = 0.01;
+  n.pitch_sigma_rad = 0.0035;
+  n.slip_rel_sigma = 0.02;
+  n.save(dir.file("noise.yaml"));
+  const UnmodelledNoise back = UnmodelledNoise::load(dir.file("noise.yaml"));
+  EXPECT_EQ(back.k1_sigma, 0.01);
+  EXPECT_EQ(back.pitch_sigma_rad, 0.0035);
+  EXPECT_EQ(back.slip_rel_sigma, 0.02);
+  EXPECT_EQ(back.roll_sigma_rad, 0.0);
+  {
+    std::ofstream f(dir.file("bad.yaml"));
+    f << "%YAML:1.0\n---\nroll_sigma_rad: -0.1\n";
+  }
+  try {
+    UnmodelledNoise::load(dir.file("bad.yaml"));
+    FAIL() << "a negative sigma was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("roll_sigma_rad"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("bad.yaml"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

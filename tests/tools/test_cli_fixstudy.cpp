@@ -101,6 +101,8 @@ TEST(CliFixstudy, RealisticProfileAddsRangeTableBesideIdeal) {
   EXPECT_NE(out.find("worlds: ideal, realistic"), std::string::npos) << out;
   EXPECT_NE(out.find("ours (images, ideal)"), std::string::npos) << out;
   EXPECT_NE(out.find("ours (images, realistic)"), std::string::npos) << out;
+  EXPECT_NE(out.find("ours (images, realistic, self-cal.)"), std::string::npos) << out;
+  EXPECT_EQ(out.find("ours (images, ideal, self-cal.)"), std::string::npos) << out;
   const size_t t63 = out.find("Table 6.3: goal-corner range error");
   ASSERT_NE(t63, std::string::npos) << out;
   EXPECT_NE(out.find("ours (images, ideal): ", t63), std::string::npos) << out;
@@ -124,6 +126,7 @@ TEST(CliFixstudy, RealisticProfileAddsRangeTableBesideIdeal) {
   const std::string csv = readFile(dir.file("fixes.csv"));
   EXPECT_NE(csv.find(",frontend,profile\n"), std::string::npos);
   EXPECT_NE(csv.find(",images,realistic\n"), std::string::npos);
+  EXPECT_NE(csv.find(",images_self_calibrated,realistic\n"), std::string::npos);
 
   // The ideal world alone: the same ideal column, no world column names, no range table, and the
   // same output as without --profile.
@@ -153,6 +156,7 @@ TEST(CliFixstudy, RejectsBadArguments) {
   EXPECT_EQ(test::runCli("fixstudy --profile realistic,realistic").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --profile ,").exit_code, 2);
   EXPECT_EQ(test::runCli("fixstudy --steps -1").exit_code, 2);
+  EXPECT_EQ(test::runCli("fixstudy --calibrate wheels").exit_code, 2);
 }
 
 }  // namespace

@@ -9,11 +9,14 @@
 //   BM_Rectify            whole-image colour rectification of a pair (Rectifier::rectify)
 //   BM_RectifyLuma        the luma path's rectification of a pair: the whole left luma, and the
 //                         whole right luma as an upper bound of what the frontend asks for
+//   BM_RectifyLumaScalar  the same with the scalar remap loop instead of the vector kernel
+//   BM_RemapPairSerial    reference: two cv::remap calls of the colour pair on one thread
 //   BM_FrontendRawPair    the frontend on a raw pair (luma path)
 //   BM_FrontendRawPairColourRectified  the same pair rectified whole in colour, then the frontend
-//                         on the rectified pair (the reference for the luma path) Times are wall clock ("Time")
-// and the CPU time of the whole process over all threads ("CPU"), so that a second thread's
-// work is counted.
+//                         on the rectified pair (the reference for the luma path)
+//   BM_FrontendRectifiedPair  the frontend on the same views rendered rectified (no rectification)
+// Times are wall clock ("Time") and the CPU time of the whole process over all threads ("CPU"),
+// so that a second thread's work is counted.
 //
 // The raw images are rendered ideal pinhole pairs (the rectified rig of the calibration) warped
 // into the raw cameras by the calibration's own model (cv::undistortPoints of every raw pixel),
@@ -165,6 +168,23 @@ void BM_RectifyLuma(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_RectifyLuma)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
+
+// The same with the portable scalar loop instead of the vector kernel (same pixels).
+void BM_RectifyLumaScalar(benchmark::State& state) {
+  const RawPairs& d = rawPairs();
+  const OpenCvThreads threads(1);
+  frontend::Rectifier rect(*d.rig.calibration());
+  rect.setKernel(frontend::Rectifier::Kernel::Scalar);
+  cv::Mat left, right;
+  size_t k = 0;
+  for (auto _ : state) {
+    const auto& p = d.pairs[k++ % d.pairs.size()];
+    rect.beginPair(p.first, p.second, left);
+    rect.rightLumaRows(0, left.rows, right);
+    benchmark::DoNotOptimize(right.data);
+  }
+}
+BENCHMARK(BM_RectifyLumaScalar)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 // Reference in the same run: the pair as two cv::remap calls one after the other on the
 // calling thread (the same fixed-point maps and interpolation as the Rectifier).

@@ -54,6 +54,10 @@ void add_fixstudy_command(CLI::App& app) {
                   "each runs on the same seeds, side by side. Unless only ideal: with images, Table 6.3 (goal-corner "
                   "range error) and the goal-corner recall per world; raw pairs rectified with the given calibration")
       ->capture_default_str();
+  sub->add_option("--calibrate", a->calibrate,
+                  "With images in a non-ideal world: a self-calibrated column, the frontend with the rig the batch "
+                  "smoother estimates on each trial's image sequence with these parts (stereo, odometry,stereo or none)")
+      ->capture_default_str();
   sub->add_option("--steps", a->steps, "Poses per trial (0 = the scenario's 100)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);

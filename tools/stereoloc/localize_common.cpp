@@ -26,6 +26,7 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   }
   if (!a.calibration_out.empty() && !o.calibration.odometry && !o.calibration.stereo)
     throw UsageError("--calibration-out: needs --calibrate");
+  if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);
   return o;
 }
 
@@ -41,9 +42,10 @@ void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibra
   if (c.stereo)
     std::printf(
         "calibration: tilt correction %.3f +- %.3f deg, baseline scale %.5f +- %.5f, disparity offset %.2f +- %.2f px, "
-        "column offset %.2f +- %.2f px, focal ratio %.5f +- %.5f\n",
+        "column offset %.2f +- %.2f px, focal ratio %.5f +- %.5f, focal scale %.5f +- %.5f\n",
         rad2deg(c.head[0]), rad2deg(sd(c.head_covariance(0, 0))), c.head[1], sd(c.head_covariance(1, 1)), c.head[2],
-        sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)));
+        sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)),
+        c.head[5], sd(c.head_covariance(5, 5)));
 }
 
 void runLocalize(const LocalizeArgs& a) {
@@ -118,6 +120,9 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "about 1 px for the realistic error profile (docs/realistic_world.md)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
+  sub->add_option("--noise-model", a->noise_model,
+                  "Batch and window: YAML of the noise the rig and odometry do not state (lens distortion estimate "
+                  "error, camera vibration, wheel slip; data/noise_realistic.yaml, docs/realistic_world.md)");
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
                   "(usable as --rig)");

@@ -22,6 +22,7 @@ struct LocalizeArgs {
   std::string frontend_params;                // frontend parameters YAML (empty: defaults)
   std::string calibrate;                      // "", "odometry", "stereo", "odometry,stereo"
   std::string calibration_out;                // rig YAML with the calibration estimate
+  std::string noise_model;                    // UnmodelledNoise YAML (solvers/smoother_common.h)
 
 };
 

@@ -1,6 +1,8 @@
 // The method registry and the frontend source through the library API.
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include "src/pipeline/frontend_source.h"
 #include "src/pipeline/methods.h"
 #include "src/pipeline/usage_error.h"
@@ -80,6 +82,26 @@ TEST(FrontendSource, SummaryNamesPairsObservationsAndDrops) {
 TEST(UsageErrorList, SplitDropsEmptyItems) {
   EXPECT_EQ(splitCommaList("a,b,,c,"), (std::vector<std::string>{"a", "b", "c"}));
   EXPECT_TRUE(splitCommaList("").empty());
+}
+
+TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
+  MethodOptions ideal;
+  applyErrorProfile(ErrorProfile::ideal(), 277.0, ideal);
+  EXPECT_TRUE(ideal.noise.isZero());
+  EXPECT_EQ(ideal.calibration.focal_scale_sigma, SelfCalibrationConfig().focal_scale_sigma);
+
+  const ErrorProfile p = ErrorProfile::realistic();
+  MethodOptions o;
+  applyErrorProfile(p, 277.0, o);
+  EXPECT_EQ(o.noise.k1_sigma, p.k1_estimate_sigma);
+  EXPECT_EQ(o.noise.pitch_sigma_rad, p.pitch_sigma_rad);
+  // 2 % of the steps, one wheel, 10-30 %: sqrt(0.01 * 0.13 / 3).
+  EXPECT_NEAR(o.noise.slip_rel_sigma, std::sqrt(0.01 * 0.13 / 3.0), 1e-12);
+  EXPECT_EQ(o.calibration.wheel_base_rel_sigma, p.wheel_base_rel_sigma);
+  EXPECT_EQ(o.calibration.focal_scale_sigma, p.focal_rel_sigma);
+  const double rot = 277.0 * p.relative_rotation_sigma_rad;
+  EXPECT_NEAR(o.calibration.disparity_offset_sigma_px, std::sqrt(2.0 + rot * rot), 1e-12);
+  o.calibration.validate();
 }
 
 }  // namespace

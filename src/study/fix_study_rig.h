@@ -1,0 +1,28 @@
+#pragma once
+// The rig a stereo self-calibration implies (solvers/self_calibration.h): the given rig with the
+// estimated corrections folded into the camera calibration, so that the frontend, rectifying raw
+// pairs with it, measures pixels the given rig's projection explains.
+//
+// The estimate q = (dbeta, k, delta_d, delta_u, phi) says that the given rectification puts a
+// landmark at columns u_l = o_u + delta_u + delta_d / 2 - f (y - k b/2) / x and
+// u_r = o_u + delta_u - delta_d / 2 - f (1 + phi) (y + k b/2) / x of a rig tilted by beta + dbeta
+// (factors/stereo_pixel_calibration_factor.h). Folded in:
+//   tilt       beta + dbeta (robot mounting);
+//   baseline   T, P2(0,3) and Q scaled by k (the rectified rig's baseline is k b);
+//   columns    the RAW principal points move by (delta_u +- delta_d / 2) f_raw / f, and the right
+//              camera's raw focal length (x) scales by 1 + phi: a raw column error of the
+//              camera is what the rectified offset is (a principal-point error), and the
+//              rectification (R1, R2, P1, P2) stays the given one, so the rectified rig keeps
+//              its focal length and principal point. Lens distortion and the rectifying
+//              rotation make the correction exact only near the image centre (their local
+//              scale at the image edge differs by up to ~15 % for k1 = -0.2).
+// A rig without an OpenCV calibration gets the ideal one of its pinhole parameters first.
+#include "solvers/self_calibration.h"
+#include "src/core/stereo_rig.h"
+
+namespace stereoloc {
+
+// Returns `given` unchanged when the estimate has no stereo part.
+StereoRig selfCalibratedRig(const StereoRig& given, const CalibrationEstimate& estimate);
+
+}  // namespace stereoloc

@@ -1,0 +1,98 @@
+// selfCalibratedRig: raw images of cameras that differ from the given calibration as the
+// folded rig says, rectified with the GIVEN calibration, show the pixel offsets of the
+// self-calibration model (factors/stereo_pixel_calibration_factor.h).
+#include "src/study/fix_study_rig.h"
+
+#include <gtest/gtest.h>
+
+#include <opencv2/calib3d.hpp>
+#include <string>
+#include <vector>
+
+namespace stereoloc {
+namespace {
+
+StereoCalibration exampleCalibration() {
+  return StereoCalibration::load(std::string(STEREOLOC_DATA_DIR) + "/stereo_calibration_example.yml");
+}
+
+// Where a point given in the rectified left camera frame (OpenCV axes, mm) appears after the raw
+// camera `i` of `truth` images it and `given` rectifies that raw pixel.
+cv::Point2d rectifiedWithGiven(const StereoCalibration& truth, const StereoCalibration& given, int i,
+                               const cv::Point3d& p_rect_left) {
+  // The rectified right camera sits at -P2(0,3) / f along x of the rectified left one.
+  const double shift = i == 0 ? 0.0 : truth.rectifiedBaseline();
+  const cv::Matx33d R = i == 0 ? cv::Matx33d(truth.R1) : cv::Matx33d(truth.R2);  // raw -> rectified
+  const cv::Point3d p_raw = R.t() * cv::Point3d(p_rect_left.x - shift, p_rect_left.y, p_rect_left.z);
+  std::vector<cv::Point3d> object = {p_raw};
+  std::vector<cv::Point2d> raw, rect;
+  cv::projectPoints(object, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), i == 0 ? truth.K1 : truth.K2,
+                    i == 0 ? truth.D1 : truth.D2, raw);
+  cv::undistortPoints(raw, rect, i == 0 ? given.K1 : given.K2, i == 0 ? given.D1 : given.D2,
+                      i == 0 ? given.R1 : given.R2, i == 0 ? given.P1 : given.P2);
+  return rect[0];
+}
+
+TEST(SelfCalibratedRig, FoldsTheEstimateIntoTheCamerasItRectifies) {
+  const StereoCalibration given = exampleCalibration();
+  StereoRigParams params;
+  params.tilt_rad = deg2rad(2.0);
+  const StereoRig given_rig(params, given);
+  CalibrationEstimate e;
+  e.stereo = true;
+  const double dbeta = deg2rad(0.3), k = 1.012, dd = 1.3, du = -0.7, phi = 0.006;
+  e.head << dbeta, k, dd, du, phi;
+  const StereoRig rig = selfCalibratedRig(given_rig, e);
+  ASSERT_TRUE(rig.calibration());
+  EXPECT_NEAR(rig.params().tilt_rad, params.tilt_rad + dbeta, 1e-12);
+  EXPECT_NEAR(rig.params().baseline_mm, k * given_rig.params().baseline_mm, 1e-9);
+  EXPECT_NEAR(rig.focal(), given_rig.focal(), 1e-12);
+  EXPECT_NEAR(rig.principalU(), given_rig.principalU(), 1e-12);
+  EXPECT_NEAR(rig.principalV(), given_rig.principalV(), 1e-12);
+
+  // The folded rig's cameras as the truth: the given rectification sees the model's offsets,
+  // u_l = o_u + du + dd/2 + f X/Z, u_r = o_u + du - dd/2 + f (1 + phi) (X - k b)/Z. Exact at the
+  // image centre; within 0.1 px over the central +-70 px, where the lens distortion's local scale
+  // stays within ~6 % of 1 (rectify.h).
+  const StereoCalibration& truth = *rig.calibration();
+  const double f = given.rectifiedFocal(), ou = given.rectifiedPrincipalU(), ov = given.rectifiedPrincipalV();
+  const double kb = k * given.rectifiedBaseline();
+  double worst = 0;
+  for (double X : {-200.0, -80.0, 0.0, 80.0, 200.0})
+    for (double Y : {-150.0, 0.0, 150.0}) {
+      const cv::Point3d p(X, Y, 900.0);
+      const cv::Point2d l = rectifiedWithGiven(truth, given, 0, p), r = rectifiedWithGiven(truth, given, 1, p);
+      const double ul = ou + du + 0.5 * dd + f * X / p.z;
+      const double ur = ou + du - 0.5 * dd + f * (1 + phi) * (X - kb) / p.z;
+      const double v = ov + f * Y / p.z;
+      worst = std::max({worst, std::fabs(l.x - ul), std::fabs(r.x - ur)});
+      EXPECT_NEAR(l.x, ul, 0.1) << X << "," << Y;
+      EXPECT_NEAR(r.x, ur, 0.1) << X << "," << Y;
+      EXPECT_NEAR(l.y, v, 0.1) << X << "," << Y;
+      EXPECT_NEAR(r.y, v, 0.1) << X << "," << Y;
+      // The disparity, which sets the range (3.4): f k b / Z + dd + phi f (X - k b) / Z.
+      EXPECT_NEAR(l.x - r.x, f * kb / p.z + dd - phi * f * (X - kb) / p.z, 0.1) << X << "," << Y;
+    }
+  // At the image centre the fold is exact to the linearisation's second order.
+  const cv::Point3d centre(0.0, 0.0, 900.0);
+  EXPECT_NEAR(rectifiedWithGiven(truth, given, 0, centre).x, ou + du + 0.5 * dd, 0.02);
+  EXPECT_GT(worst, 0.0);
+}
+
+TEST(SelfCalibratedRig, PinholeRigGetsACalibrationAndNoStereoPartChangesNothing) {
+  StereoRigParams params;
+  const StereoRig pinhole(params);
+  CalibrationEstimate e;
+  EXPECT_FALSE(selfCalibratedRig(pinhole, e).calibration());
+  e.stereo = true;
+  e.head << 0.0, 1.0, 0.8, 0.0, 0.0;
+  const StereoRig rig = selfCalibratedRig(pinhole, e);
+  ASSERT_TRUE(rig.calibration());
+  EXPECT_TRUE(rig.calibration()->needsRemap());  // the two raw principal points now differ
+  EXPECT_NEAR(rig.calibration()->K1.at<double>(0, 2) - rig.calibration()->K2.at<double>(0, 2), 0.8, 1e-12);
+  EXPECT_NEAR(rig.focal(), pinhole.focal(), 1e-12);
+  EXPECT_NEAR(rig.params().baseline_mm, pinhole.params().baseline_mm, 1e-12);
+}
+
+}  // namespace
+}  // namespace stereoloc
