@@ -41,24 +41,29 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   const float ref_l = medianOf(luma_);
   const float lo = static_cast<float>(p.luma_low) * ref_l, hi = static_cast<float>(p.luma_high) * ref_l;
   const float tol = static_cast<float>(p.chroma_tolerance);
+  // The chromaticity test multiplied through by the sum (no division per sample).
   auto floor = [&](const cv::Vec3b& px) {
     const float sum = static_cast<float>(px[0]) + px[1] + px[2];
     if (sum < 1.0f) return false;
     const float l = 0.114f * px[0] + 0.587f * px[1] + 0.299f * px[2];
     if (l < lo || l > hi) return false;
     float d = 0.0f;
-    for (int c = 0; c < 3; ++c) d += std::fabs(px[c] / sum - ref_c[c]);
-    return d <= tol;
+    for (int c = 0; c < 3; ++c) d += std::fabs(px[c] - ref_c[c] * sum);
+    return d <= tol * sum;
   };
-  // Per grid column: the topmost run of min_run floor samples (-1: none).
+  // Per grid column: the topmost run of min_run floor samples (-1: none). Row by row, so the
+  // image is read in memory order, until every column has its run.
   grid_top_.assign(static_cast<size_t>(gw), -1);
-  for (int gx = 0; gx < gw; ++gx) {
-    int run = 0;
-    for (int gy = 0; gy < gh; ++gy) {
-      run = floor(bgr.at<cv::Vec3b>(gy * step, gx * step)) ? run + 1 : 0;
-      if (run >= p.min_run) {
+  run_.assign(static_cast<size_t>(gw), 0);
+  int open = gw;
+  for (int gy = 0; gy < gh && open > 0; ++gy) {
+    const cv::Vec3b* row = bgr.ptr<cv::Vec3b>(gy * step);
+    for (int gx = 0; gx < gw; ++gx) {
+      if (grid_top_[gx] >= 0) continue;
+      run_[gx] = floor(row[gx * step]) ? run_[gx] + 1 : 0;
+      if (run_[gx] >= p.min_run) {
         grid_top_[gx] = gy - p.min_run + 1;
-        break;
+        --open;
       }
     }
   }

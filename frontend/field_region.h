@@ -43,7 +43,7 @@ class FieldRegion {
 
  private:
   std::vector<int16_t> top_;
-  std::vector<int> grid_top_, smoothed_, window_;
+  std::vector<int> grid_top_, run_, smoothed_, window_;
   std::vector<std::pair<double, double>> hull_;
   std::vector<float> chroma_[3], luma_;
   bool restricted_ = false;

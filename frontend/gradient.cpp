@@ -93,16 +93,44 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   if (params.auto_factor > 0) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
     // every 3rd pixel of every 3rd row of the whole image is plenty for a median.
-    samples_.clear();
+    // Exact median by a two-level histogram select: squared magnitudes below kFine have a bin
+    // each (a carpet's median lies there), larger ones share bins of 2^kShift values and only
+    // the bin holding the median is sorted. nth_element over all samples cost more than the
+    // rest of the threshold.
+    hist_.assign(kFine + (kMaxMag2 >> kShift) + 1, 0);
+    size_t count = 0;
     for (int y = 2; y < h - 2; y += 3) {
       const int16_t* gxr = gx_.ptr<int16_t>(y);
       const int16_t* gyr = gy_.ptr<int16_t>(y);
-      for (int x = 2; x < w - 2; x += 3) samples_.push_back(int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x]);
+      for (int x = 2; x < w - 2; x += 3) {
+        const int32_t m2 = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+        ++hist_[m2 < kFine ? m2 : kFine + (m2 >> kShift)];
+        ++count;
+      }
     }
-    if (!samples_.empty()) {
-      auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(samples_.size() / 2);
-      std::nth_element(samples_.begin(), mid, samples_.end());
-      const double auto_thr2 = params.auto_factor * params.auto_factor * static_cast<double>(*mid);
+    if (count > 0) {
+      const size_t k = count / 2;  // the element nth_element would place at size / 2
+      size_t below = 0, bin = 0;
+      while (below + hist_[bin] <= k) below += hist_[bin++];
+      int64_t median2;
+      if (bin < static_cast<size_t>(kFine)) {
+        median2 = static_cast<int64_t>(bin);
+      } else {
+        samples_.clear();
+        const int32_t lo = static_cast<int32_t>(bin - kFine) << kShift;
+        for (int y = 2; y < h - 2; y += 3) {
+          const int16_t* gxr = gx_.ptr<int16_t>(y);
+          const int16_t* gyr = gy_.ptr<int16_t>(y);
+          for (int x = 2; x < w - 2; x += 3) {
+            const int32_t m2 = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+            if (m2 >= kFine && (m2 >> kShift) == (lo >> kShift)) samples_.push_back(m2);
+          }
+        }
+        auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
+        std::nth_element(samples_.begin(), mid, samples_.end());
+        median2 = *mid;
+      }
+      const double auto_thr2 = params.auto_factor * params.auto_factor * static_cast<double>(median2);
       thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(auto_thr2)));
     }
   }

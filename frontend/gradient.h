@@ -41,7 +41,11 @@ class GradientStage {
   int w_ = 0, h_ = 0;
   cv::Mat gx_, gy_;
   std::vector<int32_t> mag2_;
-  std::vector<int32_t> samples_;  // magnitudes sampled for the automatic threshold
+  // Histogram of sampled squared magnitudes for the automatic threshold: exact bins below
+  // kFine, bins of 2^kShift above (a 3x3 Sobel of 8-bit luma stays below kMaxMag2).
+  static constexpr int32_t kFine = 4096, kShift = 12, kMaxMag2 = 2 * 1020 * 1020;
+  std::vector<uint32_t> hist_;
+  std::vector<int32_t> samples_;  // the samples in the median's coarse bin
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
   std::vector<uint8_t> above_;  // magnitude at the threshold, one byte per pixel, rows padded by 8

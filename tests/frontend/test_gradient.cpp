@@ -1,7 +1,9 @@
 // Stage 1: luma, Sobel, non-maximum suppression and the sub-pixel edge position.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <vector>
 #include <opencv2/core.hpp>
 
 #include "frontend/gradient.h"
@@ -110,4 +112,31 @@ TEST(Gradient, AutomaticThresholdRisesWithTextureOnly) {
   EXPECT_GE(on_step, g.height() - 4);
   g.compute(img, autop);  // clean: median 0, the fixed threshold applies
   EXPECT_DOUBLE_EQ(g.threshold(), 48.0);
+}
+
+// The automatic threshold is auto_factor times the exact median of the squared Sobel magnitude
+// on every 3rd pixel of every 3rd row, whether the median is small (carpet) or large (strong
+// texture: the coarse histogram bins).
+TEST(Gradient, AutomaticThresholdIsTheExactSampleMedian) {
+  for (const double sigma : {3.0, 12.0, 60.0}) {
+    cv::Mat noise(97, 131, CV_16S), img;
+    cv::RNG rng(11);
+    rng.fill(noise, cv::RNG::NORMAL, 128, sigma);
+    noise.convertTo(img, CV_8U);
+    GradientParams p;
+    p.magnitude_threshold = 1;
+    p.auto_factor = 2.5;
+    GradientStage g;
+    g.compute(img, p);
+    std::vector<int64_t> s;
+    for (int y = 2; y < img.rows - 2; y += 3)
+      for (int x = 2; x < img.cols - 2; x += 3) {
+        const int64_t gx = g.gx().at<int16_t>(y, x), gy = g.gy().at<int16_t>(y, x);
+        s.push_back(gx * gx + gy * gy);
+      }
+    std::nth_element(s.begin(), s.begin() + static_cast<std::ptrdiff_t>(s.size() / 2), s.end());
+    const double expected = std::sqrt(std::ceil(p.auto_factor * p.auto_factor * static_cast<double>(s[s.size() / 2])));
+    EXPECT_DOUBLE_EQ(g.threshold(), expected) << "sigma " << sigma;
+    EXPECT_GT(s[s.size() / 2], sigma > 50 ? 4096 : 0) << "sigma " << sigma;
+  }
 }
