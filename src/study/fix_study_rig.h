@@ -3,16 +3,16 @@
 // estimated corrections folded into the camera calibration, so that the frontend, rectifying raw
 // pairs with it, measures pixels the given rig's projection explains.
 //
-// The estimate q = (dbeta, k, delta_d, delta_u, phi) says that the given rectification puts a
-// landmark at columns u_l = o_u + delta_u + delta_d / 2 - f (y - k b/2) / x and
-// u_r = o_u + delta_u - delta_d / 2 - f (1 + phi) (y + k b/2) / x of a rig tilted by beta + dbeta
-// (factors/stereo_pixel_calibration_factor.h). Folded in:
+// The estimate q = (dbeta, k, delta_d, delta_u, phi, psi) says that the given rectification puts a
+// landmark at columns u_l = o_u + delta_u + delta_d / 2 - F (y - k b/2) / x and
+// u_r = o_u + delta_u - delta_d / 2 - F (1 + phi) (y + k b/2) / x, with F = f (1 + psi), of a
+// rig tilted by beta + dbeta (factors/stereo_pixel_calibration_factor.h). Folded in:
 //   tilt       beta + dbeta (robot mounting);
 //   baseline   T, P2(0,3) and Q scaled by k (the rectified rig's baseline is k b);
 //   columns    the RAW principal points move by (delta_u +- delta_d / 2) f_raw / f, and the right
-//              camera's raw focal length (x) scales by 1 + phi: a raw column error of the
-//              camera is what the rectified offset is (a principal-point error), and the
-//              rectification (R1, R2, P1, P2) stays the given one, so the rectified rig keeps
+//              camera's raw focal length (x) scales by 1 + phi and both cameras' (x and y) by
+//              1 + psi: a raw column error of the camera is what the rectified offset is (a
+//              principal-point error), and the rectification (R1, R2, P1, P2) stays the given one, so the rectified rig keeps
 //              its focal length and principal point. Lens distortion and the rectifying
 //              rotation make the correction exact only near the image centre (their local
 //              scale at the image edge differs by up to ~15 % for k1 = -0.2).

@@ -40,8 +40,8 @@ TEST(SelfCalibratedRig, FoldsTheEstimateIntoTheCamerasItRectifies) {
   const StereoRig given_rig(params, given);
   CalibrationEstimate e;
   e.stereo = true;
-  const double dbeta = deg2rad(0.3), k = 1.012, dd = 1.3, du = -0.7, phi = 0.006;
-  e.head << dbeta, k, dd, du, phi;
+  const double dbeta = deg2rad(0.3), k = 1.012, dd = 1.3, du = -0.7, phi = 0.006, psi = -0.004;
+  e.head << dbeta, k, dd, du, phi, psi;
   const StereoRig rig = selfCalibratedRig(given_rig, e);
   ASSERT_TRUE(rig.calibration());
   EXPECT_NEAR(rig.params().tilt_rad, params.tilt_rad + dbeta, 1e-12);
@@ -51,27 +51,28 @@ TEST(SelfCalibratedRig, FoldsTheEstimateIntoTheCamerasItRectifies) {
   EXPECT_NEAR(rig.principalV(), given_rig.principalV(), 1e-12);
 
   // The folded rig's cameras as the truth: the given rectification sees the model's offsets,
-  // u_l = o_u + du + dd/2 + f X/Z, u_r = o_u + du - dd/2 + f (1 + phi) (X - k b)/Z. Exact at the
+  // u_l = o_u + du + dd/2 + F X/Z, u_r = o_u + du - dd/2 + F (1 + phi) (X - k b)/Z, F = f (1 + psi),
+  // v = o_v + F Y/Z. Exact at the
   // image centre; within 0.1 px over the central +-70 px, where the lens distortion's local scale
   // stays within ~6 % of 1 (rectify.h).
   const StereoCalibration& truth = *rig.calibration();
   const double f = given.rectifiedFocal(), ou = given.rectifiedPrincipalU(), ov = given.rectifiedPrincipalV();
-  const double kb = k * given.rectifiedBaseline();
+  const double kb = k * given.rectifiedBaseline(), F = f * (1 + psi);
   double worst = 0;
   for (double X : {-200.0, -80.0, 0.0, 80.0, 200.0})
     for (double Y : {-150.0, 0.0, 150.0}) {
       const cv::Point3d p(X, Y, 900.0);
       const cv::Point2d l = rectifiedWithGiven(truth, given, 0, p), r = rectifiedWithGiven(truth, given, 1, p);
-      const double ul = ou + du + 0.5 * dd + f * X / p.z;
-      const double ur = ou + du - 0.5 * dd + f * (1 + phi) * (X - kb) / p.z;
-      const double v = ov + f * Y / p.z;
+      const double ul = ou + du + 0.5 * dd + F * X / p.z;
+      const double ur = ou + du - 0.5 * dd + F * (1 + phi) * (X - kb) / p.z;
+      const double v = ov + F * Y / p.z;
       worst = std::max({worst, std::fabs(l.x - ul), std::fabs(r.x - ur)});
       EXPECT_NEAR(l.x, ul, 0.1) << X << "," << Y;
       EXPECT_NEAR(r.x, ur, 0.1) << X << "," << Y;
       EXPECT_NEAR(l.y, v, 0.1) << X << "," << Y;
       EXPECT_NEAR(r.y, v, 0.1) << X << "," << Y;
-      // The disparity, which sets the range (3.4): f k b / Z + dd + phi f (X - k b) / Z.
-      EXPECT_NEAR(l.x - r.x, f * kb / p.z + dd - phi * f * (X - kb) / p.z, 0.1) << X << "," << Y;
+      // The disparity, which sets the range (3.4): F k b / Z + dd - phi F (X - k b) / Z.
+      EXPECT_NEAR(l.x - r.x, F * kb / p.z + dd - phi * F * (X - kb) / p.z, 0.1) << X << "," << Y;
     }
   // At the image centre the fold is exact to the linearisation's second order.
   const cv::Point3d centre(0.0, 0.0, 900.0);
@@ -85,7 +86,7 @@ TEST(SelfCalibratedRig, PinholeRigGetsACalibrationAndNoStereoPartChangesNothing)
   CalibrationEstimate e;
   EXPECT_FALSE(selfCalibratedRig(pinhole, e).calibration());
   e.stereo = true;
-  e.head << 0.0, 1.0, 0.8, 0.0, 0.0;
+  e.head << 0.0, 1.0, 0.8, 0.0, 0.0, 0.0;
   const StereoRig rig = selfCalibratedRig(pinhole, e);
   ASSERT_TRUE(rig.calibration());
   EXPECT_TRUE(rig.calibration()->needsRemap());  // the two raw principal points now differ
