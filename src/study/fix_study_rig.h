@@ -13,9 +13,10 @@
 //              camera's raw focal length (x) scales by 1 + phi and both cameras' (x and y) by
 //              1 + psi: a raw column error of the camera is what the rectified offset is (a
 //              principal-point error), and the rectification (R1, R2, P1, P2) stays the
-//              given one, so the rectified rig keeps its focal length and principal point. Lens distortion and the rectifying
-//              rotation make the correction exact only near the image centre (their local
-//              scale at the image edge differs by up to ~15 % for k1 = -0.2).
+//              given one, so the rectified rig keeps its focal length and principal point.
+//              Lens distortion and the rectifying rotation make the correction exact only
+//              near the image centre (their local scale at the image edge differs by up to
+//              ~15 % for k1 = -0.2).
 // A rig without an OpenCV calibration gets the ideal one of its pinhole parameters first.
 #include "solvers/self_calibration.h"
 #include "src/core/stereo_rig.h"
