@@ -154,10 +154,13 @@ void BM_Rectify(benchmark::State& state) {
 }
 BENCHMARK(BM_Rectify)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
-void BM_RectifyLuma(benchmark::State& state) {
+// The luma path: the left image whole, the right on every row (an upper bound of what the
+// matcher reads), with the given remap kernel.
+void rectifyLumaPairs(benchmark::State& state, int threads, frontend::Rectifier::Kernel kernel) {
   const RawPairs& d = rawPairs();
-  const OpenCvThreads threads(static_cast<int>(state.range(0)));
+  const OpenCvThreads opencv_threads(threads);
   frontend::Rectifier rect(*d.rig.calibration());
+  rect.setKernel(kernel);
   cv::Mat left, right;
   size_t k = 0;
   for (auto _ : state) {
@@ -167,22 +170,15 @@ void BM_RectifyLuma(benchmark::State& state) {
     benchmark::DoNotOptimize(right.data);
   }
 }
+
+void BM_RectifyLuma(benchmark::State& state) {
+  rectifyLumaPairs(state, static_cast<int>(state.range(0)), frontend::Rectifier::Kernel::Auto);
+}
 BENCHMARK(BM_RectifyLuma)->ArgName("threads")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
 // The same with the portable scalar loop instead of the vector kernel (same pixels).
 void BM_RectifyLumaScalar(benchmark::State& state) {
-  const RawPairs& d = rawPairs();
-  const OpenCvThreads threads(1);
-  frontend::Rectifier rect(*d.rig.calibration());
-  rect.setKernel(frontend::Rectifier::Kernel::Scalar);
-  cv::Mat left, right;
-  size_t k = 0;
-  for (auto _ : state) {
-    const auto& p = d.pairs[k++ % d.pairs.size()];
-    rect.beginPair(p.first, p.second, left);
-    rect.rightLumaRows(0, left.rows, right);
-    benchmark::DoNotOptimize(right.data);
-  }
+  rectifyLumaPairs(state, 1, frontend::Rectifier::Kernel::Scalar);
 }
 BENCHMARK(BM_RectifyLumaScalar)->Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime();
 
