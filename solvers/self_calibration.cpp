@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include "solvers/batch_smoother.h"
+#include "solvers/self_calibrated_rig.h"
 #include "src/core/error.h"
 #include "src/core/yaml_util.h"
 
@@ -41,23 +42,12 @@ void SelfCalibrationConfig::validate() const {
 }
 
 void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& rig) const {
-  StereoRigParams p = rig.params();
-  p.tilt_rad += head[0];
-  p.baseline_mm *= head[1];
-  const StereoRig out = [&] {
-    if (!rig.calibration()) return StereoRig(p);
-    StereoCalibration c = *rig.calibration();
-    c.T = c.T * head[1];
-    c.P2 = c.P2.clone();
-    c.P2.at<double>(0, 3) *= head[1];
-    if (!c.Q.empty()) c.Q.at<double>(3, 2) /= head[1];
-    return StereoRig(p, c);
-  }();
+  const StereoRig out = stereo ? selfCalibratedRig(rig, *this) : rig;
   out.save(path);
   // The estimate's own keys, appended as cv::FileStorage YAML (the rig reader ignores them).
   YamlReader back(path);
   YamlWriter w;
-  w.comment("stereoloc rig with self-calibrated tilt and baseline; pixel offsets, odometry estimate and standard "
+  w.comment("stereoloc rig with the self-calibrated stereo head folded in; the estimate, odometry and standard "
             "deviations below.");
   for (auto it = back.node().begin(); it != back.node().end(); ++it) {
     const cv::FileNode n = *it;

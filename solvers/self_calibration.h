@@ -66,10 +66,12 @@ struct CalibrationEstimate {
   StereoVector head = (StereoVector() << 0, 1, 0, 0, 0, 0).finished();
   StereoMatrix head_covariance = StereoMatrix::Zero();
 
-  // The rig with the estimated tilt and baseline (and the pixel offsets, focal ratio and scale, the
-  // odometry estimate and every standard deviation as extra keys: disparity_offset_px,
-  // column_offset_px, focal_ratio, focal_scale, wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma), in the rig YAML a user can pass
-  // back as --rig. A rig carrying an OpenCV calibration gets its T and P2 scaled.
+  // The rig a user passes back as --rig: with a stereo estimate, selfCalibratedRig
+  // (solvers/self_calibrated_rig.h) — tilt in the mounting, every pixel correction folded into an
+  // OpenCV calibration written beside it — so the frontend measures with the calibrated cameras.
+  // The estimate itself and every standard deviation follow as extra keys the rig reader ignores
+  // (tilt_correction_rad, baseline_scale, disparity_offset_px, column_offset_px, focal_ratio,
+  // focal_scale, wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma).
   void saveAsRig(const std::string& path, const StereoRig& rig) const;
 };
 

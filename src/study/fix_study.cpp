@@ -23,7 +23,7 @@
 #include "src/study/data_files.h"
 #include "src/pipeline/frontend_source.h"
 #include "src/sim/error_profile.h"
-#include "src/study/fix_study_rig.h"
+#include "solvers/self_calibrated_rig.h"
 #include "src/study/study_trial.h"
 #include "src/pipeline/methods.h"
 
@@ -569,7 +569,7 @@ void runFixStudy(const FixStudyOptions& a) {
                 "smoother with --calibrate "
              << a.calibrate
              << " --loss cauchy (known start) on that trial's image observations with the given calibration, its estimate "
-                "folded into the rig (src/study/fix_study_rig.h); the column without it uses the given calibration\n";
+                "folded into the rig (solvers/self_calibrated_rig.h); the column without it uses the given calibration\n";
     report << "\n";
   }
 

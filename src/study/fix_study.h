@@ -23,7 +23,7 @@
 // thesis's, with the recall of the goal corners the simulator finds visible, and a self-calibrated
 // column: the same raw pairs through the frontend with the rig the batch smoother's
 // self-calibration (solvers/self_calibration.h) estimated on the trial's own sequence
-// (src/study/fix_study_rig.h).
+// (solvers/self_calibrated_rig.h).
 #include <cstdint>
 #include <cstdio>
 #include <string>

@@ -124,6 +124,13 @@ TEST(SelfCalibration, RecoversPlantedParametersOnALongRun) {
   const StereoRig back = StereoRig::load(dir.file("rig.yaml"));
   EXPECT_NEAR(back.params().tilt_rad, d.rig.params().tilt_rad + c.head[0], 1e-12);
   EXPECT_NEAR(back.params().baseline_mm, d.rig.params().baseline_mm * c.head[1], 1e-9);
+  // ... with the pixel corrections folded into its cameras (selfCalibratedRig), so the frontend
+  // measures with them: the raw principal points differ by the disparity offset.
+  ASSERT_TRUE(back.calibration());
+  const StereoCalibration& cal = *back.calibration();
+  const double f_raw_over_f = cal.K1.at<double>(0, 0) / ((1 + c.head[5]) * cal.rectifiedFocal());
+  EXPECT_NEAR(cal.K1.at<double>(0, 2) - cal.K2.at<double>(0, 2), c.head[2] * f_raw_over_f, 1e-9);
+  EXPECT_NEAR(cal.K2.at<double>(0, 0) / cal.K1.at<double>(0, 0), 1 + c.head[4], 1e-12);
 }
 
 }  // namespace

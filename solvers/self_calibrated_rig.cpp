@@ -1,4 +1,4 @@
-#include "src/study/fix_study_rig.h"
+#include "solvers/self_calibrated_rig.h"
 
 namespace stereoloc {
 

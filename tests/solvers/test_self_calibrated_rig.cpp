@@ -1,7 +1,7 @@
 // selfCalibratedRig: raw images of cameras that differ from the given calibration as the
 // folded rig says, rectified with the GIVEN calibration, show the pixel offsets of the
 // self-calibration model (factors/stereo_pixel_calibration_factor.h).
-#include "src/study/fix_study_rig.h"
+#include "solvers/self_calibrated_rig.h"
 
 #include <gtest/gtest.h>
 
