@@ -6,6 +6,7 @@
 #include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <utility>
 
 #include "factors/block_marginal_prior_factor.h"
@@ -16,6 +17,7 @@
 #include "factors/odometry_factor.h"
 #include "factors/pose_prior_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
+#include "solvers/iterated_update.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
 #include "src/core/measurement_model.h"
@@ -632,7 +634,7 @@ std::string toString(LateObservationStatus status) {
 }
 
 bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P,
-                                            std::vector<int>& used, bool retest) {
+                                            std::vector<int>& used, ObservationTest test, double* e2) {
   const Landmark* lm = nullptr;
   if (obs.landmark_id >= 0) {
     lm = map_.find(obs.landmark_id);
@@ -658,7 +660,10 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, 
   const Eigen::Matrix2d Sinv = S.inverse();
   const double d2 = nu.dot(Sinv * nu);  // (5.20)
   if (!std::isfinite(d2)) return false;
-  if (gate_enabled_ && !(retest ? d2 <= retest_threshold_ : gate_.accepts(d2))) return false;
+  if (gate_enabled_ && test != ObservationTest::None &&
+      !(test == ObservationTest::Retest ? d2 <= retest_threshold_ : gate_.accepts(d2)))
+    return false;
+  if (e2) *e2 = d2;
   if (config_.calibration.stereo && obs.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
@@ -675,6 +680,83 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, 
   const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * Hz;
   P = IKH * P * IKH.transpose() + K * obs.covariance * K.transpose();
   return true;
+}
+
+double SlidingWindowSmoother::jointThreshold(int dof) {
+  if (static_cast<int>(joint_thresholds_.size()) <= dof) joint_thresholds_.resize(static_cast<size_t>(dof) + 1, 0.0);
+  double& t = joint_thresholds_[static_cast<size_t>(dof)];
+  if (!(t > 0)) t = chi2Quantile(config_.gate.probability, dof);
+  return t;
+}
+
+std::vector<bool> SlidingWindowSmoother::fuseStep(const Step& step, Node* node, const Pose2& pred,
+                                                  const Eigen::Matrix3d& P_pred, Pose2& pose, Eigen::Matrix3d& P,
+                                                  bool* compass_fused) {
+  // Joint compatibility as in Ekf::process (5.20; Neira and Tardos, IEEE T-RA 17(6), 2001): one
+  // gate per observation at the sequential belief fails every sighting of a step at once when the
+  // prediction sits in its prior's tail, and the window would then dead-reckon from a wrong start
+  // until the lost policy restarts it and leaves those poses unsmoothed.
+  const size_t n = step.observations.size();
+  const bool with_compass = step.compass.has_value() && config_.use_compass;
+  const size_t first_factor = factors_.size();
+  const size_t first_landmark = node->landmarks.size();
+  std::vector<bool> excluded(n + 1, false);  // n: the compass
+  std::vector<bool> accepted(n, false);
+  std::vector<int> landmark_of(n, -1);
+  for (;;) {
+    while (factors_.size() > first_factor) removeFactor(factors_.size() - 1);
+    node->landmarks.resize(first_landmark);
+    pose = pred;
+    P = P_pred;
+    std::fill(accepted.begin(), accepted.end(), false);
+    *compass_fused = false;
+    double e2 = 0.0;
+    int dof = 0;
+    if (with_compass && !excluded[n]) {
+      const double sigma2 = step.compass_sigma * step.compass_sigma;
+      const double nu = angleDiff(*step.compass, pose.theta);
+      const double S = P(2, 2) + sigma2;
+      addFactor(CompassFactor::Create(*step.compass, step.compass_sigma), {node});
+      const Eigen::Vector3d K = P.col(2) / S;  // (5.19), H = [0 0 1]
+      pose = plus(pose, K * nu);
+      Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity();
+      IKH.col(2) -= K;
+      P = IKH * P * IKH.transpose() + sigma2 * K * K.transpose();
+      e2 += nu * nu / S;
+      dof += 1;
+      *compass_fused = true;
+    }
+    std::vector<int> used;
+    for (const Observation& o : step.observations)
+      if (o.landmark_id >= 0) used.push_back(o.landmark_id);
+    for (size_t i = 0; i < n; ++i) {
+      if (excluded[i]) continue;
+      double d2 = 0.0;
+      accepted[i] = fuseObservation(step.observations[i], node, pose, P, used, ObservationTest::None, &d2);
+      if (!accepted[i]) continue;
+      landmark_of[i] = node->landmarks.back();
+      e2 += d2;
+      dof += 2;
+    }
+    if (!gate_enabled_ || dof == 0 || e2 <= jointThreshold(dof)) break;
+    // The fused one with the largest e^2 at the prediction is set aside.
+    double worst = -1.0;
+    size_t worst_index = n;
+    if (*compass_fused) worst = std::pow(angleDiff(*step.compass, pred.theta), 2) /
+                                (P_pred(2, 2) + step.compass_sigma * step.compass_sigma);
+    for (size_t i = 0; i < n; ++i) {
+      if (!accepted[i]) continue;
+      const Observation& o = step.observations[i];
+      const auto g = rangeBearingInnovationAt(pred, P_pred, o.z(), o.covariance, map_.at(landmark_of[i]).xy());
+      const double e2p = g ? g->mahalanobis_squared : std::numeric_limits<double>::infinity();
+      if (e2p > worst) {
+        worst = e2p;
+        worst_index = i;
+      }
+    }
+    excluded[worst_index] = true;
+  }
+  return accepted;
 }
 
 int SlidingWindowSmoother::retestGated() {
@@ -713,7 +795,7 @@ int SlidingWindowSmoother::retestObservations(Node& node) {
   gated.swap(node.gated);
   int fused = 0;
   for (const Observation& obs : gated) {
-    if (fuseObservation(obs, &node, pose, P, used, true)) {
+    if (fuseObservation(obs, &node, pose, P, used, ObservationTest::Retest)) {
       ++fused;
       ++stats_.accepted_observations;
       --stats_.rejected_observations;
@@ -835,20 +917,17 @@ LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::ve
   E.block<3, 3>(3 * static_cast<long>(k), 0).setIdentity();
   Eigen::Matrix3d P = llt.solve(E).block<3, 3>(3 * static_cast<long>(k), 0);
   P = 0.5 * (P + P.transpose());
-  Pose2 pose = poseOf(node->x);
-  std::vector<int> used;
-  for (const Observation& o : observations)
-    if (o.landmark_id >= 0) used.push_back(o.landmark_id);
-  for (const Observation& obs : observations) {
-    const bool accepted = fuseObservation(obs, node, pose, P, used);
-    ++(accepted ? result.accepted : result.rejected);
-    if (!accepted) node->gated.push_back(obs);
-    ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
-    if (accepted && node->status != EstimateStatus::Reinitialised) node->status = EstimateStatus::Tracking;
-    if (gate_enabled_ && gate_.record(accepted)) {  // (5.1.3): process() asks the global fix next
-      lost_ = true;
-      break;
-    }
+  const Pose2 marginal = poseOf(node->x);
+  const Eigen::Matrix3d P_marginal = P;
+  Pose2 pose = marginal;
+  bool compass_fused = false;
+  const std::vector<bool> accepted = fuseStep(check, node, marginal, P_marginal, pose, P, &compass_fused);
+  for (size_t i = 0; i < observations.size(); ++i) {
+    ++(accepted[i] ? result.accepted : result.rejected);
+    if (!accepted[i]) node->gated.push_back(observations[i]);
+    ++(accepted[i] ? stats_.accepted_observations : stats_.rejected_observations);
+    if (accepted[i] && node->status != EstimateStatus::Reinitialised) node->status = EstimateStatus::Tracking;
+    if (gate_enabled_ && !lost_ && gate_.record(accepted[i])) lost_ = true;  // (5.1.3): process() asks the global fix next
   }
   while (static_cast<int>(nodes_.size()) > config_.window) marginaliseOldest();
   solve(config_.max_iterations);
@@ -943,7 +1022,6 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
       return out;
     }
   } else {
-    if (lost_ && config_.reinitialise_when_lost && tryGlobalFix(step, &out)) return out;
     Node* prev = nodes_.back().get();
     // The odometry since the newest keyframe (5.9 from the identity), and the prediction
     // p_K (+) u with P = J1 P_K J1^T + J2 U J2^T: for one step this is predictPose itself.
@@ -1000,49 +1078,46 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   }
   Node* node = nodes_.back().get();
 
+  if (lost_ && config_.reinitialise_when_lost) {
+    // Still lost: a global fix re-anchors the window when it agrees with the prediction (the
+    // dead-reckoned poses since the loss are then smoothed with the sightings they had gated),
+    // and restarts it otherwise.
+    const std::optional<PoseFix> fix = config_.global_fix ? config_.global_fix(step, map_) : std::nullopt;
+    if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
+      node->gated.insert(node->gated.end(), step.observations.begin(), step.observations.end());
+      stats_.rejected_observations += static_cast<long>(step.observations.size());
+      return recoverFromLoss(step, *fix, pred_pose, pred_P);
+    }
+  }
+
   bool fused = false;
   if (!lost_) {
-    if (step.compass && config_.use_compass) {
-      const double sigma2 = step.compass_sigma * step.compass_sigma;
-      const double nu = angleDiff(*step.compass, pose.theta);
-      const double S = P(2, 2) + sigma2;
-      if (!gate_enabled_ || nu * nu / S <= compass_threshold_) {
-        addFactor(CompassFactor::Create(*step.compass, step.compass_sigma), {node});
-        const Eigen::Vector3d K = P.col(2) / S;  // (5.19), H = [0 0 1]
-        pose = plus(pose, K * nu);
-        Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity();
-        IKH.col(2) -= K;
-        P = IKH * P * IKH.transpose() + sigma2 * K * K.transpose();
-        fused = true;
-      } else {
-        node->gated_compass = {*step.compass, step.compass_sigma};
-      }
-    }
-    std::vector<int> used;
-    for (const Observation& o : step.observations)
-      if (o.landmark_id >= 0) used.push_back(o.landmark_id);
+    bool compass_fused = false;
+    const std::vector<bool> accepted = fuseStep(step, node, pred_pose, pred_P, pose, P, &compass_fused);
+    fused = compass_fused;
+    if (step.compass && config_.use_compass && !compass_fused)
+      node->gated_compass = {*step.compass, step.compass_sigma};
     for (size_t i = 0; i < step.observations.size(); ++i) {
-      const Observation& obs = step.observations[i];
-      const bool accepted = fuseObservation(obs, node, pose, P, used);
-      fused = fused || accepted;
-      ++(accepted ? stats_.accepted_observations : stats_.rejected_observations);
-      if (!accepted) node->gated.push_back(obs);
-      if (gate_enabled_ && gate_.record(accepted)) {  // (5.1.3)
+      fused = fused || accepted[i];
+      ++(accepted[i] ? stats_.accepted_observations : stats_.rejected_observations);
+      if (!accepted[i]) node->gated.push_back(step.observations[i]);
+      if (gate_enabled_ && gate_.record(accepted[i])) {  // (5.1.3)
         lost_ = true;
         if (config_.reinitialise_when_lost) {
           const std::optional<PoseFix> fix = config_.global_fix ? config_.global_fix(step, map_) : std::nullopt;
           if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
-            node->gated.insert(node->gated.end(), step.observations.begin() + static_cast<long>(i) + 1,
-                               step.observations.end());
-            stats_.rejected_observations += static_cast<long>(step.observations.size() - i - 1);
-            if (reanchor(*fix, pred_pose, pred_P)) return estimateOf(*nodes_.back());
-            // Re-initialise from this step's fix: the predicted pose of this step is replaced.
-            dropNewest();
-            finaliseWindow();
-            startWindow(step, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
-            ++stats_.reinitialisations;
-            return estimateOf(*nodes_.back());
+            // The step's fused observations stay as factors of its pose (the reanchored window
+            // keeps them; a restart drops the pose); the rest are set aside with it.
+            for (size_t j = i + 1; j < step.observations.size(); ++j)
+              if (!accepted[j]) node->gated.push_back(step.observations[j]);
+            for (size_t j = i + 1; j < step.observations.size(); ++j)
+              ++(accepted[j] ? stats_.accepted_observations : stats_.rejected_observations);
+            return recoverFromLoss(step, *fix, pred_pose, pred_P);
           }
+        }
+        for (size_t j = i + 1; j < step.observations.size(); ++j) {
+          ++(accepted[j] ? stats_.accepted_observations : stats_.rejected_observations);
+          if (!accepted[j]) node->gated.push_back(step.observations[j]);
         }
         break;
       }
@@ -1053,6 +1128,17 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   solve(config_.max_iterations);
   retestGated();
   computeCovariances(false);
+  return estimateOf(*nodes_.back());
+}
+
+Estimate SlidingWindowSmoother::recoverFromLoss(const Step& step, const PoseFix& fix, const Pose2& pred_pose,
+                                                const Eigen::Matrix3d& pred_P) {
+  if (reanchor(fix, pred_pose, pred_P)) return estimateOf(*nodes_.back());
+  // Re-initialise from this step's fix: the predicted pose of this step is replaced.
+  dropNewest();
+  finaliseWindow();
+  startWindow(step, fix.pose, fix.covariance, EstimateStatus::Reinitialised);
+  ++stats_.reinitialisations;
   return estimateOf(*nodes_.back());
 }
 

@@ -258,11 +258,23 @@ class SlidingWindowSmoother : public Estimator {
   // The Gauss-Newton information of the window (3n x 3n, poses in nodes_ order; refreshes the
   // slots), factors linearised as for the covariances.
   Eigen::MatrixXd windowInformation();
-  // Gate, associate and add one observation at `node` with the belief (pose, P), which is
+  // Which test fuseObservation applies: the gate (5.20), the wider test of retestGated
+  // (retest_probability), or none (the step's joint test, fuseStep, decides).
+  enum class ObservationTest { Gate, Retest, None };
+  // Test, associate and add one observation at `node` with the belief (pose, P), which is
   // updated as by the EKF's sequential update; `used`: the landmarks already taken this step.
-  // retest: the test of retestGated (retest_probability) instead of the gate.
+  // When fused, *e2 (if given) is its e^2 at the belief it was fused at.
   bool fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P, std::vector<int>& used,
-                       bool retest = false);
+                       ObservationTest test = ObservationTest::Gate, double* e2 = nullptr);
+  // The newest pose's compass and observations of `step`, tested jointly as the EKF does (Ekf::
+  // process): fused in order from the prediction (pred, P_pred), each at the belief the earlier
+  // ones left, while the sum of their e^2 fails the chi-square gate of the summed degrees of
+  // freedom the one least compatible with the prediction is set aside and the step fused again.
+  // Returns, per observation, whether it was fused (the compass in *compass_fused); (pose, P)
+  // end at the belief after the fused ones. Adds the factors; gated ones are not recorded here.
+  std::vector<bool> fuseStep(const Step& step, Node* node, const Pose2& pred, const Eigen::Matrix3d& P_pred,
+                             Pose2& pose, Eigen::Matrix3d& P, bool* compass_fused);
+  double jointThreshold(int dof);  // chi2Quantile(gate.probability, dof), computed once per dof
   // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
   Node* promote(size_t k_index, size_t j);
   // Uninitialised or lost: a global fix from late observations of a recent step restarts the
@@ -275,6 +287,9 @@ class SlidingWindowSmoother : public Estimator {
   // against the re-solved marginals and keeps every pose. False (nothing changed) when the fix
   // disagrees: a real loss, which restarts the window.
   bool reanchor(const PoseFix& fix, const Pose2& pred, const Eigen::Matrix3d& P_pred);
+  // Lost, and `step` (the newest pose, its observations set aside) has a global fix: reanchor,
+  // or else restart the window at the fix. Returns the step's estimate.
+  Estimate recoverFromLoss(const Step& step, const PoseFix& fix, const Pose2& pred_pose, const Eigen::Matrix3d& pred_P);
   // After a solve: each window pose's gated observations against its marginal in the window;
   // those that pass are fused and the window is solved again. Returns how many were fused.
   int retestGated();
@@ -288,6 +303,7 @@ class SlidingWindowSmoother : public Estimator {
   ValidationGate gate_;
   bool gate_enabled_;  // gate_enabled, and no robust loss unless gate_with_robust_loss
   double compass_threshold_;
+  std::vector<double> joint_thresholds_;  // by degrees of freedom
   double retest_threshold_;
   double retest_threshold_compass_;
   PoseManifold manifold_;
