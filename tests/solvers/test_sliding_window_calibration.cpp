@@ -47,7 +47,7 @@ double relDiff(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
 }
 
 TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
-  const Dataset d = realisticRun(3, "random-walk", 100);
+  const Dataset d = realisticRun(3, "random-walk", 200);
   // Both solved to the limit of double precision, so that only the formulation could differ.
   BatchSmootherConfig bc;
   bc.init = knownBelief(*d.groundtruth.front(), kP0);
@@ -77,10 +77,10 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
     pose = std::max(pose, minus(ew[i].pose, batch.trajectory[i].pose).cwiseAbs().maxCoeff());
     cov = std::max(cov, relDiff(ew[i].covariance, batch.trajectory[i].covariance));
   }
-  // mm and rad: both solvers stop within ~2e-6 mm of each other (a relative 2e-9 of the field),
-  // the limit the focal scale's correlation with the baseline scale and the column offset leaves
-  // to the normal equations' conditioning at these tolerances.
-  EXPECT_LT(pose, 3e-6);
+  // mm and rad. 200 steps: on shorter walks the focal scale's correlation with the baseline scale
+  // and the column offset leaves the normal equations so flat that both solvers stop some 1e-6 mm
+  // apart at these tolerances.
+  EXPECT_LT(pose, 1e-6);
   EXPECT_LT(cov, 1e-6);
   const std::optional<CalibrationEstimate> cw = win.calibration();
   ASSERT_TRUE(cw.has_value());
