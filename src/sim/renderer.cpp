@@ -618,8 +618,17 @@ cv::Mat StereoRenderer::renderView(const Scene& scene, const Pose2& robot, doubl
   for (int j = 0; j < fine; ++j) on_base[static_cast<size_t>(j)] = nested && j % fine_step == fine_step / 2;
 
   // Pass 1: the base n x n samples of every pixel, their mean, and whether they disagree.
-  std::vector<Colour> mean(static_cast<size_t>(W) * H);
-  std::vector<uint8_t> mixed(static_cast<size_t>(W) * H, 0);
+  // Kept between the renders of a thread (no 1.4 MB allocation and page faults per image);
+  // every entry pass 2 reads is written by pass 1 of this render.
+  struct PixelScratch {
+    std::vector<Colour> mean;
+    std::vector<uint8_t> mixed;
+  };
+  static thread_local PixelScratch scratch;
+  scratch.mean.resize(static_cast<size_t>(W) * H);
+  scratch.mixed.resize(static_cast<size_t>(W) * H);
+  std::vector<Colour>& mean = scratch.mean;  // the workers of runRows use this thread's scratch
+  std::vector<uint8_t>& mixed = scratch.mixed;
   auto baseRows = [&](int first_row, int step) {
     for (int v = first_row; v < H; v += step) {
       const Span* span = spans.data() + row_first_span[static_cast<size_t>(v)];
@@ -630,6 +639,7 @@ cv::Mat StereoRenderer::renderView(const Scene& scene, const Pose2& robot, doubl
         const TileMode mode = tileMode(u, v);
         if (mode == TileMode::Floor || mode == TileMode::Sky) {
           mean[i] = mode == TileMode::Floor ? floor_mean : sky_mean;
+          mixed[i] = 0;
           continue;
         }
         Colour sum = Colour::Zero(), first = Colour::Zero();
