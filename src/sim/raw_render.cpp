@@ -1,5 +1,7 @@
 #include "src/sim/raw_render.h"
 
+#include <algorithm>
+#include <cmath>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -53,27 +55,51 @@ StereoImages RawPairRenderer::render(const Scenario& sc, size_t s, const std::ve
   const double f = p.focal_px, cu = p.principal_u, cv_ = p.principal_v;
   RenderOptions opt = options_;
   opt.noise_sigma = 0.0;
+  opt.compute_truth = false;
   const StereoRenderer renderer(map_, StereoRig(p), opt);
   const double pan = sc.head_pan[s];
 
-  // Motion blur and the right camera's exposure offset.
+  // Where each raw pixel reads the ideal image, and so which ideal pixels are read at all:
+  // cv::remap's bilinear taps of a map value x are floor(x) .. floor(x) + 2 (it rounds x to
+  // 1/32 px first); one more on the low side for safety. The other pixels are not ray-cast.
+  const RawCamera cams[2] = {trueCamera(nominal_rig_, errors_, 0, s), trueCamera(nominal_rig_, errors_, 1, s)};
+  cv::Mat mx[2], my[2];
+  StereoRenderer::ColumnRanges needed[2];
+  for (int c = 0; c < 2; ++c) {
+    const cv::Matx33d Rt = cv::Matx33d(cams[c].R).t();
+    mx[c].create(H, W, CV_32FC1);
+    my[c].create(H, W, CV_32FC1);
+    needed[c].assign(static_cast<size_t>(p.image_height), {p.image_width, 0});
+    for (int v = 0; v < H; ++v) {
+      const cv::Vec2f* ray = rays_[c].ptr<cv::Vec2f>(v);
+      float* x_row = mx[c].ptr<float>(v);
+      float* y_row = my[c].ptr<float>(v);
+      for (int u = 0; u < W; ++u) {
+        const cv::Vec3d X = Rt * cv::Vec3d(ray[u][0], ray[u][1], 1.0);
+        x_row[u] = static_cast<float>(f * X[0] / X[2] + cu);
+        y_row[u] = static_cast<float>(f * X[1] / X[2] + cv_);
+        const int x0 = static_cast<int>(std::floor(x_row[u])), y0 = static_cast<int>(std::floor(y_row[u]));
+        for (int y = std::max(y0 - 1, 0); y <= std::min(y0 + 2, p.image_height - 1); ++y) {
+          std::pair<int, int>& r = needed[c][static_cast<size_t>(y)];
+          r.first = std::min(r.first, std::max(x0 - 1, 0));
+          r.second = std::max(r.second, std::min(x0 + 3, p.image_width));
+        }
+      }
+    }
+  }
+
+  // Motion blur and the right camera's exposure offset: each sub-exposure renders only the
+  // camera whose image it feeds.
   const int K = profile_.exposure_s > 0 ? profile_.exposure_samples : 1;
   cv::Mat acc[2];
   for (int k = 0; k < K; ++k) {
     const double tau = profile_.exposure_s * ((k + 0.5) / K - 0.5);
-    const Pose2 pl = poseAtStep(sc, static_cast<double>(s) + tau / dt_);
-    const StereoImages il = renderer.render(pl, pan, obstacles, noise_seed);
-    StereoImages ir_store;
-    const StereoImages* ir = &il;
-    if (errors_.exposure_offset_s != 0.0) {
-      ir_store = renderer.render(poseAtStep(sc, static_cast<double>(s) + (tau + errors_.exposure_offset_s) / dt_), pan,
-                                 obstacles, noise_seed);
-      ir = &ir_store;
-    }
-    const cv::Mat* src[2] = {&il.left, &ir->right};
     for (int c = 0; c < 2; ++c) {
+      const double t = tau + (c == 1 ? errors_.exposure_offset_s : 0.0);
+      const cv::Mat img = renderer.renderCamera(poseAtStep(sc, static_cast<double>(s) + t / dt_), pan, obstacles, c,
+                                                &needed[c]);
       cv::Mat fimg;
-      src[c]->convertTo(fimg, CV_32FC3, 1.0 / K);
+      img.convertTo(fimg, CV_32FC3, 1.0 / K);
       if (k == 0)
         acc[c] = fimg;
       else
@@ -82,33 +108,23 @@ StereoImages RawPairRenderer::render(const Scenario& sc, size_t s, const std::ve
   }
 
   StereoImages out;
-  out.truth = renderer.truth(sc.poses[s], pan, obstacles);
+  if (options_.compute_truth) out.truth = renderer.truth(sc.poses[s], pan, obstacles);
   cv::RNG rng(noise_seed);
   for (int c = 0; c < 2; ++c) {
-    const RawCamera cam = trueCamera(nominal_rig_, errors_, c, s);
-    const cv::Matx33d Rt = cv::Matx33d(cam.R).t();
-    cv::Mat mx(H, W, CV_32FC1), my(H, W, CV_32FC1);
-    for (int v = 0; v < H; ++v)
-      for (int u = 0; u < W; ++u) {
-        const cv::Vec2f n = rays_[c].at<cv::Vec2f>(v, u);
-        const cv::Vec3d X = Rt * cv::Vec3d(n[0], n[1], 1.0);
-        mx.at<float>(v, u) = static_cast<float>(f * X[0] / X[2] + cu);
-        my.at<float>(v, u) = static_cast<float>(f * X[1] / X[2] + cv_);
-      }
     cv::Mat raw;
-    cv::remap(acc[c], raw, mx, my, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    cv::remap(acc[c], raw, mx[c], my[c], cv::INTER_LINEAR, cv::BORDER_REPLICATE);
     if (options_.noise_sigma > 0) {
       cv::Mat noise(raw.size(), CV_32FC3);
       rng.fill(noise, cv::RNG::NORMAL, 0.0, options_.noise_sigma);
       raw += noise;
     }
     raw.convertTo(c == 0 ? out.left : out.right, CV_8UC3);
-
+    if (!options_.compute_truth) continue;
     ImageTruth& t = c == 0 ? out.truth.left : out.truth.right;
-    for (ImageLandmark& l : t.landmarks) l.pixel = toRaw(l.pixel, f, cu, cv_, cam);
+    for (ImageLandmark& l : t.landmarks) l.pixel = toRaw(l.pixel, f, cu, cv_, cams[c]);
     for (ImageSegment& g : t.segments) {
-      g.a = toRaw(g.a, f, cu, cv_, cam);
-      g.b = toRaw(g.b, f, cu, cv_, cam);
+      g.a = toRaw(g.a, f, cu, cv_, cams[c]);
+      g.b = toRaw(g.b, f, cu, cv_, cams[c]);
     }
   }
   return out;

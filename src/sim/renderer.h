@@ -11,6 +11,7 @@
 // truth's rules: docs/frontend.md, "Renderer".
 #include <opencv2/core.hpp>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "src/core/field_map.h"
@@ -81,10 +82,20 @@ class StereoRenderer {
                       uint64_t noise_seed) const;
   // Only the ground truth (no pixels).
   StereoTruth truth(const Pose2& robot, double head_pan, const std::vector<Obstacle>& obstacles) const;
+  // Per image row v, the half-open column range [first, last) (empty when first >= last).
+  using ColumnRanges = std::vector<std::pair<int, int>>;
+  // One camera's image (0 left, 1 right): render()'s pixels of that camera before sensor noise.
+  // With `needed` (one range per image row) only those pixels are render()'s, the others 0, and
+  // only what they depend on is ray-cast (the pixels themselves and their 4-neighbours' base
+  // samples); with blur_sigma > 0 the whole image.
+  cv::Mat renderCamera(const Pose2& robot, double head_pan, const std::vector<Obstacle>& obstacles, int camera,
+                       const ColumnRanges* needed = nullptr) const;
   const RenderOptions& options() const { return options_; }
 
  private:
   StereoTruth computeTruth(const Scene& scene, const Pose2& robot, double head_pan) const;
+  cv::Mat renderView(const Scene& scene, const Pose2& robot, double head_pan, int camera,
+                     const ColumnRanges* needed) const;
   // Offset in the pixel (0..1) of base sample i (0..samples_per_axis-1). Centred (i + 0.5) / n,
   // except when the edge grid nests the base grid (edge_samples_per_axis a multiple of n): then
   // the base samples are edge-grid points, still 1/n apart across the whole image, and a refined
