@@ -40,18 +40,51 @@ void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma) {
   cv::cvtColor(bgr, luma, cv::COLOR_BGR2GRAY);
 }
 
-float fastAngle(float y, float x) {
+namespace {
+
+// 8 bytes of a 0/1 byte mask as a word whose lowest byte is the first.
+inline uint64_t loadMaskWord(const uint8_t* p) {
+  uint64_t word;
+  std::memcpy(&word, p, sizeof word);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+  word = __builtin_bswap64(word);
+#endif
+  return word;
+}
+
+// Index of the lowest nonzero byte of such a word (nonzero).
+inline int setByteIndex(uint64_t word) { return __builtin_ctzll(word) >> 3; }
+
+// fastAngle without branches on the quadrant (the same operations, selected): edge pixels of
+// texture have random directions, and a mispredicted branch per pixel cost more than the
+// polynomial. x, y must not both be 0.
+inline float angleOf(float y, float x) {
   const float ax = std::fabs(x), ay = std::fabs(y);
   const float mn = std::min(ax, ay), mx = std::max(ax, ay);
-  if (mx == 0.0f) return 0.0f;
   const float a = mn / mx, s = a * a;
   // Minimax polynomial for atan on [0, 1].
   float r = ((((0.0208351f * s - 0.0851330f) * s + 0.1801410f) * s - 0.3302995f) * s + 0.9998660f) * a;
-  if (ay > ax) r = 1.57079637f - r;
-  if (x < 0) r = 3.14159274f - r;
-  if (y < 0) r = 6.28318548f - r;
-  if (r >= 6.28318548f) r -= 6.28318548f;
-  return r;
+  r = ay > ax ? 1.57079637f - r : r;
+  r = x < 0 ? 3.14159274f - r : r;
+  r = y < 0 ? 6.28318548f - r : r;
+  return r >= 6.28318548f ? r - 6.28318548f : r;
+}
+
+// 3x3 Sobel of an inner pixel, as cv::spatialGradient computes it.
+inline int32_t sobelMag2(const cv::Mat& luma, int x, int y) {
+  const uint8_t* a = luma.ptr<uint8_t>(y - 1) + x;
+  const uint8_t* b = luma.ptr<uint8_t>(y) + x;
+  const uint8_t* c = luma.ptr<uint8_t>(y + 1) + x;
+  const int32_t gx = (a[1] - a[-1]) + 2 * (b[1] - b[-1]) + (c[1] - c[-1]);
+  const int32_t gy = (c[-1] + 2 * c[0] + c[1]) - (a[-1] + 2 * a[0] + a[1]);
+  return gx * gx + gy * gy;
+}
+
+}  // namespace
+
+float fastAngle(float y, float x) {
+  if (std::fabs(x) == 0.0f && std::fabs(y) == 0.0f) return 0.0f;
+  return angleOf(y, x);
 }
 
 void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, const int16_t* top) {
@@ -64,31 +97,32 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     mag2_.assign(n, 0);
     index_.assign(n, -1);
     edges_.reserve(n / 8);
+    gx_.create(h, w, CV_16S);
+    gy_.create(h, w, CV_16S);
   } else {
     for (const EdgePixel& e : edges_) index_[static_cast<size_t>(e.iy) * w + e.ix] = -1;
   }
   edges_.clear();
   if (w < 5 || h < 5) return;
 
-  // 3x3 Sobel in one SIMD pass (the border rows and columns are never used below).
-  cv::spatialGradient(luma, gx_, gy_, 3);
-  // Squared magnitudes and a byte mask of the pixels at the threshold, both in loops the
-  // compiler vectorises: most pixels are below it, and a branch per pixel in the suppression
-  // loop below was half the stage's time. The mask has 8 zero bytes of padding per row end.
   // With a region of interest, rows above its highest column top give no edge pixels; the
-  // suppression below reads one row above the first it tests.
-  int y_first = 0;
+  // suppression below reads one row above the first it tests (y_first), whose Sobel reads one
+  // more. The Sobel is computed from one row above that (its own first row sees a reflected
+  // border and is never read), in one SIMD pass into the full-size gx_, gy_.
+  int y_first = 0, y_sobel = 0;
   if (top) {
     y_first = h;
     for (int x = 0; x < w; ++x) y_first = std::min<int>(y_first, top[x]);
     y_first = std::max(0, y_first - 1);
+    y_sobel = std::max(0, y_first - 2);
   }
-  for (int y = y_first; y < h; ++y) {
-    const int16_t* gxr = gx_.ptr<int16_t>(y);
-    const int16_t* gyr = gy_.ptr<int16_t>(y);
-    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+  if (h - y_sobel >= 3) {
+    cv::Mat gxr = gx_.rowRange(y_sobel, h), gyr = gy_.rowRange(y_sobel, h);
+    cv::spatialGradient(luma.rowRange(y_sobel, h), gxr, gyr, 3);
   }
+  // Rows of gx_, gy_ equal to the whole image's Sobel: y_sobel + 1 on (all with no region).
+  const int y_exact = y_sobel > 0 ? y_sobel + 1 : 0;
+
   int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
   if (params.auto_factor > 0) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
@@ -96,35 +130,55 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     // Exact median by a two-level histogram select: squared magnitudes below kFine have a bin
     // each (a carpet's median lies there), larger ones share bins of 2^kShift values and only
     // the bin holding the median is sorted. nth_element over all samples cost more than the
-    // rest of the threshold.
-    hist_.assign(kFine + (kMaxMag2 >> kShift) + 1, 0);
+    // rest of the threshold. Consecutive samples count into kLanes interleaved histograms:
+    // most samples of a carpet fall into a few bins, and one histogram made every increment
+    // wait for the previous one's store. Samples in rows above the computed Sobel (above the
+    // region) are taken from the luma directly.
+    const size_t nbins = kFine + (kMaxMag2 >> kShift) + 1;
+    hist_.assign(nbins * kLanes, 0);
     size_t count = 0;
-    for (int y = 2; y < h - 2; y += 3) {
-      const int16_t* gxr = gx_.ptr<int16_t>(y);
-      const int16_t* gyr = gy_.ptr<int16_t>(y);
-      for (int x = 2; x < w - 2; x += 3) {
-        const int32_t m2 = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-        ++hist_[m2 < kFine ? m2 : kFine + (m2 >> kShift)];
-        ++count;
+    auto sampleRow = [&](int y) -> const int32_t* {
+      int32_t* m = samples_row_.data();
+      int k = 0;
+      if (y >= y_exact) {
+        const int16_t* gxr = gx_.ptr<int16_t>(y);
+        const int16_t* gyr = gy_.ptr<int16_t>(y);
+        for (int x = 2; x < w - 2; x += 3, ++k) m[k] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+      } else {
+        for (int x = 2; x < w - 2; x += 3, ++k) m[k] = sobelMag2(luma, x, y);
       }
+      return m;
+    };
+    const int per_row = (w - 2 - 2 + 2) / 3;  // samples x = 2, 5, ... < w - 2
+    samples_row_.resize(static_cast<size_t>(std::max(per_row, 0)));
+    auto bin = [&](int32_t m2) { return static_cast<size_t>(m2 < kFine ? m2 : kFine + (m2 >> kShift)); };
+    for (int y = 2; y < h - 2; y += 3) {
+      const int32_t* m = sampleRow(y);
+      int k = 0;
+      for (; k + kLanes <= per_row; k += kLanes)
+        for (int l = 0; l < kLanes; ++l) ++hist_[bin(m[k + l]) * kLanes + l];
+      for (int l = 0; k < per_row; ++k, ++l) ++hist_[bin(m[k]) * kLanes + l];
+      count += static_cast<size_t>(per_row);
     }
     if (count > 0) {
       const size_t k = count / 2;  // the element nth_element would place at size / 2
-      size_t below = 0, bin = 0;
-      while (below + hist_[bin] <= k) below += hist_[bin++];
+      size_t below = 0, b = 0;
+      auto total = [&](size_t i) {
+        size_t t = 0;
+        for (int l = 0; l < kLanes; ++l) t += hist_[i * kLanes + l];
+        return t;
+      };
+      for (size_t t = total(0); below + t <= k; t = total(++b)) below += t;
       int64_t median2;
-      if (bin < static_cast<size_t>(kFine)) {
-        median2 = static_cast<int64_t>(bin);
+      if (b < static_cast<size_t>(kFine)) {
+        median2 = static_cast<int64_t>(b);
       } else {
         samples_.clear();
-        const int32_t lo = static_cast<int32_t>(bin - kFine) << kShift;
+        const int32_t coarse = static_cast<int32_t>(b - kFine);
         for (int y = 2; y < h - 2; y += 3) {
-          const int16_t* gxr = gx_.ptr<int16_t>(y);
-          const int16_t* gyr = gy_.ptr<int16_t>(y);
-          for (int x = 2; x < w - 2; x += 3) {
-            const int32_t m2 = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-            if (m2 >= kFine && (m2 >> kShift) == (lo >> kShift)) samples_.push_back(m2);
-          }
+          const int32_t* m = sampleRow(y);
+          for (int j = 0; j < per_row; ++j)
+            if (m[j] >= kFine && (m[j] >> kShift) == coarse) samples_.push_back(m[j]);
         }
         auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
         std::nth_element(samples_.begin(), mid, samples_.end());
@@ -135,78 +189,74 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     }
   }
   threshold_ = std::sqrt(static_cast<double>(thr2));
-  // A 32-bit threshold keeps the comparison below in 32-bit lanes (vectorised); squared Sobel
-  // magnitudes of 8-bit images stay below 2^22.
+  // Squared magnitudes and a byte mask of the pixels at the threshold (and in the region), in
+  // one loop the compiler vectorises: most pixels are below it, and a branch per pixel in the
+  // suppression loop below was half the stage's time. A 32-bit threshold keeps the comparison
+  // in 32-bit lanes; squared Sobel magnitudes of 8-bit images stay below 2^22. The mask has 8
+  // zero bytes of padding per row end, and its columns 0, 1, w - 2, w - 1 stay 0.
   const int32_t thr2_32 = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
   const size_t stride = static_cast<size_t>(w) + 8;
-  if (above_.size() != stride * h) above_.assign(stride * h, 0);  // only [2, w - 2) is written
-  for (int y = 0; y < h; ++y) {
-    const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+  if (above_.size() != stride * h) above_.assign(stride * h, 0);
+  for (int y = 0; y < y_first + 1; ++y) {
     uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
-    if (y < y_first + 1) {
-      std::fill(ab + 2, ab + std::max(2, w - 2), uint8_t{0});
-      continue;
+    std::fill(ab + 2, ab + std::max(2, w - 2), uint8_t{0});
+  }
+  for (int y = y_first; y < h; ++y) {
+    const int16_t* gxr = gx_.ptr<int16_t>(y);
+    const int16_t* gyr = gy_.ptr<int16_t>(y);
+    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+    for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+    if (y < y_first + 1) continue;
+    uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
+    if (top) {
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>((m2[x] >= thr2_32) & (y >= top[x]));
+    } else {
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
     }
-    for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
-    if (top)
-      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(ab[x] & (y >= top[x]));
   }
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
   // through the three magnitudes. Pixels next to the border are skipped (their neighbours
-  // have no gradient).
+  // have no gradient). The mask is read 8 bytes at a time and only its set bytes are visited,
+  // lowest first, so the order of edges_ is row-major.
   for (int y = std::max(2, y_first + 1); y < h - 2; ++y) {
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
     const uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
-    for (int x = 2; x < w - 2; ++x) {
-      // Skip 8 pixels below the threshold at once (left to right, so the order of edges_ is
-      // unchanged).
-      if ((x & 7) == 0) {
-        uint64_t word;
-        std::memcpy(&word, ab + x, sizeof word);
-        if (word == 0) {
-          x += 7;
-          continue;
-        }
+    for (int x0 = 0; x0 < w - 2; x0 += 8) {
+      uint64_t word = loadMaskWord(ab + x0);
+      while (word != 0) {
+        const int x = x0 + setByteIndex(word);
+        word &= word - 1;  // each set byte holds the single bit 1
+        const int32_t c = m2[x];
+        const int gxv = gxr[x], gyv = gyr[x];
+        const int ax = std::abs(gxv), ay = std::abs(gyv);
+        // Sector of the gradient direction, tan(22.5 deg) ~ 106/256: (1, 0), (0, 1) or a diagonal.
+        const bool horizontal = ay * 256 <= ax * 106;
+        const bool vertical = !horizontal && ax * 256 <= ay * 106;
+        const int dx = vertical ? 0 : 1;
+        const int dy = horizontal ? 0 : vertical ? 1 : ((gxv > 0) == (gyv > 0)) ? 1 : -1;
+        const int off = dy * w + dx;
+        const int32_t mp = m2[x + off], mm = m2[x - off];
+        if (!(c > mm && c >= mp)) continue;
+        const float fm = std::sqrt(static_cast<float>(mm)), f0 = std::sqrt(static_cast<float>(c)),
+                    fp = std::sqrt(static_cast<float>(mp));
+        const float den = fm - 2.0f * f0 + fp;
+        const float q = 0.5f * (fm - fp) / (den < 0.0f ? den : -1.0f);
+        const float s = std::clamp(den < 0.0f ? q : 0.0f, -0.5f, 0.5f);
+        EdgePixel e;
+        e.ix = static_cast<int16_t>(x);
+        e.iy = static_cast<int16_t>(y);
+        e.x = static_cast<float>(x) + s * static_cast<float>(dx);
+        e.y = static_cast<float>(y) + s * static_cast<float>(dy);
+        e.angle = angleOf(static_cast<float>(gyv), static_cast<float>(gxv));  // c > 0: not both 0
+        e.mag = f0;
+        const int bin = static_cast<int>(e.angle * (360.0f / 6.28318548f) + 0.5f);
+        e.dir_bin = static_cast<uint16_t>(bin >= 360 ? bin - 360 : bin);
+        index_[static_cast<size_t>(y) * w + x] = static_cast<int32_t>(edges_.size());
+        edges_.push_back(e);
       }
-      if (!ab[x]) continue;
-      const int32_t c = m2[x];
-      const int gxv = gxr[x], gyv = gyr[x];
-      const int ax = std::abs(gxv), ay = std::abs(gyv);
-      int dx, dy;
-      // tan(22.5 deg) ~ 106/256
-      if (ay * 256 <= ax * 106) {
-        dx = 1;
-        dy = 0;
-      } else if (ax * 256 <= ay * 106) {
-        dx = 0;
-        dy = 1;
-      } else {
-        dx = 1;
-        dy = ((gxv > 0) == (gyv > 0)) ? 1 : -1;
-      }
-      const int off = dy * w + dx;
-      const int32_t mp = m2[x + off], mm = m2[x - off];
-      if (!(c > mm && c >= mp)) continue;
-      const float fm = std::sqrt(static_cast<float>(mm)), f0 = std::sqrt(static_cast<float>(c)),
-                  fp = std::sqrt(static_cast<float>(mp));
-      const float den = fm - 2.0f * f0 + fp;
-      float s = den < 0.0f ? 0.5f * (fm - fp) / den : 0.0f;
-      s = std::clamp(s, -0.5f, 0.5f);
-      EdgePixel e;
-      e.ix = static_cast<int16_t>(x);
-      e.iy = static_cast<int16_t>(y);
-      e.x = static_cast<float>(x) + s * static_cast<float>(dx);
-      e.y = static_cast<float>(y) + s * static_cast<float>(dy);
-      e.angle = fastAngle(static_cast<float>(gyv), static_cast<float>(gxv));
-      e.mag = f0;
-      int bin = static_cast<int>(e.angle * (360.0f / 6.28318548f) + 0.5f);
-      if (bin >= 360) bin -= 360;
-      e.dir_bin = static_cast<uint16_t>(bin);
-      index_[static_cast<size_t>(y) * w + x] = static_cast<int32_t>(edges_.size());
-      edges_.push_back(e);
     }
   }
 }

@@ -34,8 +34,10 @@ class GradientStage {
   int edgeAt(int x, int y) const { return index_[static_cast<size_t>(y) * w_ + x]; }
   // The magnitude threshold used by the last compute() (magnitude_threshold or the automatic one).
   double threshold() const { return threshold_; }
-  const cv::Mat& gx() const { return gx_; }  // CV_16S Sobel x
-  const cv::Mat& gy() const { return gy_; }  // CV_16S Sobel y
+  // CV_16S Sobel x and y. With a region (top), rows more than 3 above its highest column top
+  // are not computed (they hold earlier images' values).
+  const cv::Mat& gx() const { return gx_; }
+  const cv::Mat& gy() const { return gy_; }
 
  private:
   int w_ = 0, h_ = 0;
@@ -43,8 +45,11 @@ class GradientStage {
   std::vector<int32_t> mag2_;
   // Histogram of sampled squared magnitudes for the automatic threshold: exact bins below
   // kFine, bins of 2^kShift above (a 3x3 Sobel of 8-bit luma stays below kMaxMag2).
+  // kLanes interleaved copies of it (see compute()).
   static constexpr int32_t kFine = 4096, kShift = 12, kMaxMag2 = 2 * 1020 * 1020;
+  static constexpr int kLanes = 4;
   std::vector<uint32_t> hist_;
+  std::vector<int32_t> samples_row_;  // squared magnitudes of one row's samples
   std::vector<int32_t> samples_;  // the samples in the median's coarse bin
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
