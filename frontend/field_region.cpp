@@ -16,7 +16,13 @@ float medianOf(std::vector<float>& v, std::vector<uint32_t>& keys, std::vector<u
   keys.resize(v.size());
   for (size_t i = 0; i < v.size(); ++i) std::memcpy(&keys[i], &v[i], sizeof(uint32_t));
   size_t k = v.size() / 2;
-  for (int shift = 24; shift >= 0; shift -= 8) {
+  // Digits start at the highest bit in which the keys differ (most share sign and exponent),
+  // and the select stops when the candidates left are all equal.
+  for (;;) {
+    uint32_t diff = 0;
+    for (uint32_t key : keys) diff |= key ^ keys[0];
+    if (diff == 0) break;
+    const int shift = std::max(0, 31 - __builtin_clz(diff) - 7);
     uint32_t count[256] = {};
     for (uint32_t key : keys) ++count[(key >> shift) & 255u];
     uint32_t digit = 0;
@@ -77,7 +83,10 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   int open = gw;
   for (int gy = 0; gy < gh && open > 0; ++gy) {
     const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
+    // Few columns left open (a robot or the lens border at the bottom): only those are tested.
+    const bool all = 4 * open >= gw;
     for (int gx = 0; gx < gw; ++gx) {
+      if (!all && grid_top_[gx] >= 0) continue;
       const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
       pb[gx] = px[0];
       pg[gx] = px[1];

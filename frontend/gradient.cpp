@@ -123,8 +123,36 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   // Rows of gx_, gy_ equal to the whole image's Sobel: y_sobel + 1 on (all with no region).
   const int y_exact = y_sobel > 0 ? y_sobel + 1 : 0;
 
+  // Squared magnitudes of the rows the suppression reads, in a loop the compiler vectorises.
+  // With the automatic threshold, the samples of its median (below) are copied out of them
+  // on the fly; samples above these rows come from gx_, gy_ or, above the computed Sobel,
+  // from the luma directly.
+  const bool automatic = params.auto_factor > 0;
+  samples_all_.resize(automatic ? static_cast<size_t>(std::max(0, (w - 2) / 3)) * std::max(0, (h - 2) / 3) : 0);
+  int32_t* sample = samples_all_.data();
+  if (automatic) {
+    for (int y = 2; y < std::min(y_first, h - 2); y += 3) {
+      if (y >= y_exact) {
+        const int16_t* gxr = gx_.ptr<int16_t>(y);
+        const int16_t* gyr = gy_.ptr<int16_t>(y);
+        for (int x = 2; x < w - 2; x += 3) *sample++ = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+      } else {
+        for (int x = 2; x < w - 2; x += 3) *sample++ = sobelMag2(luma, x, y);
+      }
+    }
+  }
+  for (int y = y_first; y < h; ++y) {
+    const int16_t* gxr = gx_.ptr<int16_t>(y);
+    const int16_t* gyr = gy_.ptr<int16_t>(y);
+    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+    for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+    if (automatic && y >= 2 && y < h - 2 && y % 3 == 2)
+      for (int x = 2; x < w - 2; x += 3) *sample++ = m2[x];
+  }
+  samples_all_.resize(static_cast<size_t>(sample - samples_all_.data()));
+
   int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
-  if (params.auto_factor > 0) {
+  if (automatic && !samples_all_.empty()) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
     // every 3rd pixel of every 3rd row of the whole image is plenty for a median.
     // Exact median by a two-level histogram select: squared magnitudes below kFine have a bin
@@ -132,88 +160,49 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     // the bin holding the median is sorted. nth_element over all samples cost more than the
     // rest of the threshold. Consecutive samples count into kLanes interleaved histograms:
     // most samples of a carpet fall into a few bins, and one histogram made every increment
-    // wait for the previous one's store. Samples in rows above the computed Sobel (above the
-    // region) are taken from the luma directly.
+    // wait for the previous one's store.
     const size_t nbins = kFine + (kMaxMag2 >> kShift) + 1;
     hist_.assign(nbins * kLanes, 0);
-    size_t count = 0;
-    auto sampleRow = [&](int y) -> const int32_t* {
-      int32_t* m = samples_row_.data();
-      int k = 0;
-      if (y >= y_exact) {
-        const int16_t* gxr = gx_.ptr<int16_t>(y);
-        const int16_t* gyr = gy_.ptr<int16_t>(y);
-        for (int x = 2; x < w - 2; x += 3, ++k) m[k] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-      } else {
-        for (int x = 2; x < w - 2; x += 3, ++k) m[k] = sobelMag2(luma, x, y);
-      }
-      return m;
+    const int32_t* m = samples_all_.data();
+    const size_t count = samples_all_.size();
+    auto bin = [](int32_t m2) { return static_cast<size_t>(m2 < kFine ? m2 : kFine + (m2 >> kShift)); };
+    size_t j = 0;
+    for (; j + kLanes <= count; j += kLanes)
+      for (int l = 0; l < kLanes; ++l) ++hist_[bin(m[j + l]) * kLanes + l];
+    for (; j < count; ++j) ++hist_[bin(m[j]) * kLanes];
+    const size_t k = count / 2;  // the element nth_element would place at size / 2
+    size_t below = 0, b = 0;
+    auto total = [&](size_t i) {
+      size_t t = 0;
+      for (int l = 0; l < kLanes; ++l) t += hist_[i * kLanes + l];
+      return t;
     };
-    const int per_row = (w - 2 - 2 + 2) / 3;  // samples x = 2, 5, ... < w - 2
-    samples_row_.resize(static_cast<size_t>(std::max(per_row, 0)));
-    auto bin = [&](int32_t m2) { return static_cast<size_t>(m2 < kFine ? m2 : kFine + (m2 >> kShift)); };
-    for (int y = 2; y < h - 2; y += 3) {
-      const int32_t* m = sampleRow(y);
-      int k = 0;
-      for (; k + kLanes <= per_row; k += kLanes)
-        for (int l = 0; l < kLanes; ++l) ++hist_[bin(m[k + l]) * kLanes + l];
-      for (int l = 0; k < per_row; ++k, ++l) ++hist_[bin(m[k]) * kLanes + l];
-      count += static_cast<size_t>(per_row);
+    for (size_t t = total(0); below + t <= k; t = total(++b)) below += t;
+    int64_t median2;
+    if (b < static_cast<size_t>(kFine)) {
+      median2 = static_cast<int64_t>(b);
+    } else {
+      samples_.clear();
+      const int32_t coarse = static_cast<int32_t>(b - kFine);
+      for (size_t i = 0; i < count; ++i)
+        if (m[i] >= kFine && (m[i] >> kShift) == coarse) samples_.push_back(m[i]);
+      auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
+      std::nth_element(samples_.begin(), mid, samples_.end());
+      median2 = *mid;
     }
-    if (count > 0) {
-      const size_t k = count / 2;  // the element nth_element would place at size / 2
-      size_t below = 0, b = 0;
-      auto total = [&](size_t i) {
-        size_t t = 0;
-        for (int l = 0; l < kLanes; ++l) t += hist_[i * kLanes + l];
-        return t;
-      };
-      for (size_t t = total(0); below + t <= k; t = total(++b)) below += t;
-      int64_t median2;
-      if (b < static_cast<size_t>(kFine)) {
-        median2 = static_cast<int64_t>(b);
-      } else {
-        samples_.clear();
-        const int32_t coarse = static_cast<int32_t>(b - kFine);
-        for (int y = 2; y < h - 2; y += 3) {
-          const int32_t* m = sampleRow(y);
-          for (int j = 0; j < per_row; ++j)
-            if (m[j] >= kFine && (m[j] >> kShift) == coarse) samples_.push_back(m[j]);
-        }
-        auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
-        std::nth_element(samples_.begin(), mid, samples_.end());
-        median2 = *mid;
-      }
-      const double auto_thr2 = params.auto_factor * params.auto_factor * static_cast<double>(median2);
-      thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(auto_thr2)));
-    }
+    const double auto_thr2 = params.auto_factor * params.auto_factor * static_cast<double>(median2);
+    thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(auto_thr2)));
   }
   threshold_ = std::sqrt(static_cast<double>(thr2));
-  // Squared magnitudes and a byte mask of the pixels at the threshold (and in the region), in
-  // one loop the compiler vectorises: most pixels are below it, and a branch per pixel in the
-  // suppression loop below was half the stage's time. A 32-bit threshold keeps the comparison
-  // in 32-bit lanes; squared Sobel magnitudes of 8-bit images stay below 2^22. The mask has 8
-  // zero bytes of padding per row end, and its columns 0, 1, w - 2, w - 1 stay 0.
+  // A 32-bit threshold keeps the comparisons below in 32-bit lanes; squared Sobel magnitudes
+  // of 8-bit images stay below 2^22.
   const int32_t thr2_32 = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
-  const size_t stride = static_cast<size_t>(w) + 8;
-  if (above_.size() != stride * h) above_.assign(stride * h, 0);
-  for (int y = 0; y < y_first + 1; ++y) {
-    uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
-    std::fill(ab + 2, ab + std::max(2, w - 2), uint8_t{0});
-  }
-  for (int y = y_first; y < h; ++y) {
-    const int16_t* gxr = gx_.ptr<int16_t>(y);
-    const int16_t* gyr = gy_.ptr<int16_t>(y);
-    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-    if (y < y_first + 1) continue;
-    uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
-    if (top) {
-      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>((m2[x] >= thr2_32) & (y >= top[x]));
-    } else {
-      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
-    }
-  }
+  // One row's byte mask of the pixels at the threshold (and in the region), built in a loop
+  // the compiler vectorises right before the row is suppressed: most pixels are below it, and
+  // a branch per pixel in the suppression loop was half the stage's time. 8 zero bytes of
+  // padding at its end; its columns 0, 1, w - 2, w - 1 stay 0.
+  above_.assign(static_cast<size_t>(w) + 8, 0);
+  uint8_t* ab = above_.data();
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
   // through the three magnitudes. Pixels next to the border are skipped (their neighbours
@@ -223,7 +212,11 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
-    const uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
+    if (top) {
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>((m2[x] >= thr2_32) & (y >= top[x]));
+    } else {
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
+    }
     for (int x0 = 0; x0 < w - 2; x0 += 8) {
       uint64_t word = loadMaskWord(ab + x0);
       while (word != 0) {

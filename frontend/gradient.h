@@ -49,11 +49,11 @@ class GradientStage {
   static constexpr int32_t kFine = 4096, kShift = 12, kMaxMag2 = 2 * 1020 * 1020;
   static constexpr int kLanes = 4;
   std::vector<uint32_t> hist_;
-  std::vector<int32_t> samples_row_;  // squared magnitudes of one row's samples
+  std::vector<int32_t> samples_all_;  // squared magnitudes of the median's samples
   std::vector<int32_t> samples_;  // the samples in the median's coarse bin
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
-  std::vector<uint8_t> above_;  // magnitude at the threshold, one byte per pixel, rows padded by 8
+  std::vector<uint8_t> above_;  // one row's mask: magnitude at the threshold, padded by 8
   std::vector<EdgePixel> edges_;
 };
 
