@@ -70,16 +70,6 @@ inline float angleOf(float y, float x) {
   return r >= 6.28318548f ? r - 6.28318548f : r;
 }
 
-// 3x3 Sobel of an inner pixel, as cv::spatialGradient computes it.
-inline int32_t sobelMag2(const cv::Mat& luma, int x, int y) {
-  const uint8_t* a = luma.ptr<uint8_t>(y - 1) + x;
-  const uint8_t* b = luma.ptr<uint8_t>(y) + x;
-  const uint8_t* c = luma.ptr<uint8_t>(y + 1) + x;
-  const int32_t gx = (a[1] - a[-1]) + 2 * (b[1] - b[-1]) + (c[1] - c[-1]);
-  const int32_t gy = (c[-1] + 2 * c[0] + c[1]) - (a[-1] + 2 * a[0] + a[1]);
-  return gx * gx + gy * gy;
-}
-
 }  // namespace
 
 float fastAngle(float y, float x) {
@@ -128,8 +118,11 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   // on the fly; samples above these rows come from gx_, gy_ or, above the computed Sobel,
   // from the luma directly.
   const bool automatic = params.auto_factor > 0;
-  samples_all_.resize(automatic ? static_cast<size_t>(std::max(0, (w - 2) / 3)) * std::max(0, (h - 2) / 3) : 0);
+  // Sized once for the image (never shrunk: a growing resize would clear it on every call).
+  const size_t max_samples = static_cast<size_t>(std::max(0, (w - 2) / 3)) * static_cast<size_t>(std::max(0, (h - 2) / 3));
+  if (samples_all_.size() < max_samples) samples_all_.resize(max_samples);
   int32_t* sample = samples_all_.data();
+  row_mag2_.resize(static_cast<size_t>(w));
   if (automatic) {
     for (int y = 2; y < std::min(y_first, h - 2); y += 3) {
       if (y >= y_exact) {
@@ -137,7 +130,17 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
         const int16_t* gyr = gy_.ptr<int16_t>(y);
         for (int x = 2; x < w - 2; x += 3) *sample++ = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
       } else {
-        for (int x = 2; x < w - 2; x += 3) *sample++ = sobelMag2(luma, x, y);
+        // The whole row's Sobel in a loop the compiler vectorises, then every 3rd sample.
+        int32_t* m = row_mag2_.data();
+        const uint8_t* a = luma.ptr<uint8_t>(y - 1);
+        const uint8_t* b = luma.ptr<uint8_t>(y);
+        const uint8_t* c = luma.ptr<uint8_t>(y + 1);
+        for (int x = 1; x < w - 1; ++x) {
+          const int32_t sx = (a[x + 1] - a[x - 1]) + 2 * (b[x + 1] - b[x - 1]) + (c[x + 1] - c[x - 1]);
+          const int32_t sy = (c[x - 1] + 2 * c[x] + c[x + 1]) - (a[x - 1] + 2 * a[x] + a[x + 1]);
+          m[x] = sx * sx + sy * sy;
+        }
+        for (int x = 2; x < w - 2; x += 3) *sample++ = m[x];
       }
     }
   }
@@ -149,10 +152,10 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     if (automatic && y >= 2 && y < h - 2 && y % 3 == 2)
       for (int x = 2; x < w - 2; x += 3) *sample++ = m2[x];
   }
-  samples_all_.resize(static_cast<size_t>(sample - samples_all_.data()));
+  const size_t count = static_cast<size_t>(sample - samples_all_.data());
 
   int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
-  if (automatic && !samples_all_.empty()) {
+  if (automatic && count > 0) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
     // every 3rd pixel of every 3rd row of the whole image is plenty for a median.
     // Exact median by a two-level histogram select: squared magnitudes below kFine have a bin
@@ -164,7 +167,6 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     const size_t nbins = kFine + (kMaxMag2 >> kShift) + 1;
     hist_.assign(nbins * kLanes, 0);
     const int32_t* m = samples_all_.data();
-    const size_t count = samples_all_.size();
     auto bin = [](int32_t m2) { return static_cast<size_t>(m2 < kFine ? m2 : kFine + (m2 >> kShift)); };
     size_t j = 0;
     for (; j + kLanes <= count; j += kLanes)

@@ -50,6 +50,7 @@ class GradientStage {
   static constexpr int kLanes = 4;
   std::vector<uint32_t> hist_;
   std::vector<int32_t> samples_all_;  // squared magnitudes of the median's samples
+  std::vector<int32_t> row_mag2_;     // one row's, above the computed Sobel
   std::vector<int32_t> samples_;  // the samples in the median's coarse bin
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
