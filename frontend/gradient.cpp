@@ -161,25 +161,13 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     // Exact median by a two-level histogram select: squared magnitudes below kFine have a bin
     // each (a carpet's median lies there), larger ones share bins of 2^kShift values and only
     // the bin holding the median is sorted. nth_element over all samples cost more than the
-    // rest of the threshold. Consecutive samples count into kLanes interleaved histograms:
-    // most samples of a carpet fall into a few bins, and one histogram made every increment
-    // wait for the previous one's store.
-    const size_t nbins = kFine + (kMaxMag2 >> kShift) + 1;
-    hist_.assign(nbins * kLanes, 0);
+    // rest of the threshold.
+    hist_.assign(kFine + (kMaxMag2 >> kShift) + 1, 0);
     const int32_t* m = samples_all_.data();
-    auto bin = [](int32_t m2) { return static_cast<size_t>(m2 < kFine ? m2 : kFine + (m2 >> kShift)); };
-    size_t j = 0;
-    for (; j + kLanes <= count; j += kLanes)
-      for (int l = 0; l < kLanes; ++l) ++hist_[bin(m[j + l]) * kLanes + l];
-    for (; j < count; ++j) ++hist_[bin(m[j]) * kLanes];
+    for (size_t j = 0; j < count; ++j) ++hist_[m[j] < kFine ? m[j] : kFine + (m[j] >> kShift)];
     const size_t k = count / 2;  // the element nth_element would place at size / 2
     size_t below = 0, b = 0;
-    auto total = [&](size_t i) {
-      size_t t = 0;
-      for (int l = 0; l < kLanes; ++l) t += hist_[i * kLanes + l];
-      return t;
-    };
-    for (size_t t = total(0); below + t <= k; t = total(++b)) below += t;
+    while (below + hist_[b] <= k) below += hist_[b++];
     int64_t median2;
     if (b < static_cast<size_t>(kFine)) {
       median2 = static_cast<int64_t>(b);

@@ -45,9 +45,7 @@ class GradientStage {
   std::vector<int32_t> mag2_;
   // Histogram of sampled squared magnitudes for the automatic threshold: exact bins below
   // kFine, bins of 2^kShift above (a 3x3 Sobel of 8-bit luma stays below kMaxMag2).
-  // kLanes interleaved copies of it (see compute()).
   static constexpr int32_t kFine = 4096, kShift = 12, kMaxMag2 = 2 * 1020 * 1020;
-  static constexpr int kLanes = 4;
   std::vector<uint32_t> hist_;
   std::vector<int32_t> samples_all_;  // squared magnitudes of the median's samples
   std::vector<int32_t> row_mag2_;     // one row's, above the computed Sobel
