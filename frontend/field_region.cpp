@@ -2,15 +2,39 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
 namespace stereoloc::frontend {
 namespace {
 
-float medianOf(std::vector<float>& v) {
+// The element std::nth_element would place at v.size() / 2, of non-negative floats: their bit
+// patterns order as they do, so a most-significant-byte-first radix select finds it exactly.
+// nth_element's data-dependent branches over the few hundred floor samples cost more than the
+// rest of the region.
+float medianOf(std::vector<float>& v, std::vector<uint32_t>& keys, std::vector<uint32_t>& next) {
   if (v.empty()) return 0.0f;
-  auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  return *mid;
+  keys.resize(v.size());
+  for (size_t i = 0; i < v.size(); ++i) std::memcpy(&keys[i], &v[i], sizeof(uint32_t));
+  size_t k = v.size() / 2;
+  // Digits start at the highest bit in which the keys differ (most share sign and exponent),
+  // and the select stops when the candidates left are all equal.
+  for (;;) {
+    uint32_t diff = 0;
+    for (uint32_t key : keys) diff |= key ^ keys[0];
+    if (diff == 0) break;
+    const int shift = std::max(0, 31 - __builtin_clz(diff) - 7);
+    uint32_t count[256] = {};
+    for (uint32_t key : keys) ++count[(key >> shift) & 255u];
+    uint32_t digit = 0;
+    while (k >= count[digit]) k -= count[digit++];
+    next.clear();
+    for (uint32_t key : keys)
+      if (((key >> shift) & 255u) == digit) next.push_back(key);
+    keys.swap(next);
+  }
+  float m;
+  std::memcpy(&m, &keys[0], sizeof m);
+  return m;
 }
 
 }  // namespace
@@ -37,30 +61,50 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
     }
   }
   if (luma_.empty()) return;
-  const float ref_c[3] = {medianOf(chroma_[0]), medianOf(chroma_[1]), medianOf(chroma_[2])};
-  const float ref_l = medianOf(luma_);
+  const float ref_c[3] = {medianOf(chroma_[0], keys_, next_), medianOf(chroma_[1], keys_, next_),
+                          medianOf(chroma_[2], keys_, next_)};
+  const float ref_l = medianOf(luma_, keys_, next_);
   const float lo = static_cast<float>(p.luma_low) * ref_l, hi = static_cast<float>(p.luma_high) * ref_l;
   const float tol = static_cast<float>(p.chroma_tolerance);
-  // The chromaticity test multiplied through by the sum (no division per sample).
-  auto floor = [&](const cv::Vec3b& px) {
-    const float sum = static_cast<float>(px[0]) + px[1] + px[2];
-    if (sum < 1.0f) return false;
-    const float l = 0.114f * px[0] + 0.587f * px[1] + 0.299f * px[2];
-    if (l < lo || l > hi) return false;
-    float d = 0.0f;
-    for (int c = 0; c < 3; ++c) d += std::fabs(px[c] - ref_c[c] * sum);
-    return d <= tol * sum;
-  };
   // Per grid column: the topmost run of min_run floor samples (-1: none). Row by row, so the
-  // image is read in memory order, until every column has its run.
+  // image is read in memory order, until every column has its run. The floor test of a whole
+  // grid row runs in loops without branches that the compiler vectorises (the same float
+  // operations in the same order as one sample at a time: the chromaticity test multiplied
+  // through by the sum, no division per sample); a branch per test of a row above the
+  // boundary, where the colours vary, cost more than the arithmetic.
   grid_top_.assign(static_cast<size_t>(gw), -1);
   run_.assign(static_cast<size_t>(gw), 0);
+  for (auto& c : row_) c.resize(static_cast<size_t>(gw));
+  is_floor_.resize(static_cast<size_t>(gw));
+  int32_t* pb = row_[0].data();
+  int32_t* pg = row_[1].data();
+  int32_t* pr = row_[2].data();
+  uint8_t* fl = is_floor_.data();
   int open = gw;
   for (int gy = 0; gy < gh && open > 0; ++gy) {
-    const cv::Vec3b* row = bgr.ptr<cv::Vec3b>(gy * step);
+    const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
+    // Few columns left open (a robot or the lens border at the bottom): only those are tested.
+    const bool all = 4 * open >= gw;
+    for (int gx = 0; gx < gw; ++gx) {
+      if (!all && grid_top_[gx] >= 0) continue;
+      const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
+      pb[gx] = px[0];
+      pg[gx] = px[1];
+      pr[gx] = px[2];
+    }
+    for (int gx = 0; gx < gw; ++gx) {
+      const float b = static_cast<float>(pb[gx]), g = static_cast<float>(pg[gx]), r = static_cast<float>(pr[gx]);
+      const float sum = b + g + r;
+      const float l = 0.114f * b + 0.587f * g + 0.299f * r;
+      float d = 0.0f;
+      d += std::fabs(b - ref_c[0] * sum);
+      d += std::fabs(g - ref_c[1] * sum);
+      d += std::fabs(r - ref_c[2] * sum);
+      fl[gx] = static_cast<uint8_t>((sum >= 1.0f) & (l >= lo) & (l <= hi) & (d <= tol * sum));
+    }
     for (int gx = 0; gx < gw; ++gx) {
       if (grid_top_[gx] >= 0) continue;
-      run_[gx] = floor(row[gx * step]) ? run_[gx] + 1 : 0;
+      run_[gx] = fl[gx] ? run_[gx] + 1 : 0;
       if (run_[gx] >= p.min_run) {
         grid_top_[gx] = gy - p.min_run + 1;
         --open;
@@ -72,9 +116,13 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   for (int gx = 0; gx < gw; ++gx) {
     if (grid_top_[gx] < 0) continue;
     window_.clear();
-    for (int k = std::max(0, gx - p.smooth_columns); k <= std::min(gw - 1, gx + p.smooth_columns); ++k)
-      if (grid_top_[k] >= 0) window_.push_back(grid_top_[k]);
-    std::nth_element(window_.begin(), window_.begin() + static_cast<std::ptrdiff_t>(window_.size() / 2), window_.end());
+    // Insertion sort of the few values (the median is the same as nth_element's).
+    for (int k = std::max(0, gx - p.smooth_columns); k <= std::min(gw - 1, gx + p.smooth_columns); ++k) {
+      const int v = grid_top_[k];
+      if (v < 0) continue;
+      window_.push_back(v);
+      for (size_t j = window_.size() - 1; j > 0 && window_[j - 1] > v; --j) std::swap(window_[j - 1], window_[j]);
+    }
     smoothed_[gx] = window_[window_.size() / 2];
   }
   // The floor is convex and so is its image under a pinhole: the region below the boundary is

@@ -40,18 +40,41 @@ void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma) {
   cv::cvtColor(bgr, luma, cv::COLOR_BGR2GRAY);
 }
 
-float fastAngle(float y, float x) {
+namespace {
+
+// 8 bytes of a 0/1 byte mask as a word whose lowest byte is the first.
+inline uint64_t loadMaskWord(const uint8_t* p) {
+  uint64_t word;
+  std::memcpy(&word, p, sizeof word);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+  word = __builtin_bswap64(word);
+#endif
+  return word;
+}
+
+// Index of the lowest nonzero byte of such a word (nonzero).
+inline int setByteIndex(uint64_t word) { return __builtin_ctzll(word) >> 3; }
+
+// fastAngle without branches on the quadrant (the same operations, selected): edge pixels of
+// texture have random directions, and a mispredicted branch per pixel cost more than the
+// polynomial. x, y must not both be 0.
+inline float angleOf(float y, float x) {
   const float ax = std::fabs(x), ay = std::fabs(y);
   const float mn = std::min(ax, ay), mx = std::max(ax, ay);
-  if (mx == 0.0f) return 0.0f;
   const float a = mn / mx, s = a * a;
   // Minimax polynomial for atan on [0, 1].
   float r = ((((0.0208351f * s - 0.0851330f) * s + 0.1801410f) * s - 0.3302995f) * s + 0.9998660f) * a;
-  if (ay > ax) r = 1.57079637f - r;
-  if (x < 0) r = 3.14159274f - r;
-  if (y < 0) r = 6.28318548f - r;
-  if (r >= 6.28318548f) r -= 6.28318548f;
-  return r;
+  r = ay > ax ? 1.57079637f - r : r;
+  r = x < 0 ? 3.14159274f - r : r;
+  r = y < 0 ? 6.28318548f - r : r;
+  return r >= 6.28318548f ? r - 6.28318548f : r;
+}
+
+}  // namespace
+
+float fastAngle(float y, float x) {
+  if (std::fabs(x) == 0.0f && std::fabs(y) == 0.0f) return 0.0f;
+  return angleOf(y, x);
 }
 
 void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, const int16_t* top) {
@@ -64,33 +87,75 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     mag2_.assign(n, 0);
     index_.assign(n, -1);
     edges_.reserve(n / 8);
+    gx_.create(h, w, CV_16S);
+    gy_.create(h, w, CV_16S);
   } else {
     for (const EdgePixel& e : edges_) index_[static_cast<size_t>(e.iy) * w + e.ix] = -1;
   }
   edges_.clear();
   if (w < 5 || h < 5) return;
 
-  // 3x3 Sobel in one SIMD pass (the border rows and columns are never used below).
-  cv::spatialGradient(luma, gx_, gy_, 3);
-  // Squared magnitudes and a byte mask of the pixels at the threshold, both in loops the
-  // compiler vectorises: most pixels are below it, and a branch per pixel in the suppression
-  // loop below was half the stage's time. The mask has 8 zero bytes of padding per row end.
   // With a region of interest, rows above its highest column top give no edge pixels; the
-  // suppression below reads one row above the first it tests.
-  int y_first = 0;
+  // suppression below reads one row above the first it tests (y_first), whose Sobel reads one
+  // more. The Sobel is computed from one row above that (its own first row sees a reflected
+  // border and is never read), in one SIMD pass into the full-size gx_, gy_.
+  int y_first = 0, y_sobel = 0;
   if (top) {
     y_first = h;
     for (int x = 0; x < w; ++x) y_first = std::min<int>(y_first, top[x]);
     y_first = std::max(0, y_first - 1);
+    y_sobel = std::max(0, y_first - 2);
+  }
+  if (h - y_sobel >= 3) {
+    cv::Mat gxr = gx_.rowRange(y_sobel, h), gyr = gy_.rowRange(y_sobel, h);
+    cv::spatialGradient(luma.rowRange(y_sobel, h), gxr, gyr, 3);
+  }
+  // Rows of gx_, gy_ equal to the whole image's Sobel: y_sobel + 1 on (all with no region).
+  const int y_exact = y_sobel > 0 ? y_sobel + 1 : 0;
+
+  // Squared magnitudes of the rows the suppression reads, in a loop the compiler vectorises.
+  // With the automatic threshold, the samples of its median (below) are copied out of them
+  // on the fly; samples above these rows come from gx_, gy_ or, above the computed Sobel,
+  // from the luma directly.
+  const bool automatic = params.auto_factor > 0;
+  // Sized once for the image (never shrunk: a growing resize would clear it on every call).
+  const size_t max_samples = static_cast<size_t>(std::max(0, (w - 2) / 3)) * static_cast<size_t>(std::max(0, (h - 2) / 3));
+  if (samples_all_.size() < max_samples) samples_all_.resize(max_samples);
+  int32_t* sample = samples_all_.data();
+  row_mag2_.resize(static_cast<size_t>(w));
+  if (automatic) {
+    for (int y = 2; y < std::min(y_first, h - 2); y += 3) {
+      if (y >= y_exact) {
+        const int16_t* gxr = gx_.ptr<int16_t>(y);
+        const int16_t* gyr = gy_.ptr<int16_t>(y);
+        for (int x = 2; x < w - 2; x += 3) *sample++ = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+      } else {
+        // The whole row's Sobel in a loop the compiler vectorises, then every 3rd sample.
+        int32_t* m = row_mag2_.data();
+        const uint8_t* a = luma.ptr<uint8_t>(y - 1);
+        const uint8_t* b = luma.ptr<uint8_t>(y);
+        const uint8_t* c = luma.ptr<uint8_t>(y + 1);
+        for (int x = 1; x < w - 1; ++x) {
+          const int32_t sx = (a[x + 1] - a[x - 1]) + 2 * (b[x + 1] - b[x - 1]) + (c[x + 1] - c[x - 1]);
+          const int32_t sy = (c[x - 1] + 2 * c[x] + c[x + 1]) - (a[x - 1] + 2 * a[x] + a[x + 1]);
+          m[x] = sx * sx + sy * sy;
+        }
+        for (int x = 2; x < w - 2; x += 3) *sample++ = m[x];
+      }
+    }
   }
   for (int y = y_first; y < h; ++y) {
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
     int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+    if (automatic && y >= 2 && y < h - 2 && y % 3 == 2)
+      for (int x = 2; x < w - 2; x += 3) *sample++ = m2[x];
   }
+  const size_t count = static_cast<size_t>(sample - samples_all_.data());
+
   int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
-  if (params.auto_factor > 0) {
+  if (automatic && count > 0) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
     // every 3rd pixel of every 3rd row of the whole image is plenty for a median.
     // Exact median by a two-level histogram select: squared magnitudes below kFine have a bin
@@ -98,115 +163,83 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     // the bin holding the median is sorted. nth_element over all samples cost more than the
     // rest of the threshold.
     hist_.assign(kFine + (kMaxMag2 >> kShift) + 1, 0);
-    size_t count = 0;
-    for (int y = 2; y < h - 2; y += 3) {
-      const int16_t* gxr = gx_.ptr<int16_t>(y);
-      const int16_t* gyr = gy_.ptr<int16_t>(y);
-      for (int x = 2; x < w - 2; x += 3) {
-        const int32_t m2 = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-        ++hist_[m2 < kFine ? m2 : kFine + (m2 >> kShift)];
-        ++count;
-      }
+    const int32_t* m = samples_all_.data();
+    for (size_t j = 0; j < count; ++j) ++hist_[m[j] < kFine ? m[j] : kFine + (m[j] >> kShift)];
+    const size_t k = count / 2;  // the element nth_element would place at size / 2
+    size_t below = 0, b = 0;
+    while (below + hist_[b] <= k) below += hist_[b++];
+    int64_t median2;
+    if (b < static_cast<size_t>(kFine)) {
+      median2 = static_cast<int64_t>(b);
+    } else {
+      samples_.clear();
+      const int32_t coarse = static_cast<int32_t>(b - kFine);
+      for (size_t i = 0; i < count; ++i)
+        if (m[i] >= kFine && (m[i] >> kShift) == coarse) samples_.push_back(m[i]);
+      auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
+      std::nth_element(samples_.begin(), mid, samples_.end());
+      median2 = *mid;
     }
-    if (count > 0) {
-      const size_t k = count / 2;  // the element nth_element would place at size / 2
-      size_t below = 0, bin = 0;
-      while (below + hist_[bin] <= k) below += hist_[bin++];
-      int64_t median2;
-      if (bin < static_cast<size_t>(kFine)) {
-        median2 = static_cast<int64_t>(bin);
-      } else {
-        samples_.clear();
-        const int32_t lo = static_cast<int32_t>(bin - kFine) << kShift;
-        for (int y = 2; y < h - 2; y += 3) {
-          const int16_t* gxr = gx_.ptr<int16_t>(y);
-          const int16_t* gyr = gy_.ptr<int16_t>(y);
-          for (int x = 2; x < w - 2; x += 3) {
-            const int32_t m2 = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-            if (m2 >= kFine && (m2 >> kShift) == (lo >> kShift)) samples_.push_back(m2);
-          }
-        }
-        auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
-        std::nth_element(samples_.begin(), mid, samples_.end());
-        median2 = *mid;
-      }
-      const double auto_thr2 = params.auto_factor * params.auto_factor * static_cast<double>(median2);
-      thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(auto_thr2)));
-    }
+    const double auto_thr2 = params.auto_factor * params.auto_factor * static_cast<double>(median2);
+    thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(auto_thr2)));
   }
   threshold_ = std::sqrt(static_cast<double>(thr2));
-  // A 32-bit threshold keeps the comparison below in 32-bit lanes (vectorised); squared Sobel
-  // magnitudes of 8-bit images stay below 2^22.
+  // A 32-bit threshold keeps the comparisons below in 32-bit lanes; squared Sobel magnitudes
+  // of 8-bit images stay below 2^22.
   const int32_t thr2_32 = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
-  const size_t stride = static_cast<size_t>(w) + 8;
-  if (above_.size() != stride * h) above_.assign(stride * h, 0);  // only [2, w - 2) is written
-  for (int y = 0; y < h; ++y) {
-    const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
-    if (y < y_first + 1) {
-      std::fill(ab + 2, ab + std::max(2, w - 2), uint8_t{0});
-      continue;
-    }
-    for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
-    if (top)
-      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(ab[x] & (y >= top[x]));
-  }
+  // One row's byte mask of the pixels at the threshold (and in the region), built in a loop
+  // the compiler vectorises right before the row is suppressed: most pixels are below it, and
+  // a branch per pixel in the suppression loop was half the stage's time. 8 zero bytes of
+  // padding at its end; its columns 0, 1, w - 2, w - 1 stay 0.
+  above_.assign(static_cast<size_t>(w) + 8, 0);
+  uint8_t* ab = above_.data();
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
   // through the three magnitudes. Pixels next to the border are skipped (their neighbours
-  // have no gradient).
+  // have no gradient). The mask is read 8 bytes at a time and only its set bytes are visited,
+  // lowest first, so the order of edges_ is row-major.
   for (int y = std::max(2, y_first + 1); y < h - 2; ++y) {
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
-    const uint8_t* ab = above_.data() + static_cast<size_t>(y) * stride;
-    for (int x = 2; x < w - 2; ++x) {
-      // Skip 8 pixels below the threshold at once (left to right, so the order of edges_ is
-      // unchanged).
-      if ((x & 7) == 0) {
-        uint64_t word;
-        std::memcpy(&word, ab + x, sizeof word);
-        if (word == 0) {
-          x += 7;
-          continue;
-        }
+    if (top) {
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>((m2[x] >= thr2_32) & (y >= top[x]));
+    } else {
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
+    }
+    for (int x0 = 0; x0 < w - 2; x0 += 8) {
+      uint64_t word = loadMaskWord(ab + x0);
+      while (word != 0) {
+        const int x = x0 + setByteIndex(word);
+        word &= word - 1;  // each set byte holds the single bit 1
+        const int32_t c = m2[x];
+        const int gxv = gxr[x], gyv = gyr[x];
+        const int ax = std::abs(gxv), ay = std::abs(gyv);
+        // Sector of the gradient direction, tan(22.5 deg) ~ 106/256: (1, 0), (0, 1) or a diagonal.
+        const bool horizontal = ay * 256 <= ax * 106;
+        const bool vertical = !horizontal && ax * 256 <= ay * 106;
+        const int dx = vertical ? 0 : 1;
+        const int dy = horizontal ? 0 : vertical ? 1 : ((gxv > 0) == (gyv > 0)) ? 1 : -1;
+        const int off = dy * w + dx;
+        const int32_t mp = m2[x + off], mm = m2[x - off];
+        if (!(c > mm && c >= mp)) continue;
+        const float fm = std::sqrt(static_cast<float>(mm)), f0 = std::sqrt(static_cast<float>(c)),
+                    fp = std::sqrt(static_cast<float>(mp));
+        const float den = fm - 2.0f * f0 + fp;
+        const float q = 0.5f * (fm - fp) / (den < 0.0f ? den : -1.0f);
+        const float s = std::clamp(den < 0.0f ? q : 0.0f, -0.5f, 0.5f);
+        EdgePixel e;
+        e.ix = static_cast<int16_t>(x);
+        e.iy = static_cast<int16_t>(y);
+        e.x = static_cast<float>(x) + s * static_cast<float>(dx);
+        e.y = static_cast<float>(y) + s * static_cast<float>(dy);
+        e.angle = angleOf(static_cast<float>(gyv), static_cast<float>(gxv));  // c > 0: not both 0
+        e.mag = f0;
+        const int bin = static_cast<int>(e.angle * (360.0f / 6.28318548f) + 0.5f);
+        e.dir_bin = static_cast<uint16_t>(bin >= 360 ? bin - 360 : bin);
+        index_[static_cast<size_t>(y) * w + x] = static_cast<int32_t>(edges_.size());
+        edges_.push_back(e);
       }
-      if (!ab[x]) continue;
-      const int32_t c = m2[x];
-      const int gxv = gxr[x], gyv = gyr[x];
-      const int ax = std::abs(gxv), ay = std::abs(gyv);
-      int dx, dy;
-      // tan(22.5 deg) ~ 106/256
-      if (ay * 256 <= ax * 106) {
-        dx = 1;
-        dy = 0;
-      } else if (ax * 256 <= ay * 106) {
-        dx = 0;
-        dy = 1;
-      } else {
-        dx = 1;
-        dy = ((gxv > 0) == (gyv > 0)) ? 1 : -1;
-      }
-      const int off = dy * w + dx;
-      const int32_t mp = m2[x + off], mm = m2[x - off];
-      if (!(c > mm && c >= mp)) continue;
-      const float fm = std::sqrt(static_cast<float>(mm)), f0 = std::sqrt(static_cast<float>(c)),
-                  fp = std::sqrt(static_cast<float>(mp));
-      const float den = fm - 2.0f * f0 + fp;
-      float s = den < 0.0f ? 0.5f * (fm - fp) / den : 0.0f;
-      s = std::clamp(s, -0.5f, 0.5f);
-      EdgePixel e;
-      e.ix = static_cast<int16_t>(x);
-      e.iy = static_cast<int16_t>(y);
-      e.x = static_cast<float>(x) + s * static_cast<float>(dx);
-      e.y = static_cast<float>(y) + s * static_cast<float>(dy);
-      e.angle = fastAngle(static_cast<float>(gyv), static_cast<float>(gxv));
-      e.mag = f0;
-      int bin = static_cast<int>(e.angle * (360.0f / 6.28318548f) + 0.5f);
-      if (bin >= 360) bin -= 360;
-      e.dir_bin = static_cast<uint16_t>(bin);
-      index_[static_cast<size_t>(y) * w + x] = static_cast<int32_t>(edges_.size());
-      edges_.push_back(e);
     }
   }
 }

@@ -34,8 +34,10 @@ class GradientStage {
   int edgeAt(int x, int y) const { return index_[static_cast<size_t>(y) * w_ + x]; }
   // The magnitude threshold used by the last compute() (magnitude_threshold or the automatic one).
   double threshold() const { return threshold_; }
-  const cv::Mat& gx() const { return gx_; }  // CV_16S Sobel x
-  const cv::Mat& gy() const { return gy_; }  // CV_16S Sobel y
+  // CV_16S Sobel x and y. With a region (top), rows more than 3 above its highest column top
+  // are not computed (they hold earlier images' values).
+  const cv::Mat& gx() const { return gx_; }
+  const cv::Mat& gy() const { return gy_; }
 
  private:
   int w_ = 0, h_ = 0;
@@ -45,10 +47,12 @@ class GradientStage {
   // kFine, bins of 2^kShift above (a 3x3 Sobel of 8-bit luma stays below kMaxMag2).
   static constexpr int32_t kFine = 4096, kShift = 12, kMaxMag2 = 2 * 1020 * 1020;
   std::vector<uint32_t> hist_;
+  std::vector<int32_t> samples_all_;  // squared magnitudes of the median's samples
+  std::vector<int32_t> row_mag2_;     // one row's, above the computed Sobel
   std::vector<int32_t> samples_;  // the samples in the median's coarse bin
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
-  std::vector<uint8_t> above_;  // magnitude at the threshold, one byte per pixel, rows padded by 8
+  std::vector<uint8_t> above_;  // one row's mask: magnitude at the threshold, padded by 8
   std::vector<EdgePixel> edges_;
 };
 

@@ -4,7 +4,10 @@
 #include <algorithm>
 #include <cmath>
 #include <vector>
+#include <cstdint>
+#include <string>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "frontend/gradient.h"
 #include "src/core/error.h"
@@ -139,4 +142,135 @@ TEST(Gradient, AutomaticThresholdIsTheExactSampleMedian) {
     EXPECT_DOUBLE_EQ(g.threshold(), expected) << "sigma " << sigma;
     EXPECT_GT(s[s.size() / 2], sigma > 50 ? 4096 : 0) << "sigma " << sigma;
   }
+}
+
+namespace {
+
+// The stage as specified, one pixel at a time: Sobel of the whole image, the exact median of
+// every 3rd pixel of every 3rd row by nth_element, suppression of every pixel at the
+// threshold and in the region. The stage's word skips, partial Sobel, histogram select and
+// branch-free quadrants must give exactly these edge pixels.
+std::vector<EdgePixel> referenceEdges(const cv::Mat& luma, const GradientParams& p, const int16_t* top, double& threshold) {
+  cv::Mat gx, gy;
+  cv::spatialGradient(luma, gx, gy, 3);
+  const int w = luma.cols, h = luma.rows;
+  std::vector<int64_t> m2(static_cast<size_t>(w) * h);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const int64_t a = gx.at<int16_t>(y, x), b = gy.at<int16_t>(y, x);
+      m2[static_cast<size_t>(y) * w + x] = a * a + b * b;
+    }
+  int64_t thr2 = int64_t{p.magnitude_threshold} * p.magnitude_threshold;
+  if (p.auto_factor > 0) {
+    std::vector<int64_t> s;
+    for (int y = 2; y < h - 2; y += 3)
+      for (int x = 2; x < w - 2; x += 3) s.push_back(m2[static_cast<size_t>(y) * w + x]);
+    if (!s.empty()) {
+      std::nth_element(s.begin(), s.begin() + static_cast<std::ptrdiff_t>(s.size() / 2), s.end());
+      thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(p.auto_factor * p.auto_factor * static_cast<double>(s[s.size() / 2]))));
+    }
+  }
+  threshold = std::sqrt(static_cast<double>(thr2));
+  std::vector<EdgePixel> out;
+  for (int y = 2; y < h - 2; ++y)
+    for (int x = 2; x < w - 2; ++x) {
+      const int64_t c = m2[static_cast<size_t>(y) * w + x];
+      if (c < thr2 || (top && y < top[x])) continue;
+      const int gxv = gx.at<int16_t>(y, x), gyv = gy.at<int16_t>(y, x);
+      const int ax = std::abs(gxv), ay = std::abs(gyv);
+      int dx = 1, dy = ((gxv > 0) == (gyv > 0)) ? 1 : -1;
+      if (ay * 256 <= ax * 106) {
+        dy = 0;
+      } else if (ax * 256 <= ay * 106) {
+        dx = 0;
+        dy = 1;
+      }
+      const int64_t mp = m2[static_cast<size_t>(y + dy) * w + x + dx], mm = m2[static_cast<size_t>(y - dy) * w + x - dx];
+      if (!(c > mm && c >= mp)) continue;
+      const float fm = std::sqrt(static_cast<float>(mm)), f0 = std::sqrt(static_cast<float>(c)), fp = std::sqrt(static_cast<float>(mp));
+      const float den = fm - 2.0f * f0 + fp;
+      const float s = std::clamp(den < 0.0f ? 0.5f * (fm - fp) / den : 0.0f, -0.5f, 0.5f);
+      EdgePixel e;
+      e.ix = static_cast<int16_t>(x);
+      e.iy = static_cast<int16_t>(y);
+      e.x = static_cast<float>(x) + s * static_cast<float>(dx);
+      e.y = static_cast<float>(y) + s * static_cast<float>(dy);
+      e.angle = fastAngle(static_cast<float>(gyv), static_cast<float>(gxv));
+      e.mag = f0;
+      int bin = static_cast<int>(e.angle * (360.0f / 6.28318548f) + 0.5f);
+      if (bin >= 360) bin -= 360;
+      e.dir_bin = static_cast<uint16_t>(bin);
+      out.push_back(e);
+    }
+  return out;
+}
+
+// Textured floor (Gaussian noise), a bright stripe at a slant, a disc and a dark block, so
+// that every gradient direction and sector occurs.
+cv::Mat texturedImage(int w, int h, double sigma, uint64_t seed) {
+  cv::Mat noise(h, w, CV_16S), img;
+  cv::RNG rng(seed);
+  rng.fill(noise, cv::RNG::NORMAL, 0, sigma);
+  cv::Mat base(h, w, CV_16S, cv::Scalar(90));
+  cv::line(base, cv::Point(0, h / 3), cv::Point(w - 1, 2 * h / 3), cv::Scalar(220), 5);
+  cv::circle(base, cv::Point(w / 2, h / 2), h / 5, cv::Scalar(170), cv::FILLED);
+  cv::rectangle(base, cv::Rect(w / 8, h / 8, w / 5, h / 6), cv::Scalar(20), cv::FILLED);
+  base += noise;
+  base.convertTo(img, CV_8U);
+  return img;
+}
+
+void expectSameEdges(const GradientStage& g, const std::vector<EdgePixel>& ref, double ref_thr, const char* what) {
+  EXPECT_DOUBLE_EQ(g.threshold(), ref_thr) << what;
+  ASSERT_EQ(g.edges().size(), ref.size()) << what;
+  for (size_t k = 0; k < ref.size(); ++k) {
+    const EdgePixel& a = g.edges()[k];
+    const EdgePixel& b = ref[k];
+    ASSERT_TRUE(a.ix == b.ix && a.iy == b.iy && a.x == b.x && a.y == b.y && a.angle == b.angle && a.mag == b.mag &&
+                a.dir_bin == b.dir_bin)
+        << what << ": edge " << k << " at (" << b.ix << ", " << b.iy << ")";
+    EXPECT_EQ(g.edgeAt(a.ix, a.iy), static_cast<int>(k)) << what;
+  }
+  int mapped = 0;
+  for (int y = 0; y < g.height(); ++y)
+    for (int x = 0; x < g.width(); ++x) mapped += g.edgeAt(x, y) >= 0 ? 1 : 0;
+  EXPECT_EQ(mapped, static_cast<int>(ref.size())) << what;
+}
+
+}  // namespace
+
+// Fixed and automatic thresholds (small medians: fine bins; strong texture: coarse bins),
+// whole images and field regions whose highest top lies at rows 0-4, in the middle or below
+// the image, on one reused stage (rows of earlier images must not leak in) and odd sizes.
+TEST(Gradient, EqualsThePixelByPixelReference) {
+  GradientStage g;
+  int cases = 0;
+  for (const cv::Size size : {cv::Size(320, 240), cv::Size(131, 97), cv::Size(64, 7)}) {
+    for (const double sigma : {2.0, 9.0, 70.0}) {
+      const cv::Mat img = texturedImage(size.width, size.height, sigma, 100 + cases);
+      const cv::Mat other = texturedImage(size.width, size.height, 2 * sigma, 200 + cases);
+      for (const double factor : {0.0, 3.0, 8.0}) {
+        for (const int lowest : {-1, 0, 1, 2, 3, 4, size.height / 2, size.height}) {
+          GradientParams p;
+          p.auto_factor = factor;
+          std::vector<int16_t> top;
+          if (lowest >= 0) {
+            top.resize(static_cast<size_t>(size.width));
+            for (int x = 0; x < size.width; ++x)  // a convex boundary with its highest point at `lowest`
+              top[x] = static_cast<int16_t>(std::min(size.height, lowest + (x - size.width / 2) * (x - size.width / 2) / (4 * size.width)));
+          }
+          const int16_t* t = top.empty() ? nullptr : top.data();
+          double thr = 0;
+          const std::vector<EdgePixel> ref = referenceEdges(img, p, t, thr);
+          g.compute(other, GradientParams());  // leaves another image's Sobel in every row
+          g.compute(img, p, t);
+          const std::string what = std::to_string(size.width) + "x" + std::to_string(size.height) + " sigma " +
+                                   std::to_string(sigma) + " factor " + std::to_string(factor) + " top " + std::to_string(lowest);
+          expectSameEdges(g, ref, thr, what.c_str());
+          ++cases;
+        }
+      }
+    }
+  }
+  EXPECT_EQ(cases, 3 * 3 * 3 * 8);
 }

@@ -3,7 +3,7 @@
 // cv::HoughLinesP and cv::createLineSegmentDetector on the same images.
 //
 //   bench_frontend [--pairs=N] [--goal-pairs=M] [--seed=S] [--no-table] [--diag] [benchmark flags]
-//   bench_frontend --real=data/real   (the same table on the labelled photographs; see realTable;
+//   bench_frontend --real=data/real [--stages[=passes]]   (the same table on the labelled photographs; see realTable;
 //    matched on the parts outside the don't-care mask, collinear pieces of one stripe count once:
 //    ScoreRules; STEREOLOC_BENCH_LABEL_EXTENT=1 matches whole labels and single detections instead)
 //   (--diag: per-failure breakdown of the segment matching by reason, kind, length, row, occlusion,
@@ -1182,7 +1182,122 @@ double timePerImage(const std::vector<const cv::Mat*>& imgs, int reps, F fn) {
   return medianOf(t);
 }
 
-void realTable(const std::string& dir, bool diag) {
+// Thread CPU time, ms (the stages below run on this thread only).
+double threadCpuMs() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+// The stages of Frontend::detectFeatures one by one, each timed: the same calls in the same
+// order on its own buffers (checked: the same segments, lines and point features as
+// Frontend::detectFeatures on every image).
+struct StagePipeline {
+  static constexpr int kStages = 11;
+  static constexpr const char* kNames[kStages] = {"luma",           "field region", "gradient",       "Hough votes",
+                                                  "peaks",          "segments",     "segment ends",   "classification",
+                                                  "lines",          "stripe ends",  "corners"};
+  explicit StagePipeline(const Frontend& frontend) : fe(frontend) { acc.configure(fe.rig().params().image_width, fe.rig().params().image_height, fe.params().hough); }
+  // Adds each stage's thread CPU time (ms) to t[0 .. kStages).
+  void run(const cv::Mat& bgr, double* t) {
+    const FrontendParams& p = fe.params();
+    const int w = fe.rig().params().image_width, h = fe.rig().params().image_height;
+    double t0 = threadCpuMs(), t1;
+    auto lap = [&](int k) {
+      t1 = threadCpuMs();
+      t[k] += t1 - t0;
+      t0 = t1;
+    };
+    bgrToLuma(bgr, luma);
+    lap(0);
+    region.compute(bgr, p.field);
+    lap(1);
+    grad.compute(luma, p.gradient, region.restricted() ? region.top().data() : nullptr);
+    lap(2);
+    used.clear();
+    acc.vote(grad.edges(), used);
+    lap(3);
+    detectPeaks(acc, p.peaks, peaks);
+    lap(4);
+    extractor.extract(grad.edges(), peaks, p.hough.rho_step_px, p.segments, used, segments, luma.cols, luma.rows);
+    lap(5);
+    refineEndpoints(luma, segments);
+    lap(6);
+    classifySegments(grad, extractor, fe.markingWidthPerRow(), p.classify, segments, scratch, &luma);
+    lap(7);
+    buildLines(segments, p.corners, lines);
+    clipLinesToImage(w, h, lines);
+    lap(8);
+    trimStripeEnds(luma, p.ends, lines, ends_scratch);
+    lap(9);
+    snapLineEnds(w, h, p.corners, lines);
+    findCorners(lines, fe.rig(), p.corners, features, &luma);
+    lap(10);
+  }
+  const Frontend& fe;
+  cv::Mat luma;
+  FieldRegion region;
+  GradientStage grad;
+  HoughAccumulator acc;
+  SegmentExtractor extractor;
+  std::vector<HoughPeak> peaks;
+  std::vector<uint8_t> used;
+  std::vector<Segment> segments;
+  std::vector<float> scratch;
+  std::vector<LineFeature> lines;
+  StripeEndScratch ends_scratch;
+  std::vector<PointFeature> features;
+};
+
+bool sameDetections(StagePipeline& sp, Frontend& fe, const cv::Mat& bgr) {
+  std::vector<double> t(StagePipeline::kStages, 0.0);
+  sp.run(bgr, t.data());
+  const FrontendResult& r = fe.detectFeatures(bgr);
+  if (r.segments.size() != sp.segments.size() || r.lines.size() != sp.lines.size() || r.features.size() != sp.features.size())
+    return false;
+  for (size_t k = 0; k < r.segments.size(); ++k)
+    if (r.segments[k].x1 != sp.segments[k].x1 || r.segments[k].y2 != sp.segments[k].y2 || r.segments[k].cls != sp.segments[k].cls)
+      return false;
+  for (size_t k = 0; k < r.features.size(); ++k)
+    if (r.features[k].u != sp.features[k].u || r.features[k].v != sp.features[k].v || r.features[k].type != sp.features[k].type)
+      return false;
+  return true;
+}
+
+// --stages: thread CPU time of every stage per image, photographs (their parameters) and
+// rendered left images (defaults), in alternating passes; medians over the passes.
+void stageTable(Frontend& fe_real, const std::vector<const cv::Mat*>& real_imgs, Frontend& fe_rend,
+                const std::vector<const cv::Mat*>& rend_imgs, int passes) {
+  StagePipeline sp_real(fe_real), sp_rend(fe_rend);
+  for (const cv::Mat* m : real_imgs)
+    if (!sameDetections(sp_real, fe_real, *m)) throw Error("--stages: the staged pipeline differs from Frontend::detectFeatures on a photograph");
+  for (const cv::Mat* m : rend_imgs)
+    if (!sameDetections(sp_rend, fe_rend, *m)) throw Error("--stages: the staged pipeline differs from Frontend::detectFeatures on a rendered image");
+  const int ns = StagePipeline::kStages;
+  std::vector<std::vector<double>> tr(ns + 1), tg(ns + 1);
+  for (int pass = 0; pass < passes; ++pass) {
+    for (int side = 0; side < 2; ++side) {
+      StagePipeline& sp = side == 0 ? sp_real : sp_rend;
+      const std::vector<const cv::Mat*>& imgs = side == 0 ? real_imgs : rend_imgs;
+      std::vector<double> t(ns, 0.0);
+      for (const cv::Mat* m : imgs) sp.run(*m, t.data());
+      double sum = 0;
+      auto& out = side == 0 ? tr : tg;
+      for (int k = 0; k < ns; ++k) {
+        out[k].push_back(t[k] / imgs.size());
+        sum += t[k] / imgs.size();
+      }
+      out[ns].push_back(sum);
+    }
+  }
+  std::printf("  thread CPU time per image by stage, ms (median of %d alternating passes):\n", passes);
+  std::printf("  %-16s %10s %10s\n", "stage", "photos", "rendered");
+  for (int k = 0; k <= ns; ++k)
+    std::printf("  %-16s %10.4f %10.4f\n", k < ns ? StagePipeline::kNames[k] : "sum", medianOf(tr[k]), medianOf(tg[k]));
+  std::printf("\n");
+}
+
+void realTable(const std::string& dir, bool diag, int stage_passes) {
   const std::string rig_path = dir + "/rig.yaml", params_path = dir + "/frontend.yaml";
   const StereoRig rig = std::filesystem::exists(rig_path) ? StereoRig::load(rig_path) : StereoRig();
   const char* env_params = std::getenv("STEREOLOC_BENCH_PARAMS");
@@ -1339,6 +1454,7 @@ void realTable(const std::string& dir, bool diag) {
               t_real, t_rend, ratio, t_hough, t_lsd);
   std::printf("  work per image: %.0f edge pixels and %.1f segments real, %.0f and %.1f rendered\n\n", e_real, s_real, e_rend,
               s_rend);
+  if (stage_passes > 0) stageTable(fe, real_imgs, fe_rendered, rendered_imgs, stage_passes);
   std::printf("  thesis Table 6.1 (GBHT on real camera images, bad illumination): 48 lines, 50 detected, 3 missed,\n"
               "  5 spurious (recall 93.8%%, precision 90.0%%); 16 corners, 13 detected (recall 81.3%%)\n\n");
 }
@@ -1408,6 +1524,7 @@ int main(int argc, char** argv) {
   int pairs = 200, goal_pairs = 1300;
   uint64_t seed = 4;
   bool table = true, diag = false;
+  int stage_passes = 0;
   std::string real_dir;
   std::vector<char*> rest;
   for (int i = 0; i < argc; ++i) {
@@ -1419,6 +1536,10 @@ int main(int argc, char** argv) {
       seed = std::strtoull(argv[i] + 7, nullptr, 10);
     } else if (std::strncmp(argv[i], "--real=", 7) == 0) {
       real_dir = argv[i] + 7;
+    } else if (std::strncmp(argv[i], "--stages=", 9) == 0) {
+      stage_passes = std::max(1, std::atoi(argv[i] + 9));
+    } else if (std::strcmp(argv[i], "--stages") == 0) {
+      stage_passes = 9;
     } else if (std::strcmp(argv[i], "--diag") == 0) {
       diag = true;
     } else if (std::strcmp(argv[i], "--no-table") == 0) {
@@ -1429,7 +1550,7 @@ int main(int argc, char** argv) {
   }
   if (!real_dir.empty()) {
     try {
-      realTable(real_dir, diag);
+      realTable(real_dir, diag, stage_passes);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "bench_frontend: %s\n", e.what());
       return 1;
