@@ -69,6 +69,8 @@ std::vector<Field> fields(FrontendParams& p) {
       {"ends", "min_fraction", Field::Double, &p.ends.min_fraction},
       {"ends", "min_run_px", Field::Double, &p.ends.min_run_px},
       {"ends", "min_contrast", Field::Double, &p.ends.min_contrast},
+      {"ends", "extend_px", Field::Double, &p.ends.extend_px},
+      {"ends", "extend_ref_px", Field::Double, &p.ends.extend_ref_px},
       {"corners", "delta_px", Field::Double, &p.corners.delta_px},
       {"corners", "min_image_angle_deg", Field::Double, &p.corners.min_image_angle_deg},
       {"corners", "corner_angle_tol_deg", Field::Double, &p.corners.corner_angle_tol_deg},
@@ -173,6 +175,8 @@ void FrontendParams::validate() const {
   need(ends.min_fraction > 0 && ends.min_fraction <= 1, "ends.min_fraction", "must be in (0, 1]");
   need(ends.min_run_px >= 1, "ends.min_run_px", "must be at least 1");
   need(ends.min_contrast >= 0, "ends.min_contrast", "must not be negative");
+  need(ends.extend_px >= 0, "ends.extend_px", "must not be negative");
+  need(ends.extend_ref_px >= 4, "ends.extend_ref_px", "must be at least 4");
   need(corners.delta_px >= 0, "corners.delta_px", "must not be negative");
   need(corners.snap_px >= 0 && corners.border_snap_px >= 0, "corners.snap_px/border_snap_px", "must not be negative");
   need(corners.snap_min_angle_deg > 0 && corners.snap_min_angle_deg < 90, "corners.snap_min_angle_deg", "must be in (0, 90)");

@@ -25,7 +25,8 @@ float median(std::vector<float>& v) {  // reorders v
 
 void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector<LineFeature>& lines,
                     StripeEndScratch& sc) {
-  if (!prm.enabled) return;
+  const bool extend = prm.extend_px >= 1.0;
+  if (!prm.enabled && !extend) return;
   auto& centre = sc.centre;
   auto& dark = sc.dark;
   auto& bright = sc.bright;
@@ -36,56 +37,98 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     if (!l.marking || l.t_max - l.t_min < 4.0) continue;
     const double nx = std::cos(l.theta), ny = std::sin(l.theta);
     const double off = 0.5 * l.width + prm.side_px;
-    const int n = static_cast<int>(std::floor(l.t_max - l.t_min)) + 1;
-    centre.assign(n, -1.0f);
-    dark.assign(n, -1.0f);
-    bright.assign(n, -1.0f);
-    contrast.clear();
-    floor.clear();
-    for (int k = 0; k < n; ++k) {
-      const double t = l.t_min + k, x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;  // LineFeature::x/y without 4 trig calls
+    if (prm.enabled) {
+      const int n = static_cast<int>(std::floor(l.t_max - l.t_min)) + 1;
+      centre.assign(n, -1.0f);
+      dark.assign(n, -1.0f);
+      bright.assign(n, -1.0f);
+      contrast.clear();
+      floor.clear();
+      for (int k = 0; k < n; ++k) {
+        const double t = l.t_min + k, x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;  // LineFeature::x/y without 4 trig calls
+        const float c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
+                    s2 = sampleLuma(luma, x - off * nx, y - off * ny);
+        if (c < 0 || s1 < 0 || s2 < 0) continue;
+        centre[k] = c;
+        dark[k] = std::min(s1, s2);
+        bright[k] = std::max(s1, s2);
+        contrast.push_back(c - bright[k]);
+        floor.push_back(dark[k]);
+      }
+      if (contrast.size() < 4) continue;
+      const double c_ref = median(contrast), floor_ref = median(floor);
+      if (c_ref < prm.min_contrast) continue;
+      const double need = prm.min_fraction * c_ref;
+      present.assign(n, 1);  // samples outside the image: no verdict, kept
+      for (int k = 0; k < n; ++k)
+        if (centre[k] >= 0) present[k] = centre[k] - bright[k] >= need || centre[k] >= floor_ref + need;
+      // First index from an end (step +1 or -1) where the stripe is present twice in a row.
+      auto firstRun = [&](int start, int step) {
+        for (int k = start; k >= 0 && k + step >= 0 && k < n && k + step < n; k += step)
+          if (present[k] && present[k + step]) return k;
+        return -1;
+      };
+      // A piece at an end that is shorter than the gap without the stripe behind it is not the
+      // stripe continuing beyond an occluder (a stripe seen past a robot shows more of itself than
+      // the robot hides); it is the bright wall or board the line's edge ran into.
+      auto dropShortPiece = [&](int k, int step) {
+        while (k >= 0) {
+          int a = k;
+          while (a >= 0 && a < n && present[a]) a += step;
+          int b = a;
+          while (b >= 0 && b < n && !present[b]) b += step;
+          if (b < 0 || b >= n || std::abs(b - a) < prm.min_run_px || std::abs(a - k) >= std::abs(b - a)) return k;
+          k = firstRun(b, step);
+        }
+        return k;
+      };
+      const int lo = dropShortPiece(firstRun(0, 1), 1), hi = dropShortPiece(firstRun(n - 1, -1), -1);
+      if (lo < 0 || hi < 0 || hi - lo < 4) continue;  // no stripe along it to judge the ends by
+      // The end goes half a sample outside the first present one: the stripe stops between them.
+      const double t0 = l.t_min;
+      if (lo >= prm.min_run_px) l.t_min = t0 + lo - 0.5;
+      if (n - 1 - hi >= prm.min_run_px) l.t_max = t0 + hi + 0.5;
+    }
+    if (!extend) continue;
+    // The stripe's contrast over its brighter side at line coordinate t; -1e9 without a verdict
+    // (a sample outside the image).
+    auto standOut = [&](double t) {
+      const double x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;
       const float c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
                   s2 = sampleLuma(luma, x - off * nx, y - off * ny);
-      if (c < 0 || s1 < 0 || s2 < 0) continue;
-      centre[k] = c;
-      dark[k] = std::min(s1, s2);
-      bright[k] = std::max(s1, s2);
-      contrast.push_back(c - bright[k]);
-      floor.push_back(dark[k]);
-    }
-    if (contrast.size() < 4) continue;
-    const double c_ref = median(contrast), floor_ref = median(floor);
-    if (c_ref < prm.min_contrast) continue;
-    const double need = prm.min_fraction * c_ref;
-    present.assign(n, 1);  // samples outside the image: no verdict, kept
-    for (int k = 0; k < n; ++k)
-      if (centre[k] >= 0) present[k] = centre[k] - bright[k] >= need || centre[k] >= floor_ref + need;
-    // First index from an end (step +1 or -1) where the stripe is present twice in a row.
-    auto firstRun = [&](int start, int step) {
-      for (int k = start; k >= 0 && k + step >= 0 && k < n && k + step < n; k += step)
-        if (present[k] && present[k + step]) return k;
-      return -1;
+      // Near the image border one side may leave the image first: the other side alone judges.
+      if (c < 0 || (s1 < 0 && s2 < 0)) return -1e9;
+      return static_cast<double>(c - (s1 < 0 ? s2 : s2 < 0 ? s1 : 0.5f * (s1 + s2)));
     };
-    // A piece at an end that is shorter than the gap without the stripe behind it is not the
-    // stripe continuing beyond an occluder (a stripe seen past a robot shows more of itself than
-    // the robot hides); it is the bright wall or board the line's edge ran into.
-    auto dropShortPiece = [&](int k, int step) {
-      while (k >= 0) {
-        int a = k;
-        while (a >= 0 && a < n && present[a]) a += step;
-        int b = a;
-        while (b >= 0 && b < n && !present[b]) b += step;
-        if (b < 0 || b >= n || std::abs(b - a) < prm.min_run_px || std::abs(a - k) >= std::abs(b - a)) return k;
-        k = firstRun(b, step);
+    for (int e = 0; e < 2; ++e) {
+      const double te = e ? l.t_max : l.t_min, out = e ? 1.0 : -1.0;
+      const int nref = static_cast<int>(std::min(prm.extend_ref_px, l.t_max - l.t_min));
+      contrast.clear();
+      for (int k = 0; k <= nref; ++k) {
+        const double c = standOut(te - out * k);
+        if (c > -1e8) contrast.push_back(static_cast<float>(c));
       }
-      return k;
-    };
-    const int lo = dropShortPiece(firstRun(0, 1), 1), hi = dropShortPiece(firstRun(n - 1, -1), -1);
-    if (lo < 0 || hi < 0 || hi - lo < 4) continue;  // no stripe along it to judge the ends by
-    // The end goes half a sample outside the first present one: the stripe stops between them.
-    const double t0 = l.t_min;
-    if (lo >= prm.min_run_px) l.t_min = t0 + lo - 0.5;
-    if (n - 1 - hi >= prm.min_run_px) l.t_max = t0 + hi + 0.5;
+      if (contrast.size() < 4) continue;
+      const double ref = median(contrast);
+      if (ref < prm.min_contrast) continue;
+      const double need = prm.min_fraction * ref;
+      int last = 0, missing = 0;
+      for (int k = 1; k <= static_cast<int>(prm.extend_px); ++k) {
+        const double c = standOut(te + out * k);
+        if (c < -1e8) break;  // the image border: snapLineEnds takes an end near it onto it
+        if (c >= need) {
+          last = k;
+          missing = 0;
+        } else if (++missing >= prm.min_run_px) {
+          break;
+        }
+      }
+      if (last == 0) continue;
+      if (e)
+        l.t_max = te + last + 0.5;
+      else
+        l.t_min = te - last - 0.5;
+    }
   }
 }
 

@@ -200,3 +200,52 @@ TEST(RealImages, AStripeEndsWhereTheStripeStopsNotWhereItsEdgeDoes) {
 }
 
 }  // namespace stereoloc::frontend
+
+namespace stereoloc::frontend {
+namespace {
+
+// Distance from the labelled corner of `type` nearest to (x, y) in the photograph's labels to
+// the nearest detected feature of that type; 1e9 without one.
+double cornerError(const FrontendParams& prm, const std::string& name, const char* type, double x, double y) {
+  const StereoRig rig = StereoRig::load(kReal + "/rig.yaml");
+  Frontend fe(rig, FieldMap::miroSot(), prm);
+  const cv::Mat img = cv::imread(kReal + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+  EXPECT_FALSE(img.empty()) << name;
+  if (img.empty()) return 1e9;
+  std::ifstream f(kReal + "/labels/" + name + ".txt");
+  std::string line, kind, t;
+  double lx = 0, ly = 0, near = 1e9;
+  while (std::getline(f, line)) {
+    std::istringstream in(line);
+    double cx, cy;
+    if (in >> kind && kind == "corner" && in >> t >> cx >> cy && t == type && std::hypot(cx - x, cy - y) < near) {
+      near = std::hypot(cx - x, cy - y);
+      lx = cx;
+      ly = cy;
+    }
+  }
+  EXPECT_LT(near, 5.0) << name << ": no labelled " << type << " near (" << x << ", " << y << ")";
+  const LandmarkType want = std::string(type) == "L" ? LandmarkType::MarkingCorner : LandmarkType::Junction;
+  double best = 1e9;
+  for (const PointFeature& p : fe.detectFeatures(img).features)
+    if (p.type == want) best = std::min(best, std::hypot(p.u - lx, p.v - ly));
+  return best;
+}
+
+}  // namespace
+
+// Far corners seen from a robot's camera 600 mm above the field meet at small image angles:
+// the far L of this photograph at 17.4 deg (floor angle 89.6 deg with the set's rig), the T of
+// the other at 15.8 deg. The set's corners.min_image_angle_deg (15) intersects them; the
+// default's 20 does not.
+TEST(RealImages, FarCornersAtSmallImageAnglesAreFound) {
+  FrontendParams prm = FrontendParams::load(kReal + "/frontend.yaml");
+  ASSERT_DOUBLE_EQ(prm.corners.min_image_angle_deg, 15.0);
+  EXPECT_LE(cornerError(prm, "20190606_r4_cam0_20190606_212718", "L", 158.0, 82.4), 1.5);
+  EXPECT_LE(cornerError(prm, "20190606_r4_cam0_20190606_211855", "T", 206.4, 81.8), 1.5);
+  prm.corners.min_image_angle_deg = 20.0;
+  EXPECT_GT(cornerError(prm, "20190606_r4_cam0_20190606_212718", "L", 158.0, 82.4), 1.5);
+  EXPECT_GT(cornerError(prm, "20190606_r4_cam0_20190606_211855", "T", 206.4, 81.8), 1.5);
+}
+
+}  // namespace stereoloc::frontend

@@ -465,8 +465,11 @@ bool visiblePart(const cv::Mat& mask, Seg& s) {
   int first = -1, last = -1;
   for (int k = 0; k <= n; ++k) {
     const Eigen::Vector2d q = s.a + (static_cast<double>(k) / n) * (s.b - s.a);
-    const int x = static_cast<int>(std::lround(q.x())), y = static_cast<int>(std::lround(q.y()));
-    const bool hidden = x >= 0 && y >= 0 && x < mask.cols && y < mask.rows && mask.at<uint8_t>(y, x);
+    // An end on the image border lies on the pixels' outer edge (-0.5 or W - 0.5), which rounds
+    // to a pixel outside the image: it takes the mask of the border pixel it belongs to.
+    const int x = std::clamp(static_cast<int>(std::lround(q.x())), 0, mask.cols - 1);
+    const int y = std::clamp(static_cast<int>(std::lround(q.y())), 0, mask.rows - 1);
+    const bool hidden = mask.at<uint8_t>(y, x) != 0;
     if (hidden) continue;
     if (first < 0) first = k;
     last = k;

@@ -8,6 +8,7 @@ is scored) and writes data/real/labels/NAME.txt; `overlay` draws the result for 
     tools/label/label.py grid NAME [--scale 3] [--crop x0 y0 x1 y1]   -> /tmp/label_grid_NAME.png
     tools/label/label.py snap NAME|--all                               -> data/real/labels/NAME.txt
     tools/label/label.py overlay NAME [--scale 3]                      -> /tmp/label_overlay_NAME.png
+    tools/label/label.py ridge NAME|--all                              -> offsets from the luma ridge
 
 Rough label lines (px in the 320x240 image, # comments):
     m x1 y1 x2 y2 [g]     a straight marking stripe, rough end points on its centre line; pieces of
@@ -502,10 +503,69 @@ def overlay(name, scale, write=True):
     print(out)
 
 
+# Ridge check (ridge): sample spacing along a marking, px; least stripe contrast, grey levels;
+# offsets (px) at which a marking is listed.
+RIDGE_STEP, RIDGE_MIN, RIDGE_MEDIAN, RIDGE_P80 = 2.0, 8.0, 1.0, 1.5
+
+
+def ridge(name):
+    """Prints the markings of labels/NAME.txt whose centre line lies off the stripe's luma ridge:
+    every RIDGE_STEP px along the line a profile across it (Gaussian sigma 0.7 px, 0.1 px steps,
+    out to half the width + 4 px) gives the middle of the bright run above half the peak's rise
+    over the brighter of the two sides (1.5 px beyond the profile), where that rise is at least
+    RIDGE_MIN. A marking is listed when the median offset exceeds RIDGE_MEDIAN or its 80th
+    percentile RIDGE_P80. It uses the image alone, never the frontend that is scored: a snap
+    drawn across two stripes, or onto a second stripe beside the first, shows here."""
+    img = cv2.imread(os.path.join(DATA, 'images', name + '.jpg'))
+    lum = cv2.GaussianBlur(luma_of(img), (0, 0), 0.7)
+    with open(os.path.join(DATA, 'labels', name + '.txt')) as f:
+        lines = f.readlines()
+    for ln, line in enumerate(lines, 1):
+        t = line.split()
+        if not t or t[0] != 'marking':
+            continue
+        x1, y1, x2, y2, w = (float(v) for v in (t[1], t[2], t[3], t[4], t[6]))
+        p1 = np.array([x1, y1])
+        d = np.array([x2 - x1, y2 - y1])
+        length = float(np.linalg.norm(d))
+        u = d / length
+        n = np.array([-u[1], u[0]])
+        reach = 0.5 * w + 4.0
+        ss = np.arange(-reach, reach + 1e-9, STEP)
+        offs = []
+        for s_ in np.arange(RIDGE_STEP, length - RIDGE_STEP + 1e-9, RIDGE_STEP):
+            c = p1 + s_ * u
+            q = c[None, :] + ss[:, None] * n[None, :]
+            side = c[None, :] + np.array([-(reach + 1.5), reach + 1.5])[:, None] * n[None, :]
+            allq = np.vstack([q, side])
+            if (allq < 0).any() or (allq[:, 0] > W - 1.001).any() or (allq[:, 1] > H - 1.001).any():
+                continue
+            prof = bilinear(lum, q[:, 0], q[:, 1])
+            base = float(bilinear(lum, side[:, 0], side[:, 1]).max())
+            i = int(np.argmax(prof))
+            if prof[i] - base < RIDGE_MIN:
+                continue
+            half = 0.5 * (prof[i] + base)
+            a, b = i, i
+            while a > 0 and prof[a] > half:
+                a -= 1
+            while b < len(prof) - 1 and prof[b] > half:
+                b += 1
+            if a == 0 or b == len(prof) - 1:
+                continue  # the bright run reaches the profile's end: no middle to compare
+            offs.append(abs(0.5 * (ss[a] + ss[b])))
+        if len(offs) < 5:
+            continue
+        med, p80 = float(np.median(offs)), float(np.percentile(offs, 80))
+        if med > RIDGE_MEDIAN or p80 > RIDGE_P80:
+            print(f'{name}:{ln}: marking {x1:.1f} {y1:.1f} {x2:.1f} {y2:.1f} width {w:.2f}: '
+                  f'{med:.2f} px median, {p80:.2f} px 80th percentile off the ridge ({len(offs)} samples)')
+
+
 def main():
     global DATA
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument('cmd', choices=['grid', 'snap', 'overlay', 'sheet', 'oversheet'])
+    ap.add_argument('cmd', choices=['grid', 'snap', 'overlay', 'sheet', 'oversheet', 'ridge'])
     ap.add_argument('name', nargs='*')
     ap.add_argument('--all', action='store_true')
     ap.add_argument('--scale', type=float, default=3)
@@ -533,6 +593,8 @@ def main():
             grid(n, a.scale, a.crop)
         elif a.cmd == 'snap':
             snap(n)
+        elif a.cmd == 'ridge':
+            ridge(n)
         else:
             overlay(n, a.scale)
 
