@@ -72,7 +72,67 @@ bool accumulateBlocks(const ceres::CostFunction& cost, const std::vector<const d
   return true;
 }
 
+// Range and bearing (3.6, 3.7) of the point that stereo calibration q puts at `px`: the model of
+// factors/stereo_pixel_calibration_factor.h solved for the point in C2,
+//   a = (y - k b/2) / x = -(u_l - o_u - delta_u - delta_d/2) / F,
+//   c = (y + k b/2) / x = -(u_r - o_u - delta_u + delta_d/2) / (F (1 + phi)),
+//   x = k b / (c - a),  y = x (a + c) / 2,  z = -x (v - o_v) / F  (v the rows' mean, F = f (1 + psi)),
+// then rotated by the tilt correction (C1 = R_tilt(beta) R_tilt(dbeta) C2) into the robot frame.
+// False when the corrected disparity is not positive.
+bool calibratedRangeBearing(const StereoRig& rig, const double* px, double pan, const double* q, Eigen::Vector2d* rb) {
+  const double F = rig.focal() * (1.0 + q[5]);
+  const double a = -(px[0] - rig.principalU() - q[3] - 0.5 * q[2]) / F;
+  const double c = -(px[2] - rig.principalU() - q[3] + 0.5 * q[2]) / (F * (1.0 + q[4]));
+  const double kb = q[1] * rig.params().baseline_mm;
+  if (!(c - a > 0) || !(kb > 0)) return false;
+  const double x = kb / (c - a);
+  const double y = 0.5 * x * (a + c);
+  const double z = -x * (0.5 * (px[1] + px[3]) - rig.principalV()) / F;
+  const double cb = std::cos(q[0]), sb = std::sin(q[0]);
+  const Eigen::Vector3d p = rig.visionToRobot(Eigen::Vector3d(cb * x + sb * z, y, -sb * x + cb * z), pan);
+  const double r = std::hypot(p.x(), p.y());
+  if (!(r > 1e-9) || !std::isfinite(r)) return false;
+  *rb = Eigen::Vector2d(r, std::atan2(p.y(), p.x()));
+  return true;
+}
+
 }  // namespace
+
+Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
+                                  const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px) {
+  if (!obs.pixels) throw Error("calibratedObservation: the observation has no pixels");
+  const StereoPixels& s = *obs.pixels;
+  double px[4] = {s.u_left, s.v_left, s.u_right, s.v_right};
+  CalibrationEstimate::StereoVector qq = q;
+  Eigen::Vector2d rb;
+  if (!calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &rb))
+    throw GeometryError("calibratedObservation: the calibrated disparity is not positive");
+  // Central differences; steps well inside each parameter's scale (px, rad, dimensionless).
+  auto column = [&](double* v, double h) {
+    const double v0 = *v;
+    Eigen::Vector2d plus_rb, minus_rb;
+    *v = v0 + h;
+    const bool ok_plus = calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &plus_rb);
+    *v = v0 - h;
+    const bool ok_minus = calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &minus_rb);
+    *v = v0;
+    if (!ok_plus || !ok_minus) throw GeometryError("calibratedObservation: the calibrated disparity is not positive");
+    Eigen::Vector2d d = plus_rb - minus_rb;
+    d(1) = angleDiff(plus_rb(1), minus_rb(1));
+    return Eigen::Vector2d(d / (2.0 * h));
+  };
+  Eigen::Matrix<double, 2, 4> J_px;
+  for (int i = 0; i < 4; ++i) J_px.col(i) = column(&px[i], 1e-4);
+  Eigen::Matrix<double, 2, 6> J_q;
+  const double steps[6] = {1e-7, 1e-7, 1e-4, 1e-4, 1e-7, 1e-7};
+  for (int i = 0; i < 6; ++i) J_q.col(i) = column(&qq[i], steps[i]);
+  Observation out = obs;
+  out.range = rb(0);
+  out.bearing = rb(1);
+  const Eigen::Matrix2d R = J_px * C_px * J_px.transpose() + J_q * Cq * J_q.transpose();
+  out.covariance = 0.5 * (R + R.transpose());
+  return out;
+}
 
 std::string toString(WindowLinearisation l) {
   switch (l) {
@@ -153,8 +213,21 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
                   head_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()),
               {}, false, {Calib::Head});
   }
-  const int cd = calibDim();
-  calib_covariance_ = Eigen::MatrixXd::Zero(cd, cd);
+  // Until the first solve, the calibration's covariance is its prior's (the gate reads it).
+  calib_covariance_ = Eigen::MatrixXd::Zero(calibDim(), calibDim());
+  int k = 0;
+  if (cal.odometry) {
+    calib_covariance_.diagonal().head<3>() =
+        Eigen::Vector3d(cal.wheel_scale_sigma, cal.wheel_scale_sigma, cal.wheel_base_rel_sigma * wheels_[2]).cwiseAbs2();
+    k = 3;
+  }
+  if (cal.stereo) calib_covariance_.diagonal().segment(k, calibSize(Calib::Head)) = stereoPriorSigma(cal).cwiseAbs2();
+}
+
+CalibrationEstimate::StereoMatrix SlidingWindowSmoother::headCovariance() const {
+  const int k = config_.calibration.odometry ? 3 : 0;
+  const int n = calibSize(Calib::Head);
+  return calib_covariance_.block(k, k, n, n);
 }
 
 std::vector<SlidingWindowSmoother::Calib> SlidingWindowSmoother::calibBlocks() const {
@@ -189,8 +262,9 @@ void SlidingWindowSmoother::relinearise() {
 
 PosePrediction SlidingWindowSmoother::predictStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left,
                                                   double d_right) const {
-  if (!config_.calibration.odometry) return predictPose(rel, C, d_left, d_right, odometry_);
-  OdometryParams p = odometry_;
+  // Slip as the batch states it (UnmodelledNoise::slip_rel_sigma, solvers/smoother_common.h).
+  OdometryParams p = withSlip(odometry_, d_left, d_right, config_.observation_model.unmodelled.slip_rel_sigma);
+  if (!config_.calibration.odometry) return predictPose(rel, C, d_left, d_right, p);
   p.wheel_base_mm = wheels_[2];
   return predictPose(rel, C, wheels_[0] * d_left, wheels_[1] * d_right, p);
 }
@@ -631,8 +705,22 @@ std::string toString(LateObservationStatus status) {
   return "unknown";
 }
 
-bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P,
+bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* node, Pose2& pose, Eigen::Matrix3d& P,
                                             std::vector<int>& used, bool retest) {
+  // With the stereo head self-calibrated, gate, association and the belief update see the
+  // observation through the current calibration estimate, its uncertainty in R: the given
+  // calibration's range bias (a disparity offset of 1.5 px is 18 % of range at 1 m) would
+  // otherwise gate out exactly the sightings that determine the calibration.
+  Observation calibrated;
+  if (config_.calibration.stereo && measured.pixels) {
+    try {
+      calibrated = calibratedObservation(measured, config_.observation_model.rig, head_, headCovariance(),
+                                         pixelCovarianceFor(measured, Landmark(), config_.observation_model));
+    } catch (const GeometryError&) {
+      return false;
+    }
+  }
+  const Observation& obs = config_.calibration.stereo && measured.pixels ? calibrated : measured;
   const Landmark* lm = nullptr;
   if (obs.landmark_id >= 0) {
     lm = map_.find(obs.landmark_id);
@@ -988,8 +1076,10 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     prev->rel_to_next = rel_;
     prev->rel_to_next_covariance = rel_covariance_;
     if (config_.calibration.odometry)  // one step (see the header)
-      addFactor(OdometryCalibrationFactor::Create(step.d_left, step.d_right, odometry_), {prev, n}, false,
-                {Calib::Wheels});
+      addFactor(OdometryCalibrationFactor::Create(
+                    step.d_left, step.d_right,
+                    withSlip(odometry_, step.d_left, step.d_right, config_.observation_model.unmodelled.slip_rel_sigma)),
+                {prev, n}, false, {Calib::Wheels});
     else
       addFactor(OdometryFactor::Create(Eigen::Vector3d(rel_.x, rel_.y, rel_.theta), rel_covariance_), {prev, n});
     factors_.back()->odometry = true;

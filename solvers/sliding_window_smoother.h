@@ -120,6 +120,17 @@ struct SlidingWindowConfig {
   void validate() const;             // throws stereoloc::Error naming the field
 };
 
+// The observation as the cameras of stereo calibration q see it (q = (dbeta, k, delta_d, delta_u,
+// phi, psi), factors/stereo_pixel_calibration_factor.h, with covariance Cq): its pixels
+// triangulated through that factor's model inverted, so range and bearing are those of the point
+// the calibrated cameras put there, and R = J_px C_px J_px^T + J_q Cq J_q^T (Jacobians by central
+// differences), C_px the pixel covariance. At the nominal q with Cq = 0 it is
+// observationFromPixels. The window gates and associates these when it self-calibrates the
+// stereo head (docs/estimators.md, "Self-calibration"). Throws GeometryError when the corrected
+// disparity is not positive; `obs` must have pixels.
+Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
+                                  const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px);
+
 // What insertLate did with the observations of an earlier step.
 enum class LateObservationStatus {
   Inserted,     // the step is in the window: its observations went through gate and association
@@ -236,6 +247,7 @@ class SlidingWindowSmoother : public Estimator {
   double* calibData(Calib c) { return c == Calib::Wheels ? wheels_.data() : head_.data(); }
   static int calibSize(Calib c) { return c == Calib::Wheels ? 3 : static_cast<int>(StereoBlock::RowsAtCompileTime); }
   std::vector<Calib> calibBlocks() const;  // the enabled ones, in variable order
+  CalibrationEstimate::StereoMatrix headCovariance() const;  // the stereo block's part of calib_covariance_
   int calibDim() const;
   void relinearise();                      // every factor's linearisation point := current values
   // The odometry prediction of one step with the current wheel calibration (the nominal one
