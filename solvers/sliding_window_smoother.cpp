@@ -440,9 +440,31 @@ void SlidingWindowSmoother::finaliseWindow() {
   }
 }
 
+std::optional<PoseFix> SlidingWindowSmoother::globalFix(const Step& step) const {
+  if (!config_.global_fix) return std::nullopt;
+  if (!config_.calibration.stereo) return config_.global_fix(step, map_);
+  // The fix from the observations as the current calibration sees them (see fuseObservation):
+  // with the given calibration's range bias it can lie hundreds of millimetres off, and then
+  // disagrees with the window's prediction, which restarts the window instead of re-anchoring it.
+  Step calibrated = step;
+  calibrated.observations.clear();
+  for (const Observation& o : step.observations) {
+    if (!o.pixels) {
+      calibrated.observations.push_back(o);
+      continue;
+    }
+    try {
+      calibrated.observations.push_back(calibratedObservation(
+          o, config_.observation_model.rig, head_, headCovariance(), pixelCovarianceFor(o, Landmark(), config_.observation_model)));
+    } catch (const GeometryError&) {
+    }
+  }
+  return config_.global_fix(calibrated, map_);
+}
+
 bool SlidingWindowSmoother::tryGlobalFix(const Step& step, Estimate* out) {
   if (!config_.global_fix) return false;
-  const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+  const std::optional<PoseFix> fix = globalFix(step);
   if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
   finaliseWindow();
   startWindow(step, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
@@ -951,7 +973,7 @@ bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation
   if (!nodes_.empty() && step < nodes_.front()->step) return false;  // before the window: too late
   Step at = *it;
   at.observations = observations;
-  const std::optional<PoseFix> fix = config_.global_fix(at, map_);
+  const std::optional<PoseFix> fix = globalFix(at);
   if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
   const std::vector<Step> after(it + 1, recent_.end());
   recent_.erase(it + 1, recent_.end());  // process() takes them again
@@ -1120,7 +1142,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
       if (gate_enabled_ && gate_.record(accepted)) {  // (5.1.3)
         lost_ = true;
         if (config_.reinitialise_when_lost) {
-          const std::optional<PoseFix> fix = config_.global_fix ? config_.global_fix(step, map_) : std::nullopt;
+          const std::optional<PoseFix> fix = globalFix(step);
           if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
             node->gated.insert(node->gated.end(), step.observations.begin() + static_cast<long>(i) + 1,
                                step.observations.end());

@@ -281,6 +281,9 @@ class SlidingWindowSmoother : public Estimator {
   // window there (see insertLate). False when there is no fix.
   bool restartLate(long step, const std::vector<Observation>& observations);
   bool tryGlobalFix(const Step& step, Estimate* out);
+  // config_.global_fix on the step; with stereo self-calibration on its observations as the
+  // current calibration sees them (calibratedObservation).
+  std::optional<PoseFix> globalFix(const Step& step) const;
   // The gate declared the robot lost at the newest pose, whose prediction was (pred, P_pred), and
   // the global fix agrees with that prediction (chi-square test): the belief, not the window, was
   // wrong. Moves the window rigidly onto the fix, re-tests the gated observations of the window
