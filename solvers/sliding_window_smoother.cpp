@@ -730,25 +730,36 @@ std::string toString(LateObservationStatus status) {
 bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* node, Pose2& pose, Eigen::Matrix3d& P,
                                             std::vector<int>& used, bool retest) {
   // With the stereo head self-calibrated, gate, association and the belief update see the
-  // observation through the current calibration estimate, its uncertainty in R: the given
-  // calibration's range bias (a disparity offset of 1.5 px is 18 % of range at 1 m) would
-  // otherwise gate out exactly the sightings that determine the calibration.
-  Observation calibrated;
+  // observation through a calibration with its uncertainty in R (calibratedObservation): the
+  // given calibration's range bias (a disparity offset of 1.5 px is 18 % of range at 1 m) would
+  // otherwise gate out exactly the sightings that determine the calibration. First through the
+  // current estimate; a sighting it gates is tested again through the prior (the nominal
+  // calibration with the stated uncertainty, which holds the true one by construction): the
+  // estimate from few landmarks can be confidently wrong along a combination of parameters they
+  // do not separate (a disparity offset against the focal ratio, seen at one bearing), and then
+  // gates out the landmark that would separate them.
+  std::vector<Observation> views;
   if (config_.calibration.stereo && measured.pixels) {
-    try {
-      calibrated = calibratedObservation(measured, config_.observation_model.rig, head_, headCovariance(),
-                                         pixelCovarianceFor(measured, Landmark(), config_.observation_model));
-    } catch (const GeometryError&) {
-      return false;
+    const Eigen::Matrix4d C_px = pixelCovarianceFor(measured, Landmark(), config_.observation_model);
+    const StereoBlock sig = stereoPriorSigma(config_.calibration);
+    const std::pair<StereoBlock, CalibrationEstimate::StereoMatrix> calibrations[2] = {
+        {head_, headCovariance()}, {CalibrationEstimate().head, sig.cwiseAbs2().asDiagonal()}};
+    for (const auto& [q, Cq] : calibrations) {
+      try {
+        views.push_back(calibratedObservation(measured, config_.observation_model.rig, q, Cq, C_px));
+      } catch (const GeometryError&) {
+      }
     }
-  }
-  const Observation& obs = config_.calibration.stereo && measured.pixels ? calibrated : measured;
-  const Landmark* lm = nullptr;
-  if (obs.landmark_id >= 0) {
-    lm = map_.find(obs.landmark_id);
+    if (views.empty()) return false;
   } else {
-    const AssociationResult a =
-        associate(obs, pose, P, map_, config_.association, config_.association.exclusive ? used : std::vector<int>{});
+    views.push_back(measured);
+  }
+  const Landmark* lm = nullptr;
+  if (measured.landmark_id >= 0) {
+    lm = map_.find(measured.landmark_id);
+  } else {
+    const AssociationResult a = associate(views.front(), pose, P, map_, config_.association,
+                                          config_.association.exclusive ? used : std::vector<int>{});
     if (a.landmark_id >= 0) {
       lm = &map_.at(a.landmark_id);
       used.push_back(a.landmark_id);
@@ -762,28 +773,38 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
   } catch (const GeometryError&) {
     return false;
   }
-  const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);
+  const Observation* obs = nullptr;
+  Eigen::Vector2d nu;
+  Eigen::Matrix2d Sinv;
   const Eigen::Matrix<double, 3, 2> PHt = P * Hz.transpose();
-  const Eigen::Matrix2d S = Hz * PHt + obs.covariance;  // (5.14)
-  const Eigen::Matrix2d Sinv = S.inverse();
-  const double d2 = nu.dot(Sinv * nu);  // (5.20)
-  if (!std::isfinite(d2)) return false;
-  if (gate_enabled_ && !(retest ? d2 <= retest_threshold_ : gate_.accepts(d2))) return false;
-  if (config_.calibration.stereo && obs.pixels) {
+  for (const Observation& v : views) {
+    nu = rangeBearingInnovation(v.z(), zhat);
+    const Eigen::Matrix2d S = Hz * PHt + v.covariance;  // (5.14)
+    Sinv = S.inverse();
+    const double d2 = nu.dot(Sinv * nu);  // (5.20)
+    if (!std::isfinite(d2)) continue;
+    if (!gate_enabled_ || (retest ? d2 <= retest_threshold_ : gate_.accepts(d2))) {
+      obs = &v;
+      break;
+    }
+  }
+  if (!obs) return false;
+  if (config_.calibration.stereo && measured.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *obs.pixels, obs.head_pan,
-                                                   pixelCovarianceFor(obs, *lm, config_.observation_model), residuals),
+    addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
+                                                   measured.head_pan,
+                                                   pixelCovarianceFor(measured, *lm, config_.observation_model), residuals),
               {node}, true, {Calib::Head});
   } else {
-    addFactor(makeObservationFactor(obs, *lm, config_.observation_model), {node}, true);
+    addFactor(makeObservationFactor(measured, *lm, config_.observation_model), {node}, true);
   }
   node->landmarks.push_back(lm->id);
   // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
   const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
   pose = plus(pose, K * nu);
   const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * Hz;
-  P = IKH * P * IKH.transpose() + K * obs.covariance * K.transpose();
+  P = IKH * P * IKH.transpose() + K * obs->covariance * K.transpose();
   return true;
 }
 
