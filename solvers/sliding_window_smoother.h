@@ -22,7 +22,10 @@
 // the factors of the self-calibrating batch; they are never marginalised, the marginal prior spans
 // (oldest kept pose, calibration) so the information of marginalised poses on them is carried,
 // and with odometry calibration every step is a keyframe (the calibrated odometry factor is per
-// step). Memory is bounded by W and restart_buffer_steps (plus one Estimate per
+// step). With the stereo block, gate, association and global fixes see each pixel observation
+// through the current calibration estimate and its covariance, and a sighting that gates out
+// through the prior calibration (calibratedObservation), so the given calibration's range bias
+// does not reject the sightings that calibrate it. Memory is bounded by W and restart_buffer_steps (plus one Estimate per
 // step for finish() unless keep_history is off). Derivations: docs/estimators.md, "Smoothers".
 #include <ceres/problem.h>
 
