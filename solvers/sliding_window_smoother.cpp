@@ -74,7 +74,67 @@ bool accumulateBlocks(const ceres::CostFunction& cost, const std::vector<const d
   return true;
 }
 
+// Range and bearing (3.6, 3.7) of the point that stereo calibration q puts at `px`: the model of
+// factors/stereo_pixel_calibration_factor.h solved for the point in C2,
+//   a = (y - k b/2) / x = -(u_l - o_u - delta_u - delta_d/2) / F,
+//   c = (y + k b/2) / x = -(u_r - o_u - delta_u + delta_d/2) / (F (1 + phi)),
+//   x = k b / (c - a),  y = x (a + c) / 2,  z = -x (v - o_v) / F  (v the rows' mean, F = f (1 + psi)),
+// then rotated by the tilt correction (C1 = R_tilt(beta) R_tilt(dbeta) C2) into the robot frame.
+// False when the corrected disparity is not positive.
+bool calibratedRangeBearing(const StereoRig& rig, const double* px, double pan, const double* q, Eigen::Vector2d* rb) {
+  const double F = rig.focal() * (1.0 + q[5]);
+  const double a = -(px[0] - rig.principalU() - q[3] - 0.5 * q[2]) / F;
+  const double c = -(px[2] - rig.principalU() - q[3] + 0.5 * q[2]) / (F * (1.0 + q[4]));
+  const double kb = q[1] * rig.params().baseline_mm;
+  if (!(c - a > 0) || !(kb > 0)) return false;
+  const double x = kb / (c - a);
+  const double y = 0.5 * x * (a + c);
+  const double z = -x * (0.5 * (px[1] + px[3]) - rig.principalV()) / F;
+  const double cb = std::cos(q[0]), sb = std::sin(q[0]);
+  const Eigen::Vector3d p = rig.visionToRobot(Eigen::Vector3d(cb * x + sb * z, y, -sb * x + cb * z), pan);
+  const double r = std::hypot(p.x(), p.y());
+  if (!(r > 1e-9) || !std::isfinite(r)) return false;
+  *rb = Eigen::Vector2d(r, std::atan2(p.y(), p.x()));
+  return true;
+}
+
 }  // namespace
+
+Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
+                                  const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px) {
+  if (!obs.pixels) throw Error("calibratedObservation: the observation has no pixels");
+  const StereoPixels& s = *obs.pixels;
+  double px[4] = {s.u_left, s.v_left, s.u_right, s.v_right};
+  CalibrationEstimate::StereoVector qq = q;
+  Eigen::Vector2d rb;
+  if (!calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &rb))
+    throw GeometryError("calibratedObservation: the calibrated disparity is not positive");
+  // Central differences; steps well inside each parameter's scale (px, rad, dimensionless).
+  auto column = [&](double* v, double h) {
+    const double v0 = *v;
+    Eigen::Vector2d plus_rb, minus_rb;
+    *v = v0 + h;
+    const bool ok_plus = calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &plus_rb);
+    *v = v0 - h;
+    const bool ok_minus = calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &minus_rb);
+    *v = v0;
+    if (!ok_plus || !ok_minus) throw GeometryError("calibratedObservation: the calibrated disparity is not positive");
+    Eigen::Vector2d d = plus_rb - minus_rb;
+    d(1) = angleDiff(plus_rb(1), minus_rb(1));
+    return Eigen::Vector2d(d / (2.0 * h));
+  };
+  Eigen::Matrix<double, 2, 4> J_px;
+  for (int i = 0; i < 4; ++i) J_px.col(i) = column(&px[i], 1e-4);
+  Eigen::Matrix<double, 2, 6> J_q;
+  const double steps[6] = {1e-7, 1e-7, 1e-4, 1e-4, 1e-7, 1e-7};
+  for (int i = 0; i < 6; ++i) J_q.col(i) = column(&qq[i], steps[i]);
+  Observation out = obs;
+  out.range = rb(0);
+  out.bearing = rb(1);
+  const Eigen::Matrix2d R = J_px * C_px * J_px.transpose() + J_q * Cq * J_q.transpose();
+  out.covariance = 0.5 * (R + R.transpose());
+  return out;
+}
 
 std::string toString(WindowLinearisation l) {
   switch (l) {
@@ -155,8 +215,21 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
                   head_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()),
               {}, false, {Calib::Head});
   }
-  const int cd = calibDim();
-  calib_covariance_ = Eigen::MatrixXd::Zero(cd, cd);
+  // Until the first solve, the calibration's covariance is its prior's (the gate reads it).
+  calib_covariance_ = Eigen::MatrixXd::Zero(calibDim(), calibDim());
+  int k = 0;
+  if (cal.odometry) {
+    calib_covariance_.diagonal().head<3>() =
+        Eigen::Vector3d(cal.wheel_scale_sigma, cal.wheel_scale_sigma, cal.wheel_base_rel_sigma * wheels_[2]).cwiseAbs2();
+    k = 3;
+  }
+  if (cal.stereo) calib_covariance_.diagonal().segment(k, calibSize(Calib::Head)) = stereoPriorSigma(cal).cwiseAbs2();
+}
+
+CalibrationEstimate::StereoMatrix SlidingWindowSmoother::headCovariance() const {
+  const int k = config_.calibration.odometry ? 3 : 0;
+  const int n = calibSize(Calib::Head);
+  return calib_covariance_.block(k, k, n, n);
 }
 
 std::vector<SlidingWindowSmoother::Calib> SlidingWindowSmoother::calibBlocks() const {
@@ -191,8 +264,9 @@ void SlidingWindowSmoother::relinearise() {
 
 PosePrediction SlidingWindowSmoother::predictStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left,
                                                   double d_right) const {
-  if (!config_.calibration.odometry) return predictPose(rel, C, d_left, d_right, odometry_);
-  OdometryParams p = odometry_;
+  // Slip as the batch states it (UnmodelledNoise::slip_rel_sigma, solvers/smoother_common.h).
+  OdometryParams p = withSlip(odometry_, d_left, d_right, config_.observation_model.unmodelled.slip_rel_sigma);
+  if (!config_.calibration.odometry) return predictPose(rel, C, d_left, d_right, p);
   p.wheel_base_mm = wheels_[2];
   return predictPose(rel, C, wheels_[0] * d_left, wheels_[1] * d_right, p);
 }
@@ -368,9 +442,31 @@ void SlidingWindowSmoother::finaliseWindow() {
   }
 }
 
+std::optional<PoseFix> SlidingWindowSmoother::globalFix(const Step& step) const {
+  if (!config_.global_fix) return std::nullopt;
+  if (!config_.calibration.stereo) return config_.global_fix(step, map_);
+  // The fix from the observations as the current calibration sees them (see fuseObservation):
+  // with the given calibration's range bias it can lie hundreds of millimetres off, and then
+  // disagrees with the window's prediction, which restarts the window instead of re-anchoring it.
+  Step calibrated = step;
+  calibrated.observations.clear();
+  for (const Observation& o : step.observations) {
+    if (!o.pixels) {
+      calibrated.observations.push_back(o);
+      continue;
+    }
+    try {
+      calibrated.observations.push_back(calibratedObservation(
+          o, config_.observation_model.rig, head_, headCovariance(), pixelCovarianceFor(o, Landmark(), config_.observation_model)));
+    } catch (const GeometryError&) {
+    }
+  }
+  return config_.global_fix(calibrated, map_);
+}
+
 bool SlidingWindowSmoother::tryGlobalFix(const Step& step, Estimate* out) {
   if (!config_.global_fix) return false;
-  const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+  const std::optional<PoseFix> fix = globalFix(step);
   if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
   finaliseWindow();
   startWindow(step, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
@@ -633,14 +729,44 @@ std::string toString(LateObservationStatus status) {
   return "unknown";
 }
 
-bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P,
-                                            std::vector<int>& used, ObservationTest test, double* e2) {
-  const Landmark* lm = nullptr;
-  if (obs.landmark_id >= 0) {
-    lm = map_.find(obs.landmark_id);
+std::vector<Observation> SlidingWindowSmoother::gateViews(const Observation& measured) const {
+  std::vector<Observation> views;
+  if (config_.calibration.stereo && measured.pixels) {
+    const Eigen::Matrix4d C_px = pixelCovarianceFor(measured, Landmark(), config_.observation_model);
+    const StereoBlock sig = stereoPriorSigma(config_.calibration);
+    const std::pair<StereoBlock, CalibrationEstimate::StereoMatrix> calibrations[2] = {
+        {head_, headCovariance()}, {CalibrationEstimate().head, sig.cwiseAbs2().asDiagonal()}};
+    for (const auto& [q, Cq] : calibrations) {
+      try {
+        views.push_back(calibratedObservation(measured, config_.observation_model.rig, q, Cq, C_px));
+      } catch (const GeometryError&) {
+      }
+    }
   } else {
-    const AssociationResult a =
-        associate(obs, pose, P, map_, config_.association, config_.association.exclusive ? used : std::vector<int>{});
+    views.push_back(measured);
+  }
+  return views;
+}
+
+bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* node, Pose2& pose, Eigen::Matrix3d& P,
+                                            std::vector<int>& used, ObservationTest test, double* e2) {
+  // With the stereo head self-calibrated, gate, association and the belief update see the
+  // observation through a calibration with its uncertainty in R (calibratedObservation): the
+  // given calibration's range bias (a disparity offset of 1.5 px is 18 % of range at 1 m) would
+  // otherwise gate out exactly the sightings that determine the calibration. First through the
+  // current estimate; a sighting it gates is tested again through the prior (the nominal
+  // calibration with the stated uncertainty, which holds the true one by construction): the
+  // estimate from few landmarks can be confidently wrong along a combination of parameters they
+  // do not separate (a disparity offset against the focal ratio, seen at one bearing), and then
+  // gates out the landmark that would separate them.
+  const std::vector<Observation> views = gateViews(measured);
+  if (views.empty()) return false;
+  const Landmark* lm = nullptr;
+  if (measured.landmark_id >= 0) {
+    lm = map_.find(measured.landmark_id);
+  } else {
+    const AssociationResult a = associate(views.front(), pose, P, map_, config_.association,
+                                          config_.association.exclusive ? used : std::vector<int>{});
     if (a.landmark_id >= 0) {
       lm = &map_.at(a.landmark_id);
       used.push_back(a.landmark_id);
@@ -654,31 +780,40 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& obs, Node* node, 
   } catch (const GeometryError&) {
     return false;
   }
-  const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);
+  const Observation* obs = nullptr;
+  Eigen::Vector2d nu;
+  Eigen::Matrix2d Sinv;
   const Eigen::Matrix<double, 3, 2> PHt = P * Hz.transpose();
-  const Eigen::Matrix2d S = Hz * PHt + obs.covariance;  // (5.14)
-  const Eigen::Matrix2d Sinv = S.inverse();
-  const double d2 = nu.dot(Sinv * nu);  // (5.20)
-  if (!std::isfinite(d2)) return false;
-  if (gate_enabled_ && test != ObservationTest::None &&
-      !(test == ObservationTest::Retest ? d2 <= retest_threshold_ : gate_.accepts(d2)))
-    return false;
-  if (e2) *e2 = d2;
-  if (config_.calibration.stereo && obs.pixels) {
+  for (const Observation& v : views) {
+    nu = rangeBearingInnovation(v.z(), zhat);
+    const Eigen::Matrix2d S = Hz * PHt + v.covariance;  // (5.14)
+    Sinv = S.inverse();
+    const double d2 = nu.dot(Sinv * nu);  // (5.20)
+    if (!std::isfinite(d2)) continue;
+    if (!gate_enabled_ || test == ObservationTest::None ||
+        (test == ObservationTest::Retest ? d2 <= retest_threshold_ : gate_.accepts(d2))) {
+      obs = &v;
+      if (e2) *e2 = d2;
+      break;
+    }
+  }
+  if (!obs) return false;
+  if (config_.calibration.stereo && measured.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *obs.pixels, obs.head_pan,
-                                                   pixelCovarianceFor(obs, *lm, config_.observation_model), residuals),
+    addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
+                                                   measured.head_pan,
+                                                   pixelCovarianceFor(measured, *lm, config_.observation_model), residuals),
               {node}, true, {Calib::Head});
   } else {
-    addFactor(makeObservationFactor(obs, *lm, config_.observation_model), {node}, true);
+    addFactor(makeObservationFactor(measured, *lm, config_.observation_model), {node}, true);
   }
   node->landmarks.push_back(lm->id);
   // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
   const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;
   pose = plus(pose, K * nu);
   const Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity() - K * Hz;
-  P = IKH * P * IKH.transpose() + K * obs.covariance * K.transpose();
+  P = IKH * P * IKH.transpose() + K * obs->covariance * K.transpose();
   return true;
 }
 
@@ -746,8 +881,11 @@ std::vector<bool> SlidingWindowSmoother::fuseStep(const Step& step, Node* node, 
                                 (P_pred(2, 2) + step.compass_sigma * step.compass_sigma);
     for (size_t i = 0; i < n; ++i) {
       if (!accepted[i]) continue;
-      const Observation& o = step.observations[i];
-      const auto g = rangeBearingInnovationAt(pred, P_pred, o.z(), o.covariance, map_.at(landmark_of[i]).xy());
+      const std::vector<Observation> views = gateViews(step.observations[i]);
+      std::optional<RangeBearingInnovation> g;
+      if (!views.empty())
+        g = rangeBearingInnovationAt(pred, P_pred, views.front().z(), views.front().covariance,
+                                     map_.at(landmark_of[i]).xy());
       const double e2p = g ? g->mahalanobis_squared : std::numeric_limits<double>::infinity();
       if (e2p > worst) {
         worst = e2p;
@@ -942,7 +1080,7 @@ bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation
   if (!nodes_.empty() && step < nodes_.front()->step) return false;  // before the window: too late
   Step at = *it;
   at.observations = observations;
-  const std::optional<PoseFix> fix = config_.global_fix(at, map_);
+  const std::optional<PoseFix> fix = globalFix(at);
   if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
   const std::vector<Step> after(it + 1, recent_.end());
   recent_.erase(it + 1, recent_.end());  // process() takes them again
@@ -1066,8 +1204,10 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     prev->rel_to_next = rel_;
     prev->rel_to_next_covariance = rel_covariance_;
     if (config_.calibration.odometry)  // one step (see the header)
-      addFactor(OdometryCalibrationFactor::Create(step.d_left, step.d_right, odometry_), {prev, n}, false,
-                {Calib::Wheels});
+      addFactor(OdometryCalibrationFactor::Create(
+                    step.d_left, step.d_right,
+                    withSlip(odometry_, step.d_left, step.d_right, config_.observation_model.unmodelled.slip_rel_sigma)),
+                {prev, n}, false, {Calib::Wheels});
     else
       addFactor(OdometryFactor::Create(Eigen::Vector3d(rel_.x, rel_.y, rel_.theta), rel_covariance_), {prev, n});
     factors_.back()->odometry = true;
@@ -1104,7 +1244,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
       if (gate_enabled_ && gate_.record(accepted[i])) {  // (5.1.3)
         lost_ = true;
         if (config_.reinitialise_when_lost) {
-          const std::optional<PoseFix> fix = config_.global_fix ? config_.global_fix(step, map_) : std::nullopt;
+          const std::optional<PoseFix> fix = globalFix(step);
           if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
             // The step's fused observations stay as factors of its pose (the reanchored window
             // keeps them; a restart drops the pose); the rest are set aside with it.

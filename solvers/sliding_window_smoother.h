@@ -22,7 +22,10 @@
 // the factors of the self-calibrating batch; they are never marginalised, the marginal prior spans
 // (oldest kept pose, calibration) so the information of marginalised poses on them is carried,
 // and with odometry calibration every step is a keyframe (the calibrated odometry factor is per
-// step). Memory is bounded by W and restart_buffer_steps (plus one Estimate per
+// step). With the stereo block, gate, association and global fixes see each pixel observation
+// through the current calibration estimate and its covariance, and a sighting that gates out
+// through the prior calibration (calibratedObservation), so the given calibration's range bias
+// does not reject the sightings that calibrate it. Memory is bounded by W and restart_buffer_steps (plus one Estimate per
 // step for finish() unless keep_history is off). Derivations: docs/estimators.md, "Smoothers".
 #include <ceres/problem.h>
 
@@ -119,6 +122,17 @@ struct SlidingWindowConfig {
 
   void validate() const;             // throws stereoloc::Error naming the field
 };
+
+// The observation as the cameras of stereo calibration q see it (q = (dbeta, k, delta_d, delta_u,
+// phi, psi), factors/stereo_pixel_calibration_factor.h, with covariance Cq): its pixels
+// triangulated through that factor's model inverted, so range and bearing are those of the point
+// the calibrated cameras put there, and R = J_px C_px J_px^T + J_q Cq J_q^T (Jacobians by central
+// differences), C_px the pixel covariance. At the nominal q with Cq = 0 it is
+// observationFromPixels. The window gates and associates these when it self-calibrates the
+// stereo head (docs/estimators.md, "Self-calibration"). Throws GeometryError when the corrected
+// disparity is not positive; `obs` must have pixels.
+Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
+                                  const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px);
 
 // What insertLate did with the observations of an earlier step.
 enum class LateObservationStatus {
@@ -236,6 +250,7 @@ class SlidingWindowSmoother : public Estimator {
   double* calibData(Calib c) { return c == Calib::Wheels ? wheels_.data() : head_.data(); }
   static int calibSize(Calib c) { return c == Calib::Wheels ? 3 : static_cast<int>(StereoBlock::RowsAtCompileTime); }
   std::vector<Calib> calibBlocks() const;  // the enabled ones, in variable order
+  CalibrationEstimate::StereoMatrix headCovariance() const;  // the stereo block's part of calib_covariance_
   int calibDim() const;
   void relinearise();                      // every factor's linearisation point := current values
   // The odometry prediction of one step with the current wheel calibration (the nominal one
@@ -258,6 +273,10 @@ class SlidingWindowSmoother : public Estimator {
   // The Gauss-Newton information of the window (3n x 3n, poses in nodes_ order; refreshes the
   // slots), factors linearised as for the covariances.
   Eigen::MatrixXd windowInformation();
+  // The observation as the gate and the belief update see it: as measured, or with the stereo
+  // head self-calibrated through the current estimate, then through the prior (see
+  // fuseObservation); empty when no calibration gives it a range.
+  std::vector<Observation> gateViews(const Observation& measured) const;
   // Which test fuseObservation applies: the gate (5.20), the wider test of retestGated
   // (retest_probability), or none (the step's joint test, fuseStep, decides).
   enum class ObservationTest { Gate, Retest, None };
@@ -281,6 +300,9 @@ class SlidingWindowSmoother : public Estimator {
   // window there (see insertLate). False when there is no fix.
   bool restartLate(long step, const std::vector<Observation>& observations);
   bool tryGlobalFix(const Step& step, Estimate* out);
+  // config_.global_fix on the step; with stereo self-calibration on its observations as the
+  // current calibration sees them (calibratedObservation).
+  std::optional<PoseFix> globalFix(const Step& step) const;
   // The gate declared the robot lost at the newest pose, whose prediction was (pred, P_pred), and
   // the global fix agrees with that prediction (chi-square test): the belief, not the window, was
   // wrong. Moves the window rigidly onto the fix, re-tests the gated observations of the window
