@@ -75,11 +75,11 @@ TEST(FixStudySelfCalibration, RangeErrorWellBelowTheGivenCalibrations) {
   ASSERT_EQ(lines.size(), 1u + 2u * 4u);
   EXPECT_EQ(lines[0].rfind("category,trial,run,profile,column,goal_corners,range_bias_pct,", 0), 0u);
   for (size_t i = 1; i < lines.size(); ++i) {
-    const bool calibrated = i % 2 == 0;
-    EXPECT_NE(lines[i].find(calibrated ? ",self_calibrated," : ",given,"), std::string::npos) << lines[i];
+    const bool self_calibrated = i % 2 == 0;
+    EXPECT_NE(lines[i].find(self_calibrated ? ",self_calibrated," : ",given,"), std::string::npos) << lines[i];
     // 23 fields; the given calibration's row ends in 7 empty estimate fields.
     EXPECT_EQ(std::count(lines[i].begin(), lines[i].end(), ','), 22) << lines[i];
-    EXPECT_EQ(lines[i].size() >= 7 && lines[i].compare(lines[i].size() - 7, 7, ",,,,,,,") == 0, !calibrated) << lines[i];
+    EXPECT_EQ(lines[i].size() >= 7 && lines[i].compare(lines[i].size() - 7, 7, ",,,,,,,") == 0, !self_calibrated) << lines[i];
   }
   std::filesystem::remove_all(dir);
   o.out.clear();
