@@ -5,6 +5,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "src/core/angles.h"
 #include "src/sim/simulator.h"
 
 namespace stereoloc {
@@ -16,6 +17,24 @@ Eigen::Vector2d toRaw(const Eigen::Vector2d& ideal, double f, double cu, double 
   cv::projectPoints(std::vector<cv::Point3d>{cv::Point3d(X.at<double>(0), X.at<double>(1), X.at<double>(2))},
                     cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), cam.K, cam.D, out);
   return {out[0].x, out[0].y};
+}
+
+// The true pose at a fractional step, for the exposures around a step. A drive follows its arcs
+// (poseAtStep). The fix scenarios' poses are independent (Scenario::independent_poses) and move
+// the robot sideways with its heading fixed, where the arc from one pose does not end at the
+// next: poseAtStep jumps by up to a step's length at each step, and a sub-exposure or the right
+// camera's exposure just before the step would see the scene from a pose 20-40 mm away (a stereo
+// baseline of 30 mm). Between independent poses the robot moves straight at a constant turn rate
+// instead, so the pose is continuous at every step.
+Pose2 exposurePose(const Scenario& sc, double step) {
+  if (!sc.independent_poses) return poseAtStep(sc, step);
+  const double t = std::clamp(step, 0.0, static_cast<double>(sc.poses.size() - 1));
+  const size_t k = std::min(static_cast<size_t>(t), sc.poses.size() - 1);
+  const double a = t - static_cast<double>(k);
+  if (a <= 0.0 || k + 1 >= sc.poses.size()) return sc.poses[k];
+  const Pose2& p = sc.poses[k];
+  const Pose2& q = sc.poses[k + 1];
+  return Pose2(p.x + a * (q.x - p.x), p.y + a * (q.y - p.y), wrapAngle(p.theta + a * angleDiff(q.theta, p.theta)));
 }
 
 }  // namespace
@@ -96,7 +115,7 @@ StereoImages RawPairRenderer::render(const Scenario& sc, size_t s, const std::ve
     const double tau = profile_.exposure_s * ((k + 0.5) / K - 0.5);
     for (int c = 0; c < 2; ++c) {
       const double t = tau + (c == 1 ? errors_.exposure_offset_s : 0.0);
-      const cv::Mat img = renderer.renderCamera(poseAtStep(sc, static_cast<double>(s) + t / dt_), pan, obstacles, c,
+      const cv::Mat img = renderer.renderCamera(exposurePose(sc, static_cast<double>(s) + t / dt_), pan, obstacles, c,
                                                 &needed[c]);
       cv::Mat fimg;
       img.convertTo(fimg, CV_32FC3, 1.0 / K);

@@ -6,10 +6,15 @@
 // step's pitch) is ray-cast with a margin of `kMarginPx` around the nominal image, so that
 // barrel distortion and camera rotation pull in no pixel from outside it. Motion blur averages
 // `exposure_samples` renders at poses spread over the exposure time (on the arc between steps,
-// poseAtStep); the right camera's exposure starts `exposure_offset_s` after the left's. Each raw
-// pixel then takes the ideal image's value where its ray lands: its ray is its pixel
-// undistorted with the true camera matrix and distortion, turned by the camera's true rotation
-// (relative rotation, roll). Sensor noise is added once at the end, from the pair's seed.
+// poseAtStep; between a scenario's independent poses, the straight line at a constant turn
+// rate, continuous at each step); the right camera's exposure starts `exposure_offset_s` after
+// the left's. Each raw pixel then takes the ideal image's value where its ray lands: its ray is
+// its pixel undistorted with the true camera matrix and distortion, turned by the camera's true
+// rotation (relative rotation, roll). Sensor noise is added once at the end, from the pair's seed.
+// Cost: each sub-exposure ray-casts only the camera whose image it feeds, and only the pixels
+// of the margin image that cv::remap reads (StereoRenderer::renderCamera with per-row column
+// ranges); the images are those of rendering whole pairs (tested). Truth only with
+// RenderOptions::compute_truth.
 // Ground truth (landmark pixels, segment end points) goes through the same camera model; a
 // straight segment's image is curved under distortion, so only its end points are exact.
 #include <opencv2/core.hpp>

@@ -23,7 +23,8 @@
 // thesis's, with the recall of the goal corners the simulator finds visible, and a self-calibrated
 // column: the same raw pairs through the frontend with the rig the batch smoother's
 // self-calibration (solvers/self_calibration.h) estimated on the trial's own sequence
-// (solvers/self_calibrated_rig.h).
+// (solvers/self_calibrated_rig.h), with the world's profile as priors and noise model and the
+// independent poses linked only loosely (their odometry does not describe the motion).
 #include <cstdint>
 #include <cstdio>
 #include <string>
@@ -40,7 +41,9 @@ struct FixStudyOptions {
   std::string covariance = "sigma_points";
   uint64_t seed = 1;
   int runs = 1;
-  std::string out;                          // also write the tables here when set
+  // Also write the tables here when set: fixstudy.txt, fixes.csv and, with images in a non-ideal
+  // world, range_trials.csv (per trial and column: range bias, drawn camera errors, estimate).
+  std::string out;
   std::string tables;                       // thesis_tables.yaml; "" = data/thesis_tables.yaml
   std::string frontend = "pixels";          // pixels | images | both
   std::string frontend_landmarks = "all";   // images: which frontend observations (fixes use goal corners only)

@@ -144,5 +144,36 @@ TEST(RawPairRenderer, SameImagesAsRenderingWholePairsAndAnyThreadCount) {
   }
 }
 
+// The fix scenarios' poses are independent and step sideways with a fixed heading, which the
+// arc between them (poseAtStep) does not follow: their exposures lie on the straight path
+// between the poses instead, so a pair shows the scene from its own pose, blurred by the motion.
+TEST(RawPairRenderer, IndependentPosesExposeAroundTheirOwnPose) {
+  ErrorProfile profile;  // exact cameras: only the exposure differs from the ideal pair
+  profile.exposure_s = 0.01;
+  profile.exposure_samples = 3;
+  DrawnErrors e;
+  e.exposure_offset_s = -0.005;  // the right camera's exposure ends before the step
+  Scenario sc;
+  for (int k = 0; k < 3; ++k) sc.poses.push_back(Pose2(400, 500 + 20.0 * k, 0.0));  // sideways, 20 mm/step
+  sc.head_pan.assign(3, 0.0);
+  sc.carried.assign(3, false);
+  sc.independent_poses = true;
+  RenderOptions o;
+  o.compute_truth = false;
+  const FieldMap map = FieldMap::miroSot();
+  const StereoRigParams nominal;
+  const StereoImages ideal = StereoRenderer(map, StereoRig(nominal), o).render(sc.poses[1], 0.0, {});
+  auto meanDiff = [&](const Scenario& scenario) {
+    const StereoImages raw = RawPairRenderer(map, nominal, profile, e, o, 0.1).render(scenario, 1, {}, 0);
+    return 0.5 * (cv::norm(raw.left, ideal.left, cv::NORM_L1) + cv::norm(raw.right, ideal.right, cv::NORM_L1)) /
+           static_cast<double>(ideal.left.total() * 3);
+  };
+  const double continuous = meanDiff(sc);
+  sc.independent_poses = false;  // the same poses as a drive: the arcs jump at each step
+  const double arcs = meanDiff(sc);
+  EXPECT_LT(continuous, 0.5);
+  EXPECT_GT(arcs, 4.0 * continuous);
+}
+
 }  // namespace
 }  // namespace stereoloc

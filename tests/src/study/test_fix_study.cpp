@@ -3,8 +3,12 @@
 // range error well below the one with the given calibration.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <string>
+#include <vector>
 
 #include "src/pipeline/usage_error.h"
 #include "src/study/fix_study.h"
@@ -46,6 +50,9 @@ TEST(FixStudySelfCalibration, RangeErrorWellBelowTheGivenCalibrations) {
   o.profiles = {"realistic"};
   o.steps = 4;  // 4 trials x 4 poses: ~24 goal corners per column
   o.seed = 1;
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "stereoloc_fixstudy_selfcal";
+  std::filesystem::remove_all(dir);
+  o.out = dir.string();
   const std::string text = runToText(o);
   ASSERT_NE(text.find("ours (images, realistic, self-cal.)"), std::string::npos) << text;
   ASSERT_NE(text.find("self-calibration, realistic: 4 trials, 0 without an estimate"), std::string::npos) << text;
@@ -60,6 +67,22 @@ TEST(FixStudySelfCalibration, RangeErrorWellBelowTheGivenCalibrations) {
   double given_std = -1, calibrated_std = -1;
   ASSERT_EQ(std::sscanf(text.c_str() + bias, "trial bias (%%) %*f %lf %*f %*f | %*f %lf", &given_std, &calibrated_std), 2);
   EXPECT_LT(calibrated_std, 0.6 * given_std) << text;
+
+  // range_trials.csv: per trial a row per column, the estimate only in the self-calibrated one.
+  std::ifstream trials(dir / "range_trials.csv");
+  std::vector<std::string> lines;
+  for (std::string line; std::getline(trials, line);) lines.push_back(line);
+  ASSERT_EQ(lines.size(), 1u + 2u * 4u);
+  EXPECT_EQ(lines[0].rfind("category,trial,run,profile,column,goal_corners,range_bias_pct,", 0), 0u);
+  for (size_t i = 1; i < lines.size(); ++i) {
+    const bool self_calibrated = i % 2 == 0;
+    EXPECT_NE(lines[i].find(self_calibrated ? ",self_calibrated," : ",given,"), std::string::npos) << lines[i];
+    // 23 fields; the given calibration's row ends in 7 empty estimate fields.
+    EXPECT_EQ(std::count(lines[i].begin(), lines[i].end(), ','), 22) << lines[i];
+    EXPECT_EQ(lines[i].size() >= 7 && lines[i].compare(lines[i].size() - 7, 7, ",,,,,,,") == 0, !self_calibrated) << lines[i];
+  }
+  std::filesystem::remove_all(dir);
+  o.out.clear();
 
   // Without the stereo part there is no such column.
   o.steps = 1;
