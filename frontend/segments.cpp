@@ -405,12 +405,23 @@ void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::v
   // Not covered: re-centre the pool on this line (a refit moved it), which the next refits of
   // the line, close to this one, will hit.
   fillPool(edges, used, theta, rho, band + kPoolMarginPx, tol_bins + kPoolMarginBins);
-  for (int g = kPoolMarginBins; g <= kPoolMarginBins + 2 * tol_bins; ++g)
-    for (int j = pool_off_[g]; j < pool_off_[g + 1]; ++j) {
+  const int j0 = pool_off_[kPoolMarginBins], j1 = pool_off_[kPoolMarginBins + 2 * tol_bins + 1];
+  if (reference_pools_) {
+    for (int j = j0; j < j1; ++j) {
       const int i = pool_[j];
       const double d = edges[i].x * c + edges[i].y * s - rho;
       if (std::fabs(d) <= band) cand_.push_back(i);
     }
+    return;
+  }
+  cand_.resize(static_cast<size_t>(j1 - j0));
+  size_t m = 0;
+  for (int j = j0; j < j1; ++j) {
+    const double d = pool_x_[j] * c + pool_y_[j] * s - rho;
+    cand_[m] = pool_[j];
+    m += static_cast<size_t>(std::fabs(d) <= band);
+  }
+  cand_.resize(m);
 }
 
 void SegmentExtractor::fillPool(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta,
