@@ -372,14 +372,31 @@ void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::v
         }
       worst += band * std::hypot(c - pc, s - ps);
       if (worst + band <= pool_band_) {
-        for (int k = delta - tol_bins; k <= delta + tol_bins; ++k) {
-          const int g = k + pool_tol_bins_;
-          for (int j = pool_off_[g]; j < pool_off_[g + 1]; ++j) {
+        const int g0 = delta - tol_bins + pool_tol_bins_, g1 = delta + tol_bins + pool_tol_bins_ + 1;
+        if (reference_pools_) {
+          for (int j = pool_off_[g0]; j < pool_off_[g1]; ++j) {
             const int i = pool_[j];
             if (used[i]) continue;
             const double d = edges[i].x * c + edges[i].y * s - rho;
             if (std::fabs(d) <= band) cand_.push_back(i);
           }
+        } else {
+          // Branch-free, as in fillPool().
+          const int j0 = pool_off_[g0], j1 = pool_off_[g1];
+          cand_.resize(static_cast<size_t>(j1 - j0));
+          int* out = cand_.data();
+          const int* items = pool_.data();
+          const float* px = pool_x_.data();
+          const float* py = pool_y_.data();
+          const uint8_t* u = used.data();
+          size_t m = 0;
+          for (int j = j0; j < j1; ++j) {
+            const int i = items[j];
+            const double d = px[j] * c + py[j] * s - rho;
+            out[m] = i;
+            m += static_cast<size_t>((std::fabs(d) <= band) & (u[i] == 0));
+          }
+          cand_.resize(m);
         }
         return;
       }
@@ -388,28 +405,72 @@ void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::v
   // Not covered: re-centre the pool on this line (a refit moved it), which the next refits of
   // the line, close to this one, will hit.
   fillPool(edges, used, theta, rho, band + kPoolMarginPx, tol_bins + kPoolMarginBins);
-  for (int g = kPoolMarginBins; g <= kPoolMarginBins + 2 * tol_bins; ++g)
-    for (int j = pool_off_[g]; j < pool_off_[g + 1]; ++j) {
+  const int j0 = pool_off_[kPoolMarginBins], j1 = pool_off_[kPoolMarginBins + 2 * tol_bins + 1];
+  if (reference_pools_) {
+    for (int j = j0; j < j1; ++j) {
       const int i = pool_[j];
       const double d = edges[i].x * c + edges[i].y * s - rho;
       if (std::fabs(d) <= band) cand_.push_back(i);
     }
+    return;
+  }
+  cand_.resize(static_cast<size_t>(j1 - j0));
+  size_t m = 0;
+  for (int j = j0; j < j1; ++j) {
+    const double d = pool_x_[j] * c + pool_y_[j] * s - rho;
+    cand_[m] = pool_[j];
+    m += static_cast<size_t>(std::fabs(d) <= band);
+  }
+  cand_.resize(m);
 }
 
 void SegmentExtractor::fillPool(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta,
                                 double rho, double band, int tol_bins) {
   pool_valid_ = false;
   pool_.clear();
+  pool_x_.clear();
+  pool_y_.clear();
   pool_off_.assign(1, 0);
   const double c = std::cos(theta), s = std::sin(theta);
   const int b0 = static_cast<int>(std::lround(theta * 360.0 / kTwoPi));
   for (int k = b0 - tol_bins; k <= b0 + tol_bins; ++k) {
     const int b = ((k % 360) + 360) % 360;
-    for (int j = bucket_start_[b]; j < bucket_start_[b + 1]; ++j) {
-      const int i = bucket_items_[j];
-      if (used[i]) continue;  // never cleared again within extract()
-      const double d = edges[i].x * c + edges[i].y * s - rho;
-      if (std::fabs(d) <= band) pool_.push_back(i);
+    const int j0 = bucket_start_[b], j1 = bucket_start_[b + 1];
+    if (reference_pools_) {
+      for (int j = j0; j < j1; ++j) {
+        const int i = bucket_items_[j];
+        if (used[i]) continue;  // never cleared again within extract()
+        const double d = edges[i].x * c + edges[i].y * s - rho;
+        if (std::fabs(d) <= band) pool_.push_back(i);
+      }
+    } else {
+      // The same test without a branch per pixel: on photographs the carpet's texture edges
+      // fill the bins of every direction, a pool keeps about one pixel in six, and the
+      // mispredicted branches of the pixel-by-pixel loop were most of the segment stage's
+      // excess over rendered images.
+      const size_t n = pool_.size();
+      pool_.resize(n + static_cast<size_t>(j1 - j0));
+      pool_x_.resize(pool_.size());
+      pool_y_.resize(pool_.size());
+      int* out = pool_.data() + n;
+      float* ox = pool_x_.data() + n;
+      float* oy = pool_y_.data() + n;
+      const int* items = bucket_items_.data();
+      const float* bx = bucket_x_.data();
+      const float* by = bucket_y_.data();
+      const uint8_t* u = used.data();
+      size_t m = 0;
+      for (int j = j0; j < j1; ++j) {
+        const int i = items[j];
+        const double d = bx[j] * c + by[j] * s - rho;
+        out[m] = i;
+        ox[m] = bx[j];
+        oy[m] = by[j];
+        m += static_cast<size_t>((std::fabs(d) <= band) & (u[i] == 0));
+      }
+      pool_.resize(n + m);
+      pool_x_.resize(n + m);
+      pool_y_.resize(n + m);
     }
     pool_off_.push_back(static_cast<int>(pool_.size()));
   }
@@ -438,6 +499,12 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
     std::vector<int>& fill = cand_;
     fill.assign(bucket_start_.begin(), bucket_start_.end() - 1);
     for (size_t i = 0; i < edges.size(); ++i) bucket_items_[fill[edges[i].dir_bin]++] = static_cast<int>(i);
+  }
+  bucket_x_.resize(edges.size());
+  bucket_y_.resize(edges.size());
+  for (size_t j = 0; j < edges.size(); ++j) {
+    bucket_x_[j] = edges[bucket_items_[j]].x;
+    bucket_y_[j] = edges[bucket_items_[j]].y;
   }
   // Bounding box of the edge pixels (for the pool test in collect()).
   box_[0] = box_[1] = 1e30;

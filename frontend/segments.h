@@ -136,6 +136,10 @@ class SegmentExtractor {
   // Edge-pixel indices of segment i of the last extract() call (same order as `segments`).
   const int* pixelsBegin(size_t i) const { return pix_.data() + off_[i]; }
   const int* pixelsEnd(size_t i) const { return pix_.data() + off_[i + 1]; }
+  // true: the pools are filled and filtered pixel by pixel through `edges` and `used` (the
+  // reference the branch-free scans of fillPool() and collect() are tested against; the same
+  // pools and segments either way).
+  void setReferencePools(bool reference) { reference_pools_ = reference; }
 
  private:
   void collect(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta, double rho,
@@ -155,6 +159,10 @@ class SegmentExtractor {
   };
   std::vector<Piece> merged;
   std::vector<int> bucket_start_, bucket_items_;
+  // Positions of the pixels in bucket order and of the pool's pixels in pool order, and whether
+  // each pixel is used (edge-pixel index order): contiguous operands for the scans.
+  std::vector<float> bucket_x_, bucket_y_, pool_x_, pool_y_;
+  bool reference_pools_ = false;
   std::vector<int> cand_;
   std::vector<std::pair<float, int>> proj_;
   std::vector<uint64_t> keys_;
