@@ -710,7 +710,8 @@ void BatchSmoother::solve() {
     return changed;
   };
   constexpr int kReassociationPasses = 3;
-  if (source.stereoBlock() >= 0 && !raw_observations_.empty()) {
+  const bool reassociate_passes = config_.reassociate_with_calibration && source.stereoBlock() >= 0 && !raw_observations_.empty();
+  if (reassociate_passes) {
     // The first solve's calibration comes from the identified landmarks alone (the pairings of
     // the others are the nominal calibration's guesses); they are paired at its solution.
     for (const auto& [index, raw] : raw_observations_) {
@@ -724,7 +725,7 @@ void BatchSmoother::solve() {
     }
     cost = solveAll();
   }
-  for (int pass = 0; pass < kReassociationPasses && source.stereoBlock() >= 0 && !raw_observations_.empty(); ++pass) {
+  for (int pass = 0; pass < kReassociationPasses && reassociate_passes; ++pass) {
     if (reassociate() == 0) break;
     cost = solveAll();
   }
