@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <memory>
 #include <utility>
 
@@ -662,6 +663,7 @@ void BatchSmoother::solve() {
   // floor markings with the wrong landmarks, and the solve, holding those pairings, settles on a
   // wrong calibration. Each pass takes the solved poses and calibration; it stops when no
   // pairing changes.
+  std::map<size_t, std::vector<int>> filter_pairings;  // the filter pass's landmark ids per step index
   // Returns how many pairings changed.
   auto reassociate = [&] {
     const ObservationModelConfig& model = config_.observation_model;
@@ -695,10 +697,14 @@ void BatchSmoother::solve() {
       const Pose2 pose(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
       const std::vector<Observation> a = associateObservations(corrected, pose, guess_[index].covariance, map_, config_.association);
       const size_t begin = observationsBegin(index);
+      const auto filtered = filter_pairings.find(index);
       for (size_t k = 0; k < a.size(); ++k) {
         Observation& target = observations_[begin + k];
-        if (target.landmark_id == a[k].landmark_id) continue;
-        target.landmark_id = a[k].landmark_id;
+        // An observation the solution cannot pair (outside every gate, or ambiguous) keeps the
+        // filter pass's pairing.
+        const int id = a[k].landmark_id >= 0 || filtered == filter_pairings.end() ? a[k].landmark_id : filtered->second[k];
+        if (target.landmark_id == id) continue;
+        target.landmark_id = id;
         ++changed;
         source.setLeftOut(begin + k, false);
         if (target.landmark_id >= 0 && !source.evaluable(begin + k, &x[3 * i], globals)) {
@@ -717,6 +723,8 @@ void BatchSmoother::solve() {
     for (const auto& [index, raw] : raw_observations_) {
       if (index < first) continue;
       const size_t begin = observationsBegin(index);
+      std::vector<int>& ids = filter_pairings[index];
+      for (size_t k = 0; k < raw.size(); ++k) ids.push_back(observations_[begin + k].landmark_id);
       for (size_t k = 0; k < raw.size(); ++k)
         if (raw[k].landmark_id < 0) {
           observations_[begin + k].landmark_id = -1;

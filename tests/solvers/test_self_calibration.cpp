@@ -108,7 +108,7 @@ TEST(SelfCalibration, PairsTheUnidentifiedMarkingsAtTheCalibratedSolution) {
     rmse_nominal += nominal;
     rmse_truth += known;
   }
-  // Seeds 11-14: 6.0 mm summed over the four runs paired again, 39.4 mm with the nominal
+  // Seeds 11-14: 7.1 mm summed over the four runs paired again, 39.4 mm with the nominal
   // pairings (one run 32 mm off), 3.7 mm with the true ids.
   EXPECT_LT(rmse_paired, 2.0 * rmse_truth);
   EXPECT_LT(rmse_paired, 0.5 * rmse_nominal);
