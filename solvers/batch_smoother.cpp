@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <memory>
 #include <utility>
 
@@ -656,6 +657,86 @@ void BatchSmoother::solve() {
     return c;
   };
   double cost = solveAll();
+  // With the stereo calibration estimated, the unidentified observations are associated again at
+  // the solution: the filter pass associated them with the nominal calibration, whose errors
+  // (a focal-length difference of 1.7 % moves the disparity by ~3 px at the image's edge) pair
+  // floor markings with the wrong landmarks, and the solve, holding those pairings, settles on a
+  // wrong calibration. Each pass takes the solved poses and calibration; it stops when no
+  // pairing changes.
+  std::map<size_t, std::vector<int>> filter_pairings;  // the filter pass's landmark ids per step index
+  // Returns how many pairings changed.
+  auto reassociate = [&] {
+    const ObservationModelConfig& model = config_.observation_model;
+    const double* q = globals.data() + (source.odometryBlock() >= 0 ? 3 : 0);  // (dbeta, k, dd, du, phi, psi)
+    StereoRigParams params = model.rig.params();
+    params.tilt_rad += q[0];
+    const StereoRig rig = model.rig.calibration() ? StereoRig(params, *model.rig.calibration()) : StereoRig(params);
+    const double ou = rig.principalU(), ov = rig.principalV(), scale = 1.0 + q[5];
+    int changed = 0;
+    for (const auto& [index, raw] : raw_observations_) {
+      if (index < first) continue;
+      const size_t i = index - first;
+      // The pixels as the nominal rig would have seen them (the inverse of
+      // factors/stereo_pixel_calibration_factor.h's columns and rows), as range and bearing.
+      std::vector<Observation> corrected = raw;
+      for (Observation& o : corrected) {
+        if (o.landmark_id >= 0 || !o.pixels) continue;
+        const double cl = (o.pixels->u_left - ou - q[3] - 0.5 * q[2]) / scale;
+        const double cr = (o.pixels->u_right - ou - q[3] + 0.5 * q[2]) / (scale * (1.0 + q[4]));
+        const double mean = 0.5 * (cl + cr), disparity = (cl - cr) / q[1];
+        const StereoPixels px{ou + mean + 0.5 * disparity, ov + (o.pixels->v_left - ov) / scale,
+                              ou + mean - 0.5 * disparity, ov + (o.pixels->v_right - ov) / scale};
+        Landmark kind;
+        kind.type = o.type;
+        try {
+          o = observationFromPixels(rig, -1, o.type, px, o.head_pan, pixelCovarianceFor(o, kind, model));
+        } catch (const Error&) {
+          // Not triangulable with the calibration (disparity too small): keeps its nominal form.
+        }
+      }
+      const Pose2 pose(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+      const std::vector<Observation> a = associateObservations(corrected, pose, guess_[index].covariance, map_, config_.association);
+      const size_t begin = observationsBegin(index);
+      const auto filtered = filter_pairings.find(index);
+      for (size_t k = 0; k < a.size(); ++k) {
+        Observation& target = observations_[begin + k];
+        // An observation the solution cannot pair (outside every gate, or ambiguous) keeps the
+        // filter pass's pairing.
+        const int id = a[k].landmark_id >= 0 || filtered == filter_pairings.end() ? a[k].landmark_id : filtered->second[k];
+        if (target.landmark_id == id) continue;
+        target.landmark_id = id;
+        ++changed;
+        source.setLeftOut(begin + k, false);
+        if (target.landmark_id >= 0 && !source.evaluable(begin + k, &x[3 * i], globals)) {
+          source.setLeftOut(begin + k, true);
+          ++s.observations_left_out_at_guess;
+        }
+      }
+    }
+    return changed;
+  };
+  constexpr int kReassociationPasses = 3;
+  const bool reassociate_passes = config_.reassociate_with_calibration && source.stereoBlock() >= 0 && !raw_observations_.empty();
+  if (reassociate_passes) {
+    // The first solve's calibration comes from the identified landmarks alone (the pairings of
+    // the others are the nominal calibration's guesses); they are paired at its solution.
+    for (const auto& [index, raw] : raw_observations_) {
+      if (index < first) continue;
+      const size_t begin = observationsBegin(index);
+      std::vector<int>& ids = filter_pairings[index];
+      for (size_t k = 0; k < raw.size(); ++k) ids.push_back(observations_[begin + k].landmark_id);
+      for (size_t k = 0; k < raw.size(); ++k)
+        if (raw[k].landmark_id < 0) {
+          observations_[begin + k].landmark_id = -1;
+          source.setLeftOut(begin + k, false);
+        }
+    }
+    cost = solveAll();
+  }
+  for (int pass = 0; pass < kReassociationPasses && reassociate_passes; ++pass) {
+    if (reassociate() == 0) break;
+    cost = solveAll();
+  }
   countFactors();
   int withdrawn = 0;
   const auto t_cuts = Clock::now();

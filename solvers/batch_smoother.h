@@ -130,6 +130,12 @@ struct BatchSmootherConfig {
   // the stereo block every pixel factor (needs a pixel observation model). Only the part's
   // switches and prior sigmas are used here. The filter pass runs with the nominal calibration.
   SelfCalibrationConfig calibration;
+  // With the stereo calibration: the observations the filter pass paired (landmark_id -1 in the
+  // input) are left out of a first solve on the identified landmarks, then paired again at each
+  // solution with its calibration until no pairing changes (at most 3 passes); one the solution
+  // cannot pair (outside every gate, or ambiguous) keeps the filter pass's pairing. false: the
+  // filter pass's pairings, made with the nominal calibration, are final.
+  bool reassociate_with_calibration = true;
 
   void validate() const;            // throws stereoloc::Error naming the field
 };

@@ -63,6 +63,7 @@ ObservationModel observationModelFromString(const std::string& name) {
 
 bool UnmodelledNoise::isZero() const {
   return k1_sigma == 0 && k2_sigma == 0 && tangential_sigma == 0 && pitch_sigma_rad == 0 && roll_sigma_rad == 0 &&
+         relative_rotation_sigma_rad == 0 && marking_disparity_sigma_px == 0 && intersection_disparity_sigma_px == 0 &&
          slip_rel_sigma == 0;
 }
 
@@ -73,6 +74,9 @@ const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
     {"tangential_sigma", &UnmodelledNoise::tangential_sigma},
     {"pitch_sigma_rad", &UnmodelledNoise::pitch_sigma_rad},
     {"roll_sigma_rad", &UnmodelledNoise::roll_sigma_rad},
+    {"relative_rotation_sigma_rad", &UnmodelledNoise::relative_rotation_sigma_rad},
+    {"marking_disparity_sigma_px", &UnmodelledNoise::marking_disparity_sigma_px},
+    {"intersection_disparity_sigma_px", &UnmodelledNoise::intersection_disparity_sigma_px},
     {"slip_rel_sigma", &UnmodelledNoise::slip_rel_sigma},
 };
 }  // namespace
@@ -124,6 +128,17 @@ Eigen::Matrix4d unmodelledPixelCovariance(const StereoRig& rig, const StereoPixe
   }
   const Eigen::Vector2d vib(noise.pitch_sigma_rad * noise.pitch_sigma_rad, noise.roll_sigma_rad * noise.roll_sigma_rad);
   C += J_vib * vib.asDiagonal() * J_vib.transpose();
+  if (noise.relative_rotation_sigma_rad > 0) {
+    // The right camera alone turned by (pitch, yaw, roll) about its own axes moves its pixel by
+    // f (x y, 1 + y^2), f (1 + x^2, x y), f (-y, x); of the yaw's column shift f (1 + x^2) the
+    // constant f is the disparity offset (a calibration parameter), so f x^2 remains.
+    const double x = (px.u_right - ou) / f, y = (px.v_right - ov) / f;
+    Eigen::Matrix<double, 2, 3> J_rot;
+    J_rot << f * x * y, f * x * x, -f * y,  //
+        f * (1 + y * y), f * x * y, f * x;
+    const double s2 = noise.relative_rotation_sigma_rad * noise.relative_rotation_sigma_rad;
+    C.block<2, 2>(2, 2) += s2 * J_rot * J_rot.transpose();
+  }
   return 0.5 * (C + C.transpose());
 }
 
@@ -144,7 +159,17 @@ Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landm
                   ": has pixels but no pixel covariance (the pixel observation model needs it)");
     C = obs.pixel_covariance;
   }
-  if (obs.pixels && !config.unmodelled.isZero()) C += unmodelledPixelCovariance(config.rig, *obs.pixels, config.unmodelled);
+  if (obs.pixels && !config.unmodelled.isZero()) {
+    C += unmodelledPixelCovariance(config.rig, *obs.pixels, config.unmodelled);
+    // The right feature of a marking is found on the left's row: where the rows are misaligned
+    // it slides along the marking, an error of u_r alone (u_l is the left image's own).
+    double s = 0;
+    if (landmark.type == LandmarkType::MarkingCorner || landmark.type == LandmarkType::Junction)
+      s = config.unmodelled.marking_disparity_sigma_px;
+    else if (landmark.type == LandmarkType::Intersection)
+      s = config.unmodelled.intersection_disparity_sigma_px;
+    C(2, 2) += s * s;
+  }
   return C;
 }
 

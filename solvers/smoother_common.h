@@ -55,6 +55,17 @@ struct UnmodelledNoise {
   double tangential_sigma = 0.0;  // ... p1 and p2
   double pitch_sigma_rad = 0.0;   // camera pitch vibration per image pair, rad (both cameras)
   double roll_sigma_rad = 0.0;    // camera roll vibration per image pair, rad (both cameras)
+  // Rotation of the right camera against the left that the given calibration does not know, per
+  // axis, rad: it bends the right image against the left (OpenCV's rotation Jacobian; its
+  // constant column shift f eps is the disparity offset, which the self-calibration estimates,
+  // so only the rest enters).
+  double relative_rotation_sigma_rad = 0.0;
+  // Error of the right column (the disparity) of features the frontend matches along a floor
+  // marking (marking corners and T-junctions; X-intersections), px: on a rectified pair whose
+  // rows the calibration's errors misalign, the right feature found on the left's row slides
+  // along the marking (docs/realistic_world.md, "Noise model").
+  double marking_disparity_sigma_px = 0.0;
+  double intersection_disparity_sigma_px = 0.0;
   // Wheel slip: a wheel's increment's error sigma as a fraction of the increment, added in
   // quadrature to (B.6)'s k |d| (slip on a fraction p of the steps, one wheel at a time, reading
   // (1 + s) times the motion: sqrt(p / 2 E[s^2])).
@@ -66,10 +77,11 @@ struct UnmodelledNoise {
   void save(const std::string& path) const;
 };
 
-// The pixel covariance (u_l, v_l, u_r, v_r; px^2) the lens and vibration terms of `noise` add to
-// an observation at rectified pixels `px` of `rig`: J diag(sigma^2) J^T, J the pixels' first-order
-// change with each camera's k1, k2, p1, p2 (independent between the cameras) and with the pair's
-// common pitch and roll.
+// The pixel covariance (u_l, v_l, u_r, v_r; px^2) the lens, vibration and relative rotation
+// terms of `noise` add to an observation at rectified pixels `px` of `rig`: J diag(sigma^2) J^T,
+// J the pixels' first-order change with each camera's k1, k2, p1, p2 (independent between the
+// cameras), with the pair's common pitch and roll, and with the right camera's own rotation
+// (without the constant column shift of its yaw, the disparity offset).
 Eigen::Matrix4d unmodelledPixelCovariance(const StereoRig& rig, const StereoPixels& px, const UnmodelledNoise& noise);
 
 // The odometry parameters of one step with the slip term: each wheel's variance grows by
@@ -88,7 +100,8 @@ struct ObservationModelConfig {
 };
 
 // The pixel covariance the pixel models use for `obs`: its own, or sigma^2 I when
-// config.pixel_sigma > 0, plus unmodelledPixelCovariance of config.unmodelled. Throws stereoloc::Error when the observation carries none.
+// config.pixel_sigma > 0, plus unmodelledPixelCovariance of config.unmodelled and, for a feature
+// matched along a marking (landmark.type), its disparity term on u_r. Throws stereoloc::Error when the observation carries none.
 Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config);
 
 // The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks

@@ -15,6 +15,14 @@
 namespace stereoloc {
 namespace {
 
+// Disparity error of the frontend's features matched along floor markings per pixel of row
+// misalignment of the rectified pair (applyErrorProfile): the RMS u_r error measured against the
+// true rectified pixels on realistic images (docs/realistic_world.md, "Noise model": 1.63 px for
+// marking corners and T-junctions, 0.65 px for X-intersections) over the realistic profile's
+// stated row misalignment, sqrt(2 (1 px)^2 + (277 px * 0.1 deg)^2) = 1.49 px.
+constexpr double kMarkingDisparityPerRowPx = 1.63 / 1.49;
+constexpr double kIntersectionDisparityPerRowPx = 0.65 / 1.49;
+
 // Gauss-Newton iterations of the iterated EKF's updates (solvers/ekf.h); it stops earlier when
 // converged, typically after 2-3.
 constexpr int kIekfIterations = 10;
@@ -169,6 +177,12 @@ void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o)
   n.tangential_sigma = p.tangential_estimate_sigma;
   n.pitch_sigma_rad = p.pitch_sigma_rad;
   n.roll_sigma_rad = p.roll_sigma_rad;
+  n.relative_rotation_sigma_rad = p.relative_rotation_sigma_rad;
+  // Rows of the rectified pair misaligned by the principal points' v difference and f times the
+  // relative pitch; the frontend's marking features slide along their markings with it.
+  const double row = std::hypot(std::sqrt(2.0) * p.principal_sigma_px, focal_px * p.relative_rotation_sigma_rad);
+  n.marking_disparity_sigma_px = kMarkingDisparityPerRowPx * row;
+  n.intersection_disparity_sigma_px = kIntersectionDisparityPerRowPx * row;
   // One wheel at a time on a fraction p of the steps, s uniform in [a, b]: E[s^2] per wheel
   // p / 2 (a^2 + a b + b^2) / 3.
   const double a = p.slip_min, b = p.slip_max;

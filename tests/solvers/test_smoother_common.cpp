@@ -92,6 +92,47 @@ TEST(UnmodelledNoise, PixelCovarianceIsTheLensAndVibrationJacobiansOfOpenCvsProj
   EXPECT_TRUE(unmodelledPixelCovariance(rig, px, UnmodelledNoise()).isZero());
 }
 
+TEST(UnmodelledNoise, RelativeRotationIsTheRightCamerasRotationJacobianWithoutTheDisparityOffset) {
+  const StereoRig rig;
+  const double f = rig.focal(), ou = rig.principalU(), ov = rig.principalV();
+  const StereoPixels px{ou + 120.0, ov + 70.0, ou + 104.0, ov + 70.0};
+  UnmodelledNoise n;
+  n.relative_rotation_sigma_rad = 0.0017;
+  const double x = (px.u_right - ou) / f, y = (px.v_right - ov) / f;
+  const auto rot = [&](const Eigen::Vector3d& w) { return projectWithOpenCv(rig, x, y, Eigen::Vector4d::Zero(), w); };
+  Eigen::Matrix<double, 2, 3> J = numericJacobian<2, 3>(rot, Eigen::Vector3d::Zero(), 1e-7);
+  EXPECT_NEAR(J(0, 1), f * (1 + x * x), 1e-3 * f);  // yaw: the column moves by f (1 + x^2) ...
+  J(0, 1) -= f;  // ... of which f is the disparity offset, a calibration parameter
+  Eigen::Matrix4d expected = Eigen::Matrix4d::Zero();
+  expected.block<2, 2>(2, 2) = 0.0017 * 0.0017 * J * J.transpose();
+  const Eigen::Matrix4d C = unmodelledPixelCovariance(rig, px, n);
+  EXPECT_LT((C - expected).cwiseAbs().maxCoeff(), 1e-4 * expected.cwiseAbs().maxCoeff()) << C << "\n\n" << expected;
+  EXPECT_TRUE((C.block<2, 2>(0, 0).isZero()));  // the left camera is the reference
+  EXPECT_FALSE(n.isZero());
+}
+
+TEST(UnmodelledNoise, MarkingFeaturesGetTheirDisparityTermOnTheRightColumn) {
+  const StereoRig rig;
+  const Sighting s = sight(rig, Pose2(100, 200, 0.2), 0.0, 700, -0.3, 25.0);
+  Landmark lm;
+  lm.id = 4;
+  lm.position = s.landmark;
+  ObservationModelConfig config{ObservationModel::PixelColumns, rig};
+  config.unmodelled.marking_disparity_sigma_px = 1.5;
+  config.unmodelled.intersection_disparity_sigma_px = 0.6;
+  EXPECT_FALSE(config.unmodelled.isZero());
+  const Observation obs = observationFromPixels(rig, 4, LandmarkType::MarkingCorner, s.pixels, 0.0, 0.5);
+  const Eigen::Matrix4d own = obs.pixel_covariance;
+  for (LandmarkType type : {LandmarkType::MarkingCorner, LandmarkType::Junction, LandmarkType::Intersection,
+                            LandmarkType::GoalCorner}) {
+    lm.type = type;
+    Eigen::Matrix4d expected = own;
+    const double sigma = type == LandmarkType::Intersection ? 0.6 : type == LandmarkType::GoalCorner ? 0.0 : 1.5;
+    expected(2, 2) += sigma * sigma;
+    EXPECT_LT((pixelCovarianceFor(obs, lm, config) - expected).cwiseAbs().maxCoeff(), 1e-12) << toString(type);
+  }
+}
+
 TEST(UnmodelledNoise, EntersThePixelCovarianceAndTheOdometry) {
   const StereoRig rig;
   const Sighting s = sight(rig, Pose2(100, 200, 0.2), 0.0, 700, -0.3, 25.0);
@@ -122,11 +163,13 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
   n.k1_sigma = 0.01;
   n.pitch_sigma_rad = 0.0035;
   n.slip_rel_sigma = 0.02;
+  n.marking_disparity_sigma_px = 1.63;
   n.save(dir.file("noise.yaml"));
   const UnmodelledNoise back = UnmodelledNoise::load(dir.file("noise.yaml"));
   EXPECT_EQ(back.k1_sigma, 0.01);
   EXPECT_EQ(back.pitch_sigma_rad, 0.0035);
   EXPECT_EQ(back.slip_rel_sigma, 0.02);
+  EXPECT_EQ(back.marking_disparity_sigma_px, 1.63);
   EXPECT_EQ(back.roll_sigma_rad, 0.0);
   {
     std::ofstream f(dir.file("bad.yaml"));

@@ -102,6 +102,18 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   const double rot = 277.0 * p.relative_rotation_sigma_rad;
   EXPECT_NEAR(o.calibration.disparity_offset_sigma_px, std::sqrt(2.0 + rot * rot), 1e-12);
   o.calibration.validate();
+  // What the calibration does not estimate on images: the right camera's rotation and the
+  // marking features' disparity error on the rows it and the principal points misalign.
+  EXPECT_EQ(o.noise.relative_rotation_sigma_rad, p.relative_rotation_sigma_rad);
+  EXPECT_NEAR(o.noise.marking_disparity_sigma_px, 1.63, 0.01);
+  EXPECT_NEAR(o.noise.intersection_disparity_sigma_px, 0.65, 0.01);
+  ErrorProfile aligned = p;  // no principal-point or rotation error: rows aligned
+  aligned.principal_sigma_px = 0.0;
+  aligned.relative_rotation_sigma_rad = 0.0;
+  MethodOptions a;
+  applyErrorProfile(aligned, 277.0, a);
+  EXPECT_EQ(a.noise.marking_disparity_sigma_px, 0.0);
+  EXPECT_EQ(a.noise.intersection_disparity_sigma_px, 0.0);
 }
 
 }  // namespace
