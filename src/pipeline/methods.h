@@ -39,7 +39,7 @@ struct MethodOptions {
   // honest noise for a world with vibration and blur, docs/realistic_world.md); 0 keeps theirs.
   double pixel_sigma = 0.0;
   // Batch and window: the errors the rig and odometry do not state (lens estimate, vibration:
-  // the pixel models; slip: the batch's odometry factors). Zero: none.
+  // the pixel models; slip: the smoothers' odometry factors). Zero: none.
   UnmodelledNoise noise{};
 };
 
