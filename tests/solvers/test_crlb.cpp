@@ -287,7 +287,7 @@ TEST(Crlb, InformationAdds) {
 }
 
 TEST(Crlb, BatchSmootherAttainsTheSmoothingBoundInMonteCarlo) {
-  // The efficiency the issue asks for (RMSE / sqrt(CRLB) close to 1), on a small scale.
+  // The efficiency targeted (RMSE / sqrt(CRLB) close to 1), on a small scale.
   SyntheticProblemOptions o;
   o.steps = 80;
   double se_batch = 0, bound_smooth = 0, se_ekf = 0, bound_filt = 0;
