@@ -12,6 +12,7 @@
 #include "factors/block_marginal_prior_factor.h"
 #include "factors/calibration_prior_factor.h"
 #include "factors/compass_factor.h"
+#include "factors/composed_odometry_calibration_factor.h"
 #include "factors/marginal_prior_factor.h"
 #include "factors/odometry_calibration_factor.h"
 #include "factors/odometry_factor.h"
@@ -945,6 +946,23 @@ int SlidingWindowSmoother::retestObservations(Node& node) {
   return fused;
 }
 
+void SlidingWindowSmoother::addOdometry(Node* a, Node* b, const std::vector<std::pair<double, double>>& readings,
+                                        const Pose2& rel, const Eigen::Matrix3d& C) {
+  const double slip = config_.observation_model.unmodelled.slip_rel_sigma;
+  if (!config_.calibration.odometry)
+    addFactor(OdometryFactor::Create(Eigen::Vector3d(rel.x, rel.y, rel.theta), C), {a, b});
+  else if (readings.size() == 1)  // wheel space, as the batch (see odometry_calibration_factor.h)
+    addFactor(OdometryCalibrationFactor::Create(readings[0].first, readings[0].second,
+                                                withSlip(odometry_, readings[0].first, readings[0].second, slip)),
+              {a, b}, false, {Calib::Wheels});
+  else {
+    std::vector<OdometryParams> params;
+    for (const auto& [dl, dr] : readings) params.push_back(withSlip(odometry_, dl, dr, slip));
+    addFactor(ComposedOdometryCalibrationFactor::Create(readings, params), {a, b}, false, {Calib::Wheels});
+  }
+  factors_.back()->odometry = true;
+}
+
 SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size_t j) {
   Node* k = nodes_[k_index].get();
   Node* next = k_index + 1 < nodes_.size() ? nodes_[k_index + 1].get() : nullptr;
@@ -982,8 +1000,10 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
     const PosePrediction r = predictStep(rel, C, next->d_left, next->d_right);
     n->rel_to_next = r.pose;
     n->rel_to_next_covariance = r.covariance;
-    addFactor(OdometryFactor::Create(Eigen::Vector3d(r.pose.x, r.pose.y, r.pose.theta), r.covariance), {n, next});
-    factors_.back()->odometry = true;
+    std::vector<std::pair<double, double>> readings;
+    for (const Intermediate& q : n->after) readings.emplace_back(q.d_left, q.d_right);
+    readings.emplace_back(next->d_left, next->d_right);
+    addOdometry(n, next, readings, r.pose, r.covariance);
   } else {
     rel_ = rel;  // the odometry since the newest keyframe, which is now this step
     rel_covariance_ = C;
@@ -992,8 +1012,10 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
   k->rel_to_next = m.rel;
   k->rel_to_next_covariance = m.rel_covariance;
   k->have_joint_next = false;
-  addFactor(OdometryFactor::Create(Eigen::Vector3d(m.rel.x, m.rel.y, m.rel.theta), m.rel_covariance), {k, n});
-  factors_.back()->odometry = true;
+  std::vector<std::pair<double, double>> readings;
+  for (const Intermediate& q : k->after) readings.emplace_back(q.d_left, q.d_right);
+  readings.emplace_back(m.d_left, m.d_right);
+  addOdometry(k, n, readings, m.rel, m.rel_covariance);
   ++stats_.keyframes;
   return n;
 }
@@ -1173,7 +1195,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     P = 0.5 * (P + P.transpose());
     pred_pose = pose;
     pred_P = P;
-    const bool keyframe = config_.keyframe_max_steps <= 1 || config_.calibration.odometry || !step.observations.empty() ||
+    const bool keyframe = config_.keyframe_max_steps <= 1 || !step.observations.empty() ||
                           (step.compass && config_.use_compass) || steps_since_keyframe_ >= config_.keyframe_max_steps;
     if (!keyframe) {
       Intermediate m;
@@ -1203,14 +1225,10 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
     prev->rel_to_next = rel_;
     prev->rel_to_next_covariance = rel_covariance_;
-    if (config_.calibration.odometry)  // one step (see the header)
-      addFactor(OdometryCalibrationFactor::Create(
-                    step.d_left, step.d_right,
-                    withSlip(odometry_, step.d_left, step.d_right, config_.observation_model.unmodelled.slip_rel_sigma)),
-                {prev, n}, false, {Calib::Wheels});
-    else
-      addFactor(OdometryFactor::Create(Eigen::Vector3d(rel_.x, rel_.y, rel_.theta), rel_covariance_), {prev, n});
-    factors_.back()->odometry = true;
+    std::vector<std::pair<double, double>> readings;
+    for (const Intermediate& q : prev->after) readings.emplace_back(q.d_left, q.d_right);
+    readings.emplace_back(step.d_left, step.d_right);
+    addOdometry(prev, n, readings, rel_, rel_covariance_);
     rel_ = Pose2();
     rel_covariance_.setZero();
     steps_since_keyframe_ = 0;

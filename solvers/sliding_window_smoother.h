@@ -21,8 +21,9 @@
 // scales and wheel base, and the head tilt and baseline scale, are global parameter blocks with
 // the factors of the self-calibrating batch; they are never marginalised, the marginal prior spans
 // (oldest kept pose, calibration) so the information of marginalised poses on them is carried,
-// and with odometry calibration every step is a keyframe (the calibrated odometry factor is per
-// step). With the stereo block, gate, association and global fixes see each pixel observation
+// and the odometry between keyframes is the calibrated factor of their steps composed
+// (factors/composed_odometry_calibration_factor.h), so W keyframes span as many steps as without
+// calibration. With the stereo block, gate, association and global fixes see each pixel observation
 // through the current calibration estimate and its covariance, and a sighting that gates out
 // through the prior calibration (calibratedObservation), so the given calibration's range bias
 // does not reject the sightings that calibrate it. Memory is bounded by W and restart_buffer_steps (plus one Estimate per
@@ -296,6 +297,12 @@ class SlidingWindowSmoother : public Estimator {
   double jointThreshold(int dof);  // chi2Quantile(gate.probability, dof), computed once per dof
   // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
   Node* promote(size_t k_index, size_t j);
+  // The odometry factor between consecutive keyframes a and b: `readings` are the wheel
+  // increments of the steps from a to b (mm), (rel, C) their composition and its covariance.
+  // With odometry self-calibration the calibrated factor (per step for one step, composed for
+  // more), otherwise the composed OdometryFactor.
+  void addOdometry(Node* a, Node* b, const std::vector<std::pair<double, double>>& readings, const Pose2& rel,
+                   const Eigen::Matrix3d& C);
   // Uninitialised or lost: a global fix from late observations of a recent step restarts the
   // window there (see insertLate). False when there is no fix.
   bool restartLate(long step, const std::vector<Observation>& observations);

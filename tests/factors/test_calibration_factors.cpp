@@ -8,6 +8,7 @@
 #include <random>
 
 #include "factors/calibration_prior_factor.h"
+#include "factors/composed_odometry_calibration_factor.h"
 #include "factors/factor_check.h"
 #include "factors/odometry_calibration_factor.h"
 #include "factors/odometry_factor.h"
@@ -84,6 +85,88 @@ StereoRig tiltedRig() {
   p.offset_x_mm = 15.0;
   p.camera_height_mm = 80.0;
   return StereoRig(p);
+}
+
+TEST(ComposedOdometryCalibrationFactor, ZeroAtTheComposedTrueMotionAndJacobiansMatch) {
+  const double cal[3] = {1.012, 0.991, 77.5};
+  // Straight, nearly straight, turning, on the spot and reversing steps in one chain.
+  const std::vector<std::pair<double, double>> truth = {{31.4, 31.4}, {30.0, 30.0 + 1e-6}, {28.0, 34.8}, {-6.0, 6.0},
+                                                        {20.0, -3.0}, {-15.0, -18.0}};
+  std::vector<std::pair<double, double>> m;
+  for (const auto& [dl, dr] : truth) m.push_back(readings(dl, dr, cal));
+  const std::vector<OdometryParams> params(truth.size());
+  for (size_t n : {size_t{1}, size_t{2}, truth.size()}) {
+    for (double th : {kPi - 1e-7, -kPi + 1e-7, 0.4}) {
+      const Pose2 a(120.0, -340.0, th);
+      Pose2 b = a;
+      for (size_t i = 0; i < n; ++i)
+        b = compose(b, Pose2::fromVector(controlVector(truth[i].first, truth[i].second, cal[2])));
+      const long k = static_cast<long>(n);
+      std::unique_ptr<ceres::CostFunction> f(ComposedOdometryCalibrationFactor::Create(
+          std::vector<std::pair<double, double>>(m.begin(), m.begin() + k),
+          std::vector<OdometryParams>(params.begin(), params.begin() + k)));
+      const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
+      EXPECT_LT(evaluate(*f, {pa, pb, cal}).norm(), 1e-7) << n << " " << th;
+      const double pb_off[3] = {b.x + 0.3, b.y - 0.2, b.theta + 0.01};
+      const double cal_off[3] = {1.0, 1.003, 75.0};
+      for (const double* c : {cal, cal_off}) {
+        const FactorCheck chk = checkFactorJacobians(*f, {pa, pb_off, c});
+        EXPECT_TRUE(chk.ok) << n << " " << th << "\n" << chk.message;
+      }
+    }
+  }
+}
+
+TEST(ComposedOdometryCalibrationFactor, WeighsWithTheComposedPredictionCovariance) {
+  // At any calibration the factor's weight is the covariance the EKF prediction (5.9) composes
+  // over the same steps with that calibration's wheel increments, and variances scaled by c^2.
+  std::vector<OdometryParams> params(3);
+  params[1].wheel_variance_floor = 0.3;  // a step with slip
+  const std::vector<std::pair<double, double>> m = {{28.0, 34.8}, {30.0, 30.0}, {-5.0, 7.0}};
+  for (const Eigen::Vector3d& c : {Eigen::Vector3d(1.0, 1.0, 75.0), Eigen::Vector3d(1.03, 0.98, 80.0)}) {
+    Pose2 b;
+    Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
+    for (size_t i = 0; i < m.size(); ++i) {
+      OdometryParams p = params[i];
+      p.wheel_base_mm = c.z();
+      // k |d| with d = c m equals c (k |m|); the factor scales k |m| by c^2, so hand it c k.
+      p.k_left *= c.x();
+      p.k_right *= c.y();
+      p.wheel_variance_floor = 0.0;  // added below, scaled by c^2
+      const double floor_l = c.x() * c.x() * params[i].wheel_variance_floor;
+      const double floor_r = c.y() * c.y() * params[i].wheel_variance_floor;
+      Matrix32d J;
+      const Eigen::Vector3d u = controlVector(c.x() * m[i].first, c.y() * m[i].second, c.z(), &J);
+      Eigen::Matrix2d W = wheelCovariance(c.x() * m[i].first, c.y() * m[i].second, p);
+      W(0, 0) += floor_l;
+      W(1, 1) += floor_r;
+      Eigen::Matrix3d U = J * W * J.transpose();
+      U.diagonal() += p.control_variance_floor;
+      Eigen::Matrix3d J1, J2;
+      b = compose(b, Pose2::fromVector(u), &J1, &J2);
+      P = J1 * P * J1.transpose() + J2 * U * J2.transpose();
+    }
+    std::unique_ptr<ceres::CostFunction> f(ComposedOdometryCalibrationFactor::Create(m, params));
+    const Eigen::Vector3d delta(0.7, -0.4, 0.02);
+    const double pa[3] = {0.0, 0.0, 0.0}, pb[3] = {b.x + delta.x(), b.y + delta.y(), b.theta + delta.z()};
+    const double cal[3] = {c.x(), c.y(), c.z()};
+    // betweenT(identity, b + delta) - g = delta, so |r|^2 is delta's Mahalanobis distance.
+    const double expected = delta.dot(P.inverse() * delta);
+    EXPECT_NEAR(evaluate(*f, {pa, pb, cal}).squaredNorm(), expected, 1e-9 * expected) << c.transpose();
+  }
+}
+
+TEST(ComposedOdometryCalibrationFactor, RejectsBadInput) {
+  const std::vector<OdometryParams> one(1);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({}, {}), Error);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, std::nan("")}}, one), Error);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}, {1.0, 1.0}}, one), Error);
+  OdometryParams no_floor;
+  no_floor.control_variance_floor.setZero();
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}}, {no_floor}), Error);
+  std::vector<OdometryParams> differ(2);
+  differ[1].control_variance_floor.x() = 1.0;
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}, {1.0, 1.0}}, differ), Error);
 }
 
 TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobiansMatch) {

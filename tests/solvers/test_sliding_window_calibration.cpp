@@ -143,6 +143,59 @@ TEST(SlidingWindowCalibration, ShortWindowCarriesTheCalibrationThroughTheMargina
   }
 }
 
+TEST(SlidingWindowCalibration, SparseSightingsKeepTheKeyframeSpanAndRecoverTheWheels) {
+  // Sightings at every sixth step only: the steps between keyframes are composed into one
+  // calibrated odometry factor, so W = 20 keyframes span as many steps as without calibration,
+  // and the window recovers the planted wheel scales and wheel base as the batch does.
+  SimulationConfig sc;
+  sc.landmarks = LandmarkSet::All;
+  sc.profile.name = "wheels";
+  sc.profile.wheel_radius_rel_sigma = 0.01;
+  sc.profile.wheel_base_rel_sigma = 0.03;
+  sc.scenario.steps = 900;
+  SimulationTrace trace;
+  Dataset d = simulate("random-walk", 0, sc, 22, &trace);
+  for (size_t k = 0; k < d.steps.size(); ++k) {
+    std::vector<Observation> kept;
+    if (k % 6 == 0)
+      for (const Observation& o : d.steps[k].observations)
+        if (o.landmark_id >= 0) kept.push_back(o);
+    d.steps[k].observations = kept;
+    d.steps[k].compass.reset();
+  }
+  const DrawnErrors& e = trace.errors;
+  const Eigen::Vector3d truth(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
+
+  SlidingWindowConfig plain;
+  plain.window = 20;
+  plain.init = knownBelief(*d.groundtruth.front(), kP0);
+  SlidingWindowConfig calibrating = plain;
+  calibrating.calibration = SelfCalibrationConfig::parse("odometry");
+  SlidingWindowSmoother a(d.map, d.odometry, plain), b(d.map, d.odometry, calibrating);
+  for (const Step& s : d.steps) {
+    a.process(s);
+    b.process(s);
+  }
+  b.finish();
+  // Keyframes: the sighting steps, plus one per restart (the uncalibrated window, with the
+  // planted wheel errors, loses the robot twice; the calibrating one at most that often).
+  EXPECT_LE(b.stats().reinitialisations, a.stats().reinitialisations);
+  EXPECT_LE(b.stats().keyframes - b.stats().reinitialisations, a.stats().keyframes - a.stats().reinitialisations);
+  EXPECT_LT(b.stats().keyframes, static_cast<long>(d.steps.size()) / 5);
+  const CalibrationEstimate cw = *b.calibration();
+  const SelfCalibrationResult batch = selfCalibratingBatch(d, calibrating.init, SelfCalibrationConfig::parse("odometry"));
+  ASSERT_TRUE(batch.converged);
+  const CalibrationEstimate& cb = batch.calibration;
+  const Eigen::Vector3d prior_sigma(0.01, 0.01, 0.04 * 75.0);
+  for (int i = 0; i < 3; ++i) {
+    const double sw = std::sqrt(cw.wheels_covariance(i, i)), sb = std::sqrt(cb.wheels_covariance(i, i));
+    EXPECT_NEAR(cw.wheels(i), truth(i), 3.0 * sw) << "parameter " << i;
+    EXPECT_NEAR(cw.wheels(i), cb.wheels(i), sb) << "parameter " << i;
+    EXPECT_LT(sw, 0.5 * prior_sigma(i)) << "parameter " << i << " is not determined by the run";
+    EXPECT_LT(sw, 1.5 * sb) << "parameter " << i;
+  }
+}
+
 TEST(SlidingWindowCalibration, CalibratedObservationInvertsTheCalibratedPixelModel) {
   const StereoRig rig;
   const Pose2 pose(400.0, 300.0, deg2rad(20.0));

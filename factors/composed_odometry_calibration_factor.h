@@ -1,0 +1,145 @@
+#pragma once
+// Odometry over several steps with the wheel calibration as parameters: the sliding window's
+// factor between keyframes that have steps without observations between them, when it
+// self-calibrates the odometry (the single-step form is factors/odometry_calibration_factor.h).
+//
+//   r = S(c) (betweenT(p_a, p_b) [-] g(c))                                     3 residuals
+//   g(c) = u_1(c) (+) u_2(c) (+) ... (+) u_n(c),
+//   u_i(c) = controlVector(c_l m_l,i, c_r m_r,i, w)                            (B.1)-(B.5)
+//   P(c):  P_0 = 0,  P_i = J1 P_{i-1} J1^T + J2 U_i(c) J2^T                    (5.9)
+//   U_i(c) = J_u diag(c_l^2 s_l,i^2, c_r^2 s_r,i^2) J_u^T + floor              (B.8), (B.10)
+//
+// p_a, p_b: the keyframe poses (x, y, theta), world frame (mm, mm, rad); c = (c_l, c_r, w): the
+// wheel scales (dimensionless) and the effective wheel base (mm), as in
+// odometry_calibration_factor.h; m_l,i, m_r,i: the encoder readings of the n steps from a to b
+// (mm), with variances s^2 (mm^2, (B.6) plus slip) in reading units, so that the travelled
+// distances c m have c^2 s^2. (+) is pose composition (B.16), J1 and J2 its Jacobians (B.18,
+// B.19); [-] subtracts componentwise and wraps the angle; floor: the control variance floor
+// (src/core/odometry_model.h). S(c): upper square-root information of P(c).
+// Why P moves with c: the readings enter g as regressors. With a weight held fixed, the
+// expected cost at a calibration c is |bias(c)|^2 plus tr(S^T S P(c)), and P(c) shrinks as the
+// scales shrink and the wheel base grows, which pulls the estimate there (a regression on noisy
+// regressors: on MR.CLAM, with noisy odometry and keyframes seconds apart, the wheel base came
+// out 6-11 % too large, ten sigma). Weighted with P(c) itself the second term is 3 at every c,
+// as in the wheel-space single-step factor, whose readings' covariance does not depend on c.
+// Why not one wheel-space factor per step: that needs every step as a window pose, and a
+// window of W poses then spans W steps instead of W keyframes. The window uses this form only
+// between keyframes more than one step apart.
+#include <ceres/autodiff_cost_function.h>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+#include <Eigen/LU>
+#include <cmath>
+#include <vector>
+
+#include "src/core/angles.h"
+#include "src/core/error.h"
+#include "src/core/odometry_model.h"
+#include "src/core/pose2.h"
+
+namespace stereoloc {
+
+struct ComposedOdometryCalibrationFactor {
+  struct Reading {
+    double m_left = 0.0, m_right = 0.0;      // encoder readings (mm)
+    double var_left = 0.0, var_right = 0.0;  // their variances (mm^2)
+  };
+
+  ComposedOdometryCalibrationFactor(std::vector<Reading> readings, const Eigen::Vector3d& control_floor)
+      : readings_(std::move(readings)), floor_(control_floor) {}
+
+  template <typename T>
+  bool operator()(const T* a, const T* b, const T* calib, T* residual) const {
+    using std::abs;
+    using std::cos;
+    using std::sin;
+    using M3 = Eigen::Matrix<T, 3, 3>;
+    using V3 = Eigen::Matrix<T, 3, 1>;
+    if (!(calib[0] > T(0.0) && calib[1] > T(0.0) && calib[2] > T(0.0))) return false;
+    const T w = calib[2];
+    V3 g(T(0.0), T(0.0), T(0.0));
+    M3 P = M3::Zero();
+    for (const Reading& m : readings_) {
+      const T d_left = calib[0] * m.m_left, d_right = calib[1] * m.m_right;
+      const T alpha = (d_right - d_left) / w;  // (B.1)
+      const T v = 0.5 * (d_right + d_left);    // (B.2)
+      // sin(a)/a, (1 - cos a)/a and their derivatives, with series near a = 0 (straight steps).
+      T S, C, dS, dC;
+      if (abs(alpha) < T(1e-4)) {
+        const T a2 = alpha * alpha;
+        S = T(1.0) - a2 / 6.0;
+        C = alpha * (T(0.5) - a2 / 24.0);
+        dS = -alpha / 3.0;
+        dC = T(0.5) - a2 / 8.0;
+      } else {
+        const T sa = sin(alpha), ca = cos(alpha);
+        S = sa / alpha;
+        C = (T(1.0) - ca) / alpha;
+        dS = (alpha * ca - sa) / (alpha * alpha);
+        dC = (alpha * sa - (T(1.0) - ca)) / (alpha * alpha);
+      }
+      const V3 u(v * S, v * C, alpha);  // (B.4)
+      Eigen::Matrix<T, 3, 2> J_u_d;     // (B.8)
+      J_u_d << 0.5 * S - v * dS / w, 0.5 * S + v * dS / w,  //
+          0.5 * C - v * dC / w, 0.5 * C + v * dC / w,       //
+          T(-1.0) / w, T(1.0) / w;
+      Eigen::Matrix<T, 2, 2> var = Eigen::Matrix<T, 2, 2>::Zero();
+      var(0, 0) = calib[0] * calib[0] * m.var_left;
+      var(1, 1) = calib[1] * calib[1] * m.var_right;
+      M3 U = J_u_d * var * J_u_d.transpose();  // (B.10)
+      for (int i = 0; i < 3; ++i) U(i, i) += T(floor_[i]);
+      const T c = cos(g[2]), s = sin(g[2]);
+      M3 J1 = M3::Identity(), J2 = M3::Identity();  // (B.18), (B.19)
+      J1(0, 2) = -s * u[0] - c * u[1];
+      J1(1, 2) = c * u[0] - s * u[1];
+      J2(0, 0) = c;
+      J2(0, 1) = -s;
+      J2(1, 0) = s;
+      J2(1, 1) = c;
+      P = J1 * P * J1.transpose() + J2 * U * J2.transpose();  // (5.9)
+      g += J2 * u;                                             // (B.16)
+    }
+    T rel[3];
+    betweenT(a, b, rel);
+    const V3 e(rel[0] - g[0], rel[1] - g[1], wrapAngle<T>(rel[2] - g[2]));
+    // Upper S with S^T S = P^-1: the transposed lower Cholesky factor of the information.
+    const M3 info = P.inverse();
+    const Eigen::LLT<M3> llt(0.5 * (info + info.transpose()));
+    if (llt.info() != Eigen::Success) return false;
+    const V3 r = llt.matrixU() * e;
+    for (int i = 0; i < 3; ++i) residual[i] = r[i];
+    return true;
+  }
+
+  // Blocks: pose a (3), pose b (3), calibration (c_l, c_r, w) (3). params: each step's odometry
+  // model (slip included), whose variances the readings get; their control floors must agree.
+  static ceres::CostFunction* Create(const std::vector<std::pair<double, double>>& readings,
+                                     const std::vector<OdometryParams>& params) {
+    if (readings.empty()) throw Error("composed odometry calibration factor: no readings");
+    if (params.size() != readings.size())
+      throw Error("composed odometry calibration factor: one odometry model per reading expected");
+    std::vector<Reading> r;
+    for (size_t i = 0; i < readings.size(); ++i) {
+      params[i].validate();
+      const auto [ml, mr] = readings[i];
+      if (!std::isfinite(ml) || !std::isfinite(mr))
+        throw Error("composed odometry calibration factor: readings must be finite");
+      if (params[i].control_variance_floor != params[0].control_variance_floor)
+        throw Error("composed odometry calibration factor: the steps' control variance floors differ");
+      const Eigen::Matrix2d W = wheelCovariance(ml, mr, params[i]);
+      r.push_back(Reading{ml, mr, W(0, 0), W(1, 1)});
+    }
+    const Eigen::Vector3d floor = params[0].control_variance_floor;
+    if (!(floor.minCoeff() > 0))
+      throw Error("composed odometry calibration factor: the control variance floor must be positive");
+    return new ceres::AutoDiffCostFunction<ComposedOdometryCalibrationFactor, 3, 3, 3, 3>(
+        new ComposedOdometryCalibrationFactor(std::move(r), floor));
+  }
+
+ private:
+  std::vector<Reading> readings_;
+  Eigen::Vector3d floor_;
+};
+
+}  // namespace stereoloc
