@@ -27,8 +27,9 @@
 // between keyframes more than one step apart.
 // Why not AutoDiffCostFunction: g and P depend on c only, so they are differentiated with jets
 // of c's 3 dimensions, and the poses enter through betweenT, whose Jacobians are written out
-// (J_rel_a, J_rel_b below): with 9-dimensional jets throughout, the self-calibrating real-time
-// pipeline's frame step (bench_pipeline) took a third longer.
+// (J_rel_a, J_rel_b below); with 9-dimensional jets throughout, every operation of the
+// propagation would carry the poses' six zero derivatives too. The real-time window evaluates
+// these factors several times per frame (bench_pipeline, BM_PipelineSelfCalibrating).
 #include <ceres/jet.h>
 #include <ceres/sized_cost_function.h>
 
@@ -92,18 +93,25 @@ class ComposedOdometryCalibrationFactor final : public ceres::SizedCostFunction<
           0.5 * C - v * dC / w, 0.5 * C + v * dC / w,       //
           T(-1.0) / w, T(1.0) / w;
       const T var_l = calib[0] * calib[0] * m.var_left, var_r = calib[1] * calib[1] * m.var_right;
-      M3 U = J_u_d.col(0) * (var_l * J_u_d.col(0).transpose()) + J_u_d.col(1) * (var_r * J_u_d.col(1).transpose());
-      for (int i = 0; i < 3; ++i) U(i, i) += T(floor_[i]);  // (B.10)
       const T c = cos(g[2]), s = sin(g[2]);
-      M3 J1 = M3::Identity(), J2 = M3::Identity();  // (B.18), (B.19)
-      J1(0, 2) = -s * u[0] - c * u[1];
-      J1(1, 2) = c * u[0] - s * u[1];
-      J2(0, 0) = c;
-      J2(0, 1) = -s;
-      J2(1, 0) = s;
-      J2(1, 1) = c;
-      P = J1 * P * J1.transpose() + J2 * U * J2.transpose();  // (5.9)
-      g += J2 * u;                                             // (B.16)
+      // (5.9) with J1 = I + k e_3^T (B.18) and U = var_l a a^T + var_r b b^T + floor (B.10),
+      // a and b the columns of J_u_d, written as rank-one updates:
+      //   J1 P J1^T = P + k p^T + p k^T + P_33 k k^T,  p = P e_3;
+      //   J2 U J2^T = var_l (J2 a)(J2 a)^T + var_r (J2 b)(J2 b)^T + J2 floor J2^T  (B.19).
+      const V3 k(-s * u[0] - c * u[1], c * u[0] - s * u[1], T(0.0));
+      const V3 p = P.col(2);
+      const T p33 = P(2, 2);
+      auto rotate = [&](const V3& x) { return V3(c * x[0] - s * x[1], s * x[0] + c * x[1], x[2]); };
+      const V3 ra = rotate(J_u_d.col(0)), rb = rotate(J_u_d.col(1));
+      P += k * p.transpose() + p * k.transpose() + (p33 * k) * k.transpose() + (var_l * ra) * ra.transpose() +
+           (var_r * rb) * rb.transpose();
+      const T f0 = T(floor_[0]), f1 = T(floor_[1]);
+      P(0, 0) += c * c * f0 + s * s * f1;
+      P(1, 1) += s * s * f0 + c * c * f1;
+      P(0, 1) += c * s * (f0 - f1);
+      P(1, 0) += c * s * (f0 - f1);
+      P(2, 2) += T(floor_[2]);
+      g += rotate(u);  // (B.16)
     }
     *g_out = g;
     *P_out = P;
