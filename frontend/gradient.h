@@ -44,15 +44,19 @@ class GradientStage {
   cv::Mat gx_, gy_;
   std::vector<int32_t> mag2_;
   // Histogram of sampled squared magnitudes for the automatic threshold: exact bins below
-  // kFine, bins of 2^kShift above (a 3x3 Sobel of 8-bit luma stays below kMaxMag2).
-  static constexpr int32_t kFine = 4096, kShift = 12, kMaxMag2 = 2 * 1020 * 1020;
+  // kFine, one bin for all above.
+  static constexpr int32_t kFine = 4096;
   std::vector<uint32_t> hist_;
   std::vector<int32_t> samples_all_;  // squared magnitudes of the median's samples
   std::vector<int32_t> row_mag2_;     // one row's, above the computed Sobel
-  std::vector<int32_t> samples_;  // the samples in the median's coarse bin
+  std::vector<int32_t> samples_;  // the samples at or above kFine, when the median is one
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
   std::vector<uint8_t> above_;  // one row's mask: magnitude at the threshold, padded by 8
+  // With a region: each column's squared threshold (INT32_MAX above its top row), and the
+  // columns whose top row the suppression reaches, by row (offsets top_start_).
+  std::vector<int32_t> col_thr_;
+  std::vector<int> top_start_, top_cols_, top_fill_;
   std::vector<EdgePixel> edges_;
 };
 
