@@ -17,19 +17,35 @@ float medianOf(std::vector<float>& v, std::vector<uint32_t>& keys, std::vector<u
   for (size_t i = 0; i < v.size(); ++i) std::memcpy(&keys[i], &v[i], sizeof(uint32_t));
   size_t k = v.size() / 2;
   // Digits start at the highest bit in which the keys differ (most share sign and exponent),
-  // and the select stops when the candidates left are all equal.
+  // and the select stops when the candidates left are all equal. The floor's samples share
+  // few digits, so the counts go to four interleaved tables: increments of one counter in a
+  // row wait for each other, and they were most of the select's time.
   for (;;) {
     uint32_t diff = 0;
     for (uint32_t key : keys) diff |= key ^ keys[0];
     if (diff == 0) break;
     const int shift = std::max(0, 31 - __builtin_clz(diff) - 7);
-    uint32_t count[256] = {};
-    for (uint32_t key : keys) ++count[(key >> shift) & 255u];
+    uint32_t count[4][256] = {};
+    const size_t n = keys.size();
+    size_t i = 0;
+    for (; i + 4 <= n; i += 4)
+      for (int j = 0; j < 4; ++j) ++count[j][(keys[i + j] >> shift) & 255u];
+    for (; i < n; ++i) ++count[0][(keys[i] >> shift) & 255u];
     uint32_t digit = 0;
-    while (k >= count[digit]) k -= count[digit++];
-    next.clear();
-    for (uint32_t key : keys)
-      if (((key >> shift) & 255u) == digit) next.push_back(key);
+    for (;;) {
+      const uint32_t c = count[0][digit] + count[1][digit] + count[2][digit] + count[3][digit];
+      if (k < c) break;
+      k -= c;
+      ++digit;
+    }
+    // The keys of that digit, without a branch per key.
+    next.resize(n);
+    size_t m = 0;
+    for (uint32_t key : keys) {
+      next[m] = key;
+      m += ((key >> shift) & 255u) == digit;
+    }
+    next.resize(m);
     keys.swap(next);
   }
   float m;
@@ -74,26 +90,37 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   // boundary, where the colours vary, cost more than the arithmetic.
   grid_top_.assign(static_cast<size_t>(gw), -1);
   run_.assign(static_cast<size_t>(gw), 0);
-  for (auto& c : row_) c.resize(static_cast<size_t>(gw));
+  bgr_words_.resize(static_cast<size_t>(gw));
   is_floor_.resize(static_cast<size_t>(gw));
-  int32_t* pb = row_[0].data();
-  int32_t* pg = row_[1].data();
-  int32_t* pr = row_[2].data();
+  // Each sample's b, g, r in the low three bytes of one word: one load per sample where the
+  // byte after the pixel lies in its row (all but a sample in the last column).
+  uint32_t* pw = bgr_words_.data();
+  const int gw_word = std::min(gw, (w - 2) / step + 1);  // columns with gx step + 1 < w
   uint8_t* fl = is_floor_.data();
   int open = gw;
   for (int gy = 0; gy < gh && open > 0; ++gy) {
     const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
-    // Few columns left open (a robot or the lens border at the bottom): only those are tested.
+    // Few columns left open (a robot or the lens border at the bottom): only those are read.
     const bool all = 4 * open >= gw;
     for (int gx = 0; gx < gw; ++gx) {
       if (!all && grid_top_[gx] >= 0) continue;
       const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
-      pb[gx] = px[0];
-      pg[gx] = px[1];
-      pr[gx] = px[2];
+      uint32_t word;
+      if (gx < gw_word) {
+        std::memcpy(&word, px, sizeof word);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+        word = __builtin_bswap32(word);
+#endif
+      } else {
+        word = px[0] | (uint32_t{px[1]} << 8) | (uint32_t{px[2]} << 16);
+      }
+      pw[gx] = word;
     }
     for (int gx = 0; gx < gw; ++gx) {
-      const float b = static_cast<float>(pb[gx]), g = static_cast<float>(pg[gx]), r = static_cast<float>(pr[gx]);
+      const uint32_t word = pw[gx];
+      const float b = static_cast<float>(static_cast<int32_t>(word & 255u)),
+                  g = static_cast<float>(static_cast<int32_t>((word >> 8) & 255u)),
+                  r = static_cast<float>(static_cast<int32_t>((word >> 16) & 255u));
       const float sum = b + g + r;
       const float l = 0.114f * b + 0.587f * g + 0.299f * r;
       float d = 0.0f;
@@ -102,14 +129,20 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
       d += std::fabs(r - ref_c[2] * sum);
       fl[gx] = static_cast<uint8_t>((sum >= 1.0f) & (l >= lo) & (l <= hi) & (d <= tol * sum));
     }
+    // Runs and boundaries without a branch per column either: a closed column's run goes on
+    // counting (on stale samples when only the open ones were read) but never reopens it.
+    const int min_run = p.min_run, first = gy - p.min_run + 1;
+    int* run = run_.data();
+    int* gt = grid_top_.data();
+    int closed = 0;
     for (int gx = 0; gx < gw; ++gx) {
-      if (grid_top_[gx] >= 0) continue;
-      run_[gx] = fl[gx] ? run_[gx] + 1 : 0;
-      if (run_[gx] >= p.min_run) {
-        grid_top_[gx] = gy - p.min_run + 1;
-        --open;
-      }
+      const int r = fl[gx] ? run[gx] + 1 : 0;
+      run[gx] = r;
+      const int hit = (gt[gx] < 0) & (r >= min_run);
+      gt[gx] = hit ? first : gt[gx];
+      closed += hit;
     }
+    open -= closed;
   }
   // Median over neighbouring columns that have a boundary; a column without floor keeps all.
   smoothed_.assign(static_cast<size_t>(gw), -1);
@@ -158,7 +191,10 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
     const auto& b = k + 1 < hull_.size() ? hull_[k + 1] : hull_[k];
     const double f = b.first > a.first ? (x - a.first) / (b.first - a.first) : 0.0;
     const double row = (1.0 - f) * a.second + f * b.second - step - p.margin_px;
-    top_[xi] = static_cast<int16_t>(std::clamp(static_cast<int>(std::floor(row)), 0, h));
+    // floor(row) from the truncation (std::floor without SSE4.1 is a library call per column).
+    const int trunc = static_cast<int>(row);
+    const int row_floor = trunc - (row < static_cast<double>(trunc) ? 1 : 0);
+    top_[xi] = static_cast<int16_t>(std::clamp(row_floor, 0, h));
     restricted_ = restricted_ || top_[xi] > 0;
   }
 }

@@ -47,6 +47,7 @@ class GradientStage {
   // kFine, one bin for all above.
   static constexpr int32_t kFine = 4096;
   std::vector<uint32_t> hist_;
+  std::vector<uint16_t> hist16_;  // four such histograms, when no bin can exceed 16 bits
   std::vector<int32_t> samples_all_;  // squared magnitudes of the median's samples
   std::vector<int32_t> row_mag2_;     // one row's, above the computed Sobel
   std::vector<int32_t> samples_;  // the samples at or above kFine, when the median is one

@@ -119,10 +119,12 @@ TEST(Gradient, AutomaticThresholdRisesWithTextureOnly) {
 
 // The automatic threshold is auto_factor times the exact median of the squared Sobel magnitude
 // on every 3rd pixel of every 3rd row, whether the median is small (carpet) or large (strong
-// texture: the coarse histogram bins).
+// texture: the overflow bin), and on an image with so many samples that a bin of the four
+// 16-bit tables could overflow (one 32-bit table then).
 TEST(Gradient, AutomaticThresholdIsTheExactSampleMedian) {
-  for (const double sigma : {3.0, 12.0, 60.0}) {
-    cv::Mat noise(97, 131, CV_16S), img;
+  for (const double sigma : {3.0, 12.0, 60.0, 5.0}) {
+    const bool large = sigma == 5.0;  // 532 x 532 samples > 4 x 65535
+    cv::Mat noise(large ? 1600 : 97, large ? 1600 : 131, CV_16S), img;
     cv::RNG rng(11);
     rng.fill(noise, cv::RNG::NORMAL, 128, sigma);
     noise.convertTo(img, CV_8U);
@@ -141,6 +143,7 @@ TEST(Gradient, AutomaticThresholdIsTheExactSampleMedian) {
     const double expected = std::sqrt(std::ceil(p.auto_factor * p.auto_factor * static_cast<double>(s[s.size() / 2])));
     EXPECT_DOUBLE_EQ(g.threshold(), expected) << "sigma " << sigma;
     EXPECT_GT(s[s.size() / 2], sigma > 50 ? 4096 : 0) << "sigma " << sigma;
+    if (large) EXPECT_GT(s.size(), size_t{4} * 65535);
   }
 }
 
