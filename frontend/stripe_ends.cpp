@@ -8,21 +8,43 @@ namespace {
 
 // Bilinear luma; -1 outside the image. The pixel (x0, y0) and its right and lower neighbours
 // must lie in the image: 0 <= x < cols - 1, 0 <= y < rows - 1, where the truncation is the
-// floor (std::floor without SSE4.1 costs ten instructions a coordinate; NaN fails too).
-inline float sampleLuma(const cv::Mat& g, double x, double y) {
-  if (!(x >= 0 && y >= 0 && x < g.cols - 1 && y < g.rows - 1)) return -1.0f;
-  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-  const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
-  const uint8_t* r0 = g.data + static_cast<size_t>(y0) * g.step[0] + x0;
-  const uint8_t* r1 = r0 + g.step[0];
-  return (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
-}
+// floor (std::floor without SSE4.1 costs ten instructions a coordinate; NaN fails too). The
+// limits are converted once, and the grey levels are read as floats from a table (the same
+// values as converting each byte).
+class LumaSampler {
+ public:
+  explicit LumaSampler(const cv::Mat& g)
+      : data_(g.data), step_(g.step[0]), xmax_(g.cols - 1), ymax_(g.rows - 1) {
+    for (int v = 0; v < 256; ++v) level_[v] = static_cast<float>(v);
+  }
+  float operator()(double x, double y) const {
+    if (!(x >= 0 && y >= 0 && x < xmax_ && y < ymax_)) return -1.0f;
+    const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+    const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
+    const uint8_t* r0 = data_ + static_cast<size_t>(y0) * step_ + x0;
+    const uint8_t* r1 = r0 + step_;
+    return (1 - fy) * ((1 - fx) * level_[r0[0]] + fx * level_[r0[1]]) +
+           fy * ((1 - fx) * level_[r1[0]] + fx * level_[r1[1]]);
+  }
+
+ private:
+  const uint8_t* data_;
+  size_t step_;
+  double xmax_, ymax_;
+  float level_[256];
+};
 
 // The value std::nth_element would place at v.size() / 2, for values in [-256, 256) (luma
 // samples and their differences). A counting pass over one bin per grey level finds the bin
 // holding it, and only that bin's few values are selected from: nth_element's unpredictable
 // comparisons over all of them were two fifths of this stage.
 float median(const std::vector<float>& v, StripeEndScratch& sc) {
+  if (v.size() <= 32) {  // an end's reference: clearing the bins would cost more than the select
+    sc.pick.assign(v.begin(), v.end());
+    const auto mid = sc.pick.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+    std::nth_element(sc.pick.begin(), mid, sc.pick.end());
+    return *mid;
+  }
   constexpr int kBins = 512;
   uint32_t count[kBins] = {};
   sc.bin.resize(v.size());
@@ -58,6 +80,7 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
   auto& contrast = sc.contrast;
   auto& floor = sc.floor;
   auto& present = sc.present;
+  const LumaSampler sampleLuma(luma);
   for (LineFeature& l : lines) {
     if (!l.marking || l.t_max - l.t_min < 4.0) continue;
     const double nx = std::cos(l.theta), ny = std::sin(l.theta);
@@ -71,8 +94,8 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
       floor.clear();
       for (int k = 0; k < n; ++k) {
         const double t = l.t_min + k, x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;  // LineFeature::x/y without 4 trig calls
-        const float c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
-                    s2 = sampleLuma(luma, x - off * nx, y - off * ny);
+        const float c = sampleLuma(x, y), s1 = sampleLuma(x + off * nx, y + off * ny),
+                    s2 = sampleLuma(x - off * nx, y - off * ny);
         if (c < 0 || s1 < 0 || s2 < 0) continue;
         centre[k] = c;
         dark[k] = std::min(s1, s2);
@@ -119,8 +142,8 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     // (a sample outside the image).
     auto standOut = [&](double t) {
       const double x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;
-      const float c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
-                  s2 = sampleLuma(luma, x - off * nx, y - off * ny);
+      const float c = sampleLuma(x, y), s1 = sampleLuma(x + off * nx, y + off * ny),
+                  s2 = sampleLuma(x - off * nx, y - off * ny);
       // Near the image border one side may leave the image first: the other side alone judges.
       if (c < 0 || (s1 < 0 && s2 < 0)) return -1e9;
       return static_cast<double>(c - (s1 < 0 ? s2 : s2 < 0 ? s1 : 0.5f * (s1 + s2)));
