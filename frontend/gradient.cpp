@@ -227,9 +227,8 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     col_thr_.resize(static_cast<size_t>(w));
     top_start_.assign(static_cast<size_t>(h) + 2, 0);
     for (int x = 0; x < w; ++x) {
-      const bool later = top[x] > y_nms && top[x] < h;
-      col_thr_[x] = later ? INT32_MAX : thr2_32;
-      if (later) ++top_start_[top[x] + 1];
+      col_thr_[x] = top[x] <= y_nms ? thr2_32 : INT32_MAX;
+      if (top[x] > y_nms && top[x] < h) ++top_start_[top[x] + 1];
     }
     for (int y = 0; y <= h; ++y) top_start_[y + 1] += top_start_[y];
     top_cols_.resize(static_cast<size_t>(top_start_[h + 1]));
