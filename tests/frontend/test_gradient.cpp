@@ -143,7 +143,9 @@ TEST(Gradient, AutomaticThresholdIsTheExactSampleMedian) {
     const double expected = std::sqrt(std::ceil(p.auto_factor * p.auto_factor * static_cast<double>(s[s.size() / 2])));
     EXPECT_DOUBLE_EQ(g.threshold(), expected) << "sigma " << sigma;
     EXPECT_GT(s[s.size() / 2], sigma > 50 ? 4096 : 0) << "sigma " << sigma;
-    if (large) EXPECT_GT(s.size(), size_t{4} * 65535);
+    if (large) {
+      EXPECT_GT(s.size(), size_t{4} * 65535);
+    }
   }
 }
 
