@@ -119,18 +119,19 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   // from the luma directly.
   const bool automatic = params.auto_factor > 0;
   // Sized once for the image (never shrunk: a growing resize would clear it on every call).
-  const size_t max_samples = static_cast<size_t>(std::max(0, (w - 2) / 3)) * static_cast<size_t>(std::max(0, (h - 2) / 3));
+  const size_t max_samples = static_cast<size_t>(std::max(0, (w - 3) / kSampleStep + 1)) *
+                             static_cast<size_t>(std::max(0, (h - 3) / kSampleStep + 1));
   if (samples_all_.size() < max_samples) samples_all_.resize(max_samples);
   int32_t* sample = samples_all_.data();
   row_mag2_.resize(static_cast<size_t>(w));
   if (automatic) {
-    for (int y = 2; y < std::min(y_first, h - 2); y += 3) {
+    for (int y = 2; y < std::min(y_first, h - 2); y += kSampleStep) {
       if (y >= y_exact) {
         const int16_t* gxr = gx_.ptr<int16_t>(y);
         const int16_t* gyr = gy_.ptr<int16_t>(y);
-        for (int x = 2; x < w - 2; x += 3) *sample++ = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+        for (int x = 2; x < w - 2; x += kSampleStep) *sample++ = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
       } else {
-        // The whole row's Sobel in a loop the compiler vectorises, then every 3rd sample.
+        // The whole row's Sobel in a loop the compiler vectorises, then the samples.
         int32_t* m = row_mag2_.data();
         const uint8_t* a = luma.ptr<uint8_t>(y - 1);
         const uint8_t* b = luma.ptr<uint8_t>(y);
@@ -140,7 +141,7 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
           const int32_t sy = (c[x - 1] + 2 * c[x] + c[x + 1]) - (a[x - 1] + 2 * a[x] + a[x + 1]);
           m[x] = sx * sx + sy * sy;
         }
-        for (int x = 2; x < w - 2; x += 3) *sample++ = m[x];
+        for (int x = 2; x < w - 2; x += kSampleStep) *sample++ = m[x];
       }
     }
   }
@@ -149,15 +150,16 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     const int16_t* gyr = gy_.ptr<int16_t>(y);
     int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-    if (automatic && y >= 2 && y < h - 2 && y % 3 == 2)
-      for (int x = 2; x < w - 2; x += 3) *sample++ = m2[x];
+    if (automatic && y >= 2 && y < h - 2 && y % kSampleStep == 2)
+      for (int x = 2; x < w - 2; x += kSampleStep) *sample++ = m2[x];
   }
   const size_t count = static_cast<size_t>(sample - samples_all_.data());
 
   int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
   if (automatic && count > 0) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
-    // every 3rd pixel of every 3rd row of the whole image is plenty for a median.
+    // every kSampleStep-th pixel of every kSampleStep-th row of the whole image is plenty for
+    // a median (see gradient.h).
     // Exact median by a histogram select: squared magnitudes below kFine have a bin each (a
     // carpet's median lies there), the larger ones share one bin, whose samples are selected
     // from only when the median lies among them. The bin index is a minimum (no branch per
