@@ -7,50 +7,40 @@
 namespace stereoloc::frontend {
 namespace {
 
-// The element std::nth_element would place at v.size() / 2, of non-negative floats: their bit
-// patterns order as they do, so a most-significant-byte-first radix select finds it exactly.
-// nth_element's data-dependent branches over the few hundred floor samples cost more than the
-// rest of the region.
-float medianOf(std::vector<float>& v, std::vector<uint32_t>& keys, std::vector<uint32_t>& next) {
+// The element std::nth_element would place at v.size() / 2, of floats in [0, vmax]. A counting
+// pass over 1024 bins of equal width (the bin a monotone function of the value, so the bins
+// order as the values do) finds the bin holding it, through sums over blocks of 32 bins, and
+// only that bin's few values are selected from. nth_element's data-dependent branches over
+// the few hundred floor samples cost more than the rest of the region.
+float medianOf(const std::vector<float>& v, float vmax, std::vector<float>& pick) {
   if (v.empty()) return 0.0f;
-  keys.resize(v.size());
-  for (size_t i = 0; i < v.size(); ++i) std::memcpy(&keys[i], &v[i], sizeof(uint32_t));
+  constexpr int kBins = 1024, kBlock = 32;
+  const float scale = static_cast<float>(kBins) / vmax;
+  auto binOf = [&](float x) { return std::min(static_cast<int>(x * scale), kBins - 1); };
+  // Two interleaved tables: the floor's samples fall into few bins, and increments of one
+  // counter in a row wait for each other.
+  uint32_t c[2][kBins] = {};
+  for (size_t i = 0; i < v.size(); ++i) ++c[i & 1][binOf(v[i])];
+  auto count = [&](int b) { return c[0][b] + c[1][b]; };
   size_t k = v.size() / 2;
-  // Digits start at the highest bit in which the keys differ (most share sign and exponent),
-  // and the select stops when the candidates left are all equal. The floor's samples share
-  // few digits, so the counts go to four interleaved tables: increments of one counter in a
-  // row wait for each other, and they were most of the select's time.
-  for (;;) {
-    uint32_t diff = 0;
-    for (uint32_t key : keys) diff |= key ^ keys[0];
-    if (diff == 0) break;
-    const int shift = std::max(0, 31 - __builtin_clz(diff) - 7);
-    uint32_t count[4][256] = {};
-    const size_t n = keys.size();
-    size_t i = 0;
-    for (; i + 4 <= n; i += 4)
-      for (int j = 0; j < 4; ++j) ++count[j][(keys[i + j] >> shift) & 255u];
-    for (; i < n; ++i) ++count[0][(keys[i] >> shift) & 255u];
-    uint32_t digit = 0;
-    for (;;) {
-      const uint32_t c = count[0][digit] + count[1][digit] + count[2][digit] + count[3][digit];
-      if (k < c) break;
-      k -= c;
-      ++digit;
-    }
-    // The keys of that digit, without a branch per key.
-    next.resize(n);
-    size_t m = 0;
-    for (uint32_t key : keys) {
-      next[m] = key;
-      m += ((key >> shift) & 255u) == digit;
-    }
-    next.resize(m);
-    keys.swap(next);
+  int block = 0;
+  for (;; ++block) {
+    uint32_t sum = 0;
+    for (int b = block * kBlock; b < (block + 1) * kBlock; ++b) sum += count(b);
+    if (k < sum) break;
+    k -= sum;
   }
-  float m;
-  std::memcpy(&m, &keys[0], sizeof m);
-  return m;
+  int bin = block * kBlock;
+  while (k >= count(bin)) k -= count(bin++);
+  pick.resize(v.size());
+  size_t m = 0;
+  for (float x : v) {
+    pick[m] = x;
+    m += binOf(x) == bin;
+  }
+  pick.resize(m);
+  std::nth_element(pick.begin(), pick.begin() + static_cast<std::ptrdiff_t>(k), pick.end());
+  return pick[k];
 }
 
 }  // namespace
@@ -77,9 +67,9 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
     }
   }
   if (luma_.empty()) return;
-  const float ref_c[3] = {medianOf(chroma_[0], keys_, next_), medianOf(chroma_[1], keys_, next_),
-                          medianOf(chroma_[2], keys_, next_)};
-  const float ref_l = medianOf(luma_, keys_, next_);
+  const float ref_c[3] = {medianOf(chroma_[0], 1.0f, pick_), medianOf(chroma_[1], 1.0f, pick_),
+                          medianOf(chroma_[2], 1.0f, pick_)};
+  const float ref_l = medianOf(luma_, 255.0f, pick_);
   const float lo = static_cast<float>(p.luma_low) * ref_l, hi = static_cast<float>(p.luma_high) * ref_l;
   const float tol = static_cast<float>(p.chroma_tolerance);
   // Per grid column: the topmost run of min_run floor samples (-1: none). Row by row, so the
