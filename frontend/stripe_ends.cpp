@@ -17,14 +17,18 @@ class LumaSampler {
       : data_(g.data), step_(g.step[0]), xmax_(g.cols - 1), ymax_(g.rows - 1) {
     for (int v = 0; v < 256; ++v) level_[v] = static_cast<float>(v);
   }
-  float operator()(double x, double y) const {
-    if (!(x >= 0 && y >= 0 && x < xmax_ && y < ymax_)) return -1.0f;
+  // Without a branch: a sample outside reads pixel (0, 0) and is then replaced by -1, so the
+  // three samples of a position along the line overlap in the pipeline.
+  float operator()(double x_in, double y_in) const {
+    const bool inside = (x_in >= 0) & (y_in >= 0) & (x_in < xmax_) & (y_in < ymax_);
+    const double x = inside ? x_in : 0.0, y = inside ? y_in : 0.0;
     const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
     const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
     const uint8_t* r0 = data_ + static_cast<size_t>(y0) * step_ + x0;
     const uint8_t* r1 = r0 + step_;
-    return (1 - fy) * ((1 - fx) * level_[r0[0]] + fx * level_[r0[1]]) +
-           fy * ((1 - fx) * level_[r1[0]] + fx * level_[r1[1]]);
+    const float v = (1 - fy) * ((1 - fx) * level_[r0[0]] + fx * level_[r0[1]]) +
+                    fy * ((1 - fx) * level_[r1[0]] + fx * level_[r1[1]]);
+    return inside ? v : -1.0f;
   }
 
  private:
@@ -74,6 +78,9 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
                     StripeEndScratch& sc) {
   const bool extend = prm.extend_px >= 1.0;
   if (!prm.enabled && !extend) return;
+  // No bilinear sample fits in an image narrower or lower than 2 px: nothing to judge (and the
+  // sampler reads pixel (0, 0) and its neighbours for samples outside).
+  if (luma.cols < 2 || luma.rows < 2) return;
   auto& centre = sc.centre;
   auto& dark = sc.dark;
   auto& bright = sc.bright;
