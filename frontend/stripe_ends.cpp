@@ -114,9 +114,15 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
       const double c_ref = median(contrast, sc), floor_ref = median(floor, sc);
       if (c_ref < prm.min_contrast) continue;
       const double need = prm.min_fraction * c_ref;
-      present.assign(n, 1);  // samples outside the image: no verdict, kept
-      for (int k = 0; k < n; ++k)
-        if (centre[k] >= 0) present[k] = centre[k] - bright[k] >= need || centre[k] >= floor_ref + need;
+      // Samples outside the image: no verdict, kept. Without a branch per sample (the verdicts
+      // along a stripe's ragged end alternate).
+      present.resize(static_cast<size_t>(n));
+      const double floor_need = floor_ref + need;
+      for (int k = 0; k < n; ++k) {
+        const float c = centre[k];
+        const bool stripe = (static_cast<double>(c - bright[k]) >= need) | (static_cast<double>(c) >= floor_need);
+        present[k] = static_cast<uint8_t>(c >= 0 ? stripe : true);
+      }
       // First index from an end (step +1 or -1) where the stripe is present twice in a row.
       auto firstRun = [&](int start, int step) {
         for (int k = start; k >= 0 && k + step >= 0 && k < n && k + step < n; k += step)
