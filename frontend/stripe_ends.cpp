@@ -92,8 +92,13 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     if (!l.marking || l.t_max - l.t_min < 4.0) continue;
     const double nx = std::cos(l.theta), ny = std::sin(l.theta);
     const double off = 0.5 * l.width + prm.side_px;
+    // The trim's samples lie at t_trim + k, k < n_trim (none without the trim).
+    int n_trim = 0;
+    double t_trim = 0.0;
     if (prm.enabled) {
       const int n = static_cast<int>(std::floor(l.t_max - l.t_min)) + 1;
+      n_trim = n;
+      t_trim = l.t_min;
       centre.assign(n, -1.0f);
       dark.assign(n, -1.0f);
       bright.assign(n, -1.0f);
@@ -164,9 +169,15 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     for (int e = 0; e < 2; ++e) {
       const double te = e ? l.t_max : l.t_min, out = e ? 1.0 : -1.0;
       const int nref = static_cast<int>(std::min(prm.extend_ref_px, l.t_max - l.t_min));
+      // A start the trim left in place has its reference samples at the trim's first positions
+      // (te + k is t_trim + k): those with all three samples inside are taken from there (the
+      // two sides' mean is the same sum of the same two values).
+      const bool reuse = !e && n_trim > 0 && te == t_trim;
       contrast.clear();
       for (int k = 0; k <= nref; ++k) {
-        const double c = standOut(te - out * k);
+        const double c = reuse && k < n_trim && centre[k] >= 0
+                             ? static_cast<double>(centre[k] - 0.5f * (dark[k] + bright[k]))
+                             : standOut(te - out * k);
         if (c > -1e8) contrast.push_back(static_cast<float>(c));
       }
       if (contrast.size() < 4) continue;
