@@ -165,7 +165,7 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     // from only when the median lies among them. The bin index is a minimum (no branch per
     // sample: edge samples above kFine are scattered at random). Consecutive samples go to
     // four interleaved 16-bit tables: a carpet's samples fall into few bins, and increments
-    // of one counter in a row wait for each other (one table took twice the time).
+    // of one counter in a row wait for each other (one table takes twice the time).
     // nth_element over all samples cost more than the rest of the threshold.
     const int32_t* m = samples_all_.data();
     const size_t k = count / 2;  // the element nth_element would place at size / 2

@@ -41,7 +41,7 @@ class LumaSampler {
 // The value std::nth_element would place at v.size() / 2, for values in [-256, 256) (luma
 // samples and their differences). A counting pass over one bin per grey level finds the bin
 // holding it, and only that bin's few values are selected from: nth_element's unpredictable
-// comparisons over all of them were two fifths of this stage.
+// comparisons over all of them take two fifths of this stage.
 float median(const std::vector<float>& v, StripeEndScratch& sc) {
   if (v.size() <= 32) {  // an end's reference: clearing the bins would cost more than the select
     sc.pick.assign(v.begin(), v.end());
