@@ -7,34 +7,40 @@
 namespace stereoloc::frontend {
 namespace {
 
-// The element std::nth_element would place at v.size() / 2, of non-negative floats: their bit
-// patterns order as they do, so a most-significant-byte-first radix select finds it exactly.
-// nth_element's data-dependent branches over the few hundred floor samples cost more than the
-// rest of the region.
-float medianOf(std::vector<float>& v, std::vector<uint32_t>& keys, std::vector<uint32_t>& next) {
+// The element std::nth_element would place at v.size() / 2, of floats in [0, vmax]. A counting
+// pass over 1024 bins of equal width (the bin a monotone function of the value, so the bins
+// order as the values do) finds the bin holding it, through sums over blocks of 32 bins, and
+// only that bin's few values are selected from. nth_element's data-dependent branches over
+// the few hundred floor samples cost more than the rest of the region.
+float medianOf(const std::vector<float>& v, float vmax, std::vector<float>& pick) {
   if (v.empty()) return 0.0f;
-  keys.resize(v.size());
-  for (size_t i = 0; i < v.size(); ++i) std::memcpy(&keys[i], &v[i], sizeof(uint32_t));
+  constexpr int kBins = 1024, kBlock = 32;
+  const float scale = static_cast<float>(kBins) / vmax;
+  auto binOf = [&](float x) { return std::min(static_cast<int>(x * scale), kBins - 1); };
+  // Two interleaved tables: the floor's samples fall into few bins, and increments of one
+  // counter in a row wait for each other.
+  uint32_t c[2][kBins] = {};
+  for (size_t i = 0; i < v.size(); ++i) ++c[i & 1][binOf(v[i])];
+  auto count = [&](int b) { return c[0][b] + c[1][b]; };
   size_t k = v.size() / 2;
-  // Digits start at the highest bit in which the keys differ (most share sign and exponent),
-  // and the select stops when the candidates left are all equal.
-  for (;;) {
-    uint32_t diff = 0;
-    for (uint32_t key : keys) diff |= key ^ keys[0];
-    if (diff == 0) break;
-    const int shift = std::max(0, 31 - __builtin_clz(diff) - 7);
-    uint32_t count[256] = {};
-    for (uint32_t key : keys) ++count[(key >> shift) & 255u];
-    uint32_t digit = 0;
-    while (k >= count[digit]) k -= count[digit++];
-    next.clear();
-    for (uint32_t key : keys)
-      if (((key >> shift) & 255u) == digit) next.push_back(key);
-    keys.swap(next);
+  int block = 0;
+  for (;; ++block) {
+    uint32_t sum = 0;
+    for (int b = block * kBlock; b < (block + 1) * kBlock; ++b) sum += count(b);
+    if (k < sum) break;
+    k -= sum;
   }
-  float m;
-  std::memcpy(&m, &keys[0], sizeof m);
-  return m;
+  int bin = block * kBlock;
+  while (k >= count(bin)) k -= count(bin++);
+  pick.resize(v.size());
+  size_t m = 0;
+  for (float x : v) {
+    pick[m] = x;
+    m += binOf(x) == bin;
+  }
+  pick.resize(m);
+  std::nth_element(pick.begin(), pick.begin() + static_cast<std::ptrdiff_t>(k), pick.end());
+  return pick[k];
 }
 
 }  // namespace
@@ -61,9 +67,9 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
     }
   }
   if (luma_.empty()) return;
-  const float ref_c[3] = {medianOf(chroma_[0], keys_, next_), medianOf(chroma_[1], keys_, next_),
-                          medianOf(chroma_[2], keys_, next_)};
-  const float ref_l = medianOf(luma_, keys_, next_);
+  const float ref_c[3] = {medianOf(chroma_[0], 1.0f, pick_), medianOf(chroma_[1], 1.0f, pick_),
+                          medianOf(chroma_[2], 1.0f, pick_)};
+  const float ref_l = medianOf(luma_, 255.0f, pick_);
   const float lo = static_cast<float>(p.luma_low) * ref_l, hi = static_cast<float>(p.luma_high) * ref_l;
   const float tol = static_cast<float>(p.chroma_tolerance);
   // Per grid column: the topmost run of min_run floor samples (-1: none). Row by row, so the
@@ -74,26 +80,37 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   // boundary, where the colours vary, cost more than the arithmetic.
   grid_top_.assign(static_cast<size_t>(gw), -1);
   run_.assign(static_cast<size_t>(gw), 0);
-  for (auto& c : row_) c.resize(static_cast<size_t>(gw));
+  bgr_words_.resize(static_cast<size_t>(gw));
   is_floor_.resize(static_cast<size_t>(gw));
-  int32_t* pb = row_[0].data();
-  int32_t* pg = row_[1].data();
-  int32_t* pr = row_[2].data();
+  // Each sample's b, g, r in the low three bytes of one word: one load per sample where the
+  // byte after the pixel lies in its row (all but a sample in the last column).
+  uint32_t* pw = bgr_words_.data();
+  const int gw_word = std::min(gw, (w - 2) / step + 1);  // columns with gx step + 1 < w
   uint8_t* fl = is_floor_.data();
   int open = gw;
   for (int gy = 0; gy < gh && open > 0; ++gy) {
     const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
-    // Few columns left open (a robot or the lens border at the bottom): only those are tested.
+    // Few columns left open (a robot or the lens border at the bottom): only those are read.
     const bool all = 4 * open >= gw;
     for (int gx = 0; gx < gw; ++gx) {
       if (!all && grid_top_[gx] >= 0) continue;
       const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
-      pb[gx] = px[0];
-      pg[gx] = px[1];
-      pr[gx] = px[2];
+      uint32_t word;
+      if (gx < gw_word) {
+        std::memcpy(&word, px, sizeof word);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+        word = __builtin_bswap32(word);
+#endif
+      } else {
+        word = px[0] | (uint32_t{px[1]} << 8) | (uint32_t{px[2]} << 16);
+      }
+      pw[gx] = word;
     }
     for (int gx = 0; gx < gw; ++gx) {
-      const float b = static_cast<float>(pb[gx]), g = static_cast<float>(pg[gx]), r = static_cast<float>(pr[gx]);
+      const uint32_t word = pw[gx];
+      const float b = static_cast<float>(static_cast<int32_t>(word & 255u)),
+                  g = static_cast<float>(static_cast<int32_t>((word >> 8) & 255u)),
+                  r = static_cast<float>(static_cast<int32_t>((word >> 16) & 255u));
       const float sum = b + g + r;
       const float l = 0.114f * b + 0.587f * g + 0.299f * r;
       float d = 0.0f;
@@ -102,14 +119,20 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
       d += std::fabs(r - ref_c[2] * sum);
       fl[gx] = static_cast<uint8_t>((sum >= 1.0f) & (l >= lo) & (l <= hi) & (d <= tol * sum));
     }
+    // Runs and boundaries without a branch per column either: a closed column's run goes on
+    // counting (on stale samples when only the open ones were read) but never reopens it.
+    const int min_run = p.min_run, first = gy - p.min_run + 1;
+    int* run = run_.data();
+    int* gt = grid_top_.data();
+    int closed = 0;
     for (int gx = 0; gx < gw; ++gx) {
-      if (grid_top_[gx] >= 0) continue;
-      run_[gx] = fl[gx] ? run_[gx] + 1 : 0;
-      if (run_[gx] >= p.min_run) {
-        grid_top_[gx] = gy - p.min_run + 1;
-        --open;
-      }
+      const int r = fl[gx] ? run[gx] + 1 : 0;
+      run[gx] = r;
+      const int hit = (gt[gx] < 0) & (r >= min_run);
+      gt[gx] = hit ? first : gt[gx];
+      closed += hit;
     }
+    open -= closed;
   }
   // Median over neighbouring columns that have a boundary; a column without floor keeps all.
   smoothed_.assign(static_cast<size_t>(gw), -1);
@@ -158,7 +181,10 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
     const auto& b = k + 1 < hull_.size() ? hull_[k + 1] : hull_[k];
     const double f = b.first > a.first ? (x - a.first) / (b.first - a.first) : 0.0;
     const double row = (1.0 - f) * a.second + f * b.second - step - p.margin_px;
-    top_[xi] = static_cast<int16_t>(std::clamp(static_cast<int>(std::floor(row)), 0, h));
+    // floor(row) from the truncation (std::floor without SSE4.1 is a library call per column).
+    const int trunc = static_cast<int>(row);
+    const int row_floor = trunc - (row < static_cast<double>(trunc) ? 1 : 0);
+    top_[xi] = static_cast<int16_t>(std::clamp(row_floor, 0, h));
     restricted_ = restricted_ || top_[xi] > 0;
   }
 }

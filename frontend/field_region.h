@@ -46,8 +46,8 @@ class FieldRegion {
   std::vector<int> grid_top_, run_, smoothed_, window_;
   std::vector<std::pair<double, double>> hull_;
   std::vector<float> chroma_[3], luma_;
-  std::vector<int32_t> row_[3];  // one grid row's b, g, r
-  std::vector<uint32_t> keys_, next_;
+  std::vector<uint32_t> bgr_words_;  // one grid row's b, g, r (bytes 0, 1, 2 of each word)
+  std::vector<float> pick_;  // the reference medians' values in their bin
   std::vector<uint8_t> is_floor_;
   bool restricted_ = false;
 };

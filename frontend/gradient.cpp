@@ -119,18 +119,19 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   // from the luma directly.
   const bool automatic = params.auto_factor > 0;
   // Sized once for the image (never shrunk: a growing resize would clear it on every call).
-  const size_t max_samples = static_cast<size_t>(std::max(0, (w - 2) / 3)) * static_cast<size_t>(std::max(0, (h - 2) / 3));
+  const size_t max_samples = static_cast<size_t>(std::max(0, (w - 3) / kSampleStep + 1)) *
+                             static_cast<size_t>(std::max(0, (h - 3) / kSampleStep + 1));
   if (samples_all_.size() < max_samples) samples_all_.resize(max_samples);
   int32_t* sample = samples_all_.data();
   row_mag2_.resize(static_cast<size_t>(w));
   if (automatic) {
-    for (int y = 2; y < std::min(y_first, h - 2); y += 3) {
+    for (int y = 2; y < std::min(y_first, h - 2); y += kSampleStep) {
       if (y >= y_exact) {
         const int16_t* gxr = gx_.ptr<int16_t>(y);
         const int16_t* gyr = gy_.ptr<int16_t>(y);
-        for (int x = 2; x < w - 2; x += 3) *sample++ = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+        for (int x = 2; x < w - 2; x += kSampleStep) *sample++ = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
       } else {
-        // The whole row's Sobel in a loop the compiler vectorises, then every 3rd sample.
+        // The whole row's Sobel in a loop the compiler vectorises, then the samples.
         int32_t* m = row_mag2_.data();
         const uint8_t* a = luma.ptr<uint8_t>(y - 1);
         const uint8_t* b = luma.ptr<uint8_t>(y);
@@ -140,7 +141,7 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
           const int32_t sy = (c[x - 1] + 2 * c[x] + c[x + 1]) - (a[x - 1] + 2 * a[x] + a[x + 1]);
           m[x] = sx * sx + sy * sy;
         }
-        for (int x = 2; x < w - 2; x += 3) *sample++ = m[x];
+        for (int x = 2; x < w - 2; x += kSampleStep) *sample++ = m[x];
       }
     }
   }
@@ -149,33 +150,59 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     const int16_t* gyr = gy_.ptr<int16_t>(y);
     int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-    if (automatic && y >= 2 && y < h - 2 && y % 3 == 2)
-      for (int x = 2; x < w - 2; x += 3) *sample++ = m2[x];
+    if (automatic && y >= 2 && y < h - 2 && y % kSampleStep == 2)
+      for (int x = 2; x < w - 2; x += kSampleStep) *sample++ = m2[x];
   }
   const size_t count = static_cast<size_t>(sample - samples_all_.data());
 
   int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
   if (automatic && count > 0) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
-    // every 3rd pixel of every 3rd row of the whole image is plenty for a median.
-    // Exact median by a two-level histogram select: squared magnitudes below kFine have a bin
-    // each (a carpet's median lies there), larger ones share bins of 2^kShift values and only
-    // the bin holding the median is sorted. nth_element over all samples cost more than the
-    // rest of the threshold.
-    hist_.assign(kFine + (kMaxMag2 >> kShift) + 1, 0);
+    // every kSampleStep-th pixel of every kSampleStep-th row of the whole image is plenty for
+    // a median (see gradient.h).
+    // Exact median by a histogram select: squared magnitudes below kFine have a bin each (a
+    // carpet's median lies there), the larger ones share one bin, whose samples are selected
+    // from only when the median lies among them. The bin index is a minimum (no branch per
+    // sample: edge samples above kFine are scattered at random). Consecutive samples go to
+    // four interleaved 16-bit tables: a carpet's samples fall into few bins, and increments
+    // of one counter in a row wait for each other (one table takes twice the time).
+    // nth_element over all samples cost more than the rest of the threshold.
     const int32_t* m = samples_all_.data();
-    for (size_t j = 0; j < count; ++j) ++hist_[m[j] < kFine ? m[j] : kFine + (m[j] >> kShift)];
     const size_t k = count / 2;  // the element nth_element would place at size / 2
     size_t below = 0, b = 0;
-    while (below + hist_[b] <= k) below += hist_[b++];
+    constexpr size_t kBins = static_cast<size_t>(kFine) + 1;
+    if (count / 4 + 4 <= 65535) {
+      hist16_.assign(4 * kBins, 0);
+      uint16_t* h0 = hist16_.data();
+      uint16_t* h1 = h0 + kBins;
+      uint16_t* h2 = h1 + kBins;
+      uint16_t* h3 = h2 + kBins;
+      size_t j = 0;
+      for (; j + 4 <= count; j += 4) {
+        ++h0[std::min(m[j], kFine)];
+        ++h1[std::min(m[j + 1], kFine)];
+        ++h2[std::min(m[j + 2], kFine)];
+        ++h3[std::min(m[j + 3], kFine)];
+      }
+      for (; j < count; ++j) ++h0[std::min(m[j], kFine)];
+      for (;; ++b) {
+        const size_t c = size_t{h0[b]} + h1[b] + h2[b] + h3[b];
+        if (below + c > k) break;
+        below += c;
+      }
+    } else {
+      hist_.assign(kBins, 0);
+      uint32_t* hist = hist_.data();
+      for (size_t j = 0; j < count; ++j) ++hist[std::min(m[j], kFine)];
+      while (below + hist[b] <= k) below += hist[b++];
+    }
     int64_t median2;
     if (b < static_cast<size_t>(kFine)) {
       median2 = static_cast<int64_t>(b);
     } else {
       samples_.clear();
-      const int32_t coarse = static_cast<int32_t>(b - kFine);
       for (size_t i = 0; i < count; ++i)
-        if (m[i] >= kFine && (m[i] >> kShift) == coarse) samples_.push_back(m[i]);
+        if (m[i] >= kFine) samples_.push_back(m[i]);
       auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
       std::nth_element(samples_.begin(), mid, samples_.end());
       median2 = *mid;
@@ -193,17 +220,37 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   // padding at its end; its columns 0, 1, w - 2, w - 1 stay 0.
   above_.assign(static_cast<size_t>(w) + 8, 0);
   uint8_t* ab = above_.data();
+  // With a region, each column's threshold is out of reach above its top row and thr2_32 from
+  // it on, so the mask is one comparison of two 32-bit rows as without a region (the test of
+  // the 16-bit top in the same loop vectorised badly: a tenth of the stage). The columns are
+  // listed by top row (counting sort) and enabled when the suppression reaches it.
+  const int y_nms = std::max(2, y_first + 1);
+  if (top) {
+    col_thr_.resize(static_cast<size_t>(w));
+    top_start_.assign(static_cast<size_t>(h) + 2, 0);
+    for (int x = 0; x < w; ++x) {
+      col_thr_[x] = top[x] <= y_nms ? thr2_32 : INT32_MAX;
+      if (top[x] > y_nms && top[x] < h) ++top_start_[top[x] + 1];
+    }
+    for (int y = 0; y <= h; ++y) top_start_[y + 1] += top_start_[y];
+    top_cols_.resize(static_cast<size_t>(top_start_[h + 1]));
+    top_fill_.assign(top_start_.begin(), top_start_.end() - 1);
+    for (int x = 0; x < w; ++x)
+      if (top[x] > y_nms && top[x] < h) top_cols_[top_fill_[top[x]]++] = x;
+  }
+  const int32_t* ct = col_thr_.data();
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
   // through the three magnitudes. Pixels next to the border are skipped (their neighbours
   // have no gradient). The mask is read 8 bytes at a time and only its set bytes are visited,
   // lowest first, so the order of edges_ is row-major.
-  for (int y = std::max(2, y_first + 1); y < h - 2; ++y) {
+  for (int y = y_nms; y < h - 2; ++y) {
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
     if (top) {
-      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>((m2[x] >= thr2_32) & (y >= top[x]));
+      for (int j = top_start_[y]; j < top_start_[y + 1]; ++j) col_thr_[top_cols_[j]] = thr2_32;
+      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= ct[x]);
     } else {
       for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
     }

@@ -23,6 +23,13 @@ void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma);
 // Reusable gradient stage: holds all buffers, so repeated calls on same-size images allocate nothing.
 class GradientStage {
  public:
+  // The automatic threshold's median is taken over every kSampleStep-th pixel of every
+  // kSampleStep-th row (from pixel (2, 2)): 2100 samples in 320x240. On the 64 photographs
+  // of data/real, every 3rd pixel of every 3rd row (8400 samples) gives thresholds within
+  // 1.7 % of these on average (6 % at most) and the same bench_frontend figures, at four
+  // times the histogram's time (5.7 against 1.4 us per photograph).
+  static constexpr int kSampleStep = 6;
+
   // luma must be CV_8UC1. Fills edges() and the per-pixel index map. top (optional, one entry
   // per column): pixels above row top[x] give no edge pixels (frontend/field_region.h).
   void compute(const cv::Mat& luma, const GradientParams& params, const int16_t* top = nullptr);
@@ -44,15 +51,20 @@ class GradientStage {
   cv::Mat gx_, gy_;
   std::vector<int32_t> mag2_;
   // Histogram of sampled squared magnitudes for the automatic threshold: exact bins below
-  // kFine, bins of 2^kShift above (a 3x3 Sobel of 8-bit luma stays below kMaxMag2).
-  static constexpr int32_t kFine = 4096, kShift = 12, kMaxMag2 = 2 * 1020 * 1020;
+  // kFine, one bin for all above.
+  static constexpr int32_t kFine = 4096;
   std::vector<uint32_t> hist_;
+  std::vector<uint16_t> hist16_;  // four such histograms, when no bin can exceed 16 bits
   std::vector<int32_t> samples_all_;  // squared magnitudes of the median's samples
   std::vector<int32_t> row_mag2_;     // one row's, above the computed Sobel
-  std::vector<int32_t> samples_;  // the samples in the median's coarse bin
+  std::vector<int32_t> samples_;  // the samples at or above kFine, when the median is one
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
   std::vector<uint8_t> above_;  // one row's mask: magnitude at the threshold, padded by 8
+  // With a region: each column's squared threshold (INT32_MAX above its top row), and the
+  // columns whose top row the suppression reaches, by row (offsets top_start_).
+  std::vector<int32_t> col_thr_;
+  std::vector<int> top_start_, top_cols_, top_fill_;
   std::vector<EdgePixel> edges_;
 };
 

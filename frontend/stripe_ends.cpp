@@ -8,19 +8,68 @@ namespace {
 
 // Bilinear luma; -1 outside the image. The pixel (x0, y0) and its right and lower neighbours
 // must lie in the image: 0 <= x < cols - 1, 0 <= y < rows - 1, where the truncation is the
-// floor (std::floor without SSE4.1 costs ten instructions a coordinate; NaN fails too).
-inline float sampleLuma(const cv::Mat& g, double x, double y) {
-  if (!(x >= 0 && y >= 0 && x < g.cols - 1 && y < g.rows - 1)) return -1.0f;
-  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-  const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
-  const uint8_t* r0 = g.data + static_cast<size_t>(y0) * g.step[0] + x0;
-  const uint8_t* r1 = r0 + g.step[0];
-  return (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
-}
+// floor (std::floor without SSE4.1 costs ten instructions a coordinate; NaN fails too). The
+// limits are converted once, and the grey levels are read as floats from a table (the same
+// values as converting each byte).
+class LumaSampler {
+ public:
+  explicit LumaSampler(const cv::Mat& g)
+      : data_(g.data), step_(g.step[0]), xmax_(g.cols - 1), ymax_(g.rows - 1) {
+    for (int v = 0; v < 256; ++v) level_[v] = static_cast<float>(v);
+  }
+  // Without a branch: a sample outside reads pixel (0, 0) and is then replaced by -1, so the
+  // three samples of a position along the line overlap in the pipeline.
+  float operator()(double x_in, double y_in) const {
+    const bool inside = (x_in >= 0) & (y_in >= 0) & (x_in < xmax_) & (y_in < ymax_);
+    const double x = inside ? x_in : 0.0, y = inside ? y_in : 0.0;
+    const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+    const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
+    const uint8_t* r0 = data_ + static_cast<size_t>(y0) * step_ + x0;
+    const uint8_t* r1 = r0 + step_;
+    const float v = (1 - fy) * ((1 - fx) * level_[r0[0]] + fx * level_[r0[1]]) +
+                    fy * ((1 - fx) * level_[r1[0]] + fx * level_[r1[1]]);
+    return inside ? v : -1.0f;
+  }
 
-float median(std::vector<float>& v) {  // reorders v
-  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-  return v[v.size() / 2];
+ private:
+  const uint8_t* data_;
+  size_t step_;
+  double xmax_, ymax_;
+  float level_[256];
+};
+
+// The value std::nth_element would place at v.size() / 2, for values in [-256, 256) (luma
+// samples and their differences). A counting pass over one bin per grey level finds the bin
+// holding it, and only that bin's few values are selected from: nth_element's unpredictable
+// comparisons over all of them take two fifths of this stage.
+float median(const std::vector<float>& v, StripeEndScratch& sc) {
+  if (v.size() <= 32) {  // an end's reference: clearing the bins would cost more than the select
+    sc.pick.assign(v.begin(), v.end());
+    const auto mid = sc.pick.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+    std::nth_element(sc.pick.begin(), mid, sc.pick.end());
+    return *mid;
+  }
+  constexpr int kBins = 512;
+  uint32_t count[kBins] = {};
+  sc.bin.resize(v.size());
+  int lo = kBins - 1;
+  for (size_t i = 0; i < v.size(); ++i) {
+    // Monotone in the value, so the bins are ordered as the values are.
+    const int b = std::clamp(static_cast<int>(v[i] + 256.0f), 0, kBins - 1);
+    sc.bin[i] = static_cast<uint16_t>(b);
+    ++count[b];
+    lo = std::min(lo, b);
+  }
+  const size_t k = v.size() / 2;
+  size_t below = 0;
+  int b = lo;
+  while (below + count[b] <= k) below += count[b++];
+  sc.pick.clear();
+  for (size_t i = 0; i < v.size(); ++i)
+    if (sc.bin[i] == b) sc.pick.push_back(v[i]);
+  const auto mid = sc.pick.begin() + static_cast<std::ptrdiff_t>(k - below);
+  std::nth_element(sc.pick.begin(), mid, sc.pick.end());
+  return *mid;
 }
 
 }  // namespace
@@ -29,18 +78,27 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
                     StripeEndScratch& sc) {
   const bool extend = prm.extend_px >= 1.0;
   if (!prm.enabled && !extend) return;
+  // No bilinear sample fits in an image narrower or lower than 2 px: nothing to judge (and the
+  // sampler reads pixel (0, 0) and its neighbours for samples outside).
+  if (luma.cols < 2 || luma.rows < 2) return;
   auto& centre = sc.centre;
   auto& dark = sc.dark;
   auto& bright = sc.bright;
   auto& contrast = sc.contrast;
   auto& floor = sc.floor;
   auto& present = sc.present;
+  const LumaSampler sampleLuma(luma);
   for (LineFeature& l : lines) {
     if (!l.marking || l.t_max - l.t_min < 4.0) continue;
     const double nx = std::cos(l.theta), ny = std::sin(l.theta);
     const double off = 0.5 * l.width + prm.side_px;
+    // The trim's samples lie at t_trim + k, k < n_trim (none without the trim).
+    int n_trim = 0;
+    double t_trim = 0.0;
     if (prm.enabled) {
       const int n = static_cast<int>(std::floor(l.t_max - l.t_min)) + 1;
+      n_trim = n;
+      t_trim = l.t_min;
       centre.assign(n, -1.0f);
       dark.assign(n, -1.0f);
       bright.assign(n, -1.0f);
@@ -48,8 +106,8 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
       floor.clear();
       for (int k = 0; k < n; ++k) {
         const double t = l.t_min + k, x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;  // LineFeature::x/y without 4 trig calls
-        const float c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
-                    s2 = sampleLuma(luma, x - off * nx, y - off * ny);
+        const float c = sampleLuma(x, y), s1 = sampleLuma(x + off * nx, y + off * ny),
+                    s2 = sampleLuma(x - off * nx, y - off * ny);
         if (c < 0 || s1 < 0 || s2 < 0) continue;
         centre[k] = c;
         dark[k] = std::min(s1, s2);
@@ -58,12 +116,18 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
         floor.push_back(dark[k]);
       }
       if (contrast.size() < 4) continue;
-      const double c_ref = median(contrast), floor_ref = median(floor);
+      const double c_ref = median(contrast, sc), floor_ref = median(floor, sc);
       if (c_ref < prm.min_contrast) continue;
       const double need = prm.min_fraction * c_ref;
-      present.assign(n, 1);  // samples outside the image: no verdict, kept
-      for (int k = 0; k < n; ++k)
-        if (centre[k] >= 0) present[k] = centre[k] - bright[k] >= need || centre[k] >= floor_ref + need;
+      // Samples outside the image: no verdict, kept. Without a branch per sample (the verdicts
+      // along a stripe's ragged end alternate).
+      present.resize(static_cast<size_t>(n));
+      const double floor_need = floor_ref + need;
+      for (int k = 0; k < n; ++k) {
+        const float c = centre[k];
+        const bool stripe = (static_cast<double>(c - bright[k]) >= need) | (static_cast<double>(c) >= floor_need);
+        present[k] = static_cast<uint8_t>(c >= 0 ? stripe : true);
+      }
       // First index from an end (step +1 or -1) where the stripe is present twice in a row.
       auto firstRun = [&](int start, int step) {
         for (int k = start; k >= 0 && k + step >= 0 && k < n && k + step < n; k += step)
@@ -96,8 +160,8 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     // (a sample outside the image).
     auto standOut = [&](double t) {
       const double x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;
-      const float c = sampleLuma(luma, x, y), s1 = sampleLuma(luma, x + off * nx, y + off * ny),
-                  s2 = sampleLuma(luma, x - off * nx, y - off * ny);
+      const float c = sampleLuma(x, y), s1 = sampleLuma(x + off * nx, y + off * ny),
+                  s2 = sampleLuma(x - off * nx, y - off * ny);
       // Near the image border one side may leave the image first: the other side alone judges.
       if (c < 0 || (s1 < 0 && s2 < 0)) return -1e9;
       return static_cast<double>(c - (s1 < 0 ? s2 : s2 < 0 ? s1 : 0.5f * (s1 + s2)));
@@ -105,13 +169,19 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     for (int e = 0; e < 2; ++e) {
       const double te = e ? l.t_max : l.t_min, out = e ? 1.0 : -1.0;
       const int nref = static_cast<int>(std::min(prm.extend_ref_px, l.t_max - l.t_min));
+      // A start the trim left in place has its reference samples at the trim's first positions
+      // (te + k is t_trim + k): those with all three samples inside are taken from there (the
+      // two sides' mean is the same sum of the same two values).
+      const bool reuse = !e && n_trim > 0 && te == t_trim;
       contrast.clear();
       for (int k = 0; k <= nref; ++k) {
-        const double c = standOut(te - out * k);
+        const double c = reuse && k < n_trim && centre[k] >= 0
+                             ? static_cast<double>(centre[k] - 0.5f * (dark[k] + bright[k]))
+                             : standOut(te - out * k);
         if (c > -1e8) contrast.push_back(static_cast<float>(c));
       }
       if (contrast.size() < 4) continue;
-      const double ref = median(contrast);
+      const double ref = median(contrast, sc);
       if (ref < prm.min_contrast) continue;
       const double need = prm.min_fraction * ref;
       int last = 0, missing = 0;

@@ -47,6 +47,8 @@ struct StripeEndParams {
 struct StripeEndScratch {
   std::vector<float> centre, dark, bright, contrast, floor;
   std::vector<uint8_t> present;
+  std::vector<uint16_t> bin;  // the medians' bin of each value
+  std::vector<float> pick;    // ... and the values in the median's bin
 };
 
 // Trims and extends the ends of the marking lines of `lines` (see above); other lines are left

@@ -118,22 +118,25 @@ TEST(Gradient, AutomaticThresholdRisesWithTextureOnly) {
 }
 
 // The automatic threshold is auto_factor times the exact median of the squared Sobel magnitude
-// on every 3rd pixel of every 3rd row, whether the median is small (carpet) or large (strong
-// texture: the coarse histogram bins).
+// on every kSampleStep-th pixel of every kSampleStep-th row, whether the median is small
+// (carpet) or large (strong texture: the overflow bin), and on an image with so many samples
+// that a bin of the four 16-bit tables could overflow (one 32-bit table then).
 TEST(Gradient, AutomaticThresholdIsTheExactSampleMedian) {
-  for (const double sigma : {3.0, 12.0, 60.0}) {
-    cv::Mat noise(97, 131, CV_16S), img;
+  constexpr int step = GradientStage::kSampleStep;
+  for (const double sigma : {3.0, 12.0, 60.0, 5.0}) {
+    const bool large = sigma == 5.0;  // more than 4 x 65535 samples
+    cv::Mat noise(large ? 520 * step : 97, large ? 520 * step : 131, CV_16S), img;
     cv::RNG rng(11);
     rng.fill(noise, cv::RNG::NORMAL, 128, sigma);
     noise.convertTo(img, CV_8U);
     GradientParams p;
     p.magnitude_threshold = 1;
-    p.auto_factor = 2.5;
+    p.auto_factor = large ? 6.0 : 2.5;  // large: few edge pixels, a short test
     GradientStage g;
     g.compute(img, p);
     std::vector<int64_t> s;
-    for (int y = 2; y < img.rows - 2; y += 3)
-      for (int x = 2; x < img.cols - 2; x += 3) {
+    for (int y = 2; y < img.rows - 2; y += step)
+      for (int x = 2; x < img.cols - 2; x += step) {
         const int64_t gx = g.gx().at<int16_t>(y, x), gy = g.gy().at<int16_t>(y, x);
         s.push_back(gx * gx + gy * gy);
       }
@@ -141,13 +144,16 @@ TEST(Gradient, AutomaticThresholdIsTheExactSampleMedian) {
     const double expected = std::sqrt(std::ceil(p.auto_factor * p.auto_factor * static_cast<double>(s[s.size() / 2])));
     EXPECT_DOUBLE_EQ(g.threshold(), expected) << "sigma " << sigma;
     EXPECT_GT(s[s.size() / 2], sigma > 50 ? 4096 : 0) << "sigma " << sigma;
+    if (large) {
+      EXPECT_GT(s.size(), size_t{4} * 65535);
+    }
   }
 }
 
 namespace {
 
 // The stage as specified, one pixel at a time: Sobel of the whole image, the exact median of
-// every 3rd pixel of every 3rd row by nth_element, suppression of every pixel at the
+// every kSampleStep-th pixel of every kSampleStep-th row by nth_element, suppression of every pixel at the
 // threshold and in the region. The stage's word skips, partial Sobel, histogram select and
 // branch-free quadrants must give exactly these edge pixels.
 std::vector<EdgePixel> referenceEdges(const cv::Mat& luma, const GradientParams& p, const int16_t* top, double& threshold) {
@@ -163,8 +169,8 @@ std::vector<EdgePixel> referenceEdges(const cv::Mat& luma, const GradientParams&
   int64_t thr2 = int64_t{p.magnitude_threshold} * p.magnitude_threshold;
   if (p.auto_factor > 0) {
     std::vector<int64_t> s;
-    for (int y = 2; y < h - 2; y += 3)
-      for (int x = 2; x < w - 2; x += 3) s.push_back(m2[static_cast<size_t>(y) * w + x]);
+    for (int y = 2; y < h - 2; y += GradientStage::kSampleStep)
+      for (int x = 2; x < w - 2; x += GradientStage::kSampleStep) s.push_back(m2[static_cast<size_t>(y) * w + x]);
     if (!s.empty()) {
       std::nth_element(s.begin(), s.begin() + static_cast<std::ptrdiff_t>(s.size() / 2), s.end());
       thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(p.auto_factor * p.auto_factor * static_cast<double>(s[s.size() / 2]))));
