@@ -33,10 +33,39 @@
 // (u_l - u_r) x / (2 f), so v is unchanged and the shared residual code applies.
 // z: measured pixels; S: the upper square-root information of their covariance, as in
 // factors/stereo_pixel_factor.h.
+//
+// Raw cameras. The camera errors q stands for are errors of the RAW cameras (a principal point,
+// a focal length), which the rectification of the given calibration carries into the rectified
+// image through its local map: raw column shift delta moves the rectified pixel by
+// A (delta, 0), A = (d raw px / d rectified px)^-1 from the calibration's camera matrix K,
+// distortion D and rectifying rotation R_c (raw = K dist(norm(R_c^T x_r))). With k1 = -0.2 the
+// map's scale at the image's edge differs from the centre's by ~20 %, so a 1.5 px disparity
+// offset is 1.5 px at the centre and ~1.8 px at the edge, a fixed error of the size of the goal
+// corners' sigma_d (0.105 px) that the rectified-space terms above cannot take. When the rig's
+// calibration needs a remap (StereoCalibration::needsRemap), the columns therefore get, per
+// camera, (A_00 f_raw / f - 1) times its offset (delta_u +- delta_d / 2) and, for the focal
+// errors, the raw scaling's rectified column (A_0 K diag(x_d, y_d) per unit fx, fy scale) minus
+// the rectified terms' (u - o_u); these gains are evaluated at the measured pixels (they vary
+// slowly over the image), so the terms are linear in q. The same raw errors are what
+// selfCalibratedRig (solvers/self_calibrated_rig.h) folds back into the raw cameras. The rows
+// keep the rectified-space terms (the frontend reports the right row equal to the left).
+//
+// Image errors (StereoPixelImageCalibrationFactor): a third block e of fixed errors of the
+// images that are not camera parameters of q but the same in every image of a run: each
+// camera's error of the calibrated lens distortion (dk1, dk2, dp1, dp2: OpenCV's model moves a
+// normalised point by (x r^2, y r^2), (x r^4, y r^4), (2xy, r^2 + 2y^2), (r^2 + 2x^2, 2xy); the
+// rectified column by A_0 K of that) and the right camera's rotation against the left
+// (pitch, yaw, roll: f (x y, x^2, -y) on its column; the yaw's constant f is the disparity
+// offset delta_d, which reaches the right column with the raw gain, so the yaw keeps
+// f (x^2 - (A_00 f_raw / f - 1))). e is whitened: parameter i is e_i sigma_i with the sigmas
+// given at creation, so its prior is the identity and a zero sigma switches a term off. Only
+// columns move.
 // Evaluation fails when the landmark is not in front of the cameras.
 #include <ceres/autodiff_cost_function.h>
+#include <ceres/jet.h>
 
 #include <Eigen/Core>
+#include <Eigen/LU>
 #include <cmath>
 
 #include "factors/stereo_pixel_factor.h"
@@ -45,10 +74,119 @@
 
 namespace stereoloc {
 
-struct StereoPixelCalibrationFactor {
-  StereoPixelCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                               double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals)
-      : landmark_(landmark), sqrt_info_(sqrt_information), rows_(residuals == PixelResiduals::All) {
+namespace stereo_pixel_calibration {
+
+// e = (dk1, dk2, dp1, dp2 of the left camera, the same of the right, the right camera's pitch,
+// yaw, roll): lens terms dimensionless, rotations rad.
+inline constexpr int kImageErrorSize = 11;
+using ImageErrorVector = Eigen::Matrix<double, kImageErrorSize, 1>;
+
+// OpenCV's distortion of a normalised point (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4]]]), with the
+// first four coefficients as separate (differentiable) values.
+template <typename T>
+void distort(const T& x, const T& y, const T* k4, const double* rest, int n, T* xd, T* yd) {
+  const T r2 = x * x + y * y, r4 = r2 * r2, r6 = r4 * r2;
+  const double k3 = n > 4 ? rest[0] : 0.0, k4c = n > 5 ? rest[1] : 0.0, k5 = n > 6 ? rest[2] : 0.0,
+               k6 = n > 7 ? rest[3] : 0.0;
+  const T radial = (T(1.0) + k4[0] * r2 + k4[1] * r4 + T(k3) * r6) / (T(1.0) + T(k4c) * r2 + T(k5) * r4 + T(k6) * r6);
+  *xd = x * radial + T(2.0) * k4[2] * x * y + k4[3] * (r2 + T(2.0) * x * x);
+  *yd = y * radial + k4[2] * (r2 + T(2.0) * y * y) + T(2.0) * k4[3] * x * y;
+  if (n > 8) {
+    *xd += T(rest[4]) * r2 + T(rest[5]) * r4;
+    *yd += T(rest[6]) * r2 + T(rest[7]) * r4;
+  }
+}
+
+// Per observation: the rectified columns' response to errors of the raw cameras, at the
+// measured pixels (see the file comment). Index 0 the left camera, 1 the right.
+struct ColumnResponse {
+  bool raw = false;                  // q's terms through the rectification map
+  double offset[2] = {0, 0};         // A_00 f_raw / f - 1
+  double focal_u[2] = {0, 0};        // per unit fx scale: A_00 fx x_d - (u - o_u)
+  double focal_v[2] = {0, 0};        // per unit fy scale: A_01 fy y_d
+  bool image = false;                // the image-error block e
+  double lens[2][4] = {{0, 0, 0, 0}, {0, 0, 0, 0}};  // per unit e_i (sigma_i included)
+  double rotation[3] = {0, 0, 0};    // right column per unit e_8..e_10 (sigma included)
+};
+
+// `sigmas` null: no image-error block.
+inline ColumnResponse columnResponse(const StereoRig& rig, const StereoPixels& px, const ImageErrorVector* sigmas) {
+  ColumnResponse out;
+  const StereoCalibration* cal = rig.calibration().get();
+  out.raw = cal && cal->needsRemap();
+  out.image = sigmas != nullptr;
+  if (!out.raw && !out.image) return out;
+  const double f = rig.focal(), ou = rig.principalU(), ov = rig.principalV();
+  const double u[2] = {px.u_left, px.u_right}, v[2] = {px.v_left, px.v_right};
+  for (int c = 0; c < 2; ++c) {
+    const double xr = (u[c] - ou) / f, yr = (v[c] - ov) / f;
+    // Without a calibration the rectified camera is the raw one: K = (f, o), no distortion.
+    Eigen::Matrix3d K = Eigen::Matrix3d::Identity(), R = Eigen::Matrix3d::Identity();
+    K(0, 0) = K(1, 1) = f;
+    K(0, 2) = ou;
+    K(1, 2) = ov;
+    double k4[4] = {0, 0, 0, 0}, rest[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+    int n = 4;
+    if (cal) {
+      const cv::Mat& Kc = c == 0 ? cal->K1 : cal->K2;
+      const cv::Mat& Rc = c == 0 ? cal->R1 : cal->R2;
+      const cv::Mat& Dc = c == 0 ? cal->D1 : cal->D2;
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) {
+          K(i, j) = Kc.at<double>(i, j);
+          R(i, j) = Rc.at<double>(i, j);
+        }
+      n = static_cast<int>(Dc.total());
+      for (int i = 0; i < n && i < 12; ++i) (i < 4 ? k4[i] : rest[i - 4]) = Dc.at<double>(i);
+    }
+    // x_u = norm(R^T (x_r, y_r, 1)) and its Jacobian d x_u / d (x_r, y_r).
+    const Eigen::Vector3d X = R.transpose() * Eigen::Vector3d(xr, yr, 1.0);
+    const Eigen::Matrix<double, 3, 2> dX = R.transpose().leftCols<2>();
+    Eigen::Matrix2d J_norm;
+    for (int j = 0; j < 2; ++j) {
+      J_norm(0, j) = (dX(0, j) * X.z() - X.x() * dX(2, j)) / (X.z() * X.z());
+      J_norm(1, j) = (dX(1, j) * X.z() - X.y() * dX(2, j)) / (X.z() * X.z());
+    }
+    // The distortion and its derivatives in (x, y) and (k1, k2, p1, p2).
+    using J6 = ceres::Jet<double, 6>;
+    const J6 x(X.x() / X.z(), 0), y(X.y() / X.z(), 1);
+    const J6 kj[4] = {J6(k4[0], 2), J6(k4[1], 3), J6(k4[2], 4), J6(k4[3], 5)};
+    J6 xd, yd;
+    distort(x, y, kj, rest, n, &xd, &yd);
+    Eigen::Matrix2d J_dist;
+    J_dist << xd.v[0], xd.v[1], yd.v[0], yd.v[1];
+    const Eigen::Matrix2d K2 = K.topLeftCorner<2, 2>();
+    const Eigen::Matrix2d A = (K2 * J_dist * J_norm / f).inverse();  // rectified px per raw px
+    if (out.raw) {
+      out.offset[c] = A(0, 0) * K(0, 0) / f - 1.0;
+      out.focal_u[c] = A(0, 0) * K(0, 0) * xd.a - (u[c] - ou);
+      out.focal_v[c] = A(0, 1) * K(1, 1) * yd.a;
+    }
+    if (out.image) {
+      const Eigen::RowVector2d a = A.row(0) * K2;
+      for (int j = 0; j < 4; ++j) out.lens[c][j] = (a(0) * xd.v[2 + j] + a(1) * yd.v[2 + j]) * (*sigmas)[4 * c + j];
+      if (c == 1) {
+        out.rotation[0] = f * xr * yr * (*sigmas)[8];
+        // The yaw's column shift f (1 + x^2) less the constant the disparity offset takes, which
+        // reaches the right column with the raw gain 1 + offset.
+        out.rotation[1] = f * (xr * xr - out.offset[1]) * (*sigmas)[9];
+        out.rotation[2] = -f * yr * (*sigmas)[10];
+      }
+    }
+  }
+  return out;
+}
+
+}  // namespace stereo_pixel_calibration
+
+// The projection with calibration q (and the image errors e, or null), shared by the factors.
+class StereoPixelCalibrationModel {
+ public:
+  StereoPixelCalibrationModel(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                              double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals,
+                              const stereo_pixel_calibration::ImageErrorVector* image_sigmas)
+      : landmark_(landmark), sqrt_info_(sqrt_information), rows_(residuals == PixelResiduals::All),
+        response_(stereo_pixel_calibration::columnResponse(rig, pixels, image_sigmas)) {
     pan_cos_ = std::cos(pan);
     pan_sin_ = std::sin(pan);
     t_ = Eigen::Vector3d(rig.params().offset_x_mm, 0.0, rig.params().camera_height_mm);
@@ -61,7 +199,7 @@ struct StereoPixelCalibrationFactor {
   }
 
   template <typename T>
-  bool operator()(const T* pose, const T* calib, T* residual) const {
+  bool evaluate(const T* pose, const T* calib, const T* image, T* residual) const {
     using std::cos;
     using std::sin;
     // C0: R(theta)^T (l_xy - t_xy), height unchanged; C1: Rz(pan)^T; then minus the offset t.
@@ -79,14 +217,49 @@ struct StereoPixelCalibrationFactor {
     const T hb = calib[1] * T(half_baseline_);
     const T f = T(f_) * (T(1.0) + calib[5]);
     // Columns relative to o_u.
-    const T cl = calib[3] + 0.5 * calib[2] - f * (y1 - hb) / x2;
-    const T cr = calib[3] - 0.5 * calib[2] - f * (T(1.0) + calib[4]) * (y1 + hb) / x2;
+    T cl = calib[3] + 0.5 * calib[2] - f * (y1 - hb) / x2;
+    T cr = calib[3] - 0.5 * calib[2] - f * (T(1.0) + calib[4]) * (y1 + hb) / x2;
+    const stereo_pixel_calibration::ColumnResponse& g = response_;
+    if (g.raw) {
+      // Raw principal points and focal lengths through the rectification (file comment).
+      const T psi_right = (T(1.0) + calib[5]) * (T(1.0) + calib[4]) - T(1.0);
+      cl += T(g.offset[0]) * (calib[3] + 0.5 * calib[2]) + calib[5] * T(g.focal_u[0] + g.focal_v[0]);
+      cr += T(g.offset[1]) * (calib[3] - 0.5 * calib[2]) + psi_right * T(g.focal_u[1]) + calib[5] * T(g.focal_v[1]);
+    }
+    if (image) {
+      for (int j = 0; j < 4; ++j) {
+        cl += T(g.lens[0][j]) * image[j];
+        cr += T(g.lens[1][j]) * image[4 + j];
+      }
+      for (int j = 0; j < 3; ++j) cr += T(g.rotation[j]) * image[8 + j];
+    }
     const T per_px = x2 / T(f_);  // mm in C2 per pixel of column at this depth, for the shared code's f
     const T y2 = -0.5 * (cl + cr) * per_px;
     const T half_baseline = 0.5 * (cl - cr) * per_px;
     // The rows through the same F: the shared code projects with the nominal f, so z scales.
     return stereo_pixel::whitenedResiduals(x2, y2, (T(1.0) + calib[5]) * z2, half_baseline, f_, ou_, ov_, sqrt_info_,
                                            rows_, z_, residual);
+  }
+
+ private:
+  Eigen::Vector3d landmark_;
+  Eigen::Matrix4d sqrt_info_;
+  bool rows_;
+  stereo_pixel_calibration::ColumnResponse response_;
+  double pan_cos_ = 1, pan_sin_ = 0, tilt_ = 0;
+  Eigen::Vector3d t_;
+  double f_ = 0, ou_ = 0, ov_ = 0, half_baseline_ = 0;
+  Eigen::Vector4d z_;
+};
+
+struct StereoPixelCalibrationFactor {
+  StereoPixelCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                               double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals)
+      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, nullptr) {}
+
+  template <typename T>
+  bool operator()(const T* pose, const T* calib, T* residual) const {
+    return model_.evaluate<T>(pose, calib, nullptr, residual);
   }
 
   static constexpr int kCalibrationSize = 6;  // (dbeta, k, delta_d, delta_u, phi, psi)
@@ -111,13 +284,43 @@ struct StereoPixelCalibrationFactor {
   }
 
  private:
-  Eigen::Vector3d landmark_;
-  Eigen::Matrix4d sqrt_info_;
-  bool rows_;
-  double pan_cos_ = 1, pan_sin_ = 0, tilt_ = 0;
-  Eigen::Vector3d t_;
-  double f_ = 0, ou_ = 0, ov_ = 0, half_baseline_ = 0;
-  Eigen::Vector4d z_;
+  StereoPixelCalibrationModel model_;
+};
+
+// The factor with the image-error block e as well (file comment).
+struct StereoPixelImageCalibrationFactor {
+  using ImageErrorVector = stereo_pixel_calibration::ImageErrorVector;
+  StereoPixelImageCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                    double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals,
+                                    const ImageErrorVector& sigmas)
+      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, &sigmas) {}
+
+  template <typename T>
+  bool operator()(const T* pose, const T* calib, const T* image, T* residual) const {
+    return model_.evaluate<T>(pose, calib, image, residual);
+  }
+
+  static constexpr int kImageErrorSize = stereo_pixel_calibration::kImageErrorSize;
+
+  // Blocks: pose (3), stereo calibration q (6), whitened image errors e (11). `sigmas`: the
+  // 1-sigma of each image error (>= 0; the lens terms dimensionless, the rotations rad).
+  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                     double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals,
+                                     const ImageErrorVector& sigmas) {
+    constexpr const char* kWho = "stereo pixel image calibration factor";
+    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    if (!(sigmas.allFinite() && sigmas.minCoeff() >= 0)) throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
+    auto* functor = new StereoPixelImageCalibrationFactor(
+        rig, landmark, pixels, pan,
+        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals, sigmas);
+    constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
+    if (residuals == PixelResiduals::All)
+      return new ceres::AutoDiffCostFunction<StereoPixelImageCalibrationFactor, 4, 3, kQ, kImageErrorSize>(functor);
+    return new ceres::AutoDiffCostFunction<StereoPixelImageCalibrationFactor, 2, 3, kQ, kImageErrorSize>(functor);
+  }
+
+ private:
+  StereoPixelCalibrationModel model_;
 };
 
 }  // namespace stereoloc

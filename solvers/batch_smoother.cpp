@@ -332,6 +332,41 @@ using Clock = std::chrono::steady_clock;
 
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
+// A cost function on (pose, q, e) seen as (pose, [q; e]): the chain solver's factors touch one
+// global block, so the stereo and image blocks of the self-calibration are one global block of
+// the batch (q first, so the stereo block's offset does not change).
+class JoinedGlobalBlocks final : public ceres::CostFunction {
+ public:
+  explicit JoinedGlobalBlocks(ceres::CostFunction* inner) : inner_(inner) {
+    const std::vector<int32_t>& b = inner_->parameter_block_sizes();
+    n1_ = b[1];
+    n2_ = b[2];
+    set_num_residuals(inner_->num_residuals());
+    mutable_parameter_block_sizes()->push_back(b[0]);
+    mutable_parameter_block_sizes()->push_back(n1_ + n2_);
+  }
+  bool Evaluate(double const* const* p, double* r, double** J) const override {
+    const double* blocks[3] = {p[0], p[1], p[1] + n1_};
+    if (!J) return inner_->Evaluate(blocks, r, nullptr);
+    const int m = num_residuals();
+    std::vector<double> j1(J[1] ? static_cast<size_t>(m * n1_) : 0), j2(J[1] ? static_cast<size_t>(m * n2_) : 0);
+    double* jac[3] = {J[0], J[1] ? j1.data() : nullptr, J[1] ? j2.data() : nullptr};
+    if (!inner_->Evaluate(blocks, r, jac)) return false;
+    if (J[1]) {
+      const int n = n1_ + n2_;
+      for (int i = 0; i < m; ++i) {
+        std::copy(j1.begin() + i * n1_, j1.begin() + (i + 1) * n1_, J[1] + i * n);
+        std::copy(j2.begin() + i * n2_, j2.begin() + (i + 1) * n2_, J[1] + i * n + n1_);
+      }
+    }
+    return true;
+  }
+
+ private:
+  std::unique_ptr<ceres::CostFunction> inner_;
+  int n1_ = 0, n2_ = 0;
+};
+
 // The factors touching poses [lo, hi) as a ceres::Problem over those poses, the neighbours
 // lo-1 and hi held constant, and over the global blocks (held constant unless free_globals)
 // (BatchSolver::Ceres, and ceres::Covariance).
@@ -396,7 +431,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     }
     if (b_.config_.calibration.stereo) {
       stereo_block_ = static_cast<int>(sizes_.size());
-      sizes_.push_back(StereoPixelCalibrationFactor::kCalibrationSize);
+      image_sigmas_ = imageErrorSigmas(b_.config_.calibration, b_.config_.observation_model.unmodelled);
+      sizes_.push_back(kStereo + (image_sigmas_ ? kImage : 0));
     }
   }
 
@@ -418,9 +454,15 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     const Observation& obs = b_.observations_[o];
     const Landmark& landmark = b_.map_.at(obs.landmark_id);
     if (stereo_block_ >= 0 && obs.pixels) {
+      const PixelResiduals residuals =
+          model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+      const Eigen::Matrix4d C = calibratedPixelCovariance(obs, landmark, model, image_sigmas_.has_value());
+      if (image_sigmas_)
+        return {std::make_unique<JoinedGlobalBlocks>(StereoPixelImageCalibrationFactor::Create(
+                    model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals, *image_sigmas_)),
+                true, stereo_block_};
       return {std::unique_ptr<ceres::CostFunction>(StereoPixelCalibrationFactor::Create(
-                  model.rig, landmark.position, *obs.pixels, obs.head_pan, pixelCovarianceFor(obs, landmark, model),
-                  model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns)),
+                  model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals)),
               true, stereo_block_};
     }
     return {std::unique_ptr<ceres::CostFunction>(makeObservationFactor(obs, landmark, model)), true};
@@ -465,9 +507,20 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       CalibrationEstimate::StereoVector sigma;
       sigma << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
           c.focal_ratio_sigma, c.focal_scale_sigma;
-      out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<kStereo>::Create(
-                          nominalHead(), sigma.cwiseAbs2().asDiagonal().toDenseMatrix())),
-                      false, stereo_block_});
+      if (image_sigmas_) {
+        // The image block is whitened (StereoPixelImageCalibrationFactor): its prior is the identity.
+        Eigen::Matrix<double, kStereo + kImage, 1> joined;
+        joined << nominalHead(), Eigen::Matrix<double, kImage, 1>::Zero();
+        Eigen::Matrix<double, kStereo + kImage, 1> variance;
+        variance << sigma.cwiseAbs2(), Eigen::Matrix<double, kImage, 1>::Ones();
+        out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<kStereo + kImage>::Create(
+                            joined, variance.asDiagonal().toDenseMatrix())),
+                        false, stereo_block_});
+      } else {
+        out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<kStereo>::Create(
+                            nominalHead(), sigma.cwiseAbs2().asDiagonal().toDenseMatrix())),
+                        false, stereo_block_});
+      }
     }
   }
   // The global blocks' nominal values, concatenated (the solver's start).
@@ -477,8 +530,11 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     const CalibrationEstimate::StereoVector head = nominalHead();
     if (odometry_block_ >= 0) g.insert(g.end(), wheels.data(), wheels.data() + 3);
     if (stereo_block_ >= 0) g.insert(g.end(), head.data(), head.data() + kStereo);
+    if (image_sigmas_) g.insert(g.end(), static_cast<size_t>(kImage), 0.0);
     return g;
   }
+  // The image block's sigmas (whitened parameter i is sigma_i e_i), when estimated.
+  const std::optional<CalibrationEstimate::ImageVector>& imageSigmas() const { return image_sigmas_; }
   int odometryBlock() const { return odometry_block_; }
   int stereoBlock() const { return stereo_block_; }
   // The odometry factor into pose i is removed (true) or restored.
@@ -492,9 +548,11 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   std::vector<uint8_t> left_out_;  // per observation in observations_
   std::vector<int> sizes_;
   int odometry_block_ = -1, stereo_block_ = -1;
+  std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
   Eigen::Vector3d nominalWheels() const { return Eigen::Vector3d(1.0, 1.0, b_.odometry_.wheel_base_mm); }
   static CalibrationEstimate::StereoVector nominalHead() { return CalibrationEstimate().head; }
   static constexpr int kStereo = StereoPixelCalibrationFactor::kCalibrationSize;
+  static constexpr int kImage = StereoPixelImageCalibrationFactor::kImageErrorSize;
 };
 
 void BatchSmoother::solve() {
@@ -953,6 +1011,14 @@ void BatchSmoother::solve() {
       constexpr int k = StereoPixelCalibrationFactor::kCalibrationSize;
       cal.head = c.segment<k>(offset);
       cal.head_covariance = global_covariance.block<k, k>(offset, offset);
+      if (const auto& sigmas = source.imageSigmas()) {
+        // Back from the whitened block to its units.
+        constexpr int m = StereoPixelImageCalibrationFactor::kImageErrorSize;
+        cal.image = true;
+        cal.image_errors = sigmas->cwiseProduct(c.segment<m>(offset + k));
+        cal.image_covariance =
+            sigmas->asDiagonal() * global_covariance.block<m, m>(offset + k, offset + k) * sigmas->asDiagonal();
+      }
     }
   }
   summary_ = s;

@@ -17,6 +17,10 @@
 //              Lens distortion and the rectifying rotation make the correction exact only
 //              near the image centre (their local scale at the image edge differs by up to
 //              ~15 % for k1 = -0.2).
+//   image      with the image block (CalibrationEstimate::image): each camera's lens error added
+//              to its distortion, the right camera's rotation into its rectifying rotation R2
+//              (and R), its yaw's constant column shift taken from the right raw principal
+//              point (the block's yaw is the rotation less the shift the disparity offset holds).
 // A rig without an OpenCV calibration gets the ideal one of its pinhole parameters first.
 #include "solvers/self_calibration.h"
 #include "src/core/stereo_rig.h"

@@ -83,6 +83,39 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
   w.writeAtomically(path);
 }
 
+std::optional<CalibrationEstimate::ImageVector> imageErrorSigmas(const SelfCalibrationConfig& config,
+                                                                 const UnmodelledNoise& noise) {
+  if (!config.stereo || !config.image_errors) return std::nullopt;
+  if (!(noise.k1_sigma > 0 || noise.k2_sigma > 0 || noise.tangential_sigma > 0 || noise.relative_rotation_sigma_rad > 0))
+    return std::nullopt;
+  CalibrationEstimate::ImageVector s;
+  for (int c = 0; c < 2; ++c)
+    s.segment<4>(4 * c) << noise.k1_sigma, noise.k2_sigma, noise.tangential_sigma, noise.tangential_sigma;
+  s.tail<3>().setConstant(noise.relative_rotation_sigma_rad);
+  return s;
+}
+
+Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark& landmark,
+                                          const ObservationModelConfig& config, bool image_block) {
+  if (!image_block) return pixelCovarianceFor(obs, landmark, config);
+  ObservationModelConfig rest = config;
+  UnmodelledNoise& n = rest.unmodelled;
+  UnmodelledNoise block;  // the terms the image block takes
+  block.k1_sigma = n.k1_sigma;
+  block.k2_sigma = n.k2_sigma;
+  block.tangential_sigma = n.tangential_sigma;
+  block.relative_rotation_sigma_rad = n.relative_rotation_sigma_rad;
+  n.k1_sigma = n.k2_sigma = n.tangential_sigma = n.relative_rotation_sigma_rad = 0;
+  Eigen::Matrix4d C = pixelCovarianceFor(obs, landmark, rest);
+  if (obs.pixels) {
+    // J diag(sigma^2) J^T with the column rows of J zero: the (v_l, v_r) block alone.
+    const Eigen::Matrix4d B = unmodelledPixelCovariance(config.rig, *obs.pixels, block);
+    for (int i : {1, 3})
+      for (int j : {1, 3}) C(i, j) += B(i, j);
+  }
+  return C;
+}
+
 SelfCalibrationResult selfCalibratingBatch(const Dataset& d, const InitialBelief& start,
                                            const SelfCalibrationConfig& config) {
   config.validate();

@@ -11,15 +11,28 @@
 //             entering every pixel factor
 //             (factors/stereo_pixel_calibration_factor.h); observations without pixels stay
 //             range-bearing factors, which do not see q
+//   image     e = the error of each camera's calibrated lens distortion (dk1, dk2, dp1, dp2) and
+//             the right camera's rotation against the left (pitch, yaw, roll), with the stereo
+//             block when the noise model (UnmodelledNoise) states their sigmas (batch smoother;
+//             SelfCalibrationConfig::image_errors; StereoPixelImageCalibrationFactor)
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
 // calibration with the stated uncertainty of SelfCalibrationConfig, so a run that does not
-// excite a parameter leaves it at its prior. The smoother returns the estimate with its marginal
+// excite a parameter leaves it at its prior.
+// Why the image block: the lens estimate's error and the cameras' relative rotation are fixed
+// for a run, so they repeat at every sighting of a landmark from a similar view; as white pixel
+// noise (unmodelledPixelCovariance) they average out over the run and the stereo parameters
+// that partly absorb them (baseline and focal scales) come out with sigmas too small. As
+// parameters with the noise model's sigmas as their priors, their uncertainty enters the
+// marginal covariance of every other parameter, and the data correct them where they can. The smoother returns the estimate with its marginal
 // covariance beside the poses' (CalibrationEstimate).
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "factors/stereo_pixel_calibration_factor.h"
 #include "factors/stereo_pixel_factor.h"
 #include "solvers/initialisation.h"
+#include "solvers/smoother_common.h"
 #include "src/core/angles.h"
 #include "src/core/odometry_model.h"
 #include "src/core/stereo_rig.h"
@@ -46,6 +59,11 @@ struct SelfCalibrationConfig {
   double focal_ratio_sigma = 0.014;         // dimensionless
   // The left camera's focal length: 0.5 % per camera.
   double focal_scale_sigma = 0.01;          // dimensionless
+  // With the stereo block, in the batch smoother: estimate the image errors the noise model
+  // states (lens estimate, relative rotation) as the image block instead of adding them to the
+  // pixel noise. The sliding window keeps them as pixel noise: it gates each sighting once,
+  // through the stereo block alone.
+  bool image_errors = true;
   // selfCalibratingBatch only (the batch smoother takes them from its own configuration).
   PixelResiduals residuals = PixelResiduals::All;
   bool use_compass = true;
@@ -65,6 +83,13 @@ struct CalibrationEstimate {
   using StereoMatrix = Eigen::Matrix<double, 6, 6>;
   StereoVector head = (StereoVector() << 0, 1, 0, 0, 0, 0).finished();
   StereoMatrix head_covariance = StereoMatrix::Zero();
+  // The image block (imageErrorSigmas), in its units (dimensionless lens terms, rad): left
+  // dk1 dk2 dp1 dp2, right dk1 dk2 dp1 dp2, right pitch yaw roll.
+  bool image = false;
+  using ImageVector = stereo_pixel_calibration::ImageErrorVector;
+  using ImageMatrix = Eigen::Matrix<double, stereo_pixel_calibration::kImageErrorSize, stereo_pixel_calibration::kImageErrorSize>;
+  ImageVector image_errors = ImageVector::Zero();
+  ImageMatrix image_covariance = ImageMatrix::Zero();
 
   // The rig a user passes back as --rig: with a stereo estimate, selfCalibratedRig
   // (solvers/self_calibrated_rig.h) — tilt in the mounting, every pixel correction folded into an
@@ -83,6 +108,18 @@ struct SelfCalibrationResult {
   int unidentified_observations = 0;
   bool covariance_ok = false;
 };
+
+// The sigmas of the image block (CalibrationEstimate::image_errors' order) that `noise` states:
+// k1_sigma, k2_sigma, tangential_sigma per camera, relative_rotation_sigma_rad per axis; nullopt
+// without the stereo block, with image_errors off, or when the noise model states none of them.
+std::optional<CalibrationEstimate::ImageVector> imageErrorSigmas(const SelfCalibrationConfig& config,
+                                                                 const UnmodelledNoise& noise);
+
+// The pixel covariance of a calibrated pixel factor: pixelCovarianceFor (solvers/smoother_common.h)
+// and, with the image block, its lens and relative-rotation terms on the rows only (the block
+// carries their column errors; StereoPixelImageCalibrationFactor moves only the columns).
+Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark& landmark,
+                                          const ObservationModelConfig& config, bool image_block);
 
 // The batch smoother with `config` over a whole dataset from a known start (pixel observation
 // model of config.residuals, no robust loss, no kidnap cuts).

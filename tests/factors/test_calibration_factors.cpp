@@ -241,3 +241,139 @@ TEST(CalibrationPriorFactor, WhitensAndJacobianMatches) {
 
 }  // namespace
 }  // namespace stereoloc
+
+#include <opencv2/calib3d.hpp>
+
+#include "src/core/stereo_calibration.h"
+
+namespace stereoloc {
+namespace {
+
+// A rig whose given calibration has barrel distortion (k1 = -0.2, as the realistic profile's
+// lens), rectified with alpha 0: its rectified focal length differs from the raw one and the
+// rectification map's scale changes over the image.
+StereoRig distortedRig() {
+  const StereoRig nominal;
+  StereoCalibration c = idealCalibration(320, 240, nominal.focal(), 160.0, 120.0, 30.0);
+  c.D1 = (cv::Mat_<double>(1, 4) << -0.2, 0.05, 0.0005, -0.0004);
+  c.D2 = (cv::Mat_<double>(1, 4) << -0.19, 0.045, -0.0003, 0.0002);
+  c.rectify();
+  return StereoRig(nominal.params(), c);
+}
+
+// The rectified pixels (with the rig's given calibration) of a robot-frame point through raw
+// cameras K, D, turned by R (X_raw = R X_ideal, OpenCV axes), as the simulator renders them.
+StereoPixels throughRawCameras(const StereoRig& rig, const Eigen::Vector3d& p_robot, double pan, const cv::Mat K[2],
+                               const cv::Mat D[2], const cv::Mat R[2]) {
+  const Eigen::Vector3d p = rig.robotToVision(p_robot, pan);
+  const double hb = 0.5 * rig.params().baseline_mm;
+  const StereoCalibration& g = *rig.calibration();
+  double uv[2][2];
+  for (int c = 0; c < 2; ++c) {
+    const cv::Mat X = (cv::Mat_<double>(3, 1) << -(p.y() - (c == 0 ? hb : -hb)), -p.z(), p.x());
+    const cv::Mat Xr = R[c] * X;
+    std::vector<cv::Point2d> raw, rect;
+    cv::projectPoints(std::vector<cv::Point3d>{cv::Point3d(Xr.at<double>(0), Xr.at<double>(1), Xr.at<double>(2))},
+                      cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), K[c], D[c], raw);
+    const cv::TermCriteria crit(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 50, 1e-12);
+    cv::undistortPoints(raw, rect, c == 0 ? g.K1 : g.K2, c == 0 ? g.D1 : g.D2, c == 0 ? g.R1 : g.R2,
+                        c == 0 ? g.P1 : g.P2, crit);
+    uv[c][0] = rect[0].x;
+    uv[c][1] = rect[0].y;
+  }
+  return StereoPixels{uv[0][0], uv[0][1], uv[1][0], uv[1][1]};
+}
+
+TEST(StereoPixelImageCalibrationFactor, ZeroImageErrorsEqualTheCalibrationFactorAndJacobiansMatch) {
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  stereo_pixel_calibration::ImageErrorVector sigma;
+  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
+  for (const StereoRig& rig : {StereoRig(), tiltedRig(), distortedRig()}) {
+    for (PixelResiduals mode : {PixelResiduals::All, PixelResiduals::Columns}) {
+      for (int k = 0; k < 4; ++k) {
+        const Pose2 pose(600 * U(rng), 500 * U(rng), kPi * U(rng));
+        const double pan = 0.3 * U(rng);
+        const test::Sighting s = test::sight(rig, pose, pan, 900 + 400 * U(rng), 0.45 * U(rng), 60 + 60 * U(rng));
+        const double p[3] = {pose.x, pose.y, pose.theta};
+        const double q[6] = {0.004, 1.01, -0.9, 0.4, -0.005, 0.008};
+        double e[11];
+        for (double& v : e) v = 1.5 * U(rng);
+        const double zero[11] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+        std::unique_ptr<ceres::CostFunction> image(
+            StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode, sigma));
+        std::unique_ptr<ceres::CostFunction> calib(
+            StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode));
+        EXPECT_LT((evaluate(*image, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
+        const FactorCheck c = checkFactorJacobians(*image, {p, q, e});
+        EXPECT_TRUE(c.ok) << c.message;
+        const FactorCheck d = checkFactorJacobians(*calib, {p, q});
+        EXPECT_TRUE(d.ok) << d.message;
+      }
+    }
+  }
+}
+
+// Raw cameras with principal-point and focal-length errors, lens distortion other than the
+// given estimate and a right camera turned against the left: the rectified pixels are those the
+// factors predict with q = (0, 1, delta_d, delta_u, phi, psi) of the raw errors and the image
+// block of the lens and rotation errors, to second order, across the image (the raw terms'
+// gain at the image's edge differs from 1 by ~20 %).
+TEST(StereoPixelImageCalibrationFactor, PredictsTheRectifiedPixelsOfErroneousRawCameras) {
+  const StereoRig rig = distortedRig();
+  const StereoCalibration& g = *rig.calibration();
+  const double f = rig.focal(), f_raw = g.K1.at<double>(0, 0);
+  const double dl = 0.9, dr = -1.2, psi = 0.004, phi = -0.006;                        // raw px, scales
+  const double lens[2][4] = {{0.01, -0.005, 0.0003, -0.0002}, {-0.008, 0.004, -0.0002, 0.0003}};
+  const double pitch = 0.0015, yaw = -0.0012, roll = 0.0018;                           // rad
+  cv::Mat K[2] = {g.K1.clone(), g.K2.clone()}, D[2] = {g.D1.clone(), g.D2.clone()}, R[2];
+  K[0].at<double>(0, 2) += dl;
+  K[1].at<double>(0, 2) += dr;
+  K[0].at<double>(0, 0) *= 1 + psi;
+  K[0].at<double>(1, 1) *= 1 + psi;
+  K[1].at<double>(0, 0) *= (1 + psi) * (1 + phi);
+  K[1].at<double>(1, 1) *= 1 + psi;
+  for (int c = 0; c < 2; ++c)
+    for (int j = 0; j < 4; ++j) D[c].at<double>(j) += lens[c][j];
+  R[0] = cv::Mat::eye(3, 3, CV_64F);
+  cv::Rodrigues(cv::Vec3d(pitch, yaw, roll), R[1]);
+  // delta_u +- delta_d / 2: the raw offsets at the centre's gain f / f_raw; the right column also
+  // takes the yaw's constant f yaw.
+  const double left = dl * f / f_raw, right = dr * f / f_raw + f * yaw;
+  const double q[6] = {0.0, 1.0, left - right, 0.5 * (left + right), phi, psi};
+  stereo_pixel_calibration::ImageErrorVector sigma;
+  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
+  double e[11];
+  for (int c = 0; c < 2; ++c)
+    for (int j = 0; j < 4; ++j) e[4 * c + j] = lens[c][j] / sigma[4 * c + j];
+  // Pitch moves the right column by -f x y, roll by -f y (OpenCV's rotation vector).
+  e[8] = -pitch / sigma[8];
+  e[9] = yaw / sigma[9];
+  e[10] = roll / sigma[10];
+  const double zero[11] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+  const Pose2 pose(100.0, -50.0, 0.3);
+  const double p[3] = {pose.x, pose.y, pose.theta};
+  double worst = 0, worst_without_image = 0, largest_gain = 0;
+  for (double bearing : {-0.45, -0.25, 0.0, 0.2, 0.42})
+    for (double height : {0.0, 40.0, 150.0})
+      for (double range : {450.0, 900.0, 1500.0}) {
+        const Eigen::Vector2d local(range * std::cos(bearing), range * std::sin(bearing));
+        const Eigen::Vector2d world = transformToWorld(pose, local);
+        const StereoPixels px = throughRawCameras(rig, Eigen::Vector3d(local.x(), local.y(), height), 0.0, K, D, R);
+        if (px.u_left < 0 || px.u_left > 319 || px.u_right < 0 || px.u_right > 319 || px.v_left < 0 || px.v_left > 239)
+          continue;
+        const Eigen::Vector3d landmark(world.x(), world.y(), height);
+        std::unique_ptr<ceres::CostFunction> factor(StereoPixelImageCalibrationFactor::Create(
+            rig, landmark, px, 0.0, Eigen::Matrix4d::Identity(), PixelResiduals::Columns, sigma));
+        worst = std::max(worst, evaluate(*factor, {p, q, e}).cwiseAbs().maxCoeff());
+        worst_without_image = std::max(worst_without_image, evaluate(*factor, {p, q, zero}).cwiseAbs().maxCoeff());
+        const auto response = stereo_pixel_calibration::columnResponse(rig, px, nullptr);
+        largest_gain = std::max({largest_gain, std::fabs(response.offset[0]), std::fabs(response.offset[1])});
+      }
+  EXPECT_LT(worst, 0.02);                 // px
+  EXPECT_GT(worst_without_image, 0.2);    // the lens and rotation errors are not small
+  EXPECT_GT(largest_gain, 0.1);           // and the raw terms' gain departs from 1
+}
+
+}  // namespace
+}  // namespace stereoloc

@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <memory>
 #include <opencv2/calib3d.hpp>
 #include <string>
 #include <vector>
@@ -78,6 +79,48 @@ TEST(SelfCalibratedRig, FoldsTheEstimateIntoTheCamerasItRectifies) {
   const cv::Point3d centre(0.0, 0.0, 900.0);
   EXPECT_NEAR(rectifiedWithGiven(truth, given, 0, centre).x, ou + du + 0.5 * dd, 0.02);
   EXPECT_GT(worst, 0.0);
+}
+
+// With the image block the folded rig's cameras, rectified with the given calibration, show
+// the pixels the image factor predicts from the same estimate, across the image: the raw
+// offsets and focal lengths through the given rectification map, the lens errors and the right
+// camera's rotation.
+TEST(SelfCalibratedRig, FoldsTheImageBlockAsTheImageFactorSeesIt) {
+  const StereoCalibration given = exampleCalibration();
+  const StereoRig given_rig(StereoRigParams(), given);
+  CalibrationEstimate e;
+  e.stereo = true;
+  e.head << 0.0, 1.008, 1.1, -0.6, 0.005, -0.004;
+  e.image = true;
+  e.image_errors << 0.01, -0.004, 0.0003, -0.0002, -0.008, 0.005, -0.0002, 0.0003, 0.0015, -0.0012, 0.0017;
+  const StereoRig rig = selfCalibratedRig(given_rig, e);
+  const StereoCalibration& truth = *rig.calibration();
+  EXPECT_NEAR(rig.focal(), given_rig.focal(), 1e-12);
+  EXPECT_NEAR(rig.principalU(), given_rig.principalU(), 1e-12);
+  stereo_pixel_calibration::ImageErrorVector sigma;
+  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
+  const stereo_pixel_calibration::ImageErrorVector whitened = e.image_errors.cwiseQuotient(sigma);
+  const double hb = 0.5 * given_rig.params().baseline_mm;
+  const double pose[3] = {0.0, 0.0, 0.0};
+  double worst = 0;
+  for (double X : {-300.0, -150.0, 0.0, 150.0, 300.0})
+    for (double Y : {-200.0, 0.0, 200.0}) {
+      const cv::Point3d p(X, Y, 800.0);
+      const cv::Point2d l = rectifiedWithGiven(truth, given, 0, p), r = rectifiedWithGiven(truth, given, 1, p);
+      // The rectified left camera (x right, y down, z forward) in the robot frame of an untilted
+      // rig at the origin: forward Z, left b/2 - X, up -Y, plus the mounting.
+      const Eigen::Vector3d landmark(p.z + given_rig.params().offset_x_mm, hb - p.x,
+                                     -p.y + given_rig.params().camera_height_mm);
+      const StereoPixels px{l.x, l.y, r.x, r.y};
+      std::unique_ptr<ceres::CostFunction> f(StereoPixelImageCalibrationFactor::Create(
+          given_rig, landmark, px, 0.0, Eigen::Matrix4d::Identity(), PixelResiduals::Columns, sigma));
+      const double* blocks[3] = {pose, e.head.data(), whitened.data()};
+      Eigen::Vector2d res;
+      ASSERT_TRUE(f->Evaluate(blocks, res.data(), nullptr));
+      worst = std::max(worst, res.cwiseAbs().maxCoeff());
+    }
+  // px; each image error alone within 0.003 px, the rest the second order of the large q.
+  EXPECT_LT(worst, 0.06);
 }
 
 TEST(SelfCalibratedRig, PinholeRigGetsACalibrationAndNoStereoPartChangesNothing) {
