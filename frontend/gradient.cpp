@@ -5,6 +5,10 @@
 #include <climits>
 #include <cstring>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include <opencv2/imgproc.hpp>
 
 #include "src/core/error.h"
@@ -70,6 +74,102 @@ inline float angleOf(float y, float x) {
   return r >= 6.28318548f ? r - 6.28318548f : r;
 }
 
+// The suppression's kept pixels, one array per field (see GradientStage::compute).
+// kXY: x | y << 16; kG: gx in the low, gy in the high 16 bits; kD: dy * 65536 + dx.
+enum KeptField { kXY, kC, kMm, kMp, kG, kD, kKeptFields };
+struct KeptPixels {
+  int32_t* field[kKeptFields];
+};
+
+// 1 deg bins of [0, 2 pi).
+constexpr float kBinsPerRad = 360.0f / 6.28318548f;
+
+// The edge pixel of kept pixel i: sub-pixel offset along (dx, dy) from the parabola through
+// the magnitudes sqrt(mm), sqrt(c), sqrt(mp) (its vertex, clamped to half a pixel; none when
+// the three are not concave), direction and magnitude.
+inline void edgePixelOf(const KeptPixels& k, size_t i, EdgePixel& e) {
+  const float fm = std::sqrt(static_cast<float>(k.field[kMm][i])), f0 = std::sqrt(static_cast<float>(k.field[kC][i])),
+              fp = std::sqrt(static_cast<float>(k.field[kMp][i]));
+  const float den = fm - 2.0f * f0 + fp;
+  const float q = 0.5f * (fm - fp) / (den < 0.0f ? den : -1.0f);
+  const float s = std::clamp(den < 0.0f ? q : 0.0f, -0.5f, 0.5f);
+  const int32_t xy = k.field[kXY][i], d = k.field[kD][i], g = k.field[kG][i];
+  const int x = xy & 0xffff, y = xy >> 16;
+  const int dx = d & 1, dy = (d - dx) / 65536;
+  e.ix = static_cast<int16_t>(x);
+  e.iy = static_cast<int16_t>(y);
+  e.x = static_cast<float>(x) + s * static_cast<float>(dx);
+  e.y = static_cast<float>(y) + s * static_cast<float>(dy);
+  // c > 0 (it exceeds a neighbour's): gx, gy are not both 0.
+  e.angle = angleOf(static_cast<float>(static_cast<int16_t>(g >> 16)), static_cast<float>(static_cast<int16_t>(g & 0xffff)));
+  e.mag = f0;
+  const int bin = static_cast<int>(e.angle * kBinsPerRad + 0.5f);
+  e.dir_bin = static_cast<uint16_t>(bin >= 360 ? bin - 360 : bin);
+}
+
+// edgePixelOf for kept pixels 0 .. n - 1 into out. With SSE2, four at a time: the same single
+// precision operations in the same order (no contraction into fused multiply-adds, which
+// baseline x86-64 lacks), so the same bits; the quadrant and clamp selections are masks, as
+// the scalar code's selections compiled to branches that texture mispredicts.
+void edgePixels(const KeptPixels& k, size_t n, EdgePixel* out) {
+  size_t i = 0;
+#if defined(__SSE2__)
+  const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
+  const __m128 zero = _mm_setzero_ps();
+  const __m128 half = _mm_set1_ps(0.5f), neg_half = _mm_set1_ps(-0.5f), two = _mm_set1_ps(2.0f);
+  const __m128 half_pi = _mm_set1_ps(1.57079637f), pi = _mm_set1_ps(3.14159274f), two_pi = _mm_set1_ps(6.28318548f);
+  const __m128i i360 = _mm_set1_epi32(360), i359 = _mm_set1_epi32(359), low16 = _mm_set1_epi32(0xffff);
+  auto load = [&](int f) { return _mm_loadu_si128(reinterpret_cast<const __m128i*>(k.field[f] + i)); };
+  auto select = [](__m128 mask, __m128 a, __m128 b) { return _mm_or_ps(_mm_and_ps(mask, a), _mm_andnot_ps(mask, b)); };
+  alignas(16) float ex[4], ey[4], ang[4], mag[4];
+  alignas(16) int32_t bins[4];
+  for (; i + 4 <= n; i += 4) {
+    const __m128 fm = _mm_sqrt_ps(_mm_cvtepi32_ps(load(kMm)));
+    const __m128 f0 = _mm_sqrt_ps(_mm_cvtepi32_ps(load(kC)));
+    const __m128 fp = _mm_sqrt_ps(_mm_cvtepi32_ps(load(kMp)));
+    const __m128 den = _mm_add_ps(_mm_sub_ps(fm, _mm_mul_ps(two, f0)), fp);
+    const __m128 concave = _mm_cmplt_ps(den, zero);
+    const __m128 q = _mm_div_ps(_mm_mul_ps(half, _mm_sub_ps(fm, fp)), select(concave, den, _mm_set1_ps(-1.0f)));
+    const __m128 s = _mm_max_ps(neg_half, _mm_min_ps(_mm_and_ps(concave, q), half));
+    const __m128i xy = load(kXY), d = load(kD), g = load(kG);
+    const __m128 xf = _mm_cvtepi32_ps(_mm_and_si128(xy, low16)), yf = _mm_cvtepi32_ps(_mm_srai_epi32(xy, 16));
+    const __m128i dx = _mm_and_si128(d, _mm_set1_epi32(1));
+    const __m128i dy = _mm_srai_epi32(_mm_sub_epi32(d, dx), 16);
+    _mm_store_ps(ex, _mm_add_ps(xf, _mm_mul_ps(s, _mm_cvtepi32_ps(dx))));
+    _mm_store_ps(ey, _mm_add_ps(yf, _mm_mul_ps(s, _mm_cvtepi32_ps(dy))));
+    _mm_store_ps(mag, f0);
+    // angleOf, lane by lane.
+    const __m128 gx = _mm_cvtepi32_ps(_mm_srai_epi32(_mm_slli_epi32(g, 16), 16)), gy = _mm_cvtepi32_ps(_mm_srai_epi32(g, 16));
+    const __m128 ax = _mm_and_ps(gx, abs_mask), ay = _mm_and_ps(gy, abs_mask);
+    const __m128 a = _mm_div_ps(_mm_min_ps(ax, ay), _mm_max_ps(ax, ay)), a2 = _mm_mul_ps(a, a);
+    __m128 r = _mm_sub_ps(_mm_mul_ps(_mm_set1_ps(0.0208351f), a2), _mm_set1_ps(0.0851330f));
+    r = _mm_add_ps(_mm_mul_ps(r, a2), _mm_set1_ps(0.1801410f));
+    r = _mm_sub_ps(_mm_mul_ps(r, a2), _mm_set1_ps(0.3302995f));
+    r = _mm_mul_ps(_mm_add_ps(_mm_mul_ps(r, a2), _mm_set1_ps(0.9998660f)), a);
+    r = select(_mm_cmpgt_ps(ay, ax), _mm_sub_ps(half_pi, r), r);
+    r = select(_mm_cmplt_ps(gx, zero), _mm_sub_ps(pi, r), r);
+    r = select(_mm_cmplt_ps(gy, zero), _mm_sub_ps(two_pi, r), r);
+    r = select(_mm_cmpge_ps(r, two_pi), _mm_sub_ps(r, two_pi), r);
+    _mm_store_ps(ang, r);
+    __m128i bin = _mm_cvttps_epi32(_mm_add_ps(_mm_mul_ps(r, _mm_set1_ps(kBinsPerRad)), half));
+    bin = _mm_sub_epi32(bin, _mm_and_si128(_mm_cmpgt_epi32(bin, i359), i360));
+    _mm_store_si128(reinterpret_cast<__m128i*>(bins), bin);
+    for (int j = 0; j < 4; ++j) {
+      EdgePixel& e = out[i + static_cast<size_t>(j)];
+      e.x = ex[j];
+      e.y = ey[j];
+      const int32_t xyj = k.field[kXY][i + static_cast<size_t>(j)];
+      e.ix = static_cast<int16_t>(xyj & 0xffff);
+      e.iy = static_cast<int16_t>(xyj >> 16);
+      e.angle = ang[j];
+      e.mag = mag[j];
+      e.dir_bin = static_cast<uint16_t>(bins[j]);
+    }
+  }
+#endif
+  for (; i < n; ++i) edgePixelOf(k, i, out[i]);
+}
+
 }  // namespace
 
 float fastAngle(float y, float x) {
@@ -113,10 +213,8 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   // Rows of gx_, gy_ equal to the whole image's Sobel: y_sobel + 1 on (all with no region).
   const int y_exact = y_sobel > 0 ? y_sobel + 1 : 0;
 
-  // Squared magnitudes of the rows the suppression reads, in a loop the compiler vectorises.
-  // With the automatic threshold, the samples of its median (below) are copied out of them
-  // on the fly; samples above these rows come from gx_, gy_ or, above the computed Sobel,
-  // from the luma directly.
+  // With the automatic threshold, the samples of its median (below): squared magnitudes from
+  // gx_, gy_ or, above the computed Sobel, from the luma directly.
   const bool automatic = params.auto_factor > 0;
   // Sized once for the image (never shrunk: a growing resize would clear it on every call).
   const size_t max_samples = static_cast<size_t>(std::max(0, (w - 3) / kSampleStep + 1)) *
@@ -125,7 +223,7 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   int32_t* sample = samples_all_.data();
   row_mag2_.resize(static_cast<size_t>(w));
   if (automatic) {
-    for (int y = 2; y < std::min(y_first, h - 2); y += kSampleStep) {
+    for (int y = 2; y < h - 2; y += kSampleStep) {
       if (y >= y_exact) {
         const int16_t* gxr = gx_.ptr<int16_t>(y);
         const int16_t* gyr = gy_.ptr<int16_t>(y);
@@ -144,14 +242,6 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
         for (int x = 2; x < w - 2; x += kSampleStep) *sample++ = m[x];
       }
     }
-  }
-  for (int y = y_first; y < h; ++y) {
-    const int16_t* gxr = gx_.ptr<int16_t>(y);
-    const int16_t* gyr = gy_.ptr<int16_t>(y);
-    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-    if (automatic && y >= 2 && y < h - 2 && y % kSampleStep == 2)
-      for (int x = 2; x < w - 2; x += kSampleStep) *sample++ = m2[x];
   }
   const size_t count = static_cast<size_t>(sample - samples_all_.data());
 
@@ -243,11 +333,37 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
   // through the three magnitudes. Pixels next to the border are skipped (their neighbours
   // have no gradient). The mask is read 8 bytes at a time and only its set bytes are visited,
-  // lowest first, so the order of edges_ is row-major.
+  // lowest first, so the kept pixels are in row-major order. The test is integer work without
+  // branches: each candidate is written to the kept list, whose end advances only when it is a
+  // maximum (on carpet half the candidates are not, at random, and a branch on it was
+  // mispredicted as often). Its index is written the same way (-1 when not kept).
+  // The kept pixels' data, one array per field (the vector pass loads four of a field at once);
+  // + 4: it reads whole groups of four.
+  const size_t stride = n + 4;
+  if (kept_.size() < kKeptFields * stride) kept_.resize(kKeptFields * stride);
+  KeptPixels kp;
+  for (int f = 0; f < kKeptFields; ++f) kp.field[f] = kept_.data() + static_cast<size_t>(f) * stride;
+  size_t nk = 0;
+  int32_t* index = index_.data();
+  // Squared magnitudes, in a loop the compiler vectorises, of each row right before the
+  // suppression first reads it (one row ahead): the three rows it reads stay in the first-level
+  // cache (computed in one pass over the image, they came from the second level).
+  auto magnitudes = [&](int y) {
+    const int16_t* gxr = gx_.ptr<int16_t>(y);
+    const int16_t* gyr = gy_.ptr<int16_t>(y);
+    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+    for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+  };
+  if (y_nms < h - 2) {
+    magnitudes(y_nms - 1);
+    magnitudes(y_nms);
+  }
   for (int y = y_nms; y < h - 2; ++y) {
+    magnitudes(y + 1);
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
+    int32_t* index_row = index + static_cast<size_t>(y) * w;
     if (top) {
       for (int j = top_start_[y]; j < top_start_[y + 1]; ++j) col_thr_[top_cols_[j]] = thr2_32;
       for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= ct[x]);
@@ -262,33 +378,30 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
         const int32_t c = m2[x];
         const int gxv = gxr[x], gyv = gyr[x];
         const int ax = std::abs(gxv), ay = std::abs(gyv);
-        // Sector of the gradient direction, tan(22.5 deg) ~ 106/256: (1, 0), (0, 1) or a diagonal.
-        const bool horizontal = ay * 256 <= ax * 106;
-        const bool vertical = !horizontal && ax * 256 <= ay * 106;
-        const int dx = vertical ? 0 : 1;
-        const int dy = horizontal ? 0 : vertical ? 1 : ((gxv > 0) == (gyv > 0)) ? 1 : -1;
+        // Sector of the gradient direction, tan(22.5 deg) ~ 106/256: (1, 0), (0, 1) or a diagonal
+        // ((1, 1) when gx and gy have the same sign, else (1, -1)).
+        const int horizontal = ay * 256 <= ax * 106;
+        const int vertical = (1 - horizontal) & (ax * 256 <= ay * 106);
+        const int diagonal = 1 - horizontal - vertical;
+        const int same = (gxv > 0) == (gyv > 0);
+        const int dx = 1 - vertical;
+        const int dy = vertical + diagonal * (2 * same - 1);
         const int off = dy * w + dx;
         const int32_t mp = m2[x + off], mm = m2[x - off];
-        if (!(c > mm && c >= mp)) continue;
-        const float fm = std::sqrt(static_cast<float>(mm)), f0 = std::sqrt(static_cast<float>(c)),
-                    fp = std::sqrt(static_cast<float>(mp));
-        const float den = fm - 2.0f * f0 + fp;
-        const float q = 0.5f * (fm - fp) / (den < 0.0f ? den : -1.0f);
-        const float s = std::clamp(den < 0.0f ? q : 0.0f, -0.5f, 0.5f);
-        EdgePixel e;
-        e.ix = static_cast<int16_t>(x);
-        e.iy = static_cast<int16_t>(y);
-        e.x = static_cast<float>(x) + s * static_cast<float>(dx);
-        e.y = static_cast<float>(y) + s * static_cast<float>(dy);
-        e.angle = angleOf(static_cast<float>(gyv), static_cast<float>(gxv));  // c > 0: not both 0
-        e.mag = f0;
-        const int bin = static_cast<int>(e.angle * (360.0f / 6.28318548f) + 0.5f);
-        e.dir_bin = static_cast<uint16_t>(bin >= 360 ? bin - 360 : bin);
-        index_[static_cast<size_t>(y) * w + x] = static_cast<int32_t>(edges_.size());
-        edges_.push_back(e);
+        const int keep = (c > mm) & (c >= mp);
+        kp.field[kXY][nk] = x | y << 16;
+        kp.field[kC][nk] = c;
+        kp.field[kMm][nk] = mm;
+        kp.field[kMp][nk] = mp;
+        kp.field[kG][nk] = static_cast<int32_t>(static_cast<uint32_t>(gyv) << 16 | static_cast<uint16_t>(gxv));
+        kp.field[kD][nk] = dy * 65536 + dx;
+        index_row[x] = static_cast<int32_t>(nk) | (keep - 1);  // -1 when not kept
+        nk += static_cast<size_t>(keep);
       }
     }
   }
+  edges_.resize(nk);
+  edgePixels(kp, nk, edges_.data());
 }
 
 }  // namespace stereoloc::frontend

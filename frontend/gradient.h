@@ -60,6 +60,7 @@ class GradientStage {
   std::vector<int32_t> samples_;  // the samples at or above kFine, when the median is one
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
+  std::vector<int32_t> kept_;   // the suppression's candidates, one array per field
   std::vector<uint8_t> above_;  // one row's mask: magnitude at the threshold, padded by 8
   // With a region: each column's squared threshold (INT32_MAX above its top row), and the
   // columns whose top row the suppression reaches, by row (offsets top_start_).
