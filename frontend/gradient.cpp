@@ -56,8 +56,9 @@ inline uint64_t loadMaskWord(const uint8_t* p) {
   return word;
 }
 
-// Index of the lowest nonzero byte of such a word (nonzero).
-inline int setByteIndex(uint64_t word) { return __builtin_ctzll(word) >> 3; }
+// The 8 bytes of a 0/1 byte mask as 8 bits, the first byte's lowest: the multiplication adds
+// byte i's bit, shifted to bit 56 + i, into the top byte (no carries: one product per bit).
+inline uint64_t maskBits(const uint8_t* p) { return (loadMaskWord(p) * 0x0102040810204080ULL) >> 56; }
 
 // fastAngle without branches on the quadrant (the same operations, selected): edge pixels of
 // texture have random directions, and a mispredicted branch per pixel cost more than the
@@ -306,9 +307,9 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   const int32_t thr2_32 = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
   // One row's byte mask of the pixels at the threshold (and in the region), built in a loop
   // the compiler vectorises right before the row is suppressed: most pixels are below it, and
-  // a branch per pixel in the suppression loop was half the stage's time. 8 zero bytes of
-  // padding at its end; its columns 0, 1, w - 2, w - 1 stay 0.
-  above_.assign(static_cast<size_t>(w) + 8, 0);
+  // a branch per pixel in the suppression loop was half the stage's time. Zero padding to a
+  // multiple of 64 columns; its columns 0, 1, w - 2, w - 1 stay 0.
+  above_.assign(static_cast<size_t>((w + 63) / 64 * 64), 0);
   uint8_t* ab = above_.data();
   // With a region, each column's threshold is out of reach above its top row and thr2_32 from
   // it on, so the mask is one comparison of two 32-bit rows as without a region (the test of
@@ -332,8 +333,9 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
   // through the three magnitudes. Pixels next to the border are skipped (their neighbours
-  // have no gradient). The mask is read 8 bytes at a time and only its set bytes are visited,
-  // lowest first, so the kept pixels are in row-major order. The test is integer work without
+  // have no gradient). The mask is read as 64-bit words of one bit per column and only its set
+  // bits are visited, lowest first, so the kept pixels are in row-major order (a word per 8
+  // columns ended a loop, mispredicted, at most candidates). The test is integer work without
   // branches: each candidate is written to the kept list, whose end advances only when it is a
   // maximum (on carpet half the candidates are not, at random, and a branch on it was
   // mispredicted as often). Its index is written the same way (-1 when not kept).
@@ -370,11 +372,12 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     } else {
       for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
     }
-    for (int x0 = 0; x0 < w - 2; x0 += 8) {
-      uint64_t word = loadMaskWord(ab + x0);
+    for (int x0 = 0; x0 < w - 2; x0 += 64) {
+      uint64_t word = 0;
+      for (int j = 0; j < 8; ++j) word |= maskBits(ab + x0 + 8 * j) << (8 * j);
       while (word != 0) {
-        const int x = x0 + setByteIndex(word);
-        word &= word - 1;  // each set byte holds the single bit 1
+        const int x = x0 + __builtin_ctzll(word);
+        word &= word - 1;
         const int32_t c = m2[x];
         const int gxv = gxr[x], gyv = gyr[x];
         const int ax = std::abs(gxv), ay = std::abs(gyv);
