@@ -46,7 +46,8 @@ void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma) {
 
 namespace {
 
-// 8 bytes of a 0/1 byte mask as a word whose lowest byte is the first.
+// 8 bytes of a bit mask (column x at bit x % 8 of byte x / 8) as a word whose lowest byte is
+// the first.
 inline uint64_t loadMaskWord(const uint8_t* p) {
   uint64_t word;
   std::memcpy(&word, p, sizeof word);
@@ -56,9 +57,6 @@ inline uint64_t loadMaskWord(const uint8_t* p) {
   return word;
 }
 
-// The 8 bytes of a 0/1 byte mask as 8 bits, the first byte's lowest: the multiplication adds
-// byte i's bit, shifted to bit 56 + i, into the top byte (no carries: one product per bit).
-inline uint64_t maskBits(const uint8_t* p) { return (loadMaskWord(p) * 0x0102040810204080ULL) >> 56; }
 
 // fastAngle without branches on the quadrant (the same operations, selected): edge pixels of
 // texture have random directions, and a mispredicted branch per pixel cost more than the
@@ -305,21 +303,20 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   // A 32-bit threshold keeps the comparisons below in 32-bit lanes; squared Sobel magnitudes
   // of 8-bit images stay below 2^22.
   const int32_t thr2_32 = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
-  // One row's byte mask of the pixels at the threshold (and in the region), built in a loop
-  // the compiler vectorises right before the row is suppressed: most pixels are below it, and
-  // a branch per pixel in the suppression loop was half the stage's time. Zero padding to a
-  // multiple of 64 columns; its columns 0, 1, w - 2, w - 1 stay 0.
-  above_.assign(static_cast<size_t>((w + 63) / 64 * 64), 0);
-  uint8_t* ab = above_.data();
-  // With a region, each column's threshold is out of reach above its top row and thr2_32 from
-  // it on, so the mask is one comparison of two 32-bit rows as without a region (the test of
-  // the 16-bit top in the same loop vectorised badly: a tenth of the stage). The columns are
-  // listed by top row (counting sort) and enabled when the suppression reaches it.
+  // Each column's squared threshold: out of reach in columns 0, 1, w - 2, w - 1 (their
+  // neighbours have no gradient), past the image's end (padding to a multiple of 64 columns)
+  // and, with a region, above the column's top row; thr2_32 elsewhere. The mask of a row is
+  // then one comparison of two 32-bit rows (the test of the 16-bit top in the same loop
+  // vectorised badly: a tenth of the stage). With a region, the columns are listed by top row
+  // (counting sort) and enabled when the mask reaches it.
   const int y_nms = std::max(2, y_first + 1);
+  const size_t w64 = static_cast<size_t>((w + 63) / 64 * 64);
+  col_thr_.assign(w64, INT32_MAX);
+  auto inner = [&](int x) { return x >= 2 && x < w - 2; };
   if (top) {
-    col_thr_.resize(static_cast<size_t>(w));
     top_start_.assign(static_cast<size_t>(h) + 2, 0);
     for (int x = 0; x < w; ++x) {
+      if (!inner(x)) continue;
       col_thr_[x] = top[x] <= y_nms ? thr2_32 : INT32_MAX;
       if (top[x] > y_nms && top[x] < h) ++top_start_[top[x] + 1];
     }
@@ -327,9 +324,45 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     top_cols_.resize(static_cast<size_t>(top_start_[h + 1]));
     top_fill_.assign(top_start_.begin(), top_start_.end() - 1);
     for (int x = 0; x < w; ++x)
-      if (top[x] > y_nms && top[x] < h) top_cols_[top_fill_[top[x]]++] = x;
+      if (inner(x) && top[x] > y_nms && top[x] < h) top_cols_[top_fill_[top[x]]++] = x;
+  } else {
+    for (int x = 2; x < w - 2; ++x) col_thr_[x] = thr2_32;
   }
   const int32_t* ct = col_thr_.data();
+  // Two rows' masks of the pixels at the threshold (and in the region), one bit per column:
+  // the row the suppression tests and the next.
+  above_.assign(2 * w64 / 8, 0);
+  uint8_t* mask_rows[2] = {above_.data(), above_.data() + w64 / 8};
+  // Squared magnitudes and the mask of row y, right before the suppression first reads the row
+  // (one row ahead): the three rows it reads stay in the first-level cache (computed in one
+  // pass over the image, they came from the second level). Most pixels are below the
+  // threshold, and a branch per pixel in the suppression was half the stage's time.
+  auto magnitudes = [&](int y, uint8_t* bits) {
+    const int16_t* gxr = gx_.ptr<int16_t>(y);
+    const int16_t* gyr = gy_.ptr<int16_t>(y);
+    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+    int x = 0;
+#if defined(__SSE2__)
+    // gx^2 + gy^2 is one multiply-add of the interleaved pairs; 8 columns give a byte.
+    for (; x + 8 <= w; x += 8) {
+      const __m128i gx8 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(gxr + x));
+      const __m128i gy8 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(gyr + x));
+      const __m128i lo = _mm_unpacklo_epi16(gx8, gy8), hi = _mm_unpackhi_epi16(gx8, gy8);
+      const __m128i m_lo = _mm_madd_epi16(lo, lo), m_hi = _mm_madd_epi16(hi, hi);
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(m2 + x), m_lo);
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(m2 + x + 4), m_hi);
+      const __m128i below_lo = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(ct + x)), m_lo);
+      const __m128i below_hi = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(ct + x + 4)), m_hi);
+      const __m128i below16 = _mm_packs_epi32(below_lo, below_hi);
+      bits[x / 8] = static_cast<uint8_t>(~_mm_movemask_epi8(_mm_packs_epi16(below16, below16)));
+    }
+#endif
+    std::memset(bits + x / 8, 0, w64 / 8 - static_cast<size_t>(x / 8));
+    for (; x < w; ++x) {
+      m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+      bits[x / 8] = static_cast<uint8_t>(bits[x / 8] | (m2[x] >= ct[x]) << (x % 8));
+    }
+  };
 
   // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
   // through the three magnitudes. Pixels next to the border are skipped (their neighbours
@@ -347,34 +380,21 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   for (int f = 0; f < kKeptFields; ++f) kp.field[f] = kept_.data() + static_cast<size_t>(f) * stride;
   size_t nk = 0;
   int32_t* index = index_.data();
-  // Squared magnitudes, in a loop the compiler vectorises, of each row right before the
-  // suppression first reads it (one row ahead): the three rows it reads stay in the first-level
-  // cache (computed in one pass over the image, they came from the second level).
-  auto magnitudes = [&](int y) {
-    const int16_t* gxr = gx_.ptr<int16_t>(y);
-    const int16_t* gyr = gy_.ptr<int16_t>(y);
-    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    for (int x = 0; x < w; ++x) m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-  };
   if (y_nms < h - 2) {
-    magnitudes(y_nms - 1);
-    magnitudes(y_nms);
+    magnitudes(y_nms - 1, mask_rows[1]);  // its mask is not used
+    magnitudes(y_nms, mask_rows[0]);
   }
   for (int y = y_nms; y < h - 2; ++y) {
-    magnitudes(y + 1);
+    if (top)
+      for (int j = top_start_[y + 1]; j < top_start_[y + 2]; ++j) col_thr_[top_cols_[j]] = thr2_32;
+    const uint8_t* bits = mask_rows[(y - y_nms) & 1];
+    magnitudes(y + 1, mask_rows[(y + 1 - y_nms) & 1]);
     const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
     const int16_t* gxr = gx_.ptr<int16_t>(y);
     const int16_t* gyr = gy_.ptr<int16_t>(y);
     int32_t* index_row = index + static_cast<size_t>(y) * w;
-    if (top) {
-      for (int j = top_start_[y]; j < top_start_[y + 1]; ++j) col_thr_[top_cols_[j]] = thr2_32;
-      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= ct[x]);
-    } else {
-      for (int x = 2; x < w - 2; ++x) ab[x] = static_cast<uint8_t>(m2[x] >= thr2_32);
-    }
     for (int x0 = 0; x0 < w - 2; x0 += 64) {
-      uint64_t word = 0;
-      for (int j = 0; j < 8; ++j) word |= maskBits(ab + x0 + 8 * j) << (8 * j);
+      uint64_t word = loadMaskWord(bits + x0 / 8);
       while (word != 0) {
         const int x = x0 + __builtin_ctzll(word);
         word &= word - 1;
