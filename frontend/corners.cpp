@@ -279,9 +279,14 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
   // perspective they converge, so their centre line is the line through the midpoints of
   // corresponding points (each edge's end points and their projections on the other edge).
   std::vector<uint8_t> gone(lines.size(), 0);
-  auto dist = [](const LineFeature& l, double x, double y) {
-    return std::fabs(x * std::cos(l.theta) + y * std::sin(l.theta) - l.rho);
-  };
+  // Each line's cos and sin, for the pair tests (the same values LineFeature::x, y and along()
+  // compute; a line's theta changes only when it is the merged line i, after its tests).
+  std::vector<double> cos_l(lines.size()), sin_l(lines.size());
+  for (size_t i = 0; i < lines.size(); ++i) {
+    cos_l[i] = std::cos(lines[i].theta);
+    sin_l[i] = std::sin(lines[i].theta);
+  }
+  const double opposite_cos = -std::cos(deg(prm.centre_merge_deg));
   for (size_t i = 0; i < lines.size(); ++i) {
     if (!lines[i].marking || gone[i]) continue;
     const Segment& a = segments[i];
@@ -294,13 +299,16 @@ void buildLines(const std::vector<Segment>& segments, const CornerParams& prm, s
     for (size_t j = i + 1; j < lines.size(); ++j) {
       if (!lines[j].marking || gone[j]) continue;
       const Segment& b = segments[j];
-      if (std::cos(a.theta - b.theta) > -std::cos(deg(prm.centre_merge_deg))) continue;
+      if (std::cos(a.theta - b.theta) > opposite_cos) continue;
       const LineFeature& li = lines[i];
       const LineFeature& lj = lines[j];
+      auto xi = [&](double t) { return li.rho * cos_l[i] - t * sin_l[i]; };  // li.x(t)
+      auto yi = [&](double t) { return li.rho * sin_l[i] + t * cos_l[i]; };  // li.y(t)
+      auto alongJ = [&](double x, double y) { return -x * sin_l[j] + y * cos_l[j]; };  // along(lj.theta, x, y)
       const double tol = std::max(prm.centre_merge_px, 0.5 * std::max(a.marking_width, b.marking_width));
       const double tm = 0.5 * (li.t_min + li.t_max);
-      if (dist(lj, li.x(tm), li.y(tm)) > tol) continue;
-      const double u0 = along(lj.theta, li.x(li.t_min), li.y(li.t_min)), u1 = along(lj.theta, li.x(li.t_max), li.y(li.t_max));
+      if (std::fabs(xi(tm) * cos_l[j] + yi(tm) * sin_l[j] - lj.rho) > tol) continue;
+      const double u0 = alongJ(xi(li.t_min), yi(li.t_min)), u1 = alongJ(xi(li.t_max), yi(li.t_max));
       if (std::max(u0, u1) < lj.t_min - prm.delta_px || std::min(u0, u1) > lj.t_max + prm.delta_px) continue;
       if (prm.piece_gap_px <= 0) {  // pieces off: the first opposite edge found
         best = j;

@@ -12,15 +12,19 @@ namespace {
 // order as the values do) finds the bin holding it, through sums over blocks of 32 bins, and
 // only that bin's few values are selected from. nth_element's data-dependent branches over
 // the few hundred floor samples cost more than the rest of the region.
-float medianOf(const std::vector<float>& v, float vmax, std::vector<float>& pick) {
+float medianOf(const std::vector<float>& v, float vmax, std::vector<float>& pick, std::vector<uint16_t>& bins) {
   if (v.empty()) return 0.0f;
   constexpr int kBins = 1024, kBlock = 32;
   const float scale = static_cast<float>(kBins) / vmax;
-  auto binOf = [&](float x) { return std::min(static_cast<int>(x * scale), kBins - 1); };
   // Two interleaved tables: the floor's samples fall into few bins, and increments of one
-  // counter in a row wait for each other.
+  // counter in a row wait for each other. Each value's bin is kept for the selection below.
   uint32_t c[2][kBins] = {};
-  for (size_t i = 0; i < v.size(); ++i) ++c[i & 1][binOf(v[i])];
+  bins.resize(v.size());
+  for (size_t i = 0; i < v.size(); ++i) {
+    const int b = std::min(static_cast<int>(v[i] * scale), kBins - 1);
+    bins[i] = static_cast<uint16_t>(b);
+    ++c[i & 1][b];
+  }
   auto count = [&](int b) { return c[0][b] + c[1][b]; };
   size_t k = v.size() / 2;
   int block = 0;
@@ -34,9 +38,9 @@ float medianOf(const std::vector<float>& v, float vmax, std::vector<float>& pick
   while (k >= count(bin)) k -= count(bin++);
   pick.resize(v.size());
   size_t m = 0;
-  for (float x : v) {
-    pick[m] = x;
-    m += binOf(x) == bin;
+  for (size_t i = 0; i < v.size(); ++i) {
+    pick[m] = v[i];
+    m += bins[i] == bin;
   }
   pick.resize(m);
   std::nth_element(pick.begin(), pick.begin() + static_cast<std::ptrdiff_t>(k), pick.end());
@@ -67,9 +71,9 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
     }
   }
   if (luma_.empty()) return;
-  const float ref_c[3] = {medianOf(chroma_[0], 1.0f, pick_), medianOf(chroma_[1], 1.0f, pick_),
-                          medianOf(chroma_[2], 1.0f, pick_)};
-  const float ref_l = medianOf(luma_, 255.0f, pick_);
+  const float ref_c[3] = {medianOf(chroma_[0], 1.0f, pick_, bins_), medianOf(chroma_[1], 1.0f, pick_, bins_),
+                          medianOf(chroma_[2], 1.0f, pick_, bins_)};
+  const float ref_l = medianOf(luma_, 255.0f, pick_, bins_);
   const float lo = static_cast<float>(p.luma_low) * ref_l, hi = static_cast<float>(p.luma_high) * ref_l;
   const float tol = static_cast<float>(p.chroma_tolerance);
   // Per grid column: the topmost run of min_run floor samples (-1: none). Row by row, so the

@@ -48,6 +48,7 @@ class FieldRegion {
   std::vector<float> chroma_[3], luma_;
   std::vector<uint32_t> bgr_words_;  // one grid row's b, g, r (bytes 0, 1, 2 of each word)
   std::vector<float> pick_;  // the reference medians' values in their bin
+  std::vector<uint16_t> bins_;  // each sample's bin
   std::vector<uint8_t> is_floor_;
   bool restricted_ = false;
 };

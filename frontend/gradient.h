@@ -60,9 +60,12 @@ class GradientStage {
   std::vector<int32_t> samples_;  // the samples at or above kFine, when the median is one
   double threshold_ = 0.0;
   std::vector<int32_t> index_;
-  std::vector<uint8_t> above_;  // one row's mask: magnitude at the threshold, padded by 8
-  // With a region: each column's squared threshold (INT32_MAX above its top row), and the
-  // columns whose top row the suppression reaches, by row (offsets top_start_).
+  std::vector<int32_t> kept_;   // the suppression's candidates, one array per field
+  // Two rows' masks, one bit per column (padded to 64): magnitude at the column's threshold.
+  std::vector<uint8_t> above_;
+  // Each column's squared threshold (INT32_MAX in the two columns at either border, in the
+  // padding and, with a region, above the column's top row), and with a region the columns
+  // whose top row the masks reach, by row (offsets top_start_).
   std::vector<int32_t> col_thr_;
   std::vector<int> top_start_, top_cols_, top_fill_;
   std::vector<EdgePixel> edges_;

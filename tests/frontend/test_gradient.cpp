@@ -154,8 +154,8 @@ namespace {
 
 // The stage as specified, one pixel at a time: Sobel of the whole image, the exact median of
 // every kSampleStep-th pixel of every kSampleStep-th row by nth_element, suppression of every pixel at the
-// threshold and in the region. The stage's word skips, partial Sobel, histogram select and
-// branch-free quadrants must give exactly these edge pixels.
+// threshold and in the region. The stage's bit masks, partial Sobel, histogram select,
+// branch-free suppression and four-at-a-time edge pixels must give exactly these edge pixels.
 std::vector<EdgePixel> referenceEdges(const cv::Mat& luma, const GradientParams& p, const int16_t* top, double& threshold) {
   cv::Mat gx, gy;
   cv::spatialGradient(luma, gx, gy, 3);
@@ -247,11 +247,12 @@ void expectSameEdges(const GradientStage& g, const std::vector<EdgePixel>& ref, 
 
 // Fixed and automatic thresholds (small medians: fine bins; strong texture: coarse bins),
 // whole images and field regions whose highest top lies at rows 0-4, in the middle or below
-// the image, on one reused stage (rows of earlier images must not leak in) and odd sizes.
+// the image, on one reused stage (rows of earlier images must not leak in) and odd sizes (131:
+// a partial group of 8 and of 64 columns; 6: narrower than one group of 8).
 TEST(Gradient, EqualsThePixelByPixelReference) {
   GradientStage g;
   int cases = 0;
-  for (const cv::Size size : {cv::Size(320, 240), cv::Size(131, 97), cv::Size(64, 7)}) {
+  for (const cv::Size size : {cv::Size(320, 240), cv::Size(131, 97), cv::Size(64, 7), cv::Size(6, 9)}) {
     for (const double sigma : {2.0, 9.0, 70.0}) {
       const cv::Mat img = texturedImage(size.width, size.height, sigma, 100 + cases);
       const cv::Mat other = texturedImage(size.width, size.height, 2 * sigma, 200 + cases);
@@ -278,5 +279,5 @@ TEST(Gradient, EqualsThePixelByPixelReference) {
       }
     }
   }
-  EXPECT_EQ(cases, 3 * 3 * 3 * 8);
+  EXPECT_EQ(cases, 4 * 3 * 3 * 8);
 }
