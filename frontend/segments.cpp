@@ -24,6 +24,7 @@ void sortByPosition(std::vector<std::pair<float, int>>& v, std::vector<uint64_t>
   const size_t n = v.size();
   keys.resize(n);
   float tmin = 0.0f, tmax = 0.0f;
+  bool finite = true;
   for (size_t k = 0; k < n; ++k) {
     uint32_t u;
     const float t = v[k].first + 0.0f;  // -0 -> +0: they compare equal as floats
@@ -32,9 +33,10 @@ void sortByPosition(std::vector<std::pair<float, int>>& v, std::vector<uint64_t>
     keys[k] = (uint64_t{u} << 32) | static_cast<uint32_t>(v[k].second);
     tmin = k ? std::min(tmin, t) : t;
     tmax = k ? std::max(tmax, t) : t;
+    finite = finite && std::isfinite(t);
   }
   const float span = tmax - tmin;
-  if (n < 16 || !(span > 0.0f) || !std::isfinite(span)) {
+  if (n < 16 || !finite || !(span > 0.0f) || !std::isfinite(span)) {
     std::sort(keys.begin(), keys.end());
   } else {
     const int nb = static_cast<int>(n);
