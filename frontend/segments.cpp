@@ -15,18 +15,59 @@ constexpr int kPoolMarginBins = 2;
 
 // Sorts (t, index) pairs as std::sort would (by t, then index), on one 64-bit key per pair:
 // the float's bits made monotonic in the high half, the index in the low half. Comparing
-// pairs branched twice per comparison; these sorts were a tenth of the frontend's time.
-void sortByPosition(std::vector<std::pair<float, int>>& v, std::vector<uint64_t>& keys) {
-  keys.resize(v.size());
-  for (size_t k = 0; k < v.size(); ++k) {
+// pairs branched twice per comparison. The keys are unique, so every correct sort gives this
+// order: a bucket sort (about one pair per bucket of equal width in t; the bucket a monotone
+// function of t, so the buckets order as the keys do) and a sort of each bucket's few keys
+// take a third of std::sort's time over all keys, whose comparisons mispredict at random.
+void sortByPosition(std::vector<std::pair<float, int>>& v, std::vector<uint64_t>& keys, std::vector<uint64_t>& sorted,
+                    std::vector<int>& start) {
+  const size_t n = v.size();
+  keys.resize(n);
+  float tmin = 0.0f, tmax = 0.0f;
+  bool finite = true;
+  for (size_t k = 0; k < n; ++k) {
     uint32_t u;
     const float t = v[k].first + 0.0f;  // -0 -> +0: they compare equal as floats
     std::memcpy(&u, &t, sizeof u);
     u = (u & 0x80000000u) ? ~u : (u | 0x80000000u);
     keys[k] = (uint64_t{u} << 32) | static_cast<uint32_t>(v[k].second);
+    tmin = k ? std::min(tmin, t) : t;
+    tmax = k ? std::max(tmax, t) : t;
+    finite = finite && std::isfinite(t);
   }
-  std::sort(keys.begin(), keys.end());
-  for (size_t k = 0; k < v.size(); ++k) {
+  const float span = tmax - tmin;
+  if (n < 16 || !finite || !(span > 0.0f) || !std::isfinite(span)) {
+    std::sort(keys.begin(), keys.end());
+  } else {
+    const int nb = static_cast<int>(n);
+    const float scale = static_cast<float>(nb - 1) / span;
+    // Monotone in t: a subtraction, a multiplication by a positive number and a truncation of
+    // values in [0, nb - 1] (the minimum guards a rounding up at the top).
+    auto bucketOf = [&](float t) { return std::min(static_cast<int>((t + 0.0f - tmin) * scale), nb - 1); };
+    start.assign(static_cast<size_t>(nb) + 1, 0);
+    for (size_t k = 0; k < n; ++k) ++start[static_cast<size_t>(bucketOf(v[k].first)) + 1];
+    for (int b = 0; b < nb; ++b) start[b + 1] += start[b];
+    sorted.resize(n);
+    for (size_t k = 0; k < n; ++k) sorted[static_cast<size_t>(start[bucketOf(v[k].first)]++)] = keys[k];
+    // start[b] is now the end of bucket b.
+    size_t b0 = 0;
+    for (int b = 0; b < nb; ++b) {
+      const size_t b1 = static_cast<size_t>(start[b]);
+      if (b1 - b0 > 16) {
+        std::sort(sorted.begin() + static_cast<std::ptrdiff_t>(b0), sorted.begin() + static_cast<std::ptrdiff_t>(b1));
+      } else {
+        for (size_t i = b0 + 1; i < b1; ++i) {
+          const uint64_t key = sorted[i];
+          size_t j = i;
+          for (; j > b0 && sorted[j - 1] > key; --j) sorted[j] = sorted[j - 1];
+          sorted[j] = key;
+        }
+      }
+      b0 = b1;
+    }
+    keys.swap(sorted);
+  }
+  for (size_t k = 0; k < n; ++k) {
     uint32_t u = static_cast<uint32_t>(keys[k] >> 32);
     u = (u & 0x80000000u) ? (u & 0x7fffffffu) : ~u;
     float t;
@@ -549,7 +590,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
         const double c = std::cos(theta), s = std::sin(theta);
         proj_.clear();
         for (int i : cand_) proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
-        sortByPosition(proj_, keys_);
+        sortByPosition(proj_, keys_, sorted_keys_, key_start_);
         size_t best_b = 0, best_e = proj_.size(), b = 0;
         double best_len = -1;
         for (size_t k = 1; k <= proj_.size(); ++k)
@@ -610,7 +651,7 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
         if (!prm.release_unused) used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
       }
       if (proj_.size() < min_pixels) break;
-      sortByPosition(proj_, keys_);
+      sortByPosition(proj_, keys_, sorted_keys_, key_start_);
       // Beyond band_px (out to member_band_px) a pixel belongs to the line only where it is the
       // line's nearest pixel at its position along it (1 px cells): a far edge bent by 1-3 deg
       // strays up to 1.5 px from one fitted line, while a parallel edge beside it has pixels

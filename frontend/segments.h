@@ -165,7 +165,8 @@ class SegmentExtractor {
   bool reference_pools_ = false;
   std::vector<int> cand_;
   std::vector<std::pair<float, int>> proj_;
-  std::vector<uint64_t> keys_;
+  std::vector<uint64_t> keys_, sorted_keys_;
+  std::vector<int> key_start_;
   std::vector<int> pix_, off_;
   std::vector<int> piece_, cuts_;
   std::vector<int> hist_, seed_;
