@@ -50,7 +50,7 @@
 // selfCalibratedRig (solvers/self_calibrated_rig.h) folds back into the raw cameras. The rows
 // keep the rectified-space terms (the frontend reports the right row equal to the left).
 //
-// Image errors (StereoPixelImageCalibrationFactor): a third block e of fixed errors of the
+// Image errors (factors/stereo_pixel_image_calibration_factor.h): a third block e of fixed errors of the
 // images that are not camera parameters of q but the same in every image of a run: each
 // camera's error of the calibrated lens distortion (dk1, dk2, dp1, dp2: OpenCV's model moves a
 // normalised point by (x r^2, y r^2), (x r^4, y r^4), (2xy, r^2 + 2y^2), (r^2 + 2x^2, 2xy); the
@@ -281,42 +281,6 @@ struct StereoPixelCalibrationFactor {
                                      double pan, double sigma, PixelResiduals residuals) {
     return Create(rig, landmark, pixels, pan,
                   stereo_pixel::covarianceFromSigma("stereo pixel calibration factor", sigma), residuals);
-  }
-
- private:
-  StereoPixelCalibrationModel model_;
-};
-
-// The factor with the image-error block e as well (file comment).
-struct StereoPixelImageCalibrationFactor {
-  using ImageErrorVector = stereo_pixel_calibration::ImageErrorVector;
-  StereoPixelImageCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                                    double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals,
-                                    const ImageErrorVector& sigmas)
-      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, &sigmas) {}
-
-  template <typename T>
-  bool operator()(const T* pose, const T* calib, const T* image, T* residual) const {
-    return model_.evaluate<T>(pose, calib, image, residual);
-  }
-
-  static constexpr int kImageErrorSize = stereo_pixel_calibration::kImageErrorSize;
-
-  // Blocks: pose (3), stereo calibration q (6), whitened image errors e (11). `sigmas`: the
-  // 1-sigma of each image error (>= 0; the lens terms dimensionless, the rotations rad).
-  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                                     double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals,
-                                     const ImageErrorVector& sigmas) {
-    constexpr const char* kWho = "stereo pixel image calibration factor";
-    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
-    if (!(sigmas.allFinite() && sigmas.minCoeff() >= 0)) throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
-    auto* functor = new StereoPixelImageCalibrationFactor(
-        rig, landmark, pixels, pan,
-        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals, sigmas);
-    constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
-    if (residuals == PixelResiduals::All)
-      return new ceres::AutoDiffCostFunction<StereoPixelImageCalibrationFactor, 4, 3, kQ, kImageErrorSize>(functor);
-    return new ceres::AutoDiffCostFunction<StereoPixelImageCalibrationFactor, 2, 3, kQ, kImageErrorSize>(functor);
   }
 
  private:

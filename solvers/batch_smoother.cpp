@@ -16,6 +16,7 @@
 #include "factors/compass_factor.h"
 #include "factors/odometry_calibration_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
+#include "factors/stereo_pixel_image_calibration_factor.h"
 #include "solvers/chain_solver.h"
 #include "factors/odometry_factor.h"
 #include "factors/pose_manifold.h"

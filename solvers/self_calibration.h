@@ -14,7 +14,7 @@
 //   image     e = the error of each camera's calibrated lens distortion (dk1, dk2, dp1, dp2) and
 //             the right camera's rotation against the left (pitch, yaw, roll), with the stereo
 //             block when the noise model (UnmodelledNoise) states their sigmas (batch smoother;
-//             SelfCalibrationConfig::image_errors; StereoPixelImageCalibrationFactor)
+//             SelfCalibrationConfig::image_errors; factors/stereo_pixel_image_calibration_factor.h)
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
 // calibration with the stated uncertainty of SelfCalibrationConfig, so a run that does not
 // excite a parameter leaves it at its prior.

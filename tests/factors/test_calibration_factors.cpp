@@ -13,6 +13,7 @@
 #include "factors/odometry_calibration_factor.h"
 #include "factors/odometry_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
+#include "factors/stereo_pixel_image_calibration_factor.h"
 #include "factors/stereo_pixel_factor.h"
 #include "src/core/pose2.h"
 #include "src/core/stereo_rig.h"

@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "factors/stereo_pixel_image_calibration_factor.h"
+
 namespace stereoloc {
 namespace {
 
