@@ -946,19 +946,21 @@ int SlidingWindowSmoother::retestObservations(Node& node) {
   return fused;
 }
 
-void SlidingWindowSmoother::addOdometry(Node* a, Node* b, const std::vector<std::pair<double, double>>& readings,
-                                        const Pose2& rel, const Eigen::Matrix3d& C) {
-  const double slip = config_.observation_model.unmodelled.slip_rel_sigma;
-  if (!config_.calibration.odometry)
+void SlidingWindowSmoother::addOdometry(Node* a, Node* b, const std::vector<Intermediate>& between, double d_left,
+                                        double d_right, const Pose2& rel, const Eigen::Matrix3d& C) {
+  if (!config_.calibration.odometry) {
     addFactor(OdometryFactor::Create(Eigen::Vector3d(rel.x, rel.y, rel.theta), C), {a, b});
-  else if (readings.size() == 1)  // wheel space, as the batch (see odometry_calibration_factor.h)
-    addFactor(OdometryCalibrationFactor::Create(readings[0].first, readings[0].second,
-                                                withSlip(odometry_, readings[0].first, readings[0].second, slip)),
-              {a, b}, false, {Calib::Wheels});
-  else {
+  } else {
+    const double slip = config_.observation_model.unmodelled.slip_rel_sigma;
+    std::vector<std::pair<double, double>> readings;
+    for (const Intermediate& q : between) readings.emplace_back(q.d_left, q.d_right);
+    readings.emplace_back(d_left, d_right);
     std::vector<OdometryParams> params;
     for (const auto& [dl, dr] : readings) params.push_back(withSlip(odometry_, dl, dr, slip));
-    addFactor(ComposedOdometryCalibrationFactor::Create(readings, params), {a, b}, false, {Calib::Wheels});
+    if (readings.size() == 1)  // wheel space, as the batch (see odometry_calibration_factor.h)
+      addFactor(OdometryCalibrationFactor::Create(d_left, d_right, params[0]), {a, b}, false, {Calib::Wheels});
+    else
+      addFactor(ComposedOdometryCalibrationFactor::Create(readings, params), {a, b}, false, {Calib::Wheels});
   }
   factors_.back()->odometry = true;
 }
@@ -1000,10 +1002,7 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
     const PosePrediction r = predictStep(rel, C, next->d_left, next->d_right);
     n->rel_to_next = r.pose;
     n->rel_to_next_covariance = r.covariance;
-    std::vector<std::pair<double, double>> readings;
-    for (const Intermediate& q : n->after) readings.emplace_back(q.d_left, q.d_right);
-    readings.emplace_back(next->d_left, next->d_right);
-    addOdometry(n, next, readings, r.pose, r.covariance);
+    addOdometry(n, next, n->after, next->d_left, next->d_right, r.pose, r.covariance);
   } else {
     rel_ = rel;  // the odometry since the newest keyframe, which is now this step
     rel_covariance_ = C;
@@ -1012,10 +1011,7 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
   k->rel_to_next = m.rel;
   k->rel_to_next_covariance = m.rel_covariance;
   k->have_joint_next = false;
-  std::vector<std::pair<double, double>> readings;
-  for (const Intermediate& q : k->after) readings.emplace_back(q.d_left, q.d_right);
-  readings.emplace_back(m.d_left, m.d_right);
-  addOdometry(k, n, readings, m.rel, m.rel_covariance);
+  addOdometry(k, n, k->after, m.d_left, m.d_right, m.rel, m.rel_covariance);
   ++stats_.keyframes;
   return n;
 }
@@ -1225,10 +1221,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
     prev->rel_to_next = rel_;
     prev->rel_to_next_covariance = rel_covariance_;
-    std::vector<std::pair<double, double>> readings;
-    for (const Intermediate& q : prev->after) readings.emplace_back(q.d_left, q.d_right);
-    readings.emplace_back(step.d_left, step.d_right);
-    addOdometry(prev, n, readings, rel_, rel_covariance_);
+    addOdometry(prev, n, prev->after, step.d_left, step.d_right, rel_, rel_covariance_);
     rel_ = Pose2();
     rel_covariance_.setZero();
     steps_since_keyframe_ = 0;

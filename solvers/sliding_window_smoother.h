@@ -297,12 +297,12 @@ class SlidingWindowSmoother : public Estimator {
   double jointThreshold(int dof);  // chi2Quantile(gate.probability, dof), computed once per dof
   // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
   Node* promote(size_t k_index, size_t j);
-  // The odometry factor between consecutive keyframes a and b: `readings` are the wheel
-  // increments of the steps from a to b (mm), (rel, C) their composition and its covariance.
-  // With odometry self-calibration the calibrated factor (per step for one step, composed for
-  // more), otherwise the composed OdometryFactor.
-  void addOdometry(Node* a, Node* b, const std::vector<std::pair<double, double>>& readings, const Pose2& rel,
-                   const Eigen::Matrix3d& C);
+  // The odometry factor between consecutive keyframes a and b: `between` are the steps after a
+  // and before b, (d_left, d_right) b's own wheel increments (mm), (rel, C) their composition and
+  // its covariance. With odometry self-calibration the calibrated factor (per step for one step,
+  // composed for more), otherwise the composed OdometryFactor.
+  void addOdometry(Node* a, Node* b, const std::vector<Intermediate>& between, double d_left, double d_right,
+                   const Pose2& rel, const Eigen::Matrix3d& C);
   // Uninitialised or lost: a global fix from late observations of a recent step restarts the
   // window there (see insertLate). False when there is no fix.
   bool restartLate(long step, const std::vector<Observation>& observations);
