@@ -59,7 +59,6 @@ class ComposedOdometryCalibrationFactor final : public ceres::SizedCostFunction<
   // g(c) and P(c) (see the header); false for a calibration outside its domain.
   template <typename T>
   bool propagate(const T* calib, Eigen::Matrix<T, 3, 1>* g_out, Eigen::Matrix<T, 3, 3>* P_out) const {
-    using std::abs;
     using std::cos;
     using std::sin;
     using M3 = Eigen::Matrix<T, 3, 3>;
@@ -72,21 +71,8 @@ class ComposedOdometryCalibrationFactor final : public ceres::SizedCostFunction<
       const T d_left = calib[0] * m.m_left, d_right = calib[1] * m.m_right;
       const T alpha = (d_right - d_left) / w;  // (B.1)
       const T v = 0.5 * (d_right + d_left);    // (B.2)
-      // sin(a)/a, (1 - cos a)/a and their derivatives, with series near a = 0 (straight steps).
-      T S, C, dS, dC;
-      if (abs(alpha) < T(1e-4)) {
-        const T a2 = alpha * alpha;
-        S = T(1.0) - a2 / 6.0;
-        C = alpha * (T(0.5) - a2 / 24.0);
-        dS = -alpha / 3.0;
-        dC = T(0.5) - a2 / 8.0;
-      } else {
-        const T sa = sin(alpha), ca = cos(alpha);
-        S = sa / alpha;
-        C = (T(1.0) - ca) / alpha;
-        dS = (alpha * ca - sa) / (alpha * alpha);
-        dC = (alpha * sa - (T(1.0) - ca)) / (alpha * alpha);
-      }
+      const ArcFunctions<T> f = arcFunctions(alpha);
+      const T &S = f.S, &C = f.C, &dS = f.dS, &dC = f.dC;
       const V3 u(v * S, v * C, alpha);  // (B.4)
       Eigen::Matrix<T, 3, 2> J_u_d;     // (B.8)
       J_u_d << 0.5 * S - v * dS / w, 0.5 * S + v * dS / w,  //

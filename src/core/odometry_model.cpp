@@ -5,33 +5,6 @@
 #include "src/core/error.h"
 
 namespace stereoloc {
-namespace {
-
-// sin(a)/a, (1 - cos a)/a and their derivatives; series below |a| = 1e-2 (truncation < 1e-20).
-struct ArcFunctions {
-  double S, dS, C, dC;
-};
-
-ArcFunctions arcFunctions(double a) {
-  ArcFunctions r;
-  const double a2 = a * a;
-  if (std::fabs(a) < 1e-2) {
-    r.S = 1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0 * (1.0 - a2 / 72.0)));
-    r.dS = a * (-1.0 / 3.0 + a2 * (1.0 / 30.0 + a2 * (-1.0 / 840.0 + a2 / 45360.0)));
-    r.C = a * (0.5 - a2 * (1.0 / 24.0 - a2 * (1.0 / 720.0 - a2 * (1.0 / 40320.0 - a2 / 3628800.0))));
-    r.dC = 0.5 - a2 * (1.0 / 8.0 - a2 * (1.0 / 144.0 - a2 * (1.0 / 5760.0 - a2 / 403200.0)));
-  } else {
-    const double s = std::sin(a), c = std::cos(a);
-    r.S = s / a;
-    r.dS = (a * c - s) / a2;
-    r.C = (1.0 - c) / a;
-    r.dC = (a * s - (1.0 - c)) / a2;
-  }
-  return r;
-}
-
-}  // namespace
-
 void OdometryParams::validate() const {
   auto check = [](bool ok, const char* field) {
     if (!ok) throw Error(std::string("odometry: ") + field + " is out of range");
@@ -49,7 +22,7 @@ Eigen::Vector3d controlVector(double d_left, double d_right, double wheel_base_m
   const double w = wheel_base_mm;
   const double alpha = (d_right - d_left) / w;  // (B.1)
   const double v = 0.5 * (d_right + d_left);    // (B.2)
-  const ArcFunctions f = arcFunctions(alpha);
+  const ArcFunctions<double> f = arcFunctions(alpha);
   if (J_u_d) {  // (B.8), written through dv/dd = 1/2 and dalpha/dd = -+1/w
     *J_u_d << 0.5 * f.S - v * f.dS / w, 0.5 * f.S + v * f.dS / w,  //
         0.5 * f.C - v * f.dC / w, 0.5 * f.C + v * f.dC / w,        //

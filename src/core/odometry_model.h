@@ -11,6 +11,7 @@
 // turn on the spot v = 0 (B.24), where nothing is divided by v. (The printed B.22 has
 // dy/dd = -+v/w; the correct limit is -+v/(2w). B.23 is garbled and is not used.)
 #include <Eigen/Core>
+#include <cmath>
 #include <string>
 
 #include "src/core/pose2.h"
@@ -18,6 +19,35 @@
 namespace stereoloc {
 
 using Matrix32d = Eigen::Matrix<double, 3, 2>;
+
+// sin(a)/a, (1 - cos a)/a and their derivatives in a (B.4, B.8), for double or ceres::Jet; series
+// below |a| = 1e-2 (truncation < 1e-20), so straight steps are exact and smooth.
+template <typename T>
+struct ArcFunctions {
+  T S, dS, C, dC;
+};
+
+template <typename T>
+ArcFunctions<T> arcFunctions(const T& a) {
+  using std::abs;
+  using std::cos;
+  using std::sin;
+  ArcFunctions<T> r;
+  const T a2 = a * a;
+  if (abs(a) < T(1e-2)) {
+    r.S = 1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0 * (1.0 - a2 / 72.0)));
+    r.dS = a * (-1.0 / 3.0 + a2 * (1.0 / 30.0 + a2 * (-1.0 / 840.0 + a2 / 45360.0)));
+    r.C = a * (0.5 - a2 * (1.0 / 24.0 - a2 * (1.0 / 720.0 - a2 * (1.0 / 40320.0 - a2 / 3628800.0))));
+    r.dC = 0.5 - a2 * (1.0 / 8.0 - a2 * (1.0 / 144.0 - a2 * (1.0 / 5760.0 - a2 / 403200.0)));
+  } else {
+    const T s = sin(a), c = cos(a);
+    r.S = s / a;
+    r.dS = (a * c - s) / a2;
+    r.C = (1.0 - c) / a;
+    r.dC = (a * s - (1.0 - c)) / a2;
+  }
+  return r;
+}
 
 struct OdometryParams {
   double wheel_base_mm = 75.0;          // w, distance between the wheels
