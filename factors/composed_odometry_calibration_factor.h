@@ -12,7 +12,8 @@
 // p_a, p_b: the keyframe poses (x, y, theta), world frame (mm, mm, rad); c = (c_l, c_r, w): the
 // wheel scales (dimensionless) and the effective wheel base (mm), as in
 // odometry_calibration_factor.h; m_l,i, m_r,i: the encoder readings of the n steps from a to b
-// (mm), with variances s^2 (mm^2, (B.6) plus slip) in reading units, so that the travelled
+// (mm), with variances s^2 (mm^2, (B.6) plus slip, at each step's noise travel: NoiseTravel in
+// src/core/odometry_model.h) in reading units, so that the travelled
 // distances c m have c^2 s^2. (+) is pose composition (B.16), J1 and J2 its Jacobians (B.18,
 // B.19); [-] subtracts componentwise and wraps the angle; floor: the control variance floor
 // (src/core/odometry_model.h). S(c): upper square-root information of P(c).
@@ -153,22 +154,25 @@ class ComposedOdometryCalibrationFactor final : public ceres::SizedCostFunction<
     return true;
   }
 
-  // Blocks: pose a (3), pose b (3), calibration (c_l, c_r, w) (3). params: each step's odometry
-  // model (slip included), whose variances the readings get; their control floors must agree.
+  // Blocks: pose a (3), pose b (3), calibration (c_l, c_r, w) (3). noise_travel: each step's
+  // travel (mm) at which params, its odometry model (slip included), gives the reading's
+  // variances; the steps' control floors must agree.
   static ceres::CostFunction* Create(const std::vector<std::pair<double, double>>& readings,
+                                     const std::vector<WheelIncrements>& noise_travel,
                                      const std::vector<OdometryParams>& params) {
     if (readings.empty()) throw Error("composed odometry calibration factor: no readings");
-    if (params.size() != readings.size())
-      throw Error("composed odometry calibration factor: one odometry model per reading expected");
+    if (params.size() != readings.size() || noise_travel.size() != readings.size())
+      throw Error("composed odometry calibration factor: one noise travel and odometry model per reading expected");
     std::vector<Reading> r;
     for (size_t i = 0; i < readings.size(); ++i) {
       params[i].validate();
       const auto [ml, mr] = readings[i];
-      if (!std::isfinite(ml) || !std::isfinite(mr))
-        throw Error("composed odometry calibration factor: readings must be finite");
+      const WheelIncrements& t = noise_travel[i];
+      if (!std::isfinite(ml) || !std::isfinite(mr) || !std::isfinite(t.d_left) || !std::isfinite(t.d_right))
+        throw Error("composed odometry calibration factor: readings and noise travel must be finite");
       if (params[i].control_variance_floor != params[0].control_variance_floor)
         throw Error("composed odometry calibration factor: the steps' control variance floors differ");
-      const Eigen::Matrix2d W = wheelCovariance(ml, mr, params[i]);
+      const Eigen::Matrix2d W = wheelCovariance(t.d_left, t.d_right, params[i]);
       r.push_back(Reading{ml, mr, W(0, 0), W(1, 1)});
     }
     const Eigen::Vector3d floor = params[0].control_variance_floor;

@@ -15,7 +15,9 @@
 // at angle h, so along = rel_x cos h + rel_y sin h is the chord (signed) and lateral =
 // -rel_x sin h + rel_y cos h is zero on an arc; the arc length is L = along h / sin h and the
 // wheels roll d_l = L - w h, d_r = L + w h (the inverse of B.1, B.2). S: upper square-root
-// information of the readings' 2x2 covariance, (B.6) at the readings (wheelCovariance) plus the
+// information of the readings' 2x2 covariance, (B.6) at the noise travel t (wheelCovariance;
+// NoiseTravel in src/core/odometry_model.h: not at the readings themselves, whose noise such a
+// weight would correlate with, biasing the wheel base low by about k / |d|) plus the
 // control variance floor's x and theta terms carried into wheel space (L = (d_l + d_r) / 2,
 // dtheta = (d_r - d_l) / w: floor_x [1 1; 1 1] + floor_theta w^2 / 4 [1 -1; -1 1], w nominal), so
 // that at the nominal calibration the factor weighs a motion as the control-vector factor does,
@@ -69,18 +71,21 @@ struct OdometryCalibrationFactor {
   }
 
   // Blocks: previous pose (3), current pose (3), calibration (c_l, c_r, w) (3).
-  static ceres::CostFunction* Create(double m_left, double m_right, const OdometryParams& params) {
+  // noise_travel: t (mm); params: the odometry model at t (slip included).
+  static ceres::CostFunction* Create(double m_left, double m_right, const WheelIncrements& noise_travel,
+                                     const OdometryParams& params) {
     params.validate();
-    Eigen::Matrix2d S = wheelCovariance(m_left, m_right, params);
+    Eigen::Matrix2d S = wheelCovariance(noise_travel.d_left, noise_travel.d_right, params);
     const double fx = params.control_variance_floor.x();
     const double ft = params.control_variance_floor.z() * 0.25 * params.wheel_base_mm * params.wheel_base_mm;
     S += fx * Eigen::Matrix2d::Ones();
     S += ft * (Eigen::Matrix2d() << 1.0, -1.0, -1.0, 1.0).finished();
     const double lat = params.control_variance_floor.y();
-    if (!(std::isfinite(m_left) && std::isfinite(m_right) && S(0, 0) > 0 && S(1, 1) > 0 &&
+    if (!(std::isfinite(m_left) && std::isfinite(m_right) && std::isfinite(noise_travel.d_left) &&
+          std::isfinite(noise_travel.d_right) && S(0, 0) > 0 && S(1, 1) > 0 &&
           S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0) > 0 && lat > 0))
       throw Error(
-          "odometry calibration factor: readings must be finite, the wheel covariance positive definite and the "
+          "odometry calibration factor: readings and noise travel must be finite, the wheel covariance positive definite and the "
           "lateral floor positive");
     return new ceres::AutoDiffCostFunction<OdometryCalibrationFactor, 3, 3, 3, 3>(new OdometryCalibrationFactor(
         m_left, m_right, sqrtInformationUpper<2>(S, "odometry calibration factor: wheel covariance"), std::sqrt(lat)));

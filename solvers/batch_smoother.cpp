@@ -216,6 +216,7 @@ void BatchSmoother::buffer(const Step& step) {
   b.step = step.step;
   b.d_left = step.d_left;
   b.d_right = step.d_right;
+  b.noise = noise_travel_.next(step.d_left, step.d_right);
   if (step.compass) {
     b.compass = *step.compass;
     b.compass_sigma = step.compass_sigma;
@@ -489,10 +490,13 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   ChainFactor binaryFactor(size_t i) const override {
     if (i == 0 || cut_[i]) return {};
     const BufferedStep& st = b_.steps_[first_ + i];
-    const OdometryParams odometry = withSlip(b_.odometry_, st.d_left, st.d_right, b_.config_.slip_rel_sigma);
-    if (odometry_block_ >= 0)
-      return {std::unique_ptr<ceres::CostFunction>(OdometryCalibrationFactor::Create(st.d_left, st.d_right, odometry)),
+    if (odometry_block_ >= 0) {
+      const OdometryParams at_noise = withSlip(b_.odometry_, st.noise.d_left, st.noise.d_right, b_.config_.slip_rel_sigma);
+      return {std::unique_ptr<ceres::CostFunction>(
+                  OdometryCalibrationFactor::Create(st.d_left, st.d_right, st.noise, at_noise)),
               false, odometry_block_};
+    }
+    const OdometryParams odometry = withSlip(b_.odometry_, st.d_left, st.d_right, b_.config_.slip_rel_sigma);
     return {std::unique_ptr<ceres::CostFunction>(OdometryFactor::Create(st.d_left, st.d_right, odometry)), false};
   }
   std::vector<int> globalBlockSizes() const override { return sizes_; }

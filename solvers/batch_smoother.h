@@ -219,6 +219,7 @@ class BatchSmoother : public Estimator {
   struct BufferedStep {
     long step = 0;
     double d_left = 0, d_right = 0;                 // mm
+    WheelIncrements noise;                          // mm, the travel of (B.6) (NoiseTravel)
     double compass = 0, compass_sigma = 0;          // rad; compass_sigma 0: no reading
     size_t observations_end = 0;                    // observations_[end of the previous step, this)
   };
@@ -226,6 +227,7 @@ class BatchSmoother : public Estimator {
   void buffer(const Step& step);
   size_t observationsBegin(size_t index) const { return index == 0 ? 0 : steps_[index - 1].observations_end; }
   std::vector<BufferedStep> steps_;
+  NoiseTravel noise_travel_{odometry_.readings};  // of every buffered step in order
   std::vector<Observation> observations_;  // of all buffered steps in order, identified
   std::vector<Estimate> guess_;   // initial guess per step
   long first_index_ = -1;         // index into steps_ of the first initialised step

@@ -946,21 +946,27 @@ int SlidingWindowSmoother::retestObservations(Node& node) {
   return fused;
 }
 
-void SlidingWindowSmoother::addOdometry(Node* a, Node* b, const std::vector<Intermediate>& between, double d_left,
-                                        double d_right, const Pose2& rel, const Eigen::Matrix3d& C) {
+void SlidingWindowSmoother::addOdometry(Node* a, Node* b, const std::vector<Intermediate>& between, const Pose2& rel,
+                                        const Eigen::Matrix3d& C) {
   if (!config_.calibration.odometry) {
     addFactor(OdometryFactor::Create(Eigen::Vector3d(rel.x, rel.y, rel.theta), C), {a, b});
   } else {
     const double slip = config_.observation_model.unmodelled.slip_rel_sigma;
     std::vector<std::pair<double, double>> readings;
-    for (const Intermediate& q : between) readings.emplace_back(q.d_left, q.d_right);
-    readings.emplace_back(d_left, d_right);
+    std::vector<WheelIncrements> noise;
+    for (const Intermediate& q : between) {
+      readings.emplace_back(q.d_left, q.d_right);
+      noise.push_back(q.noise);
+    }
+    readings.emplace_back(b->d_left, b->d_right);
+    noise.push_back(b->noise);
     std::vector<OdometryParams> params;
-    for (const auto& [dl, dr] : readings) params.push_back(withSlip(odometry_, dl, dr, slip));
+    for (const WheelIncrements& t : noise) params.push_back(withSlip(odometry_, t.d_left, t.d_right, slip));
     if (readings.size() == 1)  // wheel space, as the batch (see odometry_calibration_factor.h)
-      addFactor(OdometryCalibrationFactor::Create(d_left, d_right, params[0]), {a, b}, false, {Calib::Wheels});
+      addFactor(OdometryCalibrationFactor::Create(b->d_left, b->d_right, b->noise, params[0]), {a, b}, false,
+                {Calib::Wheels});
     else
-      addFactor(ComposedOdometryCalibrationFactor::Create(readings, params), {a, b}, false, {Calib::Wheels});
+      addFactor(ComposedOdometryCalibrationFactor::Create(readings, noise, params), {a, b}, false, {Calib::Wheels});
   }
   factors_.back()->odometry = true;
 }
@@ -975,6 +981,7 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
   node->status = m.status;
   node->d_left = m.d_left;
   node->d_right = m.d_right;
+  node->noise = m.noise;
   const Pose2 p = compose(poseOf(k->x), m.rel);
   node->x = {p.x, p.y, p.theta};
   // The steps after it, composed from it as process() does after a keyframe.
@@ -1002,7 +1009,7 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
     const PosePrediction r = predictStep(rel, C, next->d_left, next->d_right);
     n->rel_to_next = r.pose;
     n->rel_to_next_covariance = r.covariance;
-    addOdometry(n, next, n->after, next->d_left, next->d_right, r.pose, r.covariance);
+    addOdometry(n, next, n->after, r.pose, r.covariance);
   } else {
     rel_ = rel;  // the odometry since the newest keyframe, which is now this step
     rel_covariance_ = C;
@@ -1011,7 +1018,7 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
   k->rel_to_next = m.rel;
   k->rel_to_next_covariance = m.rel_covariance;
   k->have_joint_next = false;
-  addOdometry(k, n, k->after, m.d_left, m.d_right, m.rel, m.rel_covariance);
+  addOdometry(k, n, k->after, m.rel, m.rel_covariance);
   ++stats_.keyframes;
   return n;
 }
@@ -1093,14 +1100,14 @@ LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::ve
 }
 
 bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation>& observations) {
-  auto it = std::find_if(recent_.begin(), recent_.end(), [step](const Step& s) { return s.step == step; });
+  auto it = std::find_if(recent_.begin(), recent_.end(), [step](const RecentStep& s) { return s.step.step == step; });
   if (it == recent_.end() || observations.empty() || !config_.global_fix) return false;
   if (!nodes_.empty() && step < nodes_.front()->step) return false;  // before the window: too late
-  Step at = *it;
+  Step at = it->step;
   at.observations = observations;
   const std::optional<PoseFix> fix = globalFix(at);
   if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
-  const std::vector<Step> after(it + 1, recent_.end());
+  const std::vector<RecentStep> after(it + 1, recent_.end());
   recent_.erase(it + 1, recent_.end());  // process() takes them again
   finaliseWindow();
   while (!history_.empty() && history_.back().step >= step) history_.pop_back();  // replaced below
@@ -1109,7 +1116,10 @@ bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation
   // The odometry since then, as process() would have taken it after this start.
   const long newest = last_step_;
   last_step_ = step;
-  for (const Step& s : after) process(s);
+  for (const RecentStep& s : after) {
+    replay_noise_ = s.noise;
+    process(s.step);
+  }
   stats_.steps -= static_cast<long>(after.size());
   last_step_ = newest;
   return true;
@@ -1151,9 +1161,11 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   have_step_ = true;
   last_step_ = step.step;
   ++stats_.steps;
+  const WheelIncrements noise = replay_noise_ ? *replay_noise_ : noise_travel_.next(step.d_left, step.d_right);
+  replay_noise_.reset();
   if (config_.restart_buffer_steps > 0) {
-    recent_.push_back(step);
-    recent_.back().observations.clear();
+    recent_.push_back(RecentStep{step, noise});
+    recent_.back().step.observations.clear();
     if (static_cast<int>(recent_.size()) > config_.restart_buffer_steps) recent_.pop_front();
   }
 
@@ -1202,6 +1214,7 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
       m.status = lost_ ? EstimateStatus::Lost : EstimateStatus::Predicted;
       m.d_left = step.d_left;
       m.d_right = step.d_right;
+      m.noise = noise;
       prev->after.push_back(m);
       out.step = step.step;
       out.t = step.t;
@@ -1216,12 +1229,13 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
     node->x = {pose.x, pose.y, pose.theta};
     node->d_left = step.d_left;
     node->d_right = step.d_right;
+    node->noise = noise;
     Node* n = node.get();
     nodes_.push_back(std::move(node));
     problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
     prev->rel_to_next = rel_;
     prev->rel_to_next_covariance = rel_covariance_;
-    addOdometry(prev, n, prev->after, step.d_left, step.d_right, rel_, rel_covariance_);
+    addOdometry(prev, n, prev->after, rel_, rel_covariance_);
     rel_ = Pose2();
     rel_covariance_.setZero();
     steps_since_keyframe_ = 0;

@@ -209,6 +209,7 @@ class SlidingWindowSmoother : public Estimator {
     Eigen::Matrix3d rel_covariance = Eigen::Matrix3d::Zero();
     EstimateStatus status = EstimateStatus::Predicted;
     double d_left = 0.0, d_right = 0.0;    // this step's wheel increments (mm), for insertLate
+    WheelIncrements noise;                 // mm, their travel of (B.6) (NoiseTravel)
   };
   struct Node {
     long step = 0;
@@ -224,6 +225,7 @@ class SlidingWindowSmoother : public Estimator {
     Pose2 rel_to_next;                   // the composed odometry to the next keyframe and its covariance
     Eigen::Matrix3d rel_to_next_covariance = Eigen::Matrix3d::Zero();
     double d_left = 0.0, d_right = 0.0;  // this step's wheel increments (mm), for insertLate
+    WheelIncrements noise;               // mm, their travel of (B.6) (NoiseTravel)
     std::vector<Observation> gated;      // observations the gate rejected here (reanchor, retestGated)
     std::vector<int> landmarks;          // the landmarks of the observations fused here
     std::optional<std::pair<double, double>> gated_compass;  // a gated reading and its sigma (rad)
@@ -298,11 +300,11 @@ class SlidingWindowSmoother : public Estimator {
   // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
   Node* promote(size_t k_index, size_t j);
   // The odometry factor between consecutive keyframes a and b: `between` are the steps after a
-  // and before b, (d_left, d_right) b's own wheel increments (mm), (rel, C) their composition and
-  // its covariance. With odometry self-calibration the calibrated factor (per step for one step,
-  // composed for more), otherwise the composed OdometryFactor.
-  void addOdometry(Node* a, Node* b, const std::vector<Intermediate>& between, double d_left, double d_right,
-                   const Pose2& rel, const Eigen::Matrix3d& C);
+  // and before b, then b's own wheel increments; (rel, C) their composition and its covariance.
+  // With odometry self-calibration the calibrated factor (per step for one step, composed for
+  // more), otherwise the composed OdometryFactor.
+  void addOdometry(Node* a, Node* b, const std::vector<Intermediate>& between, const Pose2& rel,
+                   const Eigen::Matrix3d& C);
   // Uninitialised or lost: a global fix from late observations of a recent step restarts the
   // window there (see insertLate). False when there is no fix.
   bool restartLate(long step, const std::vector<Observation>& observations);
@@ -350,7 +352,13 @@ class SlidingWindowSmoother : public Estimator {
   Pose2 rel_;
   Eigen::Matrix3d rel_covariance_ = Eigen::Matrix3d::Zero();
   int steps_since_keyframe_ = 0;
-  std::deque<Step> recent_;  // the last restart_buffer_steps steps, without observations
+  struct RecentStep {
+    Step step;              // without observations
+    WheelIncrements noise;  // its travel of (B.6), kept for a replay (restartLate)
+  };
+  std::deque<RecentStep> recent_;  // the last restart_buffer_steps steps
+  NoiseTravel noise_travel_{odometry_.readings};  // of every step in order (a replay reuses the kept travel)
+  std::optional<WheelIncrements> replay_noise_;  // set by restartLate for the step it replays
   // Self-calibration blocks (factors/odometry_calibration_factor.h: c_l, c_r, w (mm);
   // factors/stereo_pixel_calibration_factor.h) and their joint marginal covariance (wheels then
   // head, enabled blocks only) from the last covariance computation.

@@ -1,5 +1,6 @@
 #include "src/core/odometry_model.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "src/core/error.h"
@@ -49,6 +50,40 @@ Eigen::Matrix3d controlCovariance(double d_left, double d_right, const OdometryP
 WheelIncrements wheelIncrementsForArc(double arc_length_mm, double dtheta_rad, double wheel_base_mm) {
   const double half = 0.5 * dtheta_rad * wheel_base_mm;
   return WheelIncrements{arc_length_mm - half, arc_length_mm + half};
+}
+
+std::string toString(OdometryReadings readings) {
+  return readings == OdometryReadings::Commands ? "commands" : "encoders";
+}
+
+OdometryReadings odometryReadingsFromString(const std::string& name) {
+  for (OdometryReadings r : {OdometryReadings::Encoders, OdometryReadings::Commands})
+    if (toString(r) == name) return r;
+  throw Error("unknown odometry readings '" + name + "' (expected encoders or commands)");
+}
+
+NoiseTravel::NoiseTravel(OdometryReadings readings, int history) : readings_(readings) {
+  if (history < 1) throw Error("noise travel: the history must be at least one step");
+  recent_.resize(static_cast<size_t>(history));
+}
+
+WheelIncrements NoiseTravel::next(double d_left, double d_right) {
+  const WheelIncrements now{std::fabs(d_left), std::fabs(d_right)};
+  if (readings_ == OdometryReadings::Commands) return now;
+  WheelIncrements t = now;
+  if (size_ > 0) {
+    double l = 0.0, r = 0.0;
+    for (size_t i = 0; i < size_; ++i) {
+      l += recent_[i].d_left;
+      r += recent_[i].d_right;
+    }
+    const double n = static_cast<double>(size_);
+    t = WheelIncrements{std::max(l / n, 0.5 * now.d_left), std::max(r / n, 0.5 * now.d_right)};
+  }
+  recent_[head_] = now;
+  head_ = (head_ + 1) % recent_.size();
+  size_ = std::min(size_ + 1, recent_.size());
+  return t;
 }
 
 PosePrediction predictPose(const Pose2& pose, const Eigen::Matrix3d& covariance, double d_left, double d_right,

@@ -13,6 +13,7 @@
 #include <Eigen/Core>
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include "src/core/pose2.h"
 
@@ -49,7 +50,16 @@ ArcFunctions<T> arcFunctions(const T& a) {
   return r;
 }
 
+// What a step's wheel increments are, which decides where their noise lives (NoiseTravel).
+enum class OdometryReadings {
+  Encoders,  // measured wheel travel: reading = travel + noise of (B.6) (the thesis's robot)
+  Commands,  // commanded travel (velocity commands times the period): travel = reading + noise
+};
+std::string toString(OdometryReadings readings);  // "encoders", "commands"
+OdometryReadings odometryReadingsFromString(const std::string& name);  // throws Error naming the choices
+
 struct OdometryParams {
+  OdometryReadings readings = OdometryReadings::Encoders;
   double wheel_base_mm = 75.0;          // w, distance between the wheels
   double k_left = 0.02;                 // variance of d_left per mm travelled, mm^2/mm  (B.6)
   double k_right = 0.02;                // variance of d_right per mm travelled, mm^2/mm (B.6)
@@ -88,6 +98,31 @@ struct WheelIncrements {
   double d_right = 0.0;  // mm
 };
 WheelIncrements wheelIncrementsForArc(double arc_length_mm, double dtheta_rad, double wheel_base_mm);
+
+// The wheel travel at which a factor that estimates the wheel calibration evaluates (B.6)'s
+// variance k |d|. Encoder readings: the mean |reading| of each wheel over the `history` steps
+// before this one, and at least half this step's own |reading|. Why not the step's own reading: a
+// weight computed from a reading is then correlated with that reading's noise; a reading that
+// came out small gets more weight, and the fitted ratio of wheel travel to heading change (the
+// wheel base) comes out low by about k / |d| (on the thesis's spin, k = 0.05 mm^2/mm over 1.2 mm
+// steps: 4 %). The steps before are independent of this step's noise and, on a smooth motion,
+// measure the same travel; the floor keeps a start from standstill from being taken as exact (a
+// reading twice the mean of the steps before it is far outside (B.6)'s noise on a steady
+// motion). The first step has no history and uses its own reading. Commanded travel: the
+// reading itself, which carries no noise (the motion does), so a weight at it is independent of
+// the noise and follows every change of command at once. Feed it every step in order, whether or
+// not a factor is made from it; the batch and the sliding window then weigh the same step alike.
+class NoiseTravel {
+ public:
+  explicit NoiseTravel(OdometryReadings readings = OdometryReadings::Encoders, int history = 10);
+  // The travel (mm, >= 0 per wheel) for the reading (d_left, d_right) (mm), which it then keeps.
+  WheelIncrements next(double d_left, double d_right);
+
+ private:
+  OdometryReadings readings_;
+  std::vector<WheelIncrements> recent_;  // |reading|s of the last `history` steps, a ring
+  size_t size_ = 0, head_ = 0;
+};
 
 // The EKF prediction (5.7), (5.9) in one call: p_k = p_{k-1} (+) u (B.16), and
 // P_k = J1 P J1^T + J2 U J2^T with J1 (B.18), J2 (B.19).

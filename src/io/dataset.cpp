@@ -109,6 +109,11 @@ Dataset loadDataset(const std::string& dir) {
   d.rig = StereoRig::load(rig_path);
   {
     const YamlNode r = y.child("robot");
+    try {
+      d.odometry.readings = odometryReadingsFromString(r.getString("readings", toString(d.odometry.readings)));
+    } catch (const Error& e) {
+      r.fail("readings", e.what());
+    }
     d.odometry.wheel_base_mm = r.getDouble("wheel_base_mm");
     d.odometry.k_left = r.getDouble("k_left");
     d.odometry.k_right = r.getDouble("k_right");
@@ -285,7 +290,7 @@ void writeFiles(const Dataset& d, const std::string& dir) {
   f << "map_file" << "map.yaml";
   f << "rig_file" << "rig.yaml";
   const OdometryParams& o = d.odometry;
-  f << "robot" << "{" << "wheel_base_mm" << o.wheel_base_mm << "k_left" << o.k_left << "k_right" << o.k_right
+  f << "robot" << "{" << "readings" << toString(o.readings) << "wheel_base_mm" << o.wheel_base_mm << "k_left" << o.k_left << "k_right" << o.k_right
     << "wheel_variance_floor" << o.wheel_variance_floor << "control_variance_floor" << "{" << "x"
     << o.control_variance_floor.x() << "y" << o.control_variance_floor.y() << "theta" << o.control_variance_floor.z()
     << "}" << "}";

@@ -495,6 +495,7 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
   // in the previous pose's frame, so floor x is along-track and y cross-track).
   rep.odometry_fit = fitOdometryNoise(out.steps, out.groundtruth, config.wheel_base_mm, config.odometry_window_s);
   OdometryParams params;
+  params.readings = OdometryReadings::Commands;
   params.wheel_base_mm = config.wheel_base_mm;
   const OdometryNoiseFit& fit = rep.odometry_fit;
   if (fit.windows >= 10) {

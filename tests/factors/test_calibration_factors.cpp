@@ -3,7 +3,13 @@
 // agree with central differences, on straight lines (alpha -> 0), turns and headings near +-pi.
 #include <gtest/gtest.h>
 
+#include <ceres/covariance.h>
+#include <ceres/manifold.h>
+#include <ceres/problem.h>
+#include <ceres/solver.h>
+
 #include <Eigen/LU>
+#include <array>
 #include <memory>
 #include <random>
 
@@ -34,6 +40,14 @@ std::pair<double, double> readings(double dl_true, double dr_true, const double*
   return {dl_true / cal[0], dr_true / cal[1]};
 }
 
+// (B.6) evaluated at the readings themselves (the factors' Jacobians do not depend on where).
+WheelIncrements atReadings(double m_left, double m_right) { return {std::fabs(m_left), std::fabs(m_right)}; }
+std::vector<WheelIncrements> atReadings(const std::vector<std::pair<double, double>>& m) {
+  std::vector<WheelIncrements> t;
+  for (const auto& [l, r] : m) t.push_back(atReadings(l, r));
+  return t;
+}
+
 TEST(OdometryCalibrationFactor, ZeroAtTheTrueCalibrationAndJacobiansMatch) {
   const OdometryParams params;
   std::mt19937_64 rng(11);
@@ -46,7 +60,7 @@ TEST(OdometryCalibrationFactor, ZeroAtTheTrueCalibrationAndJacobiansMatch) {
       const Pose2 a(300 * U(rng), 300 * U(rng), th);
       const Pose2 b = compose(a, Pose2::fromVector(controlVector(dl, dr, cal[2])));
       const auto [ml, mr] = readings(dl, dr, cal);
-      std::unique_ptr<ceres::CostFunction> f(OdometryCalibrationFactor::Create(ml, mr, params));
+      std::unique_ptr<ceres::CostFunction> f(OdometryCalibrationFactor::Create(ml, mr, atReadings(ml, mr), params));
       const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
       EXPECT_LT(evaluate(*f, {pa, pb, cal}).norm(), 1e-7) << dl << " " << dr;
       const double pb_off[3] = {b.x + 0.3, b.y - 0.2, b.theta + 0.01};
@@ -68,7 +82,7 @@ TEST(OdometryCalibrationFactor, AgreesWithTheControlVectorFactorToFirstOrder) {
   const Pose2 a(100, 200, 0.7);
   const double dl = 28.0, dr = 34.8;
   const Pose2 b = compose(a, Pose2::fromVector(controlVector(dl, dr, params.wheel_base_mm)));
-  std::unique_ptr<ceres::CostFunction> calib(OdometryCalibrationFactor::Create(dl, dr, params));
+  std::unique_ptr<ceres::CostFunction> calib(OdometryCalibrationFactor::Create(dl, dr, atReadings(dl, dr), params));
   std::unique_ptr<ceres::CostFunction> plain(OdometryFactor::Create(dl, dr, params));
   const double pa[3] = {a.x, a.y, a.theta};
   // A pose error along the arc (both wheels further) and a heading error (one wheel further).
@@ -78,6 +92,57 @@ TEST(OdometryCalibrationFactor, AgreesWithTheControlVectorFactorToFirstOrder) {
     const double c2 = evaluate(*calib, {pa, pb, nominal}).squaredNorm(), p2 = evaluate(*plain, {pa, pb}).squaredNorm();
     EXPECT_NEAR(c2, p2, 0.05 * p2);
   }
+}
+
+// The wheel base fitted to a long turn on the spot with the poses known: weighted at each
+// step's own readings, (B.6) favours the readings that came out small and the fit is low by about
+// k / |d| (4 % here, many sigma); weighted at NoiseTravel's travel it is unbiased.
+TEST(OdometryCalibrationFactor, WheelBaseUnbiasedWhenWeightedAtTheNoiseTravel) {
+  OdometryParams params;
+  params.k_left = params.k_right = 0.05;  // the simulator's encoder noise (mm^2/mm)
+  const double w = params.wheel_base_mm, dtheta = -1.8 * kPi / 180.0;  // the thesis's spin
+  const WheelIncrements truth = wheelIncrementsForArc(0.0, dtheta, w);
+  const int n = 4000;
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> N(0.0, 1.0);
+  std::vector<std::array<double, 3>> poses(n + 1);
+  std::vector<std::pair<double, double>> m(n);
+  for (int i = 0; i < n; ++i) {
+    poses[i + 1] = {0.0, 0.0, wrapAngle(dtheta * (i + 1))};
+    m[i] = {truth.d_left + std::sqrt(params.k_left * std::fabs(truth.d_left)) * N(rng),
+            truth.d_right + std::sqrt(params.k_right * std::fabs(truth.d_right)) * N(rng)};
+  }
+  auto fit = [&](bool at_noise_travel, double* sigma) {
+    ceres::Problem problem;
+    std::array<double, 3> cal = {1.0, 1.0, w};
+    NoiseTravel noise;
+    for (int i = 0; i < n; ++i) {
+      const WheelIncrements t = noise.next(m[i].first, m[i].second);
+      problem.AddResidualBlock(OdometryCalibrationFactor::Create(m[i].first, m[i].second,
+                                                                 at_noise_travel ? t : atReadings(m[i].first, m[i].second),
+                                                                 params),
+                               nullptr, poses[i].data(), poses[i + 1].data(), cal.data());
+    }
+    for (auto& p : poses) problem.SetParameterBlockConstant(p.data());
+    problem.SetManifold(cal.data(), new ceres::SubsetManifold(3, {0, 1}));  // the scales are known
+    ceres::Solver::Options options;
+    ceres::Solver::Summary summary;
+    ceres::Solve(options, &problem, &summary);
+    EXPECT_TRUE(summary.IsSolutionUsable());
+    ceres::Covariance::Options co;
+    ceres::Covariance cov(co);
+    EXPECT_TRUE(cov.Compute({std::make_pair(cal.data(), cal.data())}, &problem));
+    double C[9];
+    cov.GetCovarianceBlockInTangentSpace(cal.data(), cal.data(), C);
+    *sigma = std::sqrt(C[0]);
+    return cal[2];
+  };
+  double sigma = 0.0;
+  const double biased = fit(false, &sigma);
+  EXPECT_LT(biased, w - 5.0 * sigma);
+  const double fitted = fit(true, &sigma);
+  EXPECT_NEAR(fitted, w, 3.0 * sigma);
+  EXPECT_LT(sigma, 0.01 * w);
 }
 
 StereoRig tiltedRig() {
@@ -105,6 +170,7 @@ TEST(ComposedOdometryCalibrationFactor, ZeroAtTheComposedTrueMotionAndJacobiansM
       const long k = static_cast<long>(n);
       std::unique_ptr<ceres::CostFunction> f(ComposedOdometryCalibrationFactor::Create(
           std::vector<std::pair<double, double>>(m.begin(), m.begin() + k),
+          atReadings(std::vector<std::pair<double, double>>(m.begin(), m.begin() + k)),
           std::vector<OdometryParams>(params.begin(), params.begin() + k)));
       const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
       EXPECT_LT(evaluate(*f, {pa, pb, cal}).norm(), 1e-7) << n << " " << th;
@@ -147,7 +213,7 @@ TEST(ComposedOdometryCalibrationFactor, WeighsWithTheComposedPredictionCovarianc
       b = compose(b, Pose2::fromVector(u), &J1, &J2);
       P = J1 * P * J1.transpose() + J2 * U * J2.transpose();
     }
-    std::unique_ptr<ceres::CostFunction> f(ComposedOdometryCalibrationFactor::Create(m, params));
+    std::unique_ptr<ceres::CostFunction> f(ComposedOdometryCalibrationFactor::Create(m, atReadings(m), params));
     const Eigen::Vector3d delta(0.7, -0.4, 0.02);
     const double pa[3] = {0.0, 0.0, 0.0}, pb[3] = {b.x + delta.x(), b.y + delta.y(), b.theta + delta.z()};
     const double cal[3] = {c.x(), c.y(), c.z()};
@@ -159,15 +225,19 @@ TEST(ComposedOdometryCalibrationFactor, WeighsWithTheComposedPredictionCovarianc
 
 TEST(ComposedOdometryCalibrationFactor, RejectsBadInput) {
   const std::vector<OdometryParams> one(1);
-  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({}, {}), Error);
-  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, std::nan("")}}, one), Error);
-  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}, {1.0, 1.0}}, one), Error);
+  const std::vector<WheelIncrements> t1(1, WheelIncrements{1.0, 1.0}), t2(2, WheelIncrements{1.0, 1.0});
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({}, {}, {}), Error);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, std::nan("")}}, t1, one), Error);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}}, {WheelIncrements{std::nan(""), 1.0}}, one),
+               Error);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}, {1.0, 1.0}}, t2, one), Error);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}, {1.0, 1.0}}, t1, {one[0], one[0]}), Error);
   OdometryParams no_floor;
   no_floor.control_variance_floor.setZero();
-  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}}, {no_floor}), Error);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}}, t1, {no_floor}), Error);
   std::vector<OdometryParams> differ(2);
   differ[1].control_variance_floor.x() = 1.0;
-  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}, {1.0, 1.0}}, differ), Error);
+  EXPECT_THROW(ComposedOdometryCalibrationFactor::Create({{1.0, 1.0}, {1.0, 1.0}}, t2, differ), Error);
 }
 
 TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobiansMatch) {

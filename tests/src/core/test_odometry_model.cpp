@@ -168,4 +168,36 @@ TEST(Odometry, WheelIncrementsForArcInvertsControl) {
   EXPECT_NEAR(u.head<2>().norm(), 2 * (50 / 0.3) * std::sin(0.15), 1e-12);
 }
 
+TEST(NoiseTravel, MeanOfTheStepsBeforeWithHalfTheOwnReadingAsFloor) {
+  NoiseTravel t(OdometryReadings::Encoders, 3);
+  // The first step has no history: its own |reading|.
+  WheelIncrements w = t.next(-2.0, 4.0);
+  EXPECT_DOUBLE_EQ(w.d_left, 2.0);
+  EXPECT_DOUBLE_EQ(w.d_right, 4.0);
+  w = t.next(1.0, 1.0);  // mean of (2, 4) before it
+  EXPECT_DOUBLE_EQ(w.d_left, 2.0);
+  EXPECT_DOUBLE_EQ(w.d_right, 4.0);
+  w = t.next(3.0, -3.0);  // means of (2, 1) and (4, 1)
+  EXPECT_DOUBLE_EQ(w.d_left, 1.5);
+  EXPECT_DOUBLE_EQ(w.d_right, 2.5);
+  w = t.next(0.0, 0.0);  // means of (2, 1, 3) and (4, 1, 3)
+  EXPECT_DOUBLE_EQ(w.d_left, 2.0);
+  EXPECT_DOUBLE_EQ(w.d_right, 8.0 / 3.0);
+  w = t.next(30.0, 0.0);  // history (1, 3, 0): a start far above its mean takes half its own
+  EXPECT_DOUBLE_EQ(w.d_left, 15.0);
+  EXPECT_DOUBLE_EQ(w.d_right, 4.0 / 3.0);  // (1, 3, 0) on the right too
+  EXPECT_THROW(NoiseTravel(OdometryReadings::Encoders, 0), Error);
+}
+
+TEST(NoiseTravel, CommandsAreTheirOwnTravel) {
+  NoiseTravel t(OdometryReadings::Commands, 3);
+  t.next(5.0, 5.0);
+  const WheelIncrements w = t.next(-1.0, 30.0);
+  EXPECT_DOUBLE_EQ(w.d_left, 1.0);
+  EXPECT_DOUBLE_EQ(w.d_right, 30.0);
+  EXPECT_EQ(odometryReadingsFromString(toString(OdometryReadings::Commands)), OdometryReadings::Commands);
+  EXPECT_EQ(odometryReadingsFromString("encoders"), OdometryReadings::Encoders);
+  EXPECT_THROW(odometryReadingsFromString("velocities"), Error);
+}
+
 }  // namespace stereoloc

@@ -68,6 +68,7 @@ void expectSame(const Dataset& a, const Dataset& b) {
   EXPECT_EQ(a.name, b.name);
   EXPECT_EQ(a.description, b.description);
   EXPECT_EQ(a.compass_sigma, b.compass_sigma);
+  EXPECT_EQ(a.odometry.readings, b.odometry.readings);
   EXPECT_EQ(a.odometry.k_left, b.odometry.k_left);
   EXPECT_EQ(a.odometry.wheel_base_mm, b.odometry.wheel_base_mm);
   EXPECT_EQ(a.odometry.control_variance_floor, b.odometry.control_variance_floor);
@@ -158,6 +159,7 @@ TEST(Dataset, RangeBearingRoundTripIsExact) {
     for (Observation& o : s.observations)
       o = observationFromRangeBearing(o.landmark_id, o.type, o.range, o.bearing, 10.0 + o.range / 100, 0.01);
   d.groundtruth[5].reset();  // ground truth may be partial
+  d.odometry.readings = OdometryReadings::Commands;
   saveDataset(d, dir.path(), false);
   EXPECT_EQ(readFile(dir / "observations.csv").rfind("step,t,landmark_id,range,bearing,sigma_range,sigma_bearing\n", 0), 0u);
   expectSame(d, loadDataset(dir.path()));
@@ -290,6 +292,13 @@ TEST_F(Malformed, MissingImages) {
   y.replace(y.find("has_images: 0"), 13, "has_images: 1");
   writeFile(dir / "dataset.yaml", y);
   expectError(dir.path(), "has_images", "images/left_000000.png");
+}
+
+TEST_F(Malformed, UnknownOdometryReadings) {
+  std::string y = readFile(dir / "dataset.yaml");
+  y.replace(y.find("readings: encoders"), 18, "readings: velocity");
+  writeFile(dir / "dataset.yaml", y);
+  expectError(dir.path(), "readings", "unknown odometry readings 'velocity'");
 }
 
 TEST_F(Malformed, WrongHeader) {

@@ -305,6 +305,9 @@ TEST_F(MrclamSlice, RowCountsBarcodeMappingAndTimeAlignment) {
   EXPECT_LT(rep.sigma_bearing_rad, deg2rad(5.0));
   EXPECT_NE(rep.summary().find("of other robots"), std::string::npos);
 
+  // MR.CLAM's odometry is velocity commands: its noise lives in the motion.
+  EXPECT_EQ(imp.odometry.readings, OdometryReadings::Commands);
+
   // The odometry noise scale multiplies the fitted model and nothing else.
   ASSERT_GE(rep.odometry_fit.windows, 10u);
   MrclamImportConfig scaled = config;
