@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 namespace stereoloc::frontend {
 namespace {
@@ -29,6 +30,33 @@ class LumaSampler {
     const float v = (1 - fy) * ((1 - fx) * level_[r0[0]] + fx * level_[r0[1]]) +
                     fy * ((1 - fx) * level_[r1[0]] + fx * level_[r1[1]]);
     return inside ? v : -1.0f;
+  }
+  // The same value for a point known to be inside (0 <= x < cols - 1, 0 <= y < rows - 1).
+  float interior(double x, double y) const {
+    const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+    const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
+    const uint8_t* r0 = data_ + static_cast<size_t>(y0) * step_ + x0;
+    const uint8_t* r1 = r0 + step_;
+    return (1 - fy) * ((1 - fx) * level_[r0[0]] + fx * level_[r0[1]]) + fy * ((1 - fx) * level_[r1[0]] + fx * level_[r1[1]]);
+  }
+  // The interval of t over which the points (ax + bx t +- ox, ay + by t +- oy) all lie at least
+  // `margin` inside the sampled area (lo > hi: none).
+  std::pair<double, double> interval(double ax, double bx, double ox, double ay, double by, double oy, double margin) const {
+    double lo = -1e30, hi = 1e30;
+    auto clip = [&](double a, double b, double o, double vmax) {  // margin <= a + b t -+ |o| <= vmax - margin
+      const double pmin = margin + std::fabs(o), pmax = vmax - margin - std::fabs(o);
+      if (std::fabs(b) < 1e-12) {
+        if (a < pmin || a > pmax) hi = lo - 1;
+        return;
+      }
+      double t1 = (pmin - a) / b, t2 = (pmax - a) / b;
+      if (t1 > t2) std::swap(t1, t2);
+      lo = std::max(lo, t1);
+      hi = std::min(hi, t2);
+    };
+    clip(ax, bx, ox, xmax_);
+    clip(ay, by, oy, ymax_);
+    return {lo, hi};
   }
 
  private:
@@ -104,11 +132,23 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
       bright.assign(n, -1.0f);
       contrast.clear();
       floor.clear();
+      // Positions whose three samples lie a pixel inside the image skip the sampler's test.
+      const auto [tin0, tin1] = sampleLuma.interval(l.rho * nx, -ny, off * nx, l.rho * ny, nx, off * ny, 1.0);
+      const double kin0 = std::max(-1.0, std::min(tin0 - l.t_min, static_cast<double>(n)));
+      const double kin1 = std::max(-1.0, std::min(tin1 - l.t_min, static_cast<double>(n)));
       for (int k = 0; k < n; ++k) {
         const double t = l.t_min + k, x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;  // LineFeature::x/y without 4 trig calls
-        const float c = sampleLuma(x, y), s1 = sampleLuma(x + off * nx, y + off * ny),
-                    s2 = sampleLuma(x - off * nx, y - off * ny);
-        if (c < 0 || s1 < 0 || s2 < 0) continue;
+        float c, s1, s2;
+        if (k >= kin0 && k <= kin1) {
+          c = sampleLuma.interior(x, y);
+          s1 = sampleLuma.interior(x + off * nx, y + off * ny);
+          s2 = sampleLuma.interior(x - off * nx, y - off * ny);
+        } else {
+          c = sampleLuma(x, y);
+          s1 = sampleLuma(x + off * nx, y + off * ny);
+          s2 = sampleLuma(x - off * nx, y - off * ny);
+          if (c < 0 || s1 < 0 || s2 < 0) continue;
+        }
         centre[k] = c;
         dark[k] = std::min(s1, s2);
         bright[k] = std::max(s1, s2);
