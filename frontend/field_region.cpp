@@ -17,17 +17,24 @@ float medianOf(const std::vector<float>& v, float vmax, std::vector<float>& pick
   constexpr int kBins = 1024, kBlock = 32;
   const float scale = static_cast<float>(kBins) / vmax;
   // Two interleaved tables: the floor's samples fall into few bins, and increments of one
-  // counter in a row wait for each other. Each value's bin is kept for the selection below.
-  uint32_t c[2][kBins] = {};
+  // counter in a row wait for each other. Each value's bin is kept for the selection below;
+  // only the blocks between the lowest and highest bin are cleared and searched (a floor's
+  // values span a few blocks of the 32).
+  uint32_t c[2][kBins];
   bins.resize(v.size());
+  int lo = kBins - 1, hi = 0;
   for (size_t i = 0; i < v.size(); ++i) {
     const int b = std::min(static_cast<int>(v[i] * scale), kBins - 1);
     bins[i] = static_cast<uint16_t>(b);
-    ++c[i & 1][b];
+    lo = std::min(lo, b);
+    hi = std::max(hi, b);
   }
+  const int block_lo = lo / kBlock, block_hi = hi / kBlock;
+  for (auto& t : c) std::fill(t + block_lo * kBlock, t + (block_hi + 1) * kBlock, 0u);
+  for (size_t i = 0; i < v.size(); ++i) ++c[i & 1][bins[i]];
   auto count = [&](int b) { return c[0][b] + c[1][b]; };
   size_t k = v.size() / 2;
-  int block = 0;
+  int block = block_lo;
   for (;; ++block) {
     uint32_t sum = 0;
     for (int b = block * kBlock; b < (block + 1) * kBlock; ++b) sum += count(b);
@@ -91,13 +98,25 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   uint32_t* pw = bgr_words_.data();
   const int gw_word = std::min(gw, (w - 2) / step + 1);  // columns with gx step + 1 < w
   uint8_t* fl = is_floor_.data();
+  // The floor test of one sample (b, g, r in the low three bytes): the chromaticity test
+  // multiplied through by the sum, no division per sample.
+  auto floorTest = [&](uint32_t word) {
+    const float b = static_cast<float>(static_cast<int32_t>(word & 255u)),
+                g = static_cast<float>(static_cast<int32_t>((word >> 8) & 255u)),
+                r = static_cast<float>(static_cast<int32_t>((word >> 16) & 255u));
+    const float sum = b + g + r;
+    const float l = 0.114f * b + 0.587f * g + 0.299f * r;
+    float d = 0.0f;
+    d += std::fabs(b - ref_c[0] * sum);
+    d += std::fabs(g - ref_c[1] * sum);
+    d += std::fabs(r - ref_c[2] * sum);
+    return static_cast<uint8_t>((sum >= 1.0f) & (l >= lo) & (l <= hi) & (d <= tol * sum));
+  };
   int open = gw;
-  for (int gy = 0; gy < gh && open > 0; ++gy) {
+  int gy = 0;
+  for (; gy < gh && 4 * open >= gw; ++gy) {
     const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
-    // Few columns left open (a robot or the lens border at the bottom): only those are read.
-    const bool all = 4 * open >= gw;
     for (int gx = 0; gx < gw; ++gx) {
-      if (!all && grid_top_[gx] >= 0) continue;
       const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
       uint32_t word;
       if (gx < gw_word) {
@@ -110,33 +129,44 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
       }
       pw[gx] = word;
     }
-    for (int gx = 0; gx < gw; ++gx) {
-      const uint32_t word = pw[gx];
-      const float b = static_cast<float>(static_cast<int32_t>(word & 255u)),
-                  g = static_cast<float>(static_cast<int32_t>((word >> 8) & 255u)),
-                  r = static_cast<float>(static_cast<int32_t>((word >> 16) & 255u));
-      const float sum = b + g + r;
-      const float l = 0.114f * b + 0.587f * g + 0.299f * r;
-      float d = 0.0f;
-      d += std::fabs(b - ref_c[0] * sum);
-      d += std::fabs(g - ref_c[1] * sum);
-      d += std::fabs(r - ref_c[2] * sum);
-      fl[gx] = static_cast<uint8_t>((sum >= 1.0f) & (l >= lo) & (l <= hi) & (d <= tol * sum));
-    }
+    for (int gx = 0; gx < gw; ++gx) fl[gx] = floorTest(pw[gx]);
     // Runs and boundaries without a branch per column either: a closed column's run goes on
-    // counting (on stale samples when only the open ones were read) but never reopens it.
-    const int min_run = p.min_run, first = gy - p.min_run + 1;
+    // counting but never reopens it.
+    const int first = gy - p.min_run + 1;
     int* run = run_.data();
     int* gt = grid_top_.data();
     int closed = 0;
     for (int gx = 0; gx < gw; ++gx) {
       const int r = fl[gx] ? run[gx] + 1 : 0;
       run[gx] = r;
-      const int hit = (gt[gx] < 0) & (r >= min_run);
+      const int hit = (gt[gx] < 0) & (r >= p.min_run);
       gt[gx] = hit ? first : gt[gx];
       closed += hit;
     }
     open -= closed;
+  }
+  // Few columns left open (a robot or the lens border at the bottom): only those are read and
+  // tested, from a list that drops each column as it closes.
+  open_cols_.clear();
+  for (int gx = 0; gx < gw; ++gx)
+    if (grid_top_[gx] < 0) open_cols_.push_back(gx);
+  for (; gy < gh && !open_cols_.empty(); ++gy) {
+    const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
+    const int first = gy - p.min_run + 1;
+    size_t kept = 0;
+    for (size_t j = 0; j < open_cols_.size(); ++j) {
+      const int gx = open_cols_[j];
+      const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
+      const uint32_t word = px[0] | (uint32_t{px[1]} << 8) | (uint32_t{px[2]} << 16);
+      const int r = floorTest(word) ? run_[gx] + 1 : 0;
+      run_[gx] = r;
+      if (r >= p.min_run) {
+        grid_top_[gx] = first;
+      } else {
+        open_cols_[kept++] = gx;
+      }
+    }
+    open_cols_.resize(kept);
   }
   // Median over neighbouring columns that have a boundary; a column without floor keeps all.
   smoothed_.assign(static_cast<size_t>(gw), -1);
