@@ -66,17 +66,31 @@ class LumaSampler {
   float level_[256];
 };
 
+// The value std::nth_element would place at k, of the n (at most kSmall) values v: the one
+// with fewer than k + 1 values below it and more than k at or below it. The counts are
+// branch-free loops the compiler vectorises; nth_element's comparisons of a few unordered
+// values mispredict about every other time.
+constexpr size_t kSmall = 32;
+float selectSmall(const float* v, size_t n, size_t k) {
+  for (size_t i = 0; i + 1 < n; ++i) {
+    const float x = v[i];
+    size_t below = 0, at_or_below = 0;
+    for (size_t j = 0; j < n; ++j) {
+      below += v[j] < x;
+      at_or_below += v[j] <= x;
+    }
+    if (below <= k && k < at_or_below) return x;
+  }
+  return v[n - 1];  // the only one left
+}
+
 // The value std::nth_element would place at v.size() / 2, for values in [-256, 256) (luma
 // samples and their differences). A counting pass over one bin per grey level finds the bin
 // holding it, and only that bin's few values are selected from: nth_element's unpredictable
 // comparisons over all of them take two fifths of this stage.
 float median(const std::vector<float>& v, StripeEndScratch& sc) {
-  if (v.size() <= 32) {  // an end's reference: clearing the bins would cost more than the select
-    sc.pick.assign(v.begin(), v.end());
-    const auto mid = sc.pick.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-    std::nth_element(sc.pick.begin(), mid, sc.pick.end());
-    return *mid;
-  }
+  // An end's reference: clearing the bins would cost more than the select.
+  if (v.size() <= kSmall) return selectSmall(v.data(), v.size(), v.size() / 2);
   constexpr int kBins = 512;
   uint32_t count[kBins] = {};
   sc.bin.resize(v.size());
@@ -92,11 +106,18 @@ float median(const std::vector<float>& v, StripeEndScratch& sc) {
   size_t below = 0;
   int b = lo;
   while (below + count[b] <= k) below += count[b++];
-  sc.pick.clear();
-  for (size_t i = 0; i < v.size(); ++i)
-    if (sc.bin[i] == b) sc.pick.push_back(v[i]);
+  // The bin's values, without a branch per value (+ 1: a value outside the bin may be written
+  // past them).
+  sc.pick.resize(count[b] + 1);
+  float* pick = sc.pick.data();
+  size_t m = 0;
+  for (size_t i = 0; i < v.size(); ++i) {
+    pick[m] = v[i];
+    m += sc.bin[i] == b;
+  }
+  if (m <= kSmall) return selectSmall(pick, m, k - below);
   const auto mid = sc.pick.begin() + static_cast<std::ptrdiff_t>(k - below);
-  std::nth_element(sc.pick.begin(), mid, sc.pick.end());
+  std::nth_element(sc.pick.begin(), mid, sc.pick.begin() + static_cast<std::ptrdiff_t>(m));
   return *mid;
 }
 
@@ -130,8 +151,9 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
       centre.assign(n, -1.0f);
       dark.assign(n, -1.0f);
       bright.assign(n, -1.0f);
-      contrast.clear();
-      floor.clear();
+      contrast.resize(static_cast<size_t>(n));
+      floor.resize(static_cast<size_t>(n));
+      size_t judged = 0;
       // Positions whose three samples lie a pixel inside the image skip the sampler's test.
       const auto [tin0, tin1] = sampleLuma.interval(l.rho * nx, -ny, off * nx, l.rho * ny, nx, off * ny, 1.0);
       const double kin0 = std::max(-1.0, std::min(tin0 - l.t_min, static_cast<double>(n)));
@@ -152,9 +174,12 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
         centre[k] = c;
         dark[k] = std::min(s1, s2);
         bright[k] = std::max(s1, s2);
-        contrast.push_back(c - bright[k]);
-        floor.push_back(dark[k]);
+        contrast[judged] = c - bright[k];
+        floor[judged] = dark[k];
+        ++judged;
       }
+      contrast.resize(judged);
+      floor.resize(judged);
       if (contrast.size() < 4) continue;
       const double c_ref = median(contrast, sc), floor_ref = median(floor, sc);
       if (c_ref < prm.min_contrast) continue;
