@@ -92,28 +92,42 @@ float median(const std::vector<float>& v, StripeEndScratch& sc) {
   // An end's reference: clearing the bins would cost more than the select.
   if (v.size() <= kSmall) return selectSmall(v.data(), v.size(), v.size() / 2);
   constexpr int kBins = 512;
-  uint32_t count[kBins] = {};
-  sc.bin.resize(v.size());
-  int lo = kBins - 1;
-  for (size_t i = 0; i < v.size(); ++i) {
+  const size_t n = v.size();
+  sc.bin.resize(n);
+  uint16_t* bins = sc.bin.data();
+  int lo = kBins - 1, hi = 0;
+  for (size_t i = 0; i < n; ++i) {
     // Monotone in the value, so the bins are ordered as the values are.
     const int b = std::clamp(static_cast<int>(v[i] + 256.0f), 0, kBins - 1);
-    sc.bin[i] = static_cast<uint16_t>(b);
-    ++count[b];
+    bins[i] = static_cast<uint16_t>(b);
     lo = std::min(lo, b);
+    hi = std::max(hi, b);
   }
-  const size_t k = v.size() / 2;
+  // Four interleaved tables, cleared between the lowest and highest bin only: a line's values
+  // fall into few grey levels, and increments of one counter in a row wait for each other.
+  uint32_t c[4][kBins];
+  for (auto& t : c) std::fill(t + lo, t + hi + 1, 0u);
+  size_t i = 0;
+  for (; i + 4 <= n; i += 4) {
+    ++c[0][bins[i]];
+    ++c[1][bins[i + 1]];
+    ++c[2][bins[i + 2]];
+    ++c[3][bins[i + 3]];
+  }
+  for (; i < n; ++i) ++c[0][bins[i]];
+  auto count = [&](int bin) { return c[0][bin] + c[1][bin] + c[2][bin] + c[3][bin]; };
+  const size_t k = n / 2;
   size_t below = 0;
   int b = lo;
-  while (below + count[b] <= k) below += count[b++];
+  while (below + count(b) <= k) below += count(b++);
   // The bin's values, without a branch per value (+ 1: a value outside the bin may be written
   // past them).
-  sc.pick.resize(count[b] + 1);
+  sc.pick.resize(count(b) + 1);
   float* pick = sc.pick.data();
   size_t m = 0;
-  for (size_t i = 0; i < v.size(); ++i) {
-    pick[m] = v[i];
-    m += sc.bin[i] == b;
+  for (size_t j = 0; j < n; ++j) {
+    pick[m] = v[j];
+    m += bins[j] == b;
   }
   if (m <= kSmall) return selectSmall(pick, m, k - below);
   const auto mid = sc.pick.begin() + static_cast<std::ptrdiff_t>(k - below);
