@@ -63,20 +63,30 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   if (!p.enabled || w < p.step_px || h < 3 * p.step_px) return;
   const int step = p.step_px;
   const int gw = (w + step - 1) / step, gh = (h + step - 1) / step;
-  // Floor reference from the bottom third.
-  for (auto& c : chroma_) c.clear();
-  luma_.clear();
-  // Every other grid sample of the bottom third is plenty for a median.
-  for (int gy = (2 * gh) / 3; gy < gh; gy += 2) {
-    const cv::Vec3b* row = bgr.ptr<cv::Vec3b>(gy * step);
+  // Floor reference from the bottom third. Every other grid sample of the bottom third is
+  // plenty for a median. A black sample (no chromaticity) is written and then overwritten, so
+  // the loop has no branch and its divisions overlap.
+  const int gy_ref = (2 * gh) / 3;
+  const size_t max_ref = static_cast<size_t>((gh - gy_ref + 1) / 2) * static_cast<size_t>((gw + 1) / 2);
+  for (auto& c : chroma_) c.resize(max_ref);
+  luma_.resize(max_ref);
+  size_t n_ref = 0;
+  for (int gy = gy_ref; gy < gh; gy += 2) {
+    const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
     for (int gx = 0; gx < gw; gx += 2) {
-      const cv::Vec3b& px = row[gx * step];
-      const float sum = static_cast<float>(px[0]) + px[1] + px[2];
-      if (sum < 1.0f) continue;
-      for (int c = 0; c < 3; ++c) chroma_[c].push_back(px[c] / sum);
-      luma_.push_back(0.114f * px[0] + 0.587f * px[1] + 0.299f * px[2]);
+      const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
+      const float b = px[0], g = px[1], r = px[2];
+      const float sum = b + g + r;
+      const float safe = sum < 1.0f ? 1.0f : sum;
+      chroma_[0][n_ref] = b / safe;
+      chroma_[1][n_ref] = g / safe;
+      chroma_[2][n_ref] = r / safe;
+      luma_[n_ref] = 0.114f * b + 0.587f * g + 0.299f * r;
+      n_ref += static_cast<size_t>(sum >= 1.0f);
     }
   }
+  for (auto& c : chroma_) c.resize(n_ref);
+  luma_.resize(n_ref);
   if (luma_.empty()) return;
   const float ref_c[3] = {medianOf(chroma_[0], 1.0f, pick_, bins_), medianOf(chroma_[1], 1.0f, pick_, bins_),
                           medianOf(chroma_[2], 1.0f, pick_, bins_)};
