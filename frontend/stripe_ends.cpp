@@ -155,6 +155,8 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     if (!l.marking || l.t_max - l.t_min < 4.0) continue;
     const double nx = std::cos(l.theta), ny = std::sin(l.theta);
     const double off = 0.5 * l.width + prm.side_px;
+    // Positions t whose three samples lie a pixel inside the image skip the sampler's test.
+    const auto [tin0, tin1] = sampleLuma.interval(l.rho * nx, -ny, off * nx, l.rho * ny, nx, off * ny, 1.0);
     // The trim's samples lie at t_trim + k, k < n_trim (none without the trim).
     int n_trim = 0;
     double t_trim = 0.0;
@@ -168,8 +170,6 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
       contrast.resize(static_cast<size_t>(n));
       floor.resize(static_cast<size_t>(n));
       size_t judged = 0;
-      // Positions whose three samples lie a pixel inside the image skip the sampler's test.
-      const auto [tin0, tin1] = sampleLuma.interval(l.rho * nx, -ny, off * nx, l.rho * ny, nx, off * ny, 1.0);
       const double kin0 = std::max(-1.0, std::min(tin0 - l.t_min, static_cast<double>(n)));
       const double kin1 = std::max(-1.0, std::min(tin1 - l.t_min, static_cast<double>(n)));
       for (int k = 0; k < n; ++k) {
@@ -239,6 +239,9 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     // (a sample outside the image).
     auto standOut = [&](double t) {
       const double x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;
+      if (t >= tin0 && t <= tin1)
+        return static_cast<double>(sampleLuma.interior(x, y) - 0.5f * (sampleLuma.interior(x + off * nx, y + off * ny) +
+                                                                       sampleLuma.interior(x - off * nx, y - off * ny)));
       const float c = sampleLuma(x, y), s1 = sampleLuma(x + off * nx, y + off * ny),
                   s2 = sampleLuma(x - off * nx, y - off * ny);
       // Near the image border one side may leave the image first: the other side alone judges.
