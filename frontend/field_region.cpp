@@ -17,17 +17,24 @@ float medianOf(const std::vector<float>& v, float vmax, std::vector<float>& pick
   constexpr int kBins = 1024, kBlock = 32;
   const float scale = static_cast<float>(kBins) / vmax;
   // Two interleaved tables: the floor's samples fall into few bins, and increments of one
-  // counter in a row wait for each other. Each value's bin is kept for the selection below.
-  uint32_t c[2][kBins] = {};
+  // counter in a row wait for each other. Each value's bin is kept for the selection below;
+  // only the blocks between the lowest and highest bin are cleared and searched (a floor's
+  // values span a few blocks of the 32).
+  uint32_t c[2][kBins];
   bins.resize(v.size());
+  int lo = kBins - 1, hi = 0;
   for (size_t i = 0; i < v.size(); ++i) {
     const int b = std::min(static_cast<int>(v[i] * scale), kBins - 1);
     bins[i] = static_cast<uint16_t>(b);
-    ++c[i & 1][b];
+    lo = std::min(lo, b);
+    hi = std::max(hi, b);
   }
+  const int block_lo = lo / kBlock, block_hi = hi / kBlock;
+  for (auto& t : c) std::fill(t + block_lo * kBlock, t + (block_hi + 1) * kBlock, 0u);
+  for (size_t i = 0; i < v.size(); ++i) ++c[i & 1][bins[i]];
   auto count = [&](int b) { return c[0][b] + c[1][b]; };
   size_t k = v.size() / 2;
-  int block = 0;
+  int block = block_lo;
   for (;; ++block) {
     uint32_t sum = 0;
     for (int b = block * kBlock; b < (block + 1) * kBlock; ++b) sum += count(b);
@@ -56,20 +63,30 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   if (!p.enabled || w < p.step_px || h < 3 * p.step_px) return;
   const int step = p.step_px;
   const int gw = (w + step - 1) / step, gh = (h + step - 1) / step;
-  // Floor reference from the bottom third.
-  for (auto& c : chroma_) c.clear();
-  luma_.clear();
-  // Every other grid sample of the bottom third is plenty for a median.
-  for (int gy = (2 * gh) / 3; gy < gh; gy += 2) {
-    const cv::Vec3b* row = bgr.ptr<cv::Vec3b>(gy * step);
+  // Floor reference from the bottom third. Every other grid sample of the bottom third is
+  // plenty for a median. A black sample (no chromaticity) is written and then overwritten, so
+  // the loop has no branch and its divisions overlap.
+  const int gy_ref = (2 * gh) / 3;
+  const size_t max_ref = static_cast<size_t>((gh - gy_ref + 1) / 2) * static_cast<size_t>((gw + 1) / 2);
+  for (auto& c : chroma_) c.resize(max_ref);
+  luma_.resize(max_ref);
+  size_t n_ref = 0;
+  for (int gy = gy_ref; gy < gh; gy += 2) {
+    const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
     for (int gx = 0; gx < gw; gx += 2) {
-      const cv::Vec3b& px = row[gx * step];
-      const float sum = static_cast<float>(px[0]) + px[1] + px[2];
-      if (sum < 1.0f) continue;
-      for (int c = 0; c < 3; ++c) chroma_[c].push_back(px[c] / sum);
-      luma_.push_back(0.114f * px[0] + 0.587f * px[1] + 0.299f * px[2]);
+      const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
+      const float b = px[0], g = px[1], r = px[2];
+      const float sum = b + g + r;
+      const float safe = sum < 1.0f ? 1.0f : sum;
+      chroma_[0][n_ref] = b / safe;
+      chroma_[1][n_ref] = g / safe;
+      chroma_[2][n_ref] = r / safe;
+      luma_[n_ref] = 0.114f * b + 0.587f * g + 0.299f * r;
+      n_ref += static_cast<size_t>(sum >= 1.0f);
     }
   }
+  for (auto& c : chroma_) c.resize(n_ref);
+  luma_.resize(n_ref);
   if (luma_.empty()) return;
   const float ref_c[3] = {medianOf(chroma_[0], 1.0f, pick_, bins_), medianOf(chroma_[1], 1.0f, pick_, bins_),
                           medianOf(chroma_[2], 1.0f, pick_, bins_)};
@@ -91,13 +108,25 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
   uint32_t* pw = bgr_words_.data();
   const int gw_word = std::min(gw, (w - 2) / step + 1);  // columns with gx step + 1 < w
   uint8_t* fl = is_floor_.data();
+  // The floor test of one sample (b, g, r in the low three bytes): the chromaticity test
+  // multiplied through by the sum, no division per sample.
+  auto floorTest = [&](uint32_t word) {
+    const float b = static_cast<float>(static_cast<int32_t>(word & 255u)),
+                g = static_cast<float>(static_cast<int32_t>((word >> 8) & 255u)),
+                r = static_cast<float>(static_cast<int32_t>((word >> 16) & 255u));
+    const float sum = b + g + r;
+    const float l = 0.114f * b + 0.587f * g + 0.299f * r;
+    float d = 0.0f;
+    d += std::fabs(b - ref_c[0] * sum);
+    d += std::fabs(g - ref_c[1] * sum);
+    d += std::fabs(r - ref_c[2] * sum);
+    return static_cast<uint8_t>((sum >= 1.0f) & (l >= lo) & (l <= hi) & (d <= tol * sum));
+  };
   int open = gw;
-  for (int gy = 0; gy < gh && open > 0; ++gy) {
+  int gy = 0;
+  for (; gy < gh && 4 * open >= gw; ++gy) {
     const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
-    // Few columns left open (a robot or the lens border at the bottom): only those are read.
-    const bool all = 4 * open >= gw;
     for (int gx = 0; gx < gw; ++gx) {
-      if (!all && grid_top_[gx] >= 0) continue;
       const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
       uint32_t word;
       if (gx < gw_word) {
@@ -110,33 +139,44 @@ void FieldRegion::compute(const cv::Mat& bgr, const FieldRegionParams& p) {
       }
       pw[gx] = word;
     }
-    for (int gx = 0; gx < gw; ++gx) {
-      const uint32_t word = pw[gx];
-      const float b = static_cast<float>(static_cast<int32_t>(word & 255u)),
-                  g = static_cast<float>(static_cast<int32_t>((word >> 8) & 255u)),
-                  r = static_cast<float>(static_cast<int32_t>((word >> 16) & 255u));
-      const float sum = b + g + r;
-      const float l = 0.114f * b + 0.587f * g + 0.299f * r;
-      float d = 0.0f;
-      d += std::fabs(b - ref_c[0] * sum);
-      d += std::fabs(g - ref_c[1] * sum);
-      d += std::fabs(r - ref_c[2] * sum);
-      fl[gx] = static_cast<uint8_t>((sum >= 1.0f) & (l >= lo) & (l <= hi) & (d <= tol * sum));
-    }
+    for (int gx = 0; gx < gw; ++gx) fl[gx] = floorTest(pw[gx]);
     // Runs and boundaries without a branch per column either: a closed column's run goes on
-    // counting (on stale samples when only the open ones were read) but never reopens it.
-    const int min_run = p.min_run, first = gy - p.min_run + 1;
+    // counting but never reopens it.
+    const int first = gy - p.min_run + 1;
     int* run = run_.data();
     int* gt = grid_top_.data();
     int closed = 0;
     for (int gx = 0; gx < gw; ++gx) {
       const int r = fl[gx] ? run[gx] + 1 : 0;
       run[gx] = r;
-      const int hit = (gt[gx] < 0) & (r >= min_run);
+      const int hit = (gt[gx] < 0) & (r >= p.min_run);
       gt[gx] = hit ? first : gt[gx];
       closed += hit;
     }
     open -= closed;
+  }
+  // Few columns left open (a robot or the lens border at the bottom): only those are read and
+  // tested, from a list that drops each column as it closes.
+  open_cols_.clear();
+  for (int gx = 0; gx < gw; ++gx)
+    if (grid_top_[gx] < 0) open_cols_.push_back(gx);
+  for (; gy < gh && !open_cols_.empty(); ++gy) {
+    const uint8_t* row = bgr.ptr<uint8_t>(gy * step);
+    const int first = gy - p.min_run + 1;
+    size_t kept = 0;
+    for (size_t j = 0; j < open_cols_.size(); ++j) {
+      const int gx = open_cols_[j];
+      const uint8_t* px = row + 3 * static_cast<size_t>(gx) * step;
+      const uint32_t word = px[0] | (uint32_t{px[1]} << 8) | (uint32_t{px[2]} << 16);
+      const int r = floorTest(word) ? run_[gx] + 1 : 0;
+      run_[gx] = r;
+      if (r >= p.min_run) {
+        grid_top_[gx] = first;
+      } else {
+        open_cols_[kept++] = gx;
+      }
+    }
+    open_cols_.resize(kept);
   }
   // Median over neighbouring columns that have a boundary; a column without floor keeps all.
   smoothed_.assign(static_cast<size_t>(gw), -1);

@@ -50,6 +50,7 @@ class FieldRegion {
   std::vector<float> pick_;  // the reference medians' values in their bin
   std::vector<uint16_t> bins_;  // each sample's bin
   std::vector<uint8_t> is_floor_;
+  std::vector<int> open_cols_;  // the grid columns without a boundary yet, when few are left
   bool restricted_ = false;
 };
 

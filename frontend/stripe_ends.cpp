@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <utility>
 
 namespace stereoloc::frontend {
 namespace {
@@ -30,6 +31,33 @@ class LumaSampler {
                     fy * ((1 - fx) * level_[r1[0]] + fx * level_[r1[1]]);
     return inside ? v : -1.0f;
   }
+  // The same value for a point known to be inside (0 <= x < cols - 1, 0 <= y < rows - 1).
+  float interior(double x, double y) const {
+    const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+    const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
+    const uint8_t* r0 = data_ + static_cast<size_t>(y0) * step_ + x0;
+    const uint8_t* r1 = r0 + step_;
+    return (1 - fy) * ((1 - fx) * level_[r0[0]] + fx * level_[r0[1]]) + fy * ((1 - fx) * level_[r1[0]] + fx * level_[r1[1]]);
+  }
+  // The interval of t over which the points (ax + bx t +- ox, ay + by t +- oy) all lie at least
+  // `margin` inside the sampled area (lo > hi: none).
+  std::pair<double, double> interval(double ax, double bx, double ox, double ay, double by, double oy, double margin) const {
+    double lo = -1e30, hi = 1e30;
+    auto clip = [&](double a, double b, double o, double vmax) {  // margin <= a + b t -+ |o| <= vmax - margin
+      const double pmin = margin + std::fabs(o), pmax = vmax - margin - std::fabs(o);
+      if (std::fabs(b) < 1e-12) {
+        if (a < pmin || a > pmax) hi = lo - 1;
+        return;
+      }
+      double t1 = (pmin - a) / b, t2 = (pmax - a) / b;
+      if (t1 > t2) std::swap(t1, t2);
+      lo = std::max(lo, t1);
+      hi = std::min(hi, t2);
+    };
+    clip(ax, bx, ox, xmax_);
+    clip(ay, by, oy, ymax_);
+    return {lo, hi};
+  }
 
  private:
   const uint8_t* data_;
@@ -38,37 +66,72 @@ class LumaSampler {
   float level_[256];
 };
 
+// The value std::nth_element would place at k, of the n (at most kSmall) values v: the one
+// with fewer than k + 1 values below it and more than k at or below it. The counts are
+// branch-free loops the compiler vectorises; nth_element's comparisons of a few unordered
+// values mispredict about every other time.
+constexpr size_t kSmall = 32;
+float selectSmall(const float* v, size_t n, size_t k) {
+  for (size_t i = 0; i + 1 < n; ++i) {
+    const float x = v[i];
+    size_t below = 0, at_or_below = 0;
+    for (size_t j = 0; j < n; ++j) {
+      below += v[j] < x;
+      at_or_below += v[j] <= x;
+    }
+    if (below <= k && k < at_or_below) return x;
+  }
+  return v[n - 1];  // the only one left
+}
+
 // The value std::nth_element would place at v.size() / 2, for values in [-256, 256) (luma
 // samples and their differences). A counting pass over one bin per grey level finds the bin
 // holding it, and only that bin's few values are selected from: nth_element's unpredictable
 // comparisons over all of them take two fifths of this stage.
 float median(const std::vector<float>& v, StripeEndScratch& sc) {
-  if (v.size() <= 32) {  // an end's reference: clearing the bins would cost more than the select
-    sc.pick.assign(v.begin(), v.end());
-    const auto mid = sc.pick.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-    std::nth_element(sc.pick.begin(), mid, sc.pick.end());
-    return *mid;
-  }
+  // An end's reference: clearing the bins would cost more than the select.
+  if (v.size() <= kSmall) return selectSmall(v.data(), v.size(), v.size() / 2);
   constexpr int kBins = 512;
-  uint32_t count[kBins] = {};
-  sc.bin.resize(v.size());
-  int lo = kBins - 1;
-  for (size_t i = 0; i < v.size(); ++i) {
+  const size_t n = v.size();
+  sc.bin.resize(n);
+  uint16_t* bins = sc.bin.data();
+  int lo = kBins - 1, hi = 0;
+  for (size_t i = 0; i < n; ++i) {
     // Monotone in the value, so the bins are ordered as the values are.
     const int b = std::clamp(static_cast<int>(v[i] + 256.0f), 0, kBins - 1);
-    sc.bin[i] = static_cast<uint16_t>(b);
-    ++count[b];
+    bins[i] = static_cast<uint16_t>(b);
     lo = std::min(lo, b);
+    hi = std::max(hi, b);
   }
-  const size_t k = v.size() / 2;
+  // Four interleaved tables, cleared between the lowest and highest bin only: a line's values
+  // fall into few grey levels, and increments of one counter in a row wait for each other.
+  uint32_t c[4][kBins];
+  for (auto& t : c) std::fill(t + lo, t + hi + 1, 0u);
+  size_t i = 0;
+  for (; i + 4 <= n; i += 4) {
+    ++c[0][bins[i]];
+    ++c[1][bins[i + 1]];
+    ++c[2][bins[i + 2]];
+    ++c[3][bins[i + 3]];
+  }
+  for (; i < n; ++i) ++c[0][bins[i]];
+  auto count = [&](int bin) { return c[0][bin] + c[1][bin] + c[2][bin] + c[3][bin]; };
+  const size_t k = n / 2;
   size_t below = 0;
   int b = lo;
-  while (below + count[b] <= k) below += count[b++];
-  sc.pick.clear();
-  for (size_t i = 0; i < v.size(); ++i)
-    if (sc.bin[i] == b) sc.pick.push_back(v[i]);
+  while (below + count(b) <= k) below += count(b++);
+  // The bin's values, without a branch per value (+ 1: a value outside the bin may be written
+  // past them).
+  sc.pick.resize(count(b) + 1);
+  float* pick = sc.pick.data();
+  size_t m = 0;
+  for (size_t j = 0; j < n; ++j) {
+    pick[m] = v[j];
+    m += bins[j] == b;
+  }
+  if (m <= kSmall) return selectSmall(pick, m, k - below);
   const auto mid = sc.pick.begin() + static_cast<std::ptrdiff_t>(k - below);
-  std::nth_element(sc.pick.begin(), mid, sc.pick.end());
+  std::nth_element(sc.pick.begin(), mid, sc.pick.begin() + static_cast<std::ptrdiff_t>(m));
   return *mid;
 }
 
@@ -92,6 +155,8 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     if (!l.marking || l.t_max - l.t_min < 4.0) continue;
     const double nx = std::cos(l.theta), ny = std::sin(l.theta);
     const double off = 0.5 * l.width + prm.side_px;
+    // Positions t whose three samples lie a pixel inside the image skip the sampler's test.
+    const auto [tin0, tin1] = sampleLuma.interval(l.rho * nx, -ny, off * nx, l.rho * ny, nx, off * ny, 1.0);
     // The trim's samples lie at t_trim + k, k < n_trim (none without the trim).
     int n_trim = 0;
     double t_trim = 0.0;
@@ -102,19 +167,33 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
       centre.assign(n, -1.0f);
       dark.assign(n, -1.0f);
       bright.assign(n, -1.0f);
-      contrast.clear();
-      floor.clear();
+      contrast.resize(static_cast<size_t>(n));
+      floor.resize(static_cast<size_t>(n));
+      size_t judged = 0;
+      const double kin0 = std::max(-1.0, std::min(tin0 - l.t_min, static_cast<double>(n)));
+      const double kin1 = std::max(-1.0, std::min(tin1 - l.t_min, static_cast<double>(n)));
       for (int k = 0; k < n; ++k) {
         const double t = l.t_min + k, x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;  // LineFeature::x/y without 4 trig calls
-        const float c = sampleLuma(x, y), s1 = sampleLuma(x + off * nx, y + off * ny),
-                    s2 = sampleLuma(x - off * nx, y - off * ny);
-        if (c < 0 || s1 < 0 || s2 < 0) continue;
+        float c, s1, s2;
+        if (k >= kin0 && k <= kin1) {
+          c = sampleLuma.interior(x, y);
+          s1 = sampleLuma.interior(x + off * nx, y + off * ny);
+          s2 = sampleLuma.interior(x - off * nx, y - off * ny);
+        } else {
+          c = sampleLuma(x, y);
+          s1 = sampleLuma(x + off * nx, y + off * ny);
+          s2 = sampleLuma(x - off * nx, y - off * ny);
+          if (c < 0 || s1 < 0 || s2 < 0) continue;
+        }
         centre[k] = c;
         dark[k] = std::min(s1, s2);
         bright[k] = std::max(s1, s2);
-        contrast.push_back(c - bright[k]);
-        floor.push_back(dark[k]);
+        contrast[judged] = c - bright[k];
+        floor[judged] = dark[k];
+        ++judged;
       }
+      contrast.resize(judged);
+      floor.resize(judged);
       if (contrast.size() < 4) continue;
       const double c_ref = median(contrast, sc), floor_ref = median(floor, sc);
       if (c_ref < prm.min_contrast) continue;
@@ -160,6 +239,9 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     // (a sample outside the image).
     auto standOut = [&](double t) {
       const double x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;
+      if (t >= tin0 && t <= tin1)
+        return static_cast<double>(sampleLuma.interior(x, y) - 0.5f * (sampleLuma.interior(x + off * nx, y + off * ny) +
+                                                                       sampleLuma.interior(x - off * nx, y - off * ny)));
       const float c = sampleLuma(x, y), s1 = sampleLuma(x + off * nx, y + off * ny),
                   s2 = sampleLuma(x - off * nx, y - off * ny);
       // Near the image border one side may leave the image first: the other side alone judges.

@@ -1452,7 +1452,7 @@ void realTable(const std::string& dir, bool diag, int stage_passes) {
     std::printf("    %-3s recall %6.2f%% (%ld/%ld)\n", type.c_str(), c.first ? 100.0 * c.second / c.first : 0.0, c.second, c.first);
   std::printf("  targets: recall >= 80%%, precision >= 90%%, position error <= 1.5 px\n\n");
   std::printf("  CPU time per image (median of 21 alternating passes), same run: ours lines + corners %.3f ms real, %.3f ms\n"
-              "  rendered left images (32 pairs, seed 4): ratio %.2f (median of the passes' ratios; target <= 1.20);\n"
+              "  rendered left images (32 pairs, seed 4): ratio %.3f (median of the passes' ratios; target <= 1.20);\n"
               "  HoughLinesP %.3f ms, LSD %.3f ms on the real images\n\n",
               t_real, t_rend, ratio, t_hough, t_lsd);
   std::printf("  work per image: %.0f edge pixels and %.1f segments real, %.0f and %.1f rendered\n\n", e_real, s_real, e_rend,
