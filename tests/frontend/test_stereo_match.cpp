@@ -76,6 +76,55 @@ TEST(StereoMatch, FloorCornerDisparityIsSubPixel) {
   EXPECT_FALSE(matchFloorFeature(ll, rl, rig, 160, 235, range, StereoParams()).has_value());
 }
 
+// The slide gain against a rendered pair whose right image shows the floor dv rows lower (the
+// right camera's principal row moved by dv): the row search's right column moves by s dv for a
+// corner with a slanted marking, and not for one whose marking is vertical in the image.
+TEST(StereoMatch, SlideGainPredictsTheColumnShiftOfARowOffset) {
+  const StereoRig rig;
+  struct Case {
+    std::vector<Strip> scene;
+    Eigen::Vector3d corner;
+    bool slanted;
+  };
+  // A marking ahead at y = 60 mm runs to the vanishing point: slanted in the image; one ahead at
+  // y = 0 is the image's centre column.
+  const Case cases[] = {{{{{250, -150}, {250, 60}}, {{250, 60}, {600, 60}}}, {250, 60, 0}, true},
+                        {{{{250, 150}, {250, 0}}, {{250, 0}, {600, 0}}}, {250, 0, 0}, false}};
+  for (const Case& c : cases) {
+    const cv::Mat left = renderFloor(rig, false, c.scene);
+    cv::Mat ll;
+    bgrToLuma(left, ll);
+    const auto px = rig.project(c.corner, 0.0);
+    ASSERT_TRUE(px.has_value());
+    const DisparityRange range = validDisparities(rig, StereoParams());
+    double gain0 = 0;
+    std::optional<double> d0;
+    for (double dv : {0.0, -1.5, 1.5}) {
+      StereoRigParams shifted = rig.params();
+      shifted.principal_v = rig.principalV() + dv;
+      cv::Mat rl;
+      bgrToLuma(renderFloor(StereoRig(shifted), true, c.scene), rl);
+      double gain = 0;
+      const auto d = matchFloorFeature(ll, rl, rig, px->u_left, px->v_left, range, StereoParams(), &gain);
+      ASSERT_TRUE(d.has_value()) << "dv " << dv;
+      if (dv == 0.0) {
+        d0 = d;
+        gain0 = gain;
+        if (c.slanted)
+          EXPECT_GT(std::fabs(gain), 0.4);
+        else
+          EXPECT_LT(std::fabs(gain), 0.1);
+        continue;
+      }
+      EXPECT_NEAR(gain, gain0, 1e-12);  // a property of the left patch
+      // u_r = u_l - d moves by s dv: d by -s dv.
+      const double shift = -(*d - *d0);
+      EXPECT_NEAR(shift, gain * dv, 0.2 * std::fabs(gain * dv) + 0.1) << "dv " << dv << " gain " << gain;
+      if (c.slanted) EXPECT_GT(std::fabs(shift), 0.5);
+    }
+  }
+}
+
 TEST(StereoMatch, FullPipelineObservationOfAFloorCorner) {
   const StereoRig rig;
   const std::vector<Strip> scene = {{{250, -150}, {250, 60}}, {{250, 60}, {600, 60}}};
