@@ -134,7 +134,9 @@ std::optional<double> matchFloorFeature(const cv::Mat& L, const cv::Mat& R, cons
   // d holds at the patch centre row; move it to the feature's row along the floor.
   const double d = di0 + best + std::clamp(sub, -0.5, 0.5) + shear * (v - vc);
   if (d < range.min || d > range.max) return std::nullopt;
-  if (slide_gain) *slide_gain = slideGain(L, uc, vc, r);
+  // The right image's floor edges lean by the floor's shear more than the left's (the search
+  // shears the patch by it): a row offset moves the right column by the left patch's gain plus it.
+  if (slide_gain) *slide_gain = slideGain(L, uc, vc, r) + shear;
   return d;
 }
 
