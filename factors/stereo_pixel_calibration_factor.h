@@ -60,6 +60,13 @@
 // f (x^2 - (A_00 f_raw / f - 1))). e is whitened: parameter i is e_i sigma_i with the sigmas
 // given at creation, so its prior is the identity and a zero sigma switches a term off. Only
 // columns move.
+// Row offset (factors/stereo_pixel_row_calibration_factor.h): a fourth block dv (px), the rows'
+// misalignment of the rectified pair (the right camera's row minus the left's for one scene
+// point: the raw principal points' row difference and f times the relative pitch, as the given
+// rectification carries them). The frontend finds the right feature on the left's row, so a
+// feature whose edges are not vertical slides along them: u_r moves by s dv with s the
+// observation's slide gain (Observation::slide_gain, frontend/stereo_match.h slideGain). The
+// rows are not moved (the frontend reports the right row equal to the left's).
 // Evaluation fails when the landmark is not in front of the cameras.
 #include <ceres/autodiff_cost_function.h>
 #include <ceres/jet.h>
@@ -184,9 +191,9 @@ class StereoPixelCalibrationModel {
  public:
   StereoPixelCalibrationModel(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                               double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals,
-                              const stereo_pixel_calibration::ImageErrorVector* image_sigmas)
+                              const stereo_pixel_calibration::ImageErrorVector* image_sigmas, double slide_gain = 0.0)
       : landmark_(landmark), sqrt_info_(sqrt_information), rows_(residuals == PixelResiduals::All),
-        response_(stereo_pixel_calibration::columnResponse(rig, pixels, image_sigmas)) {
+        response_(stereo_pixel_calibration::columnResponse(rig, pixels, image_sigmas)), slide_gain_(slide_gain) {
     pan_cos_ = std::cos(pan);
     pan_sin_ = std::sin(pan);
     t_ = Eigen::Vector3d(rig.params().offset_x_mm, 0.0, rig.params().camera_height_mm);
@@ -200,6 +207,11 @@ class StereoPixelCalibrationModel {
 
   template <typename T>
   bool evaluate(const T* pose, const T* calib, const T* image, T* residual) const {
+    return evaluate<T>(pose, calib, image, nullptr, residual);
+  }
+  // `row`: the row offset dv (1 value, px), or null.
+  template <typename T>
+  bool evaluate(const T* pose, const T* calib, const T* image, const T* row, T* residual) const {
     using std::cos;
     using std::sin;
     // C0: R(theta)^T (l_xy - t_xy), height unchanged; C1: Rz(pan)^T; then minus the offset t.
@@ -233,6 +245,7 @@ class StereoPixelCalibrationModel {
       }
       for (int j = 0; j < 3; ++j) cr += T(g.rotation[j]) * image[8 + j];
     }
+    if (row) cr += T(slide_gain_) * row[0];
     const T per_px = x2 / T(f_);  // mm in C2 per pixel of column at this depth, for the shared code's f
     const T y2 = -0.5 * (cl + cr) * per_px;
     const T half_baseline = 0.5 * (cl - cr) * per_px;
@@ -246,6 +259,7 @@ class StereoPixelCalibrationModel {
   Eigen::Matrix4d sqrt_info_;
   bool rows_;
   stereo_pixel_calibration::ColumnResponse response_;
+  double slide_gain_ = 0;
   double pan_cos_ = 1, pan_sin_ = 0, tilt_ = 0;
   Eigen::Vector3d t_;
   double f_ = 0, ou_ = 0, ov_ = 0, half_baseline_ = 0;

@@ -380,9 +380,12 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
     else
       bgrToLuma(right, right_luma_);
     for (const PointFeature& f : r.features) {
-      const auto d = matchFloorFeature(left_luma_, right_luma_, rig_, f.u, f.v, range, params_.stereo);
+      double gain = 0.0;
+      const auto d = matchFloorFeature(left_luma_, right_luma_, rig_, f.u, f.v, range, params_.stereo, &gain);
       if (!d) continue;
-      r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, f.u - *d, f.v}});
+      // An X-intersection's two crossing lines do not slide as one edge (Observation::slide_gain).
+      r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, f.u - *d, f.v},
+                                        f.type == LandmarkType::Intersection ? 0.0 : gain});
     }
   }
   const ColourPrepare prepare_left = [this](const cv::Rect& rect, int step) { rectifier_->colour(0, rect, step); };
@@ -422,6 +425,7 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
     try {
       r.observations.push_back(
           observationFromPixels(rig_, m.feature.landmark_id, m.feature.type, m.pixels, head_pan, C));
+      r.observations.back().slide_gain = m.slide_gain;
     } catch (const GeometryError&) {
       // Disparity below the rig's minimum: cannot be triangulated; not an observation.
     }

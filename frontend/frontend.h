@@ -63,6 +63,7 @@ struct FrontendParams {
 struct StereoFeature {
   PointFeature feature;
   StereoPixels pixels;
+  double slide_gain = 0.0;  // Observation::slide_gain
 };
 
 struct FrontendResult {

@@ -47,8 +47,24 @@ std::optional<double> matchGoalEdge(const cv::Mat& right_bgr, const GoalEdge& le
   return left.u - d;
 }
 
+double slideGain(const cv::Mat& L, int uc, int vc, int r) {
+  double sxx = 0, sxy = 0;
+  for (int y = std::max(vc - r, 1); y <= std::min(vc + r, L.rows - 2); ++y) {
+    const uint8_t* up = L.ptr<uint8_t>(y - 1);
+    const uint8_t* row = L.ptr<uint8_t>(y);
+    const uint8_t* down = L.ptr<uint8_t>(y + 1);
+    for (int x = std::max(uc - r, 1); x <= std::min(uc + r, L.cols - 2); ++x) {
+      const double ix = 0.5 * (static_cast<double>(row[x + 1]) - row[x - 1]);
+      const double iy = 0.5 * (static_cast<double>(down[x]) - up[x]);
+      sxx += ix * ix;
+      sxy += ix * iy;
+    }
+  }
+  return sxx > 0 ? sxy / sxx : 0.0;
+}
+
 std::optional<double> matchFloorFeature(const cv::Mat& L, const cv::Mat& R, const StereoRig& rig, double u, double v,
-                                        const DisparityRange& range, const StereoParams& prm) {
+                                        const DisparityRange& range, const StereoParams& prm, double* slide_gain) {
   const int r = prm.patch_radius;
   const int uc = static_cast<int>(std::lround(u)), vc = static_cast<int>(std::lround(v));
   if (uc - r < 0 || vc - r < 0 || uc + r >= L.cols || vc + r >= L.rows) return std::nullopt;
@@ -118,6 +134,9 @@ std::optional<double> matchFloorFeature(const cv::Mat& L, const cv::Mat& R, cons
   // d holds at the patch centre row; move it to the feature's row along the floor.
   const double d = di0 + best + std::clamp(sub, -0.5, 0.5) + shear * (v - vc);
   if (d < range.min || d > range.max) return std::nullopt;
+  // The right image's floor edges lean by the floor's shear more than the left's (the search
+  // shears the patch by it): a row offset moves the right column by the left patch's gain plus it.
+  if (slide_gain) *slide_gain = slideGain(L, uc, vc, r) + shear;
   return d;
 }
 

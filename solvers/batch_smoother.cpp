@@ -17,6 +17,7 @@
 #include "factors/odometry_calibration_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
 #include "factors/stereo_pixel_image_calibration_factor.h"
+#include "factors/stereo_pixel_row_calibration_factor.h"
 #include "solvers/chain_solver.h"
 #include "factors/odometry_factor.h"
 #include "factors/pose_manifold.h"
@@ -334,39 +335,46 @@ using Clock = std::chrono::steady_clock;
 
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-// A cost function on (pose, q, e) seen as (pose, [q; e]): the chain solver's factors touch one
-// global block, so the stereo and image blocks of the self-calibration are one global block of
-// the batch (q first, so the stereo block's offset does not change).
+// A cost function on (pose, q, e, dv) (or (pose, q, e), (pose, q, dv)) seen as (pose, [q; e; dv]):
+// the chain solver's factors touch one global block, so the stereo, image and row blocks of the
+// self-calibration are one global block of the batch (q first, so the stereo block's offset does
+// not change).
 class JoinedGlobalBlocks final : public ceres::CostFunction {
  public:
   explicit JoinedGlobalBlocks(ceres::CostFunction* inner) : inner_(inner) {
     const std::vector<int32_t>& b = inner_->parameter_block_sizes();
-    n1_ = b[1];
-    n2_ = b[2];
+    sizes_.assign(b.begin() + 1, b.end());
+    int n = 0;
+    for (int k : sizes_) n += k;
     set_num_residuals(inner_->num_residuals());
     mutable_parameter_block_sizes()->push_back(b[0]);
-    mutable_parameter_block_sizes()->push_back(n1_ + n2_);
+    mutable_parameter_block_sizes()->push_back(n);
   }
   bool Evaluate(double const* const* p, double* r, double** J) const override {
-    const double* blocks[3] = {p[0], p[1], p[1] + n1_};
-    if (!J) return inner_->Evaluate(blocks, r, nullptr);
+    std::vector<const double*> blocks{p[0]};
+    for (int k = 0, offset = 0; k < static_cast<int>(sizes_.size()); offset += sizes_[static_cast<size_t>(k)], ++k)
+      blocks.push_back(p[1] + offset);
+    if (!J) return inner_->Evaluate(blocks.data(), r, nullptr);
     const int m = num_residuals();
-    std::vector<double> j1(J[1] ? static_cast<size_t>(m * n1_) : 0), j2(J[1] ? static_cast<size_t>(m * n2_) : 0);
-    double* jac[3] = {J[0], J[1] ? j1.data() : nullptr, J[1] ? j2.data() : nullptr};
-    if (!inner_->Evaluate(blocks, r, jac)) return false;
+    std::vector<std::vector<double>> parts(sizes_.size());
+    std::vector<double*> jac{J[0]};
+    for (size_t k = 0; k < sizes_.size(); ++k) {
+      if (J[1]) parts[k].resize(static_cast<size_t>(m * sizes_[k]));
+      jac.push_back(J[1] ? parts[k].data() : nullptr);
+    }
+    if (!inner_->Evaluate(blocks.data(), r, jac.data())) return false;
     if (J[1]) {
-      const int n = n1_ + n2_;
-      for (int i = 0; i < m; ++i) {
-        std::copy(j1.begin() + i * n1_, j1.begin() + (i + 1) * n1_, J[1] + i * n);
-        std::copy(j2.begin() + i * n2_, j2.begin() + (i + 1) * n2_, J[1] + i * n + n1_);
-      }
+      const int n = parameter_block_sizes()[1];
+      for (int i = 0; i < m; ++i)
+        for (size_t k = 0, offset = 0; k < sizes_.size(); offset += static_cast<size_t>(sizes_[k]), ++k)
+          std::copy(parts[k].begin() + i * sizes_[k], parts[k].begin() + (i + 1) * sizes_[k], J[1] + i * n + offset);
     }
     return true;
   }
 
  private:
   std::unique_ptr<ceres::CostFunction> inner_;
-  int n1_ = 0, n2_ = 0;
+  std::vector<int> sizes_;
 };
 
 // The factors touching poses [lo, hi) as a ceres::Problem over those poses, the neighbours
@@ -434,7 +442,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (b_.config_.calibration.stereo) {
       stereo_block_ = static_cast<int>(sizes_.size());
       image_sigmas_ = imageErrorSigmas(b_.config_.calibration, b_.config_.observation_model.unmodelled);
-      sizes_.push_back(kStereo + (image_sigmas_ ? kImage : 0));
+      row_sigma_ = rowOffsetSigma(b_.config_.calibration, b_.config_.observation_model.unmodelled);
+      sizes_.push_back(kStereo + (image_sigmas_ ? kImage : 0) + (row_sigma_ ? 1 : 0));
     }
   }
 
@@ -458,7 +467,13 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (stereo_block_ >= 0 && obs.pixels) {
       const PixelResiduals residuals =
           model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-      const Eigen::Matrix4d C = calibratedPixelCovariance(obs, landmark, model, image_sigmas_.has_value());
+      const Eigen::Matrix4d C =
+          calibratedPixelCovariance(obs, landmark, model, image_sigmas_.has_value(), row_sigma_.has_value());
+      if (row_sigma_)
+        return {std::make_unique<JoinedGlobalBlocks>(StereoPixelRowCalibrationFactor::Create(
+                    model.rig, landmark.position, *obs.pixels, obs.slide_gain, obs.head_pan, C, residuals,
+                    image_sigmas_ ? &*image_sigmas_ : nullptr)),
+                true, stereo_block_};
       if (image_sigmas_)
         return {std::make_unique<JoinedGlobalBlocks>(StereoPixelImageCalibrationFactor::Create(
                     model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals, *image_sigmas_)),
@@ -512,7 +527,18 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       CalibrationEstimate::StereoVector sigma;
       sigma << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
           c.focal_ratio_sigma, c.focal_scale_sigma;
-      if (image_sigmas_) {
+      if (row_sigma_) {
+        // The joined block (q, [e,] dv): e whitened (prior the identity), dv with the stated sigma.
+        const int m = image_sigmas_ ? kImage : 0;
+        Eigen::VectorXd joined = Eigen::VectorXd::Zero(kStereo + m + 1), variance(kStereo + m + 1);
+        joined.head<kStereo>() = nominalHead();
+        variance << sigma.cwiseAbs2(), Eigen::VectorXd::Ones(m), *row_sigma_ * *row_sigma_;
+        const Eigen::MatrixXd C = variance.asDiagonal().toDenseMatrix();
+        out->push_back({std::unique_ptr<ceres::CostFunction>(
+                            image_sigmas_ ? CalibrationPriorFactor<kStereo + kImage + 1>::Create(joined, C)
+                                          : CalibrationPriorFactor<kStereo + 1>::Create(joined, C)),
+                        false, stereo_block_});
+      } else if (image_sigmas_) {
         // The image block is whitened (StereoPixelImageCalibrationFactor): its prior is the identity.
         Eigen::Matrix<double, kStereo + kImage, 1> joined;
         joined << nominalHead(), Eigen::Matrix<double, kImage, 1>::Zero();
@@ -536,10 +562,13 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (odometry_block_ >= 0) g.insert(g.end(), wheels.data(), wheels.data() + 3);
     if (stereo_block_ >= 0) g.insert(g.end(), head.data(), head.data() + kStereo);
     if (image_sigmas_) g.insert(g.end(), static_cast<size_t>(kImage), 0.0);
+    if (row_sigma_) g.push_back(0.0);
     return g;
   }
   // The image block's sigmas (whitened parameter i is sigma_i e_i), when estimated.
   const std::optional<CalibrationEstimate::ImageVector>& imageSigmas() const { return image_sigmas_; }
+  // The row block's prior sigma (px), when estimated.
+  const std::optional<double>& rowSigma() const { return row_sigma_; }
   int odometryBlock() const { return odometry_block_; }
   int stereoBlock() const { return stereo_block_; }
   // The odometry factor into pose i is removed (true) or restored.
@@ -554,6 +583,7 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   std::vector<int> sizes_;
   int odometry_block_ = -1, stereo_block_ = -1;
   std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
+  std::optional<double> row_sigma_;
   Eigen::Vector3d nominalWheels() const { return Eigen::Vector3d(1.0, 1.0, b_.odometry_.wheel_base_mm); }
   static CalibrationEstimate::StereoVector nominalHead() { return CalibrationEstimate().head; }
   static constexpr int kStereo = StereoPixelCalibrationFactor::kCalibrationSize;
@@ -735,6 +765,10 @@ void BatchSmoother::solve() {
     params.tilt_rad += q[0];
     const StereoRig rig = model.rig.calibration() ? StereoRig(params, *model.rig.calibration()) : StereoRig(params);
     const double ou = rig.principalU(), ov = rig.principalV(), scale = 1.0 + q[5];
+    // The row offset dv, last in the stereo block when estimated (its slide s dv leaves u_r).
+    const double dv = source.rowSigma() ? q[StereoPixelCalibrationFactor::kCalibrationSize +
+                                            (source.imageSigmas() ? StereoPixelImageCalibrationFactor::kImageErrorSize : 0)]
+                                        : 0.0;
     int changed = 0;
     for (const auto& [index, raw] : raw_observations_) {
       if (index < first) continue;
@@ -745,14 +779,16 @@ void BatchSmoother::solve() {
       for (Observation& o : corrected) {
         if (o.landmark_id >= 0 || !o.pixels) continue;
         const double cl = (o.pixels->u_left - ou - q[3] - 0.5 * q[2]) / scale;
-        const double cr = (o.pixels->u_right - ou - q[3] + 0.5 * q[2]) / (scale * (1.0 + q[4]));
+        const double cr = (o.pixels->u_right - o.slide_gain * dv - ou - q[3] + 0.5 * q[2]) / (scale * (1.0 + q[4]));
         const double mean = 0.5 * (cl + cr), disparity = (cl - cr) / q[1];
         const StereoPixels px{ou + mean + 0.5 * disparity, ov + (o.pixels->v_left - ov) / scale,
                               ou + mean - 0.5 * disparity, ov + (o.pixels->v_right - ov) / scale};
         Landmark kind;
         kind.type = o.type;
         try {
+          const double gain = o.slide_gain;
           o = observationFromPixels(rig, -1, o.type, px, o.head_pan, pixelCovarianceFor(o, kind, model));
+          o.slide_gain = gain;
         } catch (const Error&) {
           // Not triangulable with the calibration (disparity too small): keeps its nominal form.
         }
@@ -1023,6 +1059,12 @@ void BatchSmoother::solve() {
         cal.image_errors = sigmas->cwiseProduct(c.segment<m>(offset + k));
         cal.image_covariance =
             sigmas->asDiagonal() * global_covariance.block<m, m>(offset + k, offset + k) * sigmas->asDiagonal();
+      }
+      if (source.rowSigma()) {
+        const Eigen::Index r = offset + k + (source.imageSigmas() ? StereoPixelImageCalibrationFactor::kImageErrorSize : 0);
+        cal.row = true;
+        cal.row_offset_px = c[r];
+        cal.row_offset_variance = global_covariance(r, r);
       }
     }
   }

@@ -21,6 +21,15 @@ StereoRig selfCalibratedRig(const StereoRig& given, const CalibrationEstimate& e
   const double yaw = e.image ? e.image_errors[9] : 0.0;
   c.K1.at<double>(0, 2) += (du + 0.5 * dd) * c.K1.at<double>(0, 0) / f;
   c.K2.at<double>(0, 2) += (du - 0.5 * dd - f * yaw) * c.K2.at<double>(0, 0) / f;
+  // The rows' misalignment dv (right minus left) is a raw right principal-point row error: the
+  // given rectification puts a raw row error delta at f delta / fy_raw rectified rows. With the
+  // image block, the right camera's pitch goes into R2 below and moves its rows by f pitch (the
+  // pitch's (x y, 1 + y^2) pattern, unmodelledPixelCovariance) at the centre; the principal point
+  // takes the rest.
+  if (e.row) {
+    const double pitch = e.image ? e.image_errors[8] : 0.0;
+    c.K2.at<double>(1, 2) += (e.row_offset_px - f * pitch) * c.K2.at<double>(1, 1) / f;
+  }
   // F = f (1 + psi) for both cameras' columns and rows, the right camera's columns (1 + phi) more.
   c.K1.at<double>(0, 0) *= 1.0 + psi;
   c.K1.at<double>(1, 1) *= 1.0 + psi;

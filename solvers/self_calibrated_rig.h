@@ -17,6 +17,8 @@
 //              Lens distortion and the rectifying rotation make the correction exact only
 //              near the image centre (their local scale at the image edge differs by up to
 //              ~15 % for k1 = -0.2).
+//   rows       with the row block (CalibrationEstimate::row), the right raw principal point's row
+//              moves by dv fy_raw / f, so the rectified rows of the pair align;
 //   image      with the image block (CalibrationEstimate::image): each camera's lens error added
 //              to its distortion, the right camera's rotation into its rectifying rotation R2
 //              (and R), its yaw's constant column shift taken from the right raw principal

@@ -71,6 +71,10 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
     w.put("focal_ratio_sigma", std::sqrt(head_covariance(4, 4)));
     w.put("focal_scale", head[5]);
     w.put("focal_scale_sigma", std::sqrt(head_covariance(5, 5)));
+    if (row) {
+      w.put("row_offset_px", row_offset_px);
+      w.put("row_offset_sigma_px", std::sqrt(row_offset_variance));
+    }
   }
   if (odometry) {
     w.put("wheel_scale_left", wheels[0]);
@@ -95,9 +99,14 @@ std::optional<CalibrationEstimate::ImageVector> imageErrorSigmas(const SelfCalib
   return s;
 }
 
+std::optional<double> rowOffsetSigma(const SelfCalibrationConfig& config, const UnmodelledNoise& noise) {
+  if (!config.stereo || !config.row_offset || !(noise.row_offset_sigma_px > 0)) return std::nullopt;
+  return noise.row_offset_sigma_px;
+}
+
 Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark& landmark,
-                                          const ObservationModelConfig& config, bool image_block) {
-  if (!image_block) return pixelCovarianceFor(obs, landmark, config);
+                                          const ObservationModelConfig& config, bool image_block, bool row_block) {
+  if (!image_block) return pixelCovarianceFor(obs, landmark, config, row_block);
   ObservationModelConfig rest = config;
   UnmodelledNoise& n = rest.unmodelled;
   UnmodelledNoise block;  // the terms the image block takes
@@ -106,7 +115,7 @@ Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark
   block.tangential_sigma = n.tangential_sigma;
   block.relative_rotation_sigma_rad = n.relative_rotation_sigma_rad;
   n.k1_sigma = n.k2_sigma = n.tangential_sigma = n.relative_rotation_sigma_rad = 0;
-  Eigen::Matrix4d C = pixelCovarianceFor(obs, landmark, rest);
+  Eigen::Matrix4d C = pixelCovarianceFor(obs, landmark, rest, row_block);
   if (obs.pixels) {
     // J diag(sigma^2) J^T with the column rows of J zero: the (v_l, v_r) block alone.
     const Eigen::Matrix4d B = unmodelledPixelCovariance(config.rig, *obs.pixels, block);

@@ -15,6 +15,9 @@
 //             the right camera's rotation against the left (pitch, yaw, roll), with the stereo
 //             block when the noise model (UnmodelledNoise) states their sigmas (batch smoother;
 //             SelfCalibrationConfig::image_errors; factors/stereo_pixel_image_calibration_factor.h)
+//   row       dv = the rectified rows' misalignment (px), with the stereo block when the noise
+//             model states it (UnmodelledNoise::row_offset_sigma_px; batch and window;
+//             SelfCalibrationConfig::row_offset; factors/stereo_pixel_row_calibration_factor.h)
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
 // calibration with the stated uncertainty of SelfCalibrationConfig, so a run that does not
 // excite a parameter leaves it at its prior.
@@ -25,6 +28,11 @@
 // parameters with the noise model's sigmas as their priors, their uncertainty enters the
 // marginal covariance of every other parameter, and the data correct them where they can. The smoother returns the estimate with its marginal
 // covariance beside the poses' (CalibrationEstimate).
+// Why the row block: the frontend matches marking features along the left feature's row, and
+// the rows' misalignment is the same in every pair of a run, so each such feature's u_r is off by
+// its slide gain times that misalignment (1.6 px RMS for marking corners on the realistic
+// profile) in every sighting; one parameter takes it, and the pixel covariance keeps only what
+// the slide model leaves (pixelCovarianceFor's slide residual terms).
 #include <optional>
 #include <string>
 #include <vector>
@@ -64,6 +72,9 @@ struct SelfCalibrationConfig {
   // pixel noise. The sliding window keeps them as pixel noise: it gates each sighting once,
   // through the stereo block alone.
   bool image_errors = true;
+  // With the stereo block, in the batch and the window: estimate the rows' misalignment when
+  // the noise model states it (rowOffsetSigma).
+  bool row_offset = true;
   // selfCalibratingBatch only (the batch smoother takes them from its own configuration).
   PixelResiduals residuals = PixelResiduals::All;
   bool use_compass = true;
@@ -90,13 +101,17 @@ struct CalibrationEstimate {
   using ImageMatrix = Eigen::Matrix<double, stereo_pixel_calibration::kImageErrorSize, stereo_pixel_calibration::kImageErrorSize>;
   ImageVector image_errors = ImageVector::Zero();
   ImageMatrix image_covariance = ImageMatrix::Zero();
+  // The row block: the rectified rows' misalignment dv (px, right minus left) and its variance.
+  bool row = false;
+  double row_offset_px = 0.0;
+  double row_offset_variance = 0.0;  // px^2
 
   // The rig a user passes back as --rig: with a stereo estimate, selfCalibratedRig
   // (solvers/self_calibrated_rig.h) — tilt in the mounting, every pixel correction folded into an
   // OpenCV calibration written beside it — so the frontend measures with the calibrated cameras.
   // The estimate itself and every standard deviation follow as extra keys the rig reader ignores
   // (tilt_correction_rad, baseline_scale, disparity_offset_px, column_offset_px, focal_ratio,
-  // focal_scale, wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma).
+  // focal_scale, row_offset_px, wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma).
   void saveAsRig(const std::string& path, const StereoRig& rig) const;
 };
 
@@ -115,11 +130,17 @@ struct SelfCalibrationResult {
 std::optional<CalibrationEstimate::ImageVector> imageErrorSigmas(const SelfCalibrationConfig& config,
                                                                  const UnmodelledNoise& noise);
 
+// The row block's prior sigma (px): the noise model's row_offset_sigma_px; nullopt without the
+// stereo block, with row_offset off, or when the noise model states no misalignment.
+std::optional<double> rowOffsetSigma(const SelfCalibrationConfig& config, const UnmodelledNoise& noise);
+
 // The pixel covariance of a calibrated pixel factor: pixelCovarianceFor (solvers/smoother_common.h)
-// and, with the image block, its lens and relative-rotation terms on the rows only (the block
-// carries their column errors; StereoPixelImageCalibrationFactor moves only the columns).
+// with the slide residual terms when the row block is estimated and, with the image block, its
+// lens and relative-rotation terms on the rows only (the block carries their column errors;
+// StereoPixelImageCalibrationFactor moves only the columns).
 Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark& landmark,
-                                          const ObservationModelConfig& config, bool image_block);
+                                          const ObservationModelConfig& config, bool image_block,
+                                          bool row_block = false);
 
 // The batch smoother with `config` over a whole dataset from a known start (pixel observation
 // model of config.residuals, no robust loss, no kidnap cuts).

@@ -18,6 +18,7 @@
 #include "factors/odometry_factor.h"
 #include "factors/pose_prior_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
+#include "factors/stereo_pixel_row_calibration_factor.h"
 #include "solvers/iterated_update.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
@@ -216,6 +217,13 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
                   head_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()),
               {}, false, {Calib::Head});
   }
+  row_sigma_ = rowOffsetSigma(cal, config_.observation_model.unmodelled);
+  if (row_sigma_) {
+    problem_->AddParameterBlock(&row_, 1);
+    addFactor(CalibrationPriorFactor<1>::Create(Eigen::Matrix<double, 1, 1>::Zero(),
+                                                Eigen::Matrix<double, 1, 1>::Constant(*row_sigma_ * *row_sigma_)),
+              {}, false, {Calib::Row});
+  }
   // Until the first solve, the calibration's covariance is its prior's (the gate reads it).
   calib_covariance_ = Eigen::MatrixXd::Zero(calibDim(), calibDim());
   int k = 0;
@@ -225,6 +233,16 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
     k = 3;
   }
   if (cal.stereo) calib_covariance_.diagonal().segment(k, calibSize(Calib::Head)) = stereoPriorSigma(cal).cwiseAbs2();
+  if (row_sigma_) calib_covariance_(calibOffset(Calib::Row), calibOffset(Calib::Row)) = *row_sigma_ * *row_sigma_;
+}
+
+int SlidingWindowSmoother::calibOffset(Calib c) const {
+  int offset = 0;
+  for (Calib b : calibBlocks()) {
+    if (b == c) return offset;
+    offset += calibSize(b);
+  }
+  throw Error("sliding window: calibration block not enabled");
 }
 
 CalibrationEstimate::StereoMatrix SlidingWindowSmoother::headCovariance() const {
@@ -237,11 +255,13 @@ std::vector<SlidingWindowSmoother::Calib> SlidingWindowSmoother::calibBlocks() c
   std::vector<Calib> out;
   if (config_.calibration.odometry) out.push_back(Calib::Wheels);
   if (config_.calibration.stereo) out.push_back(Calib::Head);
+  if (rowBlock()) out.push_back(Calib::Row);
   return out;
 }
 
 int SlidingWindowSmoother::calibDim() const {
-  return (config_.calibration.odometry ? 3 : 0) + (config_.calibration.stereo ? calibSize(Calib::Head) : 0);
+  return (config_.calibration.odometry ? 3 : 0) + (config_.calibration.stereo ? calibSize(Calib::Head) : 0) +
+         (rowBlock() ? 1 : 0);
 }
 
 const double* SlidingWindowSmoother::linearisationPoint(const Factor& f, size_t j) const {
@@ -285,6 +305,11 @@ std::optional<CalibrationEstimate> SlidingWindowSmoother::calibration() const {
     k = 3;
   }
   if (e.stereo) e.head_covariance = calib_covariance_.block(k, k, calibSize(Calib::Head), calibSize(Calib::Head));
+  if (rowBlock()) {
+    e.row = true;
+    e.row_offset_px = row_;
+    e.row_offset_variance = calib_covariance_(calibOffset(Calib::Row), calibOffset(Calib::Row));
+  }
   return e;
 }
 
@@ -640,7 +665,6 @@ Eigen::MatrixXd SlidingWindowSmoother::windowInformation() {
   const int n = static_cast<int>(nodes_.size());
   for (int i = 0; i < n; ++i) nodes_[static_cast<size_t>(i)]->slot = i;
   const int dim = 3 * n + calibDim();
-  const int head_off = 3 * n + (config_.calibration.odometry ? 3 : 0);
   Eigen::MatrixXd H = Eigen::MatrixXd::Zero(dim, dim);
   Eigen::VectorXd g = Eigen::VectorXd::Zero(dim);
   std::vector<const double*> cur, lin;
@@ -659,7 +683,7 @@ Eigen::MatrixXd SlidingWindowSmoother::windowInformation() {
       const double* c = calibData(f.calib[j]);
       cur.push_back(c);
       lin.push_back(c);
-      off.push_back(f.calib[j] == Calib::Wheels ? 3 * n : head_off);
+      off.push_back(3 * n + calibOffset(f.calib[j]));
     }
     if (!accumulate(f, cur, lin, off, H, g))
       throw Error("sliding window: a factor cannot be linearised for the covariance");
@@ -737,9 +761,24 @@ std::vector<Observation> SlidingWindowSmoother::gateViews(const Observation& mea
     const StereoBlock sig = stereoPriorSigma(config_.calibration);
     const std::pair<StereoBlock, CalibrationEstimate::StereoMatrix> calibrations[2] = {
         {head_, headCovariance()}, {CalibrationEstimate().head, sig.cwiseAbs2().asDiagonal()}};
-    for (const auto& [q, Cq] : calibrations) {
+    // With the row block, each view also takes the slide s dv out of u_r, with the row offset's
+    // variance as s^2 Var(dv) on u_r: the current estimate, then the prior (dv = 0, sigma_row).
+    double row[2] = {0, 0}, row_variance[2] = {0, 0};
+    if (rowBlock()) {
+      row[0] = row_;
+      row_variance[0] = calib_covariance_(calibOffset(Calib::Row), calibOffset(Calib::Row));
+      row_variance[1] = *row_sigma_ * *row_sigma_;
+    }
+    for (int k = 0; k < 2; ++k) {
+      const auto& [q, Cq] = calibrations[k];
+      Observation slid = measured;
+      Eigen::Matrix4d C = C_px;
+      if (rowBlock()) {
+        slid.pixels->u_right -= measured.slide_gain * row[k];
+        C(2, 2) += measured.slide_gain * measured.slide_gain * row_variance[k];
+      }
       try {
-        views.push_back(calibratedObservation(measured, config_.observation_model.rig, q, Cq, C_px));
+        views.push_back(calibratedObservation(slid, config_.observation_model.rig, q, Cq, C));
       } catch (const GeometryError&) {
       }
     }
@@ -799,7 +838,14 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
     }
   }
   if (!obs) return false;
-  if (config_.calibration.stereo && measured.pixels) {
+  if (config_.calibration.stereo && measured.pixels && rowBlock()) {
+    const PixelResiduals residuals =
+        config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+    addFactor(StereoPixelRowCalibrationFactor::Create(
+                  config_.observation_model.rig, lm->position, *measured.pixels, measured.slide_gain, measured.head_pan,
+                  calibratedPixelCovariance(measured, *lm, config_.observation_model, false, true), residuals, nullptr),
+              {node}, true, {Calib::Head, Calib::Row});
+  } else if (config_.calibration.stereo && measured.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
     addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,

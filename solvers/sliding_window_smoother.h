@@ -26,7 +26,9 @@
 // calibration. With the stereo block, gate, association and global fixes see each pixel observation
 // through the current calibration estimate and its covariance, and a sighting that gates out
 // through the prior calibration (calibratedObservation), so the given calibration's range bias
-// does not reject the sightings that calibrate it. Memory is bounded by W and restart_buffer_steps (plus one Estimate per
+// does not reject the sightings that calibrate it. When the noise model states the rectified rows'
+// misalignment, it is a third global block, the row offset dv (rowOffsetSigma), in the pixel
+// factors of the features the frontend matched along their row (s dv on u_r). Memory is bounded by W and restart_buffer_steps (plus one Estimate per
 // step for finish() unless keep_history is off). Derivations: docs/estimators.md, "Smoothers".
 #include <ceres/problem.h>
 
@@ -235,7 +237,7 @@ class SlidingWindowSmoother : public Estimator {
   };
   // Self-calibration blocks, after the poses in a factor's block order and in the window's
   // variables (wheels before head).
-  enum class Calib { Wheels, Head };
+  enum class Calib { Wheels, Head, Row };
   struct Factor {
     std::unique_ptr<ceres::CostFunction> cost;
     std::vector<Node*> nodes;
@@ -250,8 +252,12 @@ class SlidingWindowSmoother : public Estimator {
   void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes, bool robust = false,
                  std::vector<Calib> calib = {});
   using StereoBlock = CalibrationEstimate::StereoVector;
-  double* calibData(Calib c) { return c == Calib::Wheels ? wheels_.data() : head_.data(); }
-  static int calibSize(Calib c) { return c == Calib::Wheels ? 3 : static_cast<int>(StereoBlock::RowsAtCompileTime); }
+  double* calibData(Calib c) { return c == Calib::Wheels ? wheels_.data() : c == Calib::Head ? head_.data() : &row_; }
+  static int calibSize(Calib c) {
+    return c == Calib::Wheels ? 3 : c == Calib::Head ? static_cast<int>(StereoBlock::RowsAtCompileTime) : 1;
+  }
+  int calibOffset(Calib c) const;  // within the enabled blocks (calibBlocks' order)
+  bool rowBlock() const { return row_sigma_.has_value(); }
   std::vector<Calib> calibBlocks() const;  // the enabled ones, in variable order
   CalibrationEstimate::StereoMatrix headCovariance() const;  // the stereo block's part of calib_covariance_
   int calibDim() const;
@@ -364,6 +370,8 @@ class SlidingWindowSmoother : public Estimator {
   // head, enabled blocks only) from the last covariance computation.
   Eigen::Vector3d wheels_ = Eigen::Vector3d(1.0, 1.0, 0.0);
   StereoBlock head_ = CalibrationEstimate().head;
+  double row_ = 0.0;                   // the row offset dv (px), with row_sigma_
+  std::optional<double> row_sigma_;    // its prior sigma, when estimated
   Eigen::MatrixXd calib_covariance_;
   WindowLinearisation linearisation_ = WindowLinearisation::PriorPoint;  // in effect
 };

@@ -64,6 +64,7 @@ ObservationModel observationModelFromString(const std::string& name) {
 bool UnmodelledNoise::isZero() const {
   return k1_sigma == 0 && k2_sigma == 0 && tangential_sigma == 0 && pitch_sigma_rad == 0 && roll_sigma_rad == 0 &&
          relative_rotation_sigma_rad == 0 && marking_disparity_sigma_px == 0 && intersection_disparity_sigma_px == 0 &&
+         row_offset_sigma_px == 0 && marking_slide_residual_sigma_px == 0 && intersection_slide_residual_sigma_px == 0 &&
          slip_rel_sigma == 0;
 }
 
@@ -77,6 +78,9 @@ const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
     {"relative_rotation_sigma_rad", &UnmodelledNoise::relative_rotation_sigma_rad},
     {"marking_disparity_sigma_px", &UnmodelledNoise::marking_disparity_sigma_px},
     {"intersection_disparity_sigma_px", &UnmodelledNoise::intersection_disparity_sigma_px},
+    {"row_offset_sigma_px", &UnmodelledNoise::row_offset_sigma_px},
+    {"marking_slide_residual_sigma_px", &UnmodelledNoise::marking_slide_residual_sigma_px},
+    {"intersection_slide_residual_sigma_px", &UnmodelledNoise::intersection_slide_residual_sigma_px},
     {"slip_rel_sigma", &UnmodelledNoise::slip_rel_sigma},
 };
 }  // namespace
@@ -149,7 +153,8 @@ OdometryParams withSlip(const OdometryParams& params, double d_left, double d_ri
   return p;
 }
 
-Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config) {
+Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config,
+                                   bool slide_modelled) {
   Eigen::Matrix4d C;
   if (config.pixel_sigma > 0) {
     C = isotropicPixelCovariance(config.pixel_sigma);
@@ -162,12 +167,14 @@ Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landm
   if (obs.pixels && !config.unmodelled.isZero()) {
     C += unmodelledPixelCovariance(config.rig, *obs.pixels, config.unmodelled);
     // The right feature of a marking is found on the left's row: where the rows are misaligned
-    // it slides along the marking, an error of u_r alone (u_l is the left image's own).
+    // it slides along the marking, an error of u_r alone (u_l is the left image's own). With the
+    // misalignment estimated, the slide s dv is in the factor and only its residual stays.
+    const UnmodelledNoise& n = config.unmodelled;
     double s = 0;
     if (landmark.type == LandmarkType::MarkingCorner || landmark.type == LandmarkType::Junction)
-      s = config.unmodelled.marking_disparity_sigma_px;
+      s = slide_modelled ? n.marking_slide_residual_sigma_px : n.marking_disparity_sigma_px;
     else if (landmark.type == LandmarkType::Intersection)
-      s = config.unmodelled.intersection_disparity_sigma_px;
+      s = slide_modelled ? n.intersection_slide_residual_sigma_px : n.intersection_disparity_sigma_px;
     C(2, 2) += s * s;
   }
   return C;

@@ -66,6 +66,16 @@ struct UnmodelledNoise {
   // along the marking (docs/realistic_world.md, "Noise model").
   double marking_disparity_sigma_px = 0.0;
   double intersection_disparity_sigma_px = 0.0;
+  // The misalignment of the rectified rows that makes the slide (right row minus left row of
+  // one scene point, px): the raw principal points' row difference and f times the cameras'
+  // relative pitch. With it the stereo self-calibration estimates the misalignment as the row
+  // offset dv (its prior sigma; factors/stereo_pixel_row_calibration_factor.h), each feature's
+  // u_r error then is its slide gain times dv, and the two terms above give way to the two below.
+  double row_offset_sigma_px = 0.0;
+  // What remains of the two marking terms when dv is estimated: the error of u_r about s dv
+  // (marking corners and T-junctions; X-intersections), px (docs/realistic_world.md, "Noise model").
+  double marking_slide_residual_sigma_px = 0.0;
+  double intersection_slide_residual_sigma_px = 0.0;
   // Wheel slip: a wheel's increment's error sigma as a fraction of the increment, added in
   // quadrature to (B.6)'s k |d| (slip on a fraction p of the steps, one wheel at a time, reading
   // (1 + s) times the motion: sqrt(p / 2 E[s^2])).
@@ -101,8 +111,11 @@ struct ObservationModelConfig {
 
 // The pixel covariance the pixel models use for `obs`: its own, or sigma^2 I when
 // config.pixel_sigma > 0, plus unmodelledPixelCovariance of config.unmodelled and, for a feature
-// matched along a marking (landmark.type), its disparity term on u_r. Throws stereoloc::Error when the observation carries none.
-Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config);
+// matched along a marking (landmark.type), its disparity term on u_r: the marking terms, or with
+// `slide_modelled` (the row offset dv estimated) the slide residual terms. Throws
+// stereoloc::Error when the observation carries none.
+Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config,
+                                   bool slide_modelled = false);
 
 // The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks
 // for pixels and the observation has them (with its own Observation::pixel_covariance), the

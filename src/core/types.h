@@ -23,6 +23,16 @@ struct Observation {
   // set with pixels, zero without.
   Eigen::Matrix4d pixel_covariance = Eigen::Matrix4d::Zero();
   double head_pan = 0.0;                                  // rad, gamma at the time of the images
+  // Slide gain (dimensionless): how far u_right moves per px of row misalignment of the
+  // rectified pair (right row minus left row of the same scene point) for a feature the
+  // frontend matched along the left feature's row. A patch whose edges are not vertical slides
+  // along them: s = sum(Ix Iy) / sum(Ix^2) over the matched patch plus the floor's disparity
+  // change per row (frontend/stereo_match.h).
+  // 0 for features whose right column does not depend on the row (goal corners, simulated
+  // pixels) and for X-intersections, whose two crossing lines the one-edge model does not
+  // describe (measured on realistic images, s dv anticorrelates with their u_right error:
+  // docs/realistic_world.md). The self-calibration's row offset enters u_right as s * dv.
+  double slide_gain = 0.0;
 
   Eigen::Vector2d z() const { return Eigen::Vector2d(range, bearing); }
 };

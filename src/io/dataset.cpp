@@ -28,6 +28,11 @@ const std::vector<std::string> kPixelCovarianceHeader = {
     "cov_ul_ul", "cov_ul_vl", "cov_ul_ur",   "cov_ul_vr", "cov_vl_vl", "cov_vl_ur", "cov_vl_vr", "cov_ur_ur",
     "cov_ur_vr", "cov_vr_vr"};
 constexpr int kCovarianceColumn = 8;
+// Either pixel header with the frontend's slide gain (Observation::slide_gain) as a last column.
+std::vector<std::string> withSlideGain(std::vector<std::string> header) {
+  header.push_back("slide_gain");
+  return header;
+}
 
 Eigen::Matrix4d covarianceFromUpper(const double* c) {
   Eigen::Matrix4d C;
@@ -186,14 +191,15 @@ Dataset loadDataset(const std::string& dir) {
     const std::string path = join(dir, "observations.csv");
     if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
     CsvReader in(path);
-    const size_t header = in.expectHeader({kPixelHeader, kRangeBearingHeader, kPixelCovarianceHeader});
-    const bool pixels = header != 1, covariance = header == 2;
+    const size_t header = in.expectHeader({kPixelHeader, kRangeBearingHeader, kPixelCovarianceHeader,
+                                           withSlideGain(kPixelHeader), withSlideGain(kPixelCovarianceHeader)});
+    const bool pixels = header != 1, covariance = header == 2 || header == 4, slide = header >= 3;
     StepIndex idx(d.steps);
     while (in.next()) {
       const long step = in.getLong(0);
       const double t = in.getDouble(1);
       const long id = in.getLong(2);
-      double v[15];
+      double v[16];
       for (size_t c = 3; c < in.size(); ++c) v[c - 3] = in.getDouble(c);
       Step& s = d.steps[idx.lookup(in, step, t, true)];
       LandmarkType type = LandmarkType::Point;
@@ -219,6 +225,7 @@ Dataset loadDataset(const std::string& dir) {
             s.observations.push_back(
                 observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], d.rig.params().pixel_sigma));
           }
+          if (slide) s.observations.back().slide_gain = v[in.size() - 4];
         } else {
           s.observations.push_back(observationFromRangeBearing(static_cast<int>(id), type, v[0], v[1], v[2], v[3]));
         }
@@ -259,7 +266,7 @@ namespace {
 void writeFiles(const Dataset& d, const std::string& dir) {
   if (d.groundtruth.size() != d.steps.size() && !d.groundtruth.empty())
     throw Error("saveDataset: groundtruth must have one entry per step (or none)");
-  bool all_pixels = true, any_pan = false, any_compass = false, own_covariance = false;
+  bool all_pixels = true, any_pan = false, any_compass = false, own_covariance = false, any_slide = false;
   const Eigen::Matrix4d rig_covariance =
       d.rig.params().pixel_sigma * d.rig.params().pixel_sigma * Eigen::Matrix4d::Identity();
   for (size_t i = 0; i < d.steps.size(); ++i) {
@@ -270,6 +277,8 @@ void writeFiles(const Dataset& d, const std::string& dir) {
     for (const Observation& o : s.observations) {
       all_pixels &= o.pixels.has_value();
       own_covariance |= o.pixels.has_value() && o.pixel_covariance != rig_covariance;
+      any_slide |= o.slide_gain != 0.0;
+      if (!std::isfinite(o.slide_gain)) throw Error("saveDataset: an observation's slide gain is not finite");
     }
   }
   // Pixel observations whose covariance is not the rig's sigma^2 I carry it in their rows.
@@ -304,7 +313,10 @@ void writeFiles(const Dataset& d, const std::string& dir) {
 
   CsvWriter odo(any_pan ? kOdometryPanHeader : kOdometryHeader);
   CsvWriter compass(kCompassHeader);
-  CsvWriter obs(own_covariance ? kPixelCovarianceHeader : all_pixels ? kPixelHeader : kRangeBearingHeader);
+  // Pixel observations with a slide gain carry it in a last column.
+  any_slide &= all_pixels;
+  const std::vector<std::string>& pixel_header = own_covariance ? kPixelCovarianceHeader : kPixelHeader;
+  CsvWriter obs(!all_pixels ? kRangeBearingHeader : any_slide ? withSlideGain(pixel_header) : pixel_header);
   CsvWriter gt(kGroundTruthHeader);
   for (size_t i = 0; i < d.steps.size(); ++i) {
     const Step& s = d.steps[i];
@@ -323,6 +335,7 @@ void writeFiles(const Dataset& d, const std::string& dir) {
         if (own_covariance)
           for (int r = 0; r < 4; ++r)
             for (int c = r; c < 4; ++c) obs.add(ob.pixel_covariance(r, c));
+        if (any_slide) obs.add(ob.slide_gain);
       } else {
         obs.add(ob.range).add(ob.bearing).add(std::sqrt(ob.covariance(0, 0))).add(std::sqrt(ob.covariance(1, 1)));
       }

@@ -22,6 +22,12 @@ namespace {
 // stated row misalignment, sqrt(2 (1 px)^2 + (277 px * 0.1 deg)^2) = 1.49 px.
 constexpr double kMarkingDisparityPerRowPx = 1.63 / 1.49;
 constexpr double kIntersectionDisparityPerRowPx = 0.65 / 1.49;
+// What remains with the rows' misalignment dv estimated (UnmodelledNoise::row_offset_sigma_px):
+// the RMS of u_r - s dv (s the frontend's slide gain, dv the true misalignment at the feature)
+// about each trial's mean (the constant part is the disparity and column offsets'), on the same
+// observations: 0.57 px for marking corners and T-junctions (835; 1.09 px without the s dv
+// term). X-intersections have no slide gain (Observation::slide_gain), so their term stays.
+constexpr double kMarkingSlideResidualPerRowPx = 0.57 / 1.49;
 
 // Gauss-Newton iterations of the iterated EKF's updates (solvers/ekf.h); it stops earlier when
 // converged, typically after 2-3.
@@ -183,6 +189,9 @@ void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o)
   const double row = std::hypot(std::sqrt(2.0) * p.principal_sigma_px, focal_px * p.relative_rotation_sigma_rad);
   n.marking_disparity_sigma_px = kMarkingDisparityPerRowPx * row;
   n.intersection_disparity_sigma_px = kIntersectionDisparityPerRowPx * row;
+  n.row_offset_sigma_px = row;
+  n.marking_slide_residual_sigma_px = kMarkingSlideResidualPerRowPx * row;
+  n.intersection_slide_residual_sigma_px = n.intersection_disparity_sigma_px;
   // One wheel at a time on a fraction p of the steps, s uniform in [a, b]: E[s^2] per wheel
   // p / 2 (a^2 + a b + b^2) / 3.
   const double a = p.slip_min, b = p.slip_max;

@@ -200,6 +200,8 @@ Observation parseObservation(const Json& o, const std::string& where, const Ster
       px.v_left = number(o, "v_left", where);
       px.u_right = number(o, "u_right", where);
       px.v_right = number(o, "v_right", where);
+      // The frontend's slide gain (Observation::slide_gain), 0 when absent.
+      const double slide_gain = optionalNumber(o, "slide_gain", where).value_or(0.0);
       if (const Json* c = o.get("pixel_covariance")) {
         if (o.get("pixel_sigma")) throw Error(where + ": give \"pixel_sigma\" or \"pixel_covariance\", not both");
         if (c->kind != Json::Array || c->arr.size() != 10)
@@ -213,10 +215,14 @@ Observation parseObservation(const Json& o, const std::string& where, const Ster
             C(i, j) = C(j, i) = e.num;
           }
         checkPixelCovariance(C, where);
-        return observationFromPixels(rig, lid, type, px, head_pan, C);
+        Observation obs = observationFromPixels(rig, lid, type, px, head_pan, C);
+        obs.slide_gain = slide_gain;
+        return obs;
       }
       const double sigma = optionalNumber(o, "pixel_sigma", where).value_or(rig.params().pixel_sigma);
-      return observationFromPixels(rig, lid, type, px, head_pan, sigma);
+      Observation obs = observationFromPixels(rig, lid, type, px, head_pan, sigma);
+      obs.slide_gain = slide_gain;
+      return obs;
     }
     return observationFromRangeBearing(lid, type, number(o, "range", where), number(o, "bearing", where),
                                        number(o, "sigma_range", where), number(o, "sigma_bearing", where));

@@ -448,3 +448,63 @@ TEST(StereoPixelImageCalibrationFactor, PredictsTheRectifiedPixelsOfErroneousRaw
 
 }  // namespace
 }  // namespace stereoloc
+
+#include "factors/stereo_pixel_row_calibration_factor.h"
+
+namespace stereoloc {
+namespace {
+
+// The row block: with dv = 0 the factor is the stereo (or image) calibration factor; a right
+// column slid by s dv is explained by dv; Jacobians against central differences, with and
+// without the image block, on rigs with and without a rectification map.
+TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSlideIsExplainedAndJacobiansMatch) {
+  std::mt19937_64 rng(23);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  stereo_pixel_calibration::ImageErrorVector sigma;
+  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
+  for (const StereoRig& rig : {StereoRig(), tiltedRig(), distortedRig()}) {
+    for (PixelResiduals mode : {PixelResiduals::All, PixelResiduals::Columns}) {
+      for (int k = 0; k < 4; ++k) {
+        const Pose2 pose(600 * U(rng), 500 * U(rng), kPi * U(rng));
+        const double pan = 0.3 * U(rng);
+        const test::Sighting s = test::sight(rig, pose, pan, 900 + 400 * U(rng), 0.45 * U(rng), 60 + 60 * U(rng));
+        const double p[3] = {pose.x, pose.y, pose.theta};
+        const double q[6] = {0.004, 1.01, -0.9, 0.4, -0.005, 0.008};
+        double e[11];
+        for (double& v : e) v = 1.5 * U(rng);
+        const double gain = 1.5 * U(rng), zero[1] = {0.0}, dv[1] = {1.4 * U(rng)};
+        const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
+        std::unique_ptr<ceres::CostFunction> row(
+            StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
+        std::unique_ptr<ceres::CostFunction> row_image(
+            StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma));
+        std::unique_ptr<ceres::CostFunction> calib(StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode));
+        std::unique_ptr<ceres::CostFunction> image(
+            StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode, sigma));
+        EXPECT_LT((evaluate(*row, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
+        EXPECT_LT((evaluate(*row_image, {p, q, e, zero}) - evaluate(*image, {p, q, e})).norm(), 1e-12);
+        // The frontend's right column slid by s dv: dv explains it, the same residual as unslid
+        // (exactly where the column gains do not depend on the measured pixels: no image block,
+        // no rectification map).
+        StereoPixels slid = s.pixels;
+        slid.u_right += gain * dv[0];
+        std::unique_ptr<ceres::CostFunction> row_slid(
+            StereoPixelRowCalibrationFactor::Create(rig, s.landmark, slid, gain, pan, C, mode, nullptr));
+        const double tolerance = rig.calibration() ? 0.02 : 1e-9;
+        EXPECT_LT((evaluate(*row_slid, {p, q, dv}) - evaluate(*calib, {p, q})).norm(), tolerance);
+        EXPECT_GT((evaluate(*row_slid, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 0.5 * std::fabs(gain * dv[0]));
+        const FactorCheck a = checkFactorJacobians(*row, {p, q, dv});
+        EXPECT_TRUE(a.ok) << a.message;
+        const FactorCheck b = checkFactorJacobians(*row_image, {p, q, e, dv});
+        EXPECT_TRUE(b.ok) << b.message;
+      }
+    }
+  }
+  const test::Sighting s = test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60);
+  EXPECT_THROW(StereoPixelRowCalibrationFactor::Create(StereoRig(), s.landmark, s.pixels, std::nan(""), 0.0,
+                                                       Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr),
+               Error);
+}
+
+}  // namespace
+}  // namespace stereoloc

@@ -125,6 +125,42 @@ TEST(SelfCalibratedRig, FoldsTheImageBlockAsTheImageFactorSeesIt) {
   EXPECT_LT(worst, 0.06);
 }
 
+// The row block: the folded rig's cameras, rectified with the given calibration, show the right
+// rows dv below the left ones (the misalignment the estimate states), alone and with the image
+// block's right-camera pitch, whose own row shift the fold takes from the principal point.
+TEST(SelfCalibratedRig, FoldsTheRowOffsetIntoTheRightPrincipalRow) {
+  const StereoCalibration given = exampleCalibration();
+  const StereoRig given_rig(StereoRigParams(), given);
+  for (bool image : {false, true}) {
+    CalibrationEstimate e;
+    e.stereo = true;
+    e.row = true;
+    e.row_offset_px = 1.4;
+    if (image) {
+      e.image = true;
+      e.image_errors.setZero();
+      e.image_errors[8] = 0.0015;  // rad: f pitch = 0.4 px of rows
+    }
+    const StereoRig rig = selfCalibratedRig(given_rig, e);
+    EXPECT_NEAR(rig.principalV(), given_rig.principalV(), 1e-12);
+    const StereoCalibration& truth = *rig.calibration();
+    for (double X : {-80.0, 0.0, 80.0})
+      for (double Y : {-80.0, 0.0, 80.0}) {
+        const cv::Point3d p(X, Y, 900.0);
+        const cv::Point2d l = rectifiedWithGiven(truth, given, 0, p), r = rectifiedWithGiven(truth, given, 1, p);
+        EXPECT_NEAR(r.y - l.y, e.row_offset_px, X == 0 && Y == 0 ? 0.02 : 0.1) << image << " " << X << "," << Y;
+      }
+    // Without the row block nothing moves the rows apart.
+    e.row = false;
+    if (!image) {
+      const StereoRig plain_rig = selfCalibratedRig(given_rig, e);
+      const StereoCalibration& plain = *plain_rig.calibration();
+      const cv::Point3d centre(0.0, 0.0, 900.0);
+      EXPECT_NEAR(rectifiedWithGiven(plain, given, 1, centre).y - rectifiedWithGiven(plain, given, 0, centre).y, 0.0, 0.02);
+    }
+  }
+}
+
 TEST(SelfCalibratedRig, PinholeRigGetsACalibrationAndNoStereoPartChangesNothing) {
   StereoRigParams params;
   const StereoRig pinhole(params);

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdio>
+#include <random>
 
 #include "solvers/batch_smoother.h"
 #include "src/core/error.h"
@@ -250,6 +251,94 @@ TEST(SelfCalibration, EstimatesTheImageErrorsTheNoiseModelStates) {
       EXPECT_NEAR(C(i, j), rows ? full(i, j) : bare(i, j), 1e-12) << i << "," << j;
     }
   EXPECT_GT(full(0, 0) - bare(0, 0), 1e-4);
+}
+
+// A planted row misalignment: every sighting's right column slid by s dv with its own slide
+// gain s (as the frontend reports them for marking features), on a run with the realistic
+// profile's other errors. The row block, with the stated sigma as its prior, recovers dv within
+// its reported uncertainty, well inside the prior, with and without the image block; the slide
+// stays out of the pixel factors without the row block (it is not stated).
+TEST(SelfCalibration, RecoversAPlantedRowOffset) {
+  SimulationConfig sc;
+  sc.profile = ErrorProfile::realistic();
+  sc.scenario.steps = 300;
+  SimulationTrace trace;
+  Dataset d = simulate("random-walk", 0, sc, 7, &trace);
+  const double dv = 1.3;  // px, right rows below the left
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<double> U(-1.5, 1.5);
+  for (Step& s : d.steps) {
+    std::vector<Observation> kept;
+    for (Observation o : s.observations) {
+      if (o.landmark_id < 0 || !o.pixels) continue;
+      o.slide_gain = U(rng);
+      o.pixels->u_right += o.slide_gain * dv;
+      kept.push_back(o);
+    }
+    s.observations = kept;
+  }
+  for (bool image : {false, true}) {
+    UnmodelledNoise noise;
+    if (image) {
+      noise.k1_sigma = sc.profile.k1_estimate_sigma;
+      noise.k2_sigma = sc.profile.k2_estimate_sigma;
+      noise.tangential_sigma = sc.profile.tangential_estimate_sigma;
+      noise.relative_rotation_sigma_rad = sc.profile.relative_rotation_sigma_rad;
+    }
+    noise.row_offset_sigma_px = 1.49;
+    BatchSmootherConfig bc;
+    bc.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
+    bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
+    bc.calibration = SelfCalibrationConfig::parse("stereo");
+    bc.cut_at_reinitialisation = false;
+    ASSERT_TRUE(rowOffsetSigma(bc.calibration, noise));
+    BatchSmoother b(d.map, d.odometry, bc);
+    for (const Step& s : d.steps) b.process(s);
+    b.finish();
+    ASSERT_EQ(b.summary().covariance_status, CovarianceStatus::Ok);
+    const CalibrationEstimate& c = b.calibration();
+    ASSERT_TRUE(c.row);
+    EXPECT_EQ(c.image, image);
+    const double sd = std::sqrt(c.row_offset_variance);
+    EXPECT_GT(sd, 0.0);
+    EXPECT_LT(sd, 0.3 * noise.row_offset_sigma_px) << "image block " << image;
+    EXPECT_NEAR(c.row_offset_px, dv, 3 * sd) << "image block " << image;
+  }
+  // Off, or not stated: no row block.
+  UnmodelledNoise noise;
+  noise.row_offset_sigma_px = 1.49;
+  SelfCalibrationConfig off = SelfCalibrationConfig::parse("stereo");
+  off.row_offset = false;
+  EXPECT_FALSE(rowOffsetSigma(off, noise));
+  EXPECT_FALSE(rowOffsetSigma(SelfCalibrationConfig::parse("odometry"), noise));
+  EXPECT_FALSE(rowOffsetSigma(SelfCalibrationConfig::parse("stereo"), UnmodelledNoise()));
+}
+
+// With the row offset estimated, a marking feature's u_r term is the slide residual's instead of
+// the whole slide's; other features and the other entries are unchanged.
+TEST(SelfCalibration, SlideResidualReplacesTheMarkingTermWithTheRowBlock) {
+  const StereoRig rig;
+  const auto px = rig.project(Eigen::Vector3d(600, 50, 0), 0.0);
+  ASSERT_TRUE(px);
+  const Observation o = observationFromPixels(rig, 3, LandmarkType::MarkingCorner, *px, 0.0, 0.5);
+  UnmodelledNoise noise;
+  noise.marking_disparity_sigma_px = 1.63;
+  noise.intersection_disparity_sigma_px = 0.65;
+  noise.row_offset_sigma_px = 1.49;
+  noise.marking_slide_residual_sigma_px = 0.57;
+  noise.intersection_slide_residual_sigma_px = 0.65;
+  const ObservationModelConfig model{ObservationModel::PixelColumns, rig, 0.0, noise};
+  Landmark corner, goal;
+  corner.type = LandmarkType::MarkingCorner;
+  goal.type = LandmarkType::GoalCorner;
+  const Eigen::Matrix4d white = calibratedPixelCovariance(o, corner, model, false, false);
+  const Eigen::Matrix4d slid = calibratedPixelCovariance(o, corner, model, false, true);
+  EXPECT_NEAR(white(2, 2) - o.pixel_covariance(2, 2), 1.63 * 1.63, 1e-9);
+  EXPECT_NEAR(slid(2, 2) - o.pixel_covariance(2, 2), 0.57 * 0.57, 1e-9);
+  Eigen::Matrix4d diff = white - slid;
+  diff(2, 2) = 0;
+  EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_TRUE(calibratedPixelCovariance(o, goal, model, false, true).isApprox(calibratedPixelCovariance(o, goal, model, false, false)));
 }
 
 }  // namespace

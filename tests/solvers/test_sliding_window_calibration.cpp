@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 
 #include "factors/block_marginal_prior_factor.h"
 #include "factors/factor_check.h"
@@ -93,6 +94,59 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
   EXPECT_LT(relDiff(cw->head_covariance, cb.head_covariance), 1e-6);
   // The estimate moved off the nominal calibration (the realistic profile plants errors).
   EXPECT_GT((cw->wheels - Eigen::Vector3d(1, 1, d.odometry.wheel_base_mm)).cwiseAbs().maxCoeff(), 1e-4);
+}
+
+// The same with the row block (the noise model states the rows' misalignment, the sightings
+// slid by their slide gains times a planted one): the window's row offset and its variance are
+// the batch's too.
+TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheRowBlock) {
+  Dataset d = realisticRun(3, "random-walk", 200);
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> U(-1.5, 1.5);
+  for (Step& s : d.steps)
+    for (Observation& o : s.observations) {
+      o.slide_gain = U(rng);
+      o.pixels->u_right += 1.2 * o.slide_gain;
+    }
+  UnmodelledNoise noise;
+  noise.row_offset_sigma_px = 1.49;
+  BatchSmootherConfig bc;
+  bc.init = knownBelief(*d.groundtruth.front(), kP0);
+  bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
+  bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
+  bc.cut_at_reinitialisation = false;
+  bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
+  BatchSmoother b(d.map, d.odometry, bc);
+  for (const Step& s : d.steps) b.process(s);
+  const std::vector<Estimate> eb = b.finish();
+  const CalibrationEstimate cb = b.calibration();
+  ASSERT_TRUE(cb.row);
+
+  SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
+  c.observation_model.unmodelled = noise;
+  c.gate_enabled = false;
+  c.linearisation = WindowLinearisation::Current;
+  c.final_iterations = 100;
+  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
+  SlidingWindowSmoother win(d.map, d.odometry, c);
+  for (const Step& s : d.steps) win.process(s);
+  const std::vector<Estimate> ew = win.finish();
+  ASSERT_EQ(ew.size(), eb.size());
+  double pose = 0, cov = 0;
+  for (size_t i = 0; i < ew.size(); ++i) {
+    pose = std::max(pose, minus(ew[i].pose, eb[i].pose).cwiseAbs().maxCoeff());
+    cov = std::max(cov, relDiff(ew[i].covariance, eb[i].covariance));
+  }
+  EXPECT_LT(pose, 1e-6);
+  EXPECT_LT(cov, 1e-6);
+  const std::optional<CalibrationEstimate> cw = win.calibration();
+  ASSERT_TRUE(cw.has_value());
+  ASSERT_TRUE(cw->row);
+  EXPECT_LT((cw->head - cb.head).cwiseAbs().maxCoeff(), 1e-6);
+  EXPECT_NEAR(cw->row_offset_px, cb.row_offset_px, 1e-6);
+  EXPECT_NEAR(cw->row_offset_variance, cb.row_offset_variance, 1e-6 * cb.row_offset_variance);
+  EXPECT_LT(std::sqrt(cb.row_offset_variance), 0.5 * noise.row_offset_sigma_px);
+  EXPECT_NEAR(cb.row_offset_px, 1.2, 3 * std::sqrt(cb.row_offset_variance));
 }
 
 TEST(SlidingWindowCalibration, ShortWindowCarriesTheCalibrationThroughTheMarginalPrior) {

@@ -164,12 +164,18 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
   n.pitch_sigma_rad = 0.0035;
   n.slip_rel_sigma = 0.02;
   n.marking_disparity_sigma_px = 1.63;
+  n.row_offset_sigma_px = 1.49;
+  n.marking_slide_residual_sigma_px = 0.57;
+  n.intersection_slide_residual_sigma_px = 0.65;
   n.save(dir.file("noise.yaml"));
   const UnmodelledNoise back = UnmodelledNoise::load(dir.file("noise.yaml"));
   EXPECT_EQ(back.k1_sigma, 0.01);
   EXPECT_EQ(back.pitch_sigma_rad, 0.0035);
   EXPECT_EQ(back.slip_rel_sigma, 0.02);
   EXPECT_EQ(back.marking_disparity_sigma_px, 1.63);
+  EXPECT_EQ(back.row_offset_sigma_px, 1.49);
+  EXPECT_EQ(back.marking_slide_residual_sigma_px, 0.57);
+  EXPECT_EQ(back.intersection_slide_residual_sigma_px, 0.65);
   EXPECT_EQ(back.roll_sigma_rad, 0.0);
   {
     std::ofstream f(dir.file("bad.yaml"));

@@ -99,6 +99,7 @@ void expectSame(const Dataset& a, const Dataset& b) {
       EXPECT_EQ(o.covariance, p.covariance);
       EXPECT_EQ(o.pixel_covariance, p.pixel_covariance);
       EXPECT_EQ(o.head_pan, p.head_pan);
+      EXPECT_EQ(o.slide_gain, p.slide_gain);
     }
     ASSERT_EQ(a.groundtruth[i].has_value(), b.groundtruth[i].has_value());
     if (a.groundtruth[i]) {
@@ -150,6 +151,34 @@ TEST(Dataset, PixelCovarianceRoundTripsAndBadOnesNameTheRow) {
   for (size_t i = 0; i < cells.size(); ++i) bad += (i ? "," : "") + cells[i];
   replaceLine(dir / "observations.csv", 2, bad);
   expectError(dir.path(), "observations.csv", "cov_ul_ul");
+}
+
+// The frontend's slide gains go with the pixels, with and without their own covariance; a bad
+// one names the file, row and column.
+TEST(Dataset, SlideGainsRoundTripAndBadOnesNameTheRow) {
+  for (bool own_covariance : {false, true}) {
+    TempDir dir;
+    Dataset d = sample();
+    const Eigen::Matrix4d C = stereoPixelCovariance(0.3, 0.12, 0.07, 0.1);
+    int k = 0;
+    for (Step& s : d.steps)
+      for (Observation& o : s.observations) {
+        if (own_covariance) o = observationFromPixels(d.rig, o.landmark_id, o.type, *o.pixels, o.head_pan, C);
+        o.slide_gain = 0.25 * (k++ % 7) - 0.8;
+      }
+    saveDataset(d, dir.path(), false);
+    const std::string text = readFile(dir / "observations.csv");
+    EXPECT_NE(text.substr(0, text.find('\n')).find(",slide_gain"), std::string::npos);
+    expectSame(d, loadDataset(dir.path()));
+    const size_t row2 = text.find('\n') + 1;
+    std::string line = text.substr(row2, text.find('\n', row2) - row2);
+    replaceLine(dir / "observations.csv", 2, line.substr(0, line.rfind(',') + 1) + "nan");
+    expectError(dir.path(), "observations.csv:2", "slide_gain");
+  }
+  // Without gains the file keeps the plain header.
+  TempDir dir;
+  saveDataset(sample(), dir.path(), false);
+  EXPECT_EQ(readFile(dir / "observations.csv").find("slide_gain"), std::string::npos);
 }
 
 TEST(Dataset, RangeBearingRoundTripIsExact) {

@@ -107,6 +107,10 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   EXPECT_EQ(o.noise.relative_rotation_sigma_rad, p.relative_rotation_sigma_rad);
   EXPECT_NEAR(o.noise.marking_disparity_sigma_px, 1.63, 0.01);
   EXPECT_NEAR(o.noise.intersection_disparity_sigma_px, 0.65, 0.01);
+  // The misalignment itself (the row block's prior) and what the slide model leaves.
+  EXPECT_NEAR(o.noise.row_offset_sigma_px, 1.49, 0.01);
+  EXPECT_NEAR(o.noise.marking_slide_residual_sigma_px, 0.57, 0.01);
+  EXPECT_EQ(o.noise.intersection_slide_residual_sigma_px, o.noise.intersection_disparity_sigma_px);
   ErrorProfile aligned = p;  // no principal-point or rotation error: rows aligned
   aligned.principal_sigma_px = 0.0;
   aligned.relative_rotation_sigma_rad = 0.0;
@@ -114,6 +118,8 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   applyErrorProfile(aligned, 277.0, a);
   EXPECT_EQ(a.noise.marking_disparity_sigma_px, 0.0);
   EXPECT_EQ(a.noise.intersection_disparity_sigma_px, 0.0);
+  EXPECT_EQ(a.noise.row_offset_sigma_px, 0.0);
+  EXPECT_EQ(a.noise.marking_slide_residual_sigma_px, 0.0);
 }
 
 }  // namespace

@@ -20,6 +20,19 @@ std::string errorOf(const std::string& line) {
   return "";
 }
 
+TEST(StreamIo, PixelObservationsCarryTheirSlideGain) {
+  const StereoRig rig;
+  const std::string px = R"("u_left":180,"v_left":150,"u_right":170,"v_right":150)";
+  const StreamLine a = parseStreamLine(R"({"step":1,"d_left":1,"d_right":1,"observations":[{)" + px +
+                                           R"(,"slide_gain":-0.75},{)" + px + R"(}]})",
+                                       rig, 0.0);
+  ASSERT_EQ(a.observations.size(), 2u);
+  EXPECT_EQ(a.observations[0].slide_gain, -0.75);
+  EXPECT_EQ(a.observations[1].slide_gain, 0.0);
+  const std::string bad = errorOf(R"({"step":1,"d_left":1,"d_right":1,"observations":[{)" + px + R"(,"slide_gain":"x"}]})");
+  EXPECT_NE(bad.find("slide_gain"), std::string::npos) << bad;
+}
+
 TEST(StreamIo, ParsesOdometryObservationsAndLateImages) {
   const StereoRig rig;
   const StreamLine a = parseStreamLine(

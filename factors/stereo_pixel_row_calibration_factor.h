@@ -1,0 +1,70 @@
+#pragma once
+// The stereo pixel calibration factor with the rectified rows' misalignment dv as a block of its
+// own: residuals, frames and units as factors/stereo_pixel_calibration_factor.h, whose "Row
+// offset" paragraph gives the model: the right column moves by s dv, s the observation's slide
+// gain (Observation::slide_gain). Blocks: pose (3), stereo calibration q (6), optionally the
+// whitened image errors e (11, factors/stereo_pixel_image_calibration_factor.h), and dv (1, px).
+// The batch smoother and the sliding window estimate dv when the noise model states the rows'
+// misalignment (UnmodelledNoise::row_offset_sigma_px, rowOffsetSigma in
+// solvers/self_calibration.h), with that sigma as its prior.
+#include <ceres/autodiff_cost_function.h>
+
+#include <Eigen/Core>
+#include <cmath>
+#include <optional>
+#include <string>
+
+#include "factors/stereo_pixel_calibration_factor.h"
+
+namespace stereoloc {
+
+struct StereoPixelRowCalibrationFactor {
+  using ImageErrorVector = stereo_pixel_calibration::ImageErrorVector;
+  StereoPixelRowCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                  double slide_gain, double pan, const Eigen::Matrix4d& sqrt_information,
+                                  PixelResiduals residuals, const ImageErrorVector* image_sigmas)
+      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, image_sigmas, slide_gain) {}
+
+  // Without the image block: (pose, q, dv).
+  template <typename T>
+  bool operator()(const T* pose, const T* calib, const T* row, T* residual) const {
+    return model_.evaluate<T>(pose, calib, nullptr, row, residual);
+  }
+  // With it: (pose, q, e, dv).
+  template <typename T>
+  bool operator()(const T* pose, const T* calib, const T* image, const T* row, T* residual) const {
+    return model_.evaluate<T>(pose, calib, image, row, residual);
+  }
+
+  static constexpr int kRowSize = 1;
+
+  // `slide_gain`: the observation's (finite); `image_sigmas`: the image block's sigmas (each
+  // finite and >= 0), or null for the factor without the image block.
+  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                     double slide_gain, double pan, const Eigen::Matrix4d& pixel_covariance,
+                                     PixelResiduals residuals, const ImageErrorVector* image_sigmas) {
+    constexpr const char* kWho = "stereo pixel row calibration factor";
+    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    if (!std::isfinite(slide_gain)) throw Error(std::string(kWho) + ": slide gain must be finite");
+    if (image_sigmas && !(image_sigmas->allFinite() && image_sigmas->minCoeff() >= 0))
+      throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
+    auto* functor = new StereoPixelRowCalibrationFactor(
+        rig, landmark, pixels, slide_gain, pan,
+        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals,
+        image_sigmas);
+    constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
+    constexpr int kE = stereo_pixel_calibration::kImageErrorSize;
+    using F = StereoPixelRowCalibrationFactor;
+    if (image_sigmas) {
+      if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<F, 4, 3, kQ, kE, kRowSize>(functor);
+      return new ceres::AutoDiffCostFunction<F, 2, 3, kQ, kE, kRowSize>(functor);
+    }
+    if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<F, 4, 3, kQ, kRowSize>(functor);
+    return new ceres::AutoDiffCostFunction<F, 2, 3, kQ, kRowSize>(functor);
+  }
+
+ private:
+  StereoPixelCalibrationModel model_;
+};
+
+}  // namespace stereoloc
