@@ -12,6 +12,8 @@
 // sides of a white stripe therefore are two distinct lines with theta 180 deg apart, which is
 // what the marking test (Algorithm 3) looks for. The Hough accumulator internally measures rho
 // from the image centre to halve its size; that is private to frontend/gbht.
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <utility>
 #include <vector>
@@ -62,9 +64,28 @@ struct LineFeature {
   double y(double t) const;
 };
 
-// The interval [lo, hi] of the line parameter t (point (rho cos - t sin, rho sin + t cos)) where
-// the line lies inside the box [xmin, xmax] x [ymin, ymax]: each side is a half-space linear in
-// t (slab clipping). lo > hi when the line misses the box.
+// The interval [lo, hi] of t where the point (x0 + t dx, y0 + t dy) lies inside the box
+// [xmin, xmax] x [ymin, ymax]: each side is a half-space linear in t (slab clipping). lo > hi
+// when the path misses the box. Inline: the stripe-end sampler calls it per stripe.
+inline std::pair<double, double> pathBoxInterval(double x0, double dx, double y0, double dy, double xmin, double ymin,
+                                                 double xmax, double ymax) {
+  double lo = -1e30, hi = 1e30;
+  auto clip = [&](double p0, double dp, double pmin, double pmax) {  // pmin <= p0 + t dp <= pmax
+    if (std::fabs(dp) < 1e-12) {
+      if (p0 < pmin || p0 > pmax) hi = lo - 1;
+      return;
+    }
+    double a = (pmin - p0) / dp, b = (pmax - p0) / dp;
+    if (a > b) std::swap(a, b);
+    lo = std::max(lo, a);
+    hi = std::min(hi, b);
+  };
+  clip(x0, dx, xmin, xmax);
+  clip(y0, dy, ymin, ymax);
+  return {lo, hi};
+}
+
+// The same for the line (rho, theta), whose point at t is (rho cos - t sin, rho sin + t cos).
 std::pair<double, double> lineBoxInterval(double rho, double theta, double xmin, double ymin, double xmax,
                                           double ymax);
 

@@ -22,20 +22,7 @@ double LineFeature::y(double t) const { return rho * std::sin(theta) + t * std::
 std::pair<double, double> lineBoxInterval(double rho, double theta, double xmin, double ymin, double xmax,
                                           double ymax) {
   const double c = std::cos(theta), s = std::sin(theta);
-  double lo = -1e30, hi = 1e30;
-  auto clip = [&](double p0, double dp, double pmin, double pmax) {  // pmin <= p0 + t dp <= pmax
-    if (std::fabs(dp) < 1e-12) {
-      if (p0 < pmin || p0 > pmax) hi = lo - 1;
-      return;
-    }
-    double a = (pmin - p0) / dp, b = (pmax - p0) / dp;
-    if (a > b) std::swap(a, b);
-    lo = std::max(lo, a);
-    hi = std::min(hi, b);
-  };
-  clip(rho * c, -s, xmin, xmax);
-  clip(rho * s, c, ymin, ymax);
-  return {lo, hi};
+  return pathBoxInterval(rho * c, -s, rho * s, c, xmin, ymin, xmax, ymax);
 }
 
 void bgrToLuma(const cv::Mat& bgr, cv::Mat& luma) {

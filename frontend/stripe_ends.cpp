@@ -42,21 +42,8 @@ class LumaSampler {
   // The interval of t over which the points (ax + bx t +- ox, ay + by t +- oy) all lie at least
   // `margin` inside the sampled area (lo > hi: none).
   std::pair<double, double> interval(double ax, double bx, double ox, double ay, double by, double oy, double margin) const {
-    double lo = -1e30, hi = 1e30;
-    auto clip = [&](double a, double b, double o, double vmax) {  // margin <= a + b t -+ |o| <= vmax - margin
-      const double pmin = margin + std::fabs(o), pmax = vmax - margin - std::fabs(o);
-      if (std::fabs(b) < 1e-12) {
-        if (a < pmin || a > pmax) hi = lo - 1;
-        return;
-      }
-      double t1 = (pmin - a) / b, t2 = (pmax - a) / b;
-      if (t1 > t2) std::swap(t1, t2);
-      lo = std::max(lo, t1);
-      hi = std::min(hi, t2);
-    };
-    clip(ax, bx, ox, xmax_);
-    clip(ay, by, oy, ymax_);
-    return {lo, hi};
+    return pathBoxInterval(ax, bx, ay, by, margin + std::fabs(ox), margin + std::fabs(oy),
+                           xmax_ - margin - std::fabs(ox), ymax_ - margin - std::fabs(oy));
   }
 
  private:
