@@ -1154,18 +1154,14 @@ bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation
   const std::optional<PoseFix> fix = globalFix(at);
   if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
   const std::vector<RecentStep> after(it + 1, recent_.end());
-  recent_.erase(it + 1, recent_.end());  // process() takes them again
+  recent_.erase(it + 1, recent_.end());  // track() takes them again
   finaliseWindow();
   while (!history_.empty() && history_.back().step >= step) history_.pop_back();  // replaced below
   startWindow(at, fix->pose, fix->covariance, EstimateStatus::Reinitialised);
   ++stats_.reinitialisations;
   // The odometry since then, as process() would have taken it after this start.
   const long newest = last_step_;
-  last_step_ = step;
-  for (const RecentStep& s : after) {
-    replay_noise_ = s.noise;
-    process(s.step);
-  }
+  for (const RecentStep& s : after) track(s.step, s.noise);
   stats_.steps -= static_cast<long>(after.size());
   last_step_ = newest;
   return true;
@@ -1203,12 +1199,14 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
       throw Error("sliding window: step " + std::to_string(step.step) + ": observation " + std::to_string(i) +
                   ": unknown landmark id " + std::to_string(id));
   }
+  return track(step, noise_travel_.next(step.d_left, step.d_right));
+}
+
+Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& noise) {
   const bool first = !have_step_;
   have_step_ = true;
   last_step_ = step.step;
   ++stats_.steps;
-  const WheelIncrements noise = replay_noise_ ? *replay_noise_ : noise_travel_.next(step.d_left, step.d_right);
-  replay_noise_.reset();
   if (config_.restart_buffer_steps > 0) {
     recent_.push_back(RecentStep{step, noise});
     recent_.back().step.observations.clear();

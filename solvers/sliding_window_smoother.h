@@ -303,6 +303,9 @@ class SlidingWindowSmoother : public Estimator {
   std::vector<bool> fuseStep(const Step& step, Node* node, const Pose2& pred, const Eigen::Matrix3d& P_pred,
                              Pose2& pose, Eigen::Matrix3d& P, bool* compass_fused);
   double jointThreshold(int dof);  // chi2Quantile(gate.probability, dof), computed once per dof
+  // process() after its checks, with the step's travel of (B.6) (NoiseTravel; restartLate replays
+  // the steps it keeps with theirs).
+  Estimate track(const Step& step, const WheelIncrements& noise);
   // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
   Node* promote(size_t k_index, size_t j);
   // The odometry factor between consecutive keyframes a and b: `between` are the steps after a
@@ -364,7 +367,6 @@ class SlidingWindowSmoother : public Estimator {
   };
   std::deque<RecentStep> recent_;  // the last restart_buffer_steps steps
   NoiseTravel noise_travel_{odometry_.readings};  // of every step in order (a replay reuses the kept travel)
-  std::optional<WheelIncrements> replay_noise_;  // set by restartLate for the step it replays
   // Self-calibration blocks (factors/odometry_calibration_factor.h: c_l, c_r, w (mm);
   // factors/stereo_pixel_calibration_factor.h) and their joint marginal covariance (wheels then
   // head, enabled blocks only) from the last covariance computation.

@@ -10,6 +10,7 @@
 
 #include <Eigen/LU>
 #include <array>
+#include <cstdint>
 #include <memory>
 #include <random>
 
@@ -355,11 +356,22 @@ StereoPixels throughRawCameras(const StereoRig& rig, const Eigen::Vector3d& p_ro
   return StereoPixels{uv[0][0], uv[0][1], uv[1][0], uv[1][1]};
 }
 
-TEST(StereoPixelImageCalibrationFactor, ZeroImageErrorsEqualTheCalibrationFactorAndJacobiansMatch) {
-  std::mt19937_64 rng(11);
-  std::uniform_real_distribution<double> U(-1.0, 1.0);
+// The image block's sigmas (lens terms of both cameras, then the right camera's rotation) at
+// which the pixel calibration factors are checked.
+stereo_pixel_calibration::ImageErrorVector checkedImageSigmas() {
   stereo_pixel_calibration::ImageErrorVector sigma;
   sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
+  return sigma;
+}
+
+// Four random sightings on each rig (plain, tilted, with a rectification map) and residual mode,
+// each handed to check(rig, mode, sighting, pan, pose p, calibration q, image errors e, uniform)
+// with q and e off nominal; uniform() draws from [-1, 1] for whatever else a check needs.
+template <typename Check>
+void forEachCalibrationCase(std::uint64_t seed, Check check) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  auto uniform = [&] { return U(rng); };
   for (const StereoRig& rig : {StereoRig(), tiltedRig(), distortedRig()}) {
     for (PixelResiduals mode : {PixelResiduals::All, PixelResiduals::Columns}) {
       for (int k = 0; k < 4; ++k) {
@@ -370,19 +382,27 @@ TEST(StereoPixelImageCalibrationFactor, ZeroImageErrorsEqualTheCalibrationFactor
         const double q[6] = {0.004, 1.01, -0.9, 0.4, -0.005, 0.008};
         double e[11];
         for (double& v : e) v = 1.5 * U(rng);
-        const double zero[11] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
-        std::unique_ptr<ceres::CostFunction> image(
-            StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode, sigma));
-        std::unique_ptr<ceres::CostFunction> calib(
-            StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode));
-        EXPECT_LT((evaluate(*image, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
-        const FactorCheck c = checkFactorJacobians(*image, {p, q, e});
-        EXPECT_TRUE(c.ok) << c.message;
-        const FactorCheck d = checkFactorJacobians(*calib, {p, q});
-        EXPECT_TRUE(d.ok) << d.message;
+        check(rig, mode, s, pan, p, q, e, uniform);
       }
     }
   }
+}
+
+TEST(StereoPixelImageCalibrationFactor, ZeroImageErrorsEqualTheCalibrationFactorAndJacobiansMatch) {
+  const stereo_pixel_calibration::ImageErrorVector sigma = checkedImageSigmas();
+  forEachCalibrationCase(11, [&](const StereoRig& rig, PixelResiduals mode, const test::Sighting& s, double pan,
+                                 const double* p, const double* q, const double* e, auto&) {
+    const double zero[11] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+    std::unique_ptr<ceres::CostFunction> image(
+        StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode, sigma));
+    std::unique_ptr<ceres::CostFunction> calib(
+        StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode));
+    EXPECT_LT((evaluate(*image, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
+    const FactorCheck c = checkFactorJacobians(*image, {p, q, e});
+    EXPECT_TRUE(c.ok) << c.message;
+    const FactorCheck d = checkFactorJacobians(*calib, {p, q});
+    EXPECT_TRUE(d.ok) << d.message;
+  });
 }
 
 // Raw cameras with principal-point and focal-length errors, lens distortion other than the
@@ -458,48 +478,35 @@ namespace {
 // column slid by s dv is explained by dv; Jacobians against central differences, with and
 // without the image block, on rigs with and without a rectification map.
 TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSlideIsExplainedAndJacobiansMatch) {
-  std::mt19937_64 rng(23);
-  std::uniform_real_distribution<double> U(-1.0, 1.0);
-  stereo_pixel_calibration::ImageErrorVector sigma;
-  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
-  for (const StereoRig& rig : {StereoRig(), tiltedRig(), distortedRig()}) {
-    for (PixelResiduals mode : {PixelResiduals::All, PixelResiduals::Columns}) {
-      for (int k = 0; k < 4; ++k) {
-        const Pose2 pose(600 * U(rng), 500 * U(rng), kPi * U(rng));
-        const double pan = 0.3 * U(rng);
-        const test::Sighting s = test::sight(rig, pose, pan, 900 + 400 * U(rng), 0.45 * U(rng), 60 + 60 * U(rng));
-        const double p[3] = {pose.x, pose.y, pose.theta};
-        const double q[6] = {0.004, 1.01, -0.9, 0.4, -0.005, 0.008};
-        double e[11];
-        for (double& v : e) v = 1.5 * U(rng);
-        const double gain = 1.5 * U(rng), zero[1] = {0.0}, dv[1] = {1.4 * U(rng)};
-        const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
-        std::unique_ptr<ceres::CostFunction> row(
-            StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
-        std::unique_ptr<ceres::CostFunction> row_image(
-            StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma));
-        std::unique_ptr<ceres::CostFunction> calib(StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode));
-        std::unique_ptr<ceres::CostFunction> image(
-            StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode, sigma));
-        EXPECT_LT((evaluate(*row, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
-        EXPECT_LT((evaluate(*row_image, {p, q, e, zero}) - evaluate(*image, {p, q, e})).norm(), 1e-12);
-        // The frontend's right column slid by s dv: dv explains it, the same residual as unslid
-        // (exactly where the column gains do not depend on the measured pixels: no image block,
-        // no rectification map).
-        StereoPixels slid = s.pixels;
-        slid.u_right += gain * dv[0];
-        std::unique_ptr<ceres::CostFunction> row_slid(
-            StereoPixelRowCalibrationFactor::Create(rig, s.landmark, slid, gain, pan, C, mode, nullptr));
-        const double tolerance = rig.calibration() ? 0.02 : 1e-9;
-        EXPECT_LT((evaluate(*row_slid, {p, q, dv}) - evaluate(*calib, {p, q})).norm(), tolerance);
-        EXPECT_GT((evaluate(*row_slid, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 0.5 * std::fabs(gain * dv[0]));
-        const FactorCheck a = checkFactorJacobians(*row, {p, q, dv});
-        EXPECT_TRUE(a.ok) << a.message;
-        const FactorCheck b = checkFactorJacobians(*row_image, {p, q, e, dv});
-        EXPECT_TRUE(b.ok) << b.message;
-      }
-    }
-  }
+  const stereo_pixel_calibration::ImageErrorVector sigma = checkedImageSigmas();
+  forEachCalibrationCase(23, [&](const StereoRig& rig, PixelResiduals mode, const test::Sighting& s, double pan,
+                                 const double* p, const double* q, const double* e, auto& uniform) {
+    const double gain = 1.5 * uniform(), zero[1] = {0.0}, dv[1] = {1.4 * uniform()};
+    const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
+    std::unique_ptr<ceres::CostFunction> row(
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
+    std::unique_ptr<ceres::CostFunction> row_image(
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma));
+    std::unique_ptr<ceres::CostFunction> calib(StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode));
+    std::unique_ptr<ceres::CostFunction> image(
+        StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode, sigma));
+    EXPECT_LT((evaluate(*row, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
+    EXPECT_LT((evaluate(*row_image, {p, q, e, zero}) - evaluate(*image, {p, q, e})).norm(), 1e-12);
+    // The frontend's right column slid by s dv: dv explains it, the same residual as unslid
+    // (exactly where the column gains do not depend on the measured pixels: no image block,
+    // no rectification map).
+    StereoPixels slid = s.pixels;
+    slid.u_right += gain * dv[0];
+    std::unique_ptr<ceres::CostFunction> row_slid(
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, slid, gain, pan, C, mode, nullptr));
+    const double tolerance = rig.calibration() ? 0.02 : 1e-9;
+    EXPECT_LT((evaluate(*row_slid, {p, q, dv}) - evaluate(*calib, {p, q})).norm(), tolerance);
+    EXPECT_GT((evaluate(*row_slid, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 0.5 * std::fabs(gain * dv[0]));
+    const FactorCheck a = checkFactorJacobians(*row, {p, q, dv});
+    EXPECT_TRUE(a.ok) << a.message;
+    const FactorCheck b = checkFactorJacobians(*row_image, {p, q, e, dv});
+    EXPECT_TRUE(b.ok) << b.message;
+  });
   const test::Sighting s = test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60);
   EXPECT_THROW(StereoPixelRowCalibrationFactor::Create(StereoRig(), s.landmark, s.pixels, std::nan(""), 0.0,
                                                        Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr),
