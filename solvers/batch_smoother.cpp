@@ -10,12 +10,14 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <unordered_map>
 #include <utility>
 
 #include "factors/calibration_prior_factor.h"
 #include "factors/compass_factor.h"
 #include "factors/odometry_calibration_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
+#include "factors/stereo_pixel_feature_calibration_factor.h"
 #include "factors/stereo_pixel_image_calibration_factor.h"
 #include "factors/stereo_pixel_row_calibration_factor.h"
 #include "solvers/chain_solver.h"
@@ -335,25 +337,34 @@ using Clock = std::chrono::steady_clock;
 
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-// A cost function on (pose, q, e, dv) (or (pose, q, e), (pose, q, dv)) seen as (pose, [q; e; dv]):
-// the chain solver's factors touch one global block, so the stereo, image and row blocks of the
-// self-calibration are one global block of the batch (q first, so the stereo block's offset does
-// not change).
+// A cost function on (pose, q, e, dv, b) (or fewer of the calibration blocks) seen as
+// (pose, g): the chain solver's factors touch one global block, so the stereo, image, row and
+// feature-offset blocks of the self-calibration are one global block g of the batch, each inner
+// block at its offset in g (q first, so the stereo block's offset does not change).
 class JoinedGlobalBlocks final : public ceres::CostFunction {
  public:
-  explicit JoinedGlobalBlocks(ceres::CostFunction* inner) : inner_(inner) {
+  // Inner block k + 1 at offsets[k] of a joined block of at least `joined_size`; by default
+  // the inner blocks follow each other from offset 0.
+  explicit JoinedGlobalBlocks(ceres::CostFunction* inner, std::vector<int> offsets = {}, int joined_size = 0)
+      : inner_(inner), offsets_(std::move(offsets)) {
     const std::vector<int32_t>& b = inner_->parameter_block_sizes();
     sizes_.assign(b.begin() + 1, b.end());
     int n = 0;
-    for (int k : sizes_) n += k;
+    if (offsets_.empty())
+      for (int k : sizes_) {
+        offsets_.push_back(n);
+        n += k;
+      }
+    if (offsets_.size() != sizes_.size()) throw Error("joined global blocks: one offset per inner block");
+    for (size_t k = 0; k < sizes_.size(); ++k) n = std::max(n, offsets_[k] + sizes_[k]);
+    n = std::max(n, joined_size);
     set_num_residuals(inner_->num_residuals());
     mutable_parameter_block_sizes()->push_back(b[0]);
     mutable_parameter_block_sizes()->push_back(n);
   }
   bool Evaluate(double const* const* p, double* r, double** J) const override {
     std::vector<const double*> blocks{p[0]};
-    for (int k = 0, offset = 0; k < static_cast<int>(sizes_.size()); offset += sizes_[static_cast<size_t>(k)], ++k)
-      blocks.push_back(p[1] + offset);
+    for (size_t k = 0; k < sizes_.size(); ++k) blocks.push_back(p[1] + offsets_[k]);
     if (!J) return inner_->Evaluate(blocks.data(), r, nullptr);
     const int m = num_residuals();
     std::vector<std::vector<double>> parts(sizes_.size());
@@ -365,9 +376,10 @@ class JoinedGlobalBlocks final : public ceres::CostFunction {
     if (!inner_->Evaluate(blocks.data(), r, jac.data())) return false;
     if (J[1]) {
       const int n = parameter_block_sizes()[1];
+      std::fill(J[1], J[1] + m * n, 0.0);
       for (int i = 0; i < m; ++i)
-        for (size_t k = 0, offset = 0; k < sizes_.size(); offset += static_cast<size_t>(sizes_[k]), ++k)
-          std::copy(parts[k].begin() + i * sizes_[k], parts[k].begin() + (i + 1) * sizes_[k], J[1] + i * n + offset);
+        for (size_t k = 0; k < sizes_.size(); ++k)
+          std::copy(parts[k].begin() + i * sizes_[k], parts[k].begin() + (i + 1) * sizes_[k], J[1] + i * n + offsets_[k]);
     }
     return true;
   }
@@ -375,6 +387,32 @@ class JoinedGlobalBlocks final : public ceres::CostFunction {
  private:
   std::unique_ptr<ceres::CostFunction> inner_;
   std::vector<int> sizes_;
+  std::vector<int> offsets_;
+};
+
+// Independent Gaussian priors on every entry of a block: r_i = (c_i - mean_i) / sigma_i (the
+// joined stereo block's prior: its entries are independent a priori).
+class DiagonalPriorFactor final : public ceres::CostFunction {
+ public:
+  DiagonalPriorFactor(Eigen::VectorXd mean, const Eigen::VectorXd& sigma)
+      : mean_(std::move(mean)), inverse_sigma_(sigma.cwiseInverse()) {
+    if (!(sigma.size() == mean_.size() && sigma.allFinite() && sigma.minCoeff() > 0))
+      throw Error("calibration prior: one finite sigma > 0 per entry");
+    set_num_residuals(static_cast<int>(mean_.size()));
+    mutable_parameter_block_sizes()->push_back(static_cast<int32_t>(mean_.size()));
+  }
+  bool Evaluate(double const* const* p, double* r, double** J) const override {
+    const Eigen::Index n = mean_.size();
+    Eigen::Map<Eigen::VectorXd>(r, n) = inverse_sigma_.cwiseProduct(Eigen::Map<const Eigen::VectorXd>(p[0], n) - mean_);
+    if (J && J[0]) {
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J_r_c(J[0], n, n);
+      J_r_c = inverse_sigma_.asDiagonal();
+    }
+    return true;
+  }
+
+ private:
+  Eigen::VectorXd mean_, inverse_sigma_;
 };
 
 // The factors touching poses [lo, hi) as a ceres::Problem over those poses, the neighbours
@@ -443,7 +481,10 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       stereo_block_ = static_cast<int>(sizes_.size());
       image_sigmas_ = imageErrorSigmas(b_.config_.calibration, b_.config_.observation_model.unmodelled);
       row_sigma_ = rowOffsetSigma(b_.config_.calibration, b_.config_.observation_model.unmodelled);
-      sizes_.push_back(kStereo + (image_sigmas_ ? kImage : 0) + (row_sigma_ ? 1 : 0));
+      feature_sigmas_ = featureOffsetSigmas(b_.map_, b_.config_.calibration, b_.config_.observation_model.unmodelled);
+      for (size_t j = 0; j < feature_sigmas_.size(); ++j) feature_index_[feature_sigmas_[j].first] = static_cast<int>(j);
+      sizes_.push_back(kStereo + (image_sigmas_ ? kImage : 0) + (row_sigma_ ? 1 : 0) +
+                       static_cast<int>(feature_sigmas_.size()));
     }
   }
 
@@ -467,12 +508,30 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (stereo_block_ >= 0 && obs.pixels) {
       const PixelResiduals residuals =
           model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+      const auto feature = feature_index_.find(obs.landmark_id);
+      const bool offset = row_sigma_ && feature != feature_index_.end();
       const Eigen::Matrix4d C =
-          calibratedPixelCovariance(obs, landmark, model, image_sigmas_.has_value(), row_sigma_.has_value());
+          calibratedPixelCovariance(obs, landmark, model, image_sigmas_.has_value(), row_sigma_.has_value(), offset);
+      const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
+      const int joined = sizes_[static_cast<size_t>(stereo_block_)];
+      if (offset) {
+        // (q, [e,] dv, b_j) at their places in the joined block (globalFactors).
+        const int m = image_sigmas_ ? kImage : 0;
+        std::vector<int> offsets{0};
+        if (image_sigmas_) offsets.push_back(kStereo);
+        offsets.push_back(kStereo + m);
+        offsets.push_back(kStereo + m + 1 + feature->second);
+        return {std::make_unique<JoinedGlobalBlocks>(
+                    StereoPixelFeatureCalibrationFactor::Create(model.rig, landmark.position, *obs.pixels,
+                                                                obs.slide_gain, obs.head_pan, C, residuals, image),
+                    offsets, joined),
+                true, stereo_block_};
+      }
       if (row_sigma_)
-        return {std::make_unique<JoinedGlobalBlocks>(StereoPixelRowCalibrationFactor::Create(
-                    model.rig, landmark.position, *obs.pixels, obs.slide_gain, obs.head_pan, C, residuals,
-                    image_sigmas_ ? &*image_sigmas_ : nullptr)),
+        return {std::make_unique<JoinedGlobalBlocks>(
+                    StereoPixelRowCalibrationFactor::Create(model.rig, landmark.position, *obs.pixels, obs.slide_gain,
+                                                            obs.head_pan, C, residuals, image),
+                    std::vector<int>{}, joined),
                 true, stereo_block_};
       if (image_sigmas_)
         return {std::make_unique<JoinedGlobalBlocks>(StereoPixelImageCalibrationFactor::Create(
@@ -528,16 +587,17 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       sigma << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
           c.focal_ratio_sigma, c.focal_scale_sigma;
       if (row_sigma_) {
-        // The joined block (q, [e,] dv): e whitened (prior the identity), dv with the stated sigma.
+        // The joined block (q, [e,] dv, b_1..b_K): e whitened (prior the identity), dv and the
+        // feature offsets with their stated sigmas.
         const int m = image_sigmas_ ? kImage : 0;
-        Eigen::VectorXd joined = Eigen::VectorXd::Zero(kStereo + m + 1), variance(kStereo + m + 1);
+        const int k = static_cast<int>(feature_sigmas_.size());
+        Eigen::VectorXd joined = Eigen::VectorXd::Zero(kStereo + m + 1 + k), sd(kStereo + m + 1 + k);
         joined.head<kStereo>() = nominalHead();
-        variance << sigma.cwiseAbs2(), Eigen::VectorXd::Ones(m), *row_sigma_ * *row_sigma_;
-        const Eigen::MatrixXd C = variance.asDiagonal().toDenseMatrix();
-        out->push_back({std::unique_ptr<ceres::CostFunction>(
-                            image_sigmas_ ? CalibrationPriorFactor<kStereo + kImage + 1>::Create(joined, C)
-                                          : CalibrationPriorFactor<kStereo + 1>::Create(joined, C)),
-                        false, stereo_block_});
+        sd.head<kStereo>() = sigma;
+        sd.segment(kStereo, m).setOnes();
+        sd[kStereo + m] = *row_sigma_;
+        for (int j = 0; j < k; ++j) sd[kStereo + m + 1 + j] = feature_sigmas_[static_cast<size_t>(j)].second;
+        out->push_back({std::make_unique<DiagonalPriorFactor>(joined, sd), false, stereo_block_});
       } else if (image_sigmas_) {
         // The image block is whitened (StereoPixelImageCalibrationFactor): its prior is the identity.
         Eigen::Matrix<double, kStereo + kImage, 1> joined;
@@ -563,10 +623,13 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (stereo_block_ >= 0) g.insert(g.end(), head.data(), head.data() + kStereo);
     if (image_sigmas_) g.insert(g.end(), static_cast<size_t>(kImage), 0.0);
     if (row_sigma_) g.push_back(0.0);
+    g.insert(g.end(), feature_sigmas_.size(), 0.0);
     return g;
   }
   // The image block's sigmas (whitened parameter i is sigma_i e_i), when estimated.
   const std::optional<CalibrationEstimate::ImageVector>& imageSigmas() const { return image_sigmas_; }
+  // The feature offsets' landmarks and prior sigmas (px), in the joined block's order after dv.
+  const std::vector<std::pair<int, double>>& featureSigmas() const { return feature_sigmas_; }
   // The row block's prior sigma (px), when estimated.
   const std::optional<double>& rowSigma() const { return row_sigma_; }
   int odometryBlock() const { return odometry_block_; }
@@ -584,6 +647,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   int odometry_block_ = -1, stereo_block_ = -1;
   std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
   std::optional<double> row_sigma_;
+  std::vector<std::pair<int, double>> feature_sigmas_;  // (landmark id, prior sigma) per feature offset
+  std::unordered_map<int, int> feature_index_;          // landmark id -> its offset's index
   Eigen::Vector3d nominalWheels() const { return Eigen::Vector3d(1.0, 1.0, b_.odometry_.wheel_base_mm); }
   static CalibrationEstimate::StereoVector nominalHead() { return CalibrationEstimate().head; }
   static constexpr int kStereo = StereoPixelCalibrationFactor::kCalibrationSize;
@@ -1065,6 +1130,11 @@ void BatchSmoother::solve() {
         cal.row = true;
         cal.row_offset_px = c[r];
         cal.row_offset_variance = global_covariance(r, r);
+        const std::vector<std::pair<int, double>>& features = source.featureSigmas();
+        for (size_t j = 0; j < features.size(); ++j) {
+          const Eigen::Index i = r + 1 + static_cast<Eigen::Index>(j);
+          cal.feature_offsets.push_back({features[j].first, c[i], global_covariance(i, i)});
+        }
       }
     }
   }

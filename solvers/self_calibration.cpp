@@ -104,9 +104,21 @@ std::optional<double> rowOffsetSigma(const SelfCalibrationConfig& config, const 
   return noise.row_offset_sigma_px;
 }
 
+std::vector<std::pair<int, double>> featureOffsetSigmas(const FieldMap& map, const SelfCalibrationConfig& config,
+                                                        const UnmodelledNoise& noise) {
+  std::vector<std::pair<int, double>> out;
+  if (!rowOffsetSigma(config, noise) || !config.feature_offsets) return out;
+  for (const Landmark& l : map.landmarks()) {
+    const double sigma = featureOffsetSigma(l.type, noise);
+    if (sigma > 0) out.emplace_back(l.id, sigma);
+  }
+  return out;
+}
+
 Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark& landmark,
-                                          const ObservationModelConfig& config, bool image_block, bool row_block) {
-  if (!image_block) return pixelCovarianceFor(obs, landmark, config, row_block);
+                                          const ObservationModelConfig& config, bool image_block, bool row_block,
+                                          bool feature_offsets) {
+  if (!image_block) return pixelCovarianceFor(obs, landmark, config, row_block, feature_offsets);
   ObservationModelConfig rest = config;
   UnmodelledNoise& n = rest.unmodelled;
   UnmodelledNoise block;  // the terms the image block takes
@@ -115,7 +127,7 @@ Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark
   block.tangential_sigma = n.tangential_sigma;
   block.relative_rotation_sigma_rad = n.relative_rotation_sigma_rad;
   n.k1_sigma = n.k2_sigma = n.tangential_sigma = n.relative_rotation_sigma_rad = 0;
-  Eigen::Matrix4d C = pixelCovarianceFor(obs, landmark, rest, row_block);
+  Eigen::Matrix4d C = pixelCovarianceFor(obs, landmark, rest, row_block, feature_offsets);
   if (obs.pixels) {
     // J diag(sigma^2) J^T with the column rows of J zero: the (v_l, v_r) block alone.
     const Eigen::Matrix4d B = unmodelledPixelCovariance(config.rig, *obs.pixels, block);

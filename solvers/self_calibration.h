@@ -18,6 +18,9 @@
 //   row       dv = the rectified rows' misalignment (px), with the stereo block when the noise
 //             model states it (UnmodelledNoise::row_offset_sigma_px; batch and window;
 //             SelfCalibrationConfig::row_offset; factors/stereo_pixel_row_calibration_factor.h)
+//   features  b_j = a constant u_r offset (px) of each marking feature j, with the row block in
+//             the batch when the noise model states it (UnmodelledNoise::*_feature_offset_sigma_px;
+//             SelfCalibrationConfig::feature_offsets; factors/stereo_pixel_feature_calibration_factor.h)
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
 // calibration with the stated uncertainty of SelfCalibrationConfig, so a run that does not
 // excite a parameter leaves it at its prior.
@@ -32,9 +35,13 @@
 // the rows' misalignment is the same in every pair of a run, so each such feature's u_r is off by
 // its slide gain times that misalignment (1.6 px RMS for marking corners on the realistic
 // profile) in every sighting; one parameter takes it, and the pixel covariance keeps only what
-// the slide model leaves (pixelCovarianceFor's slide residual terms).
+// the slide model leaves (pixelCovarianceFor's slide residual terms). Of what it leaves, a part
+// is constant per feature (its slide gain's error is the same from similar views, and so is
+// its edge's): the batch estimates it as one u_r offset per marking feature, zero-mean with the
+// noise model's sigma (factors/stereo_pixel_feature_calibration_factor.h).
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "factors/stereo_pixel_calibration_factor.h"
@@ -75,6 +82,10 @@ struct SelfCalibrationConfig {
   // With the stereo block, in the batch and the window: estimate the rows' misalignment when
   // the noise model states it (rowOffsetSigma).
   bool row_offset = true;
+  // With the row block, in the batch smoother: estimate each marking feature's constant u_r
+  // offset when the noise model states it (featureOffsetSigmas). The sliding window keeps it as
+  // pixel noise.
+  bool feature_offsets = true;
   // selfCalibratingBatch only (the batch smoother takes them from its own configuration).
   PixelResiduals residuals = PixelResiduals::All;
   bool use_compass = true;
@@ -105,6 +116,14 @@ struct CalibrationEstimate {
   bool row = false;
   double row_offset_px = 0.0;
   double row_offset_variance = 0.0;  // px^2
+  // The feature offsets (batch, featureOffsetSigmas): each marking feature's constant u_r offset
+  // (px) and its variance (px^2); not part of the rig written back (a property of the run).
+  struct FeatureOffset {
+    int landmark_id = -1;
+    double offset_px = 0.0;
+    double variance = 0.0;  // px^2
+  };
+  std::vector<FeatureOffset> feature_offsets;
 
   // The rig a user passes back as --rig: with a stereo estimate, selfCalibratedRig
   // (solvers/self_calibrated_rig.h) — tilt in the mounting, every pixel correction folded into an
@@ -135,12 +154,19 @@ std::optional<CalibrationEstimate::ImageVector> imageErrorSigmas(const SelfCalib
 std::optional<double> rowOffsetSigma(const SelfCalibrationConfig& config, const UnmodelledNoise& noise);
 
 // The pixel covariance of a calibrated pixel factor: pixelCovarianceFor (solvers/smoother_common.h)
-// with the slide residual terms when the row block is estimated and, with the image block, its
+// with the slide residual terms when the row block is estimated (without the feature's constant
+// offset when `feature_offsets` says the caller estimates it) and, with the image block, its
 // lens and relative-rotation terms on the rows only (the block carries their column errors;
 // StereoPixelImageCalibrationFactor moves only the columns).
 Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark& landmark,
                                           const ObservationModelConfig& config, bool image_block,
-                                          bool row_block = false);
+                                          bool row_block = false, bool feature_offsets = false);
+
+// The feature offsets' prior sigmas (px) per landmark id of `map` that gets one: marking corners,
+// T-junctions and X-intersections when the row block is estimated and the noise model states
+// their constant (featureOffsetSigma); empty otherwise.
+std::vector<std::pair<int, double>> featureOffsetSigmas(const FieldMap& map, const SelfCalibrationConfig& config,
+                                                        const UnmodelledNoise& noise);
 
 // The batch smoother with `config` over a whole dataset from a known start (pixel observation
 // model of config.residuals, no robust loss, no kidnap cuts).

@@ -64,7 +64,9 @@ ObservationModel observationModelFromString(const std::string& name) {
 bool UnmodelledNoise::isZero() const {
   return k1_sigma == 0 && k2_sigma == 0 && tangential_sigma == 0 && pitch_sigma_rad == 0 && roll_sigma_rad == 0 &&
          relative_rotation_sigma_rad == 0 && marking_disparity_sigma_px == 0 && intersection_disparity_sigma_px == 0 &&
-         row_offset_sigma_px == 0 && marking_slide_residual_sigma_px == 0 && intersection_slide_residual_sigma_px == 0 &&
+         row_offset_sigma_px == 0 && marking_slide_residual_sigma_px == 0 && marking_slide_residual_per_gain_px == 0 &&
+         marking_feature_offset_sigma_px == 0 && intersection_slide_residual_sigma_px == 0 &&
+         intersection_feature_offset_sigma_px == 0 &&
          slip_rel_sigma == 0;
 }
 
@@ -80,7 +82,10 @@ const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
     {"intersection_disparity_sigma_px", &UnmodelledNoise::intersection_disparity_sigma_px},
     {"row_offset_sigma_px", &UnmodelledNoise::row_offset_sigma_px},
     {"marking_slide_residual_sigma_px", &UnmodelledNoise::marking_slide_residual_sigma_px},
+    {"marking_slide_residual_per_gain_px", &UnmodelledNoise::marking_slide_residual_per_gain_px},
+    {"marking_feature_offset_sigma_px", &UnmodelledNoise::marking_feature_offset_sigma_px},
     {"intersection_slide_residual_sigma_px", &UnmodelledNoise::intersection_slide_residual_sigma_px},
+    {"intersection_feature_offset_sigma_px", &UnmodelledNoise::intersection_feature_offset_sigma_px},
     {"slip_rel_sigma", &UnmodelledNoise::slip_rel_sigma},
 };
 }  // namespace
@@ -154,7 +159,7 @@ OdometryParams withSlip(const OdometryParams& params, double d_left, double d_ri
 }
 
 Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config,
-                                   bool slide_modelled) {
+                                   bool slide_modelled, bool feature_offset_modelled) {
   Eigen::Matrix4d C;
   if (config.pixel_sigma > 0) {
     C = isotropicPixelCovariance(config.pixel_sigma);
@@ -170,14 +175,34 @@ Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landm
     // it slides along the marking, an error of u_r alone (u_l is the left image's own). With the
     // misalignment estimated, the slide s dv is in the factor and only its residual stays.
     const UnmodelledNoise& n = config.unmodelled;
-    double s = 0;
-    if (landmark.type == LandmarkType::MarkingCorner || landmark.type == LandmarkType::Junction)
-      s = slide_modelled ? n.marking_slide_residual_sigma_px : n.marking_disparity_sigma_px;
-    else if (landmark.type == LandmarkType::Intersection)
-      s = slide_modelled ? n.intersection_slide_residual_sigma_px : n.intersection_disparity_sigma_px;
-    C(2, 2) += s * s;
+    const bool marking = landmark.type == LandmarkType::MarkingCorner || landmark.type == LandmarkType::Junction;
+    double var = 0;
+    if (!slide_modelled) {
+      if (marking) var = n.marking_disparity_sigma_px * n.marking_disparity_sigma_px;
+      if (landmark.type == LandmarkType::Intersection)
+        var = n.intersection_disparity_sigma_px * n.intersection_disparity_sigma_px;
+    } else if (marking) {
+      // The floor is the least white disparity error: what C already states counts toward it.
+      const double stated = C(0, 0) + C(2, 2) - 2 * C(0, 2);
+      const double floor = n.marking_slide_residual_sigma_px * n.marking_slide_residual_sigma_px;
+      const double gain = n.marking_slide_residual_per_gain_px * obs.slide_gain;
+      var = std::max(0.0, floor - stated) + gain * gain;
+    } else if (landmark.type == LandmarkType::Intersection) {
+      var = n.intersection_slide_residual_sigma_px * n.intersection_slide_residual_sigma_px;
+    }
+    if (slide_modelled && !feature_offset_modelled) {
+      const double b = featureOffsetSigma(landmark.type, n);
+      var += b * b;
+    }
+    C(2, 2) += var;
   }
   return C;
+}
+
+double featureOffsetSigma(LandmarkType type, const UnmodelledNoise& noise) {
+  if (type == LandmarkType::MarkingCorner || type == LandmarkType::Junction) return noise.marking_feature_offset_sigma_px;
+  if (type == LandmarkType::Intersection) return noise.intersection_feature_offset_sigma_px;
+  return 0.0;
 }
 
 ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,

@@ -72,10 +72,18 @@ struct UnmodelledNoise {
   // offset dv (its prior sigma; factors/stereo_pixel_row_calibration_factor.h), each feature's
   // u_r error then is its slide gain times dv, and the two terms above give way to the two below.
   double row_offset_sigma_px = 0.0;
-  // What remains of the two marking terms when dv is estimated: the error of u_r about s dv
-  // (marking corners and T-junctions; X-intersections), px (docs/realistic_world.md, "Noise model").
+  // What remains of the two marking terms when dv is estimated, px: the error of u_r about
+  // s dv (docs/realistic_world.md, "Noise model"). Per sighting of a marking corner or
+  // T-junction a white part, sqrt(floor^2 + (per_gain |s|)^2) with the floor the least white
+  // disparity error (the frontend's and the terms above count toward it); of an X-intersection
+  // (no slide gain) a white sigma. Per feature a constant, the same in every sighting: the
+  // batch estimates it as the feature's column offset (a zero-mean parameter with this prior
+  // sigma); where it is not estimated it is added to the white part.
   double marking_slide_residual_sigma_px = 0.0;
+  double marking_slide_residual_per_gain_px = 0.0;
+  double marking_feature_offset_sigma_px = 0.0;
   double intersection_slide_residual_sigma_px = 0.0;
+  double intersection_feature_offset_sigma_px = 0.0;
   // Wheel slip: a wheel's increment's error sigma as a fraction of the increment, added in
   // quadrature to (B.6)'s k |d| (slip on a fraction p of the steps, one wheel at a time, reading
   // (1 + s) times the motion: sqrt(p / 2 E[s^2])).
@@ -112,10 +120,15 @@ struct ObservationModelConfig {
 // The pixel covariance the pixel models use for `obs`: its own, or sigma^2 I when
 // config.pixel_sigma > 0, plus unmodelledPixelCovariance of config.unmodelled and, for a feature
 // matched along a marking (landmark.type), its disparity term on u_r: the marking terms, or with
-// `slide_modelled` (the row offset dv estimated) the slide residual terms. Throws
-// stereoloc::Error when the observation carries none.
+// `slide_modelled` (the row offset dv estimated) the slide residual terms, with the feature's
+// constant offset as white noise unless `feature_offset_modelled` (the caller estimates it,
+// featureOffsetSigma). Throws stereoloc::Error when the observation carries none.
 Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config,
-                                   bool slide_modelled = false);
+                                   bool slide_modelled = false, bool feature_offset_modelled = false);
+
+// The prior sigma (px) of the constant u_r offset of a feature of `type` matched along a marking
+// when the row offset is estimated (UnmodelledNoise), 0 for other features.
+double featureOffsetSigma(LandmarkType type, const UnmodelledNoise& noise);
 
 // The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks
 // for pixels and the observation has them (with its own Observation::pixel_covariance), the

@@ -23,11 +23,18 @@ namespace {
 constexpr double kMarkingDisparityPerRowPx = 1.63 / 1.49;
 constexpr double kIntersectionDisparityPerRowPx = 0.65 / 1.49;
 // What remains with the rows' misalignment dv estimated (UnmodelledNoise::row_offset_sigma_px):
-// the RMS of u_r - s dv (s the frontend's slide gain, dv the true misalignment at the feature)
-// about each trial's mean (the constant part is the disparity and column offsets'), on the same
-// observations: 0.57 px for marking corners and T-junctions (835; 1.09 px without the s dv
-// term). X-intersections have no slide gain (Observation::slide_gain), so their term stays.
-constexpr double kMarkingSlideResidualPerRowPx = 0.57 / 1.49;
+// the disparity error of each marking feature against the true rectified pixels, less s dv (s
+// the frontend's slide gain, dv the trial's mean misalignment) and less the trial's constant
+// (the goal corners' mean disparity error, which the disparity offset takes), fitted by maximum
+// likelihood as a constant per feature and trial plus a white part sqrt(a^2 + (c s)^2)
+// (docs/realistic_world.md, "Noise model"; study seed 7, 20 trials of circle, line and spin,
+// 3053 sightings of marking corners and T-junctions): a 0.185 px, c 0.318 px, the constant's
+// sigma 0.583 px; X-intersections (s = 0; 372 sightings) white 0.282 px, constant 0.321 px.
+constexpr double kMarkingSlideFloorPerRowPx = 0.185 / 1.49;
+constexpr double kMarkingSlidePerGainPerRowPx = 0.318 / 1.49;
+constexpr double kMarkingFeatureOffsetPerRowPx = 0.583 / 1.49;
+constexpr double kIntersectionSlidePerRowPx = 0.282 / 1.49;
+constexpr double kIntersectionFeatureOffsetPerRowPx = 0.321 / 1.49;
 
 // Gauss-Newton iterations of the iterated EKF's updates (solvers/ekf.h); it stops earlier when
 // converged, typically after 2-3.
@@ -190,8 +197,11 @@ void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o)
   n.marking_disparity_sigma_px = kMarkingDisparityPerRowPx * row;
   n.intersection_disparity_sigma_px = kIntersectionDisparityPerRowPx * row;
   n.row_offset_sigma_px = row;
-  n.marking_slide_residual_sigma_px = kMarkingSlideResidualPerRowPx * row;
-  n.intersection_slide_residual_sigma_px = n.intersection_disparity_sigma_px;
+  n.marking_slide_residual_sigma_px = kMarkingSlideFloorPerRowPx * row;
+  n.marking_slide_residual_per_gain_px = kMarkingSlidePerGainPerRowPx * row;
+  n.marking_feature_offset_sigma_px = kMarkingFeatureOffsetPerRowPx * row;
+  n.intersection_slide_residual_sigma_px = kIntersectionSlidePerRowPx * row;
+  n.intersection_feature_offset_sigma_px = kIntersectionFeatureOffsetPerRowPx * row;
   // One wheel at a time on a fraction p of the steps, s uniform in [a, b]: E[s^2] per wheel
   // p / 2 (a^2 + a b + b^2) / 3.
   const double a = p.slip_min, b = p.slip_max;

@@ -515,3 +515,47 @@ TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSli
 
 }  // namespace
 }  // namespace stereoloc
+
+#include "factors/stereo_pixel_feature_calibration_factor.h"
+
+namespace stereoloc {
+namespace {
+
+// The feature offset: with b = 0 the factor is the row factor; a right column moved by b is
+// explained by b; Jacobians against central differences, with and without the image block.
+TEST(StereoPixelFeatureCalibrationFactor, ZeroOffsetEqualsTheRowFactorOffsetIsExplainedAndJacobiansMatch) {
+  const stereo_pixel_calibration::ImageErrorVector sigma = checkedImageSigmas();
+  forEachCalibrationCase(29, [&](const StereoRig& rig, PixelResiduals mode, const test::Sighting& s, double pan,
+                                 const double* p, const double* q, const double* e, auto& uniform) {
+    const double gain = 1.5 * uniform(), zero[1] = {0.0}, dv[1] = {1.4 * uniform()}, b[1] = {0.8 * uniform()};
+    const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
+    std::unique_ptr<ceres::CostFunction> feature(
+        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
+    std::unique_ptr<ceres::CostFunction> feature_image(
+        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma));
+    std::unique_ptr<ceres::CostFunction> row(
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
+    std::unique_ptr<ceres::CostFunction> row_image(
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma));
+    EXPECT_LT((evaluate(*feature, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(), 1e-12);
+    EXPECT_LT((evaluate(*feature_image, {p, q, e, dv, zero}) - evaluate(*row_image, {p, q, e, dv})).norm(), 1e-12);
+    StereoPixels moved = s.pixels;
+    moved.u_right += b[0];
+    std::unique_ptr<ceres::CostFunction> feature_moved(
+        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, moved, gain, pan, C, mode, nullptr));
+    const double tolerance = rig.calibration() ? 0.02 : 1e-9;
+    EXPECT_LT((evaluate(*feature_moved, {p, q, dv, b}) - evaluate(*row, {p, q, dv})).norm(), tolerance);
+    EXPECT_GT((evaluate(*feature_moved, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(), 0.5 * std::fabs(b[0]));
+    const FactorCheck c1 = checkFactorJacobians(*feature, {p, q, dv, b});
+    EXPECT_TRUE(c1.ok) << c1.message;
+    const FactorCheck c2 = checkFactorJacobians(*feature_image, {p, q, e, dv, b});
+    EXPECT_TRUE(c2.ok) << c2.message;
+  });
+  const test::Sighting s = test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60);
+  EXPECT_THROW(StereoPixelFeatureCalibrationFactor::Create(StereoRig(), s.landmark, s.pixels, std::nan(""), 0.0,
+                                                           Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr),
+               Error);
+}
+
+}  // namespace
+}  // namespace stereoloc

@@ -5,6 +5,8 @@
 
 #include <gtest/gtest.h>
 
+#include <map>
+
 #include <cstdio>
 #include <random>
 
@@ -314,31 +316,156 @@ TEST(SelfCalibration, RecoversAPlantedRowOffset) {
   EXPECT_FALSE(rowOffsetSigma(SelfCalibrationConfig::parse("stereo"), UnmodelledNoise()));
 }
 
-// With the row offset estimated, a marking feature's u_r term is the slide residual's instead of
-// the whole slide's; other features and the other entries are unchanged.
+// Planted constant u_r offsets of the marking features (one per landmark, as a feature's slide
+// error repeats from sighting to sighting) on top of a row misalignment: the batch estimates
+// each as a feature offset within its reported uncertainty, tighter than its prior where the
+// feature is seen often, and the poses come out closer to the truth than with the offsets left
+// as white noise.
+TEST(SelfCalibration, RecoversPlantedFeatureOffsets) {
+  SimulationConfig sc;
+  sc.profile = ErrorProfile::realistic();
+  sc.scenario.steps = 300;
+  sc.landmarks = LandmarkSet::All;
+  SimulationTrace trace;
+  Dataset d = simulate("random-walk", 0, sc, 7, &trace);
+  const double dv = 1.3, prior = 0.6;  // px
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> U(-1.5, 1.5);
+  std::normal_distribution<double> N(0.0, prior);
+  std::map<int, double> planted;
+  for (const Landmark& l : d.map.landmarks())
+    if (l.type == LandmarkType::MarkingCorner || l.type == LandmarkType::Junction || l.type == LandmarkType::Intersection)
+      planted[l.id] = N(rng);
+  std::map<int, int> sightings;
+  for (Step& s : d.steps) {
+    std::vector<Observation> kept;
+    for (Observation o : s.observations) {
+      if (o.landmark_id < 0 || !o.pixels) continue;
+      const auto b = planted.find(o.landmark_id);
+      if (b != planted.end()) {
+        o.slide_gain = U(rng);
+        o.pixels->u_right += o.slide_gain * dv + b->second;
+        ++sightings[o.landmark_id];
+      }
+      kept.push_back(o);
+    }
+    s.observations = kept;
+  }
+  UnmodelledNoise noise;
+  noise.row_offset_sigma_px = 1.49;
+  noise.marking_feature_offset_sigma_px = noise.intersection_feature_offset_sigma_px = prior;
+  auto run = [&](bool offsets, CalibrationEstimate* estimate) {
+    BatchSmootherConfig bc;
+    bc.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
+    bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
+    bc.calibration = SelfCalibrationConfig::parse("stereo");
+    bc.calibration.feature_offsets = offsets;
+    bc.cut_at_reinitialisation = false;
+    BatchSmoother b(d.map, d.odometry, bc);
+    for (const Step& s : d.steps) b.process(s);
+    const std::vector<Estimate> e = b.finish();
+    EXPECT_EQ(b.summary().covariance_status, CovarianceStatus::Ok);
+    *estimate = b.calibration();
+    double sse = 0;
+    for (size_t k = 0; k < e.size(); ++k) {
+      const Pose2& t = *d.groundtruth[k];
+      sse += std::pow(e[k].pose.x - t.x, 2) + std::pow(e[k].pose.y - t.y, 2);
+    }
+    return std::sqrt(sse / static_cast<double>(e.size()));
+  };
+  CalibrationEstimate with, without;
+  const double rmse_with = run(true, &with), rmse_without = run(false, &without);
+  EXPECT_TRUE(without.feature_offsets.empty());
+  ASSERT_EQ(with.feature_offsets.size(), planted.size());
+  int seen_often = 0;
+  for (const CalibrationEstimate::FeatureOffset& f : with.feature_offsets) {
+    const double sd = std::sqrt(f.variance);
+    ASSERT_GT(sd, 0.0) << f.landmark_id;
+    EXPECT_LE(sd, prior * (1 + 1e-9)) << f.landmark_id;
+    EXPECT_NEAR(f.offset_px, planted.at(f.landmark_id), 3 * sd) << f.landmark_id;
+    if (sightings[f.landmark_id] >= 20) {
+      ++seen_often;
+      EXPECT_LT(sd, 0.5 * prior) << f.landmark_id << " seen " << sightings[f.landmark_id] << " times";
+    }
+  }
+  EXPECT_GE(seen_often, 3);
+  EXPECT_NEAR(with.row_offset_px, dv, 3 * std::sqrt(with.row_offset_variance));
+  EXPECT_LT(rmse_with, rmse_without);
+}
+
+// With the row offset estimated, a marking feature's u_r term is what the slide model leaves:
+// a white part growing with the slide gain above a floor the stated noise counts toward, and the
+// feature's constant unless the caller estimates it; other features and entries are unchanged.
 TEST(SelfCalibration, SlideResidualReplacesTheMarkingTermWithTheRowBlock) {
   const StereoRig rig;
   const auto px = rig.project(Eigen::Vector3d(600, 50, 0), 0.0);
   ASSERT_TRUE(px);
-  const Observation o = observationFromPixels(rig, 3, LandmarkType::MarkingCorner, *px, 0.0, 0.5);
+  Observation o = observationFromPixels(rig, 3, LandmarkType::MarkingCorner, *px, 0.0, 0.5);
+  o.slide_gain = -2.0;
   UnmodelledNoise noise;
   noise.marking_disparity_sigma_px = 1.63;
   noise.intersection_disparity_sigma_px = 0.65;
   noise.row_offset_sigma_px = 1.49;
-  noise.marking_slide_residual_sigma_px = 0.57;
-  noise.intersection_slide_residual_sigma_px = 0.65;
+  noise.marking_slide_residual_sigma_px = 0.9;  // above the stated disparity sigma, sqrt(0.5)
+  noise.marking_slide_residual_per_gain_px = 0.3;
+  noise.marking_feature_offset_sigma_px = 0.6;
+  noise.intersection_slide_residual_sigma_px = 0.28;
+  noise.intersection_feature_offset_sigma_px = 0.32;
   const ObservationModelConfig model{ObservationModel::PixelColumns, rig, 0.0, noise};
-  Landmark corner, goal;
+  Landmark corner, goal, crossing;
   corner.type = LandmarkType::MarkingCorner;
   goal.type = LandmarkType::GoalCorner;
+  crossing.type = LandmarkType::Intersection;
+  const double stated = o.pixel_covariance(0, 0) + o.pixel_covariance(2, 2) - 2 * o.pixel_covariance(0, 2);
+  ASSERT_NEAR(stated, 0.5, 1e-12);
   const Eigen::Matrix4d white = calibratedPixelCovariance(o, corner, model, false, false);
   const Eigen::Matrix4d slid = calibratedPixelCovariance(o, corner, model, false, true);
+  const Eigen::Matrix4d offset = calibratedPixelCovariance(o, corner, model, false, true, true);
   EXPECT_NEAR(white(2, 2) - o.pixel_covariance(2, 2), 1.63 * 1.63, 1e-9);
-  EXPECT_NEAR(slid(2, 2) - o.pixel_covariance(2, 2), 0.57 * 0.57, 1e-9);
+  EXPECT_NEAR(offset(2, 2) - o.pixel_covariance(2, 2), (0.81 - 0.5) + 0.6 * 0.6, 1e-9);
+  EXPECT_NEAR(slid(2, 2) - offset(2, 2), 0.36, 1e-9);
   Eigen::Matrix4d diff = white - slid;
   diff(2, 2) = 0;
   EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-12);
+  // A floor below the stated noise adds nothing of its own.
+  ObservationModelConfig low = model;
+  low.unmodelled.marking_slide_residual_sigma_px = 0.5;
+  EXPECT_NEAR(calibratedPixelCovariance(o, corner, low, false, true, true)(2, 2) - o.pixel_covariance(2, 2), 0.36, 1e-9);
+  EXPECT_NEAR(calibratedPixelCovariance(o, crossing, model, false, true)(2, 2) - o.pixel_covariance(2, 2),
+              0.28 * 0.28 + 0.32 * 0.32, 1e-9);
+  EXPECT_NEAR(calibratedPixelCovariance(o, crossing, model, false, true, true)(2, 2) - o.pixel_covariance(2, 2),
+              0.28 * 0.28, 1e-9);
   EXPECT_TRUE(calibratedPixelCovariance(o, goal, model, false, true).isApprox(calibratedPixelCovariance(o, goal, model, false, false)));
+  EXPECT_EQ(featureOffsetSigma(LandmarkType::Junction, noise), 0.6);
+  EXPECT_EQ(featureOffsetSigma(LandmarkType::Intersection, noise), 0.32);
+  EXPECT_EQ(featureOffsetSigma(LandmarkType::GoalCorner, noise), 0.0);
+}
+
+// One feature offset per marking landmark of the map, only with the row block.
+TEST(SelfCalibration, FeatureOffsetsForTheMarkingLandmarksWithTheRowBlock) {
+  const FieldMap map = FieldMap::miroSot();
+  UnmodelledNoise noise;
+  noise.row_offset_sigma_px = 1.49;
+  noise.marking_feature_offset_sigma_px = 0.58;
+  noise.intersection_feature_offset_sigma_px = 0.32;
+  const SelfCalibrationConfig stereo = SelfCalibrationConfig::parse("stereo");
+  const auto sigmas = featureOffsetSigmas(map, stereo, noise);
+  size_t markings = 0;
+  for (const Landmark& l : map.landmarks())
+    markings += l.type == LandmarkType::MarkingCorner || l.type == LandmarkType::Junction ||
+                l.type == LandmarkType::Intersection;
+  ASSERT_EQ(sigmas.size(), markings);
+  for (const auto& [id, sigma] : sigmas)
+    EXPECT_EQ(sigma, map.at(id).type == LandmarkType::Intersection ? 0.32 : 0.58) << id;
+  SelfCalibrationConfig off = stereo;
+  off.feature_offsets = false;
+  EXPECT_TRUE(featureOffsetSigmas(map, off, noise).empty());
+  off = stereo;
+  off.row_offset = false;
+  EXPECT_TRUE(featureOffsetSigmas(map, off, noise).empty());
+  UnmodelledNoise none = noise;
+  none.marking_feature_offset_sigma_px = none.intersection_feature_offset_sigma_px = 0;
+  EXPECT_TRUE(featureOffsetSigmas(map, stereo, none).empty());
 }
 
 }  // namespace

@@ -166,7 +166,10 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
   n.marking_disparity_sigma_px = 1.63;
   n.row_offset_sigma_px = 1.49;
   n.marking_slide_residual_sigma_px = 0.57;
+  n.marking_slide_residual_per_gain_px = 0.32;
+  n.marking_feature_offset_sigma_px = 0.58;
   n.intersection_slide_residual_sigma_px = 0.65;
+  n.intersection_feature_offset_sigma_px = 0.32;
   n.save(dir.file("noise.yaml"));
   const UnmodelledNoise back = UnmodelledNoise::load(dir.file("noise.yaml"));
   EXPECT_EQ(back.k1_sigma, 0.01);
@@ -175,7 +178,10 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
   EXPECT_EQ(back.marking_disparity_sigma_px, 1.63);
   EXPECT_EQ(back.row_offset_sigma_px, 1.49);
   EXPECT_EQ(back.marking_slide_residual_sigma_px, 0.57);
+  EXPECT_EQ(back.marking_slide_residual_per_gain_px, 0.32);
+  EXPECT_EQ(back.marking_feature_offset_sigma_px, 0.58);
   EXPECT_EQ(back.intersection_slide_residual_sigma_px, 0.65);
+  EXPECT_EQ(back.intersection_feature_offset_sigma_px, 0.32);
   EXPECT_EQ(back.roll_sigma_rad, 0.0);
   {
     std::ofstream f(dir.file("bad.yaml"));

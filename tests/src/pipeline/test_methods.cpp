@@ -109,8 +109,11 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   EXPECT_NEAR(o.noise.intersection_disparity_sigma_px, 0.65, 0.01);
   // The misalignment itself (the row block's prior) and what the slide model leaves.
   EXPECT_NEAR(o.noise.row_offset_sigma_px, 1.49, 0.01);
-  EXPECT_NEAR(o.noise.marking_slide_residual_sigma_px, 0.57, 0.01);
-  EXPECT_EQ(o.noise.intersection_slide_residual_sigma_px, o.noise.intersection_disparity_sigma_px);
+  EXPECT_NEAR(o.noise.marking_slide_residual_sigma_px, 0.185, 0.001);
+  EXPECT_NEAR(o.noise.marking_slide_residual_per_gain_px, 0.318, 0.001);
+  EXPECT_NEAR(o.noise.marking_feature_offset_sigma_px, 0.583, 0.001);
+  EXPECT_NEAR(o.noise.intersection_slide_residual_sigma_px, 0.282, 0.001);
+  EXPECT_NEAR(o.noise.intersection_feature_offset_sigma_px, 0.321, 0.001);
   ErrorProfile aligned = p;  // no principal-point or rotation error: rows aligned
   aligned.principal_sigma_px = 0.0;
   aligned.relative_rotation_sigma_rad = 0.0;
@@ -120,6 +123,9 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   EXPECT_EQ(a.noise.intersection_disparity_sigma_px, 0.0);
   EXPECT_EQ(a.noise.row_offset_sigma_px, 0.0);
   EXPECT_EQ(a.noise.marking_slide_residual_sigma_px, 0.0);
+  EXPECT_EQ(a.noise.marking_slide_residual_per_gain_px, 0.0);
+  EXPECT_EQ(a.noise.marking_feature_offset_sigma_px, 0.0);
+  EXPECT_EQ(a.noise.intersection_feature_offset_sigma_px, 0.0);
 }
 
 }  // namespace

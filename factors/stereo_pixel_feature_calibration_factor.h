@@ -1,0 +1,71 @@
+#pragma once
+// The stereo pixel row calibration factor with the observed feature's own u_r offset b as a
+// further block: residuals, frames and units as factors/stereo_pixel_calibration_factor.h, the
+// right column moved by s dv + b (s the observation's slide gain, dv the rows' misalignment).
+// Blocks: pose (3), stereo calibration q (6), optionally the whitened image errors e (11), dv (1,
+// px) and b (1, px). A marking feature's u_r error about s dv repeats from sighting to sighting
+// (the same edge, a similar view, the same misalignment); the batch smoother gives each marking
+// feature one b, zero-mean with the noise model's sigma (featureOffsetSigmas in
+// solvers/self_calibration.h), so that the repetition is estimated rather than averaged as if
+// it were white.
+#include <ceres/autodiff_cost_function.h>
+
+#include <Eigen/Core>
+#include <cmath>
+#include <string>
+
+#include "factors/stereo_pixel_calibration_factor.h"
+
+namespace stereoloc {
+
+struct StereoPixelFeatureCalibrationFactor {
+  using ImageErrorVector = stereo_pixel_calibration::ImageErrorVector;
+  StereoPixelFeatureCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                      double slide_gain, double pan, const Eigen::Matrix4d& sqrt_information,
+                                      PixelResiduals residuals, const ImageErrorVector* image_sigmas)
+      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, image_sigmas, slide_gain) {}
+
+  // Without the image block: (pose, q, dv, b).
+  template <typename T>
+  bool operator()(const T* pose, const T* calib, const T* row, const T* offset, T* residual) const {
+    return model_.evaluate<T>(pose, calib, nullptr, row, offset, residual);
+  }
+  // With it: (pose, q, e, dv, b).
+  template <typename T>
+  bool operator()(const T* pose, const T* calib, const T* image, const T* row, const T* offset, T* residual) const {
+    return model_.evaluate<T>(pose, calib, image, row, offset, residual);
+  }
+
+  static constexpr int kOffsetSize = 1;
+
+  // `slide_gain`: the observation's (finite); `image_sigmas`: the image block's sigmas (each
+  // finite and >= 0), or null for the factor without the image block.
+  static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
+                                     double slide_gain, double pan, const Eigen::Matrix4d& pixel_covariance,
+                                     PixelResiduals residuals, const ImageErrorVector* image_sigmas) {
+    constexpr const char* kWho = "stereo pixel feature calibration factor";
+    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    if (!std::isfinite(slide_gain)) throw Error(std::string(kWho) + ": slide gain must be finite");
+    if (image_sigmas && !(image_sigmas->allFinite() && image_sigmas->minCoeff() >= 0))
+      throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
+    auto* functor = new StereoPixelFeatureCalibrationFactor(
+        rig, landmark, pixels, slide_gain, pan,
+        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals,
+        image_sigmas);
+    constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
+    constexpr int kE = stereo_pixel_calibration::kImageErrorSize;
+    constexpr int kB = kOffsetSize;
+    using F = StereoPixelFeatureCalibrationFactor;
+    if (image_sigmas) {
+      if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<F, 4, 3, kQ, kE, 1, kB>(functor);
+      return new ceres::AutoDiffCostFunction<F, 2, 3, kQ, kE, 1, kB>(functor);
+    }
+    if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<F, 4, 3, kQ, 1, kB>(functor);
+    return new ceres::AutoDiffCostFunction<F, 2, 3, kQ, 1, kB>(functor);
+  }
+
+ private:
+  StereoPixelCalibrationModel model_;
+};
+
+}  // namespace stereoloc
