@@ -137,6 +137,16 @@ struct SlidingWindowConfig {
 Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
                                   const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px);
 
+// One odometry step through the wheel calibration wheels = (c_l, c_r, w) (factors/
+// odometry_calibration_factor.h): rel (+) u(c_l d_left, c_r d_right, w) with the covariance of
+// (5.9) (U at the scaled increments, `params` giving its noise), and, when J_c is given, the chain
+// rule of (B.16)-(B.19) through the composition: on entry d rel / d wheels (3x3, columns c_l, c_r,
+// w), on return that of the result. With it a prediction can carry the calibration's uncertainty
+// (docs/estimators.md, "Self-calibration").
+PosePrediction predictCalibratedStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right,
+                                     const Eigen::Vector3d& wheels, const OdometryParams& params,
+                                     Eigen::Matrix3d* J_c = nullptr);
+
 // What insertLate did with the observations of an earlier step.
 enum class LateObservationStatus {
   Inserted,     // the step is in the window: its observations went through gate and association
@@ -212,6 +222,7 @@ class SlidingWindowSmoother : public Estimator {
     EstimateStatus status = EstimateStatus::Predicted;
     double d_left = 0.0, d_right = 0.0;    // this step's wheel increments (mm), for insertLate
     WheelIncrements noise;                 // mm, their travel of (B.6) (NoiseTravel)
+    Eigen::Matrix3d rel_wheels = Eigen::Matrix3d::Zero();  // d rel / d wheel calibration
   };
   struct Node {
     long step = 0;
@@ -219,6 +230,9 @@ class SlidingWindowSmoother : public Estimator {
     std::array<double, 3> x{};           // current estimate (x, y, theta)
     EstimateStatus status = EstimateStatus::Tracking;
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  // last marginal computed
+    // Its cross-covariance with the wheel calibration (rows: pose, columns: c_l, c_r, w), computed
+    // with `covariance` (odometry self-calibration only).
+    Eigen::Matrix3d wheels_cross = Eigen::Matrix3d::Zero();
     int slot = 0;                        // position in nodes_, refreshed before linearising
     // Joint marginal covariance with the next window pose (6x6: this, next), when computed.
     Eigen::Matrix<double, 6, 6> joint_next = Eigen::Matrix<double, 6, 6>::Zero();
@@ -263,8 +277,14 @@ class SlidingWindowSmoother : public Estimator {
   int calibDim() const;
   void relinearise();                      // every factor's linearisation point := current values
   // The odometry prediction of one step with the current wheel calibration (the nominal one
-  // without odometry calibration).
-  PosePrediction predictStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right) const;
+  // without odometry calibration); J_c as in predictCalibratedStep (left alone without it).
+  PosePrediction predictStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right,
+                             Eigen::Matrix3d* J_c = nullptr) const;
+  // The covariance of keyframe k composed with odometry r (rel_covariance, d r / d wheels
+  // rel_wheels; A1, A2 the composition's Jacobians (B.18), (B.19)): (5.9), and with odometry
+  // self-calibration the wheel calibration's uncertainty and its correlation with k's pose.
+  Eigen::Matrix3d composedCovariance(const Node& k, const Eigen::Matrix3d& A1, const Eigen::Matrix3d& A2,
+                                     const Eigen::Matrix3d& rel_covariance, const Eigen::Matrix3d& rel_wheels) const;
   // The factor's contribution to the normal equations (accumulateNormalEquations), weighted by
   // the robust loss when it carries one. Returns false when it cannot be evaluated.
   bool accumulate(const Factor& f, const std::vector<const double*>& cur, const std::vector<const double*>& lin,
@@ -360,6 +380,7 @@ class SlidingWindowSmoother : public Estimator {
   // Odometry composed since the newest keyframe (identity and zero after a keyframe).
   Pose2 rel_;
   Eigen::Matrix3d rel_covariance_ = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d rel_wheels_ = Eigen::Matrix3d::Zero();  // d rel_ / d wheel calibration
   int steps_since_keyframe_ = 0;
   struct RecentStep {
     Step step;              // without observations
