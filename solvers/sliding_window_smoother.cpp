@@ -192,6 +192,7 @@ void SlidingWindowConfig::validate() const {
   if (!(reanchor_probability >= 0 && reanchor_probability < 1))
     throw Error("sliding window: reanchor_probability must be in [0, 1)");
   if (restart_buffer_steps < 0) throw Error("sliding window: restart_buffer_steps must be >= 0");
+  if (!(restart_min_evidence >= 0)) throw Error("sliding window: restart_min_evidence must be >= 0");
   makeLossFunction(robust_loss);  // validates the scale
   calibration.validate();
 }
@@ -547,7 +548,8 @@ bool SlidingWindowSmoother::reanchor(const PoseFix& fix, const Pose2& pred, cons
   const Eigen::Matrix3d S = P_pred + fix.covariance;
   const Eigen::LDLT<Eigen::Matrix3d> ldlt(0.5 * (S + S.transpose()));
   const double d2 = v.dot(ldlt.solve(v));
-  if (!std::isfinite(d2) || d2 > chi2Quantile(config_.reanchor_probability, 3)) return false;
+  if (!std::isfinite(d2) || d2 > std::max(chi2Quantile(config_.reanchor_probability, 3), config_.restart_min_evidence))
+    return false;
   // The rigid motion that takes the newest pose onto the fix, applied to the whole window: the
   // initial guess, since the odometry between the poses is what the window trusts.
   Node* newest = nodes_.back().get();

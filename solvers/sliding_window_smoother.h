@@ -77,10 +77,17 @@ struct SlidingWindowConfig {
   bool use_compass = true;           // add a compass factor when Step::compass is set
   double compass_gate_probability = 0.99;  // chi-square probability (1 dof) of the compass gate
   bool reinitialise_when_lost = true;      // ask the global fix when lost; false: stay lost
-  // When lost, a global fix whose distance to the prediction, chi-square (3 dof) with the sum of
-  // both covariances, is within this probability re-anchors the window (see the header); 0: a
+  // When lost, a global fix re-anchors the window (see the header) unless its distance to the
+  // prediction, d^2 with the sum of both covariances (3 dof), exceeds both this probability's
+  // chi-square quantile and restart_min_evidence; otherwise the window restarts at the fix. 0: a
   // loss always restarts the window, as the EKF does.
   double reanchor_probability = 0.999;
+  // A restart cuts the odometry between the window and the fix, as the batch's cut does
+  // (BatchSmootherConfig::cut_min_evidence, the same 1000): d^2 is the rise of 2 x cost that
+  // keeping that odometry costs, and only a gross one is a kidnap. On real data the prediction is
+  // over-confident (MR.CLAM: NEES 30-80), and a loss that is no kidnap has d^2 of 20-170
+  // (docs/estimators.md, "Re-anchoring"); 0: the chi-square test alone.
+  double restart_min_evidence = 1000.0;
   int max_iterations = 5;            // per step, Levenberg-Marquardt from the previous solution
   double max_solver_seconds = 0.0;   // per-step wall-clock bound on the solve; 0 = none (a time
                                      // bound makes the result depend on the machine)
