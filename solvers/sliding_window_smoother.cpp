@@ -554,9 +554,18 @@ bool SlidingWindowSmoother::reanchor(const PoseFix& fix, const Pose2& pred, cons
   // initial guess, since the odometry between the poses is what the window trusts.
   Node* newest = nodes_.back().get();
   const Pose2 anchor = poseOf(newest->x);
+  std::vector<std::array<double, 3>> before;
   for (const auto& n : nodes_) {
+    before.push_back(n->x);
     const Pose2 q = compose(fix.pose, between(anchor, poseOf(n->x)));
     n->x = {q.x, q.y, q.theta};
+  }
+  // A sighting that cannot be evaluated there (with the stereo head calibrated: its landmark
+  // behind the cameras) contradicts the moved window outright: a real loss after all.
+  double cost = 0.0;
+  if (!problem_->Evaluate(ceres::Problem::EvaluateOptions(), &cost, nullptr, nullptr, nullptr)) {
+    for (size_t i = 0; i < nodes_.size(); ++i) nodes_[i]->x = before[i];
+    return false;
   }
   // The first-estimate Jacobians move with the poses (the old ones belong to the wrong place).
   relinearise();
