@@ -10,10 +10,11 @@
 // the EKF (5.7)-(5.19) step for step (tested). Gate and lost policy as in the EKF (5.20, 5.1.3);
 // an observation the gate rejected against the one-step prediction is tested again against its
 // pose's marginal in each later window and fused when it passes, so a prediction that was off
-// does not cost the observations that correct it. A global fix which agrees with the
-// window's own prediction (the gate was fooled by a start belief far in its tail, not by a
-// kidnap) re-anchors the window instead of restarting it: the poses and the gated observations
-// stay, so no step keeps its unsmoothed prior (docs/estimators.md, "Re-anchoring"). Steps without observations are composed into one
+// does not cost the observations that correct it. A global fix which does not contradict the
+// window's own prediction as a kidnap would (the gate was fooled by a start belief far in its
+// tail, or by an over-confident prediction) re-anchors the window instead of restarting it: the
+// poses, the odometry and the gated observations stay, so no step keeps its unsmoothed prior
+// and the calibration keeps its evidence (docs/estimators.md, "Re-anchoring"). Steps without observations are composed into one
 // odometry factor between keyframes (5.9); finish() smooths them given both keyframes.
 // insertLate() adds an observation that arrives after later odometry at its own pose while that
 // pose is in the window (exactly the in-order graph until a pose leaves the window), and reports
