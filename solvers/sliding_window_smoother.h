@@ -86,8 +86,8 @@ struct SlidingWindowConfig {
   // A restart cuts the odometry between the window and the fix, as the batch's cut does
   // (BatchSmootherConfig::cut_min_evidence, the same 1000): d^2 is the rise of 2 x cost that
   // keeping that odometry costs, and only a gross one is a kidnap. On real data the prediction is
-  // over-confident (MR.CLAM: NEES 30-80), and a loss that is no kidnap has d^2 of 20-170
-  // (docs/estimators.md, "Re-anchoring"); 0: the chi-square test alone.
+  // over-confident (MR.CLAM: NEES 30-80), and a loss that is no kidnap has a d^2 of tens, up to
+  // about 180 (docs/estimators.md, "Re-anchoring"); 0: the chi-square test alone.
   double restart_min_evidence = 1000.0;
   int max_iterations = 5;            // per step, Levenberg-Marquardt from the previous solution
   double max_solver_seconds = 0.0;   // per-step wall-clock bound on the solve; 0 = none (a time
