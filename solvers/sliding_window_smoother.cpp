@@ -138,6 +138,29 @@ Observation calibratedObservation(const Observation& obs, const StereoRig& rig, 
   return out;
 }
 
+PosePrediction predictCalibratedStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right,
+                                     const Eigen::Vector3d& wheels, const OdometryParams& params, Eigen::Matrix3d* J_c) {
+  OdometryParams p = params;
+  p.wheel_base_mm = wheels[2];
+  const double dl = wheels[0] * d_left, dr = wheels[1] * d_right;
+  Matrix32d J_u;
+  const Eigen::Vector3d u = controlVector(dl, dr, p.wheel_base_mm, &J_u);  // (B.4)
+  Matrix3d J1, J2;
+  const Pose2 next = compose(rel, Pose2(u.x(), u.y(), u.z()), &J1, &J2);  // (B.16)-(B.19)
+  const Eigen::Matrix3d U = controlCovariance(dl, dr, p);
+  const Eigen::Matrix3d P = J1 * C * J1.transpose() + J2 * U * J2.transpose();  // (5.9)
+  if (J_c) {
+    // u depends on the scales through the scaled increments (B.8), and on w only through
+    // alpha = (d_r - d_l) / w (B.1): du/dalpha = (w / 2)(du/dd_r - du/dd_l) and dalpha/dw = -alpha / w.
+    Matrix3d D;
+    D.col(0) = J_u.col(0) * d_left;
+    D.col(1) = J_u.col(1) * d_right;
+    D.col(2) = -0.5 * u.z() * (J_u.col(1) - J_u.col(0));
+    *J_c = J1 * *J_c + J2 * D;
+  }
+  return PosePrediction{next, 0.5 * (P + P.transpose())};
+}
+
 std::string toString(WindowLinearisation l) {
   switch (l) {
     case WindowLinearisation::PriorPoint: return "prior_point";
@@ -169,6 +192,7 @@ void SlidingWindowConfig::validate() const {
   if (!(reanchor_probability >= 0 && reanchor_probability < 1))
     throw Error("sliding window: reanchor_probability must be in [0, 1)");
   if (restart_buffer_steps < 0) throw Error("sliding window: restart_buffer_steps must be >= 0");
+  if (!(restart_min_evidence >= 0)) throw Error("sliding window: restart_min_evidence must be >= 0");
   makeLossFunction(robust_loss);  // validates the scale
   calibration.validate();
 }
@@ -284,12 +308,29 @@ void SlidingWindowSmoother::relinearise() {
 }
 
 PosePrediction SlidingWindowSmoother::predictStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left,
-                                                  double d_right) const {
+                                                  double d_right, Eigen::Matrix3d* J_c) const {
   // Slip as the batch states it (UnmodelledNoise::slip_rel_sigma, solvers/smoother_common.h).
-  OdometryParams p = withSlip(odometry_, d_left, d_right, config_.observation_model.unmodelled.slip_rel_sigma);
+  const OdometryParams p = withSlip(odometry_, d_left, d_right, config_.observation_model.unmodelled.slip_rel_sigma);
   if (!config_.calibration.odometry) return predictPose(rel, C, d_left, d_right, p);
-  p.wheel_base_mm = wheels_[2];
-  return predictPose(rel, C, wheels_[0] * d_left, wheels_[1] * d_right, p);
+  return predictCalibratedStep(rel, C, d_left, d_right, wheels_, p, J_c);
+}
+
+Eigen::Matrix3d SlidingWindowSmoother::composedCovariance(const Node& k, const Eigen::Matrix3d& A1,
+                                                          const Eigen::Matrix3d& A2, const Eigen::Matrix3d& rel_covariance,
+                                                          const Eigen::Matrix3d& rel_wheels) const {
+  Eigen::Matrix3d P = A1 * k.covariance * A1.transpose() + A2 * rel_covariance * A2.transpose();  // (5.9)
+  if (config_.calibration.odometry) {
+    // The odometry since k went through the estimated wheel calibration c, which is uncertain and
+    // correlated with k's pose: linearised in (p_k, c, noise), the prediction's covariance gains
+    // B C_c B^T + A1 C_kc B^T + B C_ck A1^T with B = A2 dr/dc. Without these terms the gate would
+    // treat the current estimate of c as exact and reject the sightings that disagree with it,
+    // which are the ones that would correct it.
+    const Eigen::Matrix3d B = A2 * rel_wheels;
+    const Eigen::Matrix3d Cc = calib_covariance_.block<3, 3>(calibOffset(Calib::Wheels), calibOffset(Calib::Wheels));
+    const Eigen::Matrix3d cross = A1 * k.wheels_cross * B.transpose();
+    P += B * Cc * B.transpose() + cross + cross.transpose();
+  }
+  return 0.5 * (P + P.transpose());
 }
 
 std::optional<CalibrationEstimate> SlidingWindowSmoother::calibration() const {
@@ -386,8 +427,7 @@ void SlidingWindowSmoother::pushIntermediates(const Node& k, const Node* next) {
     Matrix3d A1, A2;
     if (!next || !k.have_joint_next) {  // the newest keyframe: the real-time prediction
       e.pose = compose(pk, m.rel, &A1, &A2);
-      const Eigen::Matrix3d P = A1 * k.covariance * A1.transpose() + A2 * m.rel_covariance * A2.transpose();
-      e.covariance = 0.5 * (P + P.transpose());
+      e.covariance = composedCovariance(k, A1, A2, m.rel_covariance, m.rel_wheels);
       history_.push_back(e);
       continue;
     }
@@ -434,6 +474,7 @@ void SlidingWindowSmoother::startWindow(const Step& step, const Pose2& pose, con
   lost_ = false;
   rel_ = Pose2();
   rel_covariance_.setZero();
+  rel_wheels_.setZero();
   steps_since_keyframe_ = 0;
   ++stats_.keyframes;
 }
@@ -507,14 +548,24 @@ bool SlidingWindowSmoother::reanchor(const PoseFix& fix, const Pose2& pred, cons
   const Eigen::Matrix3d S = P_pred + fix.covariance;
   const Eigen::LDLT<Eigen::Matrix3d> ldlt(0.5 * (S + S.transpose()));
   const double d2 = v.dot(ldlt.solve(v));
-  if (!std::isfinite(d2) || d2 > chi2Quantile(config_.reanchor_probability, 3)) return false;
+  if (!std::isfinite(d2) || d2 > std::max(chi2Quantile(config_.reanchor_probability, 3), config_.restart_min_evidence))
+    return false;
   // The rigid motion that takes the newest pose onto the fix, applied to the whole window: the
   // initial guess, since the odometry between the poses is what the window trusts.
   Node* newest = nodes_.back().get();
   const Pose2 anchor = poseOf(newest->x);
+  std::vector<std::array<double, 3>> before;
   for (const auto& n : nodes_) {
+    before.push_back(n->x);
     const Pose2 q = compose(fix.pose, between(anchor, poseOf(n->x)));
     n->x = {q.x, q.y, q.theta};
+  }
+  // A sighting that cannot be evaluated there (with the stereo head calibrated: its landmark
+  // behind the cameras) contradicts the moved window outright: a real loss after all.
+  double cost = 0.0;
+  if (!problem_->Evaluate(ceres::Problem::EvaluateOptions(), &cost, nullptr, nullptr, nullptr)) {
+    for (size_t i = 0; i < nodes_.size(); ++i) nodes_[i]->x = before[i];
+    return false;
   }
   // The first-estimate Jacobians move with the poses (the old ones belong to the wrong place).
   relinearise();
@@ -715,6 +766,8 @@ void SlidingWindowSmoother::computeCovariances(bool all) {
     for (int i = 0; i < n; ++i) {
       const Eigen::Matrix3d b = C.block<3, 3>(3 * i, 3 * i);
       nodes_[static_cast<size_t>(i)]->covariance = 0.5 * (b + b.transpose());
+      if (config_.calibration.odometry)
+        nodes_[static_cast<size_t>(i)]->wheels_cross = C.block<3, 3>(3 * i, 3 * n + calibOffset(Calib::Wheels));
       if (i + 1 < n) setJoint(i, C, 3 * i, 3 * i, 3 * i + 3);
     }
     return;
@@ -737,6 +790,11 @@ void SlidingWindowSmoother::computeCovariances(bool all) {
   const Eigen::Matrix3d newest = X.block<3, 3>(3 * (n - 1), 3);
   nodes_.front()->covariance = 0.5 * (oldest + oldest.transpose());
   nodes_.back()->covariance = 0.5 * (newest + newest.transpose());
+  if (config_.calibration.odometry) {
+    const int w = cols + calibOffset(Calib::Wheels);
+    nodes_.front()->wheels_cross = X.block<3, 3>(0, w);
+    nodes_.back()->wheels_cross = X.block<3, 3>(3 * (n - 1), w);
+  }
   if (pair) {
     Eigen::MatrixXd C(6, 6);  // rows 0..5 of X's columns (oldest, successor)
     C.leftCols<3>() = X.block(0, 0, 6, 3);
@@ -1033,13 +1091,15 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
   // The steps after it, composed from it as process() does after a keyframe.
   Pose2 rel;
   Eigen::Matrix3d C = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d rel_wheels = Eigen::Matrix3d::Zero();
   for (size_t i = j + 1; i < k->after.size(); ++i) {
     Intermediate q = k->after[i];
-    const PosePrediction r = predictStep(rel, C, q.d_left, q.d_right);
+    const PosePrediction r = predictStep(rel, C, q.d_left, q.d_right, &rel_wheels);
     rel = r.pose;
     C = r.covariance;
     q.rel = rel;
     q.rel_covariance = C;
+    q.rel_wheels = rel_wheels;
     node->after.push_back(q);
   }
   k->after.resize(j);
@@ -1059,6 +1119,7 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
   } else {
     rel_ = rel;  // the odometry since the newest keyframe, which is now this step
     rel_covariance_ = C;
+    rel_wheels_ = rel_wheels;
     steps_since_keyframe_ = static_cast<int>(n->after.size());
   }
   k->rel_to_next = m.rel;
@@ -1182,8 +1243,7 @@ Estimate SlidingWindowSmoother::current() const {
   e.t = m.t;
   e.status = m.status;
   e.pose = compose(poseOf(k.x), m.rel, &J1, &J2);
-  const Eigen::Matrix3d P = J1 * k.covariance * J1.transpose() + J2 * m.rel_covariance * J2.transpose();
-  e.covariance = 0.5 * (P + P.transpose());
+  e.covariance = composedCovariance(k, J1, J2, m.rel_covariance, m.rel_wheels);
   return e;
 }
 
@@ -1237,14 +1297,13 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
     Node* prev = nodes_.back().get();
     // The odometry since the newest keyframe (5.9 from the identity), and the prediction
     // p_K (+) u with P = J1 P_K J1^T + J2 U J2^T: for one step this is predictPose itself.
-    const PosePrediction rel = predictStep(rel_, rel_covariance_, step.d_left, step.d_right);
+    const PosePrediction rel = predictStep(rel_, rel_covariance_, step.d_left, step.d_right, &rel_wheels_);
     rel_ = rel.pose;
     rel_covariance_ = rel.covariance;
     ++steps_since_keyframe_;
     Matrix3d J1, J2;
     pose = compose(poseOf(prev->x), rel_, &J1, &J2);
-    P = J1 * prev->covariance * J1.transpose() + J2 * rel_covariance_ * J2.transpose();
-    P = 0.5 * (P + P.transpose());
+    P = composedCovariance(*prev, J1, J2, rel_covariance_, rel_wheels_);
     pred_pose = pose;
     pred_P = P;
     const bool keyframe = config_.keyframe_max_steps <= 1 || !step.observations.empty() ||
@@ -1255,6 +1314,7 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
       m.t = step.t;
       m.rel = rel_;
       m.rel_covariance = rel_covariance_;
+      m.rel_wheels = rel_wheels_;
       m.status = lost_ ? EstimateStatus::Lost : EstimateStatus::Predicted;
       m.d_left = step.d_left;
       m.d_right = step.d_right;
@@ -1282,6 +1342,7 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
     addOdometry(prev, n, prev->after, rel_, rel_covariance_);
     rel_ = Pose2();
     rel_covariance_.setZero();
+    rel_wheels_.setZero();
     steps_since_keyframe_ = 0;
     ++stats_.keyframes;
   }

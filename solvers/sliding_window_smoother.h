@@ -10,10 +10,11 @@
 // the EKF (5.7)-(5.19) step for step (tested). Gate and lost policy as in the EKF (5.20, 5.1.3);
 // an observation the gate rejected against the one-step prediction is tested again against its
 // pose's marginal in each later window and fused when it passes, so a prediction that was off
-// does not cost the observations that correct it. A global fix which agrees with the
-// window's own prediction (the gate was fooled by a start belief far in its tail, not by a
-// kidnap) re-anchors the window instead of restarting it: the poses and the gated observations
-// stay, so no step keeps its unsmoothed prior (docs/estimators.md, "Re-anchoring"). Steps without observations are composed into one
+// does not cost the observations that correct it. A global fix which does not contradict the
+// window's own prediction as a kidnap would (the gate was fooled by a start belief far in its
+// tail, or by an over-confident prediction) re-anchors the window instead of restarting it: the
+// poses, the odometry and the gated observations stay, so no step keeps its unsmoothed prior
+// and the calibration keeps its evidence (docs/estimators.md, "Re-anchoring"). Steps without observations are composed into one
 // odometry factor between keyframes (5.9); finish() smooths them given both keyframes.
 // insertLate() adds an observation that arrives after later odometry at its own pose while that
 // pose is in the window (exactly the in-order graph until a pose leaves the window), and reports
@@ -77,10 +78,17 @@ struct SlidingWindowConfig {
   bool use_compass = true;           // add a compass factor when Step::compass is set
   double compass_gate_probability = 0.99;  // chi-square probability (1 dof) of the compass gate
   bool reinitialise_when_lost = true;      // ask the global fix when lost; false: stay lost
-  // When lost, a global fix whose distance to the prediction, chi-square (3 dof) with the sum of
-  // both covariances, is within this probability re-anchors the window (see the header); 0: a
+  // When lost, a global fix re-anchors the window (see the header) unless its distance to the
+  // prediction, d^2 with the sum of both covariances (3 dof), exceeds both this probability's
+  // chi-square quantile and restart_min_evidence; otherwise the window restarts at the fix. 0: a
   // loss always restarts the window, as the EKF does.
   double reanchor_probability = 0.999;
+  // A restart cuts the odometry between the window and the fix, as the batch's cut does
+  // (BatchSmootherConfig::cut_min_evidence, the same 1000): d^2 is the rise of 2 x cost that
+  // keeping that odometry costs, and only a gross one is a kidnap. On real data the prediction is
+  // over-confident (MR.CLAM: NEES 30-80), and a loss that is no kidnap has a d^2 of tens, up to
+  // about 180 (docs/estimators.md, "Re-anchoring"); 0: the chi-square test alone.
+  double restart_min_evidence = 1000.0;
   int max_iterations = 5;            // per step, Levenberg-Marquardt from the previous solution
   double max_solver_seconds = 0.0;   // per-step wall-clock bound on the solve; 0 = none (a time
                                      // bound makes the result depend on the machine)
@@ -136,6 +144,16 @@ struct SlidingWindowConfig {
 // disparity is not positive; `obs` must have pixels.
 Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
                                   const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px);
+
+// One odometry step through the wheel calibration wheels = (c_l, c_r, w) (factors/
+// odometry_calibration_factor.h): rel (+) u(c_l d_left, c_r d_right, w) with the covariance of
+// (5.9) (U at the scaled increments, `params` giving its noise), and, when J_c is given, the chain
+// rule of (B.16)-(B.19) through the composition: on entry d rel / d wheels (3x3, columns c_l, c_r,
+// w), on return that of the result. With it a prediction can carry the calibration's uncertainty
+// (docs/estimators.md, "Self-calibration").
+PosePrediction predictCalibratedStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right,
+                                     const Eigen::Vector3d& wheels, const OdometryParams& params,
+                                     Eigen::Matrix3d* J_c = nullptr);
 
 // What insertLate did with the observations of an earlier step.
 enum class LateObservationStatus {
@@ -212,6 +230,7 @@ class SlidingWindowSmoother : public Estimator {
     EstimateStatus status = EstimateStatus::Predicted;
     double d_left = 0.0, d_right = 0.0;    // this step's wheel increments (mm), for insertLate
     WheelIncrements noise;                 // mm, their travel of (B.6) (NoiseTravel)
+    Eigen::Matrix3d rel_wheels = Eigen::Matrix3d::Zero();  // d rel / d wheel calibration
   };
   struct Node {
     long step = 0;
@@ -219,6 +238,9 @@ class SlidingWindowSmoother : public Estimator {
     std::array<double, 3> x{};           // current estimate (x, y, theta)
     EstimateStatus status = EstimateStatus::Tracking;
     Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  // last marginal computed
+    // Its cross-covariance with the wheel calibration (rows: pose, columns: c_l, c_r, w), computed
+    // with `covariance` (odometry self-calibration only).
+    Eigen::Matrix3d wheels_cross = Eigen::Matrix3d::Zero();
     int slot = 0;                        // position in nodes_, refreshed before linearising
     // Joint marginal covariance with the next window pose (6x6: this, next), when computed.
     Eigen::Matrix<double, 6, 6> joint_next = Eigen::Matrix<double, 6, 6>::Zero();
@@ -263,8 +285,14 @@ class SlidingWindowSmoother : public Estimator {
   int calibDim() const;
   void relinearise();                      // every factor's linearisation point := current values
   // The odometry prediction of one step with the current wheel calibration (the nominal one
-  // without odometry calibration).
-  PosePrediction predictStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right) const;
+  // without odometry calibration); J_c as in predictCalibratedStep (left alone without it).
+  PosePrediction predictStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right,
+                             Eigen::Matrix3d* J_c = nullptr) const;
+  // The covariance of keyframe k composed with odometry r (rel_covariance, d r / d wheels
+  // rel_wheels; A1, A2 the composition's Jacobians (B.18), (B.19)): (5.9), and with odometry
+  // self-calibration the wheel calibration's uncertainty and its correlation with k's pose.
+  Eigen::Matrix3d composedCovariance(const Node& k, const Eigen::Matrix3d& A1, const Eigen::Matrix3d& A2,
+                                     const Eigen::Matrix3d& rel_covariance, const Eigen::Matrix3d& rel_wheels) const;
   // The factor's contribution to the normal equations (accumulateNormalEquations), weighted by
   // the robust loss when it carries one. Returns false when it cannot be evaluated.
   bool accumulate(const Factor& f, const std::vector<const double*>& cur, const std::vector<const double*>& lin,
@@ -360,6 +388,7 @@ class SlidingWindowSmoother : public Estimator {
   // Odometry composed since the newest keyframe (identity and zero after a keyframe).
   Pose2 rel_;
   Eigen::Matrix3d rel_covariance_ = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d rel_wheels_ = Eigen::Matrix3d::Zero();  // d rel_ / d wheel calibration
   int steps_since_keyframe_ = 0;
   struct RecentStep {
     Step step;              // without observations
