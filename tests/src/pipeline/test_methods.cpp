@@ -109,11 +109,13 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   EXPECT_NEAR(o.noise.intersection_disparity_sigma_px, 0.65, 0.01);
   // The misalignment itself (the row block's prior) and what the slide model leaves.
   EXPECT_NEAR(o.noise.row_offset_sigma_px, 1.49, 0.01);
-  EXPECT_NEAR(o.noise.marking_slide_residual_sigma_px, 0.185, 0.001);
-  EXPECT_NEAR(o.noise.marking_slide_residual_per_gain_px, 0.318, 0.001);
-  EXPECT_NEAR(o.noise.marking_feature_offset_sigma_px, 0.583, 0.001);
-  EXPECT_NEAR(o.noise.intersection_slide_residual_sigma_px, 0.282, 0.001);
-  EXPECT_NEAR(o.noise.intersection_feature_offset_sigma_px, 0.321, 0.001);
+  // Measured at the profile's 1.49 px of misalignment, they scale with it.
+  const double row = o.noise.row_offset_sigma_px / 1.49;
+  EXPECT_NEAR(o.noise.marking_slide_residual_sigma_px, 0.185 * row, 1e-12);
+  EXPECT_NEAR(o.noise.marking_slide_residual_per_gain_px, 0.318 * row, 1e-12);
+  EXPECT_NEAR(o.noise.marking_feature_offset_sigma_px, 0.583 * row, 1e-12);
+  EXPECT_NEAR(o.noise.intersection_slide_residual_sigma_px, 0.282 * row, 1e-12);
+  EXPECT_NEAR(o.noise.intersection_feature_offset_sigma_px, 0.321 * row, 1e-12);
   ErrorProfile aligned = p;  // no principal-point or rotation error: rows aligned
   aligned.principal_sigma_px = 0.0;
   aligned.relative_rotation_sigma_rad = 0.0;
