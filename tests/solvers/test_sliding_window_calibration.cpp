@@ -24,6 +24,17 @@ namespace {
 
 const Eigen::Matrix3d kP0 = Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal();
 
+// A world whose only errors are the wheels' (1 % scales, 3 % wheel base), all landmarks seen.
+SimulationConfig wheelErrorWorld(int steps) {
+  SimulationConfig sc;
+  sc.landmarks = LandmarkSet::All;
+  sc.profile.name = "wheels";
+  sc.profile.wheel_radius_rel_sigma = 0.01;
+  sc.profile.wheel_base_rel_sigma = 0.03;
+  sc.scenario.steps = steps;
+  return sc;
+}
+
 Dataset realisticRun(uint64_t seed, const std::string& scenario, int steps) {
   SimulationConfig sc;
   sc.profile = ErrorProfile::realistic();
@@ -203,12 +214,7 @@ TEST(SlidingWindowCalibration, SparseSightingsKeepTheKeyframeSpanAndRecoverTheWh
   // Sightings at every sixth step only: the steps between keyframes are composed into one
   // calibrated odometry factor, so W = 20 keyframes span as many steps as without calibration,
   // and the window recovers the planted wheel scales and wheel base as the batch does.
-  SimulationConfig sc;
-  sc.landmarks = LandmarkSet::All;
-  sc.profile.name = "wheels";
-  sc.profile.wheel_radius_rel_sigma = 0.01;
-  sc.profile.wheel_base_rel_sigma = 0.03;
-  sc.scenario.steps = 900;
+  const SimulationConfig sc = wheelErrorWorld(900);
   SimulationTrace trace;
   Dataset d = simulate("random-walk", 0, sc, 22, &trace);
   for (size_t k = 0; k < d.steps.size(); ++k) {
@@ -372,12 +378,7 @@ TEST(SlidingWindowCalibration, PredictionAcrossABlindStretchIsTheWindowsMarginal
   // a window that makes the blind step a keyframe (no new information) reports. Without those
   // terms the prediction after a blind stretch is over-confident, and the gate rejects the
   // sightings that disagree with the current calibration estimate, those that would correct it.
-  SimulationConfig sc;
-  sc.landmarks = LandmarkSet::All;
-  sc.profile.name = "wheels";
-  sc.profile.wheel_radius_rel_sigma = 0.01;
-  sc.profile.wheel_base_rel_sigma = 0.03;
-  sc.scenario.steps = 160;
+  const SimulationConfig sc = wheelErrorWorld(160);
   Dataset d = simulate("random-walk", 0, sc, 22);
   d.odometry.readings = OdometryReadings::Commands;  // the factors' noise at the readings, as the prediction's
   const size_t blind_from = 100, blind = 40;
@@ -427,12 +428,7 @@ TEST(SlidingWindowCalibration, ALossThatIsNoKidnapKeepsTheOdometryAcrossIt) {
   double se_restart = 0, se_default = 0;
   long n = 0, restarts_chi2 = 0;
   for (uint64_t seed = 1; seed <= 6; ++seed) {
-    SimulationConfig sc;
-    sc.landmarks = LandmarkSet::All;
-    sc.profile.name = "wheels";
-    sc.profile.wheel_radius_rel_sigma = 0.01;
-    sc.profile.wheel_base_rel_sigma = 0.03;
-    sc.scenario.steps = 400;
+    const SimulationConfig sc = wheelErrorWorld(400);
     Dataset d = simulate("random-walk", 0, sc, seed);
     for (size_t k = 0; k < d.steps.size(); ++k) {
       std::vector<Observation> kept;
