@@ -67,8 +67,8 @@
 // feature whose edges are not vertical slides along them: u_r moves by s dv with s the
 // observation's slide gain (Observation::slide_gain, frontend/stereo_match.h slideGain). The
 // rows are not moved (the frontend reports the right row equal to the left's).
-// Feature offset (factors/stereo_pixel_feature_calibration_factor.h): a further block b (px), the
-// constant part of one marking feature's u_r error that the slide leaves; u_r moves by b.
+// Feature offsets (factors/stereo_pixel_feature_calibration_factor.h): a further block (b_c, b_d)
+// (px), the constant parts of one feature's errors: both columns move by b_c, u_r by b_d too.
 // Evaluation fails when the landmark is not in front of the cameras.
 #include <ceres/autodiff_cost_function.h>
 #include <ceres/jet.h>
@@ -216,7 +216,7 @@ class StereoPixelCalibrationModel {
   bool evaluate(const T* pose, const T* calib, const T* image, const T* row, T* residual) const {
     return evaluate<T>(pose, calib, image, row, nullptr, residual);
   }
-  // `offset`: the feature's own u_r offset b (1 value, px), or null.
+  // `offset`: the feature's own offsets (b_c, b_d) (px): b_c moves both columns, b_d u_r; or null.
   template <typename T>
   bool evaluate(const T* pose, const T* calib, const T* image, const T* row, const T* offset, T* residual) const {
     using std::cos;
@@ -253,7 +253,10 @@ class StereoPixelCalibrationModel {
       for (int j = 0; j < 3; ++j) cr += T(g.rotation[j]) * image[8 + j];
     }
     if (row) cr += T(slide_gain_) * row[0];
-    if (offset) cr += offset[0];
+    if (offset) {
+      cl += offset[0];
+      cr += offset[0] + offset[1];
+    }
     const T per_px = x2 / T(f_);  // mm in C2 per pixel of column at this depth, for the shared code's f
     const T y2 = -0.5 * (cl + cr) * per_px;
     const T half_baseline = 0.5 * (cl - cr) * per_px;

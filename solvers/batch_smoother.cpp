@@ -4,6 +4,7 @@
 #include <ceres/solver.h>
 
 #include <algorithm>
+#include <array>
 #include <Eigen/Cholesky>
 #include <chrono>
 #include <cmath>
@@ -339,32 +340,41 @@ double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>
 
 // A cost function on (pose, q, e, dv, b) (or fewer of the calibration blocks) seen as
 // (pose, g): the chain solver's factors touch one global block, so the stereo, image, row and
-// feature-offset blocks of the self-calibration are one global block g of the batch, each inner
-// block at its offset in g (q first, so the stereo block's offset does not change).
+// feature-offset blocks of the self-calibration are one global block g of the batch, each entry
+// of an inner block at its index in g, or held at zero (index -1: an offset the noise model does
+// not state).
 class JoinedGlobalBlocks final : public ceres::CostFunction {
  public:
-  // Inner block k + 1 at offsets[k] of a joined block of at least `joined_size`; by default
-  // the inner blocks follow each other from offset 0.
-  explicit JoinedGlobalBlocks(ceres::CostFunction* inner, std::vector<int> offsets = {}, int joined_size = 0)
-      : inner_(inner), offsets_(std::move(offsets)) {
+  // Entry e of inner block k + 1 at indices[k][e] of a joined block of at least `joined_size`;
+  // by default the inner blocks follow each other from index 0.
+  explicit JoinedGlobalBlocks(ceres::CostFunction* inner, std::vector<std::vector<int>> indices = {},
+                              int joined_size = 0)
+      : inner_(inner), indices_(std::move(indices)) {
     const std::vector<int32_t>& b = inner_->parameter_block_sizes();
     sizes_.assign(b.begin() + 1, b.end());
     int n = 0;
-    if (offsets_.empty())
+    if (indices_.empty())
       for (int k : sizes_) {
-        offsets_.push_back(n);
-        n += k;
+        indices_.emplace_back();
+        for (int e = 0; e < k; ++e) indices_.back().push_back(n++);
       }
-    if (offsets_.size() != sizes_.size()) throw Error("joined global blocks: one offset per inner block");
-    for (size_t k = 0; k < sizes_.size(); ++k) n = std::max(n, offsets_[k] + sizes_[k]);
+    if (indices_.size() != sizes_.size()) throw Error("joined global blocks: one index list per inner block");
+    for (size_t k = 0; k < sizes_.size(); ++k) {
+      if (indices_[k].size() != static_cast<size_t>(sizes_[k])) throw Error("joined global blocks: one index per entry");
+      for (int i : indices_[k]) n = std::max(n, i + 1);
+    }
     n = std::max(n, joined_size);
     set_num_residuals(inner_->num_residuals());
     mutable_parameter_block_sizes()->push_back(b[0]);
     mutable_parameter_block_sizes()->push_back(n);
   }
   bool Evaluate(double const* const* p, double* r, double** J) const override {
+    std::vector<std::vector<double>> values(sizes_.size());
     std::vector<const double*> blocks{p[0]};
-    for (size_t k = 0; k < sizes_.size(); ++k) blocks.push_back(p[1] + offsets_[k]);
+    for (size_t k = 0; k < sizes_.size(); ++k) {
+      for (int i : indices_[k]) values[k].push_back(i >= 0 ? p[1][i] : 0.0);
+      blocks.push_back(values[k].data());
+    }
     if (!J) return inner_->Evaluate(blocks.data(), r, nullptr);
     const int m = num_residuals();
     std::vector<std::vector<double>> parts(sizes_.size());
@@ -377,9 +387,11 @@ class JoinedGlobalBlocks final : public ceres::CostFunction {
     if (J[1]) {
       const int n = parameter_block_sizes()[1];
       std::fill(J[1], J[1] + m * n, 0.0);
-      for (int i = 0; i < m; ++i)
+      for (int row = 0; row < m; ++row)
         for (size_t k = 0; k < sizes_.size(); ++k)
-          std::copy(parts[k].begin() + i * sizes_[k], parts[k].begin() + (i + 1) * sizes_[k], J[1] + i * n + offsets_[k]);
+          for (int e = 0; e < sizes_[k]; ++e)
+            if (indices_[k][static_cast<size_t>(e)] >= 0)
+              J[1][row * n + indices_[k][static_cast<size_t>(e)]] += parts[k][static_cast<size_t>(row * sizes_[k] + e)];
     }
     return true;
   }
@@ -387,7 +399,7 @@ class JoinedGlobalBlocks final : public ceres::CostFunction {
  private:
   std::unique_ptr<ceres::CostFunction> inner_;
   std::vector<int> sizes_;
-  std::vector<int> offsets_;
+  std::vector<std::vector<int>> indices_;
 };
 
 // Independent Gaussian priors on every entry of a block: r_i = (c_i - mean_i) / sigma_i (the
@@ -481,10 +493,15 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       stereo_block_ = static_cast<int>(sizes_.size());
       image_sigmas_ = imageErrorSigmas(b_.config_.calibration, b_.config_.observation_model.unmodelled);
       row_sigma_ = rowOffsetSigma(b_.config_.calibration, b_.config_.observation_model.unmodelled);
-      feature_sigmas_ = featureOffsetSigmas(b_.map_, b_.config_.calibration, b_.config_.observation_model.unmodelled);
-      for (size_t j = 0; j < feature_sigmas_.size(); ++j) feature_index_[feature_sigmas_[j].first] = static_cast<int>(j);
-      sizes_.push_back(kStereo + (image_sigmas_ ? kImage : 0) + (row_sigma_ ? 1 : 0) +
-                       static_cast<int>(feature_sigmas_.size()));
+      features_ = featureOffsetSigmas(b_.map_, b_.config_.calibration, b_.config_.observation_model.unmodelled);
+      // After (q, [e,] dv): per feature its column offset, then its u_r offset, where stated.
+      int next = kStereo + (image_sigmas_ ? kImage : 0) + (row_sigma_ ? 1 : 0);
+      for (const FeatureOffsetPrior& f : features_) {
+        std::array<int, 2>& at = feature_index_[f.landmark_id];
+        at[0] = f.sigma.column > 0 ? next++ : -1;
+        at[1] = f.sigma.disparity > 0 ? next++ : -1;
+      }
+      sizes_.push_back(next);
     }
   }
 
@@ -515,23 +532,29 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
       const int joined = sizes_[static_cast<size_t>(stereo_block_)];
       if (offset) {
-        // (q, [e,] dv, b_j) at their places in the joined block (globalFactors).
+        // (q, [e,] dv, (b_c, b_d)) at their places in the joined block (globalFactors).
         const int m = image_sigmas_ ? kImage : 0;
-        std::vector<int> offsets{0};
-        if (image_sigmas_) offsets.push_back(kStereo);
-        offsets.push_back(kStereo + m);
-        offsets.push_back(kStereo + m + 1 + feature->second);
+        std::vector<std::vector<int>> indices;
+        auto range = [](int from, int n) {
+          std::vector<int> r(static_cast<size_t>(n));
+          for (int i = 0; i < n; ++i) r[static_cast<size_t>(i)] = from + i;
+          return r;
+        };
+        indices.push_back(range(0, kStereo));
+        if (image_sigmas_) indices.push_back(range(kStereo, kImage));
+        indices.push_back({kStereo + m});
+        indices.push_back({feature->second[0], feature->second[1]});
         return {std::make_unique<JoinedGlobalBlocks>(
                     StereoPixelFeatureCalibrationFactor::Create(model.rig, landmark.position, *obs.pixels,
                                                                 obs.slide_gain, obs.head_pan, C, residuals, image),
-                    offsets, joined),
+                    std::move(indices), joined),
                 true, stereo_block_};
       }
       if (row_sigma_)
         return {std::make_unique<JoinedGlobalBlocks>(
                     StereoPixelRowCalibrationFactor::Create(model.rig, landmark.position, *obs.pixels, obs.slide_gain,
                                                             obs.head_pan, C, residuals, image),
-                    std::vector<int>{}, joined),
+                    std::vector<std::vector<int>>{}, joined),
                 true, stereo_block_};
       if (image_sigmas_)
         return {std::make_unique<JoinedGlobalBlocks>(StereoPixelImageCalibrationFactor::Create(
@@ -590,13 +613,17 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
         // The joined block (q, [e,] dv, b_1..b_K): e whitened (prior the identity), dv and the
         // feature offsets with their stated sigmas.
         const int m = image_sigmas_ ? kImage : 0;
-        const int k = static_cast<int>(feature_sigmas_.size());
-        Eigen::VectorXd joined = Eigen::VectorXd::Zero(kStereo + m + 1 + k), sd(kStereo + m + 1 + k);
+        const int size = sizes_[static_cast<size_t>(stereo_block_)];
+        Eigen::VectorXd joined = Eigen::VectorXd::Zero(size), sd(size);
         joined.head<kStereo>() = nominalHead();
         sd.head<kStereo>() = sigma;
         sd.segment(kStereo, m).setOnes();
         sd[kStereo + m] = *row_sigma_;
-        for (int j = 0; j < k; ++j) sd[kStereo + m + 1 + j] = feature_sigmas_[static_cast<size_t>(j)].second;
+        for (const FeatureOffsetPrior& f : features_) {
+          const std::array<int, 2>& at = feature_index_.at(f.landmark_id);
+          if (at[0] >= 0) sd[at[0]] = f.sigma.column;
+          if (at[1] >= 0) sd[at[1]] = f.sigma.disparity;
+        }
         out->push_back({std::make_unique<DiagonalPriorFactor>(joined, sd), false, stereo_block_});
       } else if (image_sigmas_) {
         // The image block is whitened (StereoPixelImageCalibrationFactor): its prior is the identity.
@@ -623,13 +650,16 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (stereo_block_ >= 0) g.insert(g.end(), head.data(), head.data() + kStereo);
     if (image_sigmas_) g.insert(g.end(), static_cast<size_t>(kImage), 0.0);
     if (row_sigma_) g.push_back(0.0);
-    g.insert(g.end(), feature_sigmas_.size(), 0.0);
+    if (stereo_block_ >= 0) g.resize(g.size() + static_cast<size_t>(sizes_[static_cast<size_t>(stereo_block_)]) -
+                                     (kStereo + (image_sigmas_ ? kImage : 0) + (row_sigma_ ? 1 : 0)), 0.0);
     return g;
   }
   // The image block's sigmas (whitened parameter i is sigma_i e_i), when estimated.
   const std::optional<CalibrationEstimate::ImageVector>& imageSigmas() const { return image_sigmas_; }
-  // The feature offsets' landmarks and prior sigmas (px), in the joined block's order after dv.
-  const std::vector<std::pair<int, double>>& featureSigmas() const { return feature_sigmas_; }
+  // The feature offsets' landmarks and prior sigmas (px), and where each sits in the stereo block
+  // (column, u_r; -1 where not estimated).
+  const std::vector<FeatureOffsetPrior>& features() const { return features_; }
+  std::array<int, 2> featureIndices(int landmark_id) const { return feature_index_.at(landmark_id); }
   // The row block's prior sigma (px), when estimated.
   const std::optional<double>& rowSigma() const { return row_sigma_; }
   int odometryBlock() const { return odometry_block_; }
@@ -647,8 +677,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   int odometry_block_ = -1, stereo_block_ = -1;
   std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
   std::optional<double> row_sigma_;
-  std::vector<std::pair<int, double>> feature_sigmas_;  // (landmark id, prior sigma) per feature offset
-  std::unordered_map<int, int> feature_index_;          // landmark id -> its offset's index
+  std::vector<FeatureOffsetPrior> features_;
+  std::unordered_map<int, std::array<int, 2>> feature_index_;  // landmark id -> (column, u_r) index or -1
   Eigen::Vector3d nominalWheels() const { return Eigen::Vector3d(1.0, 1.0, b_.odometry_.wheel_base_mm); }
   static CalibrationEstimate::StereoVector nominalHead() { return CalibrationEstimate().head; }
   static constexpr int kStereo = StereoPixelCalibrationFactor::kCalibrationSize;
@@ -1130,10 +1160,19 @@ void BatchSmoother::solve() {
         cal.row = true;
         cal.row_offset_px = c[r];
         cal.row_offset_variance = global_covariance(r, r);
-        const std::vector<std::pair<int, double>>& features = source.featureSigmas();
-        for (size_t j = 0; j < features.size(); ++j) {
-          const Eigen::Index i = r + 1 + static_cast<Eigen::Index>(j);
-          cal.feature_offsets.push_back({features[j].first, c[i], global_covariance(i, i)});
+        for (const FeatureOffsetPrior& f : source.features()) {
+          const std::array<int, 2> at = source.featureIndices(f.landmark_id);
+          CalibrationEstimate::FeatureOffset e;
+          e.landmark_id = f.landmark_id;
+          if (at[0] >= 0) {
+            e.column_px = c[offset + at[0]];
+            e.column_variance = global_covariance(offset + at[0], offset + at[0]);
+          }
+          if (at[1] >= 0) {
+            e.offset_px = c[offset + at[1]];
+            e.variance = global_covariance(offset + at[1], offset + at[1]);
+          }
+          cal.feature_offsets.push_back(e);
         }
       }
     }

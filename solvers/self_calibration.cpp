@@ -104,13 +104,13 @@ std::optional<double> rowOffsetSigma(const SelfCalibrationConfig& config, const 
   return noise.row_offset_sigma_px;
 }
 
-std::vector<std::pair<int, double>> featureOffsetSigmas(const FieldMap& map, const SelfCalibrationConfig& config,
-                                                        const UnmodelledNoise& noise) {
-  std::vector<std::pair<int, double>> out;
+std::vector<FeatureOffsetPrior> featureOffsetSigmas(const FieldMap& map, const SelfCalibrationConfig& config,
+                                                    const UnmodelledNoise& noise) {
+  std::vector<FeatureOffsetPrior> out;
   if (!rowOffsetSigma(config, noise) || !config.feature_offsets) return out;
   for (const Landmark& l : map.landmarks()) {
-    const double sigma = featureOffsetSigma(l.type, noise);
-    if (sigma > 0) out.emplace_back(l.id, sigma);
+    const FeatureOffsetSigma sigma = featureOffsetSigma(l.type, noise);
+    if (sigma.column > 0 || sigma.disparity > 0) out.push_back({l.id, sigma});
   }
   return out;
 }

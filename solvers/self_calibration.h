@@ -18,8 +18,9 @@
 //   row       dv = the rectified rows' misalignment (px), with the stereo block when the noise
 //             model states it (UnmodelledNoise::row_offset_sigma_px; batch and window;
 //             SelfCalibrationConfig::row_offset; factors/stereo_pixel_row_calibration_factor.h)
-//   features  b_j = a constant u_r offset (px) of each marking feature j, with the row block in
-//             the batch when the noise model states it (UnmodelledNoise::*_feature_offset_sigma_px;
+//   features  b_j = constant offsets (px) of each feature j's column (both images) and u_r, with
+//             the row block in the batch when the noise model states them
+//             (UnmodelledNoise::*_feature_offset_sigma_px, *_feature_column_sigma_px;
 //             SelfCalibrationConfig::feature_offsets; factors/stereo_pixel_feature_calibration_factor.h)
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
 // calibration with the stated uncertainty of SelfCalibrationConfig, so a run that does not
@@ -116,10 +117,13 @@ struct CalibrationEstimate {
   bool row = false;
   double row_offset_px = 0.0;
   double row_offset_variance = 0.0;  // px^2
-  // The feature offsets (batch, featureOffsetSigmas): each marking feature's constant u_r offset
-  // (px) and its variance (px^2); not part of the rig written back (a property of the run).
+  // The feature offsets (batch, featureOffsetSigmas): each feature's constant column offset (both
+  // images) and u_r offset (px) with their variances (px^2; 0 where not estimated); not part of
+  // the rig written back (a property of the run).
   struct FeatureOffset {
     int landmark_id = -1;
+    double column_px = 0.0;
+    double column_variance = 0.0;  // px^2
     double offset_px = 0.0;
     double variance = 0.0;  // px^2
   };
@@ -162,11 +166,15 @@ Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark
                                           const ObservationModelConfig& config, bool image_block,
                                           bool row_block = false, bool feature_offsets = false);
 
-// The feature offsets' prior sigmas (px) per landmark id of `map` that gets one: marking corners,
-// T-junctions and X-intersections when the row block is estimated and the noise model states
-// their constant (featureOffsetSigma); empty otherwise.
-std::vector<std::pair<int, double>> featureOffsetSigmas(const FieldMap& map, const SelfCalibrationConfig& config,
-                                                        const UnmodelledNoise& noise);
+// The feature offsets' prior sigmas (px) per landmark of `map` that gets any: when the row block
+// is estimated, each landmark whose kind the noise model states a constant for
+// (featureOffsetSigma); empty otherwise.
+struct FeatureOffsetPrior {
+  int landmark_id = -1;
+  FeatureOffsetSigma sigma;
+};
+std::vector<FeatureOffsetPrior> featureOffsetSigmas(const FieldMap& map, const SelfCalibrationConfig& config,
+                                                    const UnmodelledNoise& noise);
 
 // The batch smoother with `config` over a whole dataset from a known start (pixel observation
 // model of config.residuals, no robust loss, no kidnap cuts).

@@ -66,7 +66,8 @@ bool UnmodelledNoise::isZero() const {
          relative_rotation_sigma_rad == 0 && marking_disparity_sigma_px == 0 && intersection_disparity_sigma_px == 0 &&
          row_offset_sigma_px == 0 && marking_slide_residual_sigma_px == 0 && marking_slide_residual_per_gain_px == 0 &&
          marking_feature_offset_sigma_px == 0 && intersection_slide_residual_sigma_px == 0 &&
-         intersection_feature_offset_sigma_px == 0 &&
+         intersection_feature_offset_sigma_px == 0 && goal_feature_column_sigma_px == 0 &&
+         marking_feature_column_sigma_px == 0 && intersection_feature_column_sigma_px == 0 &&
          slip_rel_sigma == 0;
 }
 
@@ -86,6 +87,9 @@ const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
     {"marking_feature_offset_sigma_px", &UnmodelledNoise::marking_feature_offset_sigma_px},
     {"intersection_slide_residual_sigma_px", &UnmodelledNoise::intersection_slide_residual_sigma_px},
     {"intersection_feature_offset_sigma_px", &UnmodelledNoise::intersection_feature_offset_sigma_px},
+    {"goal_feature_column_sigma_px", &UnmodelledNoise::goal_feature_column_sigma_px},
+    {"marking_feature_column_sigma_px", &UnmodelledNoise::marking_feature_column_sigma_px},
+    {"intersection_feature_column_sigma_px", &UnmodelledNoise::intersection_feature_column_sigma_px},
     {"slip_rel_sigma", &UnmodelledNoise::slip_rel_sigma},
 };
 }  // namespace
@@ -190,19 +194,27 @@ Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landm
     } else if (landmark.type == LandmarkType::Intersection) {
       var = n.intersection_slide_residual_sigma_px * n.intersection_slide_residual_sigma_px;
     }
-    if (slide_modelled && !feature_offset_modelled) {
-      const double b = featureOffsetSigma(landmark.type, n);
-      var += b * b;
-    }
     C(2, 2) += var;
+    if (slide_modelled && !feature_offset_modelled) {
+      // The feature's constants as white noise: the disparity's on u_r, the column's on both.
+      const FeatureOffsetSigma b = featureOffsetSigma(landmark.type, n);
+      C(2, 2) += b.disparity * b.disparity;
+      for (int i : {0, 2})
+        for (int j : {0, 2}) C(i, j) += b.column * b.column;
+    }
   }
   return C;
 }
 
-double featureOffsetSigma(LandmarkType type, const UnmodelledNoise& noise) {
-  if (type == LandmarkType::MarkingCorner || type == LandmarkType::Junction) return noise.marking_feature_offset_sigma_px;
-  if (type == LandmarkType::Intersection) return noise.intersection_feature_offset_sigma_px;
-  return 0.0;
+FeatureOffsetSigma featureOffsetSigma(LandmarkType type, const UnmodelledNoise& noise) {
+  switch (type) {
+    case LandmarkType::GoalCorner: return {noise.goal_feature_column_sigma_px, 0.0};
+    case LandmarkType::MarkingCorner:
+    case LandmarkType::Junction: return {noise.marking_feature_column_sigma_px, noise.marking_feature_offset_sigma_px};
+    case LandmarkType::Intersection:
+      return {noise.intersection_feature_column_sigma_px, noise.intersection_feature_offset_sigma_px};
+    default: return {};
+  }
 }
 
 ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,

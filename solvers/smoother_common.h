@@ -84,6 +84,12 @@ struct UnmodelledNoise {
   double marking_feature_offset_sigma_px = 0.0;
   double intersection_slide_residual_sigma_px = 0.0;
   double intersection_feature_offset_sigma_px = 0.0;
+  // A feature's column error common to both images (its bearing), px, also repeats from
+  // sighting to sighting: per kind the sigma of that constant (the batch estimates it with the
+  // feature offsets; white noise elsewhere).
+  double goal_feature_column_sigma_px = 0.0;
+  double marking_feature_column_sigma_px = 0.0;
+  double intersection_feature_column_sigma_px = 0.0;
   // Wheel slip: a wheel's increment's error sigma as a fraction of the increment, added in
   // quadrature to (B.6)'s k |d| (slip on a fraction p of the steps, one wheel at a time, reading
   // (1 + s) times the motion: sqrt(p / 2 E[s^2])).
@@ -126,9 +132,14 @@ struct ObservationModelConfig {
 Eigen::Matrix4d pixelCovarianceFor(const Observation& obs, const Landmark& landmark, const ObservationModelConfig& config,
                                    bool slide_modelled = false, bool feature_offset_modelled = false);
 
-// The prior sigma (px) of the constant u_r offset of a feature of `type` matched along a marking
-// when the row offset is estimated (UnmodelledNoise), 0 for other features.
-double featureOffsetSigma(LandmarkType type, const UnmodelledNoise& noise);
+// The prior sigmas (px) of a feature's constant offsets when the row offset is estimated
+// (UnmodelledNoise): of its column in both images (its bearing) and of its u_r alone (the
+// disparity; features matched along a marking only); 0 where the noise model states none.
+struct FeatureOffsetSigma {
+  double column = 0.0;
+  double disparity = 0.0;
+};
+FeatureOffsetSigma featureOffsetSigma(LandmarkType type, const UnmodelledNoise& noise);
 
 // The cost function of one observation of `landmark`: a StereoPixelFactor when the model asks
 // for pixels and the observation has them (with its own Observation::pixel_covariance), the

@@ -521,13 +521,15 @@ TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSli
 namespace stereoloc {
 namespace {
 
-// The feature offset: with b = 0 the factor is the row factor; a right column moved by b is
-// explained by b; Jacobians against central differences, with and without the image block.
+// The feature offsets: with (b_c, b_d) = 0 the factor is the row factor; both columns moved by
+// b_c and the right one by b_d more are explained by them; Jacobians against central
+// differences, with and without the image block.
 TEST(StereoPixelFeatureCalibrationFactor, ZeroOffsetEqualsTheRowFactorOffsetIsExplainedAndJacobiansMatch) {
   const stereo_pixel_calibration::ImageErrorVector sigma = checkedImageSigmas();
   forEachCalibrationCase(29, [&](const StereoRig& rig, PixelResiduals mode, const test::Sighting& s, double pan,
                                  const double* p, const double* q, const double* e, auto& uniform) {
-    const double gain = 1.5 * uniform(), zero[1] = {0.0}, dv[1] = {1.4 * uniform()}, b[1] = {0.8 * uniform()};
+    const double gain = 1.5 * uniform(), zero[2] = {0.0, 0.0}, dv[1] = {1.4 * uniform()},
+                 b[2] = {0.5 * uniform(), 0.8 * uniform()};
     const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
     std::unique_ptr<ceres::CostFunction> feature(
         StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
@@ -540,12 +542,14 @@ TEST(StereoPixelFeatureCalibrationFactor, ZeroOffsetEqualsTheRowFactorOffsetIsEx
     EXPECT_LT((evaluate(*feature, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(), 1e-12);
     EXPECT_LT((evaluate(*feature_image, {p, q, e, dv, zero}) - evaluate(*row_image, {p, q, e, dv})).norm(), 1e-12);
     StereoPixels moved = s.pixels;
-    moved.u_right += b[0];
+    moved.u_left += b[0];
+    moved.u_right += b[0] + b[1];
     std::unique_ptr<ceres::CostFunction> feature_moved(
         StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, moved, gain, pan, C, mode, nullptr));
     const double tolerance = rig.calibration() ? 0.02 : 1e-9;
     EXPECT_LT((evaluate(*feature_moved, {p, q, dv, b}) - evaluate(*row, {p, q, dv})).norm(), tolerance);
-    EXPECT_GT((evaluate(*feature_moved, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(), 0.5 * std::fabs(b[0]));
+    EXPECT_GT((evaluate(*feature_moved, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(),
+              0.5 * std::max(std::fabs(b[0]), std::fabs(b[1])));
     const FactorCheck c1 = checkFactorJacobians(*feature, {p, q, dv, b});
     EXPECT_TRUE(c1.ok) << c1.message;
     const FactorCheck c2 = checkFactorJacobians(*feature_image, {p, q, e, dv, b});

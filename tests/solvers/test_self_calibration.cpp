@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <map>
 
 #include <cstdio>
@@ -316,11 +317,11 @@ TEST(SelfCalibration, RecoversAPlantedRowOffset) {
   EXPECT_FALSE(rowOffsetSigma(SelfCalibrationConfig::parse("stereo"), UnmodelledNoise()));
 }
 
-// Planted constant u_r offsets of the marking features (one per landmark, as a feature's slide
-// error repeats from sighting to sighting) on top of a row misalignment: the batch estimates
-// each as a feature offset within its reported uncertainty, tighter than its prior where the
-// feature is seen often, and the poses come out closer to the truth than with the offsets left
-// as white noise.
+// Planted constant offsets per feature (its errors repeat from sighting to sighting): a column
+// offset of every feature (both images) and a u_r offset of the marking features, on top of a row
+// misalignment. The batch estimates each within its reported uncertainty, tighter than its prior
+// where the feature is seen often, and the poses come out closer to the truth than with the
+// offsets left as white noise.
 TEST(SelfCalibration, RecoversPlantedFeatureOffsets) {
   SimulationConfig sc;
   sc.profile = ErrorProfile::realistic();
@@ -328,14 +329,17 @@ TEST(SelfCalibration, RecoversPlantedFeatureOffsets) {
   sc.landmarks = LandmarkSet::All;
   SimulationTrace trace;
   Dataset d = simulate("random-walk", 0, sc, 7, &trace);
-  const double dv = 1.3, prior = 0.6;  // px
+  const double dv = 1.3, column_prior = 0.3, prior = 0.6;  // px
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<double> U(-1.5, 1.5);
-  std::normal_distribution<double> N(0.0, prior);
-  std::map<int, double> planted;
-  for (const Landmark& l : d.map.landmarks())
-    if (l.type == LandmarkType::MarkingCorner || l.type == LandmarkType::Junction || l.type == LandmarkType::Intersection)
-      planted[l.id] = N(rng);
+  std::normal_distribution<double> N(0.0, 1.0);
+  std::map<int, std::array<double, 2>> planted;  // landmark id -> (column, u_r) offset
+  for (const Landmark& l : d.map.landmarks()) {
+    const bool marking = l.type == LandmarkType::MarkingCorner || l.type == LandmarkType::Junction ||
+                         l.type == LandmarkType::Intersection;
+    if (marking || l.type == LandmarkType::GoalCorner)
+      planted[l.id] = {column_prior * N(rng), marking ? prior * N(rng) : 0.0};
+  }
   std::map<int, int> sightings;
   for (Step& s : d.steps) {
     std::vector<Observation> kept;
@@ -343,8 +347,9 @@ TEST(SelfCalibration, RecoversPlantedFeatureOffsets) {
       if (o.landmark_id < 0 || !o.pixels) continue;
       const auto b = planted.find(o.landmark_id);
       if (b != planted.end()) {
-        o.slide_gain = U(rng);
-        o.pixels->u_right += o.slide_gain * dv + b->second;
+        if (o.type != LandmarkType::GoalCorner) o.slide_gain = U(rng);
+        o.pixels->u_left += b->second[0];
+        o.pixels->u_right += o.slide_gain * dv + b->second[0] + b->second[1];
         ++sightings[o.landmark_id];
       }
       kept.push_back(o);
@@ -354,6 +359,8 @@ TEST(SelfCalibration, RecoversPlantedFeatureOffsets) {
   UnmodelledNoise noise;
   noise.row_offset_sigma_px = 1.49;
   noise.marking_feature_offset_sigma_px = noise.intersection_feature_offset_sigma_px = prior;
+  noise.goal_feature_column_sigma_px = noise.marking_feature_column_sigma_px =
+      noise.intersection_feature_column_sigma_px = column_prior;
   auto run = [&](bool offsets, CalibrationEstimate* estimate) {
     BatchSmootherConfig bc;
     bc.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
@@ -379,11 +386,20 @@ TEST(SelfCalibration, RecoversPlantedFeatureOffsets) {
   ASSERT_EQ(with.feature_offsets.size(), planted.size());
   int seen_often = 0;
   for (const CalibrationEstimate::FeatureOffset& f : with.feature_offsets) {
-    const double sd = std::sqrt(f.variance);
-    ASSERT_GT(sd, 0.0) << f.landmark_id;
-    EXPECT_LE(sd, prior * (1 + 1e-9)) << f.landmark_id;
-    EXPECT_NEAR(f.offset_px, planted.at(f.landmark_id), 3 * sd) << f.landmark_id;
-    if (sightings[f.landmark_id] >= 20) {
+    const std::array<double, 2>& truth = planted.at(f.landmark_id);
+    const bool marking = d.map.at(f.landmark_id).type != LandmarkType::GoalCorner;
+    const double sd_column = std::sqrt(f.column_variance), sd = std::sqrt(f.variance);
+    ASSERT_GT(sd_column, 0.0) << f.landmark_id;
+    EXPECT_LE(sd_column, column_prior * (1 + 1e-9)) << f.landmark_id;
+    EXPECT_NEAR(f.column_px, truth[0], 3 * sd_column) << f.landmark_id;
+    if (marking) {
+      ASSERT_GT(sd, 0.0) << f.landmark_id;
+      EXPECT_LE(sd, prior * (1 + 1e-9)) << f.landmark_id;
+      EXPECT_NEAR(f.offset_px, truth[1], 3 * sd) << f.landmark_id;
+    } else {
+      EXPECT_EQ(f.variance, 0.0) << "a goal corner has no u_r offset";
+    }
+    if (marking && sightings[f.landmark_id] >= 20) {
       ++seen_often;
       EXPECT_LT(sd, 0.5 * prior) << f.landmark_id << " seen " << sightings[f.landmark_id] << " times";
     }
@@ -436,27 +452,49 @@ TEST(SelfCalibration, SlideResidualReplacesTheMarkingTermWithTheRowBlock) {
   EXPECT_NEAR(calibratedPixelCovariance(o, crossing, model, false, true, true)(2, 2) - o.pixel_covariance(2, 2),
               0.28 * 0.28, 1e-9);
   EXPECT_TRUE(calibratedPixelCovariance(o, goal, model, false, true).isApprox(calibratedPixelCovariance(o, goal, model, false, false)));
-  EXPECT_EQ(featureOffsetSigma(LandmarkType::Junction, noise), 0.6);
-  EXPECT_EQ(featureOffsetSigma(LandmarkType::Intersection, noise), 0.32);
-  EXPECT_EQ(featureOffsetSigma(LandmarkType::GoalCorner, noise), 0.0);
+  EXPECT_EQ(featureOffsetSigma(LandmarkType::Junction, noise).disparity, 0.6);
+  EXPECT_EQ(featureOffsetSigma(LandmarkType::Intersection, noise).disparity, 0.32);
+  EXPECT_EQ(featureOffsetSigma(LandmarkType::GoalCorner, noise).disparity, 0.0);
+  // A column constant, not estimated, is white noise on both columns alike (the disparity keeps
+  // its variance); estimated, it leaves the covariance.
+  ObservationModelConfig column = model;
+  column.unmodelled.goal_feature_column_sigma_px = 0.12;
+  Observation g = o;
+  g.type = LandmarkType::GoalCorner;
+  const Eigen::Matrix4d g_white = calibratedPixelCovariance(g, goal, column, false, true);
+  const Eigen::Matrix4d g_plain = calibratedPixelCovariance(g, goal, model, false, true);
+  for (int i : {0, 2})
+    for (int j : {0, 2}) EXPECT_NEAR(g_white(i, j) - g_plain(i, j), 0.0144, 1e-12);
+  EXPECT_TRUE(calibratedPixelCovariance(g, goal, column, false, true, true).isApprox(g_plain));
+  EXPECT_EQ(featureOffsetSigma(LandmarkType::GoalCorner, column.unmodelled).column, 0.12);
 }
 
-// One feature offset per marking landmark of the map, only with the row block.
-TEST(SelfCalibration, FeatureOffsetsForTheMarkingLandmarksWithTheRowBlock) {
+// Feature offsets for the landmarks whose kind the noise model states a constant for, only with
+// the row block.
+TEST(SelfCalibration, FeatureOffsetsForTheStatedLandmarksWithTheRowBlock) {
   const FieldMap map = FieldMap::miroSot();
   UnmodelledNoise noise;
   noise.row_offset_sigma_px = 1.49;
   noise.marking_feature_offset_sigma_px = 0.58;
   noise.intersection_feature_offset_sigma_px = 0.32;
   const SelfCalibrationConfig stereo = SelfCalibrationConfig::parse("stereo");
+  auto isMarking = [](LandmarkType t) {
+    return t == LandmarkType::MarkingCorner || t == LandmarkType::Junction || t == LandmarkType::Intersection;
+  };
+  size_t markings = 0, goals = 0;
+  for (const Landmark& l : map.landmarks()) {
+    markings += isMarking(l.type);
+    goals += l.type == LandmarkType::GoalCorner;
+  }
   const auto sigmas = featureOffsetSigmas(map, stereo, noise);
-  size_t markings = 0;
-  for (const Landmark& l : map.landmarks())
-    markings += l.type == LandmarkType::MarkingCorner || l.type == LandmarkType::Junction ||
-                l.type == LandmarkType::Intersection;
   ASSERT_EQ(sigmas.size(), markings);
-  for (const auto& [id, sigma] : sigmas)
-    EXPECT_EQ(sigma, map.at(id).type == LandmarkType::Intersection ? 0.32 : 0.58) << id;
+  for (const FeatureOffsetPrior& f : sigmas) {
+    EXPECT_EQ(f.sigma.disparity, map.at(f.landmark_id).type == LandmarkType::Intersection ? 0.32 : 0.58) << f.landmark_id;
+    EXPECT_EQ(f.sigma.column, 0.0);
+  }
+  UnmodelledNoise columns = noise;
+  columns.goal_feature_column_sigma_px = 0.12;
+  EXPECT_EQ(featureOffsetSigmas(map, stereo, columns).size(), markings + goals);
   SelfCalibrationConfig off = stereo;
   off.feature_offsets = false;
   EXPECT_TRUE(featureOffsetSigmas(map, off, noise).empty());

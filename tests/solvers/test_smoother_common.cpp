@@ -170,6 +170,9 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
   n.marking_feature_offset_sigma_px = 0.58;
   n.intersection_slide_residual_sigma_px = 0.65;
   n.intersection_feature_offset_sigma_px = 0.32;
+  n.goal_feature_column_sigma_px = 0.12;
+  n.marking_feature_column_sigma_px = 0.19;
+  n.intersection_feature_column_sigma_px = 0.14;
   n.save(dir.file("noise.yaml"));
   const UnmodelledNoise back = UnmodelledNoise::load(dir.file("noise.yaml"));
   EXPECT_EQ(back.k1_sigma, 0.01);
@@ -182,6 +185,9 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
   EXPECT_EQ(back.marking_feature_offset_sigma_px, 0.58);
   EXPECT_EQ(back.intersection_slide_residual_sigma_px, 0.65);
   EXPECT_EQ(back.intersection_feature_offset_sigma_px, 0.32);
+  EXPECT_EQ(back.goal_feature_column_sigma_px, 0.12);
+  EXPECT_EQ(back.marking_feature_column_sigma_px, 0.19);
+  EXPECT_EQ(back.intersection_feature_column_sigma_px, 0.14);
   EXPECT_EQ(back.roll_sigma_rad, 0.0);
   {
     std::ofstream f(dir.file("bad.yaml"));

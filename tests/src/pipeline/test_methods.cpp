@@ -116,6 +116,10 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   EXPECT_NEAR(o.noise.marking_feature_offset_sigma_px, 0.583 * row, 1e-12);
   EXPECT_NEAR(o.noise.intersection_slide_residual_sigma_px, 0.282 * row, 1e-12);
   EXPECT_NEAR(o.noise.intersection_feature_offset_sigma_px, 0.321 * row, 1e-12);
+  // The frontend's repeating column errors do not depend on the misalignment.
+  EXPECT_EQ(o.noise.goal_feature_column_sigma_px, 0.12);
+  EXPECT_EQ(o.noise.marking_feature_column_sigma_px, 0.19);
+  EXPECT_EQ(o.noise.intersection_feature_column_sigma_px, 0.14);
   ErrorProfile aligned = p;  // no principal-point or rotation error: rows aligned
   aligned.principal_sigma_px = 0.0;
   aligned.relative_rotation_sigma_rad = 0.0;
