@@ -7,10 +7,13 @@
 // c: the block (units of its owner: odometry_calibration_factor.h, stereo_pixel_calibration_factor.h);
 // c0: the prior mean; S: upper square-root information of the N x N prior covariance. No angle
 // wraps: calibration angles are small corrections.
+#include <ceres/cost_function.h>
 #include <ceres/sized_cost_function.h>
 
 #include <Eigen/Core>
+#include <utility>
 
+#include "src/core/error.h"
 #include "src/core/gaussian.h"
 
 namespace stereoloc {
@@ -42,6 +45,31 @@ class CalibrationPriorFactor final : public ceres::SizedCostFunction<N, N> {
  private:
   VectorN mean_;
   MatrixN S_;
+};
+
+// The same with independent entries, of any size: r_i = (c_i - mean_i) / sigma_i (the batch's
+// joined stereo block, whose size depends on the map's features).
+class DiagonalPriorFactor final : public ceres::CostFunction {
+ public:
+  DiagonalPriorFactor(Eigen::VectorXd mean, const Eigen::VectorXd& sigma)
+      : mean_(std::move(mean)), inverse_sigma_(sigma.cwiseInverse()) {
+    if (!(sigma.size() == mean_.size() && sigma.allFinite() && sigma.minCoeff() > 0))
+      throw Error("calibration prior: one finite sigma > 0 per entry");
+    set_num_residuals(static_cast<int>(mean_.size()));
+    mutable_parameter_block_sizes()->push_back(static_cast<int32_t>(mean_.size()));
+  }
+  bool Evaluate(double const* const* p, double* r, double** J) const override {
+    const Eigen::Index n = mean_.size();
+    Eigen::Map<Eigen::VectorXd>(r, n) = inverse_sigma_.cwiseProduct(Eigen::Map<const Eigen::VectorXd>(p[0], n) - mean_);
+    if (J && J[0]) {
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J_r_c(J[0], n, n);
+      J_r_c = inverse_sigma_.asDiagonal();
+    }
+    return true;
+  }
+
+ private:
+  Eigen::VectorXd mean_, inverse_sigma_;
 };
 
 }  // namespace stereoloc

@@ -16,6 +16,7 @@
 
 #include "factors/calibration_prior_factor.h"
 #include "factors/compass_factor.h"
+#include "factors/joined_global_blocks.h"
 #include "factors/odometry_calibration_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
 #include "factors/stereo_pixel_feature_calibration_factor.h"
@@ -337,95 +338,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
-
-// A cost function on (pose, q, e, dv, b) (or fewer of the calibration blocks) seen as
-// (pose, g): the chain solver's factors touch one global block, so the stereo, image, row and
-// feature-offset blocks of the self-calibration are one global block g of the batch, each entry
-// of an inner block at its index in g, or held at zero (index -1: an offset the noise model does
-// not state).
-class JoinedGlobalBlocks final : public ceres::CostFunction {
- public:
-  // Entry e of inner block k + 1 at indices[k][e] of a joined block of at least `joined_size`;
-  // by default the inner blocks follow each other from index 0.
-  explicit JoinedGlobalBlocks(ceres::CostFunction* inner, std::vector<std::vector<int>> indices = {},
-                              int joined_size = 0)
-      : inner_(inner), indices_(std::move(indices)) {
-    const std::vector<int32_t>& b = inner_->parameter_block_sizes();
-    sizes_.assign(b.begin() + 1, b.end());
-    int n = 0;
-    if (indices_.empty())
-      for (int k : sizes_) {
-        indices_.emplace_back();
-        for (int e = 0; e < k; ++e) indices_.back().push_back(n++);
-      }
-    if (indices_.size() != sizes_.size()) throw Error("joined global blocks: one index list per inner block");
-    for (size_t k = 0; k < sizes_.size(); ++k) {
-      if (indices_[k].size() != static_cast<size_t>(sizes_[k])) throw Error("joined global blocks: one index per entry");
-      for (int i : indices_[k]) n = std::max(n, i + 1);
-    }
-    n = std::max(n, joined_size);
-    set_num_residuals(inner_->num_residuals());
-    mutable_parameter_block_sizes()->push_back(b[0]);
-    mutable_parameter_block_sizes()->push_back(n);
-  }
-  bool Evaluate(double const* const* p, double* r, double** J) const override {
-    std::vector<std::vector<double>> values(sizes_.size());
-    std::vector<const double*> blocks{p[0]};
-    for (size_t k = 0; k < sizes_.size(); ++k) {
-      for (int i : indices_[k]) values[k].push_back(i >= 0 ? p[1][i] : 0.0);
-      blocks.push_back(values[k].data());
-    }
-    if (!J) return inner_->Evaluate(blocks.data(), r, nullptr);
-    const int m = num_residuals();
-    std::vector<std::vector<double>> parts(sizes_.size());
-    std::vector<double*> jac{J[0]};
-    for (size_t k = 0; k < sizes_.size(); ++k) {
-      if (J[1]) parts[k].resize(static_cast<size_t>(m * sizes_[k]));
-      jac.push_back(J[1] ? parts[k].data() : nullptr);
-    }
-    if (!inner_->Evaluate(blocks.data(), r, jac.data())) return false;
-    if (J[1]) {
-      const int n = parameter_block_sizes()[1];
-      std::fill(J[1], J[1] + m * n, 0.0);
-      for (int row = 0; row < m; ++row)
-        for (size_t k = 0; k < sizes_.size(); ++k)
-          for (int e = 0; e < sizes_[k]; ++e)
-            if (indices_[k][static_cast<size_t>(e)] >= 0)
-              J[1][row * n + indices_[k][static_cast<size_t>(e)]] += parts[k][static_cast<size_t>(row * sizes_[k] + e)];
-    }
-    return true;
-  }
-
- private:
-  std::unique_ptr<ceres::CostFunction> inner_;
-  std::vector<int> sizes_;
-  std::vector<std::vector<int>> indices_;
-};
-
-// Independent Gaussian priors on every entry of a block: r_i = (c_i - mean_i) / sigma_i (the
-// joined stereo block's prior: its entries are independent a priori).
-class DiagonalPriorFactor final : public ceres::CostFunction {
- public:
-  DiagonalPriorFactor(Eigen::VectorXd mean, const Eigen::VectorXd& sigma)
-      : mean_(std::move(mean)), inverse_sigma_(sigma.cwiseInverse()) {
-    if (!(sigma.size() == mean_.size() && sigma.allFinite() && sigma.minCoeff() > 0))
-      throw Error("calibration prior: one finite sigma > 0 per entry");
-    set_num_residuals(static_cast<int>(mean_.size()));
-    mutable_parameter_block_sizes()->push_back(static_cast<int32_t>(mean_.size()));
-  }
-  bool Evaluate(double const* const* p, double* r, double** J) const override {
-    const Eigen::Index n = mean_.size();
-    Eigen::Map<Eigen::VectorXd>(r, n) = inverse_sigma_.cwiseProduct(Eigen::Map<const Eigen::VectorXd>(p[0], n) - mean_);
-    if (J && J[0]) {
-      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J_r_c(J[0], n, n);
-      J_r_c = inverse_sigma_.asDiagonal();
-    }
-    return true;
-  }
-
- private:
-  Eigen::VectorXd mean_, inverse_sigma_;
-};
 
 // The factors touching poses [lo, hi) as a ceres::Problem over those poses, the neighbours
 // lo-1 and hi held constant, and over the global blocks (held constant unless free_globals)

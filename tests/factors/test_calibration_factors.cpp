@@ -563,3 +563,55 @@ TEST(StereoPixelFeatureCalibrationFactor, ZeroOffsetEqualsTheRowFactorOffsetIsEx
 
 }  // namespace
 }  // namespace stereoloc
+
+#include "factors/joined_global_blocks.h"
+
+namespace stereoloc {
+namespace {
+
+// The dynamic prior whitens each entry by its sigma; its Jacobian is the inverse sigmas.
+TEST(DiagonalPriorFactor, WhitensEachEntryAndJacobianMatches) {
+  const Eigen::VectorXd mean = (Eigen::VectorXd(4) << 1.0, 0.0, -2.0, 0.5).finished();
+  const Eigen::VectorXd sigma = (Eigen::VectorXd(4) << 0.1, 2.0, 0.5, 1.0).finished();
+  DiagonalPriorFactor f(mean, sigma);
+  const double c[4] = {1.2, -1.0, -2.0, 0.0};
+  const Eigen::VectorXd r = evaluate(f, {c});
+  EXPECT_NEAR(r[0], 2.0, 1e-12);
+  EXPECT_NEAR(r[1], -0.5, 1e-12);
+  EXPECT_NEAR(r[2], 0.0, 1e-12);
+  EXPECT_NEAR(r[3], -0.5, 1e-12);
+  const FactorCheck check = checkFactorJacobians(f, {c});
+  EXPECT_TRUE(check.ok) << check.message;
+  EXPECT_THROW(DiagonalPriorFactor(mean, Eigen::VectorXd::Zero(4)), Error);
+  EXPECT_THROW(DiagonalPriorFactor(mean, Eigen::VectorXd::Ones(3)), Error);
+}
+
+// Joined into one global block with entries scattered and one held at zero, the feature factor
+// gives the residual of its own blocks and Jacobians that agree with central differences.
+TEST(JoinedGlobalBlocks, ScattersTheInnerBlocksAndHoldsUnmappedEntriesAtZero) {
+  forEachCalibrationCase(31, [&](const StereoRig& rig, PixelResiduals mode, const test::Sighting& s, double pan,
+                                 const double* p, const double* q, const double*, auto& uniform) {
+    const double gain = 1.5 * uniform(), dv[1] = {1.4 * uniform()}, b[2] = {0.4 * uniform(), 0.0};
+    const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
+    ceres::CostFunction* inner =
+        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr);
+    const Eigen::VectorXd direct = evaluate(*inner, {p, q, dv, b});
+    // g = [dv, q (6), unused, b_c]; b_d held at zero.
+    std::vector<std::vector<int>> indices{{1, 2, 3, 4, 5, 6}, {0}, {8, -1}};
+    JoinedGlobalBlocks joined(inner, indices, 10);
+    ASSERT_EQ(joined.parameter_block_sizes()[1], 10);
+    double g[10] = {dv[0], q[0], q[1], q[2], q[3], q[4], q[5], 0.7, b[0], -0.3};
+    EXPECT_LT((evaluate(joined, {p, g}) - direct).norm(), 1e-12);
+    const FactorCheck check = checkFactorJacobians(joined, {p, g});
+    EXPECT_TRUE(check.ok) << check.message;
+  });
+  EXPECT_THROW(JoinedGlobalBlocks(StereoPixelFeatureCalibrationFactor::Create(
+                                      StereoRig(), test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60).landmark,
+                                      test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60).pixels, 0.0, 0.0,
+                                      Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr),
+                                  {{0, 1, 2, 3, 4, 5}, {6}}),
+               Error);
+}
+
+}  // namespace
+}  // namespace stereoloc
