@@ -61,15 +61,6 @@ ObservationModel observationModelFromString(const std::string& name) {
   throw Error("unknown observation model '" + name + "' (expected range_bearing, pixel_columns or pixels)");
 }
 
-bool UnmodelledNoise::isZero() const {
-  return k1_sigma == 0 && k2_sigma == 0 && tangential_sigma == 0 && pitch_sigma_rad == 0 && roll_sigma_rad == 0 &&
-         relative_rotation_sigma_rad == 0 && marking_disparity_sigma_px == 0 && intersection_disparity_sigma_px == 0 &&
-         row_offset_sigma_px == 0 && marking_slide_residual_sigma_px == 0 && marking_slide_residual_per_gain_px == 0 &&
-         marking_feature_offset_sigma_px == 0 && intersection_slide_residual_sigma_px == 0 &&
-         intersection_feature_offset_sigma_px == 0 && goal_feature_column_sigma_px == 0 &&
-         marking_feature_column_sigma_px == 0 && intersection_feature_column_sigma_px == 0 &&
-         slip_rel_sigma == 0;
-}
 
 namespace {
 const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
@@ -93,6 +84,12 @@ const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
     {"slip_rel_sigma", &UnmodelledNoise::slip_rel_sigma},
 };
 }  // namespace
+
+bool UnmodelledNoise::isZero() const {
+  for (const auto& [key, field] : kNoiseKeys)
+    if (this->*field != 0) return false;
+  return true;
+}
 
 void UnmodelledNoise::validate() const {
   for (const auto& [key, field] : kNoiseKeys)
