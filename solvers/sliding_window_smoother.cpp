@@ -261,9 +261,9 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   const SelfCalibrationConfig& cal = config_.calibration;
   wheels_[2] = odometry_.wheel_base_mm;
   row_sigma_ = rowOffsetSigma(cal, config_.observation_model.unmodelled);
-  if (cal.odometry) wheels_block_ = addCalibBlock(CalibKind::Wheels, wheels_.data(), 3);
-  if (cal.stereo) head_block_ = addCalibBlock(CalibKind::Head, head_.data(), StereoBlock::RowsAtCompileTime);
-  if (row_sigma_) row_block_ = addCalibBlock(CalibKind::Row, &row_, 1);
+  if (cal.odometry) wheels_block_ = addCalibBlock(wheels_.data(), 3);
+  if (cal.stereo) head_block_ = addCalibBlock(head_.data(), StereoBlock::RowsAtCompileTime);
+  if (row_sigma_) row_block_ = addCalibBlock(&row_, 1);
   for (const FeatureOffsetPrior& f : featureOffsetSigmas(map_, cal, config_.observation_model.unmodelled))
     feature_sigmas_[f.landmark_id] = f.sigma;
   // With calibration blocks every factor is linearised at the current estimate: each factor's
@@ -295,9 +295,9 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   }
 }
 
-SlidingWindowSmoother::Calib SlidingWindowSmoother::addCalibBlock(CalibKind kind, double* data, int size) {
+SlidingWindowSmoother::Calib SlidingWindowSmoother::addCalibBlock(double* data, int size) {
   problem_->AddParameterBlock(data, size);
-  calib_.push_back({kind, data, size, calib_dim_});
+  calib_.push_back({data, size, calib_dim_});
   calib_dim_ += size;
   return static_cast<Calib>(calib_.size() - 1);
 }
@@ -319,7 +319,7 @@ const SlidingWindowSmoother::FeatureBlock* SlidingWindowSmoother::featureBlock(c
   int n = 0;
   for (double s : {f.sigma.column, f.sigma.disparity})
     if (s > 0) sd[n++] = s;
-  f.block = addCalibBlock(CalibKind::Feature, f.value.data(), n);
+  f.block = addCalibBlock(f.value.data(), n);
   feature_index_[lm.id] = features_.size() - 1;
   addFactor(new DiagonalPriorFactor(Eigen::VectorXd::Zero(n), sd.head(n)), {}, false, {f.block});
   // Uncorrelated with everything until the next covariance computation.
@@ -1029,7 +1029,10 @@ std::vector<bool> SlidingWindowSmoother::fuseStep(const Step& step, Node* node, 
   std::vector<bool> accepted(n, false);
   std::vector<int> landmark_of(n, -1);
   for (;;) {
-    while (factors_.size() > first_factor) removeFactor(factors_.size() - 1);
+    // The step's factors; a feature block's prior, created with its first sighting, stays with
+    // the block (it is global).
+    for (size_t i = factors_.size(); i-- > first_factor;)
+      if (!factors_[i]->nodes.empty()) removeFactor(i);
     node->landmarks.resize(first_landmark);
     pose = pred;
     P = P_pred;

@@ -269,9 +269,7 @@ class SlidingWindowSmoother : public Estimator {
   // head and the row offset when enabled, then one feature-offset block per landmark in the order
   // the landmarks were first fused.
   using Calib = int;
-  enum class CalibKind { Wheels, Head, Row, Feature };
   struct CalibBlock {
-    CalibKind kind = CalibKind::Wheels;
     double* data = nullptr;
     int size = 0;
     int offset = 0;  // within the calibration variables (calib_covariance_)
@@ -298,7 +296,7 @@ class SlidingWindowSmoother : public Estimator {
   void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes, bool robust = false,
                  std::vector<Calib> calib = {});
   using StereoBlock = CalibrationEstimate::StereoVector;
-  Calib addCalibBlock(CalibKind kind, double* data, int size);  // registers it after the others
+  Calib addCalibBlock(double* data, int size);  // registers it after the others
   double* calibData(Calib c) const { return calib_[static_cast<size_t>(c)].data; }
   int calibSize(Calib c) const { return calib_[static_cast<size_t>(c)].size; }
   int calibOffset(Calib c) const { return calib_[static_cast<size_t>(c)].offset; }

@@ -300,6 +300,25 @@ TEST(SlidingWindowCalibration, ShortWindowEstimatesPlantedFeatureOffsets) {
   Dataset d = simulate("random-walk", 0, sc, 11);
   const double dv = 1.2;
   const PlantedOffsets planted = plantFeatureOffsets(d, dv, 0.3, 0.6, 4);
+  // A gross outlier, a sighting labelled with a landmark the run has not shown yet: the step's
+  // joint test sets it aside and fuses the step again without it, and the block its first
+  // fusion created keeps its prior (it is the block's only information then).
+  std::set<int> shown;
+  size_t outlier_step = 0;
+  for (size_t k = 0; k < d.steps.size() && outlier_step == 0; ++k) {
+    for (const Observation& o : d.steps[k].observations) shown.insert(o.landmark_id);
+    if (k < 10 || d.steps[k].observations.empty()) continue;
+    for (const auto& [id, b] : planted.b)
+      if (!shown.count(id)) {
+        Observation bad = d.steps[k].observations.front();
+        bad.landmark_id = id;
+        bad.type = d.map.at(id).type;
+        d.steps[k].observations.push_back(bad);
+        outlier_step = k;
+        break;
+      }
+  }
+  ASSERT_GT(outlier_step, 0u);
   const CalibrationEstimate::StereoVector truth = CalibrationEstimate().head;
   struct Run {
     CalibrationEstimate cal;
@@ -314,6 +333,7 @@ TEST(SlidingWindowCalibration, ShortWindowEstimatesPlantedFeatureOffsets) {
     for (const Step& s : d.steps) win.process(s);
     const std::vector<Estimate> est = win.finish();
     EXPECT_EQ(win.stats().reinitialisations, 0);
+    EXPECT_GE(win.stats().rejected_observations, 1);
     Run r;
     r.cal = *win.calibration();
     Eigen::Matrix<double, 7, 1> e;
