@@ -275,7 +275,8 @@ class SlidingWindowSmoother : public Estimator {
     int offset = 0;  // within the calibration variables (calib_covariance_)
   };
   // A landmark's feature offsets: the entries of (b_c, b_d) the noise model states, in that
-  // order, in `value` (its first `size` entries); an entry it does not state is held at zero.
+  // order, in the first calibSize(block) entries of `value`; an entry it does not state is no
+  // parameter (held at zero).
   struct FeatureBlock {
     int landmark_id = -1;
     FeatureOffsetSigma sigma;
