@@ -19,7 +19,7 @@
 //             model states it (UnmodelledNoise::row_offset_sigma_px; batch and window;
 //             SelfCalibrationConfig::row_offset; factors/stereo_pixel_row_calibration_factor.h)
 //   features  b_j = constant offsets (px) of each feature j's column (both images) and u_r, with
-//             the row block in the batch when the noise model states them
+//             the row block when the noise model states them (batch and window)
 //             (UnmodelledNoise::*_feature_offset_sigma_px, *_feature_column_sigma_px;
 //             SelfCalibrationConfig::feature_offsets; factors/stereo_pixel_feature_calibration_factor.h)
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
@@ -83,9 +83,9 @@ struct SelfCalibrationConfig {
   // With the stereo block, in the batch and the window: estimate the rows' misalignment when
   // the noise model states it (rowOffsetSigma).
   bool row_offset = true;
-  // With the row block, in the batch smoother: estimate each marking feature's constant u_r
-  // offset when the noise model states it (featureOffsetSigmas). The sliding window keeps it as
-  // pixel noise.
+  // With the row block, in the batch and the window: estimate each feature's constant column
+  // offset and a marking feature's constant u_r offset when the noise model states them
+  // (featureOffsetSigmas); off, they stay in the white pixel noise.
   bool feature_offsets = true;
   // selfCalibratingBatch only (the batch smoother takes them from its own configuration).
   PixelResiduals residuals = PixelResiduals::All;
@@ -117,7 +117,8 @@ struct CalibrationEstimate {
   bool row = false;
   double row_offset_px = 0.0;
   double row_offset_variance = 0.0;  // px^2
-  // The feature offsets (batch, featureOffsetSigmas): each feature's constant column offset (both
+  // The feature offsets (featureOffsetSigmas; the window's: of the landmarks it has fused so far,
+  // in the map's order): each feature's constant column offset (both
   // images) and u_r offset (px) with their variances (px^2; 0 where not estimated); not part of
   // the rig written back (a property of the run).
   struct FeatureOffset {

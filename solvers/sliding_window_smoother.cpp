@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <utility>
 
 #include "factors/block_marginal_prior_factor.h"
@@ -18,6 +19,7 @@
 #include "factors/odometry_factor.h"
 #include "factors/pose_prior_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
+#include "factors/stereo_pixel_feature_calibration_factor.h"
 #include "factors/stereo_pixel_row_calibration_factor.h"
 #include "solvers/iterated_update.h"
 #include "src/core/error.h"
@@ -35,8 +37,42 @@ bool positiveDefinite(const Eigen::Matrix3d& C) {
 
 Pose2 poseOf(const std::array<double, 3>& x) { return Pose2(x[0], x[1], x[2]); }
 
-// accumulateNormalEquations (solvers/smoother_common.h) for blocks of any size: `pose` marks the
-// (x, y, theta) blocks, whose angle difference is wrapped; the others are Euclidean.
+// A cost function whose last block holds some entries of the inner function's last block, the
+// others held at zero: a feature's offsets the noise model does not state are no parameters.
+class HeldEntries final : public ceres::CostFunction {
+ public:
+  HeldEntries(ceres::CostFunction* inner, std::vector<int> entries) : inner_(inner), entries_(std::move(entries)) {
+    const std::vector<int32_t>& b = inner_->parameter_block_sizes();
+    full_ = b.back();
+    set_num_residuals(inner_->num_residuals());
+    *mutable_parameter_block_sizes() = b;
+    mutable_parameter_block_sizes()->back() = static_cast<int32_t>(entries_.size());
+  }
+  bool Evaluate(double const* const* p, double* r, double** J) const override {
+    const size_t nb = parameter_block_sizes().size();
+    const size_t n = entries_.size();
+    std::vector<double> full(static_cast<size_t>(full_), 0.0);
+    for (size_t e = 0; e < n; ++e) full[static_cast<size_t>(entries_[e])] = p[nb - 1][e];
+    std::vector<const double*> blocks(p, p + nb);
+    blocks.back() = full.data();
+    if (!J || !J[nb - 1]) return inner_->Evaluate(blocks.data(), r, J);
+    const int m = num_residuals();
+    std::vector<double> J_full(static_cast<size_t>(m * full_));
+    std::vector<double*> jac(J, J + nb);
+    jac.back() = J_full.data();
+    if (!inner_->Evaluate(blocks.data(), r, jac.data())) return false;
+    for (int row = 0; row < m; ++row)
+      for (size_t e = 0; e < n; ++e)
+        J[nb - 1][static_cast<size_t>(row) * n + e] = J_full[static_cast<size_t>(row * full_ + entries_[e])];
+    return true;
+  }
+
+ private:
+  std::unique_ptr<ceres::CostFunction> inner_;
+  std::vector<int> entries_;
+  int full_ = 0;
+};
+
 // The stereo block's prior standard deviations, in the order of
 // factors/stereo_pixel_calibration_factor.h.
 CalibrationEstimate::StereoVector stereoPriorSigma(const SelfCalibrationConfig& c) {
@@ -46,6 +82,8 @@ CalibrationEstimate::StereoVector stereoPriorSigma(const SelfCalibrationConfig& 
   return s;
 }
 
+// accumulateNormalEquations (solvers/smoother_common.h) for blocks of any size: `pose` marks the
+// (x, y, theta) blocks, whose angle difference is wrapped; the others are Euclidean.
 bool accumulateBlocks(const ceres::CostFunction& cost, const std::vector<const double*>& current,
                       const std::vector<const double*>& linearisation, const std::vector<int>& offsets,
                       const std::vector<bool>& pose, Eigen::MatrixXd& H, Eigen::VectorXd& g) {
@@ -222,70 +260,85 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   // The calibration blocks with their priors (solvers/self_calibration.h).
   const SelfCalibrationConfig& cal = config_.calibration;
   wheels_[2] = odometry_.wheel_base_mm;
+  row_sigma_ = rowOffsetSigma(cal, config_.observation_model.unmodelled);
+  if (cal.odometry) wheels_block_ = addCalibBlock(wheels_.data(), 3);
+  if (cal.stereo) head_block_ = addCalibBlock(head_.data(), StereoBlock::RowsAtCompileTime);
+  if (row_sigma_) row_block_ = addCalibBlock(&row_, 1);
+  for (const FeatureOffsetPrior& f : featureOffsetSigmas(map_, cal, config_.observation_model.unmodelled))
+    feature_sigmas_[f.landmark_id] = f.sigma;
   // With calibration blocks every factor is linearised at the current estimate: each factor's
   // own first estimates differ from pose to pose, and through the weakly observable wheel base
   // those differences become information the data do not have (on a 400-step circle, W = 20:
   // the wheel base drifted from 75 to 92 mm with a standard deviation below the batch's, while
   // linearising at the estimate stays within 0.1 mm and 1 % of the batch's).
   linearisation_ = calibDim() == 0 ? config_.linearisation : WindowLinearisation::Current;
+  // Until the first solve, the calibration's covariance is its prior's (the gate reads it).
+  calib_covariance_ = Eigen::MatrixXd::Zero(calibDim(), calibDim());
   if (cal.odometry) {
-    problem_->AddParameterBlock(wheels_.data(), 3);
     const Eigen::Vector3d sig(cal.wheel_scale_sigma, cal.wheel_scale_sigma, cal.wheel_base_rel_sigma * wheels_[2]);
     addFactor(CalibrationPriorFactor<3>::Create(wheels_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()),
-              {}, false, {Calib::Wheels});
+              {}, false, {wheels_block_});
+    calib_covariance_.diagonal().segment<3>(calibOffset(wheels_block_)) = sig.cwiseAbs2();
   }
   if (cal.stereo) {
-    problem_->AddParameterBlock(head_.data(), calibSize(Calib::Head));
     const StereoBlock sig = stereoPriorSigma(cal);
     addFactor(CalibrationPriorFactor<StereoBlock::RowsAtCompileTime>::Create(
                   head_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()),
-              {}, false, {Calib::Head});
+              {}, false, {head_block_});
+    calib_covariance_.diagonal().segment(calibOffset(head_block_), calibSize(head_block_)) = sig.cwiseAbs2();
   }
-  row_sigma_ = rowOffsetSigma(cal, config_.observation_model.unmodelled);
   if (row_sigma_) {
-    problem_->AddParameterBlock(&row_, 1);
     addFactor(CalibrationPriorFactor<1>::Create(Eigen::Matrix<double, 1, 1>::Zero(),
                                                 Eigen::Matrix<double, 1, 1>::Constant(*row_sigma_ * *row_sigma_)),
-              {}, false, {Calib::Row});
+              {}, false, {row_block_});
+    calib_covariance_(calibOffset(row_block_), calibOffset(row_block_)) = *row_sigma_ * *row_sigma_;
   }
-  // Until the first solve, the calibration's covariance is its prior's (the gate reads it).
-  calib_covariance_ = Eigen::MatrixXd::Zero(calibDim(), calibDim());
-  int k = 0;
-  if (cal.odometry) {
-    calib_covariance_.diagonal().head<3>() =
-        Eigen::Vector3d(cal.wheel_scale_sigma, cal.wheel_scale_sigma, cal.wheel_base_rel_sigma * wheels_[2]).cwiseAbs2();
-    k = 3;
-  }
-  if (cal.stereo) calib_covariance_.diagonal().segment(k, calibSize(Calib::Head)) = stereoPriorSigma(cal).cwiseAbs2();
-  if (row_sigma_) calib_covariance_(calibOffset(Calib::Row), calibOffset(Calib::Row)) = *row_sigma_ * *row_sigma_;
 }
 
-int SlidingWindowSmoother::calibOffset(Calib c) const {
-  int offset = 0;
-  for (Calib b : calibBlocks()) {
-    if (b == c) return offset;
-    offset += calibSize(b);
-  }
-  throw Error("sliding window: calibration block not enabled");
+SlidingWindowSmoother::Calib SlidingWindowSmoother::addCalibBlock(double* data, int size) {
+  problem_->AddParameterBlock(data, size);
+  calib_.push_back({data, size, calib_dim_});
+  calib_dim_ += size;
+  return static_cast<Calib>(calib_.size() - 1);
+}
+
+const SlidingWindowSmoother::FeatureBlock* SlidingWindowSmoother::featureBlock(const Landmark& lm) {
+  const auto known = feature_index_.find(lm.id);
+  if (known != feature_index_.end()) return &features_[known->second];
+  const auto stated = feature_sigmas_.find(lm.id);
+  if (stated == feature_sigmas_.end()) return nullptr;
+  // A global block like the head's: never marginalised, so every sighting of the feature, in the
+  // window or marginalised into its prior, sees the same constant. Only the stated entries are
+  // parameters (an unstated one, a goal corner's u_r offset, has no prior to make it observable
+  // and is zero by the noise model), with the zero-mean prior of their stated sigmas.
+  features_.emplace_back();
+  FeatureBlock& f = features_.back();
+  f.landmark_id = lm.id;
+  f.sigma = stated->second;
+  Eigen::VectorXd sd(2);
+  int n = 0;
+  for (double s : {f.sigma.column, f.sigma.disparity})
+    if (s > 0) sd[n++] = s;
+  f.block = addCalibBlock(f.value.data(), n);
+  feature_index_[lm.id] = features_.size() - 1;
+  addFactor(new DiagonalPriorFactor(Eigen::VectorXd::Zero(n), sd.head(n)), {}, false, {f.block});
+  // Uncorrelated with everything until the next covariance computation.
+  const int k = calibOffset(f.block);
+  calib_covariance_.conservativeResizeLike(Eigen::MatrixXd::Zero(calibDim(), calibDim()));
+  calib_covariance_.diagonal().segment(k, n) = sd.head(n).cwiseAbs2();
+  return &f;
 }
 
 CalibrationEstimate::StereoMatrix SlidingWindowSmoother::headCovariance() const {
-  const int k = config_.calibration.odometry ? 3 : 0;
-  const int n = calibSize(Calib::Head);
+  const int k = calibOffset(head_block_);
+  const int n = calibSize(head_block_);
   return calib_covariance_.block(k, k, n, n);
 }
 
 std::vector<SlidingWindowSmoother::Calib> SlidingWindowSmoother::calibBlocks() const {
-  std::vector<Calib> out;
-  if (config_.calibration.odometry) out.push_back(Calib::Wheels);
-  if (config_.calibration.stereo) out.push_back(Calib::Head);
-  if (rowBlock()) out.push_back(Calib::Row);
+  std::vector<Calib> out(calib_.size());
+  for (size_t i = 0; i < out.size(); ++i) out[i] = static_cast<Calib>(i);
   return out;
-}
-
-int SlidingWindowSmoother::calibDim() const {
-  return (config_.calibration.odometry ? 3 : 0) + (config_.calibration.stereo ? calibSize(Calib::Head) : 0) +
-         (rowBlock() ? 1 : 0);
 }
 
 const double* SlidingWindowSmoother::linearisationPoint(const Factor& f, size_t j) const {
@@ -326,7 +379,7 @@ Eigen::Matrix3d SlidingWindowSmoother::composedCovariance(const Node& k, const E
     // treat the current estimate of c as exact and reject the sightings that disagree with it,
     // which are the ones that would correct it.
     const Eigen::Matrix3d B = A2 * rel_wheels;
-    const Eigen::Matrix3d Cc = calib_covariance_.block<3, 3>(calibOffset(Calib::Wheels), calibOffset(Calib::Wheels));
+    const Eigen::Matrix3d Cc = calib_covariance_.block<3, 3>(calibOffset(wheels_block_), calibOffset(wheels_block_));
     const Eigen::Matrix3d cross = A1 * k.wheels_cross * B.transpose();
     P += B * Cc * B.transpose() + cross + cross.transpose();
   }
@@ -340,16 +393,32 @@ std::optional<CalibrationEstimate> SlidingWindowSmoother::calibration() const {
   e.stereo = config_.calibration.stereo;
   e.wheels = wheels_;
   e.head = head_;
-  int k = 0;
-  if (e.odometry) {
-    e.wheels_covariance = calib_covariance_.block<3, 3>(0, 0);
-    k = 3;
-  }
-  if (e.stereo) e.head_covariance = calib_covariance_.block(k, k, calibSize(Calib::Head), calibSize(Calib::Head));
+  if (e.odometry) e.wheels_covariance = calib_covariance_.block<3, 3>(calibOffset(wheels_block_), calibOffset(wheels_block_));
+  if (e.stereo) e.head_covariance = headCovariance();
   if (rowBlock()) {
     e.row = true;
     e.row_offset_px = row_;
-    e.row_offset_variance = calib_covariance_(calibOffset(Calib::Row), calibOffset(Calib::Row));
+    e.row_offset_variance = calib_covariance_(calibOffset(row_block_), calibOffset(row_block_));
+  }
+  // The landmarks fused so far, in the map's order (as the batch lists them).
+  for (const Landmark& l : map_.landmarks()) {
+    const auto i = feature_index_.find(l.id);
+    if (i == feature_index_.end()) continue;
+    const FeatureBlock& f = features_[i->second];
+    CalibrationEstimate::FeatureOffset o;
+    o.landmark_id = f.landmark_id;
+    const int k = calibOffset(f.block);
+    int j = 0;  // the block holds the stated entries only
+    if (f.sigma.column > 0) {
+      o.column_px = f.value[0];
+      o.column_variance = calib_covariance_(k, k);
+      ++j;
+    }
+    if (f.sigma.disparity > 0) {
+      o.offset_px = f.value[static_cast<size_t>(j)];
+      o.variance = calib_covariance_(k + j, k + j);
+    }
+    e.feature_offsets.push_back(o);
   }
   return e;
 }
@@ -767,7 +836,7 @@ void SlidingWindowSmoother::computeCovariances(bool all) {
       const Eigen::Matrix3d b = C.block<3, 3>(3 * i, 3 * i);
       nodes_[static_cast<size_t>(i)]->covariance = 0.5 * (b + b.transpose());
       if (config_.calibration.odometry)
-        nodes_[static_cast<size_t>(i)]->wheels_cross = C.block<3, 3>(3 * i, 3 * n + calibOffset(Calib::Wheels));
+        nodes_[static_cast<size_t>(i)]->wheels_cross = C.block<3, 3>(3 * i, 3 * n + calibOffset(wheels_block_));
       if (i + 1 < n) setJoint(i, C, 3 * i, 3 * i, 3 * i + 3);
     }
     return;
@@ -791,7 +860,7 @@ void SlidingWindowSmoother::computeCovariances(bool all) {
   nodes_.front()->covariance = 0.5 * (oldest + oldest.transpose());
   nodes_.back()->covariance = 0.5 * (newest + newest.transpose());
   if (config_.calibration.odometry) {
-    const int w = cols + calibOffset(Calib::Wheels);
+    const int w = cols + calibOffset(wheels_block_);
     nodes_.front()->wheels_cross = X.block<3, 3>(0, w);
     nodes_.back()->wheels_cross = X.block<3, 3>(3 * (n - 1), w);
   }
@@ -824,7 +893,7 @@ std::vector<Observation> SlidingWindowSmoother::gateViews(const Observation& mea
     double row[2] = {0, 0}, row_variance[2] = {0, 0};
     if (rowBlock()) {
       row[0] = row_;
-      row_variance[0] = calib_covariance_(calibOffset(Calib::Row), calibOffset(Calib::Row));
+      row_variance[0] = calib_covariance_(calibOffset(row_block_), calibOffset(row_block_));
       row_variance[1] = *row_sigma_ * *row_sigma_;
     }
     for (int k = 0; k < 2; ++k) {
@@ -899,17 +968,33 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
   if (config_.calibration.stereo && measured.pixels && rowBlock()) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    addFactor(StereoPixelRowCalibrationFactor::Create(
-                  config_.observation_model.rig, lm->position, *measured.pixels, measured.slide_gain, measured.head_pan,
-                  calibratedPixelCovariance(measured, *lm, config_.observation_model, false, true), residuals, nullptr),
-              {node}, true, {Calib::Head, Calib::Row});
+    // With the feature's offsets estimated, their constant leaves the white pixel noise: it
+    // repeats over the feature's sightings, and as white noise it would be averaged down as if
+    // it did not (the calibration's covariance then too small).
+    const FeatureBlock* feature = featureBlock(*lm);
+    const Eigen::Matrix4d C =
+        calibratedPixelCovariance(measured, *lm, config_.observation_model, false, true, feature != nullptr);
+    if (feature) {
+      ceres::CostFunction* cost = StereoPixelFeatureCalibrationFactor::Create(
+          config_.observation_model.rig, lm->position, *measured.pixels, measured.slide_gain, measured.head_pan, C,
+          residuals, nullptr);
+      std::vector<int> entries;
+      if (feature->sigma.column > 0) entries.push_back(0);
+      if (feature->sigma.disparity > 0) entries.push_back(1);
+      if (entries.size() < StereoPixelFeatureCalibrationFactor::kOffsetSize) cost = new HeldEntries(cost, entries);
+      addFactor(cost, {node}, true, {head_block_, row_block_, feature->block});
+    } else {
+      addFactor(StereoPixelRowCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
+                                                        measured.slide_gain, measured.head_pan, C, residuals, nullptr),
+                {node}, true, {head_block_, row_block_});
+    }
   } else if (config_.calibration.stereo && measured.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
     addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
                                                    measured.head_pan,
                                                    pixelCovarianceFor(measured, *lm, config_.observation_model), residuals),
-              {node}, true, {Calib::Head});
+              {node}, true, {head_block_});
   } else {
     addFactor(makeObservationFactor(measured, *lm, config_.observation_model), {node}, true);
   }
@@ -944,7 +1029,10 @@ std::vector<bool> SlidingWindowSmoother::fuseStep(const Step& step, Node* node, 
   std::vector<bool> accepted(n, false);
   std::vector<int> landmark_of(n, -1);
   for (;;) {
-    while (factors_.size() > first_factor) removeFactor(factors_.size() - 1);
+    // The step's factors; a feature block's prior, created with its first sighting, stays with
+    // the block (it is global).
+    for (size_t i = factors_.size(); i-- > first_factor;)
+      if (!factors_[i]->nodes.empty()) removeFactor(i);
     node->landmarks.resize(first_landmark);
     pose = pred;
     P = P_pred;
@@ -1068,9 +1156,9 @@ void SlidingWindowSmoother::addOdometry(Node* a, Node* b, const std::vector<Inte
     for (const WheelIncrements& t : noise) params.push_back(withSlip(odometry_, t.d_left, t.d_right, slip));
     if (readings.size() == 1)  // wheel space, as the batch (see odometry_calibration_factor.h)
       addFactor(OdometryCalibrationFactor::Create(b->d_left, b->d_right, b->noise, params[0]), {a, b}, false,
-                {Calib::Wheels});
+                {wheels_block_});
     else
-      addFactor(ComposedOdometryCalibrationFactor::Create(readings, noise, params), {a, b}, false, {Calib::Wheels});
+      addFactor(ComposedOdometryCalibrationFactor::Create(readings, noise, params), {a, b}, false, {wheels_block_});
   }
   factors_.back()->odometry = true;
 }

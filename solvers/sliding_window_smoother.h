@@ -29,8 +29,14 @@
 // through the prior calibration (calibratedObservation), so the given calibration's range bias
 // does not reject the sightings that calibrate it. When the noise model states the rectified rows'
 // misalignment, it is a third global block, the row offset dv (rowOffsetSigma), in the pixel
-// factors of the features the frontend matched along their row (s dv on u_r). Memory is bounded by W and restart_buffer_steps (plus one Estimate per
-// step for finish() unless keep_history is off). Derivations: docs/estimators.md, "Smoothers".
+// factors of the features the frontend matched along their row (s dv on u_r). With it, a landmark
+// whose constant pixel offsets the noise model states (featureOffsetSigmas, feature_offsets) gets
+// its own global block (b_c, b_d) when it is first fused, with their zero-mean prior, and its
+// sightings' factors carry it instead of its constant as white noise, which a short window would
+// average over the sightings as if it did not repeat; the gate ignores these offsets (a fraction
+// of a pixel). Memory is bounded by W, restart_buffer_steps and the landmarks seen (plus one
+// Estimate per step for finish() unless keep_history is off). Derivations: docs/estimators.md,
+// "Smoothers".
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
@@ -39,6 +45,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -257,9 +264,25 @@ class SlidingWindowSmoother : public Estimator {
     // (WindowLinearisation::PriorPoint).
     std::optional<std::array<double, 3>> prior_point;
   };
-  // Self-calibration blocks, after the poses in a factor's block order and in the window's
-  // variables (wheels before head).
-  enum class Calib { Wheels, Head, Row };
+  // Self-calibration blocks. A factor names its blocks (after its poses, in its block order) by
+  // their index in calib_, which is also their order in the window's variables: the wheels, the
+  // head and the row offset when enabled, then one feature-offset block per landmark in the order
+  // the landmarks were first fused.
+  using Calib = int;
+  struct CalibBlock {
+    double* data = nullptr;
+    int size = 0;
+    int offset = 0;  // within the calibration variables (calib_covariance_)
+  };
+  // A landmark's feature offsets: the entries of (b_c, b_d) the noise model states, in that
+  // order, in the first calibSize(block) entries of `value`; an entry it does not state is no
+  // parameter (held at zero).
+  struct FeatureBlock {
+    int landmark_id = -1;
+    FeatureOffsetSigma sigma;
+    std::array<double, 2> value{};
+    Calib block = -1;
+  };
   struct Factor {
     std::unique_ptr<ceres::CostFunction> cost;
     std::vector<Node*> nodes;
@@ -274,15 +297,17 @@ class SlidingWindowSmoother : public Estimator {
   void addFactor(ceres::CostFunction* cost, std::vector<Node*> nodes, bool robust = false,
                  std::vector<Calib> calib = {});
   using StereoBlock = CalibrationEstimate::StereoVector;
-  double* calibData(Calib c) { return c == Calib::Wheels ? wheels_.data() : c == Calib::Head ? head_.data() : &row_; }
-  static int calibSize(Calib c) {
-    return c == Calib::Wheels ? 3 : c == Calib::Head ? static_cast<int>(StereoBlock::RowsAtCompileTime) : 1;
-  }
-  int calibOffset(Calib c) const;  // within the enabled blocks (calibBlocks' order)
+  Calib addCalibBlock(double* data, int size);  // registers it after the others
+  double* calibData(Calib c) const { return calib_[static_cast<size_t>(c)].data; }
+  int calibSize(Calib c) const { return calib_[static_cast<size_t>(c)].size; }
+  int calibOffset(Calib c) const { return calib_[static_cast<size_t>(c)].offset; }
   bool rowBlock() const { return row_sigma_.has_value(); }
-  std::vector<Calib> calibBlocks() const;  // the enabled ones, in variable order
+  std::vector<Calib> calibBlocks() const;  // all of them, in variable order
   CalibrationEstimate::StereoMatrix headCovariance() const;  // the stereo block's part of calib_covariance_
-  int calibDim() const;
+  int calibDim() const { return calib_dim_; }
+  // The feature-offset block of landmark `lm`, created with its prior at the first call; null
+  // when its offsets are not estimated (no row block, feature_offsets off, none stated for its kind).
+  const FeatureBlock* featureBlock(const Landmark& lm);
   void relinearise();                      // every factor's linearisation point := current values
   // The odometry prediction of one step with the current wheel calibration (the nominal one
   // without odometry calibration); J_c as in predictCalibratedStep (left alone without it).
@@ -397,12 +422,20 @@ class SlidingWindowSmoother : public Estimator {
   std::deque<RecentStep> recent_;  // the last restart_buffer_steps steps
   NoiseTravel noise_travel_{odometry_.readings};  // of every step in order (a replay reuses the kept travel)
   // Self-calibration blocks (factors/odometry_calibration_factor.h: c_l, c_r, w (mm);
-  // factors/stereo_pixel_calibration_factor.h) and their joint marginal covariance (wheels then
-  // head, enabled blocks only) from the last covariance computation.
+  // factors/stereo_pixel_calibration_factor.h; the row offset; the feature offsets) and their
+  // joint marginal covariance (calib_'s order) from the last covariance computation.
   Eigen::Vector3d wheels_ = Eigen::Vector3d(1.0, 1.0, 0.0);
   StereoBlock head_ = CalibrationEstimate().head;
   double row_ = 0.0;                   // the row offset dv (px), with row_sigma_
   std::optional<double> row_sigma_;    // its prior sigma, when estimated
+  // The stated feature-offset sigmas by landmark (featureOffsetSigmas; empty when not estimated),
+  // and the blocks of the landmarks fused so far (a deque: the solver holds their addresses).
+  std::unordered_map<int, FeatureOffsetSigma> feature_sigmas_;
+  std::deque<FeatureBlock> features_;
+  std::unordered_map<int, size_t> feature_index_;  // landmark id -> features_ index
+  std::vector<CalibBlock> calib_;
+  int calib_dim_ = 0;
+  Calib wheels_block_ = -1, head_block_ = -1, row_block_ = -1;  // -1: not estimated
   Eigen::MatrixXd calib_covariance_;
   WindowLinearisation linearisation_ = WindowLinearisation::PriorPoint;  // in effect
 };
