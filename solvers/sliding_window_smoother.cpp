@@ -14,6 +14,7 @@
 #include "factors/calibration_prior_factor.h"
 #include "factors/compass_factor.h"
 #include "factors/composed_odometry_calibration_factor.h"
+#include "factors/held_entries.h"
 #include "factors/marginal_prior_factor.h"
 #include "factors/odometry_calibration_factor.h"
 #include "factors/odometry_factor.h"
@@ -36,42 +37,6 @@ bool positiveDefinite(const Eigen::Matrix3d& C) {
 }
 
 Pose2 poseOf(const std::array<double, 3>& x) { return Pose2(x[0], x[1], x[2]); }
-
-// A cost function whose last block holds some entries of the inner function's last block, the
-// others held at zero: a feature's offsets the noise model does not state are no parameters.
-class HeldEntries final : public ceres::CostFunction {
- public:
-  HeldEntries(ceres::CostFunction* inner, std::vector<int> entries) : inner_(inner), entries_(std::move(entries)) {
-    const std::vector<int32_t>& b = inner_->parameter_block_sizes();
-    full_ = b.back();
-    set_num_residuals(inner_->num_residuals());
-    *mutable_parameter_block_sizes() = b;
-    mutable_parameter_block_sizes()->back() = static_cast<int32_t>(entries_.size());
-  }
-  bool Evaluate(double const* const* p, double* r, double** J) const override {
-    const size_t nb = parameter_block_sizes().size();
-    const size_t n = entries_.size();
-    std::vector<double> full(static_cast<size_t>(full_), 0.0);
-    for (size_t e = 0; e < n; ++e) full[static_cast<size_t>(entries_[e])] = p[nb - 1][e];
-    std::vector<const double*> blocks(p, p + nb);
-    blocks.back() = full.data();
-    if (!J || !J[nb - 1]) return inner_->Evaluate(blocks.data(), r, J);
-    const int m = num_residuals();
-    std::vector<double> J_full(static_cast<size_t>(m * full_));
-    std::vector<double*> jac(J, J + nb);
-    jac.back() = J_full.data();
-    if (!inner_->Evaluate(blocks.data(), r, jac.data())) return false;
-    for (int row = 0; row < m; ++row)
-      for (size_t e = 0; e < n; ++e)
-        J[nb - 1][static_cast<size_t>(row) * n + e] = J_full[static_cast<size_t>(row * full_ + entries_[e])];
-    return true;
-  }
-
- private:
-  std::unique_ptr<ceres::CostFunction> inner_;
-  std::vector<int> entries_;
-  int full_ = 0;
-};
 
 // The stereo block's prior standard deviations, in the order of
 // factors/stereo_pixel_calibration_factor.h.

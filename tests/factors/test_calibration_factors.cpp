@@ -564,6 +564,7 @@ TEST(StereoPixelFeatureCalibrationFactor, ZeroOffsetEqualsTheRowFactorOffsetIsEx
 }  // namespace
 }  // namespace stereoloc
 
+#include "factors/held_entries.h"
 #include "factors/joined_global_blocks.h"
 
 namespace stereoloc {
@@ -611,6 +612,48 @@ TEST(JoinedGlobalBlocks, ScattersTheInnerBlocksAndHoldsUnmappedEntriesAtZero) {
                                       Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr),
                                   {{0, 1, 2, 3, 4, 5}, {6}}),
                Error);
+}
+
+// A goal corner's feature block in the window: only b_c is a parameter, b_d held at zero. The
+// residual is the inner factor's with b_d = 0 and the Jacobians agree with central differences;
+// keeping both entries reproduces the inner factor.
+TEST(HeldEntries, KeepsTheStatedEntriesOfTheLastBlockAndHoldsTheOthersAtZero) {
+  forEachCalibrationCase(37, [&](const StereoRig& rig, PixelResiduals mode, const test::Sighting& s, double pan,
+                                 const double* p, const double* q, const double* e, auto& uniform) {
+    const double gain = 1.5 * uniform(), dv[1] = {1.4 * uniform()}, b[2] = {0.4 * uniform(), 0.0};
+    const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
+    const stereo_pixel_calibration::ImageErrorVector sigmas = stereo_pixel_calibration::ImageErrorVector::Constant(0.002);
+    for (const bool image : {false, true}) {
+      auto inner = [&] {
+        return StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode,
+                                                           image ? &sigmas : nullptr);
+      };
+      const std::unique_ptr<ceres::CostFunction> direct_cost(inner());
+      const double b_c[1] = {b[0]};
+      std::vector<const double*> full{p, q}, held{p, q};
+      if (image) {
+        full.push_back(e);
+        held.push_back(e);
+      }
+      full.insert(full.end(), {dv, b});
+      held.insert(held.end(), {dv, b_c});
+      HeldEntries column(inner(), {0});
+      ASSERT_EQ(column.parameter_block_sizes().back(), 1);
+      EXPECT_LT((evaluate(column, held) - evaluate(*direct_cost, full)).norm(), 1e-12);
+      const FactorCheck check = checkFactorJacobians(column, held);
+      EXPECT_TRUE(check.ok) << check.message;
+      HeldEntries both(inner(), {0, 1});
+      EXPECT_LT((evaluate(both, full) - evaluate(*direct_cost, full)).norm(), 1e-12);
+    }
+  });
+  auto factor = [] {
+    const test::Sighting s = test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60);
+    return StereoPixelFeatureCalibrationFactor::Create(StereoRig(), s.landmark, s.pixels, 0.0, 0.0,
+                                                       Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr);
+  };
+  EXPECT_THROW(HeldEntries(factor(), {}), Error);
+  EXPECT_THROW(HeldEntries(factor(), {1, 0}), Error);
+  EXPECT_THROW(HeldEntries(factor(), {2}), Error);
 }
 
 }  // namespace
