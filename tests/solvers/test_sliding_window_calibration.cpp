@@ -117,6 +117,43 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
 // The same with the row block (the noise model states the rows' misalignment, the sightings
 // slid by their slide gains times a planted one): the window's row offset and its variance are
 // the batch's too.
+// The self-calibrating batch and a window as long as the data (no gate, linearised at the
+// estimate, tight tolerances) on `d` with the noise model `noise`: expects the same poses and
+// covariances to 1e-6 and returns both calibrations (the batch's first).
+std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch(const Dataset& d,
+                                                                                const UnmodelledNoise& noise) {
+  BatchSmootherConfig bc;
+  bc.init = knownBelief(*d.groundtruth.front(), kP0);
+  bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
+  bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
+  bc.cut_at_reinitialisation = false;
+  bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
+  BatchSmoother b(d.map, d.odometry, bc);
+  for (const Step& s : d.steps) b.process(s);
+  const std::vector<Estimate> eb = b.finish();
+
+  SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
+  c.observation_model.unmodelled = noise;
+  c.gate_enabled = false;
+  c.linearisation = WindowLinearisation::Current;
+  c.final_iterations = 100;
+  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
+  SlidingWindowSmoother win(d.map, d.odometry, c);
+  for (const Step& s : d.steps) win.process(s);
+  const std::vector<Estimate> ew = win.finish();
+  EXPECT_EQ(ew.size(), eb.size());
+  double pose = 0, cov = 0;
+  for (size_t i = 0; i < std::min(ew.size(), eb.size()); ++i) {
+    pose = std::max(pose, minus(ew[i].pose, eb[i].pose).cwiseAbs().maxCoeff());
+    cov = std::max(cov, relDiff(ew[i].covariance, eb[i].covariance));
+  }
+  EXPECT_LT(pose, 1e-6);
+  EXPECT_LT(cov, 1e-6);
+  const std::optional<CalibrationEstimate> cw = win.calibration();
+  EXPECT_TRUE(cw.has_value());
+  return {b.calibration(), cw.value_or(CalibrationEstimate())};
+}
+
 TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheRowBlock) {
   Dataset d = realisticRun(3, "random-walk", 200);
   std::mt19937_64 rng(9);
@@ -128,37 +165,9 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheRowBlock) {
     }
   UnmodelledNoise noise;
   noise.row_offset_sigma_px = 1.49;
-  BatchSmootherConfig bc;
-  bc.init = knownBelief(*d.groundtruth.front(), kP0);
-  bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
-  bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
-  bc.cut_at_reinitialisation = false;
-  bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
-  BatchSmoother b(d.map, d.odometry, bc);
-  for (const Step& s : d.steps) b.process(s);
-  const std::vector<Estimate> eb = b.finish();
-  const CalibrationEstimate cb = b.calibration();
+  const auto [cb, calibration] = expectWholeDataWindowIsBatch(d, noise);
+  const CalibrationEstimate* cw = &calibration;
   ASSERT_TRUE(cb.row);
-
-  SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
-  c.observation_model.unmodelled = noise;
-  c.gate_enabled = false;
-  c.linearisation = WindowLinearisation::Current;
-  c.final_iterations = 100;
-  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
-  SlidingWindowSmoother win(d.map, d.odometry, c);
-  for (const Step& s : d.steps) win.process(s);
-  const std::vector<Estimate> ew = win.finish();
-  ASSERT_EQ(ew.size(), eb.size());
-  double pose = 0, cov = 0;
-  for (size_t i = 0; i < ew.size(); ++i) {
-    pose = std::max(pose, minus(ew[i].pose, eb[i].pose).cwiseAbs().maxCoeff());
-    cov = std::max(cov, relDiff(ew[i].covariance, eb[i].covariance));
-  }
-  EXPECT_LT(pose, 1e-6);
-  EXPECT_LT(cov, 1e-6);
-  const std::optional<CalibrationEstimate> cw = win.calibration();
-  ASSERT_TRUE(cw.has_value());
   ASSERT_TRUE(cw->row);
   EXPECT_LT((cw->head - cb.head).cwiseAbs().maxCoeff(), 1e-6);
   EXPECT_NEAR(cw->row_offset_px, cb.row_offset_px, 1e-6);
@@ -217,38 +226,10 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheFeatureOffs
   sc.landmarks = LandmarkSet::All;
   Dataset d = simulate("random-walk", 0, sc, 3);
   const PlantedOffsets planted = plantFeatureOffsets(d, 1.2, 0.3, 0.6, 9);
-  BatchSmootherConfig bc;
-  bc.init = knownBelief(*d.groundtruth.front(), kP0);
-  bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, planted.noise};
-  bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
-  bc.cut_at_reinitialisation = false;
-  bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
-  BatchSmoother b(d.map, d.odometry, bc);
-  for (const Step& s : d.steps) b.process(s);
-  const std::vector<Estimate> eb = b.finish();
-  const CalibrationEstimate cb = b.calibration();
+  const auto [cb, calibration] = expectWholeDataWindowIsBatch(d, planted.noise);
+  const CalibrationEstimate* cw = &calibration;
   ASSERT_TRUE(cb.row);
   ASSERT_FALSE(cb.feature_offsets.empty());
-
-  SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
-  c.observation_model.unmodelled = planted.noise;
-  c.gate_enabled = false;
-  c.linearisation = WindowLinearisation::Current;
-  c.final_iterations = 100;
-  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
-  SlidingWindowSmoother win(d.map, d.odometry, c);
-  for (const Step& s : d.steps) win.process(s);
-  const std::vector<Estimate> ew = win.finish();
-  ASSERT_EQ(ew.size(), eb.size());
-  double pose = 0, cov = 0;
-  for (size_t i = 0; i < ew.size(); ++i) {
-    pose = std::max(pose, minus(ew[i].pose, eb[i].pose).cwiseAbs().maxCoeff());
-    cov = std::max(cov, relDiff(ew[i].covariance, eb[i].covariance));
-  }
-  EXPECT_LT(pose, 1e-6);
-  EXPECT_LT(cov, 1e-6);
-  const std::optional<CalibrationEstimate> cw = win.calibration();
-  ASSERT_TRUE(cw.has_value());
   ASSERT_TRUE(cw->row);
   EXPECT_LT((cw->wheels - cb.wheels).cwiseAbs().maxCoeff(), 1e-6);
   EXPECT_LT((cw->head - cb.head).cwiseAbs().maxCoeff(), 1e-6);
