@@ -114,9 +114,6 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
   EXPECT_GT((cw->wheels - Eigen::Vector3d(1, 1, d.odometry.wheel_base_mm)).cwiseAbs().maxCoeff(), 1e-4);
 }
 
-// The same with the row block (the noise model states the rows' misalignment, the sightings
-// slid by their slide gains times a planted one): the window's row offset and its variance are
-// the batch's too.
 // The self-calibrating batch and a window as long as the data (no gate, linearised at the
 // estimate, tight tolerances) on `d` with the noise model `noise`: expects the same poses and
 // covariances to 1e-6 and returns both calibrations (the batch's first).
@@ -154,6 +151,9 @@ std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch
   return {b.calibration(), cw.value_or(CalibrationEstimate())};
 }
 
+// The same with the row block (the noise model states the rows' misalignment, the sightings
+// slid by their slide gains times a planted one): the window's row offset and its variance are
+// the batch's too.
 TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheRowBlock) {
   Dataset d = realisticRun(3, "random-walk", 200);
   std::mt19937_64 rng(9);
