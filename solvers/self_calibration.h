@@ -13,7 +13,7 @@
 //             range-bearing factors, which do not see q
 //   image     e = the error of each camera's calibrated lens distortion (dk1, dk2, dp1, dp2) and
 //             the right camera's rotation against the left (pitch, yaw, roll), with the stereo
-//             block when the noise model (UnmodelledNoise) states their sigmas (batch smoother;
+//             block when the noise model (UnmodelledNoise) states their sigmas (batch and window;
 //             SelfCalibrationConfig::image_errors; factors/stereo_pixel_image_calibration_factor.h)
 //   row       dv = the rectified rows' misalignment (px), with the stereo block when the noise
 //             model states it (UnmodelledNoise::row_offset_sigma_px; batch and window;
@@ -75,10 +75,10 @@ struct SelfCalibrationConfig {
   double focal_ratio_sigma = 0.014;         // dimensionless
   // The left camera's focal length: 0.5 % per camera.
   double focal_scale_sigma = 0.01;          // dimensionless
-  // With the stereo block, in the batch smoother: estimate the image errors the noise model
-  // states (lens estimate, relative rotation) as the image block instead of adding them to the
-  // pixel noise. The sliding window keeps them as pixel noise: it gates each sighting once,
-  // through the stereo block alone.
+  // With the stereo block, in the batch and the window: estimate the image errors the noise
+  // model states (lens estimate, relative rotation) as the image block instead of adding them to
+  // the pixel noise. The window's gate keeps them as pixel noise, and the window estimates them
+  // only after its first steps (SlidingWindowConfig::image_errors_after_steps).
   bool image_errors = true;
   // With the stereo block, in the batch and the window: estimate the rows' misalignment when
   // the noise model states it (rowOffsetSigma).

@@ -21,6 +21,7 @@
 #include "factors/pose_prior_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
 #include "factors/stereo_pixel_feature_calibration_factor.h"
+#include "factors/stereo_pixel_image_calibration_factor.h"
 #include "factors/stereo_pixel_row_calibration_factor.h"
 #include "solvers/iterated_update.h"
 #include "src/core/error.h"
@@ -182,6 +183,7 @@ WindowLinearisation windowLinearisationFromString(const std::string& name) {
 
 void SlidingWindowConfig::validate() const {
   if (window < 1) throw Error("sliding window: window must be >= 1");
+  if (image_errors_after_steps < 0) throw Error("sliding window: image_errors_after_steps must be >= 0");
   if (max_iterations < 1) throw Error("sliding window: max_iterations must be >= 1");
   if (final_iterations < 0) throw Error("sliding window: final_iterations must be >= 0");
   if (!(max_solver_seconds >= 0)) throw Error("sliding window: max_solver_seconds must be >= 0");
@@ -228,6 +230,8 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   row_sigma_ = rowOffsetSigma(cal, config_.observation_model.unmodelled);
   if (cal.odometry) wheels_block_ = addCalibBlock(wheels_.data(), 3);
   if (cal.stereo) head_block_ = addCalibBlock(head_.data(), StereoBlock::RowsAtCompileTime);
+  image_sigmas_ = imageErrorSigmas(cal, config_.observation_model.unmodelled);
+  if (image_sigmas_) image_block_ = addCalibBlock(image_.data(), CalibrationEstimate::ImageVector::RowsAtCompileTime);
   if (row_sigma_) row_block_ = addCalibBlock(&row_, 1);
   for (const FeatureOffsetPrior& f : featureOffsetSigmas(map_, cal, config_.observation_model.unmodelled))
     feature_sigmas_[f.landmark_id] = f.sigma;
@@ -251,6 +255,14 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
                   head_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()),
               {}, false, {head_block_});
     calib_covariance_.diagonal().segment(calibOffset(head_block_), calibSize(head_block_)) = sig.cwiseAbs2();
+  }
+  if (image_sigmas_) {
+    // Whitened: its prior is the identity.
+    constexpr int m = CalibrationEstimate::ImageVector::RowsAtCompileTime;
+    addFactor(CalibrationPriorFactor<m>::Create(CalibrationEstimate::ImageVector::Zero(),
+                                                Eigen::Matrix<double, m, m>::Identity()),
+              {}, false, {image_block_});
+    calib_covariance_.diagonal().segment(calibOffset(image_block_), m).setOnes();
   }
   if (row_sigma_) {
     addFactor(CalibrationPriorFactor<1>::Create(Eigen::Matrix<double, 1, 1>::Zero(),
@@ -360,6 +372,12 @@ std::optional<CalibrationEstimate> SlidingWindowSmoother::calibration() const {
   e.head = head_;
   if (e.odometry) e.wheels_covariance = calib_covariance_.block<3, 3>(calibOffset(wheels_block_), calibOffset(wheels_block_));
   if (e.stereo) e.head_covariance = headCovariance();
+  if (image_sigmas_) {
+    const int k = calibOffset(image_block_), m = calibSize(image_block_);
+    e.image = true;
+    e.image_errors = image_sigmas_->cwiseProduct(image_);
+    e.image_covariance = image_sigmas_->asDiagonal() * calib_covariance_.block(k, k, m, m) * image_sigmas_->asDiagonal();
+  }
   if (rowBlock()) {
     e.row = true;
     e.row_offset_px = row_;
@@ -740,6 +758,12 @@ void SlidingWindowSmoother::solve(int max_iterations) {
     opts.initial_trust_region_radius = 1e16;
     opts.max_trust_region_radius = 1e16;
   }
+  if (image_sigmas_) {
+    if (image_free_)
+      problem_->SetParameterBlockVariable(image_.data());
+    else
+      problem_->SetParameterBlockConstant(image_.data());
+  }
   ceres::Solver::Summary summary;
   ceres::Solve(opts, problem_.get(), &summary);
   if (!summary.IsSolutionUsable()) throw Error("sliding window: Ceres failed: " + summary.message);
@@ -937,29 +961,41 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
     // repeats over the feature's sightings, and as white noise it would be averaged down as if
     // it did not (the calibration's covariance then too small).
     const FeatureBlock* feature = featureBlock(*lm);
-    const Eigen::Matrix4d C =
-        calibratedPixelCovariance(measured, *lm, config_.observation_model, false, true, feature != nullptr);
+    // Until the image block is free its errors stay in the pixel noise too.
+    const Eigen::Matrix4d C = calibratedPixelCovariance(measured, *lm, config_.observation_model,
+                                                        image_sigmas_ && image_free_, true, feature != nullptr);
+    const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
+    std::vector<Calib> blocks{head_block_};
+    if (image) blocks.push_back(image_block_);
+    blocks.push_back(row_block_);
     if (feature) {
       ceres::CostFunction* cost = StereoPixelFeatureCalibrationFactor::Create(
           config_.observation_model.rig, lm->position, *measured.pixels, measured.slide_gain, measured.head_pan, C,
-          residuals, nullptr);
+          residuals, image);
       std::vector<int> entries;
       if (feature->sigma.column > 0) entries.push_back(0);
       if (feature->sigma.disparity > 0) entries.push_back(1);
       if (entries.size() < StereoPixelFeatureCalibrationFactor::kOffsetSize) cost = new HeldEntries(cost, entries);
-      addFactor(cost, {node}, true, {head_block_, row_block_, feature->block});
+      blocks.push_back(feature->block);
+      addFactor(cost, {node}, true, std::move(blocks));
     } else {
       addFactor(StereoPixelRowCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
-                                                        measured.slide_gain, measured.head_pan, C, residuals, nullptr),
-                {node}, true, {head_block_, row_block_});
+                                                        measured.slide_gain, measured.head_pan, C, residuals, image),
+                {node}, true, std::move(blocks));
     }
   } else if (config_.calibration.stereo && measured.pixels) {
     const PixelResiduals residuals =
         config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
-                                                   measured.head_pan,
-                                                   pixelCovarianceFor(measured, *lm, config_.observation_model), residuals),
-              {node}, true, {head_block_});
+    const Eigen::Matrix4d C =
+        calibratedPixelCovariance(measured, *lm, config_.observation_model, image_sigmas_ && image_free_);
+    if (image_sigmas_)
+      addFactor(StereoPixelImageCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
+                                                          measured.head_pan, C, residuals, *image_sigmas_),
+                {node}, true, {head_block_, image_block_});
+    else
+      addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
+                                                     measured.head_pan, C, residuals),
+                {node}, true, {head_block_});
   } else {
     addFactor(makeObservationFactor(measured, *lm, config_.observation_model), {node}, true);
   }
@@ -1320,6 +1356,7 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
   have_step_ = true;
   last_step_ = step.step;
   ++stats_.steps;
+  image_free_ = image_sigmas_ && stats_.steps > config_.image_errors_after_steps;
   if (config_.restart_buffer_steps > 0) {
     recent_.push_back(RecentStep{step, noise});
     recent_.back().step.observations.clear();

@@ -27,8 +27,11 @@
 // calibration. With the stereo block, gate, association and global fixes see each pixel observation
 // through the current calibration estimate and its covariance, and a sighting that gates out
 // through the prior calibration (calibratedObservation), so the given calibration's range bias
-// does not reject the sightings that calibrate it. When the noise model states the rectified rows'
-// misalignment, it is a third global block, the row offset dv (rowOffsetSigma), in the pixel
+// does not reject the sightings that calibrate it. When the noise model states the lens estimate's
+// or the cameras' relative rotation errors, they are the image block (imageErrorSigmas) of the
+// pixel factors as in the batch, estimated after the window's first steps
+// (image_errors_after_steps); the gate keeps them as pixel noise. When the noise model states
+// the rectified rows' misalignment, it is a further global block, the row offset dv (rowOffsetSigma), in the pixel
 // factors of the features the frontend matched along their row (s dv on u_r). With it, a landmark
 // whose constant pixel offsets the noise model states (featureOffsetSigmas, feature_offsets) gets
 // its own global block (b_c, b_d) when it is first fused, with their zero-mean prior, and its
@@ -137,6 +140,13 @@ struct SlidingWindowConfig {
   // sigmas; `residuals`, `use_compass` and `max_iterations` are taken from this config:
   // pixel columns unless observation_model is Pixels). Stereo needs observation_model.rig.
   SelfCalibrationConfig calibration;
+  // With the image block (calibration.image_errors and a noise model that states its errors):
+  // the steps after which the window estimates it. Before, the block stays at its prior mean and
+  // the sightings keep its errors as pixel noise: fitted to a window's first few sightings its
+  // eleven parameters, weakly determined, can with the stereo block settle the first poses
+  // tens of mm off, which the marginal prior then keeps (docs/realistic_world.md). 0: from the
+  // first step (then a window as long as the data is the batch).
+  int image_errors_after_steps = 20;
 
   void validate() const;             // throws stereoloc::Error naming the field
 };
@@ -426,6 +436,11 @@ class SlidingWindowSmoother : public Estimator {
   // joint marginal covariance (calib_'s order) from the last covariance computation.
   Eigen::Vector3d wheels_ = Eigen::Vector3d(1.0, 1.0, 0.0);
   StereoBlock head_ = CalibrationEstimate().head;
+  // The image block (imageErrorSigmas): the lens estimate's errors and the right camera's
+  // rotation, whitened (parameter i is e_i / sigma_i, prior the identity), with their sigmas.
+  CalibrationEstimate::ImageVector image_ = CalibrationEstimate::ImageVector::Zero();
+  std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
+  bool image_free_ = false;  // the image block is estimated (image_errors_after_steps)
   double row_ = 0.0;                   // the row offset dv (px), with row_sigma_
   std::optional<double> row_sigma_;    // its prior sigma, when estimated
   // The stated feature-offset sigmas by landmark (featureOffsetSigmas; empty when not estimated),
@@ -435,7 +450,7 @@ class SlidingWindowSmoother : public Estimator {
   std::unordered_map<int, size_t> feature_index_;  // landmark id -> features_ index
   std::vector<CalibBlock> calib_;
   int calib_dim_ = 0;
-  Calib wheels_block_ = -1, head_block_ = -1, row_block_ = -1;  // -1: not estimated
+  Calib wheels_block_ = -1, head_block_ = -1, image_block_ = -1, row_block_ = -1;  // -1: not estimated
   Eigen::MatrixXd calib_covariance_;
   WindowLinearisation linearisation_ = WindowLinearisation::PriorPoint;  // in effect
 };

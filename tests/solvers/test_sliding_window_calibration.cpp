@@ -119,6 +119,7 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
 // covariances to 1e-6 and returns both calibrations (the batch's first).
 std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch(const Dataset& d,
                                                                                 const UnmodelledNoise& noise) {
+  // The image block (when the noise model states its errors) from the first step, as the batch.
   BatchSmootherConfig bc;
   bc.init = knownBelief(*d.groundtruth.front(), kP0);
   bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
@@ -131,6 +132,7 @@ std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch
 
   SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
   c.observation_model.unmodelled = noise;
+  c.image_errors_after_steps = 0;
   c.gate_enabled = false;
   c.linearisation = WindowLinearisation::Current;
   c.final_iterations = 100;
@@ -219,13 +221,22 @@ PlantedOffsets plantFeatureOffsets(Dataset& d, double dv, double column_sigma, d
 
 // With feature offsets: each landmark's (b_c, b_d), a global block of the window from its first
 // sighting, is the batch's too, estimate and variance (goal corners: b_c alone).
-TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheFeatureOffsets) {
+// With `image_block`, the noise model also states the lens estimate's and the cameras' relative
+// rotation errors of the realistic profile, which both then estimate as the image block.
+void expectWindowIsBatchWithFeatureOffsets(bool image_block) {
   SimulationConfig sc;
   sc.profile = ErrorProfile::realistic();
   sc.scenario.steps = 200;
   sc.landmarks = LandmarkSet::All;
   Dataset d = simulate("random-walk", 0, sc, 3);
-  const PlantedOffsets planted = plantFeatureOffsets(d, 1.2, 0.3, 0.6, 9);
+  PlantedOffsets planted = plantFeatureOffsets(d, 1.2, 0.3, 0.6, 9);
+  if (image_block) {
+    const ErrorProfile& r = sc.profile;
+    planted.noise.k1_sigma = r.k1_estimate_sigma;
+    planted.noise.k2_sigma = r.k2_estimate_sigma;
+    planted.noise.tangential_sigma = r.tangential_estimate_sigma;
+    planted.noise.relative_rotation_sigma_rad = r.relative_rotation_sigma_rad;
+  }
   const auto [cb, calibration] = expectWholeDataWindowIsBatch(d, planted.noise);
   const CalibrationEstimate* cw = &calibration;
   ASSERT_TRUE(cb.row);
@@ -236,6 +247,13 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheFeatureOffs
   EXPECT_LT(relDiff(cw->head_covariance, cb.head_covariance), 1e-6);
   EXPECT_NEAR(cw->row_offset_px, cb.row_offset_px, 1e-6);
   EXPECT_NEAR(cw->row_offset_variance, cb.row_offset_variance, 1e-6 * cb.row_offset_variance);
+  ASSERT_EQ(cb.image, image_block);
+  ASSERT_EQ(cw->image, image_block);
+  if (image_block) {
+    EXPECT_GT(cb.image_errors.cwiseAbs().maxCoeff(), 0.0);
+    EXPECT_LT((cw->image_errors - cb.image_errors).cwiseAbs().maxCoeff(), 1e-6 * cb.image_errors.cwiseAbs().maxCoeff());
+    EXPECT_LT(relDiff(cw->image_covariance, cb.image_covariance), 1e-6);
+  }
   // The window lists the features it fused: those seen, each with the batch's estimate.
   std::set<int> seen;
   for (const Step& s : d.steps)
@@ -266,6 +284,39 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheFeatureOffs
   }
   EXPECT_GE(marking, 2);
   EXPECT_GT(largest, 0.1);  // the planted offsets moved the estimates off zero
+}
+
+TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheFeatureOffsets) {
+  expectWindowIsBatchWithFeatureOffsets(false);
+}
+
+TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheBatchWithTheImageBlock) {
+  expectWindowIsBatchWithFeatureOffsets(true);
+}
+
+// The image block waits for image_errors_after_steps: until then it stays at its prior mean (its
+// errors in the pixel noise), then the window estimates it; an invalid count is an error.
+TEST(SlidingWindowCalibration, ImageBlockWaitsForItsSteps) {
+  const Dataset d = realisticRun(5, "random-walk", 60);
+  const ErrorProfile r = ErrorProfile::realistic();
+  SlidingWindowConfig c = calibratingWindow(d, 20);
+  c.observation_model.unmodelled.k1_sigma = r.k1_estimate_sigma;
+  c.observation_model.unmodelled.k2_sigma = r.k2_estimate_sigma;
+  c.observation_model.unmodelled.tangential_sigma = r.tangential_estimate_sigma;
+  c.observation_model.unmodelled.relative_rotation_sigma_rad = r.relative_rotation_sigma_rad;
+  c.image_errors_after_steps = 30;
+  SlidingWindowSmoother win(d.map, d.odometry, c);
+  size_t k = 0;
+  for (; k < 30; ++k) win.process(d.steps[k]);
+  std::optional<CalibrationEstimate> e = win.calibration();
+  ASSERT_TRUE(e && e->image);
+  EXPECT_EQ(e->image_errors.cwiseAbs().maxCoeff(), 0.0) << "estimated before its steps";
+  for (; k < d.steps.size(); ++k) win.process(d.steps[k]);
+  e = win.calibration();
+  ASSERT_TRUE(e && e->image);
+  EXPECT_GT(e->image_errors.cwiseAbs().maxCoeff(), 0.0) << "not estimated after its steps";
+  c.image_errors_after_steps = -1;
+  EXPECT_THROW(c.validate(), Error);
 }
 
 TEST(SlidingWindowCalibration, ShortWindowEstimatesPlantedFeatureOffsets) {
