@@ -597,6 +597,31 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   static constexpr int kImage = StereoPixelImageCalibrationFactor::kImageErrorSize;
 };
 
+namespace {
+
+// A calibration this many prior sigmas from its nominal value is taken as a failed solve.
+constexpr double kImplausibleCalibrationSigma = 5.0;
+
+// The largest whitened residual of the calibration blocks' priors at `globals`: how many prior
+// sigmas the furthest calibration parameter lies from its nominal value.
+double calibrationPriorZ(const ChainFactorSource& source, const std::vector<double>& globals) {
+  std::vector<ChainFactor> priors;
+  source.globalFactors(&priors);
+  const std::vector<int> sizes = source.globalBlockSizes();
+  std::vector<size_t> offset(sizes.size() + 1, 0);
+  for (size_t b = 0; b < sizes.size(); ++b) offset[b + 1] = offset[b] + static_cast<size_t>(sizes[b]);
+  double worst = 0;
+  for (const ChainFactor& f : priors) {
+    const double* block = globals.data() + offset[static_cast<size_t>(f.global)];
+    Eigen::VectorXd r(f.cost->num_residuals());
+    if (!f.cost->Evaluate(&block, r.data(), nullptr)) return std::numeric_limits<double>::infinity();
+    worst = std::max(worst, r.cwiseAbs().maxCoeff());
+  }
+  return worst;
+}
+
+}  // namespace
+
 void BatchSmoother::solve() {
   BatchSummary s;
   s.uninitialised_steps = summary_.uninitialised_steps;
@@ -884,6 +909,41 @@ void BatchSmoother::solve() {
     constexpr double kEdgeToleranceMm = 1e-3, kEdgeToleranceRad = 1e-6;
     const long total_cuts = static_cast<long>(cuts_.size());
     long tested = 0;
+    // The re-initialisation of the last candidate withdrawn since the previous kept cut: see
+    // moveCutToFix.
+    long withdrawn_fix = -1;  // local index, -1: none
+    int moved_cuts = 0;
+    // A kept cut sits right after the last pose the filter confirmed before it lost track. When
+    // the filter lost track earlier, a withdrawn candidate stretches back over that loss and the
+    // kept cut can only follow the withdrawn candidate's re-initialisation a; but the global fix
+    // at a is a pose the data place, and the robot may have been moved right before it (the filter
+    // fixed itself at once, then lost track again). The cut at c therefore also tries a (the poses
+    // a .. c-1 re-chained backwards from pose c by the odometry, as at the candidate's creation)
+    // and moves there if that solves the window around both to a lower cost: the same number of
+    // parameters, so the lower cost is the likelier place.
+    auto moveCutToFix = [&](size_t c, size_t a, size_t seg_lo, size_t seg_hi, size_t r) {
+      const size_t lo = a > seg_lo + kInitialMargin ? a - kInitialMargin : seg_lo;
+      const size_t hi = std::min(seg_hi, r + kInitialMargin);
+      double base = 0;
+      if (!chain.cost(lo, hi, x, &base)) return false;
+      const std::vector<double> keep(x.begin() + static_cast<long>(3 * lo), x.begin() + static_cast<long>(3 * hi));
+      for (size_t j = c; j-- > a;) {
+        const BufferedStep& st = steps_[first + j + 1];
+        const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
+        const Pose2 p = compose(Pose2(x[3 * j + 3], x[3 * j + 4], x[3 * j + 5]), inverse(Pose2(u.x(), u.y(), u.z())));
+        x[3 * j] = p.x;
+        x[3 * j + 1] = p.y;
+        x[3 * j + 2] = p.theta;
+      }
+      source.setCut(c, false);
+      source.setCut(a, true);
+      const double moved = solveRange(lo, hi, false, true);
+      if (moved < base) return true;
+      std::copy(keep.begin(), keep.end(), x.begin() + static_cast<long>(3 * lo));
+      source.setCut(a, false);
+      source.setCut(c, true);
+      return false;
+    };
     for (size_t k = 0; k < cuts_.size();) {
       report("cut test", tested++, total_cuts, 0, cost);
       const size_t c = cuts_[k].index - first;
@@ -938,15 +998,71 @@ void BatchSmoother::solve() {
         if (exact) break;
       }
       if (keep_cut) {
+        const size_t a = static_cast<size_t>(withdrawn_fix);
+        if (withdrawn_fix >= 0 && a > seg_lo && a < c && moveCutToFix(c, a, seg_lo, seg_hi, r)) {
+          cuts_[k].index = first + a;
+          ++moved_cuts;
+        }
+        withdrawn_fix = -1;
         ++k;
       } else {
+        withdrawn_fix = static_cast<long>(cuts_[k].reinit - first);
         cuts_.erase(cuts_.begin() + static_cast<long>(k));
         ++withdrawn;
       }
     }
     s.cut_test_seconds = secondsSince(t_cuts);
-    // The final solve with the kept cuts, from the windows' solutions.
+    // The final solve with the kept cuts, from the windows' solutions; a moved cut moved poses
+    // whose unidentified observations were paired where they were.
     cost = solveAll();
+    for (int pass = 0; pass < kReassociationPasses && reassociate_passes && moved_cuts > 0; ++pass) {
+      if (reassociate() == 0) break;
+      cost = solveAll();
+    }
+  }
+  // A miscalibrated filter pass loses track without a kidnap, and a cut kept on its evidence
+  // lets a segment and the calibration settle together on a wrong solution: a calibration
+  // parameter far outside its prior (a baseline scale 28 sigma off, a wheel base at half) says
+  // so. The chain is then solved whole, its pairings redone at that solution, and kept if its
+  // calibration is plausible; a real kidnap's chain cannot be, and the cuts stay.
+  if (!cuts_.empty() && !globals.empty() && calibrationPriorZ(source, globals) > kImplausibleCalibrationSigma) {
+    const std::vector<double> keep_x = x, keep_globals = globals;
+    std::vector<int> keep_ids(observations_.size());
+    std::vector<uint8_t> keep_left_out(observations_.size());
+    for (size_t o = 0; o < observations_.size(); ++o) {
+      keep_ids[o] = observations_[o].landmark_id;
+      keep_left_out[o] = source.leftOut(o) ? 1 : 0;
+    }
+    setCuts(cuts_, false);
+    // The pairings made on the cut segments are not trusted: as after the filter pass, the
+    // identified landmarks alone place the whole chain first.
+    for (const auto& [index, raw] : raw_observations_) {
+      if (index < first || !reassociate_passes) continue;
+      const size_t begin = observationsBegin(index);
+      for (size_t k = 0; k < raw.size(); ++k)
+        if (raw[k].landmark_id < 0) {
+          observations_[begin + k].landmark_id = -1;
+          source.setLeftOut(begin + k, false);
+        }
+    }
+    double whole = solveAll();
+    for (int pass = 0; pass < kReassociationPasses && reassociate_passes; ++pass) {
+      if (reassociate() == 0) break;
+      whole = solveAll();
+    }
+    if (calibrationPriorZ(source, globals) <= kImplausibleCalibrationSigma) {
+      cost = whole;
+      withdrawn += static_cast<int>(cuts_.size());
+      cuts_.clear();
+    } else {
+      x = keep_x;
+      globals = keep_globals;
+      for (size_t o = 0; o < observations_.size(); ++o) {
+        observations_[o].landmark_id = keep_ids[o];
+        source.setLeftOut(o, keep_left_out[o] != 0);
+      }
+      setCuts(cuts_, true);
+    }
   }
   countFactors();
   s.solve_seconds = secondsSince(t_solve);

@@ -23,7 +23,10 @@
 // observation whose factor cannot be evaluated at the guess (a pixel factor's landmark behind
 // the cameras) waits outside the solve until a solution brings it into view (docs/estimators.md).
 // Kidnap (5.1.3): the filter pass's gate detects it; each re-initialisation after "lost" cuts the
-// odometry chain and anchors the new segment on the global fix (cut_at_reinitialisation).
+// odometry chain and anchors the new segment on the global fix (cut_at_reinitialisation). The
+// solve keeps a cut only on the data's evidence, may move it back to an earlier fix, and with
+// self-calibration undoes the cuts when they leave the calibration implausible (docs/estimators.md,
+// "Where a cut goes").
 // Self-calibration (BatchSmootherConfig::calibration, solvers/self_calibration.h): the odometry
 // and stereo calibration as global parameter blocks of the same problem; the chain solver then
 // solves the bordered system (a few dense columns beside the tridiagonal poses) in O(N), and

@@ -5,7 +5,10 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
+#include <map>
+#include <optional>
 #include <random>
 
 #include "solvers/batch_smoother.h"
@@ -287,6 +290,57 @@ TEST(BatchSmoother, KidnapCutsTheOdometryChainAtTheReinitialisation) {
   EXPECT_GT(chain_rmse, 100.0) << "without the cut the kidnap must hurt, else the test proves nothing";
   EXPECT_LT(cut_rmse, 15.0) << "chain " << chain_rmse << " ekf " << ekf_rmse;
   EXPECT_LT(cut_rmse, 0.8 * ekf_rmse) << "ekf " << ekf_rmse;
+}
+
+// The filter has lost track before the kidnap (step 100; wrong landmark ids on the sightings of
+// steps 50-51, none from 52 until A); a global fix re-initialises it at its
+// first sighting at A (step 102), 180 mm off, and it is lost again at once (wrong ids at
+// 103-105). The first candidate cut has no kidnap behind it and is withdrawn; the second can
+// only follow the first's re-initialisation (at 103), which would tie the pose at 102, seen from
+// A, to the chain at B. The fix's pose is seen: the cut moves there.
+TEST(BatchSmoother, KeptCutMovesToTheFixOfAWithdrawnCandidate) {
+  SimulationTrace trace;
+  SimulationConfig sim;
+  sim.landmarks = LandmarkSet::All;
+  const Dataset d = simulate("kidnap", 0, sim, 1001, &trace);
+  ASSERT_TRUE(trace.scenario.carried[100]);
+  ASSERT_TRUE(d.steps[100].observations.empty() && d.steps[101].observations.empty());
+  ASSERT_FALSE(d.steps[102].observations.empty());
+  std::vector<Step> steps = d.steps;
+  // Each sighting relabelled with the landmark half the map's list away.
+  const std::vector<Landmark>& all = d.map.landmarks();
+  auto mislabel = [&](Step& st) {
+    for (Observation& o : st.observations) {
+      const auto at = std::find_if(all.begin(), all.end(), [&](const Landmark& l) { return l.id == o.landmark_id; });
+      ASSERT_NE(at, all.end());
+      o.landmark_id = all[(static_cast<size_t>(at - all.begin()) + all.size() / 2) % all.size()].id;
+    }
+  };
+  mislabel(steps[50]);
+  mislabel(steps[51]);
+  for (size_t k = 52; k < 100; ++k) steps[k].observations.clear();
+  for (size_t k = 103; k < 106; ++k) mislabel(steps[k]);
+  std::map<long, Pose2> fixes;
+  const Pose2& at_a = *d.groundtruth[102];
+  fixes[102] = Pose2(at_a.x + 150.0, at_a.y - 100.0, at_a.theta);
+  fixes[106] = *d.groundtruth[106];
+  BatchSmootherConfig c = knownStart(*d.initial_pose);
+  c.loss.type = RobustLoss::Cauchy;
+  c.loss.scale = 2.3849;
+  c.gate.lost_after = 2;
+  c.global_fix = [&](const Step& st, const FieldMap&) -> std::optional<PoseFix> {
+    const auto it = fixes.find(st.step);
+    if (it == fixes.end()) return std::nullopt;
+    return PoseFix{it->second, Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal()};
+  };
+  BatchSmoother b(d.map, d.odometry, c);
+  const std::vector<Estimate> est = run(b, steps);
+  const BatchSummary& s = b.summary();
+  ASSERT_EQ(s.reinit_steps, std::vector<long>{106}) << "the test needs the filter's second loss";
+  EXPECT_EQ(s.withdrawn_cuts, 1);
+  EXPECT_EQ(s.cut_steps, std::vector<long>{102});
+  for (size_t k = 102; k < 110; ++k)
+    EXPECT_LT((est[k].pose.translation() - d.groundtruth[k]->translation()).norm(), 20.0) << "step " << k;
 }
 
 TEST(BatchSmoother, ChainSolverReachesTheCeresOptimum) {
