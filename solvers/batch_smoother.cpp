@@ -599,9 +599,6 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
 
 namespace {
 
-// A calibration this many prior sigmas from its nominal value is taken as a failed solve.
-constexpr double kImplausibleCalibrationSigma = 5.0;
-
 // The largest whitened residual of the calibration blocks' priors at `globals`: how many prior
 // sigmas the furthest calibration parameter lies from its nominal value.
 double calibrationPriorZ(const ChainFactorSource& source, const std::vector<double>& globals) {
@@ -1025,7 +1022,7 @@ void BatchSmoother::solve() {
   // parameter far outside its prior (a baseline scale 28 sigma off, a wheel base at half) says
   // so. The chain is then solved whole, its pairings redone at that solution, and kept if its
   // calibration is plausible; a real kidnap's chain cannot be, and the cuts stay.
-  if (!cuts_.empty() && !globals.empty() && calibrationPriorZ(source, globals) > kImplausibleCalibrationSigma) {
+  if (!cuts_.empty() && !globals.empty() && calibrationPriorZ(source, globals) > kImplausiblePriorSigmas) {
     const std::vector<double> keep_x = x, keep_globals = globals;
     std::vector<int> keep_ids(observations_.size());
     std::vector<uint8_t> keep_left_out(observations_.size());
@@ -1050,7 +1047,7 @@ void BatchSmoother::solve() {
       if (reassociate() == 0) break;
       whole = solveAll();
     }
-    if (calibrationPriorZ(source, globals) <= kImplausibleCalibrationSigma) {
+    if (calibrationPriorZ(source, globals) <= kImplausiblePriorSigmas) {
       cost = whole;
       withdrawn += static_cast<int>(cuts_.size());
       cuts_.clear();

@@ -41,6 +41,30 @@ void SelfCalibrationConfig::validate() const {
   if (max_iterations < 1) throw Error("self-calibration: max_iterations must be at least 1");
 }
 
+PriorDistance furthestFromPrior(const CalibrationEstimate& e, const SelfCalibrationConfig& c, double nominal_wheel_base_mm) {
+  PriorDistance out;
+  auto consider = [&](const char* name, double value, double nominal, double sigma) {
+    const double z = std::fabs(value - nominal) / sigma;
+    if (z > out.sigmas || out.parameter.empty()) out = {name, z};
+  };
+  if (e.odometry) {
+    consider("wheel_scale_left", e.wheels[0], 1.0, c.wheel_scale_sigma);
+    consider("wheel_scale_right", e.wheels[1], 1.0, c.wheel_scale_sigma);
+    consider("wheel_base_mm", e.wheels[2], nominal_wheel_base_mm, c.wheel_base_rel_sigma * nominal_wheel_base_mm);
+  }
+  if (e.stereo) {
+    const CalibrationEstimate::StereoVector nominal = CalibrationEstimate().head;
+    const std::pair<const char*, double> head[] = {{"tilt_correction_rad", c.tilt_sigma_rad},
+                                                   {"baseline_scale", c.baseline_scale_sigma},
+                                                   {"disparity_offset_px", c.disparity_offset_sigma_px},
+                                                   {"column_offset_px", c.column_offset_sigma_px},
+                                                   {"focal_ratio", c.focal_ratio_sigma},
+                                                   {"focal_scale", c.focal_scale_sigma}};
+    for (int i = 0; i < 6; ++i) consider(head[i].first, e.head[i], nominal[i], head[i].second);
+  }
+  return out;
+}
+
 void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& rig) const {
   const StereoRig out = stereo ? selfCalibratedRig(rig, *this) : rig;
   out.save(path);

@@ -148,6 +148,21 @@ struct SelfCalibrationResult {
   bool covariance_ok = false;
 };
 
+// The named calibration parameter of the estimated blocks (wheel scales, wheel base, tilt
+// correction, baseline scale, disparity and column offsets, focal ratio and scale; the keys of
+// CalibrationEstimate::saveAsRig) that lies furthest from its nominal value, in the prior sigmas
+// of `config`. Beyond about 5 the solve has failed (a wrong data association, a false kidnap cut)
+// or the prior is wrong; the batch acts on it (docs/estimators.md, "Where a cut goes"), and the
+// CLI reports it. `nominal_wheel_base_mm`: the odometry model's wheel base. Empty parameter and 0
+// when no block was estimated.
+constexpr double kImplausiblePriorSigmas = 5.0;
+struct PriorDistance {
+  std::string parameter;
+  double sigmas = 0.0;
+};
+PriorDistance furthestFromPrior(const CalibrationEstimate& estimate, const SelfCalibrationConfig& config,
+                                double nominal_wheel_base_mm);
+
 // The sigmas of the image block (CalibrationEstimate::image_errors' order) that `noise` states:
 // k1_sigma, k2_sigma, tangential_sigma per camera, relative_rotation_sigma_rad per axis; nullopt
 // without the stereo block, with image_errors off, or when the noise model states none of them.

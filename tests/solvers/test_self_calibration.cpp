@@ -35,6 +35,26 @@ TEST(SelfCalibration, ParsesTheList) {
 // Both cameras' focal lengths off (1 % each): the left one's error is the focal scale psi, the
 // right one's relative to it the focal ratio phi. A bearing scale error the baseline scale
 // cannot take up; with psi the run determines it and the poses follow the truth.
+TEST(SelfCalibration, FurthestFromPriorNamesTheParameterInPriorSigmas) {
+  SelfCalibrationConfig c;  // priors: wheel scales 0.01, wheel base 4 %, baseline scale 0.02, ...
+  CalibrationEstimate e;
+  EXPECT_TRUE(furthestFromPrior(e, c, 75.0).parameter.empty()) << "no block estimated";
+  e.odometry = e.stereo = true;
+  e.wheels = Eigen::Vector3d(1.0, 1.0, 75.0);
+  EXPECT_DOUBLE_EQ(furthestFromPrior(e, c, 75.0).sigmas, 0.0);
+  e.wheels = Eigen::Vector3d(1.02, 0.995, 36.0);  // wheel base at about half: 13 sigmas
+  e.head[1] = 0.72;                               // baseline scale 14 sigmas
+  e.head[2] = -6.0;                               // disparity offset 2 sigmas
+  PriorDistance far = furthestFromPrior(e, c, 75.0);
+  EXPECT_EQ(far.parameter, "baseline_scale");
+  EXPECT_NEAR(far.sigmas, 0.28 / 0.02, 1e-12);
+  e.stereo = false;
+  far = furthestFromPrior(e, c, 75.0);
+  EXPECT_EQ(far.parameter, "wheel_base_mm");
+  EXPECT_NEAR(far.sigmas, 39.0 / (0.04 * 75.0), 1e-12);
+  EXPECT_GT(far.sigmas, kImplausiblePriorSigmas);
+}
+
 TEST(SelfCalibration, RecoversTheFocalLengthErrors) {
   SimulationConfig cfg;
   cfg.landmarks = LandmarkSet::All;

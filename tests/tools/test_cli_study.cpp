@@ -184,6 +184,9 @@ TEST(CliLocalize, SmoothersSelfCalibrateAndWriteARigBack) {
     const test::CliRun r = test::runCli("localize " + dir.file("d") + " --method " + m + " --calibrate odometry,stereo --calibration-out " +
                                         rig + " --out " + dir.file(m + ".csv"));
     ASSERT_EQ(r.exit_code, 0) << m << ": " << r.output;
+    // A plausible estimate is reported with its furthest parameter, without a warning.
+    EXPECT_NE(r.output.find("calibration: furthest from the nominal calibration: "), std::string::npos) << m << ": " << r.output;
+    EXPECT_EQ(r.output.find("warning"), std::string::npos) << m << ": " << r.output;
     const std::string yaml = slurp(rig);
     EXPECT_NE(yaml.find("wheel_base_mm"), std::string::npos) << m << ": " << yaml;
     EXPECT_EQ(yaml.find("nan"), std::string::npos) << m;

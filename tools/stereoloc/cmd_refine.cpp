@@ -83,7 +83,8 @@ void runRefine(const LocalizeArgs& a) {
   const auto t_write = Clock::now();
   writeEstimatesCsv(a.out, estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, estimates);
-  reportCalibration(a, o.calibration.odometry || o.calibration.stereo ? &calibration : nullptr, d.rig);
+  reportCalibration(a, o.calibration.odometry || o.calibration.stereo ? &calibration : nullptr, d.rig, o.calibration,
+                    d.odometry.wheel_base_mm);
   const double write_s = secondsSince(t_write);
   progress.clear();
   std::printf("batch: %zu estimates for %zu steps written to %s\n", estimates.size(), steps, a.out.c_str());

@@ -30,7 +30,8 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   return o;
 }
 
-void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibration, const StereoRig& rig) {
+void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibration, const StereoRig& rig,
+                       const SelfCalibrationConfig& config, double nominal_wheel_base_mm) {
   if (!calibration) return;
   const CalibrationEstimate& c = *calibration;
   if (!a.calibration_out.empty()) c.saveAsRig(a.calibration_out, rig);
@@ -46,6 +47,12 @@ void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibra
         rad2deg(c.head[0]), rad2deg(sd(c.head_covariance(0, 0))), c.head[1], sd(c.head_covariance(1, 1)), c.head[2],
         sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)),
         c.head[5], sd(c.head_covariance(5, 5)));
+  const PriorDistance far = furthestFromPrior(c, config, nominal_wheel_base_mm);
+  std::printf("calibration: furthest from the nominal calibration: %s, %.1f prior sigmas\n", far.parameter.c_str(), far.sigmas);
+  if (far.sigmas > kImplausiblePriorSigmas)
+    std::printf("calibration: warning: beyond %.0f prior sigmas, a failed solve (data association, a false kidnap cut) or a "
+                "wrong prior\n",
+                kImplausiblePriorSigmas);
 }
 
 void runLocalize(const LocalizeArgs& a) {
@@ -57,7 +64,7 @@ void runLocalize(const LocalizeArgs& a) {
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
   if (!a.calibration_out.empty() && !run.calibration)
     throw UsageError("--calibration-out: needs --calibrate with a smoother");
-  reportCalibration(a, run.calibration ? &*run.calibration : nullptr, d.rig);
+  reportCalibration(a, run.calibration ? &*run.calibration : nullptr, d.rig, o.calibration, d.odometry.wheel_base_mm);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);
   const TrajectoryMetrics m = trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth)));

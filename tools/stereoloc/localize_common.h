@@ -32,7 +32,8 @@ void runLocalize(const LocalizeArgs& args);
 MethodOptions parseMethodOptions(const LocalizeArgs& args);
 // Writes --calibration-out and prints the estimate (calibration null: no --calibrate, and
 // --calibration-out is then a usage error).
-void reportCalibration(const LocalizeArgs& args, const CalibrationEstimate* calibration, const StereoRig& rig);
+void reportCalibration(const LocalizeArgs& args, const CalibrationEstimate* calibration, const StereoRig& rig,
+                       const SelfCalibrationConfig& config, double nominal_wheel_base_mm);
 // --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
 // Loads a dataset and, with --frontend images, replaces its observations by the frontend's on
