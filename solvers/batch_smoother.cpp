@@ -845,6 +845,28 @@ void BatchSmoother::solve() {
   };
   constexpr int kReassociationPasses = 3;
   const bool reassociate_passes = config_.reassociate_with_calibration && source.stereoBlock() >= 0 && !raw_observations_.empty();
+  // Drops the pairings of the unidentified observations, so that a solve places the chain with
+  // the identified landmarks alone.
+  auto unpairUnidentified = [&] {
+    for (const auto& [index, raw] : raw_observations_) {
+      if (index < first) continue;
+      const size_t begin = observationsBegin(index);
+      for (size_t k = 0; k < raw.size(); ++k)
+        if (raw[k].landmark_id < 0) {
+          observations_[begin + k].landmark_id = -1;
+          source.setLeftOut(begin + k, false);
+        }
+    }
+  };
+  // Pairs the unidentified observations at the solution and solves again, until no pairing
+  // changes (at most kReassociationPasses times); returns the cost, `c` if nothing changed.
+  auto solveReassociating = [&](double c) {
+    for (int pass = 0; pass < kReassociationPasses && reassociate_passes; ++pass) {
+      if (reassociate() == 0) break;
+      c = solveAll();
+    }
+    return c;
+  };
   if (reassociate_passes) {
     // The first solve's calibration comes from the identified landmarks alone (the pairings of
     // the others are the nominal calibration's guesses); they are paired at its solution.
@@ -853,18 +875,11 @@ void BatchSmoother::solve() {
       const size_t begin = observationsBegin(index);
       std::vector<int>& ids = filter_pairings[index];
       for (size_t k = 0; k < raw.size(); ++k) ids.push_back(observations_[begin + k].landmark_id);
-      for (size_t k = 0; k < raw.size(); ++k)
-        if (raw[k].landmark_id < 0) {
-          observations_[begin + k].landmark_id = -1;
-          source.setLeftOut(begin + k, false);
-        }
     }
+    unpairUnidentified();
     cost = solveAll();
   }
-  for (int pass = 0; pass < kReassociationPasses && reassociate_passes; ++pass) {
-    if (reassociate() == 0) break;
-    cost = solveAll();
-  }
+  cost = solveReassociating(cost);
   countFactors();
   int withdrawn = 0;
   const auto t_cuts = Clock::now();
@@ -1012,10 +1027,7 @@ void BatchSmoother::solve() {
     // The final solve with the kept cuts, from the windows' solutions; a moved cut moved poses
     // whose unidentified observations were paired where they were.
     cost = solveAll();
-    for (int pass = 0; pass < kReassociationPasses && reassociate_passes && moved_cuts > 0; ++pass) {
-      if (reassociate() == 0) break;
-      cost = solveAll();
-    }
+    if (moved_cuts > 0) cost = solveReassociating(cost);
   }
   // A miscalibrated filter pass loses track without a kidnap, and a cut kept on its evidence
   // lets a segment and the calibration settle together on a wrong solution: a calibration
@@ -1033,20 +1045,8 @@ void BatchSmoother::solve() {
     setCuts(cuts_, false);
     // The pairings made on the cut segments are not trusted: as after the filter pass, the
     // identified landmarks alone place the whole chain first.
-    for (const auto& [index, raw] : raw_observations_) {
-      if (index < first || !reassociate_passes) continue;
-      const size_t begin = observationsBegin(index);
-      for (size_t k = 0; k < raw.size(); ++k)
-        if (raw[k].landmark_id < 0) {
-          observations_[begin + k].landmark_id = -1;
-          source.setLeftOut(begin + k, false);
-        }
-    }
-    double whole = solveAll();
-    for (int pass = 0; pass < kReassociationPasses && reassociate_passes; ++pass) {
-      if (reassociate() == 0) break;
-      whole = solveAll();
-    }
+    if (reassociate_passes) unpairUnidentified();
+    const double whole = solveReassociating(solveAll());
     if (calibrationPriorZ(source, globals) <= kImplausiblePriorSigmas) {
       cost = whole;
       withdrawn += static_cast<int>(cuts_.size());
