@@ -1,5 +1,6 @@
 #include "frontend/corners.h"
 
+#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <utility>
@@ -153,7 +154,82 @@ double bumpCentre(const cv::Mat& luma, const LineFeature& m, double h, double t0
   return t0 + 0.5 * 0.5 * (a + b);
 }
 
+// The centre of stripe L across its line at line coordinate t: the bump of a luma profile
+// across L (h in [-reach, reach] about the line), as an offset h along L's normal (px), or NaN.
+double stripeCentreAcross(const cv::Mat& luma, const LineFeature& l, double t, double reach, double floor_ref,
+                          double min_rise) {
+  // The profile runs along the line through L's point at t whose normal is L's direction; its
+  // coordinate there is -(rho + h).
+  LineFeature across;
+  across.theta = l.theta + 0.5 * kPi;
+  across.rho = -l.x(t) * std::sin(l.theta) + l.y(t) * std::cos(l.theta);
+  double width = 0;
+  const double c = bumpCentre(luma, across, 0.0, -l.rho - reach, -l.rho + reach, floor_ref, min_rise, width);
+  return std::isnan(c) ? c : -c - l.rho;
+}
+
+// A crossing's point from each stripe's centre near it (see refineCrossing in corners.h).
+bool crossingNear(const cv::Mat& luma, const LineFeature& l, const LineFeature& o, double sin_lo, double cos_lo,
+                  double tp, double& c0, double& c1) {
+  double floor_ref, contrast;
+  if (!stripeReference(luma, l, 2.0, floor_ref, contrast)) return false;
+  constexpr int kPerSide = 8;
+  const double reach = 0.5 * std::max(l.width, 2.0) + 3.0;
+  // The first profile clears the other stripe: its half width, and the reach of the profile
+  // that slants into it.
+  const double s0 = (0.5 * std::max(o.width, 2.0) + reach * std::fabs(cos_lo)) / sin_lo + 1.0;
+  Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d Atb = Eigen::Vector3d::Zero();
+  int side_count[2] = {0, 0};
+  for (int side = 0; side < 2; ++side) {
+    for (int k = 0; k < kPerSide; ++k) {
+      const double s = (side == 0 ? -1.0 : 1.0) * (s0 + k);
+      if (tp + s < l.t_min || tp + s > l.t_max) continue;
+      const double h = stripeCentreAcross(luma, l, tp + s, reach, floor_ref, 0.5 * contrast);
+      if (std::isnan(h) || std::fabs(h) > 2.0) continue;
+      const Eigen::Vector3d a(1.0, s, s * s);
+      AtA += a * a.transpose();
+      Atb += a * h;
+      ++side_count[side];
+    }
+  }
+  if (side_count[0] < 3 || side_count[1] < 3) return false;
+  const Eigen::Vector3d c = AtA.ldlt().solve(Atb);
+  c0 = c[0];
+  c1 = c[1];
+  return std::isfinite(c0) && std::isfinite(c1);
+}
+
 }  // namespace
+
+bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double& u, double& v) {
+  const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
+  const double cos_ab = std::cos(a.theta) * std::cos(b.theta) + std::sin(a.theta) * std::sin(b.theta);
+  if (std::fabs(det) < 1e-3) return false;
+  // Each line, near the crossing: the point at offset c0 along its normal from its point at the
+  // crossing, and direction (its direction + c1 normal).
+  Eigen::Vector2d q[2], dir[2];
+  const LineFeature* ls[2] = {&a, &b};
+  for (int i = 0; i < 2; ++i) {
+    const LineFeature& l = *ls[i];
+    const double tp = along(l.theta, u, v);
+    double c0, c1;
+    if (!crossingNear(luma, l, *ls[1 - i], std::fabs(det), cos_ab, tp, c0, c1)) return false;
+    const Eigen::Vector2d n(std::cos(l.theta), std::sin(l.theta)), d(-std::sin(l.theta), std::cos(l.theta));
+    q[i] = Eigen::Vector2d(l.x(tp), l.y(tp)) + c0 * n;
+    dir[i] = d + c1 * n;
+  }
+  // q0 + s dir0 = q1 + r dir1
+  Eigen::Matrix2d M;
+  M << dir[0], -dir[1];
+  if (std::fabs(M.determinant()) < 1e-3) return false;
+  const Eigen::Vector2d sr = M.inverse() * (q[1] - q[0]);
+  const Eigen::Vector2d p = q[0] + sr[0] * dir[0];
+  if (!p.allFinite() || std::hypot(p.x() - u, p.y() - v) > 2.0) return false;
+  u = p.x();
+  v = p.y();
+  return true;
+}
 
 bool probeMissingArm(const cv::Mat& luma, const StereoRig& rig, const LineFeature& m, bool at_max_end,
                      const CornerParams& prm, double& u, double& v, double* arm_dx, double* arm_dy) {
@@ -562,8 +638,8 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
       const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
       if (std::fabs(det) < min_sin) continue;
       // (3.12), (3.13)
-      const double px = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;
-      const double py = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;
+      double px = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;
+      double py = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;
       if (px < 0 || py < 0 || px > w - 1 || py > h - 1) continue;
       const double ta = along(a.theta, px, py), tb = along(b.theta, px, py);
       if (ta < a.t_min - prm.delta_px || ta > a.t_max + prm.delta_px) continue;
@@ -594,6 +670,7 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
         } else if (!a_ends && !b_ends) {
           if (ang < deg(prm.min_crossing_angle_deg)) continue;
           type = LandmarkType::Intersection;
+          if (luma) refineCrossing(*luma, a, b, px, py);
         } else if (prm.marking_junctions) {
           // One stripe ends on the other, which runs on: a T of two markings (RoboCup fields'
           // penalty and goal areas, the halfway line on the touch line). Perpendicular on the

@@ -19,9 +19,15 @@ struct Strip {  // floor marking in C0 (mm): centreline a -> b, half width
   double hw = 5.0;
 };
 
-// Ray-casts a floor scene (dark floor, white strips, optional white region x >= wall_x) into
-// the left or right camera, 4x4 samples per pixel.
-cv::Mat renderFloor(const StereoRig& rig, bool right, const std::vector<Strip>& strips, double wall_x = 1e9) {
+struct Ring {  // floor marking in C0 (mm): a circle of the given centre and radius, half width
+  Eigen::Vector2d centre;
+  double radius = 250.0, hw = 5.0;
+};
+
+// Ray-casts a floor scene (dark floor, white strips and rings, optional white region
+// x >= wall_x) into the left or right camera, 4x4 samples per pixel.
+cv::Mat renderFloor(const StereoRig& rig, bool right, const std::vector<Strip>& strips, double wall_x = 1e9,
+                    const std::vector<Ring>& rings = {}) {
   const int w = rig.params().image_width, h = rig.params().image_height;
   const double f = rig.focal(), yc = (right ? -0.5 : 0.5) * rig.params().baseline_mm;
   const Eigen::Vector3d o = rig.visionToRobot(Eigen::Vector3d(0, yc, 0), 0.0);
@@ -31,6 +37,8 @@ cv::Mat renderFloor(const StereoRig& rig, bool right, const std::vector<Strip>& 
   const Eigen::Vector3d d00 = dir(0, 0), du = dir(1, 0) - d00, dv = dir(0, 1) - d00;
   auto white = [&](const Eigen::Vector2d& p) {
     if (p.x() >= wall_x) return true;
+    for (const Ring& r : rings)
+      if (std::fabs((p - r.centre).norm() - r.radius) <= r.hw) return true;
     for (const Strip& s : strips) {
       const Eigen::Vector2d t = (s.b - s.a).normalized();
       const double along = (p - s.a).dot(t), across = std::fabs(t.x() * (p - s.a).y() - t.y() * (p - s.a).x());
@@ -420,6 +428,37 @@ CornerParams armProbeOn(CornerParams p) {
 // about half the contrast of a stripe) is missing from the lines is found from the other arm's
 // free end, on the centre lines' corner; with the arm crossing on both sides (a T of two
 // markings, no map landmark) or without the image, nothing is found.
+TEST(Corners, CrossingOfACurvedMarkingIsRefinedWhereTheStripesCross) {
+  // The halfway line crossing the centre circle, seen from the circle's centre along the line:
+  // the arc is curved in the image, and one line fitted to it passes above the crossing.
+  const StereoRig rig;
+  const cv::Mat img = renderFloor(rig, false, {{{0, 0}, {600, 0}}}, 1e9, {{{0, 0}, 250.0}});
+  Frontend fe(rig, FieldMap::miroSot());
+  const FrontendResult& r = fe.detectFeatures(img);
+  const Eigen::Vector2d truth = pixel(rig, 250, 0);
+  ASSERT_EQ(r.features.size(), 1u);
+  ASSERT_EQ(r.features[0].type, LandmarkType::Intersection);
+  const PointFeature refined = r.features[0];
+  // The same lines without the image: the crossing of the fitted lines.
+  std::vector<PointFeature> fitted;
+  findCorners(r.lines, rig, fe.params().corners, fitted);
+  ASSERT_EQ(fitted.size(), 1u);
+  std::printf("curved crossing: fitted lines miss by (%.3f, %.3f) px, refined by (%.3f, %.3f) px\n",
+              fitted[0].u - truth.x(), fitted[0].v - truth.y(), refined.u - truth.x(), refined.v - truth.y());
+  // The row is the arc's; the column is the straight line's, which both share.
+  EXPECT_LT(fitted[0].v - truth.y(), -0.15);
+  EXPECT_NEAR(refined.v, truth.y(), 0.07);
+  EXPECT_NEAR(refined.u, fitted[0].u, 0.05);
+  // A straight crossing stays where the two fitted lines cross.
+  const cv::Mat plus = renderFloor(rig, false, {{{250, 0}, {700, 0}}, {{400, -150}, {400, 150}}});
+  const FrontendResult& rp = fe.detectFeatures(plus);
+  ASSERT_EQ(rp.features.size(), 1u);
+  findCorners(rp.lines, rig, fe.params().corners, fitted);
+  ASSERT_EQ(fitted.size(), 1u);
+  EXPECT_NEAR(rp.features[0].u, fitted[0].u, 0.03);
+  EXPECT_NEAR(rp.features[0].v, fitted[0].v, 0.03);
+}
+
 TEST(Corners, ArmProbeFindsAMissingThinArm) {
   const StereoRig rig;
   Frontend fe(rig, FieldMap::miroSot());
