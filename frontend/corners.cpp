@@ -154,40 +154,60 @@ double bumpCentre(const cv::Mat& luma, const LineFeature& m, double h, double t0
   return t0 + 0.5 * 0.5 * (a + b);
 }
 
-// The centre of stripe L across its line at line coordinate t: the bump of a luma profile
-// across L (h in [-reach, reach] about the line), as an offset h along L's normal (px), or NaN.
-double stripeCentreAcross(const cv::Mat& luma, const LineFeature& l, double t, double reach, double floor_ref,
-                          double min_rise) {
-  // The profile runs along the line through L's point at t whose normal is L's direction; its
-  // coordinate there is -(rho + h).
-  LineFeature across;
-  across.theta = l.theta + 0.5 * kPi;
-  across.rho = -l.x(t) * std::sin(l.theta) + l.y(t) * std::cos(l.theta);
+// The centre of stripe l where the image row (along_rows) or column through (x, y) crosses it,
+// as a point, from the half-height crossings of one luma profile of +-reach px about (x, y);
+// false when the profile shows no single bump. A row is the image of a floor line parallel to
+// the horizon, along which the projection is affine: the centre is midway between the
+// crossings. A column is the image of a floor line running to the horizon (row v_h), along
+// which 1 / (v - v_h) is affine in distance: the centre is the harmonic mean of the crossings'
+// v - v_h (as in buildLines).
+bool stripeCentreOnProfile(const cv::Mat& luma, bool along_rows, double v_h, double x, double y, double reach,
+                           double floor_ref, double min_rise, Eigen::Vector2d& centre) {
+  LineFeature profile;  // the row or column through (x, y), line coordinate = x or y
+  profile.theta = along_rows ? 1.5 * kPi : 0.0;
+  profile.rho = along_rows ? -y : x;
+  const double c0 = along_rows ? x : y;
   double width = 0;
-  const double c = bumpCentre(luma, across, 0.0, -l.rho - reach, -l.rho + reach, floor_ref, min_rise, width);
-  return std::isnan(c) ? c : -c - l.rho;
+  const double c = bumpCentre(luma, profile, 0.0, c0 - reach, c0 + reach, floor_ref, min_rise, width);
+  if (std::isnan(c)) return false;
+  if (along_rows) {
+    centre = Eigen::Vector2d(c, y);
+    return true;
+  }
+  const double da = c - 0.5 * width - v_h, db = c + 0.5 * width - v_h;
+  centre = Eigen::Vector2d(x, da > 0.5 ? v_h + 2.0 * da * db / (da + db) : c);
+  return true;
 }
 
-// A crossing's point from each stripe's centre near it (see refineCrossing in corners.h).
-bool crossingNear(const cv::Mat& luma, const LineFeature& l, const LineFeature& o, double sin_lo, double cos_lo,
-                  double tp, double& c0, double& c1) {
+// The local line of stripe l near its crossing with stripe o at l's coordinate tp: offset c0
+// along l's normal at tp and slope c1 (see refineCrossing in corners.h).
+bool crossingNear(const cv::Mat& luma, const LineFeature& l, const LineFeature& o, double v_h, double tp, double& c0,
+                  double& c1) {
   double floor_ref, contrast;
   if (!stripeReference(luma, l, 2.0, floor_ref, contrast)) return false;
   constexpr int kPerSide = 8;
-  const double reach = 0.5 * std::max(l.width, 2.0) + 3.0;
-  // The first profile clears the other stripe: its half width, and the reach of the profile
-  // that slants into it.
-  const double s0 = (0.5 * std::max(o.width, 2.0) + reach * std::fabs(cos_lo)) / sin_lo + 1.0;
+  const double nx = std::cos(l.theta), ny = std::sin(l.theta);
+  const bool along_rows = std::fabs(nx) >= std::fabs(ny);
+  const double reach = (0.5 * std::max(l.width, 2.0) + 3.0) / std::max(std::fabs(nx), std::fabs(ny));
+  const double ox = std::cos(o.theta), oy = std::sin(o.theta), o_clear = 0.5 * std::max(o.width, 2.0) + 1.0;
   Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero();
   Eigen::Vector3d Atb = Eigen::Vector3d::Zero();
   int side_count[2] = {0, 0};
   for (int side = 0; side < 2; ++side) {
-    for (int k = 0; k < kPerSide; ++k) {
-      const double s = (side == 0 ? -1.0 : 1.0) * (s0 + k);
-      if (tp + s < l.t_min || tp + s > l.t_max) continue;
-      const double h = stripeCentreAcross(luma, l, tp + s, reach, floor_ref, 0.5 * contrast);
-      if (std::isnan(h) || std::fabs(h) > 2.0) continue;
-      const Eigen::Vector3d a(1.0, s, s * s);
+    const double dir = side == 0 ? -1.0 : 1.0;
+    for (double s = 1.0; s <= 40.0 && side_count[side] < kPerSide; s += 1.0) {
+      const double t = tp + dir * s;
+      if (t < l.t_min || t > l.t_max) break;
+      const double x = l.x(t), y = l.y(t);
+      // The whole profile must stay clear of the other stripe, on one side of it.
+      const double ex = along_rows ? reach : 0.0, ey = along_rows ? 0.0 : reach;
+      const double d0 = (x - ex) * ox + (y - ey) * oy - o.rho, d1 = (x + ex) * ox + (y + ey) * oy - o.rho;
+      if (d0 * d1 <= 0 || std::min(std::fabs(d0), std::fabs(d1)) < o_clear) continue;
+      Eigen::Vector2d c;
+      if (!stripeCentreOnProfile(luma, along_rows, v_h, x, y, reach, floor_ref, 0.5 * contrast, c)) continue;
+      const double h = c.x() * nx + c.y() * ny - l.rho, tc = along(l.theta, c.x(), c.y()) - tp;
+      if (std::fabs(h) > 2.0) continue;
+      const Eigen::Vector3d a(1.0, tc, tc * tc);
       AtA += a * a.transpose();
       Atb += a * h;
       ++side_count[side];
@@ -202,9 +222,19 @@ bool crossingNear(const cv::Mat& luma, const LineFeature& l, const LineFeature& 
 
 }  // namespace
 
-bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double& u, double& v) {
+double horizonRow(const StereoRig& rig) {
+  const double f = rig.focal(), b = rig.params().baseline_mm;
+  const Eigen::Vector3d o = rig.visionToRobot(Eigen::Vector3d(0.0, 0.5 * b, 0.0), 0.0);
+  auto dz = [&](double v) {
+    return rig.visionToRobot(Eigen::Vector3d(1.0, 0.5 * b, -(v - rig.principalV()) / f), 0.0).z() - o.z();
+  };
+  const double d0 = dz(rig.principalV()), slope = dz(rig.principalV() + 1.0) - d0;
+  return rig.principalV() - d0 / slope;
+}
+
+bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double horizon_row, double& u,
+                    double& v) {
   const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
-  const double cos_ab = std::cos(a.theta) * std::cos(b.theta) + std::sin(a.theta) * std::sin(b.theta);
   if (std::fabs(det) < 1e-3) return false;
   // Each line, near the crossing: the point at offset c0 along its normal from its point at the
   // crossing, and direction (its direction + c1 normal).
@@ -214,7 +244,7 @@ bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature
     const LineFeature& l = *ls[i];
     const double tp = along(l.theta, u, v);
     double c0, c1;
-    if (!crossingNear(luma, l, *ls[1 - i], std::fabs(det), cos_ab, tp, c0, c1)) return false;
+    if (!crossingNear(luma, l, *ls[1 - i], horizon_row, tp, c0, c1)) return false;
     const Eigen::Vector2d n(std::cos(l.theta), std::sin(l.theta)), d(-std::sin(l.theta), std::cos(l.theta));
     q[i] = Eigen::Vector2d(l.x(tp), l.y(tp)) + c0 * n;
     dir[i] = d + c1 * n;
@@ -619,7 +649,7 @@ bool wallAbove(const cv::Mat& luma, const LineFeature& m, const LineFeature& o, 
 void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& prm,
                  std::vector<PointFeature>& features, const cv::Mat* luma) {
   features.clear();
-  const double w = rig.params().image_width, h = rig.params().image_height;
+  const double w = rig.params().image_width, h = rig.params().image_height, v_h = horizonRow(rig);
   const double min_sin = std::sin(deg(prm.min_image_angle_deg));
   std::vector<int> counts;
   auto floorDir = [&](const LineFeature& l, double& dx, double& dy) {
@@ -670,7 +700,7 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
         } else if (!a_ends && !b_ends) {
           if (ang < deg(prm.min_crossing_angle_deg)) continue;
           type = LandmarkType::Intersection;
-          if (luma) refineCrossing(*luma, a, b, px, py);
+          if (luma) refineCrossing(*luma, a, b, v_h, px, py);
         } else if (prm.marking_junctions) {
           // One stripe ends on the other, which runs on: a T of two markings (RoboCup fields'
           // penalty and goal areas, the halfway line on the touch line). Perpendicular on the

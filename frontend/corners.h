@@ -144,16 +144,22 @@ bool probeMissingArm(const cv::Mat& luma, const StereoRig& rig, const LineFeatur
 bool traceArmToWallFoot(const cv::Mat& luma, const std::vector<LineFeature>& lines, const LineFeature& m, double u,
                         double v, double ax, double ay, const CornerParams& params, double& ju, double& jv);
 
+// The image row of the horizon (the floor's vanishing line) of the rig's left camera. Image rows
+// are parallel to it (the rig has no roll).
+double horizonRow(const StereoRig& rig);
+
 // Moves the crossing (u, v) of marking lines a and b onto where their stripes cross: each
 // line is the fit over its whole extent, and a curved marking (the centre circle's arcs) fitted
 // with one line misses the crossing by a few tenths of a px (the circle seen from its centre:
-// 0.3 px in the row, which the floor's disparity per row turns into 0.15 px of disparity, the
-// same in every view). Near the crossing, each stripe's centre is measured across it on 8
-// profiles 1 px apart on each side, clear of the other stripe, and fitted with a quadratic in
+// 0.25 px in the row, which the floor's disparity per row turns into a disparity error of the
+// same sign in every view). Near the crossing, each stripe's centre is measured on 8 profiles
+// on each side, clear of the other stripe (along rows for a steep stripe, along columns for a
+// flat one, as in buildLines, with the horizon at horizon_row), and fitted with a quadratic in
 // the line coordinate, whose value and slope at the crossing give the local line. False (and
 // (u, v) unchanged) when a stripe has fewer than 3 profiles on a side, or the local lines move
 // the crossing by more than 2 px.
-bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double& u, double& v);
+bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double horizon_row, double& u,
+                    double& v);
 
 // The stripe probe: true unless marking line m's centre line shows a gap (probe_min_run dark
 // samples) between s0 px and delta_px from the point at line coordinate tp, going into m.
