@@ -106,8 +106,10 @@ struct CornerParams {
   double wall_min_height_px = 3.5;
 };
 
-// Segments -> lines (see above). Appends nothing: `lines` is replaced.
-void buildLines(const std::vector<Segment>& segments, const CornerParams& params, std::vector<LineFeature>& lines);
+// Segments -> lines (see above; the rig gives the horizon for the stripes' centre lines).
+// Appends nothing: `lines` is replaced.
+void buildLines(const std::vector<Segment>& segments, const StereoRig& rig, const CornerParams& params,
+                std::vector<LineFeature>& lines);
 
 // Clips every line's extent to the image [-0.5, width - 0.5] x [-0.5, height - 0.5] (the
 // pixel area, where the renderer's truth is clipped too) and drops lines left with no extent.

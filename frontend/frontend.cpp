@@ -337,7 +337,7 @@ const FrontendResult& Frontend::detectFeatures(const cv::Mat& bgr) {
 
 void Frontend::featuresFromSegments() {
   FrontendResult& r = result_;
-  buildLines(r.segments, params_.corners, r.lines);
+  buildLines(r.segments, rig_, params_.corners, r.lines);
   clipLinesToImage(rig_.params().image_width, rig_.params().image_height, r.lines);
   trimStripeEnds(left_luma_, params_.ends, r.lines, ends_scratch_);
   snapLineEnds(rig_.params().image_width, rig_.params().image_height, params_.corners, r.lines);

@@ -1228,7 +1228,7 @@ struct StagePipeline {
     lap(6);
     classifySegments(grad, extractor, fe.markingWidthPerRow(), p.classify, segments, scratch, &luma);
     lap(7);
-    buildLines(segments, p.corners, lines);
+    buildLines(segments, fe.rig(), p.corners, lines);
     clipLinesToImage(w, h, lines);
     lap(8);
     trimStripeEnds(luma, p.ends, lines, ends_scratch);
