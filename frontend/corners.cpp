@@ -441,8 +441,10 @@ void buildLines(const std::vector<Segment>& segments, const StereoRig& rig, cons
       // the image of a floor line towards the horizon, along which 1 / (v - v_h) is affine in
       // distance: there the centre is the harmonic mean of the edges' v - v_h. The
       // perpendicular midpoints (the edges' bisector) miss the centre line by up to 0.3 px on
-      // a stripe seen at the side of the image, towards the image's centre.
-      double mx[4], my[4];
+      // a stripe seen at the side of the image, towards the image's centre. The extent still
+      // comes from the perpendicular midpoints (ex, ey): a row or column runs along a slanted
+      // stripe, and its midpoint of an edge's end lies up to half a width beyond the stripe's end.
+      double mx[4], my[4], ex[4], ey[4];
       int n = 0;
       const bool along_rows = std::fabs(std::cos(a.theta)) >= std::fabs(std::sin(a.theta));
       for (const Segment* p : {&a, &b}) {
@@ -450,6 +452,9 @@ void buildLines(const std::vector<Segment>& segments, const StereoRig& rig, cons
         const double qc = std::cos(q->theta), qs = std::sin(q->theta);
         for (int e = 0; e < 2; ++e) {
           const double x = e ? p->x2 : p->x1, y = e ? p->y2 : p->y1;
+          const double d = x * qc + y * qs - q->rho;
+          ex[n] = x - 0.5 * d * qc;
+          ey[n] = y - 0.5 * d * qs;
           if (along_rows) {
             mx[n] = 0.5 * (x + (q->rho - y * qs) / qc);
             my[n] = y;
@@ -486,7 +491,7 @@ void buildLines(const std::vector<Segment>& segments, const StereoRig& rig, cons
       double ta[2] = {1e30, -1e30}, tb[2] = {1e30, -1e30};
       for (int k = 0; k < 4; ++k) {
         double* t = k < 2 ? ta : tb;
-        const double v = along(th, mx[k], my[k]);
+        const double v = along(th, ex[k], ey[k]);
         t[0] = std::min(t[0], v);
         t[1] = std::max(t[1], v);
       }
