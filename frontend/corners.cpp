@@ -31,6 +31,15 @@ std::pair<double, double> imageInterval(const LineFeature& l, int width, int hei
   return lineBoxInterval(l.rho, l.theta, -0.5, -0.5, width - 0.5, height - 0.5);
 }
 
+// The row midway on the floor between rows va and vb of one image column, both below the horizon
+// row v_h: a column is the image of a floor line running to the horizon, along which
+// 1 / (v - v_h) is affine in distance, so the midpoint is the harmonic mean of v - v_h. Rows
+// at or just below the horizon (no usable floor) fall back to the mean.
+double floorMidRow(double va, double vb, double v_h) {
+  const double da = va - v_h, db = vb - v_h;
+  return da > 0.5 && db > 0.5 ? v_h + 2.0 * da * db / (da + db) : 0.5 * (va + vb);
+}
+
 // Luma at (x, y), bilinear; -1 when the 2x2 neighbourhood leaves the image.
 double lumaAt(const cv::Mat& g, double x, double y) {
   const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
@@ -158,9 +167,8 @@ double bumpCentre(const cv::Mat& luma, const LineFeature& m, double h, double t0
 // as a point, from the half-height crossings of one luma profile of +-reach px about (x, y);
 // false when the profile shows no single bump. A row is the image of a floor line parallel to
 // the horizon, along which the projection is affine: the centre is midway between the
-// crossings. A column is the image of a floor line running to the horizon (row v_h), along
-// which 1 / (v - v_h) is affine in distance: the centre is the harmonic mean of the crossings'
-// v - v_h (as in buildLines).
+// crossings. A column is the image of a floor line running to the horizon (row v_h): the
+// centre is floorMidRow of the crossings (as in buildLines).
 bool stripeCentreOnProfile(const cv::Mat& luma, bool along_rows, double v_h, double x, double y, double reach,
                            double floor_ref, double min_rise, Eigen::Vector2d& centre) {
   LineFeature profile;  // the row or column through (x, y), line coordinate = x or y
@@ -174,8 +182,7 @@ bool stripeCentreOnProfile(const cv::Mat& luma, bool along_rows, double v_h, dou
     centre = Eigen::Vector2d(c, y);
     return true;
   }
-  const double da = c - 0.5 * width - v_h, db = c + 0.5 * width - v_h;
-  centre = Eigen::Vector2d(x, da > 0.5 ? v_h + 2.0 * da * db / (da + db) : c);
+  centre = Eigen::Vector2d(x, floorMidRow(c - 0.5 * width, c + 0.5 * width, v_h));
   return true;
 }
 
@@ -438,8 +445,7 @@ void buildLines(const std::vector<Segment>& segments, const StereoRig& rig, cons
       // Midpoints of corresponding edge points. An image row is the image of a floor line
       // parallel to the horizon, along which the projection is affine: a steep stripe's centre
       // is midway between its edges along the row. A flat stripe is crossed along the column,
-      // the image of a floor line towards the horizon, along which 1 / (v - v_h) is affine in
-      // distance: there the centre is the harmonic mean of the edges' v - v_h. The
+      // the image of a floor line towards the horizon: there the centre is floorMidRow. The
       // perpendicular midpoints (the edges' bisector) miss the centre line by up to 0.3 px on
       // a stripe seen at the side of the image, towards the image's centre. The extent still
       // comes from the perpendicular midpoints (ex, ey): a row or column runs along a slanted
@@ -459,9 +465,8 @@ void buildLines(const std::vector<Segment>& segments, const StereoRig& rig, cons
             mx[n] = 0.5 * (x + (q->rho - y * qs) / qc);
             my[n] = y;
           } else {
-            const double da = y - v_h, db = (q->rho - x * qc) / qs - v_h;
             mx[n] = x;
-            my[n] = da > 0.5 && db > 0.5 ? v_h + 2.0 * da * db / (da + db) : 0.5 * (y + v_h + db);
+            my[n] = floorMidRow(y, (q->rho - x * qc) / qs, v_h);
           }
           ++n;
         }
