@@ -398,36 +398,6 @@ TEST(Corners, ProbeParametersLoadFromYaml) {
   EXPECT_EQ(d.corners.wall_min_height_px, CornerParams().wall_min_height_px);
 }
 
-namespace {
-// Lines of a rendered floor image, keeping only the marking lines through the image of floor
-// point `keep` (within 2 px) and the wall feet: the other arm is "missed", as a thin far arm
-// often is by the segment stage.
-std::vector<LineFeature> linesKeeping(const StereoRig& rig, Frontend& fe, const cv::Mat& img, const Eigen::Vector2d& keep) {
-  fe.detectSegments(img);
-  std::vector<LineFeature> lines;
-  buildLines(fe.result().segments, rig, fe.params().corners, lines);
-  clipLinesToImage(rig.params().image_width, rig.params().image_height, lines);
-  snapLineEnds(rig.params().image_width, rig.params().image_height, fe.params().corners, lines);
-  const Eigen::Vector2d k = pixel(rig, keep.x(), keep.y());
-  std::vector<LineFeature> out;
-  for (const LineFeature& l : lines) {
-    const double d = std::fabs(k.x() * std::cos(l.theta) + k.y() * std::sin(l.theta) - l.rho);
-    if (l.wall_foot || (l.marking && d < 2.0)) out.push_back(l);
-  }
-  return out;
-}
-
-// The arm probe is off by default (corners.h); these tests switch it on at its measured length.
-CornerParams armProbeOn(CornerParams p) {
-  p.arm_length_px = 12.0;
-  return p;
-}
-}  // namespace
-
-// The arm probe: an L whose far arm (a 10 mm line 600 mm away: 0.54 px tall in the image, so
-// about half the contrast of a stripe) is missing from the lines is found from the other arm's
-// free end, on the centre lines' corner; with the arm crossing on both sides (a T of two
-// markings, no map landmark) or without the image, nothing is found.
 TEST(Corners, CentreLineOfAStripeSeenAtTheSideIsTheImageOfItsCentre) {
   // A stripe's two edges converge under perspective; the bisector of the two edge lines is not
   // the image of the stripe's centre line, which is midway between the edges along a row
@@ -507,6 +477,36 @@ TEST(Corners, CrossingOfACurvedMarkingIsRefinedWhereTheStripesCross) {
   EXPECT_NEAR(rp.features[0].v, truth_plus.y(), 0.08);
 }
 
+namespace {
+// Lines of a rendered floor image, keeping only the marking lines through the image of floor
+// point `keep` (within 2 px) and the wall feet: the other arm is "missed", as a thin far arm
+// often is by the segment stage.
+std::vector<LineFeature> linesKeeping(const StereoRig& rig, Frontend& fe, const cv::Mat& img, const Eigen::Vector2d& keep) {
+  fe.detectSegments(img);
+  std::vector<LineFeature> lines;
+  buildLines(fe.result().segments, rig, fe.params().corners, lines);
+  clipLinesToImage(rig.params().image_width, rig.params().image_height, lines);
+  snapLineEnds(rig.params().image_width, rig.params().image_height, fe.params().corners, lines);
+  const Eigen::Vector2d k = pixel(rig, keep.x(), keep.y());
+  std::vector<LineFeature> out;
+  for (const LineFeature& l : lines) {
+    const double d = std::fabs(k.x() * std::cos(l.theta) + k.y() * std::sin(l.theta) - l.rho);
+    if (l.wall_foot || (l.marking && d < 2.0)) out.push_back(l);
+  }
+  return out;
+}
+
+// The arm probe is off by default (corners.h); these tests switch it on at its measured length.
+CornerParams armProbeOn(CornerParams p) {
+  p.arm_length_px = 12.0;
+  return p;
+}
+}  // namespace
+
+// The arm probe: an L whose far arm (a 10 mm line 600 mm away: 0.54 px tall in the image, so
+// about half the contrast of a stripe) is missing from the lines is found from the other arm's
+// free end, on the centre lines' corner; with the arm crossing on both sides (a T of two
+// markings, no map landmark) or without the image, nothing is found.
 TEST(Corners, ArmProbeFindsAMissingThinArm) {
   const StereoRig rig;
   Frontend fe(rig, FieldMap::miroSot());
