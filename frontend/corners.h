@@ -2,9 +2,11 @@
 // Stage 6: corners, T-junctions and line intersections from pairs of lines (Algorithm 4, 3.5).
 //
 // Lines: every marking becomes the centre line of its stripe: the line through the midpoints
-// of its two edges when both were found (they converge under perspective; see piece_gap_px
-// for stripes broken by occluders), otherwise its edge moved by half the measured width
-// towards the bright side. Other segments stay edge lines. Map landmarks sit on
+// of its two edges when both were found, taken along image rows for a steep stripe and along
+// columns for a flat one, where they are the image of the floor centre (the edges converge
+// under perspective, and their bisector is not; docs/frontend.md; see piece_gap_px for
+// stripes broken by occluders), otherwise its edge moved by half the measured width towards
+// the bright side. Crossings (X) are then refined on the image (refineCrossing). Other segments stay edge lines. Map landmarks sit on
 // marking centre lines and on the wall foot, so this is where their image positions are.
 //
 // For each pair of lines at an image angle of at least min_image_angle, the intersection p
