@@ -31,6 +31,14 @@ std::pair<double, double> imageInterval(const LineFeature& l, int width, int hei
   return lineBoxInterval(l.rho, l.theta, -0.5, -0.5, width - 0.5, height - 0.5);
 }
 
+// The left camera's centre o and the point one unit along its ray through pixel (u, v), in the
+// robot frame C0 at head pan 0 (mm): the ray is o + s (p - o).
+void leftCameraRay(const StereoRig& rig, double u, double v, Eigen::Vector3d& o, Eigen::Vector3d& p) {
+  const double f = rig.focal(), b = rig.params().baseline_mm;
+  o = rig.visionToRobot(Eigen::Vector3d(0.0, 0.5 * b, 0.0), 0.0);
+  p = rig.visionToRobot(Eigen::Vector3d(1.0, 0.5 * b - (u - rig.principalU()) / f, -(v - rig.principalV()) / f), 0.0);
+}
+
 // The row midway on the floor between rows va and vb of one image column, both below the horizon
 // row v_h: a column is the image of a floor line running to the horizon, along which
 // 1 / (v - v_h) is affine in distance, so the midpoint is the harmonic mean of v - v_h. Rows
@@ -230,10 +238,11 @@ bool crossingNear(const cv::Mat& luma, const LineFeature& l, const LineFeature& 
 }  // namespace
 
 double horizonRow(const StereoRig& rig) {
-  const double f = rig.focal(), b = rig.params().baseline_mm;
-  const Eigen::Vector3d o = rig.visionToRobot(Eigen::Vector3d(0.0, 0.5 * b, 0.0), 0.0);
+  // The ray's climb is linear in the row (no roll): the horizon is where it is zero.
   auto dz = [&](double v) {
-    return rig.visionToRobot(Eigen::Vector3d(1.0, 0.5 * b, -(v - rig.principalV()) / f), 0.0).z() - o.z();
+    Eigen::Vector3d o, p;
+    leftCameraRay(rig, rig.principalU(), v, o, p);
+    return p.z() - o.z();
   };
   const double d0 = dz(rig.principalV()), slope = dz(rig.principalV() + 1.0) - d0;
   return rig.principalV() - d0 / slope;
@@ -358,10 +367,8 @@ bool probeMissingArm(const cv::Mat& luma, const StereoRig& rig, const LineFeatur
 }
 
 bool floorPoint(const StereoRig& rig, double u, double v, double& x, double& y) {
-  const double f = rig.focal(), b = rig.params().baseline_mm;
-  const Eigen::Vector3d o = rig.visionToRobot(Eigen::Vector3d(0.0, 0.5 * b, 0.0), 0.0);
-  const Eigen::Vector3d p =
-      rig.visionToRobot(Eigen::Vector3d(1.0, 0.5 * b - (u - rig.principalU()) / f, -(v - rig.principalV()) / f), 0.0);
+  Eigen::Vector3d o, p;
+  leftCameraRay(rig, u, v, o, p);
   const double dz = p.z() - o.z();
   if (!(dz < -1e-9)) return false;
   const double s = -o.z() / dz;
