@@ -24,6 +24,21 @@ void undirect(double theta, double rho, double& t_out, double& r_out) {
 
 double along(double theta, double x, double y) { return -x * std::sin(theta) + y * std::cos(theta); }
 
+// The line through q0 and q1 (distinct), with the stripe attributes of `like` and its extent
+// carried over (its ends projected onto the new line).
+LineFeature lineThrough(const Eigen::Vector2d& q0, const Eigen::Vector2d& q1, const LineFeature& like) {
+  const Eigen::Vector2d d = (q1 - q0).normalized();
+  LineFeature l = like;
+  // Direction (-sin theta, cos theta), theta folded into [0, pi).
+  undirect(std::atan2(-d.x(), d.y()) + (d.x() > 0 ? 2.0 * kPi : 0.0), 0.0, l.theta, l.rho);
+  l.rho = q0.x() * std::cos(l.theta) + q0.y() * std::sin(l.theta);
+  const double t0 = along(l.theta, like.x(like.t_min), like.y(like.t_min));
+  const double t1 = along(l.theta, like.x(like.t_max), like.y(like.t_max));
+  l.t_min = std::min(t0, t1);
+  l.t_max = std::max(t0, t1);
+  return l;
+}
+
 // The interval [lo, hi] of the line parameter t where the line lies inside the image (pixel
 // centres at integers, so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]); lo > hi when the
 // line misses the image.
@@ -62,17 +77,24 @@ double lumaAt(const cv::Mat& g, double x, double y) {
 // to and its width is the measured one: floor luma (the darker of the two sides at
 // +-(0.5 width + side) across: the floor even where the other side touches a wall or another
 // stripe) and the stripe's contrast over it on the centre line, medians of 5 samples 2 px apart
-// (robust to a sample on a crossing line or an occluder). False without a visible stripe
-// (contrast below 4 grey levels) or with samples outside the image.
-bool stripeReference(const cv::Mat& luma, const LineFeature& m, double side, double& floor_ref, double& contrast) {
+// (robust to a sample on a crossing line or an occluder). A line known only to within `search`
+// px takes the brightest sample within that of the centre line, and its floor that much further
+// out. False without a visible stripe (contrast below 4 grey levels) or with samples outside the
+// image.
+bool stripeReference(const cv::Mat& luma, const LineFeature& m, double side, double& floor_ref, double& contrast,
+                     double search = 0.0) {
   const double tm = 0.5 * (m.t_min + m.t_max), half = 0.5 * (m.t_max - m.t_min);
-  const double nx = std::cos(m.theta), ny = std::sin(m.theta), off = 0.5 * m.width + side;
+  const double nx = std::cos(m.theta), ny = std::sin(m.theta), off = 0.5 * m.width + side + search;
   double cs[5], fs[5];
   int n = 0;
   for (int k = -2; k <= 2; ++k) {
     const double t = tm + std::clamp(2.0 * k, -half, half), cx = nx * m.rho - t * ny, cy = ny * m.rho + t * nx;
-    const double c = lumaAt(luma, cx, cy), l = lumaAt(luma, cx - off * nx, cy - off * ny),
-                 r = lumaAt(luma, cx + off * nx, cy + off * ny);
+    double c = lumaAt(luma, cx, cy);
+    for (double h = 0.5; h <= search && c >= 0; h += 0.5)
+      c = std::min({lumaAt(luma, cx - h * nx, cy - h * ny), lumaAt(luma, cx + h * nx, cy + h * ny)}) < 0
+              ? -1.0
+              : std::max({c, lumaAt(luma, cx - h * nx, cy - h * ny), lumaAt(luma, cx + h * nx, cy + h * ny)});
+    const double l = lumaAt(luma, cx - off * nx, cy - off * ny), r = lumaAt(luma, cx + off * nx, cy + off * ny);
     if (c < 0 || l < 0 || r < 0) continue;
     cs[n] = c;
     fs[n] = std::min(l, r);
@@ -196,14 +218,27 @@ bool stripeCentreOnProfile(const cv::Mat& luma, bool along_rows, double v_h, dou
 
 // The local line of stripe l near its crossing with stripe o at l's coordinate tp: offset c0
 // along l's normal at tp and slope c1 (see refineCrossing in corners.h).
-bool crossingNear(const cv::Mat& luma, const LineFeature& l, const LineFeature& o, double v_h, double tp, double& c0,
-                  double& c1) {
-  double floor_ref, contrast;
-  if (!stripeReference(luma, l, 2.0, floor_ref, contrast)) return false;
+bool crossingNear(const cv::Mat& luma, const LineFeature& l, const LineFeature& o, double v_h, double tp, double max_offset,
+                  double& c0, double& c1) {
+  // The stripe's floor and contrast where its profiles are, away from the crossing (the middle
+  // of a short extent can be the crossing itself, where the other stripe brightens the floor).
+  // A curved stripe leaves its fitted line on one side first: the side of higher contrast.
+  double floor_ref = 0, contrast = 0;
+  for (const double dir : {1.0, -1.0}) {
+    LineFeature part = l;
+    part.t_min = std::max(l.t_min, std::min(tp + dir * 8.0, tp + dir * 32.0));
+    part.t_max = std::min(l.t_max, std::max(tp + dir * 8.0, tp + dir * 32.0));
+    double f, c;
+    if (part.t_max - part.t_min >= 8.0 && stripeReference(luma, part, 2.0, f, c, max_offset - 2.0) && c > contrast) {
+      floor_ref = f;
+      contrast = c;
+    }
+  }
+  if (contrast <= 0) return false;
   constexpr int kPerSide = 8;
   const double nx = std::cos(l.theta), ny = std::sin(l.theta);
   const bool along_rows = std::fabs(nx) >= std::fabs(ny);
-  const double reach = (0.5 * std::max(l.width, 2.0) + 3.0) / std::max(std::fabs(nx), std::fabs(ny));
+  const double reach = (0.5 * std::max(l.width, 2.0) + 1.0 + max_offset) / std::max(std::fabs(nx), std::fabs(ny));
   const double ox = std::cos(o.theta), oy = std::sin(o.theta), o_clear = 0.5 * std::max(o.width, 2.0) + 1.0;
   Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero();
   Eigen::Vector3d Atb = Eigen::Vector3d::Zero();
@@ -221,7 +256,7 @@ bool crossingNear(const cv::Mat& luma, const LineFeature& l, const LineFeature& 
       Eigen::Vector2d c;
       if (!stripeCentreOnProfile(luma, along_rows, v_h, x, y, reach, floor_ref, 0.5 * contrast, c)) continue;
       const double h = c.x() * nx + c.y() * ny - l.rho, tc = along(l.theta, c.x(), c.y()) - tp;
-      if (std::fabs(h) > 2.0) continue;
+      if (std::fabs(h) > max_offset) continue;
       const Eigen::Vector3d a(1.0, tc, tc * tc);
       AtA += a * a.transpose();
       Atb += a * h;
@@ -248,32 +283,103 @@ double horizonRow(const StereoRig& rig) {
   return rig.principalV() - d0 / slope;
 }
 
-bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double horizon_row, double& u,
-                    double& v) {
-  const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
-  if (std::fabs(det) < 1e-3) return false;
-  // Each line, near the crossing: the point at offset c0 along its normal from its point at the
-  // crossing, and direction (its direction + c1 normal).
-  Eigen::Vector2d q[2], dir[2];
+namespace {
+
+// Each line near the crossing (u, v) re-measured on the image (crossingNear, profiles within
+// max_offset px of the line) and returned as a local line; false when a stripe has too few
+// profiles or the local lines are near parallel.
+bool localLines(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double horizon_row, double u, double v,
+                double max_offset, LineFeature local[2]) {
   const LineFeature* ls[2] = {&a, &b};
   for (int i = 0; i < 2; ++i) {
     const LineFeature& l = *ls[i];
     const double tp = along(l.theta, u, v);
     double c0, c1;
-    if (!crossingNear(luma, l, *ls[1 - i], horizon_row, tp, c0, c1)) return false;
+    if (!crossingNear(luma, l, *ls[1 - i], horizon_row, tp, max_offset, c0, c1)) return false;
+    // The point at offset c0 along the normal from l's point at the crossing, and direction
+    // (l's direction + c1 normal).
     const Eigen::Vector2d n(std::cos(l.theta), std::sin(l.theta)), d(-std::sin(l.theta), std::cos(l.theta));
-    q[i] = Eigen::Vector2d(l.x(tp), l.y(tp)) + c0 * n;
-    dir[i] = d + c1 * n;
+    const Eigen::Vector2d q = Eigen::Vector2d(l.x(tp), l.y(tp)) + c0 * n, dir = d + c1 * n;
+    local[i] = lineThrough(q, q + dir, l);
   }
-  // q0 + s dir0 = q1 + r dir1
-  Eigen::Matrix2d M;
-  M << dir[0], -dir[1];
-  if (std::fabs(M.determinant()) < 1e-3) return false;
-  const Eigen::Vector2d sr = M.inverse() * (q[1] - q[0]);
-  const Eigen::Vector2d p = q[0] + sr[0] * dir[0];
-  if (!p.allFinite() || std::hypot(p.x() - u, p.y() - v) > 2.0) return false;
-  u = p.x();
-  v = p.y();
+  const double det = std::cos(local[0].theta) * std::sin(local[1].theta) - std::sin(local[0].theta) * std::cos(local[1].theta);
+  return std::fabs(det) >= 1e-3;
+}
+
+// The crossing of two lines; false when it is not finite.
+bool crossLines(const LineFeature& a, const LineFeature& b, double& u, double& v) {
+  const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
+  if (std::fabs(det) < 1e-9) return false;
+  u = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;  // (3.12)
+  v = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;  // (3.13)
+  return std::isfinite(u) && std::isfinite(v);
+}
+
+}  // namespace
+
+bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double horizon_row, double& u,
+                    double& v) {
+  const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
+  if (std::fabs(det) < 1e-3) return false;
+  LineFeature local[2];
+  double pu, pv;
+  if (!localLines(luma, a, b, horizon_row, u, v, 2.0, local) || !crossLines(local[0], local[1], pu, pv)) return false;
+  if (std::hypot(pu - u, pv - v) > 2.0) return false;
+  u = pu;
+  v = pv;
+  return true;
+}
+
+bool crossingInRightImage(const cv::Mat& right_luma, const StereoRig& rig, const LineFeature& a, const LineFeature& b,
+                          double u_left, double v_left, double& u_right, double& v_right) {
+  // The right image of a floor line: each point's floor point projected into the right camera,
+  // then moved along the row so that the crossing lands on the match (whose column the floor
+  // model may miss by a calibration error).
+  double xc, yc;
+  if (!floorPoint(rig, u_left, v_left, xc, yc)) return false;
+  const auto pc = rig.project(Eigen::Vector3d(xc, yc, 0.0), 0.0);
+  if (!pc) return false;
+  const double shift = u_right - pc->u_right;
+  auto toRight = [&](double u, double v, Eigen::Vector2d& q) {
+    double x, y;
+    if (!floorPoint(rig, u, v, x, y)) return false;
+    const auto p = rig.project(Eigen::Vector3d(x, y, 0.0), 0.0);
+    if (!p) return false;
+    q = Eigen::Vector2d(p->u_right + shift, p->v_right);
+    return true;
+  };
+  LineFeature right[2];
+  const LineFeature* ls[2] = {&a, &b};
+  for (int i = 0; i < 2; ++i) {
+    const LineFeature& l = *ls[i];
+    const double tp = along(l.theta, u_left, v_left);
+    Eigen::Vector2d q0, q1;
+    if (!toRight(l.x(tp - 8.0), l.y(tp - 8.0), q0) || !toRight(l.x(tp + 8.0), l.y(tp + 8.0), q1)) return false;
+    right[i] = lineThrough(q0, q1, l);
+    // The extent: the left ends carried over, or 40 px either side where an end has no floor point.
+    const double tr = along(right[i].theta, u_right, v_left);
+    right[i].t_min = tr - 40.0;
+    right[i].t_max = tr + 40.0;
+    Eigen::Vector2d e;
+    for (const double te : {l.t_min, l.t_max})
+      if (toRight(l.x(te), l.y(te), e)) {
+        const double t = along(right[i].theta, e.x(), e.y());
+        if (t < tr) right[i].t_min = std::max(right[i].t_min, t);
+        else right[i].t_max = std::min(right[i].t_max, t);
+      }
+  }
+  const double v_h = horizonRow(rig);
+  double u = u_right, v = v_left;
+  // The rows of a rectified pair may be misaligned by a px or two (calibration errors), which
+  // moves a flat stripe as far across itself: a first pass within 4 px, then the tight one.
+  LineFeature coarse[2];
+  if (!localLines(right_luma, right[0], right[1], v_h, u, v, 4.0, coarse) || !crossLines(coarse[0], coarse[1], u, v))
+    return false;
+  if (std::hypot(u - u_right, v - v_left) > 4.0) return false;
+  if (!refineCrossing(right_luma, coarse[0], coarse[1], v_h, u, v)) return false;
+  if (std::hypot(u - u_right, v - v_left) > 4.0) return false;
+  u_right = u;
+  v_right = v;
   return true;
 }
 
@@ -718,6 +824,7 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
       const bool a_ends = ta < a.t_min + prm.delta_px + over_a || ta > a.t_max - prm.delta_px - over_a;
       const bool b_ends = tb < b.t_min + prm.delta_px + over_b || tb > b.t_max - prm.delta_px - over_b;
       LandmarkType type;
+      bool located = false;
       if (a.marking && b.marking) {
         double ax, ay, bx, by;
         if (!floorDir(a, ax, ay) || !floorDir(b, bx, by)) continue;
@@ -732,7 +839,7 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
         } else if (!a_ends && !b_ends) {
           if (ang < deg(prm.min_crossing_angle_deg)) continue;
           type = LandmarkType::Intersection;
-          if (luma) refineCrossing(*luma, a, b, v_h, px, py);
+          located = luma && refineCrossing(*luma, a, b, v_h, px, py);
         } else if (prm.marking_junctions) {
           // One stripe ends on the other, which runs on: a T of two markings (RoboCup fields'
           // penalty and goal areas, the halfway line on the touch line). Perpendicular on the
@@ -772,6 +879,7 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
         const double n = counts[k];
         f.u = (f.u * n + px) / (n + 1);
         f.v = (f.v * n + py) / (n + 1);
+        f.located_on_image = f.located_on_image && located;
         ++counts[k];
         merged = true;
         break;
@@ -783,6 +891,7 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
       f.v = py;
       f.line_a = static_cast<int>(i);
       f.line_b = static_cast<int>(j);
+      f.located_on_image = located;
       features.push_back(f);
       counts.push_back(1);
     }

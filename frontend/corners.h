@@ -165,6 +165,17 @@ double horizonRow(const StereoRig& rig);
 bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double horizon_row, double& u,
                     double& v);
 
+// The crossing's column and row in the right image of a rectified pair (px), for the crossing
+// of marking lines a and b at left pixel (u_left, v_left) matched near column u_right (the patch
+// correlation's, whose sub-pixel fit on the crossing's aliased image is off by 0.25 px RMS in the
+// ideal world). Each line is carried to the right image through its floor points, re-measured
+// there as refineCrossing does (a first pass 4 px wide, for rows a calibration error misaligns),
+// and crossed. The right image of the crossing is that of the same floor point whatever the
+// rows' misalignment, so no slide. False (outputs unchanged) when refineCrossing would fail or
+// the crossing is more than 4 px from (u_right, v_left).
+bool crossingInRightImage(const cv::Mat& right_luma, const StereoRig& rig, const LineFeature& a, const LineFeature& b,
+                          double u_left, double v_left, double& u_right, double& v_right);
+
 // The stripe probe: true unless marking line m's centre line shows a gap (probe_min_run dark
 // samples) between s0 px and delta_px from the point at line coordinate tp, going into m.
 // Also true when the probe cannot judge (reference contrast below 4 grey levels, or samples

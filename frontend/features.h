@@ -97,6 +97,7 @@ struct PointFeature {
   int side = 0;             // goal corners: -1 colour to the right of white (left edge of the goal), +1 the other
   int line_a = -1, line_b = -1;       // LineFeature indices (corners)
   int landmark_id = -1;     // set when globally unique
+  bool located_on_image = false;      // crossings: moved onto where the stripes cross (refineCrossing)
 };
 
 }  // namespace stereoloc::frontend

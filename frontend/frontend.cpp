@@ -383,9 +383,18 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
       double gain = 0.0;
       const auto d = matchFloorFeature(left_luma_, right_luma_, rig_, f.u, f.v, range, params_.stereo, &gain);
       if (!d) continue;
-      // An X-intersection's two crossing lines do not slide as one edge (Observation::slide_gain).
-      r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, f.u - *d, f.v},
-                                        f.type == LandmarkType::Intersection ? 0.0 : gain});
+      double u_right = f.u - *d;
+      if (f.type == LandmarkType::Intersection) {
+        // An X is located on the right image as on the left, so it does not slide with the rows'
+        // misalignment as the patch match does (Observation::slide_gain); one that cannot be
+        // (near the image's border) is not reported.
+        gain = 0.0;
+        double v_right = f.v;
+        if (!f.located_on_image || f.line_a < 0 || f.line_b < 0 ||
+            !crossingInRightImage(right_luma_, rig_, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v, u_right, v_right))
+          continue;
+      }
+      r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, u_right, f.v}, gain});
     }
   }
   const ColourPrepare prepare_left = [this](const cv::Rect& rect, int step) { rectifier_->colour(0, rect, step); };
@@ -439,7 +448,9 @@ void Frontend::rectifyRightLumaAroundFeatures() {
   row_spans_.clear();
   for (const PointFeature& f : result_.features) {
     const int vc = static_cast<int>(std::lround(f.v));
-    row_spans_.emplace_back(vc - rad, vc + rad + 1);
+    // crossingInRightImage reads profiles up to 40 px along the crossing lines.
+    const int reach = f.type == LandmarkType::Intersection ? std::max(rad, 48) : rad;
+    row_spans_.emplace_back(vc - reach, vc + reach + 1);
   }
   std::sort(row_spans_.begin(), row_spans_.end());
   std::pair<int, int> cur = row_spans_.front();

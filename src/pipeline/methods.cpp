@@ -18,10 +18,12 @@ namespace {
 // Disparity error of the frontend's features matched along floor markings per pixel of row
 // misalignment of the rectified pair (applyErrorProfile): the RMS u_r error measured against the
 // true rectified pixels on realistic images (docs/realistic_world.md, "Noise model": 1.63 px for
-// marking corners and T-junctions, 0.65 px for X-intersections) over the realistic profile's
-// stated row misalignment, sqrt(2 (1 px)^2 + (277 px * 0.1 deg)^2) = 1.49 px.
+// marking corners and T-junctions) over the realistic profile's stated row misalignment,
+// sqrt(2 (1 px)^2 + (277 px * 0.1 deg)^2) = 1.49 px. X-intersections get none of these terms:
+// the frontend locates them on the right image as on the left, so they do not slide, and their
+// disparity error about each trial's constant (0.07 px RMS, no constant per feature; 181
+// sightings on 10 realistic spins) is within the frontend's stated sigma_d.
 constexpr double kMarkingDisparityPerRowPx = 1.63 / 1.49;
-constexpr double kIntersectionDisparityPerRowPx = 0.65 / 1.49;
 // What remains with the rows' misalignment dv estimated (UnmodelledNoise::row_offset_sigma_px):
 // the disparity error of each marking feature against the true rectified pixels, less s dv (s
 // the frontend's slide gain, dv the trial's mean misalignment) and less the trial's constant
@@ -29,21 +31,19 @@ constexpr double kIntersectionDisparityPerRowPx = 0.65 / 1.49;
 // likelihood as a constant per feature and trial plus a white part sqrt(a^2 + (c s)^2)
 // (docs/realistic_world.md, "Noise model"; study seed 7, 20 trials of circle, line and spin,
 // 3053 sightings of marking corners and T-junctions): a 0.185 px, c 0.318 px, the constant's
-// sigma 0.583 px; X-intersections (s = 0; 372 sightings) white 0.282 px, constant 0.321 px.
+// sigma 0.583 px.
 constexpr double kMarkingSlideFloorPerRowPx = 0.185 / 1.49;
 constexpr double kMarkingSlidePerGainPerRowPx = 0.318 / 1.49;
 constexpr double kMarkingFeatureOffsetPerRowPx = 0.583 / 1.49;
-constexpr double kIntersectionSlidePerRowPx = 0.282 / 1.49;
-constexpr double kIntersectionFeatureOffsetPerRowPx = 0.321 / 1.49;
 // The features' column error common to both images (the bearing), about the goal corners' mean
 // of each trial (which the column offset takes), has a constant per feature and trial too: fitted
 // the same way (seed 7; goal corners 5927 sightings of 160 features, marking corners and
-// T-junctions 3056 of 312, X-intersections 372 of 40 on the spin): 0.12, 0.19 and 0.14 px. The
-// frontend makes them (its corners on aliased edges, docs/estimators.md "Errors that repeat"),
-// not the calibration, so they do not scale with the misalignment.
+// T-junctions 3056 of 312): 0.12 and 0.19 px; X-intersections, located on the image, 0.01 px
+// (10 realistic spins), none stated. The frontend makes them (its corners on aliased edges,
+// docs/estimators.md "Errors that repeat"), not the calibration, so they do not scale with the
+// misalignment.
 constexpr double kGoalFeatureColumnPx = 0.12;
 constexpr double kMarkingFeatureColumnPx = 0.19;
-constexpr double kIntersectionFeatureColumnPx = 0.14;
 
 // Gauss-Newton iterations of the iterated EKF's updates (solvers/ekf.h); it stops earlier when
 // converged, typically after 2-3.
@@ -204,16 +204,12 @@ void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o)
   // relative pitch; the frontend's marking features slide along their markings with it.
   const double row = std::hypot(std::sqrt(2.0) * p.principal_sigma_px, focal_px * p.relative_rotation_sigma_rad);
   n.marking_disparity_sigma_px = kMarkingDisparityPerRowPx * row;
-  n.intersection_disparity_sigma_px = kIntersectionDisparityPerRowPx * row;
   n.row_offset_sigma_px = row;
   n.marking_slide_residual_sigma_px = kMarkingSlideFloorPerRowPx * row;
   n.marking_slide_residual_per_gain_px = kMarkingSlidePerGainPerRowPx * row;
   n.marking_feature_offset_sigma_px = kMarkingFeatureOffsetPerRowPx * row;
-  n.intersection_slide_residual_sigma_px = kIntersectionSlidePerRowPx * row;
-  n.intersection_feature_offset_sigma_px = kIntersectionFeatureOffsetPerRowPx * row;
   n.goal_feature_column_sigma_px = kGoalFeatureColumnPx;
   n.marking_feature_column_sigma_px = kMarkingFeatureColumnPx;
-  n.intersection_feature_column_sigma_px = kIntersectionFeatureColumnPx;
   // One wheel at a time on a fraction p of the steps, s uniform in [a, b]: E[s^2] per wheel
   // p / 2 (a^2 + a b + b^2) / 3.
   const double a = p.slip_min, b = p.slip_max;

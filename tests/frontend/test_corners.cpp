@@ -5,6 +5,8 @@
 #include <fstream>
 #include <functional>
 
+#include <opencv2/imgproc.hpp>
+
 #include "frontend/frontend.h"
 #include "src/core/error.h"
 #include "test_util.h"
@@ -475,6 +477,46 @@ TEST(Corners, CrossingOfACurvedMarkingIsRefinedWhereTheStripesCross) {
   EXPECT_GT(std::hypot(fitted[0].u - truth_plus.x(), fitted[0].v - truth_plus.y()), 0.2);
   EXPECT_NEAR(rp.features[0].u, truth_plus.x(), 0.08);
   EXPECT_NEAR(rp.features[0].v, truth_plus.y(), 0.08);
+}
+
+// Rows of a rectified pair misaligned by a calibration error (here 2 rows, the right image lower):
+// the patch correlation searches the right image on the left's row and slides along the stripes;
+// the crossing located on the right image is where the stripes cross there.
+TEST(Corners, CrossingIsLocatedOnTheRightImageWhateverTheRowMisalignment) {
+  const StereoRig rig;
+  Frontend fe(rig, FieldMap::miroSot());
+  const DisparityRange range = validDisparities(rig, fe.params().stereo);
+  struct Scene {
+    const char* name;
+    std::vector<Strip> strips;
+    std::vector<Ring> rings;
+    Eigen::Vector2d crossing;
+  };
+  const Scene scenes[] = {{"curved", {{{0, 0}, {600, 0}}}, {{{0, 0}, 250.0}}, {250, 0}},
+                          {"straight", {{{350, -80}, {800, -80}}, {{500, -230}, {500, 70}}}, {}, {500, -80}}};
+  for (const Scene& sc : scenes) {
+    const cv::Mat left = renderFloor(rig, false, sc.strips, 1e9, sc.rings);
+    const cv::Mat right_aligned = renderFloor(rig, true, sc.strips, 1e9, sc.rings);
+    cv::Mat right(right_aligned.size(), right_aligned.type(), cv::Scalar(20, 20, 20));
+    right_aligned.rowRange(0, right.rows - 2).copyTo(right.rowRange(2, right.rows));
+    const auto truth = rig.project(Eigen::Vector3d(sc.crossing.x(), sc.crossing.y(), 0.0), 0.0);
+    ASSERT_TRUE(truth);
+    const FrontendResult& r = fe.process(left, right);
+    ASSERT_EQ(r.matched.size(), 1u) << sc.name;
+    ASSERT_EQ(r.matched[0].feature.type, LandmarkType::Intersection);
+    const StereoFeature m = r.matched[0];
+    cv::Mat left_luma, right_luma;
+    cv::cvtColor(left, left_luma, cv::COLOR_BGR2GRAY);
+    cv::cvtColor(right, right_luma, cv::COLOR_BGR2GRAY);
+    const auto d = matchFloorFeature(left_luma, right_luma, rig, m.feature.u, m.feature.v, range, fe.params().stereo);
+    ASSERT_TRUE(d);
+    const double patch_error = m.feature.u - *d - truth->u_right, located_error = m.pixels.u_right - truth->u_right;
+    std::printf("%s crossing, rows 2 px apart: right column off by %.3f px (patch match), %.3f px (located)\n", sc.name,
+                patch_error, located_error);
+    EXPECT_GT(std::fabs(patch_error), 0.3) << sc.name;
+    EXPECT_LT(std::fabs(located_error), 0.15) << sc.name;
+    EXPECT_EQ(m.slide_gain, 0.0);
+  }
 }
 
 namespace {

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <opencv2/imgproc.hpp>
 
 #include "frontend/frontend.h"
@@ -18,6 +19,10 @@ std::string tempFile(const std::string& name) {
   return (std::filesystem::temp_directory_path() / ("stereoloc_fe_" + std::to_string(::getpid()) + "_" + name)).string();
 }
 void writeText(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
+std::string readText(const std::string& path) {
+  std::ifstream in(path);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
 
 const cv::Vec3b kWhite(235, 235, 235), kYellow(40, 225, 245), kBlue(235, 100, 50);
 
@@ -62,10 +67,16 @@ TEST(FrontendParams, YamlRoundTripAndShippedDefaultsFile) {
   EXPECT_TRUE(q.hough.weight_by_magnitude);
   EXPECT_EQ(q.goals.min_rows, 6);
   std::filesystem::remove(path);
-  // The shipped file holds the defaults.
+  // The shipped file holds the defaults: written back, it reads as the defaults written.
   const FrontendParams d = FrontendParams::load(std::string(STEREOLOC_DATA_DIR) + "/frontend_default.yaml");
   EXPECT_EQ(d.segments.min_length_px, FrontendParams().segments.min_length_px);
   EXPECT_EQ(d.gradient.magnitude_threshold, FrontendParams().gradient.magnitude_threshold);
+  const std::string shipped = tempFile("shipped.yaml"), defaults = tempFile("defaults.yaml");
+  d.save(shipped);
+  FrontendParams().save(defaults);
+  EXPECT_EQ(readText(shipped), readText(defaults));
+  std::filesystem::remove(shipped);
+  std::filesystem::remove(defaults);
 }
 
 TEST(FrontendParams, ErrorsNameFileAndKey) {

@@ -106,7 +106,8 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   // marking features' disparity error on the rows it and the principal points misalign.
   EXPECT_EQ(o.noise.relative_rotation_sigma_rad, p.relative_rotation_sigma_rad);
   EXPECT_NEAR(o.noise.marking_disparity_sigma_px, 1.63, 0.01);
-  EXPECT_NEAR(o.noise.intersection_disparity_sigma_px, 0.65, 0.01);
+  // X-intersections are located on both images: they do not slide.
+  EXPECT_EQ(o.noise.intersection_disparity_sigma_px, 0.0);
   // The misalignment itself (the row block's prior) and what the slide model leaves.
   EXPECT_NEAR(o.noise.row_offset_sigma_px, 1.49, 0.01);
   // Measured at the profile's 1.49 px of misalignment, they scale with it.
@@ -114,24 +115,22 @@ TEST(ApplyErrorProfile, TheProfilesSigmasBecomeTheNoiseModelAndPriors) {
   EXPECT_NEAR(o.noise.marking_slide_residual_sigma_px, 0.185 * row, 1e-12);
   EXPECT_NEAR(o.noise.marking_slide_residual_per_gain_px, 0.318 * row, 1e-12);
   EXPECT_NEAR(o.noise.marking_feature_offset_sigma_px, 0.583 * row, 1e-12);
-  EXPECT_NEAR(o.noise.intersection_slide_residual_sigma_px, 0.282 * row, 1e-12);
-  EXPECT_NEAR(o.noise.intersection_feature_offset_sigma_px, 0.321 * row, 1e-12);
+  EXPECT_EQ(o.noise.intersection_slide_residual_sigma_px, 0.0);
+  EXPECT_EQ(o.noise.intersection_feature_offset_sigma_px, 0.0);
   // The frontend's repeating column errors do not depend on the misalignment.
   EXPECT_EQ(o.noise.goal_feature_column_sigma_px, 0.12);
   EXPECT_EQ(o.noise.marking_feature_column_sigma_px, 0.19);
-  EXPECT_EQ(o.noise.intersection_feature_column_sigma_px, 0.14);
+  EXPECT_EQ(o.noise.intersection_feature_column_sigma_px, 0.0);
   ErrorProfile aligned = p;  // no principal-point or rotation error: rows aligned
   aligned.principal_sigma_px = 0.0;
   aligned.relative_rotation_sigma_rad = 0.0;
   MethodOptions a;
   applyErrorProfile(aligned, 277.0, a);
   EXPECT_EQ(a.noise.marking_disparity_sigma_px, 0.0);
-  EXPECT_EQ(a.noise.intersection_disparity_sigma_px, 0.0);
   EXPECT_EQ(a.noise.row_offset_sigma_px, 0.0);
   EXPECT_EQ(a.noise.marking_slide_residual_sigma_px, 0.0);
   EXPECT_EQ(a.noise.marking_slide_residual_per_gain_px, 0.0);
   EXPECT_EQ(a.noise.marking_feature_offset_sigma_px, 0.0);
-  EXPECT_EQ(a.noise.intersection_feature_offset_sigma_px, 0.0);
 }
 
 }  // namespace
