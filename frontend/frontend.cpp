@@ -384,16 +384,13 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
       const auto d = matchFloorFeature(left_luma_, right_luma_, rig_, f.u, f.v, range, params_.stereo, &gain);
       if (!d) continue;
       double u_right = f.u - *d;
-      if (f.type == LandmarkType::Intersection) {
-        // An X is located on the right image as on the left, so it does not slide with the rows'
-        // misalignment as the patch match does (Observation::slide_gain); one that cannot be
-        // (near the image's border) is not reported.
+      // An X located on the left image is located on the right one as well, so it does not slide
+      // with the rows' misalignment as the patch match does (Observation::slide_gain); one that
+      // cannot be (a stripe with too few profiles beside the crossing) keeps the patch match.
+      double v_right = f.v;
+      if (f.type == LandmarkType::Intersection && f.located_on_image && f.line_a >= 0 && f.line_b >= 0 &&
+          crossingInRightImage(right_luma_, rig_, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v, u_right, v_right))
         gain = 0.0;
-        double v_right = f.v;
-        if (!f.located_on_image || f.line_a < 0 || f.line_b < 0 ||
-            !crossingInRightImage(right_luma_, rig_, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v, u_right, v_right))
-          continue;
-      }
       r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, u_right, f.v}, gain});
     }
   }

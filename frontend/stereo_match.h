@@ -11,9 +11,10 @@
 // and the search is restricted to +-floor_search_px around the disparity the floor predicts
 // (the full valid range when the floor does not predict one). A match needs ZNCC >= min_zncc
 // and a margin of `uniqueness` over any other local maximum; it is refined to sub-pixel by a
-// parabola through the three best scores. An X-intersection is then located on the right image
-// as on the left (crossingInRightImage, frontend/corners.h), which a row misalignment of the
-// pair does not move; one that cannot be is not reported.
+// parabola through the three best scores. An X-intersection located on the left image is then
+// located on the right one too (crossingInRightImage, frontend/corners.h), which a row
+// misalignment of the pair does not move; one that cannot be keeps the patch match and its slide
+// gain.
 #include <Eigen/Core>
 #include <opencv2/core/mat.hpp>
 #include <optional>
@@ -53,11 +54,11 @@ struct StereoParams {
   // sigma_u and sigma_d: wider than those white figures, because a feature's errors repeat over
   // consecutive views of the same geometry, which the estimators treat as independent sightings,
   // and the EKF's single linearisation diverges with a sharper disparity (docs/estimators.md,
-  // "Observation covariance"). X-intersections, located on both images, take twice their white
-  // sigma_u and sigma_d, as goal corners do, and keep their measured corr_ud.
+  // "Observation covariance"). X-intersections: pooled over the located ones and those that
+  // keep the patch match (docs/frontend.md, "An X on the right image").
   PixelNoise corner_noise{0.45, 0.13, 0.5, 0.08};
   PixelNoise junction_noise{0.45, 0.05, 0.5, -0.13};
-  PixelNoise intersection_noise{0.5, 0.15, 0.34, 0.69};
+  PixelNoise intersection_noise{0.5, 0.17, 0.5, 0.48};
   PixelNoise goal_noise{0.15, 0.61, 0.21, 0.707};
   const PixelNoise& noise(LandmarkType type) const {
     switch (type) {

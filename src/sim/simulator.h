@@ -69,7 +69,7 @@ PixelNoiseModel pixelNoiseModelFromString(const std::string& name);  // throws s
 struct KindPixelNoise {
   StereoPixelNoise corner{0.45, 0.13, 0.5, 0.08};      // marking L corners and other point features
   StereoPixelNoise junction{0.45, 0.05, 0.5, -0.13};   // T-junctions
-  StereoPixelNoise intersection{0.5, 0.15, 0.34, 0.69};  // X crossings
+  StereoPixelNoise intersection{0.5, 0.17, 0.5, 0.48};  // X crossings
   StereoPixelNoise goal{0.15, 0.61, 0.21, 0.707};      // goal corners
   const StereoPixelNoise& of(LandmarkType type) const;
 };

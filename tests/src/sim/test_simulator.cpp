@@ -188,10 +188,10 @@ TEST(Simulator, PerKindPixelNoiseHasTheModelsCovariance) {
         const double se = std::sqrt((C(i, i) * C(j, j) + C(i, j) * C(i, j)) / static_cast<double>(count));
         EXPECT_NEAR(S(i, j), C(i, j), 4.5 * se) << toString(type) << " (" << i << ", " << j << ")";
       }
-    // The marking features' left and right columns are strongly correlated in the model (0.6-0.7;
+    // The marking features' left and right columns are strongly correlated in the model (0.5-0.7;
     // a goal corner's nearly not), which independent noise would miss.
     if (type != LandmarkType::GoalCorner) {
-      EXPECT_GT(S(0, 2) / std::sqrt(S(0, 0) * S(2, 2)), 0.5) << toString(type);
+      EXPECT_GT(S(0, 2) / std::sqrt(S(0, 0) * S(2, 2)), 0.4) << toString(type);
     }
   }
 }
