@@ -90,10 +90,10 @@ bool stripeReference(const cv::Mat& luma, const LineFeature& m, double side, dou
   for (int k = -2; k <= 2; ++k) {
     const double t = tm + std::clamp(2.0 * k, -half, half), cx = nx * m.rho - t * ny, cy = ny * m.rho + t * nx;
     double c = lumaAt(luma, cx, cy);
-    for (double h = 0.5; h <= search && c >= 0; h += 0.5)
-      c = std::min({lumaAt(luma, cx - h * nx, cy - h * ny), lumaAt(luma, cx + h * nx, cy + h * ny)}) < 0
-              ? -1.0
-              : std::max({c, lumaAt(luma, cx - h * nx, cy - h * ny), lumaAt(luma, cx + h * nx, cy + h * ny)});
+    for (double h = 0.5; h <= search && c >= 0; h += 0.5) {
+      const double below = lumaAt(luma, cx - h * nx, cy - h * ny), above = lumaAt(luma, cx + h * nx, cy + h * ny);
+      c = below < 0 || above < 0 ? -1.0 : std::max({c, below, above});
+    }
     const double l = lumaAt(luma, cx - off * nx, cy - off * ny), r = lumaAt(luma, cx + off * nx, cy + off * ny);
     if (c < 0 || l < 0 || r < 0) continue;
     cs[n] = c;
@@ -356,7 +356,8 @@ bool crossingInRightImage(const cv::Mat& right_luma, const StereoRig& rig, const
     Eigen::Vector2d q0, q1;
     if (!toRight(l.x(tp - 8.0), l.y(tp - 8.0), q0) || !toRight(l.x(tp + 8.0), l.y(tp + 8.0), q1)) return false;
     right[i] = lineThrough(q0, q1, l);
-    // The extent: the left ends carried over, or 40 px either side where an end has no floor point.
+    // The extent: 40 px either side of the match (the profiles' reach), within the left's ends
+    // carried over where they have a floor point.
     const double tr = along(right[i].theta, u_right, v_left);
     right[i].t_min = tr - 40.0;
     right[i].t_max = tr + 40.0;
