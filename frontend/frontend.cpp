@@ -387,7 +387,7 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
       // An X located on the left image is located on the right one as well, so it does not slide
       // with the rows' misalignment as the patch match does (Observation::slide_gain); one that
       // cannot be (a stripe with too few profiles beside the crossing) keeps the patch match.
-      double v_right = f.v;
+      double v_right = f.v;  // the observation keeps the left's row (StereoPixels)
       if (f.type == LandmarkType::Intersection && f.located_on_image && f.line_a >= 0 && f.line_b >= 0 &&
           crossingInRightImage(right_luma_, rig_, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v, u_right, v_right))
         gain = 0.0;

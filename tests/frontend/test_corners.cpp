@@ -519,6 +519,30 @@ TEST(Corners, CrossingIsLocatedOnTheRightImageWhateverTheRowMisalignment) {
   }
 }
 
+// Where the right image shows no stripes to re-measure (here a blank floor), the crossing is not
+// located and the match is left as it was; on the aligned pair it is the projection.
+TEST(Corners, CrossingInTheRightImageNeedsItsStripes) {
+  const StereoRig rig;
+  Frontend fe(rig, FieldMap::miroSot());
+  const cv::Mat left = renderFloor(rig, false, {{{0, 0}, {600, 0}}}, 1e9, {{{0, 0}, 250.0}});
+  const cv::Mat right = renderFloor(rig, true, {{{0, 0}, {600, 0}}}, 1e9, {{{0, 0}, 250.0}});
+  const FrontendResult& r = fe.detectFeatures(left);
+  ASSERT_EQ(r.features.size(), 1u);
+  const PointFeature f = r.features[0];
+  ASSERT_TRUE(f.located_on_image);
+  const auto truth = rig.project(Eigen::Vector3d(250.0, 0.0, 0.0), 0.0);
+  ASSERT_TRUE(truth);
+  cv::Mat right_luma, blank(right.rows, right.cols, CV_8UC1, cv::Scalar(20));
+  cv::cvtColor(right, right_luma, cv::COLOR_BGR2GRAY);
+  double u = truth->u_right + 0.6, v = f.v;  // a match 0.6 px off
+  EXPECT_FALSE(crossingInRightImage(blank, rig, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v, u, v));
+  EXPECT_EQ(u, truth->u_right + 0.6);
+  EXPECT_EQ(v, f.v);
+  ASSERT_TRUE(crossingInRightImage(right_luma, rig, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v, u, v));
+  EXPECT_NEAR(u, truth->u_right, 0.08);
+  EXPECT_NEAR(v, truth->v_right, 0.08);
+}
+
 namespace {
 // Lines of a rendered floor image, keeping only the marking lines through the image of floor
 // point `keep` (within 2 px) and the wall feet: the other arm is "missed", as a thin far arm
