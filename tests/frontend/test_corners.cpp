@@ -543,6 +543,34 @@ TEST(Corners, CrossingInTheRightImageNeedsItsStripes) {
   EXPECT_NEAR(v, truth->v_right, 0.08);
 }
 
+// An X whose stripes the right image does not show on one side (here painted over beyond the
+// correlation patch) cannot be located there: it keeps the patch match and the patch's slide gain.
+TEST(Corners, CrossingNotLocatedOnTheRightImageKeepsThePatchMatch) {
+  const StereoRig rig;
+  Frontend fe(rig, FieldMap::miroSot());
+  const DisparityRange range = validDisparities(rig, fe.params().stereo);
+  const cv::Mat left = renderFloor(rig, false, {{{0, 0}, {600, 0}}}, 1e9, {{{0, 0}, 250.0}});
+  cv::Mat right = renderFloor(rig, true, {{{0, 0}, {600, 0}}}, 1e9, {{{0, 0}, 250.0}});
+  const auto truth = rig.project(Eigen::Vector3d(250.0, 0.0, 0.0), 0.0);
+  ASSERT_TRUE(truth);
+  const int uc = static_cast<int>(std::lround(truth->u_right)), vc = static_cast<int>(std::lround(truth->v_right));
+  right(cv::Rect(uc + 7, vc - 12, 45, 25)).setTo(cv::Scalar(20, 20, 20));  // the arc's right-hand side
+  const FrontendResult& r = fe.process(left, right);
+  ASSERT_EQ(r.matched.size(), 1u);
+  const StereoFeature m = r.matched[0];
+  ASSERT_EQ(m.feature.type, LandmarkType::Intersection);
+  ASSERT_TRUE(m.feature.located_on_image);
+  cv::Mat left_luma, right_luma;
+  cv::cvtColor(left, left_luma, cv::COLOR_BGR2GRAY);
+  cv::cvtColor(right, right_luma, cv::COLOR_BGR2GRAY);
+  double gain = 0.0;
+  const auto d = matchFloorFeature(left_luma, right_luma, rig, m.feature.u, m.feature.v, range, fe.params().stereo, &gain);
+  ASSERT_TRUE(d);
+  EXPECT_EQ(m.pixels.u_right, m.feature.u - *d);
+  EXPECT_EQ(m.slide_gain, gain);
+  EXPECT_NE(gain, 0.0);
+}
+
 namespace {
 // Lines of a rendered floor image, keeping only the marking lines through the image of floor
 // point `keep` (within 2 px) and the wall feet: the other arm is "missed", as a thin far arm
