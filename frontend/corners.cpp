@@ -24,6 +24,21 @@ void undirect(double theta, double rho, double& t_out, double& r_out) {
 
 double along(double theta, double x, double y) { return -x * std::sin(theta) + y * std::cos(theta); }
 
+// The sine of the angle from line a to line b (their unit normals' cross product).
+double crossSin(const LineFeature& a, const LineFeature& b) {
+  return std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
+}
+
+// The crossing (u, v) of lines a and b (3.12, 3.13); false when they are closer to parallel
+// than |sin| = min_sin.
+bool crossLines(const LineFeature& a, const LineFeature& b, double min_sin, double& u, double& v) {
+  const double det = crossSin(a, b);
+  if (std::fabs(det) < min_sin) return false;
+  u = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;
+  v = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;
+  return std::isfinite(u) && std::isfinite(v);
+}
+
 // The line through q0 and q1 (distinct), with the stripe attributes of `like` and its extent
 // carried over (its ends projected onto the new line).
 LineFeature lineThrough(const Eigen::Vector2d& q0, const Eigen::Vector2d& q1, const LineFeature& like) {
@@ -287,7 +302,7 @@ namespace {
 
 // Each line near the crossing (u, v) re-measured on the image (crossingNear, profiles within
 // max_offset px of the line) and returned as a local line; false when a stripe has too few
-// profiles or the local lines are near parallel.
+// profiles.
 bool localLines(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double horizon_row, double u, double v,
                 double max_offset, LineFeature local[2]) {
   const LineFeature* ls[2] = {&a, &b};
@@ -302,28 +317,18 @@ bool localLines(const cv::Mat& luma, const LineFeature& a, const LineFeature& b,
     const Eigen::Vector2d q = Eigen::Vector2d(l.x(tp), l.y(tp)) + c0 * n, dir = d + c1 * n;
     local[i] = lineThrough(q, q + dir, l);
   }
-  const double det = std::cos(local[0].theta) * std::sin(local[1].theta) - std::sin(local[0].theta) * std::cos(local[1].theta);
-  return std::fabs(det) >= 1e-3;
-}
-
-// The crossing of two lines; false when it is not finite.
-bool crossLines(const LineFeature& a, const LineFeature& b, double& u, double& v) {
-  const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
-  if (std::fabs(det) < 1e-9) return false;
-  u = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;  // (3.12)
-  v = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;  // (3.13)
-  return std::isfinite(u) && std::isfinite(v);
+  return true;
 }
 
 }  // namespace
 
 bool refineCrossing(const cv::Mat& luma, const LineFeature& a, const LineFeature& b, double horizon_row, double& u,
                     double& v) {
-  const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
-  if (std::fabs(det) < 1e-3) return false;
+  if (std::fabs(crossSin(a, b)) < 1e-3) return false;
   LineFeature local[2];
   double pu, pv;
-  if (!localLines(luma, a, b, horizon_row, u, v, 2.0, local) || !crossLines(local[0], local[1], pu, pv)) return false;
+  if (!localLines(luma, a, b, horizon_row, u, v, 2.0, local) || !crossLines(local[0], local[1], 1e-3, pu, pv))
+    return false;
   if (std::hypot(pu - u, pv - v) > 2.0) return false;
   u = pu;
   v = pv;
@@ -374,7 +379,7 @@ bool crossingInRightImage(const cv::Mat& right_luma, const StereoRig& rig, const
   // The rows of a rectified pair may be misaligned by a px or two (calibration errors), which
   // moves a flat stripe as far across itself: a first pass within 4 px, then the tight one.
   LineFeature coarse[2];
-  if (!localLines(right_luma, right[0], right[1], v_h, u, v, 4.0, coarse) || !crossLines(coarse[0], coarse[1], u, v))
+  if (!localLines(right_luma, right[0], right[1], v_h, u, v, 4.0, coarse) || !crossLines(coarse[0], coarse[1], 1e-3, u, v))
     return false;
   if (std::hypot(u - u_right, v - v_left) > 4.0) return false;
   if (!refineCrossing(right_luma, coarse[0], coarse[1], v_h, u, v)) return false;
@@ -670,11 +675,8 @@ void snapLineEnds(int width, int height, const CornerParams& prm, std::vector<Li
     for (size_t j = i + 1; j < lines.size(); ++j) {
       const LineFeature& a = lines[i];
       const LineFeature& b = lines[j];
-      const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
-      if (std::fabs(det) < min_sin) continue;
-      // (3.12), (3.13)
-      const double px = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;
-      const double py = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;
+      double px, py;
+      if (!crossLines(a, b, min_sin, px, py)) continue;
       if (px < -0.5 || py < -0.5 || px > width - 0.5 || py > height - 0.5) continue;
       const double ta = along(a.theta, px, py), tb = along(b.theta, px, py);
       // Which end of each line is at p (-1: none); an end is at p within snap_px either way.
@@ -804,11 +806,8 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
       const LineFeature& a = lines[i];
       const LineFeature& b = lines[j];
       if (!a.marking && !b.marking) continue;
-      const double det = std::cos(a.theta) * std::sin(b.theta) - std::sin(a.theta) * std::cos(b.theta);
-      if (std::fabs(det) < min_sin) continue;
-      // (3.12), (3.13)
-      double px = (a.rho * std::sin(b.theta) - b.rho * std::sin(a.theta)) / det;
-      double py = (b.rho * std::cos(a.theta) - a.rho * std::cos(b.theta)) / det;
+      double px, py;
+      if (!crossLines(a, b, min_sin, px, py)) continue;
       if (px < 0 || py < 0 || px > w - 1 || py > h - 1) continue;
       const double ta = along(a.theta, px, py), tb = along(b.theta, px, py);
       if (ta < a.t_min - prm.delta_px || ta > a.t_max + prm.delta_px) continue;
@@ -819,7 +818,7 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
       // near the camera that is 7-9 px, past delta (bench seed 6: 2 of 124 corners became
       // intersections, their centre lines 8.1-9.0 px past the corner). That overshoot, capped at
       // delta, counts as ending.
-      const double sin_ab = std::fabs(det);
+      const double sin_ab = std::fabs(crossSin(a, b));
       const double over_a = a.marking && b.marking ? std::min(prm.delta_px, 0.5 * b.width / sin_ab) : 0.0;
       const double over_b = a.marking && b.marking ? std::min(prm.delta_px, 0.5 * a.width / sin_ab) : 0.0;
       const bool a_ends = ta < a.t_min + prm.delta_px + over_a || ta > a.t_max - prm.delta_px - over_a;
