@@ -24,7 +24,8 @@
 // the cameras) waits outside the solve until a solution brings it into view (docs/estimators.md).
 // Kidnap (5.1.3): the filter pass's gate detects it; each re-initialisation after "lost" cuts the
 // odometry chain and anchors the new segment on the global fix (cut_at_reinitialisation). The
-// solve keeps a cut only on the data's evidence, may move it back to an earlier fix, and with
+// solve places each cut where the sightings of the unconfirmed stretch before the fix put it,
+// keeps a cut only on the data's evidence, may move it back to an earlier fix, and with
 // self-calibration undoes the cuts when they leave the calibration implausible (docs/estimators.md,
 // "Where a cut goes").
 // Self-calibration (BatchSmootherConfig::calibration, solvers/self_calibration.h): the odometry
@@ -129,6 +130,14 @@ struct BatchSmootherConfig {
   // not kidnaps rise by 50-180 and 10 % outliers without a robust loss by up to ~400; the BIC
   // alone (3 ln m, ~30) would keep those cuts and lose the odometry between them.
   double cut_min_evidence = 1000.0;
+  // When the filter pass re-initialised (there are candidate cuts) and `loss` is None, the solves
+  // from the filter pass's guess, up to the placing of the cuts and the re-pairing, use a Cauchy
+  // loss (scale 2.3849); least squares goes on from their solution. A lost filter's guess holds
+  // gross errors that least squares does not leave: sightings from before a kidnap on poses the
+  // guess put after it, pairings made at a wrong pose. With self-calibration they drag the
+  // calibration into a wrong basin (docs/estimators.md, "Where a cut goes"). false: least
+  // squares throughout.
+  bool robust_start = true;
   // Self-calibration: the odometry block replaces every odometry factor by its calibrated form,
   // the stereo block every pixel factor (needs a pixel observation model). Only the part's
   // switches and prior sigmas are used here. The filter pass runs with the nominal calibration.
