@@ -801,12 +801,24 @@ void BatchSmoother::solve() {
   // on the realistic kidnap, seed 7, trial 10, and a runaway calibration). Each later place up to
   // the re-initialisation is tried, the poses before it chained forward by the odometry from the
   // old segment, the window around solved with the calibration held; the cut moves to the best
-  // place if that lowers 2 x cost by more than the gate's chi-square(3) quantile. A pose without
+  // place if that lowers 2 x cost by more than the gate's chi-square(3) quantile (times the
+  // residual variance factor, as the cut tests). A pose without
   // sightings fits either side, so the cut stays as early as the sightings allow (a teleport
   // changes the view at once).
+  // Residual variance factor of the cut model at `cut_cost` (2 cost / (m - parameters), m the
+  // residuals of every factor, odometry included; at least 1): on mismodelled (e.g. real) data
+  // whose whitened residuals are larger than unit, the filter loses track without a kidnap, and
+  // unscaled tests would place and keep every such cut.
+  auto varianceFactor = [&](double cut_cost) {
+    countFactors();
+    const size_t odometry_factors = n - 1 - std::min(n - 1, cuts_.size());
+    const double m = static_cast<double>(residuals) + 3.0 * static_cast<double>(odometry_factors);
+    const double dof = m - 3.0 * static_cast<double>(n);
+    return dof > 0 ? std::max(1.0, 2.0 * cut_cost / dof) : 1.0;
+  };
   auto placeCuts = [&] {
     int moved = 0;
-    const double threshold = chi2Quantile(config_.gate.probability, 3);
+    const double threshold = chi2Quantile(config_.gate.probability, 3) * varianceFactor(cost);
     for (size_t k = 0; k < cuts_.size(); ++k) {
       const size_t c = cuts_[k].index - first;
       const size_t r = cuts_[k].reinit - first;
@@ -983,11 +995,7 @@ void BatchSmoother::solve() {
     const double threshold = std::max({chi2Quantile(config_.gate.probability, 3),
                                        3.0 * std::log(std::max(2.0, static_cast<double>(residuals))),
                                        config_.cut_min_evidence});
-    // Residual variance factor of the cut model (2 cost / (m - parameters), at least 1): on
-    // mismodelled (e.g. real) data whose whitened residuals are larger than unit, the filter
-    // loses track without a kidnap and an unscaled test would keep every such cut.
-    const double dof = static_cast<double>(residuals) - 3.0 * static_cast<double>(n);
-    const double variance_factor = dof > 0 ? std::max(1.0, 2.0 * cost / dof) : 1.0;
+    const double variance_factor = varianceFactor(cost);
     // Restoring a cut changes only the segments it joins (the others stay cut off), and within
     // them its effect decays along the chain: the test solves a window around the cut and its
     // unobserved stretch with the poses outside held at the cut solution. Holding them can only
