@@ -130,8 +130,9 @@ struct BatchSmootherConfig {
   // not kidnaps rise by 50-180 and 10 % outliers without a robust loss by up to ~400; the BIC
   // alone (3 ln m, ~30) would keep those cuts and lose the odometry between them.
   double cut_min_evidence = 1000.0;
-  // When the filter pass re-initialised (there are candidate cuts) and `loss` is None, the solves
-  // from the filter pass's guess, up to the placing of the cuts and the re-pairing, use a Cauchy
+  // When the filter pass re-initialised (there are candidate cuts), `loss` is None and the first
+  // solve fits badly (residual variance factor over 10): the batch begins again from the filter
+  // pass's guess, and the solves up to the placing of the cuts and the re-pairing use a Cauchy
   // loss (scale 2.3849); least squares goes on from their solution. A lost filter's guess holds
   // gross errors that least squares does not leave: sightings from before a kidnap on poses the
   // guess put after it, pairings made at a wrong pose. With self-calibration they drag the

@@ -292,6 +292,28 @@ TEST(BatchSmoother, KidnapCutsTheOdometryChainAtTheReinitialisation) {
   EXPECT_LT(cut_rmse, 0.8 * ekf_rmse) << "ekf " << ekf_rmse;
 }
 
+// The robust start (BatchSmootherConfig::robust_start) begins again only from a first solve that
+// fits badly: on the kidnap, whose filter pass re-initialises, the first solve fits, and the
+// result is the least-squares one bit for bit. (Where it fits badly:
+// tests/src/study/test_calibrating_batch_cuts.cpp.)
+TEST(BatchSmoother, AFirstSolveThatFitsIsNotStartedAgainRobust) {
+  const Dataset d = simulate("kidnap", 0, SimulationConfig(), 1001);
+  BatchSmootherConfig c = knownStart(*d.initial_pose);
+  BatchSmoother with(d.map, d.odometry, c);
+  c.robust_start = false;
+  BatchSmoother without(d.map, d.odometry, c);
+  const std::vector<Estimate> a = run(with, d.steps), b = run(without, d.steps);
+  ASSERT_FALSE(with.summary().reinit_steps.empty()) << "the test needs a re-initialisation";
+  EXPECT_EQ(with.summary().cut_steps, without.summary().cut_steps);
+  EXPECT_EQ(with.summary().iterations, without.summary().iterations);
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t k = 0; k < a.size(); ++k) {
+    EXPECT_EQ(a[k].pose.x, b[k].pose.x) << "step " << k;
+    EXPECT_EQ(a[k].pose.y, b[k].pose.y) << "step " << k;
+    EXPECT_EQ(a[k].pose.theta, b[k].pose.theta) << "step " << k;
+  }
+}
+
 // The filter has lost track before the kidnap (step 100; wrong landmark ids on the sightings of
 // steps 50-51, none from 52 until A); a global fix re-initialises it at its
 // first sighting at A (step 102), 180 mm off, and it is lost again at once (wrong ids at
