@@ -652,6 +652,18 @@ void BatchSmoother::solve() {
     x[3 * i + 2] = p.theta;
   }
   if (config_.initial_guess == InitialGuess::Filter && given_.empty()) smoothGuess(first, &x);
+  // Pose i of x, and the odometry's motion u_i from pose i - 1 into pose i (B.16).
+  auto poseAt = [&](size_t i) { return Pose2(x[3 * i], x[3 * i + 1], x[3 * i + 2]); };
+  auto setPose = [&](size_t i, const Pose2& p) {
+    x[3 * i] = p.x;
+    x[3 * i + 1] = p.y;
+    x[3 * i + 2] = p.theta;
+  };
+  auto motionInto = [&](size_t i) {
+    const BufferedStep& st = steps_[first + i];
+    const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
+    return Pose2(u.x(), u.y(), u.z());
+  };
   const PoseManifold manifold;
   const std::unique_ptr<ceres::LossFunction> loss = makeLossFunction(config_.loss);
   StepFactorSource source(*this, first, n);
@@ -850,14 +862,7 @@ void BatchSmoother::solve() {
       for (size_t p = c + 1; p <= r && p < hi; ++p) {
         if (!sighted(p - 1)) continue;  // the same cost as at p - 1
         std::copy(at_cut.begin(), at_cut.end(), x.begin() + static_cast<long>(3 * lo));
-        for (size_t j = c; j < p; ++j) {  // p_j = p_{j-1} (+) u_j (B.16)
-          const BufferedStep& st = steps_[first + j];
-          const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
-          const Pose2 q = compose(Pose2(x[3 * j - 3], x[3 * j - 2], x[3 * j - 1]), Pose2(u.x(), u.y(), u.z()));
-          x[3 * j] = q.x;
-          x[3 * j + 1] = q.y;
-          x[3 * j + 2] = q.theta;
-        }
+        for (size_t j = c; j < p; ++j) setPose(j, compose(poseAt(j - 1), motionInto(j)));
         source.setCut(c, false);
         source.setCut(p, true);
         const double placed = solveRange(lo, hi, false, true);
@@ -938,7 +943,7 @@ void BatchSmoother::solve() {
           // Not triangulable with the calibration (disparity too small): keeps its nominal form.
         }
       }
-      const Pose2 pose(x[3 * i], x[3 * i + 1], x[3 * i + 2]);
+      const Pose2 pose = poseAt(i);
       const std::vector<Observation> a = associateObservations(corrected, pose, guess_[index].covariance, map_, config_.association);
       const size_t begin = observationsBegin(index);
       const auto filtered = filter_pairings.find(index);
@@ -1057,14 +1062,7 @@ void BatchSmoother::solve() {
       double base = 0;
       if (!chain.cost(lo, hi, x, &base)) return false;
       const std::vector<double> keep(x.begin() + static_cast<long>(3 * lo), x.begin() + static_cast<long>(3 * hi));
-      for (size_t j = c; j-- > a;) {
-        const BufferedStep& st = steps_[first + j + 1];
-        const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
-        const Pose2 p = compose(Pose2(x[3 * j + 3], x[3 * j + 4], x[3 * j + 5]), inverse(Pose2(u.x(), u.y(), u.z())));
-        x[3 * j] = p.x;
-        x[3 * j + 1] = p.y;
-        x[3 * j + 2] = p.theta;
-      }
+      for (size_t j = c; j-- > a;) setPose(j, compose(poseAt(j + 1), inverse(motionInto(j + 1))));
       source.setCut(c, false);
       source.setCut(a, true);
       const double moved = solveRange(lo, hi, false, true);
@@ -1096,16 +1094,9 @@ void BatchSmoother::solve() {
         if (2.0 * (restored - base) / variance_factor > threshold) {
           std::vector<double> best(x.begin() + static_cast<long>(3 * lo), x.begin() + static_cast<long>(3 * hi));
           std::copy(keep.begin(), keep.end(), x.begin() + static_cast<long>(3 * lo));
-          const BufferedStep& st = steps_[first + c];
-          const Eigen::Vector3d u = controlVector(st.d_left, st.d_right, odometry_.wheel_base_mm);
-          const Pose2 target = compose(Pose2(x[3 * c - 3], x[3 * c - 2], x[3 * c - 1]), Pose2(u.x(), u.y(), u.z()));
-          const Pose2 start(x[3 * c], x[3 * c + 1], x[3 * c + 2]);
-          for (size_t j = c; j < hi; ++j) {
-            const Pose2 moved = compose(target, between(start, Pose2(x[3 * j], x[3 * j + 1], x[3 * j + 2])));
-            x[3 * j] = moved.x;
-            x[3 * j + 1] = moved.y;
-            x[3 * j + 2] = moved.theta;
-          }
+          const Pose2 target = compose(poseAt(c - 1), motionInto(c));
+          const Pose2 start = poseAt(c);
+          for (size_t j = c; j < hi; ++j) setPose(j, compose(target, between(start, poseAt(j))));
           const double restored_moved = solveRange(lo, hi, false, true);
           if (restored_moved < restored)
             restored = restored_moved;
