@@ -819,16 +819,6 @@ void BatchSmoother::solve() {
     return c;
   };
   double cost = solveAll();
-  // A cut sits right after the last pose the filter confirmed, but the lost filter may have gated
-  // out sightings that still came from before the kidnap: the poses up to the re-initialisation
-  // that they place would otherwise be tied to the new segment (two goal corners 9e6 in 2 x cost
-  // on the realistic kidnap, seed 7, trial 10, and a runaway calibration). Each later place up to
-  // the re-initialisation is tried, the poses before it chained forward by the odometry from the
-  // old segment, the window around solved with the calibration held; the cut moves to the best
-  // place if that lowers 2 x cost by more than the gate's chi-square(3) quantile (times the
-  // residual variance factor, as the cut tests). A pose without
-  // sightings fits either side, so the cut stays as early as the sightings allow (a teleport
-  // changes the view at once).
   // Residual variance factor of the cut model at `cut_cost` (2 cost / (m - parameters), m the
   // residuals of every factor, odometry included; at least 1), with the factors as last counted:
   // on mismodelled (e.g. real) data whose whitened residuals are larger than unit, the filter
@@ -844,6 +834,15 @@ void BatchSmoother::solve() {
       if (observations_[o].landmark_id >= 0 && !source.leftOut(o)) return true;
     return false;
   };
+  // A cut sits right after the last pose the filter confirmed, but the lost filter may have gated
+  // out sightings that still came from before the kidnap: the poses up to the re-initialisation
+  // that they place would otherwise be tied to the new segment (two goal corners 9e6 in 2 x cost
+  // on the realistic kidnap, seed 7, trial 10, and a runaway calibration). Each later place up to
+  // the re-initialisation is tried, the poses before it chained forward by the odometry from the
+  // old segment, the window around solved with the calibration held; the cut moves to the best
+  // place if that lowers 2 x cost by more than the gate's chi-square(3) quantile (times the
+  // residual variance factor, as the cut tests). A pose without sightings fits either side, so
+  // the cut stays as early as the sightings allow (a teleport changes the view at once).
   auto placeCuts = [&] {
     int moved = 0;
     const double threshold = chi2Quantile(config_.gate.probability, 3) * varianceFactor(cost);
@@ -886,6 +885,8 @@ void BatchSmoother::solve() {
   };
   if (!cuts_.empty()) countFactors();
   if (placeCuts() > 0) cost = solveAll();
+  // A first solve that fits badly after a lost filter pass: the guess's gross errors misled it
+  // (BatchSmootherConfig::robust_start). It begins again from the guess, robust.
   if (may_start_robust && varianceFactor(cost) > kRobustStartVarianceFactor) {
     x = guess_x;
     globals = guess_globals;
@@ -900,6 +901,7 @@ void BatchSmoother::solve() {
     cost = solveAll();
     if (placeCuts() > 0) cost = solveAll();
   }
+  std::vector<double>().swap(guess_x);  // not needed any more: off the later phases' peak memory
   // With the stereo calibration estimated, the unidentified observations are associated again at
   // the solution: the filter pass associated them with the nominal calibration, whose errors
   // (a focal-length difference of 1.7 % moves the disparity by ~3 px at the image's edge) pair
