@@ -609,6 +609,9 @@ constexpr size_t kCutWindowMargin = 256;
 // 2.6; those a lost filter's guess misled, 34 to 190.
 constexpr double kRobustStartVarianceFactor = 10.0;
 
+// Cauchy scale of the robust start: 95 % efficiency on unit-variance whitened residuals.
+constexpr double kRobustStartCauchyScale = 2.3849;
+
 // The largest whitened residual of the calibration blocks' priors at `globals`: how many prior
 // sigmas the furthest calibration parameter lies from its nominal value.
 double calibrationPriorZ(const ChainFactorSource& source, const std::vector<double>& globals) {
@@ -894,7 +897,7 @@ void BatchSmoother::solve() {
     cuts_ = guess_cuts;
     setCuts(cuts_, true);
     for (size_t o = 0; o < observations_.size(); ++o) source.setLeftOut(o, guess_left_out[o] != 0);
-    start_loss = makeLossFunction({RobustLoss::Cauchy, 2.3849});  // 95 % efficiency on unit residuals
+    start_loss = makeLossFunction({RobustLoss::Cauchy, kRobustStartCauchyScale});
     start_chain = std::make_unique<ChainProblem>(source, start_loss.get(), &globals);
     active = start_chain.get();
     active_loss = start_loss.get();

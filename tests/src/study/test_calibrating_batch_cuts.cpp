@@ -6,8 +6,9 @@
 // - kidnap: the lost filter gated out the last sightings before the kidnap, and the cut right
 //   after its last confirmed pose tied them to the new segment (173 mm RMSE) unless the batch
 //   places the cut where they put it;
-// - kidnap, seed 11: the filter was lost for 45 steps before the kidnap, and least squares from
-//   its guess settled on a wheel base of 61 mm (151 mm RMSE) unless the solves start robust.
+// - kidnap, seed 11: the filter confirmed no pose in the 46 steps before the kidnap, and least
+//   squares from its guess settled on a wheel base of 61 mm (151 mm RMSE) unless the solves
+//   start robust.
 // About 6 s of CPU each: 100 or 200 raw pairs rendered and rectified.
 #include <gtest/gtest.h>
 
