@@ -237,6 +237,7 @@ class BatchSmoother : public Estimator {
     size_t observations_end = 0;                    // observations_[end of the previous step, this)
   };
   class StepFactorSource;
+  class Solve;  // one solve of the buffered steps (solvers/batch_solve.cpp)
   void buffer(const Step& step);
   size_t observationsBegin(size_t index) const { return index == 0 ? 0 : steps_[index - 1].observations_end; }
   std::vector<BufferedStep> steps_;
