@@ -713,10 +713,10 @@ BatchSmoother::Solve::Guess BatchSmoother::Solve::saveGuess() const {
 // problem stays active up to the placing of the cuts and the re-pairing (run()).
 void BatchSmoother::Solve::startRobustIfMisfit(Guess guess) {
   if (varianceFactor(cost_) > kRobustStartVarianceFactor) {
-    x_ = guess.x;
-    globals_ = guess.globals;
+    x_ = std::move(guess.x);
+    globals_ = std::move(guess.globals);
     setCuts(b_.cuts_, false);
-    b_.cuts_ = guess.cuts;
+    b_.cuts_ = std::move(guess.cuts);
     setCuts(b_.cuts_, true);
     for (size_t o = 0; o < b_.observations_.size(); ++o) source_.setLeftOut(o, guess.left_out[o] != 0);
     start_loss_ = makeLossFunction({RobustLoss::Cauchy, kRobustStartCauchyScale});
