@@ -538,404 +538,484 @@ StereoRig selfCalibratedRigFor(const Dataset& images, const ErrorProfile& profil
   }
 }
 
-}  // namespace
+// A fix computed with options `o`, and its nonlinearity judged with sigma points (`sp`): on its
+// own measurements and at the noise-free measurements from the truth.
+GlobalFix fixWith(const Dataset& d, const Step& st, const Pose2& truth, const GlobalFixOptions& o,
+                  const GlobalFixOptions& sp, Nonlinearity* nl) {
+  const GlobalFix f = globalFix(st, d.map, o);
+  nl->per_fix = o.covariance == FixCovariance::SigmaPoints ? f.nonlinearity : globalFix(st, d.map, sp).nonlinearity;
+  nl->at_truth = f.hasPose() ? nonlinearityAtTruth(f, d, st, truth, sp) : 1.0;
+  return f;
+}
 
-void runFixStudy(const FixStudyOptions& a) {
-  std::vector<std::string> cats;
-  if (a.category == "all") {
-    cats = kCategories;
+// One column of the tables: a world, a frontend and, for images in a non-ideal world, whether
+// the frontend measures with the self-calibrated rig.
+struct Group {
+  size_t world;
+  FrontendMode mode;
+  bool calibrated = false;
+};
+
+// The fixes of one category, per column.
+struct CategoryBuckets {
+  std::vector<Bucket> fix2;
+  std::vector<std::vector<Bucket>> fix1;        // per compass level (kCompassLevelsDeg)
+  std::vector<std::array<Bucket, 2>> multi;     // [0] range-bearing, [1] pixels
+  CategoryBuckets(size_t groups, size_t levels) : fix2(groups), fix1(groups, std::vector<Bucket>(levels)), multi(groups) {}
+};
+
+// The study: the options checked and the worlds, columns and outputs set up at construction;
+// run() simulates every category and prints its tables in the thesis's order.
+class FixStudy {
+ public:
+  explicit FixStudy(const FixStudyOptions& options);
+  void run();
+
+ private:
+  void setUpWorlds();
+  void setUpMethods();
+  void setUpColumns();
+  void writeHeader();
+  CategoryBuckets runCategory(const std::string& cat, size_t ci, int trials);
+  // Every fix of one step of column `mi` (`z`: the step's standard normal compass draw).
+  void fixStep(const Dataset& d, size_t k, double z, const std::string& cat, int trial, int run, size_t mi,
+               const std::string& mode_name, CategoryBuckets* b);
+  void reportFix2(const std::string& cat, size_t ci, int trials, const CategoryBuckets& b);
+  void reportMulti(const std::string& cat, const CategoryBuckets& b);
+  void reportFix1(const std::string& cat, size_t ci, int trials, const CategoryBuckets& b);
+  void reportRanges();
+  void finish();
+
+  const FixStudyOptions& a_;
+  std::vector<std::string> cats_;
+  bool do2_ = false, do1_ = false, doM_ = false;
+  std::string tables_path_;
+  SimulationConfig cfg_;
+  std::vector<SimulationConfig> world_cfg_;
+  bool ideal_only_ = false;  // the ideal world alone prints exactly the thesis's tables
+  FixCovariance model_ = FixCovariance::SigmaPoints;
+  GlobalFixOptions opt2_, opt1_, optM_rb_, sp2_, sp1_;
+  double max_nl_ = 0;
+  std::unique_ptr<AtomicOutputFile> csv_, trial_csv_;
+  std::vector<FrontendMode> modes_;
+  SelfCalibrationConfig self_calibration_;
+  std::vector<Group> gs_;
+  std::vector<std::string> groups_;  // the columns' names
+  std::vector<SelfCalibrationSummary> calibration_summary_;
+  std::vector<RangeStats> ranges_;
+  bool images_ = false;
+  ImageFrontendOptions fo_;
+  std::unique_ptr<StereoRenderer> renderer_;
+  ImageFrontendStats fstats_;
+  std::ostringstream report_;
+};
+
+FixStudy::FixStudy(const FixStudyOptions& options) : a_(options) {
+  if (a_.category == "all") {
+    cats_ = kCategories;
   } else {
-    cats = {a.category};
+    cats_ = {a_.category};
   }
-  const bool do2 = a.method == "both" || a.method == "all" || a.method == "fix2";
-  const bool do1 = a.method == "both" || a.method == "all" || a.method == "fix1";
-  const bool doM = a.method == "all" || a.method == "multi";
-  const std::string tables_path = a.tables.empty() ? defaultTablesPath() : a.tables;
+  do2_ = a_.method == "both" || a_.method == "all" || a_.method == "fix2";
+  do1_ = a_.method == "both" || a_.method == "all" || a_.method == "fix1";
+  doM_ = a_.method == "all" || a_.method == "multi";
+  tables_path_ = a_.tables.empty() ? defaultTablesPath() : a_.tables;
+  setUpWorlds();
+  setUpMethods();
+  if (!a_.out.empty()) {
+    std::filesystem::create_directories(a_.out);
+    csv_ = std::make_unique<AtomicOutputFile>(a_.out + "/fixes.csv");
+    csv_->stream() << "category,trial,run,method,compass_sigma_deg,step,status,true_x,true_y,true_theta,x,y,theta,"
+                      "cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,nees3,nees2,max_range,nonlinearity,nonlinearity_true,frontend"
+                   << (ideal_only_ ? "" : ",profile") << "\n";
+  }
+  setUpColumns();
+  writeHeader();
+}
 
-  SimulationConfig cfg;
-  cfg.pixel_sigma = a.pixel_sigma;
-  cfg.quantise = a.quantise;
-  cfg.compass = false;  // fix1's compass is drawn here, per noise level
-  cfg.scenario.steps = a.steps;
-  if (a.steps < 0) throw UsageError("--steps must be >= 0");
-  cfg.validate();
-  if (a.profiles.empty()) throw UsageError("--profile is empty");
-  std::vector<SimulationConfig> world_cfg;
-  for (const std::string& p : a.profiles) {
-    if (std::count(a.profiles.begin(), a.profiles.end(), p) > 1) throw UsageError("--profile: '" + p + "' appears twice");
-    world_cfg.push_back(cfg);
+void FixStudy::setUpWorlds() {
+  cfg_.pixel_sigma = a_.pixel_sigma;
+  cfg_.quantise = a_.quantise;
+  cfg_.compass = false;  // fix1's compass is drawn here, per noise level
+  cfg_.scenario.steps = a_.steps;
+  if (a_.steps < 0) throw UsageError("--steps must be >= 0");
+  cfg_.validate();
+  if (a_.profiles.empty()) throw UsageError("--profile is empty");
+  for (const std::string& p : a_.profiles) {
+    if (std::count(a_.profiles.begin(), a_.profiles.end(), p) > 1) throw UsageError("--profile: '" + p + "' appears twice");
+    world_cfg_.push_back(cfg_);
     try {
-      world_cfg.back().profile = ErrorProfile::named(p);
+      world_cfg_.back().profile = ErrorProfile::named(p);
     } catch (const Error& e) {
       throw UsageError(std::string("--profile: ") + e.what());
     }
   }
-  // The ideal world alone prints exactly the thesis's tables; other worlds add a column each.
-  const bool ideal_only = a.profiles.size() == 1 && a.profiles.front() == "ideal";
+  ideal_only_ = a_.profiles.size() == 1 && a_.profiles.front() == "ideal";
+}
 
-  const FixCovariance model = a.first_order ? FixCovariance::FirstOrder : fixCovarianceFromString(a.covariance);
-  GlobalFixOptions opt2;
-  opt2.covariance = model;
-  opt2.allow_one_landmark = false;
-  opt2.allow_multi = false;
-  GlobalFixOptions opt1;
-  opt1.covariance = model;
-  opt1.allow_two_landmarks = false;
-  opt1.allow_multi = false;
+void FixStudy::setUpMethods() {
+  model_ = a_.first_order ? FixCovariance::FirstOrder : fixCovarianceFromString(a_.covariance);
+  opt2_.covariance = model_;
+  opt2_.allow_one_landmark = false;
+  opt2_.allow_multi = false;
+  opt1_.covariance = model_;
+  opt1_.allow_two_landmarks = false;
+  opt1_.allow_multi = false;
   // The least-squares fix (n >= 2 landmarks + the compass at kMultiCompassDeg), with stereo
   // observations as range-bearing (R at the measured pixels) and as pixels (rig set).
-  GlobalFixOptions optM_rb;
-  optM_rb.allow_one_landmark = optM_rb.allow_two_landmarks = false;
+  optM_rb_.allow_one_landmark = optM_rb_.allow_two_landmarks = false;
   // The linearisation rule is judged with sigma points for every covariance model.
-  GlobalFixOptions sp2 = opt2, sp1 = opt1;
-  sp2.covariance = sp1.covariance = FixCovariance::SigmaPoints;
-  const double max_nl = opt2.linear_max_nonlinearity;
-  const auto fixWith = [](const Dataset& d, const Step& st, const Pose2& truth, const GlobalFixOptions& o,
-                          const GlobalFixOptions& sp, Nonlinearity* nl) {
-    const GlobalFix f = globalFix(st, d.map, o);
-    nl->per_fix = o.covariance == FixCovariance::SigmaPoints ? f.nonlinearity : globalFix(st, d.map, sp).nonlinearity;
-    nl->at_truth = f.hasPose() ? nonlinearityAtTruth(f, d, st, truth, sp) : 1.0;
-    return f;
-  };
+  sp2_ = opt2_;
+  sp1_ = opt1_;
+  sp2_.covariance = sp1_.covariance = FixCovariance::SigmaPoints;
+  max_nl_ = opt2_.linear_max_nonlinearity;
+}
 
-  std::unique_ptr<AtomicOutputFile> csv, trial_csv;
-  if (!a.out.empty()) {
-    std::filesystem::create_directories(a.out);
-    csv = std::make_unique<AtomicOutputFile>(a.out + "/fixes.csv");
-    csv->stream() << "category,trial,run,method,compass_sigma_deg,step,status,true_x,true_y,true_theta,x,y,theta,"
-                     "cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta,nees3,nees2,max_range,nonlinearity,nonlinearity_true,frontend"
-                  << (ideal_only ? "" : ",profile") << "\n";
-  }
-
-  std::vector<FrontendMode> modes;
-  if (a.frontend == "both") {
-    modes = {FrontendMode::Pixels, FrontendMode::Images};
+// One column per (world, frontend); a non-ideal world with images also gets the self-calibrated
+// column (calibrated = true).
+void FixStudy::setUpColumns() {
+  if (a_.frontend == "both") {
+    modes_ = {FrontendMode::Pixels, FrontendMode::Images};
   } else {
-    modes = {frontendModeFromString(a.frontend)};
+    modes_ = {frontendModeFromString(a_.frontend)};
   }
-  // One column per (world, frontend).
-  // A non-ideal world with images also gets the self-calibrated column (calibrated = true).
-  SelfCalibrationConfig self_calibration;
   try {
-    self_calibration = SelfCalibrationConfig::parse(a.calibrate);
+    self_calibration_ = SelfCalibrationConfig::parse(a_.calibrate);
   } catch (const Error& e) {
     throw UsageError(std::string("--calibrate: ") + e.what());
   }
-  if (self_calibration.odometry && !self_calibration.stereo)
+  if (self_calibration_.odometry && !self_calibration_.stereo)
     throw UsageError("--calibrate: the self-calibrated column needs the stereo part (stereo or odometry,stereo)");
-  struct Group {
-    size_t world;
-    FrontendMode mode;
-    bool calibrated = false;
-  };
-  std::vector<Group> gs;
-  std::vector<std::string> groups;
-  for (size_t w = 0; w < a.profiles.size(); ++w)
-    for (FrontendMode m : modes) {
-      gs.push_back({w, m, false});
-      groups.push_back("ours (" + toString(m) + (ideal_only ? "" : ", " + worldName(a.profiles[w])) + ")");
-      if (m == FrontendMode::Images && self_calibration.stereo && !world_cfg[w].profile.isIdeal()) {
-        gs.push_back({w, m, true});
-        groups.push_back("ours (" + toString(m) + ", " + worldName(a.profiles[w]) + ", self-cal.)");
+  for (size_t w = 0; w < a_.profiles.size(); ++w)
+    for (FrontendMode m : modes_) {
+      gs_.push_back({w, m, false});
+      groups_.push_back("ours (" + toString(m) + (ideal_only_ ? "" : ", " + worldName(a_.profiles[w])) + ")");
+      if (m == FrontendMode::Images && self_calibration_.stereo && !world_cfg_[w].profile.isIdeal()) {
+        gs_.push_back({w, m, true});
+        groups_.push_back("ours (" + toString(m) + ", " + worldName(a_.profiles[w]) + ", self-cal.)");
       }
     }
-  std::vector<SelfCalibrationSummary> calibration_summary(a.profiles.size());
-  std::vector<RangeStats> ranges(gs.size());
-  const bool images = std::find(modes.begin(), modes.end(), FrontendMode::Images) != modes.end();
-  if (!a.out.empty() && images && !ideal_only) {
-    trial_csv = std::make_unique<AtomicOutputFile>(a.out + "/range_trials.csv");
-    trial_csv->stream() << kTrialRangeHeader;
+  calibration_summary_.resize(a_.profiles.size());
+  ranges_.resize(gs_.size());
+  images_ = std::find(modes_.begin(), modes_.end(), FrontendMode::Images) != modes_.end();
+  if (!a_.out.empty() && images_ && !ideal_only_) {
+    trial_csv_ = std::make_unique<AtomicOutputFile>(a_.out + "/range_trials.csv");
+    trial_csv_->stream() << kTrialRangeHeader;
   }
-  ImageFrontendOptions fo;
-  fo.landmarks = frontendLandmarksFromString(a.frontend_landmarks);
+  fo_.landmarks = frontendLandmarksFromString(a_.frontend_landmarks);
   RenderOptions ro;
   ro.compute_truth = false;  // sensor noise: addSensorNoise in observeRenderedImages
-  std::unique_ptr<StereoRenderer> renderer;
-  if (images) renderer = std::make_unique<StereoRenderer>(cfg.map, StereoRig(cfg.rig), ro);
-  ImageFrontendStats fstats;
+  if (images_) renderer_ = std::make_unique<StereoRenderer>(cfg_.map, StereoRig(cfg_.rig), ro);
+}
 
-  std::ostringstream report;
-  {
-    char buf[600];
+void FixStudy::writeHeader() {
+  char buf[600];
+  std::snprintf(buf, sizeof(buf),
+                "stereoloc fixstudy: thesis sections 6.3 (two landmarks) and 6.4 (one landmark + compass)\n"
+                "simulator: goal-corner landmarks, pixel sigma %.3f px%s, %d run(s) per trial, seed %llu; "
+                "covariance: %s\n"
+                "errors are |estimate - truth| over all fixes of all trials; thesis numbers from %s\n",
+                a_.pixel_sigma, a_.quantise ? " + quantisation" : "", a_.runs, static_cast<unsigned long long>(a_.seed),
+                toString(model_).c_str(), tables_path_.empty() ? "(not found)" : tables_path_.c_str());
+  report_ << buf;
+  if (images_) {
     std::snprintf(buf, sizeof(buf),
-                  "stereoloc fixstudy: thesis sections 6.3 (two landmarks) and 6.4 (one landmark + compass)\n"
-                  "simulator: goal-corner landmarks, pixel sigma %.3f px%s, %d run(s) per trial, seed %llu; "
-                  "covariance: %s\n"
-                  "errors are |estimate - truth| over all fixes of all trials; thesis numbers from %s\n",
-                  a.pixel_sigma, a.quantise ? " + quantisation" : "", a.runs, static_cast<unsigned long long>(a.seed),
-                  toString(model).c_str(),
-                  tables_path.empty() ? "(not found)" : tables_path.c_str());
-    report << buf;
-    if (images) {
-      std::snprintf(buf, sizeof(buf),
-                    "images: every step's stereo pair rendered from the true pose (%.1f grey levels of sensor noise) "
-                    "and run through the vision frontend; fixes use its goal corners\n",
-                    a.image_noise);
-      report << buf;
-    }
-    if (!ideal_only) {
-      std::string list;
-      for (const std::string& p : a.profiles) list += (list.empty() ? "" : ", ") + p;
-      report << "worlds: " << list
-             << " (src/sim/error_profile.h), same trial seeds; in a non-ideal world the true rig is drawn per trial, "
-                "the simulated pixels are true raw projections undistorted with the given calibration and the images "
-                "raw pairs of the true cameras (distortion, blur, vibration) that the frontend rectifies with the given "
-                "calibration\n";
-    }
-    if (std::any_of(gs.begin(), gs.end(), [](const Group& g) { return g.calibrated; }))
-      report << "self-cal.: the same raw pairs through the frontend with a self-calibrated rig: per trial, the batch "
-                "smoother with --calibrate "
-             << a.calibrate
-             << " --loss cauchy (known start, the world's profile as priors and noise model, the independent poses "
-                "linked only loosely) on that trial's image observations with the given calibration, its estimate "
-                "folded into the rig (solvers/self_calibrated_rig.h); the column without it uses the given calibration\n";
-    report << "\n";
+                  "images: every step's stereo pair rendered from the true pose (%.1f grey levels of sensor noise) "
+                  "and run through the vision frontend; fixes use its goal corners\n",
+                  a_.image_noise);
+    report_ << buf;
   }
+  if (!ideal_only_) {
+    std::string list;
+    for (const std::string& p : a_.profiles) list += (list.empty() ? "" : ", ") + p;
+    report_ << "worlds: " << list
+            << " (src/sim/error_profile.h), same trial seeds; in a non-ideal world the true rig is drawn per trial, "
+               "the simulated pixels are true raw projections undistorted with the given calibration and the images "
+               "raw pairs of the true cameras (distortion, blur, vibration) that the frontend rectifies with the given "
+               "calibration\n";
+  }
+  if (std::any_of(gs_.begin(), gs_.end(), [](const Group& g) { return g.calibrated; }))
+    report_ << "self-cal.: the same raw pairs through the frontend with a self-calibrated rig: per trial, the batch "
+               "smoother with --calibrate "
+            << a_.calibrate
+            << " --loss cauchy (known start, the world's profile as priors and noise model, the independent poses "
+               "linked only loosely) on that trial's image observations with the given calibration, its estimate "
+               "folded into the rig (solvers/self_calibrated_rig.h); the column without it uses the given calibration\n";
+  report_ << "\n";
+}
 
-  for (const std::string& cat : cats) {
+void FixStudy::run() {
+  for (const std::string& cat : cats_) {
     const size_t ci = static_cast<size_t>(std::find(kCategories.begin(), kCategories.end(), cat) - kCategories.begin());
     const int trials = scenarioTrialCount(cat);
-    std::vector<Bucket> b2(gs.size());
-    std::vector<std::vector<Bucket>> b1(gs.size(), std::vector<Bucket>(kCompassLevelsDeg.size()));
-    std::vector<std::array<Bucket, 2>> bm(gs.size());  // multi: [0] range-bearing, [1] pixels
-    for (int trial = 0; trial < trials; ++trial) {
-      for (int run = 0; run < a.runs; ++run) {
-        const uint64_t s = mixSeed(a.seed, ci, static_cast<uint64_t>(trial), static_cast<uint64_t>(run));
-        for (size_t w = 0; w < a.profiles.size(); ++w) {
-          SimulationTrace trace;
-          const Dataset sim = simulate(cat, trial, world_cfg[w], s, images ? &trace : nullptr);
-          const bool ideal_world = world_cfg[w].profile.isIdeal();
-          Dataset given_images;  // this world's image observations with the given calibration
-          std::vector<StereoImages> raw_pairs;  // a non-ideal world's raw pairs, rendered once
-          double ms_raw_render = 0;
-          for (size_t mi = 0; mi < gs.size(); ++mi) {
-            if (gs[mi].world != w) continue;
-            const std::string mode_name = toString(gs[mi].mode) + (gs[mi].calibrated ? "_self_calibrated" : "") +
-                                          (ideal_only ? "" : "," + a.profiles[w]);
-            Dataset image_data;
-            if (gs[mi].mode == FrontendMode::Images) {
-              image_data = sim;
-              // The same raw pairs (same noise) for the given and the self-calibrated rig.
-              const uint64_t noise_seed = mixSeed(s, 0x1A6E5, 0, 0);
-              std::optional<CalibrationEstimate> estimate;
-              if (gs[mi].calibrated)
-                image_data.rig = selfCalibratedRigFor(given_images, world_cfg[w].profile, self_calibration, mixSeed(s, 0xCA1B, 0, 0),
-                                                      calibration_summary[w], &estimate);
-              if (ideal_world) {
-                fstats.merge(observeRenderedImages(image_data, trace, *renderer, a.image_noise, noise_seed, fo));
-              } else {
-                const bool first_use = raw_pairs.empty();
-                if (first_use) raw_pairs = renderRawPairs(image_data, trace, a.image_noise, noise_seed, &ms_raw_render);
-                fstats.merge(observePairs(image_data, raw_pairs, first_use ? ms_raw_render : 0.0, fo));
-              }
-              if (!ideal_only) {
-                const TrialRange tr = addRanges(ranges[mi], sim, image_data);
-                if (trial_csv && !ideal_world)
-                  trial_csv->stream() << trialRangeRow(cat, trial, run, a.profiles[w], gs[mi].calibrated, tr, trace.errors,
-                                                       estimate);
-              }
-              if (!gs[mi].calibrated) given_images = image_data;
+    const CategoryBuckets b = runCategory(cat, ci, trials);
+    if (do2_) reportFix2(cat, ci, trials, b);
+    if (doM_) reportMulti(cat, b);
+    if (do1_) reportFix1(cat, ci, trials, b);
+  }
+  if (images_ && !ideal_only_) reportRanges();
+  finish();
+}
+
+CategoryBuckets FixStudy::runCategory(const std::string& cat, size_t ci, int trials) {
+  CategoryBuckets b(gs_.size(), kCompassLevelsDeg.size());
+  for (int trial = 0; trial < trials; ++trial) {
+    for (int run = 0; run < a_.runs; ++run) {
+      const uint64_t s = mixSeed(a_.seed, ci, static_cast<uint64_t>(trial), static_cast<uint64_t>(run));
+      for (size_t w = 0; w < a_.profiles.size(); ++w) {
+        SimulationTrace trace;
+        const Dataset sim = simulate(cat, trial, world_cfg_[w], s, images_ ? &trace : nullptr);
+        const bool ideal_world = world_cfg_[w].profile.isIdeal();
+        Dataset given_images;  // this world's image observations with the given calibration
+        std::vector<StereoImages> raw_pairs;  // a non-ideal world's raw pairs, rendered once
+        double ms_raw_render = 0;
+        for (size_t mi = 0; mi < gs_.size(); ++mi) {
+          if (gs_[mi].world != w) continue;
+          const std::string mode_name = toString(gs_[mi].mode) + (gs_[mi].calibrated ? "_self_calibrated" : "") +
+                                        (ideal_only_ ? "" : "," + a_.profiles[w]);
+          Dataset image_data;
+          if (gs_[mi].mode == FrontendMode::Images) {
+            image_data = sim;
+            // The same raw pairs (same noise) for the given and the self-calibrated rig.
+            const uint64_t noise_seed = mixSeed(s, 0x1A6E5, 0, 0);
+            std::optional<CalibrationEstimate> estimate;
+            if (gs_[mi].calibrated)
+              image_data.rig = selfCalibratedRigFor(given_images, world_cfg_[w].profile, self_calibration_,
+                                                    mixSeed(s, 0xCA1B, 0, 0), calibration_summary_[w], &estimate);
+            if (ideal_world) {
+              fstats_.merge(observeRenderedImages(image_data, trace, *renderer_, a_.image_noise, noise_seed, fo_));
+            } else {
+              const bool first_use = raw_pairs.empty();
+              if (first_use) raw_pairs = renderRawPairs(image_data, trace, a_.image_noise, noise_seed, &ms_raw_render);
+              fstats_.merge(observePairs(image_data, raw_pairs, first_use ? ms_raw_render : 0.0, fo_));
             }
-            const Dataset& d = gs[mi].mode == FrontendMode::Images ? image_data : sim;
-            // Common random numbers: the same compass draws for both frontends.
-            std::mt19937_64 compass_rng(mixSeed(s, 0xC0FFEE, 0, 0));
-            std::normal_distribution<double> N(0.0, 1.0);
-            for (size_t k = 0; k < d.steps.size(); ++k) {
-              const double z = N(compass_rng);  // drawn for every step, fix or not
-              if (k >= d.groundtruth.size() || !d.groundtruth[k]) continue;
-              const Pose2& truth = *d.groundtruth[k];
-              Step st = d.steps[k];
-              st.compass.reset();
-              char prefix[96];
-              if (do2) {
-                std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix2,", cat.c_str(), trial, run);
-                Nonlinearity nl;
-                const GlobalFix f = fixWith(d, st, truth, opt2, sp2, &nl);
-                record(b2[mi], f, nl, max_nl, st, truth, csv ? &csv->stream() : nullptr, prefix, mode_name);
-              }
-              if (doM) {
-                // Steps with at least two identified landmarks (else the method does not apply).
-                int identified = 0;
-                for (const Observation& o : st.observations) identified += o.landmark_id >= 0 ? 1 : 0;
-                if (identified >= 2) {
-                  Step sm = st;
-                  const double sigma = deg2rad(kMultiCompassDeg);
-                  sm.compass = wrapAngle(truth.theta + sigma * z);
-                  sm.compass_sigma = sigma;
-                  for (int mm = 0; mm < 2; ++mm) {
-                    GlobalFixOptions om = optM_rb;
-                    if (mm == 1) om.rig = d.rig;
-                    std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,multi_%s,%g", cat.c_str(), trial, run,
-                                  mm ? "pixels" : "range_bearing", kMultiCompassDeg);
-                    const GlobalFix f = globalFix(sm, d.map, om);
-                    record(bm[mi][mm], f, Nonlinearity{1.0, 1.0}, max_nl, sm, truth, csv ? &csv->stream() : nullptr,
-                           prefix, mode_name);
-                  }
-                }
-              }
-              if (do1) {
-                for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
-                  const double sigma = deg2rad(kCompassLevelsDeg[l]);
-                  st.compass = wrapAngle(truth.theta + sigma * z);
-                  st.compass_sigma = std::max(sigma, deg2rad(0.01));
-                  std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix1,%g", cat.c_str(), trial, run, kCompassLevelsDeg[l]);
-                  Nonlinearity nl;
-                  const GlobalFix f = fixWith(d, st, truth, opt1, sp1, &nl);
-                  record(b1[mi][l], f, nl, max_nl, st, truth, csv ? &csv->stream() : nullptr, prefix, mode_name);
-                }
-              }
+            if (!ideal_only_) {
+              const TrialRange tr = addRanges(ranges_[mi], sim, image_data);
+              if (trial_csv_ && !ideal_world)
+                trial_csv_->stream() << trialRangeRow(cat, trial, run, a_.profiles[w], gs_[mi].calibrated, tr,
+                                                      trace.errors, estimate);
             }
+            if (!gs_[mi].calibrated) given_images = image_data;
+          }
+          const Dataset& d = gs_[mi].mode == FrontendMode::Images ? image_data : sim;
+          // Common random numbers: the same compass draws for both frontends.
+          std::mt19937_64 compass_rng(mixSeed(s, 0xC0FFEE, 0, 0));
+          std::normal_distribution<double> N(0.0, 1.0);
+          for (size_t k = 0; k < d.steps.size(); ++k) {
+            const double z = N(compass_rng);  // drawn for every step, fix or not
+            fixStep(d, k, z, cat, trial, run, mi, mode_name, &b);
           }
         }
       }
     }
+  }
+  return b;
+}
 
-    char buf[400];
-    auto statsRow = [&](const char* label, auto bucketOf, double Sample::*field, double scale, const ThesisTable& t,
-                        const std::string& key) {
-      std::string line = label;
-      for (size_t mi = 0; mi < gs.size(); ++mi)
-        line += (mi ? " | " : "") + statsCells(statsOf(bucketOf(mi).fixes, field), scale);
-      return line + " | " + thesisCells(t, key) + "\n";
-    };
-    if (do2) {
-      const std::string id = "6." + std::to_string(4 + ci);
-      const ThesisTable t = loadThesisTable(tables_path, id);
-      std::snprintf(buf, sizeof(buf), "Table %s: two landmarks (fix2), category %s, %d trials x %d run(s)\n", id.c_str(),
-                    cat.c_str(), trials, a.runs);
-      report << buf;
-      for (size_t mi = 0; mi < gs.size(); ++mi)
-        report << (gs.size() > 1 ? groups[mi] + " " : "") << fixRateLine(b2[mi]) << "\n";
-      report << header("", groups);
-      auto bucket = [&](size_t mi) -> const Bucket& { return b2[mi]; };
-      report << statsRow("dx (mm)        ", bucket, &Sample::dx, 1.0, t, rowKey("dx_mm", 0));
-      report << statsRow("dy (mm)        ", bucket, &Sample::dy, 1.0, t, rowKey("dy_mm", 0));
-      report << statsRow("dtheta (deg)   ", bucket, &Sample::dtheta, rad2deg(1.0), t, rowKey("dtheta_deg", 0));
-      for (size_t mi = 0; mi < gs.size(); ++mi)
-        report << (gs.size() > 1 ? groups[mi] + " " : "") << neesLines(b2[mi].fixes, max_nl);
-      if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
-      report << "\n";
-    }
-    if (doM) {
-      std::snprintf(buf, sizeof(buf),
-                    "Multi-landmark least squares (4.2.8), category %s: steps with >= 2 identified landmarks and a "
-                    "%.1f deg compass; stereo observations as range-bearing (R at the measured pixels) or as pixels "
-                    "(u_l, u_r predicted at the pose, 1 / pixel sigma)\n",
-                    cat.c_str(), kMultiCompassDeg);
-      report << buf;
-      const char* model_names[] = {"range-bearing", "pixels"};
-      for (size_t mi = 0; mi < gs.size(); ++mi) {
-        for (int mm = 0; mm < 2; ++mm) {
-          const Bucket& b = bm[mi][mm];
-          report << (gs.size() > 1 ? groups[mi] + " " : "") << model_names[mm] << ": " << fixRateLine(b) << "\n";
-          if (b.fixes.empty()) continue;
-          std::snprintf(buf, sizeof(buf), "  mean |dx| %.2f mm, |dy| %.2f mm, |dtheta| %.3f deg\n",
-                        statsOf(b.fixes, &Sample::dx).mean, statsOf(b.fixes, &Sample::dy).mean,
-                        rad2deg(statsOf(b.fixes, &Sample::dtheta).mean));
-          report << buf << neesLines(b.fixes, max_nl, false);
-        }
+void FixStudy::fixStep(const Dataset& d, size_t k, double z, const std::string& cat, int trial, int run, size_t mi,
+                       const std::string& mode_name, CategoryBuckets* b) {
+  if (k >= d.groundtruth.size() || !d.groundtruth[k]) return;
+  const Pose2& truth = *d.groundtruth[k];
+  std::ostream* out = csv_ ? &csv_->stream() : nullptr;
+  Step st = d.steps[k];
+  st.compass.reset();
+  char prefix[96];
+  if (do2_) {
+    std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix2,", cat.c_str(), trial, run);
+    Nonlinearity nl;
+    const GlobalFix f = fixWith(d, st, truth, opt2_, sp2_, &nl);
+    record(b->fix2[mi], f, nl, max_nl_, st, truth, out, prefix, mode_name);
+  }
+  if (doM_) {
+    // Steps with at least two identified landmarks (else the method does not apply).
+    int identified = 0;
+    for (const Observation& o : st.observations) identified += o.landmark_id >= 0 ? 1 : 0;
+    if (identified >= 2) {
+      Step sm = st;
+      const double sigma = deg2rad(kMultiCompassDeg);
+      sm.compass = wrapAngle(truth.theta + sigma * z);
+      sm.compass_sigma = sigma;
+      for (int mm = 0; mm < 2; ++mm) {
+        GlobalFixOptions om = optM_rb_;
+        if (mm == 1) om.rig = d.rig;
+        std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,multi_%s,%g", cat.c_str(), trial, run,
+                      mm ? "pixels" : "range_bearing", kMultiCompassDeg);
+        const GlobalFix f = globalFix(sm, d.map, om);
+        record(b->multi[mi][static_cast<size_t>(mm)], f, Nonlinearity{1.0, 1.0}, max_nl_, sm, truth, out, prefix,
+               mode_name);
       }
-      report << "\n";
-    }
-    if (do1) {
-      const std::string id = "6." + std::to_string(9 + ci);
-      const ThesisTable t = loadThesisTable(tables_path, id);
-      std::snprintf(buf, sizeof(buf), "Table %s: one landmark + compass (fix1), category %s, %d trials x %d run(s)\n",
-                    id.c_str(), cat.c_str(), trials, a.runs);
-      report << buf;
-      for (size_t mi = 0; mi < gs.size(); ++mi)
-        report << (gs.size() > 1 ? groups[mi] + " " : "") << fixRateLine(b1[mi][0]) << "\n";
-      report << header("compass sigma", groups);
-      for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
-        const double lv = kCompassLevelsDeg[l];
-        auto bucket = [&](size_t mi) -> const Bucket& { return b1[mi][l]; };
-        std::snprintf(buf, sizeof(buf), "%4.1f deg  dx   ", lv);
-        report << statsRow(buf, bucket, &Sample::dx, 1.0, t, rowKey("dx_mm", lv));
-        report << statsRow("          dy   ", bucket, &Sample::dy, 1.0, t, rowKey("dy_mm", lv));
-      }
-      for (size_t mi = 0; mi < gs.size(); ++mi) {
-        for (size_t l : {size_t{0}, size_t{4}, size_t{11}}) {
-          // At 0 deg the compass reading is exact but declares a floor sigma, so its heading error
-          // is 0 and the 3-dof mean is expected near 2, not 3.
-          std::snprintf(buf, sizeof(buf), "at %.1f deg compass%s: ", kCompassLevelsDeg[l],
-                        kCompassLevelsDeg[l] == 0.0 ? " (exact heading: 3-dof mean expected near 2)" : "");
-          report << (gs.size() > 1 ? groups[mi] + " " : "") << buf << neesLines(b1[mi][l].fixes, max_nl);
-        }
-      }
-      if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
-      report << "\n";
     }
   }
-  if (images && !ideal_only) {
-    // Table 6.3 per world, pooled over the categories run; the thesis's figures beside.
-    std::vector<std::string> names;
-    std::vector<size_t> image_groups;
-    for (size_t g = 0; g < gs.size(); ++g)
-      if (gs[g].mode == FrontendMode::Images) {
-        image_groups.push_back(g);
-        names.push_back(groups[g]);
-      }
-    const ThesisTable t = loadThesisTable(tables_path, "6.3");
-    report << "Table 6.3: goal-corner range error of the image frontend, all categories run (range from the robot "
-              "centre; normalised = |error| / true range)\n";
-    for (size_t g : image_groups) {
-      const RangeStats& r = ranges[g];
-      char buf[400];
-      std::snprintf(buf, sizeof(buf),
-                    "%s: %zu measurements; recall %.1f %% (%ld of %ld visible goal corners found with their id within "
-                    "%.0f px); %ld goal-corner detections not matched to a visible corner\n",
-                    groups[g].c_str(), r.abs_err.size(), r.visible ? 100.0 * r.detected / r.visible : 0.0, r.detected,
-                    r.visible, kMatchPx, r.unmatched);
-      report << buf;
+  if (do1_) {
+    for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
+      const double sigma = deg2rad(kCompassLevelsDeg[l]);
+      st.compass = wrapAngle(truth.theta + sigma * z);
+      st.compass_sigma = std::max(sigma, deg2rad(0.01));
+      std::snprintf(prefix, sizeof(prefix), "%s,%d,%d,fix1,%g", cat.c_str(), trial, run, kCompassLevelsDeg[l]);
+      Nonlinearity nl;
+      const GlobalFix f = fixWith(d, st, truth, opt1_, sp1_, &nl);
+      record(b->fix1[mi][l], f, nl, max_nl_, st, truth, out, prefix, mode_name);
     }
-    report << header("", names);
-    auto row = [&](const char* label, std::vector<double> RangeStats::*field, double scale, const std::string& key) {
-      std::string line = label;
-      for (size_t i = 0; i < image_groups.size(); ++i)
-        line += (i ? " | " : "") + statsCells(errorStats(ranges[image_groups[i]].*field), scale);
-      return line + " | " + thesisCells(t, key) + "\n";
-    };
-    report << row("abs (mm)       ", &RangeStats::abs_err, 1.0, rowKey("abs_error_mm", 0));
-    report << row("normalised (%) ", &RangeStats::norm_err, 100.0, rowKey("norm_error_pct", 0));
-    // The signed error separates a range bias (a disparity offset or scale of the given
-    // calibration) from the spread.
-    report << row("signed norm (%)", &RangeStats::signed_norm, 100.0, rowKey("", 0));
-    // A world's calibration is drawn per trial: the per-trial mean of the signed error is the
-    // range bias of that calibration, the error about it what blur, vibration and noise add.
-    report << row("trial bias (%) ", &RangeStats::trial_bias, 100.0, rowKey("", 0));
-    report << row("|e - bias| (%) ", &RangeStats::unbiased, 100.0, rowKey("", 0));
-    if (!t.note.empty()) report << "thesis note: " << t.note << "\n";
-    for (size_t w = 0; w < a.profiles.size(); ++w) {
-      const SelfCalibrationSummary& c = calibration_summary[w];
-      if (c.trials == 0) continue;
-      const ErrorStats dd = errorStats(c.disparity_offset), k = errorStats(c.baseline_scale), tilt = errorStats(c.tilt_deg);
-      char buf[400];
-      std::snprintf(buf, sizeof(buf),
-                    "self-calibration, %s: %d trials, %d without an estimate (given calibration kept); estimates mean / "
-                    "std: disparity offset %.2f / %.2f px, baseline scale %.4f / %.4f, tilt correction %.3f / %.3f deg\n",
-                    worldName(a.profiles[w]).c_str(), c.trials, c.failures, dd.mean, dd.std, k.mean, k.std, tilt.mean,
-                    tilt.std);
-      report << buf;
-    }
-    report << "\n";
   }
-  if (images) {
+}
+
+// One row of a thesis table: a statistic of every column beside the thesis's.
+template <class BucketOf>
+std::string statsRow(const char* label, size_t columns, BucketOf bucketOf, double Sample::*field, double scale,
+                     const ThesisTable& t, const std::string& key) {
+  std::string line = label;
+  for (size_t mi = 0; mi < columns; ++mi) line += (mi ? " | " : "") + statsCells(statsOf(bucketOf(mi).fixes, field), scale);
+  return line + " | " + thesisCells(t, key) + "\n";
+}
+
+void FixStudy::reportFix2(const std::string& cat, size_t ci, int trials, const CategoryBuckets& b) {
+  char buf[400];
+  const std::string id = "6." + std::to_string(4 + ci);
+  const ThesisTable t = loadThesisTable(tables_path_, id);
+  std::snprintf(buf, sizeof(buf), "Table %s: two landmarks (fix2), category %s, %d trials x %d run(s)\n", id.c_str(),
+                cat.c_str(), trials, a_.runs);
+  report_ << buf;
+  const size_t n = gs_.size();
+  for (size_t mi = 0; mi < n; ++mi) report_ << (n > 1 ? groups_[mi] + " " : "") << fixRateLine(b.fix2[mi]) << "\n";
+  report_ << header("", groups_);
+  auto bucket = [&](size_t mi) -> const Bucket& { return b.fix2[mi]; };
+  report_ << statsRow("dx (mm)        ", n, bucket, &Sample::dx, 1.0, t, rowKey("dx_mm", 0));
+  report_ << statsRow("dy (mm)        ", n, bucket, &Sample::dy, 1.0, t, rowKey("dy_mm", 0));
+  report_ << statsRow("dtheta (deg)   ", n, bucket, &Sample::dtheta, rad2deg(1.0), t, rowKey("dtheta_deg", 0));
+  for (size_t mi = 0; mi < n; ++mi) report_ << (n > 1 ? groups_[mi] + " " : "") << neesLines(b.fix2[mi].fixes, max_nl_);
+  if (!t.note.empty()) report_ << "thesis note: " << t.note << "\n";
+  report_ << "\n";
+}
+
+void FixStudy::reportMulti(const std::string& cat, const CategoryBuckets& b) {
+  char buf[400];
+  std::snprintf(buf, sizeof(buf),
+                "Multi-landmark least squares (4.2.8), category %s: steps with >= 2 identified landmarks and a "
+                "%.1f deg compass; stereo observations as range-bearing (R at the measured pixels) or as pixels "
+                "(u_l, u_r predicted at the pose, 1 / pixel sigma)\n",
+                cat.c_str(), kMultiCompassDeg);
+  report_ << buf;
+  const char* model_names[] = {"range-bearing", "pixels"};
+  for (size_t mi = 0; mi < gs_.size(); ++mi) {
+    for (size_t mm = 0; mm < 2; ++mm) {
+      const Bucket& m = b.multi[mi][mm];
+      report_ << (gs_.size() > 1 ? groups_[mi] + " " : "") << model_names[mm] << ": " << fixRateLine(m) << "\n";
+      if (m.fixes.empty()) continue;
+      std::snprintf(buf, sizeof(buf), "  mean |dx| %.2f mm, |dy| %.2f mm, |dtheta| %.3f deg\n",
+                    statsOf(m.fixes, &Sample::dx).mean, statsOf(m.fixes, &Sample::dy).mean,
+                    rad2deg(statsOf(m.fixes, &Sample::dtheta).mean));
+      report_ << buf << neesLines(m.fixes, max_nl_, false);
+    }
+  }
+  report_ << "\n";
+}
+
+void FixStudy::reportFix1(const std::string& cat, size_t ci, int trials, const CategoryBuckets& b) {
+  char buf[400];
+  const std::string id = "6." + std::to_string(9 + ci);
+  const ThesisTable t = loadThesisTable(tables_path_, id);
+  std::snprintf(buf, sizeof(buf), "Table %s: one landmark + compass (fix1), category %s, %d trials x %d run(s)\n",
+                id.c_str(), cat.c_str(), trials, a_.runs);
+  report_ << buf;
+  const size_t n = gs_.size();
+  for (size_t mi = 0; mi < n; ++mi) report_ << (n > 1 ? groups_[mi] + " " : "") << fixRateLine(b.fix1[mi][0]) << "\n";
+  report_ << header("compass sigma", groups_);
+  for (size_t l = 0; l < kCompassLevelsDeg.size(); ++l) {
+    const double lv = kCompassLevelsDeg[l];
+    auto bucket = [&](size_t mi) -> const Bucket& { return b.fix1[mi][l]; };
+    std::snprintf(buf, sizeof(buf), "%4.1f deg  dx   ", lv);
+    report_ << statsRow(buf, n, bucket, &Sample::dx, 1.0, t, rowKey("dx_mm", lv));
+    report_ << statsRow("          dy   ", n, bucket, &Sample::dy, 1.0, t, rowKey("dy_mm", lv));
+  }
+  for (size_t mi = 0; mi < n; ++mi) {
+    for (size_t l : {size_t{0}, size_t{4}, size_t{11}}) {
+      // At 0 deg the compass reading is exact but declares a floor sigma, so its heading error
+      // is 0 and the 3-dof mean is expected near 2, not 3.
+      std::snprintf(buf, sizeof(buf), "at %.1f deg compass%s: ", kCompassLevelsDeg[l],
+                    kCompassLevelsDeg[l] == 0.0 ? " (exact heading: 3-dof mean expected near 2)" : "");
+      report_ << (n > 1 ? groups_[mi] + " " : "") << buf << neesLines(b.fix1[mi][l].fixes, max_nl_);
+    }
+  }
+  if (!t.note.empty()) report_ << "thesis note: " << t.note << "\n";
+  report_ << "\n";
+}
+
+// Table 6.3 per world, pooled over the categories run; the thesis's figures beside.
+void FixStudy::reportRanges() {
+  std::vector<std::string> names;
+  std::vector<size_t> image_groups;
+  for (size_t g = 0; g < gs_.size(); ++g)
+    if (gs_[g].mode == FrontendMode::Images) {
+      image_groups.push_back(g);
+      names.push_back(groups_[g]);
+    }
+  const ThesisTable t = loadThesisTable(tables_path_, "6.3");
+  report_ << "Table 6.3: goal-corner range error of the image frontend, all categories run (range from the robot "
+             "centre; normalised = |error| / true range)\n";
+  char buf[400];
+  for (size_t g : image_groups) {
+    const RangeStats& r = ranges_[g];
+    std::snprintf(buf, sizeof(buf),
+                  "%s: %zu measurements; recall %.1f %% (%ld of %ld visible goal corners found with their id within "
+                  "%.0f px); %ld goal-corner detections not matched to a visible corner\n",
+                  groups_[g].c_str(), r.abs_err.size(), r.visible ? 100.0 * r.detected / r.visible : 0.0, r.detected,
+                  r.visible, kMatchPx, r.unmatched);
+    report_ << buf;
+  }
+  report_ << header("", names);
+  auto row = [&](const char* label, std::vector<double> RangeStats::*field, double scale, const std::string& key) {
+    std::string line = label;
+    for (size_t i = 0; i < image_groups.size(); ++i)
+      line += (i ? " | " : "") + statsCells(errorStats(ranges_[image_groups[i]].*field), scale);
+    return line + " | " + thesisCells(t, key) + "\n";
+  };
+  report_ << row("abs (mm)       ", &RangeStats::abs_err, 1.0, rowKey("abs_error_mm", 0));
+  report_ << row("normalised (%) ", &RangeStats::norm_err, 100.0, rowKey("norm_error_pct", 0));
+  // The signed error separates a range bias (a disparity offset or scale of the given
+  // calibration) from the spread.
+  report_ << row("signed norm (%)", &RangeStats::signed_norm, 100.0, rowKey("", 0));
+  // A world's calibration is drawn per trial: the per-trial mean of the signed error is the
+  // range bias of that calibration, the error about it what blur, vibration and noise add.
+  report_ << row("trial bias (%) ", &RangeStats::trial_bias, 100.0, rowKey("", 0));
+  report_ << row("|e - bias| (%) ", &RangeStats::unbiased, 100.0, rowKey("", 0));
+  if (!t.note.empty()) report_ << "thesis note: " << t.note << "\n";
+  for (size_t w = 0; w < a_.profiles.size(); ++w) {
+    const SelfCalibrationSummary& c = calibration_summary_[w];
+    if (c.trials == 0) continue;
+    const ErrorStats dd = errorStats(c.disparity_offset), k = errorStats(c.baseline_scale), tilt = errorStats(c.tilt_deg);
+    std::snprintf(buf, sizeof(buf),
+                  "self-calibration, %s: %d trials, %d without an estimate (given calibration kept); estimates mean / "
+                  "std: disparity offset %.2f / %.2f px, baseline scale %.4f / %.4f, tilt correction %.3f / %.3f deg\n",
+                  worldName(a_.profiles[w]).c_str(), c.trials, c.failures, dd.mean, dd.std, k.mean, k.std, tilt.mean,
+                  tilt.std);
+    report_ << buf;
+  }
+  report_ << "\n";
+}
+
+void FixStudy::finish() {
+  if (images_) {
     char buf[300];
     std::snprintf(buf, sizeof(buf),
                   "image frontend: %ld pairs, %.2f goal-corner observations per pair, rendering %.1f ms/pair, "
                   "frontend %.2f ms/pair\n",
-                  fstats.pairs, fstats.pairs ? static_cast<double>(fstats.identified) / fstats.pairs : 0.0,
-                  fstats.pairs ? fstats.ms_render / fstats.pairs : 0.0, fstats.pairs ? fstats.ms_frontend / fstats.pairs : 0.0);
+                  fstats_.pairs, fstats_.pairs ? static_cast<double>(fstats_.identified) / fstats_.pairs : 0.0,
+                  fstats_.pairs ? fstats_.ms_render / fstats_.pairs : 0.0,
+                  fstats_.pairs ? fstats_.ms_frontend / fstats_.pairs : 0.0);
     // Timings vary between runs: on the log, so that the tables stay reproducible.
-    if (a.log) std::fputs(buf, a.log);
+    if (a_.log) std::fputs(buf, a_.log);
   }
-  std::fputs(report.str().c_str(), a.console);
-  std::fflush(a.console);
-  if (!a.out.empty()) {
-    writeFileAtomically(a.out + "/fixstudy.txt", report.str());
-    csv->commit();
-    if (trial_csv) trial_csv->commit();
+  std::fputs(report_.str().c_str(), a_.console);
+  std::fflush(a_.console);
+  if (!a_.out.empty()) {
+    writeFileAtomically(a_.out + "/fixstudy.txt", report_.str());
+    csv_->commit();
+    if (trial_csv_) trial_csv_->commit();
   }
 }
+
+}  // namespace
+
+void runFixStudy(const FixStudyOptions& options) { FixStudy(options).run(); }
 
 }  // namespace stereoloc
