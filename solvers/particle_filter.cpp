@@ -642,6 +642,46 @@ bool ParticleFilter::tryGlobalFix(const Step& step) {
 }
 
 Estimate ParticleFilter::process(const Step& step) {
+  validateStep(step);
+  const bool first = !have_step_;
+  have_step_ = true;
+  last_step_ = step.step;
+  if (!initialised_) return recordEstimate(step, tryGlobalFix(step) ? EstimateStatus::Reinitialised : EstimateStatus::Uninitialised);
+  if (const std::optional<EstimateStatus> status = startFromWideBelief(step, first)) return recordEstimate(step, *status);
+  // The optimal proposal predicts and corrects in one pass once the observations are known.
+  const bool optimal = config_.proposal == ParticleProposal::LinearisedOptimal;
+  if (!first && !optimal) predict(step.d_left, step.d_right);
+  StepObservations used = identifyObservations(step, first);
+  if (optimal && !used.lost) {
+    // An observation outside the belief's gate is floored for the whole set, so the re-injected
+    // particles would weigh as much as the set's and smear the estimate over the field. While
+    // not lost it is dropped; once lost, every observation goes to the particles so that the
+    // re-injected ones that fit can take over (5.1.3).
+    size_t kept = 0;
+    for (size_t k = 0; k < used.observations.size(); ++k) {
+      if (!used.accepted[k]) continue;
+      used.observations[kept] = used.observations[k];
+      used.landmarks[kept] = used.landmarks[k];
+      ++kept;
+    }
+    used.observations.resize(kept);
+    used.landmarks.resize(kept);
+  }
+  if (used.lost && tryGlobalFix(step)) return recordEstimate(step, EstimateStatus::Reinitialised);
+  const bool use_compass = step.compass && config_.use_compass;
+  const bool observed = !used.observations.empty() || use_compass;
+  correct(step, first, used, use_compass);
+  summarise(&mean_, &cov_);  // (5.37), before resampling: the weighted set is the posterior
+  if (observed) {
+    resampleIfDegenerate();
+    if (!optimal) reinject(config_.reinjected);
+  }
+  fresh_.clear();
+  if (used.lost) return recordEstimate(step, EstimateStatus::Lost);
+  return recordEstimate(step, observed ? EstimateStatus::Tracking : EstimateStatus::Predicted);
+}
+
+void ParticleFilter::validateStep(const Step& step) const {
   if (have_step_ && step.step <= last_step_)
     throw Error("particle filter: step " + std::to_string(step.step) + " does not follow step " +
                 std::to_string(last_step_));
@@ -650,37 +690,38 @@ Estimate ParticleFilter::process(const Step& step) {
   for (size_t i = 0; i < step.observations.size(); ++i) checkObservation(step, i, step.observations[i]);
   if (step.compass && config_.use_compass && !(std::isfinite(step.compass_sigma) && step.compass_sigma > 0))
     throw Error("particle filter: step " + std::to_string(step.step) + ": compass_sigma must be positive");
-  const bool first = !have_step_;
-  have_step_ = true;
-  last_step_ = step.step;
+}
 
-  auto finishStep = [&](EstimateStatus status) {
-    Estimate e;
-    e.step = step.step;
-    e.t = step.t;
-    e.pose = mean_;
-    e.covariance = initialised_ ? cov_ : Eigen::Matrix3d::Zero();
-    e.status = status;
-    e.particles = initialised_ ? size() : 0;
-    estimates_.push_back(e);
-    return e;
-  };
+Estimate ParticleFilter::recordEstimate(const Step& step, EstimateStatus status) {
+  Estimate e;
+  e.step = step.step;
+  e.t = step.t;
+  e.pose = mean_;
+  e.covariance = initialised_ ? cov_ : Eigen::Matrix3d::Zero();
+  e.status = status;
+  e.particles = initialised_ ? size() : 0;
+  estimates_.push_back(e);
+  return e;
+}
 
-  if (!initialised_) {
-    if (tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
-    return finishStep(EstimateStatus::Uninitialised);
-  }
-  // The optimal proposal predicts and corrects in one pass once the observations are known.
-  const bool optimal = config_.proposal == ParticleProposal::LinearisedOptimal;
-  const auto spreadOf = [](const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0, 0), P(1, 1))); };
-  const bool wide = config_.handover_sigma_mm > 0 && spreadOf(cov_) > config_.handover_sigma_mm;
+namespace {
+
+double positionSpread(const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0, 0), P(1, 1))); }
+
+}  // namespace
+
+// While the belief is wider than the hand-over sigma: a global fix narrower than the belief
+// takes over, or before the filter first localised, the bank of hypotheses (5.1.4). Returns the
+// step's status when one of them decided the step.
+std::optional<EstimateStatus> ParticleFilter::startFromWideBelief(const Step& step, bool first) {
+  const bool wide = config_.handover_sigma_mm > 0 && positionSpread(cov_) > config_.handover_sigma_mm;
   if (wide && !step.observations.empty() && config_.global_fix) {
     const std::optional<PoseFix> fix = config_.global_fix(step, map_);
-    if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && spreadOf(fix->covariance) < spreadOf(cov_)) {
+    if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && positionSpread(fix->covariance) < positionSpread(cov_)) {
       try {
         initialiseGaussian(fix->pose, fix->covariance);
         bank_.clear();
-        return finishStep(EstimateStatus::Reinitialised);
+        return EstimateStatus::Reinitialised;
       } catch (const Error&) {
         // a fix with an unusable covariance is no fix: go on with the set
       }
@@ -694,31 +735,34 @@ Estimate ParticleFilter::process(const Step& step) {
     bank_.process(step, first);
     if (!bank_.empty()) {
       const PoseFix m = bank_.mixture();
-      if (spreadOf(m.covariance) > config_.handover_sigma_mm) {
+      if (positionSpread(m.covariance) > config_.handover_sigma_mm) {
         // The set stays as it is (a uniform set is unchanged by the motion); the estimate is the
         // mixture's.
         mean_ = m.pose;
         cov_ = m.covariance;
-        return finishStep(step.observations.empty() ? EstimateStatus::Predicted : EstimateStatus::Tracking);
+        return step.observations.empty() ? EstimateStatus::Predicted : EstimateStatus::Tracking;
       }
       initialiseMixture(bank_.hypotheses(), bank_.weights());
       bank_.clear();
-      return finishStep(EstimateStatus::Reinitialised);
+      return EstimateStatus::Reinitialised;
     }
   }
-  if (!first && !optimal) predict(step.d_left, step.d_right);
+  return std::nullopt;
+}
 
-  // Identify the observations; unidentified ones are associated with the predicted estimate
-  // (the previous summary pushed through the odometry model, as the EKF would predict it).
+// Identifies the observations; unidentified ones are associated with the predicted estimate
+// (the previous summary pushed through the odometry model, as the EKF would predict it), and
+// each is tested against the summary's gate (5.20): status only, the likelihood floor handles
+// outliers.
+ParticleFilter::StepObservations ParticleFilter::identifyObservations(const Step& step, bool first) {
   const PosePrediction prior = first ? PosePrediction{mean_, cov_}
                                      : predictPose(mean_, cov_, step.d_left, step.d_right, odometry_);
-  std::vector<Observation> used_obs;
-  std::vector<Eigen::Vector2d> used_lm;
+  StepObservations used;
+  used.predicted = prior.pose;
   std::vector<int> taken;
-  std::vector<char> gate_accepted;
   for (const Observation& o : step.observations)
     if (o.landmark_id >= 0) taken.push_back(o.landmark_id);
-  int gated = 0, tested = 0;
+  int tested = 0;
   for (size_t i = 0; i < step.observations.size(); ++i) {
     const Observation& obs = step.observations[i];
     const Landmark* lm = nullptr;
@@ -735,11 +779,9 @@ Estimate ParticleFilter::process(const Step& step) {
     }
     ++tested;
     if (!lm) {
-      ++gated;
       gate_.record(false);
       continue;
     }
-    // The gate on the summary (5.20): status only, the likelihood floor handles outliers.
     Matrix23d H;
     bool accepted = false;
     try {
@@ -749,73 +791,57 @@ Estimate ParticleFilter::process(const Step& step) {
     } catch (const GeometryError&) {
       accepted = false;
     }
-    gated += accepted ? 0 : 1;
     gate_.record(accepted);
     Observation identified = obs;
     identified.landmark_id = lm->id;
-    used_obs.push_back(identified);
-    used_lm.push_back(lm->xy());
-    gate_accepted.push_back(accepted ? 1 : 0);
+    used.observations.push_back(identified);
+    used.landmarks.push_back(lm->xy());
+    used.accepted.push_back(accepted ? 1 : 0);
   }
-  const bool lost = tested > 0 && gate_.consecutiveRejections() >= config_.gate.lost_after;
-  if (optimal && !lost) {
-    // An observation outside the belief's gate is floored for the whole set, so the re-injected
-    // particles would weigh as much as the set's and smear the estimate over the field. While
-    // not lost it is dropped; once lost, every observation goes to the particles so that the
-    // re-injected ones that fit can take over (5.1.3).
-    size_t kept = 0;
-    for (size_t k = 0; k < used_obs.size(); ++k) {
-      if (!gate_accepted[k]) continue;
-      used_obs[kept] = used_obs[k];
-      used_lm[kept] = used_lm[k];
-      ++kept;
-    }
-    used_obs.resize(kept);
-    used_lm.resize(kept);
-  }
-  if (lost && tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
+  used.lost = tested > 0 && gate_.consecutiveRejections() >= config_.gate.lost_after;
+  return used;
+}
 
-  const bool use_compass = step.compass && config_.use_compass;
-  const bool observed = !used_obs.empty() || use_compass;
+// Weights the set by the step's observations and compass: with the optimal proposal, which also
+// moves the particles (re-injecting first), or by the likelihood after the prior's prediction.
+void ParticleFilter::correct(const Step& step, bool first, const StepObservations& used, bool use_compass) {
+  const bool optimal = config_.proposal == ParticleProposal::LinearisedOptimal;
+  const bool observed = !used.observations.empty() || use_compass;
+  const std::optional<double> compass = use_compass ? step.compass : std::nullopt;
   if (observed && optimal) {
     // Re-injection before the proposal: the new particles are weighted by this step's
     // observations at once, so that unweighted uniform particles never enter the estimate. Not
     // on compass-only steps: a heading says nothing about where the robot is, so the new
     // particles with the right heading would weigh as much as the set's.
-    if (!used_obs.empty()) reinject(config_.reinjected);
+    if (!used.observations.empty()) reinject(config_.reinjected);
     // The kernel's spread: the previous posterior's covariance (one step of transport changes a
     // kernel negligibly), used only while the set is one cluster.
-    const double sp = std::sqrt(std::max(cov_(0, 0), cov_(1, 1))), st = std::sqrt(cov_(2, 2));
+    const double sp = positionSpread(cov_), st = std::sqrt(cov_(2, 2));
     double h = 0.0;
     if (sp < config_.proposal_kernel_max_sigma_mm && st < config_.proposal_kernel_max_sigma_theta)
       h = config_.proposal_kernel_bandwidth >= 0 ? config_.proposal_kernel_bandwidth
                                                  : std::pow(4.0 / (size() * 5.0), 1.0 / 7.0);
     const std::optional<Eigen::Vector2d> wheels =
         first ? std::nullopt : std::optional<Eigen::Vector2d>(Eigen::Vector2d(step.d_left, step.d_right));
-    proposeAndWeight(wheels, used_obs, used_lm, use_compass ? step.compass : std::nullopt, step.compass_sigma,
-                     {h, prior.pose, cov_});
+    proposeAndWeight(wheels, used.observations, used.landmarks, compass, step.compass_sigma, {h, used.predicted, cov_});
   } else {
     if (optimal && !first) predict(step.d_left, step.d_right);
-    if (observed) weight(used_obs, used_lm, use_compass ? step.compass : std::nullopt, step.compass_sigma);
+    if (observed) weight(used.observations, used.landmarks, compass, step.compass_sigma);
   }
-  summarise(&mean_, &cov_);  // (5.37), before resampling: the weighted set is the posterior
-  if (observed) {
-    const double ess = effectiveSampleSize();
-    if (ess < config_.resample_ess_fraction * size() + 1e-9) {
-      resample();
-      if (ess < config_.regularisation_ess_fraction * size()) {
-      const double d = 3.0;
-      const double h = config_.regularisation_bandwidth >= 0
-                           ? config_.regularisation_bandwidth
-                           : std::pow(4.0 / (size() * (d + 2.0)), 1.0 / (d + 4.0));
-      regularise(mean_, cov_, h);
-      }
-    }
-    if (!optimal) reinject(config_.reinjected);
+}
+
+// Resamples when the effective sample size has fallen below its fraction of the set, and
+// regularises when it has fallen further.
+void ParticleFilter::resampleIfDegenerate() {
+  const double ess = effectiveSampleSize();
+  if (ess >= config_.resample_ess_fraction * size() + 1e-9) return;
+  resample();
+  if (ess < config_.regularisation_ess_fraction * size()) {
+    const double d = 3.0;
+    const double h = config_.regularisation_bandwidth >= 0 ? config_.regularisation_bandwidth
+                                                           : std::pow(4.0 / (size() * (d + 2.0)), 1.0 / (d + 4.0));
+    regularise(mean_, cov_, h);
   }
-  fresh_.clear();
-  if (lost) return finishStep(EstimateStatus::Lost);
-  return finishStep(!used_obs.empty() || use_compass ? EstimateStatus::Tracking : EstimateStatus::Predicted);
 }
 
 }  // namespace stereoloc

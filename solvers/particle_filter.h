@@ -260,6 +260,21 @@ class ParticleFilter : public Estimator {
   const std::vector<double>& weights() const { return w_; }  // normalised
 
  private:
+  // The observations of one step the filter uses: identified (given or associated), with their
+  // landmarks' positions and whether the summary's gate accepted each.
+  struct StepObservations {
+    std::vector<Observation> observations;
+    std::vector<Eigen::Vector2d> landmarks;
+    std::vector<char> accepted;
+    bool lost = false;  // the gate's consecutive rejections reached GateConfig::lost_after
+    Pose2 predicted;    // the previous summary pushed through the step's odometry
+  };
+  void validateStep(const Step& step) const;  // throws stereoloc::Error naming the step
+  Estimate recordEstimate(const Step& step, EstimateStatus status);
+  std::optional<EstimateStatus> startFromWideBelief(const Step& step, bool first);
+  StepObservations identifyObservations(const Step& step, bool first);
+  void correct(const Step& step, bool first, const StepObservations& used, bool use_compass);
+  void resampleIfDegenerate();
   bool tryGlobalFix(const Step& step);
   // Particles [begin, end) drawn from N(pose, covariance); throws stereoloc::Error when it is not
   // finite or not positive semi-definite.
