@@ -91,12 +91,10 @@ std::string imageFileName(const std::string& kind, long step) {
   return buf;
 }
 
-Dataset loadDataset(const std::string& dir) {
-  std::error_code ec;
-  if (!fs::is_directory(dir, ec)) throw Error(dir + ": not a dataset directory");
-  const std::string yaml_path = join(dir, "dataset.yaml");
-  if (!fs::is_regular_file(yaml_path, ec)) throw Error(yaml_path + ": missing (not a stereoloc dataset)");
-  YamlReader y(yaml_path);
+namespace {
+
+// dataset.yaml: the header, the map, the rig, the robot and the noise (the steps come later).
+Dataset readDatasetYaml(const std::string& dir, const YamlReader& y) {
   const std::string format = y.getString("format");
   if (format != "stereoloc-dataset") y.fail("format", "expected 'stereoloc-dataset', found '" + format + "'");
   const int version = y.getInt("format_version");
@@ -142,122 +140,149 @@ Dataset loadDataset(const std::string& dir) {
     d.initial_pose = Pose2(p.getDouble("x"), p.getDouble("y"), p.getDouble("theta"));
   }
   d.has_images = y.getBool("has_images", false);
+  return d;
+}
 
-  // odometry.csv: the list of steps.
-  {
-    const std::string path = join(dir, "odometry.csv");
-    if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
-    CsvReader in(path);
-    const bool with_pan = in.expectHeader({kOdometryHeader, kOdometryPanHeader}) == 1;
-    while (in.next()) {
-      Step s;
-      s.step = in.getLong(0);
-      s.t = in.getDouble(1);
-      s.d_left = in.getDouble(2);
-      s.d_right = in.getDouble(3);
-      if (with_pan) s.head_pan = in.getDouble(4);
-      if (!d.steps.empty()) {
-        if (s.step <= d.steps.back().step)
-          in.fail("step " + std::to_string(s.step) + " out of order (after step " + std::to_string(d.steps.back().step) + ")");
-        if (s.t < d.steps.back().t) in.failColumn(1, "time goes backwards");
-      }
-      d.steps.push_back(s);
+// odometry.csv: the list of steps.
+void readSteps(const std::string& dir, const YamlReader& y, Dataset* dp) {
+  Dataset& d = *dp;
+  std::error_code ec;
+  const std::string path = join(dir, "odometry.csv");
+  if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
+  CsvReader in(path);
+  const bool with_pan = in.expectHeader({kOdometryHeader, kOdometryPanHeader}) == 1;
+  while (in.next()) {
+    Step s;
+    s.step = in.getLong(0);
+    s.t = in.getDouble(1);
+    s.d_left = in.getDouble(2);
+    s.d_right = in.getDouble(3);
+    if (with_pan) s.head_pan = in.getDouble(4);
+    if (!d.steps.empty()) {
+      if (s.step <= d.steps.back().step)
+        in.fail("step " + std::to_string(s.step) + " out of order (after step " + std::to_string(d.steps.back().step) + ")");
+      if (s.t < d.steps.back().t) in.failColumn(1, "time goes backwards");
     }
-    if (d.steps.empty()) in.fail("no steps");
+    d.steps.push_back(s);
   }
-  d.groundtruth.assign(d.steps.size(), std::nullopt);
+  if (d.steps.empty()) in.fail("no steps");
+}
 
-  // compass.csv (optional).
-  {
-    const std::string path = join(dir, "compass.csv");
-    if (fs::exists(path, ec)) {
-      CsvReader in(path);
-      in.expectHeader({kCompassHeader});
-      if (!(d.compass_sigma > 0)) in.fail("compass readings present but dataset.yaml noise.compass_sigma is 0");
-      StepIndex idx(d.steps);
-      while (in.next()) {
-        const long step = in.getLong(0);
-        const double t = in.getDouble(1);
-        const double theta = in.getDouble(2);
-        Step& s = d.steps[idx.lookup(in, step, t, false)];
-        s.compass = wrapAngle(theta);
-        s.compass_sigma = d.compass_sigma;
-      }
-    }
-  }
-
-  // observations.csv: pixels or range-bearing.
-  {
-    const std::string path = join(dir, "observations.csv");
-    if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
+// compass.csv (optional).
+void readCompass(const std::string& dir, Dataset* dp) {
+  Dataset& d = *dp;
+  std::error_code ec;
+  const std::string path = join(dir, "compass.csv");
+  if (fs::exists(path, ec)) {
     CsvReader in(path);
-    const size_t header = in.expectHeader({kPixelHeader, kRangeBearingHeader, kPixelCovarianceHeader,
-                                           withSlideGain(kPixelHeader), withSlideGain(kPixelCovarianceHeader)});
-    const bool pixels = header != 1, covariance = header == 2 || header == 4, slide = header >= 3;
+    in.expectHeader({kCompassHeader});
+    if (!(d.compass_sigma > 0)) in.fail("compass readings present but dataset.yaml noise.compass_sigma is 0");
     StepIndex idx(d.steps);
     while (in.next()) {
       const long step = in.getLong(0);
       const double t = in.getDouble(1);
-      const long id = in.getLong(2);
-      double v[16];
-      for (size_t c = 3; c < in.size(); ++c) v[c - 3] = in.getDouble(c);
-      Step& s = d.steps[idx.lookup(in, step, t, true)];
-      LandmarkType type = LandmarkType::Point;
-      if (id != -1) {
-        const Landmark* l = d.map.find(static_cast<int>(id));
-        if (!l) in.failColumn(2, "unknown landmark id " + std::to_string(id) + " (not in the map)");
-        type = l->type;
-      }
-      if (covariance) {
-        try {
-          checkPixelCovariance(covarianceFromUpper(v + kCovarianceColumn - 3), "pixel covariance");
-        } catch (const Error& e) {
-          in.failColumn(kCovarianceColumn, e.what());
-        }
-      }
+      const double theta = in.getDouble(2);
+      Step& s = d.steps[idx.lookup(in, step, t, false)];
+      s.compass = wrapAngle(theta);
+      s.compass_sigma = d.compass_sigma;
+    }
+  }
+}
+
+// observations.csv: pixels or range-bearing.
+void readObservations(const std::string& dir, const YamlReader& y, Dataset* dp) {
+  Dataset& d = *dp;
+  std::error_code ec;
+  const std::string path = join(dir, "observations.csv");
+  if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
+  CsvReader in(path);
+  const size_t header = in.expectHeader({kPixelHeader, kRangeBearingHeader, kPixelCovarianceHeader,
+                                         withSlideGain(kPixelHeader), withSlideGain(kPixelCovarianceHeader)});
+  const bool pixels = header != 1, covariance = header == 2 || header == 4, slide = header >= 3;
+  StepIndex idx(d.steps);
+  while (in.next()) {
+    const long step = in.getLong(0);
+    const double t = in.getDouble(1);
+    const long id = in.getLong(2);
+    double v[16];
+    for (size_t c = 3; c < in.size(); ++c) v[c - 3] = in.getDouble(c);
+    Step& s = d.steps[idx.lookup(in, step, t, true)];
+    LandmarkType type = LandmarkType::Point;
+    if (id != -1) {
+      const Landmark* l = d.map.find(static_cast<int>(id));
+      if (!l) in.failColumn(2, "unknown landmark id " + std::to_string(id) + " (not in the map)");
+      type = l->type;
+    }
+    if (covariance) {
       try {
-        if (pixels) {
-          const StereoPixels px{v[0], v[1], v[2], v[3]};
-          if (covariance) {
-            const Eigen::Matrix4d C = covarianceFromUpper(v + kCovarianceColumn - 3);
-            s.observations.push_back(observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], C));
-          } else {
-            s.observations.push_back(
-                observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], d.rig.params().pixel_sigma));
-          }
-          if (slide) s.observations.back().slide_gain = v[in.size() - 4];
-        } else {
-          s.observations.push_back(observationFromRangeBearing(static_cast<int>(id), type, v[0], v[1], v[2], v[3]));
-        }
+        checkPixelCovariance(covarianceFromUpper(v + kCovarianceColumn - 3), "pixel covariance");
       } catch (const Error& e) {
-        in.fail(e.what());
+        in.failColumn(kCovarianceColumn, e.what());
       }
     }
-  }
-
-  // groundtruth.csv (optional).
-  {
-    const std::string path = join(dir, "groundtruth.csv");
-    if (fs::exists(path, ec)) {
-      CsvReader in(path);
-      in.expectHeader({kGroundTruthHeader});
-      StepIndex idx(d.steps);
-      while (in.next()) {
-        const long step = in.getLong(0);
-        const double t = in.getDouble(1);
-        const Pose2 p(in.getDouble(2), in.getDouble(3), in.getDouble(4));
-        d.groundtruth[idx.lookup(in, step, t, false)] = p;
+    try {
+      if (pixels) {
+        const StereoPixels px{v[0], v[1], v[2], v[3]};
+        if (covariance) {
+          const Eigen::Matrix4d C = covarianceFromUpper(v + kCovarianceColumn - 3);
+          s.observations.push_back(observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], C));
+        } else {
+          s.observations.push_back(
+              observationFromPixels(d.rig, static_cast<int>(id), type, px, v[4], d.rig.params().pixel_sigma));
+        }
+        if (slide) s.observations.back().slide_gain = v[in.size() - 4];
+      } else {
+        s.observations.push_back(observationFromRangeBearing(static_cast<int>(id), type, v[0], v[1], v[2], v[3]));
       }
+    } catch (const Error& e) {
+      in.fail(e.what());
     }
   }
+}
 
-  if (d.has_images) {
+// groundtruth.csv (optional).
+void readGroundTruth(const std::string& dir, Dataset* dp) {
+  Dataset& d = *dp;
+  std::error_code ec;
+  d.groundtruth.assign(d.steps.size(), std::nullopt);
+  const std::string path = join(dir, "groundtruth.csv");
+  if (fs::exists(path, ec)) {
+    CsvReader in(path);
+    in.expectHeader({kGroundTruthHeader});
+    StepIndex idx(d.steps);
+    while (in.next()) {
+      const long step = in.getLong(0);
+      const double t = in.getDouble(1);
+      const Pose2 p(in.getDouble(2), in.getDouble(3), in.getDouble(4));
+      d.groundtruth[idx.lookup(in, step, t, false)] = p;
+    }
+  }
+}
+
+// The image pair of every step, when dataset.yaml says there are images.
+void checkImages(const std::string& dir, const YamlReader& y, const Dataset& d) {
+  std::error_code ec;
     for (const Step& s : d.steps)
       for (const char* kind : {"left", "right"}) {
         const std::string path = join(dir, imageFileName(kind, s.step));
         if (!fs::is_regular_file(path, ec)) y.fail("has_images", "referenced file '" + path + "' does not exist");
       }
-  }
+}
+
+}  // namespace
+
+Dataset loadDataset(const std::string& dir) {
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) throw Error(dir + ": not a dataset directory");
+  const std::string yaml_path = join(dir, "dataset.yaml");
+  if (!fs::is_regular_file(yaml_path, ec)) throw Error(yaml_path + ": missing (not a stereoloc dataset)");
+  YamlReader y(yaml_path);
+  Dataset d = readDatasetYaml(dir, y);
+  readSteps(dir, y, &d);
+  readCompass(dir, &d);
+  readObservations(dir, y, &d);
+  readGroundTruth(dir, &d);
+  if (d.has_images) checkImages(dir, y, d);
   return d;
 }
 
