@@ -184,168 +184,218 @@ std::vector<VisibleLandmark> visibleLandmarks(const FieldMap& map, const StereoR
   return out;
 }
 
+namespace {
+
+// One simulated run: the scenario, the drawn errors and the random streams, and the steps made
+// from them. One random stream per concern (scenario, encoders, compass, obstacles, pixels,
+// error profile), all drawn from the seed's master stream, so that switching one on or off
+// leaves the others' draws alone; the standard normal N is shared, in the order of the steps.
+class Simulation {
+ public:
+  Simulation(const std::string& scenario_name, int trial, const SimulationConfig& cfg, uint64_t seed);
+  Dataset run(SimulationTrace* trace);
+
+ private:
+  std::string description(uint64_t seed) const;
+  void placeObstacles();
+  void driveWheels(size_t s, Step* st);
+  void observe(size_t s, const Scene& world, Step* st);
+
+  const std::string scenario_name_;
+  const int trial_;
+  const SimulationConfig& cfg_;
+  std::mt19937_64 master_;
+  std::mt19937_64 rng_scenario_, rng_encoder_, rng_compass_, rng_obstacles_, rng_pixels_;
+  std::normal_distribution<double> N_{0.0, 1.0};
+  const bool ideal_;
+  const Scenario sc_;
+  double q_ = 0.0;  // quantisation step, px (0: none)
+  StereoRigParams rp_;
+  Dataset d_;
+  StereoRig nominal_;
+  DrawnErrors drawn_;
+  std::vector<Obstacle> obstacles_;
+  std::vector<double> obstacle_dir_;
+  // Per-kind model: C per landmark type and its lower Cholesky factor (C = L L^T).
+  std::map<LandmarkType, std::pair<Eigen::Matrix4d, Eigen::Matrix4d>> kind_model_;
+};
+
+Simulation::Simulation(const std::string& scenario_name, int trial, const SimulationConfig& cfg, uint64_t seed)
+    : scenario_name_(scenario_name), trial_(trial), cfg_(cfg), master_(seed),
+      rng_scenario_(master_()), rng_encoder_(master_()), rng_compass_(master_()), rng_obstacles_(master_()),
+      rng_pixels_(master_()), ideal_(cfg.profile.isIdeal()),
+      sc_(makeScenario(scenario_name, trial, cfg.scenario, rng_scenario_)) {
+  const size_t n = sc_.poses.size();
+  if (n == 0) throw Error("simulation: scenario has no steps");
+  q_ = cfg_.quantise ? 1.0 : 0.0;
+  const double sigma_eff = std::sqrt(cfg_.pixel_sigma * cfg_.pixel_sigma + q_ / 12.0);
+  rp_ = cfg_.rig;
+  // The rig must carry a positive sigma even for noise-free pixels: observations need an R.
+  rp_.pixel_sigma = std::max(sigma_eff, 1e-3);
+  d_.name = scenario_name_;
+  d_.map = cfg_.map;
+  d_.rig = StereoRig(rp_);
+  nominal_ = d_.rig;
+  if (!ideal_) {
+    std::mt19937_64 rng_profile(master_());
+    drawn_ = drawErrors(cfg_.profile, n, rng_profile);
+    d_.rig = StereoRig(rp_, givenCalibration(nominal_, drawn_));
+  }
+  d_.odometry = OdometryParams();
+  d_.odometry.wheel_base_mm = cfg_.wheel_base_mm;
+  d_.odometry.k_left = d_.odometry.k_right = cfg_.encoder_k;
+  d_.odometry.validate();
+  d_.compass_sigma = cfg_.compass ? std::max(cfg_.compass_sigma, cfg_.compass_sigma_floor) : 0.0;
+  d_.initial_pose = sc_.poses[0];
+  d_.has_images = cfg_.images;
+  d_.description = description(seed);
+  placeObstacles();
+  if (cfg_.pixel_noise == PixelNoiseModel::PerKind)
+    for (const Landmark& l : cfg_.map.landmarks())
+      if (!kind_model_.count(l.type)) {
+        const Eigen::Matrix4d C = cfg_.kind_noise.of(l.type).covariance();
+        kind_model_[l.type] = {C + (q_ / 12.0) * Eigen::Matrix4d::Identity(), C.llt().matrixL()};
+      }
+}
+
+std::string Simulation::description(uint64_t seed) const {
+  char buf[600];
+  std::snprintf(buf, sizeof(buf),
+                "simulated %s trial %d seed %llu: %s; encoder k %.6g mm^2/mm, compass %s sigma %.6g deg bias %.6g "
+                "deg, pixel sigma %.6g px%s, landmarks %s, obstacles %d, head scan %s",
+                scenario_name_.c_str(), trial_, static_cast<unsigned long long>(seed), sc_.description.c_str(),
+                cfg_.encoder_k, cfg_.compass ? "on" : "off", rad2deg(cfg_.compass_sigma), rad2deg(cfg_.compass_bias),
+                cfg_.pixel_sigma, cfg_.quantise ? " quantised" : "", toString(cfg_.landmarks).c_str(), cfg_.obstacles,
+                cfg_.scenario.head_scan ? "on" : "off");
+  std::string text = buf;
+  if (!ideal_) text += ", error profile " + cfg_.profile.name;
+  return text;
+}
+
+// Obstacles: K robots and a ball at random places away from the robot's start.
+void Simulation::placeObstacles() {
+  if (cfg_.obstacles <= 0) return;
+  if (!cfg_.map.geometry()) throw Error("simulation: obstacles need a map with field geometry");
+  const FieldGeometry& g = *cfg_.map.geometry();
+  std::uniform_real_distribution<double> ux(100.0, g.length - 100.0), uy(100.0, g.width - 100.0), ua(-kPi, kPi);
+  for (int k = 0; k <= cfg_.obstacles; ++k) {
+    Obstacle o;
+    o.kind = k < cfg_.obstacles ? Obstacle::Kind::Robot : Obstacle::Kind::Ball;
+    o.size = o.kind == Obstacle::Kind::Robot ? 75.0 : 42.7;
+    do {
+      o.position = Eigen::Vector2d(ux(rng_obstacles_), uy(rng_obstacles_));
+    } while ((o.position - sc_.poses[0].translation()).norm() < 200.0);
+    o.heading = ua(rng_obstacles_);
+    obstacles_.push_back(o);
+    obstacle_dir_.push_back(o.heading);
+  }
+}
+
+Dataset Simulation::run(SimulationTrace* trace) {
+  if (trace) {
+    trace->scenario = sc_;
+    trace->obstacles.clear();
+    trace->profile = cfg_.profile;
+    trace->errors = drawn_;
+    trace->nominal_rig = rp_;
+  }
+  const size_t n = sc_.poses.size();
+  const Scene static_scene = cfg_.map.geometry().has_value() ? Scene::fromMap(cfg_.map) : Scene();
+  d_.steps.resize(n);
+  d_.groundtruth.resize(n);
+  for (size_t s = 0; s < n; ++s) {
+    Step& st = d_.steps[s];
+    const Pose2& pose = sc_.poses[s];
+    st.step = static_cast<long>(s);
+    st.t = static_cast<double>(s) * cfg_.dt;
+    st.head_pan = sc_.head_pan[s];
+    d_.groundtruth[s] = pose;
+    driveWheels(s, &st);
+    if (cfg_.compass) {
+      st.compass = wrapAngle(pose.theta + cfg_.compass_bias + cfg_.compass_sigma * N_(rng_compass_));
+      st.compass_sigma = d_.compass_sigma;
+    }
+    if (!obstacles_.empty())
+      moveObstacles(obstacles_, obstacle_dir_, *cfg_.map.geometry(), pose, cfg_.obstacle_speed, rng_obstacles_);
+    if (trace) trace->obstacles.push_back(obstacles_);
+    const Scene scene = obstacles_.empty() ? Scene() : Scene::fromMap(cfg_.map, obstacles_);
+    observe(s, obstacles_.empty() ? static_scene : scene, &st);
+  }
+  return std::move(d_);
+}
+
+// The wheel increments of step s (none on the first step and while the robot is carried).
+void Simulation::driveWheels(size_t s, Step* st) {
+  if (s == 0 || sc_.carried[s]) return;
+  if (!ideal_) {
+    // The odometry clock runs `time_offset_s` ahead of the images; the wheels roll the true
+    // arc with the true wheel base, and the encoders convert wheel angle with the nominal
+    // radius (reading = true distance / (1 + e)); a slipping wheel reads more than it moved.
+    const double clock_shift = drawn_.time_offset_s / cfg_.dt;  // steps
+    const Arc arc = arcBetween(poseAtStep(sc_, static_cast<double>(s) - 1.0 + clock_shift),
+                               poseAtStep(sc_, static_cast<double>(s) + clock_shift));
+    const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, cfg_.wheel_base_mm * (1.0 + drawn_.wheel_base_rel));
+    const double l = w.d_left / (1.0 + drawn_.wheel_radius_rel[0]) * (1.0 + drawn_.slip_left[s]);
+    const double r = w.d_right / (1.0 + drawn_.wheel_radius_rel[1]) * (1.0 + drawn_.slip_right[s]);
+    st->d_left = l + std::sqrt(cfg_.encoder_k * std::fabs(l)) * N_(rng_encoder_);
+    st->d_right = r + std::sqrt(cfg_.encoder_k * std::fabs(r)) * N_(rng_encoder_);
+  } else {
+    const Arc arc = arcBetween(sc_.poses[s - 1], sc_.poses[s]);
+    const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, cfg_.wheel_base_mm);
+    // (B.6): independent wheel errors with variance proportional to the distance travelled.
+    st->d_left = w.d_left + std::sqrt(cfg_.encoder_k * std::fabs(w.d_left)) * N_(rng_encoder_);
+    st->d_right = w.d_right + std::sqrt(cfg_.encoder_k * std::fabs(w.d_right)) * N_(rng_encoder_);
+  }
+}
+
+// The noisy pixels of every landmark visible at step s, as observations.
+void Simulation::observe(size_t s, const Scene& world, Step* st) {
+  const Pose2& pose = sc_.poses[s];
+  const StereoRig true_rig(trueRigParams(nominal_.params(), drawn_, s));
+  for (const VisibleLandmark& v : visibleLandmarks(d_.map, d_.rig, world, pose, st->head_pan, cfg_.landmarks)) {
+    const Landmark& landmark = d_.map.at(v.id);
+    StereoPixels px = v.pixels;
+    if (!ideal_) {
+      const Eigen::Vector2d local = transformToLocal(pose, landmark.xy());
+      const auto raw = trueRawPixels(true_rig, drawn_, s, Eigen::Vector3d(local.x(), local.y(), landmark.position.z()),
+                                     st->head_pan, nominal_);
+      if (!raw) continue;
+      px = *raw;
+    }
+    const auto kind = kind_model_.find(landmark.type);
+    if (kind != kind_model_.end()) {
+      Eigen::Vector4d white;
+      for (int i = 0; i < 4; ++i) white(i) = N_(rng_pixels_);
+      const Eigen::Vector4d e = kind->second.second * white;
+      px.u_left += e(0);
+      px.v_left += e(1);
+      px.u_right += e(2);
+      px.v_right += e(3);
+      if (cfg_.quantise)
+        for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) *c = std::round(*c);
+    } else {
+      for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) {
+        *c += cfg_.pixel_sigma * N_(rng_pixels_);
+        if (cfg_.quantise) *c = std::round(*c);
+      }
+    }
+    if (!ideal_ && !rectifyPixels(*d_.rig.calibration(), px)) continue;
+    // A detector cannot triangulate what the noise pushed below the minimum disparity.
+    if (!(px.disparity() >= d_.rig.params().min_disparity_px)) continue;
+    if (kind != kind_model_.end())
+      st->observations.push_back(observationFromPixels(d_.rig, v.id, landmark.type, px, st->head_pan, kind->second.first));
+    else
+      st->observations.push_back(
+          observationFromPixels(d_.rig, v.id, landmark.type, px, st->head_pan, d_.rig.params().pixel_sigma));
+  }
+}
+
+}  // namespace
+
 Dataset simulate(const std::string& scenario_name, int trial, const SimulationConfig& cfg, uint64_t seed,
                  SimulationTrace* trace) {
   cfg.validate();
-  std::mt19937_64 master(seed);
-  std::mt19937_64 rng_scenario(master()), rng_encoder(master()), rng_compass(master()), rng_obstacles(master()),
-      rng_pixels(master());
-  const bool ideal = cfg.profile.isIdeal();
-  const Scenario sc = makeScenario(scenario_name, trial, cfg.scenario, rng_scenario);
-  const size_t n = sc.poses.size();
-  if (n == 0) throw Error("simulation: scenario has no steps");
-
-  const double q = cfg.quantise ? 1.0 : 0.0;
-  const double sigma_eff = std::sqrt(cfg.pixel_sigma * cfg.pixel_sigma + q / 12.0);
-  StereoRigParams rp = cfg.rig;
-  // The rig must carry a positive sigma even for noise-free pixels: observations need an R.
-  rp.pixel_sigma = std::max(sigma_eff, 1e-3);
-  Dataset d;
-  d.name = scenario_name;
-  d.map = cfg.map;
-  d.rig = StereoRig(rp);
-  const StereoRig nominal = d.rig;
-  DrawnErrors drawn;
-  if (!ideal) {
-    std::mt19937_64 rng_profile(master());
-    drawn = drawErrors(cfg.profile, n, rng_profile);
-    d.rig = StereoRig(rp, givenCalibration(nominal, drawn));
-  }
-  d.odometry = OdometryParams();
-  d.odometry.wheel_base_mm = cfg.wheel_base_mm;
-  d.odometry.k_left = d.odometry.k_right = cfg.encoder_k;
-  d.odometry.validate();
-  const double declared_compass = std::max(cfg.compass_sigma, cfg.compass_sigma_floor);
-  d.compass_sigma = cfg.compass ? declared_compass : 0.0;
-  d.initial_pose = sc.poses[0];
-  d.has_images = cfg.images;
-  {
-    char buf[600];
-    std::snprintf(buf, sizeof(buf),
-                  "simulated %s trial %d seed %llu: %s; encoder k %.6g mm^2/mm, compass %s sigma %.6g deg bias %.6g "
-                  "deg, pixel sigma %.6g px%s, landmarks %s, obstacles %d, head scan %s",
-                  scenario_name.c_str(), trial, static_cast<unsigned long long>(seed), sc.description.c_str(),
-                  cfg.encoder_k, cfg.compass ? "on" : "off", rad2deg(cfg.compass_sigma), rad2deg(cfg.compass_bias),
-                  cfg.pixel_sigma, cfg.quantise ? " quantised" : "", toString(cfg.landmarks).c_str(), cfg.obstacles,
-                  cfg.scenario.head_scan ? "on" : "off");
-    d.description = buf;
-    if (!ideal) d.description += ", error profile " + cfg.profile.name;
-  }
-
-  // Obstacles: K robots and a ball at random places away from the robot's start.
-  std::vector<Obstacle> obstacles;
-  std::vector<double> obstacle_dir;
-  const bool have_geometry = cfg.map.geometry().has_value();
-  if (cfg.obstacles > 0) {
-    if (!have_geometry) throw Error("simulation: obstacles need a map with field geometry");
-    const FieldGeometry& g = *cfg.map.geometry();
-    std::uniform_real_distribution<double> ux(100.0, g.length - 100.0), uy(100.0, g.width - 100.0), ua(-kPi, kPi);
-    for (int k = 0; k <= cfg.obstacles; ++k) {
-      Obstacle o;
-      o.kind = k < cfg.obstacles ? Obstacle::Kind::Robot : Obstacle::Kind::Ball;
-      o.size = o.kind == Obstacle::Kind::Robot ? 75.0 : 42.7;
-      do {
-        o.position = Eigen::Vector2d(ux(rng_obstacles), uy(rng_obstacles));
-      } while ((o.position - sc.poses[0].translation()).norm() < 200.0);
-      o.heading = ua(rng_obstacles);
-      obstacles.push_back(o);
-      obstacle_dir.push_back(o.heading);
-    }
-  }
-  if (trace) {
-    trace->scenario = sc;
-    trace->obstacles.clear();
-    trace->profile = cfg.profile;
-    trace->errors = drawn;
-    trace->nominal_rig = rp;
-  }
-  const double true_wheel_base = cfg.wheel_base_mm * (1.0 + drawn.wheel_base_rel);
-  const double clock_shift = drawn.time_offset_s / cfg.dt;  // steps
-
-  std::normal_distribution<double> N(0.0, 1.0);
-  // Per-kind model: C per landmark type and its lower Cholesky factor (C = L L^T).
-  std::map<LandmarkType, std::pair<Eigen::Matrix4d, Eigen::Matrix4d>> kind_model;
-  if (cfg.pixel_noise == PixelNoiseModel::PerKind)
-    for (const Landmark& l : cfg.map.landmarks())
-      if (!kind_model.count(l.type)) {
-        const Eigen::Matrix4d C = cfg.kind_noise.of(l.type).covariance();
-        kind_model[l.type] = {C + (q / 12.0) * Eigen::Matrix4d::Identity(), C.llt().matrixL()};
-      }
-  const Scene static_scene = have_geometry ? Scene::fromMap(cfg.map) : Scene();
-  d.steps.resize(n);
-  d.groundtruth.resize(n);
-  for (size_t s = 0; s < n; ++s) {
-    Step& st = d.steps[s];
-    const Pose2& pose = sc.poses[s];
-    st.step = static_cast<long>(s);
-    st.t = static_cast<double>(s) * cfg.dt;
-    st.head_pan = sc.head_pan[s];
-    d.groundtruth[s] = pose;
-    if (s > 0 && !sc.carried[s] && !ideal) {
-      // The odometry clock runs `time_offset_s` ahead of the images; the wheels roll the true
-      // arc with the true wheel base, and the encoders convert wheel angle with the nominal
-      // radius (reading = true distance / (1 + e)); a slipping wheel reads more than it moved.
-      const Arc arc = arcBetween(poseAtStep(sc, static_cast<double>(s) - 1.0 + clock_shift),
-                                 poseAtStep(sc, static_cast<double>(s) + clock_shift));
-      const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, true_wheel_base);
-      const double l = w.d_left / (1.0 + drawn.wheel_radius_rel[0]) * (1.0 + drawn.slip_left[s]);
-      const double r = w.d_right / (1.0 + drawn.wheel_radius_rel[1]) * (1.0 + drawn.slip_right[s]);
-      st.d_left = l + std::sqrt(cfg.encoder_k * std::fabs(l)) * N(rng_encoder);
-      st.d_right = r + std::sqrt(cfg.encoder_k * std::fabs(r)) * N(rng_encoder);
-    } else if (s > 0 && !sc.carried[s]) {
-      const Arc arc = arcBetween(sc.poses[s - 1], pose);
-      const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, cfg.wheel_base_mm);
-      // (B.6): independent wheel errors with variance proportional to the distance travelled.
-      st.d_left = w.d_left + std::sqrt(cfg.encoder_k * std::fabs(w.d_left)) * N(rng_encoder);
-      st.d_right = w.d_right + std::sqrt(cfg.encoder_k * std::fabs(w.d_right)) * N(rng_encoder);
-    }
-    if (cfg.compass) {
-      st.compass = wrapAngle(pose.theta + cfg.compass_bias + cfg.compass_sigma * N(rng_compass));
-      st.compass_sigma = declared_compass;
-    }
-    if (!obstacles.empty()) moveObstacles(obstacles, obstacle_dir, *cfg.map.geometry(), pose, cfg.obstacle_speed, rng_obstacles);
-    if (trace) trace->obstacles.push_back(obstacles);
-    const Scene scene = obstacles.empty() ? Scene() : Scene::fromMap(cfg.map, obstacles);
-    const Scene& world = obstacles.empty() ? static_scene : scene;
-    const StereoRig true_rig(trueRigParams(nominal.params(), drawn, s));
-    for (const VisibleLandmark& v : visibleLandmarks(d.map, d.rig, world, pose, st.head_pan, cfg.landmarks)) {
-      StereoPixels px = v.pixels;
-      if (!ideal) {
-        const Eigen::Vector2d local = transformToLocal(pose, d.map.at(v.id).xy());
-        const auto raw = trueRawPixels(true_rig, drawn, s, Eigen::Vector3d(local.x(), local.y(), d.map.at(v.id).position.z()),
-                                       st.head_pan, nominal);
-        if (!raw) continue;
-        px = *raw;
-      }
-      const auto kind = kind_model.find(d.map.at(v.id).type);
-      if (kind != kind_model.end()) {
-        Eigen::Vector4d white;
-        for (int i = 0; i < 4; ++i) white(i) = N(rng_pixels);
-        const Eigen::Vector4d e = kind->second.second * white;
-        px.u_left += e(0);
-        px.v_left += e(1);
-        px.u_right += e(2);
-        px.v_right += e(3);
-        if (cfg.quantise)
-          for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) *c = std::round(*c);
-      } else {
-        for (double* c : {&px.u_left, &px.v_left, &px.u_right, &px.v_right}) {
-          *c += cfg.pixel_sigma * N(rng_pixels);
-          if (cfg.quantise) *c = std::round(*c);
-        }
-      }
-      if (!ideal && !rectifyPixels(*d.rig.calibration(), px)) continue;
-      // A detector cannot triangulate what the noise pushed below the minimum disparity.
-      if (!(px.disparity() >= d.rig.params().min_disparity_px)) continue;
-      if (kind != kind_model.end())
-        st.observations.push_back(
-            observationFromPixels(d.rig, v.id, d.map.at(v.id).type, px, st.head_pan, kind->second.first));
-      else
-        st.observations.push_back(
-            observationFromPixels(d.rig, v.id, d.map.at(v.id).type, px, st.head_pan, d.rig.params().pixel_sigma));
-    }
-  }
-  return d;
+  return Simulation(scenario_name, trial, cfg, seed).run(trace);
 }
 
 }  // namespace stereoloc
