@@ -362,6 +362,124 @@ FieldMap mrclamMap(const std::map<int, Eigen::Vector2d>& landmarks, const std::v
   return FieldMap(name, b, std::move(lms));
 }
 
+namespace {
+
+// The landmark sightings inside the odometry's span [t0, t_end]; the rest counted by reason.
+std::vector<const MrclamMeasurementRow*> landmarkSightings(const std::vector<MrclamMeasurementRow>& meas,
+                                                           const std::map<int, int>& barcodes,
+                                                           const std::map<int, Eigen::Vector2d>& landmarks, double t0,
+                                                           double t_end, ImportReport* rep) {
+  std::vector<const MrclamMeasurementRow*> kept;
+  for (const MrclamMeasurementRow& m : meas) {
+    const auto it = barcodes.find(m.barcode);
+    if (it == barcodes.end() || (it->second > kMrclamRobotCount && !landmarks.count(it->second))) {
+      ++rep->dropped_unknown_barcode;
+    } else if (it->second <= kMrclamRobotCount) {
+      ++rep->dropped_other_robot;
+    } else if (m.t < t0 || m.t > t_end) {
+      ++rep->dropped_outside_odometry;
+    } else {
+      kept.push_back(&m);
+    }
+  }
+  return kept;
+}
+
+// A step: its time (relative to t0) and the sightings merged into it.
+struct StepTime {
+  double t;
+  std::vector<const MrclamMeasurementRow*> meas;
+};
+
+// Step times: clusters of sightings within the merge tolerance, then the grid of config.rate_hz
+// where no cluster is close, and a last step at the last odometry row.
+std::vector<StepTime> stepTimes(const std::vector<const MrclamMeasurementRow*>& kept, double t0, double t_end,
+                                const MrclamImportConfig& config, ImportReport* rep) {
+  std::vector<StepTime> times;
+  for (const MrclamMeasurementRow* m : kept) {
+    const double tr = m->t - t0;
+    if (times.empty() || tr - times.back().t > config.merge_tolerance_s) times.push_back({tr, {}});
+    rep->max_time_shift_s = std::max(rep->max_time_shift_s, tr - times.back().t);
+    times.back().meas.push_back(m);
+  }
+  rep->measurement_steps = times.size();
+  std::vector<StepTime> merged;
+  merged.reserve(times.size() + static_cast<size_t>((t_end - t0) * config.rate_hz) + 2);
+  size_t j = 0;
+  const long n_grid = static_cast<long>(std::floor((t_end - t0) * config.rate_hz + 1e-9));
+  for (long k = 0; k <= n_grid; ++k) {
+    const double tg = static_cast<double>(k) / config.rate_hz;
+    while (j < times.size() && times[j].t < tg - config.merge_tolerance_s) merged.push_back(std::move(times[j++]));
+    if (j < times.size() && std::fabs(times[j].t - tg) <= config.merge_tolerance_s) continue;
+    merged.push_back({tg, {}});
+    ++rep->grid_steps;
+  }
+  while (j < times.size()) merged.push_back(std::move(times[j++]));
+  // A last step at the last odometry row, so that no commanded motion is left out.
+  if (t_end - t0 - merged.back().t > config.merge_tolerance_s) {
+    merged.push_back({t_end - t0, {}});
+    ++rep->grid_steps;
+  }
+  return merged;
+}
+
+// Range and bearing errors against the ground truth at each sighting's own time, and the
+// observation sigmas: the configured ones, or the errors' robust sigma. `where` names the
+// measurement file in errors.
+void observationSigmas(const std::vector<const MrclamMeasurementRow*>& kept, const std::vector<MrclamPoseRow>& gt,
+                       const std::map<int, int>& barcodes, const std::map<int, Eigen::Vector2d>& landmarks,
+                       const MrclamImportConfig& config, const std::string& where, ImportReport* rep) {
+  std::vector<double> range_err, bearing_err;
+  for (const MrclamMeasurementRow* m : kept) {
+    const std::optional<Pose2> p = interpolateGroundtruth(gt, m->t, config.max_groundtruth_gap_s);
+    if (!p) {
+      ++rep->measurements_outside_groundtruth;
+      continue;
+    }
+    const Eigen::Vector2d& lm = landmarks.at(barcodes.at(m->barcode));
+    if ((lm - p->translation()).norm() < 1e-6) continue;  // bearing undefined; cannot happen for a robot
+    const Eigen::Vector2d z = predictRangeBearing(*p, lm);
+    range_err.push_back(m->range - z.x());
+    bearing_err.push_back(angleDiff(m->bearing, z.y()));
+  }
+  rep->range_error = robustErrorStats(range_err);
+  rep->bearing_error = robustErrorStats(bearing_err);
+  rep->sigmas_estimated = !(config.sigma_range_mm && config.sigma_bearing_rad);
+  if (!config.sigma_range_mm && rep->range_error.count < 10)
+    throw Error(where + ": fewer than 10 landmark measurements with ground truth; give the range sigma");
+  if (!config.sigma_bearing_rad && rep->bearing_error.count < 10)
+    throw Error(where + ": fewer than 10 landmark measurements with ground truth; give the bearing sigma");
+  // A zero MAD (quantised readings) would give an infinite information: floor at the resolution
+  // of the files (1 mm, 1 mrad).
+  rep->sigma_range_mm = config.sigma_range_mm ? *config.sigma_range_mm : std::max(rep->range_error.mad_sigma, 1.0);
+  rep->sigma_bearing_rad =
+      config.sigma_bearing_rad ? *config.sigma_bearing_rad : std::max(rep->bearing_error.mad_sigma, 1e-3);
+}
+
+// Odometry noise from the data (see fitOdometryNoise). Commanded velocities are not measured
+// wheel travel: their error is mostly a common speed error, which independent wheel noise
+// (B.6) cannot express. k comes from the heading; the along-track and lateral variance the
+// wheels do not explain is spread over a window's steps as the per-step control floor (U is
+// in the previous pose's frame, so floor x is along-track and y cross-track).
+OdometryParams odometryFromFit(const OdometryNoiseFit& fit, const MrclamImportConfig& config) {
+  OdometryParams params;
+  params.readings = OdometryReadings::Commands;
+  params.wheel_base_mm = config.wheel_base_mm;
+  if (fit.windows >= 10) {
+    params.k_left = params.k_right = config.odometry_noise_scale * fit.k_heading;
+    const double n = std::max(1.0, fit.mean_steps);
+    const double along = fit.along_error.mad_sigma, lateral = fit.lateral_error.mad_sigma;
+    const double explained = fit.k_heading * fit.median_travel_mm / 4.0;
+    params.control_variance_floor =
+        Eigen::Vector3d(config.odometry_noise_scale * std::max(1.0, (along * along - explained) / n),
+                        config.odometry_noise_scale * std::max(1.0, lateral * lateral / n),
+                        params.control_variance_floor.z());
+  }
+  return params;
+}
+
+}  // namespace
+
 MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& config) {
   config.validate();
   const std::string dir = src_dir.empty() || src_dir.back() == '/' ? src_dir : src_dir + "/";
@@ -383,55 +501,8 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
   rep.groundtruth_rows = gt.size();
   const double t0 = odo.front().t, t_end = odo.back().t;
   rep.epoch_s = t0;
-
-  // Classify the measurements; keep landmark sightings inside the odometry's span.
-  std::vector<const MrclamMeasurementRow*> kept;
-  for (const MrclamMeasurementRow& m : meas) {
-    const auto it = barcodes.find(m.barcode);
-    if (it == barcodes.end() || (it->second > kMrclamRobotCount && !landmarks.count(it->second))) {
-      ++rep.dropped_unknown_barcode;
-    } else if (it->second <= kMrclamRobotCount) {
-      ++rep.dropped_other_robot;
-    } else if (m.t < t0 || m.t > t_end) {
-      ++rep.dropped_outside_odometry;
-    } else {
-      kept.push_back(&m);
-    }
-  }
-
-  // Step times (relative to t0): measurement clusters, then the grid where no cluster is close.
-  struct StepTime {
-    double t;
-    std::vector<const MrclamMeasurementRow*> meas;
-  };
-  std::vector<StepTime> times;
-  for (const MrclamMeasurementRow* m : kept) {
-    const double tr = m->t - t0;
-    if (times.empty() || tr - times.back().t > config.merge_tolerance_s) times.push_back({tr, {}});
-    rep.max_time_shift_s = std::max(rep.max_time_shift_s, tr - times.back().t);
-    times.back().meas.push_back(m);
-  }
-  rep.measurement_steps = times.size();
-  {
-    std::vector<StepTime> merged;
-    merged.reserve(times.size() + static_cast<size_t>((t_end - t0) * config.rate_hz) + 2);
-    size_t j = 0;
-    const long n_grid = static_cast<long>(std::floor((t_end - t0) * config.rate_hz + 1e-9));
-    for (long k = 0; k <= n_grid; ++k) {
-      const double tg = static_cast<double>(k) / config.rate_hz;
-      while (j < times.size() && times[j].t < tg - config.merge_tolerance_s) merged.push_back(std::move(times[j++]));
-      if (j < times.size() && std::fabs(times[j].t - tg) <= config.merge_tolerance_s) continue;
-      merged.push_back({tg, {}});
-      ++rep.grid_steps;
-    }
-    while (j < times.size()) merged.push_back(std::move(times[j++]));
-    // A last step at the last odometry row, so that no commanded motion is left out.
-    if (t_end - t0 - merged.back().t > config.merge_tolerance_s) {
-      merged.push_back({t_end - t0, {}});
-      ++rep.grid_steps;
-    }
-    times = std::move(merged);
-  }
+  const std::vector<const MrclamMeasurementRow*> kept = landmarkSightings(meas, barcodes, landmarks, t0, t_end, &rep);
+  const std::vector<StepTime> times = stepTimes(kept, t0, t_end, config, &rep);
 
   // Steps: wheel travel since the previous step, ground truth at the step time.
   const WheelOdometer odometer(odo, config.wheel_base_mm);
@@ -455,32 +526,7 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
   rep.steps = out.steps.size();
   rep.duration_s = out.steps.back().t;
 
-  // Range and bearing errors against the ground truth at each measurement's own time.
-  std::vector<double> range_err, bearing_err;
-  for (const MrclamMeasurementRow* m : kept) {
-    const std::optional<Pose2> p = interpolateGroundtruth(gt, m->t, config.max_groundtruth_gap_s);
-    if (!p) {
-      ++rep.measurements_outside_groundtruth;
-      continue;
-    }
-    const Eigen::Vector2d& lm = landmarks.at(barcodes.at(m->barcode));
-    if ((lm - p->translation()).norm() < 1e-6) continue;  // bearing undefined; cannot happen for a robot
-    const Eigen::Vector2d z = predictRangeBearing(*p, lm);
-    range_err.push_back(m->range - z.x());
-    bearing_err.push_back(angleDiff(m->bearing, z.y()));
-  }
-  rep.range_error = robustErrorStats(range_err);
-  rep.bearing_error = robustErrorStats(bearing_err);
-  rep.sigmas_estimated = !(config.sigma_range_mm && config.sigma_bearing_rad);
-  if (!config.sigma_range_mm && rep.range_error.count < 10)
-    throw Error(dir + robot + "Measurement.dat: fewer than 10 landmark measurements with ground truth; give the range sigma");
-  if (!config.sigma_bearing_rad && rep.bearing_error.count < 10)
-    throw Error(dir + robot + "Measurement.dat: fewer than 10 landmark measurements with ground truth; give the bearing sigma");
-  // A zero MAD (quantised readings) would give an infinite information: floor at the resolution
-  // of the files (1 mm, 1 mrad).
-  rep.sigma_range_mm = config.sigma_range_mm ? *config.sigma_range_mm : std::max(rep.range_error.mad_sigma, 1.0);
-  rep.sigma_bearing_rad =
-      config.sigma_bearing_rad ? *config.sigma_bearing_rad : std::max(rep.bearing_error.mad_sigma, 1e-3);
+  observationSigmas(kept, gt, barcodes, landmarks, config, dir + robot + "Measurement.dat", &rep);
   for (const auto& [i, m] : to_observe) {
     out.steps[i].observations.push_back(observationFromRangeBearing(barcodes.at(m->barcode), LandmarkType::Point,
                                                                     m->range, m->bearing, rep.sigma_range_mm,
@@ -488,28 +534,9 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
   }
   rep.observations = to_observe.size();
 
-  // Odometry noise from the data (see fitOdometryNoise). Commanded velocities are not measured
-  // wheel travel: their error is mostly a common speed error, which independent wheel noise
-  // (B.6) cannot express. k comes from the heading; the along-track and lateral variance the
-  // wheels do not explain is spread over a window's steps as the per-step control floor (U is
-  // in the previous pose's frame, so floor x is along-track and y cross-track).
   rep.odometry_fit = fitOdometryNoise(out.steps, out.groundtruth, config.wheel_base_mm, config.odometry_window_s);
-  OdometryParams params;
-  params.readings = OdometryReadings::Commands;
-  params.wheel_base_mm = config.wheel_base_mm;
-  const OdometryNoiseFit& fit = rep.odometry_fit;
-  if (fit.windows >= 10) {
-    params.k_left = params.k_right = config.odometry_noise_scale * fit.k_heading;
-    const double n = std::max(1.0, fit.mean_steps);
-    const double along = fit.along_error.mad_sigma, lateral = fit.lateral_error.mad_sigma;
-    const double explained = fit.k_heading * fit.median_travel_mm / 4.0;
-    params.control_variance_floor =
-        Eigen::Vector3d(config.odometry_noise_scale * std::max(1.0, (along * along - explained) / n),
-                        config.odometry_noise_scale * std::max(1.0, lateral * lateral / n),
-                        params.control_variance_floor.z());
-  }
-  rep.odometry = params;
-  out.odometry = params;
+  rep.odometry = odometryFromFit(rep.odometry_fit, config);
+  out.odometry = rep.odometry;
 
   std::vector<Eigen::Vector2d> extent;
   extent.reserve(gt.size());
