@@ -107,9 +107,10 @@ bool wanted(const RealDataStudyOptions& o, const std::string& key) {
 
 }  // namespace
 
-void runRealDataStudy(const RealDataStudyOptions& o) {
-  if (o.batch_guess != "filter" && o.batch_guess != "odometry")
-    throw UsageError("--batch-guess: expected 'filter' or 'odometry', got '" + o.batch_guess + "'");
+namespace {
+
+// The dataset (cut to --max-steps) with an initial pose for every estimator.
+Dataset loadRealDataset(const RealDataStudyOptions& o) {
   Dataset d = loadDataset(o.dataset_dir);
   if (o.max_steps > 0 && static_cast<size_t>(o.max_steps) < d.steps.size()) {
     d.steps.resize(static_cast<size_t>(o.max_steps));
@@ -123,13 +124,10 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
       throw Error(o.dataset_dir + ": no initial pose and no ground truth at step 0: cannot initialise alike");
     }
   }
-  if (o.robust != "huber" && o.robust != "cauchy")
-    throw UsageError("--robust: expected 'huber' or 'cauchy', got '" + o.robust + "'");
-  RobustLossConfig robust;
-  robust.type = robustLossFromString(o.robust);
-  robust.scale = o.robust_scale;
+  return d;
+}
 
-  const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
+void printDataset(const RealDataStudyOptions& o, const Dataset& d, const TruthByStep& truth) {
   size_t observations = 0;
   for (const Step& s : d.steps) observations += s.observations.size();
   std::fprintf(o.console, "dataset %s: %zu steps (%.1f s), %zu with ground truth, %zu observations, %zu landmarks\n",
@@ -138,16 +136,11 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
   std::fprintf(o.console, "odometry model: wheel base %.0f mm, k %.3g / %.3g mm^2/mm, control floor (%.3g, %.3g, %.3g)\n",
               d.odometry.wheel_base_mm, d.odometry.k_left, d.odometry.k_right, d.odometry.control_variance_floor.x(),
               d.odometry.control_variance_floor.y(), d.odometry.control_variance_floor.z());
-  // The same initial belief for every estimator: the true pose at step 0 with a small covariance.
-  const double st = deg2rad(o.init_sigma_theta_deg);
-  const InitialBelief init =
-      knownBelief(*d.initial_pose, Eigen::Vector3d(o.init_sigma_xy * o.init_sigma_xy, o.init_sigma_xy * o.init_sigma_xy,
-                                                   st * st)
-                                       .asDiagonal());
-  std::fprintf(o.console, "initial belief: ground truth at step 0, sigma (%.0f mm, %.0f mm, %.1f deg)\n", o.init_sigma_xy,
-              o.init_sigma_xy, o.init_sigma_theta_deg);
-  std::fflush(o.console);
+}
 
+// Every estimator --only asks for, from the same initial belief: a row each.
+std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, const TruthByStep& truth,
+                               const InitialBelief& init, const RobustLossConfig& robust) {
   std::vector<Row> rows;
   auto note = [&o](const Row& r) {
     if (o.log) std::fprintf(o.log, "  %-24s done: position RMSE %.0f mm, %.3f ms/step\n", r.label.c_str(),
@@ -230,10 +223,18 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
     rows.push_back(evaluate(key, use_robust ? "batch (" + o.robust + ")" : "batch", e, truth, ms, n));
     note(rows.back());
   }
+  return rows;
+}
 
+double ekfRmse(const std::vector<Row>& rows) {
   double ekf_rmse = 0;
   for (const Row& r : rows)
     if (r.key == "ekf") ekf_rmse = r.metrics.position_rmse;
+  return ekf_rmse;
+}
+
+void printRows(const RealDataStudyOptions& o, const std::vector<Row>& rows) {
+  const double ekf_rmse = ekfRmse(rows);
   std::fprintf(o.console, "\n%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "estimator", "pos RMSE", "th RMSE", "mean", "NEES",
               "max err", "ms/step", "pos RMSE", "lost/", "non-");
   std::fprintf(o.console, "%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "", "[mm]", "[deg]", "NEES", "in 95%", "[mm]", "",
@@ -248,20 +249,49 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
   std::fprintf(o.console, "(RMSE over %zu steps with ground truth; NEES of the 3-dof pose error, 3 is honest; the 95%% column is "
               "the share of steps inside the chi-square(3) 95%% band)\n",
               rows.empty() ? size_t(0) : rows.front().metrics.count);
+}
 
-  if (!o.csv_path.empty()) {
-    std::ostringstream os;
-    os << "estimator,position_rmse_mm,theta_rmse_rad,mean_nees,nees_in_band,max_error_mm,ms_per_step,"
-          "ratio_to_ekf,reinitialised,nonfinite,count\n";
-    for (const Row& r : rows) {
-      os << r.key << "," << formatDouble(r.metrics.position_rmse) << "," << formatDouble(r.metrics.theta_rmse) << ","
-         << formatDouble(r.metrics.mean_nees) << "," << formatDouble(r.metrics.nees_in_band) << ","
-         << formatDouble(r.max_error) << "," << formatDouble(r.ms_per_step) << ","
-         << formatDouble(ekf_rmse > 0 ? r.metrics.position_rmse / ekf_rmse : 0.0) << "," << r.reinitialised << ","
-         << r.nonfinite << "," << r.metrics.count << "\n";
-    }
-    writeFileAtomically(o.csv_path, os.str());
+void writeRowsCsv(const std::string& path, const std::vector<Row>& rows) {
+  const double ekf_rmse = ekfRmse(rows);
+  std::ostringstream os;
+  os << "estimator,position_rmse_mm,theta_rmse_rad,mean_nees,nees_in_band,max_error_mm,ms_per_step,"
+        "ratio_to_ekf,reinitialised,nonfinite,count\n";
+  for (const Row& r : rows) {
+    os << r.key << "," << formatDouble(r.metrics.position_rmse) << "," << formatDouble(r.metrics.theta_rmse) << ","
+       << formatDouble(r.metrics.mean_nees) << "," << formatDouble(r.metrics.nees_in_band) << ","
+       << formatDouble(r.max_error) << "," << formatDouble(r.ms_per_step) << ","
+       << formatDouble(ekf_rmse > 0 ? r.metrics.position_rmse / ekf_rmse : 0.0) << "," << r.reinitialised << ","
+       << r.nonfinite << "," << r.metrics.count << "\n";
   }
+  writeFileAtomically(path, os.str());
+}
+
+}  // namespace
+
+void runRealDataStudy(const RealDataStudyOptions& o) {
+  if (o.batch_guess != "filter" && o.batch_guess != "odometry")
+    throw UsageError("--batch-guess: expected 'filter' or 'odometry', got '" + o.batch_guess + "'");
+  const Dataset d = loadRealDataset(o);
+  if (o.robust != "huber" && o.robust != "cauchy")
+    throw UsageError("--robust: expected 'huber' or 'cauchy', got '" + o.robust + "'");
+  RobustLossConfig robust;
+  robust.type = robustLossFromString(o.robust);
+  robust.scale = o.robust_scale;
+
+  const TruthByStep truth = truthByStep(d.steps, d.groundtruth);
+  printDataset(o, d, truth);
+  // The same initial belief for every estimator: the true pose at step 0 with a small covariance.
+  const double st = deg2rad(o.init_sigma_theta_deg);
+  const InitialBelief init =
+      knownBelief(*d.initial_pose, Eigen::Vector3d(o.init_sigma_xy * o.init_sigma_xy, o.init_sigma_xy * o.init_sigma_xy,
+                                                   st * st)
+                                       .asDiagonal());
+  std::fprintf(o.console, "initial belief: ground truth at step 0, sigma (%.0f mm, %.0f mm, %.1f deg)\n", o.init_sigma_xy,
+              o.init_sigma_xy, o.init_sigma_theta_deg);
+  std::fflush(o.console);
+  const std::vector<Row> rows = runEstimators(o, d, truth, init, robust);
+  printRows(o, rows);
+  if (!o.csv_path.empty()) writeRowsCsv(o.csv_path, rows);
   size_t bad = 0;
   for (const Row& r : rows) bad += r.nonfinite;
   if (bad > 0) throw Error("realdata: " + std::to_string(bad) + " non-finite estimates (see the table)");
