@@ -164,20 +164,11 @@ std::string num(double v, const char* format) { return std::isfinite(v) ? format
 
 }  // namespace
 
-std::string runSmootherStudy(const SmootherStudyConfig& a) {
-  if (a.trials < 1) throw UsageError("--trials must be at least 1");
-  if (a.threads < 0) throw UsageError("--threads must be >= 0");
-  if (a.particles < 1) throw UsageError("--particles must be at least 1");
-  const std::vector<std::string> scenarios = splitCommaList(a.scenarios);
-  if (scenarios.empty()) throw UsageError("--scenarios: no scenario given");
-  const std::vector<std::string> drivable = {"circle", "line", "spin", "random-walk"};
-  for (const std::string& s : scenarios)
-    if (std::find(drivable.begin(), drivable.end(), s) == drivable.end())
-      throw UsageError("--scenarios: '" + s +
-                       "' is not a drivable scenario without a kidnap (expected circle, line, spin or random-walk; the "
-                       "bound needs one continuous true trajectory)");
+namespace {
+
+std::vector<int> parseWindows(const std::string& list) {
   std::vector<int> windows;
-  for (const std::string& w : splitCommaList(a.windows)) {
+  for (const std::string& w : splitCommaList(list)) {
     int v = 0;
     try {
       size_t used = 0;
@@ -189,25 +180,13 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
     if (v < 1) throw UsageError("--windows: '" + w + "' is not a window size >= 1");
     windows.push_back(v);
   }
-  std::vector<MethodSpec> methods;
-  methods.push_back({"batch", "batch", 0, BoundKind::Smoothing});
-  for (int w : windows) methods.push_back({"window W=" + std::to_string(w), "window", w, BoundKind::FixedLag});
-  methods.push_back({"ekf", "ekf", 0, BoundKind::Filtering});
-  methods.push_back({"pf", "pf", 0, BoundKind::Filtering});
-  MethodOptions options;  // known start (section 6.5), no robust loss, gate on
-  options.particles = a.particles;
-  try {
-    options.observation_model = observationModelFromString(a.observation_model);
-  } catch (const Error& e) {
-    throw UsageError(std::string("--observation-model: ") + e.what());
-  }
-  const bool pixel_model = options.observation_model != ObservationModel::RangeBearing;
-  try {
-    pixelNoiseModelFromString(a.pixel_noise);
-  } catch (const Error& e) {
-    throw UsageError(std::string("--pixel-noise: ") + e.what());
-  }
+  return windows;
+}
 
+// Every trial of every scenario on `threads` workers; the sums per scenario and method are
+// added in task order, so the figures do not depend on the thread count.
+std::vector<std::vector<Accumulator>> runTrials(const SmootherStudyConfig& a, const std::vector<std::string>& scenarios,
+                                                const std::vector<MethodSpec>& methods, const MethodOptions& options) {
   struct Task {
     size_t scenario;
     int trial;
@@ -240,7 +219,14 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
   std::vector<std::vector<Accumulator>> acc(scenarios.size(), std::vector<Accumulator>(methods.size()));
   for (size_t k = 0; k < tasks.size(); ++k)
     for (size_t m = 0; m < methods.size(); ++m) acc[tasks[k].scenario][m].add(results[k][m]);
+  return acc;
+}
 
+// The report: a table per scenario, the means over the scenarios and the smoothers' targets.
+std::string formatReport(const SmootherStudyConfig& a, const std::vector<std::string>& scenarios,
+                         const std::vector<MethodSpec>& methods, const MethodOptions& options,
+                         const std::vector<std::vector<Accumulator>>& acc) {
+  const bool pixel_model = options.observation_model != ObservationModel::RangeBearing;
   const size_t ekf = methods.size() - 2;
   const NeesBand band = neesBand(3, a.trials);
   std::string md;
@@ -312,7 +298,42 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
     const double r = acc[s][0].positionRmse() / acc[s][0].sqrtBound();
     md += formatText("- batch RMSE/sqrt(CRLB) <= 1.15, %s: %.2f  %s\n", scenarios[s].c_str(), r, verdict(r <= 1.15));
   }
+  return md;
+}
 
+}  // namespace
+
+std::string runSmootherStudy(const SmootherStudyConfig& a) {
+  if (a.trials < 1) throw UsageError("--trials must be at least 1");
+  if (a.threads < 0) throw UsageError("--threads must be >= 0");
+  if (a.particles < 1) throw UsageError("--particles must be at least 1");
+  const std::vector<std::string> scenarios = splitCommaList(a.scenarios);
+  if (scenarios.empty()) throw UsageError("--scenarios: no scenario given");
+  const std::vector<std::string> drivable = {"circle", "line", "spin", "random-walk"};
+  for (const std::string& s : scenarios)
+    if (std::find(drivable.begin(), drivable.end(), s) == drivable.end())
+      throw UsageError("--scenarios: '" + s +
+                       "' is not a drivable scenario without a kidnap (expected circle, line, spin or random-walk; the "
+                       "bound needs one continuous true trajectory)");
+  const std::vector<int> windows = parseWindows(a.windows);
+  std::vector<MethodSpec> methods;
+  methods.push_back({"batch", "batch", 0, BoundKind::Smoothing});
+  for (int w : windows) methods.push_back({"window W=" + std::to_string(w), "window", w, BoundKind::FixedLag});
+  methods.push_back({"ekf", "ekf", 0, BoundKind::Filtering});
+  methods.push_back({"pf", "pf", 0, BoundKind::Filtering});
+  MethodOptions options;  // known start (section 6.5), no robust loss, gate on
+  options.particles = a.particles;
+  try {
+    options.observation_model = observationModelFromString(a.observation_model);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--observation-model: ") + e.what());
+  }
+  try {
+    pixelNoiseModelFromString(a.pixel_noise);
+  } catch (const Error& e) {
+    throw UsageError(std::string("--pixel-noise: ") + e.what());
+  }
+  const std::string md = formatReport(a, scenarios, methods, options, runTrials(a, scenarios, methods, options));
   if (!a.out_dir.empty()) {
     std::error_code ec;
     std::filesystem::create_directories(a.out_dir, ec);
