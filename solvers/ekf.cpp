@@ -189,13 +189,7 @@ bool Ekf::tryGlobalFix(const Step& step) {
 }
 
 Estimate Ekf::makeEstimate(const Step& step, EstimateStatus status) const {
-  Estimate e;
-  e.step = step.step;
-  e.t = step.t;
-  e.pose = pose_;
-  e.covariance = initialised_ ? P_ : Eigen::Matrix3d::Zero();
-  e.status = status;
-  return e;
+  return stepEstimate(step, pose_, initialised_ ? P_ : Eigen::Matrix3d::Zero(), status);
 }
 
 Estimate Ekf::process(const Step& step) {

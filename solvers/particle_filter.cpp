@@ -693,12 +693,7 @@ void ParticleFilter::validateStep(const Step& step) const {
 }
 
 Estimate ParticleFilter::recordEstimate(const Step& step, EstimateStatus status) {
-  Estimate e;
-  e.step = step.step;
-  e.t = step.t;
-  e.pose = mean_;
-  e.covariance = initialised_ ? cov_ : Eigen::Matrix3d::Zero();
-  e.status = status;
+  Estimate e = stepEstimate(step, mean_, initialised_ ? cov_ : Eigen::Matrix3d::Zero(), status);
   e.particles = initialised_ ? size() : 0;
   estimates_.push_back(e);
   return e;

@@ -86,4 +86,16 @@ struct Estimate {
   int particles = 0;  // the particle filter's sample size after this step; 0 for the other estimators
 };
 
+// The estimate of `step` (its number and time): pose, covariance and status.
+inline Estimate stepEstimate(const Step& step, const Pose2& pose, const Eigen::Matrix3d& covariance,
+                             EstimateStatus status) {
+  Estimate e;
+  e.step = step.step;
+  e.t = step.t;
+  e.pose = pose;
+  e.covariance = covariance;
+  e.status = status;
+  return e;
+}
+
 }  // namespace stereoloc

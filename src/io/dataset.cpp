@@ -146,9 +146,8 @@ Dataset readDatasetYaml(const std::string& dir, const YamlReader& y) {
 // odometry.csv: the list of steps.
 void readSteps(const std::string& dir, const YamlReader& y, Dataset* dp) {
   Dataset& d = *dp;
-  std::error_code ec;
   const std::string path = join(dir, "odometry.csv");
-  if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
+  requireFile(y, "", path);
   CsvReader in(path);
   const bool with_pan = in.expectHeader({kOdometryHeader, kOdometryPanHeader}) == 1;
   while (in.next()) {
@@ -192,9 +191,8 @@ void readCompass(const std::string& dir, Dataset* dp) {
 // observations.csv: pixels or range-bearing.
 void readObservations(const std::string& dir, const YamlReader& y, Dataset* dp) {
   Dataset& d = *dp;
-  std::error_code ec;
   const std::string path = join(dir, "observations.csv");
-  if (!fs::is_regular_file(path, ec)) y.fail("", "referenced file '" + path + "' does not exist");
+  requireFile(y, "", path);
   CsvReader in(path);
   const size_t header = in.expectHeader({kPixelHeader, kRangeBearingHeader, kPixelCovarianceHeader,
                                          withSlideGain(kPixelHeader), withSlideGain(kPixelCovarianceHeader)});

@@ -87,13 +87,7 @@ MethodRun runDeadReckoning(const Dataset& d, const InitialBelief& init) {
       pose = pred.pose;
       P = pred.covariance;
     }
-    Estimate e;
-    e.step = s.step;
-    e.t = s.t;
-    e.pose = pose;
-    e.covariance = P;
-    e.status = EstimateStatus::Predicted;
-    run.estimates.push_back(e);
+    run.estimates.push_back(stepEstimate(s, pose, P, EstimateStatus::Predicted));
   }
   run.ms_per_step = msSince(start, d.steps.size());
   return run;
@@ -117,13 +111,7 @@ MethodRun runFixes(const Dataset& d, bool one_landmark) {
     const GlobalFix fix = globalFix(st, d.map, fo);
     if (fix.status != FixStatus::Ok) continue;
     ++run.fixed_steps;
-    Estimate e;
-    e.step = s.step;
-    e.t = s.t;
-    e.pose = fix.pose;
-    e.covariance = fix.covariance;
-    e.status = EstimateStatus::Tracking;
-    run.estimates.push_back(e);
+    run.estimates.push_back(stepEstimate(s, fix.pose, fix.covariance, EstimateStatus::Tracking));
   }
   run.ms_per_step = msSince(start, d.steps.size());
   return run;
