@@ -646,7 +646,8 @@ Estimate ParticleFilter::process(const Step& step) {
   const bool first = !have_step_;
   have_step_ = true;
   last_step_ = step.step;
-  if (!initialised_) return recordEstimate(step, tryGlobalFix(step) ? EstimateStatus::Reinitialised : EstimateStatus::Uninitialised);
+  if (!initialised_)
+    return recordEstimate(step, tryGlobalFix(step) ? EstimateStatus::Reinitialised : EstimateStatus::Uninitialised);
   if (const std::optional<EstimateStatus> status = startFromWideBelief(step, first)) return recordEstimate(step, *status);
   // The optimal proposal predicts and corrects in one pass once the observations are known.
   const bool optimal = config_.proposal == ParticleProposal::LinearisedOptimal;
@@ -666,6 +667,7 @@ Estimate ParticleFilter::process(const Step& step) {
     }
     used.observations.resize(kept);
     used.landmarks.resize(kept);
+    used.accepted.assign(kept, 1);
   }
   if (used.lost && tryGlobalFix(step)) return recordEstimate(step, EstimateStatus::Reinitialised);
   const bool use_compass = step.compass && config_.use_compass;

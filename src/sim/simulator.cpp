@@ -188,8 +188,9 @@ namespace {
 
 // One simulated run: the scenario, the drawn errors and the random streams, and the steps made
 // from them. One random stream per concern (scenario, encoders, compass, obstacles, pixels,
-// error profile), all drawn from the seed's master stream, so that switching one on or off
-// leaves the others' draws alone; the standard normal N is shared, in the order of the steps.
+// error profile), each seeded from the seed's master stream. The standard normal N is one
+// object for the encoder, compass and pixel draws, and it caches every second draw from the
+// stream that made it: the order of the draws within a step is part of a dataset's definition.
 class Simulation {
  public:
   Simulation(const std::string& scenario_name, int trial, const SimulationConfig& cfg, uint64_t seed);
