@@ -97,9 +97,7 @@ double median(std::vector<double> v) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
-}  // namespace
-
-void runKidnapStudy(const KidnapStudyOptions& o) {
+SimulationConfig kidnapSimulation(const KidnapStudyOptions& o) {
   if (o.seeds < 1) throw UsageError("--seeds must be at least 1");
   if (!(o.gate_probability > 0 && o.gate_probability < 1)) throw UsageError("--gate-probability must be in (0, 1)");
   if (o.lost_after < 1) throw UsageError("--lost-after must be at least 1");
@@ -110,8 +108,137 @@ void runKidnapStudy(const KidnapStudyOptions& o) {
     throw UsageError("--landmarks must be goal_corners or all, not '" + o.landmarks + "'");
   }
   sim.scenario.steps = o.steps;
-  const uint64_t plot_seed = o.plot_seed < 0 ? o.first_seed : static_cast<uint64_t>(o.plot_seed);
+  return sim;
+}
 
+// The first step the scenario carries the robot (the kidnap).
+long kidnapStep(const Dataset& d, const SimulationTrace& trace) {
+  for (size_t k = 0; k < trace.scenario.carried.size(); ++k)
+    if (trace.scenario.carried[k]) return d.steps[k].step;
+  throw Error("kidnap: the scenario has no kidnap (too few steps?)");
+}
+
+// Detection, re-initialisation and recovery of one run with the gate (SeedResult's fields).
+void scoreRun(const Dataset& d, const RunTrace& t, double recover_mm, SeedResult& r) {
+  const size_t kidnap_index = static_cast<size_t>(
+      std::find_if(d.steps.begin(), d.steps.end(), [&](const Step& s) { return s.step == r.kidnap_step; }) -
+      d.steps.begin());
+  int obs_steps = 0;
+  for (size_t k = 0; k < t.estimates.size(); ++k) {
+    const Estimate& e = t.estimates[k];
+    const bool alarm = e.status == EstimateStatus::Lost || e.status == EstimateStatus::Reinitialised;
+    if (k < kidnap_index) {
+      r.false_alarms += alarm && k > 0;
+      continue;
+    }
+    if (!d.groundtruth[k]) continue;
+    const double err = positionError(e, *d.groundtruth[k]);
+    if (k == kidnap_index) r.error_at_kidnap = err;
+    if (r.detected_step < 0) {
+      obs_steps += d.steps[k].observations.empty() ? 0 : 1;
+      if (alarm) {
+        r.detected_step = e.step;
+        r.detection_obs_steps = obs_steps;
+      }
+    }
+    if (r.reinit_step < 0 && e.status == EstimateStatus::Reinitialised) r.reinit_step = e.step;
+    if (r.reinit_step >= 0 && r.recovered_step < 0 && err < recover_mm) r.recovered_step = e.step;
+    r.final_error = err;
+  }
+}
+
+// The plot seed's traces (kidnap_trace.csv, kidnap_innovations.csv): the run without the gate
+// (Figs. 5.3-5.5) beside the one with it (Fig. 5.6).
+struct PlotTraces {
+  std::string trace_csv =
+      "run,step,t,status,x_true,y_true,theta_true,x,y,theta,err_x,err_y,err_theta,sigma3_x,sigma3_y,sigma3_theta,"
+      "observations,accepted,e2_max,gate_threshold\n";
+  std::string innovations_csv =
+      "run,step,landmark_id,innov_range,innov_bearing,sigma_range,sigma_bearing,e2,gate_threshold,accepted\n";
+  bool written = false;
+
+  void add(const Dataset& d, const RunTrace& nogate, const RunTrace& recovery, double threshold) {
+    appendTrace(trace_csv, "nogate", d, nogate, threshold);
+    appendTrace(trace_csv, "recovery", d, recovery, threshold);
+    appendInnovations(innovations_csv, "nogate", nogate, threshold);
+    appendInnovations(innovations_csv, "recovery", recovery, threshold);
+    written = true;
+  }
+};
+
+// The figures over all seeds against the study's targets, and kidnap_seeds.csv.
+struct KidnapSummary {
+  int detected = 0, recovered = 0, reinit = 0;
+  long false_alarms = 0;
+  std::vector<double> errors_at_kidnap, delays, recover_steps, final_errors;
+  std::string seeds_csv =
+      "seed,kidnap_step,error_at_kidnap,detected_step,detection_obs_steps,reinit_step,recovered_step,"
+      "steps_to_recover,final_error,false_alarms\n";
+};
+
+KidnapSummary summarise(const std::vector<SeedResult>& results, const KidnapStudyOptions& o) {
+  KidnapSummary s;
+  for (const SeedResult& r : results) {
+    const bool det = r.detection_obs_steps >= 1 && r.detection_obs_steps <= o.detect_within;
+    const long to_recover = r.recovered_step >= 0 ? r.recovered_step - r.reinit_step : -1;
+    const bool rec = to_recover >= 0 && to_recover <= o.recover_within;
+    s.detected += det;
+    s.reinit += r.reinit_step >= 0;
+    s.recovered += rec;
+    s.false_alarms += r.false_alarms;
+    s.errors_at_kidnap.push_back(r.error_at_kidnap);
+    if (r.detection_obs_steps >= 0) s.delays.push_back(r.detection_obs_steps);
+    if (to_recover >= 0) s.recover_steps.push_back(static_cast<double>(to_recover));
+    s.final_errors.push_back(r.final_error);
+    s.seeds_csv += formatText("%llu,%ld,%.3f,%ld,%d,%ld,%ld,%ld,%.3f,%ld\n", static_cast<unsigned long long>(r.seed),
+                              r.kidnap_step, r.error_at_kidnap, r.detected_step, r.detection_obs_steps, r.reinit_step,
+                              r.recovered_step, to_recover, r.final_error, r.false_alarms);
+  }
+  return s;
+}
+
+void printSummary(const KidnapStudyOptions& o, const KidnapSummary& s, double threshold) {
+  const double n = static_cast<double>(o.seeds);
+  std::fprintf(o.console, "kidnap study (thesis 5.1.3): %d seeds from %llu, scenario kidnap (%s), landmarks %s\n", o.seeds,
+              static_cast<unsigned long long>(o.first_seed), "line A->B, carried back to A", o.landmarks.c_str());
+  std::fprintf(o.console, "EKF, known start, gate %.0f %% (e2 <= %.2f, 2 dof), lost after %d consecutive gated observations, "
+              "re-initialised by global fixes\n",
+              100 * o.gate_probability, threshold, o.lost_after);
+  std::fprintf(o.console, "  position error at the kidnap step:          median %.0f mm\n", median(s.errors_at_kidnap));
+  std::fprintf(o.console, "  detected within %d observation steps:        %d / %d (%.1f %%)   target >= 95 %%   %s\n",
+              o.detect_within, s.detected, o.seeds, 100 * s.detected / n, s.detected >= 0.95 * n ? "ok" : "MISSED");
+  std::fprintf(o.console, "  detection delay (observation steps):        median %.1f, max %.0f\n", median(s.delays),
+              s.delays.empty() ? std::nan("") : *std::max_element(s.delays.begin(), s.delays.end()));
+  std::fprintf(o.console, "  re-initialised by a global fix:             %d / %d\n", s.reinit, o.seeds);
+  std::fprintf(o.console, "  error < %.0f mm within %d steps of re-init:  %d / %d (%.1f %%)   target >= 95 %%   %s\n",
+              o.recover_mm, o.recover_within, s.recovered, o.seeds, 100 * s.recovered / n,
+              s.recovered >= 0.95 * n ? "ok" : "MISSED");
+  std::fprintf(o.console, "  steps from re-init to error < %.0f mm:        median %.1f\n", o.recover_mm,
+              median(s.recover_steps));
+  std::fprintf(o.console, "  final position error:                       median %.1f mm\n", median(s.final_errors));
+  std::fprintf(o.console, "  false alarms before the kidnap:             %ld steps over all seeds\n", s.false_alarms);
+}
+
+void writeOutputs(const KidnapStudyOptions& o, const KidnapSummary& s, const PlotTraces& plot) {
+  std::error_code ec;
+  std::filesystem::create_directories(o.out_dir, ec);
+  if (ec) throw Error(o.out_dir + ": cannot create directory: " + ec.message());
+  const std::filesystem::path dir(o.out_dir);
+  writeFileAtomically((dir / "kidnap_seeds.csv").string(), s.seeds_csv);
+  if (plot.written) {
+    writeFileAtomically((dir / "kidnap_trace.csv").string(), plot.trace_csv);
+    writeFileAtomically((dir / "kidnap_innovations.csv").string(), plot.innovations_csv);
+  }
+  std::fprintf(o.console, "wrote %s/kidnap_seeds.csv%s\n", o.out_dir.c_str(),
+              plot.written ? ", kidnap_trace.csv, kidnap_innovations.csv (plot seed)"
+                           : " (plot seed not in range: no trace)");
+}
+
+}  // namespace
+
+void runKidnapStudy(const KidnapStudyOptions& o) {
+  const SimulationConfig sim = kidnapSimulation(o);
+  const uint64_t plot_seed = o.plot_seed < 0 ? o.first_seed : static_cast<uint64_t>(o.plot_seed);
   EkfConfig recovery;
   recovery.gate.probability = o.gate_probability;
   recovery.gate.lost_after = o.lost_after;
@@ -122,12 +249,7 @@ void runKidnapStudy(const KidnapStudyOptions& o) {
   const InitConfig init_config;
 
   std::vector<SeedResult> results;
-  std::string trace_csv =
-      "run,step,t,status,x_true,y_true,theta_true,x,y,theta,err_x,err_y,err_theta,sigma3_x,sigma3_y,sigma3_theta,"
-      "observations,accepted,e2_max,gate_threshold\n";
-  std::string innov_csv =
-      "run,step,landmark_id,innov_range,innov_bearing,sigma_range,sigma_bearing,e2,gate_threshold,accepted\n";
-  bool traced = false;
+  PlotTraces plot;
   for (int i = 0; i < o.seeds; ++i) {
     SeedResult r;
     r.seed = o.first_seed + static_cast<uint64_t>(i);
@@ -135,113 +257,21 @@ void runKidnapStudy(const KidnapStudyOptions& o) {
     SimulationTrace trace;
     const Dataset d = simulate("kidnap", 0, sim, rng(), &trace);
     if (!d.initial_pose) throw Error("kidnap: the simulated dataset has no initial pose");
-    for (size_t k = 0; k < trace.scenario.carried.size(); ++k)
-      if (trace.scenario.carried[k]) {
-        r.kidnap_step = d.steps[k].step;
-        break;
-      }
-    if (r.kidnap_step < 0) throw Error("kidnap: the scenario has no kidnap (too few steps?)");
+    r.kidnap_step = kidnapStep(d, trace);
     EkfConfig c = recovery;
     c.init = knownBeliefWithNoise(*d.initial_pose, init_config, rng);
     const RunTrace t = runEkf(d, c);
-    const size_t kidnap_index = static_cast<size_t>(
-        std::find_if(d.steps.begin(), d.steps.end(), [&](const Step& s) { return s.step == r.kidnap_step; }) -
-        d.steps.begin());
-    int obs_steps = 0;
-    for (size_t k = 0; k < t.estimates.size(); ++k) {
-      const Estimate& e = t.estimates[k];
-      const bool alarm = e.status == EstimateStatus::Lost || e.status == EstimateStatus::Reinitialised;
-      if (k < kidnap_index) {
-        r.false_alarms += alarm && k > 0;
-        continue;
-      }
-      if (!d.groundtruth[k]) continue;
-      const double err = positionError(e, *d.groundtruth[k]);
-      if (k == kidnap_index) r.error_at_kidnap = err;
-      if (r.detected_step < 0) {
-        obs_steps += d.steps[k].observations.empty() ? 0 : 1;
-        if (alarm) {
-          r.detected_step = e.step;
-          r.detection_obs_steps = obs_steps;
-        }
-      }
-      if (r.reinit_step < 0 && e.status == EstimateStatus::Reinitialised) r.reinit_step = e.step;
-      if (r.reinit_step >= 0 && r.recovered_step < 0 && err < o.recover_mm) r.recovered_step = e.step;
-      r.final_error = err;
-    }
+    scoreRun(d, t, o.recover_mm, r);
     results.push_back(r);
     if (!o.out_dir.empty() && r.seed == plot_seed) {
-      const RunTrace t0 = runEkf(d, [&] {
-        EkfConfig c0 = nogate;
-        c0.init = c.init;
-        return c0;
-      }());
-      appendTrace(trace_csv, "nogate", d, t0, threshold);
-      appendTrace(trace_csv, "recovery", d, t, threshold);
-      appendInnovations(innov_csv, "nogate", t0, threshold);
-      appendInnovations(innov_csv, "recovery", t, threshold);
-      traced = true;
+      EkfConfig c0 = nogate;
+      c0.init = c.init;
+      plot.add(d, runEkf(d, c0), t, threshold);
     }
   }
-
-  int detected = 0, recovered = 0, reinit = 0;
-  long false_alarms = 0;
-  std::vector<double> delays, recover_steps, final_errors;
-  std::string seeds_csv =
-      "seed,kidnap_step,error_at_kidnap,detected_step,detection_obs_steps,reinit_step,recovered_step,"
-      "steps_to_recover,final_error,false_alarms\n";
-  for (const SeedResult& r : results) {
-    const bool det = r.detection_obs_steps >= 1 && r.detection_obs_steps <= o.detect_within;
-    const long to_recover = r.recovered_step >= 0 ? r.recovered_step - r.reinit_step : -1;
-    const bool rec = to_recover >= 0 && to_recover <= o.recover_within;
-    detected += det;
-    reinit += r.reinit_step >= 0;
-    recovered += rec;
-    false_alarms += r.false_alarms;
-    if (r.detection_obs_steps >= 0) delays.push_back(r.detection_obs_steps);
-    if (to_recover >= 0) recover_steps.push_back(static_cast<double>(to_recover));
-    final_errors.push_back(r.final_error);
-    seeds_csv += formatText("%llu,%ld,%.3f,%ld,%d,%ld,%ld,%ld,%.3f,%ld\n", static_cast<unsigned long long>(r.seed),
-                     r.kidnap_step, r.error_at_kidnap, r.detected_step, r.detection_obs_steps, r.reinit_step,
-                     r.recovered_step, to_recover, r.final_error, r.false_alarms);
-  }
-  const double n = static_cast<double>(results.size());
-  std::fprintf(o.console, "kidnap study (thesis 5.1.3): %d seeds from %llu, scenario kidnap (%s), landmarks %s\n", o.seeds,
-              static_cast<unsigned long long>(o.first_seed), "line A->B, carried back to A", o.landmarks.c_str());
-  std::fprintf(o.console, "EKF, known start, gate %.0f %% (e2 <= %.2f, 2 dof), lost after %d consecutive gated observations, "
-              "re-initialised by global fixes\n",
-              100 * o.gate_probability, threshold, o.lost_after);
-  std::fprintf(o.console, "  position error at the kidnap step:          median %.0f mm\n",
-              median([&] {
-                std::vector<double> v;
-                for (const SeedResult& r : results) v.push_back(r.error_at_kidnap);
-                return v;
-              }()));
-  std::fprintf(o.console, "  detected within %d observation steps:        %d / %d (%.1f %%)   target >= 95 %%   %s\n",
-              o.detect_within, detected, o.seeds, 100 * detected / n, detected >= 0.95 * n ? "ok" : "MISSED");
-  std::fprintf(o.console, "  detection delay (observation steps):        median %.1f, max %.0f\n", median(delays),
-              delays.empty() ? std::nan("") : *std::max_element(delays.begin(), delays.end()));
-  std::fprintf(o.console, "  re-initialised by a global fix:             %d / %d\n", reinit, o.seeds);
-  std::fprintf(o.console, "  error < %.0f mm within %d steps of re-init:  %d / %d (%.1f %%)   target >= 95 %%   %s\n",
-              o.recover_mm, o.recover_within, recovered, o.seeds, 100 * recovered / n,
-              recovered >= 0.95 * n ? "ok" : "MISSED");
-  std::fprintf(o.console, "  steps from re-init to error < %.0f mm:        median %.1f\n", o.recover_mm, median(recover_steps));
-  std::fprintf(o.console, "  final position error:                       median %.1f mm\n", median(final_errors));
-  std::fprintf(o.console, "  false alarms before the kidnap:             %ld steps over all seeds\n", false_alarms);
-
-  if (!o.out_dir.empty()) {
-    std::error_code ec;
-    std::filesystem::create_directories(o.out_dir, ec);
-    if (ec) throw Error(o.out_dir + ": cannot create directory: " + ec.message());
-    const std::filesystem::path dir(o.out_dir);
-    writeFileAtomically((dir / "kidnap_seeds.csv").string(), seeds_csv);
-    if (traced) {
-      writeFileAtomically((dir / "kidnap_trace.csv").string(), trace_csv);
-      writeFileAtomically((dir / "kidnap_innovations.csv").string(), innov_csv);
-    }
-    std::fprintf(o.console, "wrote %s/kidnap_seeds.csv%s\n", o.out_dir.c_str(),
-                traced ? ", kidnap_trace.csv, kidnap_innovations.csv (plot seed)" : " (plot seed not in range: no trace)");
-  }
+  const KidnapSummary summary = summarise(results, o);
+  printSummary(o, summary, threshold);
+  if (!o.out_dir.empty()) writeOutputs(o, summary, plot);
 }
 
 }  // namespace stereoloc
