@@ -23,6 +23,8 @@ void checkObservation(const Step& step, size_t index, const Observation& obs) {
   validateObservation(obs, where(step, index));
 }
 
+double spreadOf(const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0, 0), P(1, 1))); }
+
 }  // namespace
 
 Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
@@ -192,42 +194,21 @@ Estimate Ekf::makeEstimate(const Step& step, EstimateStatus status) const {
   return stepEstimate(step, pose_, initialised_ ? P_ : Eigen::Matrix3d::Zero(), status);
 }
 
-Estimate Ekf::process(const Step& step) {
+void Ekf::validateStep(const Step& step) const {
   if (have_step_ && step.step <= last_step_)
     throw Error("ekf: step " + std::to_string(step.step) + " does not follow step " + std::to_string(last_step_));
   if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right))
     throw Error("ekf: step " + std::to_string(step.step) + ": wheel increment is not finite");
   for (size_t i = 0; i < step.observations.size(); ++i) checkObservation(step, i, step.observations[i]);
-  const bool first = !have_step_;
-  have_step_ = true;
-  last_step_ = step.step;
-  updates_.clear();
+}
 
-  auto finishStep = [&](EstimateStatus status) {
-    estimates_.push_back(makeEstimate(step, status));
-    return estimates_.back();
-  };
-
-  if (!initialised_) {  // global initialisation: wait for the first fix (section 6.5)
-    if (tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
-    return finishStep(EstimateStatus::Uninitialised);
-  }
-  if (!first) predict(step.d_left, step.d_right);
-  if (lost_) {  // Fig. 5.6: odometry only until a global fix re-initialises the filter
-    if (config_.reinitialise_when_lost && tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
-    return finishStep(EstimateStatus::Lost);
-  }
-
-  // While the belief is wider than the hand-over spread, unidentified sightings are not
-  // associated: their gates hold several landmarks of the type.
-  const auto spreadOf = [](const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0, 0), P(1, 1))); };
-  const bool wide = config_.handover_sigma_mm > 0 && spreadOf(P_) > config_.handover_sigma_mm;
+std::optional<EstimateStatus> Ekf::startFromWideBelief(const Step& step, bool first, bool wide) {
   if (wide && !step.observations.empty() && config_.global_fix) {
     const std::optional<PoseFix> fix = config_.global_fix(step, map_);
     if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && spreadOf(fix->covariance) < spreadOf(P_)) {
       bank_.clear();
       reset(fix->pose, fix->covariance);  // the fix used this step's observations: no update on top
-      return finishStep(EstimateStatus::Reinitialised);
+      return EstimateStatus::Reinitialised;
     }
   }
   // The bank only serves a wide start: once localised, a filter that widens again (a stretch
@@ -241,59 +222,69 @@ Estimate Ekf::process(const Step& step) {
       pose_ = m.pose;
       P_ = m.covariance;
       if (spreadOf(P_) > config_.handover_sigma_mm)
-        return finishStep(step.observations.empty() ? EstimateStatus::Predicted : EstimateStatus::Tracking);
+        return step.observations.empty() ? EstimateStatus::Predicted : EstimateStatus::Tracking;
       bank_.clear();  // one mode left: the filter goes on from it
       gate_.reset();
-      return finishStep(EstimateStatus::Reinitialised);
+      return EstimateStatus::Reinitialised;
     }
   }
-  // The step's observations are tested jointly (5.20): fused one after the other, each at the
-  // belief the earlier ones left, their sequential innovations are independent and the sum of
-  // their e^2 is the e^2 of the stacked innovation at the prediction, chi-square with the summed
-  // degrees of freedom. While that sum fails the gate, the observation least compatible with the
-  // prediction (largest e^2 at it) is set aside and the step fused again from the prediction. Why
-  // not one gate per observation: with stereo sightings far sharper than the belief, the
-  // innovations of one step share the belief's error, so a prior at its 1 % tail fails every
-  // sighting's gate at once and the filter is declared lost (lost_after) for a belief that is
-  // merely unlucky; which sightings fail then depends on whether the compass is fused before
-  // them. Joint compatibility after Neira and Tardos, IEEE T-RA 17(6), 2001.
+  return std::nullopt;
+}
+
+// The step's observations are tested jointly (5.20): fused one after the other, each at the
+// belief the earlier ones left, their sequential innovations are independent and the sum of
+// their e^2 is the e^2 of the stacked innovation at the prediction, chi-square with the summed
+// degrees of freedom. While that sum fails the gate, the observation least compatible with the
+// prediction (largest e^2 at it) is set aside and the step fused again from the prediction. Why
+// not one gate per observation: with stereo sightings far sharper than the belief, the
+// innovations of one step share the belief's error, so a prior at its 1 % tail fails every
+// sighting's gate at once and the filter is declared lost (lost_after) for a belief that is
+// merely unlucky; which sightings fail then depends on whether the compass is fused before
+// them. Joint compatibility after Neira and Tardos, IEEE T-RA 17(6), 2001.
+std::vector<EkfUpdateRecord> Ekf::fuseJointlyGated(const Step& step, bool wide) {
   const Pose2 predicted = pose_;
   const Eigen::Matrix3d predicted_covariance = P_;
-  const size_t n = step.observations.size();
-  std::vector<bool> excluded(n + 1, false);  // n: the compass
-  std::vector<EkfUpdateRecord> recs;
+  std::vector<bool> excluded(step.observations.size() + 1, false);  // the last: the compass
   for (;;) {
     pose_ = predicted;
     P_ = predicted_covariance;
     double e2 = 0.0;
     int dof = 0;
-    recs = fuseStep(step, wide, excluded, &e2, &dof);
-    if (!config_.gate_enabled || dof == 0 || e2 <= jointThreshold(dof)) break;
-    // The fused observation with the largest e^2 at the prediction is set aside.
-    double worst = -1.0;
-    size_t worst_index = n;
-    for (const EkfUpdateRecord& r : recs) {
-      if (!r.accepted) continue;
-      double e2p;
-      size_t index;
-      if (r.compass) {
-        index = n;
-        e2p = std::pow(angleDiff(*step.compass, predicted.theta), 2) /
-              (predicted_covariance(2, 2) + step.compass_sigma * step.compass_sigma);
-      } else {
-        index = static_cast<size_t>(r.observation_index);
-        const Observation& o = step.observations[index];
-        const auto g = rangeBearingInnovationAt(predicted, predicted_covariance, o.z(), o.covariance,
-                                                map_.at(r.landmark_id).xy());
-        e2p = g ? g->mahalanobis_squared : std::numeric_limits<double>::infinity();
-      }
-      if (e2p > worst) {
-        worst = e2p;
-        worst_index = index;
-      }
-    }
-    excluded[worst_index] = true;
+    std::vector<EkfUpdateRecord> recs = fuseStep(step, wide, excluded, &e2, &dof);
+    if (!config_.gate_enabled || dof == 0 || e2 <= jointThreshold(dof)) return recs;
+    excluded[leastCompatible(step, recs, predicted, predicted_covariance)] = true;
   }
+}
+
+size_t Ekf::leastCompatible(const Step& step, const std::vector<EkfUpdateRecord>& recs, const Pose2& predicted,
+                            const Eigen::Matrix3d& predicted_covariance) const {
+  const size_t n = step.observations.size();
+  double worst = -1.0;
+  size_t worst_index = n;
+  for (const EkfUpdateRecord& r : recs) {
+    if (!r.accepted) continue;
+    double e2p;
+    size_t index;
+    if (r.compass) {
+      index = n;
+      e2p = std::pow(angleDiff(*step.compass, predicted.theta), 2) /
+            (predicted_covariance(2, 2) + step.compass_sigma * step.compass_sigma);
+    } else {
+      index = static_cast<size_t>(r.observation_index);
+      const Observation& o = step.observations[index];
+      const auto g =
+          rangeBearingInnovationAt(predicted, predicted_covariance, o.z(), o.covariance, map_.at(r.landmark_id).xy());
+      e2p = g ? g->mahalanobis_squared : std::numeric_limits<double>::infinity();
+    }
+    if (e2p > worst) {
+      worst = e2p;
+      worst_index = index;
+    }
+  }
+  return worst_index;
+}
+
+EstimateStatus Ekf::recordUpdates(const Step& step, const std::vector<EkfUpdateRecord>& recs) {
   bool fused = false;
   for (const EkfUpdateRecord& rec : recs) {
     updates_.push_back(rec);
@@ -301,11 +292,35 @@ Estimate Ekf::process(const Step& step) {
     if (!config_.gate_enabled || rec.compass) continue;
     if (gate_.record(rec.accepted)) {  // (5.1.3): too many unexpected observations in a row
       lost_ = true;
-      if (config_.reinitialise_when_lost && tryGlobalFix(step)) return finishStep(EstimateStatus::Reinitialised);
-      return finishStep(EstimateStatus::Lost);
+      if (config_.reinitialise_when_lost && tryGlobalFix(step)) return EstimateStatus::Reinitialised;
+      return EstimateStatus::Lost;
     }
   }
-  return finishStep(fused ? EstimateStatus::Tracking : EstimateStatus::Predicted);
+  return fused ? EstimateStatus::Tracking : EstimateStatus::Predicted;
+}
+
+Estimate Ekf::process(const Step& step) {
+  validateStep(step);
+  const bool first = !have_step_;
+  have_step_ = true;
+  last_step_ = step.step;
+  updates_.clear();
+  estimates_.push_back(makeEstimate(step, advance(step, first)));
+  return estimates_.back();
+}
+
+EstimateStatus Ekf::advance(const Step& step, bool first) {
+  if (!initialised_)  // global initialisation: wait for the first fix (section 6.5)
+    return tryGlobalFix(step) ? EstimateStatus::Reinitialised : EstimateStatus::Uninitialised;
+  if (!first) predict(step.d_left, step.d_right);
+  if (lost_)  // Fig. 5.6: odometry only until a global fix re-initialises the filter
+    return config_.reinitialise_when_lost && tryGlobalFix(step) ? EstimateStatus::Reinitialised
+                                                                : EstimateStatus::Lost;
+  // While the belief is wider than the hand-over spread, unidentified sightings are not
+  // associated: their gates hold several landmarks of the type.
+  const bool wide = config_.handover_sigma_mm > 0 && spreadOf(P_) > config_.handover_sigma_mm;
+  if (const std::optional<EstimateStatus> started = startFromWideBelief(step, first, wide)) return *started;
+  return recordUpdates(step, fuseJointlyGated(step, wide));
 }
 
 }  // namespace stereoloc

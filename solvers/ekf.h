@@ -35,6 +35,7 @@
 // then gave NEES 1250-6400 at one step, and the filter stayed over-confident for tens of steps.
 #include <Eigen/Core>
 #include <string>
+#include <optional>
 #include <vector>
 
 #include "solvers/global_fix_hypotheses.h"
@@ -137,6 +138,21 @@ class Ekf : public Estimator {
   std::vector<EkfUpdateRecord> fuseStep(const Step& step, bool wide, const std::vector<bool>& excluded,
                                         double* joint_e2, int* joint_dof);
   double jointThreshold(int dof);  // chi2Quantile(gate.probability, dof), computed once per dof
+  void validateStep(const Step& step) const;  // throws stereoloc::Error naming the step
+  // The step's status after prediction, fixes and updates (process() records the estimate).
+  EstimateStatus advance(const Step& step, bool first);
+  // While the belief is `wide` (spread over handover_sigma_mm): a global fix narrower than it,
+  // or the hypothesis bank's mixture; nullopt when neither decides the step.
+  std::optional<EstimateStatus> startFromWideBelief(const Step& step, bool first, bool wide);
+  // fuseStep under the joint gate, setting aside the least compatible observation until the
+  // fused ones pass; the belief is left at the accepted ones.
+  std::vector<EkfUpdateRecord> fuseJointlyGated(const Step& step, bool wide);
+  // Index (in step.observations; their count for the compass) of the accepted record with the
+  // largest e^2 at the prediction.
+  size_t leastCompatible(const Step& step, const std::vector<EkfUpdateRecord>& recs, const Pose2& predicted,
+                         const Eigen::Matrix3d& predicted_covariance) const;
+  // Records the step's updates and feeds the lost policy (5.1.3).
+  EstimateStatus recordUpdates(const Step& step, const std::vector<EkfUpdateRecord>& recs);
   bool tryGlobalFix(const Step& step);
   Estimate makeEstimate(const Step& step, EstimateStatus status) const;
 
