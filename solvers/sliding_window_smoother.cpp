@@ -1357,84 +1357,22 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
   last_step_ = step.step;
   ++stats_.steps;
   image_free_ = image_sigmas_ && stats_.steps > config_.image_errors_after_steps;
-  if (config_.restart_buffer_steps > 0) {
-    recent_.push_back(RecentStep{step, noise});
-    recent_.back().step.observations.clear();
-    if (static_cast<int>(recent_.size()) > config_.restart_buffer_steps) recent_.pop_front();
-  }
+  keepForRestart(step, noise);
 
-  Estimate out;
-  Pose2 pose;            // the belief used for gating and association (EKF-style)
-  Eigen::Matrix3d P;
-  Pose2 pred_pose;       // the prediction of this step, before its measurements
-  Eigen::Matrix3d pred_P = Eigen::Matrix3d::Zero();
+  StepBelief b;
   if (nodes_.empty()) {
-    if (first && config_.init.mode != InitMode::Global) {
-      startWindow(step, config_.init.pose, config_.init.covariance, EstimateStatus::Tracking);
-      pose = config_.init.pose;
-      P = nodes_.back()->covariance;
-      pred_pose = pose;
-      pred_P = P;
-    } else {
-      if (tryGlobalFix(step, &out)) return out;
-      out.step = step.step;
-      out.t = step.t;
-      out.status = EstimateStatus::Uninitialised;
-      pushHistory(out);
-      return out;
-    }
+    if (!first || config_.init.mode == InitMode::Global) return startFromGlobalFix(step);
+    startWindow(step, config_.init.pose, config_.init.covariance, EstimateStatus::Tracking);
+    b.pose = config_.init.pose;
+    b.P = nodes_.back()->covariance;
+    b.pred_pose = b.pose;
+    b.pred_P = b.P;
   } else {
-    Node* prev = nodes_.back().get();
-    // The odometry since the newest keyframe (5.9 from the identity), and the prediction
-    // p_K (+) u with P = J1 P_K J1^T + J2 U J2^T: for one step this is predictPose itself.
-    const PosePrediction rel = predictStep(rel_, rel_covariance_, step.d_left, step.d_right, &rel_wheels_);
-    rel_ = rel.pose;
-    rel_covariance_ = rel.covariance;
-    ++steps_since_keyframe_;
-    Matrix3d J1, J2;
-    pose = compose(poseOf(prev->x), rel_, &J1, &J2);
-    P = composedCovariance(*prev, J1, J2, rel_covariance_, rel_wheels_);
-    pred_pose = pose;
-    pred_P = P;
+    b = predictFromNewestKeyframe(step);
     const bool keyframe = config_.keyframe_max_steps <= 1 || !step.observations.empty() ||
                           (step.compass && config_.use_compass) || steps_since_keyframe_ >= config_.keyframe_max_steps;
-    if (!keyframe) {
-      Intermediate m;
-      m.step = step.step;
-      m.t = step.t;
-      m.rel = rel_;
-      m.rel_covariance = rel_covariance_;
-      m.rel_wheels = rel_wheels_;
-      m.status = lost_ ? EstimateStatus::Lost : EstimateStatus::Predicted;
-      m.d_left = step.d_left;
-      m.d_right = step.d_right;
-      m.noise = noise;
-      prev->after.push_back(m);
-      out.step = step.step;
-      out.t = step.t;
-      out.pose = pose;
-      out.covariance = P;
-      out.status = m.status;
-      return out;
-    }
-    auto node = std::make_unique<Node>();
-    node->step = step.step;
-    node->t = step.t;
-    node->x = {pose.x, pose.y, pose.theta};
-    node->d_left = step.d_left;
-    node->d_right = step.d_right;
-    node->noise = noise;
-    Node* n = node.get();
-    nodes_.push_back(std::move(node));
-    problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
-    prev->rel_to_next = rel_;
-    prev->rel_to_next_covariance = rel_covariance_;
-    addOdometry(prev, n, prev->after, rel_, rel_covariance_);
-    rel_ = Pose2();
-    rel_covariance_.setZero();
-    rel_wheels_.setZero();
-    steps_since_keyframe_ = 0;
-    ++stats_.keyframes;
+    if (!keyframe) return recordIntermediate(step, noise, b);
+    appendKeyframe(step, noise, b.pose);
   }
   Node* node = nodes_.back().get();
 
@@ -1446,42 +1384,13 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
     if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
       node->gated.insert(node->gated.end(), step.observations.begin(), step.observations.end());
       stats_.rejected_observations += static_cast<long>(step.observations.size());
-      return recoverFromLoss(step, *fix, pred_pose, pred_P);
+      return recoverFromLoss(step, *fix, b.pred_pose, b.pred_P);
     }
   }
 
   bool fused = false;
   if (!lost_) {
-    bool compass_fused = false;
-    const std::vector<bool> accepted = fuseStep(step, node, pred_pose, pred_P, pose, P, &compass_fused);
-    fused = compass_fused;
-    if (step.compass && config_.use_compass && !compass_fused)
-      node->gated_compass = {*step.compass, step.compass_sigma};
-    for (size_t i = 0; i < step.observations.size(); ++i) {
-      fused = fused || accepted[i];
-      ++(accepted[i] ? stats_.accepted_observations : stats_.rejected_observations);
-      if (!accepted[i]) node->gated.push_back(step.observations[i]);
-      if (gate_enabled_ && gate_.record(accepted[i])) {  // (5.1.3)
-        lost_ = true;
-        if (config_.reinitialise_when_lost) {
-          const std::optional<PoseFix> fix = globalFix(step);
-          if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
-            // The step's fused observations stay as factors of its pose (the reanchored window
-            // keeps them; a restart drops the pose); the rest are set aside with it.
-            for (size_t j = i + 1; j < step.observations.size(); ++j)
-              if (!accepted[j]) node->gated.push_back(step.observations[j]);
-            for (size_t j = i + 1; j < step.observations.size(); ++j)
-              ++(accepted[j] ? stats_.accepted_observations : stats_.rejected_observations);
-            return recoverFromLoss(step, *fix, pred_pose, pred_P);
-          }
-        }
-        for (size_t j = i + 1; j < step.observations.size(); ++j) {
-          ++(accepted[j] ? stats_.accepted_observations : stats_.rejected_observations);
-          if (!accepted[j]) node->gated.push_back(step.observations[j]);
-        }
-        break;
-      }
-    }
+    if (std::optional<Estimate> recovered = fuseUnderGate(step, node, b, &fused)) return *recovered;
   }
   node->status = lost_ ? EstimateStatus::Lost : (fused ? EstimateStatus::Tracking : EstimateStatus::Predicted);
   while (static_cast<int>(nodes_.size()) > config_.window) marginaliseOldest();
@@ -1489,6 +1398,117 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
   retestGated();
   computeCovariances(false);
   return estimateOf(*nodes_.back());
+}
+
+void SlidingWindowSmoother::keepForRestart(const Step& step, const WheelIncrements& noise) {
+  if (config_.restart_buffer_steps <= 0) return;
+  recent_.push_back(RecentStep{step, noise});
+  recent_.back().step.observations.clear();
+  if (static_cast<int>(recent_.size()) > config_.restart_buffer_steps) recent_.pop_front();
+}
+
+Estimate SlidingWindowSmoother::startFromGlobalFix(const Step& step) {
+  Estimate out;
+  if (tryGlobalFix(step, &out)) return out;
+  out.step = step.step;
+  out.t = step.t;
+  out.status = EstimateStatus::Uninitialised;
+  pushHistory(out);
+  return out;
+}
+
+SlidingWindowSmoother::StepBelief SlidingWindowSmoother::predictFromNewestKeyframe(const Step& step) {
+  const Node* prev = nodes_.back().get();
+  // The odometry since the newest keyframe (5.9 from the identity), and the prediction
+  // p_K (+) u with P = J1 P_K J1^T + J2 U J2^T: for one step this is predictPose itself.
+  const PosePrediction rel = predictStep(rel_, rel_covariance_, step.d_left, step.d_right, &rel_wheels_);
+  rel_ = rel.pose;
+  rel_covariance_ = rel.covariance;
+  ++steps_since_keyframe_;
+  Matrix3d J1, J2;
+  StepBelief b;
+  b.pose = compose(poseOf(prev->x), rel_, &J1, &J2);
+  b.P = composedCovariance(*prev, J1, J2, rel_covariance_, rel_wheels_);
+  b.pred_pose = b.pose;
+  b.pred_P = b.P;
+  return b;
+}
+
+Estimate SlidingWindowSmoother::recordIntermediate(const Step& step, const WheelIncrements& noise,
+                                                   const StepBelief& b) {
+  Intermediate m;
+  m.step = step.step;
+  m.t = step.t;
+  m.rel = rel_;
+  m.rel_covariance = rel_covariance_;
+  m.rel_wheels = rel_wheels_;
+  m.status = lost_ ? EstimateStatus::Lost : EstimateStatus::Predicted;
+  m.d_left = step.d_left;
+  m.d_right = step.d_right;
+  m.noise = noise;
+  nodes_.back()->after.push_back(m);
+  Estimate out;
+  out.step = step.step;
+  out.t = step.t;
+  out.pose = b.pose;
+  out.covariance = b.P;
+  out.status = m.status;
+  return out;
+}
+
+void SlidingWindowSmoother::appendKeyframe(const Step& step, const WheelIncrements& noise, const Pose2& pose) {
+  Node* prev = nodes_.back().get();
+  auto node = std::make_unique<Node>();
+  node->step = step.step;
+  node->t = step.t;
+  node->x = {pose.x, pose.y, pose.theta};
+  node->d_left = step.d_left;
+  node->d_right = step.d_right;
+  node->noise = noise;
+  Node* n = node.get();
+  nodes_.push_back(std::move(node));
+  problem_->AddParameterBlock(n->x.data(), 3, &manifold_);
+  prev->rel_to_next = rel_;
+  prev->rel_to_next_covariance = rel_covariance_;
+  addOdometry(prev, n, prev->after, rel_, rel_covariance_);
+  rel_ = Pose2();
+  rel_covariance_.setZero();
+  rel_wheels_.setZero();
+  steps_since_keyframe_ = 0;
+  ++stats_.keyframes;
+}
+
+std::optional<Estimate> SlidingWindowSmoother::fuseUnderGate(const Step& step, Node* node, StepBelief& b,
+                                                            bool* fused) {
+  bool compass_fused = false;
+  const std::vector<bool> accepted = fuseStep(step, node, b.pred_pose, b.pred_P, b.pose, b.P, &compass_fused);
+  *fused = compass_fused;
+  if (step.compass && config_.use_compass && !compass_fused) node->gated_compass = {*step.compass, step.compass_sigma};
+  for (size_t i = 0; i < step.observations.size(); ++i) {
+    *fused = *fused || accepted[i];
+    ++(accepted[i] ? stats_.accepted_observations : stats_.rejected_observations);
+    if (!accepted[i]) node->gated.push_back(step.observations[i]);
+    if (!gate_enabled_ || !gate_.record(accepted[i])) continue;
+    lost_ = true;  // (5.1.3)
+    if (config_.reinitialise_when_lost) {
+      const std::optional<PoseFix> fix = globalFix(step);
+      if (fix && fix->pose.isFinite() && positiveDefinite(fix->covariance)) {
+        // The step's fused observations stay as factors of its pose (the reanchored window
+        // keeps them; a restart drops the pose); the rest are set aside with it.
+        for (size_t j = i + 1; j < step.observations.size(); ++j)
+          if (!accepted[j]) node->gated.push_back(step.observations[j]);
+        for (size_t j = i + 1; j < step.observations.size(); ++j)
+          ++(accepted[j] ? stats_.accepted_observations : stats_.rejected_observations);
+        return recoverFromLoss(step, *fix, b.pred_pose, b.pred_P);
+      }
+    }
+    for (size_t j = i + 1; j < step.observations.size(); ++j) {
+      ++(accepted[j] ? stats_.accepted_observations : stats_.rejected_observations);
+      if (!accepted[j]) node->gated.push_back(step.observations[j]);
+    }
+    break;
+  }
+  return std::nullopt;
 }
 
 Estimate SlidingWindowSmoother::recoverFromLoss(const Step& step, const PoseFix& fix, const Pose2& pred_pose,

@@ -369,6 +369,25 @@ class SlidingWindowSmoother : public Estimator {
   // process() after its checks, with the step's travel of (B.6) (NoiseTravel; restartLate replays
   // the steps it keeps with theirs).
   Estimate track(const Step& step, const WheelIncrements& noise);
+  // The newest pose's belief as the EKF would have it (gating and association) and its
+  // prediction before the step's measurements.
+  struct StepBelief {
+    Pose2 pose;
+    Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
+    Pose2 pred_pose;
+    Eigen::Matrix3d pred_P = Eigen::Matrix3d::Zero();
+  };
+  void keepForRestart(const Step& step, const WheelIncrements& noise);  // recent_ (restartLate)
+  Estimate startFromGlobalFix(const Step& step);  // no window yet: a fix starts it, or Uninitialised
+  // The odometry since the newest keyframe composed with this step's, and the prediction.
+  StepBelief predictFromNewestKeyframe(const Step& step);
+  // A step that is no window pose: kept after the newest keyframe (Intermediate), predicted.
+  Estimate recordIntermediate(const Step& step, const WheelIncrements& noise, const StepBelief& b);
+  // A new window pose at `pose`, tied to the previous one by the odometry since it.
+  void appendKeyframe(const Step& step, const WheelIncrements& noise, const Pose2& pose);
+  // fuseStep, the gated observations recorded and the lost policy (5.1.3); the step's estimate
+  // when the loss is recovered at once by a global fix (recoverFromLoss).
+  std::optional<Estimate> fuseUnderGate(const Step& step, Node* node, StepBelief& b, bool* fused);
   // Makes the non-keyframe step k->after[j] a window pose (see insertLate).
   Node* promote(size_t k_index, size_t j);
   // The odometry factor between consecutive keyframes a and b: `between` are the steps after a
