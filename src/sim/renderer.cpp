@@ -211,6 +211,556 @@ std::vector<SceneEdge> topOutlineEdges(const Scene& scene) {
   return runs;
 }
 
+// The sample ray directions of a rig in C2 (StereoRenderer's per-column and per-row tables).
+struct SampleRays {
+  const std::vector<float>& base_y;
+  const std::vector<float>& base_z;
+  const std::vector<float>& fine_y;
+  const std::vector<float>& fine_z;
+};
+
+// Image tiles whose every sample ray is known without tracing it. A tile's sample rays lie in
+// the pyramid of the rays through its corners (grown by kTileMargin px, far more than the
+// float rounding of the sample rays, ~1e-4 px). Where all four corner rays descend, a ray's
+// floor point (and its point at the wall-top height) is a projective image of its pixel
+// position that keeps convexity, so those points of every sample ray lie in the convex hull
+// of the corners' points:
+// - Column: the corner points lie inside the open field (1e-2 mm margin), so every ray is
+//   in the column the per-ray test of ViewRender::shade would find; that test is skipped.
+// - Floor: also no object not outside the field overlaps the tile and the floor under the
+//   corners' bounding rectangle is plain: every sample is floor colour.
+// - Sky: all four corner rays ascend and no object reaching above the camera overlaps the
+//   tile: every sample is background.
+// Other tiles trace every ray. The images are the same either way.
+enum class TileMode : uint8_t { Traced, Column, Floor, Sky };
+constexpr int kTile = 4;
+
+// One camera's image of one view (StereoRenderer::renderView). The constructor builds the
+// per-view state phase by phase, each phase reading what the earlier ones built; render() then
+// runs pass 1 (base samples) and pass 2 (edge refinement) over the rows, and the illumination
+// and blur.
+class ViewRender {
+ public:
+  ViewRender(const Scene& scene, const StereoRig& rig, const RenderOptions& options, const SampleRays& rays,
+             const Pose2& robot, double head_pan, int camera, const StereoRenderer::ColumnRanges* needed);
+  cv::Mat render() const;
+
+ private:
+  void columnRanges();
+  void imageBoxes();
+  void cullingFacts();
+  void slabBoxes();
+  void uniformColours();
+  void rowSpans();
+  void classifyTiles();
+  void settleTiles();
+  TileMode tileMode(int u, int v) const {
+    return tiles_[static_cast<size_t>(v / kTile) * tiles_x_ + u / kTile];
+  }
+  Colour shade(const Eigen::Vector3d& d, const Span& span, bool column) const;
+  void baseRows(int first_row, int step, std::vector<Colour>& mean, std::vector<uint8_t>& mixed) const;
+  void renderRows(int first_row, int step, const std::vector<Colour>& mean, const std::vector<uint8_t>& mixed,
+                  cv::Mat& img) const;
+  void runRows(const std::function<void(int, int)>& rows) const;
+  void illuminateAndBlur(cv::Mat& img) const;
+
+  const Scene& scene_;
+  const RenderOptions& options_;
+  const SampleRays rays_;
+  const StereoRenderer::ColumnRanges* needed_;
+  const FieldGeometry& g_;
+  const int W_, H_, n_, spp_, fine_;
+  const bool nested_;
+  const int fine_step_;
+  const double f_, ou_, ov_;
+  const Eigen::Matrix3d Rwv_;
+  const Eigen::Matrix3f Rf_;
+  const size_t n_prisms_;
+  const Eigen::Vector3d cam_;
+  // Phase 1: columns [first, last) of each row that pass 2 writes and that pass 1 samples.
+  std::vector<std::pair<int, int>> write_cols_, base_cols_;
+  // Phases 2-3: per object, its image box and whether it is low / outside the field.
+  std::vector<Box> boxes_;
+  std::vector<uint8_t> low_, outside_;
+  double outside_top_ = 0.0;
+  bool cam_above_outside_ = false;
+  // Phase 4: slab_of_[b] indexes slabs_, -1 for objects that are not axis-aligned boxes.
+  std::vector<int> slab_of_;
+  std::vector<SlabBox> slabs_;
+  // Colours of the untraced surfaces and the pixel values of uniform pixels.
+  Colour background_, floor_, marking_, floor_mean_, sky_mean_;
+  cv::Vec3b floor_bgr_, sky_bgr_;
+  std::vector<uint8_t> on_base_;
+  // Phase 5: the spans of every row (row v: [row_first_span_[v], row_first_span_[v + 1])) and
+  // the object lists they index.
+  std::vector<Span> spans_;
+  std::vector<uint32_t> row_first_span_, items_;
+  // Phases 6-7: per tile (row-major, tiles_x_ per row) its mode and whether it is settled.
+  int tiles_x_ = 0, tiles_y_ = 0;
+  std::vector<TileMode> tiles_;
+  std::vector<uint8_t> settled_;
+};
+
+cv::Vec3b toBgr(Colour c) {
+  c *= 255.0f;
+  return cv::Vec3b(cv::saturate_cast<uchar>(c.z()), cv::saturate_cast<uchar>(c.y()), cv::saturate_cast<uchar>(c.x()));
+}
+
+ViewRender::ViewRender(const Scene& scene, const StereoRig& rig, const RenderOptions& options, const SampleRays& rays,
+                       const Pose2& robot, double head_pan, int camera, const StereoRenderer::ColumnRanges* needed)
+    : scene_(scene),
+      options_(options),
+      rays_(rays),
+      needed_(needed),
+      g_(scene.geometry()),
+      W_(rig.params().image_width),
+      H_(rig.params().image_height),
+      n_(options.samples_per_axis),
+      spp_(n_ * n_),
+      fine_(options.edge_samples_per_axis),
+      nested_(fine_ > 0 && fine_ % n_ == 0),
+      fine_step_(nested_ ? fine_ / n_ : 1),
+      f_(rig.focal()),
+      ou_(rig.principalU()),
+      ov_(rig.principalV()),
+      Rwv_(visionToWorldRotation(rig, robot, head_pan)),
+      Rf_(Rwv_.cast<float>()),
+      n_prisms_(scene.prisms().size()),
+      cam_(cameraCentreWorld(rig, robot, head_pan, camera)) {
+  columnRanges();
+  imageBoxes();
+  cullingFacts();
+  slabBoxes();
+  uniformColours();
+  rowSpans();
+  classifyTiles();
+  settleTiles();
+}
+
+// Columns [first, last) of each row that pass 2 writes (`needed`, else all), and those pass 1
+// samples: pass 2 reads the base mean of a pixel and of its 4-neighbours.
+void ViewRender::columnRanges() {
+  const int W = W_, H = H_;
+  write_cols_.assign(static_cast<size_t>(H), {0, W});
+  base_cols_ = write_cols_;
+  if (!needed_) return;
+  auto clampRange = [W](std::pair<int, int> r) {
+    r.first = std::clamp(r.first, 0, W);
+    r.second = std::clamp(r.second, 0, W);
+    return r.first < r.second ? r : std::pair<int, int>(0, 0);
+  };
+  for (int v = 0; v < H; ++v) write_cols_[static_cast<size_t>(v)] = clampRange((*needed_)[static_cast<size_t>(v)]);
+  for (int v = 0; v < H; ++v) {
+    std::pair<int, int> b(W, 0);
+    auto join = [&](std::pair<int, int> r) {
+      if (r.first >= r.second) return;
+      b.first = std::min(b.first, r.first);
+      b.second = std::max(b.second, r.second);
+    };
+    const std::pair<int, int> own = write_cols_[static_cast<size_t>(v)];
+    if (own.first < own.second) join({own.first - 1, own.second + 1});
+    if (v > 0) join(write_cols_[static_cast<size_t>(v) - 1]);
+    if (v + 1 < H) join(write_cols_[static_cast<size_t>(v) + 1]);
+    base_cols_[static_cast<size_t>(v)] = clampRange(b);
+  }
+}
+
+// Per-object image bounding boxes (culling). A sample ray at x < 1 mm (camera frame) is
+// within x * near_factor of the camera (its image point lies in the image, grown 1 px).
+void ViewRender::imageBoxes() {
+  const int W = W_, H = H_;
+  const double f = f_, ou = ou_, ov = ov_;
+  const double near_factor = std::hypot(1.0, (std::max(ou, W - 1 - ou) + 1.5) / f, (std::max(ov, H - 1 - ov) + 1.5) / f);
+  const double near_mm = 2.0 * near_factor;
+  for (const Prism& p : scene_.prisms()) {
+    std::vector<Eigen::Vector3d> pts;
+    std::vector<std::pair<int, int>> edges;
+    const int m = static_cast<int>(p.polygon.size());
+    for (int k = 0; k < m; ++k) {
+      const Eigen::Vector2d& c = p.polygon[static_cast<size_t>(k)];
+      pts.emplace_back(c.x(), c.y(), p.zmin);
+      pts.emplace_back(c.x(), c.y(), p.zmax);
+      const int next = (k + 1) % m;
+      edges.insert(edges.end(), {{2 * k, 2 * k + 1}, {2 * k, 2 * next}, {2 * k + 1, 2 * next + 1}});
+    }
+    boxes_.push_back(projectBox(pts, edges, cam_, Rwv_, f, ou, ov, W, H, near_mm));
+  }
+  for (const Sphere& s : scene_.spheres()) {
+    // Its bounding cube: corners k (bit i: + or - along axis i), edges between corners one bit apart.
+    std::vector<Eigen::Vector3d> pts;
+    std::vector<std::pair<int, int>> edges;
+    for (int k = 0; k < 8; ++k) {
+      pts.push_back(s.centre + s.radius * Eigen::Vector3d(k & 1 ? 1 : -1, k & 2 ? 1 : -1, k & 4 ? 1 : -1));
+      for (int bit = 1; bit < 8; bit <<= 1)
+        if (!(k & bit)) edges.emplace_back(k, k | bit);
+    }
+    boxes_.push_back(projectBox(pts, edges, cam_, Rwv_, f, ou, ov, W, H, near_mm));
+  }
+}
+
+// Ray-independent culling facts per object: `low` objects lie entirely below the camera, so
+// a ray that does not descend misses them; `outside` objects (walls, goals) lie outside the
+// open field, so a descending ray whose path from the wall-top height down to the floor
+// stays above the field cannot hit them (the field is convex).
+void ViewRender::cullingFacts() {
+  low_.assign(boxes_.size(), 0);
+  outside_.assign(boxes_.size(), 0);
+  for (size_t b = 0; b < n_prisms_; ++b) {
+    const Prism& p = scene_.prisms()[b];
+    low_[b] = p.zmax < cam_.z();
+    double x0 = 1e300, x1 = -1e300, y0 = 1e300, y1 = -1e300;
+    for (const Eigen::Vector2d& q : p.polygon) {
+      x0 = std::min(x0, q.x());
+      x1 = std::max(x1, q.x());
+      y0 = std::min(y0, q.y());
+      y1 = std::max(y1, q.y());
+    }
+    outside_[b] = x1 <= 0.0 || x0 >= g_.length || y1 <= 0.0 || y0 >= g_.width;
+    if (outside_[b]) outside_top_ = std::max(outside_top_, p.zmax);
+  }
+  cam_above_outside_ = cam_.z() > outside_top_;
+}
+
+// Axis-aligned boxes (walls, goals: most tested objects) get Scene::intersectPrism's slab test
+// inline, with the ray-independent differences (bound - camera) and the face colours computed
+// once here and 1 / d once per ray instead of per box. Same operations on the same values: the
+// same hits. slab_of_[b] indexes `slabs_`, -1 for other objects.
+void ViewRender::slabBoxes() {
+  slab_of_.assign(boxes_.size(), -1);
+  for (size_t b = 0; b < n_prisms_; ++b) {
+    const Eigen::Vector4d& r = scene_.boxRect(b);
+    if (std::isnan(r[0])) continue;
+    const Prism& p = scene_.prisms()[b];
+    SlabBox s;
+    s.rel = {r[0] - cam_.x(), r[2] - cam_.x(), r[1] - cam_.y(), r[3] - cam_.y(), p.zmin - cam_.z(), p.zmax - cam_.z()};
+    static const Eigen::Vector3d normals[6] = {{0, -1, 0}, {1, 0, 0}, {0, 1, 0}, {-1, 0, 0}, {0, 0, 1}, {0, 0, -1}};
+    for (int face = 0; face < 6; ++face) {
+      RayHit h;
+      h.cls = face < 4 ? p.side[face] : face == 4 ? p.top : p.bottom;
+      h.normal = normals[face];
+      s.colour[face] = surfaceColour(h, options_.colours, options_.shading);
+    }
+    slab_of_[b] = static_cast<int>(slabs_.size());
+    slabs_.push_back(s);
+  }
+}
+
+// The colours of the surfaces shade() does not take from a hit, and the values of pixels whose
+// samples are all floor or all background.
+void ViewRender::uniformColours() {
+  auto classColour = [&](SurfaceClass cls) {
+    RayHit h;
+    h.cls = cls;
+    h.normal = Eigen::Vector3d(0, 0, 1);
+    return surfaceColour(h, options_.colours, options_.shading);
+  };
+  background_ = classColour(SurfaceClass::Background);
+  floor_ = classColour(SurfaceClass::Floor);
+  marking_ = classColour(SurfaceClass::Marking);
+  // The mean of a pixel whose base samples all have colour c, summed as for traced samples.
+  auto uniformMean = [&](const Colour& c) {
+    Colour sum = Colour::Zero();
+    for (int k = 0; k < spp_; ++k) sum += c;
+    return Colour(sum / static_cast<float>(spp_));
+  };
+  floor_mean_ = uniformMean(floor_);
+  sky_mean_ = uniformMean(background_);
+  floor_bgr_ = toBgr(floor_mean_);
+  sky_bgr_ = toBgr(sky_mean_);
+  // Which points of the edge grid are base samples (their colour is in the pixel's mean).
+  on_base_.assign(static_cast<size_t>(std::max(fine_, 0)), 0);
+  for (int j = 0; j < fine_; ++j) on_base_[static_cast<size_t>(j)] = nested_ && j % fine_step_ == fine_step_ / 2;
+}
+
+// The objects a sample ray of pixel (u, v) may hit: those whose image box holds the pixel, in
+// object order (the order decides equal-distance hits), and of them the ones not outside the
+// field and the ones not below the camera (see cullingFacts). The lists change only where some
+// box starts or ends, so each row is cut into spans that share them (instead of filtering every
+// object for every pixel and pass).
+void ViewRender::rowSpans() {
+  const int W = W_, H = H_;
+  row_first_span_.assign(static_cast<size_t>(H) + 1, 0);
+  for (int v = 0; v < H; ++v) {
+    std::vector<size_t> row_objects;
+    std::vector<int> cuts = {0, W};
+    for (size_t b = 0; b < boxes_.size(); ++b)
+      if (v >= boxes_[b].v0 && v <= boxes_[b].v1) {
+        row_objects.push_back(b);
+        cuts.push_back(std::clamp(boxes_[b].u0, 0, W));
+        cuts.push_back(std::clamp(boxes_[b].u1 + 1, 0, W));
+      }
+    std::sort(cuts.begin(), cuts.end());
+    cuts.erase(std::unique(cuts.begin(), cuts.end()), cuts.end());
+    for (size_t c = 0; c + 1 < cuts.size(); ++c) {
+      const int u = cuts[c];
+      Span s;
+      s.u_end = cuts[c + 1];
+      auto add = [&](auto keep) {
+        const uint32_t first = static_cast<uint32_t>(items_.size());
+        for (size_t b : row_objects)
+          if (u >= boxes_[b].u0 && u <= boxes_[b].u1 && keep(b)) items_.push_back(static_cast<uint32_t>(b));
+        return std::pair<uint32_t, uint32_t>(first, static_cast<uint32_t>(items_.size()));
+      };
+      std::tie(s.all, s.all_end) = add([](size_t) { return true; });
+      std::tie(s.inside, s.inside_end) = add([&](size_t b) { return !outside_[b]; });
+      std::tie(s.high, s.high_end) = add([&](size_t b) { return !low_[b]; });
+      spans_.push_back(s);
+    }
+    row_first_span_[static_cast<size_t>(v) + 1] = static_cast<uint32_t>(spans_.size());
+  }
+}
+
+// The mode of every tile (see TileMode).
+void ViewRender::classifyTiles() {
+  const int W = W_, H = H_;
+  const double f = f_, ou = ou_, ov = ov_;
+  constexpr double kTileMargin = 0.05, kFieldMargin = 1e-2, kDirection = 1e-9;
+  tiles_x_ = (W + kTile - 1) / kTile;
+  tiles_y_ = (H + kTile - 1) / kTile;
+  const int tiles_x = tiles_x_, tiles_y = tiles_y_;
+  tiles_.assign(static_cast<size_t>(tiles_x) * tiles_y, TileMode::Traced);
+  // Per tile: does the image box of an object above the camera (bit 0) / not outside the field
+  // (bit 1) overlap it. Marked box by box (testing every object for every tile was 2.4 M
+  // instructions per pair, serial).
+  std::vector<uint8_t> overlap(tiles_.size(), 0);
+  for (size_t b = 0; b < boxes_.size(); ++b) {
+    const Box& box = boxes_[b];
+    const uint8_t bits = static_cast<uint8_t>((low_[b] ? 0 : 1) | (outside_[b] ? 0 : 2));
+    if (bits == 0 || box.u0 > std::min(box.u1, W - 1) || box.v0 > std::min(box.v1, H - 1) || box.u1 < 0 || box.v1 < 0)
+      continue;  // off the image
+    const int tx0 = std::max(0, box.u0) / kTile, tx1 = std::min(W - 1, box.u1) / kTile;
+    const int ty0 = std::max(0, box.v0) / kTile, ty1 = std::min(H - 1, box.v1) / kTile;
+    for (int ty = ty0; ty <= ty1; ++ty)
+      for (int tx = tx0; tx <= tx1; ++tx) overlap[static_cast<size_t>(ty) * tiles_x + tx] |= bits;
+  }
+  if (options_.reference_tracing) return;
+  for (int ty = 0; ty < tiles_y; ++ty)
+    for (int tx = 0; tx < tiles_x; ++tx) {
+      const int u0 = tx * kTile, u1 = std::min(W, u0 + kTile) - 1, v0 = ty * kTile, v1 = std::min(H, v0 + kTile) - 1;
+      bool all_down = true, all_up = true, in_field = cam_above_outside_;
+      double x_lo = 1e300, x_hi = -1e300, y_lo = 1e300, y_hi = -1e300;
+      for (int corner = 0; corner < 4; ++corner) {
+        const double su = (corner & 1) ? u1 + 0.5 + kTileMargin : u0 - 0.5 - kTileMargin;
+        const double sv = (corner & 2) ? v1 + 0.5 + kTileMargin : v0 - 0.5 - kTileMargin;
+        const Eigen::Vector3d d = Rwv_ * Eigen::Vector3d(1.0, -(su - ou) / f, -(sv - ov) / f);
+        all_down = all_down && d.z() < -kDirection;
+        all_up = all_up && d.z() > kDirection;
+        if (!all_down) continue;
+        for (double z : {0.0, outside_top_}) {
+          const double t = (z - cam_.z()) / d.z(), x = cam_.x() + t * d.x(), y = cam_.y() + t * d.y();
+          in_field = in_field && x > kFieldMargin && x < g_.length - kFieldMargin && y > kFieldMargin &&
+                     y < g_.width - kFieldMargin;
+          if (z == 0.0) {
+            x_lo = std::min(x_lo, x);
+            x_hi = std::max(x_hi, x);
+            y_lo = std::min(y_lo, y);
+            y_hi = std::max(y_hi, y);
+          }
+        }
+      }
+      const size_t t = static_cast<size_t>(ty) * tiles_x + tx;
+      TileMode& mode = tiles_[t];
+      if (all_up && !(overlap[t] & 1)) {
+        mode = TileMode::Sky;
+      } else if (all_down && in_field) {
+        mode = !(overlap[t] & 2) && scene_.floorIsPlain(x_lo - kFieldMargin, y_lo - kFieldMargin, x_hi + kFieldMargin,
+                                                             y_hi + kFieldMargin)
+                   ? TileMode::Floor
+                   : TileMode::Column;
+      }
+    }
+}
+
+// A Floor or Sky tile whose 4-neighbour tiles have its mode too is settled: each of its pixels
+// and their 4-neighbours have the same uniform mean, so none is refined (pass 2 writes the
+// uniform value without the neighbour tests).
+void ViewRender::settleTiles() {
+  const int tiles_x = tiles_x_, tiles_y = tiles_y_;
+  settled_.assign(tiles_.size(), 0);
+  for (int ty = 0; ty < tiles_y; ++ty)
+    for (int tx = 0; tx < tiles_x; ++tx) {
+      const TileMode mode = tiles_[static_cast<size_t>(ty) * tiles_x + tx];
+      auto same = [&](int x, int y) {
+        return x < 0 || y < 0 || x >= tiles_x || y >= tiles_y || tiles_[static_cast<size_t>(y) * tiles_x + x] == mode;
+      };
+      settled_[static_cast<size_t>(ty) * tiles_x + tx] = (mode == TileMode::Floor || mode == TileMode::Sky) &&
+                                                         same(tx - 1, ty) && same(tx + 1, ty) && same(tx, ty - 1) &&
+                                                         same(tx, ty + 1);
+    }
+}
+
+// Colour seen along the sample ray d (world frame) from this camera; `column`: the ray is
+// known to be in the column above the open field (a Column tile).
+inline Colour ViewRender::shade(const Eigen::Vector3d& d, const Span& span, bool column) const {
+  const Eigen::Vector3d& cam = cam_;
+  if (options_.reference_tracing)
+    return surfaceColour(scene_.trace(cam, d, 0.0, std::numeric_limits<double>::infinity()), options_.colours,
+                         options_.shading);
+  const bool descending = d.z() < 0;
+  bool in_column = column;
+  if (descending && cam_above_outside_ && !column) {
+    const double tf = -cam.z() / d.z(), tt = (outside_top_ - cam.z()) / d.z();
+    const double fx = cam.x() + tf * d.x(), fy = cam.y() + tf * d.y();
+    const double tx = cam.x() + tt * d.x(), ty = cam.y() + tt * d.y();
+    in_column = fx > 0 && fx < g_.length && fy > 0 && fy < g_.width && tx > 0 && tx < g_.length && ty > 0 &&
+                ty < g_.width;
+  }
+  const uint32_t* first = items_.data() + (!descending ? span.high : in_column ? span.inside : span.all);
+  const uint32_t* last = items_.data() + (!descending ? span.high_end : in_column ? span.inside_end : span.all_end);
+  double best_t = std::numeric_limits<double>::infinity();
+  Colour colour = background_;
+  if (first != last) {
+    const Eigen::Vector3d inv(d.x() != 0.0 ? 1.0 / d.x() : 0.0, d.y() != 0.0 ? 1.0 / d.y() : 0.0,
+                              d.z() != 0.0 ? 1.0 / d.z() : 0.0);
+    RayHit h;
+    for (const uint32_t* it = first; it != last; ++it) {
+      const size_t b = *it;
+      if (slab_of_[b] >= 0) {
+        // Scene::intersectPrism's slab test, term for term.
+        const SlabBox& s = slabs_[static_cast<size_t>(slab_of_[b])];
+        double t0 = 0.0, t1 = best_t;
+        int face = -3;
+        auto slab = [&](double lo, double hi, double d_k, double inv_k, int face_lo, int face_hi) {
+          if (d_k == 0.0) return lo <= 0.0 && hi >= 0.0;  // o_k >= lo && o_k <= hi
+          return clipSlab(lo * inv_k, hi * inv_k, face_lo, face_hi, t0, t1, face);
+        };
+        if (slab(s.rel[0], s.rel[1], d.x(), inv.x(), 3, 1) && slab(s.rel[2], s.rel[3], d.y(), inv.y(), 0, 2) &&
+            slab(s.rel[4], s.rel[5], d.z(), inv.z(), -2, -1) && face != -3 && t0 > 0.0) {
+          best_t = t0;
+          colour = s.colour[face >= 0 ? face : face == -1 ? 4 : 5];
+        }
+      } else if (b < n_prisms_ ? scene_.intersectPrism(b, cam, d, 0.0, best_t, &h)
+                               : scene_.intersectSphere(b - n_prisms_, cam, d, 0.0, best_t, &h)) {
+        best_t = h.t;
+        colour = surfaceColour(h, options_.colours, options_.shading);
+      }
+    }
+  }
+  if (descending) {
+    const double tf = -cam.z() / d.z();
+    if (tf < best_t) {
+      const SurfaceClass cls = scene_.floorClass(cam.x() + tf * d.x(), cam.y() + tf * d.y());
+      colour = cls == SurfaceClass::Floor ? floor_ : cls == SurfaceClass::Marking ? marking_ : background_;
+    }
+  }
+  return colour;
+}
+
+// Pass 1 over rows first_row, first_row + step, ...: the base n x n samples of every pixel,
+// their mean, and whether they disagree.
+void ViewRender::baseRows(int first_row, int step, std::vector<Colour>& mean, std::vector<uint8_t>& mixed) const {
+  const int W = W_, H = H_, n = n_, spp = spp_;
+  for (int v = first_row; v < H; v += step) {
+    const Span* span = spans_.data() + row_first_span_[static_cast<size_t>(v)];
+    const auto [u_first, u_last] = base_cols_[static_cast<size_t>(v)];
+    for (int u = u_first; u < u_last; ++u) {
+      while (u >= span->u_end) ++span;
+      const size_t i = static_cast<size_t>(v) * W + u;
+      const TileMode mode = tileMode(u, v);
+      if (mode == TileMode::Floor || mode == TileMode::Sky) {
+        mean[i] = mode == TileMode::Floor ? floor_mean_ : sky_mean_;
+        mixed[i] = 0;
+        continue;
+      }
+      Colour sum = Colour::Zero(), first = Colour::Zero();
+      bool differ = false;
+      for (int k = 0; k < spp; ++k) {
+        const Eigen::Vector3f ray(1.0f, rays_.base_y[static_cast<size_t>(u) * n + k % n],
+                                  rays_.base_z[static_cast<size_t>(v) * n + k / n]);
+        const Colour c = shade((Rf_ * ray).cast<double>(), *span, mode == TileMode::Column);
+        if (k == 0) first = c;
+        else differ = differ || (c - first).cwiseAbs().maxCoeff() > kColourTolerance;
+        sum += c;
+      }
+      mean[i] = sum / static_cast<float>(spp);
+      mixed[i] = differ ? 1 : 0;
+    }
+  }
+}
+
+// Pass 2 over rows first_row, first_row + step, ...: a pixel whose samples disagree, or whose
+// mean differs from a 4-neighbour's (a stripe thinner than the base grid spacing may fall
+// between this pixel's samples but not the neighbour's), is re-sampled on the finer edge grid;
+// the others keep the base mean.
+void ViewRender::renderRows(int first_row, int step, const std::vector<Colour>& mean,
+                            const std::vector<uint8_t>& mixed, cv::Mat& img) const {
+  const int W = W_, H = H_, spp = spp_, fine = fine_;
+  for (int v = first_row; v < H; v += step) {
+    const Span* span = spans_.data() + row_first_span_[static_cast<size_t>(v)];
+    cv::Vec3b* row = img.ptr<cv::Vec3b>(v);
+    const auto [u_first, u_last] = write_cols_[static_cast<size_t>(v)];
+    for (int u = u_first; u < u_last; ++u) {
+      while (u >= span->u_end) ++span;
+      const size_t tile = static_cast<size_t>(v / kTile) * tiles_x_ + u / kTile;
+      if (settled_[tile]) {
+        row[u] = tiles_[tile] == TileMode::Floor ? floor_bgr_ : sky_bgr_;
+        continue;
+      }
+      const size_t i = static_cast<size_t>(v) * W + u;
+      Colour c = mean[i];
+      // An edge between two sample rows (columns) of neighbouring pixels leaves both uniform
+      // but different: compare with the 4-neighbours.
+      auto differs = [&](size_t j) { return (mean[j] - c).cwiseAbs().maxCoeff() > kColourTolerance; };
+      const bool refine = fine > 0 && (mixed[i] || (u > 0 && differs(i - 1)) || (u + 1 < W && differs(i + 1)) ||
+                                       (v > 0 && differs(i - W)) || (v + 1 < H && differs(i + W)));
+      if (refine) {
+        const TileMode mode = tiles_[tile];
+        // The base samples are points of the fine grid when it nests them: reuse them.
+        Colour sum = nested_ ? Colour(c * static_cast<float>(spp)) : Colour::Zero();
+        for (int j = 0; j < fine; ++j)
+          for (int k = 0; k < fine; ++k) {
+            if (on_base_[static_cast<size_t>(j)] && on_base_[static_cast<size_t>(k)]) continue;
+            if (mode == TileMode::Floor || mode == TileMode::Sky) {
+              sum += mode == TileMode::Floor ? floor_ : background_;
+              continue;
+            }
+            const Eigen::Vector3f ray(1.0f, rays_.fine_y[static_cast<size_t>(u) * fine + k],
+                                      rays_.fine_z[static_cast<size_t>(v) * fine + j]);
+            sum += shade((Rf_ * ray).cast<double>(), *span, mode == TileMode::Column);
+          }
+        c = sum / static_cast<float>(fine * fine);
+      }
+      row[u] = toBgr(c);
+    }
+  }
+}
+
+// Runs rows(first_row, step) on options_.threads threads (this one included), rows interleaved.
+void ViewRender::runRows(const std::function<void(int, int)>& rows) const {
+  const int threads = std::min(options_.threads, H_);
+  if (threads <= 1) return rows(0, 1);
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(rows, t, threads);
+  rows(0, threads);
+  for (std::thread& th : pool) th.join();
+}
+
+// Illumination and blur (deterministic); sensor noise is render()'s.
+void ViewRender::illuminateAndBlur(cv::Mat& img) const {
+  if (options_.contrast != 1.0 || options_.brightness != 0.0)
+    img.convertTo(img, -1, options_.contrast, options_.brightness + 128.0 * (1.0 - options_.contrast));
+  if (options_.blur_sigma > 0) cv::GaussianBlur(img, img, cv::Size(0, 0), options_.blur_sigma);
+}
+
+cv::Mat ViewRender::render() const {
+  // Pass 1's output. Kept between the renders of a thread (no 1.4 MB allocation and page faults
+  // per image); every entry pass 2 reads is written by pass 1 of this render.
+  struct PixelScratch {
+    std::vector<Colour> mean;
+    std::vector<uint8_t> mixed;
+  };
+  static thread_local PixelScratch scratch;
+  scratch.mean.resize(static_cast<size_t>(W_) * H_);
+  scratch.mixed.resize(static_cast<size_t>(W_) * H_);
+  std::vector<Colour>& mean = scratch.mean;  // the workers of runRows use this thread's scratch
+  std::vector<uint8_t>& mixed = scratch.mixed;
+  cv::Mat img = needed_ ? cv::Mat(H_, W_, CV_8UC3, cv::Scalar::all(0)) : cv::Mat(H_, W_, CV_8UC3);
+  runRows([&](int first_row, int step) { baseRows(first_row, step, mean, mixed); });
+  runRows([&](int first_row, int step) { renderRows(first_row, step, mean, mixed, img); });
+  illuminateAndBlur(img);
+  return img;
+}
+
 }  // namespace
 
 void RenderOptions::validate() const {
@@ -312,410 +862,9 @@ cv::Mat StereoRenderer::renderCamera(const Pose2& robot, double head_pan, const 
 
 cv::Mat StereoRenderer::renderView(const Scene& scene, const Pose2& robot, double head_pan, int camera,
                                    const ColumnRanges* needed) const {
-  const int W = rig_.params().image_width, H = rig_.params().image_height, n = options_.samples_per_axis;
-  const int spp = n * n, fine = options_.edge_samples_per_axis;
-  const bool nested = fine > 0 && fine % n == 0;
-  const int fine_step = nested ? fine / n : 1;
-  const double f = rig_.focal(), ou = rig_.principalU(), ov = rig_.principalV();
-  const Eigen::Matrix3d Rwv = visionToWorldRotation(rig_, robot, head_pan);
-  const Eigen::Matrix3f Rf = Rwv.cast<float>();
-  const size_t n_prisms = scene.prisms().size();
-  // Columns [first, last) of each row that pass 2 writes (`needed`, else all), and those pass 1
-  // samples: pass 2 reads the base mean of a pixel and of its 4-neighbours.
-  std::vector<std::pair<int, int>> write_cols(static_cast<size_t>(H), {0, W}), base_cols = write_cols;
-  if (needed) {
-    auto clampRange = [W](std::pair<int, int> r) {
-      r.first = std::clamp(r.first, 0, W);
-      r.second = std::clamp(r.second, 0, W);
-      return r.first < r.second ? r : std::pair<int, int>(0, 0);
-    };
-    for (int v = 0; v < H; ++v) write_cols[static_cast<size_t>(v)] = clampRange((*needed)[static_cast<size_t>(v)]);
-    for (int v = 0; v < H; ++v) {
-      std::pair<int, int> b(W, 0);
-      auto join = [&](std::pair<int, int> r) {
-        if (r.first >= r.second) return;
-        b.first = std::min(b.first, r.first);
-        b.second = std::max(b.second, r.second);
-      };
-      const std::pair<int, int> own = write_cols[static_cast<size_t>(v)];
-      if (own.first < own.second) join({own.first - 1, own.second + 1});
-      if (v > 0) join(write_cols[static_cast<size_t>(v) - 1]);
-      if (v + 1 < H) join(write_cols[static_cast<size_t>(v) + 1]);
-      base_cols[static_cast<size_t>(v)] = clampRange(b);
-    }
-  }
-  const Eigen::Vector3d cam = cameraCentreWorld(rig_, robot, head_pan, camera);
-  // Per-object image bounding boxes (culling). A sample ray at x < 1 mm (camera frame) is
-  // within x * near_factor of the camera (its image point lies in the image, grown 1 px).
-  const double near_factor = std::hypot(1.0, (std::max(ou, W - 1 - ou) + 1.5) / f, (std::max(ov, H - 1 - ov) + 1.5) / f);
-  const double near_mm = 2.0 * near_factor;
-  std::vector<Box> boxes;
-  for (const Prism& p : scene.prisms()) {
-    std::vector<Eigen::Vector3d> pts;
-    std::vector<std::pair<int, int>> edges;
-    const int m = static_cast<int>(p.polygon.size());
-    for (int k = 0; k < m; ++k) {
-      const Eigen::Vector2d& c = p.polygon[static_cast<size_t>(k)];
-      pts.emplace_back(c.x(), c.y(), p.zmin);
-      pts.emplace_back(c.x(), c.y(), p.zmax);
-      const int next = (k + 1) % m;
-      edges.insert(edges.end(), {{2 * k, 2 * k + 1}, {2 * k, 2 * next}, {2 * k + 1, 2 * next + 1}});
-    }
-    boxes.push_back(projectBox(pts, edges, cam, Rwv, f, ou, ov, W, H, near_mm));
-  }
-  for (const Sphere& s : scene.spheres()) {
-    // Its bounding cube: corners k (bit i: + or - along axis i), edges between corners one bit apart.
-    std::vector<Eigen::Vector3d> pts;
-    std::vector<std::pair<int, int>> edges;
-    for (int k = 0; k < 8; ++k) {
-      pts.push_back(s.centre + s.radius * Eigen::Vector3d(k & 1 ? 1 : -1, k & 2 ? 1 : -1, k & 4 ? 1 : -1));
-      for (int bit = 1; bit < 8; bit <<= 1)
-        if (!(k & bit)) edges.emplace_back(k, k | bit);
-    }
-    boxes.push_back(projectBox(pts, edges, cam, Rwv, f, ou, ov, W, H, near_mm));
-  }
-  // Ray-independent culling facts per object: `low` objects lie entirely below the camera, so
-  // a ray that does not descend misses them; `outside` objects (walls, goals) lie outside the
-  // open field, so a descending ray whose path from the wall-top height down to the floor
-  // stays above the field cannot hit them (the field is convex).
-  const FieldGeometry& g = scene.geometry();
-  std::vector<uint8_t> low(boxes.size(), 0), outside(boxes.size(), 0);
-  double outside_top = 0.0;
-  for (size_t b = 0; b < n_prisms; ++b) {
-    const Prism& p = scene.prisms()[b];
-    low[b] = p.zmax < cam.z();
-    double x0 = 1e300, x1 = -1e300, y0 = 1e300, y1 = -1e300;
-    for (const Eigen::Vector2d& q : p.polygon) {
-      x0 = std::min(x0, q.x());
-      x1 = std::max(x1, q.x());
-      y0 = std::min(y0, q.y());
-      y1 = std::max(y1, q.y());
-    }
-    outside[b] = x1 <= 0.0 || x0 >= g.length || y1 <= 0.0 || y0 >= g.width;
-    if (outside[b]) outside_top = std::max(outside_top, p.zmax);
-  }
-  const bool cam_above_outside = cam.z() > outside_top;
-
-  // Axis-aligned boxes (walls, goals: most tested objects) get Scene::intersectPrism's slab test
-  // inline, with the ray-independent differences (bound - camera) and the face colours computed
-  // once here and 1 / d once per ray instead of per box. Same operations on the same values: the
-  // same hits. slab_of[b] indexes `slabs`, -1 for other objects.
-  std::vector<int> slab_of(boxes.size(), -1);
-  std::vector<SlabBox> slabs;
-  for (size_t b = 0; b < n_prisms; ++b) {
-    const Eigen::Vector4d& r = scene.boxRect(b);
-    if (std::isnan(r[0])) continue;
-    const Prism& p = scene.prisms()[b];
-    SlabBox s;
-    s.rel = {r[0] - cam.x(), r[2] - cam.x(), r[1] - cam.y(), r[3] - cam.y(), p.zmin - cam.z(), p.zmax - cam.z()};
-    static const Eigen::Vector3d normals[6] = {{0, -1, 0}, {1, 0, 0}, {0, 1, 0}, {-1, 0, 0}, {0, 0, 1}, {0, 0, -1}};
-    for (int face = 0; face < 6; ++face) {
-      RayHit h;
-      h.cls = face < 4 ? p.side[face] : face == 4 ? p.top : p.bottom;
-      h.normal = normals[face];
-      s.colour[face] = surfaceColour(h, options_.colours, options_.shading);
-    }
-    slab_of[b] = static_cast<int>(slabs.size());
-    slabs.push_back(s);
-  }
-  auto classColour = [&](SurfaceClass cls) {
-    RayHit h;
-    h.cls = cls;
-    h.normal = Eigen::Vector3d(0, 0, 1);
-    return surfaceColour(h, options_.colours, options_.shading);
-  };
-  const Colour background = classColour(SurfaceClass::Background), floor = classColour(SurfaceClass::Floor),
-               marking = classColour(SurfaceClass::Marking);
-
-  // The objects a sample ray of pixel (u, v) may hit: those whose image box holds the pixel, in
-  // object order (the order decides equal-distance hits), and of them the ones not outside the
-  // field and the ones not below the camera (see above). The lists change only where some box
-  // starts or ends, so each row is cut into spans that share them (instead of filtering every
-  // object for every pixel and pass).
-  std::vector<Span> spans;
-  std::vector<uint32_t> row_first_span(static_cast<size_t>(H) + 1, 0), items;
-  for (int v = 0; v < H; ++v) {
-    std::vector<size_t> row_objects;
-    std::vector<int> cuts = {0, W};
-    for (size_t b = 0; b < boxes.size(); ++b)
-      if (v >= boxes[b].v0 && v <= boxes[b].v1) {
-        row_objects.push_back(b);
-        cuts.push_back(std::clamp(boxes[b].u0, 0, W));
-        cuts.push_back(std::clamp(boxes[b].u1 + 1, 0, W));
-      }
-    std::sort(cuts.begin(), cuts.end());
-    cuts.erase(std::unique(cuts.begin(), cuts.end()), cuts.end());
-    for (size_t c = 0; c + 1 < cuts.size(); ++c) {
-      const int u = cuts[c];
-      Span s;
-      s.u_end = cuts[c + 1];
-      auto add = [&](auto keep) {
-        const uint32_t first = static_cast<uint32_t>(items.size());
-        for (size_t b : row_objects)
-          if (u >= boxes[b].u0 && u <= boxes[b].u1 && keep(b)) items.push_back(static_cast<uint32_t>(b));
-        return std::pair<uint32_t, uint32_t>(first, static_cast<uint32_t>(items.size()));
-      };
-      std::tie(s.all, s.all_end) = add([](size_t) { return true; });
-      std::tie(s.inside, s.inside_end) = add([&](size_t b) { return !outside[b]; });
-      std::tie(s.high, s.high_end) = add([&](size_t b) { return !low[b]; });
-      spans.push_back(s);
-    }
-    row_first_span[static_cast<size_t>(v) + 1] = static_cast<uint32_t>(spans.size());
-  }
-
-  // Image tiles whose every sample ray is known without tracing it. A tile's sample rays lie in
-  // the pyramid of the rays through its corners (grown by kTileMargin px, far more than the
-  // float rounding of the sample rays, ~1e-4 px). Where all four corner rays descend, a ray's
-  // floor point (and its point at the wall-top height) is a projective image of its pixel
-  // position that keeps convexity, so those points of every sample ray lie in the convex hull
-  // of the corners' points:
-  // - Column: the corner points lie inside the open field (1e-2 mm margin), so every ray is
-  //   in the column the per-ray test above would find; that test is skipped.
-  // - Floor: also no object not outside the field overlaps the tile and the floor under the
-  //   corners' bounding rectangle is plain: every sample is floor colour.
-  // - Sky: all four corner rays ascend and no object reaching above the camera overlaps the
-  //   tile: every sample is background.
-  // Other tiles trace every ray. The images are the same either way.
-  enum class TileMode : uint8_t { Traced, Column, Floor, Sky };
-  constexpr int kTile = 4;
-  constexpr double kTileMargin = 0.05, kFieldMargin = 1e-2, kDirection = 1e-9;
-  const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
-  std::vector<TileMode> tiles(static_cast<size_t>(tiles_x) * tiles_y, TileMode::Traced);
-  // Per tile: does the image box of an object above the camera (bit 0) / not outside the field
-  // (bit 1) overlap it. Marked box by box (testing every object for every tile was 2.4 M
-  // instructions per pair, serial).
-  std::vector<uint8_t> overlap(tiles.size(), 0);
-  for (size_t b = 0; b < boxes.size(); ++b) {
-    const uint8_t bits = static_cast<uint8_t>((low[b] ? 0 : 1) | (outside[b] ? 0 : 2));
-    if (bits == 0 || boxes[b].u0 > std::min(boxes[b].u1, W - 1) || boxes[b].v0 > std::min(boxes[b].v1, H - 1) ||
-        boxes[b].u1 < 0 || boxes[b].v1 < 0)
-      continue;  // off the image
-    const int tx0 = std::max(0, boxes[b].u0) / kTile, tx1 = std::min(W - 1, boxes[b].u1) / kTile;
-    const int ty0 = std::max(0, boxes[b].v0) / kTile, ty1 = std::min(H - 1, boxes[b].v1) / kTile;
-    for (int ty = ty0; ty <= ty1; ++ty)
-      for (int tx = tx0; tx <= tx1; ++tx) overlap[static_cast<size_t>(ty) * tiles_x + tx] |= bits;
-  }
-  for (int ty = 0; ty < tiles_y && !options_.reference_tracing; ++ty)
-    for (int tx = 0; tx < tiles_x; ++tx) {
-      const int u0 = tx * kTile, u1 = std::min(W, u0 + kTile) - 1, v0 = ty * kTile, v1 = std::min(H, v0 + kTile) - 1;
-      bool all_down = true, all_up = true, in_field = cam_above_outside;
-      double x_lo = 1e300, x_hi = -1e300, y_lo = 1e300, y_hi = -1e300;
-      for (int corner = 0; corner < 4; ++corner) {
-        const double su = (corner & 1) ? u1 + 0.5 + kTileMargin : u0 - 0.5 - kTileMargin;
-        const double sv = (corner & 2) ? v1 + 0.5 + kTileMargin : v0 - 0.5 - kTileMargin;
-        const Eigen::Vector3d d = Rwv * Eigen::Vector3d(1.0, -(su - ou) / f, -(sv - ov) / f);
-        all_down = all_down && d.z() < -kDirection;
-        all_up = all_up && d.z() > kDirection;
-        if (!all_down) continue;
-        for (double z : {0.0, outside_top}) {
-          const double t = (z - cam.z()) / d.z(), x = cam.x() + t * d.x(), y = cam.y() + t * d.y();
-          in_field = in_field && x > kFieldMargin && x < g.length - kFieldMargin && y > kFieldMargin &&
-                     y < g.width - kFieldMargin;
-          if (z == 0.0) {
-            x_lo = std::min(x_lo, x);
-            x_hi = std::max(x_hi, x);
-            y_lo = std::min(y_lo, y);
-            y_hi = std::max(y_hi, y);
-          }
-        }
-      }
-      const size_t t = static_cast<size_t>(ty) * tiles_x + tx;
-      TileMode& mode = tiles[t];
-      if (all_up && !(overlap[t] & 1)) {
-        mode = TileMode::Sky;
-      } else if (all_down && in_field) {
-        mode = !(overlap[t] & 2) && scene.floorIsPlain(x_lo - kFieldMargin, y_lo - kFieldMargin, x_hi + kFieldMargin,
-                                                            y_hi + kFieldMargin)
-                   ? TileMode::Floor
-                   : TileMode::Column;
-      }
-    }
-  auto tileMode = [&](int u, int v) { return tiles[static_cast<size_t>(v / kTile) * tiles_x + u / kTile]; };
-  // A Floor or Sky tile whose 4-neighbour tiles have its mode too is settled: each of its pixels
-  // and their 4-neighbours have the same uniform mean, so none is refined (pass 2 writes the
-  // uniform value without the neighbour tests).
-  std::vector<uint8_t> settled(tiles.size(), 0);
-  for (int ty = 0; ty < tiles_y; ++ty)
-    for (int tx = 0; tx < tiles_x; ++tx) {
-      const TileMode mode = tiles[static_cast<size_t>(ty) * tiles_x + tx];
-      auto same = [&](int x, int y) {
-        return x < 0 || y < 0 || x >= tiles_x || y >= tiles_y || tiles[static_cast<size_t>(y) * tiles_x + x] == mode;
-      };
-      settled[static_cast<size_t>(ty) * tiles_x + tx] = (mode == TileMode::Floor || mode == TileMode::Sky) &&
-                                                        same(tx - 1, ty) && same(tx + 1, ty) && same(tx, ty - 1) &&
-                                                        same(tx, ty + 1);
-    }
-
-  // Colour seen along the sample ray d (world frame) from this camera; `column`: the ray is
-  // known to be in the column above the open field (a Column tile).
-  auto shade = [&](const Eigen::Vector3d& d, const Span& span, bool column) -> Colour {
-    if (options_.reference_tracing)
-      return surfaceColour(scene.trace(cam, d, 0.0, std::numeric_limits<double>::infinity()), options_.colours,
-                           options_.shading);
-    const bool descending = d.z() < 0;
-    bool in_column = column;
-    if (descending && cam_above_outside && !column) {
-      const double tf = -cam.z() / d.z(), tt = (outside_top - cam.z()) / d.z();
-      const double fx = cam.x() + tf * d.x(), fy = cam.y() + tf * d.y();
-      const double tx = cam.x() + tt * d.x(), ty = cam.y() + tt * d.y();
-      in_column = fx > 0 && fx < g.length && fy > 0 && fy < g.width && tx > 0 && tx < g.length && ty > 0 &&
-                  ty < g.width;
-    }
-    const uint32_t* first = items.data() + (!descending ? span.high : in_column ? span.inside : span.all);
-    const uint32_t* last = items.data() + (!descending ? span.high_end : in_column ? span.inside_end : span.all_end);
-    double best_t = std::numeric_limits<double>::infinity();
-    Colour colour = background;
-    if (first != last) {
-      const Eigen::Vector3d inv(d.x() != 0.0 ? 1.0 / d.x() : 0.0, d.y() != 0.0 ? 1.0 / d.y() : 0.0,
-                                d.z() != 0.0 ? 1.0 / d.z() : 0.0);
-      RayHit h;
-      for (const uint32_t* it = first; it != last; ++it) {
-        const size_t b = *it;
-        if (slab_of[b] >= 0) {
-          // Scene::intersectPrism's slab test, term for term.
-          const SlabBox& s = slabs[static_cast<size_t>(slab_of[b])];
-          double t0 = 0.0, t1 = best_t;
-          int face = -3;
-          auto slab = [&](double lo, double hi, double d_k, double inv_k, int face_lo, int face_hi) {
-            if (d_k == 0.0) return lo <= 0.0 && hi >= 0.0;  // o_k >= lo && o_k <= hi
-            return clipSlab(lo * inv_k, hi * inv_k, face_lo, face_hi, t0, t1, face);
-          };
-          if (slab(s.rel[0], s.rel[1], d.x(), inv.x(), 3, 1) && slab(s.rel[2], s.rel[3], d.y(), inv.y(), 0, 2) &&
-              slab(s.rel[4], s.rel[5], d.z(), inv.z(), -2, -1) && face != -3 && t0 > 0.0) {
-            best_t = t0;
-            colour = s.colour[face >= 0 ? face : face == -1 ? 4 : 5];
-          }
-        } else if (b < n_prisms ? scene.intersectPrism(b, cam, d, 0.0, best_t, &h)
-                                : scene.intersectSphere(b - n_prisms, cam, d, 0.0, best_t, &h)) {
-          best_t = h.t;
-          colour = surfaceColour(h, options_.colours, options_.shading);
-        }
-      }
-    }
-    if (descending) {
-      const double tf = -cam.z() / d.z();
-      if (tf < best_t) {
-        const SurfaceClass cls = scene.floorClass(cam.x() + tf * d.x(), cam.y() + tf * d.y());
-        colour = cls == SurfaceClass::Floor ? floor : cls == SurfaceClass::Marking ? marking : background;
-      }
-    }
-    return colour;
-  };
-  // The mean of a pixel whose base samples all have colour c, summed as for traced samples.
-  auto uniformMean = [&](const Colour& c) {
-    Colour sum = Colour::Zero();
-    for (int k = 0; k < spp; ++k) sum += c;
-    return Colour(sum / static_cast<float>(spp));
-  };
-  const Colour floor_mean = uniformMean(floor), sky_mean = uniformMean(background);
-  auto toBgr = [](Colour c) {
-    c *= 255.0f;
-    return cv::Vec3b(cv::saturate_cast<uchar>(c.z()), cv::saturate_cast<uchar>(c.y()), cv::saturate_cast<uchar>(c.x()));
-  };
-  const cv::Vec3b floor_bgr = toBgr(floor_mean), sky_bgr = toBgr(sky_mean);
-  // Which points of the edge grid are base samples (their colour is in the pixel's mean).
-  std::vector<uint8_t> on_base(static_cast<size_t>(std::max(fine, 0)), 0);
-  for (int j = 0; j < fine; ++j) on_base[static_cast<size_t>(j)] = nested && j % fine_step == fine_step / 2;
-
-  // Pass 1: the base n x n samples of every pixel, their mean, and whether they disagree.
-  // Kept between the renders of a thread (no 1.4 MB allocation and page faults per image);
-  // every entry pass 2 reads is written by pass 1 of this render.
-  struct PixelScratch {
-    std::vector<Colour> mean;
-    std::vector<uint8_t> mixed;
-  };
-  static thread_local PixelScratch scratch;
-  scratch.mean.resize(static_cast<size_t>(W) * H);
-  scratch.mixed.resize(static_cast<size_t>(W) * H);
-  std::vector<Colour>& mean = scratch.mean;  // the workers of runRows use this thread's scratch
-  std::vector<uint8_t>& mixed = scratch.mixed;
-  auto baseRows = [&](int first_row, int step) {
-    for (int v = first_row; v < H; v += step) {
-      const Span* span = spans.data() + row_first_span[static_cast<size_t>(v)];
-      const auto [u_first, u_last] = base_cols[static_cast<size_t>(v)];
-      for (int u = u_first; u < u_last; ++u) {
-        while (u >= span->u_end) ++span;
-        const size_t i = static_cast<size_t>(v) * W + u;
-        const TileMode mode = tileMode(u, v);
-        if (mode == TileMode::Floor || mode == TileMode::Sky) {
-          mean[i] = mode == TileMode::Floor ? floor_mean : sky_mean;
-          mixed[i] = 0;
-          continue;
-        }
-        Colour sum = Colour::Zero(), first = Colour::Zero();
-        bool differ = false;
-        for (int k = 0; k < spp; ++k) {
-          const Eigen::Vector3f ray(1.0f, base_y_[static_cast<size_t>(u) * n + k % n],
-                                    base_z_[static_cast<size_t>(v) * n + k / n]);
-          const Colour c = shade((Rf * ray).cast<double>(), *span, mode == TileMode::Column);
-          if (k == 0) first = c;
-          else differ = differ || (c - first).cwiseAbs().maxCoeff() > kColourTolerance;
-          sum += c;
-        }
-        mean[i] = sum / static_cast<float>(spp);
-        mixed[i] = differ ? 1 : 0;
-      }
-    }
-  };
-  // Pass 2: a pixel whose samples disagree, or whose mean differs from a 4-neighbour's (a stripe
-  // thinner than the base grid spacing may fall between this pixel's samples but not the
-  // neighbour's), is re-sampled on the finer edge grid; the others keep the base mean.
-  cv::Mat img = needed ? cv::Mat(H, W, CV_8UC3, cv::Scalar::all(0)) : cv::Mat(H, W, CV_8UC3);
-  auto renderRows = [&](int first_row, int step) {
-    for (int v = first_row; v < H; v += step) {
-      const Span* span = spans.data() + row_first_span[static_cast<size_t>(v)];
-      cv::Vec3b* row = img.ptr<cv::Vec3b>(v);
-      const auto [u_first, u_last] = write_cols[static_cast<size_t>(v)];
-      for (int u = u_first; u < u_last; ++u) {
-        while (u >= span->u_end) ++span;
-        const size_t tile = static_cast<size_t>(v / kTile) * tiles_x + u / kTile;
-        if (settled[tile]) {
-          row[u] = tiles[tile] == TileMode::Floor ? floor_bgr : sky_bgr;
-          continue;
-        }
-        const size_t i = static_cast<size_t>(v) * W + u;
-        Colour c = mean[i];
-        // An edge between two sample rows (columns) of neighbouring pixels leaves both uniform
-        // but different: compare with the 4-neighbours.
-        auto differs = [&](size_t j) { return (mean[j] - c).cwiseAbs().maxCoeff() > kColourTolerance; };
-        const bool refine = fine > 0 && (mixed[i] || (u > 0 && differs(i - 1)) || (u + 1 < W && differs(i + 1)) ||
-                                         (v > 0 && differs(i - W)) || (v + 1 < H && differs(i + W)));
-        if (refine) {
-          const TileMode mode = tiles[tile];
-          // The base samples are points of the fine grid when it nests them: reuse them.
-          Colour sum = nested ? Colour(c * static_cast<float>(spp)) : Colour::Zero();
-          for (int j = 0; j < fine; ++j)
-            for (int k = 0; k < fine; ++k) {
-              if (on_base[static_cast<size_t>(j)] && on_base[static_cast<size_t>(k)]) continue;
-              if (mode == TileMode::Floor || mode == TileMode::Sky) {
-                sum += mode == TileMode::Floor ? floor : background;
-                continue;
-              }
-              const Eigen::Vector3f ray(1.0f, fine_y_[static_cast<size_t>(u) * fine + k],
-                                        fine_z_[static_cast<size_t>(v) * fine + j]);
-              sum += shade((Rf * ray).cast<double>(), *span, mode == TileMode::Column);
-            }
-          c = sum / static_cast<float>(fine * fine);
-        }
-        row[u] = toBgr(c);
-      }
-    }
-  };
-  const int threads = std::min(options_.threads, H);
-  auto runRows = [threads](const std::function<void(int, int)>& rows) {
-    if (threads <= 1) return rows(0, 1);
-    std::vector<std::thread> pool;
-    for (int t = 1; t < threads; ++t) pool.emplace_back(rows, t, threads);
-    rows(0, threads);
-    for (std::thread& th : pool) th.join();
-  };
-  runRows(baseRows);
-  runRows(renderRows);
-  // Illumination and blur (deterministic); sensor noise is render()'s.
-  if (options_.contrast != 1.0 || options_.brightness != 0.0)
-    img.convertTo(img, -1, options_.contrast, options_.brightness + 128.0 * (1.0 - options_.contrast));
-  if (options_.blur_sigma > 0) cv::GaussianBlur(img, img, cv::Size(0, 0), options_.blur_sigma);
-  return img;
+  return ViewRender(scene, rig_, options_, SampleRays{base_y_, base_z_, fine_y_, fine_z_}, robot, head_pan, camera,
+                    needed)
+      .render();
 }
 
 StereoTruth StereoRenderer::computeTruth(const Scene& scene, const Pose2& robot, double head_pan) const {
