@@ -94,6 +94,7 @@ class StereoRenderer {
 
  private:
   StereoTruth computeTruth(const Scene& scene, const Pose2& robot, double head_pan) const;
+  // One camera's image before sensor noise; the work, phase by phase: ViewRender in renderer.cpp.
   cv::Mat renderView(const Scene& scene, const Pose2& robot, double head_pan, int camera,
                      const ColumnRanges* needed) const;
   // Offset in the pixel (0..1) of base sample i (0..samples_per_axis-1). Centred (i + 0.5) / n,
