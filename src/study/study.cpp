@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <set>
@@ -138,13 +139,7 @@ void writeCalibrationCsv(const std::vector<CalibrationRow>& rows, const std::str
   out.commit();
 }
 
-}  // namespace
-
-uint64_t trialSeed(uint64_t study_seed, const std::string& scenario, int trial) {
-  return splitmix64(splitmix64(study_seed) ^ hashString(scenario) ^ splitmix64(static_cast<uint64_t>(trial) + 0x51ED));
-}
-
-StudyResult runStudy(const StudyConfig& c) {
+void validateStudyConfig(const StudyConfig& c) {
   if (c.trials < 1) throw UsageError("--trials must be at least 1");
   if (c.shard_count < 1 || c.shard_index < 0 || c.shard_index >= c.shard_count)
     throw UsageError("--shard I/N needs 0 <= I < N");
@@ -164,34 +159,31 @@ StudyResult runStudy(const StudyConfig& c) {
       throw UsageError(std::string("--profile: ") + e.what());
     }
   }
-  prepareOutDir(c.out_dir, c.force);
-  writeStudyYaml(c, c.out_dir + "/study.yaml");
+}
 
-  struct Task {
-    std::string scenario, profile;
-    int trial;
-  };
-  std::vector<Task> tasks;
+struct StudyTask {
+  std::string scenario, profile;
+  int trial;
+};
+
+// This shard's trials, scenario by scenario, profile by profile.
+std::vector<StudyTask> studyTasks(const StudyConfig& c) {
+  std::vector<StudyTask> tasks;
   for (const std::string& s : c.scenarios)
     for (const std::string& p : c.profiles)
       for (int t = c.shard_index; t < c.trials; t += c.shard_count) tasks.push_back({s, p, t});
+  return tasks;
+}
 
-  std::ofstream trials_csv(c.out_dir + "/trials.csv"), steps_csv(c.out_dir + "/steps.csv");
-  if (!trials_csv || !steps_csv) throw Error(c.out_dir + ": cannot create trials.csv / steps.csv");
-  trials_csv << kTrialHeader << "\n" << std::flush;
-  steps_csv << kStepHeader << "\n" << std::flush;
-
+// Runs the tasks on `threads` workers and hands each one's output (or its error message) to
+// `take` in task order, as soon as it and every earlier task are done.
+void runTasksInOrder(const StudyConfig& c, const std::vector<StudyTask>& tasks, const RenderCache& cache, int threads,
+                     const std::function<void(size_t, TrialOutput&&, const std::string&)>& take) {
   std::vector<std::optional<TrialOutput>> results(tasks.size());
   std::vector<std::string> errors(tasks.size());
   std::mutex mu;
   std::condition_variable cv;
   std::atomic<size_t> next{0};
-  const int threads = c.threads > 0 ? c.threads : std::max(1u, std::thread::hardware_concurrency());
-  const auto cache_start = std::chrono::steady_clock::now();
-  const RenderCache cache = buildRenderCache(c, threads);
-  if (!cache.empty() && c.log)
-    std::fprintf(c.log, "study: rendered the noise-free pairs of %zu scenario(s) in %.1f s; each trial adds its own sensor noise\n",
-                 cache.size(), std::chrono::duration<double>(std::chrono::steady_clock::now() - cache_start).count());
   std::vector<std::thread> pool;
   for (int i = 0; i < threads; ++i) {
     pool.emplace_back([&] {
@@ -211,62 +203,118 @@ StudyResult runStudy(const StudyConfig& c) {
       }
     });
   }
-  // Rows are written in task order as soon as they are complete: the files do not depend on the
-  // thread count, and an interrupted study keeps every trial it finished.
-  const bool bar = c.progress && c.log && ::isatty(::fileno(c.log));
-  const auto start = std::chrono::steady_clock::now();
-  std::vector<TrialRow> all_rows;
-  std::vector<StepRow> all_steps;
-  std::vector<CalibrationRow> all_calibration;
-  ImageFrontendStats frontend_stats;
-  std::string first_error;
   for (size_t k = 0; k < tasks.size(); ++k) {
     std::unique_lock<std::mutex> lock(mu);
     cv.wait(lock, [&] { return results[k].has_value(); });
     TrialOutput out = std::move(*results[k]);
     const std::string err = errors[k];
     lock.unlock();
-    if (!err.empty()) {
-      if (first_error.empty()) first_error = err;
-      continue;
-    }
-    if (c.log)
-      for (const std::string& f : out.failures)
-        std::fprintf(c.log, "%sstudy: %s%s trial %d: %s\n", bar ? "\n" : "", tasks[k].scenario.c_str(),
-                     tasks[k].profile == "ideal" ? "" : (" (" + tasks[k].profile + ")").c_str(), tasks[k].trial, f.c_str());
-    for (const TrialRow& r : out.rows) trials_csv << toCsv(r) << "\n";
-    for (const StepRow& s : out.steps) steps_csv << toCsv(s) << "\n";
-    trials_csv.flush();
-    steps_csv.flush();
-    all_rows.insert(all_rows.end(), out.rows.begin(), out.rows.end());
-    all_steps.insert(all_steps.end(), out.steps.begin(), out.steps.end());
-    all_calibration.insert(all_calibration.end(), out.calibration.begin(), out.calibration.end());
-    frontend_stats.merge(out.frontend);
-    if (bar) {
-      const double el = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-      const double eta = el / (k + 1) * (tasks.size() - k - 1);
-      const int width = 30, filled = static_cast<int>(width * (k + 1) / tasks.size());
-      std::fprintf(c.log, "\r[%s%s] %zu/%zu trials, %.0f s elapsed, ETA %.0f s ", std::string(filled, '#').c_str(),
-                   std::string(width - filled, '.').c_str(), k + 1, tasks.size(), el, eta);
-    }
+    take(k, std::move(out), err);
   }
   for (std::thread& t : pool) t.join();
-  if (bar) std::fprintf(c.log, "\n");
-  if (!first_error.empty()) throw Error(first_error);
-  if (frontend_stats.pairs > 0 && c.log) {
-    const double n = static_cast<double>(frontend_stats.pairs);
-    std::fprintf(c.log,
-                 "image frontend: %ld stereo pairs, %.2f observations per pair (%.2f goal corners), rendering %.1f ms/pair, "
-                 "frontend %.2f ms/pair; trials done in %.1f s\n",
-                 frontend_stats.pairs, frontend_stats.observations / n, frontend_stats.identified / n,
-                 frontend_stats.ms_render / n, frontend_stats.ms_frontend / n,
-                 std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+}
+
+// Rows are written in task order as soon as they are complete: the files do not depend on the
+// thread count, and an interrupted study keeps every trial it finished.
+class StudyCollector {
+ public:
+  StudyCollector(const StudyConfig& c, const std::vector<StudyTask>& tasks)
+      : c_(c), tasks_(tasks), trials_csv_(c.out_dir + "/trials.csv"), steps_csv_(c.out_dir + "/steps.csv"),
+        bar_(c.progress && c.log && ::isatty(::fileno(c.log))) {
+    if (!trials_csv_ || !steps_csv_) throw Error(c.out_dir + ": cannot create trials.csv / steps.csv");
+    trials_csv_ << kTrialHeader << "\n" << std::flush;
+    steps_csv_ << kStepHeader << "\n" << std::flush;
   }
-  writeCalibrationCsv(all_calibration, c.out_dir + "/calibration.csv");
+
+  void startClock() { start_ = std::chrono::steady_clock::now(); }  // progress and "trials done in"
+
+  void take(size_t k, TrialOutput&& out, const std::string& err) {
+    if (!err.empty()) {
+      if (first_error_.empty()) first_error_ = err;
+      return;
+    }
+    const StudyTask& task = tasks_[k];
+    if (c_.log)
+      for (const std::string& f : out.failures)
+        std::fprintf(c_.log, "%sstudy: %s%s trial %d: %s\n", bar_ ? "\n" : "", task.scenario.c_str(),
+                     task.profile == "ideal" ? "" : (" (" + task.profile + ")").c_str(), task.trial, f.c_str());
+    for (const TrialRow& r : out.rows) trials_csv_ << toCsv(r) << "\n";
+    for (const StepRow& s : out.steps) steps_csv_ << toCsv(s) << "\n";
+    trials_csv_.flush();
+    steps_csv_.flush();
+    rows.insert(rows.end(), out.rows.begin(), out.rows.end());
+    steps.insert(steps.end(), out.steps.begin(), out.steps.end());
+    calibration.insert(calibration.end(), out.calibration.begin(), out.calibration.end());
+    frontend.merge(out.frontend);
+    if (bar_) printProgress(k + 1);
+  }
+
+  // After the last task: ends the progress bar, throws the first trial's error, logs the
+  // frontend's figures.
+  void finish() const {
+    if (bar_) std::fprintf(c_.log, "\n");
+    if (!first_error_.empty()) throw Error(first_error_);
+    if (frontend.pairs > 0 && c_.log) {
+      const double n = static_cast<double>(frontend.pairs);
+      std::fprintf(c_.log,
+                   "image frontend: %ld stereo pairs, %.2f observations per pair (%.2f goal corners), rendering %.1f "
+                   "ms/pair, frontend %.2f ms/pair; trials done in %.1f s\n",
+                   frontend.pairs, frontend.observations / n, frontend.identified / n, frontend.ms_render / n,
+                   frontend.ms_frontend / n, elapsedS());
+    }
+  }
+
+  std::vector<TrialRow> rows;
+  std::vector<StepRow> steps;
+  std::vector<CalibrationRow> calibration;
+  ImageFrontendStats frontend;
+
+ private:
+  double elapsedS() const { return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count(); }
+
+  void printProgress(size_t done) const {
+    const double el = elapsedS();
+    const double eta = el / done * (tasks_.size() - done);
+    const int width = 30, filled = static_cast<int>(width * done / tasks_.size());
+    std::fprintf(c_.log, "\r[%s%s] %zu/%zu trials, %.0f s elapsed, ETA %.0f s ", std::string(filled, '#').c_str(),
+                 std::string(width - filled, '.').c_str(), done, tasks_.size(), el, eta);
+  }
+
+  const StudyConfig& c_;
+  const std::vector<StudyTask>& tasks_;
+  std::ofstream trials_csv_, steps_csv_;
+  const bool bar_;
+  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+  std::string first_error_;
+};
+
+}  // namespace
+
+uint64_t trialSeed(uint64_t study_seed, const std::string& scenario, int trial) {
+  return splitmix64(splitmix64(study_seed) ^ hashString(scenario) ^ splitmix64(static_cast<uint64_t>(trial) + 0x51ED));
+}
+
+StudyResult runStudy(const StudyConfig& c) {
+  validateStudyConfig(c);
+  prepareOutDir(c.out_dir, c.force);
+  writeStudyYaml(c, c.out_dir + "/study.yaml");
+  const std::vector<StudyTask> tasks = studyTasks(c);
+  StudyCollector collected(c, tasks);
+  const int threads = c.threads > 0 ? c.threads : std::max(1u, std::thread::hardware_concurrency());
+  const auto cache_start = std::chrono::steady_clock::now();
+  const RenderCache cache = buildRenderCache(c, threads);
+  if (!cache.empty() && c.log)
+    std::fprintf(c.log, "study: rendered the noise-free pairs of %zu scenario(s) in %.1f s; each trial adds its own sensor noise\n",
+                 cache.size(), std::chrono::duration<double>(std::chrono::steady_clock::now() - cache_start).count());
+  collected.startClock();
+  runTasksInOrder(c, tasks, cache, threads,
+                  [&](size_t k, TrialOutput&& out, const std::string& err) { collected.take(k, std::move(out), err); });
+  collected.finish();
+  writeCalibrationCsv(collected.calibration, c.out_dir + "/calibration.csv");
   StudyResult result;
-  result.summary = writeReport(c, all_rows, all_steps, all_calibration, &cache, c.out_dir);
+  result.summary = writeReport(c, collected.rows, collected.steps, collected.calibration, &cache, c.out_dir);
   result.report = c.out_dir + "/report.md";
-  result.trial_rows = all_rows.size();
+  result.trial_rows = collected.rows.size();
   return result;
 }
 
