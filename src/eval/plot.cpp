@@ -171,10 +171,25 @@ void dashedLine(cv::Mat& img, cv::Point2d a, cv::Point2d b, const cv::Scalar& c,
 
 }  // namespace
 
-cv::Mat Plot::render() const {
-  cv::Mat img(height_, width_, CV_8UC3, cv::Scalar(255, 255, 255));
-  const int left = 90, right = 20, top = 50, bottom = categories_.empty() ? 70 : 110;
-  // Data limits.
+// Where data lands on the image: the plot area's margins and size (px), the data limits and the
+// scale (px per unit), the tick range (x_hi, y_hi: the data limits, or with equal aspect the
+// data at the area's far edges).
+struct Plot::Frame {
+  int left = 90, right = 20, top = 50, bottom = 70;
+  double pw = 0, ph = 0, xmin = 0, xmax = 1, ymin = 0, ymax = 1, sx = 1, sy = 1, x_hi = 1, y_hi = 1;
+  cv::Point2d toPx(const Eigen::Vector2d& p) const {
+    return cv::Point2d(left + (p.x() - xmin) * sx, top + ph - (p.y() - ymin) * sy);
+  }
+  cv::Rect area() const { return cv::Rect(left, top, static_cast<int>(pw), static_cast<int>(ph)); }
+};
+
+namespace {
+const cv::Scalar kGridColour(225, 225, 225), kAxisColour(60, 60, 60), kTextColour(30, 30, 30);
+}  // namespace
+
+Plot::Frame Plot::frame() const {
+  Frame f;
+  f.bottom = categories_.empty() ? 70 : 110;
   double xmin = xmin_, xmax = xmax_, ymin = ymin_, ymax = ymax_;
   if (!fixed_limits_) {
     xmin = ymin = std::numeric_limits<double>::infinity();
@@ -204,43 +219,49 @@ cv::Mat Plot::render() const {
     const double px = 0.03 * (xmax - xmin), py = 0.05 * (ymax - ymin);
     xmin -= px, xmax += px, ymin -= py, ymax += py;
   }
-  const double pw = width_ - left - right, ph = height_ - top - bottom;
-  double sx = pw / (xmax - xmin), sy = ph / (ymax - ymin);
+  f.xmin = xmin, f.xmax = xmax, f.ymin = ymin, f.ymax = ymax;
+  f.pw = width_ - f.left - f.right;
+  f.ph = height_ - f.top - f.bottom;
+  f.sx = f.pw / (xmax - xmin);
+  f.sy = f.ph / (ymax - ymin);
   if (equal_aspect_) {
-    const double s = std::min(sx, sy);
-    sx = sy = s;
+    const double s = std::min(f.sx, f.sy);
+    f.sx = f.sy = s;
   }
-  auto toPx = [&](const Eigen::Vector2d& p) { return cv::Point2d(left + (p.x() - xmin) * sx, top + ph - (p.y() - ymin) * sy); };
-  const cv::Rect plot_area(left, top, static_cast<int>(pw), static_cast<int>(ph));
-  // Grid and ticks.
-  const cv::Scalar grid(225, 225, 225), axis(60, 60, 60), text(30, 30, 30);
-  const double x_hi = equal_aspect_ ? xmin + pw / sx : xmax, y_hi = equal_aspect_ ? ymin + ph / sy : ymax;
-  const auto xt = categories_.empty() ? niceTicks(xmin, x_hi) : std::vector<double>{};
-  const auto yt = niceTicks(ymin, y_hi);
+  f.x_hi = equal_aspect_ ? xmin + f.pw / f.sx : xmax;
+  f.y_hi = equal_aspect_ ? ymin + f.ph / f.sy : ymax;
+  return f;
+}
+
+void Plot::drawGrid(cv::Mat& img, const Frame& f) const {
+  const auto xt = categories_.empty() ? niceTicks(f.xmin, f.x_hi) : std::vector<double>{};
+  const auto yt = niceTicks(f.ymin, f.y_hi);
   for (double t : xt) {
-    const cv::Point2d p = toPx({t, ymin});
-    cv::line(img, {static_cast<int>(p.x), top}, {static_cast<int>(p.x), top + static_cast<int>(ph)}, grid, 1);
+    const cv::Point2d p = f.toPx({t, f.ymin});
+    cv::line(img, {static_cast<int>(p.x), f.top}, {static_cast<int>(p.x), f.top + static_cast<int>(f.ph)}, kGridColour, 1);
     const std::string s = tickLabel(t, xt.size() > 1 ? xt[1] - xt[0] : 1);
-    cv::putText(img, s, {static_cast<int>(p.x) - 4 * static_cast<int>(s.size()), top + static_cast<int>(ph) + 20},
-                cv::FONT_HERSHEY_SIMPLEX, 0.45, text, 1, cv::LINE_AA);
+    cv::putText(img, s, {static_cast<int>(p.x) - 4 * static_cast<int>(s.size()), f.top + static_cast<int>(f.ph) + 20},
+                cv::FONT_HERSHEY_SIMPLEX, 0.45, kTextColour, 1, cv::LINE_AA);
   }
   for (double t : yt) {
-    const cv::Point2d p = toPx({xmin, t});
-    cv::line(img, {left, static_cast<int>(p.y)}, {left + static_cast<int>(pw), static_cast<int>(p.y)}, grid, 1);
+    const cv::Point2d p = f.toPx({f.xmin, t});
+    cv::line(img, {f.left, static_cast<int>(p.y)}, {f.left + static_cast<int>(f.pw), static_cast<int>(p.y)}, kGridColour, 1);
     const std::string s = tickLabel(t, yt.size() > 1 ? yt[1] - yt[0] : 1);
-    cv::putText(img, s, {left - 10 - 8 * static_cast<int>(s.size()), static_cast<int>(p.y) + 5}, cv::FONT_HERSHEY_SIMPLEX,
-                0.45, text, 1, cv::LINE_AA);
+    cv::putText(img, s, {f.left - 10 - 8 * static_cast<int>(s.size()), static_cast<int>(p.y) + 5},
+                cv::FONT_HERSHEY_SIMPLEX, 0.45, kTextColour, 1, cv::LINE_AA);
   }
-  cv::Mat area = img(plot_area);
-  (void)area;
-  // Items, clipped to the plot area.
+}
+
+// The items are drawn on a copy of the whole image, of which only the plot area is kept: what
+// falls outside it is clipped.
+void Plot::drawItems(cv::Mat& img, const Frame& f) const {
   cv::Mat canvas = img.clone();
   for (const auto& it : items_) {
     switch (it->kind) {
       case Item::Band: {
         std::vector<cv::Point> poly;
-        for (const auto& p : it->pts) poly.push_back(toPx(p));
-        for (auto r = it->pts2.rbegin(); r != it->pts2.rend(); ++r) poly.push_back(toPx(*r));
+        for (const auto& p : it->pts) poly.push_back(f.toPx(p));
+        for (auto r = it->pts2.rbegin(); r != it->pts2.rend(); ++r) poly.push_back(f.toPx(*r));
         if (poly.size() >= 3) {
           cv::Mat overlay = canvas.clone();
           cv::fillPoly(overlay, std::vector<std::vector<cv::Point>>{poly}, it->color, cv::LINE_AA);
@@ -251,23 +272,23 @@ cv::Mat Plot::render() const {
       case Item::Polyline:
         for (size_t i = 0; i < it->pts.size(); ++i) {
           if (it->style == LineStyle::Points) {
-            cv::circle(canvas, toPx(it->pts[i]), 2, it->color, cv::FILLED, cv::LINE_AA);
+            cv::circle(canvas, f.toPx(it->pts[i]), 2, it->color, cv::FILLED, cv::LINE_AA);
           } else if (i > 0) {
             if (it->style == LineStyle::Dashed)
-              dashedLine(canvas, toPx(it->pts[i - 1]), toPx(it->pts[i]), it->color, it->thickness);
+              dashedLine(canvas, f.toPx(it->pts[i - 1]), f.toPx(it->pts[i]), it->color, it->thickness);
             else
-              cv::line(canvas, toPx(it->pts[i - 1]), toPx(it->pts[i]), it->color, it->thickness, cv::LINE_AA);
+              cv::line(canvas, f.toPx(it->pts[i - 1]), f.toPx(it->pts[i]), it->color, it->thickness, cv::LINE_AA);
           }
         }
         break;
       case Item::HLine: {
-        const cv::Point2d a = toPx({xmin, it->value}), b = toPx({x_hi, it->value});
+        const cv::Point2d a = f.toPx({f.xmin, it->value}), b = f.toPx({f.x_hi, it->value});
         if (it->style == LineStyle::Dashed) dashedLine(canvas, a, b, it->color, 1);
         else cv::line(canvas, a, b, it->color, 1, cv::LINE_AA);
         break;
       }
       case Item::Marker: {
-        const cv::Point2d p = toPx(it->pts[0]);
+        const cv::Point2d p = f.toPx(it->pts[0]);
         const int s = it->thickness;
         cv::line(canvas, p - cv::Point2d(s, 0), p + cv::Point2d(s, 0), it->color, 2, cv::LINE_AA);
         cv::line(canvas, p - cv::Point2d(0, s), p + cv::Point2d(0, s), it->color, 2, cv::LINE_AA);
@@ -275,44 +296,60 @@ cv::Mat Plot::render() const {
       }
       case Item::Bars:
         for (const auto& p : it->pts) {
-          const cv::Point2d a = toPx({p.x() - 0.35, 0.0}), b = toPx({p.x() + 0.35, p.y()});
+          const cv::Point2d a = f.toPx({p.x() - 0.35, 0.0}), b = f.toPx({p.x() + 0.35, p.y()});
           cv::rectangle(canvas, a, b, it->color, cv::FILLED);
           char buf[32];
           std::snprintf(buf, sizeof(buf), "%.3g", p.y());
           cv::putText(canvas, buf, {static_cast<int>(a.x), static_cast<int>(b.y) - 6}, cv::FONT_HERSHEY_SIMPLEX, 0.45,
-                      text, 1, cv::LINE_AA);
+                      kTextColour, 1, cv::LINE_AA);
         }
         break;
       default:
         break;
     }
   }
-  canvas(plot_area).copyTo(img(plot_area));
-  cv::rectangle(img, plot_area, axis, 1);
+  canvas(f.area()).copyTo(img(f.area()));
+}
+
+void Plot::drawLabels(cv::Mat& img, const Frame& f) const {
   for (size_t i = 0; i < categories_.size(); ++i) {
-    const cv::Point2d p = toPx({static_cast<double>(i), ymin});
-    cv::putText(img, categories_[i], {static_cast<int>(p.x) - 4 * static_cast<int>(categories_[i].size()), top + static_cast<int>(ph) + 22},
-                cv::FONT_HERSHEY_SIMPLEX, 0.5, text, 1, cv::LINE_AA);
+    const cv::Point2d p = f.toPx({static_cast<double>(i), f.ymin});
+    cv::putText(img, categories_[i],
+                {static_cast<int>(p.x) - 4 * static_cast<int>(categories_[i].size()), f.top + static_cast<int>(f.ph) + 22},
+                cv::FONT_HERSHEY_SIMPLEX, 0.5, kTextColour, 1, cv::LINE_AA);
   }
-  // Title, axis labels, legend.
-  cv::putText(img, title_, {left, 30}, cv::FONT_HERSHEY_SIMPLEX, 0.65, text, 1, cv::LINE_AA);
-  cv::putText(img, x_label_, {left + static_cast<int>(pw / 2) - 4 * static_cast<int>(x_label_.size()), height_ - 18},
-              cv::FONT_HERSHEY_SIMPLEX, 0.55, text, 1, cv::LINE_AA);
+  cv::putText(img, title_, {f.left, 30}, cv::FONT_HERSHEY_SIMPLEX, 0.65, kTextColour, 1, cv::LINE_AA);
+  cv::putText(img, x_label_, {f.left + static_cast<int>(f.pw / 2) - 4 * static_cast<int>(x_label_.size()), height_ - 18},
+              cv::FONT_HERSHEY_SIMPLEX, 0.55, kTextColour, 1, cv::LINE_AA);
   cv::Mat ylab(24, 20 + 11 * static_cast<int>(y_label_.size()), CV_8UC3, cv::Scalar(255, 255, 255));
-  cv::putText(ylab, y_label_, {2, 17}, cv::FONT_HERSHEY_SIMPLEX, 0.55, text, 1, cv::LINE_AA);
+  cv::putText(ylab, y_label_, {2, 17}, cv::FONT_HERSHEY_SIMPLEX, 0.55, kTextColour, 1, cv::LINE_AA);
   cv::rotate(ylab, ylab, cv::ROTATE_90_COUNTERCLOCKWISE);
-  const int ly = std::max(0, top + static_cast<int>(ph / 2) - ylab.rows / 2);
+  const int ly = std::max(0, f.top + static_cast<int>(f.ph / 2) - ylab.rows / 2);
   if (ly + ylab.rows <= img.rows && ylab.cols + 4 <= img.cols) ylab.copyTo(img(cv::Rect(4, ly, ylab.cols, ylab.rows)));
-  int ly2 = top + 18;
+}
+
+void Plot::drawLegend(cv::Mat& img, const Frame& f) const {
+  int ly = f.top + 18;
   for (const auto& [label, cs] : legend_) {
-    const int x0 = left + static_cast<int>(pw) - 230;
-    cv::rectangle(img, {x0 - 6, ly2 - 14}, {x0 + 224, ly2 + 6}, cv::Scalar(255, 255, 255), cv::FILLED);
-    if (cs.second == LineStyle::Points) cv::circle(img, {x0 + 14, ly2 - 4}, 3, cs.first, cv::FILLED, cv::LINE_AA);
-    else if (cs.second == LineStyle::Dashed) dashedLine(img, cv::Point2d(x0, ly2 - 4.0), cv::Point2d(x0 + 28.0, ly2 - 4.0), cs.first, 2);
-    else cv::line(img, {x0, ly2 - 4}, {x0 + 28, ly2 - 4}, cs.first, 2, cv::LINE_AA);
-    cv::putText(img, label, {x0 + 36, ly2}, cv::FONT_HERSHEY_SIMPLEX, 0.45, text, 1, cv::LINE_AA);
-    ly2 += 20;
+    const int x0 = f.left + static_cast<int>(f.pw) - 230;
+    cv::rectangle(img, {x0 - 6, ly - 14}, {x0 + 224, ly + 6}, cv::Scalar(255, 255, 255), cv::FILLED);
+    if (cs.second == LineStyle::Points) cv::circle(img, {x0 + 14, ly - 4}, 3, cs.first, cv::FILLED, cv::LINE_AA);
+    else if (cs.second == LineStyle::Dashed)
+      dashedLine(img, cv::Point2d(x0, ly - 4.0), cv::Point2d(x0 + 28.0, ly - 4.0), cs.first, 2);
+    else cv::line(img, {x0, ly - 4}, {x0 + 28, ly - 4}, cs.first, 2, cv::LINE_AA);
+    cv::putText(img, label, {x0 + 36, ly}, cv::FONT_HERSHEY_SIMPLEX, 0.45, kTextColour, 1, cv::LINE_AA);
+    ly += 20;
   }
+}
+
+cv::Mat Plot::render() const {
+  cv::Mat img(height_, width_, CV_8UC3, cv::Scalar(255, 255, 255));
+  const Frame f = frame();
+  drawGrid(img, f);
+  drawItems(img, f);
+  cv::rectangle(img, f.area(), kAxisColour, 1);
+  drawLabels(img, f);
+  drawLegend(img, f);
   return img;
 }
 

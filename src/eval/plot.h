@@ -42,6 +42,12 @@ class Plot {
 
  private:
   struct Item;
+  struct Frame;
+  Frame frame() const;  // margins, data limits and scale of render()
+  void drawGrid(cv::Mat& img, const Frame& f) const;    // grid lines and tick labels
+  void drawItems(cv::Mat& img, const Frame& f) const;   // the series, clipped to the plot area
+  void drawLabels(cv::Mat& img, const Frame& f) const;  // categories, title, axis labels
+  void drawLegend(cv::Mat& img, const Frame& f) const;
   std::string title_, x_label_, y_label_;
   int width_, height_;
   bool equal_aspect_ = false, fixed_limits_ = false;
