@@ -34,15 +34,24 @@ Obstacle::Kind obstacleKindFromString(const std::string& name) {
 Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles) {
   if (!map.geometry()) throw Error("map '" + map.name() + "' has no field geometry: cannot build the 3D scene");
   Scene s;
-  const FieldGeometry& g = *map.geometry();
-  s.geometry_ = g;
-  const double L = g.length, W = g.width, H = g.wall_height, T = kWallThickness, D = g.goal_depth;
-  const double cy = 0.5 * W, y_lo = cy - 0.5 * g.goal_width, y_hi = cy + 0.5 * g.goal_width;
-  const double hw = 0.5 * g.line_width, t = g.corner_triangle;
+  s.geometry_ = *map.geometry();
+  s.addWalls();
+  s.addGoals();
+  s.addCornerTriangles();
+  s.addMarkings();
+  s.addWallAndGoalEdges();
+  s.addObstacles(obstacles);
+  s.precompute();
+  return s;
+}
 
-  // Long walls (with the corners) and the goal-line walls beside the goal mouths. Cut into pieces
-  // of at most kPiece mm along their length: the renderer culls by image bounding box, and a
-  // short piece that lies wholly in front of (or behind) the camera gets a tight (or no) box.
+// Long walls (with the corners) and the goal-line walls beside the goal mouths. Cut into pieces
+// of at most kPiece mm along their length: the renderer culls by image bounding box, and a
+// short piece that lies wholly in front of (or behind) the camera gets a tight (or no) box.
+void Scene::addWalls() {
+  const FieldGeometry& g = geometry_;
+  const double L = g.length, W = g.width, H = g.wall_height, T = kWallThickness;
+  const double cy = 0.5 * W, y_lo = cy - 0.5 * g.goal_width, y_hi = cy + 0.5 * g.goal_width;
   constexpr double kPiece = 300.0;
   auto wall = [&](double x0, double y0, double x1, double y1) {
     const bool along_x = (x1 - x0) >= (y1 - y0);
@@ -50,7 +59,7 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
     const int pieces = std::max(1, static_cast<int>(std::ceil(len / kPiece)));
     for (int k = 0; k < pieces; ++k) {
       const double a = k * len / pieces, b = (k + 1 == pieces) ? len : (k + 1) * len / pieces;
-      s.prisms_.push_back(along_x ? box(x0 + a, y0, x0 + b, y1, 0, H) : box(x0, y0 + a, x1, y0 + b, 0, H));
+      prisms_.push_back(along_x ? box(x0 + a, y0, x0 + b, y1, 0, H) : box(x0, y0 + a, x1, y0 + b, 0, H));
     }
   };
   wall(-T, -T, L + T, 0);
@@ -59,8 +68,14 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
   wall(-T, y_hi + T, 0, W);
   wall(L, 0, L + T, y_lo - T);
   wall(L, y_hi + T, L + T, W);
-  // Goals: side walls from the mouth to the back, and the back wall. Polygon edges run
-  // (x0,y0)->(x1,y0)->(x1,y1)->(x0,y1): side 0 faces -y, 1 faces +x, 2 faces +y, 3 faces -x.
+}
+
+// Goals: side walls from the mouth to the back, and the back wall. Polygon edges run
+// (x0,y0)->(x1,y0)->(x1,y1)->(x0,y1): side 0 faces -y, 1 faces +x, 2 faces +y, 3 faces -x.
+void Scene::addGoals() {
+  const FieldGeometry& g = geometry_;
+  const double L = g.length, H = g.wall_height, T = kWallThickness, D = g.goal_depth;
+  const double cy = 0.5 * g.width, y_lo = cy - 0.5 * g.goal_width, y_hi = cy + 0.5 * g.goal_width;
   for (int side = 0; side < 2; ++side) {
     const SurfaceClass c = side == 0 ? SurfaceClass::BlueGoal : SurfaceClass::YellowGoal;
     const double xm = side == 0 ? 0.0 : L;          // goal line
@@ -72,11 +87,16 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
     upper.side[0] = c;
     Prism back = side == 0 ? box(xb - T, y_lo - T, xb, y_hi + T, 0, H) : box(xb, y_lo - T, xb + T, y_hi + T, 0, H);
     back.side[side == 0 ? 1 : 3] = c;
-    s.prisms_.push_back(lower);
-    s.prisms_.push_back(upper);
-    s.prisms_.push_back(back);
+    prisms_.push_back(lower);
+    prisms_.push_back(upper);
+    prisms_.push_back(back);
   }
-  // Corner triangles (solid 7 cm isosceles triangles, L1906), counter-clockwise.
+}
+
+// Corner triangles (solid 7 cm isosceles triangles, L1906), counter-clockwise.
+void Scene::addCornerTriangles() {
+  const FieldGeometry& g = geometry_;
+  const double L = g.length, W = g.width, H = g.wall_height, t = g.corner_triangle;
   auto triangle = [&](Eigen::Vector2d a, Eigen::Vector2d b, Eigen::Vector2d c) {
     Prism p;
     const double cross = (b - a).x() * (c - a).y() - (b - a).y() * (c - a).x();
@@ -84,22 +104,26 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
     p.zmin = 0;
     p.zmax = H;
     p.side.assign(3, SurfaceClass::Wall);
-    s.prisms_.push_back(p);
-    s.edges_.push_back({"triangle", "triangle_foot", {b.x(), b.y(), 0.0}, {c.x(), c.y(), 0.0}});
-    s.edges_.push_back({"triangle", "triangle_top", {b.x(), b.y(), H}, {c.x(), c.y(), H}});
+    prisms_.push_back(p);
+    edges_.push_back({"triangle", "triangle_foot", {b.x(), b.y(), 0.0}, {c.x(), c.y(), 0.0}});
+    edges_.push_back({"triangle", "triangle_top", {b.x(), b.y(), H}, {c.x(), c.y(), H}});
   };
   triangle({0, 0}, {t, 0}, {0, t});
   triangle({L, 0}, {L - t, 0}, {L, t});
   triangle({0, W}, {t, W}, {0, W - t});
   triangle({L, W}, {L - t, W}, {L, W - t});
+}
 
-  // Markings (centrelines; landmarks lie on them).
+// Markings (centrelines; landmarks lie on them).
+void Scene::addMarkings() {
+  const FieldGeometry& g = geometry_;
+  const double L = g.length, W = g.width, cy = 0.5 * W, hw = 0.5 * g.line_width;
   auto strip = [&](const std::string& name, Eigen::Vector2d a, Eigen::Vector2d b, double ea, double eb) {
-    s.strips_.push_back({a, b, hw, ea, eb});
-    s.edges_.push_back({"marking", name, {a.x(), a.y(), 0.0}, {b.x(), b.y(), 0.0}});
+    strips_.push_back({a, b, hw, ea, eb});
+    edges_.push_back({"marking", name, {a.x(), a.y(), 0.0}, {b.x(), b.y(), 0.0}});
   };
   strip("halfway_line", {0.5 * L, 0.0}, {0.5 * L, W}, 0, 0);
-  s.rings_.push_back({{0.5 * L, cy}, g.centre_circle_radius, hw});
+  rings_.push_back({{0.5 * L, cy}, g.centre_circle_radius, hw});
   struct Area {
     const char* name;
     double depth, width;
@@ -115,9 +139,15 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
       strip(pre + "_side_hi", {xg, yhi}, {xd, yhi}, 0, hw);
     }
   }
-  // Wall and goal edges.
+}
+
+// The straight edges of walls and goals the images' truth reports (feet, tops, posts).
+void Scene::addWallAndGoalEdges() {
+  const FieldGeometry& g = geometry_;
+  const double L = g.length, W = g.width, H = g.wall_height, D = g.goal_depth, t = g.corner_triangle;
+  const double cy = 0.5 * W, y_lo = cy - 0.5 * g.goal_width, y_hi = cy + 0.5 * g.goal_width;
   auto edge = [&](const char* kind, const std::string& name, Eigen::Vector3d a, Eigen::Vector3d b) {
-    s.edges_.push_back({kind, name, a, b});
+    edges_.push_back({kind, name, a, b});
   };
   for (double z : {0.0, H}) {
     const char* kind = z == 0.0 ? "wall_foot" : "wall_top";
@@ -142,12 +172,15 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
     edge("goal_post", pre + "_post_lo", {xm, y_lo, 0}, {xm, y_lo, H});
     edge("goal_post", pre + "_post_hi", {xm, y_hi, 0}, {xm, y_hi, H});
   }
+}
 
+// Robots as upright square prisms, balls as spheres resting on the floor.
+void Scene::addObstacles(const std::vector<Obstacle>& obstacles) {
   for (const Obstacle& o : obstacles) {
     if (!(o.position.allFinite() && std::isfinite(o.heading) && std::isfinite(o.size) && o.size > 0))
       throw Error("obstacle: position, heading and size must be finite, size positive");
     if (o.kind == Obstacle::Kind::Ball) {
-      s.spheres_.push_back({{o.position.x(), o.position.y(), 0.5 * o.size}, 0.5 * o.size});
+      spheres_.push_back({{o.position.x(), o.position.y(), 0.5 * o.size}, 0.5 * o.size});
     } else {
       Prism p;
       const double h = 0.5 * o.size, c = std::cos(o.heading), sn = std::sin(o.heading);
@@ -158,11 +191,9 @@ Scene Scene::fromMap(const FieldMap& map, const std::vector<Obstacle>& obstacles
       p.side.assign(4, SurfaceClass::Robot);
       p.top = SurfaceClass::Robot;
       p.bottom = SurfaceClass::Robot;
-      s.prisms_.push_back(p);
+      prisms_.push_back(p);
     }
   }
-  s.precompute();
-  return s;
 }
 
 void Scene::precompute() {

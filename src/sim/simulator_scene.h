@@ -180,6 +180,13 @@ class Scene {
   // a goal), Background (outside both), or test (onFloor and the cell's markings).
   enum : uint8_t { kCellTest = 0, kCellFloor = 1, kCellBackground = 2 };
   std::vector<uint8_t> cell_state_;
+  // fromMap's pieces, in the order it adds them (prisms' order decides equal-distance hits).
+  void addWalls();
+  void addGoals();
+  void addCornerTriangles();
+  void addMarkings();
+  void addWallAndGoalEdges();
+  void addObstacles(const std::vector<Obstacle>& obstacles);
   void precompute();
   bool onFloor(double x, double y) const;  // inside the field or a goal
   bool markingCovers(size_t item, double x, double y) const;  // strip item, or ring item - strips_.size()
