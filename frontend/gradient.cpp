@@ -165,7 +165,27 @@ float fastAngle(float y, float x) {
 
 void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, const int16_t* top) {
   if (luma.type() != CV_8UC1) throw Error("GradientStage: expected an 8-bit one-channel image");
-  const int w = luma.cols, h = luma.rows;
+  prepare(luma.cols, luma.rows);
+  edges_.clear();
+  if (w_ < 5 || h_ < 5) return;
+  sobel(luma, top);
+  // With the automatic threshold, the samples of its median (below): squared magnitudes from
+  // gx_, gy_ or, above the computed Sobel, from the luma directly.
+  const size_t count = sampleMagnitudes(luma, params.auto_factor > 0);
+  setThreshold(params, count);
+  columnThresholds(top);
+  // The kept pixels' data, one array per field (the vector pass loads four of a field at once);
+  // + 4: it reads whole groups of four.
+  const size_t stride = static_cast<size_t>(w_) * h_ + 4;
+  if (kept_.size() < kKeptFields * stride) kept_.resize(kKeptFields * stride);
+  KeptPixels kp;
+  for (int f = 0; f < kKeptFields; ++f) kp.field[f] = kept_.data() + static_cast<size_t>(f) * stride;
+  const size_t nk = suppress(top, kp.field);
+  edges_.resize(nk);
+  edgePixels(kp, nk, edges_.data());
+}
+
+void GradientStage::prepare(int w, int h) {
   const size_t n = static_cast<size_t>(w) * h;
   if (w != w_ || h != h_ || index_.size() != n) {
     w_ = w;
@@ -178,9 +198,10 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   } else {
     for (const EdgePixel& e : edges_) index_[static_cast<size_t>(e.iy) * w + e.ix] = -1;
   }
-  edges_.clear();
-  if (w < 5 || h < 5) return;
+}
 
+void GradientStage::sobel(const cv::Mat& luma, const int16_t* top) {
+  const int w = w_, h = h_;
   // With a region of interest, rows above its highest column top give no edge pixels; the
   // suppression below reads one row above the first it tests (y_first), whose Sobel reads one
   // more. The Sobel is computed from one row above that (its own first row sees a reflected
@@ -197,11 +218,12 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
     cv::spatialGradient(luma.rowRange(y_sobel, h), gxr, gyr, 3);
   }
   // Rows of gx_, gy_ equal to the whole image's Sobel: y_sobel + 1 on (all with no region).
-  const int y_exact = y_sobel > 0 ? y_sobel + 1 : 0;
+  y_exact_ = y_sobel > 0 ? y_sobel + 1 : 0;
+  y_nms_ = std::max(2, y_first + 1);
+}
 
-  // With the automatic threshold, the samples of its median (below): squared magnitudes from
-  // gx_, gy_ or, above the computed Sobel, from the luma directly.
-  const bool automatic = params.auto_factor > 0;
+size_t GradientStage::sampleMagnitudes(const cv::Mat& luma, bool automatic) {
+  const int w = w_, h = h_, y_exact = y_exact_;
   // Sized once for the image (never shrunk: a growing resize would clear it on every call).
   const size_t max_samples = static_cast<size_t>(std::max(0, (w - 3) / kSampleStep + 1)) *
                              static_cast<size_t>(std::max(0, (h - 3) / kSampleStep + 1));
@@ -229,76 +251,82 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
       }
     }
   }
-  const size_t count = static_cast<size_t>(sample - samples_all_.data());
+  return static_cast<size_t>(sample - samples_all_.data());
+}
 
+int64_t GradientStage::medianSquared(size_t count) {
+  // Exact median by a histogram select: squared magnitudes below kFine have a bin each (a
+  // carpet's median lies there), the larger ones share one bin, whose samples are selected
+  // from only when the median lies among them. The bin index is a minimum (no branch per
+  // sample: edge samples above kFine are scattered at random). Consecutive samples go to
+  // four interleaved 16-bit tables: a carpet's samples fall into few bins, and increments
+  // of one counter in a row wait for each other (one table takes twice the time).
+  // nth_element over all samples cost more than the rest of the threshold.
+  const int32_t* m = samples_all_.data();
+  const size_t k = count / 2;  // the element nth_element would place at size / 2
+  size_t below = 0, b = 0;
+  constexpr size_t kBins = static_cast<size_t>(kFine) + 1;
+  if (count / 4 + 4 <= 65535) {
+    hist16_.assign(4 * kBins, 0);
+    uint16_t* h0 = hist16_.data();
+    uint16_t* h1 = h0 + kBins;
+    uint16_t* h2 = h1 + kBins;
+    uint16_t* h3 = h2 + kBins;
+    size_t j = 0;
+    for (; j + 4 <= count; j += 4) {
+      ++h0[std::min(m[j], kFine)];
+      ++h1[std::min(m[j + 1], kFine)];
+      ++h2[std::min(m[j + 2], kFine)];
+      ++h3[std::min(m[j + 3], kFine)];
+    }
+    for (; j < count; ++j) ++h0[std::min(m[j], kFine)];
+    for (;; ++b) {
+      const size_t c = size_t{h0[b]} + h1[b] + h2[b] + h3[b];
+      if (below + c > k) break;
+      below += c;
+    }
+  } else {
+    hist_.assign(kBins, 0);
+    uint32_t* hist = hist_.data();
+    for (size_t j = 0; j < count; ++j) ++hist[std::min(m[j], kFine)];
+    while (below + hist[b] <= k) below += hist[b++];
+  }
+  if (b < static_cast<size_t>(kFine)) return static_cast<int64_t>(b);
+  samples_.clear();
+  for (size_t i = 0; i < count; ++i)
+    if (m[i] >= kFine) samples_.push_back(m[i]);
+  auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
+  std::nth_element(samples_.begin(), mid, samples_.end());
+  return *mid;
+}
+
+void GradientStage::setThreshold(const GradientParams& params, size_t count) {
   int64_t thr2 = int64_t{params.magnitude_threshold} * params.magnitude_threshold;
-  if (automatic && count > 0) {
+  if (params.auto_factor > 0 && count > 0) {
     // The median magnitude measures the image's texture and noise (most pixels are floor);
     // every kSampleStep-th pixel of every kSampleStep-th row of the whole image is plenty for
     // a median (see gradient.h).
-    // Exact median by a histogram select: squared magnitudes below kFine have a bin each (a
-    // carpet's median lies there), the larger ones share one bin, whose samples are selected
-    // from only when the median lies among them. The bin index is a minimum (no branch per
-    // sample: edge samples above kFine are scattered at random). Consecutive samples go to
-    // four interleaved 16-bit tables: a carpet's samples fall into few bins, and increments
-    // of one counter in a row wait for each other (one table takes twice the time).
-    // nth_element over all samples cost more than the rest of the threshold.
-    const int32_t* m = samples_all_.data();
-    const size_t k = count / 2;  // the element nth_element would place at size / 2
-    size_t below = 0, b = 0;
-    constexpr size_t kBins = static_cast<size_t>(kFine) + 1;
-    if (count / 4 + 4 <= 65535) {
-      hist16_.assign(4 * kBins, 0);
-      uint16_t* h0 = hist16_.data();
-      uint16_t* h1 = h0 + kBins;
-      uint16_t* h2 = h1 + kBins;
-      uint16_t* h3 = h2 + kBins;
-      size_t j = 0;
-      for (; j + 4 <= count; j += 4) {
-        ++h0[std::min(m[j], kFine)];
-        ++h1[std::min(m[j + 1], kFine)];
-        ++h2[std::min(m[j + 2], kFine)];
-        ++h3[std::min(m[j + 3], kFine)];
-      }
-      for (; j < count; ++j) ++h0[std::min(m[j], kFine)];
-      for (;; ++b) {
-        const size_t c = size_t{h0[b]} + h1[b] + h2[b] + h3[b];
-        if (below + c > k) break;
-        below += c;
-      }
-    } else {
-      hist_.assign(kBins, 0);
-      uint32_t* hist = hist_.data();
-      for (size_t j = 0; j < count; ++j) ++hist[std::min(m[j], kFine)];
-      while (below + hist[b] <= k) below += hist[b++];
-    }
-    int64_t median2;
-    if (b < static_cast<size_t>(kFine)) {
-      median2 = static_cast<int64_t>(b);
-    } else {
-      samples_.clear();
-      for (size_t i = 0; i < count; ++i)
-        if (m[i] >= kFine) samples_.push_back(m[i]);
-      auto mid = samples_.begin() + static_cast<std::ptrdiff_t>(k - below);
-      std::nth_element(samples_.begin(), mid, samples_.end());
-      median2 = *mid;
-    }
+    const int64_t median2 = medianSquared(count);
     const double auto_thr2 = params.auto_factor * params.auto_factor * static_cast<double>(median2);
     thr2 = std::max(thr2, static_cast<int64_t>(std::ceil(auto_thr2)));
   }
   threshold_ = std::sqrt(static_cast<double>(thr2));
   // A 32-bit threshold keeps the comparisons below in 32-bit lanes; squared Sobel magnitudes
   // of 8-bit images stay below 2^22.
-  const int32_t thr2_32 = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
+  thr2_32_ = static_cast<int32_t>(std::min<int64_t>(thr2, INT32_MAX));
+}
+
+void GradientStage::columnThresholds(const int16_t* top) {
+  const int w = w_, h = h_, y_nms = y_nms_;
+  const int32_t thr2_32 = thr2_32_;
   // Each column's squared threshold: out of reach in columns 0, 1, w - 2, w - 1 (their
   // neighbours have no gradient), past the image's end (padding to a multiple of 64 columns)
   // and, with a region, above the column's top row; thr2_32 elsewhere. The mask of a row is
   // then one comparison of two 32-bit rows (the test of the 16-bit top in the same loop
   // vectorised badly: a tenth of the stage). With a region, the columns are listed by top row
   // (counting sort) and enabled when the mask reaches it.
-  const int y_nms = std::max(2, y_first + 1);
-  const size_t w64 = static_cast<size_t>((w + 63) / 64 * 64);
-  col_thr_.assign(w64, INT32_MAX);
+  w64_ = static_cast<size_t>((w + 63) / 64 * 64);
+  col_thr_.assign(w64_, INT32_MAX);
   auto inner = [&](int x) { return x >= 2 && x < w - 2; };
   if (top) {
     top_start_.assign(static_cast<size_t>(h) + 2, 0);
@@ -315,103 +343,115 @@ void GradientStage::compute(const cv::Mat& luma, const GradientParams& params, c
   } else {
     for (int x = 2; x < w - 2; ++x) col_thr_[x] = thr2_32;
   }
+}
+
+// Squared magnitudes and the mask of row y, right before the suppression first reads the row
+// (one row ahead): the three rows it reads stay in the first-level cache (computed in one
+// pass over the image, they came from the second level). Most pixels are below the
+// threshold, and a branch per pixel in the suppression was half the stage's time.
+void GradientStage::rowMagnitudes(int y, uint8_t* bits) {
+  const int w = w_;
+  const size_t w64 = w64_;
   const int32_t* ct = col_thr_.data();
+  const int16_t* gxr = gx_.ptr<int16_t>(y);
+  const int16_t* gyr = gy_.ptr<int16_t>(y);
+  int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+  int x = 0;
+#if defined(__SSE2__)
+  // gx^2 + gy^2 is one multiply-add of the interleaved pairs; 8 columns give a byte.
+  for (; x + 8 <= w; x += 8) {
+    const __m128i gx8 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(gxr + x));
+    const __m128i gy8 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(gyr + x));
+    const __m128i lo = _mm_unpacklo_epi16(gx8, gy8), hi = _mm_unpackhi_epi16(gx8, gy8);
+    const __m128i m_lo = _mm_madd_epi16(lo, lo), m_hi = _mm_madd_epi16(hi, hi);
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(m2 + x), m_lo);
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(m2 + x + 4), m_hi);
+    const __m128i below_lo = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(ct + x)), m_lo);
+    const __m128i below_hi = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(ct + x + 4)), m_hi);
+    const __m128i below16 = _mm_packs_epi32(below_lo, below_hi);
+    bits[x / 8] = static_cast<uint8_t>(~_mm_movemask_epi8(_mm_packs_epi16(below16, below16)));
+  }
+#endif
+  std::memset(bits + x / 8, 0, w64 / 8 - static_cast<size_t>(x / 8));
+  for (; x < w; ++x) {
+    m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
+    bits[x / 8] = static_cast<uint8_t>(bits[x / 8] | (m2[x] >= ct[x]) << (x % 8));
+  }
+}
+
+// Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
+// through the three magnitudes. Pixels next to the border are skipped (their neighbours
+// have no gradient). The mask is read as 64-bit words of one bit per column and only its set
+// bits are visited, lowest first, so the kept pixels are in row-major order (a word per 8
+// columns ended a loop, mispredicted, at most candidates).
+size_t GradientStage::suppress(const int16_t* top, int32_t* const* kept) {
+  const int h = h_, y_nms = y_nms_;
+  const int32_t thr2_32 = thr2_32_;
   // Two rows' masks of the pixels at the threshold (and in the region), one bit per column:
   // the row the suppression tests and the next.
-  above_.assign(2 * w64 / 8, 0);
-  uint8_t* mask_rows[2] = {above_.data(), above_.data() + w64 / 8};
-  // Squared magnitudes and the mask of row y, right before the suppression first reads the row
-  // (one row ahead): the three rows it reads stay in the first-level cache (computed in one
-  // pass over the image, they came from the second level). Most pixels are below the
-  // threshold, and a branch per pixel in the suppression was half the stage's time.
-  auto magnitudes = [&](int y, uint8_t* bits) {
-    const int16_t* gxr = gx_.ptr<int16_t>(y);
-    const int16_t* gyr = gy_.ptr<int16_t>(y);
-    int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    int x = 0;
-#if defined(__SSE2__)
-    // gx^2 + gy^2 is one multiply-add of the interleaved pairs; 8 columns give a byte.
-    for (; x + 8 <= w; x += 8) {
-      const __m128i gx8 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(gxr + x));
-      const __m128i gy8 = _mm_loadu_si128(reinterpret_cast<const __m128i*>(gyr + x));
-      const __m128i lo = _mm_unpacklo_epi16(gx8, gy8), hi = _mm_unpackhi_epi16(gx8, gy8);
-      const __m128i m_lo = _mm_madd_epi16(lo, lo), m_hi = _mm_madd_epi16(hi, hi);
-      _mm_storeu_si128(reinterpret_cast<__m128i*>(m2 + x), m_lo);
-      _mm_storeu_si128(reinterpret_cast<__m128i*>(m2 + x + 4), m_hi);
-      const __m128i below_lo = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(ct + x)), m_lo);
-      const __m128i below_hi = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(ct + x + 4)), m_hi);
-      const __m128i below16 = _mm_packs_epi32(below_lo, below_hi);
-      bits[x / 8] = static_cast<uint8_t>(~_mm_movemask_epi8(_mm_packs_epi16(below16, below16)));
-    }
-#endif
-    std::memset(bits + x / 8, 0, w64 / 8 - static_cast<size_t>(x / 8));
-    for (; x < w; ++x) {
-      m2[x] = int32_t{gxr[x]} * gxr[x] + int32_t{gyr[x]} * gyr[x];
-      bits[x / 8] = static_cast<uint8_t>(bits[x / 8] | (m2[x] >= ct[x]) << (x % 8));
-    }
-  };
-
-  // Non-maximum suppression across the edge (4 sectors), sub-pixel offset by a parabola
-  // through the three magnitudes. Pixels next to the border are skipped (their neighbours
-  // have no gradient). The mask is read as 64-bit words of one bit per column and only its set
-  // bits are visited, lowest first, so the kept pixels are in row-major order (a word per 8
-  // columns ended a loop, mispredicted, at most candidates). The test is integer work without
-  // branches: each candidate is written to the kept list, whose end advances only when it is a
-  // maximum (on carpet half the candidates are not, at random, and a branch on it was
-  // mispredicted as often). Its index is written the same way (-1 when not kept).
-  // The kept pixels' data, one array per field (the vector pass loads four of a field at once);
-  // + 4: it reads whole groups of four.
-  const size_t stride = n + 4;
-  if (kept_.size() < kKeptFields * stride) kept_.resize(kKeptFields * stride);
-  KeptPixels kp;
-  for (int f = 0; f < kKeptFields; ++f) kp.field[f] = kept_.data() + static_cast<size_t>(f) * stride;
+  above_.assign(2 * w64_ / 8, 0);
+  uint8_t* mask_rows[2] = {above_.data(), above_.data() + w64_ / 8};
   size_t nk = 0;
-  int32_t* index = index_.data();
   if (y_nms < h - 2) {
-    magnitudes(y_nms - 1, mask_rows[1]);  // its mask is not used
-    magnitudes(y_nms, mask_rows[0]);
+    rowMagnitudes(y_nms - 1, mask_rows[1]);  // its mask is not used
+    rowMagnitudes(y_nms, mask_rows[0]);
   }
   for (int y = y_nms; y < h - 2; ++y) {
     if (top)
       for (int j = top_start_[y + 1]; j < top_start_[y + 2]; ++j) col_thr_[top_cols_[j]] = thr2_32;
     const uint8_t* bits = mask_rows[(y - y_nms) & 1];
-    magnitudes(y + 1, mask_rows[(y + 1 - y_nms) & 1]);
-    const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
-    const int16_t* gxr = gx_.ptr<int16_t>(y);
-    const int16_t* gyr = gy_.ptr<int16_t>(y);
-    int32_t* index_row = index + static_cast<size_t>(y) * w;
-    for (int x0 = 0; x0 < w - 2; x0 += 64) {
-      uint64_t word = loadMaskWord(bits + x0 / 8);
-      while (word != 0) {
-        const int x = x0 + __builtin_ctzll(word);
-        word &= word - 1;
-        const int32_t c = m2[x];
-        const int gxv = gxr[x], gyv = gyr[x];
-        const int ax = std::abs(gxv), ay = std::abs(gyv);
-        // Sector of the gradient direction, tan(22.5 deg) ~ 106/256: (1, 0), (0, 1) or a diagonal
-        // ((1, 1) when gx and gy have the same sign, else (1, -1)).
-        const int horizontal = ay * 256 <= ax * 106;
-        const int vertical = (1 - horizontal) & (ax * 256 <= ay * 106);
-        const int diagonal = 1 - horizontal - vertical;
-        const int same = (gxv > 0) == (gyv > 0);
-        const int dx = 1 - vertical;
-        const int dy = vertical + diagonal * (2 * same - 1);
-        const int off = dy * w + dx;
-        const int32_t mp = m2[x + off], mm = m2[x - off];
-        const int keep = (c > mm) & (c >= mp);
-        kp.field[kXY][nk] = x | y << 16;
-        kp.field[kC][nk] = c;
-        kp.field[kMm][nk] = mm;
-        kp.field[kMp][nk] = mp;
-        kp.field[kG][nk] = static_cast<int32_t>(static_cast<uint32_t>(gyv) << 16 | static_cast<uint16_t>(gxv));
-        kp.field[kD][nk] = dy * 65536 + dx;
-        index_row[x] = static_cast<int32_t>(nk) | (keep - 1);  // -1 when not kept
-        nk += static_cast<size_t>(keep);
-      }
+    rowMagnitudes(y + 1, mask_rows[(y + 1 - y_nms) & 1]);
+    nk = suppressRow(y, bits, kept, nk);
+  }
+  return nk;
+}
+
+// The test is integer work without branches: each candidate is written to the kept list, whose
+// end advances only when it is a maximum (on carpet half the candidates are not, at random, and
+// a branch on it was mispredicted as often). Its index is written the same way (-1 when not
+// kept).
+size_t GradientStage::suppressRow(int y, const uint8_t* bits, int32_t* const* kept, size_t nk) {
+  const int w = w_;
+  const int32_t* m2 = mag2_.data() + static_cast<size_t>(y) * w;
+  const int16_t* gxr = gx_.ptr<int16_t>(y);
+  const int16_t* gyr = gy_.ptr<int16_t>(y);
+  int32_t* index_row = index_.data() + static_cast<size_t>(y) * w;
+  int32_t* const k_xy = kept[kXY];
+  int32_t* const k_c = kept[kC];
+  int32_t* const k_mm = kept[kMm];
+  int32_t* const k_mp = kept[kMp];
+  int32_t* const k_g = kept[kG];
+  int32_t* const k_d = kept[kD];
+  for (int x0 = 0; x0 < w - 2; x0 += 64) {
+    uint64_t word = loadMaskWord(bits + x0 / 8);
+    while (word != 0) {
+      const int x = x0 + __builtin_ctzll(word);
+      word &= word - 1;
+      const int32_t c = m2[x];
+      const int gxv = gxr[x], gyv = gyr[x];
+      const int ax = std::abs(gxv), ay = std::abs(gyv);
+      // Sector of the gradient direction, tan(22.5 deg) ~ 106/256: (1, 0), (0, 1) or a diagonal
+      // ((1, 1) when gx and gy have the same sign, else (1, -1)).
+      const int horizontal = ay * 256 <= ax * 106;
+      const int vertical = (1 - horizontal) & (ax * 256 <= ay * 106);
+      const int diagonal = 1 - horizontal - vertical;
+      const int same = (gxv > 0) == (gyv > 0);
+      const int dx = 1 - vertical;
+      const int dy = vertical + diagonal * (2 * same - 1);
+      const int off = dy * w + dx;
+      const int32_t mp = m2[x + off], mm = m2[x - off];
+      const int keep = (c > mm) & (c >= mp);
+      k_xy[nk] = x | y << 16;
+      k_c[nk] = c;
+      k_mm[nk] = mm;
+      k_mp[nk] = mp;
+      k_g[nk] = static_cast<int32_t>(static_cast<uint32_t>(gyv) << 16 | static_cast<uint16_t>(gxv));
+      k_d[nk] = dy * 65536 + dx;
+      index_row[x] = static_cast<int32_t>(nk) | (keep - 1);  // -1 when not kept
+      nk += static_cast<size_t>(keep);
     }
   }
-  edges_.resize(nk);
-  edgePixels(kp, nk, edges_.data());
+  return nk;
 }
 
 }  // namespace stereoloc::frontend

@@ -47,7 +47,37 @@ class GradientStage {
   const cv::Mat& gy() const { return gy_; }
 
  private:
+  // The phases of compute(), in order; each reads the per-image state the earlier ones set.
+  // Declared inline and defined in gradient.cpp, their only user, so that the compiler may
+  // inline them (position-independent code does not inline other global functions):
+  // rowMagnitudes and suppressRow run once per row.
+  // Sizes the buffers for a w x h image (or clears the last image's index entries).
+  inline void prepare(int w, int h);
+  // Sobel of the rows the suppression reads; sets y_exact_ and y_nms_.
+  inline void sobel(const cv::Mat& luma, const int16_t* top);
+  // The automatic threshold's samples into samples_all_ (none when !automatic); their count.
+  inline size_t sampleMagnitudes(const cv::Mat& luma, bool automatic);
+  // The median of the first count samples' squared magnitudes.
+  inline int64_t medianSquared(size_t count);
+  // threshold_ and thr2_32_ from the parameters and, with count > 0 samples, their median.
+  inline void setThreshold(const GradientParams& params, size_t count);
+  // col_thr_ and, with a region, the columns by top row (top_start_, top_cols_).
+  inline void columnThresholds(const int16_t* top);
+  // Squared magnitudes of row y into mag2_, and its mask of pixels at the threshold into bits.
+  inline void rowMagnitudes(int y, uint8_t* bits);
+  // Non-maximum suppression of rows y_nms_ .. h - 3 into the kept arrays (one per field) and
+  // index_; the number kept.
+  inline size_t suppress(const int16_t* top, int32_t* const* kept);
+  // The suppression of row y (its mask bits), appending to the kept arrays after nk; the new count.
+  inline size_t suppressRow(int y, const uint8_t* bits, int32_t* const* kept, size_t nk);
+
   int w_ = 0, h_ = 0;
+  // Per image: rows of gx_, gy_ equal to the whole image's Sobel start at y_exact_; the
+  // suppression tests rows y_nms_ on; masks are w64_ columns wide; thr2_32_ is the squared
+  // threshold as a 32-bit lane value.
+  int y_exact_ = 0, y_nms_ = 2;
+  size_t w64_ = 0;
+  int32_t thr2_32_ = 0;
   cv::Mat gx_, gy_;
   std::vector<int32_t> mag2_;
   // Histogram of sampled squared magnitudes for the automatic threshold: exact bins below
