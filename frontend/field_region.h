@@ -42,6 +42,39 @@ class FieldRegion {
   bool restricted() const { return restricted_; }
 
  private:
+  // The floor test of one grid sample, b, g, r in the low three bytes of word: the
+  // chromaticity test multiplied through by the sum, no division per sample.
+  struct FloorTest {
+    float ref_c[3] = {0.0f, 0.0f, 0.0f};  // the floor's chromaticity (b, g, r)
+    float lo = 0.0f, hi = 0.0f;           // the floor's luma range
+    float tol = 0.0f;                     // chroma_tolerance
+    inline uint8_t operator()(uint32_t word) const;
+  };
+
+  // The phases of compute(), in order; each reads the per-image state the earlier ones set.
+  // Declared inline and defined in field_region.cpp, their only user, so that the compiler may
+  // inline them (position-independent code does not inline other global functions).
+  // The floor's reference samples from the bottom third into chroma_, luma_; false: none.
+  inline bool sampleReference(const cv::Mat& bgr);
+  // floor_ from the reference samples' medians and the parameters.
+  inline void setFloorTest(const FieldRegionParams& p);
+  // The grid columns' tops (grid_top_, run_), row by row with every column tested, while at
+  // least a quarter of them are open; the first grid row not scanned.
+  inline int scanAllColumns(const cv::Mat& bgr, int min_run);
+  // One grid row gy of scanAllColumns; the number of columns it closes.
+  inline int scanGridRow(const uint8_t* row, int gy, int min_run);
+  // The remaining open columns from grid row gy down, testing only those.
+  inline void scanOpenColumns(const cv::Mat& bgr, int gy, int min_run);
+  // smoothed_: the median of each column's neighbours' tops.
+  inline void smoothTops(int smooth_columns);
+  // hull_: the lower convex hull of the smoothed tops, in pixels.
+  inline void lowerHull();
+  // top_ and restricted_ from the hull.
+  inline void setTop(double margin_px);
+
+  // Per image: its size, the grid spacing and size.
+  int w_ = 0, h_ = 0, step_ = 1, gw_ = 0, gh_ = 0;
+  FloorTest floor_;
   std::vector<int16_t> top_;
   std::vector<int> grid_top_, run_, smoothed_, window_;
   std::vector<std::pair<double, double>> hull_;
