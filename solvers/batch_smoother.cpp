@@ -105,78 +105,18 @@ Estimate BatchSmoother::processStep(const Step& in) {
   Estimate e;
   e.step = step.step;
   e.t = step.t;
-  const Estimate* given = nullptr;
-  {
-    auto it = std::lower_bound(given_.begin(), given_.end(), step.step,
-                               [](const Estimate& a, long s) { return a.step < s; });
-    if (it != given_.end() && it->step == step.step && it->status != EstimateStatus::Uninitialised &&
-        it->pose.isFinite())
-      given = &*it;
-  }
   std::optional<Estimate> filtered;
   if (filter_) filtered = filter_->process(step);
-  if (first_index_ < 0 && filtered) {
-    if (filtered->status == EstimateStatus::Uninitialised) {
-      e.status = EstimateStatus::Uninitialised;
-      ++summary_.uninitialised_steps;
-      step.observations.clear();
-      buffer(step);
-      guess_.push_back(e);
-      return e;
-    }
-    if (config_.init.mode != InitMode::Global) {
-      prior_pose_ = config_.init.pose;
-      prior_covariance_ = config_.init.covariance;
-      e.status = EstimateStatus::Tracking;
-    } else {  // the filter's first estimate is the global fix (it fuses nothing at that step)
-      prior_pose_ = filtered->pose;
-      prior_covariance_ = filtered->covariance;
-      step.observations.clear();
-      step.compass.reset();
-      e.status = EstimateStatus::Reinitialised;
-    }
-    first_index_ = static_cast<long>(steps_.size());
-    e.pose = filtered->pose;
-    guess_covariance_ = filtered->covariance;
-  } else if (first_index_ >= 0 && filtered) {
-    e.pose = filtered->pose;
-    guess_covariance_ = filtered->covariance;
-    e.status = EstimateStatus::Predicted;
-    if (config_.cut_at_reinitialisation && filtered->status == EstimateStatus::Reinitialised &&
-        cutAtReinitialisation(steps_.size(), *filtered, step))
-      e.status = EstimateStatus::Reinitialised;
-    trackRejections(steps_.size());
-  } else if (first_index_ < 0) {
-    if (config_.init.mode != InitMode::Global) {
-      prior_pose_ = config_.init.pose;
-      prior_covariance_ = config_.init.covariance;
-      e.status = EstimateStatus::Tracking;
-    } else if (const std::optional<PoseFix> fix = config_.global_fix(step, map_)) {
-      prior_pose_ = fix->pose;
-      prior_covariance_ = fix->covariance;
-      // The fix came from this step's observations: fusing them again would count them twice.
-      step.observations.clear();
-      step.compass.reset();
-      e.status = EstimateStatus::Reinitialised;
-    } else {
-      e.status = EstimateStatus::Uninitialised;
-      ++summary_.uninitialised_steps;
-      step.observations.clear();
-      buffer(step);
-      guess_.push_back(e);
-      return e;
-    }
-    first_index_ = static_cast<long>(steps_.size());
-    e.pose = prior_pose_;
-    guess_covariance_ = 0.5 * (prior_covariance_ + prior_covariance_.transpose());
-  } else {
-    const PosePrediction pred =
-        predictPose(guess_.back().pose, guess_covariance_, step.d_left, step.d_right, odometry_);
-    e.pose = pred.pose;
-    guess_covariance_ = pred.covariance;
-    e.status = EstimateStatus::Predicted;
+  const Estimate* filter_estimate = filtered ? &*filtered : nullptr;
+  e.status = first_index_ < 0 ? startChain(step, filter_estimate, e.pose) : continueChain(step, filter_estimate, e.pose);
+  if (e.status == EstimateStatus::Uninitialised) {
+    ++summary_.uninitialised_steps;
+    step.observations.clear();
+    buffer(step);
+    guess_.push_back(e);
+    return e;
   }
-  if (given) {
+  if (const Estimate* given = givenEstimate(step.step)) {
     e.pose = given->pose;
     if (given->covariance.allFinite() && given->covariance.trace() > 0) guess_covariance_ = given->covariance;
   }
@@ -196,6 +136,70 @@ Estimate BatchSmoother::processStep(const Step& in) {
   buffer(step);
   guess_.push_back(e);
   return e;
+}
+
+const Estimate* BatchSmoother::givenEstimate(long step) const {
+  auto it = std::lower_bound(given_.begin(), given_.end(), step, [](const Estimate& a, long s) { return a.step < s; });
+  if (it != given_.end() && it->step == step && it->status != EstimateStatus::Uninitialised && it->pose.isFinite())
+    return &*it;
+  return nullptr;
+}
+
+EstimateStatus BatchSmoother::startChain(Step& step, const Estimate* filtered, Pose2& guess) {
+  EstimateStatus status;
+  if (filtered) {
+    if (filtered->status == EstimateStatus::Uninitialised) return EstimateStatus::Uninitialised;
+    if (config_.init.mode != InitMode::Global) {
+      prior_pose_ = config_.init.pose;
+      prior_covariance_ = config_.init.covariance;
+      status = EstimateStatus::Tracking;
+    } else {  // the filter's first estimate is the global fix (it fuses nothing at that step)
+      prior_pose_ = filtered->pose;
+      prior_covariance_ = filtered->covariance;
+      step.observations.clear();
+      step.compass.reset();
+      status = EstimateStatus::Reinitialised;
+    }
+    first_index_ = static_cast<long>(steps_.size());
+    guess = filtered->pose;
+    guess_covariance_ = filtered->covariance;
+    return status;
+  }
+  if (config_.init.mode != InitMode::Global) {
+    prior_pose_ = config_.init.pose;
+    prior_covariance_ = config_.init.covariance;
+    status = EstimateStatus::Tracking;
+  } else if (const std::optional<PoseFix> fix = config_.global_fix(step, map_)) {
+    prior_pose_ = fix->pose;
+    prior_covariance_ = fix->covariance;
+    // The fix came from this step's observations: fusing them again would count them twice.
+    step.observations.clear();
+    step.compass.reset();
+    status = EstimateStatus::Reinitialised;
+  } else {
+    return EstimateStatus::Uninitialised;
+  }
+  first_index_ = static_cast<long>(steps_.size());
+  guess = prior_pose_;
+  guess_covariance_ = 0.5 * (prior_covariance_ + prior_covariance_.transpose());
+  return status;
+}
+
+EstimateStatus BatchSmoother::continueChain(Step& step, const Estimate* filtered, Pose2& guess) {
+  if (filtered) {
+    guess = filtered->pose;
+    guess_covariance_ = filtered->covariance;
+    EstimateStatus status = EstimateStatus::Predicted;
+    if (config_.cut_at_reinitialisation && filtered->status == EstimateStatus::Reinitialised &&
+        cutAtReinitialisation(steps_.size(), *filtered, step))
+      status = EstimateStatus::Reinitialised;
+    trackRejections(steps_.size());
+    return status;
+  }
+  const PosePrediction pred = predictPose(guess_.back().pose, guess_covariance_, step.d_left, step.d_right, odometry_);
+  guess = pred.pose;
+  guess_covariance_ = pred.covariance;
+  return EstimateStatus::Predicted;
 }
 
 void BatchSmoother::buffer(const Step& step) {

@@ -218,6 +218,14 @@ class BatchSmoother : public Estimator {
  private:
   void solve();
   Estimate processStep(const Step& step);
+  // The given estimate of step (BatchSmootherConfig's guess file), if any is usable.
+  const Estimate* givenEstimate(long step) const;
+  // The chain's first step (from the filter pass's first estimate, else the configured start or a
+  // global fix): the prior, the guess and the step's status; Uninitialised while there is none.
+  // A start from a fix clears the step's observations and compass (the fix used them).
+  EstimateStatus startChain(Step& step, const Estimate* filtered, Pose2& guess);
+  // A later step: the guess from the filter pass (and its candidate cut), else dead reckoning.
+  EstimateStatus continueChain(Step& step, const Estimate* filtered, Pose2& guess);
   void smoothGuess(size_t first, std::vector<double>* x) const;
   void trackRejections(size_t index);
   bool cutAtReinitialisation(size_t index, const Estimate& fix, const Step& step);  // true: a candidate cut
