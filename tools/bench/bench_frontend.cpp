@@ -822,123 +822,173 @@ std::string cornerDetectability(const ImageLandmark& l, const std::vector<Seg>& 
   return "a defining line not visible (occluded / out of image)";
 }
 
-void accuracyTable(bool diag) {
-  Setup& s = setup();
-  // STEREOLOC_BENCH_PARAMS: a frontend parameter YAML to score instead of the defaults.
-  const char* params_path = std::getenv("STEREOLOC_BENCH_PARAMS");
-  Frontend fe(s.rig, s.map, params_path ? FrontendParams::load(params_path) : FrontendParams());
-  const double lmin = fe.params().segments.min_length_px, gap_max = fe.params().segments.gap_max_px;
-  SegStats ours_centre, ours_edge, hough_edge, lsd_edge;
-  FailureBreakdown why_centre, why_edge;
-  ours_centre.why = &why_centre;
-  ours_edge.why = &why_edge;
-  why_centre.verbose = std::getenv("STEREOLOC_BENCH_VERBOSE") != nullptr;
-  SegStats by_light[2];
-  long cls_n = 0, cls_ok = 0;
-  long c_gt = 0, c_hit = 0, c_det = 0, c_ok = 0, c_det_ignored = 0;
-  long thin_markings = 0;  // edge level: markings narrower than kThinStripePx, one truth edge each
-  long merged_tops = 0;    // centre-line level: inner top edges merged with the silhouette (optional)
-  std::map<std::string, long> c_excluded;  // reason -> truth landmarks excluded from recall
-  double c_err = 0;
-  std::map<std::string, std::pair<long, long>> c_type;  // type -> (gt, hit)
-  cv::Ptr<cv::LineSegmentDetector> lsd = cv::createLineSegmentDetector(cv::LSD_REFINE_STD);
-  cv::Mat luma, canny;
-  RangeStats rs;
-  auto goalRanges = [&](const Pair& p, const FrontendResult& r) {
+// The accuracy table's counts over the test set: segments at centre-line and edge level (ours,
+// cv::HoughLinesP, cv LSD), the classification, corners/junctions/intersections and the goal
+// corners' stereo range.
+class AccuracyTally {
+ public:
+  explicit AccuracyTally(const Frontend& fe) : s_(setup()), fe_(fe), lsd_(cv::createLineSegmentDetector(cv::LSD_REFINE_STD)) {
+    ours_centre_.why = &why_centre_;
+    ours_edge_.why = &why_edge_;
+    why_centre_.verbose = std::getenv("STEREOLOC_BENCH_VERBOSE") != nullptr;
+  }
+  bool verbose() const { return why_centre_.verbose; }
+
+  // One general pair: its lines and segments, corners and goal-corner ranges. `dump`, when
+  // set, receives the pair's truth and detections as images.
+  void scorePair(const Pair& p, const FrontendResult& r, const std::function<void(const std::vector<Seg>&,
+                 const std::vector<Seg>&, const std::vector<Seg>&, const std::vector<Seg>&)>& dump) {
+    const cv::Mat mask = dontCare(s_.rig, s_.map, p);
+    bgrToLuma(p.img.left, why_centre_.luma);
+    why_edge_.luma = why_centre_.luma;
+    // Centre-line level.
+    std::vector<Seg> det;
+    for (const LineFeature& l : r.lines)
+      det.push_back(Seg{Eigen::Vector2d(l.x(l.t_min), l.y(l.t_min)), Eigen::Vector2d(l.x(l.t_max), l.y(l.t_max)), l.marking, "", false, "", false});
+    const std::vector<Seg> gt_c = truthSegments(s_.rig, s_.map, p, false, lmin(), nullptr, &merged_tops_);
+    scoreSegments(gt_c, det, mask, ours_centre_, gapMax());
+    scoreSegments(gt_c, det, mask, by_light_[p.bad_light ? 1 : 0], gapMax());
+    // Edge level, ours and OpenCV.
+    std::vector<Seg> edges;
+    for (const Segment& sg : r.segments)
+      edges.push_back(Seg{Eigen::Vector2d(sg.x1, sg.y1), Eigen::Vector2d(sg.x2, sg.y2), sg.cls == SegmentClass::Marking, "", false, "", false});
+    const std::vector<Seg> gt_e = truthSegments(s_.rig, s_.map, p, true, lmin(), &thin_markings_);
+    if (dump) dump(gt_c, det, gt_e, edges);
+    SegStats before = ours_edge_;
+    scoreSegments(gt_e, edges, mask, ours_edge_, gapMax());
+    cls_n_ += ours_edge_.matched - before.matched;
+    cls_ok_ += ours_edge_.class_ok - before.class_ok;
+    scoreOpenCv(p, gt_e, mask);
+    scoreCorners(p, r, gt_c);
+    scoreGoalRanges(p, r);
+  }
+
+  void scoreGoalRanges(const Pair& p, const FrontendResult& r) {
     const Pose2& robot = p.img.truth.robot;
     std::map<int, Eigen::Vector2d> gt_px, gt_right;
     for (const ImageLandmark& l : p.img.truth.left.landmarks)
       if (l.type == "goal_corner") gt_px[l.id] = l.pixel;
     for (const ImageLandmark& l : p.img.truth.right.landmarks)
       if (l.type == "goal_corner") gt_right[l.id] = l.pixel;
-    rs.gt_visible += static_cast<long>(gt_px.size());
+    rs_.gt_visible += static_cast<long>(gt_px.size());
     for (const Observation& o : r.observations) {
       if (o.type != LandmarkType::GoalCorner || o.landmark_id < 0) continue;
       const auto it = gt_px.find(o.landmark_id);
       if (it == gt_px.end() || std::fabs(it->second.x() - o.pixels->u_left) > 3.0) {
-        ++rs.wrong_id;
+        ++rs_.wrong_id;
         continue;
       }
-      ++rs.detected;
-      const double truth = (s.map.at(o.landmark_id).xy() - robot.translation()).norm();
-      rs.abs_err.push_back(std::fabs(o.range - truth));
-      rs.norm_err.push_back(std::fabs(o.range - truth) / truth);
-      rs.u_err.push_back(o.pixels->u_left - it->second.x());
+      ++rs_.detected;
+      const double truth = (s_.map.at(o.landmark_id).xy() - robot.translation()).norm();
+      rs_.abs_err.push_back(std::fabs(o.range - truth));
+      rs_.norm_err.push_back(std::fabs(o.range - truth) / truth);
+      rs_.u_err.push_back(o.pixels->u_left - it->second.x());
       const auto jt = gt_right.find(o.landmark_id);
-      if (jt != gt_right.end()) rs.d_err.push_back(o.pixels->disparity() - (it->second.x() - jt->second.x()));
+      if (jt != gt_right.end()) rs_.d_err.push_back(o.pixels->disparity() - (it->second.x() - jt->second.x()));
     }
-  };
-  int dumped = 0, pair_index = 0;
-  const char* dump = std::getenv("STEREOLOC_BENCH_DUMP");  // directory: writes a few pairs and their truth
-  for (const Pair& p : s.general) {
-    const FrontendResult& r = fe.process(p.img.left, p.img.right, p.img.truth.head_pan);
-    if (dump && dumped < 6 && (!std::getenv("STEREOLOC_BENCH_DUMP_PAIR") || std::atoi(std::getenv("STEREOLOC_BENCH_DUMP_PAIR")) == pair_index)) {
-      const std::string base = std::string(dump) + "/pair" + std::to_string(dumped++);
-      cv::imwrite(base + "_left.png", p.img.left);
-      cv::imwrite(base + "_right.png", p.img.right);
-      std::FILE* f = std::fopen((base + "_truth.json").c_str(), "w");
-      if (f) {
-        std::fputs(truthToJson(p.img.truth, 0, p.img.left.cols, p.img.left.rows).c_str(), f);
-        std::fclose(f);
-      }
+  }
+
+  void printSegments(bool diag) const {
+    std::printf("\nstereoloc vision frontend: accuracy on %zu rendered pairs (%zu with bad illumination) + %zu goal pairs\n",
+                s_.general.size(), s_.general.size() / 2, s_.goals.size());
+    std::printf("matching: angle <= 2 deg, both end points <= 3 px; broken edges match as one; so do runs of truth pieces\n"
+                "closer than Gap_max whose union is straight within 1 px (Algorithm 2 merges them); truth pieces < L_min\n"
+                "optional; unmatched detections on the centre circle or obstacles ignored\n");
+    std::printf("excluded at centre-line level: %ld optional truth pieces (of %ld), %ld detections ignored (of %ld)\n",
+                ours_centre_.gt_optional, ours_centre_.gt_optional + ours_centre_.gt, ours_centre_.det_ignored,
+                ours_centre_.det_ignored + ours_centre_.det);
+    std::printf("  optional = shorter than L_min, or (%ld of them) an inner top edge (wall_top, goal_top, triangle_top)\n"
+                "  within %.1f px of the top_outline silhouette over >= %.0f%% of its length: the top face between them\n"
+                "  is thinner than that in the image, so the two are one image edge with the silhouette's ends\n\n",
+                merged_tops_, kMergedTopPx, 100 * kMergedTopShare);
+    std::printf("  %-34s %9s %10s %8s %9s\n", "segments", "recall", "precision", "F", "endpt px");
+    printRow("ours, centre-line level (target)", ours_centre_);
+    printRow("  good illumination", by_light_[0]);
+    printRow("  bad illumination", by_light_[1]);
+    printRow("ours, edge level", ours_edge_);
+    std::printf("    (edge level: %ld markings narrower than %.1f px in the image are one truth edge, their centre line,\n"
+                "     not two unresolvable side edges)\n", thin_markings_, kThinStripePx);
+    printRow("cv::HoughLinesP (Canny), edge level", hough_edge_);
+    printRow("cv LSD, edge level", lsd_edge_);
+    std::printf("  targets: recall >= 97%%, precision >= 97%%, end-point error <= 1.0 px\n\n");
+    if (diag) {
+      printBreakdown("failure breakdown, centre-line level:", why_centre_);
+      printBreakdown("failure breakdown, edge level:", why_edge_);
+      std::printf("\n");
     }
-    if (why_centre.verbose) std::printf("  pair %d\n", pair_index);
-    ++pair_index;
-    const cv::Mat mask = dontCare(s.rig, s.map, p);
-    bgrToLuma(p.img.left, why_centre.luma);
-    why_edge.luma = why_centre.luma;
-    // Centre-line level.
-    std::vector<Seg> det;
-    for (const LineFeature& l : r.lines)
-      det.push_back(Seg{Eigen::Vector2d(l.x(l.t_min), l.y(l.t_min)), Eigen::Vector2d(l.x(l.t_max), l.y(l.t_max)), l.marking, "", false, "", false});
-    const std::vector<Seg> gt_c = truthSegments(s.rig, s.map, p, false, lmin, nullptr, &merged_tops);
-    scoreSegments(gt_c, det, mask, ours_centre, gap_max);
-    scoreSegments(gt_c, det, mask, by_light[p.bad_light ? 1 : 0], gap_max);
-    // Edge level, ours and OpenCV.
-    std::vector<Seg> edges;
-    for (const Segment& sg : r.segments)
-      edges.push_back(Seg{Eigen::Vector2d(sg.x1, sg.y1), Eigen::Vector2d(sg.x2, sg.y2), sg.cls == SegmentClass::Marking, "", false, "", false});
-    const std::vector<Seg> gt_e = truthSegments(s.rig, s.map, p, true, lmin, &thin_markings);
-    if (dump && dumped <= 6) {
-      // 4x overlays: truth blue (optional pieces grey), ours red (marking) / green (other).
-      for (int level = 0; level < 2; ++level) {
-        cv::Mat big;
-        cv::resize(p.img.left, big, cv::Size(), 4, 4, cv::INTER_NEAREST);
-        auto P = [](const Eigen::Vector2d& q) { return cv::Point(static_cast<int>(std::lround(4 * q.x() + 1.5)), static_cast<int>(std::lround(4 * q.y() + 1.5))); };
-        for (const Seg& g : level ? gt_e : gt_c) cv::line(big, P(g.a), P(g.b), g.optional ? cv::Scalar(128, 128, 128) : cv::Scalar(255, 0, 0), 1);
-        for (const Seg& d : level ? edges : det) cv::line(big, P(d.a), P(d.b), d.marking ? cv::Scalar(0, 0, 255) : cv::Scalar(0, 255, 0), 1);
-        cv::imwrite(std::string(dump) + "/pair" + std::to_string(dumped - 1) + (level ? "_edges.png" : "_lines.png"), big);
-      }
-    }
-    SegStats before = ours_edge;
-    scoreSegments(gt_e, edges, mask, ours_edge, gap_max);
-    cls_n += ours_edge.matched - before.matched;
-    cls_ok += ours_edge.class_ok - before.class_ok;
-    bgrToLuma(p.img.left, luma);
+    std::printf("  field-marking classification accuracy (matched edges): %.2f%% of %ld (target >= 98%%)\n",
+                cls_n_ ? 100.0 * cls_ok_ / cls_n_ : 0.0, cls_n_);
+    if (diag)
+      for (const auto& [key, n] : why_edge_.misclassified) std::printf("    misclassified: %-50s %6ld\n", key.c_str(), n);
+    std::printf("\n");
+  }
+
+  void printCorners() const {
+    std::printf("  corners/junctions/intersections: recall %.2f%% (%ld/%ld), precision %.2f%% (%ld/%ld), mean error %.3f px\n",
+                c_gt_ ? 100.0 * c_hit_ / c_gt_ : 0.0, c_hit_, c_gt_, c_det_ ? 100.0 * c_ok_ / c_det_ : 0.0, c_ok_, c_det_,
+                c_ok_ ? c_err_ / c_ok_ : 0.0);
+    long c_excl_total = 0;
+    for (const auto& [why, n] : c_excluded_) c_excl_total += n;
+    std::printf("    truth rule: a landmark counts when two truth lines that define it are detectable: each a visible\n"
+                "    piece >= L_min (%.0f px) whose extent reaches the point within delta (%.0f px), through it within\n"
+                "    1.5 px, at an image angle >= %.0f deg (Algorithm 4's pair test); a junction needs a marking and a\n"
+                "    wall foot, a corner/intersection two markings. Excluded (detections of them ignored, %ld): %ld of %ld\n",
+                lmin(), fe_.params().corners.delta_px, fe_.params().corners.min_image_angle_deg, c_det_ignored_,
+                c_excl_total, c_excl_total + c_gt_);
+    for (const auto& [why, n] : c_excluded_) std::printf("      %-60s %6ld\n", why.c_str(), n);
+    for (const auto& [type, c] : c_type_)
+      std::printf("    %-14s recall %6.2f%% (%ld/%ld)\n", type.c_str(), c.first ? 100.0 * c.second / c.first : 0.0, c.second,
+                  c.first);
+    std::printf("  targets: recall >= 95%%, precision >= 95%%, position error <= 0.5 px\n\n");
+  }
+
+  void printRanges() const {
+    std::printf("goal-corner stereo range (format of thesis Table 6.3), %zu measurements; %ld of %ld visible detected, %ld wrong id\n",
+                rs_.abs_err.size(), rs_.detected, rs_.gt_visible, rs_.wrong_id);
+    std::printf("  %-18s %11s %11s %11s %11s\n", "", "Mean", "Std", "Min", "Max");
+    describe("Absolute error", rs_.abs_err, 1.0, "  ");
+    describe("Normalized error", rs_.norm_err, 100.0, " %");
+    std::printf("  %-18s %11s %11s %11s %11s\n", "thesis Table 6.3", "5.18 %", "4.04 %", "0.0001 %", "35.91 %");
+    std::printf("  target: mean normalized error <= 2.0 %% over >= 2000 measurements\n");
+    describe("u_left error px", rs_.u_err, 1.0, "  ");
+    describe("disparity err px", rs_.d_err, 1.0, "  ");
+    std::printf("\n");
+  }
+
+ private:
+  double lmin() const { return fe_.params().segments.min_length_px; }
+  double gapMax() const { return fe_.params().segments.gap_max_px; }
+
+  void scoreOpenCv(const Pair& p, const std::vector<Seg>& gt_e, const cv::Mat& mask) {
+    bgrToLuma(p.img.left, luma_);
     std::vector<cv::Vec4i> hp;
-    houghP(luma, canny, hp);
+    houghP(luma_, canny_, hp);
     std::vector<cv::Vec4f> hpf;
     for (const cv::Vec4i& l : hp) hpf.emplace_back(l[0], l[1], l[2], l[3]);
-    scoreSegments(gt_e, openCvSegments(hpf, lmin), mask, hough_edge, gap_max);
+    scoreSegments(gt_e, openCvSegments(hpf, lmin()), mask, hough_edge_, gapMax());
     std::vector<cv::Vec4f> ls;
-    lsd->detect(luma, ls);
-    scoreSegments(gt_e, openCvSegments(ls, lmin), mask, lsd_edge, gap_max);
-    // Corners, junctions, intersections.
+    lsd_->detect(luma_, ls);
+    scoreSegments(gt_e, openCvSegments(ls, lmin()), mask, lsd_edge_, gapMax());
+  }
+
+  // Corners, junctions, intersections: the truth landmarks detectable by rule (the others are
+  // optional: a detection of one is correct but not counted), each matched to the nearest
+  // unused detection of its type within 3 px.
+  void scoreCorners(const Pair& p, const FrontendResult& r, const std::vector<Seg>& gt_c) {
     std::vector<const ImageLandmark*> gl, gl_opt;
     for (const ImageLandmark& l : p.img.truth.left.landmarks) {
       if (l.type != "corner" && l.type != "junction" && l.type != "intersection") continue;
-      const std::string why_not = cornerDetectability(l, gt_c, fe.params().corners);
+      const std::string why_not = cornerDetectability(l, gt_c, fe_.params().corners);
       if (why_not.empty()) {
         gl.push_back(&l);
       } else {
         gl_opt.push_back(&l);
-        c_excluded[why_not]++;
+        c_excluded_[why_not]++;
       }
     }
     std::vector<uint8_t> used(gl.size(), 0), used_opt(gl_opt.size(), 0);
     for (const PointFeature& f : r.features) {
       if (f.type == LandmarkType::GoalCorner) continue;
-      // A detection of an excluded (undetectable by rule) landmark is correct but not counted.
       bool on_optional = false;
       for (size_t k = 0; k < gl_opt.size() && !on_optional; ++k)
         if (!used_opt[k] && gl_opt[k]->type == toString(f.type) &&
@@ -947,10 +997,10 @@ void accuracyTable(bool diag) {
           on_optional = true;
         }
       if (on_optional) {
-        ++c_det_ignored;
+        ++c_det_ignored_;
         continue;
       }
-      ++c_det;
+      ++c_det_;
       int best = -1;
       double bd = 3.0;
       for (size_t k = 0; k < gl.size(); ++k) {
@@ -962,9 +1012,9 @@ void accuracyTable(bool diag) {
       }
       if (best >= 0) {
         used[best] = 1;
-        ++c_ok;
-        c_err += bd;
-      } else if (why_centre.verbose) {
+        ++c_ok_;
+        c_err_ += bd;
+      } else if (verbose()) {
         std::printf("    false %-12s at (%.1f,%.1f); truth within 10 px:", toString(f.type).c_str(), f.u, f.v);
         for (const ImageLandmark& l : p.img.truth.left.landmarks)
           if (std::hypot(l.pixel.x() - f.u, l.pixel.y() - f.v) < 10)
@@ -973,7 +1023,7 @@ void accuracyTable(bool diag) {
       }
     }
     for (size_t k = 0; k < gl.size(); ++k) {
-      if (why_centre.verbose && !used[k]) {
+      if (verbose() && !used[k]) {
         std::printf("    missed %-12s id %3d at (%.1f,%.1f); nearest detections:", gl[k]->type.c_str(), gl[k]->id,
                     gl[k]->pixel.x(), gl[k]->pixel.y());
         for (const PointFeature& f : r.features)
@@ -981,73 +1031,91 @@ void accuracyTable(bool diag) {
             std::printf(" %s (%.1f,%.1f)", toString(f.type).c_str(), f.u, f.v);
         std::printf("\n");
       }
-      ++c_gt;
-      c_hit += used[k];
-      c_type[gl[k]->type].first++;
-      c_type[gl[k]->type].second += used[k];
+      ++c_gt_;
+      c_hit_ += used[k];
+      c_type_[gl[k]->type].first++;
+      c_type_[gl[k]->type].second += used[k];
     }
-    goalRanges(p, r);
   }
-  for (const Pair& p : s.goals) goalRanges(p, fe.process(p.img.left, p.img.right, p.img.truth.head_pan));
 
-  std::printf("\nstereoloc vision frontend: accuracy on %zu rendered pairs (%zu with bad illumination) + %zu goal pairs\n",
-              s.general.size(), s.general.size() / 2, s.goals.size());
-  std::printf("matching: angle <= 2 deg, both end points <= 3 px; broken edges match as one; so do runs of truth pieces\n"
-              "closer than Gap_max whose union is straight within 1 px (Algorithm 2 merges them); truth pieces < L_min\n"
-              "optional; unmatched detections on the centre circle or obstacles ignored\n");
-  std::printf("excluded at centre-line level: %ld optional truth pieces (of %ld), %ld detections ignored (of %ld)\n",
-              ours_centre.gt_optional, ours_centre.gt_optional + ours_centre.gt, ours_centre.det_ignored,
-              ours_centre.det_ignored + ours_centre.det);
-  std::printf("  optional = shorter than L_min, or (%ld of them) an inner top edge (wall_top, goal_top, triangle_top)\n"
-              "  within %.1f px of the top_outline silhouette over >= %.0f%% of its length: the top face between them\n"
-              "  is thinner than that in the image, so the two are one image edge with the silhouette's ends\n\n",
-              merged_tops, kMergedTopPx, 100 * kMergedTopShare);
-  std::printf("  %-34s %9s %10s %8s %9s\n", "segments", "recall", "precision", "F", "endpt px");
-  printRow("ours, centre-line level (target)", ours_centre);
-  printRow("  good illumination", by_light[0]);
-  printRow("  bad illumination", by_light[1]);
-  printRow("ours, edge level", ours_edge);
-  std::printf("    (edge level: %ld markings narrower than %.1f px in the image are one truth edge, their centre line,\n"
-              "     not two unresolvable side edges)\n", thin_markings, kThinStripePx);
-  printRow("cv::HoughLinesP (Canny), edge level", hough_edge);
-  printRow("cv LSD, edge level", lsd_edge);
-  std::printf("  targets: recall >= 97%%, precision >= 97%%, end-point error <= 1.0 px\n\n");
-  if (diag) {
-    printBreakdown("failure breakdown, centre-line level:", why_centre);
-    printBreakdown("failure breakdown, edge level:", why_edge);
-    std::printf("\n");
+  Setup& s_;
+  const Frontend& fe_;
+  cv::Ptr<cv::LineSegmentDetector> lsd_;
+  cv::Mat luma_, canny_;
+  SegStats ours_centre_, ours_edge_, hough_edge_, lsd_edge_;
+  FailureBreakdown why_centre_, why_edge_;
+  SegStats by_light_[2];
+  long cls_n_ = 0, cls_ok_ = 0;
+  long c_gt_ = 0, c_hit_ = 0, c_det_ = 0, c_ok_ = 0, c_det_ignored_ = 0;
+  long thin_markings_ = 0;  // edge level: markings narrower than kThinStripePx, one truth edge each
+  long merged_tops_ = 0;    // centre-line level: inner top edges merged with the silhouette (optional)
+  std::map<std::string, long> c_excluded_;  // reason -> truth landmarks excluded from recall
+  double c_err_ = 0;
+  std::map<std::string, std::pair<long, long>> c_type_;  // type -> (gt, hit)
+  RangeStats rs_;
+};
+
+// STEREOLOC_BENCH_DUMP=dir: the first pairs (STEREOLOC_BENCH_DUMP_PAIR: only that one) as images
+// with their truth, and 4x overlays: truth blue (optional pieces grey), ours red (marking) /
+// green (other), at centre-line and edge level.
+class PairDumper {
+ public:
+  PairDumper() : dir_(std::getenv("STEREOLOC_BENCH_DUMP")), only_(std::getenv("STEREOLOC_BENCH_DUMP_PAIR")) {}
+
+  // Writes the pair's images and truth when it is one to dump; true then.
+  bool begin(const Pair& p, int pair_index) {
+    if (!dir_ || dumped_ >= 6 || (only_ && std::atoi(only_) != pair_index)) return false;
+    const std::string base = std::string(dir_) + "/pair" + std::to_string(dumped_++);
+    cv::imwrite(base + "_left.png", p.img.left);
+    cv::imwrite(base + "_right.png", p.img.right);
+    std::FILE* f = std::fopen((base + "_truth.json").c_str(), "w");
+    if (f) {
+      std::fputs(truthToJson(p.img.truth, 0, p.img.left.cols, p.img.left.rows).c_str(), f);
+      std::fclose(f);
+    }
+    return true;
   }
-  std::printf("  field-marking classification accuracy (matched edges): %.2f%% of %ld (target >= 98%%)\n",
-              cls_n ? 100.0 * cls_ok / cls_n : 0.0, cls_n);
-  if (diag)
-    for (const auto& [key, n] : why_edge.misclassified) std::printf("    misclassified: %-50s %6ld\n", key.c_str(), n);
-  std::printf("\n");
-  std::printf("  corners/junctions/intersections: recall %.2f%% (%ld/%ld), precision %.2f%% (%ld/%ld), mean error %.3f px\n",
-              c_gt ? 100.0 * c_hit / c_gt : 0.0, c_hit, c_gt, c_det ? 100.0 * c_ok / c_det : 0.0, c_ok, c_det,
-              c_ok ? c_err / c_ok : 0.0);
-  long c_excl_total = 0;
-  for (const auto& [why, n] : c_excluded) c_excl_total += n;
-  std::printf("    truth rule: a landmark counts when two truth lines that define it are detectable: each a visible\n"
-              "    piece >= L_min (%.0f px) whose extent reaches the point within delta (%.0f px), through it within\n"
-              "    1.5 px, at an image angle >= %.0f deg (Algorithm 4's pair test); a junction needs a marking and a\n"
-              "    wall foot, a corner/intersection two markings. Excluded (detections of them ignored, %ld): %ld of %ld\n",
-              lmin, fe.params().corners.delta_px, fe.params().corners.min_image_angle_deg, c_det_ignored, c_excl_total,
-              c_excl_total + c_gt);
-  for (const auto& [why, n] : c_excluded) std::printf("      %-60s %6ld\n", why.c_str(), n);
-  for (const auto& [type, c] : c_type)
-    std::printf("    %-14s recall %6.2f%% (%ld/%ld)\n", type.c_str(), c.first ? 100.0 * c.second / c.first : 0.0, c.second,
-                c.first);
-  std::printf("  targets: recall >= 95%%, precision >= 95%%, position error <= 0.5 px\n\n");
-  std::printf("goal-corner stereo range (format of thesis Table 6.3), %zu measurements; %ld of %ld visible detected, %ld wrong id\n",
-              rs.abs_err.size(), rs.detected, rs.gt_visible, rs.wrong_id);
-  std::printf("  %-18s %11s %11s %11s %11s\n", "", "Mean", "Std", "Min", "Max");
-  describe("Absolute error", rs.abs_err, 1.0, "  ");
-  describe("Normalized error", rs.norm_err, 100.0, " %");
-  std::printf("  %-18s %11s %11s %11s %11s\n", "thesis Table 6.3", "5.18 %", "4.04 %", "0.0001 %", "35.91 %");
-  std::printf("  target: mean normalized error <= 2.0 %% over >= 2000 measurements\n");
-  describe("u_left error px", rs.u_err, 1.0, "  ");
-  describe("disparity err px", rs.d_err, 1.0, "  ");
-  std::printf("\n");
+  // The overlays of the pair begin() last wrote.
+  void overlays(const Pair& p, const std::vector<Seg>& gt_c, const std::vector<Seg>& det, const std::vector<Seg>& gt_e,
+                const std::vector<Seg>& edges) const {
+    for (int level = 0; level < 2; ++level) {
+      cv::Mat big;
+      cv::resize(p.img.left, big, cv::Size(), 4, 4, cv::INTER_NEAREST);
+      auto P = [](const Eigen::Vector2d& q) { return cv::Point(static_cast<int>(std::lround(4 * q.x() + 1.5)), static_cast<int>(std::lround(4 * q.y() + 1.5))); };
+      for (const Seg& g : level ? gt_e : gt_c) cv::line(big, P(g.a), P(g.b), g.optional ? cv::Scalar(128, 128, 128) : cv::Scalar(255, 0, 0), 1);
+      for (const Seg& d : level ? edges : det) cv::line(big, P(d.a), P(d.b), d.marking ? cv::Scalar(0, 0, 255) : cv::Scalar(0, 255, 0), 1);
+      cv::imwrite(std::string(dir_) + "/pair" + std::to_string(dumped_ - 1) + (level ? "_edges.png" : "_lines.png"), big);
+    }
+  }
+
+ private:
+  const char* dir_;
+  const char* only_;
+  int dumped_ = 0;
+};
+
+void accuracyTable(bool diag) {
+  Setup& s = setup();
+  // STEREOLOC_BENCH_PARAMS: a frontend parameter YAML to score instead of the defaults.
+  const char* params_path = std::getenv("STEREOLOC_BENCH_PARAMS");
+  Frontend fe(s.rig, s.map, params_path ? FrontendParams::load(params_path) : FrontendParams());
+  AccuracyTally tally(fe);
+  PairDumper dumper;
+  int pair_index = 0;
+  for (const Pair& p : s.general) {
+    const FrontendResult& r = fe.process(p.img.left, p.img.right, p.img.truth.head_pan);
+    const bool dumped = dumper.begin(p, pair_index);
+    if (tally.verbose()) std::printf("  pair %d\n", pair_index);
+    ++pair_index;
+    tally.scorePair(p, r, [&](const std::vector<Seg>& gt_c, const std::vector<Seg>& det, const std::vector<Seg>& gt_e,
+                              const std::vector<Seg>& edges) {
+      if (dumped) dumper.overlays(p, gt_c, det, gt_e, edges);
+    });
+  }
+  for (const Pair& p : s.goals) tally.scoreGoalRanges(p, fe.process(p.img.left, p.img.right, p.img.truth.head_pan));
+  tally.printSegments(diag);
+  tally.printCorners();
+  tally.printRanges();
 }
 
 // ---- real photographs (data/real, format in data/real/README.md) ----
