@@ -388,10 +388,11 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
       // with the rows' misalignment as the patch match does (Observation::slide_gain); one that
       // cannot be (a stripe with too few profiles beside the crossing) keeps the patch match.
       double v_right = f.v;  // the observation keeps the left's row (StereoPixels)
-      if (f.type == LandmarkType::Intersection && f.located_on_image && f.line_a >= 0 && f.line_b >= 0 &&
-          crossingInRightImage(right_luma_, rig_, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v, u_right, v_right))
-        gain = 0.0;
-      r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, u_right, f.v}, gain});
+      const bool located = f.type == LandmarkType::Intersection && f.located_on_image && f.line_a >= 0 &&
+                           f.line_b >= 0 &&
+                           crossingInRightImage(right_luma_, rig_, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v,
+                                                u_right, v_right);
+      r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, u_right, f.v}, located ? 0.0 : gain, located});
     }
   }
   const ColourPrepare prepare_left = [this](const cv::Rect& rect, int step) { rectifier_->colour(0, rect, step); };

@@ -64,6 +64,9 @@ struct StereoFeature {
   PointFeature feature;
   StereoPixels pixels;
   double slide_gain = 0.0;  // Observation::slide_gain
+  // An X-intersection located on the right image as on the left (crossingInRightImage), not
+  // matched by patch correlation (bench_pixel_noise reports the two apart).
+  bool located_in_both_images = false;
 };
 
 struct FrontendResult {

@@ -84,6 +84,7 @@ std::vector<PixelErrorSample> measurePixelErrors(const FieldMap& map, const Ster
       s.truth = asVector(*best_px);
       s.error = asVector(m.pixels) - s.truth;
       s.range_mm = std::hypot(best->position.x() - robot.x, best->position.y() - robot.y);
+      s.located_in_both_images = m.located_in_both_images;
       out.push_back(s);
     }
   }

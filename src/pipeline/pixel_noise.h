@@ -44,6 +44,7 @@ struct PixelErrorSample {
   Eigen::Vector4d error = Eigen::Vector4d::Zero();  // px: (u_l, v_l, u_r, v_r) measured - true
   Eigen::Vector4d truth = Eigen::Vector4d::Zero();  // px: the true pixels
   double range_mm = 0;                              // true horizontal distance from the robot
+  bool located_in_both_images = false;              // frontend::StereoFeature's
 };
 
 // Renders `options.pairs` pairs and returns one sample per matched stereo feature. Deterministic

@@ -516,6 +516,7 @@ TEST(Corners, CrossingIsLocatedOnTheRightImageWhateverTheRowMisalignment) {
     EXPECT_GT(std::fabs(patch_error), 0.3) << sc.name;
     EXPECT_LT(std::fabs(located_error), 0.15) << sc.name;
     EXPECT_EQ(m.slide_gain, 0.0);
+    EXPECT_TRUE(m.located_in_both_images) << sc.name;
   }
 }
 
@@ -569,6 +570,7 @@ TEST(Corners, CrossingNotLocatedOnTheRightImageKeepsThePatchMatch) {
   EXPECT_EQ(m.pixels.u_right, m.feature.u - *d);
   EXPECT_EQ(m.slide_gain, gain);
   EXPECT_NE(gain, 0.0);
+  EXPECT_FALSE(m.located_in_both_images);
 }
 
 namespace {

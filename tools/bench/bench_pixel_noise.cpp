@@ -6,7 +6,8 @@
 //   (--scenario: the poses of that scenario's path, N noisy passes over them, instead of N random poses)
 //
 // Prints per type: count, mean error, standard deviations and correlations of
-// (u_l, v_l, u_r, v_r), the same in (u_l, v, d = u_l - u_r), by range bin, and the landmarks whose
+// (u_l, v_l, u_r, v_r), the same in (u_l, v, d = u_l - u_r), by range bin (X-intersections also
+// split into those located on both images and those that keep the patch match), and the landmarks whose
 // mean error stands out (|mean| > 3 standard errors, >= 10 sightings).
 #include <cmath>
 #include <cstdio>
@@ -98,6 +99,13 @@ int main(int argc, char** argv) {
         char label[64];
         std::snprintf(label, sizeof label, "  %.0f-%.0f mm", bins[b], std::min(bins[b + 1], 9999.0));
         printMoments(label, in, params, LandmarkType::Point);
+      }
+      if (type == LandmarkType::Intersection) {
+        // Located on both images (crossingInRightImage) or matched by patch correlation.
+        std::vector<PixelErrorSample> located, patch;
+        for (const auto& e : s) (e.located_in_both_images ? located : patch).push_back(e);
+        printMoments("  located in both", located, params, LandmarkType::Point);
+        printMoments("  patch match", patch, params, LandmarkType::Point);
       }
     }
     std::printf("landmarks with a mean error over 3 standard errors (>= 10 sightings):\n");
