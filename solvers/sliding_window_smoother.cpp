@@ -1447,13 +1447,7 @@ Estimate SlidingWindowSmoother::recordIntermediate(const Step& step, const Wheel
   m.d_right = step.d_right;
   m.noise = noise;
   nodes_.back()->after.push_back(m);
-  Estimate out;
-  out.step = step.step;
-  out.t = step.t;
-  out.pose = b.pose;
-  out.covariance = b.P;
-  out.status = m.status;
-  return out;
+  return stepEstimate(step, b.pose, b.P, m.status);
 }
 
 void SlidingWindowSmoother::appendKeyframe(const Step& step, const WheelIncrements& noise, const Pose2& pose) {
