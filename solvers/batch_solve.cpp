@@ -378,6 +378,15 @@ class BatchSmoother::Solve {
   void unpairUnidentified();
   double solveReassociating(double c);
   void reassociateFromIdentified();
+  bool withdrawCutsIfUndetermined();  // every cut withdrawn when the chain's marginals fail; true then
+  double cutEvidenceThreshold() const;  // of 2 x cost, for keeping a cut
+  // The cost over poses [lo, hi) with cut c's odometry restored (the poses from `keep` on the
+  // second start), x_ left at the better start's optimum.
+  double restoredCost(size_t lo, size_t hi, size_t c, double base, double threshold, double variance_factor,
+                      const std::vector<double>& keep);
+  // Whether the data keep cut c (re-initialised at r, in the segment [seg_lo, seg_hi)); x_ is
+  // left at the cut solution when kept, at the restored one when not.
+  bool cutHoldsUp(size_t c, size_t r, size_t seg_lo, size_t seg_hi, double threshold, double variance_factor);
   void testCuts();
   bool moveCutToFix(size_t c, size_t a, size_t seg_lo, size_t seg_hi, size_t r);
   void joinImplausibleCuts();
@@ -829,40 +838,91 @@ void BatchSmoother::Solve::reassociateFromIdentified() {
   cost_ = solveAll();
 }
 
+bool BatchSmoother::Solve::withdrawCutsIfUndetermined() {
+  std::vector<Eigen::Matrix3d> D, B, cov;
+  std::vector<Eigen::Vector3d> g;
+  double c0 = 0;
+  if (chain_.linearise(0, n_, x_, &D, &B, &g, &c0) && chainMarginalCovariances(D, B, &cov)) return false;
+  std::vector<Cut>& cuts = b_.cuts_;
+  withdrawn_ += static_cast<int>(cuts.size());
+  setCuts(cuts, false);
+  cuts.clear();
+  cost_ = solveAll();
+  return true;
+}
+
+// Model selection for each cut, in step order: a cut frees the 3 degrees of freedom of the
+// segment after it; by the Bayesian information criterion it is kept only if restoring its
+// odometry factor raises 2 x cost by more than 3 ln(m), m the number of residuals (and at
+// least the gate's chi-square(3) quantile). A rare kidnap thus needs strong evidence: one
+// outlier that a free pose can fit does not cut the chain.
+double BatchSmoother::Solve::cutEvidenceThreshold() const {
+  return std::max({chi2Quantile(b_.config_.gate.probability, 3),
+                   3.0 * std::log(std::max(2.0, static_cast<double>(residuals_))), b_.config_.cut_min_evidence});
+}
+
+// Two starts: the cut solution, and the segment after the cut moved rigidly to continue the
+// odometry from the pose before it (a robust loss would otherwise keep a misplaced segment);
+// the better optimum counts, so a cut is kept only on the evidence. When the first already
+// withdraws the cut, the second cannot keep it.
+double BatchSmoother::Solve::restoredCost(size_t lo, size_t hi, size_t c, double base, double threshold,
+                                          double variance_factor, const std::vector<double>& keep) {
+  double restored = solveRange(lo, hi, false);
+  if (2.0 * (restored - base) / variance_factor > threshold) {
+    std::vector<double> best(x_.begin() + static_cast<long>(3 * lo), x_.begin() + static_cast<long>(3 * hi));
+    std::copy(keep.begin(), keep.end(), x_.begin() + static_cast<long>(3 * lo));
+    const Pose2 target = compose(poseAt(c - 1), motionInto(c));
+    const Pose2 start = poseAt(c);
+    for (size_t j = c; j < hi; ++j) setPose(j, compose(target, between(start, poseAt(j))));
+    const double restored_moved = solveRange(lo, hi, false, true);
+    if (restored_moved < restored)
+      restored = restored_moved;
+    else
+      std::copy(best.begin(), best.end(), x_.begin() + static_cast<long>(3 * lo));
+  }
+  return restored;
+}
+
+// Restoring a cut changes only the segments it joins (the others stay cut off), and within
+// them its effect decays along the chain: the test solves a window around the cut and its
+// unobserved stretch with the poses outside held at the cut solution. Holding them can only
+// raise the restored cost, so a rise below the threshold withdraws the cut exactly; a rise
+// above it is confirmed on a window that reaches the neighbouring cuts or whose edge poses
+// did not move, growing the window fourfold until then. Holding an edge that wanted to move
+// by d changes the restored cost by about (information) d^2: with d below 1e-3 mm and 1e-6 rad
+// that is far below the threshold (>= 1000 by default), so the decision is the full one.
+bool BatchSmoother::Solve::cutHoldsUp(size_t c, size_t r, size_t seg_lo, size_t seg_hi, double threshold,
+                                      double variance_factor) {
+  constexpr double kEdgeToleranceMm = 1e-3, kEdgeToleranceRad = 1e-6;
+  for (size_t margin = kCutWindowMargin;; margin *= 4) {
+    const size_t lo = c > seg_lo + margin ? c - margin : seg_lo;
+    const size_t hi = std::min(seg_hi, r + margin);
+    const std::vector<double> keep(x_.begin() + static_cast<long>(3 * lo), x_.begin() + static_cast<long>(3 * hi));
+    double base = 0;
+    if (!chain_.cost(lo, hi, x_, &base)) throw Error("batch smoother: a factor cannot be evaluated at the solution");
+    source_.setCut(c, false);
+    const double restored = restoredCost(lo, hi, c, base, threshold, variance_factor, keep);
+    const double evidence = 2.0 * (restored - base) / variance_factor;
+    auto edgeMoved = [&](size_t j) {
+      const size_t o = 3 * (j - lo);
+      return std::fabs(x_[3 * j] - keep[o]) > kEdgeToleranceMm || std::fabs(x_[3 * j + 1] - keep[o + 1]) > kEdgeToleranceMm ||
+             std::fabs(wrapAngle(x_[3 * j + 2] - keep[o + 2])) > kEdgeToleranceRad;
+    };
+    const bool exact = (lo == seg_lo || !edgeMoved(lo)) && (hi == seg_hi || !edgeMoved(hi - 1));
+    if (evidence <= threshold) return false;
+    std::copy(keep.begin(), keep.end(), x_.begin() + static_cast<long>(3 * lo));
+    source_.setCut(c, true);
+    if (exact) return true;
+  }
+}
+
 void BatchSmoother::Solve::testCuts() {
   std::vector<Cut>& cuts = b_.cuts_;
   const auto t_cuts = Clock::now();
-  if (!cuts.empty()) {
-    // A segment the data do not determine cannot be verified, nor estimated on its own.
-    std::vector<Eigen::Matrix3d> D, B, cov;
-    std::vector<Eigen::Vector3d> g;
-    double c0 = 0;
-    if (!chain_.linearise(0, n_, x_, &D, &B, &g, &c0) || !chainMarginalCovariances(D, B, &cov)) {
-      withdrawn_ += static_cast<int>(cuts.size());
-      setCuts(cuts, false);
-      cuts.clear();
-      cost_ = solveAll();
-    }
-  }
-  if (cuts.empty()) return;
-  // Model selection for each cut, in step order: a cut frees the 3 degrees of freedom of the
-  // segment after it; by the Bayesian information criterion it is kept only if restoring its
-  // odometry factor raises 2 x cost by more than 3 ln(m), m the number of residuals (and at
-  // least the gate's chi-square(3) quantile). A rare kidnap thus needs strong evidence: one
-  // outlier that a free pose can fit does not cut the chain.
-  const double threshold = std::max({chi2Quantile(b_.config_.gate.probability, 3),
-                                     3.0 * std::log(std::max(2.0, static_cast<double>(residuals_))),
-                                     b_.config_.cut_min_evidence});
+  // A segment the data do not determine cannot be verified, nor estimated on its own.
+  if (cuts.empty() || withdrawCutsIfUndetermined()) return;
+  const double threshold = cutEvidenceThreshold();
   const double variance_factor = varianceFactor(cost_);
-  // Restoring a cut changes only the segments it joins (the others stay cut off), and within
-  // them its effect decays along the chain: the test solves a window around the cut and its
-  // unobserved stretch with the poses outside held at the cut solution. Holding them can only
-  // raise the restored cost, so a rise below the threshold withdraws the cut exactly; a rise
-  // above it is confirmed on a window that reaches the neighbouring cuts or whose edge poses
-  // did not move, growing the window fourfold until then. Holding an edge that wanted to move
-  // by d changes the restored cost by about (information) d^2: with d below 1e-3 mm and 1e-6 rad
-  // that is far below the threshold (>= 1000 by default), so the decision is the full one.
-  constexpr double kEdgeToleranceMm = 1e-3, kEdgeToleranceRad = 1e-6;
   const long total_cuts = static_cast<long>(cuts.size());
   long tested = 0;
   // The re-initialisation of the last candidate withdrawn since the previous kept cut: see
@@ -875,47 +935,7 @@ void BatchSmoother::Solve::testCuts() {
     const size_t r = std::max(c, cuts[k].reinit - first_);
     const size_t seg_lo = k > 0 ? cuts[k - 1].index - first_ : 0;
     const size_t seg_hi = k + 1 < cuts.size() ? cuts[k + 1].index - first_ : n_;
-    bool keep_cut = true;
-    for (size_t margin = kCutWindowMargin;; margin *= 4) {
-      const size_t lo = c > seg_lo + margin ? c - margin : seg_lo;
-      const size_t hi = std::min(seg_hi, r + margin);
-      const std::vector<double> keep(x_.begin() + static_cast<long>(3 * lo), x_.begin() + static_cast<long>(3 * hi));
-      double base = 0;
-      if (!chain_.cost(lo, hi, x_, &base)) throw Error("batch smoother: a factor cannot be evaluated at the solution");
-      source_.setCut(c, false);
-      // Two starts: the cut solution, and the segment after the cut moved rigidly to continue
-      // the odometry from the pose before it (a robust loss would otherwise keep a misplaced
-      // segment); the better optimum counts, so a cut is kept only on the evidence. When the
-      // first already withdraws the cut, the second cannot keep it.
-      double restored = solveRange(lo, hi, false);
-      if (2.0 * (restored - base) / variance_factor > threshold) {
-        std::vector<double> best(x_.begin() + static_cast<long>(3 * lo), x_.begin() + static_cast<long>(3 * hi));
-        std::copy(keep.begin(), keep.end(), x_.begin() + static_cast<long>(3 * lo));
-        const Pose2 target = compose(poseAt(c - 1), motionInto(c));
-        const Pose2 start = poseAt(c);
-        for (size_t j = c; j < hi; ++j) setPose(j, compose(target, between(start, poseAt(j))));
-        const double restored_moved = solveRange(lo, hi, false, true);
-        if (restored_moved < restored)
-          restored = restored_moved;
-        else
-          std::copy(best.begin(), best.end(), x_.begin() + static_cast<long>(3 * lo));
-      }
-      const double evidence = 2.0 * (restored - base) / variance_factor;
-      auto edgeMoved = [&](size_t j) {
-        const size_t o = 3 * (j - lo);
-        return std::fabs(x_[3 * j] - keep[o]) > kEdgeToleranceMm || std::fabs(x_[3 * j + 1] - keep[o + 1]) > kEdgeToleranceMm ||
-               std::fabs(wrapAngle(x_[3 * j + 2] - keep[o + 2])) > kEdgeToleranceRad;
-      };
-      const bool exact = (lo == seg_lo || !edgeMoved(lo)) && (hi == seg_hi || !edgeMoved(hi - 1));
-      if (evidence <= threshold) {
-        keep_cut = false;
-        break;
-      }
-      std::copy(keep.begin(), keep.end(), x_.begin() + static_cast<long>(3 * lo));
-      source_.setCut(c, true);
-      if (exact) break;
-    }
-    if (keep_cut) {
+    if (cutHoldsUp(c, r, seg_lo, seg_hi, threshold, variance_factor)) {
       const size_t a = static_cast<size_t>(withdrawn_fix);
       if (withdrawn_fix >= 0 && a > seg_lo && a < c && moveCutToFix(c, a, seg_lo, seg_hi, r)) {
         cuts[k].index = first_ + a;
