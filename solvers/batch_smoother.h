@@ -218,7 +218,7 @@ class BatchSmoother : public Estimator {
  private:
   void solve();
   Estimate processStep(const Step& step);
-  // The given estimate of step (BatchSmootherConfig's guess file), if any is usable.
+  // The estimate setInitialEstimates gave for step, when it is usable.
   const Estimate* givenEstimate(long step) const;
   // The chain's first step (from the filter pass's first estimate, else the configured start or a
   // global fix): the prior, the guess and the step's status; Uninitialised while there is none.
