@@ -1,5 +1,6 @@
 #include "src/study/real_data_study.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -235,14 +236,17 @@ double ekfRmse(const std::vector<Row>& rows) {
 
 void printRows(const RealDataStudyOptions& o, const std::vector<Row>& rows) {
   const double ekf_rmse = ekfRmse(rows);
-  std::fprintf(o.console, "\n%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "estimator", "pos RMSE", "th RMSE", "mean", "NEES",
-              "max err", "ms/step", "pos RMSE", "lost/", "non-");
-  std::fprintf(o.console, "%-24s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", "", "[mm]", "[deg]", "NEES", "in 95%", "[mm]", "",
-              "/ EKF", "reinit", "finite");
+  // The label column is as wide as the longest label (the window's "W=<n>" grows with n).
+  int width = 24;
+  for (const Row& r : rows) width = std::max(width, static_cast<int>(r.label.size()));
+  std::fprintf(o.console, "\n%-*s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", width, "estimator", "pos RMSE", "th RMSE", "mean",
+              "NEES", "max err", "ms/step", "pos RMSE", "lost/", "non-");
+  std::fprintf(o.console, "%-*s %10s %10s %8s %8s %9s %9s %9s %6s %6s\n", width, "", "[mm]", "[deg]", "NEES", "in 95%", "[mm]",
+              "", "/ EKF", "reinit", "finite");
   for (const Row& r : rows) {
     char ratio[32] = "-";
     if (ekf_rmse > 0) std::snprintf(ratio, sizeof ratio, "%.3f", r.metrics.position_rmse / ekf_rmse);
-    std::fprintf(o.console, "%-24s %10.1f %10.2f %8.3g %7.0f%% %9.0f %9.3f %9s %6zu %6zu\n", r.label.c_str(),
+    std::fprintf(o.console, "%-*s %10.1f %10.2f %8.3g %7.0f%% %9.0f %9.3f %9s %6zu %6zu\n", width, r.label.c_str(),
                 r.metrics.position_rmse, rad2deg(r.metrics.theta_rmse), r.metrics.mean_nees,
                 100.0 * r.metrics.nees_in_band, r.max_error, r.ms_per_step, ratio, r.reinitialised, r.nonfinite);
   }

@@ -105,6 +105,23 @@ TEST_F(CliImport, EveryEstimatorRunsOnTheSliceWithBoundedError) {
   const std::string csv = tmp_.file("results.csv");
   r = test::runCli("realdata " + out + " --particles 300 --csv " + csv);
   ASSERT_EQ(r.exit_code, 0) << r.output;
+  // The printed table is aligned: its two header lines and every row have the same width,
+  // whatever the longest estimator label.
+  {
+    std::istringstream text(r.output);
+    std::string line;
+    size_t width = 0, table_lines = 0;
+    bool in_table = false;
+    while (std::getline(text, line)) {
+      if (line.rfind("estimator ", 0) == 0) in_table = true;
+      if (!in_table) continue;
+      if (line.empty() || line[0] == '(') break;
+      if (width == 0) width = line.size();
+      EXPECT_EQ(line.size(), width) << line;
+      ++table_lines;
+    }
+    EXPECT_GE(table_lines, 9u) << r.output;
+  }
   std::ifstream in(csv);
   std::string line;
   std::getline(in, line);
