@@ -95,23 +95,30 @@ std::string frontendSummary(const ImageFrontendStats& st) {
   return line;
 }
 
-cv::Mat readStereoImage(const std::string& path, const StereoRig& rig) {
+cv::Mat readColourImage(const std::string& path, const std::string& what) {
   // Checked first: OpenCV would print its own warning for a missing file.
-  if (!std::filesystem::is_regular_file(path)) throw Error(path + ": cannot read the image (no such file)");
+  if (!std::filesystem::is_regular_file(path)) throw Error(path + ": cannot read the " + what + " (no such file)");
   const cv::Mat img = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (img.empty()) throw Error(path + ": cannot read the image (unreadable or not an image)");
-  if (img.depth() != CV_8U) throw Error(path + ": the image must have 8-bit channels (8-bit BGR)");
-  const int W = rig.params().image_width, H = rig.params().image_height;
-  if (img.cols != W || img.rows != H)
-    throw Error(path + ": image size " + sizeText(img.cols, img.rows) + " differs from the rig's " + sizeText(W, H));
+  if (img.empty()) throw Error(path + ": cannot read the " + what + " (unreadable or not an image)");
+  if (img.depth() != CV_8U)
+    throw Error(path + ": the " + what + " has " + (img.depth() == CV_16U ? "16" : "non-8") +
+                "-bit channels; 8-bit BGR is required");
   if (img.channels() == 4) {
     cv::Mat bgr;
     cv::cvtColor(img, bgr, cv::COLOR_BGRA2BGR);
     return bgr;
   }
   if (img.channels() != 3)
-    throw Error(path + ": the image has " + std::to_string(img.channels()) +
+    throw Error(path + ": the " + what + " has " + std::to_string(img.channels()) +
                 " channel(s); a colour (BGR) image is needed for the goal colours");
+  return img;
+}
+
+cv::Mat readStereoImage(const std::string& path, const StereoRig& rig, const std::string& what) {
+  cv::Mat img = readColourImage(path, what);
+  const int W = rig.params().image_width, H = rig.params().image_height;
+  if (img.cols != W || img.rows != H)
+    throw Error(path + ": " + what + " size " + sizeText(img.cols, img.rows) + " differs from the rig's " + sizeText(W, H));
   return img;
 }
 

@@ -90,9 +90,12 @@ ImageFrontendOptions imageFrontendOptions(const std::string& landmarks, const st
 // One line for a log: "frontend on N image pairs: M observations (K goal corners), X ms/pair".
 std::string frontendSummary(const ImageFrontendStats& stats);
 
-// Reads one image of a stereo pair for the frontend: 8-bit, 3 channels (4 are converted), the
-// rig's size. Anything else throws stereoloc::Error, one line naming the file.
-cv::Mat readStereoImage(const std::string& path, const StereoRig& rig);
+// Reads a colour image for the frontend: 8-bit channels, 3 of them (4 are converted to BGR; a
+// grey image cannot show the goal colours). Anything else throws stereoloc::Error, one line
+// naming the file; `what` names the image in it ("left image").
+cv::Mat readColourImage(const std::string& path, const std::string& what = "image");
+// The same, of the rig's size (raw images when the rig's calibration rectifies them).
+cv::Mat readStereoImage(const std::string& path, const StereoRig& rig, const std::string& what = "image");
 
 // Replaces the observations of every step of a dataset by the frontend's observations on its
 // images (DIR/images/left_NNNNNN.png, right_NNNNNN.png). Throws stereoloc::Error naming the

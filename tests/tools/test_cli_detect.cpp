@@ -3,6 +3,9 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <string>
+#include <utility>
+#include <vector>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -66,13 +69,19 @@ TEST(CliDetect, BadInputGivesAOneLineErrorAndExit1) {
     std::fclose(f);
   }
   const std::string L = " --left " + d.file("left.png"), R = " --right " + d.file("right.png");
-  for (const std::string& args :
-       {"detect" + L + " --right " + d.file("small.png"), "detect --left " + d.file("small.png") + " --right " + d.file("small.png"),
-        "detect" + L + " --right " + d.file("grey.png"), "detect" + L + " --right " + d.file("deep.png"),
-        "detect" + L + " --right " + d.file("empty.png"), "detect" + L + " --right " + d.file("missing.png")}) {
+  // Each case with the file and the words its message must hold.
+  const std::vector<std::pair<std::string, std::vector<std::string>>> cases = {
+      {"detect" + L + " --right " + d.file("small.png"), {d.file("small.png"), "right image", "160x120", "320x240"}},
+      {"detect --left " + d.file("small.png") + " --right " + d.file("small.png"), {d.file("small.png"), "left image"}},
+      {"detect" + L + " --right " + d.file("grey.png"), {d.file("grey.png"), "1 channel"}},
+      {"detect" + L + " --right " + d.file("deep.png"), {d.file("deep.png"), "16-bit"}},
+      {"detect" + L + " --right " + d.file("empty.png"), {d.file("empty.png"), "not an image"}},
+      {"detect" + L + " --right " + d.file("missing.png"), {d.file("missing.png"), "no such file"}}};
+  for (const auto& [args, words] : cases) {
     const test::CliRun r = test::runCli(args);
     EXPECT_EQ(r.exit_code, 1) << args << "\n" << r.output;
     EXPECT_EQ(std::count(r.output.begin(), r.output.end(), '\n'), 1) << args << "\n" << r.output;
+    for (const std::string& w : words) EXPECT_NE(r.output.find(w), std::string::npos) << w << "\n" << r.output;
   }
   EXPECT_EQ(test::runCli("detect" + L).exit_code, 2);  // --right missing: usage error
 }
