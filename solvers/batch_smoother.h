@@ -146,8 +146,10 @@ struct BatchSmootherConfig {
   // With the stereo calibration: the observations the filter pass paired (landmark_id -1 in the
   // input) are left out of a first solve on the identified landmarks, then paired again at each
   // solution with its calibration until no pairing changes (at most 3 passes); one the solution
-  // cannot pair (outside every gate, or ambiguous) keeps the filter pass's pairing. false: the
-  // filter pass's pairings, made with the nominal calibration, are final.
+  // cannot pair (outside every gate, or ambiguous) keeps the filter pass's pairing if the filter
+  // pass fused that step's sightings (status tracking or reinitialised), and stays unpaired if it
+  // only predicted there. false: the filter pass's pairings, made with the nominal calibration,
+  // are final.
   bool reassociate_with_calibration = true;
 
   void validate() const;            // throws stereoloc::Error naming the field

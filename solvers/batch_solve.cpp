@@ -786,8 +786,13 @@ int BatchSmoother::Solve::reassociate() {
     for (size_t k = 0; k < a.size(); ++k) {
       Observation& target = b_.observations_[begin + k];
       // An observation the solution cannot pair (outside every gate, or ambiguous) keeps the
-      // filter pass's pairing.
-      const int id = a[k].landmark_id >= 0 || filtered == filter_pairings_.end() ? a[k].landmark_id : filtered->second[k];
+      // filter pass's pairing where the filter pass fused that step's sightings; where it only
+      // predicted (it gated them out, or was lost), its pairing was made on a guess it did not
+      // confirm, and a drifted guess pairs sightings with landmarks far from the solution.
+      const EstimateStatus status = b_.guess_[index].status;
+      const bool confirmed = status == EstimateStatus::Tracking || status == EstimateStatus::Reinitialised;
+      const int id = a[k].landmark_id >= 0 || filtered == filter_pairings_.end() || !confirmed ? a[k].landmark_id
+                                                                                                : filtered->second[k];
       if (target.landmark_id == id) continue;
       target.landmark_id = id;
       ++changed;
