@@ -286,32 +286,44 @@ Dataset loadDataset(const std::string& dir) {
 
 namespace {
 
-void writeFiles(const Dataset& d, const std::string& dir) {
+// What the files of a dataset hold beyond the fixed columns, decided once from all its steps.
+struct DatasetLayout {
+  bool all_pixels = true;       // observations.csv in pixels (else range-bearing)
+  bool any_pan = false;         // odometry.csv has a head_pan column
+  bool any_compass = false;     // compass.csv is written
+  bool own_covariance = false;  // pixel rows carry their covariance (not the rig's sigma^2 I)
+  bool any_slide = false;       // pixel rows carry a slide gain
+};
+
+// Checks what the files cannot represent (throws stereoloc::Error) and lays them out.
+DatasetLayout layoutOf(const Dataset& d) {
   if (d.groundtruth.size() != d.steps.size() && !d.groundtruth.empty())
     throw Error("saveDataset: groundtruth must have one entry per step (or none)");
-  bool all_pixels = true, any_pan = false, any_compass = false, own_covariance = false, any_slide = false;
+  DatasetLayout l;
   const Eigen::Matrix4d rig_covariance =
       d.rig.params().pixel_sigma * d.rig.params().pixel_sigma * Eigen::Matrix4d::Identity();
   for (size_t i = 0; i < d.steps.size(); ++i) {
     const Step& s = d.steps[i];
     if (i > 0 && s.step <= d.steps[i - 1].step) throw Error("saveDataset: step numbers must increase");
-    any_pan |= s.head_pan != 0.0;
-    any_compass |= s.compass.has_value();
+    l.any_pan |= s.head_pan != 0.0;
+    l.any_compass |= s.compass.has_value();
     for (const Observation& o : s.observations) {
-      all_pixels &= o.pixels.has_value();
-      own_covariance |= o.pixels.has_value() && o.pixel_covariance != rig_covariance;
-      any_slide |= o.slide_gain != 0.0;
+      l.all_pixels &= o.pixels.has_value();
+      l.own_covariance |= o.pixels.has_value() && o.pixel_covariance != rig_covariance;
+      l.any_slide |= o.slide_gain != 0.0;
       if (!std::isfinite(o.slide_gain)) throw Error("saveDataset: an observation's slide gain is not finite");
     }
   }
-  // Pixel observations whose covariance is not the rig's sigma^2 I carry it in their rows.
-  own_covariance &= all_pixels;
-  if (any_compass && !(d.compass_sigma > 0))
+  // Pixel observations whose covariance is not the rig's sigma^2 I carry it in their rows, and
+  // those with a slide gain carry it in a last column; range-bearing rows carry neither.
+  l.own_covariance &= l.all_pixels;
+  l.any_slide &= l.all_pixels;
+  if (l.any_compass && !(d.compass_sigma > 0))
     throw Error("saveDataset: steps carry compass readings but compass_sigma is 0");
+  return l;
+}
 
-  d.map.save(join(dir, "map.yaml"));
-  d.rig.save(join(dir, "rig.yaml"));
-
+void writeDatasetYaml(const Dataset& d, const DatasetLayout& layout, const std::string& dir) {
   YamlWriter y;
   y.comment("stereoloc dataset (docs/dataset_format.md). Units: mm, rad, s.");
   cv::FileStorage& f = y.fs();
@@ -330,40 +342,43 @@ void writeFiles(const Dataset& d, const std::string& dir) {
   if (d.initial_pose)
     f << "initial_pose" << "{" << "x" << d.initial_pose->x << "y" << d.initial_pose->y << "theta"
       << d.initial_pose->theta << "}";
-  f << "observation_kind" << (all_pixels ? "pixels" : "range_bearing");
+  f << "observation_kind" << (layout.all_pixels ? "pixels" : "range_bearing");
   f << "has_images" << (d.has_images ? 1 : 0);
   y.writeAtomically(join(dir, "dataset.yaml"));
+}
 
-  CsvWriter odo(any_pan ? kOdometryPanHeader : kOdometryHeader);
+void addObservationRow(const Step& s, const Observation& ob, const DatasetLayout& layout, CsvWriter* obs) {
+  obs->add(s.step).add(s.t).add(ob.landmark_id);
+  if (layout.all_pixels) {
+    const StereoPixels& p = *ob.pixels;
+    obs->add(p.u_left).add(p.v_left).add(p.u_right).add(p.v_right).add(ob.head_pan);
+    if (layout.own_covariance)
+      for (int r = 0; r < 4; ++r)
+        for (int c = r; c < 4; ++c) obs->add(ob.pixel_covariance(r, c));
+    if (layout.any_slide) obs->add(ob.slide_gain);
+  } else {
+    obs->add(ob.range).add(ob.bearing).add(std::sqrt(ob.covariance(0, 0))).add(std::sqrt(ob.covariance(1, 1)));
+  }
+  obs->endRow();
+}
+
+// odometry.csv, observations.csv, and compass.csv and groundtruth.csv when there is any.
+void writeStepFiles(const Dataset& d, const DatasetLayout& layout, const std::string& dir) {
+  CsvWriter odo(layout.any_pan ? kOdometryPanHeader : kOdometryHeader);
   CsvWriter compass(kCompassHeader);
-  // Pixel observations with a slide gain carry it in a last column.
-  any_slide &= all_pixels;
-  const std::vector<std::string>& pixel_header = own_covariance ? kPixelCovarianceHeader : kPixelHeader;
-  CsvWriter obs(!all_pixels ? kRangeBearingHeader : any_slide ? withSlideGain(pixel_header) : pixel_header);
+  const std::vector<std::string>& pixel_header = layout.own_covariance ? kPixelCovarianceHeader : kPixelHeader;
+  CsvWriter obs(!layout.all_pixels ? kRangeBearingHeader : layout.any_slide ? withSlideGain(pixel_header) : pixel_header);
   CsvWriter gt(kGroundTruthHeader);
   for (size_t i = 0; i < d.steps.size(); ++i) {
     const Step& s = d.steps[i];
     odo.add(s.step).add(s.t).add(s.d_left).add(s.d_right);
-    if (any_pan) odo.add(s.head_pan);
+    if (layout.any_pan) odo.add(s.head_pan);
     odo.endRow();
     if (s.compass) {
       compass.add(s.step).add(s.t).add(*s.compass);
       compass.endRow();
     }
-    for (const Observation& ob : s.observations) {
-      obs.add(s.step).add(s.t).add(ob.landmark_id);
-      if (all_pixels) {
-        const StereoPixels& p = *ob.pixels;
-        obs.add(p.u_left).add(p.v_left).add(p.u_right).add(p.v_right).add(ob.head_pan);
-        if (own_covariance)
-          for (int r = 0; r < 4; ++r)
-            for (int c = r; c < 4; ++c) obs.add(ob.pixel_covariance(r, c));
-        if (any_slide) obs.add(ob.slide_gain);
-      } else {
-        obs.add(ob.range).add(ob.bearing).add(std::sqrt(ob.covariance(0, 0))).add(std::sqrt(ob.covariance(1, 1)));
-      }
-      obs.endRow();
-    }
+    for (const Observation& ob : s.observations) addObservationRow(s, ob, layout, &obs);
     if (!d.groundtruth.empty() && d.groundtruth[i]) {
       const Pose2& p = *d.groundtruth[i];
       gt.add(s.step).add(s.t).add(p.x).add(p.y).add(p.theta);
@@ -372,8 +387,16 @@ void writeFiles(const Dataset& d, const std::string& dir) {
   }
   writeFileAtomically(join(dir, "odometry.csv"), odo.str());
   writeFileAtomically(join(dir, "observations.csv"), obs.str());
-  if (any_compass) writeFileAtomically(join(dir, "compass.csv"), compass.str());
+  if (layout.any_compass) writeFileAtomically(join(dir, "compass.csv"), compass.str());
   if (gt.rows() > 0) writeFileAtomically(join(dir, "groundtruth.csv"), gt.str());
+}
+
+void writeFiles(const Dataset& d, const std::string& dir) {
+  const DatasetLayout layout = layoutOf(d);
+  d.map.save(join(dir, "map.yaml"));
+  d.rig.save(join(dir, "rig.yaml"));
+  writeDatasetYaml(d, layout, dir);
+  writeStepFiles(d, layout, dir);
 }
 
 }  // namespace
