@@ -2,7 +2,6 @@
 // with the units each form states.
 #include <gtest/gtest.h>
 
-#include <algorithm>
 #include <cmath>
 #include <string>
 

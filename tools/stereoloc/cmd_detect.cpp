@@ -23,17 +23,6 @@ struct DetectOptions {
   bool json = false;
 };
 
-// An image of the pair (or the one image), of the rig's size; the rig is the built-in one unless
-// --rig gives the camera's.
-cv::Mat readInput(const std::string& path, const std::string& what, const StereoRig& rig) {
-  const cv::Mat img = readColourImage(path, what);
-  if (img.cols != rig.params().image_width || img.rows != rig.params().image_height)
-    throw Error(path + ": " + what + " size " + std::to_string(img.cols) + "x" + std::to_string(img.rows) +
-                " does not match the rig's " + std::to_string(rig.params().image_width) + "x" +
-                std::to_string(rig.params().image_height) + " (pass --rig with the camera's calibration)");
-  return img;
-}
-
 void writeOverlay(const cv::Mat& img, const frontend::FrontendResult& r, const std::string& path) {
   const cv::Mat big = frontend::drawDetections(img, r, 2);
   std::vector<uchar> buf;
@@ -49,8 +38,9 @@ void runDetect(const DetectOptions& o) {
       o.params_path.empty() ? frontend::FrontendParams() : frontend::FrontendParams::load(o.params_path);
   frontend::Frontend fe(rig, map, params);
   const bool mono = !o.image.empty();
-  const cv::Mat left = mono ? readInput(o.image, "input image", rig) : readInput(o.left, "left image", rig);
-  const cv::Mat right = mono ? cv::Mat() : readInput(o.right, "right image", rig);
+  // Of the rig's size: the built-in rig unless --rig gives the camera's.
+  const cv::Mat left = mono ? readStereoImage(o.image, rig, "input image") : readStereoImage(o.left, rig, "left image");
+  const cv::Mat right = mono ? cv::Mat() : readStereoImage(o.right, rig, "right image");
   const frontend::FrontendResult& r = mono ? fe.detectFeaturesRaw(left) : fe.process(left, right, o.pan);
   // The features are in rectified pixels: draw them on the rectified image.
   if (!o.overlay.empty()) writeOverlay(fe.rectifier() ? fe.rectifier()->rectifiedCopy(0, left) : left, r, o.overlay);
