@@ -392,6 +392,8 @@ class BatchSmoother::Solve {
   void joinImplausibleCuts();
   void finishSummary(Clock::time_point t_solve);
   Eigen::MatrixXd computeCovariances();
+  void chainCovariances(std::vector<Eigen::Matrix3d>* pose_covariances, Eigen::MatrixXd* global_covariance);
+  void ceresCovariances(Eigen::MatrixXd* global_covariance);
   void writeCalibration(const Eigen::MatrixXd& global_covariance);
 
   BatchSmoother& b_;
@@ -1045,30 +1047,8 @@ Eigen::MatrixXd BatchSmoother::Solve::computeCovariances() {
                                                             static_cast<Eigen::Index>(globals_.size()));
   const bool chain_covariance = config.compute_covariance && config.covariance_method == CovarianceMethod::Chain;
   if (config.compute_covariance) report("covariance", 0, 1, 0, cost_);
-  if (chain_covariance) {
-    const auto t1 = Clock::now();
-    bool ok = false;
-    double c0 = 0;
-    if (globals_.empty()) {
-      std::vector<Eigen::Matrix3d> D, B;
-      std::vector<Eigen::Vector3d> g;
-      ok = chain_.linearise(0, n_, x_, &D, &B, &g, &c0);
-      g = std::vector<Eigen::Vector3d>();
-      ok = ok && chainMarginalCovariances(D, B, &chain_cov);
-    } else {
-      BorderedSystem h;
-      ok = chain_.linearise(0, n_, x_, &h, &c0) && borderedMarginalCovariances(h, &chain_cov, &global_covariance);
-    }
-    if (ok) {
-      s_.covariance_status = CovarianceStatus::Ok;
-    } else {
-      chain_cov.clear();
-      global_covariance.setZero();
-      s_.covariance_status = CovarianceStatus::RankDeficient;
-      s_.message += "; covariance: the information matrix is rank deficient, marginal covariances are not available";
-    }
-    s_.covariance_seconds = secondsSince(t1);
-  }
+  const auto t1 = Clock::now();
+  if (chain_covariance) chainCovariances(&chain_cov, &global_covariance);
   result = b_.guess_;
   for (size_t i = 0; i < n_; ++i) {
     Estimate& e = result[first_ + i];
@@ -1077,52 +1057,78 @@ Eigen::MatrixXd BatchSmoother::Solve::computeCovariances() {
     e.status = EstimateStatus::Tracking;
   }
   chain_cov = std::vector<Eigen::Matrix3d>();
-  if (config.compute_covariance && !chain_covariance) {
-    const auto t1 = Clock::now();
-    const std::unique_ptr<ceres::Problem> problem =
-        makeCeresProblem(source_, loss_.get(), &manifold_, 0, n_, &x_, &globals_, true);
-    ceres::Covariance::Options copts;
-    copts.algorithm_type = ceres::SPARSE_QR;
-    copts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
-    copts.num_threads = config.num_threads;
-    copts.apply_loss_function = true;
-    ceres::Covariance covariance(copts);
-    std::vector<std::pair<const double*, const double*>> blocks;
-    blocks.reserve(n_);
-    for (size_t i = 0; i < n_; ++i) blocks.emplace_back(&x_[3 * i], &x_[3 * i]);
-    const std::vector<int> sizes = source_.globalBlockSizes();
-    std::vector<double*> global_blocks;
-    for (size_t k = 0, offset = 0; k < sizes.size(); offset += static_cast<size_t>(sizes[k]), ++k)
-      global_blocks.push_back(globals_.data() + offset);
-    for (double* a : global_blocks)
-      for (double* b : global_blocks) blocks.emplace_back(a, b);
-    if (covariance.Compute(blocks, problem.get())) {
-      s_.covariance_status = CovarianceStatus::Ok;
-      for (size_t a = 0, oa = 0; a < sizes.size(); oa += static_cast<size_t>(sizes[a]), ++a)
-        for (size_t b = 0, ob = 0; b < sizes.size(); ob += static_cast<size_t>(sizes[b]), ++b) {
-          Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> C(sizes[a], sizes[b]);
-          covariance.GetCovarianceBlock(global_blocks[a], global_blocks[b], C.data());
-          global_covariance.block(static_cast<Eigen::Index>(oa), static_cast<Eigen::Index>(ob), sizes[a], sizes[b]) = C;
-        }
-      for (size_t i = 0; i < n_; ++i) {
-        Eigen::Matrix<double, 3, 3, Eigen::RowMajor> C;
-        if (!covariance.GetCovarianceBlockInTangentSpace(&x_[3 * i], &x_[3 * i], C.data())) {
-          s_.covariance_status = CovarianceStatus::RankDeficient;
-          break;
-        }
-        result[first_ + i].covariance = 0.5 * (C + C.transpose());
-      }
-    } else {
-      s_.covariance_status = CovarianceStatus::RankDeficient;
-    }
-    if (s_.covariance_status != CovarianceStatus::Ok) {
-      for (size_t i = 0; i < n_; ++i) result[first_ + i].covariance.setZero();
-      global_covariance.setZero();
-      s_.message += "; covariance: the Jacobian is rank deficient, marginal covariances are not available";
-    }
-    s_.covariance_seconds = secondsSince(t1);
-  }
+  if (config.compute_covariance && !chain_covariance) ceresCovariances(&global_covariance);
+  if (config.compute_covariance) s_.covariance_seconds = secondsSince(t1);
   return global_covariance;
+}
+
+// The marginals by the chain's own elimination (BatchSmootherConfig::covariance_method Chain).
+void BatchSmoother::Solve::chainCovariances(std::vector<Eigen::Matrix3d>* pose_covariances,
+                                            Eigen::MatrixXd* global_covariance) {
+  bool ok = false;
+  double c0 = 0;
+  if (globals_.empty()) {
+    std::vector<Eigen::Matrix3d> D, B;
+    std::vector<Eigen::Vector3d> g;
+    ok = chain_.linearise(0, n_, x_, &D, &B, &g, &c0);
+    g = std::vector<Eigen::Vector3d>();
+    ok = ok && chainMarginalCovariances(D, B, pose_covariances);
+  } else {
+    BorderedSystem h;
+    ok = chain_.linearise(0, n_, x_, &h, &c0) && borderedMarginalCovariances(h, pose_covariances, global_covariance);
+  }
+  if (ok) {
+    s_.covariance_status = CovarianceStatus::Ok;
+    return;
+  }
+  pose_covariances->clear();
+  global_covariance->setZero();
+  s_.covariance_status = CovarianceStatus::RankDeficient;
+  s_.message += "; covariance: the information matrix is rank deficient, marginal covariances are not available";
+}
+
+// The marginals by ceres::Covariance (sparse QR of the whole Jacobian), into the result's poses.
+void BatchSmoother::Solve::ceresCovariances(Eigen::MatrixXd* global_covariance) {
+  std::vector<Estimate>& result = b_.result_;
+  const std::unique_ptr<ceres::Problem> problem =
+      makeCeresProblem(source_, loss_.get(), &manifold_, 0, n_, &x_, &globals_, true);
+  ceres::Covariance::Options copts;
+  copts.algorithm_type = ceres::SPARSE_QR;
+  copts.sparse_linear_algebra_library_type = ceres::SUITE_SPARSE;
+  copts.num_threads = b_.config_.num_threads;
+  copts.apply_loss_function = true;
+  ceres::Covariance covariance(copts);
+  std::vector<std::pair<const double*, const double*>> blocks;
+  blocks.reserve(n_);
+  for (size_t i = 0; i < n_; ++i) blocks.emplace_back(&x_[3 * i], &x_[3 * i]);
+  const std::vector<int> sizes = source_.globalBlockSizes();
+  std::vector<double*> global_blocks;
+  for (size_t k = 0, offset = 0; k < sizes.size(); offset += static_cast<size_t>(sizes[k]), ++k)
+    global_blocks.push_back(globals_.data() + offset);
+  for (double* a : global_blocks)
+    for (double* b : global_blocks) blocks.emplace_back(a, b);
+  s_.covariance_status = CovarianceStatus::RankDeficient;
+  if (covariance.Compute(blocks, problem.get())) {
+    s_.covariance_status = CovarianceStatus::Ok;
+    for (size_t a = 0, oa = 0; a < sizes.size(); oa += static_cast<size_t>(sizes[a]), ++a)
+      for (size_t b = 0, ob = 0; b < sizes.size(); ob += static_cast<size_t>(sizes[b]), ++b) {
+        Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> C(sizes[a], sizes[b]);
+        covariance.GetCovarianceBlock(global_blocks[a], global_blocks[b], C.data());
+        global_covariance->block(static_cast<Eigen::Index>(oa), static_cast<Eigen::Index>(ob), sizes[a], sizes[b]) = C;
+      }
+    for (size_t i = 0; i < n_; ++i) {
+      Eigen::Matrix<double, 3, 3, Eigen::RowMajor> C;
+      if (!covariance.GetCovarianceBlockInTangentSpace(&x_[3 * i], &x_[3 * i], C.data())) {
+        s_.covariance_status = CovarianceStatus::RankDeficient;
+        break;
+      }
+      result[first_ + i].covariance = 0.5 * (C + C.transpose());
+    }
+  }
+  if (s_.covariance_status == CovarianceStatus::Ok) return;
+  for (size_t i = 0; i < n_; ++i) result[first_ + i].covariance.setZero();
+  global_covariance->setZero();
+  s_.message += "; covariance: the Jacobian is rank deficient, marginal covariances are not available";
 }
 
 void BatchSmoother::Solve::writeCalibration(const Eigen::MatrixXd& global_covariance) {

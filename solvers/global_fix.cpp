@@ -644,12 +644,15 @@ GlobalFix twoLandmarkFixInMap(const Observation& a, const Observation& b, const 
   return f;
 }
 
-}  // namespace
-
-GlobalFix globalFix(const Step& step, const FieldMap& map, const GlobalFixOptions& options) {
+// The step's associated sightings and their landmarks.
+struct Sightings {
   std::vector<Observation> obs;
   std::vector<Eigen::Vector2d> lms;
   std::vector<Eigen::Vector3d> lms3;  // with heights, for the multi fix's pixel residual
+};
+
+Sightings associatedSightings(const Step& step, const FieldMap& map) {
+  Sightings s;
   for (size_t i = 0; i < step.observations.size(); ++i) {
     const Observation& o = step.observations[i];
     if (o.landmark_id < 0) continue;
@@ -657,79 +660,103 @@ GlobalFix globalFix(const Step& step, const FieldMap& map, const GlobalFixOption
     if (!l)
       throw Error("global fix: step " + std::to_string(step.step) + ": observations[" + std::to_string(i) +
                   "]: landmark id " + std::to_string(o.landmark_id) + " is not in map '" + map.name() + "'");
-    obs.push_back(o);
-    lms.push_back(l->xy());
-    lms3.push_back(l->position);
+    s.obs.push_back(o);
+    s.lms.push_back(l->xy());
+    s.lms3.push_back(l->position);
   }
-  const size_t n = obs.size();
-  const bool has_compass = step.compass.has_value();
-  if (has_compass && !std::isfinite(*step.compass))
-    throw Error("global fix: step " + std::to_string(step.step) + ": compass is not finite");
-  const double compass_sigma = step.compass_sigma > 0.0 ? step.compass_sigma : options.compass_sigma_default;
+  return s;
+}
 
+// The best usable fix considered so far (better), and the first failure while none is usable.
+struct FixSelection {
   GlobalFix best;
-  best.status = FixStatus::NotEnoughLandmarks;
   FixStatus first_failure = FixStatus::NotEnoughLandmarks;
-  auto consider = [&](const GlobalFix& f) {
+
+  FixSelection() { best.status = FixStatus::NotEnoughLandmarks; }
+  void consider(const GlobalFix& f) {
     if (f.hasPose()) {
       if (better(f, best)) best = f;
     } else if (first_failure == FixStatus::NotEnoughLandmarks) {
       first_failure = f.status;
     }
-  };
+  }
+};
 
+// The pair whose circles cross at the widest angle (the inscribed angle |psi_j - psi_i|:
+// dp/dr ~ 1 / sin of it), an Ok fix before a flagged one. Not the pair with the smallest
+// covariance, which would select on the range noise (see considerOneLandmarkFix); bearings are ~100x
+// more precise than ranges and, for stereo, independent of them. The pairs without a pose go
+// to `selection`.
+GlobalFix widestTwoLandmarkFix(const Sightings& s, const Bounds& bounds, const GlobalFixOptions& options,
+                               FixSelection* selection) {
+  const size_t n = s.obs.size();
+  std::vector<std::pair<size_t, size_t>> pairs;
+  for (size_t i = 0; i < n; ++i)
+    for (size_t j = i + 1; j < n; ++j) pairs.emplace_back(i, j);
+  const auto crossing = [&](const std::pair<size_t, size_t>& p) {
+    return std::fabs(std::sin(angleDiff(s.obs[p.second].bearing, s.obs[p.first].bearing)));
+  };
+  std::stable_sort(pairs.begin(), pairs.end(), [&](const auto& a, const auto& b) { return crossing(a) > crossing(b); });
+  GlobalFix best;
+  best.status = FixStatus::NotEnoughLandmarks;
+  for (const auto& [i, j] : pairs) {
+    GlobalFix f = twoLandmarkFixInMap(s.obs[i], s.obs[j], s.lms[i], s.lms[j], bounds, options);
+    if (!f.hasPose()) {
+      selection->consider(f);
+      continue;
+    }
+    if (!best.hasPose() || (f.status == FixStatus::Ok && best.status != FixStatus::Ok)) best = f;
+    if (best.status == FixStatus::Ok) break;
+  }
+  return best;
+}
+
+// One landmark of several: the one seen closest to the optical axis (smallest |psi - pan|),
+// not the one with the smallest covariance. The covariance grows with the MEASURED range
+// (R_rr ~ r^4), so picking by it picks the landmark whose noise shortened its range: the
+// chosen fixes are biased towards it and their covariances too small (fixstudy: mean 3-dof
+// NEES 0.05-0.13 above the band). A stereo bearing depends on u_l + u_r only, whose noise is
+// independent of the disparity's (equal sigmas), so this choice does not select on the
+// range noise. (With a compass and n >= 2, allow_multi fuses all landmarks instead.)
+void considerOneLandmarkFix(const Sightings& s, double compass, double compass_sigma, const GlobalFixOptions& options,
+                            FixSelection* selection) {
+  std::vector<size_t> order(s.obs.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+    return std::fabs(angleDiff(s.obs[a].bearing, s.obs[a].head_pan)) < std::fabs(angleDiff(s.obs[b].bearing, s.obs[b].head_pan));
+  });
+  for (size_t i : order) {
+    const GlobalFix f = fixFromOneLandmark(s.obs[i], s.lms[i], compass, compass_sigma, options);
+    selection->consider(f);
+    if (f.hasPose()) break;
+  }
+}
+
+}  // namespace
+
+GlobalFix globalFix(const Step& step, const FieldMap& map, const GlobalFixOptions& options) {
+  const Sightings s = associatedSightings(step, map);
+  const size_t n = s.obs.size();
+  const bool has_compass = step.compass.has_value();
+  if (has_compass && !std::isfinite(*step.compass))
+    throw Error("global fix: step " + std::to_string(step.step) + ": compass is not finite");
+  const double compass_sigma = step.compass_sigma > 0.0 ? step.compass_sigma : options.compass_sigma_default;
+
+  FixSelection selection;
   if (options.allow_multi && (n >= 3 || (n >= 2 && has_compass))) {
-    GlobalFix f = fixFromLandmarks(obs, lms3, step.compass, compass_sigma, options);
+    GlobalFix f = fixFromLandmarks(s.obs, s.lms3, step.compass, compass_sigma, options);
     if (f.status == FixStatus::Ok) return f;
-    consider(f);
+    selection.consider(f);
   }
   if (options.allow_two_landmarks && n >= 2) {
-    // The pair whose circles cross at the widest angle (the inscribed angle |psi_j - psi_i|:
-    // dp/dr ~ 1 / sin of it), an Ok fix before a flagged one. Not the pair with the smallest
-    // covariance, which would select on the range noise (see fix1 below); bearings are ~100x
-    // more precise than ranges and, for stereo, independent of them.
-    std::vector<std::pair<size_t, size_t>> pairs;
-    for (size_t i = 0; i < n; ++i)
-      for (size_t j = i + 1; j < n; ++j) pairs.emplace_back(i, j);
-    const auto crossing = [&](const std::pair<size_t, size_t>& p) {
-      return std::fabs(std::sin(angleDiff(obs[p.second].bearing, obs[p.first].bearing)));
-    };
-    std::stable_sort(pairs.begin(), pairs.end(), [&](const auto& a, const auto& b) { return crossing(a) > crossing(b); });
-    GlobalFix best2;
-    best2.status = FixStatus::NotEnoughLandmarks;
-    for (const auto& [i, j] : pairs) {
-      GlobalFix f = twoLandmarkFixInMap(obs[i], obs[j], lms[i], lms[j], map.bounds(), options);
-      if (!f.hasPose()) {
-        consider(f);
-        continue;
-      }
-      if (!best2.hasPose() || (f.status == FixStatus::Ok && best2.status != FixStatus::Ok)) best2 = f;
-      if (best2.status == FixStatus::Ok) break;
-    }
-    if (best2.status == FixStatus::Ok && !(best.status == FixStatus::Ok)) return best2;
-    consider(best2);
+    const GlobalFix f = widestTwoLandmarkFix(s, map.bounds(), options, &selection);
+    if (f.status == FixStatus::Ok && !(selection.best.status == FixStatus::Ok)) return f;
+    selection.consider(f);
   }
-  if (options.allow_one_landmark && has_compass && n >= 1 && best.status != FixStatus::Ok) {
-    // One landmark of several: the one seen closest to the optical axis (smallest |psi - pan|),
-    // not the one with the smallest covariance. The covariance grows with the MEASURED range
-    // (R_rr ~ r^4), so picking by it picks the landmark whose noise shortened its range: the
-    // chosen fixes are biased towards it and their covariances too small (fixstudy: mean 3-dof
-    // NEES 0.05-0.13 above the band). A stereo bearing depends on u_l + u_r only, whose noise is
-    // independent of the disparity's (equal sigmas), so this choice does not select on the
-    // range noise. (With a compass and n >= 2, allow_multi fuses all landmarks instead.)
-    std::vector<size_t> order(n);
-    for (size_t i = 0; i < n; ++i) order[i] = i;
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
-      return std::fabs(angleDiff(obs[a].bearing, obs[a].head_pan)) < std::fabs(angleDiff(obs[b].bearing, obs[b].head_pan));
-    });
-    for (size_t i : order) {
-      const GlobalFix f = fixFromOneLandmark(obs[i], lms[i], *step.compass, compass_sigma, options);
-      consider(f);
-      if (f.hasPose()) break;
-    }
-  }
-  if (!best.hasPose()) best.status = first_failure;
-  return best;
+  if (options.allow_one_landmark && has_compass && n >= 1 && selection.best.status != FixStatus::Ok)
+    considerOneLandmarkFix(s, *step.compass, compass_sigma, options, &selection);
+  if (!selection.best.hasPose()) selection.best.status = selection.first_failure;
+  return selection.best;
 }
 
 }  // namespace stereoloc

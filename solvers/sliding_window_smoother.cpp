@@ -656,76 +656,82 @@ bool SlidingWindowSmoother::reanchor(const PoseFix& fix, const Pose2& pred, cons
   return true;
 }
 
-void SlidingWindowSmoother::marginaliseOldest() {
-  Node* o = nodes_.front().get();
-  std::vector<size_t> touching;
-  std::vector<Node*> vars = {o};
+// The normal equations of the factors touching pose o, over o (first), the poses they link it
+// to and the calibration blocks they see.
+SlidingWindowSmoother::Neighbourhood SlidingWindowSmoother::neighbourhoodOf(Node* o) const {
+  Neighbourhood nb;
+  nb.vars = {o};
   for (size_t i = 0; i < factors_.size(); ++i) {
     const Factor& f = *factors_[i];
     if (std::find(f.nodes.begin(), f.nodes.end(), o) == f.nodes.end()) continue;
-    touching.push_back(i);
+    nb.touching.push_back(i);
     for (Node* n : f.nodes)
-      if (std::find(vars.begin(), vars.end(), n) == vars.end()) vars.push_back(n);
+      if (std::find(nb.vars.begin(), nb.vars.end(), n) == nb.vars.end()) nb.vars.push_back(n);
   }
   // The calibration blocks the marginalised factors see stay in the prior (wheels, then head).
-  std::vector<Calib> calib;
   for (Calib c : calibBlocks())
-    for (size_t i : touching)
+    for (size_t i : nb.touching)
       if (std::find(factors_[i]->calib.begin(), factors_[i]->calib.end(), c) != factors_[i]->calib.end()) {
-        calib.push_back(c);
+        nb.calib.push_back(c);
         break;
       }
-  const int pose_dim = 3 * static_cast<int>(vars.size());
-  int dim = pose_dim;
+  int dim = 3 * static_cast<int>(nb.vars.size());
   std::vector<int> calib_off;
-  for (Calib c : calib) {
+  for (Calib c : nb.calib) {
     calib_off.push_back(dim);
     dim += calibSize(c);
   }
-  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(dim, dim);
-  Eigen::VectorXd g = Eigen::VectorXd::Zero(dim);
-  for (size_t i : touching) {
+  nb.H = Eigen::MatrixXd::Zero(dim, dim);
+  nb.g = Eigen::VectorXd::Zero(dim);
+  for (size_t i : nb.touching) {
     const Factor& f = *factors_[i];
     std::vector<const double*> cur, lin;
     std::vector<int> off;
     for (size_t j = 0; j < f.nodes.size(); ++j) {
       cur.push_back(f.nodes[j]->x.data());
       lin.push_back(linearisationPoint(f, j));
-      off.push_back(3 * static_cast<int>(std::find(vars.begin(), vars.end(), f.nodes[j]) - vars.begin()));
+      off.push_back(3 * static_cast<int>(std::find(nb.vars.begin(), nb.vars.end(), f.nodes[j]) - nb.vars.begin()));
     }
     for (size_t j = 0; j < f.calib.size(); ++j) {
       const double* c = calibData(f.calib[j]);
       cur.push_back(c);
       lin.push_back(c);
-      off.push_back(calib_off[static_cast<size_t>(std::find(calib.begin(), calib.end(), f.calib[j]) - calib.begin())]);
+      off.push_back(calib_off[static_cast<size_t>(std::find(nb.calib.begin(), nb.calib.end(), f.calib[j]) - nb.calib.begin())]);
     }
-    if (!accumulate(f, cur, lin, off, H, g))
+    if (!accumulate(f, cur, lin, off, nb.H, nb.g))
       throw Error("sliding window: step " + std::to_string(o->step) + ": a factor cannot be linearised for marginalisation");
   }
+  return nb;
+}
+
+void SlidingWindowSmoother::marginaliseOldest() {
+  Node* o = nodes_.front().get();
+  const Neighbourhood nb = neighbourhoodOf(o);
+  // The Schur complement of o in nb's normal equations: a prior on the rest, linearised here.
   ceres::CostFunction* prior = nullptr;
-  std::vector<Node*> kept(vars.begin() + 1, vars.end());
-  if (!kept.empty() || !calib.empty()) {
+  std::vector<Node*> kept(nb.vars.begin() + 1, nb.vars.end());
+  if (!kept.empty() || !nb.calib.empty()) {
     Eigen::MatrixXd Hm;
     Eigen::VectorXd gm;
-    schurComplement(H, g, 3, &Hm, &gm);
-    if (calib.empty()) {
+    schurComplement(nb.H, nb.g, 3, &Hm, &gm);
+    if (nb.calib.empty()) {
       std::vector<Pose2> x0;
       for (Node* n : kept) x0.push_back(poseOf(n->x));
       prior = MarginalPriorFactor::FromInformation(x0, Hm, gm);
     } else {
       std::vector<BlockMarginalPriorFactor::Block> blocks;
       for (Node* n : kept) blocks.push_back({Eigen::Vector3d(n->x[0], n->x[1], n->x[2]), true});
-      for (Calib c : calib) blocks.push_back({Eigen::Map<const Eigen::VectorXd>(calibData(c), calibSize(c)), false});
+      for (Calib c : nb.calib) blocks.push_back({Eigen::Map<const Eigen::VectorXd>(calibData(c), calibSize(c)), false});
       prior = BlockMarginalPriorFactor::FromInformation(blocks, Hm, gm);
     }
   }
   pushHistory(estimateOf(*o));
   pushIntermediates(*o, nodes_.size() > 1 ? nodes_[1].get() : nullptr);
-  for (size_t k = touching.size(); k-- > 0;) removeFactor(touching[k]);
+  for (size_t k = nb.touching.size(); k-- > 0;) removeFactor(nb.touching[k]);
   problem_->RemoveParameterBlock(o->x.data());
   nodes_.pop_front();
   if (prior) {
-    addFactor(prior, kept, false, calib);  // linearisation point == the prior's x0
+    addFactor(prior, kept, false, nb.calib);  // linearisation point == the prior's x0
     // The prior fixed these poses' linearisation: their other factors must use the same point,
     // or the window would count information along directions the prior linearised differently.
     for (Node* n : kept)

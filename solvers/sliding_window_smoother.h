@@ -337,6 +337,15 @@ class SlidingWindowSmoother : public Estimator {
   // Estimates of the non-keyframe steps after node `k` (the next window pose `next`, or none).
   void pushIntermediates(const Node& k, const Node* next);
   void removeFactor(size_t index);
+  // The factors touching one pose and their normal equations (marginaliseOldest).
+  struct Neighbourhood {
+    std::vector<size_t> touching;  // indices into factors_
+    std::vector<Node*> vars;       // the pose first, then the poses the factors link it to
+    std::vector<Calib> calib;      // the calibration blocks the factors see, after the poses
+    Eigen::MatrixXd H;
+    Eigen::VectorXd g;
+  };
+  Neighbourhood neighbourhoodOf(Node* o) const;
   void marginaliseOldest();
   void finaliseWindow();                // moves every window pose into the history, clears the problem
   void dropNewest();                    // removes the newest pose and its factors

@@ -1368,63 +1368,94 @@ void stageTable(Frontend& fe_real, const std::vector<const cv::Mat*>& real_imgs,
   std::printf("\n");
 }
 
-void realTable(const std::string& dir, bool diag, int stage_passes) {
-  const std::string rig_path = dir + "/rig.yaml", params_path = dir + "/frontend.yaml";
-  const StereoRig rig = std::filesystem::exists(rig_path) ? StereoRig::load(rig_path) : StereoRig();
-  const char* env_params = std::getenv("STEREOLOC_BENCH_PARAMS");
-  const FrontendParams prm = env_params ? FrontendParams::load(env_params)
-                             : std::filesystem::exists(params_path) ? FrontendParams::load(params_path)
-                                                                    : FrontendParams();
-  Frontend fe(rig, FieldMap::miroSot(), prm);
-  const double lmin = fe.params().segments.min_length_px, gap_max = fe.params().segments.gap_max_px;
-  std::vector<RealImage> set;
-  for (const std::string& n : realNames(dir)) set.push_back(loadReal(dir, n, lmin));
-  SegStats ours_centre, ours_edge, hough_edge, lsd_edge;
-  ScoreRules rules;
-  rules.visible_part = std::getenv("STEREOLOC_BENCH_LABEL_EXTENT") == nullptr;
-  rules.split_once = rules.visible_part;
-  rules.min_len = lmin;
-  long cls_n = 0, cls_ok = 0, c_gt = 0, c_hit = 0, c_det = 0, c_ok = 0;
-  double c_err = 0;
-  std::map<std::string, std::pair<long, long>> c_type;
-  cv::Ptr<cv::LineSegmentDetector> lsd = cv::createLineSegmentDetector(cv::LSD_REFINE_STD);
-  cv::Mat luma, canny;
-  const bool verbose = std::getenv("STEREOLOC_BENCH_VERBOSE") != nullptr;
-  FailureBreakdown why_centre, why_edge;
-  why_centre.verbose = verbose;
-  ours_centre.why = &why_centre;
-  ours_edge.why = &why_edge;
-  for (const RealImage& im : set) {
-    if (verbose) std::printf("  %s\n", im.name.c_str());
-    bgrToLuma(im.bgr, why_centre.luma);
-    why_edge.luma = why_centre.luma;
-    const FrontendResult& r = fe.detectFeatures(im.bgr);
+// The scores on the photographs: our segments at centre-line and edge level, HoughLinesP's and
+// LSD's at edge level, the marking classification and the corners.
+class RealTally {
+ public:
+  RealTally(double lmin, double gap_max) : gap_max_(gap_max), lsd_(cv::createLineSegmentDetector(cv::LSD_REFINE_STD)) {
+    rules_.visible_part = std::getenv("STEREOLOC_BENCH_LABEL_EXTENT") == nullptr;
+    rules_.split_once = rules_.visible_part;
+    rules_.min_len = lmin;
+    why_centre_.verbose = verbose_;
+    ours_centre_.why = &why_centre_;
+    ours_edge_.why = &why_edge_;
+  }
+  RealTally(const RealTally&) = delete;
+  RealTally& operator=(const RealTally&) = delete;
+
+  void score(const RealImage& im, const FrontendResult& r) {
+    if (verbose_) std::printf("  %s\n", im.name.c_str());
+    bgrToLuma(im.bgr, why_centre_.luma);
+    why_edge_.luma = why_centre_.luma;
     std::vector<Seg> det;
     for (const LineFeature& l : r.lines)
       if (l.marking)
         det.push_back(Seg{Eigen::Vector2d(l.x(l.t_min), l.y(l.t_min)), Eigen::Vector2d(l.x(l.t_max), l.y(l.t_max)), true, "", false, "", false});
-    const SegStats before_c = ours_centre;
-    scoreSegments(im.centre, det, im.mask, ours_centre, gap_max, rules);
+    const SegStats before_c = ours_centre_;
+    scoreSegments(im.centre, det, im.mask, ours_centre_, gap_max_, rules_);
     std::vector<Seg> edges;
     for (const Segment& sg : r.segments)
       edges.push_back(Seg{Eigen::Vector2d(sg.x1, sg.y1), Eigen::Vector2d(sg.x2, sg.y2), sg.cls == SegmentClass::Marking, "", false, "", false});
-    const SegStats before = ours_edge;
-    scoreSegments(im.edges, edges, im.mask, ours_edge, gap_max, rules);
-    cls_n += ours_edge.matched - before.matched;
-    cls_ok += ours_edge.class_ok - before.class_ok;
-    bgrToLuma(im.bgr, luma);
+    const SegStats before = ours_edge_;
+    scoreSegments(im.edges, edges, im.mask, ours_edge_, gap_max_, rules_);
+    cls_n_ += ours_edge_.matched - before.matched;
+    cls_ok_ += ours_edge_.class_ok - before.class_ok;
+    scoreOpenCv(im);
+    scoreCorners(im, r);
+    if (verbose_)
+      std::printf("  %s: centre lines %ld/%ld recalled, %ld/%ld detections correct\n", im.name.c_str(),
+                  ours_centre_.gt_hit - before_c.gt_hit, ours_centre_.gt - before_c.gt,
+                  ours_centre_.det_ok - before_c.det_ok, ours_centre_.det - before_c.det);
+  }
+
+  void printSegments(const std::string& dir, size_t images, bool diag) const {
+    std::printf("\nstereoloc vision frontend on %zu real photographs (%s, 320x240, hand labels)\n", images, dir.c_str());
+    std::printf("matching as on rendered pairs: angle <= 2 deg, both end points <= 3 px; pieces of one stripe broken by an\n"
+                "occluder match as one; truth pieces < L_min optional; unmatched detections in the don't-care mask (above\n"
+                "the field boundary, robots, people, balls, curved markings) ignored: %ld of %ld at centre-line level\n\n",
+                ours_centre_.det_ignored, ours_centre_.det_ignored + ours_centre_.det);
+    std::printf("  %-34s %9s %10s %8s %9s\n", "field-marking segments", "recall", "precision", "F", "endpt px");
+    printRow("ours, centre-line level (target)", ours_centre_);
+    printRow("ours, edge level", ours_edge_);
+    printRow("cv::HoughLinesP (Canny), edge level", hough_edge_);
+    printRow("cv LSD, edge level", lsd_edge_);
+    std::printf("  targets: recall >= 85%%, precision >= 85%%, F above LSD and HoughLinesP\n\n");
+    if (diag) {
+      printBreakdown("failure breakdown, centre-line level:", why_centre_);
+      printBreakdown("failure breakdown, edge level:", why_edge_);
+      std::printf("\n");
+    }
+  }
+
+  void printClassesAndCorners() const {
+    std::printf("  field-marking classification (matched marking edges called marking): %.2f%% of %ld (target >= 95%%)\n\n",
+                cls_n_ ? 100.0 * cls_ok_ / cls_n_ : 0.0, cls_n_);
+    std::printf("  corners/junctions/intersections: recall %.2f%% (%ld/%ld), precision %.2f%% (%ld/%ld), mean error %.3f px\n",
+                c_gt_ ? 100.0 * c_hit_ / c_gt_ : 0.0, c_hit_, c_gt_, c_det_ ? 100.0 * c_ok_ / c_det_ : 0.0, c_ok_, c_det_,
+                c_ok_ ? c_err_ / c_ok_ : 0.0);
+    for (const auto& [type, c] : c_type_)
+      std::printf("    %-3s recall %6.2f%% (%ld/%ld)\n", type.c_str(), c.first ? 100.0 * c.second / c.first : 0.0, c.second,
+                  c.first);
+    std::printf("  targets: recall >= 80%%, precision >= 90%%, position error <= 1.5 px\n\n");
+  }
+
+ private:
+  void scoreOpenCv(const RealImage& im) {
+    bgrToLuma(im.bgr, luma_);
     std::vector<cv::Vec4i> hp;
-    houghP(luma, canny, hp);
+    houghP(luma_, canny_, hp);
     std::vector<cv::Vec4f> hpf;
     for (const cv::Vec4i& l : hp) hpf.emplace_back(l[0], l[1], l[2], l[3]);
-    scoreSegments(im.edges, openCvSegments(hpf, lmin), im.mask, hough_edge, gap_max, rules);
+    scoreSegments(im.edges, openCvSegments(hpf, rules_.min_len), im.mask, hough_edge_, gap_max_, rules_);
     std::vector<cv::Vec4f> ls;
-    lsd->detect(luma, ls);
-    scoreSegments(im.edges, openCvSegments(ls, lmin), im.mask, lsd_edge, gap_max, rules);
-    // Corners: a detection within 3 px of a labelled corner of its type is correct; detections
-    // in the don't-care mask that match nothing are ignored.
+    lsd_->detect(luma_, ls);
+    scoreSegments(im.edges, openCvSegments(ls, rules_.min_len), im.mask, lsd_edge_, gap_max_, rules_);
+  }
+
+  // A detection within 3 px of a labelled corner of its type is correct; detections in the
+  // don't-care mask that match nothing are ignored.
+  void scoreCorners(const RealImage& im, const FrontendResult& r) {
     std::vector<uint8_t> used(im.corners.size(), 0);
-    long img_det = 0, img_ok = 0;
     for (const PointFeature& f : r.features) {
       if (f.type != LandmarkType::MarkingCorner && f.type != LandmarkType::Junction && f.type != LandmarkType::Intersection)
         continue;
@@ -1440,36 +1471,47 @@ void realTable(const std::string& dir, bool diag, int stage_passes) {
       }
       const int x = static_cast<int>(std::lround(f.u)), y = static_cast<int>(std::lround(f.v));
       if (best < 0 && x >= 0 && y >= 0 && x < im.mask.cols && y < im.mask.rows && im.mask.at<uint8_t>(y, x)) continue;
-      ++img_det;
+      ++c_det_;
       if (best >= 0) {
         used[best] = 1;
-        ++img_ok;
-        c_err += bd;
-      } else if (verbose) {
+        ++c_ok_;
+        c_err_ += bd;
+      } else if (verbose_) {
         std::printf("  %s: false %s at (%.1f, %.1f)\n", im.name.c_str(), type.c_str(), f.u, f.v);
       }
     }
-    c_det += img_det;
-    c_ok += img_ok;
     for (size_t k = 0; k < im.corners.size(); ++k) {
-      ++c_gt;
-      c_hit += used[k];
-      c_type[im.corners[k].type].first++;
-      c_type[im.corners[k].type].second += used[k];
-      if (verbose && !used[k])
-        std::printf("  %s: missed %s at (%.1f, %.1f)\n", im.name.c_str(), im.corners[k].type.c_str(), im.corners[k].p.x(), im.corners[k].p.y());
+      ++c_gt_;
+      c_hit_ += used[k];
+      c_type_[im.corners[k].type].first++;
+      c_type_[im.corners[k].type].second += used[k];
+      if (verbose_ && !used[k])
+        std::printf("  %s: missed %s at (%.1f, %.1f)\n", im.name.c_str(), im.corners[k].type.c_str(), im.corners[k].p.x(),
+                    im.corners[k].p.y());
     }
-    if (verbose)
-      std::printf("  %s: centre lines %ld/%ld recalled, %ld/%ld detections correct\n", im.name.c_str(),
-                  ours_centre.gt_hit - before_c.gt_hit, ours_centre.gt - before_c.gt, ours_centre.det_ok - before_c.det_ok,
-                  ours_centre.det - before_c.det);
   }
-  // Timing, same run: the real images and the left images of rendered pairs (seed 4).
-  std::vector<const cv::Mat*> real_imgs, rendered_imgs;
-  for (const RealImage& im : set) real_imgs.push_back(&im.bgr);
-  buildSets(32, 0, 4);
-  for (const Pair& p : setup().general) rendered_imgs.push_back(&p.img.left);
-  Frontend fe_rendered(setup().rig, setup().map);
+
+  const double gap_max_;
+  const bool verbose_ = std::getenv("STEREOLOC_BENCH_VERBOSE") != nullptr;
+  ScoreRules rules_;
+  cv::Ptr<cv::LineSegmentDetector> lsd_;
+  cv::Mat luma_, canny_;
+  FailureBreakdown why_centre_, why_edge_;
+  SegStats ours_centre_, ours_edge_, hough_edge_, lsd_edge_;
+  long cls_n_ = 0, cls_ok_ = 0, c_gt_ = 0, c_hit_ = 0, c_det_ = 0, c_ok_ = 0;
+  double c_err_ = 0;
+  std::map<std::string, std::pair<long, long>> c_type_;  // per corner type: labelled, recalled
+};
+
+// CPU time per image on the photographs against rendered left images, same run, and the work
+// each gives the frontend.
+struct RealTimings {
+  double t_real = 0, t_rendered = 0, ratio = 0, t_hough = 0, t_lsd = 0;
+  double edges_real = 0, segments_real = 0, edges_rendered = 0, segments_rendered = 0;  // per image
+};
+
+RealTimings timeReal(Frontend& fe, const std::vector<const cv::Mat*>& real_imgs, Frontend& fe_rendered,
+                     const std::vector<const cv::Mat*>& rendered_imgs) {
   auto ours = [&](Frontend& f) { return [&f](const cv::Mat& m) { benchmark::DoNotOptimize(f.detectFeatures(m).features.size()); }; };
   // Real and rendered passes alternate, so both see the same machine load; the ratio is the
   // median of the per-round ratios.
@@ -1479,7 +1521,10 @@ void realTable(const std::string& dir, bool diag, int stage_passes) {
     tg.push_back(timePerImage(rendered_imgs, 1, ours(fe_rendered)));
     ratios.push_back(tr.back() / tg.back());
   }
-  const double t_real = medianOf(tr), t_rend = medianOf(tg), ratio = medianOf(ratios);
+  RealTimings t;
+  t.t_real = medianOf(tr);
+  t.t_rendered = medianOf(tg);
+  t.ratio = medianOf(ratios);
   auto meanWork = [](Frontend& f, const std::vector<const cv::Mat*>& imgs, double& edge_px, double& segs) {
     edge_px = segs = 0;
     for (const cv::Mat* m : imgs) {
@@ -1487,44 +1532,46 @@ void realTable(const std::string& dir, bool diag, int stage_passes) {
       edge_px += static_cast<double>(f.gradient().edges().size()) / imgs.size();
     }
   };
-  double e_real, s_real, e_rend, s_rend;
-  meanWork(fe, real_imgs, e_real, s_real);
-  meanWork(fe_rendered, rendered_imgs, e_rend, s_rend);
+  meanWork(fe, real_imgs, t.edges_real, t.segments_real);
+  meanWork(fe_rendered, rendered_imgs, t.edges_rendered, t.segments_rendered);
+  cv::Mat luma, canny;
   std::vector<cv::Vec4i> hp_out;
   std::vector<cv::Vec4f> lsd_out;
-  const double t_hough = timePerImage(real_imgs, 7, [&](const cv::Mat& m) { bgrToLuma(m, luma); houghP(luma, canny, hp_out); });
-  const double t_lsd = timePerImage(real_imgs, 7, [&](const cv::Mat& m) { bgrToLuma(m, luma); lsd->detect(luma, lsd_out); });
+  cv::Ptr<cv::LineSegmentDetector> lsd = cv::createLineSegmentDetector(cv::LSD_REFINE_STD);
+  t.t_hough = timePerImage(real_imgs, 7, [&](const cv::Mat& m) { bgrToLuma(m, luma); houghP(luma, canny, hp_out); });
+  t.t_lsd = timePerImage(real_imgs, 7, [&](const cv::Mat& m) { bgrToLuma(m, luma); lsd->detect(luma, lsd_out); });
+  return t;
+}
 
-  std::printf("\nstereoloc vision frontend on %zu real photographs (%s, 320x240, hand labels)\n", set.size(), dir.c_str());
-  std::printf("matching as on rendered pairs: angle <= 2 deg, both end points <= 3 px; pieces of one stripe broken by an\n"
-              "occluder match as one; truth pieces < L_min optional; unmatched detections in the don't-care mask (above\n"
-              "the field boundary, robots, people, balls, curved markings) ignored: %ld of %ld at centre-line level\n\n",
-              ours_centre.det_ignored, ours_centre.det_ignored + ours_centre.det);
-  std::printf("  %-34s %9s %10s %8s %9s\n", "field-marking segments", "recall", "precision", "F", "endpt px");
-  printRow("ours, centre-line level (target)", ours_centre);
-  printRow("ours, edge level", ours_edge);
-  printRow("cv::HoughLinesP (Canny), edge level", hough_edge);
-  printRow("cv LSD, edge level", lsd_edge);
-  std::printf("  targets: recall >= 85%%, precision >= 85%%, F above LSD and HoughLinesP\n\n");
-  if (diag) {
-    printBreakdown("failure breakdown, centre-line level:", why_centre);
-    printBreakdown("failure breakdown, edge level:", why_edge);
-    std::printf("\n");
-  }
-  std::printf("  field-marking classification (matched marking edges called marking): %.2f%% of %ld (target >= 95%%)\n\n",
-              cls_n ? 100.0 * cls_ok / cls_n : 0.0, cls_n);
-  std::printf("  corners/junctions/intersections: recall %.2f%% (%ld/%ld), precision %.2f%% (%ld/%ld), mean error %.3f px\n",
-              c_gt ? 100.0 * c_hit / c_gt : 0.0, c_hit, c_gt, c_det ? 100.0 * c_ok / c_det : 0.0, c_ok, c_det,
-              c_ok ? c_err / c_ok : 0.0);
-  for (const auto& [type, c] : c_type)
-    std::printf("    %-3s recall %6.2f%% (%ld/%ld)\n", type.c_str(), c.first ? 100.0 * c.second / c.first : 0.0, c.second, c.first);
-  std::printf("  targets: recall >= 80%%, precision >= 90%%, position error <= 1.5 px\n\n");
+void realTable(const std::string& dir, bool diag, int stage_passes) {
+  const std::string rig_path = dir + "/rig.yaml", params_path = dir + "/frontend.yaml";
+  const StereoRig rig = std::filesystem::exists(rig_path) ? StereoRig::load(rig_path) : StereoRig();
+  const char* env_params = std::getenv("STEREOLOC_BENCH_PARAMS");
+  const FrontendParams prm = env_params ? FrontendParams::load(env_params)
+                             : std::filesystem::exists(params_path) ? FrontendParams::load(params_path)
+                                                                    : FrontendParams();
+  Frontend fe(rig, FieldMap::miroSot(), prm);
+  const double lmin = fe.params().segments.min_length_px;
+  std::vector<RealImage> set;
+  for (const std::string& n : realNames(dir)) set.push_back(loadReal(dir, n, lmin));
+  RealTally tally(lmin, fe.params().segments.gap_max_px);
+  for (const RealImage& im : set) tally.score(im, fe.detectFeatures(im.bgr));
+  // Timing, same run: the real images and the left images of rendered pairs (seed 4).
+  std::vector<const cv::Mat*> real_imgs, rendered_imgs;
+  for (const RealImage& im : set) real_imgs.push_back(&im.bgr);
+  buildSets(32, 0, 4);
+  for (const Pair& p : setup().general) rendered_imgs.push_back(&p.img.left);
+  Frontend fe_rendered(setup().rig, setup().map);
+  const RealTimings t = timeReal(fe, real_imgs, fe_rendered, rendered_imgs);
+
+  tally.printSegments(dir, set.size(), diag);
+  tally.printClassesAndCorners();
   std::printf("  CPU time per image (median of 21 alternating passes), same run: ours lines + corners %.3f ms real, %.3f ms\n"
               "  rendered left images (32 pairs, seed 4): ratio %.3f (median of the passes' ratios; target <= 1.20);\n"
               "  HoughLinesP %.3f ms, LSD %.3f ms on the real images\n\n",
-              t_real, t_rend, ratio, t_hough, t_lsd);
-  std::printf("  work per image: %.0f edge pixels and %.1f segments real, %.0f and %.1f rendered\n\n", e_real, s_real, e_rend,
-              s_rend);
+              t.t_real, t.t_rendered, t.ratio, t.t_hough, t.t_lsd);
+  std::printf("  work per image: %.0f edge pixels and %.1f segments real, %.0f and %.1f rendered\n\n", t.edges_real,
+              t.segments_real, t.edges_rendered, t.segments_rendered);
   if (stage_passes > 0) stageTable(fe, real_imgs, fe_rendered, rendered_imgs, stage_passes);
   std::printf("  thesis Table 6.1 (GBHT on real camera images, bad illumination): 48 lines, 50 detected, 3 missed,\n"
               "  5 spurious (recall 93.8%%, precision 90.0%%); 16 corners, 13 detected (recall 81.3%%)\n\n");
