@@ -372,29 +372,39 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
   }
   const cv::Mat& left = rectifier_ ? rectifier_->colourImage(0) : left_in;
   const cv::Mat& right = rectifier_ ? rectifier_->colourImage(1) : right_in;
-
   const DisparityRange range = validDisparities(rig_, params_.stereo);
-  if (!r.features.empty()) {
-    if (rectifier_)
-      rectifyRightLumaAroundFeatures();
-    else
-      bgrToLuma(right, right_luma_);
-    for (const PointFeature& f : r.features) {
-      double gain = 0.0;
-      const auto d = matchFloorFeature(left_luma_, right_luma_, rig_, f.u, f.v, range, params_.stereo, &gain);
-      if (!d) continue;
-      double u_right = f.u - *d;
-      // An X located on the left image is located on the right one as well, so it does not slide
-      // with the rows' misalignment as the patch match does (Observation::slide_gain); one that
-      // cannot be (a stripe with too few profiles beside the crossing) keeps the patch match.
-      double v_right = f.v;  // the observation keeps the left's row (StereoPixels)
-      const bool located = f.type == LandmarkType::Intersection && f.located_on_image && f.line_a >= 0 &&
-                           f.line_b >= 0 &&
-                           crossingInRightImage(right_luma_, rig_, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v,
-                                                u_right, v_right);
-      r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, u_right, f.v}, located ? 0.0 : gain, located});
-    }
+  matchFloorFeatures(right, range);
+  matchGoalCorners(left, right, range);
+  observationsFromMatches(head_pan);
+  return r;
+}
+
+void Frontend::matchFloorFeatures(const cv::Mat& right, const DisparityRange& range) {
+  FrontendResult& r = result_;
+  if (r.features.empty()) return;
+  if (rectifier_)
+    rectifyRightLumaAroundFeatures();
+  else
+    bgrToLuma(right, right_luma_);
+  for (const PointFeature& f : r.features) {
+    double gain = 0.0;
+    const auto d = matchFloorFeature(left_luma_, right_luma_, rig_, f.u, f.v, range, params_.stereo, &gain);
+    if (!d) continue;
+    double u_right = f.u - *d;
+    // An X located on the left image is located on the right one as well, so it does not slide
+    // with the rows' misalignment as the patch match does (Observation::slide_gain); one that
+    // cannot be (a stripe with too few profiles beside the crossing) keeps the patch match.
+    double v_right = f.v;  // the observation keeps the left's row (StereoPixels)
+    const bool located = f.type == LandmarkType::Intersection && f.located_on_image && f.line_a >= 0 &&
+                         f.line_b >= 0 &&
+                         crossingInRightImage(right_luma_, rig_, r.lines[f.line_a], r.lines[f.line_b], f.u, f.v,
+                                              u_right, v_right);
+    r.matched.push_back(StereoFeature{f, StereoPixels{f.u, f.v, u_right, f.v}, located ? 0.0 : gain, located});
   }
+}
+
+void Frontend::matchGoalCorners(const cv::Mat& left, const cv::Mat& right, const DisparityRange& range) {
+  FrontendResult& r = result_;
   const ColourPrepare prepare_left = [this](const cv::Rect& rect, int step) { rectifier_->colour(0, rect, step); };
   detectGoalEdges(left, params_.goals, goal_edges_, scratch_, rectifier_ ? &prepare_left : nullptr);
   for (const GoalEdge& g : goal_edges_) {
@@ -414,6 +424,10 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
     const auto ur = matchGoalEdge(right, g, range, params_.goals, scratch_tr_, scratch_);
     if (ur) r.matched.push_back(StereoFeature{f, StereoPixels{g.u, g.v, *ur, g.v}});
   }
+}
+
+void Frontend::observationsFromMatches(double head_pan) {
+  FrontendResult& r = result_;
   for (const StereoFeature& m : r.matched) {
     Eigen::Matrix4d C = params_.stereo.pixelCovariance(m.feature.type);
     if (rectifier_) {
@@ -437,7 +451,6 @@ const FrontendResult& Frontend::process(const cv::Mat& left_in, const cv::Mat& r
       // Disparity below the rig's minimum: cannot be triangulated; not an observation.
     }
   }
-  return r;
 }
 
 void Frontend::rectifyRightLumaAroundFeatures() {

@@ -121,6 +121,11 @@ class Frontend {
   void featuresFromSegments();  // stage 6 on result_.segments
   // Raw pairs: rectifies the right luma on the rows the stereo match of result_.features reads.
   void rectifyRightLumaAroundFeatures();
+  // process(), after the features of the left image: their right-image matches, the goal
+  // corners' (detected and matched), and the matches as observations.
+  void matchFloorFeatures(const cv::Mat& right, const DisparityRange& range);
+  void matchGoalCorners(const cv::Mat& left, const cv::Mat& right, const DisparityRange& range);
+  void observationsFromMatches(double head_pan);
   StereoRig rig_;
   FieldMap map_;
   FrontendParams params_;
