@@ -123,15 +123,10 @@ int scenarioTrialCount(const std::string& name) {
   throw Error("unknown scenario '" + name + "' (expected one of: " + list + ")");
 }
 
-Scenario makeScenario(const std::string& name, int trial, const ScenarioOptions& o, std::mt19937_64& rng) {
-  const int trials = scenarioTrialCount(name);
-  if (trial < 0 || trial >= trials)
-    throw Error("scenario '" + name + "': trial " + std::to_string(trial) + " out of range (0.." +
-                std::to_string(trials - 1) + ")");
-  if (o.steps < 0) throw Error("scenario: steps must be >= 0");
-  Scenario sc;
-  sc.name = name;
-  sc.trial = trial;
+namespace {
+
+// The drives of section 6.5 and 5.1.3: one trial each, consecutive poses.
+void makeDrive(const std::string& name, const ScenarioOptions& o, Scenario& sc) {
   if (name == "circle") {
     // Fig. 6.26, L2315/L2324: radius 500, start [1350 650 90 deg], counter-clockwise, one
     // revolution per 100 steps (3.6 deg, 31.4 mm per step; centre (850, 650) INFERRED).
@@ -152,7 +147,23 @@ Scenario makeScenario(const std::string& name, int trial, const ScenarioOptions&
     const int n = stepsOr(o, kDefaultSteps);
     for (int s = 0; s < n; ++s) sc.poses.push_back(P(750, 650, -90.0 - 180.0 * s / kDefaultSteps));
     sc.description = "spin at [750 650 -90deg], 180 deg clockwise, 1.8 deg/step (thesis 6.5, Fig. 6.28)";
-  } else if (name == "rect" || name == "rect-spin") {
+  } else {  // kidnap
+    // Section 5.1.3, L1637-1644: A to B in 100 steps, carried back to A at step 100 without the
+    // robot knowing, then A to B again. A, B not stated: INFERRED the 6.5 line path.
+    const int n = stepsOr(o, 2 * kDefaultSteps);
+    const int half = std::max(1, n / 2);
+    for (int s = 0; s < n; ++s)
+      sc.poses.emplace_back(kLineStart.x() + kLineStep * (s % half), kLineStart.y(), kPi);
+    sc.carried.assign(n, false);
+    if (half < n) sc.carried[half] = true;
+    sc.description = "kidnap: line A->B in " + std::to_string(half) + " steps, carried back to A at step " +
+                     std::to_string(half) + ", then A->B again (thesis 5.1.3)";
+  }
+}
+
+// The fix scenarios of section 6.3: independent poses, one trial per place or path.
+void makeFixPoses(const std::string& name, int trial, const ScenarioOptions& o, Scenario& sc) {
+  if (name == "rect" || name == "rect-spin") {
     const bool spin = name == "rect-spin";
     const RectTrial& r = spin ? kRectSpin[trial] : kRect[trial];
     const int n = stepsOr(o, kDefaultSteps);
@@ -191,29 +202,40 @@ Scenario makeScenario(const std::string& name, int trial, const ScenarioOptions&
     std::snprintf(buf, sizeof(buf), "line-turn trial %s: from (%g, 452), +y 4 mm/step, heading -170 deg turning 0.2 deg/step CW (thesis 6.3.5)",
                   trialLetter(trial).c_str(), kLineTurnX[trial]);
     sc.description = buf;
-  } else if (name == "kidnap") {
-    // Section 5.1.3, L1637-1644: A to B in 100 steps, carried back to A at step 100 without the
-    // robot knowing, then A to B again. A, B not stated: INFERRED the 6.5 line path.
-    const int n = stepsOr(o, 2 * kDefaultSteps);
-    const int half = std::max(1, n / 2);
-    for (int s = 0; s < n; ++s)
-      sc.poses.emplace_back(kLineStart.x() + kLineStep * (s % half), kLineStart.y(), kPi);
-    sc.carried.assign(n, false);
-    if (half < n) sc.carried[half] = true;
-    sc.description = "kidnap: line A->B in " + std::to_string(half) + " steps, carried back to A at step " +
-                     std::to_string(half) + ", then A->B again (thesis 5.1.3)";
-  } else {  // random-walk
-    const int n = stepsOr(o, 10000);
-    randomWalk(sc, n, rng);
-    sc.description = "random walk, 20 mm/step, smooth, inside the field";
   }
-  if (sc.carried.empty()) sc.carried.assign(sc.poses.size(), false);
+}
+
+// The head's pan per step: 0, or the scan of ScenarioOptions::head_scan.
+void setHeadPan(const ScenarioOptions& o, Scenario& sc) {
   sc.head_pan.assign(sc.poses.size(), 0.0);
   if (o.head_scan) {
     if (o.head_scan_period_steps < 1) throw Error("scenario: head_scan_period_steps must be >= 1");
     for (size_t s = 0; s < sc.poses.size(); ++s)
       sc.head_pan[s] = o.head_scan_amplitude_rad * std::sin(kTwoPi * static_cast<double>(s) / o.head_scan_period_steps);
   }
+}
+
+}  // namespace
+
+Scenario makeScenario(const std::string& name, int trial, const ScenarioOptions& o, std::mt19937_64& rng) {
+  const int trials = scenarioTrialCount(name);
+  if (trial < 0 || trial >= trials)
+    throw Error("scenario '" + name + "': trial " + std::to_string(trial) + " out of range (0.." +
+                std::to_string(trials - 1) + ")");
+  if (o.steps < 0) throw Error("scenario: steps must be >= 0");
+  Scenario sc;
+  sc.name = name;
+  sc.trial = trial;
+  if (name == "circle" || name == "line" || name == "spin" || name == "kidnap") {
+    makeDrive(name, o, sc);
+  } else if (name == "random-walk") {
+    randomWalk(sc, stepsOr(o, 10000), rng);
+    sc.description = "random walk, 20 mm/step, smooth, inside the field";
+  } else {
+    makeFixPoses(name, trial, o, sc);
+  }
+  if (sc.carried.empty()) sc.carried.assign(sc.poses.size(), false);
+  setHeadPan(o, sc);
   return sc;
 }
 
