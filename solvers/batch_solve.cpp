@@ -739,6 +739,27 @@ void BatchSmoother::Solve::startRobustIfMisfit(Guess guess) {
   }
 }
 
+namespace {
+
+// The landmark of obs's kind nearest to where `pose` puts it (-1: none of that kind).
+int nearestLandmark(const Observation& obs, const Pose2& pose, const FieldMap& map) {
+  const double angle = pose.theta + obs.bearing;
+  const Eigen::Vector2d at(pose.x + obs.range * std::cos(angle), pose.y + obs.range * std::sin(angle));
+  int nearest = -1;
+  double best = std::numeric_limits<double>::infinity();
+  for (const Landmark& l : map.landmarks()) {
+    if (l.type != obs.type) continue;
+    const double d = (l.xy() - at).squaredNorm();
+    if (d < best) {
+      best = d;
+      nearest = l.id;
+    }
+  }
+  return nearest;
+}
+
+}  // namespace
+
 // With the stereo calibration estimated, the unidentified observations are associated again at
 // the solution: the filter pass associated them with the nominal calibration, whose errors
 // (a focal-length difference of 1.7 % moves the disparity by ~3 px at the image's edge) pair
@@ -788,13 +809,13 @@ int BatchSmoother::Solve::reassociate() {
     for (size_t k = 0; k < a.size(); ++k) {
       Observation& target = b_.observations_[begin + k];
       // An observation the solution cannot pair (outside every gate, or ambiguous) keeps the
-      // filter pass's pairing where the filter pass fused that step's sightings; where it only
-      // predicted (it gated them out, or was lost), its pairing was made on a guess it did not
-      // confirm, and a drifted guess pairs sightings with landmarks far from the solution.
-      const EstimateStatus status = b_.guess_[index].status;
-      const bool confirmed = status == EstimateStatus::Tracking || status == EstimateStatus::Reinitialised;
-      const int id = a[k].landmark_id >= 0 || filtered == filter_pairings_.end() || !confirmed ? a[k].landmark_id
-                                                                                                : filtered->second[k];
+      // filter pass's pairing where the solution puts the sighting nearer to that landmark than
+      // to any other of its kind. A filter pass that drifted, even one still fusing, pairs
+      // sightings with landmarks far from where the solution sees them.
+      int id = a[k].landmark_id;
+      if (id < 0 && filtered != filter_pairings_.end() && filtered->second[k] >= 0 &&
+          nearestLandmark(corrected[k], pose, b_.map_) == filtered->second[k])
+        id = filtered->second[k];
       if (target.landmark_id == id) continue;
       target.landmark_id = id;
       ++changed;
