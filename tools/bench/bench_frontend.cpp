@@ -440,6 +440,13 @@ void printBreakdown(const char* title, const FailureBreakdown& why) {
   }
 }
 
+// --diag: the breakdowns at both levels of the matching.
+void printBreakdowns(const FailureBreakdown& centre, const FailureBreakdown& edge) {
+  printBreakdown("failure breakdown, centre-line level:", centre);
+  printBreakdown("failure breakdown, edge level:", edge);
+  std::printf("\n");
+}
+
 // Scoring rules of the real set beyond the rendered one (both off for rendered pairs, whose truth
 // is exact). Hand labels of photographs cannot place an end under an occluder or inside the
 // don't-care areas to 3 px, and a person sees one stripe where a detector may return it in
@@ -911,11 +918,7 @@ class AccuracyTally {
     printRow("cv::HoughLinesP (Canny), edge level", hough_edge_);
     printRow("cv LSD, edge level", lsd_edge_);
     std::printf("  targets: recall >= 97%%, precision >= 97%%, end-point error <= 1.0 px\n\n");
-    if (diag) {
-      printBreakdown("failure breakdown, centre-line level:", why_centre_);
-      printBreakdown("failure breakdown, edge level:", why_edge_);
-      std::printf("\n");
-    }
+    if (diag) printBreakdowns(why_centre_, why_edge_);
     std::printf("  field-marking classification accuracy (matched edges): %.2f%% of %ld (target >= 98%%)\n",
                 cls_n_ ? 100.0 * cls_ok_ / cls_n_ : 0.0, cls_n_);
     if (diag)
@@ -1420,11 +1423,7 @@ class RealTally {
     printRow("cv::HoughLinesP (Canny), edge level", hough_edge_);
     printRow("cv LSD, edge level", lsd_edge_);
     std::printf("  targets: recall >= 85%%, precision >= 85%%, F above LSD and HoughLinesP\n\n");
-    if (diag) {
-      printBreakdown("failure breakdown, centre-line level:", why_centre_);
-      printBreakdown("failure breakdown, edge level:", why_edge_);
-      std::printf("\n");
-    }
+    if (diag) printBreakdowns(why_centre_, why_edge_);
   }
 
   void printClassesAndCorners() const {
