@@ -16,7 +16,7 @@
 //   poses 0.34 rad away from the odometry (mean NEES 183) unless the re-pairing keeps a filter
 //   pass's pairing only where the solution sees the sighting nearest to that landmark;
 // - and in the ideal world (seed 1, circle trial 8) the pairings the solution cannot make are
-//   right, and dropping them all costs accuracy (3.4 mm against 1.0 mm).
+//   right, and dropping them costs accuracy (3.4 mm against 1.0 mm).
 // About 6 s of CPU each: 100 or 200 pairs rendered (the realistic ones raw, then rectified).
 #include <gtest/gtest.h>
 
@@ -71,7 +71,7 @@ TEST(CalibratingBatchCuts, PairingsOfADriftedFilterPassDoNotBendTheChain) {
   EXPECT_LT(r.nees_sum / static_cast<double>(r.nees_count), 10.0);
 }
 
-// 1.0 mm (every pairing the solution cannot make dropped: 3.4 mm).
+// 1.0 mm (those pairings dropped: 3.4 mm).
 TEST(CalibratingBatchCuts, FilterPairingsWhereTheSolutionSeesThemAreKept) {
   expectCalibratedTrial(1, "circle", 8, 100, 2.0, "ideal");
 }
