@@ -29,6 +29,7 @@
 #include "solvers/chain_solver.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
+#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 
@@ -743,8 +744,7 @@ namespace {
 
 // The landmark of obs's kind nearest to where `pose` puts it (-1: none of that kind).
 int nearestLandmark(const Observation& obs, const Pose2& pose, const FieldMap& map) {
-  const double angle = pose.theta + obs.bearing;
-  const Eigen::Vector2d at(pose.x + obs.range * std::cos(angle), pose.y + obs.range * std::sin(angle));
+  const Eigen::Vector2d at = landmarkFromRangeBearing(pose, obs.range, obs.bearing);
   int nearest = -1;
   double best = std::numeric_limits<double>::infinity();
   for (const Landmark& l : map.landmarks()) {
