@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -135,6 +136,14 @@ Dataset readDatasetYaml(const std::string& dir, const YamlReader& y) {
   const YamlNode noise = y.child("noise");
   d.compass_sigma = noise.getDouble("compass_sigma");
   if (d.compass_sigma < 0) noise.fail("compass_sigma", "must be >= 0");
+  // A copy of the rig's pixel sigma for readers of the file: one that differs would read as a
+  // setting that silently does nothing, so it must agree with the rig.
+  if (noise.has("pixel_sigma")) {
+    const double copy = noise.getDouble("pixel_sigma"), used = d.rig.params().pixel_sigma;
+    if (std::fabs(copy - used) > 1e-9 * std::max(1.0, std::fabs(used)))
+      noise.fail("pixel_sigma", "is " + formatDouble(copy) + " but the rig's pixel_sigma (" + rig_path + ") is " +
+                                    formatDouble(used) + "; the rig's is the one used: change it there");
+  }
   if (y.has("initial_pose")) {
     const YamlNode p = y.child("initial_pose");
     d.initial_pose = Pose2(p.getDouble("x"), p.getDouble("y"), p.getDouble("theta"));

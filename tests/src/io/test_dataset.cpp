@@ -342,6 +342,19 @@ TEST_F(Malformed, BadYaml) {
   expectError(dir.path(), "dataset.yaml", "unsupported version 7");
 }
 
+TEST_F(Malformed, PixelSigmaCopyThatDisagreesWithTheRig) {
+  // dataset.yaml's noise.pixel_sigma only repeats the rig's: a different one would do nothing.
+  std::string y = readFile(dir / "dataset.yaml");
+  const size_t at = y.find("pixel_sigma:");
+  ASSERT_NE(at, std::string::npos);
+  y.replace(at, y.find('\n', at) - at, "pixel_sigma: 0.25");
+  writeFile(dir / "dataset.yaml", y);
+  expectError(dir.path(), "noise.pixel_sigma", "the rig's pixel_sigma");
+  y.replace(at, y.find('\n', at) - at, "pixel_sigma: wide");
+  writeFile(dir / "dataset.yaml", y);
+  expectError(dir.path(), "noise.pixel_sigma", "not a number");
+}
+
 TEST_F(Malformed, TimeMismatch) {
   replaceLine(dir / "compass.csv", 3, "1,0.5,0.1");
   expectError(dir.path(), "compass.csv:3:", "does not match odometry.csv");
