@@ -1,5 +1,6 @@
 #include "solvers/self_calibration.h"
 
+#include <algorithm>
 #include <cmath>
 #include <opencv2/core.hpp>
 #include <sstream>
@@ -109,6 +110,82 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
     w.put("wheel_base_sigma_mm", std::sqrt(wheels_covariance(2, 2)));
   }
   w.writeAtomically(path);
+}
+
+namespace {
+
+// The head's keys in CalibrationEstimate::head's order (saveAsRig writes them).
+constexpr const char* kHeadSigmaKeys[6] = {"tilt_correction_sigma_rad", "baseline_scale_sigma",
+                                           "disparity_offset_sigma_px", "column_offset_sigma_px",
+                                           "focal_ratio_sigma",         "focal_scale_sigma"};
+
+double positive(const YamlNode& y, const std::string& key) {
+  const double v = y.getDouble(key);
+  if (!(v > 0)) y.fail(key, "must be positive");
+  return v;
+}
+
+}  // namespace
+
+CalibrationHandover CalibrationHandover::load(const std::string& rig_path) {
+  const YamlReader y(rig_path);
+  CalibrationHandover h;
+  if (y.has("wheel_scale_left")) {
+    h.wheels = Eigen::Vector3d(positive(y, "wheel_scale_left"), positive(y, "wheel_scale_right"),
+                               positive(y, "wheel_base_mm"));
+    h.wheel_sigmas = Eigen::Vector3d(positive(y, "wheel_scale_left_sigma"), positive(y, "wheel_scale_right_sigma"),
+                                     positive(y, "wheel_base_sigma_mm"));
+  }
+  if (y.has(kHeadSigmaKeys[0])) {
+    CalibrationEstimate::StereoVector s;
+    for (int i = 0; i < 6; ++i) s[i] = positive(y, kHeadSigmaKeys[i]);
+    h.head_sigmas = s;
+  }
+  if (y.has("row_offset_sigma_px")) h.row_offset_sigma_px = positive(y, "row_offset_sigma_px");
+  return h;
+}
+
+void CalibrationHandover::applyPriors(SelfCalibrationConfig& c, UnmodelledNoise& noise) const {
+  if (wheels) {
+    c.wheel_scale_sigma = std::max((*wheel_sigmas)[0], (*wheel_sigmas)[1]);
+    c.wheel_base_rel_sigma = (*wheel_sigmas)[2] / (*wheels)[2];
+  }
+  if (head_sigmas) {
+    const CalibrationEstimate::StereoVector& s = *head_sigmas;
+    c.tilt_sigma_rad = s[0];
+    c.baseline_scale_sigma = s[1];
+    c.disparity_offset_sigma_px = s[2];
+    c.column_offset_sigma_px = s[3];
+    c.focal_ratio_sigma = s[4];
+    c.focal_scale_sigma = s[5];
+  }
+  if (row_offset_sigma_px && noise.row_offset_sigma_px > 0) noise.row_offset_sigma_px = *row_offset_sigma_px;
+}
+
+CalibrationEstimate CalibrationHandover::carriedOn(const CalibrationEstimate& run) const {
+  CalibrationEstimate out = run;
+  if (!wheels) return out;
+  if (!run.odometry) {
+    out.odometry = true;
+    out.wheels = *wheels;
+    out.wheels_covariance = wheel_sigmas->cwiseAbs2().asDiagonal();
+    return out;
+  }
+  // The run's scales multiply increments already scaled by the handed-over ones.
+  const Eigen::DiagonalMatrix<double, 3> J((*wheels)[0], (*wheels)[1], 1.0);
+  out.wheels = J * run.wheels;
+  out.wheels_covariance = J * run.wheels_covariance * J;
+  return out;
+}
+
+void applyWheelCalibration(Dataset& d, const Eigen::Vector3d& wheels) {
+  if (!(wheels.allFinite() && (wheels.array() > 0).all()))
+    throw Error("wheel calibration: scales and wheel base must be positive and finite");
+  for (Step& s : d.steps) {
+    s.d_left *= wheels[0];
+    s.d_right *= wheels[1];
+  }
+  d.odometry.wheel_base_mm = wheels[2];
 }
 
 std::optional<CalibrationEstimate::ImageVector> imageErrorSigmas(const SelfCalibrationConfig& config,

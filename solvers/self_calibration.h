@@ -139,6 +139,41 @@ struct CalibrationEstimate {
   void saveAsRig(const std::string& path, const StereoRig& rig) const;
 };
 
+// What a rig file written by CalibrationEstimate::saveAsRig hands to the next run besides the
+// rig itself (whose stereo head already has the estimate folded in): the wheel estimate with its
+// standard deviations, and the stereo head's standard deviations. A run handed the file (`--rig`)
+// scales its wheel increments and takes the wheel base (applyWheelCalibration), and a further
+// self-calibration starts from these standard deviations as its priors instead of the wide
+// defaults (applyPriors); its own estimate is then relative to the handed-over one, and carriedOn
+// composes the two for the file the run writes. A user may widen the sigmas in the file for a
+// robot whose calibration may have drifted since. A group whose first key is present must be
+// complete (wheels: wheel_scale_left, wheel_scale_right, wheel_base_mm and their *_sigma*; stereo:
+// the six *_sigma* of the head); row_offset_sigma_px stands alone.
+struct CalibrationHandover {
+  std::optional<Eigen::Vector3d> wheels;        // c_l, c_r (dimensionless), w (mm)
+  std::optional<Eigen::Vector3d> wheel_sigmas;  // their standard deviations, same units
+  std::optional<CalibrationEstimate::StereoVector> head_sigmas;  // CalibrationEstimate::head's order and units
+  std::optional<double> row_offset_sigma_px;
+
+  bool empty() const { return !wheels && !head_sigmas && !row_offset_sigma_px; }
+  // Reads the keys from a rig YAML; none of them: empty. Errors name the file and the key.
+  static CalibrationHandover load(const std::string& rig_path);
+  // The priors of a self-calibration from the handed-over sigmas: both wheel scales' the larger
+  // of the two, the wheel base's relative to the handed-over wheel base, the head's one by one;
+  // the row offset's replaces the noise model's when that states one (otherwise the row block is
+  // not estimated). Parameters the file does not hand over keep `config`'s priors.
+  void applyPriors(SelfCalibrationConfig& config, UnmodelledNoise& noise) const;
+  // The estimate of a run that was handed this calibration, in terms of the raw wheel increments
+  // (what the next run needs): its wheel scales multiplied by the handed-over ones (covariance
+  // scaled alike); a run that did not estimate the wheels passes the handed-over estimate on.
+  CalibrationEstimate carriedOn(const CalibrationEstimate& run) const;
+};
+
+// Runs the dataset with a wheel calibration (c_l, c_r, w mm): every step's wheel increments
+// scaled by c_l and c_r, the odometry model's wheel base set to w. Throws Error for a
+// non-positive or non-finite value.
+void applyWheelCalibration(Dataset& dataset, const Eigen::Vector3d& wheels);
+
 struct SelfCalibrationResult {
   std::vector<Estimate> trajectory;  // one per step
   CalibrationEstimate calibration;

@@ -53,6 +53,8 @@ SlidingWindowConfig realTimeWindowConfig() {
 }
 
 Localizer::Localizer(LocalizerConfig config) : config_(std::move(config)) {
+  if (!(config_.wheel_scales.allFinite() && (config_.wheel_scales.array() > 0).all()))
+    throw Error("localizer: wheel scales must be positive and finite");
   switch (config_.method) {
     case LocalizerMethod::Window: {
       SlidingWindowConfig c = config_.window;
@@ -111,6 +113,8 @@ void Localizer::addStep(const Step& step) {
     failure = e.what();
   }
   pending_ = step;
+  pending_->d_left *= config_.wheel_scales[0];
+  pending_->d_right *= config_.wheel_scales[1];
   newest_step_ = step.step;
   have_step_ = true;
   if (!failure.empty()) throw Error("step " + std::to_string(previous) + ": " + failure);

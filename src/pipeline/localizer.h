@@ -66,6 +66,9 @@ struct LocalizerConfig {
   FieldMap map = FieldMap::miroSot();
   StereoRig rig;                     // calibration of the frontend and of pixel observations
   OdometryParams odometry;           // wheel base (mm) and wheel noise
+  // Left and right wheel scales (true travel per unit of reading) every step's increments are
+  // multiplied by: a wheel calibration handed over from an earlier run (CalibrationHandover).
+  Eigen::Vector2d wheel_scales = Eigen::Vector2d::Ones();
   InitialBelief init;                // start belief of the estimator; default: wait for a global fix
   LocalizerMethod method = LocalizerMethod::Window;
   SlidingWindowConfig window = realTimeWindowConfig();  // its init is replaced by `init`, its rig by `rig`

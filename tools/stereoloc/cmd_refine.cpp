@@ -42,10 +42,11 @@ class ProgressLine {
 };
 
 void runRefine(const LocalizeArgs& a) {
-  const MethodOptions o = parseMethodOptions(a);
+  MethodOptions o = parseMethodOptions(a);
   parseMethodSpec("batch", o.init);  // usage errors before reading data
   const auto t_load = Clock::now();
-  Dataset d = loadDatasetWithFrontend(a.dataset, a.frontend, a.frontend_landmarks, a.frontend_params, stdout);
+  CalibrationHandover handover;
+  Dataset d = loadRunDataset(a, o, handover);
   const double load_s = secondsSince(t_load);
   BatchSmootherConfig c = batchConfigFor("batch", d, a.seed, o);
   ProgressLine progress;
@@ -84,7 +85,7 @@ void runRefine(const LocalizeArgs& a) {
   writeEstimatesCsv(a.out, estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, estimates);
   reportCalibration(a, o.calibration.odometry || o.calibration.stereo ? &calibration : nullptr, d.rig, o.calibration,
-                    d.odometry.wheel_base_mm);
+                    d.odometry.wheel_base_mm, handover);
   const double write_s = secondsSince(t_write);
   progress.clear();
   std::printf("batch: %zu estimates for %zu steps written to %s\n", estimates.size(), steps, a.out.c_str());

@@ -11,6 +11,7 @@
 
 #include "src/io/dataset.h"
 #include "src/pipeline/localizer.h"
+#include "src/pipeline/rig_handover.h"
 #include "src/pipeline/stream_io.h"
 #include "tools/stereoloc/cli_common.h"
 #include "tools/stereoloc/localize_common.h"
@@ -25,10 +26,13 @@ struct StreamArgs {
   double compass_sigma = 0, wheel_base = OdometryParams().wheel_base_mm;
   bool no_gate = false, smoothed = false;
   std::string frontend = "pixels", frontend_landmarks = "all", frontend_params, observation_model = "pixel_columns";
-  std::string calibrate, calibration_out;
+  std::string calibrate, calibration_out, noise_model;
 };
 
-LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, double* compass_sigma) {
+// `d`: the dataset of --from or --setup, on --rig's rig already (useRig); `handover`: what --rig
+// hands over.
+LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const CalibrationHandover& handover,
+                           double* compass_sigma) {
   LocalizerConfig c;
   std::optional<Pose2> start;
   if (d) {
@@ -40,8 +44,10 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, double* compas
   } else {
     if (!a.map_path.empty()) c.map = FieldMap::load(a.map_path);
     if (!a.rig_path.empty()) c.rig = StereoRig::load(a.rig_path);
-    c.odometry.wheel_base_mm = a.wheel_base;
+    c.odometry.wheel_base_mm = handover.wheels ? (*handover.wheels)[2] : a.wheel_base;
   }
+  // Steps read from stdin are the robot's raw increments; a replayed dataset's were scaled by useRig.
+  if (handover.wheels && a.from.empty()) c.wheel_scales = handover.wheels->head<2>();
   if (a.compass_sigma > 0) *compass_sigma = a.compass_sigma;
   if (!a.pose.empty()) start = Pose2(a.pose[0], a.pose[1], a.pose[2]);
   if (a.pose_sigma.size() != 3 || !(a.pose_sigma[0] > 0 && a.pose_sigma[1] > 0 && a.pose_sigma[2] > 0))
@@ -65,6 +71,8 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, double* compas
     throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
   if (!a.calibration_out.empty() && !c.window.calibration.odometry && !c.window.calibration.stereo)
     throw UsageError("--calibration-out: needs --calibrate");
+  if (!a.noise_model.empty()) c.window.observation_model.unmodelled = UnmodelledNoise::load(a.noise_model);
+  handover.applyPriors(c.window.calibration, c.window.observation_model.unmodelled);
   c.window.window = a.window;
   c.window.max_iterations = a.max_iterations;
   c.window.gate_enabled = !a.no_gate;
@@ -86,8 +94,13 @@ void runStream(const StreamArgs& a) {
   std::unique_ptr<Dataset> d;
   if (!a.from.empty() || !a.setup.empty()) d = std::make_unique<Dataset>(loadDataset(a.from.empty() ? a.setup : a.from));
   if (a.frontend == "images" && !d->has_images) throw Error(a.from + ": the dataset has no images/");
+  // With --from --frontend images the Localizer's frontend measures the images with the new rig;
+  // stdin lines bring their own pixels, measured with the rig the user names.
+  CalibrationHandover handover;
+  if (!a.rig_path.empty())
+    handover = d ? useRig(*d, a.rig_path, a.frontend == "images" || a.from.empty()) : CalibrationHandover::load(a.rig_path);
   double compass_sigma = 0;
-  Localizer loc(configFrom(a, d.get(), &compass_sigma));
+  Localizer loc(configFrom(a, d.get(), handover, &compass_sigma));
   long bad = 0;
   auto run = [&](const std::string& where, const StreamLine& s) {
     const StreamLineResult r = feedStreamLine(loc, s);
@@ -117,7 +130,7 @@ void runStream(const StreamArgs& a) {
     x.smoothed = true;
     for (const Estimate& e : loc.smoothedTrajectory()) print(formatStreamEstimate(e, x));
   }
-  if (!a.calibration_out.empty()) loc.calibration()->saveAsRig(a.calibration_out, loc.config().rig);
+  if (!a.calibration_out.empty()) handover.carriedOn(*loc.calibration()).saveAsRig(a.calibration_out, loc.config().rig);
   if (bad > 0) throw Error("stream: " + std::to_string(bad) + " bad line(s) (see the messages above)");
 }
 
@@ -138,7 +151,11 @@ void add_stream_command(CLI::App& app) {
   sub->add_option("--from", a->from, "Replay a dataset directory instead of reading stdin");
   sub->add_option("--setup", a->setup, "Map, rig, odometry model and compass sigma of this dataset directory");
   sub->add_option("--map", a->map_path, "Map YAML (default: the MiroSot field); ignored with --from/--setup");
-  sub->add_option("--rig", a->rig_path, "Stereo rig YAML: the frontend's and pixel observations' calibration");
+  sub->add_option("--rig", a->rig_path,
+                  "Stereo rig YAML: the frontend's and pixel observations' calibration, also in place of the rig of "
+                  "--from/--setup; a rig --calibration-out wrote also hands over its wheel estimate and its standard "
+                  "deviations as the priors of --calibrate (see `localize --help`)")
+      ->check(CLI::ExistingFile);
   sub->add_option("--init", a->init, "Start: auto (known when a pose is given), known, global (first global fix)")
       ->capture_default_str()
       ->check(CLI::IsMember({"auto", "known", "global"}));
@@ -158,6 +175,9 @@ void add_stream_command(CLI::App& app) {
   sub->add_option("--calibrate", a->calibrate,
                   "Self-calibrate in the window: odometry (wheel scales, wheel base), stereo (head tilt, baseline "
                   "scale, pixel offsets, focal ratio; a pixel observation model) or odometry,stereo");
+  sub->add_option("--noise-model", a->noise_model,
+                  "YAML of the noise the rig and odometry do not state, for the window (see `localize --help`)")
+      ->check(CLI::ExistingFile);
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: after the input ends, write the rig YAML with the window's calibration estimate "
                   "and its standard deviations (usable as --rig)");

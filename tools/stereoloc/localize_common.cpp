@@ -31,9 +31,10 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
 }
 
 void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibration, const StereoRig& rig,
-                       const SelfCalibrationConfig& config, double nominal_wheel_base_mm) {
+                       const SelfCalibrationConfig& config, double nominal_wheel_base_mm,
+                       const CalibrationHandover& handover) {
   if (!calibration) return;
-  const CalibrationEstimate& c = *calibration;
+  const CalibrationEstimate c = handover.carriedOn(*calibration);
   if (!a.calibration_out.empty()) c.saveAsRig(a.calibration_out, rig);
   auto sd = [](double variance) { return std::sqrt(std::max(variance, 0.0)); };
   if (c.odometry)
@@ -47,7 +48,7 @@ void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibra
         rad2deg(c.head[0]), rad2deg(sd(c.head_covariance(0, 0))), c.head[1], sd(c.head_covariance(1, 1)), c.head[2],
         sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)),
         c.head[5], sd(c.head_covariance(5, 5)));
-  const PriorDistance far = furthestFromPrior(c, config, nominal_wheel_base_mm);
+  const PriorDistance far = furthestFromPrior(*calibration, config, nominal_wheel_base_mm);
   std::printf("calibration: furthest from the nominal calibration: %s, %.1f prior sigmas\n", far.parameter.c_str(), far.sigmas);
   if (far.sigmas > kImplausiblePriorSigmas)
     std::printf("calibration: warning: beyond %.0f prior sigmas, a failed solve (data association, a false kidnap cut) or a "
@@ -55,16 +56,32 @@ void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibra
                 kImplausiblePriorSigmas);
 }
 
+Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHandover& handover) {
+  if (a.rig.empty()) return loadDatasetWithFrontend(a.dataset, a.frontend, a.frontend_landmarks, a.frontend_params, stdout);
+  const FrontendMode mode = frontendModeFromString(a.frontend);
+  Dataset d = loadDataset(a.dataset);
+  handover = useRig(d, a.rig, mode == FrontendMode::Images);
+  handover.applyPriors(o.calibration, o.noise);
+  if (mode == FrontendMode::Images) {
+    const ImageFrontendStats stats =
+        observeDatasetImages(d, a.dataset, imageFrontendOptions(a.frontend_landmarks, a.frontend_params));
+    std::printf("%s\n", frontendSummary(stats).c_str());
+  }
+  return d;
+}
+
 void runLocalize(const LocalizeArgs& a) {
-  const MethodOptions o = parseMethodOptions(a);
+  MethodOptions o = parseMethodOptions(a);
   parseMethodSpec(a.method, o.init);  // usage errors before reading data
-  const Dataset d = loadDatasetWithFrontend(a.dataset, a.frontend, a.frontend_landmarks, a.frontend_params, stdout);
+  CalibrationHandover handover;
+  const Dataset d = loadRunDataset(a, o, handover);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
   if (!a.calibration_out.empty() && !run.calibration)
     throw UsageError("--calibration-out: needs --calibrate with a smoother");
-  reportCalibration(a, run.calibration ? &*run.calibration : nullptr, d.rig, o.calibration, d.odometry.wheel_base_mm);
+  reportCalibration(a, run.calibration ? &*run.calibration : nullptr, d.rig, o.calibration, d.odometry.wheel_base_mm,
+                    handover);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);
   const TrajectoryMetrics m = trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth)));
@@ -130,6 +147,12 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--noise-model", a->noise_model,
                   "Batch and window: YAML of the noise the rig and odometry do not state (lens distortion estimate "
                   "error, camera vibration, wheel slip; data/noise_realistic.yaml, docs/realistic_world.md)");
+  sub->add_option("--rig", a->rig,
+                  "Stereo rig YAML in place of the dataset's, e.g. one --calibration-out wrote: its wheel estimate "
+                  "scales the wheel increments and sets the wheel base, its standard deviations are the priors of "
+                  "--calibrate (docs/realistic_world.md); a rig with other rectified cameras than the dataset's "
+                  "needs --frontend images")
+      ->check(CLI::ExistingFile);
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
                   "(usable as --rig)");

@@ -8,6 +8,7 @@
 
 #include "src/pipeline/frontend_source.h"
 #include "src/pipeline/methods.h"
+#include "src/pipeline/rig_handover.h"
 
 namespace stereoloc::cli {
 
@@ -23,6 +24,7 @@ struct LocalizeArgs {
   std::string calibrate;                      // "", "odometry", "stereo", "odometry,stereo"
   std::string calibration_out;                // rig YAML with the calibration estimate
   std::string noise_model;                    // UnmodelledNoise YAML (solvers/smoother_common.h)
+  std::string rig;                            // rig YAML in place of the dataset's (src/pipeline/rig_handover.h)
 
 };
 
@@ -31,9 +33,11 @@ void runLocalize(const LocalizeArgs& args);
 // throws UsageError.
 MethodOptions parseMethodOptions(const LocalizeArgs& args);
 // Writes --calibration-out and prints the estimate (calibration null: no --calibrate, and
-// --calibration-out is then a usage error).
+// --calibration-out is then a usage error): the run's, carried on from the calibration --rig
+// handed over (CalibrationHandover::carriedOn), and how far the run's own lies from its priors.
 void reportCalibration(const LocalizeArgs& args, const CalibrationEstimate* calibration, const StereoRig& rig,
-                       const SelfCalibrationConfig& config, double nominal_wheel_base_mm);
+                       const SelfCalibrationConfig& config, double nominal_wheel_base_mm,
+                       const CalibrationHandover& handover);
 // --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
 // Loads a dataset and, with --frontend images, replaces its observations by the frontend's on
@@ -41,6 +45,9 @@ void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landm
 // for stream, whose stdout is JSON Lines).
 Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& frontend, const std::string& landmarks,
                                 const std::string& params_path, std::FILE* log);
+// The dataset of localize and refine: loaded, on --rig's rig when given (useRig; `handover`
+// receives what the file hands over, and `options` its priors), then through the frontend.
+Dataset loadRunDataset(const LocalizeArgs& args, MethodOptions& options, CalibrationHandover& handover);
 // Adds the options; `method_option` false for refine (always the batch smoother).
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& args, bool method_option);
 

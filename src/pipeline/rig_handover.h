@@ -1,0 +1,23 @@
+#pragma once
+// A run on a rig of its user's choosing (`localize --rig`, `refine --rig`, `stream --rig`), such
+// as the one an earlier run's self-calibration wrote (`--calibration-out`): the rig replaces the
+// dataset's, and the calibration the file hands over (CalibrationHandover,
+// solvers/self_calibration.h) goes with it: the wheel estimate onto the odometry, its standard
+// deviations as the priors of a further self-calibration (CalibrationHandover::applyPriors).
+#include <string>
+
+#include "solvers/self_calibration.h"
+#include "src/io/dataset.h"
+
+namespace stereoloc {
+
+// Replaces `dataset`'s rig by the rig at `rig_path` and applies the wheel estimate the file hands
+// over (applyWheelCalibration); returns the handover. With `images_measured_again` the caller
+// runs the frontend on the dataset's images with the new rig afterwards. Otherwise the dataset's
+// pixel observations, rectified with its own rig, are kept: they stay valid only where both
+// rigs have the same rectified cameras (image size, focal length, principal point, baseline), and
+// are then triangulated again with the new rig's mounting; a rig whose rectified cameras differ
+// throws Error naming the file. Errors of the file itself name the file and the key.
+CalibrationHandover useRig(Dataset& dataset, const std::string& rig_path, bool images_measured_again);
+
+}  // namespace stereoloc
