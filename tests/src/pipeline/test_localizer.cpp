@@ -146,6 +146,33 @@ TEST(Localizer, StepsGiveTheEstimatesOfTheWindowFedDirectly) {
   EXPECT_THROW(whole.addOdometry(1000, 0, 1, 1), Error);  // after the end
 }
 
+// A wheel calibration handed over from an earlier run scales the raw increments as they come
+// in: the same estimates as the window fed the scaled steps, through either entry.
+TEST(Localizer, WheelScalesApplyToTheIncomingIncrements) {
+  SyntheticProblemOptions o;
+  o.steps = 60;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 8);
+  LocalizerConfig config = windowConfig(p);
+  config.wheel_scales = Eigen::Vector2d(1.03, 0.98);
+  Localizer scaled(config), by_odometry(config);
+  SlidingWindowConfig wc = config.window;
+  wc.init = config.init;
+  SlidingWindowSmoother direct(p.map, p.odometry, wc);
+  for (const Step& s : p.steps) {
+    Step t = s;
+    t.d_left *= 1.03;
+    t.d_right *= 0.98;
+    const Estimate ref = direct.process(t);
+    scaled.addStep(s);
+    expectSame(scaled.estimate(), ref);
+    by_odometry.addOdometry(s.step, s.t, s.d_left, s.d_right);
+    if (!s.observations.empty()) by_odometry.addObservations(s.step, s.observations);
+    expectSame(by_odometry.estimate(), ref);
+  }
+  config.wheel_scales = Eigen::Vector2d(1.0, 0.0);
+  EXPECT_THROW(Localizer bad(config), Error);
+}
+
 TEST(Localizer, LateObservationsAreInsertedOrTooLate) {
   SyntheticProblemOptions o;
   o.steps = 80;

@@ -1,0 +1,150 @@
+// A calibration handed from one run to the next (`--calibration-out`, then `--rig`): one robot
+// of the realistic world (the same seed draws the same calibration errors in every scenario)
+// self-calibrates on one drive, and the next drive runs on the calibrated rig and wheels, in
+// localize and in the real-time stream.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <map>
+#include <sstream>
+#include <string>
+
+#include "cli_util.h"
+#include "src/core/yaml_util.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+double rmseOf(const std::string& output) {
+  const size_t at = output.find("position RMSE ");
+  if (at == std::string::npos) return NAN;
+  return std::stod(output.substr(at + 14));
+}
+
+// Every JSON line of a stream's output without its compute time (the only field that may differ).
+std::string withoutTimes(const std::string& output) {
+  std::stringstream in(output), out;
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("{\"step\":", 0) != 0) continue;
+    const size_t t = line.find(",\"compute_ms\":");
+    if (t != std::string::npos) line.erase(t, line.find_first_of(",}", t + 1) - t);
+    out << line << "\n";
+  }
+  return out.str();
+}
+
+class RigHandover : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new test::TempDir("rig_handover");
+    for (const char* scenario : {"line", "circle"}) {
+      const test::CliRun r = test::runCli(std::string("simulate --scenario ") + scenario +
+                                          " --seed 5 --profile realistic --images --out " + dir_->file(scenario));
+      ASSERT_EQ(r.exit_code, 0) << r.output;
+    }
+    const test::CliRun r = test::runCli("refine " + dir_->file("line") +
+                                        " --frontend images --calibrate odometry,stereo --noise-model " + noise() +
+                                        " --calibration-out " + rig() + " --out " + dir_->file("line.csv"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    dir_ = nullptr;
+  }
+  static std::string noise() { return std::string(STEREOLOC_DATA_DIR) + "/noise_realistic.yaml"; }
+  static std::string rig() { return dir_->file("calibrated.yaml"); }
+  static std::string circle() { return dir_->file("circle"); }
+  static std::string out() { return dir_->file("est.csv"); }
+  static test::TempDir* dir_;
+};
+test::TempDir* RigHandover::dir_ = nullptr;
+
+// The thesis's EKF, which does not self-calibrate, runs on the given calibration's range bias
+// without the handed-over rig.
+TEST_F(RigHandover, TheNextDriveRunsOnTheCalibratedRig) {
+  for (const char* method : {"ekf", "window"}) {
+    const test::CliRun given = test::runCli("localize " + circle() + " --method " + method +
+                                            " --frontend images --out " + out());
+    const test::CliRun handed = test::runCli("localize " + circle() + " --method " + method +
+                                             " --frontend images --rig " + rig() + " --out " + out());
+    ASSERT_EQ(given.exit_code, 0) << given.output;
+    ASSERT_EQ(handed.exit_code, 0) << handed.output;
+    EXPECT_LT(rmseOf(handed.output), 0.2 * rmseOf(given.output)) << method << "\n" << given.output << handed.output;
+  }
+  // The dataset's stored pixels were rectified with its own rig, not the calibrated one.
+  const test::CliRun pixels = test::runCli("localize " + circle() + " --method ekf --rig " + rig() + " --out " + out());
+  EXPECT_EQ(pixels.exit_code, 1) << pixels.output;
+  EXPECT_NE(pixels.output.find("--frontend images"), std::string::npos) << pixels.output;
+}
+
+// A further self-calibration starts from the handed-over estimate and its sigmas; the rig it
+// writes carries the wheels on in raw increments, within 3 sigma of the robot's true wheels.
+TEST_F(RigHandover, AFurtherCalibrationCarriesTheWheelsOn) {
+  const std::string next = dir_->file("next.yaml");
+  const test::CliRun r = test::runCli("localize " + circle() + " --method batch --frontend images --calibrate "
+                                      "odometry,stereo --noise-model " + noise() + " --rig " + rig() +
+                                      " --calibration-out " + next + " --out " + out());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const YamlReader errors(circle() + "/errors.yaml"), handed(rig()), written(next);
+  const cv::FileNode radius = errors.node()["wheel_radius_rel"];
+  const char* keys[2] = {"wheel_scale_left", "wheel_scale_right"};
+  for (int i = 0; i < 2; ++i) {
+    // The encoders read with the nominal radius: true travel = (1 + e) x reading.
+    const double truth = 1.0 + static_cast<double>(radius[i]);
+    const double sigma = written.getDouble(std::string(keys[i]) + "_sigma");
+    EXPECT_LT(std::fabs(written.getDouble(keys[i]) - truth), 3.0 * sigma) << keys[i];
+    EXPECT_LT(sigma, handed.getDouble(std::string(keys[i]) + "_sigma") * 1.0001) << keys[i];
+  }
+  EXPECT_LT(std::fabs(written.getDouble("wheel_base_mm") - 75.0 * (1.0 + errors.getDouble("wheel_base_rel"))),
+            3.0 * written.getDouble("wheel_base_sigma_mm"));
+}
+
+// The stream takes the raw increments a robot sends and scales them itself: the same estimates
+// as the replayed dataset, whose steps the handed-over wheels scaled on loading.
+TEST_F(RigHandover, TheStreamScalesTheRobotsIncrements) {
+  const std::string lines = dir_->file("steps.jsonl");
+  {
+    std::map<long, std::string> compass;  // step -> heading, as written (round trip exact)
+    std::ifstream compass_csv(circle() + "/compass.csv");
+    std::string row;
+    std::getline(compass_csv, row);  // header
+    while (std::getline(compass_csv, row)) {
+      const size_t a = row.find(','), b = row.find(',', a + 1);
+      compass[std::stol(row.substr(0, a))] = row.substr(b + 1);
+    }
+    std::ifstream odometry(circle() + "/odometry.csv");
+    std::ofstream out(lines);
+    std::getline(odometry, row);  // header
+    while (std::getline(odometry, row)) {
+      long step;
+      double t, dl, dr;
+      ASSERT_EQ(std::sscanf(row.c_str(), "%ld,%lf,%lf,%lf", &step, &t, &dl, &dr), 4) << row;
+      char buf[512];
+      std::snprintf(buf, sizeof buf,
+                    "{\"step\":%ld,\"t\":%.17g,\"d_left\":%.17g,\"d_right\":%.17g,\"left\":\"%s/images/left_%06ld.png\","
+                    "\"right\":\"%s/images/right_%06ld.png\"",
+                    step, t, dl, dr, circle().c_str(), step, circle().c_str(), step);
+      out << buf;
+      if (compass.count(step)) out << ",\"compass\":" << compass[step];
+      out << "}\n";
+    }
+  }
+  const std::string common = " --rig " + rig() + " --calibrate odometry,stereo --noise-model " + noise();
+  const test::CliRun replayed = test::runCli("stream --from " + circle() + " --frontend images" + common);
+  const test::CliRun live = test::runCli("stream --setup " + circle() + common, lines);
+  ASSERT_EQ(replayed.exit_code, 0) << replayed.output;
+  ASSERT_EQ(live.exit_code, 0) << live.output;
+  EXPECT_FALSE(withoutTimes(live.output).empty());
+  EXPECT_EQ(withoutTimes(replayed.output), withoutTimes(live.output));
+  // A rig that cannot be read is an error naming it, with a dataset too.
+  const test::CliRun bad = test::runCli("stream --setup " + circle() + " --rig " + circle() + "/odometry.csv", lines);
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.output.find("odometry.csv"), std::string::npos) << bad.output;
+}
+
+}  // namespace
+}  // namespace stereoloc
