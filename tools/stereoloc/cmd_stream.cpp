@@ -165,7 +165,7 @@ void add_stream_command(CLI::App& app) {
       ->expected(3)
       ->capture_default_str();
   sub->add_option("--compass-sigma", a->compass_sigma, "Compass sigma (rad) for lines without compass_sigma");
-  sub->add_option("--wheel-base", a->wheel_base, "Wheel base (mm); ignored with --from/--setup")->capture_default_str();
+  sub->add_option("--wheel-base", a->wheel_base, "Wheel base (mm); ignored with --from/--setup and with a --rig that hands over a wheel estimate")->capture_default_str();
   sub->add_option("--max-iterations", a->max_iterations, "Solver iterations per step")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
