@@ -198,6 +198,13 @@ TEST(CliLocalize, SmoothersSelfCalibrateAndWriteARigBack) {
   const test::CliRun again = test::runCli("localize " + dir.file("d") + " --method ekf --out " + dir.file("ekf.csv"));
   EXPECT_EQ(again.exit_code, 0) << again.output;
   EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method ekf --calibrate odometry --out " + dir.file("x.csv")).exit_code, 2);
+  // Options only the smoothers use are refused for the others, not ignored.
+  const std::string noise = std::string(STEREOLOC_DATA_DIR) + "/noise_realistic.yaml";
+  for (const std::string& option : {"--noise-model " + noise, std::string("--pixel-sigma 1")}) {
+    const test::CliRun r = test::runCli("localize " + dir.file("d") + " --method pf " + option + " --out " + dir.file("x.csv"));
+    EXPECT_EQ(r.exit_code, 2) << option << ": " << r.output;
+    EXPECT_NE(r.output.find("only the smoothers"), std::string::npos) << r.output;
+  }
 }
 
 }  // namespace stereoloc

@@ -72,7 +72,10 @@ Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHando
 
 void runLocalize(const LocalizeArgs& a) {
   MethodOptions o = parseMethodOptions(a);
-  parseMethodSpec(a.method, o.init);  // usage errors before reading data
+  const std::string name = parseMethodSpec(a.method, o.init).first;  // usage errors before reading data
+  if (name != "batch" && name != "window" && (!a.noise_model.empty() || o.pixel_sigma > 0))
+    throw UsageError("--noise-model, --pixel-sigma: only the smoothers (batch, window) use them (method '" + a.method +
+                     "')");
   CalibrationHandover handover;
   const Dataset d = loadRunDataset(a, o, handover);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
@@ -140,12 +143,12 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "disparity and column offsets; needs a pixel observation model) or odometry,stereo, with priors "
                   "from the stated uncertainty");
   sub->add_option("--pixel-sigma", a->options.pixel_sigma,
-                  "Batch and window pixel models: pixel noise [px] replacing the observations' own (0: theirs); "
+                  "Batch and window pixel models (the other methods refuse it): pixel noise [px] replacing the observations' own (0: theirs); "
                   "about 1 px for the realistic error profile (docs/realistic_world.md)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   sub->add_option("--noise-model", a->noise_model,
-                  "Batch and window: YAML of the noise the rig and odometry do not state (lens distortion estimate "
+                  "Batch and window (the other methods refuse it): YAML of the noise the rig and odometry do not state (lens distortion estimate "
                   "error, camera vibration, wheel slip; data/noise_realistic.yaml, docs/realistic_world.md)");
   sub->add_option("--rig", a->rig,
                   "Stereo rig YAML in place of the dataset's, e.g. one --calibration-out wrote: its wheel estimate "
