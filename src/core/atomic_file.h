@@ -1,6 +1,8 @@
 #pragma once
 // Outputs are written to a temporary file beside the target and renamed into place, so an
-// interrupted run never leaves a truncated file under the final name.
+// interrupted run never leaves a truncated file under the final name. A target that is a device
+// or a pipe (/dev/null, /dev/stdout, a FIFO) is written in place, since a file renamed over it
+// would replace it; through a symbolic link the file it points to is replaced, not the link.
 #include <fstream>
 #include <string>
 
@@ -24,9 +26,10 @@ class AtomicOutputFile {
   const std::string& path() const { return path_; }
 
  private:
-  std::string path_, tmp_;
+  std::string path_, target_, tmp_;  // target_: path_ or the file a symbolic link points to
   std::ofstream out_;
   bool committed_ = false;
+  bool in_place_ = false;  // a device or a pipe: no temporary
 };
 
 }  // namespace stereoloc
