@@ -81,6 +81,17 @@ TEST_F(RigHandover, TheNextDriveRunsOnTheCalibratedRig) {
   EXPECT_NE(pixels.output.find("--frontend images"), std::string::npos) << pixels.output;
 }
 
+// selfcheck shows what a rig file hands over.
+TEST_F(RigHandover, SelfcheckShowsWhatTheFileHandsOver) {
+  const test::CliRun r = test::runCli("selfcheck --samples 10 --rig " + rig());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const char* line : {"hands over: wheel scales", "hands over: head priors", "hands over: row offset prior"})
+    EXPECT_NE(r.output.find(line), std::string::npos) << line << "\n" << r.output;
+  const test::CliRun plain = test::runCli("selfcheck --samples 10 --rig " + circle() + "/rig.yaml");
+  ASSERT_EQ(plain.exit_code, 0) << plain.output;
+  EXPECT_EQ(plain.output.find("hands over"), std::string::npos) << plain.output;
+}
+
 // A further self-calibration starts from the handed-over estimate and its sigmas; the rig it
 // writes carries the wheels on in raw increments, within 3 sigma of the robot's true wheels.
 TEST_F(RigHandover, AFurtherCalibrationCarriesTheWheelsOn) {

@@ -9,6 +9,7 @@
 #include "src/core/measurement_model.h"
 #include "src/core/numeric_diff.h"
 #include "src/core/odometry_model.h"
+#include "solvers/self_calibration.h"
 #include "src/core/stereo_rig.h"
 #include "tools/stereoloc/cli_common.h"
 
@@ -27,6 +28,20 @@ bool report(const char* what, double value, double limit, const char* unit) {
   return ok;
 }
 
+// What a rig written by --calibration-out hands to a run (`--rig`).
+void printHandover(const CalibrationHandover& h) {
+  if (h.wheels)
+    std::printf("hands over: wheel scales %.5f +- %.5f, %.5f +- %.5f, wheel base %.2f +- %.2f mm\n", (*h.wheels)[0],
+                (*h.wheel_sigmas)[0], (*h.wheels)[1], (*h.wheel_sigmas)[1], (*h.wheels)[2], (*h.wheel_sigmas)[2]);
+  if (h.head_sigmas) {
+    const CalibrationEstimate::StereoVector& s = *h.head_sigmas;
+    std::printf("hands over: head priors tilt %.3f deg, baseline scale %.5f, disparity offset %.2f px, column offset "
+                "%.2f px, focal ratio %.5f, focal scale %.5f\n",
+                rad2deg(s[0]), s[1], s[2], s[3], s[4], s[5]);
+  }
+  if (h.row_offset_sigma_px) std::printf("hands over: row offset prior %.2f px\n", *h.row_offset_sigma_px);
+}
+
 void runSelfcheck(const SelfcheckOptions& o) {
   const FieldMap map = o.map_path.empty() ? FieldMap::miroSot() : FieldMap::load(o.map_path);
   const StereoRig rig = o.rig_path.empty() ? StereoRig() : StereoRig::load(o.rig_path);
@@ -40,9 +55,10 @@ void runSelfcheck(const SelfcheckOptions& o) {
   }
   for (const auto& [type, c] : per_type) std::printf("  %-14s %3d (%d globally unique)\n", type.c_str(), c.first, c.second);
   const StereoRigParams& p = rig.params();
-  std::printf("rig: %dx%d px, f = %.2f px, principal point (%.1f, %.1f), baseline %.1f mm, height %.1f mm\n",
+  std::printf("rig: %dx%d px, f = %.2f px, principal point (%.1f, %.1f), baseline %.1f mm, height %.1f mm, tilt %.3f deg\n",
               p.image_width, p.image_height, rig.focal(), rig.principalU(), rig.principalV(), p.baseline_mm,
-              p.camera_height_mm);
+              p.camera_height_mm, rad2deg(p.tilt_rad));
+  if (!o.rig_path.empty()) printHandover(CalibrationHandover::load(o.rig_path));
 
   std::mt19937_64 rng(o.seed);
   std::uniform_real_distribution<double> U(-1.0, 1.0);
