@@ -67,8 +67,11 @@ test-valgrind: build
 	@for m in window batch; do \
 	  echo "valgrind: localize --method $$m --frontend images --calibrate odometry,stereo"; \
 	  $(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method $$m --frontend images \
-	    --calibrate odometry,stereo --out $(VG_DIR)/$$m-calib.csv >/dev/null || exit 1; \
+	    --calibrate odometry,stereo --calibration-out $(VG_DIR)/$$m-rig.yaml --out $(VG_DIR)/$$m-calib.csv >/dev/null || exit 1; \
 	done
+	@echo "valgrind: localize --method ekf --frontend images --rig (the calibrated rig)"
+	@$(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method ekf --frontend images \
+	  --rig $(VG_DIR)/batch-rig.yaml --out $(VG_DIR)/ekf-rig.csv >/dev/null
 	@echo "valgrind: no errors"
 
 bench: build
