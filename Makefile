@@ -52,7 +52,8 @@ test-asan: deps
 # catches reads of uninitialised memory, which ASan does not (a batch-smoother bug of that kind
 # once made a result depend on the heap). A few minutes; not part of `make test`.
 VG_DIR := $(BUILD)/valgrind
-VALGRIND := valgrind --error-exitcode=9 --track-origins=yes --leak-check=full --errors-for-leak-kinds=definite -q
+VALGRIND := valgrind --error-exitcode=9 --track-origins=yes --leak-check=full --errors-for-leak-kinds=definite -q \
+  --suppressions=tests/valgrind.supp
 test-valgrind: build
 	@dpkg-query -W -f='$${Status}\n' valgrind 2>/dev/null | grep -q '^install ok installed$$' || \
 	  { $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq --no-install-recommends valgrind >/dev/null; }
