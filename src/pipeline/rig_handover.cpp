@@ -41,8 +41,9 @@ CalibrationHandover useRig(Dataset& d, const std::string& rig_path, bool images_
     if (pixels) {
       const std::string why = rectifiedDifference(d.rig, rig);
       if (!why.empty())
-        throw Error(rig_path + ": " + why + ": the dataset's pixel observations were rectified with its own rig; "
-                    "measure its images again with this one (--frontend images)");
+        throw Error(rig_path + ": " + why + ": the dataset's pixel observations were rectified with its own rig; " +
+                    (d.has_images ? "measure its images again with this one (--frontend images)"
+                                  : "it has no images to measure again with this one"));
       for (Step& s : d.steps) {
         for (Observation& o : s.observations) {
           if (!o.pixels) continue;

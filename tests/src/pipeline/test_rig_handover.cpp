@@ -77,8 +77,16 @@ TEST(RigHandover, OtherRectifiedCamerasNeedTheImagesMeasuredAgain) {
     const std::string m = e.what();
     EXPECT_NE(m.find(dir.file("other.yaml")), std::string::npos) << m;
     EXPECT_NE(m.find("focal length"), std::string::npos) << m;
-    EXPECT_NE(m.find("--frontend images"), std::string::npos) << m;
+    EXPECT_NE(m.find("no images"), std::string::npos) << m;  // a simulation without images
   }
+  d.has_images = true;
+  try {
+    useRig(d, dir.file("other.yaml"), false);
+    ADD_FAILURE() << "pixels of one rig were taken as pixels of another";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("--frontend images"), std::string::npos) << e.what();
+  }
+  d.has_images = false;
   EXPECT_EQ(d.rig.focal(), original.rig.focal());  // unchanged after the refusal
   // The caller measures the images again: the rig is taken, the old pixels left to be replaced.
   const CalibrationHandover h = useRig(d, dir.file("other.yaml"), true);
