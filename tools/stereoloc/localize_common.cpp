@@ -57,11 +57,12 @@ void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibra
 }
 
 Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHandover& handover) {
-  if (a.rig.empty()) return loadDatasetWithFrontend(a.dataset, a.frontend, a.frontend_landmarks, a.frontend_params, stdout);
   const FrontendMode mode = frontendModeFromString(a.frontend);
   Dataset d = loadDataset(a.dataset);
-  handover = useRig(d, a.rig, mode == FrontendMode::Images);
-  handover.applyPriors(o.calibration, o.noise);
+  if (!a.rig.empty()) {
+    handover = useRig(d, a.rig, mode == FrontendMode::Images);
+    handover.applyPriors(o.calibration, o.noise);
+  }
   if (mode == FrontendMode::Images) {
     const ImageFrontendStats stats =
         observeDatasetImages(d, a.dataset, imageFrontendOptions(a.frontend_landmarks, a.frontend_params));
@@ -106,16 +107,6 @@ void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landm
       ->check(CLI::IsMember({"all", "goal_corners"}));
   sub->add_option("--frontend-params", params_path, "With --frontend images: frontend parameters YAML (default: built-in)")
       ->check(CLI::ExistingFile);
-}
-
-Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& frontend, const std::string& landmarks,
-                                const std::string& params_path, std::FILE* log) {
-  const FrontendMode mode = frontendModeFromString(frontend);
-  if (mode == FrontendMode::Pixels) return loadDataset(dir);
-  ImageFrontendStats stats;
-  Dataset d = loadDatasetWithFrontend(dir, mode, imageFrontendOptions(landmarks, params_path), &stats);
-  std::fprintf(log, "%s\n", frontendSummary(stats).c_str());
-  return d;
 }
 
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, bool method_option) {

@@ -40,13 +40,9 @@ void reportCalibration(const LocalizeArgs& args, const CalibrationEstimate* cali
                        const CalibrationHandover& handover);
 // --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
-// Loads a dataset and, with --frontend images, replaces its observations by the frontend's on
-// its images; prints a one-line summary of the frontend to `log` (stdout for localize, stderr
-// for stream, whose stdout is JSON Lines).
-Dataset loadDatasetWithFrontend(const std::string& dir, const std::string& frontend, const std::string& landmarks,
-                                const std::string& params_path, std::FILE* log);
 // The dataset of localize and refine: loaded, on --rig's rig when given (useRig; `handover`
-// receives what the file hands over, and `options` its priors), then through the frontend.
+// receives what the file hands over, and `options` its priors), then with --frontend images
+// the frontend's observations in place of its own (a one-line summary on stdout).
 Dataset loadRunDataset(const LocalizeArgs& args, MethodOptions& options, CalibrationHandover& handover);
 // Adds the options; `method_option` false for refine (always the batch smoother).
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& args, bool method_option);
