@@ -4,10 +4,14 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <optional>
 #include <string>
 #include <utility>
 
+#include "factors/stereo_pixel_calibration_factor.h"
+#include "factors/stereo_pixel_row_calibration_factor.h"
+#include "solvers/calibrated_models.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
 #include "src/core/measurement_model.h"
@@ -25,6 +29,10 @@ void checkObservation(const Step& step, size_t index, const Observation& obs) {
 
 double spreadOf(const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0, 0), P(1, 1))); }
 
+// Gauss-Newton iterations of the self-calibrating update (Ekf::fuseCalibrated); it stops earlier
+// when no component moves more than EkfConfig::iteration_tolerance, typically after 2-4.
+constexpr int kJointUpdateIterations = 10;
+
 }  // namespace
 
 Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
@@ -40,6 +48,21 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
   iteration_.max_iterations = config_.max_iterations;
   iteration_.tolerance = config_.iteration_tolerance;
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
+  const SelfCalibrationConfig& cal = config_.calibration;
+  if (cal.odometry || cal.stereo) {
+    cal.validate();
+    if (config_.max_iterations > 1) throw Error("ekf: the iterated update (max_iterations > 1) does not self-calibrate");
+    int n = 3;
+    wheels_[2] = odometry_.wheel_base_mm;
+    if (cal.odometry) wheels_at_ = std::exchange(n, n + 3);
+    if (cal.stereo) head_at_ = std::exchange(n, n + 6);
+    const std::optional<double> row_sigma = rowOffsetSigma(cal, config_.observation_model.unmodelled);
+    if (row_sigma) row_at_ = std::exchange(n, n + 1);
+    joint_ = Eigen::MatrixXd::Zero(n, n);
+    if (row_sigma) joint_(row_at_, row_at_) = *row_sigma * *row_sigma;
+    if (cal.odometry) joint_.diagonal().segment<3>(wheels_at_) = wheelPriorSigma(cal, wheels_[2]).cwiseAbs2();
+    if (cal.stereo) joint_.diagonal().segment<6>(head_at_) = stereoPriorSigma(cal).cwiseAbs2();
+  }
   if (config_.init.mode != InitMode::Global) {
     if (!config_.init.pose.isFinite() || !config_.init.covariance.allFinite())
       throw Error("ekf: initial belief is not finite");
@@ -48,14 +71,24 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
 }
 
 void Ekf::reset(const Pose2& pose, const Eigen::Matrix3d& covariance) {
-  pose_ = pose;
-  P_ = 0.5 * (covariance + covariance.transpose());
+  setPoseBelief(pose, covariance);
   initialised_ = true;
   lost_ = false;
   gate_.reset();
 }
 
+void Ekf::setPoseBelief(const Pose2& pose, const Eigen::Matrix3d& covariance) {
+  pose_ = pose;
+  P_ = 0.5 * (covariance + covariance.transpose());
+  if (!calibrating()) return;
+  const Eigen::Index n = joint_.rows();
+  joint_.topLeftCorner<3, 3>() = P_;
+  joint_.topRightCorner(3, n - 3).setZero();
+  joint_.bottomLeftCorner(n - 3, 3).setZero();
+}
+
 void Ekf::predict(double d_left, double d_right) {
+  if (calibrating()) return predictCalibrated(d_left, d_right);
   const PosePrediction pred = predictPose(pose_, P_, d_left, d_right, odometry_);  // (5.7), (5.9)
   pose_ = pred.pose;
   P_ = pred.covariance;
@@ -70,6 +103,7 @@ EkfUpdateRecord Ekf::updateCompass(double heading, double sigma) {
 }
 
 EkfUpdateRecord Ekf::fuseRangeBearing(const Observation& obs, const Eigen::Vector2d& landmark, bool gated, bool fuse) {
+  if (calibrating()) return fuseCalibrated(obs, landmarkOf(obs, landmark), gated, fuse);
   EkfUpdateRecord rec;
   rec.landmark_id = obs.landmark_id;
   rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
@@ -100,6 +134,13 @@ EkfUpdateRecord Ekf::fuseCompass(double heading, double sigma, bool gated, bool 
   rec.innovation_covariance(0, 0) = S;
   rec.mahalanobis_squared = nu * nu / S;
   if (!fuse || (gated && !(rec.mahalanobis_squared <= compass_threshold_))) return rec;
+  if (calibrating()) {
+    Eigen::MatrixXd H = Eigen::MatrixXd::Zero(1, joint_.rows());
+    H(0, 2) = 1.0;
+    applyJointUpdate(joint_.col(2) / S, Eigen::VectorXd::Constant(1, nu), H, Eigen::MatrixXd::Constant(1, 1, sigma * sigma));
+    rec.accepted = true;
+    return rec;
+  }
   const Eigen::Vector3d K = P_.col(2) / S;  // (5.19) with H = [0 0 1]
   pose_ = plus(pose_, K * nu);
   Eigen::Matrix3d IKH = Eigen::Matrix3d::Identity();
@@ -149,12 +190,14 @@ std::vector<EkfUpdateRecord> Ekf::fuseStep(const Step& step, bool wide, const st
     } else if (config_.association.exclusive && config_.association.joint) {
       // All unidentified sightings of the step jointly, once, at the belief after the identified ones.
       if (joint_ids.empty()) {
-        for (const Observation& o : associateObservations(step.observations, pose_, P_, map_, config_.association))
+        std::vector<Observation> views;
+        for (const Observation& o : step.observations) views.push_back(associationView(o));
+        for (const Observation& o : associateObservations(views, pose_, P_, map_, config_.association))
           joint_ids.push_back(o.landmark_id);
       }
       if (joint_ids[i] >= 0) lm = &map_.at(joint_ids[i]);
     } else {
-      const AssociationResult a = associate(obs, pose_, P_, map_, config_.association,
+      const AssociationResult a = associate(associationView(obs), pose_, P_, map_, config_.association,
                                             config_.association.exclusive ? used : std::vector<int>{});
       if (a.landmark_id >= 0) {
         lm = &map_.at(a.landmark_id);
@@ -219,8 +262,7 @@ std::optional<EstimateStatus> Ekf::startFromWideBelief(const Step& step, bool fi
     bank_.process(step, first);
     if (!bank_.empty()) {
       const PoseFix m = bank_.mixture();
-      pose_ = m.pose;
-      P_ = m.covariance;
+      setPoseBelief(m.pose, m.covariance);
       if (spreadOf(P_) > config_.handover_sigma_mm)
         return step.observations.empty() ? EstimateStatus::Predicted : EstimateStatus::Tracking;
       bank_.clear();  // one mode left: the filter goes on from it
@@ -244,14 +286,29 @@ std::optional<EstimateStatus> Ekf::startFromWideBelief(const Step& step, bool fi
 std::vector<EkfUpdateRecord> Ekf::fuseJointlyGated(const Step& step, bool wide) {
   const Pose2 predicted = pose_;
   const Eigen::Matrix3d predicted_covariance = P_;
+  const Eigen::Vector3d predicted_wheels = wheels_;
+  const CalibrationEstimate::StereoVector predicted_head = head_;
+  const double predicted_row = row_;
+  const Eigen::MatrixXd predicted_joint = joint_;
   std::vector<bool> excluded(step.observations.size() + 1, false);  // the last: the compass
   for (;;) {
     pose_ = predicted;
     P_ = predicted_covariance;
+    wheels_ = predicted_wheels;
+    head_ = predicted_head;
+    row_ = predicted_row;
+    joint_ = predicted_joint;
     double e2 = 0.0;
     int dof = 0;
     std::vector<EkfUpdateRecord> recs = fuseStep(step, wide, excluded, &e2, &dof);
     if (!config_.gate_enabled || dof == 0 || e2 <= jointThreshold(dof)) return recs;
+    if (calibrating()) {  // leastCompatible reads the joint state: back to the prediction first
+      pose_ = predicted;
+      wheels_ = predicted_wheels;
+      head_ = predicted_head;
+      row_ = predicted_row;
+      joint_ = predicted_joint;
+    }
     excluded[leastCompatible(step, recs, predicted, predicted_covariance)] = true;
   }
 }
@@ -272,9 +329,14 @@ size_t Ekf::leastCompatible(const Step& step, const std::vector<EkfUpdateRecord>
     } else {
       index = static_cast<size_t>(r.observation_index);
       const Observation& o = step.observations[index];
-      const auto g =
-          rangeBearingInnovationAt(predicted, predicted_covariance, o.z(), o.covariance, map_.at(r.landmark_id).xy());
-      e2p = g ? g->mahalanobis_squared : std::numeric_limits<double>::infinity();
+      if (calibrating()) {
+        const std::optional<JointInnovation> g = jointInnovation(o, map_.at(r.landmark_id));
+        e2p = g ? g->e2 : std::numeric_limits<double>::infinity();
+      } else {
+        const auto g =
+            rangeBearingInnovationAt(predicted, predicted_covariance, o.z(), o.covariance, map_.at(r.landmark_id).xy());
+        e2p = g ? g->mahalanobis_squared : std::numeric_limits<double>::infinity();
+      }
     }
     if (e2p > worst) {
       worst = e2p;
@@ -321,6 +383,209 @@ EstimateStatus Ekf::advance(const Step& step, bool first) {
   const bool wide = config_.handover_sigma_mm > 0 && spreadOf(P_) > config_.handover_sigma_mm;
   if (const std::optional<EstimateStatus> started = startFromWideBelief(step, first, wide)) return *started;
   return recordUpdates(step, fuseJointlyGated(step, wide));
+}
+
+// ---- Self-calibration (the header's "Self-calibration") ----
+
+void Ekf::predictCalibrated(double d_left, double d_right) {
+  const double slip = config_.observation_model.unmodelled.slip_rel_sigma;
+  const OdometryParams params = slip > 0 ? withSlip(odometry_, d_left, d_right, slip) : odometry_;
+  const Eigen::Vector3d u = controlVector(wheels_[0] * d_left, wheels_[1] * d_right, wheels_[2]);
+  Eigen::Matrix3d J1;
+  compose(pose_, Pose2(u.x(), u.y(), u.z()), &J1);  // (B.18)
+  Eigen::Matrix3d J_c = Eigen::Matrix3d::Zero();
+  // With C = 0 its covariance is the control's alone, J2 U J2^T (5.9).
+  const PosePrediction pred = predictCalibratedStep(pose_, Eigen::Matrix3d::Zero(), d_left, d_right, wheels_, params, &J_c);
+  const Eigen::Index n = joint_.rows();
+  Eigen::MatrixXd F = Eigen::MatrixXd::Identity(n, n);
+  F.topLeftCorner<3, 3>() = J1;
+  if (wheels_at_ >= 0) F.block<3, 3>(0, wheels_at_) = J_c;
+  Eigen::MatrixXd P = F * joint_ * F.transpose();
+  P.topLeftCorner<3, 3>() += pred.covariance;
+  joint_ = 0.5 * (P + P.transpose());
+  pose_ = pred.pose;
+  P_ = joint_.topLeftCorner<3, 3>();
+}
+
+Landmark Ekf::landmarkOf(const Observation& obs, const Eigen::Vector2d& xy) const {
+  const Landmark* lm = obs.landmark_id >= 0 ? map_.find(obs.landmark_id) : nullptr;
+  Landmark out = lm ? *lm : Landmark();
+  if (!lm) out.type = obs.type;  // updateRangeBearing with a landmark outside the map
+  out.position.head<2>() = xy;
+  return out;
+}
+
+Observation Ekf::slid(const Observation& obs) const {
+  Observation out = obs;
+  if (row_at_ >= 0 && out.pixels) out.pixels->u_right -= obs.slide_gain * row_;
+  return out;
+}
+
+Observation Ekf::associationView(const Observation& obs) const {
+  if (head_at_ < 0 || !obs.pixels) return obs;
+  Landmark kind;
+  kind.type = obs.type;
+  try {
+    Eigen::Matrix4d C = pixelCovarianceFor(obs, kind, config_.observation_model, row_at_ >= 0);
+    if (row_at_ >= 0) C(2, 2) += obs.slide_gain * obs.slide_gain * joint_(row_at_, row_at_);
+    return calibratedObservation(slid(obs), config_.observation_model.rig, head_, joint_.block<6, 6>(head_at_, head_at_), C);
+  } catch (const GeometryError&) {
+    return obs;  // the current q puts it behind the cameras: the update will not fuse it
+  }
+}
+
+std::optional<Ekf::JointInnovation> Ekf::pixelInnovation(const Observation& obs, const Landmark& landmark) const {
+  const ObservationModelConfig& m = config_.observation_model;
+  const Eigen::Matrix4d C_px = pixelCovarianceFor(obs, landmark, m, row_at_ >= 0);
+  using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  std::unique_ptr<ceres::CostFunction> f(
+      row_at_ >= 0 ? StereoPixelRowCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.slide_gain,
+                                                              obs.head_pan, C_px, PixelResiduals::Columns, nullptr)
+                   : StereoPixelCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.head_pan, C_px,
+                                                          PixelResiduals::Columns));
+  const double pose[3] = {pose_.x, pose_.y, pose_.theta};
+  std::vector<const double*> blocks = {pose, head_.data()};
+  if (row_at_ >= 0) blocks.push_back(&row_);
+  const int k = f->num_residuals();
+  Eigen::VectorXd r(k);
+  RowMajor J_pose(k, 3), J_q(k, 6), J_row(k, 1);
+  double* jacobians[3] = {J_pose.data(), J_q.data(), J_row.data()};
+  if (!f->Evaluate(blocks.data(), r.data(), jacobians) || !r.allFinite() || !J_pose.allFinite() || !J_q.allFinite() ||
+      (row_at_ >= 0 && !J_row.allFinite()))
+    return std::nullopt;
+  // The factor's residual is whitened, W (h(x) - z): the sighting is nu = -r with H = dr/dx and
+  // unit noise.
+  JointInnovation g;
+  g.nu = -r;
+  g.R = Eigen::MatrixXd::Identity(k, k);
+  g.H = Eigen::MatrixXd::Zero(k, joint_.rows());
+  g.H.leftCols<3>() = J_pose;
+  g.H.block(0, head_at_, k, 6) = J_q;
+  if (row_at_ >= 0) g.H.col(row_at_) = J_row.col(0);
+  return g;
+}
+
+std::optional<Ekf::JointInnovation> Ekf::jointInnovation(const Observation& obs, const Landmark& landmark) const {
+  std::optional<JointInnovation> found;
+  try {
+    if (head_at_ >= 0 && obs.pixels && config_.observation_model.model != ObservationModel::RangeBearing) {
+      found = pixelInnovation(obs, landmark);
+    } else if (head_at_ >= 0 && obs.pixels) {
+      // The EKF's H is the measurement's: d h / dx = -d nu / dx.
+      const CalibratedSighting c =
+          calibratedSighting(obs, config_.observation_model.rig, pose_, landmark.xy(), head_, row_);
+      const Eigen::Matrix4d C_px = pixelCovarianceFor(obs, landmark, config_.observation_model, row_at_ >= 0);
+      JointInnovation g;
+      g.nu = c.nu;
+      g.R = c.J_z_px * C_px * c.J_z_px.transpose();
+      g.H = Eigen::MatrixXd::Zero(2, joint_.rows());
+      g.H.leftCols<3>() = -c.J_nu_pose;
+      g.H.block<2, 6>(0, head_at_) = -c.J_nu_q;
+      if (row_at_ >= 0) g.H.col(row_at_) = -c.J_nu_row;
+      found = g;
+    } else {
+      Matrix23d H_p;
+      JointInnovation g;
+      g.nu = rangeBearingInnovation(obs.z(), predictRangeBearing(pose_, landmark.xy(), &H_p));  // (5.27)
+      g.R = obs.covariance;
+      g.H = Eigen::MatrixXd::Zero(2, joint_.rows());
+      g.H.leftCols<3>() = H_p;
+      found = g;
+    }
+  } catch (const GeometryError&) {
+    return std::nullopt;
+  }
+  if (!found) return std::nullopt;
+  JointInnovation& g = *found;
+  g.R = 0.5 * (g.R + g.R.transpose()).eval();
+  g.S = g.H * joint_ * g.H.transpose() + g.R;  // (5.14)
+  g.S = 0.5 * (g.S + g.S.transpose()).eval();
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(g.S);
+  if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0)) return std::nullopt;
+  g.e2 = g.nu.dot(ldlt.solve(g.nu));  // (5.20)
+  return found;
+}
+
+EkfUpdateRecord Ekf::fuseCalibrated(const Observation& obs, const Landmark& landmark, bool gated, bool fuse) {
+  EkfUpdateRecord rec;
+  rec.landmark_id = obs.landmark_id;
+  rec.mahalanobis_squared = std::numeric_limits<double>::infinity();
+  std::optional<JointInnovation> g = jointInnovation(obs, landmark);
+  if (!g) return rec;
+  rec.innovation = g->nu.head<2>();
+  rec.innovation_covariance = g->S.topLeftCorner<2, 2>();
+  rec.mahalanobis_squared = g->e2;
+  if (!fuse || (gated && !gate_.accepts(rec.mahalanobis_squared))) return rec;
+  // Iterated: Gauss-Newton on the prediction's prior and the sighting, relinearised at each
+  // iterate x_i (the iterated EKF's update on the joint state): x = x0 (+) K_i (nu_i + H_i (x_i [-] x0)),
+  // K_i = P0 H_i^T (H_i P0 H_i^T + R)^-1. One step (the plain EKF update) linearises the range's
+  // dependence on the baseline scale and the disparity offset at the prediction's calibration;
+  // where that is wrong, each early sighting biases the calibration, and the bias stays (on a
+  // 600-step run with planted errors the disparity offset ended 4 sigma off; iterated, within 1).
+  const Pose2 pose0 = pose_;
+  const Eigen::Vector3d wheels0 = wheels_;
+  const CalibrationEstimate::StereoVector head0 = head_;
+  const double row0 = row_;
+  const Eigen::Index n = joint_.rows();
+  Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
+  Eigen::MatrixXd K;
+  for (int it = 0;; ++it) {
+    K = joint_ * g->H.transpose() * g->S.inverse();  // (5.19)
+    const Eigen::VectorXd dx = K * (g->nu + g->H * delta);  // (5.15) at the iterate
+    if (!dx.allFinite()) break;
+    pose_ = plus(pose0, dx.head<3>());
+    if (wheels_at_ >= 0) wheels_ = wheels0 + dx.segment<3>(wheels_at_);
+    if (head_at_ >= 0) head_ = head0 + dx.segment<6>(head_at_);
+    if (row_at_ >= 0) row_ = row0 + dx(row_at_);
+    const double moved = (dx - delta).cwiseAbs().maxCoeff();
+    delta = dx;
+    if (it + 1 >= kJointUpdateIterations || moved <= config_.iteration_tolerance) break;
+    const std::optional<JointInnovation> next = jointInnovation(obs, landmark);
+    if (!next) break;  // the iterate cannot see the sighting: keep it with the last linearisation
+    g = next;
+  }
+  const Eigen::MatrixXd IKH = Eigen::MatrixXd::Identity(n, n) - K * g->H;
+  const Eigen::MatrixXd P = IKH * joint_ * IKH.transpose() + K * g->R * K.transpose();  // (5.17)
+  joint_ = 0.5 * (P + P.transpose());
+  P_ = joint_.topLeftCorner<3, 3>();
+  rec.accepted = true;
+  return rec;
+}
+
+void Ekf::applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,
+                           const Eigen::MatrixXd& R) {
+  const Eigen::VectorXd dx = K * nu;
+  if (!dx.allFinite()) return;
+  pose_ = plus(pose_, dx.head<3>());  // (5.15)
+  if (wheels_at_ >= 0) wheels_ += dx.segment<3>(wheels_at_);
+  if (head_at_ >= 0) head_ += dx.segment<6>(head_at_);
+  if (row_at_ >= 0) row_ += dx(row_at_);
+  const Eigen::Index n = joint_.rows();
+  const Eigen::MatrixXd IKH = Eigen::MatrixXd::Identity(n, n) - K * H;
+  const Eigen::MatrixXd P = IKH * joint_ * IKH.transpose() + K * R * K.transpose();  // (5.17)
+  joint_ = 0.5 * (P + P.transpose());
+  P_ = joint_.topLeftCorner<3, 3>();
+}
+
+std::optional<CalibrationEstimate> Ekf::calibration() const {
+  if (!calibrating()) return std::nullopt;
+  CalibrationEstimate e;
+  if (wheels_at_ >= 0) {
+    e.odometry = true;
+    e.wheels = wheels_;
+    e.wheels_covariance = joint_.block<3, 3>(wheels_at_, wheels_at_);
+  }
+  if (head_at_ >= 0) {
+    e.stereo = true;
+    e.head = head_;
+    e.head_covariance = joint_.block<6, 6>(head_at_, head_at_);
+  }
+  if (row_at_ >= 0) {
+    e.row = true;
+    e.row_offset_px = row_;
+    e.row_offset_variance = joint_(row_at_, row_at_);
+  }
+  return e;
 }
 
 }  // namespace stereoloc

@@ -33,12 +33,28 @@
 // (range to ~1 %, bearing to ~0.02 deg), and one step from a prior 30 mm off puts the
 // covariance's thin axis at the wrong angle. In the study's `line` scenario the first update
 // then gave NEES 1250-6400 at one step, and the filter stayed over-confident for tens of steps.
+//
+// Self-calibration (EkfConfig::calibration, the `ekf:calib` method; not in the thesis): the
+// wheel block c = (c_l, c_r, w) and the stereo block q of solvers/self_calibration.h become
+// states beside the pose, x = (p, c, q), with their priors' covariance and no process noise
+// (the calibration is constant for a run):
+//   prediction  p' = p (+) u(c_l d_l, c_r d_r, w),  F = [J1 J_p'_c 0; 0 I 0; 0 0 I],
+//               P' = F P F^T + diag(J2 U J2^T, 0, 0)   (solvers/calibrated_models.h)
+//   update      z(q) = calibratedRangeBearing(pixels, q), nu = z(q) [-] h(p),
+//               H = [H_p  0  -J_z_q],  R = J_z_px C_px J_z_px^T (C_px: pixelCovarianceFor)
+// and the same gate, Joseph form and joint gating as above. Observations without pixels keep
+// their own z and R (H_q = 0). The calibration is then estimated instead of taken as exact: the
+// given calibration's range bias no longer holds the filter off the truth, and the stated
+// covariance carries the calibration's uncertainty. Derivation: docs/estimators.md, "A
+// self-calibrating EKF".
 #include <Eigen/Core>
 #include <string>
 #include <optional>
 #include <vector>
 
 #include "solvers/global_fix_hypotheses.h"
+#include "solvers/self_calibration.h"
+#include "solvers/smoother_common.h"
 #include "solvers/data_association.h"
 #include "solvers/initialisation.h"
 #include "solvers/iterated_update.h"
@@ -82,6 +98,13 @@ struct EkfConfig {
   // Algorithm 5 as printed.
   int max_iterations = 1;
   double iteration_tolerance = 1e-6;  // mm and rad: stop when no component of the step moves more
+  // Self-calibration: the wheel and stereo blocks (odometry, stereo) with their prior sigmas;
+  // SelfCalibrationConfig's other options are the smoothers'. Needs max_iterations == 1.
+  SelfCalibrationConfig calibration;
+  // With calibration.stereo: the rig that took the pixels and their noise (pixelCovarianceFor,
+  // the marking terms as white noise); with calibration.odometry: unmodelled.slip_rel_sigma is
+  // added to the wheel noise. Unused without self-calibration.
+  ObservationModelConfig observation_model;
 };
 
 // What one update did: for the kidnap study's plots of the innovation and e^2 (Figs. 5.4, 5.5).
@@ -126,6 +149,9 @@ class Ekf : public Estimator {
   const ValidationGate& gate() const { return gate_; }
   // The updates of the last processed step, in order.
   const std::vector<EkfUpdateRecord>& lastUpdates() const { return updates_; }
+  // With EkfConfig::calibration: the calibration states and their marginal covariance now;
+  // nullopt without.
+  std::optional<CalibrationEstimate> calibration() const;
 
  private:
   // One observation's innovation at the current belief; fused if `fuse` and (unless `gated` is
@@ -156,6 +182,37 @@ class Ekf : public Estimator {
   bool tryGlobalFix(const Step& step);
   Estimate makeEstimate(const Step& step, EstimateStatus status) const;
 
+  // Self-calibration (EkfConfig::calibration).
+  bool calibrating() const { return joint_.rows() > 3; }
+  // Sets the pose belief; the calibration keeps its covariance, uncorrelated with the new pose.
+  void setPoseBelief(const Pose2& pose, const Eigen::Matrix3d& covariance);
+  void predictCalibrated(double d_left, double d_right);
+  // The range-bearing innovation of `obs` against `landmark` on the joint state: nu, S, H and R;
+  // nullopt when the bearing is undefined or the calibrated disparity is not positive.
+  struct JointInnovation {
+    Eigen::VectorXd nu;  // 2: range-bearing (mm, rad) or whitened pixel columns
+    Eigen::MatrixXd S, R;
+    Eigen::MatrixXd H;  // 2 x joint dimension
+    double e2 = 0.0;
+  };
+  std::optional<JointInnovation> jointInnovation(const Observation& obs, const Landmark& landmark) const;
+  // The stereo block's update in pixel space (the pixel columns u_l, u_r of
+  // factors/stereo_pixel_calibration_factor.h, whitened), where the noise is: no conversion bias
+  // for the calibration to absorb.
+  std::optional<JointInnovation> pixelInnovation(const Observation& obs, const Landmark& landmark) const;
+  EkfUpdateRecord fuseCalibrated(const Observation& obs, const Landmark& landmark, bool gated, bool fuse);
+  // x (+) K nu on the joint state with the Joseph form (5.17); H the measurement's, R its noise.
+  void applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,
+                        const Eigen::MatrixXd& R);
+  // What association sees: with the stereo block, the observation through the current q with
+  // q's uncertainty in R (calibratedObservation); the observation itself otherwise.
+  Observation associationView(const Observation& obs) const;
+  // With the row block: the observation with its right column's slide s dv taken out.
+  Observation slid(const Observation& obs) const;
+  // The map's landmark of obs.landmark_id at `xy` (its kind sets the pixel noise); for a landmark
+  // outside the map, one of the observation's kind.
+  Landmark landmarkOf(const Observation& obs, const Eigen::Vector2d& xy) const;
+
   FieldMap map_;  // a copy: the filter does not depend on the caller's lifetime
   OdometryParams odometry_;
   EkfConfig config_;
@@ -173,6 +230,14 @@ class Ekf : public Estimator {
   std::vector<Estimate> estimates_;
   HypothesisBank bank_;
   bool localised_ = false;  // the belief has been narrower than handover_sigma_mm once
+  // Self-calibration: the wheel, stereo and row states (nominal where not estimated), their offsets
+  // in the joint state (-1: not estimated) and the joint covariance of (pose, wheels, head, row); P_ is
+  // its pose block. Empty (0 x 0) without self-calibration.
+  Eigen::Vector3d wheels_ = Eigen::Vector3d(1, 1, 75);
+  CalibrationEstimate::StereoVector head_ = CalibrationEstimate().head;
+  double row_ = 0.0;  // the row block dv (px), with the stereo block when the noise model states it
+  int wheels_at_ = -1, head_at_ = -1, row_at_ = -1;
+  Eigen::MatrixXd joint_;
 };
 
 }  // namespace stereoloc

@@ -39,15 +39,6 @@ bool positiveDefinite(const Eigen::Matrix3d& C) {
 
 Pose2 poseOf(const std::array<double, 3>& x) { return Pose2(x[0], x[1], x[2]); }
 
-// The stereo block's prior standard deviations, in the order of
-// factors/stereo_pixel_calibration_factor.h.
-CalibrationEstimate::StereoVector stereoPriorSigma(const SelfCalibrationConfig& c) {
-  CalibrationEstimate::StereoVector s;
-  s << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
-      c.focal_ratio_sigma, c.focal_scale_sigma;
-  return s;
-}
-
 // accumulateNormalEquations (solvers/smoother_common.h) for blocks of any size: `pose` marks the
 // (x, y, theta) blocks, whose angle difference is wrapped; the others are Euclidean.
 bool accumulateBlocks(const ceres::CostFunction& cost, const std::vector<const double*>& current,
@@ -80,90 +71,7 @@ bool accumulateBlocks(const ceres::CostFunction& cost, const std::vector<const d
   return true;
 }
 
-// Range and bearing (3.6, 3.7) of the point that stereo calibration q puts at `px`: the model of
-// factors/stereo_pixel_calibration_factor.h solved for the point in C2,
-//   a = (y - k b/2) / x = -(u_l - o_u - delta_u - delta_d/2) / F,
-//   c = (y + k b/2) / x = -(u_r - o_u - delta_u + delta_d/2) / (F (1 + phi)),
-//   x = k b / (c - a),  y = x (a + c) / 2,  z = -x (v - o_v) / F  (v the rows' mean, F = f (1 + psi)),
-// then rotated by the tilt correction (C1 = R_tilt(beta) R_tilt(dbeta) C2) into the robot frame.
-// False when the corrected disparity is not positive.
-bool calibratedRangeBearing(const StereoRig& rig, const double* px, double pan, const double* q, Eigen::Vector2d* rb) {
-  const double F = rig.focal() * (1.0 + q[5]);
-  const double a = -(px[0] - rig.principalU() - q[3] - 0.5 * q[2]) / F;
-  const double c = -(px[2] - rig.principalU() - q[3] + 0.5 * q[2]) / (F * (1.0 + q[4]));
-  const double kb = q[1] * rig.params().baseline_mm;
-  if (!(c - a > 0) || !(kb > 0)) return false;
-  const double x = kb / (c - a);
-  const double y = 0.5 * x * (a + c);
-  const double z = -x * (0.5 * (px[1] + px[3]) - rig.principalV()) / F;
-  const double cb = std::cos(q[0]), sb = std::sin(q[0]);
-  const Eigen::Vector3d p = rig.visionToRobot(Eigen::Vector3d(cb * x + sb * z, y, -sb * x + cb * z), pan);
-  const double r = std::hypot(p.x(), p.y());
-  if (!(r > 1e-9) || !std::isfinite(r)) return false;
-  *rb = Eigen::Vector2d(r, std::atan2(p.y(), p.x()));
-  return true;
-}
-
 }  // namespace
-
-Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
-                                  const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px) {
-  if (!obs.pixels) throw Error("calibratedObservation: the observation has no pixels");
-  const StereoPixels& s = *obs.pixels;
-  double px[4] = {s.u_left, s.v_left, s.u_right, s.v_right};
-  CalibrationEstimate::StereoVector qq = q;
-  Eigen::Vector2d rb;
-  if (!calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &rb))
-    throw GeometryError("calibratedObservation: the calibrated disparity is not positive");
-  // Central differences; steps well inside each parameter's scale (px, rad, dimensionless).
-  auto column = [&](double* v, double h) {
-    const double v0 = *v;
-    Eigen::Vector2d plus_rb, minus_rb;
-    *v = v0 + h;
-    const bool ok_plus = calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &plus_rb);
-    *v = v0 - h;
-    const bool ok_minus = calibratedRangeBearing(rig, px, obs.head_pan, qq.data(), &minus_rb);
-    *v = v0;
-    if (!ok_plus || !ok_minus) throw GeometryError("calibratedObservation: the calibrated disparity is not positive");
-    Eigen::Vector2d d = plus_rb - minus_rb;
-    d(1) = angleDiff(plus_rb(1), minus_rb(1));
-    return Eigen::Vector2d(d / (2.0 * h));
-  };
-  Eigen::Matrix<double, 2, 4> J_px;
-  for (int i = 0; i < 4; ++i) J_px.col(i) = column(&px[i], 1e-4);
-  Eigen::Matrix<double, 2, 6> J_q;
-  const double steps[6] = {1e-7, 1e-7, 1e-4, 1e-4, 1e-7, 1e-7};
-  for (int i = 0; i < 6; ++i) J_q.col(i) = column(&qq[i], steps[i]);
-  Observation out = obs;
-  out.range = rb(0);
-  out.bearing = rb(1);
-  const Eigen::Matrix2d R = J_px * C_px * J_px.transpose() + J_q * Cq * J_q.transpose();
-  out.covariance = 0.5 * (R + R.transpose());
-  return out;
-}
-
-PosePrediction predictCalibratedStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right,
-                                     const Eigen::Vector3d& wheels, const OdometryParams& params, Eigen::Matrix3d* J_c) {
-  OdometryParams p = params;
-  p.wheel_base_mm = wheels[2];
-  const double dl = wheels[0] * d_left, dr = wheels[1] * d_right;
-  Matrix32d J_u;
-  const Eigen::Vector3d u = controlVector(dl, dr, p.wheel_base_mm, &J_u);  // (B.4)
-  Matrix3d J1, J2;
-  const Pose2 next = compose(rel, Pose2(u.x(), u.y(), u.z()), &J1, &J2);  // (B.16)-(B.19)
-  const Eigen::Matrix3d U = controlCovariance(dl, dr, p);
-  const Eigen::Matrix3d P = J1 * C * J1.transpose() + J2 * U * J2.transpose();  // (5.9)
-  if (J_c) {
-    // u depends on the scales through the scaled increments (B.8), and on w only through
-    // alpha = (d_r - d_l) / w (B.1): du/dalpha = (w / 2)(du/dd_r - du/dd_l) and dalpha/dw = -alpha / w.
-    Matrix3d D;
-    D.col(0) = J_u.col(0) * d_left;
-    D.col(1) = J_u.col(1) * d_right;
-    D.col(2) = -0.5 * u.z() * (J_u.col(1) - J_u.col(0));
-    *J_c = J1 * *J_c + J2 * D;
-  }
-  return PosePrediction{next, 0.5 * (P + P.transpose())};
-}
 
 std::string toString(WindowLinearisation l) {
   switch (l) {
@@ -244,7 +152,7 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   // Until the first solve, the calibration's covariance is its prior's (the gate reads it).
   calib_covariance_ = Eigen::MatrixXd::Zero(calibDim(), calibDim());
   if (cal.odometry) {
-    const Eigen::Vector3d sig(cal.wheel_scale_sigma, cal.wheel_scale_sigma, cal.wheel_base_rel_sigma * wheels_[2]);
+    const Eigen::Vector3d sig = wheelPriorSigma(cal, wheels_[2]);
     addFactor(CalibrationPriorFactor<3>::Create(wheels_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()),
               {}, false, {wheels_block_});
     calib_covariance_.diagonal().segment<3>(calibOffset(wheels_block_)) = sig.cwiseAbs2();

@@ -53,6 +53,7 @@
 #include <vector>
 
 #include "factors/pose_manifold.h"
+#include "solvers/calibrated_models.h"
 #include "solvers/initialisation.h"
 #include "solvers/self_calibration.h"
 #include "solvers/smoother_common.h"
@@ -150,27 +151,6 @@ struct SlidingWindowConfig {
 
   void validate() const;             // throws stereoloc::Error naming the field
 };
-
-// The observation as the cameras of stereo calibration q see it (q = (dbeta, k, delta_d, delta_u,
-// phi, psi), factors/stereo_pixel_calibration_factor.h, with covariance Cq): its pixels
-// triangulated through that factor's model inverted, so range and bearing are those of the point
-// the calibrated cameras put there, and R = J_px C_px J_px^T + J_q Cq J_q^T (Jacobians by central
-// differences), C_px the pixel covariance. At the nominal q with Cq = 0 it is
-// observationFromPixels. The window gates and associates these when it self-calibrates the
-// stereo head (docs/estimators.md, "Self-calibration"). Throws GeometryError when the corrected
-// disparity is not positive; `obs` must have pixels.
-Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
-                                  const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px);
-
-// One odometry step through the wheel calibration wheels = (c_l, c_r, w) (factors/
-// odometry_calibration_factor.h): rel (+) u(c_l d_left, c_r d_right, w) with the covariance of
-// (5.9) (U at the scaled increments, `params` giving its noise), and, when J_c is given, the chain
-// rule of (B.16)-(B.19) through the composition: on entry d rel / d wheels (3x3, columns c_l, c_r,
-// w), on return that of the result. With it a prediction can carry the calibration's uncertainty
-// (docs/estimators.md, "Self-calibration").
-PosePrediction predictCalibratedStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right,
-                                     const Eigen::Vector3d& wheels, const OdometryParams& params,
-                                     Eigen::Matrix3d* J_c = nullptr);
 
 // What insertLate did with the observations of an earlier step.
 enum class LateObservationStatus {

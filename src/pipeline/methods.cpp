@@ -125,6 +125,8 @@ void requirePixelModelForStereoCalibration(const MethodOptions& o) {
 
 }  // namespace
 
+bool selfCalibrates(const std::string& name) { return name == "batch" || name == "window" || name == "ekf"; }
+
 const std::vector<std::string>& methodNames() {
   static const std::vector<std::string> names = {"fix1", "fix2", "ekf", "iekf", "pf", "window", "batch", "deadreckoning"};
   return names;
@@ -152,8 +154,8 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, I
   bool known = false;
   for (const std::string& n : methodNames()) known |= n == name;
   if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
-  if (hasCalibrationSuffix(full_spec) && name != "batch" && name != "window")
-    throw UsageError("method '" + full_spec + "': only the smoothers (batch, window) self-calibrate");
+  if (hasCalibrationSuffix(full_spec) && !selfCalibrates(name))
+    throw UsageError("method '" + full_spec + "': only " + kSelfCalibratingText + " self-calibrate");
   InitMode init = default_init;
   if (colon != std::string::npos) {
     try {
@@ -226,8 +228,8 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   if (hasCalibrationSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
   std::mt19937_64 rng(seed);
   MethodRun run;
-  if ((o.calibration.odometry || o.calibration.stereo) && name != "batch" && name != "window")
-    throw UsageError("--calibrate: only the smoothers (batch, window) self-calibrate (method '" + spec + "')");
+  if ((o.calibration.odometry || o.calibration.stereo) && !selfCalibrates(name))
+    throw UsageError("--calibrate: only " + kSelfCalibratingText + " self-calibrate (method '" + spec + "')");
   if (name == "fix1" || name == "fix2") {
     run = runFixes(d, name == "fix1");
   } else if (name == "deadreckoning") {
@@ -237,8 +239,11 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     if (name == "iekf") c.max_iterations = kIekfIterations;
     c.init = beliefFor(init_mode, d, o, rng);
     c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
+    c.calibration = o.calibration;
+    c.observation_model = {o.observation_model, d.rig, o.pixel_sigma, o.noise};
     Ekf ekf(d.map, d.odometry, c);
     run = runEstimator(ekf, d);
+    run.calibration = ekf.calibration();
   } else if (name == "pf") {
     ParticleFilterConfig c;
     c.init = beliefFor(init_mode, d, o, rng);

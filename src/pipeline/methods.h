@@ -33,13 +33,13 @@ struct MethodOptions {
   ObservationModel observation_model = ObservationModel::PixelColumns;
   double loss_scale = 2.0;           // whitened units
   bool gate_enabled = true;          // ekf, window
-  // batch and window: self-calibration (solvers/self_calibration.h) when either part is on.
+  // batch, window and ekf: self-calibration (solvers/self_calibration.h) when either part is on.
   SelfCalibrationConfig calibration;
-  // Batch and window pixel models: px, > 0 replaces the observations' own pixel sigma (an
+  // Batch and window pixel models, the self-calibrating EKF's stereo update: px, > 0 replaces the observations' own pixel sigma (an
   // honest noise for a world with vibration and blur, docs/realistic_world.md); 0 keeps theirs.
   double pixel_sigma = 0.0;
-  // Batch and window: the errors the rig and odometry do not state (lens estimate, vibration:
-  // the pixel models; slip: the smoothers' odometry factors). Zero: none.
+  // Batch, window and the self-calibrating EKF: the errors the rig and odometry do not state
+  // (lens estimate, vibration: the pixel models; slip: the odometry's noise). Zero: none.
   UnmodelledNoise noise{};
 };
 
@@ -55,7 +55,7 @@ struct MethodRun {
   double ms_per_step = 0;            // wall-clock, mean over steps
   long attempted_steps = 0;          // fixes: steps with at least one observation
   long fixed_steps = 0;              // fixes: steps that gave a fix
-  std::optional<CalibrationEstimate> calibration;  // batch or window with MethodOptions::calibration
+  std::optional<CalibrationEstimate> calibration;  // batch, window or ekf with MethodOptions::calibration
 };
 
 // The names accepted before the optional ":init" ("iekf": the EKF with iterated updates), and
@@ -63,8 +63,15 @@ struct MethodRun {
 const std::vector<std::string>& methodNames();
 std::string methodNamesText();
 
-// A spec may end in ":calib" ("batch:calib", "window:known:calib"): the method with odometry and
-// stereo self-calibration (MethodOptions::calibration), for the studies' calibrated variants.
+// Whether the method `name` (without ":init") can self-calibrate (MethodOptions::calibration):
+// the smoothers and the EKF (solvers/ekf.h, "Self-calibration"); kSelfCalibratingText names them
+// for errors.
+bool selfCalibrates(const std::string& name);
+inline const std::string kSelfCalibratingText = "batch, window and ekf";
+
+// A spec may end in ":calib" ("batch:calib", "window:known:calib", "ekf:calib"): the method with
+// odometry and stereo self-calibration (MethodOptions::calibration), for the studies' calibrated
+// variants.
 bool hasCalibrationSuffix(const std::string& spec);
 std::string withoutCalibrationSuffix(const std::string& spec);
 

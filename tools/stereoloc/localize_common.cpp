@@ -74,16 +74,17 @@ Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHando
 void runLocalize(const LocalizeArgs& a) {
   MethodOptions o = parseMethodOptions(a);
   const std::string name = parseMethodSpec(a.method, o.init).first;  // usage errors before reading data
-  if (name != "batch" && name != "window" && (!a.noise_model.empty() || o.pixel_sigma > 0))
-    throw UsageError("--noise-model, --pixel-sigma: only the smoothers (batch, window) use them (method '" + a.method +
-                     "')");
+  const bool calibrating_ekf = name == "ekf" && (o.calibration.odometry || o.calibration.stereo || hasCalibrationSuffix(a.method));
+  if (name != "batch" && name != "window" && !calibrating_ekf && (!a.noise_model.empty() || o.pixel_sigma > 0))
+    throw UsageError("--noise-model, --pixel-sigma: only the smoothers (batch, window) and ekf with --calibrate use them "
+                     "(method '" + a.method + "')");
   CalibrationHandover handover;
   const Dataset d = loadRunDataset(a, o, handover);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
   if (!a.calibration_out.empty() && !run.calibration)
-    throw UsageError("--calibration-out: needs --calibrate with a smoother");
+    throw UsageError("--calibration-out: needs --calibrate with batch, window or ekf");
   reportCalibration(a, run.calibration ? &*run.calibration : nullptr, d.rig, o.calibration, d.odometry.wheel_base_mm,
                     handover);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
@@ -130,16 +131,18 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--tum", a->tum, "Also write the trajectory in TUM format (metres), e.g. for evo");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
   sub->add_option("--calibrate", a->calibrate,
-                  "Batch and window: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline scale, "
-                  "disparity and column offsets; needs a pixel observation model) or odometry,stereo, with priors "
-                  "from the stated uncertainty");
+                  "Batch, window and ekf: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline "
+                  "scale, disparity and column offsets, focal errors; the smoothers need a pixel observation model) or "
+                  "odometry,stereo, with priors from the stated uncertainty");
   sub->add_option("--pixel-sigma", a->options.pixel_sigma,
-                  "Batch and window pixel models (the other methods refuse it): pixel noise [px] replacing the observations' own (0: theirs); "
+                  "Batch and window pixel models, ekf with --calibrate stereo (the other methods refuse it): pixel noise [px] "
+                  "replacing the observations' own (0: theirs); "
                   "about 1 px for the realistic error profile (docs/realistic_world.md)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   sub->add_option("--noise-model", a->noise_model,
-                  "Batch and window (the other methods refuse it): YAML of the noise the rig and odometry do not state (lens distortion estimate "
+                  "Batch, window and ekf with --calibrate (the other methods refuse it): YAML of the noise the rig and "
+                  "odometry do not state (lens distortion estimate "
                   "error, camera vibration, wheel slip; data/noise_realistic.yaml, docs/realistic_world.md)");
   sub->add_option("--rig", a->rig,
                   "Stereo rig YAML in place of the dataset's, e.g. one --calibration-out wrote: its wheel estimate "

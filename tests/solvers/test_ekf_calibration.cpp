@@ -1,0 +1,194 @@
+// The self-calibrating EKF (solvers/ekf.h, "Self-calibration"): the calibrated sighting's
+// Jacobians against central differences; with vanishing priors it is the plain EKF; on worlds
+// with the errors its blocks model it recovers them within their stated sigmas and tracks where
+// the EKF on the given calibration does not.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+#include <vector>
+
+#include "factors/stereo_pixel_calibration_factor.h"
+#include "solvers/calibrated_models.h"
+#include "solvers/ekf.h"
+#include "src/core/error.h"
+#include "src/core/measurement_model.h"
+#include "src/core/numeric_diff.h"
+#include "src/sim/simulator.h"
+
+namespace stereoloc {
+namespace {
+
+const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
+
+EkfConfig knownStart(const Dataset& d) {
+  EkfConfig c;
+  c.init = knownBelief(*d.groundtruth.front(), kP0);
+  return c;
+}
+
+EkfConfig calibrating(const Dataset& d, const std::string& blocks, ObservationModel model = ObservationModel::PixelColumns) {
+  EkfConfig c = knownStart(d);
+  c.calibration = SelfCalibrationConfig::parse(blocks);
+  c.observation_model.model = model;
+  c.observation_model.rig = d.rig;
+  return c;
+}
+
+std::vector<Estimate> run(const Dataset& d, const EkfConfig& c, std::optional<CalibrationEstimate>* calibration = nullptr) {
+  Ekf ekf(d.map, d.odometry, c);
+  for (const Step& s : d.steps) ekf.process(s);
+  if (calibration) *calibration = ekf.calibration();
+  return ekf.finish();
+}
+
+double positionRmse(const Dataset& d, const std::vector<Estimate>& est) {
+  double sse = 0;
+  for (size_t i = 0; i < est.size(); ++i) {
+    const Pose2& t = *d.groundtruth[static_cast<size_t>(est[i].step)];
+    sse += std::pow(est[i].pose.x - t.x, 2) + std::pow(est[i].pose.y - t.y, 2);
+  }
+  return std::sqrt(sse / static_cast<double>(est.size()));
+}
+
+double meanNees(const Dataset& d, const std::vector<Estimate>& est) {
+  double sum = 0;
+  for (const Estimate& e : est) {
+    const Pose2& t = *d.groundtruth[static_cast<size_t>(e.step)];
+    const Eigen::Vector3d err = minus(e.pose, t);
+    sum += err.dot(e.covariance.ldlt().solve(err));
+  }
+  return sum / static_cast<double>(est.size());
+}
+
+TEST(EkfCalibration, CalibratedSightingJacobiansMatchCentralDifferences) {
+  const StereoRig rig;
+  const Pose2 pose(400.0, 300.0, deg2rad(20.0));
+  const Eigen::Vector3d landmark(1300.0, 650.0, 0.0);
+  const double pan = deg2rad(5.0);
+  // The pixels a calibrated pair sees (the calibrated pixel factor with z = 0 and unit weight).
+  CalibrationEstimate::StereoVector q0;
+  q0 << deg2rad(0.6), 1.012, -1.5, 0.4, 0.004, -0.003;
+  std::unique_ptr<ceres::CostFunction> f(StereoPixelCalibrationFactor::Create(
+      rig, landmark, StereoPixels{}, pan, Eigen::Matrix4d::Identity(), PixelResiduals::All));
+  const double x[3] = {pose.x, pose.y, pose.theta};
+  const double* blocks[2] = {x, q0.data()};
+  Eigen::Vector4d px;
+  ASSERT_TRUE(f->Evaluate(blocks, px.data(), nullptr));
+  Observation obs = observationFromPixels(rig, 3, LandmarkType::Junction, StereoPixels{px(0), px(1), px(2), px(3)}, pan,
+                                          isotropicPixelCovariance(0.5));
+  obs.slide_gain = 0.8;
+  const double dv = 0.7;
+  const Eigen::Vector2d lm = landmark.head<2>();
+  const CalibratedSighting s = calibratedSighting(obs, rig, pose, lm, q0, dv);
+  auto wrapped = [](const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+    return Eigen::Vector2d(a(0) - b(0), angleDiff(a(1), b(1)));
+  };
+  // The state (x, y, theta, q, dv) in one vector.
+  Eigen::Matrix<double, 10, 1> x0;
+  x0 << pose.x, pose.y, pose.theta, q0, dv;
+  const auto nu = [&](const Eigen::Matrix<double, 10, 1>& v) {
+    return calibratedSighting(obs, rig, Pose2(v(0), v(1), v(2)), lm, v.segment<6>(3), v(9)).nu;
+  };
+  const Eigen::Matrix<double, 2, 10> J = numericJacobian<2, 10>(nu, x0, wrapped, 1e-6);
+  EXPECT_LT(relativeJacobianError(s.J_nu_pose, J.leftCols<3>()), 1e-6);
+  EXPECT_LT(relativeJacobianError(s.J_nu_q, J.middleCols<6>(3)), 1e-5);
+  EXPECT_LT(relativeJacobianError(s.J_nu_row, J.col(9)), 1e-6);
+  // At the calibration that made the pixels, with no row offset: the landmark as it is.
+  EXPECT_LT(calibratedSighting(obs, rig, pose, lm, q0, 0.0).nu.norm(), 1e-6);
+  EXPECT_GT(s.nu.norm(), 1e-3);  // the slide s dv moves it
+  obs.slide_gain = 0.0;
+  EXPECT_LT(calibratedSighting(obs, rig, pose, lm, q0, dv).nu.norm(), 1e-6);
+  // A correction that leaves no disparity cannot be triangulated.
+  CalibrationEstimate::StereoVector far = q0;
+  far(2) = px(0) - px(2) + 1.0;
+  EXPECT_THROW(calibratedSighting(obs, rig, pose, lm, far, 0.0), GeometryError);
+}
+
+TEST(EkfCalibration, WithVanishingPriorsItIsThePlainEkf) {
+  // The joint state's calibration blocks with (almost) no uncertainty: every update and
+  // prediction is the iterated EKF's (both Gauss-Newton to convergence), whose observations were
+  // triangulated from the same pixels.
+  SimulationConfig sc;
+  sc.scenario.steps = 120;
+  const Dataset d = simulate("circle", 0, sc, 7);
+  EkfConfig c = calibrating(d, "odometry,stereo", ObservationModel::RangeBearing);
+  SelfCalibrationConfig& k = c.calibration;
+  k.wheel_scale_sigma = k.wheel_base_rel_sigma = k.tilt_sigma_rad = k.baseline_scale_sigma = 1e-12;
+  k.disparity_offset_sigma_px = k.column_offset_sigma_px = k.focal_ratio_sigma = k.focal_scale_sigma = 1e-12;
+  std::optional<CalibrationEstimate> cal;
+  EkfConfig iterated = knownStart(d);
+  iterated.max_iterations = 10;
+  const std::vector<Estimate> a = run(d, iterated), b = run(d, c, &cal);
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) {
+    EXPECT_LT((minus(a[i].pose, b[i].pose)).cwiseAbs().maxCoeff(), 1e-5) << "step " << i;
+    EXPECT_LT((a[i].covariance - b[i].covariance).cwiseAbs().maxCoeff(), 1e-5 * a[i].covariance.cwiseAbs().maxCoeff())
+        << "step " << i;
+    EXPECT_EQ(a[i].status, b[i].status) << "step " << i;
+  }
+  ASSERT_TRUE(cal);
+  EXPECT_TRUE(cal->odometry && cal->stereo);
+  EXPECT_NEAR(cal->wheels(2), d.odometry.wheel_base_mm, 1e-6);
+  EXPECT_FALSE(run(d, knownStart(d)).empty());
+  std::optional<CalibrationEstimate> none;
+  run(d, knownStart(d), &none);
+  EXPECT_FALSE(none);
+}
+
+TEST(EkfCalibration, RecoversPlantedWheelAndStereoErrors) {
+  // Wheel radii and base, head tilt, baseline and principal points all wrong in the given
+  // calibration; sightings of identified landmarks only. The EKF on the given calibration is
+  // pulled off the truth and over-confident; the calibrating one recovers the wheels within
+  // their stated sigmas, the disparity offset the principal points make, and is consistent.
+  SimulationConfig sc;
+  sc.profile.name = "modelled";
+  sc.profile.wheel_radius_rel_sigma = 0.01;
+  sc.profile.wheel_base_rel_sigma = 0.03;
+  sc.profile.baseline_rel_sigma = 0.01;
+  sc.profile.tilt_sigma_rad = deg2rad(0.5);
+  sc.profile.principal_sigma_px = 1.0;
+  sc.scenario.steps = 600;
+  SimulationTrace trace;
+  Dataset d = simulate("random-walk", 0, sc, 5, &trace);
+  for (Step& s : d.steps) {
+    std::vector<Observation> kept;
+    for (const Observation& o : s.observations)
+      if (o.landmark_id >= 0) kept.push_back(o);
+    s.observations = kept;
+  }
+  const DrawnErrors& e = trace.errors;
+  const std::vector<Estimate> given = run(d, knownStart(d));
+  std::optional<CalibrationEstimate> cal;
+  const std::vector<Estimate> est = run(d, calibrating(d, "odometry,stereo"), &cal);
+  ASSERT_TRUE(cal);
+  const Eigen::Vector3d truth(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
+  for (int i = 0; i < 3; ++i)
+    EXPECT_NEAR(cal->wheels(i), truth(i), 3.0 * std::sqrt(cal->wheels_covariance(i, i))) << "wheel parameter " << i;
+  EXPECT_LT(std::sqrt(cal->wheels_covariance(2, 2)), 0.5 * 0.04 * 75.0) << "the run does not determine the wheel base";
+  // The disparity offset: the principal points' column difference (left minus right).
+  const double dd = e.principal_px[0][0] - e.principal_px[1][0];
+  EXPECT_NEAR(cal->head(2), dd, 3.0 * std::sqrt(cal->head_covariance(2, 2)));
+  // The baseline scale: updated on range-bearing, the calibration would absorb the range's
+  // conversion bias here (1.036, 4.8 sigma off); on the pixel columns it does not.
+  EXPECT_NEAR(cal->head(1), 1 + e.baseline_rel, 3.0 * std::sqrt(cal->head_covariance(1, 1)));
+  const double rmse_given = positionRmse(d, given), rmse = positionRmse(d, est);
+  EXPECT_LT(rmse, 0.5 * rmse_given) << "given " << rmse_given << " mm, calibrating " << rmse << " mm";
+  EXPECT_LT(meanNees(d, est), 6.0);
+  EXPECT_GT(meanNees(d, given), 2.0 * meanNees(d, est));
+}
+
+TEST(EkfCalibration, BadSettingsAreRejected) {
+  SimulationConfig sc;
+  sc.scenario.steps = 5;
+  const Dataset d = simulate("circle", 0, sc, 1);
+  EkfConfig c = calibrating(d, "odometry");
+  c.max_iterations = 3;  // the iterated update does not carry the calibration
+  EXPECT_THROW(Ekf(d.map, d.odometry, c), Error);
+  c = calibrating(d, "stereo");
+  c.calibration.disparity_offset_sigma_px = -1.0;
+  EXPECT_THROW(Ekf(d.map, d.odometry, c), Error);
+}
+
+}  // namespace
+}  // namespace stereoloc
