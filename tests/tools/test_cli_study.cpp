@@ -172,13 +172,13 @@ TEST(CliLocalize, EveryMethodWritesEstimatesAndTum) {
   EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method ekf:sideways --out " + dir.file("x.csv")).exit_code, 2);
 }
 
-// Both smoothers self-calibrate from the command line and write the estimate as a rig YAML that
-// loads back as a dataset's rig; the filters refuse the option.
-TEST(CliLocalize, SmoothersSelfCalibrateAndWriteARigBack) {
+// The smoothers and the EKF self-calibrate from the command line and write the estimate as a rig
+// YAML that loads back as a dataset's rig; the other methods refuse the option.
+TEST(CliLocalize, SmoothersAndTheEkfSelfCalibrateAndWriteARigBack) {
   namespace fs = std::filesystem;
   test::TempDir dir;
   ASSERT_EQ(test::runCli("simulate --scenario circle --seed 5 --steps 60 --profile realistic --out " + dir.file("d")).exit_code, 0);
-  for (const std::string m : {"batch", "window"}) {
+  for (const std::string m : {"batch", "window", "ekf"}) {
     fs::create_directories(dir.file(m));
     const std::string rig = dir.file(m + "/rig.yaml");
     const test::CliRun r = test::runCli("localize " + dir.file("d") + " --method " + m + " --calibrate odometry,stereo --calibration-out " +
@@ -197,13 +197,18 @@ TEST(CliLocalize, SmoothersSelfCalibrateAndWriteARigBack) {
     fs::copy_file(f.path(), fs::path(dir.file("d")) / f.path().filename(), fs::copy_options::overwrite_existing);
   const test::CliRun again = test::runCli("localize " + dir.file("d") + " --method ekf --out " + dir.file("ekf.csv"));
   EXPECT_EQ(again.exit_code, 0) << again.output;
-  EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method ekf --calibrate odometry --out " + dir.file("x.csv")).exit_code, 2);
+  EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method pf --calibrate odometry --out " + dir.file("x.csv")).exit_code, 2);
+  EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method iekf --calibrate odometry --out " + dir.file("x.csv")).exit_code, 2);
   // Options only the smoothers use are refused for the others, not ignored.
   const std::string noise = std::string(STEREOLOC_DATA_DIR) + "/noise_realistic.yaml";
   for (const std::string& option : {"--noise-model " + noise, std::string("--pixel-sigma 1")}) {
     const test::CliRun r = test::runCli("localize " + dir.file("d") + " --method pf " + option + " --out " + dir.file("x.csv"));
     EXPECT_EQ(r.exit_code, 2) << option << ": " << r.output;
     EXPECT_NE(r.output.find("only the smoothers"), std::string::npos) << r.output;
+    // The self-calibrating EKF takes them.
+    const test::CliRun e = test::runCli("localize " + dir.file("d") + " --method ekf --calibrate odometry,stereo " + option +
+                                        " --out " + dir.file("x.csv"));
+    EXPECT_EQ(e.exit_code, 0) << option << ": " << e.output;
   }
 }
 

@@ -39,6 +39,23 @@ TEST(Methods, EveryTrackerGivesOneEstimatePerStepAndIsReproducible) {
   }
 }
 
+TEST(Methods, TheSmoothersAndTheEkfSelfCalibrate) {
+  const Dataset d = circle(25);
+  for (const std::string spec : {"ekf:calib", "ekf:known:calib", "window:calib", "batch:calib"}) {
+    const MethodRun run = runMethod(spec, d, 3, MethodOptions());
+    ASSERT_EQ(run.estimates.size(), d.steps.size()) << spec;
+    ASSERT_TRUE(run.calibration) << spec;
+    EXPECT_TRUE(run.calibration->odometry && run.calibration->stereo) << spec;
+  }
+  EXPECT_FALSE(runMethod("ekf", d, 3, MethodOptions()).calibration);
+  for (const std::string spec : {"iekf:calib", "pf:calib", "fix2:calib", "deadreckoning:calib"})
+    EXPECT_THROW(parseMethodSpec(spec, InitMode::Known), UsageError) << spec;
+  MethodOptions o;
+  o.calibration = SelfCalibrationConfig::parse("odometry");
+  EXPECT_THROW(runMethod("pf", d, 3, o), UsageError);
+  EXPECT_TRUE(runMethod("ekf", d, 3, o).calibration);
+}
+
 TEST(Methods, FixesCountAttemptedAndFixedSteps) {
   const MethodRun run = runMethod("fix2", circle(25), 1, MethodOptions());
   EXPECT_GT(run.attempted_steps, 0);
