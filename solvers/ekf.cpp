@@ -227,7 +227,7 @@ double Ekf::jointThreshold(int dof) {
 
 bool Ekf::tryGlobalFix(const Step& step) {
   if (!config_.global_fix) return false;
-  const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+  const std::optional<PoseFix> fix = config_.global_fix(seenThroughCalibration(step), map_);
   if (!fix || !fix->pose.isFinite() || !fix->covariance.allFinite()) return false;
   reset(fix->pose, fix->covariance);
   return true;
@@ -247,7 +247,7 @@ void Ekf::validateStep(const Step& step) const {
 
 std::optional<EstimateStatus> Ekf::startFromWideBelief(const Step& step, bool first, bool wide) {
   if (wide && !step.observations.empty() && config_.global_fix) {
-    const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+    const std::optional<PoseFix> fix = config_.global_fix(seenThroughCalibration(step), map_);
     if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && spreadOf(fix->covariance) < spreadOf(P_)) {
       bank_.clear();
       reset(fix->pose, fix->covariance);  // the fix used this step's observations: no update on top
@@ -418,6 +418,13 @@ Landmark Ekf::landmarkOf(const Observation& obs, const Eigen::Vector2d& xy) cons
 Observation Ekf::slid(const Observation& obs) const {
   Observation out = obs;
   if (row_at_ >= 0 && out.pixels) out.pixels->u_right -= obs.slide_gain * row_;
+  return out;
+}
+
+Step Ekf::seenThroughCalibration(const Step& step) const {
+  if (head_at_ < 0) return step;
+  Step out = step;
+  for (Observation& o : out.observations) o = associationView(o);
   return out;
 }
 

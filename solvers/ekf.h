@@ -207,6 +207,9 @@ class Ekf : public Estimator {
   // What association sees: with the stereo block, the observation through the current q with
   // q's uncertainty in R (calibratedObservation); the observation itself otherwise.
   Observation associationView(const Observation& obs) const;
+  // The step with every sighting as associationView gives it: what a global fix sees (a fix on
+  // the given calibration would restart the filter where its range bias puts the robot).
+  Step seenThroughCalibration(const Step& step) const;
   // With the row block: the observation with its right column's slide s dv taken out.
   Observation slid(const Observation& obs) const;
   // The map's landmark of obs.landmark_id at `xy` (its kind sets the pixel noise); for a landmark
