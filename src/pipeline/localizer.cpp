@@ -68,7 +68,10 @@ Localizer::Localizer(LocalizerConfig config) : config_(std::move(config)) {
     case LocalizerMethod::Ekf: {
       EkfConfig c = config_.ekf;
       c.init = config_.init;
-      estimator_ = std::make_unique<Ekf>(config_.map, config_.odometry, c);
+      c.observation_model.rig = config_.rig;
+      auto e = std::make_unique<Ekf>(config_.map, config_.odometry, c);
+      ekf_ = e.get();
+      estimator_ = std::move(e);
       break;
     }
     case LocalizerMethod::ParticleFilter: {

@@ -72,7 +72,9 @@ struct LocalizerConfig {
   InitialBelief init;                // start belief of the estimator; default: wait for a global fix
   LocalizerMethod method = LocalizerMethod::Window;
   SlidingWindowConfig window = realTimeWindowConfig();  // its init is replaced by `init`, its rig by `rig`
-  EkfConfig ekf;                     // method Ekf (max_iterations > 1: the iterated EKF); init replaced
+  // Method Ekf (max_iterations > 1: the iterated EKF; ekf.calibration: the self-calibrating
+  // EKF); init replaced, its observation model's rig by `rig`.
+  EkfConfig ekf;
   ParticleFilterConfig particle_filter;  // method ParticleFilter; init replaced
   uint64_t seed = 1;                 // the particle filter's random stream
   ImageFrontendOptions frontend;     // frontend parameters and which landmarks it reports
@@ -111,10 +113,11 @@ class Localizer {
   ImageFrontendStats frontendStats() const;  // what the frontend did so far
   // The window, for its statistics (nullptr for the other methods).
   const SlidingWindowSmoother* window() const { return window_; }
-  // The window's self-calibration estimate with its covariance after the newest step
-  // (window.calibration); nullopt without it or for the other methods.
+  // The window's or the EKF's self-calibration estimate with its covariance after the newest
+  // step (window.calibration, ekf.calibration); nullopt without it or for the particle filter.
   std::optional<CalibrationEstimate> calibration() const {
-    return window_ ? window_->calibration() : std::nullopt;
+    if (window_) return window_->calibration();
+    return ekf_ ? ekf_->calibration() : std::nullopt;
   }
 
  private:
@@ -127,6 +130,7 @@ class Localizer {
   LocalizerConfig config_;
   std::unique_ptr<Estimator> estimator_;
   SlidingWindowSmoother* window_ = nullptr;  // estimator_, when it is the window
+  Ekf* ekf_ = nullptr;                       // estimator_, when it is the EKF
   std::unique_ptr<ImageObserver> observer_;  // created with the first images
   std::optional<Step> pending_;              // the newest step, not processed yet
   Estimate last_;                            // the newest estimate

@@ -146,6 +146,32 @@ TEST(Localizer, StepsGiveTheEstimatesOfTheWindowFedDirectly) {
   EXPECT_THROW(whole.addOdometry(1000, 0, 1, 1), Error);  // after the end
 }
 
+// The self-calibrating EKF through the pipeline: the estimates and the calibration of the filter
+// fed directly (the pipeline hands it its rig).
+TEST(Localizer, SelfCalibratingEkfGivesTheFiltersEstimatesAndCalibration) {
+  SyntheticProblemOptions o;
+  o.steps = 80;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 6);
+  LocalizerConfig config = windowConfig(p);
+  config.method = LocalizerMethod::Ekf;
+  config.ekf.calibration = SelfCalibrationConfig::parse("odometry,stereo");
+  Localizer loc(config);
+  EkfConfig ec = config.ekf;
+  ec.init = config.init;
+  ec.observation_model.rig = config.rig;
+  Ekf direct(p.map, p.odometry, ec);
+  for (const Step& s : p.steps) {
+    const Estimate ref = direct.process(s);
+    loc.addStep(s);
+    expectSame(loc.estimate(), ref);
+  }
+  ASSERT_TRUE(loc.calibration());
+  EXPECT_EQ(loc.calibration()->wheels, direct.calibration()->wheels);
+  EXPECT_EQ(loc.calibration()->head_covariance, direct.calibration()->head_covariance);
+  config.ekf.calibration = SelfCalibrationConfig();
+  EXPECT_FALSE(Localizer(config).calibration());
+}
+
 // A wheel calibration handed over from an earlier run scales the raw increments as they come
 // in: the same estimates as the window fed the scaled steps, through either entry.
 TEST(Localizer, WheelScalesApplyToTheIncomingIncrements) {
