@@ -32,6 +32,10 @@ double spreadOf(const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0, 0), P
 // Gauss-Newton iterations of the self-calibrating update (Ekf::fuseCalibrated); it stops earlier
 // when no component moves more than EkfConfig::iteration_tolerance, typically after 2-4.
 constexpr int kJointUpdateIterations = 10;
+// Re-anchoring a self-calibrating filter on a global fix (Ekf::reanchor): the window's
+// SlidingWindowConfig defaults (reanchor_probability, restart_min_evidence).
+constexpr double kReanchorProbability = 0.999;
+constexpr double kRestartMinEvidence = 1000.0;
 
 }  // namespace
 
@@ -229,7 +233,35 @@ bool Ekf::tryGlobalFix(const Step& step) {
   if (!config_.global_fix) return false;
   const std::optional<PoseFix> fix = config_.global_fix(seenThroughCalibration(step), map_);
   if (!fix || !fix->pose.isFinite() || !fix->covariance.allFinite()) return false;
-  reset(fix->pose, fix->covariance);
+  if (!(calibrating() && initialised_ && reanchor(*fix))) reset(fix->pose, fix->covariance);
+  return true;
+}
+
+// Self-calibrating: a fix that agrees with the prediction is fused as a measurement of the pose
+// through the joint state, so the odometry since the filter was lost still informs the wheels.
+// A restart would cut it, and the cuts are selective: a loss comes where the odometry through the
+// current wheel estimate disagrees most with the sightings (docs/estimators.md, "Re-anchoring").
+// A fix that disagrees beyond both the chi-square test and the evidence a restart needs (a
+// kidnap) restarts the filter, as the window does.
+bool Ekf::reanchor(const PoseFix& fix) {
+  const Eigen::Vector3d nu = minus(fix.pose, pose_);
+  const Eigen::Matrix3d S = P_ + fix.covariance;
+  const Eigen::LDLT<Eigen::Matrix3d> ldlt(S);
+  if (ldlt.info() != Eigen::Success) return false;
+  const double d2 = nu.dot(ldlt.solve(nu));
+  if (!(d2 <= std::max(chi2Quantile(kReanchorProbability, 3), kRestartMinEvidence))) return false;
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(3, joint_.rows());
+  H.leftCols<3>().setIdentity();
+  Eigen::MatrixXd K = joint_ * H.transpose() * S.inverse();
+  // The fix saw this step's sightings through the current stereo calibration, so it carries no
+  // news of it: the stereo and row blocks are considered, not updated (a Schmidt gain; the Joseph
+  // form keeps the covariance right for it). Updated, each re-anchoring pulled the calibration
+  // further after a bad first sighting (a realistic line trial: disparity offset -1.5 -> -7.9 px).
+  if (head_at_ >= 0) K.middleRows<6>(head_at_).setZero();
+  if (row_at_ >= 0) K.row(row_at_).setZero();
+  applyJointUpdate(K, nu, H, fix.covariance);
+  lost_ = false;
+  gate_.reset();
   return true;
 }
 

@@ -180,6 +180,7 @@ class Ekf : public Estimator {
   // Records the step's updates and feeds the lost policy (5.1.3).
   EstimateStatus recordUpdates(const Step& step, const std::vector<EkfUpdateRecord>& recs);
   bool tryGlobalFix(const Step& step);
+  bool reanchor(const PoseFix& fix);  // self-calibrating: fuse a fix that agrees; false: restart
   Estimate makeEstimate(const Step& step, EstimateStatus status) const;
 
   // Self-calibration (EkfConfig::calibration).

@@ -178,6 +178,52 @@ TEST(EkfCalibration, RecoversPlantedWheelAndStereoErrors) {
   EXPECT_GT(meanNees(d, given), 2.0 * meanNees(d, est));
 }
 
+TEST(EkfCalibration, AFixThatAgreesReanchorsAndAKidnapRestarts) {
+  // Lost after one gross outlier, the filter asks the global fix service (here: a fix at a given
+  // pose). One near the prediction is fused through the joint state: the pose moves toward it,
+  // the wheels learn from the odometry it corrects, the stereo calibration (which the fix saw the
+  // sightings through) stays. One far away (a kidnap) restarts the filter at it.
+  SimulationConfig sc;
+  sc.scenario.steps = 40;
+  Dataset d = simulate("circle", 0, sc, 3);
+  for (Step& s : d.steps) s.observations.clear();
+  for (Step& s : d.steps) s.compass.reset();
+  Step outlier = d.steps[30];
+  Observation o;
+  o.landmark_id = 0;
+  o.range = 50.0;  // mm, far from any pose of the circle
+  o.bearing = 0.0;
+  o.covariance = Eigen::Vector2d(1.0, 1e-4).asDiagonal();
+  outlier.observations = {o};
+  for (const double offset : {20.0, 3000.0}) {
+    EkfConfig c = calibrating(d, "odometry,stereo");
+    c.gate.lost_after = 1;
+    const Pose2 target = compose(*d.groundtruth[30], Pose2(offset, 0.0, 0.0));
+    c.global_fix = [&](const Step&, const FieldMap&) {
+      return std::optional<PoseFix>(PoseFix{target, Eigen::Vector3d(5.0, 5.0, 0.01).cwiseAbs2().asDiagonal()});
+    };
+    Ekf ekf(d.map, d.odometry, c);
+    for (int k = 0; k < 30; ++k) ekf.process(d.steps[static_cast<size_t>(k)]);
+    const Pose2 predicted = ekf.pose();
+    const CalibrationEstimate before = *ekf.calibration();
+    const Estimate e = ekf.process(outlier);
+    EXPECT_EQ(e.status, EstimateStatus::Reinitialised) << offset;
+    EXPECT_FALSE(ekf.lost());
+    const CalibrationEstimate after = *ekf.calibration();
+    EXPECT_EQ(after.head, before.head) << offset;
+    EXPECT_EQ(after.head_covariance, before.head_covariance) << offset;
+    if (offset < 100.0) {
+      EXPECT_GT(minus(e.pose, predicted).head<2>().norm(), 1.0);
+      EXPECT_GT(minus(e.pose, target).head<2>().norm(), 0.01);  // fused, not taken as it is
+      EXPECT_NE(after.wheels, before.wheels);
+      EXPECT_LT(after.wheels_covariance.trace(), before.wheels_covariance.trace());
+    } else {
+      EXPECT_LT(minus(e.pose, target).cwiseAbs().maxCoeff(), 1e-9);
+      EXPECT_EQ(after.wheels, before.wheels);
+    }
+  }
+}
+
 TEST(EkfCalibration, BadSettingsAreRejected) {
   SimulationConfig sc;
   sc.scenario.steps = 5;
