@@ -141,7 +141,9 @@ EkfUpdateRecord Ekf::fuseCompass(double heading, double sigma, bool gated, bool 
   if (calibrating()) {
     Eigen::MatrixXd H = Eigen::MatrixXd::Zero(1, joint_.rows());
     H(0, 2) = 1.0;
-    applyJointUpdate(joint_.col(2) / S, Eigen::VectorXd::Constant(1, nu), H, Eigen::MatrixXd::Constant(1, 1, sigma * sigma));
+    Eigen::MatrixXd K = joint_.col(2) / S;
+    considerWheelBase(K);
+    applyJointUpdate(K, Eigen::VectorXd::Constant(1, nu), H, Eigen::MatrixXd::Constant(1, 1, sigma * sigma));
     rec.accepted = true;
     return rec;
   }
@@ -259,6 +261,7 @@ bool Ekf::reanchor(const PoseFix& fix) {
   // further after a bad first sighting (a realistic line trial: disparity offset -1.5 -> -7.9 px).
   if (head_at_ >= 0) K.middleRows<6>(head_at_).setZero();
   if (row_at_ >= 0) K.row(row_at_).setZero();
+  considerWheelBase(K);
   applyJointUpdate(K, nu, H, fix.covariance);
   lost_ = false;
   gate_.reset();
@@ -570,8 +573,15 @@ EkfUpdateRecord Ekf::fuseCalibrated(const Observation& obs, const Landmark& land
   Eigen::MatrixXd K;
   for (int it = 0;; ++it) {
     K = joint_ * g->H.transpose() * g->S.inverse();  // (5.19)
+    considerWheelBase(K);
     const Eigen::VectorXd dx = K * (g->nu + g->H * delta);  // (5.15) at the iterate
-    if (!dx.allFinite()) break;
+    if (!dx.allFinite() || !K.allFinite()) {  // not fused: the belief stays the prediction's
+      pose_ = pose0;
+      wheels_ = wheels0;
+      head_ = head0;
+      row_ = row0;
+      return rec;
+    }
     pose_ = plus(pose0, dx.head<3>());
     if (wheels_at_ >= 0) wheels_ = wheels0 + dx.segment<3>(wheels_at_);
     if (head_at_ >= 0) head_ = head0 + dx.segment<6>(head_at_);
@@ -589,6 +599,17 @@ EkfUpdateRecord Ekf::fuseCalibrated(const Observation& obs, const Landmark& land
   P_ = joint_.topLeftCorner<3, 3>();
   rec.accepted = true;
   return rec;
+}
+
+// The wheel base is considered, not estimated (a Schmidt gain: its row of K is zero, and the Joseph
+// form keeps the covariance right for that gain): its uncertainty enters every prediction and
+// update through the joint covariance, its estimate stays the nominal one. Estimated, it drifted
+// where the drive hardly observes it: on the realistic line (100 trials) it ended +2.6 mm off on
+// average with a sigma of 1.5 mm (54 % of the trials within 2 sigma; the window's: 100 %, mean
+// error 0.01 mm), the bias of an EKF estimating a parameter that scales the motion (the gain's
+// dependence on it is neglected; Ljung, IEEE T-AC 24(1), 1979).
+void Ekf::considerWheelBase(Eigen::MatrixXd& K) const {
+  if (wheels_at_ >= 0) K.row(wheels_at_ + 2).setZero();
 }
 
 void Ekf::applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,

@@ -43,7 +43,9 @@
 //   update      z(q) = calibratedRangeBearing(pixels, q), nu = z(q) [-] h(p),
 //               H = [H_p  0  -J_z_q],  R = J_z_px C_px J_z_px^T (C_px: pixelCovarianceFor)
 // and the same gate, Joseph form and joint gating as above. Observations without pixels keep
-// their own z and R (H_q = 0). The calibration is then estimated instead of taken as exact: the
+// their own z and R (H_q = 0). The wheel base w is considered, not estimated: its uncertainty is
+// in the covariance, its estimate stays nominal (an EKF's estimate of it drifts where the drive
+// hardly observes it; docs/estimators.md). The calibration is then estimated instead of taken as exact: the
 // given calibration's range bias no longer holds the filter off the truth, and the stated
 // covariance carries the calibration's uncertainty. Derivation: docs/estimators.md, "A
 // self-calibrating EKF".
@@ -202,6 +204,7 @@ class Ekf : public Estimator {
   // for the calibration to absorb.
   std::optional<JointInnovation> pixelInnovation(const Observation& obs, const Landmark& landmark) const;
   EkfUpdateRecord fuseCalibrated(const Observation& obs, const Landmark& landmark, bool gated, bool fuse);
+  void considerWheelBase(Eigen::MatrixXd& K) const;  // its row of K zero
   // x (+) K nu on the joint state with the Joseph form (5.17); H the measurement's, R its noise.
   void applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,
                         const Eigen::MatrixXd& R);
