@@ -560,10 +560,10 @@ EkfUpdateRecord Ekf::fuseCalibrated(const Observation& obs, const Landmark& land
   if (!fuse || (gated && !gate_.accepts(rec.mahalanobis_squared))) return rec;
   // Iterated: Gauss-Newton on the prediction's prior and the sighting, relinearised at each
   // iterate x_i (the iterated EKF's update on the joint state): x = x0 (+) K_i (nu_i + H_i (x_i [-] x0)),
-  // K_i = P0 H_i^T (H_i P0 H_i^T + R)^-1. One step (the plain EKF update) linearises the range's
-  // dependence on the baseline scale and the disparity offset at the prediction's calibration;
-  // where that is wrong, each early sighting biases the calibration, and the bias stays (on a
-  // 600-step run with planted errors the disparity offset ended 4 sigma off; iterated, within 1).
+  // K_i = P0 H_i^T (H_i P0 H_i^T + R)^-1. One step (the plain EKF update) linearises the pixels'
+  // dependence on the pose and the calibration at the prediction, which early in a run is far
+  // from both: on the realistic study (20 trials per scenario) one step gave NEES 3.7 / 7.6 / 8.1
+  // on circle / line / spin, iterated 2.9 / 3.8 / 2.1 (docs/estimators.md).
   const Pose2 pose0 = pose_;
   const Eigen::Vector3d wheels0 = wheels_;
   const CalibrationEstimate::StereoVector head0 = head_;
