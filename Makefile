@@ -65,7 +65,7 @@ test-valgrind: build
 	  $(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method $$m --frontend images --particles 300 \
 	    --out $(VG_DIR)/$$m.csv >/dev/null || exit 1; \
 	done
-	@for m in window batch; do \
+	@for m in window batch ekf; do \
 	  echo "valgrind: localize --method $$m --frontend images --calibrate odometry,stereo"; \
 	  $(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method $$m --frontend images \
 	    --calibrate odometry,stereo --calibration-out $(VG_DIR)/$$m-rig.yaml --out $(VG_DIR)/$$m-calib.csv >/dev/null || exit 1; \
