@@ -8,6 +8,7 @@
 #include <string>
 
 #include "src/core/numeric_diff.h"
+#include "src/io/dataset.h"
 
 namespace stereoloc::test {
 
@@ -29,6 +30,17 @@ class TempDir {
  private:
   std::filesystem::path path_;
 };
+
+// Drops every sighting that needs association (landmark_id -1): the runs whose estimators
+// should see identified landmarks only.
+inline void keepIdentifiedSightings(Dataset& d) {
+  for (Step& s : d.steps) {
+    std::vector<Observation> kept;
+    for (const Observation& o : s.observations)
+      if (o.landmark_id >= 0) kept.push_back(o);
+    s.observations = kept;
+  }
+}
 
 // Fails the test (with both matrices printed) when an analytic Jacobian differs from the
 // numeric one by more than `tol` relative to max(1, |J|).

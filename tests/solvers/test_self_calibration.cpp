@@ -213,12 +213,7 @@ TEST(SelfCalibration, EstimatesTheImageErrorsTheNoiseModelStates) {
   sc.scenario.steps = 300;
   SimulationTrace trace;
   Dataset d = simulate("random-walk", 0, sc, 5, &trace);
-  for (Step& s : d.steps) {
-    std::vector<Observation> kept;
-    for (const Observation& o : s.observations)
-      if (o.landmark_id >= 0) kept.push_back(o);
-    s.observations = kept;
-  }
+  test::keepIdentifiedSightings(d);
   UnmodelledNoise noise;
   noise.k1_sigma = sc.profile.k1_estimate_sigma;
   noise.k2_sigma = sc.profile.k2_estimate_sigma;

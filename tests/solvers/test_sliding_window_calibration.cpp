@@ -23,6 +23,7 @@
 #include "solvers/self_calibration.h"
 #include "solvers/sliding_window_smoother.h"
 #include "src/sim/simulator.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
@@ -45,12 +46,7 @@ Dataset realisticRun(uint64_t seed, const std::string& scenario, int steps) {
   sc.profile = ErrorProfile::realistic();
   sc.scenario.steps = steps;
   Dataset d = simulate(scenario, 0, sc, seed);
-  for (Step& s : d.steps) {  // the batch uses identified landmarks only
-    std::vector<Observation> kept;
-    for (const Observation& o : s.observations)
-      if (o.landmark_id >= 0) kept.push_back(o);
-    s.observations = kept;
-  }
+  test::keepIdentifiedSightings(d);  // the batch uses identified landmarks only
   return d;
 }
 
