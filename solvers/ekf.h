@@ -35,20 +35,20 @@
 // then gave NEES 1250-6400 at one step, and the filter stayed over-confident for tens of steps.
 //
 // Self-calibration (EkfConfig::calibration, the `ekf:calib` method; not in the thesis): the
-// wheel block c = (c_l, c_r, w) and the stereo block q of solvers/self_calibration.h become
-// states beside the pose, x = (p, c, q), with their priors' covariance and no process noise
-// (the calibration is constant for a run):
-//   prediction  p' = p (+) u(c_l d_l, c_r d_r, w),  F = [J1 J_p'_c 0; 0 I 0; 0 0 I],
+// wheel block c = (c_l, c_r, w), the stereo block q of solvers/self_calibration.h and, when the
+// noise model states the rows' misalignment, the row offset dv become states beside the pose,
+// x = (p, c, q, dv), with their priors' covariance and no process noise (constant for a run):
+//   prediction  p' = p (+) u(c_l d_l, c_r d_r, w),  F = [J1 J_p'c 0; 0 I 0; 0 0 I],
 //               P' = F P F^T + diag(J2 U J2^T, 0, 0)   (solvers/calibrated_models.h)
-//   update      z(q) = calibratedRangeBearing(pixels, q), nu = z(q) [-] h(p),
-//               H = [H_p  0  -J_z_q],  R = J_z_px C_px J_z_px^T (C_px: pixelCovarianceFor)
-// and the same gate, Joseph form and joint gating as above. Observations without pixels keep
-// their own z and R (H_q = 0). The wheel base w is considered, not estimated: its uncertainty is
-// in the covariance, its estimate stays nominal (an EKF's estimate of it drifts where the drive
-// hardly observes it; docs/estimators.md). The calibration is then estimated instead of taken as exact: the
-// given calibration's range bias no longer holds the filter off the truth, and the stated
-// covariance carries the calibration's uncertainty. Derivation: docs/estimators.md, "A
-// self-calibrating EKF".
+//   update      a stereo sighting on its whitened pixel columns r(x)
+//               (factors/stereo_pixel_calibration_factor.h): nu = -r, H = dr/dx, R = I,
+//               iterated to the MAP of prediction and sighting (the observation model
+//               range_bearing: on calibratedSighting's range and bearing instead)
+// with the same gate, Joseph form and joint gating as above; observations without pixels keep
+// their own z and R. The wheel base is considered, not estimated (its row of K is zero). Every
+// global fix sees the sightings through the current calibration, and a lost filter re-anchors on
+// a fix that agrees with its prediction (fused as a measurement of the pose) instead of
+// restarting there. Why each: docs/estimators.md, "A self-calibrating EKF".
 #include <Eigen/Core>
 #include <string>
 #include <optional>
@@ -190,12 +190,13 @@ class Ekf : public Estimator {
   // Sets the pose belief; the calibration keeps its covariance, uncorrelated with the new pose.
   void setPoseBelief(const Pose2& pose, const Eigen::Matrix3d& covariance);
   void predictCalibrated(double d_left, double d_right);
-  // The range-bearing innovation of `obs` against `landmark` on the joint state: nu, S, H and R;
-  // nullopt when the bearing is undefined or the calibrated disparity is not positive.
+  // The innovation of `obs` against `landmark` on the joint state (pixelInnovation, or range and
+  // bearing): nu, S, H and R; nullopt when the sighting cannot be predicted (the landmark at the
+  // pose or behind the cameras, the calibrated disparity not positive).
   struct JointInnovation {
     Eigen::VectorXd nu;  // 2: range-bearing (mm, rad) or whitened pixel columns
     Eigen::MatrixXd S, R;
-    Eigen::MatrixXd H;  // 2 x joint dimension
+    Eigen::MatrixXd H;  // 2 x the joint state's dimension
     double e2 = 0.0;
   };
   std::optional<JointInnovation> jointInnovation(const Observation& obs, const Landmark& landmark) const;
