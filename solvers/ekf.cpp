@@ -319,32 +319,23 @@ std::optional<EstimateStatus> Ekf::startFromWideBelief(const Step& step, bool fi
 // merely unlucky; which sightings fail then depends on whether the compass is fused before
 // them. Joint compatibility after Neira and Tardos, IEEE T-RA 17(6), 2001.
 std::vector<EkfUpdateRecord> Ekf::fuseJointlyGated(const Step& step, bool wide) {
-  const Pose2 predicted = pose_;
+  const JointState predicted = jointState();
   const Eigen::Matrix3d predicted_covariance = P_;
-  const Eigen::Vector3d predicted_wheels = wheels_;
-  const CalibrationEstimate::StereoVector predicted_head = head_;
-  const double predicted_row = row_;
   const Eigen::MatrixXd predicted_joint = joint_;
+  const auto backToPrediction = [&] {
+    setJointState(predicted);
+    P_ = predicted_covariance;
+    joint_ = predicted_joint;
+  };
   std::vector<bool> excluded(step.observations.size() + 1, false);  // the last: the compass
   for (;;) {
-    pose_ = predicted;
-    P_ = predicted_covariance;
-    wheels_ = predicted_wheels;
-    head_ = predicted_head;
-    row_ = predicted_row;
-    joint_ = predicted_joint;
+    backToPrediction();
     double e2 = 0.0;
     int dof = 0;
     std::vector<EkfUpdateRecord> recs = fuseStep(step, wide, excluded, &e2, &dof);
     if (!config_.gate_enabled || dof == 0 || e2 <= jointThreshold(dof)) return recs;
-    if (calibrating()) {  // leastCompatible reads the joint state: back to the prediction first
-      pose_ = predicted;
-      wheels_ = predicted_wheels;
-      head_ = predicted_head;
-      row_ = predicted_row;
-      joint_ = predicted_joint;
-    }
-    excluded[leastCompatible(step, recs, predicted, predicted_covariance)] = true;
+    if (calibrating()) backToPrediction();  // leastCompatible reads the joint state
+    excluded[leastCompatible(step, recs, predicted.pose, predicted_covariance)] = true;
   }
 }
 
@@ -564,28 +555,18 @@ EkfUpdateRecord Ekf::fuseCalibrated(const Observation& obs, const Landmark& land
   // dependence on the pose and the calibration at the prediction, which early in a run is far
   // from both: on the realistic study (20 trials per scenario) one step gave NEES 3.7 / 7.6 / 8.1
   // on circle / line / spin, iterated 2.9 / 3.8 / 2.1 (docs/estimators.md).
-  const Pose2 pose0 = pose_;
-  const Eigen::Vector3d wheels0 = wheels_;
-  const CalibrationEstimate::StereoVector head0 = head_;
-  const double row0 = row_;
-  const Eigen::Index n = joint_.rows();
-  Eigen::VectorXd delta = Eigen::VectorXd::Zero(n);
+  const JointState x0 = jointState();
+  Eigen::VectorXd delta = Eigen::VectorXd::Zero(joint_.rows());
   Eigen::MatrixXd K;
   for (int it = 0;; ++it) {
     K = joint_ * g->H.transpose() * g->S.inverse();  // (5.19)
     considerWheelBase(K);
     const Eigen::VectorXd dx = K * (g->nu + g->H * delta);  // (5.15) at the iterate
     if (!dx.allFinite() || !K.allFinite()) {  // not fused: the belief stays the prediction's
-      pose_ = pose0;
-      wheels_ = wheels0;
-      head_ = head0;
-      row_ = row0;
+      setJointState(x0);
       return rec;
     }
-    pose_ = plus(pose0, dx.head<3>());
-    if (wheels_at_ >= 0) wheels_ = wheels0 + dx.segment<3>(wheels_at_);
-    if (head_at_ >= 0) head_ = head0 + dx.segment<6>(head_at_);
-    if (row_at_ >= 0) row_ = row0 + dx(row_at_);
+    setJointState(jointPlus(x0, dx));
     const double moved = (dx - delta).cwiseAbs().maxCoeff();
     delta = dx;
     if (it + 1 >= kJointUpdateIterations || moved <= config_.iteration_tolerance) break;
@@ -593,10 +574,7 @@ EkfUpdateRecord Ekf::fuseCalibrated(const Observation& obs, const Landmark& land
     if (!next) break;  // the iterate cannot see the sighting: keep it with the last linearisation
     g = next;
   }
-  const Eigen::MatrixXd IKH = Eigen::MatrixXd::Identity(n, n) - K * g->H;
-  const Eigen::MatrixXd P = IKH * joint_ * IKH.transpose() + K * g->R * K.transpose();  // (5.17)
-  joint_ = 0.5 * (P + P.transpose());
-  P_ = joint_.topLeftCorner<3, 3>();
+  josephUpdate(K, g->H, g->R);
   rec.accepted = true;
   return rec;
 }
@@ -616,15 +594,32 @@ void Ekf::applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, 
                            const Eigen::MatrixXd& R) {
   const Eigen::VectorXd dx = K * nu;
   if (!dx.allFinite()) return;
-  pose_ = plus(pose_, dx.head<3>());  // (5.15)
-  if (wheels_at_ >= 0) wheels_ += dx.segment<3>(wheels_at_);
-  if (head_at_ >= 0) head_ += dx.segment<6>(head_at_);
-  if (row_at_ >= 0) row_ += dx(row_at_);
+  setJointState(jointPlus(jointState(), dx));  // (5.15)
+  josephUpdate(K, H, R);
+}
+
+void Ekf::josephUpdate(const Eigen::MatrixXd& K, const Eigen::MatrixXd& H, const Eigen::MatrixXd& R) {
   const Eigen::Index n = joint_.rows();
   const Eigen::MatrixXd IKH = Eigen::MatrixXd::Identity(n, n) - K * H;
   const Eigen::MatrixXd P = IKH * joint_ * IKH.transpose() + K * R * K.transpose();  // (5.17)
   joint_ = 0.5 * (P + P.transpose());
   P_ = joint_.topLeftCorner<3, 3>();
+}
+
+Ekf::JointState Ekf::jointPlus(const JointState& x, const Eigen::VectorXd& dx) const {
+  JointState out = x;
+  out.pose = plus(x.pose, dx.head<3>());
+  if (wheels_at_ >= 0) out.wheels += dx.segment<3>(wheels_at_);
+  if (head_at_ >= 0) out.head += dx.segment<6>(head_at_);
+  if (row_at_ >= 0) out.row += dx(row_at_);
+  return out;
+}
+
+void Ekf::setJointState(const JointState& x) {
+  pose_ = x.pose;
+  wheels_ = x.wheels;
+  head_ = x.head;
+  row_ = x.row;
 }
 
 std::optional<CalibrationEstimate> Ekf::calibration() const {

@@ -209,6 +209,19 @@ class Ekf : public Estimator {
   // x (+) K nu on the joint state with the Joseph form (5.17); H the measurement's, R its noise.
   void applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,
                         const Eigen::MatrixXd& R);
+  // The joint covariance after a gain K (any K: the Joseph form, 5.17), and P_ from it.
+  void josephUpdate(const Eigen::MatrixXd& K, const Eigen::MatrixXd& H, const Eigen::MatrixXd& R);
+  // The joint state's mean (the covariance is joint_): read, set, and moved by dx in the joint
+  // state's coordinates (the pose by plus, the rest additively).
+  struct JointState {
+    Pose2 pose;
+    Eigen::Vector3d wheels;
+    CalibrationEstimate::StereoVector head;
+    double row = 0.0;
+  };
+  JointState jointState() const { return {pose_, wheels_, head_, row_}; }
+  void setJointState(const JointState& x);
+  JointState jointPlus(const JointState& x, const Eigen::VectorXd& dx) const;
   // What association sees: with the stereo block, the observation through the current q with
   // q's uncertainty in R (calibratedObservation); the observation itself otherwise.
   Observation associationView(const Observation& obs) const;
