@@ -393,8 +393,10 @@ Estimate Ekf::process(const Step& step) {
   have_step_ = true;
   last_step_ = step.step;
   updates_.clear();
-  estimates_.push_back(makeEstimate(step, advance(step, first)));
-  return estimates_.back();
+  Estimate e = makeEstimate(step, advance(step, first));
+  if (!config_.keep_history) estimates_.clear();
+  estimates_.push_back(e);
+  return e;
 }
 
 EstimateStatus Ekf::advance(const Step& step, bool first) {

@@ -107,6 +107,9 @@ struct EkfConfig {
   // the marking terms as white noise); with calibration.odometry: unmodelled.slip_rel_sigma is
   // added to the wheel noise. Unused without self-calibration.
   ObservationModelConfig observation_model;
+  // false: finish() returns only the newest estimate, so memory stays constant on an unbounded
+  // stream (the Localizer's); true: one Estimate per step.
+  bool keep_history = true;
 };
 
 // What one update did: for the kidnap study's plots of the innovation and e^2 (Figs. 5.4, 5.5).

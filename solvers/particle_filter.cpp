@@ -697,6 +697,7 @@ void ParticleFilter::validateStep(const Step& step) const {
 Estimate ParticleFilter::recordEstimate(const Step& step, EstimateStatus status) {
   Estimate e = stepEstimate(step, mean_, initialised_ ? cov_ : Eigen::Matrix3d::Zero(), status);
   e.particles = initialised_ ? size() : 0;
+  if (!config_.keep_history) estimates_.clear();
   estimates_.push_back(e);
   return e;
 }

@@ -160,6 +160,9 @@ struct ParticleFilterConfig {
   // their weights. Only until the set has been narrower than handover_sigma_mm once.
   bool multi_hypothesis_start = true;
   HypothesisConfig hypotheses;
+  // false: finish() returns only the newest estimate, so memory stays constant on an unbounded
+  // stream (the Localizer's); true: one Estimate per step.
+  bool keep_history = true;
 };
 
 // Standard normal deviates by the ziggurat method (Marsaglia & Tsang 2000, 128 layers), drawing

@@ -23,7 +23,8 @@
 // landmark id, an unreadable or wrong-size image) throws stereoloc::Error with one line and
 // changes nothing, so the caller can go on: an unreadable image loses the frame, not the
 // step's odometry.
-// Memory: bounded by the window W when window.keep_history is false (an unbounded stream);
+// Memory: bounded by the window W when window.keep_history is false, constant with the
+// filters when ekf.keep_history / particle_filter.keep_history are (an unbounded stream);
 // otherwise one Estimate per step is kept for smoothedTrajectory().
 // Timing: computeMilliseconds() is the wall time spent inside the Localizer since the previous
 // estimate() up to the end of the last one (image decoding, frontend, estimator): the latency

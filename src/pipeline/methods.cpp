@@ -45,10 +45,6 @@ constexpr double kMarkingFeatureOffsetPerRowPx = 0.583 / 1.49;
 constexpr double kGoalFeatureColumnPx = 0.12;
 constexpr double kMarkingFeatureColumnPx = 0.19;
 
-// Gauss-Newton iterations of the iterated EKF's updates (solvers/ekf.h); it stops earlier when
-// converged, typically after 2-3.
-constexpr int kIekfIterations = 10;
-
 using Clock = std::chrono::steady_clock;
 
 double msSince(Clock::time_point start, size_t steps) {
@@ -236,7 +232,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     run = runDeadReckoning(d, beliefFor(init_mode, d, o, rng));
   } else if (name == "ekf" || name == "iekf") {
     EkfConfig c;
-    if (name == "iekf") c.max_iterations = kIekfIterations;
+    if (name == "iekf") c.max_iterations = kIteratedEkfIterations;
     c.init = beliefFor(init_mode, d, o, rng);
     c.gate_enabled = o.gate_enabled && init_mode != InitMode::Random;
     c.calibration = o.calibration;

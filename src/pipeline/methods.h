@@ -63,6 +63,10 @@ struct MethodRun {
 const std::vector<std::string>& methodNames();
 std::string methodNamesText();
 
+// Gauss-Newton iterations of the iterated EKF's updates ("iekf"; solvers/ekf.h); it stops
+// earlier when converged, typically after 2-3.
+constexpr int kIteratedEkfIterations = 10;
+
 // Whether the method `name` (without ":init") can self-calibrate (MethodOptions::calibration):
 // the smoothers and the EKF (solvers/ekf.h, "Self-calibration"); kSelfCalibratingText names them
 // for errors.

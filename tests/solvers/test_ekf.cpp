@@ -726,6 +726,28 @@ TEST(Ekf, TracksTheCircleWithIdentifiedAndUnidentifiedObservations) {
   }
 }
 
+// Without history the filter runs the same and finish() holds only the newest estimate (the
+// Localizer's constant memory on an unbounded stream).
+TEST(Ekf, WithoutHistoryFinishKeepsOnlyTheNewestEstimate) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  const SyntheticRun run = circleRun(map, odo, 30, 8);
+  EkfConfig config = knownConfig(run.truth[0], Eigen::Vector3d(100.0, 100.0, 1e-3).asDiagonal());
+  Ekf kept(map, odo, config);
+  config.keep_history = false;
+  Ekf newest(map, odo, config);
+  for (const Step& s : run.steps) {
+    const Estimate a = kept.process(s), b = newest.process(s);
+    ASSERT_EQ(a.pose.x, b.pose.x);
+    ASSERT_EQ(a.covariance, b.covariance);
+  }
+  EXPECT_EQ(kept.finish().size(), run.steps.size());
+  const std::vector<Estimate> last = newest.finish();
+  ASSERT_EQ(last.size(), 1u);
+  EXPECT_EQ(last[0].step, run.steps.back().step);
+  EXPECT_EQ(last[0].pose.y, kept.finish().back().pose.y);
+}
+
 TEST(Ekf, NoNanAfterTenThousandStepsWithoutObservations) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;

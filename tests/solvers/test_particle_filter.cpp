@@ -358,6 +358,30 @@ TEST(ParticleFilter, IsDeterministicForASeed) {
   }
 }
 
+// Without history the filter runs the same and finish() holds only the newest estimate (the
+// Localizer's constant memory on an unbounded stream).
+TEST(ParticleFilter, WithoutHistoryFinishKeepsOnlyTheNewestEstimate) {
+  const FieldMap map = FieldMap::miroSot();
+  const OdometryParams odo;
+  const SyntheticRun run = circleRun(map, odo, 30, 52);
+  ParticleFilterConfig pc;
+  pc.init = knownBelief(run.truth[0], Eigen::Vector3d(100.0, 100.0, 0.003).asDiagonal());
+  pc.particles = 300;
+  ParticleFilter kept(map, odo, pc, 7);
+  pc.keep_history = false;
+  ParticleFilter newest(map, odo, pc, 7);
+  for (const Step& s : run.steps) {
+    const Estimate a = kept.process(s), b = newest.process(s);
+    ASSERT_EQ(a.pose.x, b.pose.x);
+    ASSERT_EQ(a.covariance, b.covariance);
+  }
+  EXPECT_EQ(kept.finish().size(), run.steps.size());
+  const std::vector<Estimate> last = newest.finish();
+  ASSERT_EQ(last.size(), 1u);
+  EXPECT_EQ(last[0].step, run.steps.back().step);
+  EXPECT_EQ(last[0].pose.y, kept.finish().back().pose.y);
+}
+
 TEST(ParticleFilter, InitialisationModes) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -202,11 +203,13 @@ class StreamImages : public ::testing::Test {
 };
 test::TempDir* StreamImages::dir_ = nullptr;
 
-// step -> (x, y, theta, 9 covariance values) of the smoothed lines of a stream.
-std::map<long, std::vector<double>> smoothedLines(const std::string& output) {
+// step -> (x, y, theta, 9 covariance values) of a stream's estimate lines, the smoothed ones
+// (printed after the input ends) or the real-time ones.
+std::map<long, std::vector<double>> estimateLines(const std::string& output, bool smoothed) {
   std::map<long, std::vector<double>> out;
   for (const std::string& l : lines(output, "{\"step\":")) {
-    if (l.find("\"smoothed\":true") == std::string::npos || l.find("\"x\"") == std::string::npos) continue;
+    if ((l.find("\"smoothed\":true") != std::string::npos) != smoothed || l.find("\"x\"") == std::string::npos)
+      continue;
     std::vector<double> v = {field(l, "x"), field(l, "y"), field(l, "theta")};
     std::istringstream cov(l.substr(l.find("\"covariance\":[") + 14));
     for (int i = 0; i < 9; ++i) {
@@ -220,39 +223,52 @@ std::map<long, std::vector<double>> smoothedLines(const std::string& output) {
   return out;
 }
 
+// The same of an estimate CSV written by `localize`.
+std::map<long, std::vector<double>> estimateCsv(const std::string& csv) {
+  std::map<long, std::vector<double>> out;
+  std::ifstream in(csv);
+  std::string row;
+  std::getline(in, row);  // header
+  while (std::getline(in, row)) {
+    std::vector<double> v;
+    std::stringstream ls(row);
+    for (std::string f; std::getline(ls, f, ',');) v.push_back(std::stod(f));
+    EXPECT_EQ(v.size(), 11u) << row;  // step,t,x,y,theta, xx,xy,xtheta,yy,ytheta,thetatheta
+    if (v.size() == 11u)
+      out[static_cast<long>(v[0])] = {v[2], v[3], v[4], v[5], v[6], v[7], v[6], v[8], v[9], v[7], v[9], v[10]};
+  }
+  return out;
+}
+
+// The largest difference of two estimate maps with the same steps, relative to max(1, |value|).
+double worstRelativeDifference(const std::map<long, std::vector<double>>& got,
+                               const std::map<long, std::vector<double>>& expected) {
+  EXPECT_EQ(got.size(), expected.size());
+  double worst = 0;
+  for (const auto& [step, v] : expected) {
+    if (got.count(step) == 0) {
+      ADD_FAILURE() << "no estimate of step " << step;
+      return std::numeric_limits<double>::infinity();
+    }
+    for (size_t i = 0; i < v.size(); ++i)
+      worst = std::max(worst, std::fabs(got.at(step)[i] - v[i]) / std::max(1.0, std::fabs(v[i])));
+  }
+  return worst;
+}
+
 TEST_F(StreamImages, ImagesInTheStreamGiveTheEstimatesOfLocalize) {
   const std::string csv = dir_->file("localize.csv");
   const test::CliRun loc =
       test::runCli("localize " + ds() + " --method window --init global --frontend images --out " + csv);
   ASSERT_EQ(loc.exit_code, 0) << loc.output;
-  std::map<long, std::vector<double>> expected;
-  {
-    std::ifstream in(csv);
-    std::string row;
-    std::getline(in, row);  // header
-    while (std::getline(in, row)) {
-      std::vector<double> v;
-      std::stringstream ls(row);
-      for (std::string f; std::getline(ls, f, ',');) v.push_back(std::stod(f));
-      ASSERT_EQ(v.size(), 11u) << row;  // step,t,x,y,theta, xx,xy,xtheta,yy,ytheta,thetatheta
-      expected[static_cast<long>(v[0])] = {v[2], v[3], v[4], v[5], v[6], v[7], v[6], v[8], v[9], v[7], v[9], v[10]};
-    }
-  }
+  const std::map<long, std::vector<double>> expected = estimateCsv(csv);
   ASSERT_GT(expected.size(), 20u);
   const test::CliRun on_stdin =
       test::runCli("stream --setup " + ds() + " --init global --smoothed", writeLines("in_order.jsonl", 0));
   const test::CliRun replay = test::runCli("stream --from " + ds() + " --frontend images --init global --smoothed");
   for (const test::CliRun* r : {&on_stdin, &replay}) {
     ASSERT_EQ(r->exit_code, 0) << r->output;
-    const auto got = smoothedLines(r->output);
-    ASSERT_EQ(got.size(), expected.size()) << r->output;
-    double worst = 0;
-    for (const auto& [step, v] : expected) {
-      ASSERT_EQ(got.count(step), 1u) << step;
-      for (size_t i = 0; i < v.size(); ++i)
-        worst = std::max(worst, std::fabs(got.at(step)[i] - v[i]) / std::max(1.0, std::fabs(v[i])));
-    }
-    EXPECT_LT(worst, 1e-9);
+    EXPECT_LT(worstRelativeDifference(estimateLines(r->output, true), expected), 1e-9) << r->output;
   }
   // Every real-time line carries its compute time.
   for (const std::string& l : lines(on_stdin.output, "{\"step\":"))
@@ -287,7 +303,7 @@ TEST_F(StreamImages, LateImagesAreInsertedAtTheirStep) {
                                          v[1] - d.groundtruth.at(static_cast<size_t>(step))->y));
     return worst;
   };
-  const auto a = smoothedLines(in_order.output), b = smoothedLines(late.output);
+  const auto a = estimateLines(in_order.output, true), b = estimateLines(late.output, true);
   ASSERT_EQ(b.size(), a.size());
   double diff = 0;
   for (const auto& [step, v] : a) diff = std::max(diff, std::hypot(v[0] - b.at(step)[0], v[1] - b.at(step)[1]));
@@ -332,6 +348,73 @@ TEST_F(StreamImages, BadInputNeverStopsTheStream) {
   EXPECT_NE(out[5].find("\"late\":\"too_late\""), std::string::npos) << out[5];
   EXPECT_NE(out[6].find("\"status\":\"tracking\""), std::string::npos) << out[6];
   EXPECT_EQ(r.output.find("null"), std::string::npos) << r.output;
+}
+
+// The filters as the stream's tracker, on a realistic line's images: the self-calibrating and
+// the iterated EKF give exactly `localize`'s estimates (and calibration), the particle filter
+// the same estimates for the same seed; each tracker's options are refused with another.
+TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
+  test::TempDir dir("stream_filters");
+  const std::string ds = dir.file("ds");
+  const test::CliRun sim =
+      test::runCli("simulate --scenario line --steps 40 --seed 7 --profile realistic --images --out " + ds);
+  ASSERT_EQ(sim.exit_code, 0) << sim.output;
+  const std::string noise = std::string(STEREOLOC_DATA_DIR) + "/noise_realistic.yaml";
+  const std::string calibrating = " --calibrate odometry,stereo --noise-model " + noise;
+  for (const std::string method : {"ekf", "iekf"}) {
+    const std::string options = " --method " + method + " --init global --frontend images" +
+                                (method == "ekf" ? calibrating : std::string());
+    const std::string csv = dir.file(method + ".csv"), out = method == "ekf" ? " --calibration-out " : "";
+    const test::CliRun loc = test::runCli("localize " + ds + options + " --out " + csv +
+                                          (method == "ekf" ? out + dir.file("localize_rig.yaml") : ""));
+    ASSERT_EQ(loc.exit_code, 0) << loc.output;
+    const std::map<long, std::vector<double>> expected = estimateCsv(csv);
+    ASSERT_GT(expected.size(), 30u) << method;
+    const test::CliRun r = test::runCli("stream --from " + ds + options +
+                                        (method == "ekf" ? out + dir.file("stream_rig.yaml") : ""));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_EQ(worstRelativeDifference(estimateLines(r.output, false), expected), 0.0) << method;
+  }
+  // The calibration files (the rig YAML names its own OpenCV file, so that line differs).
+  auto text = [](const std::string& path) {
+    std::ifstream in(path);
+    std::string all, l;
+    while (std::getline(in, l))
+      if (l.rfind("calibration_file:", 0) != 0) all += l + "\n";
+    return all;
+  };
+  EXPECT_EQ(text(dir.file("stream_rig.yaml")), text(dir.file("localize_rig.yaml")));
+  EXPECT_EQ(text(dir.file("stream_rig_calibration.yml")), text(dir.file("localize_rig_calibration.yml")));
+  EXPECT_NE(text(dir.file("stream_rig.yaml")).find("wheel_base_sigma_mm"), std::string::npos);
+
+  const std::string pf = "stream --from " + ds + " --frontend images --method pf --particles 400 --init global";
+  const test::CliRun a = test::runCli(pf + " --seed 3"), b = test::runCli(pf + " --seed 3"),
+                     c = test::runCli(pf + " --seed 4");
+  for (const test::CliRun* r : {&a, &b, &c}) ASSERT_EQ(r->exit_code, 0) << r->output;
+  const auto pa = estimateLines(a.output, false);
+  EXPECT_GT(pa.size(), 30u);
+  EXPECT_EQ(worstRelativeDifference(estimateLines(b.output, false), pa), 0.0);
+  EXPECT_GT(worstRelativeDifference(estimateLines(c.output, false), pa), 0.0);
+  EXPECT_NE(lines(a.output, "{\"step\":").back().find("\"status\":\"tracking\""), std::string::npos) << a.output;
+
+  const std::vector<std::pair<std::string, std::string>> refused = {
+      {"--method pf --calibrate odometry", "--calibrate"},
+      {"--method iekf --calibrate odometry", "--calibrate"},
+      {"--method ekf --window 5", "--window"},
+      {"--method ekf --max-iterations 3", "--max-iterations"},
+      {"--method pf --smoothed", "--smoothed"},
+      {"--method ekf --noise-model " + noise, "--noise-model"},
+      {"--method ekf --observation-model pixels", "--observation-model"},
+      {"--method window --particles 10", "--particles"},
+      {"--method ekf --seed 2", "--seed"},
+      {"--method pf --no-gate", "--no-gate"},
+      {"--method kalman", "--method"}};
+  for (const auto& [options, named] : refused) {
+    const test::CliRun r = test::runCli("stream --from " + ds + " " + options);
+    EXPECT_EQ(r.exit_code, 2) << options << "\n" << r.output;
+    EXPECT_NE(r.output.find(named), std::string::npos) << options << "\n" << r.output;
+    EXPECT_EQ(r.output.find("{\"step\":"), std::string::npos) << options;
+  }
 }
 
 }  // namespace

@@ -1,6 +1,8 @@
 // `stereoloc stream`: the real-time pipeline (src/pipeline/localizer.h) on JSON Lines, one step
 // per line on stdin (or a replayed dataset, --from DIR), one estimate per line on stdout as soon
-// as it is computed; the line formats are in src/pipeline/stream_io.h. A bad line (not JSON, a
+// as it is computed; the line formats are in src/pipeline/stream_io.h. The tracker is the
+// sliding window (default), the EKF (iterated: iekf; self-calibrating with --calibrate) or the
+// particle filter; each option of one tracker is refused with another. A bad line (not JSON, a
 // step going backwards, a missing or unusable image, observations older than the window) gets
 // one error on stderr naming the line; the line's odometry is still used when it is valid, and
 // the stream goes on. The exit code at the end is 1 if any line was bad.
@@ -11,6 +13,7 @@
 
 #include "src/io/dataset.h"
 #include "src/pipeline/localizer.h"
+#include "src/pipeline/methods.h"
 #include "src/pipeline/rig_handover.h"
 #include "src/pipeline/stream_io.h"
 #include "tools/stereoloc/cli_common.h"
@@ -20,7 +23,9 @@ namespace stereoloc::cli {
 namespace {
 
 struct StreamArgs {
-  int window = 20, max_iterations = 5;
+  std::string method = "window";
+  int window = 20, max_iterations = 5, particles = ParticleFilterConfig().particles;
+  uint64_t seed = 1;
   std::string from, setup, map_path, rig_path, init = "auto";
   std::vector<double> pose, pose_sigma = {30.0, 30.0, 0.0872664626};
   double compass_sigma = 0, wheel_base = OdometryParams().wheel_base_mm;
@@ -57,26 +62,41 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
     const Eigen::Vector3d s(a.pose_sigma[0], a.pose_sigma[1], a.pose_sigma[2]);
     c.init = knownBelief(*start, s.cwiseAbs2().asDiagonal());
   }
+  SelfCalibrationConfig calibration;
+  ObservationModelConfig observation_model;
   try {
-    c.window.observation_model.model = observationModelFromString(a.observation_model);
+    observation_model.model = observationModelFromString(a.observation_model);
   } catch (const Error& e) {
     throw UsageError(std::string("--observation-model: ") + e.what());
   }
   try {
-    c.window.calibration = SelfCalibrationConfig::parse(a.calibrate);
+    calibration = SelfCalibrationConfig::parse(a.calibrate);
   } catch (const Error& e) {
     throw UsageError(std::string("--calibrate: ") + e.what());
   }
-  if (c.window.calibration.stereo && c.window.observation_model.model == ObservationModel::RangeBearing)
+  const bool calibrating = calibration.odometry || calibration.stereo;
+  if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
     throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
-  if (!a.calibration_out.empty() && !c.window.calibration.odometry && !c.window.calibration.stereo)
-    throw UsageError("--calibration-out: needs --calibrate");
-  if (!a.noise_model.empty()) c.window.observation_model.unmodelled = UnmodelledNoise::load(a.noise_model);
-  handover.applyPriors(c.window.calibration, c.window.observation_model.unmodelled);
+  if (!a.calibration_out.empty() && !calibrating) throw UsageError("--calibration-out: needs --calibrate");
+  if (!a.noise_model.empty()) observation_model.unmodelled = UnmodelledNoise::load(a.noise_model);
+  handover.applyPriors(calibration, observation_model.unmodelled);
+  c.method = localizerMethodFromString(a.method == "iekf" ? "ekf" : a.method);
+  // Only the window smooths: the filters keep just their newest estimate, so an unbounded
+  // stream runs in constant memory whatever the tracker.
+  c.window.observation_model = observation_model;
+  c.window.calibration = calibration;
   c.window.window = a.window;
   c.window.max_iterations = a.max_iterations;
   c.window.gate_enabled = !a.no_gate;
   c.window.keep_history = a.smoothed;  // otherwise memory stays bounded by W
+  c.ekf.observation_model = observation_model;
+  c.ekf.calibration = calibration;
+  c.ekf.gate_enabled = !a.no_gate;
+  if (a.method == "iekf") c.ekf.max_iterations = kIteratedEkfIterations;
+  c.ekf.keep_history = false;
+  c.particle_filter.particles = a.particles;
+  c.particle_filter.keep_history = false;
+  c.seed = a.seed;
   c.frontend = imageFrontendOptions(a.frontend_landmarks, a.frontend_params);
   return c;
 }
@@ -86,7 +106,33 @@ void print(const std::string& line) {
   std::fflush(stdout);  // as soon as it is computed
 }
 
-void runStream(const StreamArgs& a) {
+// Each tracker's options are refused with another tracker, rather than silently ignored.
+void checkMethodOptions(const StreamArgs& a, const CLI::App& sub) {
+  const std::string m = "(method '" + a.method + "')";
+  auto refuse = [&](const char* option, const char* who) {
+    if (sub.count(option) > 0) throw UsageError(std::string(option) + ": for " + who + " only " + m);
+  };
+  if (a.method != "window") {
+    refuse("--window", "the window");
+    refuse("--max-iterations", "the window");
+    refuse("--smoothed", "the window, which smooths,");
+  }
+  if (a.method != "pf") {
+    refuse("--particles", "the particle filter");
+    refuse("--seed", "the particle filter");
+  }
+  const bool calibrating = !a.calibrate.empty();
+  if (calibrating && a.method != "window" && a.method != "ekf")
+    throw UsageError("--calibrate: only the window and ekf self-calibrate " + m);
+  if (a.method == "pf") refuse("--no-gate", "the window and the EKFs");
+  if (a.method != "window" && !(a.method == "ekf" && calibrating)) {
+    refuse("--noise-model", "the window and ekf with --calibrate");
+    refuse("--observation-model", "the window and ekf with --calibrate");
+  }
+}
+
+void runStream(const StreamArgs& a, const CLI::App& sub) {
+  checkMethodOptions(a, sub);
   if (a.frontend != "pixels" && a.frontend != "images") throw UsageError("--frontend: expected pixels or images");
   if (a.frontend == "images" && a.from.empty())
     throw UsageError("--frontend images needs --from DIR; on stdin a line names its images (\"left\", \"right\")");
@@ -143,10 +189,15 @@ void add_stream_command(CLI::App& app) {
       "Real-time localization on JSON Lines: one step per line on stdin (odometry with observations or a stereo "
       "pair's image files, possibly of an earlier step: \"obs_step\"), or --from DIR; one estimate per line on "
       "stdout with its compute time (formats: src/pipeline/stream_io.h)");
-  sub->add_option("--window", a->window, "Window size W (poses)")->capture_default_str()->check(CLI::Range(1, 100000));
+  sub->add_option("--method", a->method,
+                  "Tracker: window (sliding-window smoother), ekf, iekf (iterated updates) or pf (particle filter); "
+                  "only the window takes late observations")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"window", "ekf", "iekf", "pf"}));
+  sub->add_option("--window", a->window, "Window: size W (poses)")->capture_default_str()->check(CLI::Range(1, 100000));
   sub->add_option("--observation-model", a->observation_model,
-                  "How the window uses pixel observations: range_bearing, pixel_columns or pixels (see `localize "
-                  "--help`); range-bearing observations stay range-bearing")
+                  "How the window and ekf with --calibrate use pixel observations: range_bearing, pixel_columns or pixels "
+                  "(see `localize --help`); range-bearing observations stay range-bearing")
       ->capture_default_str();
   sub->add_option("--from", a->from, "Replay a dataset directory instead of reading stdin");
   sub->add_option("--setup", a->setup, "Map, rig, odometry model and compass sigma of this dataset directory");
@@ -166,22 +217,27 @@ void add_stream_command(CLI::App& app) {
       ->capture_default_str();
   sub->add_option("--compass-sigma", a->compass_sigma, "Compass sigma (rad) for lines without compass_sigma");
   sub->add_option("--wheel-base", a->wheel_base, "Wheel base (mm); ignored with --from/--setup and with a --rig that hands over a wheel estimate")->capture_default_str();
-  sub->add_option("--max-iterations", a->max_iterations, "Solver iterations per step")
+  sub->add_option("--max-iterations", a->max_iterations, "Window: solver iterations per step")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
-  sub->add_flag("--no-gate", a->no_gate, "Fuse every observation (no validation gate)");
-  sub->add_flag("--smoothed", a->smoothed, "After the input ends, print the smoothed trajectory (\"smoothed\":true)");
+  sub->add_option("--particles", a->particles, "Particles of the particle filter")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 10000000));
+  sub->add_option("--seed", a->seed, "Seed of the particle filter's random stream")->capture_default_str();
+  sub->add_flag("--no-gate", a->no_gate, "Window and EKFs: fuse every observation (no validation gate)");
+  sub->add_flag("--smoothed", a->smoothed, "Window: after the input ends, print the smoothed trajectory (\"smoothed\":true)");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
   sub->add_option("--calibrate", a->calibrate,
-                  "Self-calibrate in the window: odometry (wheel scales, wheel base), stereo (head tilt, baseline "
-                  "scale, pixel offsets, focal ratio; a pixel observation model) or odometry,stereo");
+                  "Self-calibrate in the window or the EKF: odometry (wheel scales, wheel base), stereo (head tilt, "
+                  "baseline scale, pixel offsets, focal ratio; a pixel observation model) or odometry,stereo");
   sub->add_option("--noise-model", a->noise_model,
-                  "YAML of the noise the rig and odometry do not state, for the window (see `localize --help`)")
+                  "YAML of the noise the rig and odometry do not state, for the window and ekf with --calibrate (see "
+                  "`localize --help`)")
       ->check(CLI::ExistingFile);
   sub->add_option("--calibration-out", a->calibration_out,
-                  "With --calibrate: after the input ends, write the rig YAML with the window's calibration estimate "
+                  "With --calibrate: after the input ends, write the rig YAML with the tracker's calibration estimate "
                   "and its standard deviations (usable as --rig)");
-  sub->callback([a] { runStream(*a); });
+  sub->callback([a, sub] { runStream(*a, *sub); });
 }
 
 }  // namespace stereoloc::cli
