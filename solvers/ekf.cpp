@@ -10,6 +10,8 @@
 #include <utility>
 
 #include "factors/stereo_pixel_calibration_factor.h"
+#include "factors/stereo_pixel_feature_calibration_factor.h"
+#include "factors/stereo_pixel_image_calibration_factor.h"
 #include "factors/stereo_pixel_row_calibration_factor.h"
 #include "solvers/calibrated_models.h"
 #include "src/core/error.h"
@@ -60,9 +62,18 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
     wheels_[2] = odometry_.wheel_base_mm;
     if (cal.odometry) wheels_at_ = std::exchange(n, n + 3);
     if (cal.stereo) head_at_ = std::exchange(n, n + 6);
-    const std::optional<double> row_sigma = rowOffsetSigma(cal, config_.observation_model.unmodelled);
+    const UnmodelledNoise& noise = config_.observation_model.unmodelled;
+    // The image block and the feature offsets enter the pixel factors only.
+    const bool pixel_model = config_.observation_model.model != ObservationModel::RangeBearing;
+    if (pixel_model) image_sigmas_ = imageErrorSigmas(cal, noise);
+    if (image_sigmas_) image_at_ = std::exchange(n, n + static_cast<int>(image_.size()));
+    const std::optional<double> row_sigma = rowOffsetSigma(cal, noise);
     if (row_sigma) row_at_ = std::exchange(n, n + 1);
+    if (pixel_model)
+      for (const FeatureOffsetPrior& f : featureOffsetSigmas(map_, cal, noise)) feature_sigmas_[f.landmark_id] = f.sigma;
+    features_at_ = n;
     joint_ = Eigen::MatrixXd::Zero(n, n);
+    if (image_at_ >= 0) joint_.block(image_at_, image_at_, image_.size(), image_.size()).setIdentity();
     if (row_sigma) joint_(row_at_, row_at_) = *row_sigma * *row_sigma;
     if (cal.odometry) joint_.diagonal().segment<3>(wheels_at_) = wheelPriorSigma(cal, wheels_[2]).cwiseAbs2();
     if (cal.stereo) joint_.diagonal().segment<6>(head_at_) = stereoPriorSigma(cal).cwiseAbs2();
@@ -259,8 +270,7 @@ bool Ekf::reanchor(const PoseFix& fix) {
   // news of it: the stereo and row blocks are considered, not updated (a Schmidt gain; the Joseph
   // form keeps the covariance right for it). Updated, each re-anchoring pulled the calibration
   // further after a bad first sighting (a realistic line trial: disparity offset -1.5 -> -7.9 px).
-  if (head_at_ >= 0) K.middleRows<6>(head_at_).setZero();
-  if (row_at_ >= 0) K.row(row_at_).setZero();
+  if (head_at_ >= 0) K.bottomRows(K.rows() - head_at_).setZero();  // q, e, dv and the feature offsets
   considerWheelBase(K);
   applyJointUpdate(K, nu, H, fix.covariance);
   lost_ = false;
@@ -424,13 +434,17 @@ void Ekf::predictCalibrated(double d_left, double d_right) {
   Eigen::Matrix3d J_c = Eigen::Matrix3d::Zero();
   // With C = 0 its covariance is the control's alone, J2 U J2^T (5.9).
   const PosePrediction pred = predictCalibratedStep(pose_, Eigen::Matrix3d::Zero(), d_left, d_right, wheels_, params, &J_c);
+  // F is the identity but for the pose rows A = [J1, J_c at the wheels]: F P F^T changes only
+  // the pose rows and columns, A P and A P A^T, in O(n) (the feature offsets make n grow).
   const Eigen::Index n = joint_.rows();
-  Eigen::MatrixXd F = Eigen::MatrixXd::Identity(n, n);
-  F.topLeftCorner<3, 3>() = J1;
-  if (wheels_at_ >= 0) F.block<3, 3>(0, wheels_at_) = J_c;
-  Eigen::MatrixXd P = F * joint_ * F.transpose();
-  P.topLeftCorner<3, 3>() += pred.covariance;
-  joint_ = 0.5 * (P + P.transpose());
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(3, n);
+  A.leftCols<3>() = J1;
+  if (wheels_at_ >= 0) A.block<3, 3>(0, wheels_at_) = J_c;
+  const Eigen::MatrixXd AP = A * joint_;
+  const Eigen::Matrix3d pose_block = AP * A.transpose() + pred.covariance;
+  joint_.topRows<3>() = AP;
+  joint_.leftCols<3>() = AP.transpose();
+  joint_.topLeftCorner<3, 3>() = 0.5 * (pose_block + pose_block.transpose());
   pose_ = pred.pose;
   P_ = joint_.topLeftCorner<3, 3>();
 }
@@ -471,33 +485,77 @@ Observation Ekf::associationView(const Observation& obs) const {
 
 std::optional<Ekf::JointInnovation> Ekf::pixelInnovation(const Observation& obs, const Landmark& landmark) const {
   const ObservationModelConfig& m = config_.observation_model;
-  const Eigen::Matrix4d C_px = pixelCovarianceFor(obs, landmark, m, row_at_ >= 0);
-  using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-  std::unique_ptr<ceres::CostFunction> f(
-      row_at_ >= 0 ? StereoPixelRowCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.slide_gain,
-                                                              obs.head_pan, C_px, PixelResiduals::Columns, nullptr)
-                   : StereoPixelCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.head_pan, C_px,
-                                                          PixelResiduals::Columns));
+  const Eigen::Index feature_at = featureAt(landmark.id);
+  const Eigen::Matrix4d C_px =
+      calibratedPixelCovariance(obs, landmark, m, image_at_ >= 0, row_at_ >= 0, feature_at >= 0);
+  const auto* image_sigmas = image_sigmas_ ? &*image_sigmas_ : nullptr;
+  constexpr auto kColumns = PixelResiduals::Columns;
+  // The blocks of the factor, as the smoothers give them: pose, q, [e], [dv], [(b_c, b_d)].
+  std::unique_ptr<ceres::CostFunction> f;
+  if (feature_at >= 0)
+    f.reset(StereoPixelFeatureCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.slide_gain,
+                                                        obs.head_pan, C_px, kColumns, image_sigmas));
+  else if (row_at_ >= 0)
+    f.reset(StereoPixelRowCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.slide_gain,
+                                                    obs.head_pan, C_px, kColumns, image_sigmas));
+  else if (image_sigmas)
+    f.reset(StereoPixelImageCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.head_pan, C_px,
+                                                      kColumns, *image_sigmas));
+  else
+    f.reset(StereoPixelCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.head_pan, C_px, kColumns));
   const double pose[3] = {pose_.x, pose_.y, pose_.theta};
-  std::vector<const double*> blocks = {pose, head_.data()};
-  if (row_at_ >= 0) blocks.push_back(&row_);
+  struct Block {
+    const double* values;
+    Eigen::Index at, size;
+  };
+  std::vector<Block> blocks = {{pose, 0, 3}, {head_.data(), head_at_, 6}};
+  if (image_at_ >= 0) blocks.push_back({image_.data(), image_at_, image_.size()});
+  if (row_at_ >= 0) blocks.push_back({&row_, row_at_, 1});
+  if (feature_at >= 0) blocks.push_back({offsets_.data() + (feature_at - features_at_), feature_at, 2});
   const int k = f->num_residuals();
+  using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  std::vector<RowMajor> J;
+  std::vector<const double*> values;
+  std::vector<double*> jacobians;
+  for (const Block& b : blocks) {
+    J.emplace_back(k, b.size);
+    values.push_back(b.values);
+  }
+  for (RowMajor& j : J) jacobians.push_back(j.data());
   Eigen::VectorXd r(k);
-  RowMajor J_pose(k, 3), J_q(k, 6), J_row(k, 1);
-  double* jacobians[3] = {J_pose.data(), J_q.data(), J_row.data()};
-  if (!f->Evaluate(blocks.data(), r.data(), jacobians) || !r.allFinite() || !J_pose.allFinite() || !J_q.allFinite() ||
-      (row_at_ >= 0 && !J_row.allFinite()))
-    return std::nullopt;
+  if (!f->Evaluate(values.data(), r.data(), jacobians.data()) || !r.allFinite()) return std::nullopt;
   // The factor's residual is whitened, W (h(x) - z): the sighting is nu = -r with H = dr/dx and
   // unit noise.
   JointInnovation g;
   g.nu = -r;
   g.R = Eigen::MatrixXd::Identity(k, k);
   g.H = Eigen::MatrixXd::Zero(k, joint_.rows());
-  g.H.leftCols<3>() = J_pose;
-  g.H.block(0, head_at_, k, 6) = J_q;
-  if (row_at_ >= 0) g.H.col(row_at_) = J_row.col(0);
+  for (size_t i = 0; i < blocks.size(); ++i) {
+    if (!J[i].allFinite()) return std::nullopt;
+    g.H.middleCols(blocks[i].at, blocks[i].size) = J[i];
+  }
   return g;
+}
+
+Eigen::Index Ekf::featureAt(int landmark_id) const {
+  for (size_t i = 0; i < feature_ids_.size(); ++i)
+    if (feature_ids_[i] == landmark_id) return features_at_ + 2 * static_cast<Eigen::Index>(i);
+  return -1;
+}
+
+bool Ekf::addFeatureOffsets(const Landmark& landmark) {
+  const auto sigma = feature_sigmas_.find(landmark.id);
+  if (sigma == feature_sigmas_.end() || featureAt(landmark.id) >= 0) return false;
+  const Eigen::Index n = joint_.rows();
+  joint_.conservativeResize(n + 2, n + 2);
+  joint_.rightCols<2>().setZero();
+  joint_.bottomRows<2>().setZero();
+  joint_(n, n) = sigma->second.column * sigma->second.column;
+  joint_(n + 1, n + 1) = sigma->second.disparity * sigma->second.disparity;
+  offsets_.conservativeResize(offsets_.size() + 2);
+  offsets_.tail<2>().setZero();
+  feature_ids_.push_back(landmark.id);
+  return true;
 }
 
 std::optional<Ekf::JointInnovation> Ekf::jointInnovation(const Observation& obs, const Landmark& landmark) const {
@@ -551,6 +609,12 @@ EkfUpdateRecord Ekf::fuseCalibrated(const Observation& obs, const Landmark& land
   rec.innovation_covariance = g->S.topLeftCorner<2, 2>();
   rec.mahalanobis_squared = g->e2;
   if (!fuse || (gated && !gate_.accepts(rec.mahalanobis_squared))) return rec;
+  // A feature's offsets become states when it is first fused: before, the pixel covariance holds
+  // them as the same noise (same S and e^2), so the gate above does not depend on when.
+  if (addFeatureOffsets(landmark)) {
+    g = jointInnovation(obs, landmark);
+    if (!g) return rec;
+  }
   // Iterated: Gauss-Newton on the prediction's prior and the sighting, relinearised at each
   // iterate x_i (the iterated EKF's update on the joint state): x = x0 (+) K_i (nu_i + H_i (x_i [-] x0)),
   // K_i = P0 H_i^T (H_i P0 H_i^T + R)^-1. One step (the plain EKF update) linearises the pixels'
@@ -601,9 +665,12 @@ void Ekf::applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, 
 }
 
 void Ekf::josephUpdate(const Eigen::MatrixXd& K, const Eigen::MatrixXd& H, const Eigen::MatrixXd& R) {
-  const Eigen::Index n = joint_.rows();
-  const Eigen::MatrixXd IKH = Eigen::MatrixXd::Identity(n, n) - K * H;
-  const Eigen::MatrixXd P = IKH * joint_ * IKH.transpose() + K * R * K.transpose();  // (5.17)
+  // (I - K H) P (I - K H)^T + K R K^T (5.17) multiplied out, P - K H P - (K H P)^T + K S K^T
+  // with S = H P H^T + R: equal for any K, in O(n^2 k) for k rows instead of O(n^3).
+  const Eigen::MatrixXd HP = H * joint_;
+  const Eigen::MatrixXd S = HP * H.transpose() + R;
+  const Eigen::MatrixXd KHP = K * HP;
+  const Eigen::MatrixXd P = joint_ - KHP - KHP.transpose() + K * S * K.transpose();
   joint_ = 0.5 * (P + P.transpose());
   P_ = joint_.topLeftCorner<3, 3>();
 }
@@ -613,7 +680,9 @@ Ekf::JointState Ekf::jointPlus(const JointState& x, const Eigen::VectorXd& dx) c
   out.pose = plus(x.pose, dx.head<3>());
   if (wheels_at_ >= 0) out.wheels += dx.segment<3>(wheels_at_);
   if (head_at_ >= 0) out.head += dx.segment<6>(head_at_);
+  if (image_at_ >= 0) out.image += dx.segment(image_at_, out.image.size());
   if (row_at_ >= 0) out.row += dx(row_at_);
+  out.offsets += dx.segment(features_at_, out.offsets.size());
   return out;
 }
 
@@ -621,7 +690,10 @@ void Ekf::setJointState(const JointState& x) {
   pose_ = x.pose;
   wheels_ = x.wheels;
   head_ = x.head;
+  image_ = x.image;
   row_ = x.row;
+  offsets_ = x.offsets;
+  feature_ids_ = x.feature_ids;
 }
 
 std::optional<CalibrationEstimate> Ekf::calibration() const {
@@ -637,10 +709,28 @@ std::optional<CalibrationEstimate> Ekf::calibration() const {
     e.head = head_;
     e.head_covariance = joint_.block<6, 6>(head_at_, head_at_);
   }
+  if (image_at_ >= 0) {
+    const Eigen::Index m = image_.size();
+    e.image = true;
+    e.image_errors = image_sigmas_->cwiseProduct(image_);
+    e.image_covariance = image_sigmas_->asDiagonal() * joint_.block(image_at_, image_at_, m, m) * image_sigmas_->asDiagonal();
+  }
   if (row_at_ >= 0) {
     e.row = true;
     e.row_offset_px = row_;
     e.row_offset_variance = joint_(row_at_, row_at_);
+  }
+  // In the map's order, as the window's.
+  for (const Landmark& l : map_.landmarks()) {
+    const Eigen::Index at = featureAt(l.id);
+    if (at < 0) continue;
+    CalibrationEstimate::FeatureOffset o;
+    o.landmark_id = l.id;
+    o.column_px = offsets_(at - features_at_);
+    o.column_variance = joint_(at, at);
+    o.offset_px = offsets_(at - features_at_ + 1);
+    o.variance = joint_(at + 1, at + 1);
+    e.feature_offsets.push_back(o);
   }
   return e;
 }

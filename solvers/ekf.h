@@ -35,14 +35,16 @@
 // then gave NEES 1250-6400 at one step, and the filter stayed over-confident for tens of steps.
 //
 // Self-calibration (EkfConfig::calibration, the `ekf:calib` method; not in the thesis): the
-// wheel block c = (c_l, c_r, w), the stereo block q of solvers/self_calibration.h and, when the
-// noise model states the rows' misalignment, the row offset dv become states beside the pose,
-// x = (p, c, q, dv), with their priors' covariance and no process noise (constant for a run):
+// wheel block c = (c_l, c_r, w), the stereo block q of solvers/self_calibration.h and, with a
+// pixel model where the noise model states them, the smoothers' image block e, the row offset
+// dv and each fused feature's offsets b become states beside the pose, x = (p, c, q, e, dv, b),
+// with their priors' covariance and no process noise (constant for a run; a feature's b joins
+// when it is first fused):
 //   prediction  p' = p (+) u(c_l d_l, c_r d_r, w),  F = [J1 J_p'c 0; 0 I 0; 0 0 I],
 //               P' = F P F^T + diag(J2 U J2^T, 0, 0)   (solvers/calibrated_models.h)
-//   update      a stereo sighting on its whitened pixel columns r(x)
-//               (factors/stereo_pixel_calibration_factor.h): nu = -r, H = dr/dx, R = I,
-//               iterated to the MAP of prediction and sighting (the observation model
+//   update      a stereo sighting on its whitened pixel columns r(x) (the smoothers' pixel
+//               factors, factors/stereo_pixel_*calibration_factor.h): nu = -r, H = dr/dx,
+//               R = I, iterated to the MAP of prediction and sighting (the observation model
 //               range_bearing: on calibratedSighting's range and bearing instead)
 // with the same gate, Joseph form and joint gating as above; observations without pixels keep
 // their own z and R. The wheel base is considered, not estimated (its row of K is zero). Every
@@ -50,6 +52,7 @@
 // a fix that agrees with its prediction (fused as a measurement of the pose) instead of
 // restarting there. Why each: docs/estimators.md, "A self-calibrating EKF".
 #include <Eigen/Core>
+#include <map>
 #include <string>
 #include <optional>
 #include <vector>
@@ -208,6 +211,11 @@ class Ekf : public Estimator {
   // for the calibration to absorb.
   std::optional<JointInnovation> pixelInnovation(const Observation& obs, const Landmark& landmark) const;
   EkfUpdateRecord fuseCalibrated(const Observation& obs, const Landmark& landmark, bool gated, bool fuse);
+  // Index of the landmark's feature offsets in the joint state; -1 when they are not states.
+  Eigen::Index featureAt(int landmark_id) const;
+  // Adds the landmark's offsets as states with their prior (uncorrelated with the rest) when the
+  // noise model states them and they are not states yet; false when nothing was added.
+  bool addFeatureOffsets(const Landmark& landmark);
   void considerWheelBase(Eigen::MatrixXd& K) const;  // its row of K zero
   // x (+) K nu on the joint state with the Joseph form (5.17); H the measurement's, R its noise.
   void applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,
@@ -220,9 +228,12 @@ class Ekf : public Estimator {
     Pose2 pose;
     Eigen::Vector3d wheels;
     CalibrationEstimate::StereoVector head;
+    CalibrationEstimate::ImageVector image;
     double row = 0.0;
+    Eigen::VectorXd offsets;
+    std::vector<int> feature_ids;  // whose offsets they are (restoring a state drops later ones)
   };
-  JointState jointState() const { return {pose_, wheels_, head_, row_}; }
+  JointState jointState() const { return {pose_, wheels_, head_, image_, row_, offsets_, feature_ids_}; }
   void setJointState(const JointState& x);
   JointState jointPlus(const JointState& x, const Eigen::VectorXd& dx) const;
   // What association sees: with the stereo block, the observation through the current q with
@@ -259,8 +270,18 @@ class Ekf : public Estimator {
   // its pose block. Empty (0 x 0) without self-calibration.
   Eigen::Vector3d wheels_ = Eigen::Vector3d(1, 1, 75);
   CalibrationEstimate::StereoVector head_ = CalibrationEstimate().head;
+  // The image block e, whitened (its prior is I; image_sigmas_ scales it), with the stereo block
+  // and a pixel model when the noise model states lens or relative-rotation errors.
+  CalibrationEstimate::ImageVector image_ = CalibrationEstimate::ImageVector::Zero();
+  std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
   double row_ = 0.0;  // the row block dv (px), with the stereo block when the noise model states it
-  int wheels_at_ = -1, head_at_ = -1, row_at_ = -1;
+  int wheels_at_ = -1, head_at_ = -1, image_at_ = -1, row_at_ = -1;
+  // The feature offsets (b_c, b_d) of each landmark fused so far whose offsets the noise model
+  // states (featureOffsetSigmas), two states each from features_at_ on, in the order first fused.
+  std::map<int, FeatureOffsetSigma> feature_sigmas_;  // by landmark id: the ones that may be added
+  std::vector<int> feature_ids_;
+  Eigen::VectorXd offsets_;
+  Eigen::Index features_at_ = -1;
   Eigen::MatrixXd joint_;
 };
 

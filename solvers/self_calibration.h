@@ -13,13 +13,13 @@
 //             range-bearing factors, which do not see q
 //   image     e = the error of each camera's calibrated lens distortion (dk1, dk2, dp1, dp2) and
 //             the right camera's rotation against the left (pitch, yaw, roll), with the stereo
-//             block when the noise model (UnmodelledNoise) states their sigmas (batch and window;
+//             block when the noise model (UnmodelledNoise) states their sigmas (batch, window, EKF;
 //             SelfCalibrationConfig::image_errors; factors/stereo_pixel_image_calibration_factor.h)
 //   row       dv = the rectified rows' misalignment (px), with the stereo block when the noise
-//             model states it (UnmodelledNoise::row_offset_sigma_px; batch and window;
+//             model states it (UnmodelledNoise::row_offset_sigma_px; batch, window, EKF;
 //             SelfCalibrationConfig::row_offset; factors/stereo_pixel_row_calibration_factor.h)
 //   features  b_j = constant offsets (px) of each feature j's column (both images) and u_r, with
-//             the row block when the noise model states them (batch and window)
+//             the row block when the noise model states them (batch, window, EKF)
 //             (UnmodelledNoise::*_feature_offset_sigma_px, *_feature_column_sigma_px;
 //             SelfCalibrationConfig::feature_offsets; factors/stereo_pixel_feature_calibration_factor.h)
 // Each block has a Gaussian prior (factors/calibration_prior_factor.h) centred on the nominal
@@ -75,16 +75,17 @@ struct SelfCalibrationConfig {
   double focal_ratio_sigma = 0.014;         // dimensionless
   // The left camera's focal length: 0.5 % per camera.
   double focal_scale_sigma = 0.01;          // dimensionless
-  // With the stereo block, in the batch and the window: estimate the image errors the noise
-  // model states (lens estimate, relative rotation) as the image block instead of adding them to
-  // the pixel noise. The window's gate keeps them as pixel noise, and the window estimates them
-  // only after its first steps (SlidingWindowConfig::image_errors_after_steps).
+  // With the stereo block, in the batch, the window and the EKF (pixel model): estimate the
+  // image errors the noise model states (lens estimate, relative rotation) as the image block
+  // instead of adding them to the pixel noise. The window's gate keeps them as pixel noise, and
+  // the window estimates them only after its first steps (SlidingWindowConfig::
+  // image_errors_after_steps).
   bool image_errors = true;
-  // With the stereo block, in the batch and the window: estimate the rows' misalignment when
-  // the noise model states it (rowOffsetSigma).
+  // With the stereo block, in the batch, the window and the EKF: estimate the rows'
+  // misalignment when the noise model states it (rowOffsetSigma).
   bool row_offset = true;
-  // With the row block, in the batch and the window: estimate each feature's constant column
-  // offset and a marking feature's constant u_r offset when the noise model states them
+  // With the row block, in the batch, the window and the EKF: estimate each feature's constant
+  // column offset and a marking feature's constant u_r offset when the noise model states them
   // (featureOffsetSigmas); off, they stay in the white pixel noise.
   bool feature_offsets = true;
   // selfCalibratingBatch only (the batch smoother takes them from its own configuration).
