@@ -267,10 +267,11 @@ bool Ekf::reanchor(const PoseFix& fix) {
   H.leftCols<3>().setIdentity();
   Eigen::MatrixXd K = joint_ * H.transpose() * S.inverse();
   // The fix saw this step's sightings through the current stereo calibration, so it carries no
-  // news of it: the stereo and row blocks are considered, not updated (a Schmidt gain; the Joseph
-  // form keeps the covariance right for it). Updated, each re-anchoring pulled the calibration
-  // further after a bad first sighting (a realistic line trial: disparity offset -1.5 -> -7.9 px).
-  if (head_at_ >= 0) K.bottomRows(K.rows() - head_at_).setZero();  // q, e, dv and the feature offsets
+  // news of it: the stereo, image, row and feature states (all after head_at_) are considered,
+  // not updated (a Schmidt gain; the Joseph form keeps the covariance right for it). Updated,
+  // each re-anchoring pulled the calibration further after a bad first sighting (a realistic
+  // line trial: disparity offset -1.5 -> -7.9 px).
+  if (head_at_ >= 0) K.bottomRows(K.rows() - head_at_).setZero();
   considerWheelBase(K);
   applyJointUpdate(K, nu, H, fix.covariance);
   lost_ = false;

@@ -362,16 +362,17 @@ TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
   const std::string noise = std::string(STEREOLOC_DATA_DIR) + "/noise_realistic.yaml";
   const std::string calibrating = " --calibrate odometry,stereo --noise-model " + noise;
   for (const std::string method : {"ekf", "iekf"}) {
-    const std::string options = " --method " + method + " --init global --frontend images" +
-                                (method == "ekf" ? calibrating : std::string());
-    const std::string csv = dir.file(method + ".csv"), out = method == "ekf" ? " --calibration-out " : "";
-    const test::CliRun loc = test::runCli("localize " + ds + options + " --out " + csv +
-                                          (method == "ekf" ? out + dir.file("localize_rig.yaml") : ""));
+    const bool ekf = method == "ekf";  // the self-calibrating EKF, which also writes its calibration
+    const std::string options =
+        " --method " + method + " --init global --frontend images" + (ekf ? calibrating : std::string());
+    auto calibrationOut = [&](const std::string& name) { return ekf ? " --calibration-out " + dir.file(name) : ""; };
+    const std::string csv = dir.file(method + ".csv");
+    const test::CliRun loc =
+        test::runCli("localize " + ds + options + " --out " + csv + calibrationOut("localize_rig.yaml"));
     ASSERT_EQ(loc.exit_code, 0) << loc.output;
     const std::map<long, std::vector<double>> expected = estimateCsv(csv);
     ASSERT_GT(expected.size(), 30u) << method;
-    const test::CliRun r = test::runCli("stream --from " + ds + options +
-                                        (method == "ekf" ? out + dir.file("stream_rig.yaml") : ""));
+    const test::CliRun r = test::runCli("stream --from " + ds + options + calibrationOut("stream_rig.yaml"));
     ASSERT_EQ(r.exit_code, 0) << r.output;
     EXPECT_EQ(worstRelativeDifference(estimateLines(r.output, false), expected), 0.0) << method;
   }
