@@ -66,10 +66,14 @@ test-valgrind: build
 	    --out $(VG_DIR)/$$m.csv >/dev/null || exit 1; \
 	done
 	@for m in window batch ekf; do \
-	  echo "valgrind: localize --method $$m --frontend images --calibrate odometry,stereo"; \
+	  echo "valgrind: localize --method $$m --frontend images --calibrate odometry,stereo --noise-model"; \
 	  $(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method $$m --frontend images \
-	    --calibrate odometry,stereo --calibration-out $(VG_DIR)/$$m-rig.yaml --out $(VG_DIR)/$$m-calib.csv >/dev/null || exit 1; \
+	    --calibrate odometry,stereo --noise-model data/noise_realistic.yaml \
+	    --calibration-out $(VG_DIR)/$$m-rig.yaml --out $(VG_DIR)/$$m-calib.csv >/dev/null || exit 1; \
 	done
+	@echo "valgrind: stream --method ekf --frontend images --calibrate odometry,stereo --noise-model"
+	@$(VALGRIND) $(BUILD)/bin/stereoloc stream --from $(VG_DIR)/data --method ekf --frontend images \
+	  --calibrate odometry,stereo --noise-model data/noise_realistic.yaml >/dev/null
 	@echo "valgrind: localize --method ekf --frontend images --rig (the calibrated rig)"
 	@$(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method ekf --frontend images \
 	  --rig $(VG_DIR)/batch-rig.yaml --out $(VG_DIR)/ekf-rig.csv >/dev/null
