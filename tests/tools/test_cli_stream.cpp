@@ -374,6 +374,7 @@ TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
     ASSERT_GT(expected.size(), 30u) << method;
     const test::CliRun r = test::runCli("stream --from " + ds + options + calibrationOut("stream_rig.yaml"));
     ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_EQ(r.output.find("calibration: wheel scales") != std::string::npos, ekf) << r.output;  // on stderr
     EXPECT_EQ(worstRelativeDifference(estimateLines(r.output, false), expected), 0.0) << method;
   }
   // The calibration files (the rig YAML names its own OpenCV file, so that line differs).

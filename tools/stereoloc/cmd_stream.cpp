@@ -176,7 +176,12 @@ void runStream(const StreamArgs& a, const CLI::App& sub) {
     x.smoothed = true;
     for (const Estimate& e : loc.smoothedTrajectory()) print(formatStreamEstimate(e, x));
   }
-  if (!a.calibration_out.empty()) handover.carriedOn(*loc.calibration()).saveAsRig(a.calibration_out, loc.config().rig);
+  // Standard output carries only estimate lines: the calibration's summary goes to stderr.
+  if (const std::optional<CalibrationEstimate> c = loc.calibration())
+    reportCalibration(a.calibration_out, stderr, &*c, loc.config().rig,
+                      loc.config().method == LocalizerMethod::Ekf ? loc.config().ekf.calibration
+                                                                   : loc.config().window.calibration,
+                      loc.config().odometry.wheel_base_mm, handover);
   if (bad > 0) throw Error("stream: " + std::to_string(bad) + " bad line(s) (see the messages above)");
 }
 

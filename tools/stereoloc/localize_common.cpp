@@ -30,30 +30,33 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   return o;
 }
 
-void reportCalibration(const LocalizeArgs& a, const CalibrationEstimate* calibration, const StereoRig& rig,
-                       const SelfCalibrationConfig& config, double nominal_wheel_base_mm,
+void reportCalibration(const std::string& calibration_out, std::FILE* out, const CalibrationEstimate* calibration,
+                       const StereoRig& rig, const SelfCalibrationConfig& config, double nominal_wheel_base_mm,
                        const CalibrationHandover& handover) {
   if (!calibration) return;
   const CalibrationEstimate c = handover.carriedOn(*calibration);
-  if (!a.calibration_out.empty()) c.saveAsRig(a.calibration_out, rig);
+  if (!calibration_out.empty()) c.saveAsRig(calibration_out, rig);
   auto sd = [](double variance) { return std::sqrt(std::max(variance, 0.0)); };
   if (c.odometry)
-    std::printf("calibration: wheel scales %.5f +- %.5f, %.5f +- %.5f, wheel base %.2f +- %.2f mm\n", c.wheels[0],
-                sd(c.wheels_covariance(0, 0)), c.wheels[1], sd(c.wheels_covariance(1, 1)), c.wheels[2],
-                sd(c.wheels_covariance(2, 2)));
+    std::fprintf(out, "calibration: wheel scales %.5f +- %.5f, %.5f +- %.5f, wheel base %.2f +- %.2f mm\n", c.wheels[0],
+                 sd(c.wheels_covariance(0, 0)), c.wheels[1], sd(c.wheels_covariance(1, 1)), c.wheels[2],
+                 sd(c.wheels_covariance(2, 2)));
   if (c.stereo)
-    std::printf(
+    std::fprintf(
+        out,
         "calibration: tilt correction %.3f +- %.3f deg, baseline scale %.5f +- %.5f, disparity offset %.2f +- %.2f px, "
         "column offset %.2f +- %.2f px, focal ratio %.5f +- %.5f, focal scale %.5f +- %.5f\n",
         rad2deg(c.head[0]), rad2deg(sd(c.head_covariance(0, 0))), c.head[1], sd(c.head_covariance(1, 1)), c.head[2],
         sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)),
         c.head[5], sd(c.head_covariance(5, 5)));
   const PriorDistance far = furthestFromPrior(*calibration, config, nominal_wheel_base_mm);
-  std::printf("calibration: furthest from the nominal calibration: %s, %.1f prior sigmas\n", far.parameter.c_str(), far.sigmas);
+  std::fprintf(out, "calibration: furthest from the nominal calibration: %s, %.1f prior sigmas\n", far.parameter.c_str(),
+               far.sigmas);
   if (far.sigmas > kImplausiblePriorSigmas)
-    std::printf("calibration: warning: beyond %.0f prior sigmas, a failed solve (data association, a false kidnap cut) or a "
-                "wrong prior\n",
-                kImplausiblePriorSigmas);
+    std::fprintf(out,
+                 "calibration: warning: beyond %.0f prior sigmas, a failed solve (data association, a false kidnap cut) "
+                 "or a wrong prior\n",
+                 kImplausiblePriorSigmas);
 }
 
 Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHandover& handover) {
@@ -85,7 +88,7 @@ void runLocalize(const LocalizeArgs& a) {
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
   if (!a.calibration_out.empty() && !run.calibration)
     throw UsageError("--calibration-out: needs --calibrate with batch, window or ekf");
-  reportCalibration(a, run.calibration ? &*run.calibration : nullptr, d.rig, o.calibration, d.odometry.wheel_base_mm,
+  reportCalibration(a.calibration_out, stdout, run.calibration ? &*run.calibration : nullptr, d.rig, o.calibration, d.odometry.wheel_base_mm,
                     handover);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);

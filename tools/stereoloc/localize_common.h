@@ -32,11 +32,12 @@ void runLocalize(const LocalizeArgs& args);
 // The method options with the parsed --init, --loss, --observation-model and --calibrate;
 // throws UsageError.
 MethodOptions parseMethodOptions(const LocalizeArgs& args);
-// Writes --calibration-out and prints the estimate (calibration null: no --calibrate, and
-// --calibration-out is then a usage error): the run's, carried on from the calibration --rig
-// handed over (CalibrationHandover::carriedOn), and how far the run's own lies from its priors.
-void reportCalibration(const LocalizeArgs& args, const CalibrationEstimate* calibration, const StereoRig& rig,
-                       const SelfCalibrationConfig& config, double nominal_wheel_base_mm,
+// Writes `calibration_out` (--calibration-out, when not empty) and prints the estimate to `out`
+// (calibration null: no --calibrate, and --calibration-out is then a usage error): the run's,
+// carried on from the calibration --rig handed over (CalibrationHandover::carriedOn), and how
+// far the run's own lies from its priors.
+void reportCalibration(const std::string& calibration_out, std::FILE* out, const CalibrationEstimate* calibration,
+                       const StereoRig& rig, const SelfCalibrationConfig& config, double nominal_wheel_base_mm,
                        const CalibrationHandover& handover);
 // --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
