@@ -1,9 +1,14 @@
 #pragma once
-// Runs the built `stereoloc` binary and captures its exit code and combined output.
+// Runs the built `stereoloc` binary and captures its exit code and combined output; reads the
+// CSV files it writes.
 #include <array>
 #include <cstdio>
+#include <fstream>
+#include <map>
+#include <sstream>
 #include <string>
 #include <sys/wait.h>
+#include <vector>
 
 namespace stereoloc::test {
 
@@ -24,6 +29,23 @@ inline CliRun runCli(const std::string& args, const std::string& stdin_file = ""
   const int status = pclose(pipe);
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
+}
+
+// Rows of a CSV with a header (an estimate CSV, groundtruth.csv): step -> the numeric fields.
+inline std::map<long, std::vector<double>> readRows(const std::string& path) {
+  std::map<long, std::vector<double>> rows;
+  std::ifstream in(path);
+  std::string line;
+  std::getline(in, line);  // header
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    std::stringstream ls(line);
+    std::string f;
+    std::vector<double> v;
+    while (std::getline(ls, f, ',')) v.push_back(std::stod(f));
+    if (!v.empty()) rows[static_cast<long>(v[0])] = v;
+  }
+  return rows;
 }
 
 }  // namespace stereoloc::test

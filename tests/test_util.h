@@ -6,7 +6,9 @@
 #include <filesystem>
 #include <random>
 #include <string>
+#include <vector>
 
+#include "src/core/estimator.h"
 #include "src/core/numeric_diff.h"
 #include "src/io/dataset.h"
 
@@ -40,6 +42,21 @@ inline void keepIdentifiedSightings(Dataset& d) {
       if (o.landmark_id >= 0) kept.push_back(o);
     s.observations = kept;
   }
+}
+
+// Runs `kept` and `newest` (the same filter, `newest` without history) over `steps`: the same
+// estimates at every step, and finish() holds them all for `kept`, the newest alone for `newest`.
+inline void expectOnlyTheNewestIsKept(Estimator& kept, Estimator& newest, const std::vector<Step>& steps) {
+  for (const Step& s : steps) {
+    const Estimate a = kept.process(s), b = newest.process(s);
+    ASSERT_EQ(a.pose.x, b.pose.x) << "step " << s.step;
+    ASSERT_EQ(a.covariance, b.covariance) << "step " << s.step;
+  }
+  const std::vector<Estimate> all = kept.finish(), last = newest.finish();
+  EXPECT_EQ(all.size(), steps.size());
+  ASSERT_EQ(last.size(), 1u);
+  EXPECT_EQ(last[0].step, steps.back().step);
+  EXPECT_EQ(last[0].pose.y, all.back().pose.y);
 }
 
 // Fails the test (with both matrices printed) when an analytic Jacobian differs from the

@@ -17,6 +17,7 @@
 #include "src/core/error.h"
 #include "src/core/measurement_model.h"
 #include "src/core/odometry_model.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
@@ -736,16 +737,7 @@ TEST(Ekf, WithoutHistoryFinishKeepsOnlyTheNewestEstimate) {
   Ekf kept(map, odo, config);
   config.keep_history = false;
   Ekf newest(map, odo, config);
-  for (const Step& s : run.steps) {
-    const Estimate a = kept.process(s), b = newest.process(s);
-    ASSERT_EQ(a.pose.x, b.pose.x);
-    ASSERT_EQ(a.covariance, b.covariance);
-  }
-  EXPECT_EQ(kept.finish().size(), run.steps.size());
-  const std::vector<Estimate> last = newest.finish();
-  ASSERT_EQ(last.size(), 1u);
-  EXPECT_EQ(last[0].step, run.steps.back().step);
-  EXPECT_EQ(last[0].pose.y, kept.finish().back().pose.y);
+  test::expectOnlyTheNewestIsKept(kept, newest, run.steps);
 }
 
 TEST(Ekf, NoNanAfterTenThousandStepsWithoutObservations) {

@@ -15,6 +15,7 @@
 #include "src/core/measurement_model.h"
 #include "src/core/odometry_model.h"
 #include "src/sim/simulator.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
@@ -370,16 +371,7 @@ TEST(ParticleFilter, WithoutHistoryFinishKeepsOnlyTheNewestEstimate) {
   ParticleFilter kept(map, odo, pc, 7);
   pc.keep_history = false;
   ParticleFilter newest(map, odo, pc, 7);
-  for (const Step& s : run.steps) {
-    const Estimate a = kept.process(s), b = newest.process(s);
-    ASSERT_EQ(a.pose.x, b.pose.x);
-    ASSERT_EQ(a.covariance, b.covariance);
-  }
-  EXPECT_EQ(kept.finish().size(), run.steps.size());
-  const std::vector<Estimate> last = newest.finish();
-  ASSERT_EQ(last.size(), 1u);
-  EXPECT_EQ(last[0].step, run.steps.back().step);
-  EXPECT_EQ(last[0].pose.y, kept.finish().back().pose.y);
+  test::expectOnlyTheNewestIsKept(kept, newest, run.steps);
 }
 
 TEST(ParticleFilter, InitialisationModes) {

@@ -25,23 +25,6 @@ std::string slurp(const std::string& path) {
   return ss.str();
 }
 
-// Rows of a CSV with a header: step -> the numeric fields.
-std::map<long, std::vector<double>> readRows(const std::string& path) {
-  std::map<long, std::vector<double>> rows;
-  std::ifstream in(path);
-  std::string line;
-  std::getline(in, line);  // header
-  while (std::getline(in, line)) {
-    if (line.empty() || line[0] == '#') continue;
-    std::stringstream ls(line);
-    std::string f;
-    std::vector<double> v;
-    while (std::getline(ls, f, ',')) v.push_back(std::stod(f));
-    if (!v.empty()) rows[static_cast<long>(v[0])] = v;
-  }
-  return rows;
-}
-
 // One small dataset with images shared by the tests: `line` drives towards a goal and sees its
 // corners from the first step (thesis 6.5.2).
 class FrontendImages : public ::testing::Test {
@@ -59,10 +42,10 @@ class FrontendImages : public ::testing::Test {
   // Largest position error (mm) of an estimates CSV against the dataset's ground truth, and
   // the number of compared rows; -1 on a non-finite value.
   static std::pair<double, int> maxError(const std::string& est_csv) {
-    const auto truth = readRows(dir_->file("d/groundtruth.csv"));
+    const auto truth = test::readRows(dir_->file("d/groundtruth.csv"));
     double worst = 0;
     int n = 0;
-    for (const auto& [step, e] : readRows(est_csv)) {
+    for (const auto& [step, e] : test::readRows(est_csv)) {
       for (double v : e)
         if (!std::isfinite(v)) return {-1, n};
       const auto it = truth.find(step);

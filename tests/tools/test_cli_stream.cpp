@@ -226,16 +226,9 @@ std::map<long, std::vector<double>> estimateLines(const std::string& output, boo
 // The same of an estimate CSV written by `localize`.
 std::map<long, std::vector<double>> estimateCsv(const std::string& csv) {
   std::map<long, std::vector<double>> out;
-  std::ifstream in(csv);
-  std::string row;
-  std::getline(in, row);  // header
-  while (std::getline(in, row)) {
-    std::vector<double> v;
-    std::stringstream ls(row);
-    for (std::string f; std::getline(ls, f, ',');) v.push_back(std::stod(f));
-    EXPECT_EQ(v.size(), 11u) << row;  // step,t,x,y,theta, xx,xy,xtheta,yy,ytheta,thetatheta
-    if (v.size() == 11u)
-      out[static_cast<long>(v[0])] = {v[2], v[3], v[4], v[5], v[6], v[7], v[6], v[8], v[9], v[7], v[9], v[10]};
+  for (const auto& [step, v] : test::readRows(csv)) {
+    EXPECT_EQ(v.size(), 11u) << step;  // step,t,x,y,theta, xx,xy,xtheta,yy,ytheta,thetatheta
+    if (v.size() == 11u) out[step] = {v[2], v[3], v[4], v[5], v[6], v[7], v[6], v[8], v[9], v[7], v[9], v[10]};
   }
   return out;
 }
