@@ -14,6 +14,7 @@
 #include "solvers/ekf.h"
 #include "solvers/initialisation.h"
 #include "solvers/particle_filter.h"
+#include "solvers/self_calibration.h"
 #include "solvers/sliding_window_smoother.h"
 #include "src/core/atomic_file.h"
 #include "src/io/csv.h"
@@ -172,6 +173,17 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     rows.push_back(evaluate("ekf", "EKF", ekf_estimates, truth, ms, n));
     note(rows.back());
   }
+  if (wanted(o, "ekf_calib")) {
+    // The wheels are what a range-bearing dataset lets it calibrate (no pixels, no stereo head).
+    EkfConfig c;
+    c.init = init;
+    c.gate_enabled = o.gate;
+    c.calibration = SelfCalibrationConfig::parse("odometry");
+    Ekf ekf(d.map, d.odometry, c);
+    const std::vector<Estimate> e = runEstimator(ekf, d.steps, &ms);
+    rows.push_back(evaluate("ekf_calib", "EKF, calibrating odometry", e, truth, ms, n));
+    note(rows.back());
+  }
   if (wanted(o, "pf")) {
     ParticleFilterConfig c;
     c.init = init;
@@ -181,8 +193,14 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     rows.push_back(evaluate("pf", "PF (" + std::to_string(o.particles) + ")", e, truth, ms, n));
     note(rows.back());
   }
-  for (const bool use_robust : {false, true}) {
-    const std::string key = use_robust ? "window_robust" : "window";
+  // The window and the batch plain, with the robust loss, and calibrating the odometry.
+  enum class Variant { Plain, Robust, Calibrating };
+  auto suffix = [&](Variant v) { return v == Variant::Robust ? "_robust" : v == Variant::Calibrating ? "_calib" : ""; };
+  auto labelled = [&](Variant v) {
+    return v == Variant::Robust ? " " + o.robust : v == Variant::Calibrating ? std::string(", calibrating odometry") : "";
+  };
+  for (const Variant variant : {Variant::Plain, Variant::Robust, Variant::Calibrating}) {
+    const std::string key = std::string("window") + suffix(variant);
     if (!wanted(o, key) && !wanted(o, key + "_online")) continue;
     SlidingWindowConfig c;
     c.init = init;
@@ -190,15 +208,15 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     c.keyframe_max_steps = o.keyframe_max_steps;
     c.gate.lost_after = o.window_lost_after;
     c.gate_enabled = o.gate;
-    if (use_robust) c.robust_loss = robust;
+    if (variant == Variant::Robust) c.robust_loss = robust;
+    if (variant == Variant::Calibrating) c.calibration = SelfCalibrationConfig::parse("odometry");
     SlidingWindowSmoother sw(d.map, d.odometry, c);
     std::vector<Estimate> online;
     const std::vector<Estimate> e = runEstimator(sw, d.steps, &ms, &online);
     const SlidingWindowStats& wst = sw.stats();
-    if (o.log) std::fprintf(o.log, "  window%s: %ld keyframes, %ld observations fused, %ld gated, %ld re-initialisations\n",
-                 use_robust ? " (robust)" : "", wst.keyframes, wst.accepted_observations, wst.rejected_observations,
-                 wst.reinitialisations);
-    const std::string w = "W=" + std::to_string(o.window) + (use_robust ? " " + o.robust : "");
+    if (o.log) std::fprintf(o.log, "  %s: %ld keyframes, %ld observations fused, %ld gated, %ld re-initialisations\n",
+                 key.c_str(), wst.keyframes, wst.accepted_observations, wst.rejected_observations, wst.reinitialisations);
+    const std::string w = "W=" + std::to_string(o.window) + labelled(variant);
     if (wanted(o, key)) {
       rows.push_back(evaluate(key, "window " + w + " (lag)", e, truth, ms, n));
       note(rows.back());
@@ -208,20 +226,22 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
       note(rows.back());
     }
   }
-  for (const bool use_robust : {false, true}) {
-    const std::string key = use_robust ? "batch_robust" : "batch";
+  for (const Variant variant : {Variant::Plain, Variant::Robust, Variant::Calibrating}) {
+    const std::string key = std::string("batch") + suffix(variant);
     if (!wanted(o, key)) continue;
     BatchSmootherConfig c;
     c.init = init;
-    if (use_robust) c.loss = robust;
+    if (variant == Variant::Robust) c.loss = robust;
+    if (variant == Variant::Calibrating) c.calibration = SelfCalibrationConfig::parse("odometry");
     c.initial_guess = initialGuessFromString(o.batch_guess);
     BatchSmoother batch(d.map, d.odometry, c);
     const std::vector<Estimate> e = runEstimator(batch, d.steps, &ms);
     const BatchSummary& s = batch.summary();
-    if (o.log) std::fprintf(o.log, "  batch%s: %d iterations, cost %.4g -> %.4g, %s, covariance %s\n",
-                 use_robust ? " (robust)" : "", s.iterations, s.initial_cost, s.final_cost,
-                 s.converged ? "converged" : "NOT converged", toString(s.covariance_status).c_str());
-    rows.push_back(evaluate(key, use_robust ? "batch (" + o.robust + ")" : "batch", e, truth, ms, n));
+    if (o.log) std::fprintf(o.log, "  %s: %d iterations, cost %.4g -> %.4g, %s, covariance %s\n", key.c_str(),
+                 s.iterations, s.initial_cost, s.final_cost, s.converged ? "converged" : "NOT converged",
+                 toString(s.covariance_status).c_str());
+    rows.push_back(evaluate(key, variant == Variant::Robust ? "batch (" + o.robust + ")" : "batch" + labelled(variant), e,
+                            truth, ms, n));
     note(rows.back());
   }
   return rows;

@@ -7,7 +7,8 @@
 // Estimators: dead reckoning (odometry only, predictPose), EKF, particle filter, sliding window
 // (W keyframes; its fixed-lag output from finish() and its real-time output from process()),
 // without and with a robust loss, batch smoother without and with a robust loss on the
-// range-bearing factors.
+// range-bearing factors; and the EKF, the window and the batch calibrating the odometry (wheel
+// scales and wheel base: what range-bearing data without pixels can calibrate).
 #include <cstdint>
 #include <cstdio>
 #include <string>

@@ -133,7 +133,8 @@ TEST_F(CliImport, EveryEstimatorRunsOnTheSliceWithBoundedError) {
     std::getline(ss, name, ',');
     while (std::getline(ss, field, ',')) rows[name].push_back(std::stod(field));
   }
-  for (const char* name : {"dead_reckoning", "ekf", "pf", "window", "window_online", "batch", "batch_robust"}) {
+  for (const char* name : {"dead_reckoning", "ekf", "ekf_calib", "pf", "window", "window_online", "window_calib",
+                           "window_calib_online", "batch", "batch_robust", "batch_calib"}) {
     ASSERT_TRUE(rows.count(name)) << name << "\n" << r.output;
     const std::vector<double>& v = rows[name];
     ASSERT_EQ(v.size(), 10u) << name;

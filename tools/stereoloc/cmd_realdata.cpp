@@ -47,8 +47,9 @@ void add_realdata_command(CLI::App& app) {
                   "Initial guess of the batch smoother: filter (a forward EKF pass) or odometry")
       ->capture_default_str();
   sub->add_option("--only", o->only,
-                  "Comma-separated subset: dead_reckoning,ekf,pf,window,window_online,window_robust,"
-                  "window_robust_online,batch,batch_robust");
+                  "Comma-separated subset: dead_reckoning,ekf,ekf_calib,pf,window,window_online,window_robust,"
+                  "window_robust_online,window_calib,window_calib_online,batch,batch_robust,batch_calib (_calib: "
+                  "self-calibrating the odometry)");
   sub->add_option("--csv", o->csv_path, "Also write the table as CSV (units: mm, rad, ms)");
   sub->callback([o] { runRealDataStudy(*o); });
 }
