@@ -81,8 +81,6 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   if (!a.noise_model.empty()) observation_model.unmodelled = UnmodelledNoise::load(a.noise_model);
   handover.applyPriors(calibration, observation_model.unmodelled);
   c.method = localizerMethodFromString(a.method == "iekf" ? "ekf" : a.method);
-  // Only the window smooths: the filters keep just their newest estimate, so an unbounded
-  // stream runs in constant memory whatever the tracker.
   c.window.observation_model = observation_model;
   c.window.calibration = calibration;
   c.window.window = a.window;
@@ -93,6 +91,8 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   c.ekf.calibration = calibration;
   c.ekf.gate_enabled = !a.no_gate;
   if (a.method == "iekf") c.ekf.max_iterations = kIteratedEkfIterations;
+  // Only the window smooths: the filters keep just their newest estimate, so an unbounded
+  // stream runs in constant memory whatever the tracker.
   c.ekf.keep_history = false;
   c.particle_filter.particles = a.particles;
   c.particle_filter.keep_history = false;
