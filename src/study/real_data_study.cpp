@@ -195,7 +195,7 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
   }
   // The window and the batch plain, with the robust loss, and calibrating the odometry.
   enum class Variant { Plain, Robust, Calibrating };
-  auto suffix = [&](Variant v) { return v == Variant::Robust ? "_robust" : v == Variant::Calibrating ? "_calib" : ""; };
+  auto suffix = [](Variant v) { return v == Variant::Robust ? "_robust" : v == Variant::Calibrating ? "_calib" : ""; };
   auto labelled = [&](Variant v) {
     return v == Variant::Robust ? " " + o.robust : v == Variant::Calibrating ? std::string(", calibrating odometry") : "";
   };
