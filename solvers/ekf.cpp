@@ -697,6 +697,37 @@ void Ekf::setJointState(const JointState& x) {
   feature_ids_ = x.feature_ids;
 }
 
+Ekf::State Ekf::saveState() const {
+  State s;
+  s.x = jointState();
+  s.P = P_;
+  s.joint = joint_;
+  s.gate = gate_;
+  s.hypotheses = bank_.hypotheses();
+  s.initialised = initialised_;
+  s.lost = lost_;
+  s.have_step = have_step_;
+  s.localised = localised_;
+  s.last_step = last_step_;
+  s.estimates = estimates_.size();
+  return s;
+}
+
+void Ekf::restoreState(const State& s) {
+  setJointState(s.x);
+  P_ = s.P;
+  joint_ = s.joint;
+  gate_ = s.gate;
+  bank_.restore(s.hypotheses);
+  initialised_ = s.initialised;
+  lost_ = s.lost;
+  have_step_ = s.have_step;
+  localised_ = s.localised;
+  last_step_ = s.last_step;
+  if (config_.keep_history && estimates_.size() > s.estimates) estimates_.resize(s.estimates);
+  updates_.clear();
+}
+
 std::optional<CalibrationEstimate> Ekf::calibration() const {
   if (!calibrating()) return std::nullopt;
   CalibrationEstimate e;

@@ -161,6 +161,13 @@ class Ekf : public Estimator {
   // nullopt without.
   std::optional<CalibrationEstimate> calibration() const;
 
+  // Everything a processed step changes, to go back to: restoreState() and then the same steps
+  // again give the same estimates, bit for bit (the Localizer replays the steps since a late
+  // observation's step this way). finish() then holds no estimate made after the save.
+  class State;
+  State saveState() const;
+  void restoreState(const State& state);
+
  private:
   // One observation's innovation at the current belief; fused if `fuse` and (unless `gated` is
   // false) it passes the gate (5.20).
@@ -283,6 +290,20 @@ class Ekf : public Estimator {
   Eigen::VectorXd offsets_;
   Eigen::Index features_at_ = -1;
   Eigen::MatrixXd joint_;
+
+ public:
+  class State {
+   private:
+    friend class Ekf;
+    JointState x;
+    Eigen::Matrix3d P;
+    Eigen::MatrixXd joint;
+    ValidationGate gate;
+    std::vector<PoseHypothesis> hypotheses;
+    bool initialised = false, lost = false, have_step = false, localised = false;
+    long last_step = 0;
+    size_t estimates = 0;
+  };
 };
 
 }  // namespace stereoloc

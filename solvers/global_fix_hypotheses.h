@@ -24,6 +24,7 @@
 // localisation for a mobile robot using multiple hypothesis tracking" (IEEE T-RA 17(5), 2001).
 // Cost and measurements: docs/estimators.md, "Random start".
 #include <Eigen/Core>
+#include <utility>
 #include <vector>
 
 #include "solvers/data_association.h"
@@ -72,6 +73,8 @@ class HypothesisBank {
   void clear() { hypotheses_.clear(); }
   bool empty() const { return hypotheses_.empty(); }
   const std::vector<PoseHypothesis>& hypotheses() const { return hypotheses_; }  // most likely first
+  // The bank's whole state is its hypotheses: set them back to what hypotheses() returned.
+  void restore(std::vector<PoseHypothesis> hypotheses) { hypotheses_ = std::move(hypotheses); }
   std::vector<double> weights() const;  // normalised exp(log_likelihood), same order
   // Mean (circular in theta) and covariance about it of the weighted mixture. Requires !empty().
   PoseFix mixture() const;

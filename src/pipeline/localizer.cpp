@@ -55,6 +55,7 @@ SlidingWindowConfig realTimeWindowConfig() {
 Localizer::Localizer(LocalizerConfig config) : config_(std::move(config)) {
   if (!(config_.wheel_scales.allFinite() && (config_.wheel_scales.array() > 0).all()))
     throw Error("localizer: wheel scales must be positive and finite");
+  if (config_.ekf_replay_steps < 0) throw Error("localizer: ekf_replay_steps must be >= 0");
   switch (config_.method) {
     case LocalizerMethod::Window: {
       SlidingWindowConfig c = config_.window;
@@ -98,7 +99,28 @@ void Localizer::flush() {
   if (!pending_) return;
   Step step = std::move(*pending_);
   pending_.reset();  // a step the estimator refuses is dropped, not retried with the next one
+  if (!ekf_ || config_.ekf_replay_steps == 0) {
+    last_ = estimator_->process(step);
+    return;
+  }
+  Ekf::State before = ekf_->saveState();
   last_ = estimator_->process(step);
+  processed_.push_back({std::move(step), std::move(before)});
+  if (processed_.size() > static_cast<size_t>(config_.ekf_replay_steps)) processed_.pop_front();
+}
+
+ObservationDelivery Localizer::replayEkf(long step, const std::vector<Observation>& observations) {
+  auto from = processed_.begin();
+  while (from != processed_.end() && from->step.step != step) ++from;
+  if (from == processed_.end()) return ObservationDelivery::TooLate;
+  // Back to the state before that step, then every step since again, each saved anew.
+  ekf_->restoreState(from->before);
+  from->step.observations.insert(from->step.observations.end(), observations.begin(), observations.end());
+  for (auto p = from; p != processed_.end(); ++p) {
+    p->before = ekf_->saveState();
+    last_ = ekf_->process(p->step);
+  }
+  return ObservationDelivery::Inserted;
 }
 
 void Localizer::addStep(const Step& step) {
@@ -142,6 +164,7 @@ ObservationDelivery Localizer::deliver(long step, const std::vector<Observation>
     pending_->observations.insert(pending_->observations.end(), observations.begin(), observations.end());
     return ObservationDelivery::WithStep;
   }
+  if (ekf_) return replayEkf(step, observations);
   if (!window_) return ObservationDelivery::TooLate;
   const LateObservationResult r = window_->insertLate(step, observations);
   switch (r.status) {

@@ -16,8 +16,9 @@
 // commands fuse a step's observations (so `stream` on a replayed run equals `localize`). Those
 // of an earlier step are late: the sliding window inserts them at their own pose while it is in
 // the window (SlidingWindowSmoother::insertLate) and reports them too late otherwise; the EKF
-// and the particle filter cannot go back (robot_localization replays its filter for this) and
-// report any late observation too late.
+// goes back to its state before that step and processes the steps since again with them (as
+// robot_localization replays its filter), for the last ekf_replay_steps steps; the particle
+// filter cannot go back and reports any late observation too late.
 //
 // Errors: bad input (a step that does not follow the newest, non-finite values, an unknown
 // landmark id, an unreadable or wrong-size image) throws stereoloc::Error with one line and
@@ -31,6 +32,7 @@
 // the robot pays for the step.
 // Not thread-safe: one Localizer per thread. Deterministic: same calls, same results.
 #include <opencv2/core/mat.hpp>
+#include <deque>
 #include <memory>
 #include <optional>
 #include <string>
@@ -55,7 +57,7 @@ LocalizerMethod localizerMethodFromString(const std::string& name);  // throws s
 enum class ObservationDelivery {
   WithStep,     // of the newest step, not processed yet: fused with its odometry
   Inserted,     // late, inserted at their own pose in the window
-  TooLate,      // late, and their step has left the window (or the estimator cannot go back)
+  TooLate,      // late, and their step has left the window or the EKF's replay (or the PF: always)
   NotTracking,  // late, while the tracker is uninitialised or lost (not fused, as in-time ones)
 };
 std::string toString(ObservationDelivery delivery);  // "with_step", "inserted", "too_late", "not_tracking"
@@ -76,6 +78,9 @@ struct LocalizerConfig {
   // Method Ekf (max_iterations > 1: the iterated EKF; ekf.calibration: the self-calibrating
   // EKF); init replaced, its observation model's rig by `rig`.
   EkfConfig ekf;
+  // Method Ekf: how many processed steps a late observation may go back (each kept with the
+  // filter's state before it, Ekf::saveState); 0: late observations are too late.
+  int ekf_replay_steps = 100;
   ParticleFilterConfig particle_filter;  // method ParticleFilter; init replaced
   uint64_t seed = 1;                 // the particle filter's random stream
   ImageFrontendOptions frontend;     // frontend parameters and which landmarks it reports
@@ -126,6 +131,8 @@ class Localizer {
   void flush();
   void check(const std::vector<Observation>& observations, long step) const;
   ObservationDelivery deliver(long step, const std::vector<Observation>& observations);
+  // The EKF's late observations: replays the processed steps from `step` on with them.
+  ObservationDelivery replayEkf(long step, const std::vector<Observation>& observations);
   ImageObserver& observer();
 
   LocalizerConfig config_;
@@ -134,6 +141,12 @@ class Localizer {
   Ekf* ekf_ = nullptr;                       // estimator_, when it is the EKF
   std::unique_ptr<ImageObserver> observer_;  // created with the first images
   std::optional<Step> pending_;              // the newest step, not processed yet
+  // The EKF's last processed steps, each with the filter's state before it (ekf_replay_steps).
+  struct Processed {
+    Step step;
+    Ekf::State before;
+  };
+  std::deque<Processed> processed_;
   Estimate last_;                            // the newest estimate
   long newest_step_ = -1;
   bool have_step_ = false;
