@@ -336,13 +336,19 @@ TEST(ParticleFilter, NoNanAfterTenThousandStepsWithoutObservations) {
   EXPECT_TRUE(e.covariance.allFinite());
 }
 
+// `particles` drawn about the run's true first pose.
+ParticleFilterConfig knownStart(const SyntheticRun& run, int particles) {
+  ParticleFilterConfig pc;
+  pc.init = knownBelief(run.truth[0], Eigen::Vector3d(100.0, 100.0, 0.003).asDiagonal());
+  pc.particles = particles;
+  return pc;
+}
+
 TEST(ParticleFilter, IsDeterministicForASeed) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;
   const SyntheticRun run = circleRun(map, odo, 40, 51);
-  ParticleFilterConfig pc;
-  pc.init = knownBelief(run.truth[0], Eigen::Vector3d(100.0, 100.0, 0.003).asDiagonal());
-  pc.particles = 500;
+  ParticleFilterConfig pc = knownStart(run, 500);
   for (ResamplingScheme scheme : {ResamplingScheme::Systematic, ResamplingScheme::SortedRoulette}) {
     pc.resampling = scheme;
     ParticleFilter a(map, odo, pc, 123), b(map, odo, pc, 123), c(map, odo, pc, 124);
@@ -365,9 +371,7 @@ TEST(ParticleFilter, WithoutHistoryFinishKeepsOnlyTheNewestEstimate) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;
   const SyntheticRun run = circleRun(map, odo, 30, 52);
-  ParticleFilterConfig pc;
-  pc.init = knownBelief(run.truth[0], Eigen::Vector3d(100.0, 100.0, 0.003).asDiagonal());
-  pc.particles = 300;
+  ParticleFilterConfig pc = knownStart(run, 300);
   ParticleFilter kept(map, odo, pc, 7);
   pc.keep_history = false;
   ParticleFilter newest(map, odo, pc, 7);
