@@ -113,11 +113,12 @@ ObservationDelivery Localizer::replayEkf(long step, const std::vector<Observatio
   auto from = processed_.begin();
   while (from != processed_.end() && from->step.step != step) ++from;
   if (from == processed_.end()) return ObservationDelivery::TooLate;
-  // Back to the state before that step, then every step since again, each saved anew.
+  // Back to the state before that step, then every step since again, the later ones' states
+  // saved anew.
   ekf_->restoreState(from->before);
   from->step.observations.insert(from->step.observations.end(), observations.begin(), observations.end());
   for (auto p = from; p != processed_.end(); ++p) {
-    p->before = ekf_->saveState();
+    if (p != from) p->before = ekf_->saveState();
     last_ = ekf_->process(p->step);
   }
   return ObservationDelivery::Inserted;

@@ -155,11 +155,15 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
                             ms, n));
     note(rows.back());
   }
-  std::vector<Estimate> ekf_estimates;
-  if (wanted(o, "ekf")) {
+  // The EKF, and the EKF calibrating the wheels: what a range-bearing dataset lets it calibrate
+  // (no pixels, no stereo head).
+  for (const bool calibrating : {false, true}) {
+    const std::string key = calibrating ? "ekf_calib" : "ekf";
+    if (!wanted(o, key)) continue;
     EkfConfig c;
     c.init = init;
     c.gate_enabled = o.gate;
+    if (calibrating) c.calibration = SelfCalibrationConfig::parse("odometry");
     Ekf ekf(d.map, d.odometry, c);
     const Clock::time_point t0 = Clock::now();
     size_t accepted = 0, gated = 0;
@@ -167,21 +171,10 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
       ekf.process(s);
       for (const EkfUpdateRecord& u : ekf.lastUpdates()) (u.accepted ? accepted : gated) += u.compass ? 0 : 1;
     }
-    ekf_estimates = ekf.finish();
+    const std::vector<Estimate> e = ekf.finish();
     ms = msSince(t0);
-    if (o.log) std::fprintf(o.log, "  EKF: %zu observations fused, %zu gated\n", accepted, gated);
-    rows.push_back(evaluate("ekf", "EKF", ekf_estimates, truth, ms, n));
-    note(rows.back());
-  }
-  if (wanted(o, "ekf_calib")) {
-    // The wheels are what a range-bearing dataset lets it calibrate (no pixels, no stereo head).
-    EkfConfig c;
-    c.init = init;
-    c.gate_enabled = o.gate;
-    c.calibration = SelfCalibrationConfig::parse("odometry");
-    Ekf ekf(d.map, d.odometry, c);
-    const std::vector<Estimate> e = runEstimator(ekf, d.steps, &ms);
-    rows.push_back(evaluate("ekf_calib", "EKF, calibrating odometry", e, truth, ms, n));
+    if (o.log) std::fprintf(o.log, "  %s: %zu observations fused, %zu gated\n", key.c_str(), accepted, gated);
+    rows.push_back(evaluate(key, calibrating ? "EKF, calibrating odometry" : "EKF", e, truth, ms, n));
     note(rows.back());
   }
   if (wanted(o, "pf")) {
