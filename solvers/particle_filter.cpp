@@ -629,6 +629,54 @@ void ParticleFilter::summarise(Pose2* mean, Eigen::Matrix3d* covariance) const {
   *covariance = 0.5 * (C + C.transpose());
 }
 
+ParticleFilter::State ParticleFilter::saveState() const {
+  State s;
+  s.rng = rng_;
+  s.normal = normal_;
+  s.gate = gate_;
+  s.x = x_;
+  s.y = y_;
+  s.th = th_;
+  s.c = c_;
+  s.s = s_;
+  s.logw = logw_;
+  s.w = w_;
+  s.fresh = fresh_;
+  s.uniform_weights = uniform_weights_;
+  s.initialised = initialised_;
+  s.have_step = have_step_;
+  s.localised = localised_;
+  s.last_step = last_step_;
+  s.mean = mean_;
+  s.cov = cov_;
+  s.hypotheses = bank_.hypotheses();
+  s.estimates = estimates_.size();
+  return s;
+}
+
+void ParticleFilter::restoreState(const State& s) {
+  rng_ = s.rng;
+  normal_ = s.normal;
+  gate_ = s.gate;
+  x_ = s.x;
+  y_ = s.y;
+  th_ = s.th;
+  c_ = s.c;
+  s_ = s.s;
+  logw_ = s.logw;
+  w_ = s.w;
+  fresh_ = s.fresh;
+  uniform_weights_ = s.uniform_weights;
+  initialised_ = s.initialised;
+  have_step_ = s.have_step;
+  localised_ = s.localised;
+  last_step_ = s.last_step;
+  mean_ = s.mean;
+  cov_ = s.cov;
+  bank_.restore(s.hypotheses);
+  if (config_.keep_history && estimates_.size() > s.estimates) estimates_.resize(s.estimates);
+}
+
 bool ParticleFilter::tryGlobalFix(const Step& step) {
   if (!config_.global_fix) return false;
   const std::optional<PoseFix> fix = config_.global_fix(step, map_);

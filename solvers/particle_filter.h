@@ -262,6 +262,14 @@ class ParticleFilter : public Estimator {
   const std::vector<double>& thetas() const { return th_; }
   const std::vector<double>& weights() const { return w_; }  // normalised
 
+  // Everything a processed step changes, to go back to: restoreState() and then the same steps
+  // again give the same estimates, bit for bit, the random stream included (the Localizer
+  // replays the steps since a late observation's step this way). finish() then holds no
+  // estimate made after the save. A state holds the particle set: about 56 bytes per particle.
+  class State;
+  State saveState() const;
+  void restoreState(const State& state);
+
  private:
   // The observations of one step the filter uses: identified (given or associated), with their
   // landmarks' positions and whether the summary's gate accepted each.
@@ -314,6 +322,23 @@ class ParticleFilter : public Estimator {
   std::vector<Estimate> estimates_;
   HypothesisBank bank_;
   bool localised_ = false;  // the belief has been narrower than handover_sigma_mm once
+
+ public:
+  class State {
+   private:
+    friend class ParticleFilter;
+    std::mt19937_64 rng;
+    ZigguratNormal normal;
+    ValidationGate gate;
+    std::vector<double> x, y, th, c, s, logw, w;
+    std::vector<int> fresh;
+    bool uniform_weights = false, initialised = false, have_step = false, localised = false;
+    long last_step = 0;
+    Pose2 mean;
+    Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+    std::vector<PoseHypothesis> hypotheses;
+    size_t estimates = 0;
+  };
 };
 
 }  // namespace stereoloc

@@ -55,7 +55,7 @@ SlidingWindowConfig realTimeWindowConfig() {
 Localizer::Localizer(LocalizerConfig config) : config_(std::move(config)) {
   if (!(config_.wheel_scales.allFinite() && (config_.wheel_scales.array() > 0).all()))
     throw Error("localizer: wheel scales must be positive and finite");
-  if (config_.ekf_replay_steps < 0) throw Error("localizer: ekf_replay_steps must be >= 0");
+  if (config_.replay_steps < 0) throw Error("localizer: replay_steps must be >= 0");
   switch (config_.method) {
     case LocalizerMethod::Window: {
       SlidingWindowConfig c = config_.window;
@@ -78,7 +78,9 @@ Localizer::Localizer(LocalizerConfig config) : config_(std::move(config)) {
     case LocalizerMethod::ParticleFilter: {
       ParticleFilterConfig c = config_.particle_filter;
       c.init = config_.init;
-      estimator_ = std::make_unique<ParticleFilter>(config_.map, config_.odometry, c, config_.seed);
+      auto f = std::make_unique<ParticleFilter>(config_.map, config_.odometry, c, config_.seed);
+      pf_ = f.get();
+      estimator_ = std::move(f);
       break;
     }
   }
@@ -95,31 +97,43 @@ void Localizer::check(const std::vector<Observation>& observations, long step) c
   }
 }
 
+Localizer::FilterState Localizer::saveFilterState() const {
+  if (ekf_) return ekf_->saveState();
+  return pf_->saveState();
+}
+
+void Localizer::restoreFilterState(const FilterState& state) {
+  if (ekf_)
+    ekf_->restoreState(std::get<Ekf::State>(state));
+  else
+    pf_->restoreState(std::get<ParticleFilter::State>(state));
+}
+
 void Localizer::flush() {
   if (!pending_) return;
   Step step = std::move(*pending_);
   pending_.reset();  // a step the estimator refuses is dropped, not retried with the next one
-  if (!ekf_ || config_.ekf_replay_steps == 0) {
+  if (window_ || config_.replay_steps == 0) {
     last_ = estimator_->process(step);
     return;
   }
-  Ekf::State before = ekf_->saveState();
+  FilterState before = saveFilterState();
   last_ = estimator_->process(step);
   processed_.push_back({std::move(step), std::move(before)});
-  if (processed_.size() > static_cast<size_t>(config_.ekf_replay_steps)) processed_.pop_front();
+  if (processed_.size() > static_cast<size_t>(config_.replay_steps)) processed_.pop_front();
 }
 
-ObservationDelivery Localizer::replayEkf(long step, const std::vector<Observation>& observations) {
+ObservationDelivery Localizer::replay(long step, const std::vector<Observation>& observations) {
   auto from = processed_.begin();
   while (from != processed_.end() && from->step.step != step) ++from;
   if (from == processed_.end()) return ObservationDelivery::TooLate;
   // Back to the state before that step, then every step since again, the later ones' states
   // saved anew.
-  ekf_->restoreState(from->before);
+  restoreFilterState(from->before);
   from->step.observations.insert(from->step.observations.end(), observations.begin(), observations.end());
   for (auto p = from; p != processed_.end(); ++p) {
-    if (p != from) p->before = ekf_->saveState();
-    last_ = ekf_->process(p->step);
+    if (p != from) p->before = saveFilterState();
+    last_ = estimator_->process(p->step);
   }
   return ObservationDelivery::Inserted;
 }
@@ -165,8 +179,7 @@ ObservationDelivery Localizer::deliver(long step, const std::vector<Observation>
     pending_->observations.insert(pending_->observations.end(), observations.begin(), observations.end());
     return ObservationDelivery::WithStep;
   }
-  if (ekf_) return replayEkf(step, observations);
-  if (!window_) return ObservationDelivery::TooLate;
+  if (!window_) return replay(step, observations);
   const LateObservationResult r = window_->insertLate(step, observations);
   switch (r.status) {
     case LateObservationStatus::Inserted:

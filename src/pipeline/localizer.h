@@ -15,10 +15,10 @@
 // images of the newest step given before that are fused with it, exactly as the dataset
 // commands fuse a step's observations (so `stream` on a replayed run equals `localize`). Those
 // of an earlier step are late: the sliding window inserts them at their own pose while it is in
-// the window (SlidingWindowSmoother::insertLate) and reports them too late otherwise; the EKF
-// goes back to its state before that step and processes the steps since again with them (as
-// robot_localization replays its filter), for the last ekf_replay_steps steps; the particle
-// filter cannot go back and reports any late observation too late.
+// the window (SlidingWindowSmoother::insertLate) and reports them too late otherwise; the
+// filters (EKF and particle filter) go back to their state before that step and process the
+// steps since again with them (as robot_localization replays its filter), for the last
+// replay_steps steps.
 //
 // Errors: bad input (a step that does not follow the newest, non-finite values, an unknown
 // landmark id, an unreadable or wrong-size image) throws stereoloc::Error with one line and
@@ -36,6 +36,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <variant>
 #include <vector>
 
 #include "solvers/ekf.h"
@@ -57,7 +58,7 @@ LocalizerMethod localizerMethodFromString(const std::string& name);  // throws s
 enum class ObservationDelivery {
   WithStep,     // of the newest step, not processed yet: fused with its odometry
   Inserted,     // late, inserted at their own pose in the window
-  TooLate,      // late, and their step has left the window or the EKF's replay (or the PF: always)
+  TooLate,      // late, and their step has left the window or the filter's replay
   NotTracking,  // late, while the tracker is uninitialised or lost (not fused, as in-time ones)
 };
 std::string toString(ObservationDelivery delivery);  // "with_step", "inserted", "too_late", "not_tracking"
@@ -78,9 +79,10 @@ struct LocalizerConfig {
   // Method Ekf (max_iterations > 1: the iterated EKF; ekf.calibration: the self-calibrating
   // EKF); init replaced, its observation model's rig by `rig`.
   EkfConfig ekf;
-  // Method Ekf: how many processed steps a late observation may go back (each kept with the
-  // filter's state before it, Ekf::saveState); 0: late observations are too late.
-  int ekf_replay_steps = 100;
+  // Methods Ekf and ParticleFilter: how many processed steps a late observation may go back
+  // (each kept with the filter's state before it, Ekf::saveState, ParticleFilter::saveState:
+  // the particle filter's takes about 56 bytes per particle); 0: late observations are too late.
+  int replay_steps = 100;
   ParticleFilterConfig particle_filter;  // method ParticleFilter; init replaced
   uint64_t seed = 1;                 // the particle filter's random stream
   ImageFrontendOptions frontend;     // frontend parameters and which landmarks it reports
@@ -131,20 +133,24 @@ class Localizer {
   void flush();
   void check(const std::vector<Observation>& observations, long step) const;
   ObservationDelivery deliver(long step, const std::vector<Observation>& observations);
-  // The EKF's late observations: replays the processed steps from `step` on with them.
-  ObservationDelivery replayEkf(long step, const std::vector<Observation>& observations);
+  // A filter's late observations: replays the processed steps from `step` on with them.
+  ObservationDelivery replay(long step, const std::vector<Observation>& observations);
+  using FilterState = std::variant<Ekf::State, ParticleFilter::State>;
+  FilterState saveFilterState() const;
+  void restoreFilterState(const FilterState& state);
   ImageObserver& observer();
 
   LocalizerConfig config_;
   std::unique_ptr<Estimator> estimator_;
   SlidingWindowSmoother* window_ = nullptr;  // estimator_, when it is the window
   Ekf* ekf_ = nullptr;                       // estimator_, when it is the EKF
+  ParticleFilter* pf_ = nullptr;             // estimator_, when it is the particle filter
   std::unique_ptr<ImageObserver> observer_;  // created with the first images
   std::optional<Step> pending_;              // the newest step, not processed yet
-  // The EKF's last processed steps, each with the filter's state before it (ekf_replay_steps).
+  // A filter's last processed steps, each with the filter's state before it (replay_steps).
   struct Processed {
     Step step;
-    Ekf::State before;
+    FilterState before;
   };
   std::deque<Processed> processed_;
   Estimate last_;                            // the newest estimate

@@ -305,15 +305,19 @@ TEST_F(StreamImages, LateImagesAreInsertedAtTheirStep) {
   EXPECT_LT(worstError(b), worstError(a) + 2.0);
   const std::vector<std::string> out = lines(late.output, "{\"step\":");
   EXPECT_NE(out[24].find("\"status\":\"tracking\""), std::string::npos) << out[24];
-  // The EKF goes back for them (replays its last steps): every late pair is inserted.
-  const test::CliRun ekf =
-      test::runCli("stream --setup " + ds() + " --method ekf --init global", writeLines("late.jsonl", 3));
-  ASSERT_EQ(ekf.exit_code, 0) << ekf.output;
-  size_t replayed = 0;
-  for (const std::string& l : lines(ekf.output, "{\"step\":")) replayed += l.find("\"late\":\"inserted\"") != std::string::npos;
-  EXPECT_EQ(replayed, loadDataset(ds()).steps.size() - 3) << ekf.output;
-  EXPECT_EQ(ekf.output.find("too_late"), std::string::npos) << ekf.output;
-  EXPECT_NE(lines(ekf.output, "{\"step\":").back().find("\"status\":\"tracking\""), std::string::npos) << ekf.output;
+  // The filters go back for them (replay their last steps): every late pair is inserted.
+  for (const char* method : {"ekf", "pf"}) {
+    const test::CliRun filter =
+        test::runCli("stream --setup " + ds() + " --method " + method + " --init global", writeLines("late.jsonl", 3));
+    ASSERT_EQ(filter.exit_code, 0) << filter.output;
+    size_t replayed = 0;
+    for (const std::string& l : lines(filter.output, "{\"step\":"))
+      replayed += l.find("\"late\":\"inserted\"") != std::string::npos;
+    EXPECT_EQ(replayed, loadDataset(ds()).steps.size() - 3) << method << filter.output;
+    EXPECT_EQ(filter.output.find("too_late"), std::string::npos) << method << filter.output;
+    EXPECT_NE(lines(filter.output, "{\"step\":").back().find("\"status\":\"tracking\""), std::string::npos)
+        << method << filter.output;
+  }
 }
 
 TEST_F(StreamImages, BadInputNeverStopsTheStream) {

@@ -10,13 +10,20 @@
 //                 (addOdometry + addImages + estimate() of a frame step), odometry_median_us,
 //                 odometry_p99_us (addOdometry + estimate() of the others), each as wall time
 //                 and as this thread's CPU time (cpu_*: not inflated by other processes);
-//                 tracking_fraction and rmse_mm (camera steps, against the truth) as a sanity check.
+//                 tracking_fraction (tracking or predicting, not lost) and rmse_mm (the steps
+//                 pairs are taken at, against the truth) as a sanity check.
 //   BM_PipelineSelfCalibrating   the same with the window self-calibrating odometry and stereo
 //                 head (`stream --calibrate odometry,stereo`): 20 odometry steps between frames
 //                 are one composed calibrated odometry factor.
 //   BM_PipelineEkfSelfCalibrating   the same with the self-calibrating EKF as the tracker
 //                 (`stream --method ekf --calibrate odometry,stereo`); the first W frames are
 //                 left out too.
+//   BM_PipelineParticleFilter   the same with the particle filter (3000 particles, `stream
+//                 --method pf`).
+//   ...Late10     each pair handed over 10 odometry steps (100 ms) after its own step, as a
+//                 frontend on another thread would: the window inserts it at its pose, the
+//                 filters replay the 10 steps since (Localizer::replay_steps). The camera step
+//                 is then the odometry step the pair arrives with.
 //   bench_pipeline [--frames=N] [benchmark flags]     (N frames, default 100)
 // At the end a table prints the figures against the targets (1.5 ms / 4 ms / 50 us).
 #include <benchmark/benchmark.h>
@@ -30,6 +37,7 @@
 #include <cstring>
 #include <map>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "solvers/self_calibration.h"
@@ -72,7 +80,8 @@ Recording record(int frames) {
   return out;
 }
 
-void BM_Pipeline(benchmark::State& state, const Recording& r, LocalizerMethod method, const std::string& calibrate) {
+void BM_Pipeline(benchmark::State& state, const Recording& r, LocalizerMethod method, const std::string& calibrate,
+                 int late = 0) {
   const Dataset& d = r.dataset;
   LocalizerConfig config;
   config.map = d.map;
@@ -86,22 +95,30 @@ void BM_Pipeline(benchmark::State& state, const Recording& r, LocalizerMethod me
   config.ekf.calibration = config.window.calibration;
   config.ekf.observation_model.model = ObservationModel::PixelColumns;  // as `stream`
   config.ekf.keep_history = false;
+  config.particle_filter.keep_history = false;
   std::vector<double> cam_ms, cam_cpu, odo_us, odo_cpu;
   long tracking = 0, camera_steps = 0;
   double sq_error = 0;  // mm^2, camera steps against the truth
   for (auto _ : state) {
     Localizer loc(config);
     long step = 0;
+    std::map<long, size_t> frames;  // step a pair is handed over at -> its frame index
     for (size_t k = 0; k < d.steps.size(); ++k) {
       const Step& s = d.steps[k];
       const int sub = k == 0 ? 1 : kOdometryPerFrame;
       for (int i = 1; i <= sub; ++i) {
-        const bool frame = i == sub;
+        if (i == sub) frames[step + late] = k;
+        const auto arriving = frames.find(step);
+        const bool frame = arriving != frames.end();
         const double t = k == 0 ? s.t : d.steps[k - 1].t + (s.t - d.steps[k - 1].t) * i / sub;
         const double c0 = threadCpuMs();
         const auto t0 = std::chrono::steady_clock::now();
         loc.addOdometry(step, t, s.d_left / sub, s.d_right / sub);
-        if (frame) loc.addImages(step, r.left[k], r.right[k], r.head_pan[k]);
+        if (frame) {
+          const size_t f = arriving->second;
+          loc.addImages(step - late, r.left[f], r.right[f], r.head_pan[f]);
+          frames.erase(arriving);
+        }
         const Estimate e = loc.estimate();
         const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
         const double cpu = threadCpuMs() - c0;
@@ -109,9 +126,9 @@ void BM_Pipeline(benchmark::State& state, const Recording& r, LocalizerMethod me
         if (static_cast<int>(k) > config.window.window) {  // the window is full (the EKF: as long)
           (frame ? cam_ms : odo_us).push_back(frame ? ms : 1e3 * ms);
           (frame ? cam_cpu : odo_cpu).push_back(frame ? cpu : 1e3 * cpu);
-          if (frame) {
+          if (i == sub) {  // the step a pair is taken at (with late pairs: the estimate before it is in)
             ++camera_steps;
-            tracking += e.status == EstimateStatus::Tracking;
+            tracking += e.status == EstimateStatus::Tracking || e.status == EstimateStatus::Predicted;
             if (d.groundtruth[k]) sq_error += (e.pose.translation() - d.groundtruth[k]->translation()).squaredNorm();
           }
         }
@@ -148,7 +165,7 @@ class SummaryReporter : public benchmark::ConsoleReporter {
                   c["camera_p99_ms"], c["cpu_camera_median_ms"], c["cpu_camera_p99_ms"], "1.5 / 4 ms");
       std::printf("%-28s %9.2f us %9.2f us %9.2f us %9.2f us %14s\n", "odometry only", c["odometry_median_us"],
                   c["odometry_p99_us"], c["cpu_odometry_median_us"], c["cpu_odometry_p99_us"], "50 us median");
-      std::printf("camera steps: %.1f %% tracking (the others fused no observation), position RMSE %.1f mm\n",
+      std::printf("steps pairs are taken at: %.1f %% tracking or predicting, position RMSE %.1f mm\n",
                   100.0 * c["tracking_fraction"], c["rmse_mm"]);
     }
   }
@@ -181,6 +198,18 @@ int main(int argc, char** argv) {
   benchmark::RegisterBenchmark("BM_PipelineEkfSelfCalibrating", [&recording](benchmark::State& state) {
     stereoloc::BM_Pipeline(state, recording, stereoloc::LocalizerMethod::Ekf, "odometry,stereo");
   })->Unit(benchmark::kMillisecond)->MinTime(2.0);
+  benchmark::RegisterBenchmark("BM_PipelineParticleFilter", [&recording](benchmark::State& state) {
+    stereoloc::BM_Pipeline(state, recording, stereoloc::LocalizerMethod::ParticleFilter, "");
+  })->Unit(benchmark::kMillisecond)->MinTime(2.0);
+  for (const auto& [name, method, calibrate] :
+       {std::tuple{"BM_PipelineLate10", stereoloc::LocalizerMethod::Window, ""},
+        std::tuple{"BM_PipelineEkfSelfCalibratingLate10", stereoloc::LocalizerMethod::Ekf, "odometry,stereo"},
+        std::tuple{"BM_PipelineParticleFilterLate10", stereoloc::LocalizerMethod::ParticleFilter, ""}}) {
+    benchmark::RegisterBenchmark(name, [&recording, method = method, calibrate = std::string(calibrate)](
+                                           benchmark::State& state) {
+      stereoloc::BM_Pipeline(state, recording, method, calibrate, 10);
+    })->Unit(benchmark::kMillisecond)->MinTime(2.0);
+  }
   stereoloc::SummaryReporter reporter;
   benchmark::RunSpecifiedBenchmarks(&reporter);
   benchmark::Shutdown();

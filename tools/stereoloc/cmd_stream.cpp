@@ -196,8 +196,8 @@ void add_stream_command(CLI::App& app) {
       "stdout with its compute time (formats: src/pipeline/stream_io.h)");
   sub->add_option("--method", a->method,
                   "Tracker: window (sliding-window smoother), ekf, iekf (iterated updates) or pf (particle filter); "
-                  "the window inserts late observations, the EKFs replay their last 100 steps for them, the particle "
-                  "filter cannot")
+                  "the window inserts late observations, the filters replay their last " +
+                      std::to_string(LocalizerConfig().replay_steps) + " steps for them")
       ->capture_default_str()
       ->check(CLI::IsMember({"window", "ekf", "iekf", "pf"}));
   sub->add_option("--window", a->window, "Window: size W (poses)")->capture_default_str()->check(CLI::Range(1, 100000));

@@ -249,30 +249,38 @@ TEST(Localizer, LateObservationsAreInsertedOrTooLate) {
 
   LocalizerConfig ekf = config;
   ekf.method = LocalizerMethod::Ekf;
-  ekf.ekf_replay_steps = 0;  // no going back: too late
+  ekf.replay_steps = 0;  // no going back: too late
   Localizer filter(ekf);
   filter.addStep(p.steps[0]);
   filter.addStep(p.steps[1]);
   EXPECT_EQ(toString(filter.addObservations(0, p.steps[0].observations)), "too_late");
   EXPECT_EQ(toString(filter.estimate().status), "tracking");
-  ekf.ekf_replay_steps = -1;
+  ekf.replay_steps = -1;
   EXPECT_THROW(Localizer{ekf}, Error);
 }
 
-// The EKF goes back for a late observation: restored to its state before the observation's
-// step, it processes the steps since again. Sightings 1-5 steps late then give, once they are
-// in, exactly the estimates of the filter that had them in time; older than the replay horizon
-// they are too late and change nothing.
-TEST(Localizer, TheEkfReplaysItsStepsForLateObservations) {
+// A filter goes back for a late observation: restored to its state before the observation's
+// step (the particle filter's random stream included), it processes the steps since again.
+// Sightings 1-5 steps late then give, once they are in, exactly the estimates of the filter that
+// had them in time; older than the replay horizon they are too late and change nothing.
+TEST(Localizer, TheFiltersReplayTheirStepsForLateObservations) {
   SyntheticProblemOptions o;
   o.steps = 150;
   o.compass_sigma = 0.05;
   const SyntheticProblem p = makeRandomWalkProblem(o, 8);
-  LocalizerConfig config = windowConfig(p);
-  config.method = LocalizerMethod::Ekf;
-  config.ekf_replay_steps = 6;
-  for (const char* blocks : {"", "odometry"}) {
-    config.ekf.calibration = SelfCalibrationConfig::parse(blocks);
+  struct Filter {
+    const char* name;
+    LocalizerMethod method;
+    const char* calibration;
+  };
+  for (const Filter& f : {Filter{"ekf", LocalizerMethod::Ekf, ""}, Filter{"ekf:calib", LocalizerMethod::Ekf, "odometry"},
+                          Filter{"pf", LocalizerMethod::ParticleFilter, ""}}) {
+    SCOPED_TRACE(f.name);
+    LocalizerConfig config = windowConfig(p);
+    config.method = f.method;
+    config.replay_steps = 6;
+    config.ekf.calibration = SelfCalibrationConfig::parse(f.calibration);
+    config.particle_filter.particles = 300;
     Localizer late(config), in_time(config);
     std::mt19937 rng(3);
     std::map<long, long> arrives;  // observations of step s arrive with step arrives[s]
@@ -296,26 +304,26 @@ TEST(Localizer, TheEkfReplaysItsStepsForLateObservations) {
       for (size_t j = 0; j <= k; ++j) complete &= arrives[p.steps[j].step] <= p.steps[k].step;
       if (complete) expectSame(e, ref);
     }
-    EXPECT_GT(inserted, 50) << blocks;
+    EXPECT_GT(inserted, 50);
     for (const Step& s : p.steps)  // the ones still on their way when the odometry ended
       if (arrives[s.step] > p.steps.back().step && !s.observations.empty()) late.addObservations(s.step, s.observations);
     const std::vector<Estimate> a = late.smoothedTrajectory(), b = in_time.smoothedTrajectory();
     ASSERT_EQ(a.size(), b.size());  // no step twice
     for (size_t i = 0; i < a.size(); ++i) expectSame(a[i], b[i]);
+    // Beyond the horizon: too late, and the estimate stays what it was.
+    Localizer loc(config);
+    for (size_t k = 0; k < 20; ++k) {
+      Step odometry = p.steps[k];
+      odometry.observations.clear();
+      loc.addStep(odometry);
+    }
+    const Estimate before = loc.estimate();
+    size_t old = 0;
+    while (p.steps[old].observations.empty()) ++old;
+    ASSERT_LT(old, 12u);
+    EXPECT_EQ(loc.addObservations(p.steps[old].step, p.steps[old].observations), ObservationDelivery::TooLate);
+    expectSame(loc.estimate(), before);
   }
-  // Beyond the horizon: too late, and the estimate stays what it was.
-  Localizer loc(config);
-  for (size_t k = 0; k < 20; ++k) {
-    Step odometry = p.steps[k];
-    odometry.observations.clear();
-    loc.addStep(odometry);
-  }
-  const Estimate before = loc.estimate();
-  size_t old = 0;
-  while (p.steps[old].observations.empty()) ++old;
-  ASSERT_LT(old, 12u);
-  EXPECT_EQ(loc.addObservations(p.steps[old].step, p.steps[old].observations), ObservationDelivery::TooLate);
-  expectSame(loc.estimate(), before);
 }
 
 TEST(Localizer, BadInputIsRefusedAndChangesNothing) {
