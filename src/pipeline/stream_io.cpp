@@ -315,8 +315,11 @@ StreamLineResult feedStreamLine(Localizer& localizer, const StreamLine& s) {
         x.late = toString(d);
       }
       if (d == ObservationDelivery::TooLate)
-        r.errors.push_back("observations of step " + std::to_string(s.obs_step) +
-                           " are too late: the step has left the window");
+        r.errors.push_back("observations of step " + std::to_string(s.obs_step) + " are too late: " +
+                           (localizer.config().method == LocalizerMethod::Window
+                                ? std::string("the step has left the window")
+                                : "the step is older than the filter's last " +
+                                      std::to_string(localizer.config().replay_steps) + " steps"));
     } catch (const Error& e) {
       r.errors.push_back(e.what());
     }

@@ -318,6 +318,19 @@ TEST_F(StreamImages, LateImagesAreInsertedAtTheirStep) {
     EXPECT_NE(lines(filter.output, "{\"step\":").back().find("\"status\":\"tracking\""), std::string::npos)
         << method << filter.output;
   }
+  // A replay horizon shorter than the delay: every late pair is too late, each said on stderr
+  // (exit code 1 at the end).
+  const test::CliRun short_replay = test::runCli(
+      "stream --setup " + ds() + " --method ekf --init global --replay-steps 2", writeLines("late.jsonl", 3));
+  EXPECT_EQ(short_replay.exit_code, 1) << short_replay.output;
+  EXPECT_NE(short_replay.output.find("stdin:4: observations of step 0 are too late: the step is older than the "
+                                     "filter's last 2 steps"),
+            std::string::npos)
+      << short_replay.output;
+  size_t too_late = 0;
+  for (const std::string& l : lines(short_replay.output, "{\"step\":"))
+    too_late += l.find("\"late\":\"too_late\"") != std::string::npos;
+  EXPECT_EQ(too_late, loadDataset(ds()).steps.size() - 3) << short_replay.output;
 }
 
 TEST_F(StreamImages, BadInputNeverStopsTheStream) {
@@ -416,6 +429,7 @@ TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
       {"--method window --particles 10", "--particles"},
       {"--method ekf --seed 2", "--seed"},
       {"--method pf --no-gate", "--no-gate"},
+      {"--method window --replay-steps 5", "--replay-steps"},
       {"--method kalman", "--method"}};
   for (const auto& [options, named] : refused) {
     const test::CliRun r = test::runCli("stream --from " + ds + " " + options);

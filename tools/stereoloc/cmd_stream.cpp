@@ -25,6 +25,7 @@ namespace {
 struct StreamArgs {
   std::string method = "window";
   int window = 20, max_iterations = 5, particles = ParticleFilterConfig().particles;
+  int replay_steps = LocalizerConfig().replay_steps;
   uint64_t seed = 1;
   std::string from, setup, map_path, rig_path, init = "auto";
   std::vector<double> pose, pose_sigma = {30.0, 30.0, 0.0872664626};
@@ -97,6 +98,7 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   c.particle_filter.particles = a.particles;
   c.particle_filter.keep_history = false;
   c.seed = a.seed;
+  c.replay_steps = a.replay_steps;
   c.frontend = imageFrontendOptions(a.frontend_landmarks, a.frontend_params);
   return c;
 }
@@ -116,6 +118,8 @@ void checkMethodOptions(const StreamArgs& a, const CLI::App& sub) {
     refuse("--window", "the window");
     refuse("--max-iterations", "the window");
     refuse("--smoothed", "the window, which smooths,");
+  } else {
+    refuse("--replay-steps", "the filters, which replay,");
   }
   if (a.method != "pf") {
     refuse("--particles", "the particle filter");
@@ -196,8 +200,8 @@ void add_stream_command(CLI::App& app) {
       "stdout with its compute time (formats: src/pipeline/stream_io.h)");
   sub->add_option("--method", a->method,
                   "Tracker: window (sliding-window smoother), ekf, iekf (iterated updates) or pf (particle filter); "
-                  "the window inserts late observations, the filters replay their last " +
-                      std::to_string(LocalizerConfig().replay_steps) + " steps for them")
+                  "the window inserts late observations, the filters replay their last steps for them "
+                  "(--replay-steps)")
       ->capture_default_str()
       ->check(CLI::IsMember({"window", "ekf", "iekf", "pf"}));
   sub->add_option("--window", a->window, "Window: size W (poses)")->capture_default_str()->check(CLI::Range(1, 100000));
@@ -230,6 +234,12 @@ void add_stream_command(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::Range(1, 10000000));
   sub->add_option("--seed", a->seed, "Seed of the particle filter's random stream")->capture_default_str();
+  sub->add_option("--replay-steps", a->replay_steps,
+                  "Filters: how many processed steps a late observation may go back (each kept with the filter's "
+                  "state: the particle filter's about 56 bytes per particle); older ones are too late, 0: every "
+                  "late one")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 1000000));
   sub->add_flag("--no-gate", a->no_gate, "Window and EKFs: fuse every observation (no validation gate)");
   sub->add_flag("--smoothed", a->smoothed, "Window: after the input ends, print the smoothed trajectory (\"smoothed\":true)");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
