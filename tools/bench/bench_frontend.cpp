@@ -96,11 +96,15 @@ struct Seg {
 
 double segAngle(const Seg& s) { return std::atan2(s.b.y() - s.a.y(), s.b.x() - s.a.x()); }
 
-bool matches(const Seg& d, const Seg& g, double* endpoint_err) {
-  double da = std::fabs(segAngle(d) - segAngle(g));
+// The acute angle between the segments' lines (undirected), in [0, pi/2].
+double angleBetween(const Seg& a, const Seg& b) {
+  double da = std::fabs(segAngle(a) - segAngle(b));
   da = std::fmod(da, kPi);
-  da = std::min(da, kPi - da);
-  if (da > 2.0 * kPi / 180) return false;
+  return std::min(da, kPi - da);
+}
+
+bool matches(const Seg& d, const Seg& g, double* endpoint_err) {
+  if (angleBetween(d, g) > 2.0 * kPi / 180) return false;
   const double e1 = (d.a - g.a).norm() + (d.b - g.b).norm(), e2 = (d.a - g.b).norm() + (d.b - g.a).norm();
   const bool direct = e1 <= e2;
   const double ea = direct ? (d.a - g.a).norm() : (d.a - g.b).norm();
@@ -308,12 +312,6 @@ std::vector<Seg> truthSegments(const StereoRig& rig, const FieldMap& map, const 
   return out;
 }
 
-double angleBetween(const Seg& a, const Seg& b) {
-  double da = std::fabs(segAngle(a) - segAngle(b));
-  da = std::fmod(da, kPi);
-  return std::min(da, kPi - da);
-}
-
 // Position of q along g (0 at g.a, |b-a| at g.b) and its distance from g's infinite line.
 void alongAcross(const Seg& g, const Eigen::Vector2d& q, double& t, double& d) {
   const Eigen::Vector2d u = (g.b - g.a).normalized();
@@ -502,10 +500,7 @@ void scoreSegments(const std::vector<Seg>& gt_in, const std::vector<Seg>& det_in
   for (size_t i = 0; i < gt.size(); ++i) parent[i] = i;
   std::function<size_t(size_t)> root = [&](size_t i) { return parent[i] == i ? i : parent[i] = root(parent[i]); };
   auto collinear = [&](const Seg& a, const Seg& b) {
-    double da = std::fabs(segAngle(a) - segAngle(b));
-    da = std::fmod(da, kPi);
-    da = std::min(da, kPi - da);
-    if (da > 2.0 * kPi / 180) return false;
+    if (angleBetween(a, b) > 2.0 * kPi / 180) return false;
     const Eigen::Vector2d n = Eigen::Vector2d(-(a.b - a.a).y(), (a.b - a.a).x()).normalized();
     return std::fabs(n.dot(b.a - a.a)) < 1.5 && std::fabs(n.dot(b.b - a.a)) < 1.5;
   };
