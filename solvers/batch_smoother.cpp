@@ -56,6 +56,8 @@ void BatchSmootherConfig::validate() const {
   if (!(std::isfinite(observation_model.pixel_sigma) && observation_model.pixel_sigma >= 0))
     throw Error("batch smoother: observation_model.pixel_sigma must be >= 0 (0: the observations' own)");
   calibration.validate();
+  if (calibration.consider)
+    throw Error("batch smoother: calibration.consider is the EKF's (a Schmidt gain); the smoothers estimate the calibration");
   observation_model.unmodelled.validate();
   if (!(std::isfinite(slip_rel_sigma) && slip_rel_sigma >= 0))
     throw Error("batch smoother: slip_rel_sigma must be a finite number >= 0");

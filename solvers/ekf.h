@@ -51,6 +51,12 @@
 // global fix sees the sightings through the current calibration, and a lost filter re-anchors on
 // a fix that agrees with its prediction (fused as a measurement of the pose) instead of
 // restarting there. Why each: docs/estimators.md, "A self-calibrating EKF".
+//
+// Considered calibration (calibration.consider, the `ekf:consider` method): the same joint state
+// with every calibration row of K zero, the Schmidt-Kalman filter. The calibration stays the
+// given one; its uncertainty, the image errors and each feature's offsets still enter every
+// covariance, so the pose's covariance is honest about them (docs/estimators.md, "A filter that
+// considers its calibration").
 #include <Eigen/Core>
 #include <map>
 #include <string>
@@ -157,7 +163,8 @@ class Ekf : public Estimator {
   const ValidationGate& gate() const { return gate_; }
   // The updates of the last processed step, in order.
   const std::vector<EkfUpdateRecord>& lastUpdates() const { return updates_; }
-  // With EkfConfig::calibration: the calibration states and their marginal covariance now;
+  // With EkfConfig::calibration: the calibration states and their marginal covariance now
+  // (considered, calibration.consider: the given calibration and its prior, never updated);
   // nullopt without.
   std::optional<CalibrationEstimate> calibration() const;
 
@@ -223,7 +230,9 @@ class Ekf : public Estimator {
   // Adds the landmark's offsets as states with their prior (uncorrelated with the rest) when the
   // noise model states them and they are not states yet; false when nothing was added.
   bool addFeatureOffsets(const Landmark& landmark);
-  void considerWheelBase(Eigen::MatrixXd& K) const;  // its row of K zero
+  // The Schmidt gain: the wheel base's row of K zero, or with calibration.consider every
+  // calibration state's.
+  void considerStates(Eigen::MatrixXd& K) const;
   // x (+) K nu on the joint state with the Joseph form (5.17); H the measurement's, R its noise.
   void applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,
                         const Eigen::MatrixXd& R);

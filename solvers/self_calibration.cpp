@@ -241,6 +241,7 @@ Eigen::Matrix4d calibratedPixelCovariance(const Observation& obs, const Landmark
 SelfCalibrationResult selfCalibratingBatch(const Dataset& d, const InitialBelief& start,
                                            const SelfCalibrationConfig& config) {
   config.validate();
+  if (config.consider) throw Error("self-calibration: consider is the EKF's; the batch estimates the calibration");
   if (start.mode != InitMode::Known) throw Error("self-calibration: needs a known start");
   if (d.steps.empty()) throw Error("self-calibration: the dataset has no steps");
   BatchSmootherConfig c;

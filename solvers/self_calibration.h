@@ -60,6 +60,11 @@ namespace stereoloc {
 struct SelfCalibrationConfig {
   bool odometry = false;  // estimate wheel scales and wheel base
   bool stereo = false;    // estimate tilt correction, baseline scale, pixel offsets, focal errors
+  // The EKF only: the blocks above (and the image, row and feature blocks they bring) are
+  // considered, not estimated: a Schmidt-Kalman filter, whose gain leaves them at the given
+  // calibration while their uncertainty (the priors below) enters every covariance. For a robot
+  // whose calibration is to stay as given but must not make the filter over-confident.
+  bool consider = false;
   // Prior 1-sigma: twice the spread of the realistic error profile (src/sim/error_profile.h),
   // so that the prior does not pull a real robot's parameters back.
   double wheel_scale_sigma = 0.01;          // dimensionless

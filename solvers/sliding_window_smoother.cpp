@@ -108,6 +108,8 @@ void SlidingWindowConfig::validate() const {
   if (!(restart_min_evidence >= 0)) throw Error("sliding window: restart_min_evidence must be >= 0");
   makeLossFunction(robust_loss);  // validates the scale
   calibration.validate();
+  if (calibration.consider)
+    throw Error("sliding window: calibration.consider is the EKF's (a Schmidt gain); the smoothers estimate the calibration");
 }
 
 SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const OdometryParams& odometry,

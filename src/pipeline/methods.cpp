@@ -134,13 +134,24 @@ std::string methodNamesText() {
   return text;
 }
 
-bool hasCalibrationSuffix(const std::string& spec) {
-  static const std::string suffix = ":calib";
-  return spec.size() > suffix.size() && spec.compare(spec.size() - suffix.size(), suffix.size(), suffix) == 0;
+namespace {
+
+bool endsWith(const std::string& s, const std::string& suffix) {
+  return s.size() > suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
+const std::string kCalibSuffix = ":calib", kConsiderSuffix = ":consider";
+
+}  // namespace
+
+bool hasCalibrationSuffix(const std::string& spec) { return endsWith(spec, kCalibSuffix); }
+
+bool hasConsiderSuffix(const std::string& spec) { return endsWith(spec, kConsiderSuffix); }
+
 std::string withoutCalibrationSuffix(const std::string& spec) {
-  return hasCalibrationSuffix(spec) ? spec.substr(0, spec.size() - 6) : spec;
+  if (hasCalibrationSuffix(spec)) return spec.substr(0, spec.size() - kCalibSuffix.size());
+  if (hasConsiderSuffix(spec)) return spec.substr(0, spec.size() - kConsiderSuffix.size());
+  return spec;
 }
 
 std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, InitMode default_init) {
@@ -152,6 +163,8 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, I
   if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
   if (hasCalibrationSuffix(full_spec) && !selfCalibrates(name))
     throw UsageError("method '" + full_spec + "': only " + kSelfCalibratingText + " self-calibrate");
+  if (hasConsiderSuffix(full_spec) && name != "ekf")
+    throw UsageError("method '" + full_spec + "': only ekf considers its calibration");
   InitMode init = default_init;
   if (colon != std::string::npos) {
     try {
@@ -221,11 +234,14 @@ void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o)
 MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& options) {
   const auto [name, init_mode] = parseMethodSpec(spec, options.init);
   MethodOptions o = options;
-  if (hasCalibrationSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
+  if (hasCalibrationSuffix(spec) || hasConsiderSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
+  if (hasConsiderSuffix(spec)) o.calibration.consider = true;
   std::mt19937_64 rng(seed);
   MethodRun run;
   if ((o.calibration.odometry || o.calibration.stereo) && !selfCalibrates(name))
     throw UsageError("--calibrate: only " + kSelfCalibratingText + " self-calibrate (method '" + spec + "')");
+  if (o.calibration.consider && name != "ekf")
+    throw UsageError("--consider: only ekf considers its calibration (method '" + spec + "')");
   if (name == "fix1" || name == "fix2") {
     run = runFixes(d, name == "fix1");
   } else if (name == "deadreckoning") {
@@ -239,7 +255,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
     c.observation_model = {o.observation_model, d.rig, o.pixel_sigma, o.noise};
     Ekf ekf(d.map, d.odometry, c);
     run = runEstimator(ekf, d);
-    run.calibration = ekf.calibration();
+    if (!c.calibration.consider) run.calibration = ekf.calibration();  // considered: nothing estimated
   } else if (name == "pf") {
     ParticleFilterConfig c;
     c.init = beliefFor(init_mode, d, o, rng);

@@ -75,9 +75,11 @@ inline const std::string kSelfCalibratingText = "batch, window and ekf";
 
 // A spec may end in ":calib" ("batch:calib", "window:known:calib", "ekf:calib"): the method with
 // odometry and stereo self-calibration (MethodOptions::calibration), for the studies' calibrated
-// variants.
-bool hasCalibrationSuffix(const std::string& spec);
-std::string withoutCalibrationSuffix(const std::string& spec);
+// variants; or, for the EKF, in ":consider" ("ekf:consider"): the same blocks considered, not
+// estimated (SelfCalibrationConfig::consider).
+bool hasCalibrationSuffix(const std::string& spec);  // ":calib"
+bool hasConsiderSuffix(const std::string& spec);     // ":consider"
+std::string withoutCalibrationSuffix(const std::string& spec);  // without either
 
 // Splits "ekf:random" into ("ekf", Random); throws UsageError for an unknown name or init.
 std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMode default_init);

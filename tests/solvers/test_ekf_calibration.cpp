@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "factors/stereo_pixel_calibration_factor.h"
+#include "solvers/batch_smoother.h"
 #include "solvers/calibrated_models.h"
 #include "solvers/ekf.h"
 #include "src/core/error.h"
@@ -359,6 +360,47 @@ TEST(EkfCalibration, ASightingSetAsideTakesItsFeatureOffsetsWithIt) {
   }
   EXPECT_FALSE(ids.empty());
   for (size_t i = k + 1; i < d.steps.size(); ++i) EXPECT_TRUE(ekf.process(d.steps[i]).pose.isFinite());
+}
+
+TEST(EkfCalibration, AConsideredCalibrationStaysAsGivenAndMakesTheCovarianceHonest) {
+  // The planted-error world above. Considered (a Schmidt gain), the calibration is never
+  // updated: it ends as given, with exactly its prior covariance; the pose's covariance carries
+  // its uncertainty, so the filter is consistent where the EKF that takes the given calibration
+  // as exact is not, and it tracks better for it (its gate keeps the sightings the over-confident
+  // filter rejects).
+  SimulationConfig sc;
+  sc.profile.name = "modelled";
+  sc.profile.wheel_radius_rel_sigma = 0.01;
+  sc.profile.wheel_base_rel_sigma = 0.03;
+  sc.profile.baseline_rel_sigma = 0.01;
+  sc.profile.tilt_sigma_rad = deg2rad(0.5);
+  sc.profile.principal_sigma_px = 1.0;
+  sc.scenario.steps = 600;
+  Dataset d = simulate("random-walk", 0, sc, 5);
+  test::keepIdentifiedSightings(d);
+  EkfConfig considering = calibrating(d, "odometry,stereo");
+  considering.calibration.consider = true;
+  Ekf ekf(d.map, d.odometry, considering);
+  for (const Step& s : d.steps) ekf.process(s);
+  const std::optional<CalibrationEstimate> cal = ekf.calibration();
+  ASSERT_TRUE(cal);
+  const SelfCalibrationConfig& k = considering.calibration;
+  const double w = d.odometry.wheel_base_mm;
+  EXPECT_EQ(cal->wheels, Eigen::Vector3d(1.0, 1.0, w));
+  EXPECT_NEAR(std::sqrt(cal->wheels_covariance(0, 0)), k.wheel_scale_sigma, 1e-12);
+  EXPECT_NEAR(std::sqrt(cal->wheels_covariance(2, 2)), k.wheel_base_rel_sigma * w, 1e-9);
+  EXPECT_EQ(cal->head, CalibrationEstimate().head);
+  EXPECT_NEAR(std::sqrt(cal->head_covariance(1, 1)), k.baseline_scale_sigma, 1e-12);
+  EXPECT_NEAR(std::sqrt(cal->head_covariance(2, 2)), k.disparity_offset_sigma_px, 1e-12);
+  const std::vector<Estimate> est = ekf.finish(), given = run(d, knownStart(d));
+  const double nees = meanNees(d, est), nees_given = meanNees(d, given);
+  EXPECT_LT(nees, 4.0);
+  EXPECT_GT(nees_given, 5.0 * nees) << "considered " << nees;
+  EXPECT_LT(positionRmse(d, est), positionRmse(d, given));
+  // The smoothers estimate the calibration; considering it is refused there.
+  BatchSmootherConfig batch;
+  batch.calibration = considering.calibration;
+  EXPECT_THROW(batch.validate(), Error);
 }
 
 TEST(EkfCalibration, BadSettingsAreRejected) {

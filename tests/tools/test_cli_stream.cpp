@@ -408,6 +408,16 @@ TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
   EXPECT_EQ(text(dir.file("stream_rig_calibration.yml")), text(dir.file("localize_rig_calibration.yml")));
   EXPECT_NE(text(dir.file("stream_rig.yaml")).find("wheel_base_sigma_mm"), std::string::npos);
 
+  // The EKF considering its calibration: localize's estimates, and no calibration to report.
+  const std::string considering =
+      " --method ekf --init global --frontend images --consider odometry,stereo --noise-model " + noise;
+  const test::CliRun cl = test::runCli("localize " + ds + considering + " --out " + dir.file("consider.csv"));
+  ASSERT_EQ(cl.exit_code, 0) << cl.output;
+  const test::CliRun cs = test::runCli("stream --from " + ds + considering);
+  ASSERT_EQ(cs.exit_code, 0) << cs.output;
+  EXPECT_EQ(cs.output.find("calibration:"), std::string::npos) << cs.output;
+  EXPECT_EQ(worstRelativeDifference(estimateLines(cs.output, false), estimateCsv(dir.file("consider.csv"))), 0.0);
+
   const std::string pf = "stream --from " + ds + " --frontend images --method pf --particles 400 --init global";
   const test::CliRun a = test::runCli(pf + " --seed 3"), b = test::runCli(pf + " --seed 3"),
                      c = test::runCli(pf + " --seed 4");
@@ -430,6 +440,10 @@ TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
       {"--method ekf --seed 2", "--seed"},
       {"--method pf --no-gate", "--no-gate"},
       {"--method window --replay-steps 5", "--replay-steps"},
+      {"--method pf --consider odometry", "--consider"},
+      {"--method window --consider odometry", "--consider"},
+      {"--method ekf --consider odometry --calibrate odometry", "--consider"},
+      {"--method ekf --consider odometry --calibration-out " + dir.file("x.yaml"), "--calibration-out"},
       {"--method kalman", "--method"}};
   for (const auto& [options, named] : refused) {
     const test::CliRun r = test::runCli("stream --from " + ds + " " + options);

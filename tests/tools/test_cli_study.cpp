@@ -212,4 +212,36 @@ TEST(CliLocalize, SmoothersAndTheEkfSelfCalibrateAndWriteARigBack) {
   }
 }
 
+// `localize --consider` (or the method ekf:consider) runs the EKF with the calibration blocks
+// considered: nothing is estimated or written, the noise model is taken, and the filter is more
+// honest than the EKF that takes the given calibration as exact. Mixed with --calibrate, with
+// --calibration-out or with another method, it is refused.
+TEST(CliLocalize, TheEkfConsidersItsCalibration) {
+  test::TempDir dir;
+  ASSERT_EQ(test::runCli("simulate --scenario circle --seed 5 --steps 60 --profile realistic --out " + dir.file("d")).exit_code, 0);
+  const std::string run = "localize " + dir.file("d") + " --noise-model " + std::string(STEREOLOC_DATA_DIR) +
+                          "/noise_realistic.yaml ";
+  const test::CliRun c = test::runCli(run + "--method ekf --consider odometry,stereo --out " + dir.file("c.csv"));
+  ASSERT_EQ(c.exit_code, 0) << c.output;
+  EXPECT_EQ(c.output.find("calibration:"), std::string::npos) << c.output;  // nothing estimated
+  const test::CliRun m = test::runCli(run + "--method ekf:consider --out " + dir.file("m.csv"));
+  ASSERT_EQ(m.exit_code, 0) << m.output;
+  EXPECT_EQ(slurp(dir.file("c.csv")), slurp(dir.file("m.csv")));
+  const test::CliRun plain = test::runCli("localize " + dir.file("d") + " --method ekf --out " + dir.file("p.csv"));
+  ASSERT_EQ(plain.exit_code, 0) << plain.output;
+  auto nees = [](const std::string& out) {
+    const size_t at = out.find("mean NEES ");
+    return at == std::string::npos ? -1.0 : std::stod(out.substr(at + 10));
+  };
+  EXPECT_GT(nees(c.output), 0.0) << c.output;
+  EXPECT_LT(nees(c.output), nees(plain.output)) << c.output << plain.output;
+  for (const std::string& bad : {std::string("--method ekf --consider odometry --calibrate odometry"),
+                                 "--method ekf --consider odometry --calibration-out " + dir.file("r.yaml"),
+                                 std::string("--method window --consider odometry"), std::string("--method ekf --consider wheels"),
+                                 std::string("--method batch:consider")}) {
+    const test::CliRun r = test::runCli(run + bad + " --out " + dir.file("x.csv"));
+    EXPECT_EQ(r.exit_code, 2) << bad << ": " << r.output;
+  }
+}
+
 }  // namespace stereoloc

@@ -1,7 +1,8 @@
 // `stereoloc stream`: the real-time pipeline (src/pipeline/localizer.h) on JSON Lines, one step
 // per line on stdin (or a replayed dataset, --from DIR), one estimate per line on stdout as soon
 // as it is computed; the line formats are in src/pipeline/stream_io.h. The tracker is the
-// sliding window (default), the EKF (iterated: iekf; self-calibrating with --calibrate) or the
+// sliding window (default), the EKF (iterated: iekf; self-calibrating with --calibrate, its
+// calibration considered with --consider) or the
 // particle filter; each option of one tracker is refused with another. A bad line (not JSON, a
 // step going backwards, a missing or unusable image, observations older than the window) gets
 // one error on stderr naming the line; the line's odometry is still used when it is valid, and
@@ -32,7 +33,7 @@ struct StreamArgs {
   double compass_sigma = 0, wheel_base = OdometryParams().wheel_base_mm;
   bool no_gate = false, smoothed = false;
   std::string frontend = "pixels", frontend_landmarks = "all", frontend_params, observation_model = "pixel_columns";
-  std::string calibrate, calibration_out, noise_model;
+  std::string calibrate, consider, calibration_out, noise_model;
 };
 
 // `d`: the dataset of --from or --setup, on --rig's rig already (useRig); `handover`: what --rig
@@ -75,7 +76,16 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   } catch (const Error& e) {
     throw UsageError(std::string("--calibrate: ") + e.what());
   }
-  const bool calibrating = calibration.odometry || calibration.stereo;
+  if (!a.consider.empty()) {
+    if (!a.calibrate.empty()) throw UsageError("--consider: not with --calibrate (a block is estimated or considered)");
+    try {
+      calibration = SelfCalibrationConfig::parse(a.consider);
+    } catch (const Error& e) {
+      throw UsageError(std::string("--consider: ") + e.what());
+    }
+    calibration.consider = true;
+  }
+  const bool calibrating = (calibration.odometry || calibration.stereo) && !calibration.consider;
   if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
     throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
   if (!a.calibration_out.empty() && !calibrating) throw UsageError("--calibration-out: needs --calibrate");
@@ -125,13 +135,14 @@ void checkMethodOptions(const StreamArgs& a, const CLI::App& sub) {
     refuse("--particles", "the particle filter");
     refuse("--seed", "the particle filter");
   }
-  const bool calibrating = !a.calibrate.empty();
-  if (calibrating && a.method != "window" && a.method != "ekf")
+  const bool calibrating = !a.calibrate.empty() || !a.consider.empty();
+  if (!a.calibrate.empty() && a.method != "window" && a.method != "ekf")
     throw UsageError("--calibrate: only the window and ekf self-calibrate " + m);
+  if (a.method != "ekf") refuse("--consider", "ekf");
   if (a.method == "pf") refuse("--no-gate", "the window and the EKFs");
   if (a.method != "window" && !(a.method == "ekf" && calibrating)) {
-    refuse("--noise-model", "the window and ekf with --calibrate");
-    refuse("--observation-model", "the window and ekf with --calibrate");
+    refuse("--noise-model", "the window and ekf with --calibrate or --consider");
+    refuse("--observation-model", "the window and ekf with --calibrate or --consider");
   }
 }
 
@@ -180,8 +191,10 @@ void runStream(const StreamArgs& a, const CLI::App& sub) {
     x.smoothed = true;
     for (const Estimate& e : loc.smoothedTrajectory()) print(formatStreamEstimate(e, x));
   }
-  // Standard output carries only estimate lines: the calibration's summary goes to stderr.
-  if (const std::optional<CalibrationEstimate> c = loc.calibration())
+  // Standard output carries only estimate lines: the calibration's summary goes to stderr (a
+  // considered calibration is the given one: nothing to report).
+  const std::optional<CalibrationEstimate> c = loc.calibration();
+  if (c && !loc.config().ekf.calibration.consider)
     reportCalibration(a.calibration_out, stderr, &*c, loc.config().rig,
                       loc.config().method == LocalizerMethod::Ekf ? loc.config().ekf.calibration
                                                                    : loc.config().window.calibration,
@@ -246,9 +259,12 @@ void add_stream_command(CLI::App& app) {
   sub->add_option("--calibrate", a->calibrate,
                   "Self-calibrate in the window or the EKF: odometry (wheel scales, wheel base), stereo (head tilt, "
                   "baseline scale, pixel offsets, focal ratio; a pixel observation model) or odometry,stereo");
+  sub->add_option("--consider", a->consider,
+                  "ekf: the blocks of --calibrate considered, not estimated: the calibration stays as given, its "
+                  "stated uncertainty enters the covariance (see `localize --help`)");
   sub->add_option("--noise-model", a->noise_model,
-                  "YAML of the noise the rig and odometry do not state, for the window and ekf with --calibrate (see "
-                  "`localize --help`)")
+                  "YAML of the noise the rig and odometry do not state, for the window and ekf with --calibrate or "
+                  "--consider (see `localize --help`)")
       ->check(CLI::ExistingFile);
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: after the input ends, write the rig YAML with the tracker's calibration estimate "

@@ -21,10 +21,17 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
     o.loss = robustLossFromString(a.loss);
     o.observation_model = observationModelFromString(a.observation_model);
     o.calibration = SelfCalibrationConfig::parse(a.calibrate);
+    if (!a.consider.empty()) {
+      if (!a.calibrate.empty()) throw UsageError("--consider: not with --calibrate (a block is estimated or considered)");
+      o.calibration = SelfCalibrationConfig::parse(a.consider);
+      o.calibration.consider = true;
+    }
+  } catch (const UsageError&) {
+    throw;
   } catch (const Error& e) {
     throw UsageError(e.what());
   }
-  if (!a.calibration_out.empty() && !o.calibration.odometry && !o.calibration.stereo)
+  if (!a.calibration_out.empty() && (o.calibration.consider || (!o.calibration.odometry && !o.calibration.stereo)))
     throw UsageError("--calibration-out: needs --calibrate");
   if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);
   return o;
@@ -77,10 +84,11 @@ Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHando
 void runLocalize(const LocalizeArgs& a) {
   MethodOptions o = parseMethodOptions(a);
   const std::string name = parseMethodSpec(a.method, o.init).first;  // usage errors before reading data
-  const bool calibrating_ekf = name == "ekf" && (o.calibration.odometry || o.calibration.stereo || hasCalibrationSuffix(a.method));
+  const bool calibrating_ekf = name == "ekf" && (o.calibration.odometry || o.calibration.stereo ||
+                                                 hasCalibrationSuffix(a.method) || hasConsiderSuffix(a.method));
   if (name != "batch" && name != "window" && !calibrating_ekf && (!a.noise_model.empty() || o.pixel_sigma > 0))
-    throw UsageError("--noise-model, --pixel-sigma: only the smoothers (batch, window) and ekf with --calibrate use them "
-                     "(method '" + a.method + "')");
+    throw UsageError("--noise-model, --pixel-sigma: only the smoothers (batch, window) and ekf with --calibrate or "
+                     "--consider use them (method '" + a.method + "')");
   CalibrationHandover handover;
   const Dataset d = loadRunDataset(a, o, handover);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
@@ -137,6 +145,11 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "Batch, window and ekf: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline "
                   "scale, disparity and column offsets, focal errors; the smoothers need a pixel observation model) or "
                   "odometry,stereo, with priors from the stated uncertainty");
+  if (method_option)
+    sub->add_option("--consider", a->consider,
+                    "ekf: the blocks of --calibrate (odometry, stereo or odometry,stereo) considered, not estimated: "
+                    "the calibration stays as given (or as --rig hands it over), its stated uncertainty enters the "
+                    "covariance (a Schmidt-Kalman filter; the method ekf:consider in studies)");
   sub->add_option("--pixel-sigma", a->options.pixel_sigma,
                   "Batch and window pixel models, ekf with --calibrate stereo (the other methods refuse it): pixel noise [px] "
                   "replacing the observations' own (0: theirs); "

@@ -22,6 +22,7 @@ struct LocalizeArgs {
   std::string frontend_landmarks = "all";     // all | goal_corners (with --frontend images)
   std::string frontend_params;                // frontend parameters YAML (empty: defaults)
   std::string calibrate;                      // "", "odometry", "stereo", "odometry,stereo"
+  std::string consider;                       // the same blocks considered, not estimated (ekf)
   std::string calibration_out;                // rig YAML with the calibration estimate
   std::string noise_model;                    // UnmodelledNoise YAML (solvers/smoother_common.h)
   std::string rig;                            // rig YAML in place of the dataset's (src/pipeline/rig_handover.h)

@@ -56,6 +56,28 @@ TEST(Methods, TheSmoothersAndTheEkfSelfCalibrate) {
   EXPECT_TRUE(runMethod("ekf", d, 3, o).calibration);
 }
 
+TEST(Methods, TheEkfConsidersItsCalibration) {
+  // ekf:consider: the calibrating EKF's blocks, considered (nothing estimated, so no
+  // calibration estimate); its own estimates, not ekf:calib's; the same start draws as ekf.
+  const Dataset d = circle(25);
+  const MethodRun considered = runMethod("ekf:consider", d, 3, MethodOptions()),
+                  known = runMethod("ekf:known:consider", d, 3, MethodOptions()),
+                  estimated = runMethod("ekf:calib", d, 3, MethodOptions());
+  ASSERT_EQ(considered.estimates.size(), d.steps.size());
+  EXPECT_FALSE(considered.calibration);
+  EXPECT_EQ(considered.estimates.back().pose.x, known.estimates.back().pose.x);
+  EXPECT_NE(considered.estimates.back().pose.x, estimated.estimates.back().pose.x);
+  EXPECT_EQ(withoutCalibrationSuffix("ekf:random:consider"), "ekf:random");
+  EXPECT_EQ(parseMethodSpec("ekf:random:consider", InitMode::Known).second, InitMode::Random);
+  for (const std::string spec : {"batch:consider", "window:consider", "iekf:consider", "pf:consider"})
+    EXPECT_THROW(parseMethodSpec(spec, InitMode::Known), UsageError) << spec;
+  MethodOptions o;
+  o.calibration = SelfCalibrationConfig::parse("odometry");
+  o.calibration.consider = true;
+  EXPECT_THROW(runMethod("window", d, 3, o), UsageError);
+  EXPECT_THROW(runMethod("batch", d, 3, o), UsageError);
+}
+
 TEST(Methods, FixesCountAttemptedAndFixedSteps) {
   const MethodRun run = runMethod("fix2", circle(25), 1, MethodOptions());
   EXPECT_GT(run.attempted_steps, 0);
