@@ -648,12 +648,12 @@ EkfUpdateRecord Ekf::fuseCalibrated(const Observation& obs, const Landmark& land
 
 // The wheel base is considered, not estimated (a Schmidt gain: its row of K is zero, and the Joseph
 // form keeps the covariance right for that gain): its uncertainty enters every prediction and
-// update through the joint covariance, its estimate stays the nominal one. With
-// calibration.consider every calibration state is (the Schmidt-Kalman filter; Schmidt, 1966). Estimated, it drifted
+// update through the joint covariance, its estimate stays the nominal one. Estimated, it drifted
 // where the drive hardly observes it: on the realistic line (100 trials) it ended +2.6 mm off on
 // average with a sigma of 1.5 mm (54 % of the trials within 2 sigma; the window's: 100 %, mean
 // error 0.01 mm), the bias of an EKF estimating a parameter that scales the motion (the gain's
-// dependence on it is neglected; Ljung, IEEE T-AC 24(1), 1979).
+// dependence on it is neglected; Ljung, IEEE T-AC 24(1), 1979). With calibration.consider every
+// calibration state is considered (the Schmidt-Kalman filter; Schmidt, 1966).
 void Ekf::considerStates(Eigen::MatrixXd& K) const {
   if (config_.calibration.consider) {
     K.bottomRows(K.rows() - 3).setZero();

@@ -2,11 +2,11 @@
 // per line on stdin (or a replayed dataset, --from DIR), one estimate per line on stdout as soon
 // as it is computed; the line formats are in src/pipeline/stream_io.h. The tracker is the
 // sliding window (default), the EKF (iterated: iekf; self-calibrating with --calibrate, its
-// calibration considered with --consider) or the
-// particle filter; each option of one tracker is refused with another. A bad line (not JSON, a
-// step going backwards, a missing or unusable image, observations older than the window) gets
-// one error on stderr naming the line; the line's odometry is still used when it is valid, and
-// the stream goes on. The exit code at the end is 1 if any line was bad.
+// calibration considered with --consider) or the particle filter; each option of one tracker is
+// refused with another. A bad line (not JSON, a step going backwards, a missing or unusable
+// image, observations older than the window or a filter's replay) gets one error on stderr
+// naming the line; the line's odometry is still used when it is valid, and the stream goes on.
+// The exit code at the end is 1 if any line was bad.
 #include <iostream>
 #include <memory>
 #include <string>
@@ -87,7 +87,8 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   }
   const bool calibrating = (calibration.odometry || calibration.stereo) && !calibration.consider;
   if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
-    throw UsageError("--calibrate stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
+    throw UsageError(std::string(calibration.consider ? "--consider" : "--calibrate") +
+                     " stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
   if (!a.calibration_out.empty() && !calibrating) throw UsageError("--calibration-out: needs --calibrate");
   if (!a.noise_model.empty()) observation_model.unmodelled = UnmodelledNoise::load(a.noise_model);
   handover.applyPriors(calibration, observation_model.unmodelled);
