@@ -143,11 +143,9 @@ TEST(EkfCalibration, WithVanishingPriorsItIsThePlainEkf) {
   EXPECT_FALSE(none);
 }
 
-TEST(EkfCalibration, RecoversPlantedWheelAndStereoErrors) {
-  // Wheel radii and base, head tilt, baseline and principal points all wrong in the given
-  // calibration; sightings of identified landmarks only. The EKF on the given calibration is
-  // pulled off the truth and over-confident; the calibrating one recovers the wheels within
-  // their stated sigmas, the disparity offset the principal points make, and is consistent.
+// A 600-step random walk whose given calibration has wheel radii and base, head tilt, baseline
+// and principal points all wrong; sightings of identified landmarks only.
+Dataset plantedErrorWorld(SimulationTrace* trace) {
   SimulationConfig sc;
   sc.profile.name = "modelled";
   sc.profile.wheel_radius_rel_sigma = 0.01;
@@ -156,9 +154,17 @@ TEST(EkfCalibration, RecoversPlantedWheelAndStereoErrors) {
   sc.profile.tilt_sigma_rad = deg2rad(0.5);
   sc.profile.principal_sigma_px = 1.0;
   sc.scenario.steps = 600;
-  SimulationTrace trace;
-  Dataset d = simulate("random-walk", 0, sc, 5, &trace);
+  Dataset d = simulate("random-walk", 0, sc, 5, trace);
   test::keepIdentifiedSightings(d);
+  return d;
+}
+
+TEST(EkfCalibration, RecoversPlantedWheelAndStereoErrors) {
+  // The EKF on the given calibration is pulled off the truth and over-confident; the
+  // calibrating one recovers the wheels within their stated sigmas, the disparity offset the
+  // principal points make, and is consistent.
+  SimulationTrace trace;
+  const Dataset d = plantedErrorWorld(&trace);
   const DrawnErrors& e = trace.errors;
   const std::vector<Estimate> given = run(d, knownStart(d));
   std::optional<CalibrationEstimate> cal;
@@ -363,21 +369,12 @@ TEST(EkfCalibration, ASightingSetAsideTakesItsFeatureOffsetsWithIt) {
 }
 
 TEST(EkfCalibration, AConsideredCalibrationStaysAsGivenAndMakesTheCovarianceHonest) {
-  // The planted-error world above. Considered (a Schmidt gain), the calibration is never
-  // updated: it ends as given, with exactly its prior covariance; the pose's covariance carries
-  // its uncertainty, so the filter is consistent where the EKF that takes the given calibration
-  // as exact is not, and it tracks better for it (its gate keeps the sightings the over-confident
+  // The planted-error world. Considered (a Schmidt gain), the calibration is never updated: it
+  // ends as given, with exactly its prior covariance; the pose's covariance carries its
+  // uncertainty, so the filter is consistent where the EKF that takes the given calibration as
+  // exact is not, and it tracks better for it (its gate keeps the sightings the over-confident
   // filter rejects).
-  SimulationConfig sc;
-  sc.profile.name = "modelled";
-  sc.profile.wheel_radius_rel_sigma = 0.01;
-  sc.profile.wheel_base_rel_sigma = 0.03;
-  sc.profile.baseline_rel_sigma = 0.01;
-  sc.profile.tilt_sigma_rad = deg2rad(0.5);
-  sc.profile.principal_sigma_px = 1.0;
-  sc.scenario.steps = 600;
-  Dataset d = simulate("random-walk", 0, sc, 5);
-  test::keepIdentifiedSightings(d);
+  const Dataset d = plantedErrorWorld(nullptr);
   EkfConfig considering = calibrating(d, "odometry,stereo");
   considering.calibration.consider = true;
   Ekf ekf(d.map, d.odometry, considering);
