@@ -122,7 +122,8 @@ class Localizer {
   // The window, for its statistics (nullptr for the other methods).
   const SlidingWindowSmoother* window() const { return window_; }
   // The window's or the EKF's self-calibration estimate with its covariance after the newest
-  // step (window.calibration, ekf.calibration); nullopt without it or for the particle filter.
+  // step (window.calibration, ekf.calibration; with ekf.calibration.consider the given
+  // calibration and its prior, Ekf::calibration); nullopt without it or for the particle filter.
   std::optional<CalibrationEstimate> calibration() const {
     if (window_) return window_->calibration();
     return ekf_ ? ekf_->calibration() : std::nullopt;
