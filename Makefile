@@ -74,6 +74,9 @@ test-valgrind: build
 	@echo "valgrind: stream --method ekf --frontend images --calibrate odometry,stereo --noise-model"
 	@$(VALGRIND) $(BUILD)/bin/stereoloc stream --from $(VG_DIR)/data --method ekf --frontend images \
 	  --calibrate odometry,stereo --noise-model data/noise_realistic.yaml >/dev/null
+	@echo "valgrind: localize --method ekf --frontend images --consider odometry,stereo --noise-model"
+	@$(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method ekf --frontend images \
+	  --consider odometry,stereo --noise-model data/noise_realistic.yaml --out $(VG_DIR)/ekf-consider.csv >/dev/null
 	@echo "valgrind: the filters going back for late observations (Localizer replay)"
 	@$(VALGRIND) $(BUILD)/bin/test_pipeline_localizer \
 	  --gtest_filter='Localizer.TheFiltersReplayTheirStepsForLateObservations' >/dev/null
