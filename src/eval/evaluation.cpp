@@ -58,6 +58,12 @@ std::vector<PoseError> poseErrors(const std::vector<Estimate>& estimates, const 
     pe.dtheta = e.z();
     pe.distance = std::hypot(e.x(), e.y());
     pe.nees = nees(est.pose, est.covariance, it->second);
+    if (pe.nees) {  // P positive definite, so are its blocks
+      const Eigen::Matrix3d P = 0.5 * (est.covariance + est.covariance.transpose());
+      const Eigen::Vector2d exy = e.head<2>();
+      pe.position_nees = exy.dot(P.topLeftCorner<2, 2>().llt().solve(exy));
+      pe.heading_nees = e.z() * e.z() / P(2, 2);
+    }
     pe.status = est.status;
     out.push_back(pe);
   }
@@ -69,7 +75,7 @@ TrajectoryMetrics trajectoryMetrics(const std::vector<PoseError>& errors) {
   m.count = errors.size();
   if (errors.empty()) return m;
   std::vector<double> dist, adx, ady, adt;
-  double se_pos = 0, se_theta = 0, nees_sum = 0;
+  double se_pos = 0, se_theta = 0, nees_sum = 0, position_nees_sum = 0, heading_nees_sum = 0;
   size_t in_band = 0;
   const double lo = chi2Quantile(0.025, 3), hi = chi2Quantile(0.975, 3);
   for (const PoseError& e : errors) {
@@ -81,6 +87,8 @@ TrajectoryMetrics trajectoryMetrics(const std::vector<PoseError>& errors) {
     se_theta += e.dtheta * e.dtheta;
     if (e.nees) {
       nees_sum += *e.nees;
+      position_nees_sum += e.position_nees.value_or(0.0);
+      heading_nees_sum += e.heading_nees.value_or(0.0);
       ++m.nees_count;
       in_band += (*e.nees >= lo && *e.nees <= hi) ? 1 : 0;
     }
@@ -93,6 +101,8 @@ TrajectoryMetrics trajectoryMetrics(const std::vector<PoseError>& errors) {
   m.abs_dtheta = errorStats(adt);
   if (m.nees_count > 0) {
     m.mean_nees = nees_sum / m.nees_count;
+    m.mean_position_nees = position_nees_sum / m.nees_count;
+    m.mean_heading_nees = heading_nees_sum / m.nees_count;
     m.nees_in_band = static_cast<double>(in_band) / m.nees_count;
   }
   return m;

@@ -28,6 +28,10 @@ struct PoseError {
   double dx = 0, dy = 0, dtheta = 0;  // estimate [-] truth: mm, mm, rad (wrapped)
   double distance = 0;                // hypot(dx, dy), mm
   std::optional<double> nees;         // e^T P^-1 e, when the covariance is positive definite
+  // Its parts, with nees: the position's (2 dof, the 2x2 block of P: its mean is 2 when
+  // consistent) and the heading's (1 dof, dtheta^2 / P_theta_theta), which say which part of a
+  // covariance is too narrow or too wide (they need not add up to nees).
+  std::optional<double> position_nees, heading_nees;
   EstimateStatus status = EstimateStatus::Tracking;
 };
 
@@ -44,6 +48,7 @@ struct TrajectoryMetrics {
   ErrorStats distance;       // mm (the thesis's "distance to the truth")
   ErrorStats abs_dx, abs_dy, abs_dtheta;  // mm, mm, rad (Tables 6.4-6.13)
   double mean_nees = 0;      // over estimates with a covariance
+  double mean_position_nees = 0, mean_heading_nees = 0;  // the same estimates (2 and 1 consistent)
   size_t nees_count = 0;
   double nees_in_band = 0;   // fraction of per-estimate NEES inside the 95 % chi-square(3) band
 };

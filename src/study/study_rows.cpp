@@ -28,7 +28,8 @@ std::string toCsv(const TrialRow& r) {
   for (const WindowSums* w : {&r.distance, &r.window1, &r.window2})
     o << ',' << w->n << ',' << g17(w->sum) << ',' << g17(w->sum_sq) << ',' << g17(w->min) << ',' << g17(w->max);
   o << ',' << r.nees_count << ',' << g17(r.nees_sum) << ',' << r.nees_in_band << ',' << g17(r.ms_per_step) << ','
-    << r.attempted << ',' << r.fixed << ',' << r.failed;
+    << r.attempted << ',' << r.fixed << ',' << r.failed << ',' << g17(r.nees_position_sum) << ','
+    << g17(r.nees_heading_sum);
   return o.str();
 }
 
@@ -101,6 +102,8 @@ std::vector<SummaryRow> summarise(const StudyConfig& c, const std::vector<TrialR
           s.nees_count += r.nees_count;
           s.nees_sum += r.nees_sum;
           s.nees_in_band += r.nees_in_band;
+          s.nees_position_sum += r.nees_position_sum;
+          s.nees_heading_sum += r.nees_heading_sum;
           s.ms_sum += r.ms_per_step;
           s.attempted += r.attempted;
           s.fixed += r.fixed;
@@ -132,13 +135,15 @@ std::string fmt(const char* f, double v) {
 void writeSummaryCsv(const std::vector<SummaryRow>& rows, const std::string& path) {
   AtomicOutputFile out(path);
   out.stream() << "scenario,profile,method,trials,position_rmse_mm,dist_mean_mm,dist_std_mm,dist_min_mm,dist_max_mm,"
-                  "theta_rmse_rad,nees_mean,nees_in_band,ms_per_step,fix_rate,converged,trial_rmse_mean_mm,trial_rmse_ci95_mm,failed\n";
+                  "theta_rmse_rad,nees_mean,nees_in_band,ms_per_step,fix_rate,converged,trial_rmse_mean_mm,trial_rmse_ci95_mm,failed,"
+                  "nees_position_mean,nees_heading_mean\n";
   for (const SummaryRow& s : rows) {
     out.stream() << s.scenario << ',' << s.profile << ',' << s.method << ',' << s.trials << ',' << g17(s.rmse()) << ',' << g17(s.distance.mean())
                  << ',' << g17(s.distance.std()) << ',' << g17(s.distance.min) << ',' << g17(s.distance.max) << ','
                  << g17(s.theta_rmse()) << ',' << g17(s.meanNees()) << ',' << g17(s.inBand()) << ',' << g17(s.msPerStep())
                  << ',' << g17(s.fixRate()) << ',' << g17(s.convergedFraction()) << ',' << g17(s.meanTrialRmse()) << ','
-                 << g17(s.trialRmseHalfWidth95()) << ',' << s.failed << '\n';
+                 << g17(s.trialRmseHalfWidth95()) << ',' << s.failed << ',' << g17(s.meanPositionNees()) << ','
+                 << g17(s.meanHeadingNees()) << '\n';
   }
   out.commit();
 }
@@ -155,14 +160,16 @@ std::string summaryTable(const std::vector<SummaryRow>& rows, const std::string&
   const bool profiles = anyNonIdeal(rows);
   std::ostringstream o;
   o << "| method | " << (profiles ? "profile | " : "")
-    << "trials | position RMSE [mm] | mean [mm] | std [mm] | min [mm] | max [mm] | theta RMSE [deg] | mean NEES | NEES in 95% band | ms/step | fix/estimate rate | converged |\n";
-  o << "|---|" << (profiles ? "---|" : "") << "---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    << "trials | position RMSE [mm] | mean [mm] | std [mm] | min [mm] | max [mm] | theta RMSE [deg] | mean NEES | NEES "
+       "position (2) / heading (1) | NEES in 95% band | ms/step | fix/estimate rate | converged |\n";
+  o << "|---|" << (profiles ? "---|" : "") << "---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const SummaryRow& s : rows) {
     if (s.scenario != scenario) continue;
     o << "| " << s.method << " | " << (profiles ? s.profile + " | " : "") << s.trials << " | " << fmt("%.1f", s.rmse())
       << " | " << fmt("%.1f", s.distance.mean())
       << " | " << fmt("%.1f", s.distance.std()) << " | " << fmt("%.1f", s.distance.min) << " | " << fmt("%.1f", s.distance.max)
       << " | " << fmt("%.2f", rad2deg(s.theta_rmse())) << " | " << (s.nees_count ? fmt("%.2f", s.meanNees()) : "-") << " | "
+      << (s.nees_count ? fmt("%.2f", s.meanPositionNees()) + " / " + fmt("%.2f", s.meanHeadingNees()) : "-") << " | "
       << (s.nees_count ? fmt("%.0f %%", 100 * s.inBand()) : "-") << " | " << fmt("%.3f", s.msPerStep()) << " | "
       << fmt("%.0f %%", 100 * s.fixRate()) << " | "
       << (s.judged ? fmt("%.0f %%", 100 * s.convergedFraction()) : "-") << " |\n";
@@ -247,6 +254,8 @@ std::vector<TrialRow> readTrialRows(const std::string& path) {
     r.attempted = in.getLong(k++);
     r.fixed = in.getLong(k++);
     r.failed = static_cast<int>(in.getLong(k++));
+    r.nees_position_sum = in.getDouble(k++);
+    r.nees_heading_sum = in.getDouble(k++);
     out.push_back(r);
   }
   return out;

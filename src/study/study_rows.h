@@ -56,6 +56,8 @@ struct TrialRow {
   double ms_per_step = 0;
   long attempted = 0, fixed = 0;  // global fixes: steps with observations, steps with a fix
   int failed = 0;          // 1: the method failed on this trial (no estimates)
+  // The NEES's position (2 dof) and heading (1 dof) parts over the same estimates (PoseError).
+  double nees_position_sum = 0, nees_heading_sum = 0;
 };
 
 
@@ -63,7 +65,7 @@ inline constexpr const char* kTrialHeader =
     "scenario,profile,trial,method,steps,estimates,sse_position,sse_theta,"
     "dist_n,dist_sum,dist_sum_sq,dist_min,dist_max,"
     "w1_n,w1_sum,w1_sum_sq,w1_min,w1_max,w2_n,w2_sum,w2_sum_sq,w2_min,w2_max,"
-    "nees_count,nees_sum,nees_in_band,ms_per_step,attempted,fixed,failed";
+    "nees_count,nees_sum,nees_in_band,ms_per_step,attempted,fixed,failed,nees_position_sum,nees_heading_sum";
 
 // One row of steps.csv: the error of one estimate.
 struct StepRow {
@@ -110,12 +112,15 @@ struct SummaryRow {
   WindowSums distance, window1, window2;
   long nees_count = 0, nees_in_band = 0;
   double nees_sum = 0, ms_sum = 0;
+  double nees_position_sum = 0, nees_heading_sum = 0;
   long attempted = 0, fixed = 0;
   int judged = 0, converged = 0;  // trials with estimates over steps 80-100, and those converged there
   int failed = 0;                 // trials on which the method failed
   double rmse() const { return estimates ? std::sqrt(sse_position / estimates) : 0; }
   double theta_rmse() const { return estimates ? std::sqrt(sse_theta / estimates) : 0; }
   double meanNees() const { return nees_count ? nees_sum / nees_count : 0; }
+  double meanPositionNees() const { return nees_count ? nees_position_sum / nees_count : 0; }  // 2 consistent
+  double meanHeadingNees() const { return nees_count ? nees_heading_sum / nees_count : 0; }    // 1 consistent
   double inBand() const { return nees_count ? static_cast<double>(nees_in_band) / nees_count : 0; }
   // Fraction of the judged trials that converged (kConvergedMaxErrorMm); 0 when none was judged.
   double convergedFraction() const { return judged ? static_cast<double>(converged) / judged : 0; }

@@ -212,6 +212,8 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std
       if (e.nees) {
         ++row.nees_count;
         row.nees_sum += *e.nees;
+        row.nees_position_sum += e.position_nees.value_or(0.0);
+        row.nees_heading_sum += e.heading_nees.value_or(0.0);
         row.nees_in_band += (*e.nees >= band_lo && *e.nees <= band_hi) ? 1 : 0;
       }
     }

@@ -98,10 +98,7 @@ void runRefine(const LocalizeArgs& a) {
   TruthByStep truth_by_step;
   for (size_t i = 0; i < d.groundtruth.size(); ++i)
     if (d.groundtruth[i]) truth_by_step.emplace_hint(truth_by_step.end(), step_numbers[i], *d.groundtruth[i]);
-  const TrajectoryMetrics m = trajectoryMetrics(poseErrors(estimates, truth_by_step));
-  if (m.count > 0)
-    std::printf("against ground truth (%zu poses): position RMSE %.1f mm, theta RMSE %.2f deg, mean NEES %.2f\n", m.count,
-                m.position_rmse, rad2deg(m.theta_rmse), m.mean_nees);
+  printAgainstTruth(trajectoryMetrics(poseErrors(estimates, truth_by_step)));
 }
 
 }  // namespace

@@ -100,10 +100,16 @@ void runLocalize(const LocalizeArgs& a) {
                     handover);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);
-  const TrajectoryMetrics m = trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth)));
-  if (m.count > 0)
-    std::printf("against ground truth (%zu poses): position RMSE %.1f mm, theta RMSE %.2f deg, mean NEES %.2f\n", m.count,
-                m.position_rmse, rad2deg(m.theta_rmse), m.mean_nees);
+  printAgainstTruth(trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth))));
+}
+
+void printAgainstTruth(const TrajectoryMetrics& m) {
+  if (m.count == 0) return;
+  std::printf("against ground truth (%zu poses): position RMSE %.1f mm, theta RMSE %.2f deg, mean NEES %.2f", m.count,
+              m.position_rmse, rad2deg(m.theta_rmse), m.mean_nees);
+  if (m.nees_count > 0)
+    std::printf(" (position %.2f of 2, heading %.2f of 1)", m.mean_position_nees, m.mean_heading_nees);
+  std::printf("\n");
 }
 
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path) {

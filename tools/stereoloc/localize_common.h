@@ -7,6 +7,7 @@
 #include <string>
 
 #include "src/pipeline/frontend_source.h"
+#include "src/eval/evaluation.h"
 #include "src/pipeline/methods.h"
 #include "src/pipeline/rig_handover.h"
 
@@ -30,6 +31,9 @@ struct LocalizeArgs {
 };
 
 void runLocalize(const LocalizeArgs& args);
+// The line `localize` and `refine` print against the ground truth: RMSE, mean NEES and its
+// position (2 dof) and heading (1 dof) parts; nothing without ground truth.
+void printAgainstTruth(const TrajectoryMetrics& metrics);
 // The method options with the parsed --init, --loss, --observation-model and --calibrate;
 // throws UsageError.
 MethodOptions parseMethodOptions(const LocalizeArgs& args);

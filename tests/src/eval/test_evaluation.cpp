@@ -39,6 +39,8 @@ TEST(Evaluation, PoseErrorsMatchByStepAndWrapTheta) {
   EXPECT_NEAR(errs[0].dtheta, 0.02, 1e-12);
   ASSERT_TRUE(errs[0].nees.has_value());
   EXPECT_NEAR(*errs[0].nees, 25 + 0.0004, 1e-9);
+  EXPECT_NEAR(errs[0].position_nees.value_or(-1), 25, 1e-9);
+  EXPECT_NEAR(errs[0].heading_nees.value_or(-1), 0.0004, 1e-12);
   const TrajectoryMetrics m = trajectoryMetrics(errs);
   EXPECT_DOUBLE_EQ(m.position_rmse, 5);
   EXPECT_NEAR(m.theta_rmse, 0.02, 1e-12);
@@ -50,7 +52,11 @@ TEST(Evaluation, NeesOfConsistentEstimatorIsNearDofAndInBand) {
   Eigen::Matrix3d P;
   P << 100, 20, 0.1, 20, 50, -0.05, 0.1, -0.05, 0.01;
   const Eigen::Matrix3d L = P.llt().matrixL();
-  std::vector<PoseError> errs;
+  // The same errors against P and against P with the heading's variance stated 4x too wide.
+  Eigen::Matrix3d wide_heading = P;
+  wide_heading.row(2) *= 2.0;
+  wide_heading.col(2) *= 2.0;
+  std::vector<PoseError> errs, wide;
   const Pose2 truth(500, 500, 3.1);
   for (int i = 0; i < 20000; ++i) {
     const Eigen::Vector3d e = L * Eigen::Vector3d(N(rng), N(rng), N(rng));
@@ -59,12 +65,19 @@ TEST(Evaluation, NeesOfConsistentEstimatorIsNearDofAndInBand) {
     est.pose = plus(truth, e);
     est.covariance = P;
     est.status = EstimateStatus::Tracking;
-    const auto pe = poseErrors({est}, TruthByStep{{i, truth}});
-    errs.push_back(pe[0]);
+    errs.push_back(poseErrors({est}, TruthByStep{{i, truth}})[0]);
+    est.covariance = wide_heading;
+    wide.push_back(poseErrors({est}, TruthByStep{{i, truth}})[0]);
   }
   const TrajectoryMetrics m = trajectoryMetrics(errs);
   EXPECT_NEAR(m.mean_nees, 3.0, 0.1);
   EXPECT_NEAR(m.nees_in_band, 0.95, 0.01);
+  // Its parts: 2 for the position, 1 for the heading; the too wide heading shows in its part only.
+  EXPECT_NEAR(m.mean_position_nees, 2.0, 0.07);
+  EXPECT_NEAR(m.mean_heading_nees, 1.0, 0.05);
+  const TrajectoryMetrics w = trajectoryMetrics(wide);
+  EXPECT_EQ(w.mean_position_nees, m.mean_position_nees);
+  EXPECT_NEAR(w.mean_heading_nees, 0.25 * m.mean_heading_nees, 1e-12);
   const NeesBand band = neesBand(3, 100);
   EXPECT_LT(band.lo, 3.0);
   EXPECT_GT(band.hi, 3.0);

@@ -30,6 +30,8 @@ TEST(StudyRows, TrialAndStepRowsSurviveTheirCsvExactly) {
   for (double v : {12.5, 0.1, 1e-9}) t.distance.add(v);
   t.nees_count = 2;
   t.nees_sum = 6.000000000000001;
+  t.nees_position_sum = 4.25;
+  t.nees_heading_sum = 1.0000000000000002;
   study::StepRow s;
   s.scenario = "line";
   s.method = "batch";
@@ -63,10 +65,21 @@ TEST(StudyRows, SummaryPoolsTrialsBySums) {
   a.sse_position = 9;
   b.estimates = 3;
   b.sse_position = 7;
+  a.nees_count = 1;
+  a.nees_sum = 5;
+  a.nees_position_sum = 4;
+  a.nees_heading_sum = 0.5;
+  b.nees_count = 3;
+  b.nees_sum = 7;
+  b.nees_position_sum = 4;
+  b.nees_heading_sum = 1.5;
   const std::vector<study::SummaryRow> s = study::summarise(c, {a, b});
   ASSERT_EQ(s.size(), 1u);
   EXPECT_EQ(s[0].trials, 2);
   EXPECT_DOUBLE_EQ(s[0].rmse(), 2.0);  // sqrt(16 / 4)
+  EXPECT_DOUBLE_EQ(s[0].meanNees(), 3.0);  // 12 / 4 estimates
+  EXPECT_DOUBLE_EQ(s[0].meanPositionNees(), 2.0);
+  EXPECT_DOUBLE_EQ(s[0].meanHeadingNees(), 0.5);
 }
 
 TEST(Study, BadOptionsAreUsageErrorsBeforeAnyFileIsWritten) {
