@@ -137,9 +137,15 @@ TEST_F(CliImport, EveryEstimatorRunsOnTheSliceWithBoundedError) {
                            "window_calib_online", "batch", "batch_robust", "batch_calib"}) {
     ASSERT_TRUE(rows.count(name)) << name << "\n" << r.output;
     const std::vector<double>& v = rows[name];
-    ASSERT_EQ(v.size(), 10u) << name;
+    ASSERT_EQ(v.size(), 12u) << name;
     EXPECT_GT(v[9], 200) << name << ": steps with ground truth";
     EXPECT_EQ(v[8], 0) << name << ": non-finite estimates";
+    // The NEES's position and heading parts: positive, and each at most the whole
+    // (a quadratic form is at least that of any marginal block of its covariance).
+    EXPECT_GT(v[10], 0.0) << name;
+    EXPECT_GT(v[11], 0.0) << name;
+    EXPECT_LE(v[10], v[2] * (1 + 1e-12)) << name;
+    EXPECT_LE(v[11], v[2] * (1 + 1e-12)) << name;
     // 30 s, about 2.5 m of travel, landmarks 2-7 m away seen with ~8 cm range noise: the
     // Gaussian estimators stay within half a metre RMS; dead reckoning and the (small) particle
     // filter within 1.5 m. Sanity bounds: a divergence gives metres.
