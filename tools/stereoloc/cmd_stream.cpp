@@ -250,8 +250,8 @@ void add_stream_command(CLI::App& app) {
   sub->add_option("--seed", a->seed, "Seed of the particle filter's random stream")->capture_default_str();
   sub->add_option("--replay-steps", a->replay_steps,
                   "Filters: how many processed steps a late observation may go back (each kept with the filter's "
-                  "state: the particle filter's about 56 bytes per particle); older ones are too late, 0: every "
-                  "late one")
+                  "state: the particle filter's about 56 bytes per particle); older ones are too late, and with 0 "
+                  "every late one is")
       ->capture_default_str()
       ->check(CLI::Range(0, 1000000));
   sub->add_flag("--no-gate", a->no_gate, "Window and EKFs: fuse every observation (no validation gate)");
