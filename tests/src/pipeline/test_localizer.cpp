@@ -272,15 +272,20 @@ TEST(Localizer, TheFiltersReplayTheirStepsForLateObservations) {
     const char* name;
     LocalizerMethod method;
     const char* calibration;
+    bool kld;  // the particle filter's adaptive sample size
   };
-  for (const Filter& f : {Filter{"ekf", LocalizerMethod::Ekf, ""}, Filter{"ekf:calib", LocalizerMethod::Ekf, "odometry"},
-                          Filter{"pf", LocalizerMethod::ParticleFilter, ""}}) {
+  for (const Filter& f : {Filter{"ekf", LocalizerMethod::Ekf, "", false},
+                          Filter{"ekf:calib", LocalizerMethod::Ekf, "odometry", false},
+                          Filter{"pf", LocalizerMethod::ParticleFilter, "", false},
+                          Filter{"pf with KLD-sampling", LocalizerMethod::ParticleFilter, "", true}}) {
     SCOPED_TRACE(f.name);
     LocalizerConfig config = windowConfig(p);
     config.method = f.method;
     config.replay_steps = 6;
     config.ekf.calibration = SelfCalibrationConfig::parse(f.calibration);
     config.particle_filter.particles = 300;
+    config.particle_filter.kld.enabled = f.kld;
+    config.particle_filter.kld.min_particles = 100;
     Localizer late(config), in_time(config);
     std::mt19937 rng(3);
     std::map<long, long> arrives;  // observations of step s arrive with step arrives[s]
