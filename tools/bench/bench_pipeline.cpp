@@ -18,6 +18,8 @@
 //   BM_PipelineEkfSelfCalibrating   the same with the self-calibrating EKF as the tracker
 //                 (`stream --method ekf --calibrate odometry,stereo`); the first W frames are
 //                 left out too.
+//   BM_PipelineEkf, BM_PipelineEkfConsidering   the EKF on the given calibration (`stream --method
+//                 ekf`) and considering it (`--consider odometry,stereo`).
 //   BM_PipelineParticleFilter   the same with the particle filter (3000 particles, `stream
 //                 --method pf`).
 //   ...Late10     each pair handed over 10 odometry steps (100 ms) after its own step, as a
@@ -81,7 +83,7 @@ Recording record(int frames) {
 }
 
 void BM_Pipeline(benchmark::State& state, const Recording& r, LocalizerMethod method, const std::string& calibrate,
-                 int late = 0) {
+                 int late = 0, bool consider = false) {
   const Dataset& d = r.dataset;
   LocalizerConfig config;
   config.map = d.map;
@@ -93,6 +95,7 @@ void BM_Pipeline(benchmark::State& state, const Recording& r, LocalizerMethod me
   config.window.calibration = SelfCalibrationConfig::parse(calibrate);
   config.method = method;
   config.ekf.calibration = config.window.calibration;
+  config.ekf.calibration.consider = consider;
   config.ekf.observation_model.model = ObservationModel::PixelColumns;  // as `stream`
   config.ekf.keep_history = false;
   config.particle_filter.keep_history = false;
@@ -201,6 +204,12 @@ int main(int argc, char** argv) {
   })->Unit(benchmark::kMillisecond)->MinTime(2.0);
   benchmark::RegisterBenchmark("BM_PipelineEkfSelfCalibrating", [&recording](benchmark::State& state) {
     stereoloc::BM_Pipeline(state, recording, stereoloc::LocalizerMethod::Ekf, "odometry,stereo");
+  })->Unit(benchmark::kMillisecond)->MinTime(2.0);
+  benchmark::RegisterBenchmark("BM_PipelineEkf", [&recording](benchmark::State& state) {
+    stereoloc::BM_Pipeline(state, recording, stereoloc::LocalizerMethod::Ekf, "");
+  })->Unit(benchmark::kMillisecond)->MinTime(2.0);
+  benchmark::RegisterBenchmark("BM_PipelineEkfConsidering", [&recording](benchmark::State& state) {
+    stereoloc::BM_Pipeline(state, recording, stereoloc::LocalizerMethod::Ekf, "odometry,stereo", 0, true);
   })->Unit(benchmark::kMillisecond)->MinTime(2.0);
   benchmark::RegisterBenchmark("BM_PipelineParticleFilter", [&recording](benchmark::State& state) {
     stereoloc::BM_Pipeline(state, recording, stereoloc::LocalizerMethod::ParticleFilter, "");
