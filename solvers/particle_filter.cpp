@@ -631,6 +631,11 @@ void ParticleFilter::summarise(Pose2* mean, Eigen::Matrix3d* covariance) const {
 
 ParticleFilter::State ParticleFilter::saveState() const {
   State s;
+  saveState(s);
+  return s;
+}
+
+void ParticleFilter::saveState(State& s) const {
   s.rng = rng_;
   s.normal = normal_;
   s.gate = gate_;
@@ -651,7 +656,6 @@ ParticleFilter::State ParticleFilter::saveState() const {
   s.cov = cov_;
   s.hypotheses = bank_.hypotheses();
   s.estimates = estimates_.size();
-  return s;
 }
 
 void ParticleFilter::restoreState(const State& s) {

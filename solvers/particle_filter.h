@@ -268,6 +268,8 @@ class ParticleFilter : public Estimator {
   // estimate made after the save. A state holds the particle set: about 56 bytes per particle.
   class State;
   State saveState() const;
+  // The same into `state`, reusing its buffers (no allocation once they are large enough).
+  void saveState(State& state) const;
   void restoreState(const State& state);
 
  private:

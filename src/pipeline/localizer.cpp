@@ -97,9 +97,13 @@ void Localizer::check(const std::vector<Observation>& observations, long step) c
   }
 }
 
-Localizer::FilterState Localizer::saveFilterState() const {
-  if (ekf_) return ekf_->saveState();
-  return pf_->saveState();
+void Localizer::saveFilterState(FilterState& state) const {
+  if (ekf_) {
+    state = ekf_->saveState();
+    return;
+  }
+  if (!std::holds_alternative<ParticleFilter::State>(state)) state = ParticleFilter::State();
+  pf_->saveState(std::get<ParticleFilter::State>(state));
 }
 
 void Localizer::restoreFilterState(const FilterState& state) {
@@ -117,10 +121,16 @@ void Localizer::flush() {
     last_ = estimator_->process(step);
     return;
   }
-  FilterState before = saveFilterState();
+  // The oldest kept step leaves the replay horizon now; its state's buffers take the new one.
+  Processed p;
+  if (processed_.size() >= static_cast<size_t>(config_.replay_steps)) {
+    p = std::move(processed_.front());
+    processed_.pop_front();
+  }
+  saveFilterState(p.before);
   last_ = estimator_->process(step);
-  processed_.push_back({std::move(step), std::move(before)});
-  if (processed_.size() > static_cast<size_t>(config_.replay_steps)) processed_.pop_front();
+  p.step = std::move(step);
+  processed_.push_back(std::move(p));
 }
 
 ObservationDelivery Localizer::replay(long step, const std::vector<Observation>& observations) {
@@ -132,7 +142,7 @@ ObservationDelivery Localizer::replay(long step, const std::vector<Observation>&
   restoreFilterState(from->before);
   from->step.observations.insert(from->step.observations.end(), observations.begin(), observations.end());
   for (auto p = from; p != processed_.end(); ++p) {
-    if (p != from) p->before = saveFilterState();
+    if (p != from) saveFilterState(p->before);
     last_ = estimator_->process(p->step);
   }
   return ObservationDelivery::Inserted;

@@ -137,7 +137,8 @@ class Localizer {
   // A filter's late observations: replays the processed steps from `step` on with them.
   ObservationDelivery replay(long step, const std::vector<Observation>& observations);
   using FilterState = std::variant<Ekf::State, ParticleFilter::State>;
-  FilterState saveFilterState() const;
+  // Into `state`; the particle filter's reuses the particle buffers `state` already holds.
+  void saveFilterState(FilterState& state) const;
   void restoreFilterState(const FilterState& state);
   ImageObserver& observer();
 
