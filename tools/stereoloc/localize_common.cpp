@@ -157,20 +157,20 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                     "the calibration stays as given (or as --rig hands it over), its stated uncertainty enters the "
                     "covariance (a Schmidt-Kalman filter; the method ekf:consider in studies)");
   sub->add_option("--pixel-sigma", a->options.pixel_sigma,
-                  "Batch and window pixel models, ekf with --calibrate stereo (the other methods refuse it): pixel noise [px] "
-                  "replacing the observations' own (0: theirs); "
-                  "about 1 px for the realistic error profile (docs/realistic_world.md)")
+                  "Batch and window pixel models, ekf with --calibrate or --consider stereo (the other methods "
+                  "refuse it): pixel noise [px] replacing the observations' own (0: theirs); about 1 px for the "
+                  "realistic error profile (docs/realistic_world.md)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   sub->add_option("--noise-model", a->noise_model,
-                  "Batch, window and ekf with --calibrate (the other methods refuse it): YAML of the noise the rig and "
-                  "odometry do not state (lens distortion estimate "
-                  "error, camera vibration, wheel slip; data/noise_realistic.yaml, docs/realistic_world.md)");
+                  "Batch, window and ekf with --calibrate or --consider (the other methods refuse it): YAML of the "
+                  "noise the rig and odometry do not state (lens distortion estimate error, camera vibration, wheel "
+                  "slip; data/noise_realistic.yaml, docs/realistic_world.md)");
   sub->add_option("--rig", a->rig,
                   "Stereo rig YAML in place of the dataset's, e.g. one --calibration-out wrote: its wheel estimate "
                   "scales the wheel increments and sets the wheel base, its standard deviations are the priors of "
-                  "--calibrate (docs/realistic_world.md); a rig with other rectified cameras than the dataset's "
-                  "needs --frontend images")
+                  "--calibrate and --consider (docs/realistic_world.md); a rig with other rectified cameras than the "
+                  "dataset's needs --frontend images")
       ->check(CLI::ExistingFile);
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
