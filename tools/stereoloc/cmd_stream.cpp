@@ -64,27 +64,13 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
     const Eigen::Vector3d s(a.pose_sigma[0], a.pose_sigma[1], a.pose_sigma[2]);
     c.init = knownBelief(*start, s.cwiseAbs2().asDiagonal());
   }
-  SelfCalibrationConfig calibration;
   ObservationModelConfig observation_model;
   try {
     observation_model.model = observationModelFromString(a.observation_model);
   } catch (const Error& e) {
     throw UsageError(std::string("--observation-model: ") + e.what());
   }
-  try {
-    calibration = SelfCalibrationConfig::parse(a.calibrate);
-  } catch (const Error& e) {
-    throw UsageError(std::string("--calibrate: ") + e.what());
-  }
-  if (!a.consider.empty()) {
-    if (!a.calibrate.empty()) throw UsageError("--consider: not with --calibrate (a block is estimated or considered)");
-    try {
-      calibration = SelfCalibrationConfig::parse(a.consider);
-    } catch (const Error& e) {
-      throw UsageError(std::string("--consider: ") + e.what());
-    }
-    calibration.consider = true;
-  }
+  SelfCalibrationConfig calibration = calibrationOptions(a.calibrate, a.consider);
   const bool calibrating = (calibration.odometry || calibration.stereo) && !calibration.consider;
   if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
     throw UsageError(std::string(calibration.consider ? "--consider" : "--calibrate") +

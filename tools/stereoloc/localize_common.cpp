@@ -14,23 +14,29 @@
 
 namespace stereoloc::cli {
 
+SelfCalibrationConfig calibrationOptions(const std::string& calibrate, const std::string& consider) {
+  if (!calibrate.empty() && !consider.empty())
+    throw UsageError("--consider: not with --calibrate (a block is estimated or considered)");
+  const bool considering = !consider.empty();
+  try {
+    SelfCalibrationConfig c = SelfCalibrationConfig::parse(considering ? consider : calibrate);
+    c.consider = considering;
+    return c;
+  } catch (const Error& e) {
+    throw UsageError(std::string(considering ? "--consider: " : "--calibrate: ") + e.what());
+  }
+}
+
 MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   MethodOptions o = a.options;
   try {
     o.init = initModeFromString(a.init);
     o.loss = robustLossFromString(a.loss);
     o.observation_model = observationModelFromString(a.observation_model);
-    o.calibration = SelfCalibrationConfig::parse(a.calibrate);
-    if (!a.consider.empty()) {
-      if (!a.calibrate.empty()) throw UsageError("--consider: not with --calibrate (a block is estimated or considered)");
-      o.calibration = SelfCalibrationConfig::parse(a.consider);
-      o.calibration.consider = true;
-    }
-  } catch (const UsageError&) {
-    throw;
   } catch (const Error& e) {
     throw UsageError(e.what());
   }
+  o.calibration = calibrationOptions(a.calibrate, a.consider);
   if (!a.calibration_out.empty() && (o.calibration.consider || (!o.calibration.odometry && !o.calibration.stereo)))
     throw UsageError("--calibration-out: needs --calibrate");
   if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);

@@ -37,6 +37,9 @@ void printAgainstTruth(const TrajectoryMetrics& metrics);
 // The method options with the parsed --init, --loss, --observation-model and --calibrate;
 // throws UsageError.
 MethodOptions parseMethodOptions(const LocalizeArgs& args);
+// --calibrate or --consider (at most one given; "": none) as the self-calibration's blocks, with
+// SelfCalibrationConfig::consider set for --consider; throws UsageError naming the option.
+SelfCalibrationConfig calibrationOptions(const std::string& calibrate, const std::string& consider);
 // Writes `calibration_out` (--calibration-out, when not empty) and prints the estimate to `out`
 // (calibration null: no --calibrate, and --calibration-out is then a usage error): the run's,
 // carried on from the calibration --rig handed over (CalibrationHandover::carriedOn), and how
