@@ -4,10 +4,12 @@
 
 #include <Eigen/Core>
 #include <filesystem>
+#include <functional>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "src/core/error.h"
 #include "src/core/estimator.h"
 #include "src/core/numeric_diff.h"
 #include "src/io/dataset.h"
@@ -32,6 +34,16 @@ class TempDir {
  private:
   std::filesystem::path path_;
 };
+
+// The message of the stereoloc::Error that f throws; empty when it throws none.
+inline std::string errorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
 
 // Drops every sighting that needs association (landmark_id -1): the runs whose estimators
 // should see identified landmarks only.

@@ -329,6 +329,16 @@ void MrclamImportConfig::validate() const {
   check(!sigma_bearing_rad || (std::isfinite(*sigma_bearing_rad) && *sigma_bearing_rad > 0), "sigma_bearing_rad");
   check(std::isfinite(odometry_window_s) && odometry_window_s > 0, "odometry_window_s");
   check(std::isfinite(odometry_noise_scale) && odometry_noise_scale > 0, "odometry_noise_scale");
+  check(std::isfinite(correlation_max_lag_s) && correlation_max_lag_s > 0, "correlation_max_lag_s");
+}
+
+ObservationCorrelation ImportReport::correlation() const {
+  ObservationCorrelation c;
+  c.range_same = range_same.correlation;
+  c.range_other = range_other.correlation;
+  c.bearing_same = bearing_same.correlation;
+  c.bearing_other = bearing_other.correlation;
+  return c;
 }
 
 FieldMap mrclamMap(const std::map<int, Eigen::Vector2d>& landmarks, const std::vector<Eigen::Vector2d>& extent,
@@ -423,13 +433,14 @@ std::vector<StepTime> stepTimes(const std::vector<const MrclamMeasurementRow*>& 
   return merged;
 }
 
-// Range and bearing errors against the ground truth at each sighting's own time, and the
-// observation sigmas: the configured ones, or the errors' robust sigma. `where` names the
-// measurement file in errors.
+// Range and bearing errors against the ground truth at each sighting's own time, the
+// observation sigmas (the configured ones, or the errors' robust sigma) and the errors'
+// correlation over sightings. `where` names the measurement file in errors.
 void observationSigmas(const std::vector<const MrclamMeasurementRow*>& kept, const std::vector<MrclamPoseRow>& gt,
                        const std::map<int, int>& barcodes, const std::map<int, Eigen::Vector2d>& landmarks,
                        const MrclamImportConfig& config, const std::string& where, ImportReport* rep) {
   std::vector<double> range_err, bearing_err;
+  std::vector<ErrorSample> range_samples, bearing_samples;
   for (const MrclamMeasurementRow* m : kept) {
     const std::optional<Pose2> p = interpolateGroundtruth(gt, m->t, config.max_groundtruth_gap_s);
     if (!p) {
@@ -441,7 +452,14 @@ void observationSigmas(const std::vector<const MrclamMeasurementRow*>& kept, con
     const Eigen::Vector2d z = predictRangeBearing(*p, lm);
     range_err.push_back(m->range - z.x());
     bearing_err.push_back(angleDiff(m->bearing, z.y()));
+    const int subject = barcodes.at(m->barcode);
+    range_samples.push_back({m->t, subject, range_err.back()});
+    bearing_samples.push_back({m->t, subject, bearing_err.back()});
   }
+  rep->range_same = fitErrorCorrelation(range_samples, true, config.correlation_max_lag_s);
+  rep->range_other = fitErrorCorrelation(range_samples, false, config.correlation_max_lag_s);
+  rep->bearing_same = fitErrorCorrelation(bearing_samples, true, config.correlation_max_lag_s);
+  rep->bearing_other = fitErrorCorrelation(bearing_samples, false, config.correlation_max_lag_s);
   rep->range_error = robustErrorStats(range_err);
   rep->bearing_error = robustErrorStats(bearing_err);
   rep->sigmas_estimated = !(config.sigma_range_mm && config.sigma_bearing_rad);
@@ -533,6 +551,20 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
                                                                     rep.sigma_bearing_rad));
   }
   rep.observations = to_observe.size();
+  if (config.correlated_errors) {
+    inflateForCorrelatedErrors(out.steps, rep.correlation());
+    rep.correlated_errors = true;
+    double fr = 0, fb = 0;
+    for (const Step& s : out.steps)
+      for (const Observation& o : s.observations) {
+        fr += o.covariance(0, 0) / (rep.sigma_range_mm * rep.sigma_range_mm);
+        fb += o.covariance(1, 1) / (rep.sigma_bearing_rad * rep.sigma_bearing_rad);
+      }
+    if (rep.observations > 0) {
+      rep.mean_range_variance_factor = fr / static_cast<double>(rep.observations);
+      rep.mean_bearing_variance_factor = fb / static_cast<double>(rep.observations);
+    }
+  }
 
   rep.odometry_fit = fitOdometryNoise(out.steps, out.groundtruth, config.wheel_base_mm, config.odometry_window_s);
   rep.odometry = odometryFromFit(rep.odometry_fit, config);
@@ -569,6 +601,22 @@ std::string ImportReport::summary() const {
   os << "  bearing error [deg]: " << formatStats(bearing_error, 180.0 / kPi, "deg") << "\n";
   std::snprintf(buf, sizeof buf, "  observation sigmas: range %.1f mm, bearing %.2f deg (%s)\n", sigma_range_mm,
                 rad2deg(sigma_bearing_rad), sigmas_estimated ? "estimated" : "given");
+  os << buf;
+  auto rho = [](const ErrorCorrelationFit& f) {
+    char b[96];
+    std::snprintf(b, sizeof b, "%.2f exp(-dt / %.1f s)", f.correlation.at_zero, f.correlation.time_constant_s);
+    return std::string(b);
+  };
+  os << "  error correlation of two sightings dt apart: range " << rho(range_same) << " (same landmark), "
+     << rho(range_other) << " (another); bearing " << rho(bearing_same) << ", " << rho(bearing_other) << "\n";
+  if (correlated_errors) {
+    std::snprintf(buf, sizeof buf,
+                  "  sigmas inflated for it: mean variance factor range %.2f, bearing %.2f "
+                  "(sigma x sqrt((1 + rho) / (1 - rho)), rho to the previous sighting)\n",
+                  mean_range_variance_factor, mean_bearing_variance_factor);
+  } else {
+    std::snprintf(buf, sizeof buf, "  (sigmas not inflated for it: --correlated-errors does)\n");
+  }
   os << buf;
   std::snprintf(buf, sizeof buf,
                 "  odometry noise fit over %zu windows: k_heading %.3g, k_along %.3g mm^2/mm; median travel %.0f mm, "

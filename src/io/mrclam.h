@@ -30,6 +30,7 @@
 #include <vector>
 
 #include "src/core/field_map.h"
+#include "src/core/observation_correlation.h"
 #include "src/core/odometry_model.h"
 #include "src/core/pose2.h"
 #include "src/core/types.h"
@@ -135,6 +136,13 @@ struct MrclamImportConfig {
   // robust (medians) and sees no slow biases of the commanded velocities, so over a whole run
   // the model is optimistic (dead-reckoning NEES ~40); 4 makes the filters gate less.
   double odometry_noise_scale = 1.0;
+  // The barcode camera's errors repeat over consecutive sightings (src/core/
+  // observation_correlation.h). The import always fits their correlation against the ground
+  // truth (pairs up to correlation_max_lag_s apart) and reports it; with correlated_errors it
+  // also inflates each sighting's sigmas by it, so that estimators fusing the sightings as
+  // independent take from a burst the information it holds.
+  bool correlated_errors = false;
+  double correlation_max_lag_s = 120.0;
   void validate() const;              // throws stereoloc::Error naming the field
 };
 
@@ -155,6 +163,13 @@ struct ImportReport {
   RobustErrorStats bearing_error;         // rad, wrapped measured - true
   double sigma_range_mm = 0, sigma_bearing_rad = 0;  // the sigmas written into the observations
   bool sigmas_estimated = true;
+  // Correlation of the errors of two sightings dt apart, of the same landmark and of different
+  // ones (range in mm, bearing in rad; fitted whether or not applied).
+  ErrorCorrelationFit range_same, range_other, bearing_same, bearing_other;
+  bool correlated_errors = false;          // the sigmas were inflated by the fit
+  double mean_range_variance_factor = 1;   // mean over the observations of the variance factor
+  double mean_bearing_variance_factor = 1;
+  ObservationCorrelation correlation() const;  // the four fits' correlations
   OdometryNoiseFit odometry_fit;
   OdometryParams odometry;                // the noise model chosen from the fit (times the scale)
   std::string summary() const;            // multi-line human-readable text (degrees for angles)

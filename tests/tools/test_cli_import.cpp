@@ -1,6 +1,7 @@
 // `stereoloc import mrclam` and `stereoloc realdata` on a short slice of the shared MR.CLAM
 // Dataset 6 (skipped when ../shared is absent): exit codes, the printed summary, the written
-// dataset, and an end-to-end run of every estimator with a sanity bound on the error.
+// dataset, and an end-to-end run of every estimator with a sanity bound on the error; on the
+// whole of robot 1, what the sigmas inflated for correlated errors do to the smoothers.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -153,6 +154,53 @@ TEST_F(CliImport, EveryEstimatorRunsOnTheSliceWithBoundedError) {
     EXPECT_LT(v[0], n == "dead_reckoning" || n == "pf" ? 1500.0 : 500.0) << name << "\n" << r.output;
     EXPECT_LT(v[1], 0.35) << name << ": theta RMSE (rad)";
   }
+}
+
+// realdata's CSV: estimator -> (position RMSE mm, theta RMSE rad, mean NEES, ...).
+std::map<std::string, std::vector<double>> readRealdataCsv(const std::string& path) {
+  std::ifstream in(path);
+  std::string line;
+  std::getline(in, line);
+  std::map<std::string, std::vector<double>> rows;
+  while (std::getline(in, line)) {
+    std::stringstream ss(line);
+    std::string name, field;
+    std::getline(ss, name, ',');
+    while (std::getline(ss, field, ',')) rows[name].push_back(std::stod(field));
+  }
+  return rows;
+}
+
+// The barcode camera's errors repeat over consecutive sightings of a landmark (correlation
+// about 0.7 a second apart): fused as independent, a burst counts many times over. With the
+// sigmas inflated for it, the smoothers' covariance is less overconfident and the batch, whose
+// every pose a burst pulls, more accurate.
+TEST(CliImportRobot1, SigmasInflatedForCorrelatedErrorsMakeTheSmoothersLessOverconfident) {
+  if (!std::filesystem::exists(sharedDir() + "/Robot1_Odometry.dat"))
+    GTEST_SKIP() << "shared MR.CLAM data not found at " << sharedDir();
+  test::TempDir tmp("cli_import_correlated");
+  std::map<std::string, std::vector<double>> result[2];
+  for (int correlated = 0; correlated < 2; ++correlated) {
+    const std::string out = tmp.file(correlated ? "correlated" : "independent");
+    test::CliRun r = test::runCli("import mrclam " + sharedDir() + " --robot 1 --out " + out +
+                                  (correlated ? " --correlated-errors" : ""));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_NE(r.output.find("error correlation of two sightings dt apart: range 0."), std::string::npos) << r.output;
+    EXPECT_EQ(r.output.find("sigmas inflated for it") != std::string::npos, correlated == 1) << r.output;
+    const std::string csv = out + ".csv";
+    r = test::runCli("realdata " + out + " --only window,batch --csv " + csv);
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    result[correlated] = readRealdataCsv(csv);
+  }
+  for (const char* name : {"window", "batch"}) {
+    const std::vector<double>& independent = result[0][name];
+    const std::vector<double>& correlated = result[1][name];
+    ASSERT_EQ(independent.size(), 12u) << name;
+    ASSERT_EQ(correlated.size(), 12u) << name;
+    EXPECT_LT(correlated[2], 0.7 * independent[2]) << name << ": mean NEES";
+    EXPECT_LT(correlated[0], independent[0]) << name << ": position RMSE";
+  }
+  EXPECT_LT(result[1]["batch"][0], 0.85 * result[0]["batch"][0]);
 }
 
 }  // namespace

@@ -1,7 +1,9 @@
-// `stereoloc import mrclam SRC_DIR --robot N [--rate HZ] [--wheel-base MM] [--out DIR] [--force]`:
+// `stereoloc import mrclam SRC_DIR --robot N [--rate HZ] [--wheel-base MM] [--correlated-errors] [--out DIR]
+// [--force]`:
 // converts a UTIAS MR.CLAM dataset (src/io/mrclam.h) into a stereoloc dataset directory and prints
-// the import summary (row counts, dropped measurements, range/bearing error statistics against
-// ground truth, the fitted odometry noise). Without --out it only prints the summary.
+// the import summary (row counts, dropped measurements, range/bearing error statistics and their
+// correlation over sightings against ground truth, the fitted odometry noise). Without --out it
+// only prints the summary.
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -21,6 +23,7 @@ struct ImportMrclamOptions {
   double sigma_range_mm = 0.0;       // 0: estimate
   double sigma_bearing_deg = 0.0;    // 0: estimate
   double odometry_noise_scale = 1.0;
+  bool correlated_errors = false;
   bool force = false;
 };
 
@@ -30,6 +33,7 @@ void runImportMrclam(const ImportMrclamOptions& o) {
   config.rate_hz = o.rate_hz;
   config.wheel_base_mm = o.wheel_base_mm;
   config.odometry_noise_scale = o.odometry_noise_scale;
+  config.correlated_errors = o.correlated_errors;
   if (o.sigma_range_mm > 0) config.sigma_range_mm = o.sigma_range_mm;
   if (o.sigma_bearing_deg > 0) config.sigma_bearing_rad = deg2rad(o.sigma_bearing_deg);
   const MrclamImport imp = importMrclam(o.src_dir, config);
@@ -52,8 +56,9 @@ void runImportMrclam(const ImportMrclamOptions& o) {
   char buf[256];
   std::snprintf(buf, sizeof buf,
                 "UTIAS MR.CLAM robot %d imported from %s; t = 0 is Unix time %.3f s; %.1f Hz grid plus measurement "
-                "times; monocular barcode camera (the rig is a placeholder)",
-                o.robot, o.src_dir.c_str(), imp.report.epoch_s, o.rate_hz);
+                "times; monocular barcode camera (the rig is a placeholder)%s",
+                o.robot, o.src_dir.c_str(), imp.report.epoch_s, o.rate_hz,
+                o.correlated_errors ? "; sigmas inflated for errors correlated over sightings" : "");
   d.description = buf;
   saveDataset(d, o.out_dir, o.force);
   std::printf("  wrote %s (%zu steps)\n", o.out_dir.c_str(), d.steps.size());
@@ -85,6 +90,9 @@ void add_import_command(CLI::App& app) {
                 "Multiplies the odometry noise fitted against ground truth (k and the x, y control floors)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  m->add_flag("--correlated-errors", opts->correlated_errors,
+              "Inflate each sighting's sigmas for the correlation of its errors with the previous sightings' "
+              "(fitted against ground truth and printed either way)");
   m->add_option("--out", opts->out_dir, "Output dataset directory (default: print the summary only)");
   m->add_flag("--force", opts->force, "Replace an existing non-empty output directory");
   m->callback([opts] { runImportMrclam(*opts); });

@@ -20,14 +20,7 @@ StereoCalibration rawCalibration() {
   return StereoCalibration::load(std::string(STEREOLOC_DATA_DIR) + "/stereo_calibration_example.yml");
 }
 
-std::string errorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using test::errorOf;
 
 void writeText(const std::string& path, const std::string& text) {
   std::ofstream(path) << text;

@@ -113,14 +113,7 @@ std::string writeFile(const test::TempDir& dir, const std::string& name, const s
   return dir.file(name);
 }
 
-std::string errorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using test::errorOf;
 
 const char* kHeader = "# a\n# b\n# c\n# d\n";
 
@@ -316,6 +309,46 @@ TEST_F(MrclamSlice, RowCountsBarcodeMappingAndTimeAlignment) {
   EXPECT_NEAR(imp4.odometry.k_left, 4.0 * imp.odometry.k_left, 1e-12);
   EXPECT_NEAR(imp4.odometry.control_variance_floor.x(), 4.0 * imp.odometry.control_variance_floor.x(), 1e-9);
   EXPECT_EQ(imp4.steps.size(), imp.steps.size());
+}
+
+TEST_F(MrclamSlice, CorrelatedErrorsInflateTheSigmasAndChangeNothingElse) {
+  MrclamImportConfig config;
+  config.robot = 1;
+  const MrclamImport independent = importMrclam(dir_.path(), config);
+  config.correlated_errors = true;
+  const MrclamImport correlated = importMrclam(dir_.path(), config);
+  const ImportReport& rep = correlated.report;
+  // The fit is made either way and is the same; only the flag applies it.
+  EXPECT_FALSE(independent.report.correlated_errors);
+  EXPECT_TRUE(rep.correlated_errors);
+  EXPECT_EQ(rep.range_same.pairs, independent.report.range_same.pairs);
+  EXPECT_EQ(rep.range_same.correlation.at_zero, independent.report.range_same.correlation.at_zero);
+  EXPECT_GT(rep.range_same.pairs, 10u);
+  EXPECT_GT(rep.bearing_other.pairs, 10u);
+  // Exactly the library's inflation of the independent import's steps, with the fitted model.
+  std::vector<Step> want = independent.steps;
+  inflateForCorrelatedErrors(want, rep.correlation());
+  ASSERT_EQ(correlated.steps.size(), want.size());
+  size_t inflated = 0;
+  for (size_t i = 0; i < want.size(); ++i) {
+    EXPECT_EQ(correlated.steps[i].d_left, independent.steps[i].d_left);
+    ASSERT_EQ(correlated.steps[i].observations.size(), want[i].observations.size());
+    for (size_t k = 0; k < want[i].observations.size(); ++k) {
+      const Observation& o = correlated.steps[i].observations[k];
+      const Observation& given = independent.steps[i].observations[k];
+      EXPECT_EQ(o.range, given.range);
+      EXPECT_EQ(o.covariance, want[i].observations[k].covariance);
+      EXPECT_GE(o.covariance(0, 0), given.covariance(0, 0));
+      EXPECT_GE(o.covariance(1, 1), given.covariance(1, 1));
+      if (o.covariance(0, 0) > given.covariance(0, 0)) ++inflated;
+    }
+  }
+  EXPECT_GT(inflated, rep.observations / 2);
+  EXPECT_GT(rep.mean_range_variance_factor, 1.0);
+  EXPECT_GT(rep.mean_bearing_variance_factor, 1.0);
+  EXPECT_NE(rep.summary().find("sigmas inflated for it"), std::string::npos);
+  config.correlation_max_lag_s = 0;
+  EXPECT_NE(errorOf([&] { importMrclam(dir_.path(), config); }).find("correlation_max_lag_s"), std::string::npos);
 }
 
 TEST_F(MrclamSlice, DeadReckoningFollowsGroundTruthOverTheSlice) {
