@@ -1,5 +1,6 @@
 #include "src/io/mrclam.h"
 
+#include <Eigen/Cholesky>
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -312,6 +313,49 @@ OdometryNoiseFit fitOdometryNoise(const std::vector<Step>& steps, const std::vec
   return fit;
 }
 
+// ---------------------------------------------------------------- range correction
+
+double RangeCorrection::correct(double range, double bearing) const {
+  const double f = factor(bearing);
+  if (!(f >= 0.5 && f <= 2.0)) {
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "range correction: factor %.3g at bearing %.1f deg is outside [0.5, 2]", f,
+                  rad2deg(bearing));
+    throw Error(buf);
+  }
+  return range / f;
+}
+
+RangeCorrection fitRangeCorrection(const std::vector<RangeSample>& samples) {
+  if (samples.size() < 10) throw Error("range correction fit: fewer than 10 ranges with ground truth");
+  RangeCorrection rc;
+  std::vector<double> residual(samples.size());
+  for (int iteration = 0; iteration < 10; ++iteration) {
+    for (size_t i = 0; i < samples.size(); ++i) {
+      const RangeSample& s = samples[i];
+      residual[i] = s.measured / s.truth - rc.factor(s.bearing);
+    }
+    // Huber weights at 1.345 robust sigmas of the current residuals (all 1 on the first pass).
+    std::vector<double> dev(residual.size());
+    for (size_t i = 0; i < residual.size(); ++i) dev[i] = std::fabs(residual[i]);
+    const double k = 1.345 * kMadToSigma * median(dev);
+    Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d b = Eigen::Vector3d::Zero();
+    for (size_t i = 0; i < samples.size(); ++i) {
+      const RangeSample& s = samples[i];
+      const double w = iteration == 0 || !(k > 0) || dev[i] <= k ? 1.0 : k / dev[i];
+      const Eigen::Vector3d phi(1.0, s.bearing, s.bearing * s.bearing);
+      A += w * phi * phi.transpose();
+      b += w * phi * (s.measured / s.truth - 1.0);
+    }
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(A);
+    if (ldlt.info() != Eigen::Success || !(ldlt.rcond() > 1e-12))
+      throw Error("range correction fit: the bearings do not spread enough to fit a quadratic");
+    rc.c = ldlt.solve(b);
+  }
+  return rc;
+}
+
 // ---------------------------------------------------------------- map and import
 
 void MrclamImportConfig::validate() const {
@@ -330,6 +374,8 @@ void MrclamImportConfig::validate() const {
   check(std::isfinite(odometry_window_s) && odometry_window_s > 0, "odometry_window_s");
   check(std::isfinite(odometry_noise_scale) && odometry_noise_scale > 0, "odometry_noise_scale");
   check(std::isfinite(correlation_max_lag_s) && correlation_max_lag_s > 0, "correlation_max_lag_s");
+  check(range_correction != RangeCorrectionMode::Given || given_range_correction.c.allFinite(),
+        "given_range_correction");
 }
 
 ObservationCorrelation ImportReport::correlation() const {
@@ -474,6 +520,41 @@ void observationSigmas(const std::vector<const MrclamMeasurementRow*>& kept, con
       config.sigma_bearing_rad ? *config.sigma_bearing_rad : std::max(rep->bearing_error.mad_sigma, 1e-3);
 }
 
+// The range correction of config.range_correction, applied to the kept sightings' rows of
+// `meas` (which `kept` points into), with the uncorrected range errors in the report.
+void correctRanges(const std::vector<const MrclamMeasurementRow*>& kept, const std::vector<MrclamPoseRow>& gt,
+                   const std::map<int, int>& barcodes, const std::map<int, Eigen::Vector2d>& landmarks,
+                   const MrclamImportConfig& config, const std::string& where,
+                   std::vector<MrclamMeasurementRow>* meas, ImportReport* rep) {
+  rep->range_correction_mode = config.range_correction;
+  if (config.range_correction == RangeCorrectionMode::None) return;
+  std::vector<RangeSample> samples;
+  std::vector<double> errors;
+  for (const MrclamMeasurementRow* m : kept) {
+    const std::optional<Pose2> p = interpolateGroundtruth(gt, m->t, config.max_groundtruth_gap_s);
+    if (!p) continue;
+    const double truth = (landmarks.at(barcodes.at(m->barcode)) - p->translation()).norm();
+    if (truth < 1e-6) continue;
+    samples.push_back({m->range, truth, m->bearing});
+    errors.push_back(m->range - truth);
+  }
+  rep->range_error_uncorrected = robustErrorStats(errors);
+  try {
+    rep->range_correction =
+        config.range_correction == RangeCorrectionMode::Fit ? fitRangeCorrection(samples) : config.given_range_correction;
+  } catch (const Error& e) {
+    throw Error(where + ": " + e.what());
+  }
+  for (const MrclamMeasurementRow* m : kept) {
+    MrclamMeasurementRow& row = (*meas)[static_cast<size_t>(m - meas->data())];
+    try {
+      row.range = rep->range_correction.correct(row.range, row.bearing);
+    } catch (const Error& e) {
+      throw Error(where + ":" + std::to_string(row.line) + ": " + e.what());
+    }
+  }
+}
+
 // Odometry noise from the data (see fitOdometryNoise). Commanded velocities are not measured
 // wheel travel: their error is mostly a common speed error, which independent wheel noise
 // (B.6) cannot express. k comes from the heading; the along-track and lateral variance the
@@ -505,7 +586,7 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
   const std::map<int, int> barcodes = readMrclamBarcodes(dir + "Barcodes.dat");
   const std::map<int, Eigen::Vector2d> landmarks = readMrclamLandmarks(dir + "Landmark_Groundtruth.dat");
   const std::vector<MrclamOdometryRow> odo = readMrclamOdometry(dir + robot + "Odometry.dat");
-  const std::vector<MrclamMeasurementRow> meas = readMrclamMeasurements(dir + robot + "Measurement.dat");
+  std::vector<MrclamMeasurementRow> meas = readMrclamMeasurements(dir + robot + "Measurement.dat");
   const std::vector<MrclamPoseRow> gt = readMrclamGroundtruth(dir + robot + "Groundtruth.dat");
   for (const auto& [subject, xy] : landmarks)
     if (subject <= kMrclamRobotCount)
@@ -520,6 +601,7 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
   const double t0 = odo.front().t, t_end = odo.back().t;
   rep.epoch_s = t0;
   const std::vector<const MrclamMeasurementRow*> kept = landmarkSightings(meas, barcodes, landmarks, t0, t_end, &rep);
+  correctRanges(kept, gt, barcodes, landmarks, config, dir + robot + "Measurement.dat", &meas, &rep);
   const std::vector<StepTime> times = stepTimes(kept, t0, t_end, config, &rep);
 
   // Steps: wheel travel since the previous step, ground truth at the step time.
@@ -597,6 +679,14 @@ std::string ImportReport::summary() const {
                 observations, dropped_other_robot, dropped_unknown_barcode, dropped_outside_odometry,
                 measurements_outside_groundtruth, 1000.0 * max_time_shift_s);
   os << buf;
+  if (range_correction_mode != RangeCorrectionMode::None) {
+    os << "  range error before the correction [mm]: " << formatStats(range_error_uncorrected, 1.0, "mm") << "\n";
+    std::snprintf(buf, sizeof buf,
+                  "  range correction (%s): range / (1 %+.4f %+.4f b %+.4f b^2), b the bearing in rad\n",
+                  range_correction_mode == RangeCorrectionMode::Fit ? "fitted against ground truth" : "given",
+                  range_correction.c(0), range_correction.c(1), range_correction.c(2));
+    os << buf;
+  }
   os << "  range error [mm]:    " << formatStats(range_error, 1.0, "mm") << "\n";
   os << "  bearing error [deg]: " << formatStats(bearing_error, 180.0 / kPi, "deg") << "\n";
   std::snprintf(buf, sizeof buf, "  observation sigmas: range %.1f mm, bearing %.2f deg (%s)\n", sigma_range_mm,

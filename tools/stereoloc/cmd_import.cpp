@@ -1,12 +1,16 @@
-// `stereoloc import mrclam SRC_DIR --robot N [--rate HZ] [--wheel-base MM] [--correlated-errors] [--out DIR]
-// [--force]`:
+// `stereoloc import mrclam SRC_DIR --robot N [--rate HZ] [--wheel-base MM] [--range-correction fit|C0,C1,C2]
+// [--correlated-errors] [--out DIR] [--force]`:
 // converts a UTIAS MR.CLAM dataset (src/io/mrclam.h) into a stereoloc dataset directory and prints
 // the import summary (row counts, dropped measurements, range/bearing error statistics and their
 // correlation over sightings against ground truth, the fitted odometry noise). Without --out it
 // only prints the summary.
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <iostream>
 #include <memory>
+#include <sstream>
+#include <string>
 
 #include "src/io/dataset.h"
 #include "src/io/mrclam.h"
@@ -24,8 +28,27 @@ struct ImportMrclamOptions {
   double sigma_bearing_deg = 0.0;    // 0: estimate
   double odometry_noise_scale = 1.0;
   bool correlated_errors = false;
+  std::string range_correction;  // "", "fit" or "C0,C1,C2"
   bool force = false;
 };
+
+// "C0,C1,C2": three finite numbers.
+Eigen::Vector3d parseRangeCorrection(const std::string& text) {
+  Eigen::Vector3d c;
+  std::stringstream ss(text);
+  std::string field;
+  int n = 0;
+  while (std::getline(ss, field, ',')) {
+    char* end = nullptr;
+    const double v = std::strtod(field.c_str(), &end);
+    if (n >= 3 || field.empty() || *end != '\0' || !std::isfinite(v))
+      throw CLI::ValidationError("--range-correction", "expected 'fit' or three numbers C0,C1,C2, got '" + text + "'");
+    c(n++) = v;
+  }
+  if (n != 3)
+    throw CLI::ValidationError("--range-correction", "expected 'fit' or three numbers C0,C1,C2, got '" + text + "'");
+  return c;
+}
 
 void runImportMrclam(const ImportMrclamOptions& o) {
   MrclamImportConfig config;
@@ -34,6 +57,12 @@ void runImportMrclam(const ImportMrclamOptions& o) {
   config.wheel_base_mm = o.wheel_base_mm;
   config.odometry_noise_scale = o.odometry_noise_scale;
   config.correlated_errors = o.correlated_errors;
+  if (o.range_correction == "fit") {
+    config.range_correction = RangeCorrectionMode::Fit;
+  } else if (!o.range_correction.empty()) {
+    config.range_correction = RangeCorrectionMode::Given;
+    config.given_range_correction.c = parseRangeCorrection(o.range_correction);
+  }
   if (o.sigma_range_mm > 0) config.sigma_range_mm = o.sigma_range_mm;
   if (o.sigma_bearing_deg > 0) config.sigma_bearing_rad = deg2rad(o.sigma_bearing_deg);
   const MrclamImport imp = importMrclam(o.src_dir, config);
@@ -90,6 +119,9 @@ void add_import_command(CLI::App& app) {
                 "Multiplies the odometry noise fitted against ground truth (k and the x, y control floors)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  m->add_option("--range-correction", opts->range_correction,
+                 "Divide each range by 1 + C0 + C1 b + C2 b^2 (b the bearing, rad): 'fit' fits C against ground truth "
+                 "(printed), or give C0,C1,C2 fitted on another run");
   m->add_flag("--correlated-errors", opts->correlated_errors,
               "Inflate each sighting's sigmas for the correlation of its errors with the previous sightings' "
               "(fitted against ground truth and printed either way)");

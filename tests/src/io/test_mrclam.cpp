@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <random>
 #include <set>
 #include <sstream>
 
@@ -116,6 +117,38 @@ std::string writeFile(const test::TempDir& dir, const std::string& name, const s
 using test::errorOf;
 
 const char* kHeader = "# a\n# b\n# c\n# d\n";
+
+TEST(MrclamRangeCorrection, FitRecoversAPlantedModelDespiteOutliers) {
+  RangeCorrection planted;
+  planted.c = Eigen::Vector3d(0.03, 0.01, -0.45);
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<double> bearing(-0.55, 0.55), range(800.0, 7000.0);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  std::vector<RangeSample> samples;
+  for (int i = 0; i < 2000; ++i) {
+    const double b = bearing(rng), r = range(rng);
+    double measured = planted.factor(b) * r * (1.0 + noise(rng));
+    if (i % 50 == 0) measured *= 1.3;  // 2 % gross errors
+    samples.push_back({measured, r, b});
+  }
+  const RangeCorrection fit = fitRangeCorrection(samples);
+  EXPECT_NEAR(fit.c(0), 0.03, 0.002);
+  EXPECT_NEAR(fit.c(1), 0.01, 0.003);
+  EXPECT_NEAR(fit.c(2), -0.45, 0.015);
+  // The correction inverts the model.
+  EXPECT_NEAR(planted.correct(planted.factor(0.3) * 2500.0, 0.3), 2500.0, 1e-9);
+}
+
+TEST(MrclamRangeCorrection, DegenerateFitsAndAbsurdFactorsAreErrors) {
+  std::vector<RangeSample> few(9, RangeSample{1000.0, 1000.0, 0.1});
+  EXPECT_NE(errorOf([&] { fitRangeCorrection(few); }).find("fewer than 10"), std::string::npos);
+  std::vector<RangeSample> one_bearing(50, RangeSample{1010.0, 1000.0, 0.2});
+  EXPECT_NE(errorOf([&] { fitRangeCorrection(one_bearing); }).find("do not spread"), std::string::npos);
+  RangeCorrection rc;
+  rc.c = Eigen::Vector3d(0.0, 0.0, -4.0);  // factor 0.36 at 0.4 rad
+  EXPECT_NE(errorOf([&] { rc.correct(1000.0, 0.4); }).find("outside [0.5, 2]"), std::string::npos);
+  EXPECT_NEAR(rc.correct(1000.0, 0.0), 1000.0, 1e-12);
+}
 
 TEST(MrclamParser, MalformedRowsNameFileAndLine) {
   test::TempDir dir("mrclam_parse");
@@ -349,6 +382,50 @@ TEST_F(MrclamSlice, CorrelatedErrorsInflateTheSigmasAndChangeNothingElse) {
   EXPECT_NE(rep.summary().find("sigmas inflated for it"), std::string::npos);
   config.correlation_max_lag_s = 0;
   EXPECT_NE(errorOf([&] { importMrclam(dir_.path(), config); }).find("correlation_max_lag_s"), std::string::npos);
+}
+
+TEST_F(MrclamSlice, RangeCorrectionFittedOrGivenDividesEveryRange) {
+  MrclamImportConfig config;
+  config.robot = 1;
+  const MrclamImport plain = importMrclam(dir_.path(), config);
+  EXPECT_EQ(plain.report.range_correction_mode, RangeCorrectionMode::None);
+  EXPECT_EQ(plain.report.summary().find("range correction"), std::string::npos);
+
+  config.range_correction = RangeCorrectionMode::Fit;
+  const MrclamImport fitted = importMrclam(dir_.path(), config);
+  const ImportReport& rep = fitted.report;
+  EXPECT_EQ(rep.range_correction_mode, RangeCorrectionMode::Fit);
+  EXPECT_TRUE(rep.range_correction.c.allFinite());
+  // The errors before the correction are the plain import's errors.
+  EXPECT_EQ(rep.range_error_uncorrected.count, plain.report.range_error.count);
+  EXPECT_DOUBLE_EQ(rep.range_error_uncorrected.mad_sigma, plain.report.range_error.mad_sigma);
+  // The fit is a calibration against the truth: the corrected errors are smaller.
+  EXPECT_LT(rep.range_error.std, rep.range_error_uncorrected.std);
+  EXPECT_NE(rep.summary().find("range correction (fitted against ground truth)"), std::string::npos);
+
+  config.range_correction = RangeCorrectionMode::Given;
+  config.given_range_correction.c = Eigen::Vector3d(0.02, 0.01, -0.4);
+  const MrclamImport given = importMrclam(dir_.path(), config);
+  ASSERT_EQ(given.steps.size(), plain.steps.size());
+  size_t n = 0;
+  for (size_t i = 0; i < plain.steps.size(); ++i)
+    for (size_t k = 0; k < plain.steps[i].observations.size(); ++k) {
+      const Observation& o = plain.steps[i].observations[k];
+      EXPECT_NEAR(given.steps[i].observations[k].range, o.range / config.given_range_correction.factor(o.bearing),
+                  1e-9);
+      EXPECT_EQ(given.steps[i].observations[k].bearing, o.bearing);
+      ++n;
+    }
+  EXPECT_GT(n, 20u);
+  EXPECT_NE(given.report.summary().find("range correction (given)"), std::string::npos);
+
+  // A correction that would halve a range is refused, naming the file and line.
+  config.given_range_correction.c = Eigen::Vector3d(-0.6, 0.0, 0.0);
+  const std::string e = errorOf([&] { importMrclam(dir_.path(), config); });
+  EXPECT_NE(e.find("Robot1_Measurement.dat:"), std::string::npos) << e;
+  EXPECT_NE(e.find("outside [0.5, 2]"), std::string::npos) << e;
+  config.given_range_correction.c(0) = std::nan("");
+  EXPECT_NE(errorOf([&] { importMrclam(dir_.path(), config); }).find("given_range_correction"), std::string::npos);
 }
 
 TEST_F(MrclamSlice, DeadReckoningFollowsGroundTruthOverTheSlice) {
