@@ -19,6 +19,7 @@
 #include "factors/compass_factor.h"
 #include "factors/joined_global_blocks.h"
 #include "factors/odometry_calibration_factor.h"
+#include "factors/range_bearing_calibration_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
 #include "factors/stereo_pixel_feature_calibration_factor.h"
 #include "factors/stereo_pixel_image_calibration_factor.h"
@@ -26,6 +27,7 @@
 #include "factors/odometry_factor.h"
 #include "factors/pose_manifold.h"
 #include "factors/pose_prior_factor.h"
+#include "solvers/calibrated_models.h"
 #include "solvers/chain_solver.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
@@ -115,6 +117,10 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       }
       sizes_.push_back(next);
     }
+    if (b_.config_.calibration.range) {
+      range_block_ = static_cast<int>(sizes_.size());
+      sizes_.push_back(RangeBearingCalibrationFactor::kCalibrationSize);
+    }
   }
 
   size_t size() const override { return n_; }
@@ -176,6 +182,10 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
                   model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals)),
               true, stereo_block_};
     }
+    if (range_block_ >= 0 && isRangeBearingFactor(obs, model))
+      return {std::unique_ptr<ceres::CostFunction>(
+                  RangeBearingCalibrationFactor::Create(landmark.xy(), obs.z(), obs.covariance)),
+              true, range_block_};
     return {std::unique_ptr<ceres::CostFunction>(makeObservationFactor(obs, landmark, model)), true};
   }
   // Whether observation o's factor can be evaluated with pose i at `pose` and the global blocks
@@ -252,6 +262,12 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
                         false, stereo_block_});
       }
     }
+    if (range_block_ >= 0) {
+      constexpr int k = RangeBearingCalibrationFactor::kCalibrationSize;
+      out->push_back({std::unique_ptr<ceres::CostFunction>(CalibrationPriorFactor<k>::Create(
+                          Eigen::Matrix<double, k, 1>::Zero(), rangePriorSigma(c).cwiseAbs2().asDiagonal().toDenseMatrix())),
+                      false, range_block_});
+    }
   }
   // The global blocks' nominal values, concatenated (the solver's start).
   std::vector<double> nominalGlobals() const {
@@ -264,6 +280,7 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
     if (row_sigma_) g.push_back(0.0);
     if (stereo_block_ >= 0) g.resize(g.size() + static_cast<size_t>(sizes_[static_cast<size_t>(stereo_block_)]) -
                                      (kStereo + (image_sigmas_ ? kImage : 0) + (row_sigma_ ? 1 : 0)), 0.0);
+    if (range_block_ >= 0) g.resize(g.size() + RangeBearingCalibrationFactor::kCalibrationSize, 0.0);
     return g;
   }
   // The image block's sigmas (whitened parameter i is sigma_i e_i), when estimated.
@@ -276,6 +293,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   const std::optional<double>& rowSigma() const { return row_sigma_; }
   int odometryBlock() const { return odometry_block_; }
   int stereoBlock() const { return stereo_block_; }
+  int rangeBlock() const { return range_block_; }
+  int blockSize(int block) const { return sizes_[static_cast<size_t>(block)]; }
   // The odometry factor into pose i is removed (true) or restored.
   void setCut(size_t i, bool cut) { cut_[i] = cut ? 1 : 0; }
 
@@ -286,7 +305,7 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   std::vector<uint8_t> cut_;
   std::vector<uint8_t> left_out_;  // per observation in observations_
   std::vector<int> sizes_;
-  int odometry_block_ = -1, stereo_block_ = -1;
+  int odometry_block_ = -1, stereo_block_ = -1, range_block_ = -1;
   std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
   std::optional<double> row_sigma_;
   std::vector<FeatureOffsetPrior> features_;
@@ -1198,6 +1217,13 @@ void BatchSmoother::Solve::writeCalibration(const Eigen::MatrixXd& global_covari
           cal.feature_offsets.push_back(e);
         }
       }
+      offset += source_.blockSize(source_.stereoBlock());
+    }
+    if (source_.rangeBlock() >= 0) {
+      constexpr int k = RangeBearingCalibrationFactor::kCalibrationSize;
+      cal.range = true;
+      cal.range_bearing = c.segment<k>(offset);
+      cal.range_bearing_covariance = global_covariance.block<k, k>(offset, offset);
     }
   }
 }

@@ -19,6 +19,15 @@ namespace stereoloc {
 // `wheel_base_mm`) that `config` states.
 CalibrationEstimate::StereoVector stereoPriorSigma(const SelfCalibrationConfig& config);
 Eigen::Vector3d wheelPriorSigma(const SelfCalibrationConfig& config, double wheel_base_mm);
+// The range block's (c0, c1, c2, d_b; RangeBearingCalibrationFactor).
+Eigen::Vector4d rangePriorSigma(const SelfCalibrationConfig& config);
+
+// A range-bearing observation as a sensor with range block k would have reported it with k = 0:
+// range divided by 1 + c0 + c1 b + c2 b^2 (b its measured bearing), bearing less d_b, R's range
+// row and column divided alike, plus the uncertainty of k (covariance Ck) as J Ck J^T (the
+// sliding window's gate and association read it). Throws stereoloc::Error when the factor is
+// not positive.
+Observation withRangeCalibration(const Observation& obs, const Eigen::Vector4d& k, const Eigen::Matrix4d& Ck);
 
 // Range and bearing (3.6, 3.7) of the point that stereo calibration q (CalibrationEstimate::head)
 // puts at the observation's pixels, with J_rb_px = d(range, bearing) / d(u_l, v_l, u_r, v_r) and

@@ -55,6 +55,8 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
   iteration_.tolerance = config_.iteration_tolerance;
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
   const SelfCalibrationConfig& cal = config_.calibration;
+  if (cal.range)
+    throw Error("ekf: the range block (calibration.range) is the batch's and the window's; the EKF does not estimate it");
   if (cal.odometry || cal.stereo) {
     cal.validate();
     if (config_.max_iterations > 1) throw Error("ekf: the iterated update (max_iterations > 1) does not self-calibrate");

@@ -21,8 +21,10 @@ SelfCalibrationConfig SelfCalibrationConfig::parse(const std::string& list) {
       c.odometry = true;
     else if (item == "stereo")
       c.stereo = true;
+    else if (item == "range")
+      c.range = true;
     else if (!(item == "none" || item.empty()))
-      throw Error("calibrate: unknown part '" + item + "' (expected odometry, stereo or both, comma-separated)");
+      throw Error("calibrate: unknown part '" + item + "' (expected odometry, stereo and/or range, comma-separated)");
   }
   return c;
 }
@@ -39,6 +41,10 @@ void SelfCalibrationConfig::validate() const {
   pos(column_offset_sigma_px, "column_offset_sigma_px");
   pos(focal_ratio_sigma, "focal_ratio_sigma");
   pos(focal_scale_sigma, "focal_scale_sigma");
+  pos(range_scale_sigma, "range_scale_sigma");
+  pos(range_scale_slope_sigma, "range_scale_slope_sigma");
+  pos(range_scale_curvature_sigma, "range_scale_curvature_sigma");
+  pos(bearing_offset_sigma_rad, "bearing_offset_sigma_rad");
   if (max_iterations < 1) throw Error("self-calibration: max_iterations must be at least 1");
 }
 
@@ -62,6 +68,13 @@ PriorDistance furthestFromPrior(const CalibrationEstimate& e, const SelfCalibrat
                                                    {"focal_ratio", c.focal_ratio_sigma},
                                                    {"focal_scale", c.focal_scale_sigma}};
     for (int i = 0; i < 6; ++i) consider(head[i].first, e.head[i], nominal[i], head[i].second);
+  }
+  if (e.range) {
+    const std::pair<const char*, double> range[] = {{"range_scale_c0", c.range_scale_sigma},
+                                                    {"range_scale_c1", c.range_scale_slope_sigma},
+                                                    {"range_scale_c2", c.range_scale_curvature_sigma},
+                                                    {"bearing_offset_rad", c.bearing_offset_sigma_rad}};
+    for (int i = 0; i < 4; ++i) consider(range[i].first, e.range_bearing[i], 0.0, range[i].second);
   }
   return out;
 }
@@ -108,6 +121,16 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
     w.put("wheel_scale_right_sigma", std::sqrt(wheels_covariance(1, 1)));
     w.put("wheel_base_mm", wheels[2]);
     w.put("wheel_base_sigma_mm", std::sqrt(wheels_covariance(2, 2)));
+  }
+  if (range) {
+    const char* keys[4][2] = {{"range_scale_c0", "range_scale_c0_sigma"},
+                              {"range_scale_c1", "range_scale_c1_sigma"},
+                              {"range_scale_c2", "range_scale_c2_sigma"},
+                              {"bearing_offset_rad", "bearing_offset_sigma_rad"}};
+    for (int i = 0; i < 4; ++i) {
+      w.put(keys[i][0], range_bearing[i]);
+      w.put(keys[i][1], std::sqrt(range_bearing_covariance(i, i)));
+    }
   }
   w.writeAtomically(path);
 }

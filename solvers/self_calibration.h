@@ -18,6 +18,9 @@
 //   row       dv = the rectified rows' misalignment (px), with the stereo block when the noise
 //             model states it (UnmodelledNoise::row_offset_sigma_px; batch, window, EKF;
 //             SelfCalibrationConfig::row_offset; factors/stereo_pixel_row_calibration_factor.h)
+//   range     k = (c0, c1, c2, d_b): a range-bearing sensor's range factor 1 + c0 + c1 b + c2 b^2
+//             at the measured bearing b and its bearing offset, in every factor of an observation
+//             without pixels (batch and window; factors/range_bearing_calibration_factor.h)
 //   features  b_j = constant offsets (px) of each feature j's column (both images) and u_r, with
 //             the row block when the noise model states them (batch, window, EKF)
 //             (UnmodelledNoise::*_feature_offset_sigma_px, *_feature_column_sigma_px;
@@ -60,6 +63,9 @@ namespace stereoloc {
 struct SelfCalibrationConfig {
   bool odometry = false;  // estimate wheel scales and wheel base
   bool stereo = false;    // estimate tilt correction, baseline scale, pixel offsets, focal errors
+  // Batch and window: estimate a range-bearing sensor's range factor and bearing offset (the
+  // observations without pixels; RangeBearingCalibrationFactor).
+  bool range = false;
   // The EKF only: the blocks above (and the image, row and feature blocks they bring) are
   // considered, not estimated: a Schmidt-Kalman filter, whose gain leaves them at the given
   // calibration while their uncertainty (the priors below) enters every covariance. For a robot
@@ -80,6 +86,13 @@ struct SelfCalibrationConfig {
   double focal_ratio_sigma = 0.014;         // dimensionless
   // The left camera's focal length: 0.5 % per camera.
   double focal_scale_sigma = 0.01;          // dimensionless
+  // The range block's priors: a range sensor's scale error of a few per cent (MR.CLAM's barcode
+  // camera: +2.6 and +5.2 % on axis, docs/results.md), its change across the field of view
+  // (there -0.46 and -0.51 per rad^2) and a bearing offset of a degree.
+  double range_scale_sigma = 0.05;              // c0, dimensionless
+  double range_scale_slope_sigma = 0.05;        // c1, 1/rad
+  double range_scale_curvature_sigma = 0.5;     // c2, 1/rad^2
+  double bearing_offset_sigma_rad = deg2rad(1.0);  // d_b, rad
   // With the stereo block, in the batch, the window and the EKF (pixel model): estimate the
   // image errors the noise model states (lens estimate, relative rotation) as the image block
   // instead of adding them to the pixel noise. The window's gate keeps them as pixel noise, and
@@ -98,13 +111,15 @@ struct SelfCalibrationConfig {
   bool use_compass = true;
   int max_iterations = 100;
 
-  // "" or "none", "odometry", "stereo", "odometry,stereo" (any order); throws stereoloc::Error.
+  // "" or "none", or a comma-separated list of odometry, stereo and range (any order); throws
+  // stereoloc::Error.
   static SelfCalibrationConfig parse(const std::string& list);
   void validate() const;
+  bool any() const { return odometry || stereo || range; }  // a block is estimated or considered
 };
 
 struct CalibrationEstimate {
-  bool odometry = false, stereo = false;               // which blocks were estimated
+  bool odometry = false, stereo = false, range = false;  // which blocks were estimated
   Eigen::Vector3d wheels = Eigen::Vector3d(1, 1, 75);  // c_l, c_r, w (mm)
   Eigen::Matrix3d wheels_covariance = Eigen::Matrix3d::Zero();
   // dbeta (rad), k, delta_d (px), delta_u (px), phi, psi: factors/stereo_pixel_calibration_factor.h
@@ -123,6 +138,11 @@ struct CalibrationEstimate {
   bool row = false;
   double row_offset_px = 0.0;
   double row_offset_variance = 0.0;  // px^2
+  // The range block (c0, c1 [1/rad], c2 [1/rad^2], d_b [rad]; RangeBearingCalibrationFactor) and
+  // its covariance. Not part of the rig; saveAsRig writes it as keys, whose c0..c2 are
+  // `import mrclam --range-correction`'s.
+  Eigen::Vector4d range_bearing = Eigen::Vector4d::Zero();
+  Eigen::Matrix4d range_bearing_covariance = Eigen::Matrix4d::Zero();
   // The feature offsets (featureOffsetSigmas; the window's: of the landmarks it has fused so far,
   // in the map's order): each feature's constant column offset (both
   // images) and u_r offset (px) with their variances (px^2; 0 where not estimated); not part of
@@ -141,7 +161,8 @@ struct CalibrationEstimate {
   // OpenCV calibration written beside it — so the frontend measures with the calibrated cameras.
   // The estimate itself and every standard deviation follow as extra keys the rig reader ignores
   // (tilt_correction_rad, baseline_scale, disparity_offset_px, column_offset_px, focal_ratio,
-  // focal_scale, row_offset_px, wheel_scale_left, wheel_scale_right, wheel_base_mm, *_sigma).
+  // focal_scale, row_offset_px, wheel_scale_left, wheel_scale_right, wheel_base_mm,
+  // range_scale_c0, range_scale_c1, range_scale_c2, bearing_offset_rad, *_sigma).
   void saveAsRig(const std::string& path, const StereoRig& rig) const;
 };
 

@@ -17,6 +17,7 @@
 #include "factors/held_entries.h"
 #include "factors/marginal_prior_factor.h"
 #include "factors/odometry_calibration_factor.h"
+#include "factors/range_bearing_calibration_factor.h"
 #include "factors/odometry_factor.h"
 #include "factors/pose_prior_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
@@ -143,6 +144,7 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   image_sigmas_ = imageErrorSigmas(cal, config_.observation_model.unmodelled);
   if (image_sigmas_) image_block_ = addCalibBlock(image_.data(), CalibrationEstimate::ImageVector::RowsAtCompileTime);
   if (row_sigma_) row_block_ = addCalibBlock(&row_, 1);
+  if (cal.range) range_block_ = addCalibBlock(range_.data(), RangeBearingCalibrationFactor::kCalibrationSize);
   for (const FeatureOffsetPrior& f : featureOffsetSigmas(map_, cal, config_.observation_model.unmodelled))
     feature_sigmas_[f.landmark_id] = f.sigma;
   // With calibration blocks every factor is linearised at the current estimate: each factor's
@@ -179,6 +181,13 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
                                                 Eigen::Matrix<double, 1, 1>::Constant(*row_sigma_ * *row_sigma_)),
               {}, false, {row_block_});
     calib_covariance_(calibOffset(row_block_), calibOffset(row_block_)) = *row_sigma_ * *row_sigma_;
+  }
+  if (cal.range) {
+    constexpr int k = RangeBearingCalibrationFactor::kCalibrationSize;
+    const Eigen::Vector4d sig = rangePriorSigma(cal);
+    addFactor(CalibrationPriorFactor<k>::Create(range_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()), {}, false,
+              {range_block_});
+    calib_covariance_.diagonal().segment<k>(calibOffset(range_block_)) = sig.cwiseAbs2();
   }
 }
 
@@ -287,6 +296,12 @@ std::optional<CalibrationEstimate> SlidingWindowSmoother::calibration() const {
     e.image = true;
     e.image_errors = image_sigmas_->cwiseProduct(image_);
     e.image_covariance = image_sigmas_->asDiagonal() * calib_covariance_.block(k, k, m, m) * image_sigmas_->asDiagonal();
+  }
+  if (config_.calibration.range) {
+    constexpr int k = RangeBearingCalibrationFactor::kCalibrationSize;
+    e.range = true;
+    e.range_bearing = range_;
+    e.range_bearing_covariance = calib_covariance_.block<k, k>(calibOffset(range_block_), calibOffset(range_block_));
   }
   if (rowBlock()) {
     e.row = true;
@@ -814,6 +829,18 @@ std::vector<Observation> SlidingWindowSmoother::gateViews(const Observation& mea
       } catch (const GeometryError&) {
       }
     }
+  } else if (config_.calibration.range && isRangeBearingFactor(measured, config_.observation_model)) {
+    // As the stereo head's: through the current estimate, then through the prior.
+    const int k = calibOffset(range_block_);
+    const Eigen::Matrix4d prior = rangePriorSigma(config_.calibration).cwiseAbs2().asDiagonal();
+    const std::pair<Eigen::Vector4d, Eigen::Matrix4d> calibrations[2] = {
+        {range_, calib_covariance_.block<4, 4>(k, k)}, {Eigen::Vector4d::Zero(), prior}};
+    for (const auto& [value, covariance] : calibrations) {
+      try {
+        views.push_back(withRangeCalibration(measured, value, covariance));
+      } catch (const Error&) {
+      }
+    }
   } else {
     views.push_back(measured);
   }
@@ -912,6 +939,9 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
       addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
                                                      measured.head_pan, C, residuals),
                 {node}, true, {head_block_});
+  } else if (config_.calibration.range && isRangeBearingFactor(measured, config_.observation_model)) {
+    addFactor(RangeBearingCalibrationFactor::Create(lm->xy(), measured.z(), measured.covariance), {node}, true,
+              {range_block_});
   } else {
     addFactor(makeObservationFactor(measured, *lm, config_.observation_model), {node}, true);
   }

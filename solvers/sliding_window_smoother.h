@@ -449,6 +449,7 @@ class SlidingWindowSmoother : public Estimator {
   CalibrationEstimate::ImageVector image_ = CalibrationEstimate::ImageVector::Zero();
   std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
   bool image_free_ = false;  // the image block is estimated (image_errors_after_steps)
+  Eigen::Vector4d range_ = Eigen::Vector4d::Zero();  // the range block (c0, c1, c2, d_b)
   double row_ = 0.0;                   // the row offset dv (px), with row_sigma_
   std::optional<double> row_sigma_;    // its prior sigma, when estimated
   // The stated feature-offset sigmas by landmark (featureOffsetSigmas; empty when not estimated),
@@ -458,7 +459,8 @@ class SlidingWindowSmoother : public Estimator {
   std::unordered_map<int, size_t> feature_index_;  // landmark id -> features_ index
   std::vector<CalibBlock> calib_;
   int calib_dim_ = 0;
-  Calib wheels_block_ = -1, head_block_ = -1, image_block_ = -1, row_block_ = -1;  // -1: not estimated
+  Calib wheels_block_ = -1, head_block_ = -1, image_block_ = -1, row_block_ = -1,
+        range_block_ = -1;  // -1: not estimated
   Eigen::MatrixXd calib_covariance_;
   WindowLinearisation linearisation_ = WindowLinearisation::PriorPoint;  // in effect
 };

@@ -214,10 +214,13 @@ FeatureOffsetSigma featureOffsetSigma(LandmarkType type, const UnmodelledNoise& 
   }
 }
 
+bool isRangeBearingFactor(const Observation& obs, const ObservationModelConfig& config) {
+  return config.model == ObservationModel::RangeBearing || !obs.pixels;
+}
+
 ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,
                                            const ObservationModelConfig& config) {
-  if (config.model == ObservationModel::RangeBearing || !obs.pixels)
-    return RangeBearingFactor::Create(landmark.xy(), obs.z(), obs.covariance);
+  if (isRangeBearingFactor(obs, config)) return RangeBearingFactor::Create(landmark.xy(), obs.z(), obs.covariance);
   return StereoPixelFactor::Create(config.rig, landmark.position, *obs.pixels, obs.head_pan,
                                    pixelCovarianceFor(obs, landmark, config),
                                    config.model == ObservationModel::Pixels ? PixelResiduals::All

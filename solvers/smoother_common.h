@@ -147,6 +147,9 @@ FeatureOffsetSigma featureOffsetSigma(LandmarkType type, const UnmodelledNoise& 
 // pixel observation carries no pixel covariance.
 ceres::CostFunction* makeObservationFactor(const Observation& obs, const Landmark& landmark,
                                            const ObservationModelConfig& config);
+// Whether makeObservationFactor makes a range-bearing factor of obs (not a pixel factor): the
+// observations the range self-calibration block enters.
+bool isRangeBearingFactor(const Observation& obs, const ObservationModelConfig& config);
 
 // Throws stereoloc::Error "WHO: step N: ..." when wheel increments, compass or an
 // observation (range, bearing, R) is not finite / not positive definite.

@@ -238,8 +238,11 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   if (hasConsiderSuffix(spec)) o.calibration.consider = true;
   std::mt19937_64 rng(seed);
   MethodRun run;
-  if ((o.calibration.odometry || o.calibration.stereo) && !selfCalibrates(name))
+  if (o.calibration.any() && !selfCalibrates(name))
     throw UsageError("--calibrate: only " + kSelfCalibratingText + " self-calibrate (method '" + spec + "')");
+  if (o.calibration.range && name == "ekf")
+    throw UsageError(std::string(o.calibration.consider ? "--consider" : "--calibrate") +
+                     " range: only batch and window estimate a range sensor's calibration (method '" + spec + "')");
   if (o.calibration.consider && name != "ekf")
     throw UsageError("--consider: only ekf considers its calibration (method '" + spec + "')");
   if (name == "fix1" || name == "fix2") {
@@ -280,7 +283,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   } else {  // batch
     BatchSmoother b(d.map, d.odometry, batchConfigFor(spec, d, seed, o));
     run = runEstimator(b, d);
-    if (o.calibration.odometry || o.calibration.stereo) run.calibration = b.calibration();
+    if (o.calibration.any()) run.calibration = b.calibration();
   }
   run.method = spec;
   if (name != "fix1" && name != "fix2") {

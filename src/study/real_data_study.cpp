@@ -186,13 +186,32 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     rows.push_back(evaluate("pf", "PF (" + std::to_string(o.particles) + ")", e, truth, ms, n));
     note(rows.back());
   }
-  // The window and the batch plain, with the robust loss, and calibrating the odometry.
-  enum class Variant { Plain, Robust, Calibrating };
-  auto suffix = [](Variant v) { return v == Variant::Robust ? "_robust" : v == Variant::Calibrating ? "_calib" : ""; };
-  auto labelled = [&](Variant v) {
-    return v == Variant::Robust ? " " + o.robust : v == Variant::Calibrating ? std::string(", calibrating odometry") : "";
+  // The window and the batch plain, with the robust loss, calibrating the odometry, and
+  // calibrating the odometry and the range sensor.
+  enum class Variant { Plain, Robust, Calibrating, CalibratingRange };
+  constexpr Variant kVariants[] = {Variant::Plain, Variant::Robust, Variant::Calibrating, Variant::CalibratingRange};
+  auto suffix = [](Variant v) {
+    switch (v) {
+      case Variant::Robust: return "_robust";
+      case Variant::Calibrating: return "_calib";
+      case Variant::CalibratingRange: return "_calib_range";
+      default: return "";
+    }
   };
-  for (const Variant variant : {Variant::Plain, Variant::Robust, Variant::Calibrating}) {
+  auto labelled = [&](Variant v) {
+    switch (v) {
+      case Variant::Robust: return " " + o.robust;
+      case Variant::Calibrating: return std::string(", calibrating odometry");
+      case Variant::CalibratingRange: return std::string(", calibrating odometry and range");
+      default: return std::string();
+    }
+  };
+  auto calibrationOf = [](Variant v) {
+    return SelfCalibrationConfig::parse(v == Variant::Calibrating        ? "odometry"
+                                        : v == Variant::CalibratingRange ? "odometry,range"
+                                                                         : "none");
+  };
+  for (const Variant variant : kVariants) {
     const std::string key = std::string("window") + suffix(variant);
     if (!wanted(o, key) && !wanted(o, key + "_online")) continue;
     SlidingWindowConfig c;
@@ -202,7 +221,7 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     c.gate.lost_after = o.window_lost_after;
     c.gate_enabled = o.gate;
     if (variant == Variant::Robust) c.robust_loss = robust;
-    if (variant == Variant::Calibrating) c.calibration = SelfCalibrationConfig::parse("odometry");
+    c.calibration = calibrationOf(variant);
     SlidingWindowSmoother sw(d.map, d.odometry, c);
     std::vector<Estimate> online;
     const std::vector<Estimate> e = runEstimator(sw, d.steps, &ms, &online);
@@ -219,13 +238,13 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
       note(rows.back());
     }
   }
-  for (const Variant variant : {Variant::Plain, Variant::Robust, Variant::Calibrating}) {
+  for (const Variant variant : kVariants) {
     const std::string key = std::string("batch") + suffix(variant);
     if (!wanted(o, key)) continue;
     BatchSmootherConfig c;
     c.init = init;
     if (variant == Variant::Robust) c.loss = robust;
-    if (variant == Variant::Calibrating) c.calibration = SelfCalibrationConfig::parse("odometry");
+    c.calibration = calibrationOf(variant);
     c.initial_guess = initialGuessFromString(o.batch_guess);
     BatchSmoother batch(d.map, d.odometry, c);
     const std::vector<Estimate> e = runEstimator(batch, d.steps, &ms);

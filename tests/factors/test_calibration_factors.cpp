@@ -19,6 +19,8 @@
 #include "factors/factor_check.h"
 #include "factors/odometry_calibration_factor.h"
 #include "factors/odometry_factor.h"
+#include "factors/range_bearing_calibration_factor.h"
+#include "factors/range_bearing_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
 #include "factors/stereo_pixel_image_calibration_factor.h"
 #include "factors/stereo_pixel_factor.h"
@@ -297,6 +299,37 @@ TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobian
       }
     }
   }
+}
+
+TEST(RangeBearingCalibrationFactor, NominalEqualsRangeBearingFactorTrueIsZeroAndJacobiansMatch) {
+  const Eigen::Vector2d l(2500.0, -1300.0);
+  Eigen::Matrix2d R;
+  R << 900.0, 0.2, 0.2, 1e-4;  // correlated R: the upper square root must whiten it
+  for (const Pose2& truth : {Pose2(100.0, 200.0, 0.3), Pose2(-400.0, 50.0, kPi - 1e-3), Pose2(0.0, 0.0, -2.5)}) {
+    const Eigen::Vector2d h = predictRangeBearing(truth, l);
+    const double k_true[4] = {0.03, 0.01, -0.45, deg2rad(0.4)};
+    // What such a sensor reports: the range scaled at the bearing it sees, the bearing offset.
+    const double b = wrapAngle(h.y() + k_true[3]);
+    const Eigen::Vector2d z((1.0 + k_true[0] + k_true[1] * b + k_true[2] * b * b) * h.x(), b);
+    std::unique_ptr<ceres::CostFunction> calib(RangeBearingCalibrationFactor::Create(l, z, R));
+    std::unique_ptr<ceres::CostFunction> plain(RangeBearingFactor::Create(l, z, R));
+    const double p[3] = {truth.x, truth.y, truth.theta};
+    EXPECT_LT(evaluate(*calib, {p, k_true}).norm(), 1e-9);
+    const double k0[4] = {0, 0, 0, 0};
+    const double p_off[3] = {truth.x + 30.0, truth.y - 20.0, truth.theta + 0.02};
+    EXPECT_LT((evaluate(*calib, {p_off, k0}) - evaluate(*plain, {p_off})).norm(), 1e-12);
+    for (const double* k : {k0, k_true}) {
+      const FactorCheck c = checkFactorJacobians(*calib, {p_off, k});
+      EXPECT_TRUE(c.ok) << c.message;
+    }
+  }
+  // Coincident pose and landmark: the bearing is undefined, the evaluation fails.
+  std::unique_ptr<ceres::CostFunction> f(
+      RangeBearingCalibrationFactor::Create(l, Eigen::Vector2d(1000.0, 0.1), Eigen::Vector2d(9.0, 1e-4).asDiagonal()));
+  const double at[3] = {l.x(), l.y(), 0.0}, k[4] = {0, 0, 0, 0};
+  const double* blocks[2] = {at, k};
+  Eigen::Vector2d r;
+  EXPECT_FALSE(f->Evaluate(blocks, r.data(), nullptr));
 }
 
 TEST(CalibrationPriorFactor, WhitensAndJacobianMatches) {

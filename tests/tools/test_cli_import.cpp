@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "cli_util.h"
+#include "src/core/yaml_util.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -243,6 +244,48 @@ TEST(CliImportRobot1, RangeCorrectionFittedAgainstGroundTruthMakesTheEstimatorsM
     ASSERT_EQ(result[1][name].size(), 12u) << name;
     EXPECT_LT(result[1][name][0], 0.8 * result[0][name][0]) << name << ": position RMSE";
   }
+}
+
+// Without ground truth: the smoothers estimate the camera's range factor across its field of
+// view and its bearing offset (`--calibrate range`), close to the correction fitted against the
+// motion capture, and are more accurate for it.
+TEST(CliImportRobot1, TheSmoothersCalibrateTheRangeSensorFromTheDataAlone) {
+  if (!std::filesystem::exists(sharedDir() + "/Robot1_Odometry.dat"))
+    GTEST_SKIP() << "shared MR.CLAM data not found at " << sharedDir();
+  test::TempDir tmp("cli_import_range_calibration");
+  const std::string out = tmp.file("robot1");
+  test::CliRun r = test::runCli("import mrclam " + sharedDir() + " --robot 1 --out " + out);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const std::string csv = tmp.file("realdata.csv");
+  r = test::runCli("realdata " + out + " --only window,batch,window_calib_range,batch_calib_range --csv " + csv);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::map<std::string, std::vector<double>> rows = readRealdataCsv(csv);
+  for (const char* name : {"window", "batch"}) {
+    const std::string calibrating = std::string(name) + "_calib_range";
+    ASSERT_EQ(rows[name].size(), 12u) << name;
+    ASSERT_EQ(rows[calibrating].size(), 12u) << calibrating;
+    EXPECT_LT(rows[calibrating][0], 0.85 * rows[name][0]) << name << ": position RMSE";
+    EXPECT_LT(rows[calibrating][2], rows[name][2]) << name << ": mean NEES";
+  }
+  // The estimate, printed and written: the on-axis scale and the curvature of the fit against
+  // the motion capture (1 + 0.026 + 0.006 b - 0.461 b^2) within a few of their sigmas.
+  const std::string rig = tmp.file("calibrated.yaml");
+  r = test::runCli("localize " + out + " --method batch --calibrate range --calibration-out " + rig + " --out " +
+                   tmp.file("est.csv"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("calibration: range factor 1 +0.0"), std::string::npos) << r.output;
+  const YamlReader y(rig);
+  EXPECT_NEAR(y.getDouble("range_scale_c0"), 0.026, 0.01);
+  EXPECT_NEAR(y.getDouble("range_scale_c2"), -0.461, 0.08);
+  EXPECT_GT(y.getDouble("range_scale_c2_sigma"), 0.0);
+  EXPECT_GT(y.getDouble("bearing_offset_sigma_rad"), 0.0);
+  // The EKF does not estimate it.
+  r = test::runCli("localize " + out + " --method ekf --calibrate range --out " + tmp.file("ekf.csv"));
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("--calibrate range: only batch and window"), std::string::npos) << r.output;
+  r = test::runCli("stream --from " + out + " --method ekf --calibrate range");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("--calibrate range: only the window"), std::string::npos) << r.output;
 }
 
 }  // namespace

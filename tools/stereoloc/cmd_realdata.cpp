@@ -48,8 +48,9 @@ void add_realdata_command(CLI::App& app) {
       ->capture_default_str();
   sub->add_option("--only", o->only,
                   "Comma-separated subset: dead_reckoning,ekf,ekf_calib,pf,window,window_online,window_robust,"
-                  "window_robust_online,window_calib,window_calib_online,batch,batch_robust,batch_calib (_calib: "
-                  "self-calibrating the odometry)");
+                  "window_robust_online,window_calib,window_calib_online,window_calib_range,window_calib_range_online,"
+                  "batch,batch_robust,batch_calib,batch_calib_range (_calib: self-calibrating the odometry; "
+                  "_calib_range: the odometry and the range sensor)");
   sub->add_option("--csv", o->csv_path, "Also write the table as CSV (units: mm, rad, ms)");
   sub->callback([o] { runRealDataStudy(*o); });
 }

@@ -37,7 +37,7 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
     throw UsageError(e.what());
   }
   o.calibration = calibrationOptions(a.calibrate, a.consider);
-  if (!a.calibration_out.empty() && (o.calibration.consider || (!o.calibration.odometry && !o.calibration.stereo)))
+  if (!a.calibration_out.empty() && (o.calibration.consider || !o.calibration.any()))
     throw UsageError("--calibration-out: needs --calibrate");
   if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);
   return o;
@@ -62,6 +62,13 @@ void reportCalibration(const std::string& calibration_out, std::FILE* out, const
         rad2deg(c.head[0]), rad2deg(sd(c.head_covariance(0, 0))), c.head[1], sd(c.head_covariance(1, 1)), c.head[2],
         sd(c.head_covariance(2, 2)), c.head[3], sd(c.head_covariance(3, 3)), c.head[4], sd(c.head_covariance(4, 4)),
         c.head[5], sd(c.head_covariance(5, 5)));
+  if (c.range)
+    std::fprintf(out,
+                 "calibration: range factor 1 %+.4f (+- %.4f) %+.4f (+- %.4f) b %+.4f (+- %.4f) b^2, bearing offset "
+                 "%.3f +- %.3f deg\n",
+                 c.range_bearing[0], sd(c.range_bearing_covariance(0, 0)), c.range_bearing[1],
+                 sd(c.range_bearing_covariance(1, 1)), c.range_bearing[2], sd(c.range_bearing_covariance(2, 2)),
+                 rad2deg(c.range_bearing[3]), rad2deg(sd(c.range_bearing_covariance(3, 3))));
   const PriorDistance far = furthestFromPrior(*calibration, config, nominal_wheel_base_mm);
   std::fprintf(out, "calibration: furthest from the nominal calibration: %s, %.1f prior sigmas\n", far.parameter.c_str(),
                far.sigmas);
@@ -90,8 +97,8 @@ Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHando
 void runLocalize(const LocalizeArgs& a) {
   MethodOptions o = parseMethodOptions(a);
   const std::string name = parseMethodSpec(a.method, o.init).first;  // usage errors before reading data
-  const bool calibrating_ekf = name == "ekf" && (o.calibration.odometry || o.calibration.stereo ||
-                                                 hasCalibrationSuffix(a.method) || hasConsiderSuffix(a.method));
+  const bool calibrating_ekf =
+      name == "ekf" && (o.calibration.any() || hasCalibrationSuffix(a.method) || hasConsiderSuffix(a.method));
   if (name != "batch" && name != "window" && !calibrating_ekf && (!a.noise_model.empty() || o.pixel_sigma > 0))
     throw UsageError("--noise-model, --pixel-sigma: only the smoothers (batch, window) and ekf with --calibrate or "
                      "--consider use them (method '" + a.method + "')");
@@ -156,7 +163,8 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--calibrate", a->calibrate,
                   "Batch, window and ekf: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline "
                   "scale, disparity and column offsets, focal errors; the smoothers need a pixel observation model) or "
-                  "odometry,stereo, with priors from the stated uncertainty");
+                  "both, with priors from the stated uncertainty; batch and window also range (a range-bearing "
+                  "sensor's range factor 1 + c0 + c1 b + c2 b^2 at bearing b and its bearing offset), comma-separated");
   if (method_option)
     sub->add_option("--consider", a->consider,
                     "ekf: the blocks of --calibrate (odometry, stereo or odometry,stereo) considered, not estimated: "
