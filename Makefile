@@ -80,6 +80,10 @@ test-valgrind: build
 	@echo "valgrind: the filters going back for late observations (Localizer replay)"
 	@$(VALGRIND) $(BUILD)/bin/test_pipeline_localizer \
 	  --gtest_filter='Localizer.TheFiltersReplayTheirStepsForLateObservations' >/dev/null
+	@echo "valgrind: a range sensor's calibration in the batch and the window; errors that repeat over sightings"
+	@$(VALGRIND) $(BUILD)/bin/test_solvers_range_calibration \
+	  --gtest_filter='RangeCalibration.WindowAsLongAsTheDataIsTheBatch:RangeCalibration.TheGateSeesTheSightingsThroughTheCalibration' >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_core_observation_correlation >/dev/null
 	@echo "valgrind: localize --method ekf --frontend images --rig (the calibrated rig)"
 	@$(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method ekf --frontend images \
 	  --rig $(VG_DIR)/batch-rig.yaml --out $(VG_DIR)/ekf-rig.csv >/dev/null
