@@ -17,9 +17,9 @@
 
 #include <Eigen/Core>
 
+#include "factors/range_bearing_factor.h"
 #include "src/core/angles.h"
 #include "src/core/gaussian.h"
-#include "src/core/measurement_model.h"
 
 namespace stereoloc {
 
@@ -32,17 +32,11 @@ struct RangeBearingCalibrationFactor {
 
   template <typename T>
   bool operator()(const T* pose, const T* k, T* residual) const {
-    const T dx = T(landmark_[0]) - pose[0], dy = T(landmark_[1]) - pose[1];
-    if (dx * dx + dy * dy < T(kMinSquaredRange)) return false;
-    const T l[2] = {T(landmark_[0]), T(landmark_[1])};
     T h[2];
-    predictRangeBearingT(pose, l, h);
+    if (!range_bearing::predict(pose, landmark_, h)) return false;
     const double b = z_[1];
     const T scale = T(1.0) + k[0] + k[1] * T(b) + k[2] * T(b * b);
-    const T e0 = scale * h[0] - T(z_[0]);
-    const T e1 = wrapAngle<T>(h[1] + k[3] - T(z_[1]));
-    residual[0] = T(S_(0, 0)) * e0 + T(S_(0, 1)) * e1;
-    residual[1] = T(S_(1, 1)) * e1;  // S is upper triangular
+    range_bearing::whiten(S_, scale * h[0] - T(z_[0]), wrapAngle<T>(h[1] + k[3] - T(z_[1])), residual);
     return true;
   }
 
@@ -52,8 +46,6 @@ struct RangeBearingCalibrationFactor {
     return new ceres::AutoDiffCostFunction<RangeBearingCalibrationFactor, 2, 3, kCalibrationSize>(
         new RangeBearingCalibrationFactor(landmark, z, sqrtInformationUpper<2>(covariance, "range-bearing covariance R")));
   }
-
-  static constexpr double kMinSquaredRange = 1e-12;  // mm^2, as in predictRangeBearing
 
  private:
   Eigen::Vector2d landmark_;

@@ -20,6 +20,30 @@
 
 namespace stereoloc {
 
+// Shared by the range-bearing factors (this one, range_bearing_calibration_factor.h).
+namespace range_bearing {
+
+constexpr double kMinSquaredRange = 1e-12;  // mm^2, as in predictRangeBearing
+
+// h(p, l) (5.27); false where the pose coincides with the landmark (the bearing is undefined).
+template <typename T>
+bool predict(const T* pose, const Eigen::Vector2d& landmark, T* h) {
+  const T dx = T(landmark[0]) - pose[0], dy = T(landmark[1]) - pose[1];
+  if (dx * dx + dy * dy < T(kMinSquaredRange)) return false;
+  const T l[2] = {T(landmark[0]), T(landmark[1])};
+  predictRangeBearingT(pose, l, h);
+  return true;
+}
+
+// r = S e for the upper-triangular square-root information S of (range, bearing).
+template <typename T>
+void whiten(const Eigen::Matrix2d& S, const T& e_range, const T& e_bearing, T* r) {
+  r[0] = T(S(0, 0)) * e_range + T(S(0, 1)) * e_bearing;
+  r[1] = T(S(1, 1)) * e_bearing;
+}
+
+}  // namespace range_bearing
+
 struct RangeBearingFactor {
   RangeBearingFactor(const Eigen::Vector2d& landmark, const Eigen::Vector2d& z,
                      const Eigen::Matrix2d& sqrt_information_upper)
@@ -27,15 +51,9 @@ struct RangeBearingFactor {
 
   template <typename T>
   bool operator()(const T* pose, T* residual) const {
-    const T dx = T(landmark_[0]) - pose[0], dy = T(landmark_[1]) - pose[1];
-    if (dx * dx + dy * dy < T(kMinSquaredRange)) return false;
-    const T l[2] = {T(landmark_[0]), T(landmark_[1])};
     T h[2];
-    predictRangeBearingT(pose, l, h);
-    const T e0 = h[0] - T(z_[0]);
-    const T e1 = wrapAngle<T>(h[1] - T(z_[1]));
-    residual[0] = T(S_(0, 0)) * e0 + T(S_(0, 1)) * e1;
-    residual[1] = T(S_(1, 1)) * e1;  // S is upper triangular
+    if (!range_bearing::predict(pose, landmark_, h)) return false;
+    range_bearing::whiten(S_, h[0] - T(z_[0]), wrapAngle<T>(h[1] - T(z_[1])), residual);
     return true;
   }
 
@@ -45,8 +63,6 @@ struct RangeBearingFactor {
     return new ceres::AutoDiffCostFunction<RangeBearingFactor, 2, 3>(
         new RangeBearingFactor(landmark, z, sqrtInformationUpper<2>(covariance, "range-bearing covariance R")));
   }
-
-  static constexpr double kMinSquaredRange = 1e-12;  // mm^2, as in predictRangeBearing
 
  private:
   Eigen::Vector2d landmark_;

@@ -38,6 +38,21 @@ void copySlice(const std::string& src, const std::string& dst, double t0, double
   }
 }
 
+// realdata's CSV: estimator -> (position RMSE mm, theta RMSE rad, mean NEES, ...).
+std::map<std::string, std::vector<double>> readRealdataCsv(const std::string& path) {
+  std::ifstream in(path);
+  std::string line;
+  std::getline(in, line);
+  std::map<std::string, std::vector<double>> rows;
+  while (std::getline(in, line)) {
+    std::stringstream ss(line);
+    std::string name, field;
+    std::getline(ss, name, ',');
+    while (std::getline(ss, field, ',')) rows[name].push_back(std::stod(field));
+  }
+  return rows;
+}
+
 class CliImport : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -141,17 +156,13 @@ TEST_F(CliImport, EveryEstimatorRunsOnTheSliceWithBoundedError) {
     }
     EXPECT_GE(table_lines, 9u) << r.output;
   }
-  std::ifstream in(csv);
-  std::string line;
-  std::getline(in, line);
-  ASSERT_EQ(line.rfind("estimator,position_rmse_mm,theta_rmse_rad", 0), 0u) << line;
-  std::map<std::string, std::vector<double>> rows;
-  while (std::getline(in, line)) {
-    std::stringstream ss(line);
-    std::string name, field;
-    std::getline(ss, name, ',');
-    while (std::getline(ss, field, ',')) rows[name].push_back(std::stod(field));
+  {
+    std::ifstream in(csv);
+    std::string header;
+    std::getline(in, header);
+    ASSERT_EQ(header.rfind("estimator,position_rmse_mm,theta_rmse_rad", 0), 0u) << header;
   }
+  std::map<std::string, std::vector<double>> rows = readRealdataCsv(csv);
   for (const char* name : {"dead_reckoning", "ekf", "ekf_calib", "pf", "window", "window_online", "window_calib",
                            "window_calib_online", "batch", "batch_robust", "batch_calib"}) {
     ASSERT_TRUE(rows.count(name)) << name << "\n" << r.output;
@@ -174,41 +185,41 @@ TEST_F(CliImport, EveryEstimatorRunsOnTheSliceWithBoundedError) {
   }
 }
 
-// realdata's CSV: estimator -> (position RMSE mm, theta RMSE rad, mean NEES, ...).
-std::map<std::string, std::vector<double>> readRealdataCsv(const std::string& path) {
-  std::ifstream in(path);
-  std::string line;
-  std::getline(in, line);
-  std::map<std::string, std::vector<double>> rows;
-  while (std::getline(in, line)) {
-    std::stringstream ss(line);
-    std::string name, field;
-    std::getline(ss, name, ',');
-    while (std::getline(ss, field, ',')) rows[name].push_back(std::stod(field));
+
+// The whole of robot 1: imported with `import_flags` into the fixture's directory, then
+// `realdata --only ONLY` on it; the import's output in *import_output.
+class CliImportRobot1 : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (!std::filesystem::exists(sharedDir() + "/Robot1_Odometry.dat"))
+      GTEST_SKIP() << "shared MR.CLAM data not found at " << sharedDir();
   }
-  return rows;
-}
+  std::map<std::string, std::vector<double>> importAndRun(const std::string& name, const std::string& import_flags,
+                                                          const std::string& only, std::string* import_output = nullptr) {
+    const std::string out = tmp_.file(name);
+    test::CliRun r = test::runCli("import mrclam " + sharedDir() + " --robot 1 --out " + out + " " + import_flags);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    if (import_output) *import_output = r.output;
+    const std::string csv = out + ".csv";
+    r = test::runCli("realdata " + out + " --only " + only + " --csv " + csv);
+    EXPECT_EQ(r.exit_code, 0) << r.output;
+    return readRealdataCsv(csv);
+  }
+  test::TempDir tmp_{"cli_import_robot1"};
+};
 
 // The barcode camera's errors repeat over consecutive sightings of a landmark (correlation
 // about 0.7 a second apart): fused as independent, a burst counts many times over. With the
 // sigmas inflated for it, the smoothers' covariance is less overconfident and the batch, whose
 // every pose a burst pulls, more accurate.
-TEST(CliImportRobot1, SigmasInflatedForCorrelatedErrorsMakeTheSmoothersLessOverconfident) {
-  if (!std::filesystem::exists(sharedDir() + "/Robot1_Odometry.dat"))
-    GTEST_SKIP() << "shared MR.CLAM data not found at " << sharedDir();
-  test::TempDir tmp("cli_import_correlated");
+TEST_F(CliImportRobot1, SigmasInflatedForCorrelatedErrorsMakeTheSmoothersLessOverconfident) {
   std::map<std::string, std::vector<double>> result[2];
   for (int correlated = 0; correlated < 2; ++correlated) {
-    const std::string out = tmp.file(correlated ? "correlated" : "independent");
-    test::CliRun r = test::runCli("import mrclam " + sharedDir() + " --robot 1 --out " + out +
-                                  (correlated ? " --correlated-errors" : ""));
-    ASSERT_EQ(r.exit_code, 0) << r.output;
-    EXPECT_NE(r.output.find("error correlation of two sightings dt apart: range 0."), std::string::npos) << r.output;
-    EXPECT_EQ(r.output.find("sigmas inflated for it") != std::string::npos, correlated == 1) << r.output;
-    const std::string csv = out + ".csv";
-    r = test::runCli("realdata " + out + " --only window,batch --csv " + csv);
-    ASSERT_EQ(r.exit_code, 0) << r.output;
-    result[correlated] = readRealdataCsv(csv);
+    std::string printed;
+    result[correlated] = importAndRun(correlated ? "correlated" : "independent",
+                                      correlated ? "--correlated-errors" : "", "window,batch", &printed);
+    EXPECT_NE(printed.find("error correlation of two sightings dt apart: range 0."), std::string::npos) << printed;
+    EXPECT_EQ(printed.find("sigmas inflated for it") != std::string::npos, correlated == 1) << printed;
   }
   for (const char* name : {"window", "batch"}) {
     const std::vector<double>& independent = result[0][name];
@@ -221,45 +232,26 @@ TEST(CliImportRobot1, SigmasInflatedForCorrelatedErrorsMakeTheSmoothersLessOverc
   EXPECT_LT(result[1]["batch"][0], 0.85 * result[0]["batch"][0]);
 }
 
-// The camera's range error depends on the bearing (about +2 % on axis, -4 to -8 % 25 degrees
+// The camera's range error depends on the bearing (about +2 % on axis, -6 to -7 % 20-35 degrees
 // off it): calibrated against the motion capture, the correction makes every estimator more
 // accurate.
-TEST(CliImportRobot1, RangeCorrectionFittedAgainstGroundTruthMakesTheEstimatorsMoreAccurate) {
-  if (!std::filesystem::exists(sharedDir() + "/Robot1_Odometry.dat"))
-    GTEST_SKIP() << "shared MR.CLAM data not found at " << sharedDir();
-  test::TempDir tmp("cli_import_range");
-  std::map<std::string, std::vector<double>> result[2];
-  for (int corrected = 0; corrected < 2; ++corrected) {
-    const std::string out = tmp.file(corrected ? "corrected" : "plain");
-    test::CliRun r = test::runCli("import mrclam " + sharedDir() + " --robot 1 --out " + out +
-                                  (corrected ? " --range-correction fit" : ""));
-    ASSERT_EQ(r.exit_code, 0) << r.output;
-    const std::string csv = out + ".csv";
-    r = test::runCli("realdata " + out + " --only ekf,window,batch --csv " + csv);
-    ASSERT_EQ(r.exit_code, 0) << r.output;
-    result[corrected] = readRealdataCsv(csv);
-  }
+TEST_F(CliImportRobot1, RangeCorrectionFittedAgainstGroundTruthMakesTheEstimatorsMoreAccurate) {
+  std::map<std::string, std::vector<double>> plain = importAndRun("plain", "", "ekf,window,batch");
+  std::map<std::string, std::vector<double>> corrected =
+      importAndRun("corrected", "--range-correction fit", "ekf,window,batch");
   for (const char* name : {"ekf", "window", "batch"}) {
-    ASSERT_EQ(result[0][name].size(), 12u) << name;
-    ASSERT_EQ(result[1][name].size(), 12u) << name;
-    EXPECT_LT(result[1][name][0], 0.8 * result[0][name][0]) << name << ": position RMSE";
+    ASSERT_EQ(plain[name].size(), 12u) << name;
+    ASSERT_EQ(corrected[name].size(), 12u) << name;
+    EXPECT_LT(corrected[name][0], 0.8 * plain[name][0]) << name << ": position RMSE";
   }
 }
 
 // Without ground truth: the smoothers estimate the camera's range factor across its field of
 // view and its bearing offset (`--calibrate range`), close to the correction fitted against the
 // motion capture, and are more accurate for it.
-TEST(CliImportRobot1, TheSmoothersCalibrateTheRangeSensorFromTheDataAlone) {
-  if (!std::filesystem::exists(sharedDir() + "/Robot1_Odometry.dat"))
-    GTEST_SKIP() << "shared MR.CLAM data not found at " << sharedDir();
-  test::TempDir tmp("cli_import_range_calibration");
-  const std::string out = tmp.file("robot1");
-  test::CliRun r = test::runCli("import mrclam " + sharedDir() + " --robot 1 --out " + out);
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  const std::string csv = tmp.file("realdata.csv");
-  r = test::runCli("realdata " + out + " --only window,batch,window_calib_range,batch_calib_range --csv " + csv);
-  ASSERT_EQ(r.exit_code, 0) << r.output;
-  std::map<std::string, std::vector<double>> rows = readRealdataCsv(csv);
+TEST_F(CliImportRobot1, TheSmoothersCalibrateTheRangeSensorFromTheDataAlone) {
+  std::map<std::string, std::vector<double>> rows =
+      importAndRun("robot1", "", "window,batch,window_calib_range,batch_calib_range");
   for (const char* name : {"window", "batch"}) {
     const std::string calibrating = std::string(name) + "_calib_range";
     ASSERT_EQ(rows[name].size(), 12u) << name;
@@ -269,9 +261,9 @@ TEST(CliImportRobot1, TheSmoothersCalibrateTheRangeSensorFromTheDataAlone) {
   }
   // The estimate, printed and written: the on-axis scale and the curvature of the fit against
   // the motion capture (1 + 0.026 + 0.006 b - 0.461 b^2) within a few of their sigmas.
-  const std::string rig = tmp.file("calibrated.yaml");
-  r = test::runCli("localize " + out + " --method batch --calibrate range --calibration-out " + rig + " --out " +
-                   tmp.file("est.csv"));
+  const std::string out = tmp_.file("robot1"), rig = tmp_.file("calibrated.yaml");
+  test::CliRun r = test::runCli("localize " + out + " --method batch --calibrate range --calibration-out " + rig +
+                                " --out " + tmp_.file("est.csv"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("calibration: range factor 1 +0.0"), std::string::npos) << r.output;
   const YamlReader y(rig);
@@ -280,7 +272,7 @@ TEST(CliImportRobot1, TheSmoothersCalibrateTheRangeSensorFromTheDataAlone) {
   EXPECT_GT(y.getDouble("range_scale_c2_sigma"), 0.0);
   EXPECT_GT(y.getDouble("bearing_offset_sigma_rad"), 0.0);
   // The EKF does not estimate it.
-  r = test::runCli("localize " + out + " --method ekf --calibrate range --out " + tmp.file("ekf.csv"));
+  r = test::runCli("localize " + out + " --method ekf --calibrate range --out " + tmp_.file("ekf.csv"));
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("--calibrate range: only batch and window"), std::string::npos) << r.output;
   r = test::runCli("stream --from " + out + " --method ekf --calibrate range");
