@@ -271,6 +271,11 @@ TEST_F(CliImportRobot1, TheSmoothersCalibrateTheRangeSensorFromTheDataAlone) {
   EXPECT_NEAR(y.getDouble("range_scale_c2"), -0.461, 0.08);
   EXPECT_GT(y.getDouble("range_scale_c2_sigma"), 0.0);
   EXPECT_GT(y.getDouble("bearing_offset_sigma_rad"), 0.0);
+  // The real-time window estimates it too.
+  const std::string streamed = tmp_.file("streamed.yaml");
+  r = test::runCli("stream --from " + out + " --method window --calibrate range --calibration-out " + streamed);
+  ASSERT_EQ(r.exit_code, 0);
+  EXPECT_NEAR(YamlReader(streamed).getDouble("range_scale_c2"), -0.461, 0.08);
   // The EKF does not estimate it.
   r = test::runCli("localize " + out + " --method ekf --calibrate range --out " + tmp_.file("ekf.csv"));
   EXPECT_EQ(r.exit_code, 2) << r.output;
