@@ -55,15 +55,14 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
   iteration_.tolerance = config_.iteration_tolerance;
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
   const SelfCalibrationConfig& cal = config_.calibration;
-  if (cal.range)
-    throw Error("ekf: the range block (calibration.range) is the batch's and the window's; the EKF does not estimate it");
-  if (cal.odometry || cal.stereo) {
+  if (cal.any()) {
     cal.validate();
     if (config_.max_iterations > 1) throw Error("ekf: the iterated update (max_iterations > 1) does not self-calibrate");
     int n = 3;
     wheels_[2] = odometry_.wheel_base_mm;
     if (cal.odometry) wheels_at_ = std::exchange(n, n + 3);
     if (cal.stereo) head_at_ = std::exchange(n, n + 6);
+    if (cal.range) range_at_ = std::exchange(n, n + 4);
     const UnmodelledNoise& noise = config_.observation_model.unmodelled;
     // The image block and the feature offsets enter the pixel factors only.
     const bool pixel_model = config_.observation_model.model != ObservationModel::RangeBearing;
@@ -79,6 +78,7 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
     if (row_sigma) joint_(row_at_, row_at_) = *row_sigma * *row_sigma;
     if (cal.odometry) joint_.diagonal().segment<3>(wheels_at_) = wheelPriorSigma(cal, wheels_[2]).cwiseAbs2();
     if (cal.stereo) joint_.diagonal().segment<6>(head_at_) = stereoPriorSigma(cal).cwiseAbs2();
+    if (cal.range) joint_.diagonal().segment<4>(range_at_) = rangePriorSigma(cal).cwiseAbs2();
   }
   if (config_.init.mode != InitMode::Global) {
     if (!config_.init.pose.isFinite() || !config_.init.covariance.allFinite())
@@ -274,6 +274,7 @@ bool Ekf::reanchor(const PoseFix& fix) {
   // each re-anchoring pulled the calibration further after a bad first sighting (a realistic
   // line trial: disparity offset -1.5 -> -7.9 px).
   if (head_at_ >= 0) K.bottomRows(K.rows() - head_at_).setZero();
+  if (range_at_ >= 0) K.middleRows(range_at_, 4).setZero();  // likewise seen through the range block
   considerStates(K);
   applyJointUpdate(K, nu, H, fix.covariance);
   lost_ = false;
@@ -467,13 +468,20 @@ Observation Ekf::slid(const Observation& obs) const {
 }
 
 Step Ekf::seenThroughCalibration(const Step& step) const {
-  if (head_at_ < 0) return step;
+  if (head_at_ < 0 && range_at_ < 0) return step;
   Step out = step;
   for (Observation& o : out.observations) o = associationView(o);
   return out;
 }
 
 Observation Ekf::associationView(const Observation& obs) const {
+  if (rangeCalibrated(obs)) {
+    try {
+      return withRangeCalibration(obs, range_, joint_.block<4, 4>(range_at_, range_at_));
+    } catch (const Error&) {
+      return obs;  // the current range factor is not positive there: the update will not fuse it
+    }
+  }
   if (head_at_ < 0 || !obs.pixels) return obs;
   Landmark kind;
   kind.type = obs.type;
@@ -582,9 +590,20 @@ std::optional<Ekf::JointInnovation> Ekf::jointInnovation(const Observation& obs,
     } else {
       Matrix23d H_p;
       JointInnovation g;
-      g.nu = rangeBearingInnovation(obs.z(), predictRangeBearing(pose_, landmark.xy(), &H_p));  // (5.27)
-      g.R = obs.covariance;
+      Eigen::Vector2d zhat = predictRangeBearing(pose_, landmark.xy(), &H_p);  // (5.27)
       g.H = Eigen::MatrixXd::Zero(2, joint_.rows());
+      if (rangeCalibrated(obs)) {
+        // The sensor's model (factors/range_bearing_calibration_factor.h): range f(b) h_r with
+        // f = 1 + c0 + c1 b + c2 b^2 at the measured bearing b, bearing h_b + d_b.
+        const double b = obs.bearing, r = zhat(0);
+        const double f = 1.0 + range_[0] + range_[1] * b + range_[2] * b * b;
+        zhat = Eigen::Vector2d(f * r, wrapAngle(zhat(1) + range_[3]));
+        H_p.row(0) *= f;
+        g.H.block<1, 3>(0, range_at_) = r * Eigen::RowVector3d(1.0, b, b * b);
+        g.H(1, range_at_ + 3) = 1.0;
+      }
+      g.nu = rangeBearingInnovation(obs.z(), zhat);
+      g.R = obs.covariance;
       g.H.leftCols<3>() = H_p;
       found = g;
     }
@@ -690,6 +709,7 @@ Ekf::JointState Ekf::jointPlus(const JointState& x, const Eigen::VectorXd& dx) c
   if (head_at_ >= 0) out.head += dx.segment<6>(head_at_);
   if (image_at_ >= 0) out.image += dx.segment(image_at_, out.image.size());
   if (row_at_ >= 0) out.row += dx(row_at_);
+  if (range_at_ >= 0) out.range += dx.segment<4>(range_at_);
   out.offsets += dx.segment(features_at_, out.offsets.size());
   return out;
 }
@@ -700,6 +720,7 @@ void Ekf::setJointState(const JointState& x) {
   head_ = x.head;
   image_ = x.image;
   row_ = x.row;
+  range_ = x.range;
   offsets_ = x.offsets;
   feature_ids_ = x.feature_ids;
 }
@@ -753,6 +774,11 @@ std::optional<CalibrationEstimate> Ekf::calibration() const {
     e.image = true;
     e.image_errors = image_sigmas_->cwiseProduct(image_);
     e.image_covariance = image_sigmas_->asDiagonal() * joint_.block(image_at_, image_at_, m, m) * image_sigmas_->asDiagonal();
+  }
+  if (range_at_ >= 0) {
+    e.range = true;
+    e.range_bearing = range_;
+    e.range_bearing_covariance = joint_.block<4, 4>(range_at_, range_at_);
   }
   if (row_at_ >= 0) {
     e.row = true;

@@ -47,7 +47,9 @@
 //               R = I, iterated to the MAP of prediction and sighting (the observation model
 //               range_bearing: on calibratedSighting's range and bearing instead)
 // with the same gate, Joseph form and joint gating as above; observations without pixels keep
-// their own z and R. The wheel base is considered, not estimated (its row of K is zero). Every
+// their own z and R, through the range block k = (c0, c1, c2, d_b) when it is estimated (a
+// range-bearing sensor's range factor across its field of view and bearing offset,
+// factors/range_bearing_calibration_factor.h; x = (p, c, q, k, e, dv, b)). The wheel base is considered, not estimated (its row of K is zero). Every
 // global fix sees the sightings through the current calibration, and a lost filter re-anchors on
 // a fix that agrees with its prediction (fused as a measurement of the pose) instead of
 // restarting there. Why each: docs/estimators.md, "A self-calibrating EKF".
@@ -109,8 +111,9 @@ struct EkfConfig {
   // Algorithm 5 as printed.
   int max_iterations = 1;
   double iteration_tolerance = 1e-6;  // mm and rad: stop when no component of the step moves more
-  // Self-calibration: the wheel and stereo blocks (odometry, stereo) with their prior sigmas;
-  // SelfCalibrationConfig's other options are the smoothers'. Needs max_iterations == 1.
+  // Self-calibration: the wheel, stereo and range blocks (odometry, stereo, range) with their
+  // prior sigmas; SelfCalibrationConfig's other options are the smoothers'. Needs
+  // max_iterations == 1.
   SelfCalibrationConfig calibration;
   // With calibration.stereo: the rig that took the pixels and their noise (pixelCovarianceFor,
   // the marking terms as white noise); with calibration.odometry: unmodelled.slip_rel_sigma is
@@ -248,8 +251,9 @@ class Ekf : public Estimator {
     double row = 0.0;
     Eigen::VectorXd offsets;
     std::vector<int> feature_ids;  // whose offsets they are (restoring a state drops later ones)
+    Eigen::Vector4d range = Eigen::Vector4d::Zero();
   };
-  JointState jointState() const { return {pose_, wheels_, head_, image_, row_, offsets_, feature_ids_}; }
+  JointState jointState() const { return {pose_, wheels_, head_, image_, row_, offsets_, feature_ids_, range_}; }
   void setJointState(const JointState& x);
   JointState jointPlus(const JointState& x, const Eigen::VectorXd& dx) const;
   // What association sees: with the stereo block, the observation through the current q with
@@ -291,7 +295,12 @@ class Ekf : public Estimator {
   CalibrationEstimate::ImageVector image_ = CalibrationEstimate::ImageVector::Zero();
   std::optional<CalibrationEstimate::ImageVector> image_sigmas_;
   double row_ = 0.0;  // the row block dv (px), with the stereo block when the noise model states it
-  int wheels_at_ = -1, head_at_ = -1, image_at_ = -1, row_at_ = -1;
+  // The range block (c0, c1, c2, d_b; factors/range_bearing_calibration_factor.h): a range-bearing
+  // sensor's range factor and bearing offset, in the update of every sighting that is not seen
+  // through the stereo block.
+  Eigen::Vector4d range_ = Eigen::Vector4d::Zero();
+  bool rangeCalibrated(const Observation& obs) const { return range_at_ >= 0 && !(head_at_ >= 0 && obs.pixels); }
+  int wheels_at_ = -1, head_at_ = -1, image_at_ = -1, row_at_ = -1, range_at_ = -1;
   // The feature offsets (b_c, b_d) of each landmark fused so far whose offsets the noise model
   // states (featureOffsetSigmas), two states each from features_at_ on, in the order first fused.
   std::map<int, FeatureOffsetSigma> feature_sigmas_;  // by landmark id: the ones that may be added

@@ -20,7 +20,7 @@
 //             SelfCalibrationConfig::row_offset; factors/stereo_pixel_row_calibration_factor.h)
 //   range     k = (c0, c1, c2, d_b): a range-bearing sensor's range factor 1 + c0 + c1 b + c2 b^2
 //             at the measured bearing b and its bearing offset, in every factor of an observation
-//             without pixels (batch and window; factors/range_bearing_calibration_factor.h)
+//             without pixels (batch, window, EKF; factors/range_bearing_calibration_factor.h)
 //   features  b_j = constant offsets (px) of each feature j's column (both images) and u_r, with
 //             the row block when the noise model states them (batch, window, EKF)
 //             (UnmodelledNoise::*_feature_offset_sigma_px, *_feature_column_sigma_px;
@@ -63,8 +63,8 @@ namespace stereoloc {
 struct SelfCalibrationConfig {
   bool odometry = false;  // estimate wheel scales and wheel base
   bool stereo = false;    // estimate tilt correction, baseline scale, pixel offsets, focal errors
-  // Batch and window: estimate a range-bearing sensor's range factor and bearing offset (the
-  // observations without pixels; RangeBearingCalibrationFactor).
+  // Estimate a range-bearing sensor's range factor and bearing offset (batch, window, EKF; the
+  // observations not seen through the stereo block; RangeBearingCalibrationFactor).
   bool range = false;
   // The EKF only: the blocks above (and the image, row and feature blocks they bring) are
   // considered, not estimated: a Schmidt-Kalman filter, whose gain leaves them at the given

@@ -240,9 +240,6 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   MethodRun run;
   if (o.calibration.any() && !selfCalibrates(name))
     throw UsageError("--calibrate: only " + kSelfCalibratingText + " self-calibrate (method '" + spec + "')");
-  if (o.calibration.range && name == "ekf")
-    throw UsageError(std::string(o.calibration.consider ? "--consider" : "--calibrate") +
-                     " range: only batch and window estimate a range sensor's calibration (method '" + spec + "')");
   if (o.calibration.consider && name != "ekf")
     throw UsageError("--consider: only ekf considers its calibration (method '" + spec + "')");
   if (name == "fix1" || name == "fix2") {

@@ -155,15 +155,20 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
                             ms, n));
     note(rows.back());
   }
-  // The EKF, and the EKF calibrating the wheels: what a range-bearing dataset lets it calibrate
-  // (no pixels, no stereo head).
-  for (const bool calibrating : {false, true}) {
-    const std::string key = calibrating ? "ekf_calib" : "ekf";
+  // The EKF, and the EKF calibrating the wheels, and the wheels and the range sensor: what a
+  // range-bearing dataset lets it calibrate (no pixels, no stereo head).
+  struct EkfVariant {
+    const char *key, *label, *calibration;
+  };
+  for (const EkfVariant& v : {EkfVariant{"ekf", "EKF", "none"},
+                              EkfVariant{"ekf_calib", "EKF, calibrating odometry", "odometry"},
+                              EkfVariant{"ekf_calib_range", "EKF, calibrating odometry and range", "odometry,range"}}) {
+    const std::string key = v.key;
     if (!wanted(o, key)) continue;
     EkfConfig c;
     c.init = init;
     c.gate_enabled = o.gate;
-    if (calibrating) c.calibration = SelfCalibrationConfig::parse("odometry");
+    c.calibration = SelfCalibrationConfig::parse(v.calibration);
     Ekf ekf(d.map, d.odometry, c);
     const Clock::time_point t0 = Clock::now();
     size_t accepted = 0, gated = 0;
@@ -174,7 +179,7 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     const std::vector<Estimate> e = ekf.finish();
     ms = msSince(t0);
     if (o.log) std::fprintf(o.log, "  %s: %zu observations fused, %zu gated\n", key.c_str(), accepted, gated);
-    rows.push_back(evaluate(key, calibrating ? "EKF, calibrating odometry" : "EKF", e, truth, ms, n));
+    rows.push_back(evaluate(key, v.label, e, truth, ms, n));
     note(rows.back());
   }
   if (wanted(o, "pf")) {

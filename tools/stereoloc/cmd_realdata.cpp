@@ -47,7 +47,7 @@ void add_realdata_command(CLI::App& app) {
                   "Initial guess of the batch smoother: filter (a forward EKF pass) or odometry")
       ->capture_default_str();
   sub->add_option("--only", o->only,
-                  "Comma-separated subset: dead_reckoning,ekf,ekf_calib,pf,window,window_online,window_robust,"
+                  "Comma-separated subset: dead_reckoning,ekf,ekf_calib,ekf_calib_range,pf,window,window_online,window_robust,"
                   "window_robust_online,window_calib,window_calib_online,window_calib_range,window_calib_range_online,"
                   "batch,batch_robust,batch_calib,batch_calib_range (_calib: self-calibrating the odometry; "
                   "_calib_range: the odometry and the range sensor)");

@@ -72,9 +72,7 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   }
   SelfCalibrationConfig calibration = calibrationOptions(a.calibrate, a.consider);
   const bool calibrating = calibration.any() && !calibration.consider;
-  if (calibration.range && a.method != "window")
-    throw UsageError(std::string(calibration.consider ? "--consider" : "--calibrate") +
-                     " range: only the window estimates a range sensor's calibration (method '" + a.method + "')");
+
   if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
     throw UsageError(std::string(calibration.consider ? "--consider" : "--calibrate") +
                      " stereo: needs a pixel observation model (--observation-model pixel_columns or pixels)");
@@ -248,8 +246,8 @@ void add_stream_command(CLI::App& app) {
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
   sub->add_option("--calibrate", a->calibrate,
                   "Self-calibrate in the window or the EKF: odometry (wheel scales, wheel base), stereo (head tilt, "
-                  "baseline scale, pixel offsets, focal ratio; a pixel observation model) or both; the window also "
-                  "range (a range-bearing sensor's range factor and bearing offset), comma-separated");
+                  "baseline scale, pixel offsets, focal ratio; a pixel observation model) or both; both also range "
+                  "(a range-bearing sensor's range factor and bearing offset), comma-separated");
   sub->add_option("--consider", a->consider,
                   "ekf: the blocks of --calibrate considered, not estimated: the calibration stays as given, its "
                   "stated uncertainty enters the covariance (see `localize --help`)");

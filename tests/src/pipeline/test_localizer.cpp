@@ -276,6 +276,7 @@ TEST(Localizer, TheFiltersReplayTheirStepsForLateObservations) {
   };
   for (const Filter& f : {Filter{"ekf", LocalizerMethod::Ekf, "", false},
                           Filter{"ekf:calib", LocalizerMethod::Ekf, "odometry", false},
+                          Filter{"ekf calibrating odometry and range", LocalizerMethod::Ekf, "odometry,range", false},
                           Filter{"pf", LocalizerMethod::ParticleFilter, "", false},
                           Filter{"pf with KLD-sampling", LocalizerMethod::ParticleFilter, "", true}}) {
     SCOPED_TRACE(f.name);
