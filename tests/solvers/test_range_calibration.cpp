@@ -14,6 +14,7 @@
 #include "solvers/ekf.h"
 #include "solvers/self_calibration.h"
 #include "solvers/sliding_window_smoother.h"
+#include "src/core/estimator.h"
 #include "src/core/measurement_model.h"
 #include "src/core/numeric_diff.h"
 #include "src/core/stereo_rig.h"
@@ -47,6 +48,11 @@ SyntheticProblem plantedSensorWalk(int steps, uint64_t seed) {
   return p;
 }
 
+std::vector<Estimate> run(Estimator& estimator, const SyntheticProblem& p) {
+  for (const Step& s : p.steps) estimator.process(s);
+  return estimator.finish();
+}
+
 double rmse(const std::vector<Estimate>& e, const std::vector<Pose2>& truth) {
   double sum = 0;
   for (const Estimate& x : e)
@@ -78,13 +84,11 @@ TEST(RangeCalibration, BatchAndWindowRecoverAPlantedSensorModelFromTheDataAlone)
   BatchSmootherConfig bc;
   bc.init = knownBelief(p.truth.front(), kP0);
   BatchSmoother plain(p.map, p.odometry, bc);
-  for (const Step& s : p.steps) plain.process(s);
-  const double rmse_plain = rmse(plain.finish(), p.truth);
+  const double rmse_plain = rmse(run(plain, p), p.truth);
 
   bc.calibration = SelfCalibrationConfig::parse("range");
   BatchSmoother batch(p.map, p.odometry, bc);
-  for (const Step& s : p.steps) batch.process(s);
-  const double rmse_batch = rmse(batch.finish(), p.truth);
+  const double rmse_batch = rmse(run(batch, p), p.truth);
   expectPlantedWithin3Sigma(batch.calibration(), "batch");
   // The planted curvature is determined to a few per cent of itself.
   EXPECT_LT(std::sqrt(batch.calibration().range_bearing_covariance(2, 2)), 0.1 * std::fabs(kPlanted[2]));
@@ -95,8 +99,7 @@ TEST(RangeCalibration, BatchAndWindowRecoverAPlantedSensorModelFromTheDataAlone)
   wc.init = bc.init;
   wc.calibration = bc.calibration;
   SlidingWindowSmoother window(p.map, p.odometry, wc);
-  for (const Step& s : p.steps) window.process(s);
-  const double rmse_window = rmse(window.finish(), p.truth);
+  const double rmse_window = rmse(run(window, p), p.truth);
   EXPECT_GT(window.stats().marginalisations, 1000);
   const std::optional<CalibrationEstimate> cw = window.calibration();
   ASSERT_TRUE(cw.has_value());
@@ -210,12 +213,10 @@ TEST(RangeCalibration, TheEkfEstimatesOrConsidersTheRangeBlock) {
   EkfConfig c;
   c.init = knownBelief(p.truth.front(), kP0);
   Ekf plain(p.map, p.odometry, c);
-  for (const Step& s : p.steps) plain.process(s);
-  const double rmse_plain = rmse(plain.finish(), p.truth);
+  const double rmse_plain = rmse(run(plain, p), p.truth);
   c.calibration = SelfCalibrationConfig::parse("range");
   Ekf ekf(p.map, p.odometry, c);
-  for (const Step& s : p.steps) ekf.process(s);
-  const double rmse_ekf = rmse(ekf.finish(), p.truth);
+  const double rmse_ekf = rmse(run(ekf, p), p.truth);
   const std::optional<CalibrationEstimate> e = ekf.calibration();
   ASSERT_TRUE(e.has_value());
   expectPlantedWithin3Sigma(*e, "ekf");
@@ -224,8 +225,7 @@ TEST(RangeCalibration, TheEkfEstimatesOrConsidersTheRangeBlock) {
   // where the EKF that takes the sensor as exact is far too sure of itself.
   c.calibration.consider = true;
   Ekf considering(p.map, p.odometry, c);
-  for (const Step& s : p.steps) considering.process(s);
-  const double nees_considering = meanNees(considering.finish(), p.truth);
+  const double nees_considering = meanNees(run(considering, p), p.truth);
   const double nees_plain = meanNees(plain.finish(), p.truth);
   EXPECT_LT(nees_considering, 6.0);
   EXPECT_GT(nees_plain, 3.0 * nees_considering);
