@@ -167,7 +167,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "factor 1 + c0 + c1 b + c2 b^2 at bearing b and its bearing offset), comma-separated");
   if (method_option)
     sub->add_option("--consider", a->consider,
-                    "ekf: the blocks of --calibrate (odometry, stereo or odometry,stereo) considered, not estimated: "
+                    "ekf: the blocks of --calibrate (odometry, stereo, range, comma-separated) considered, not estimated: "
                     "the calibration stays as given (or as --rig hands it over), its stated uncertainty enters the "
                     "covariance (a Schmidt-Kalman filter; the method ekf:consider in studies)");
   sub->add_option("--pixel-sigma", a->options.pixel_sigma,
