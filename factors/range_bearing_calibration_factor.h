@@ -34,9 +34,8 @@ struct RangeBearingCalibrationFactor {
   bool operator()(const T* pose, const T* k, T* residual) const {
     T h[2];
     if (!range_bearing::predict(pose, landmark_, h)) return false;
-    const double b = z_[1];
-    const T scale = T(1.0) + k[0] + k[1] * T(b) + k[2] * T(b * b);
-    range_bearing::whiten(S_, scale * h[0] - T(z_[0]), wrapAngle<T>(h[1] + k[3] - T(z_[1])), residual);
+    const T f = rangeFactorAt(k, z_[1]);
+    range_bearing::whiten(S_, f * h[0] - T(z_[0]), wrapAngle<T>(h[1] + k[3] - T(z_[1])), residual);
     return true;
   }
 

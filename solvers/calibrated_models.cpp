@@ -50,15 +50,15 @@ Eigen::Vector4d rangePriorSigma(const SelfCalibrationConfig& c) {
 
 Observation withRangeCalibration(const Observation& obs, const Eigen::Vector4d& k, const Eigen::Matrix4d& Ck) {
   const double b = obs.bearing;
-  const double f = 1.0 + k[0] + k[1] * b + k[2] * b * b;
+  const double f = rangeFactorAt(k.data(), b);
   if (!(f > 0)) throw Error("range calibration: the range factor is not positive at this bearing");
   Observation out = obs;
   out.range = obs.range / f;
   out.bearing = wrapAngle(obs.bearing - k[3]);
   const Eigen::Vector2d scale(1.0 / f, 1.0);
-  // d(range / f) / dc_i = -(range / f^2) (1, b, b^2)_i; d(bearing - d_b) / dd_b = -1.
+  // d(range / f) / dc = -(range / f^2) df/dc; d(bearing - d_b) / dd_b = -1.
   Eigen::Matrix<double, 2, 4> J_z_k = Eigen::Matrix<double, 2, 4>::Zero();
-  J_z_k.row(0).head<3>() = -(out.range / f) * Eigen::Vector3d(1.0, b, b * b).transpose();
+  J_z_k.row(0).head<3>() = -(out.range / f) * rangeFactorGradient(b).transpose();
   J_z_k(1, 3) = -1.0;
   out.covariance = scale.asDiagonal() * obs.covariance * scale.asDiagonal() + J_z_k * Ck * J_z_k.transpose();
   return out;

@@ -596,10 +596,10 @@ std::optional<Ekf::JointInnovation> Ekf::jointInnovation(const Observation& obs,
         // The sensor's model (factors/range_bearing_calibration_factor.h): range f(b) h_r with
         // f = 1 + c0 + c1 b + c2 b^2 at the measured bearing b, bearing h_b + d_b.
         const double b = obs.bearing, r = zhat(0);
-        const double f = 1.0 + range_[0] + range_[1] * b + range_[2] * b * b;
+        const double f = rangeFactorAt(range_.data(), b);
         zhat = Eigen::Vector2d(f * r, wrapAngle(zhat(1) + range_[3]));
         H_p.row(0) *= f;
-        g.H.block<1, 3>(0, range_at_) = r * Eigen::RowVector3d(1.0, b, b * b);
+        g.H.block<1, 3>(0, range_at_) = r * rangeFactorGradient(b).transpose();
         g.H(1, range_at_ + 3) = 1.0;
       }
       g.nu = rangeBearingInnovation(obs.z(), zhat);

@@ -49,10 +49,11 @@
 // with the same gate, Joseph form and joint gating as above; observations without pixels keep
 // their own z and R, through the range block k = (c0, c1, c2, d_b) when it is estimated (a
 // range-bearing sensor's range factor across its field of view and bearing offset,
-// factors/range_bearing_calibration_factor.h; x = (p, c, q, k, e, dv, b)). The wheel base is considered, not estimated (its row of K is zero). Every
-// global fix sees the sightings through the current calibration, and a lost filter re-anchors on
-// a fix that agrees with its prediction (fused as a measurement of the pose) instead of
-// restarting there. Why each: docs/estimators.md, "A self-calibrating EKF".
+// factors/range_bearing_calibration_factor.h; x = (p, c, q, k, e, dv, b)). The wheel base is
+// considered, not estimated (its row of K is zero). Every global fix sees the sightings through
+// the current calibration, and a lost filter re-anchors on a fix that agrees with its prediction
+// (fused as a measurement of the pose) instead of restarting there. Why each:
+// docs/estimators.md, "A self-calibrating EKF".
 //
 // Considered calibration (calibration.consider, the `ekf:consider` method): the same joint state
 // with every calibration row of K zero, the Schmidt-Kalman filter. The calibration stays the

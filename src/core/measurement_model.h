@@ -34,6 +34,17 @@ inline Eigen::Vector2d rangeBearingInnovation(const Eigen::Vector2d& measured, c
   return Eigen::Vector2d(measured.x() - predicted.x(), angleDiff(measured.y(), predicted.y()));
 }
 
+// A range-bearing sensor whose range scale changes across its field of view (MR.CLAM's barcode
+// camera, docs/results.md) reports f(b) times the true range at the bearing b it reports:
+//   f(b) = 1 + c0 + c1 b + c2 b^2,   c = (c0, c1 [1/rad], c2 [1/rad^2]),   df/dc = (1, b, b^2).
+// One definition for the importer's correction, the range factor and the EKF's and the window's
+// calibrated sightings. Templated for automatic differentiation.
+template <typename T>
+T rangeFactorAt(const T* c, double bearing) {
+  return T(1.0) + c[0] + c[1] * T(bearing) + c[2] * T(bearing * bearing);
+}
+inline Eigen::Vector3d rangeFactorGradient(double bearing) { return Eigen::Vector3d(1.0, bearing, bearing * bearing); }
+
 // The landmark position implied by a pose and a range-bearing observation.
 inline Eigen::Vector2d landmarkFromRangeBearing(const Pose2& pose, double range, double bearing) {
   const double phi = pose.theta + bearing;

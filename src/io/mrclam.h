@@ -30,6 +30,7 @@
 #include <vector>
 
 #include "src/core/field_map.h"
+#include "src/core/measurement_model.h"
 #include "src/core/observation_correlation.h"
 #include "src/core/odometry_model.h"
 #include "src/core/pose2.h"
@@ -126,7 +127,7 @@ OdometryNoiseFit fitOdometryNoise(const std::vector<Step>& steps, const std::vec
 // and the correction divides by that factor.
 struct RangeCorrection {
   Eigen::Vector3d c = Eigen::Vector3d::Zero();  // (c0, c1 [1/rad], c2 [1/rad^2])
-  double factor(double bearing) const { return 1.0 + c(0) + c(1) * bearing + c(2) * bearing * bearing; }
+  double factor(double bearing) const { return rangeFactorAt(c.data(), bearing); }
   // The corrected range; throws stereoloc::Error when the factor is outside [0.5, 2] (a
   // correction that halves or doubles a range is not a calibration of this camera).
   double correct(double range, double bearing) const;

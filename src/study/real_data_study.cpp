@@ -193,31 +193,17 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
   }
   // The window and the batch plain, with the robust loss, calibrating the odometry, and
   // calibrating the odometry and the range sensor.
-  enum class Variant { Plain, Robust, Calibrating, CalibratingRange };
-  constexpr Variant kVariants[] = {Variant::Plain, Variant::Robust, Variant::Calibrating, Variant::CalibratingRange};
-  auto suffix = [](Variant v) {
-    switch (v) {
-      case Variant::Robust: return "_robust";
-      case Variant::Calibrating: return "_calib";
-      case Variant::CalibratingRange: return "_calib_range";
-      default: return "";
-    }
+  struct Variant {
+    const char *suffix, *calibration;
+    bool robust;
+    std::string label;
   };
-  auto labelled = [&](Variant v) {
-    switch (v) {
-      case Variant::Robust: return " " + o.robust;
-      case Variant::Calibrating: return std::string(", calibrating odometry");
-      case Variant::CalibratingRange: return std::string(", calibrating odometry and range");
-      default: return std::string();
-    }
-  };
-  auto calibrationOf = [](Variant v) {
-    return SelfCalibrationConfig::parse(v == Variant::Calibrating        ? "odometry"
-                                        : v == Variant::CalibratingRange ? "odometry,range"
-                                                                         : "none");
-  };
-  for (const Variant variant : kVariants) {
-    const std::string key = std::string("window") + suffix(variant);
+  const Variant kVariants[] = {{"", "none", false, ""},
+                               {"_robust", "none", true, " " + o.robust},
+                               {"_calib", "odometry", false, ", calibrating odometry"},
+                               {"_calib_range", "odometry,range", false, ", calibrating odometry and range"}};
+  for (const Variant& variant : kVariants) {
+    const std::string key = std::string("window") + variant.suffix;
     if (!wanted(o, key) && !wanted(o, key + "_online")) continue;
     SlidingWindowConfig c;
     c.init = init;
@@ -225,15 +211,15 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     c.keyframe_max_steps = o.keyframe_max_steps;
     c.gate.lost_after = o.window_lost_after;
     c.gate_enabled = o.gate;
-    if (variant == Variant::Robust) c.robust_loss = robust;
-    c.calibration = calibrationOf(variant);
+    if (variant.robust) c.robust_loss = robust;
+    c.calibration = SelfCalibrationConfig::parse(variant.calibration);
     SlidingWindowSmoother sw(d.map, d.odometry, c);
     std::vector<Estimate> online;
     const std::vector<Estimate> e = runEstimator(sw, d.steps, &ms, &online);
     const SlidingWindowStats& wst = sw.stats();
     if (o.log) std::fprintf(o.log, "  %s: %ld keyframes, %ld observations fused, %ld gated, %ld re-initialisations\n",
                  key.c_str(), wst.keyframes, wst.accepted_observations, wst.rejected_observations, wst.reinitialisations);
-    const std::string w = "W=" + std::to_string(o.window) + labelled(variant);
+    const std::string w = "W=" + std::to_string(o.window) + variant.label;
     if (wanted(o, key)) {
       rows.push_back(evaluate(key, "window " + w + " (lag)", e, truth, ms, n));
       note(rows.back());
@@ -243,13 +229,13 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
       note(rows.back());
     }
   }
-  for (const Variant variant : kVariants) {
-    const std::string key = std::string("batch") + suffix(variant);
+  for (const Variant& variant : kVariants) {
+    const std::string key = std::string("batch") + variant.suffix;
     if (!wanted(o, key)) continue;
     BatchSmootherConfig c;
     c.init = init;
-    if (variant == Variant::Robust) c.loss = robust;
-    c.calibration = calibrationOf(variant);
+    if (variant.robust) c.loss = robust;
+    c.calibration = SelfCalibrationConfig::parse(variant.calibration);
     c.initial_guess = initialGuessFromString(o.batch_guess);
     BatchSmoother batch(d.map, d.odometry, c);
     const std::vector<Estimate> e = runEstimator(batch, d.steps, &ms);
@@ -257,7 +243,7 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     if (o.log) std::fprintf(o.log, "  %s: %d iterations, cost %.4g -> %.4g, %s, covariance %s\n", key.c_str(),
                  s.iterations, s.initial_cost, s.final_cost, s.converged ? "converged" : "NOT converged",
                  toString(s.covariance_status).c_str());
-    rows.push_back(evaluate(key, variant == Variant::Robust ? "batch (" + o.robust + ")" : "batch" + labelled(variant), e,
+    rows.push_back(evaluate(key, variant.robust ? "batch (" + o.robust + ")" : "batch" + variant.label, e,
                             truth, ms, n));
     note(rows.back());
   }

@@ -8,9 +8,8 @@
 // (W keyframes; its fixed-lag output from finish() and its real-time output from process()),
 // without and with a robust loss, batch smoother without and with a robust loss on the
 // range-bearing factors; the EKF, the window and the batch calibrating the odometry (wheel
-// scales and wheel base); and the EKF, the window and the batch calibrating the odometry and the range
-// sensor (its range factor across the field of view and its bearing offset, the range block of
-// solvers/self_calibration.h).
+// scales and wheel base), and calibrating the odometry and the range sensor (its range factor
+// across the field of view and its bearing offset, the range block of solvers/self_calibration.h).
 #include <cstdint>
 #include <cstdio>
 #include <string>
