@@ -231,6 +231,72 @@ std::optional<Pose2> interpolateGroundtruth(const std::vector<MrclamPoseRow>& gt
                a.pose.theta + s * angleDiff(b.pose.theta, a.pose.theta));
 }
 
+// ---------------------------------------------------------------- command delay
+
+namespace {
+
+// The heading change the commands give over [t0, t1] held from their rows' times + delay.
+double commandedTurn(const WheelOdometer& odometer, double t0, double t1, double delay_s, double wheel_base_mm) {
+  const WheelIncrements d = odometer.between(t0 - delay_s, t1 - delay_s);
+  return (d.d_right - d.d_left) / wheel_base_mm;  // (B.1)
+}
+
+}  // namespace
+
+CommandDelayFit fitCommandDelay(const std::vector<MrclamOdometryRow>& odometry, const std::vector<MrclamPoseRow>& gt,
+                                const CommandDelaySearch& search) {
+  if (!(search.window_s > 0 && search.step_s > 0 && search.min_s < search.max_s &&
+        search.max_s - search.min_s >= 2 * search.step_s))
+    throw Error("command delay fit: the search needs window_s, step_s > 0 and max_s - min_s >= 2 step_s");
+  if (odometry.empty() || gt.empty()) throw Error("command delay fit: no odometry or no ground truth");
+  double max_turn_rate = 0;
+  for (const MrclamOdometryRow& r : odometry) max_turn_rate = std::max(max_turn_rate, std::fabs(r.omega));
+  if (max_turn_rate < 1e-3) throw Error("command delay fit: the commands never turn, so no delay shows in the heading");
+  // The wheel base cancels in commandedTurn (the turn is omega dt); any positive value does.
+  const double w = 1000.0;
+  const WheelOdometer odometer(odometry, w);
+  struct Window {
+    double t0, t1, turn;  // s, s, rad (ground truth)
+  };
+  std::vector<Window> windows;
+  const double begin = std::max(odometry.front().t, gt.front().t), end = std::min(odometry.back().t, gt.back().t);
+  for (double t = begin; t + search.window_s <= end; t += search.window_s) {
+    const std::optional<Pose2> a = interpolateGroundtruth(gt, t, search.max_groundtruth_gap_s);
+    const std::optional<Pose2> b = interpolateGroundtruth(gt, t + search.window_s, search.max_groundtruth_gap_s);
+    if (a && b) windows.push_back({t, t + search.window_s, angleDiff(b->theta, a->theta)});
+  }
+  if (windows.size() < 20)
+    throw Error("command delay fit: " + std::to_string(windows.size()) +
+                " windows with ground truth at both ends (at least 20 needed)");
+  auto spread = [&](double delay_s) {
+    std::vector<double> e;
+    e.reserve(windows.size());
+    for (const Window& win : windows) e.push_back(angleDiff(win.turn, commandedTurn(odometer, win.t0, win.t1, delay_s, w)));
+    return robustErrorStats(std::move(e)).mad_sigma;
+  };
+  const int n = static_cast<int>(std::floor((search.max_s - search.min_s) / search.step_s + 1e-9)) + 1;
+  std::vector<double> cost(static_cast<size_t>(n));
+  int best = 0;
+  for (int i = 0; i < n; ++i) {
+    cost[static_cast<size_t>(i)] = spread(search.min_s + i * search.step_s);
+    if (cost[static_cast<size_t>(i)] < cost[static_cast<size_t>(best)]) best = i;
+  }
+  if (best == 0 || best == n - 1)
+    throw Error("command delay fit: the best delay is at the edge of the search, " +
+                std::to_string(search.min_s + best * search.step_s) + " s");
+  // Vertex of the parabola through the best grid point and its neighbours, kept within them.
+  const double cm = cost[static_cast<size_t>(best - 1)], c0 = cost[static_cast<size_t>(best)],
+               cp = cost[static_cast<size_t>(best + 1)];
+  const double curvature = cm - 2 * c0 + cp;
+  const double shift = curvature > 0 ? std::clamp(0.5 * (cm - cp) / curvature, -0.5, 0.5) : 0.0;
+  CommandDelayFit fit;
+  fit.delay_s = search.min_s + (best + shift) * search.step_s;
+  fit.windows = windows.size();
+  fit.heading_sigma_at_zero = spread(0.0);
+  fit.heading_sigma = spread(fit.delay_s);
+  return fit;
+}
+
 // ---------------------------------------------------------------- statistics
 
 RobustErrorStats robustErrorStats(std::vector<double> errors) {
@@ -374,8 +440,11 @@ void MrclamImportConfig::validate() const {
   check(std::isfinite(odometry_window_s) && odometry_window_s > 0, "odometry_window_s");
   check(std::isfinite(odometry_noise_scale) && odometry_noise_scale > 0, "odometry_noise_scale");
   check(std::isfinite(correlation_max_lag_s) && correlation_max_lag_s > 0, "correlation_max_lag_s");
-  check(range_correction != RangeCorrectionMode::Given || given_range_correction.c.allFinite(),
+  check(range_correction != CorrectionSource::Given || given_range_correction.c.allFinite(),
         "given_range_correction");
+  check(command_delay != CorrectionSource::Given ||
+            (std::isfinite(given_command_delay_s) && std::fabs(given_command_delay_s) <= 2.0),
+        "given_command_delay_s (|delay| <= 2 s)");
 }
 
 ObservationCorrelation ImportReport::correlation() const {
@@ -527,7 +596,7 @@ void correctRanges(const std::vector<const MrclamMeasurementRow*>& kept, const s
                    const MrclamImportConfig& config, const std::string& where,
                    std::vector<MrclamMeasurementRow>* meas, ImportReport* rep) {
   rep->range_correction_mode = config.range_correction;
-  if (config.range_correction == RangeCorrectionMode::None) return;
+  if (config.range_correction == CorrectionSource::None) return;
   std::vector<RangeSample> samples;
   std::vector<double> errors;
   for (const MrclamMeasurementRow* m : kept) {
@@ -541,7 +610,7 @@ void correctRanges(const std::vector<const MrclamMeasurementRow*>& kept, const s
   rep->range_error_uncorrected = robustErrorStats(errors);
   try {
     rep->range_correction =
-        config.range_correction == RangeCorrectionMode::Fit ? fitRangeCorrection(samples) : config.given_range_correction;
+        config.range_correction == CorrectionSource::Fit ? fitRangeCorrection(samples) : config.given_range_correction;
   } catch (const Error& e) {
     throw Error(where + ": " + e.what());
   }
@@ -604,7 +673,19 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
   correctRanges(kept, gt, barcodes, landmarks, config, dir + robot + "Measurement.dat", &meas, &rep);
   const std::vector<StepTime> times = stepTimes(kept, t0, t_end, config, &rep);
 
-  // Steps: wheel travel since the previous step, ground truth at the step time.
+  // Steps: wheel travel since the previous step (each command held from its time + the delay),
+  // ground truth at the step time.
+  rep.command_delay_mode = config.command_delay;
+  if (config.command_delay == CorrectionSource::Fit) {
+    try {
+      rep.command_delay = fitCommandDelay(odo, gt);
+    } catch (const Error& e) {
+      throw Error(dir + robot + "Odometry.dat: " + e.what());
+    }
+  } else if (config.command_delay == CorrectionSource::Given) {
+    rep.command_delay.delay_s = config.given_command_delay_s;
+  }
+  const double delay = rep.command_delay.delay_s;
   const WheelOdometer odometer(odo, config.wheel_base_mm);
   out.steps.reserve(times.size());
   out.groundtruth.reserve(times.size());
@@ -614,7 +695,7 @@ MrclamImport importMrclam(const std::string& src_dir, const MrclamImportConfig& 
     s.step = static_cast<long>(i);
     s.t = times[i].t;
     if (i > 0) {
-      const WheelIncrements d = odometer.between(t0 + times[i - 1].t, t0 + times[i].t);
+      const WheelIncrements d = odometer.between(t0 + times[i - 1].t - delay, t0 + times[i].t - delay);
       s.d_left = d.d_left;
       s.d_right = d.d_right;
     }
@@ -679,12 +760,23 @@ std::string ImportReport::summary() const {
                 observations, dropped_other_robot, dropped_unknown_barcode, dropped_outside_odometry,
                 measurements_outside_groundtruth, 1000.0 * max_time_shift_s);
   os << buf;
-  if (range_correction_mode != RangeCorrectionMode::None) {
+  if (range_correction_mode != CorrectionSource::None) {
     os << "  range error before the correction [mm]: " << formatStats(range_error_uncorrected, 1.0, "mm") << "\n";
     std::snprintf(buf, sizeof buf,
                   "  range correction (%s): range / (1 %+.4f %+.4f b %+.4f b^2), b the bearing in rad\n",
-                  range_correction_mode == RangeCorrectionMode::Fit ? "fitted against ground truth" : "given",
+                  range_correction_mode == CorrectionSource::Fit ? "fitted against ground truth" : "given",
                   range_correction.c(0), range_correction.c(1), range_correction.c(2));
+    os << buf;
+  }
+  if (command_delay_mode == CorrectionSource::Fit) {
+    std::snprintf(buf, sizeof buf,
+                  "  command delay (fitted against ground truth over %zu windows): %.3f s; heading error per window "
+                  "%.3f deg robust sigma (%.3f deg without the delay)\n",
+                  command_delay.windows, command_delay.delay_s, rad2deg(command_delay.heading_sigma),
+                  rad2deg(command_delay.heading_sigma_at_zero));
+    os << buf;
+  } else if (command_delay_mode == CorrectionSource::Given) {
+    std::snprintf(buf, sizeof buf, "  command delay (given): %.3f s\n", command_delay.delay_s);
     os << buf;
   }
   os << "  range error [mm]:    " << formatStats(range_error, 1.0, "mm") << "\n";

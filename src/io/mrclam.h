@@ -141,7 +141,33 @@ struct RangeSample {
 };
 RangeCorrection fitRangeCorrection(const std::vector<RangeSample>& samples);
 
-enum class RangeCorrectionMode { None, Fit, Given };
+// The robot's drive follows a command some time after its row's timestamp (the drive's
+// latency, or the odometry log's clock running ahead of the camera's). Against the motion
+// capture MR.CLAM's robots turn as commanded 0.25-0.3 s after the command's time, while the
+// barcode sightings agree with it to within 0.05 s. The import then holds each command from its
+// row's time + delay; the delay is fitted as the one that minimises the robust spread of the
+// commanded heading change against the ground truth's over windows of window_s (a grid over
+// [min_s, max_s] at step_s, refined by a parabola through the best grid point and its
+// neighbours).
+struct CommandDelayFit {
+  double delay_s = 0;
+  size_t windows = 0;              // windows with ground truth at both ends
+  double heading_sigma_at_zero = 0;  // rad, robust sigma of the window's heading error at delay 0
+  double heading_sigma = 0;          // rad, at the fitted delay
+};
+struct CommandDelaySearch {
+  double window_s = 0.5;
+  double min_s = -0.5, max_s = 1.0, step_s = 0.01;
+  double max_groundtruth_gap_s = 0.1;  // no window across a longer Vicon gap
+};
+// Throws stereoloc::Error with fewer than 20 windows, commands that never turn, or a minimum
+// on the search interval's edge (no delay inside it explains the motion better).
+CommandDelayFit fitCommandDelay(const std::vector<MrclamOdometryRow>& odometry, const std::vector<MrclamPoseRow>& gt,
+                                const CommandDelaySearch& search = {});
+
+// Where a correction of the import comes from: none, fitted against this run's ground truth, or
+// given (fitted on another run).
+enum class CorrectionSource { None, Fit, Given };
 
 struct MrclamImportConfig {
   int robot = 1;                    // 1..5 (the files RobotN_*.dat)
@@ -155,7 +181,10 @@ struct MrclamImportConfig {
   double map_margin_mm = 1000.0;      // added around the landmarks and the robot's ground truth
   std::optional<double> sigma_range_mm;     // default: estimated (robust sigma vs ground truth)
   std::optional<double> sigma_bearing_rad;  // default: estimated
-  double odometry_window_s = 1.0;     // window of the odometry noise fit
+  // Window of the odometry noise fit, s. The commands' errors are slow: the fitted k per mm
+  // grows with the window up to about 4 s (MR.CLAM robot 1: 0.13 at 1 s, 0.21 at 4 s), so a
+  // 1 s fit understates the error over the gaps between sightings that the filters integrate.
+  double odometry_window_s = 1.0;
   // Multiplies the fitted wheel variance k and the x, y control floors. The 1 s fit is
   // robust (medians) and sees no slow biases of the commanded velocities, so over a whole run
   // the model is optimistic (dead-reckoning NEES ~40); 4 makes the filters gate less.
@@ -170,8 +199,11 @@ struct MrclamImportConfig {
   // Range correction (RangeCorrection): none, fitted against this run's ground truth, or given
   // (coefficients fitted on another run). Applied to every range before the sigmas and the
   // error correlation are estimated.
-  RangeCorrectionMode range_correction = RangeCorrectionMode::None;
-  RangeCorrection given_range_correction;  // used with RangeCorrectionMode::Given
+  CorrectionSource range_correction = CorrectionSource::None;
+  RangeCorrection given_range_correction;  // used with CorrectionSource::Given
+  // Command delay (CommandDelayFit): none, fitted against this run's ground truth, or given (s).
+  CorrectionSource command_delay = CorrectionSource::None;
+  double given_command_delay_s = 0;  // used with CorrectionSource::Given; |delay| <= 2 s
   void validate() const;              // throws stereoloc::Error naming the field
 };
 
@@ -195,9 +227,11 @@ struct ImportReport {
   // Correlation of the errors of two sightings dt apart, of the same landmark and of different
   // ones (range in mm, bearing in rad; fitted whether or not applied).
   ErrorCorrelationFit range_same, range_other, bearing_same, bearing_other;
-  RangeCorrectionMode range_correction_mode = RangeCorrectionMode::None;
+  CorrectionSource range_correction_mode = CorrectionSource::None;
   RangeCorrection range_correction;         // applied (identity with None)
   RobustErrorStats range_error_uncorrected;  // mm, measured - true before the correction
+  CorrectionSource command_delay_mode = CorrectionSource::None;
+  CommandDelayFit command_delay;  // delay_s applied (0 with None); the fit's figures with Fit
   bool correlated_errors = false;          // the sigmas were inflated by the fit
   double mean_range_variance_factor = 1;   // mean over the observations of the variance factor
   double mean_bearing_variance_factor = 1;

@@ -106,11 +106,28 @@ TEST_F(CliImport, RangeCorrectionOption) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("range correction (given): range / (1 +0.0200 +0.0000 b -0.4000 b^2)"), std::string::npos)
       << r.output;
-  for (const char* bad : {"0.02,0", "0.02,0,-0.4,1", "a,b,c", "0.02,,0.1", "nan,0,0", "fitted"}) {
-    r = test::runCli("import mrclam " + src_ + " --robot 1 --range-correction " + bad);
+  for (const char* bad : {"0.02,0", "0.02,0,-0.4,1", "a,b,c", "0.02,,0.1", "nan,0,0", "fitted", ""}) {
+    r = test::runCli("import mrclam " + src_ + " --robot 1 --range-correction '" + bad + "'");
     EXPECT_NE(r.exit_code, 0) << bad;
     EXPECT_NE(r.output.find("--range-correction"), std::string::npos) << bad << ": " << r.output;
   }
+}
+
+TEST_F(CliImport, CommandDelayAndOdometryWindowOptions) {
+  test::CliRun r = test::runCli("import mrclam " + src_ + " --robot 1 --command-delay 0.25 --odometry-window 2");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("command delay (given): 0.250 s"), std::string::npos) << r.output;
+  r = test::runCli("import mrclam " + src_ + " --robot 1 --command-delay fit");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("command delay (fitted against ground truth over "), std::string::npos) << r.output;
+  for (const char* bad : {"2.5", "-3", "nan", "0.2s", "", "fitted"}) {
+    r = test::runCli("import mrclam " + src_ + " --robot 1 --command-delay '" + bad + "'");
+    EXPECT_NE(r.exit_code, 0) << bad;
+    EXPECT_NE(r.output.find("--command-delay"), std::string::npos) << bad << ": " << r.output;
+  }
+  r = test::runCli("import mrclam " + src_ + " --robot 1 --odometry-window 0");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("--odometry-window"), std::string::npos) << r.output;
 }
 
 TEST_F(CliImport, UsageAndDataErrors) {
@@ -243,6 +260,30 @@ TEST_F(CliImportRobot1, RangeCorrectionFittedAgainstGroundTruthMakesTheEstimator
     ASSERT_EQ(plain[name].size(), 12u) << name;
     ASSERT_EQ(corrected[name].size(), 12u) << name;
     EXPECT_LT(corrected[name][0], 0.8 * plain[name][0]) << name << ": position RMSE";
+  }
+}
+
+// The robots move as commanded about a quarter of a second after the command's time: fitted
+// against the motion capture, the delay makes the commanded odometry, and with it the
+// smoothers, more accurate (with the odometry noise fitted over 4 s windows in both runs, so
+// that both state the noise of the odometry they integrate).
+TEST_F(CliImportRobot1, CommandDelayFittedAgainstGroundTruthMakesTheSmoothersMoreAccurate) {
+  const std::string only = "window,batch,window_calib_range,batch_calib_range";
+  std::map<std::string, std::vector<double>> plain = importAndRun("plain", "--odometry-window 4", only);
+  std::string printed;
+  std::map<std::string, std::vector<double>> delayed =
+      importAndRun("delayed", "--odometry-window 4 --command-delay fit", only, &printed);
+  const std::string key = "command delay (fitted against ground truth over ";
+  const size_t at = printed.find(key);
+  ASSERT_NE(at, std::string::npos) << printed;
+  const double delay = std::stod(printed.substr(printed.find("): ", at) + 3));
+  EXPECT_GT(delay, 0.2) << printed;
+  EXPECT_LT(delay, 0.35) << printed;
+  for (const char* name : {"window", "batch", "window_calib_range", "batch_calib_range"}) {
+    ASSERT_EQ(plain[name].size(), 12u) << name;
+    ASSERT_EQ(delayed[name].size(), 12u) << name;
+    EXPECT_LT(delayed[name][0], 0.97 * plain[name][0]) << name << ": position RMSE";
+    EXPECT_LT(delayed[name][2], plain[name][2]) << name << ": mean NEES";
   }
 }
 

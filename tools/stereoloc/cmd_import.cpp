@@ -1,5 +1,5 @@
 // `stereoloc import mrclam SRC_DIR --robot N [--rate HZ] [--wheel-base MM] [--range-correction fit|C0,C1,C2]
-// [--correlated-errors] [--out DIR] [--force]`:
+// [--command-delay fit|SECONDS] [--correlated-errors] [--out DIR] [--force]`:
 // converts a UTIAS MR.CLAM dataset (src/io/mrclam.h) into a stereoloc dataset directory and prints
 // the import summary (row counts, dropped measurements, range/bearing error statistics and their
 // correlation over sightings against ground truth, the fitted odometry noise). Without --out it
@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <string>
 
@@ -27,8 +28,10 @@ struct ImportMrclamOptions {
   double sigma_range_mm = 0.0;       // 0: estimate
   double sigma_bearing_deg = 0.0;    // 0: estimate
   double odometry_noise_scale = 1.0;
+  double odometry_window_s = 1.0;
   bool correlated_errors = false;
-  std::string range_correction;  // "", "fit" or "C0,C1,C2"
+  std::optional<std::string> range_correction;  // "fit" or "C0,C1,C2"
+  std::optional<std::string> command_delay;     // "fit" or seconds
   bool force = false;
 };
 
@@ -50,18 +53,34 @@ Eigen::Vector3d parseRangeCorrection(const std::string& text) {
   return c;
 }
 
+// "fit" or seconds, |delay| <= 2 s.
+double parseCommandDelay(const std::string& text) {
+  char* end = nullptr;
+  const double v = std::strtod(text.c_str(), &end);
+  if (text.empty() || *end != '\0' || !std::isfinite(v) || std::fabs(v) > 2.0)
+    throw CLI::ValidationError("--command-delay", "expected 'fit' or a delay in seconds within +-2, got '" + text + "'");
+  return v;
+}
+
 void runImportMrclam(const ImportMrclamOptions& o) {
   MrclamImportConfig config;
   config.robot = o.robot;
   config.rate_hz = o.rate_hz;
   config.wheel_base_mm = o.wheel_base_mm;
   config.odometry_noise_scale = o.odometry_noise_scale;
+  config.odometry_window_s = o.odometry_window_s;
   config.correlated_errors = o.correlated_errors;
   if (o.range_correction == "fit") {
-    config.range_correction = RangeCorrectionMode::Fit;
-  } else if (!o.range_correction.empty()) {
-    config.range_correction = RangeCorrectionMode::Given;
-    config.given_range_correction.c = parseRangeCorrection(o.range_correction);
+    config.range_correction = CorrectionSource::Fit;
+  } else if (o.range_correction) {
+    config.range_correction = CorrectionSource::Given;
+    config.given_range_correction.c = parseRangeCorrection(*o.range_correction);
+  }
+  if (o.command_delay == "fit") {
+    config.command_delay = CorrectionSource::Fit;
+  } else if (o.command_delay) {
+    config.command_delay = CorrectionSource::Given;
+    config.given_command_delay_s = parseCommandDelay(*o.command_delay);
   }
   if (o.sigma_range_mm > 0) config.sigma_range_mm = o.sigma_range_mm;
   if (o.sigma_bearing_deg > 0) config.sigma_bearing_rad = deg2rad(o.sigma_bearing_deg);
@@ -119,9 +138,16 @@ void add_import_command(CLI::App& app) {
                 "Multiplies the odometry noise fitted against ground truth (k and the x, y control floors)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
+  m->add_option("--odometry-window", opts->odometry_window_s,
+                "Length of the windows over which the odometry noise is fitted against ground truth, s")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
   m->add_option("--range-correction", opts->range_correction,
                  "Divide each range by 1 + C0 + C1 b + C2 b^2 (b the bearing, rad): 'fit' fits C against ground truth "
                  "(printed), or give C0,C1,C2 fitted on another run");
+  m->add_option("--command-delay", opts->command_delay,
+                "Hold each velocity command from its time + this delay (the drive's latency): 'fit' fits it against "
+                "ground truth (printed), or give seconds");
   m->add_flag("--correlated-errors", opts->correlated_errors,
               "Inflate each sighting's sigmas for the correlation of its errors with the previous sightings' "
               "(fitted against ground truth and printed either way)");

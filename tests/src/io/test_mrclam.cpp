@@ -150,6 +150,76 @@ TEST(MrclamRangeCorrection, DegenerateFitsAndAbsurdFactorsAreErrors) {
   EXPECT_NEAR(rc.correct(1000.0, 0.0), 1000.0, 1e-12);
 }
 
+// A robot driving random piecewise-constant commands (rows at 67 Hz, each command held 0.5-2 s)
+// whose drive follows them `delay_s` late; ground truth at 100 Hz with 0.2 degree heading noise
+// and 1 % gross heading errors, over `duration_s`.
+struct DelayedDrive {
+  std::vector<MrclamOdometryRow> commands;
+  std::vector<MrclamPoseRow> truth;
+};
+DelayedDrive delayedDrive(double delay_s, double duration_s, double max_omega, unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> hold(0.5, 2.0), speed(0.0, 200.0), turn(-max_omega, max_omega);
+  std::normal_distribution<double> heading_noise(0.0, deg2rad(0.2));
+  DelayedDrive d;
+  double next_change = 0, v = 0, omega = 0;
+  for (double t = 0; t <= duration_s; t += 0.015) {
+    if (t >= next_change) {
+      v = speed(rng);
+      omega = turn(rng);
+      next_change = t + hold(rng);
+    }
+    d.commands.push_back({100.0 + t, v, omega});
+  }
+  // The command in force at time t - delay (queried at increasing times), integrated in 1 ms
+  // substeps.
+  size_t in_force = 0;
+  auto command = [&](double t) {
+    while (in_force + 1 < d.commands.size() && d.commands[in_force + 1].t <= t) ++in_force;
+    return t < d.commands.front().t ? MrclamOdometryRow{t, 0.0, 0.0} : d.commands[in_force];
+  };
+  Pose2 p(0, 0, 0.3);
+  const double dt = 1e-3;
+  int sample = 0;
+  for (int k = 0; 100.0 + k * dt <= 100.0 + duration_s; ++k) {
+    const double t = 100.0 + k * dt;
+    if (k % 10 == 0) {
+      Pose2 seen = p;
+      seen.theta = wrapAngle(p.theta + heading_noise(rng) + (++sample % 100 == 0 ? 0.5 : 0.0));
+      d.truth.push_back({t, seen});
+    }
+    const MrclamOdometryRow c = command(t + 0.5 * dt - delay_s);
+    p = unicycle(p, c.v, c.omega, dt);
+  }
+  return d;
+}
+
+TEST(MrclamCommandDelay, FitRecoversAPlantedDelayDespiteOutliers) {
+  for (double planted : {0.23, -0.12}) {
+    const DelayedDrive d = delayedDrive(planted, 200.0, 0.8, 5);
+    const CommandDelayFit fit = fitCommandDelay(d.commands, d.truth);
+    EXPECT_NEAR(fit.delay_s, planted, 0.01);
+    EXPECT_GT(fit.windows, 380u);
+    EXPECT_LT(fit.heading_sigma, 0.5 * fit.heading_sigma_at_zero) << planted;
+  }
+}
+
+TEST(MrclamCommandDelay, DegenerateFitsAreErrors) {
+  const DelayedDrive straight = delayedDrive(0.2, 60.0, 0.0, 1);
+  EXPECT_NE(errorOf([&] { fitCommandDelay(straight.commands, straight.truth); }).find("never turn"), std::string::npos);
+  const DelayedDrive short_run = delayedDrive(0.2, 8.0, 0.8, 1);
+  EXPECT_NE(errorOf([&] { fitCommandDelay(short_run.commands, short_run.truth); }).find("at least 20 needed"),
+            std::string::npos);
+  const DelayedDrive late = delayedDrive(1.4, 100.0, 0.8, 1);
+  EXPECT_NE(errorOf([&] { fitCommandDelay(late.commands, late.truth); }).find("edge of the search"), std::string::npos);
+  CommandDelaySearch wide;
+  wide.max_s = 2.0;
+  EXPECT_NEAR(fitCommandDelay(late.commands, late.truth, wide).delay_s, 1.4, 0.01);
+  CommandDelaySearch bad;
+  bad.min_s = bad.max_s;
+  EXPECT_NE(errorOf([&] { fitCommandDelay(late.commands, late.truth, bad); }).find("search"), std::string::npos);
+}
+
 TEST(MrclamParser, MalformedRowsNameFileAndLine) {
   test::TempDir dir("mrclam_parse");
   const std::string odo = writeFile(dir, "odo.dat", std::string(kHeader) + "1.0 0.1 0.2\n2.0 0.1\n");
@@ -388,13 +458,13 @@ TEST_F(MrclamSlice, RangeCorrectionFittedOrGivenDividesEveryRange) {
   MrclamImportConfig config;
   config.robot = 1;
   const MrclamImport plain = importMrclam(dir_.path(), config);
-  EXPECT_EQ(plain.report.range_correction_mode, RangeCorrectionMode::None);
+  EXPECT_EQ(plain.report.range_correction_mode, CorrectionSource::None);
   EXPECT_EQ(plain.report.summary().find("range correction"), std::string::npos);
 
-  config.range_correction = RangeCorrectionMode::Fit;
+  config.range_correction = CorrectionSource::Fit;
   const MrclamImport fitted = importMrclam(dir_.path(), config);
   const ImportReport& rep = fitted.report;
-  EXPECT_EQ(rep.range_correction_mode, RangeCorrectionMode::Fit);
+  EXPECT_EQ(rep.range_correction_mode, CorrectionSource::Fit);
   EXPECT_TRUE(rep.range_correction.c.allFinite());
   // The errors before the correction are the plain import's errors.
   EXPECT_EQ(rep.range_error_uncorrected.count, plain.report.range_error.count);
@@ -403,7 +473,7 @@ TEST_F(MrclamSlice, RangeCorrectionFittedOrGivenDividesEveryRange) {
   EXPECT_LT(rep.range_error.std, rep.range_error_uncorrected.std);
   EXPECT_NE(rep.summary().find("range correction (fitted against ground truth)"), std::string::npos);
 
-  config.range_correction = RangeCorrectionMode::Given;
+  config.range_correction = CorrectionSource::Given;
   config.given_range_correction.c = Eigen::Vector3d(0.02, 0.01, -0.4);
   const MrclamImport given = importMrclam(dir_.path(), config);
   ASSERT_EQ(given.steps.size(), plain.steps.size());
@@ -426,6 +496,58 @@ TEST_F(MrclamSlice, RangeCorrectionFittedOrGivenDividesEveryRange) {
   EXPECT_NE(e.find("outside [0.5, 2]"), std::string::npos) << e;
   config.given_range_correction.c(0) = std::nan("");
   EXPECT_NE(errorOf([&] { importMrclam(dir_.path(), config); }).find("given_range_correction"), std::string::npos);
+}
+
+TEST_F(MrclamSlice, CommandDelayFittedOrGivenHoldsEachCommandFromItsTimePlusTheDelay) {
+  MrclamImportConfig config;
+  config.robot = 1;
+  const MrclamImport plain = importMrclam(dir_.path(), config);
+  EXPECT_EQ(plain.report.command_delay_mode, CorrectionSource::None);
+  EXPECT_EQ(plain.report.command_delay.delay_s, 0.0);
+  EXPECT_EQ(plain.report.summary().find("command delay"), std::string::npos);
+
+  config.command_delay = CorrectionSource::Given;
+  config.given_command_delay_s = 0.25;
+  const MrclamImport given = importMrclam(dir_.path(), config);
+  ASSERT_EQ(given.steps.size(), plain.steps.size());
+  // Each step's wheel travel is the commands' over the step's interval 0.25 s earlier; the
+  // observations and the step times are the plain import's.
+  const std::vector<MrclamOdometryRow> rows = readMrclamOdometry(dir_.file("Robot1_Odometry.dat"));
+  const WheelOdometer odometer(rows, config.wheel_base_mm);
+  const double t0 = given.report.epoch_s;
+  size_t moved = 0;
+  for (size_t i = 1; i < given.steps.size(); ++i) {
+    const Step& s = given.steps[i];
+    EXPECT_EQ(s.t, plain.steps[i].t);
+    EXPECT_EQ(s.observations.size(), plain.steps[i].observations.size());
+    const WheelIncrements want = odometer.between(t0 + given.steps[i - 1].t - 0.25, t0 + s.t - 0.25);
+    EXPECT_NEAR(s.d_left, want.d_left, 1e-9);
+    EXPECT_NEAR(s.d_right, want.d_right, 1e-9);
+    if (std::fabs(s.d_left - plain.steps[i].d_left) > 1e-3) ++moved;
+  }
+  EXPECT_GT(moved, given.steps.size() / 4);
+  EXPECT_NE(given.report.summary().find("command delay (given): 0.250 s"), std::string::npos);
+
+  // Fitted on the slice's 15 s of ground truth (too short to pin the latency down; the whole
+  // run's fit is tested in tests/tools/test_cli_import.cpp): the import holds the commands by
+  // the fitted delay, as if it had been given.
+  config.command_delay = CorrectionSource::Fit;
+  const MrclamImport fitted = importMrclam(dir_.path(), config);
+  EXPECT_GE(fitted.report.command_delay.windows, 20u);
+  EXPECT_NE(fitted.report.summary().find("command delay (fitted against ground truth over "), std::string::npos);
+  config.command_delay = CorrectionSource::Given;
+  config.given_command_delay_s = fitted.report.command_delay.delay_s;
+  const MrclamImport refitted = importMrclam(dir_.path(), config);
+  for (size_t i = 0; i < fitted.steps.size(); ++i) {
+    EXPECT_EQ(fitted.steps[i].d_left, refitted.steps[i].d_left);
+    EXPECT_EQ(fitted.steps[i].d_right, refitted.steps[i].d_right);
+  }
+
+  for (double bad : {2.5, -3.0, std::nan("")}) {
+    config.given_command_delay_s = bad;
+    EXPECT_NE(errorOf([&] { importMrclam(dir_.path(), config); }).find("given_command_delay_s"), std::string::npos)
+        << bad;
+  }
 }
 
 TEST_F(MrclamSlice, DeadReckoningFollowsGroundTruthOverTheSlice) {
