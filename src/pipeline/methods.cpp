@@ -9,6 +9,7 @@
 #include "solvers/global_fix.h"
 #include "solvers/particle_filter.h"
 #include "solvers/sliding_window_smoother.h"
+#include "src/core/odometry_delay.h"
 #include "src/core/odometry_model.h"
 #include "src/pipeline/usage_error.h"
 
@@ -231,7 +232,47 @@ void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o)
   set(k.focal_scale_sigma, p.focal_rel_sigma);
 }
 
+namespace {
+
+MethodRun runMethodOnSteps(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& options);
+
+}  // namespace
+
+std::vector<Step> stepsWithOdometryDelay(const std::string& spec, const Dataset& d, uint64_t seed,
+                                         const MethodOptions& options, std::optional<OdometryDelayEstimate>* fitted) {
+  if (fitted) fitted->reset();
+  if (options.odometry_delay == OdometryDelayMode::None) return d.steps;
+  const InitMode init = parseMethodSpec(spec, options.init).second;  // an unknown method: before any solve
+  double delay = options.given_odometry_delay_s;
+  if (options.odometry_delay == OdometryDelayMode::Fit) {
+    // The batch with the run's options, start and self-calibration (blocks the EKF would
+    // consider, the batch estimates).
+    MethodOptions o = options;
+    if (hasCalibrationSuffix(spec) || hasConsiderSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
+    o.calibration.consider = false;
+    const BatchSmootherConfig c = batchConfigFor("batch:" + toString(init), d, seed, o);
+    const OdometryDelayEstimate e = profileOdometryDelay(
+        [&](double delay_s) { return batchCostWithOdometryDelay(d.map, d.odometry, c, d.steps, delay_s); },
+        options.odometry_delay_search);
+    delay = e.delay_s;
+    if (fitted) *fitted = e;
+  }
+  return delayOdometry(d.steps, delay);
+}
+
 MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& options) {
+  if (options.odometry_delay == OdometryDelayMode::None) return runMethodOnSteps(spec, d, seed, options);
+  std::optional<OdometryDelayEstimate> fitted;
+  Dataset delayed = d;
+  delayed.steps = stepsWithOdometryDelay(spec, d, seed, options, &fitted);
+  MethodRun run = runMethodOnSteps(spec, delayed, seed, options);
+  run.odometry_delay = fitted;
+  return run;
+}
+
+namespace {
+
+MethodRun runMethodOnSteps(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& options) {
   const auto [name, init_mode] = parseMethodSpec(spec, options.init);
   MethodOptions o = options;
   if (hasCalibrationSuffix(spec) || hasConsiderSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
@@ -291,5 +332,7 @@ MethodRun runMethod(const std::string& spec, const Dataset& d, uint64_t seed, co
   }
   return run;
 }
+
+}  // namespace
 
 }  // namespace stereoloc

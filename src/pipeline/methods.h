@@ -10,6 +10,7 @@
 
 #include "solvers/batch_smoother.h"
 #include "solvers/initialisation.h"
+#include "solvers/odometry_delay_profile.h"
 #include "solvers/particle_filter.h"
 #include "solvers/self_calibration.h"
 #include "solvers/smoother_common.h"
@@ -18,6 +19,8 @@
 #include "src/sim/error_profile.h"
 
 namespace stereoloc {
+
+enum class OdometryDelayMode { None, Given, Fit };
 
 struct MethodOptions {
   InitMode init = InitMode::Known;   // overridden by a ":init" suffix in the method spec
@@ -41,6 +44,12 @@ struct MethodOptions {
   // Batch, window and the self-calibrating EKF: the errors the rig and odometry do not state
   // (lens estimate, vibration: the pixel models; slip: the odometry's noise). Zero: none.
   UnmodelledNoise noise{};
+  // Every method: the odometry runs this late against the camera (src/core/odometry_delay.h),
+  // given or fitted by the batch smoother with these options (solvers/odometry_delay_profile.h)
+  // before the method runs on the re-timed steps.
+  OdometryDelayMode odometry_delay = OdometryDelayMode::None;
+  double given_odometry_delay_s = 0.0;  // s, with OdometryDelayMode::Given
+  OdometryDelaySearch odometry_delay_search;  // with OdometryDelayMode::Fit
 };
 
 // What the user of a robot with error profile `profile` states (its sigmas, not its draws):
@@ -56,6 +65,7 @@ struct MethodRun {
   long attempted_steps = 0;          // fixes: steps with at least one observation
   long fixed_steps = 0;              // fixes: steps that gave a fix
   std::optional<CalibrationEstimate> calibration;  // batch, window or ekf with MethodOptions::calibration
+  std::optional<OdometryDelayEstimate> odometry_delay;  // with OdometryDelayMode::Fit
 };
 
 // The names accepted before the optional ":init" ("iekf": the EKF with iterated updates), and
@@ -90,7 +100,15 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& spec, InitMo
 BatchSmootherConfig batchConfigFor(const std::string& spec, const Dataset& dataset, uint64_t seed,
                                    const MethodOptions& options);
 
-// Runs a method over a whole dataset. `seed` drives the known-start noise, the random start and
+// The dataset's steps with the odometry delay of `options` (src/core/odometry_delay.h): as they
+// are (OdometryDelayMode::None), re-timed by the given delay, or by the one the batch smoother
+// finds with the options, start and self-calibration of `spec` (solvers/odometry_delay_profile.h;
+// the estimate in *fitted when not null). Throws stereoloc::Error when the fit fails.
+std::vector<Step> stepsWithOdometryDelay(const std::string& spec, const Dataset& dataset, uint64_t seed,
+                                         const MethodOptions& options, std::optional<OdometryDelayEstimate>* fitted);
+
+// Runs a method over a whole dataset (with an odometry delay in `options`, over
+// stepsWithOdometryDelay's steps). `seed` drives the known-start noise, the random start and
 // the particle filter, so a run is reproducible.
 MethodRun runMethod(const std::string& spec, const Dataset& dataset, uint64_t seed, const MethodOptions& options);
 

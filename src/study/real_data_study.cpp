@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "solvers/batch_smoother.h"
+#include "src/core/odometry_delay.h"
 #include "solvers/ekf.h"
 #include "solvers/initialisation.h"
 #include "solvers/particle_filter.h"
@@ -300,7 +301,7 @@ void writeRowsCsv(const std::string& path, const std::vector<Row>& rows) {
 void runRealDataStudy(const RealDataStudyOptions& o) {
   if (o.batch_guess != "filter" && o.batch_guess != "odometry")
     throw UsageError("--batch-guess: expected 'filter' or 'odometry', got '" + o.batch_guess + "'");
-  const Dataset d = loadRealDataset(o);
+  Dataset d = loadRealDataset(o);
   if (o.robust != "huber" && o.robust != "cauchy")
     throw UsageError("--robust: expected 'huber' or 'cauchy', got '" + o.robust + "'");
   RobustLossConfig robust;
@@ -317,6 +318,21 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
                                        .asDiagonal());
   std::fprintf(o.console, "initial belief: ground truth at step 0, sigma (%.0f mm, %.0f mm, %.1f deg)\n", o.init_sigma_xy,
               o.init_sigma_xy, o.init_sigma_theta_deg);
+  if (o.odometry_delay == OdometryDelayMode::Given) {
+    std::fprintf(o.console, "odometry delay (given): %.3f s\n", o.given_odometry_delay_s);
+    d.steps = delayOdometry(d.steps, o.given_odometry_delay_s);
+  } else if (o.odometry_delay == OdometryDelayMode::Fit) {
+    BatchSmootherConfig c;
+    c.init = init;
+    c.calibration = SelfCalibrationConfig::parse("odometry,range");
+    c.initial_guess = initialGuessFromString(o.batch_guess);
+    const OdometryDelayEstimate e = profileOdometryDelay(
+        [&](double delay_s) { return batchCostWithOdometryDelay(d.map, d.odometry, c, d.steps, delay_s); },
+        o.odometry_delay_search);
+    std::fprintf(o.console, "odometry delay (fitted by the batch calibrating odometry and range): %.3f +- %.3f s\n",
+                 e.delay_s, e.sigma_s);
+    d.steps = delayOdometry(d.steps, e.delay_s);
+  }
   std::fflush(o.console);
   const std::vector<Row> rows = runEstimators(o, d, truth, init, robust);
   printRows(o, rows);

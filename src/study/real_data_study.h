@@ -14,7 +14,9 @@
 #include <cstdio>
 #include <string>
 
+#include "solvers/odometry_delay_profile.h"
 #include "solvers/sliding_window_smoother.h"
+#include "src/pipeline/methods.h"
 
 namespace stereoloc {
 
@@ -33,6 +35,12 @@ struct RealDataStudyOptions {
   double init_sigma_theta_deg = 2.0;  // deg
   std::string batch_guess = "filter"; // initial guess of the batch: "filter" (EKF pass) or "odometry"
   std::string only;                   // comma-separated subset of estimator keys
+  // The odometry runs late against the camera (src/core/odometry_delay.h): every estimator runs
+  // on the steps re-timed by the given delay, or by the one the batch calibrating odometry and
+  // range finds (solvers/odometry_delay_profile.h).
+  OdometryDelayMode odometry_delay = OdometryDelayMode::None;
+  double given_odometry_delay_s = 0.0;  // s
+  OdometryDelaySearch odometry_delay_search;
   std::FILE* console = stdout;        // settings and the table
   std::FILE* log = stderr;            // per-estimator progress; null: none
 };

@@ -6,6 +6,11 @@
 //   2  usage errors (bad or missing arguments): UsageError or a CLI11 parse error
 #include <CLI/CLI.hpp>
 
+#include <cmath>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
 #include "src/core/error.h"
 #include "src/pipeline/usage_error.h"
 
@@ -14,6 +19,36 @@ namespace stereoloc::cli {
 constexpr int kExitBadData = 1;
 constexpr int kExitUsage = 2;
 using stereoloc::UsageError;  // exit kExitUsage
+
+// "a,b,c" -> exactly `count` finite numbers; anything else (a missing or extra field, an empty
+// one, a unit after the number) throws UsageError "OPTION: expected EXPECTED, got 'TEXT'".
+inline std::vector<double> parseNumbers(const std::string& text, size_t count, const std::string& option,
+                                        const std::string& expected) {
+  const UsageError bad(option + ": expected " + expected + ", got '" + text + "'");
+  std::vector<double> out;
+  size_t start = 0;
+  while (true) {
+    const size_t comma = text.find(',', start);
+    const std::string field = text.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    char* end = nullptr;
+    const double v = std::strtod(field.c_str(), &end);
+    if (field.empty() || *end != '\0' || !std::isfinite(v)) throw bad;
+    out.push_back(v);
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  if (out.size() != count) throw bad;
+  return out;
+}
+
+// A delay option's value other than "fit": seconds within +-2 (a drive's latency or a clock
+// offset, not a mistake in the units); UsageError naming the option otherwise.
+inline double parseDelaySeconds(const std::string& text, const std::string& option) {
+  const std::string expected = "'fit' or seconds within +-2";
+  const double v = parseNumbers(text, 1, option, expected)[0];
+  if (std::fabs(v) > 2.0) throw UsageError(option + ": expected " + expected + ", got '" + text + "'");
+  return v;
+}
 
 // Each subcommand lives in tools/stereoloc/cmd_<name>.cpp and defines
 //   void add_<name>_command(CLI::App& app);

@@ -6,11 +6,9 @@
 // only prints the summary.
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <iostream>
 #include <memory>
 #include <optional>
-#include <sstream>
 #include <string>
 
 #include "src/io/dataset.h"
@@ -35,33 +33,6 @@ struct ImportMrclamOptions {
   bool force = false;
 };
 
-// "C0,C1,C2": three finite numbers.
-Eigen::Vector3d parseRangeCorrection(const std::string& text) {
-  Eigen::Vector3d c;
-  std::stringstream ss(text);
-  std::string field;
-  int n = 0;
-  while (std::getline(ss, field, ',')) {
-    char* end = nullptr;
-    const double v = std::strtod(field.c_str(), &end);
-    if (n >= 3 || field.empty() || *end != '\0' || !std::isfinite(v))
-      throw CLI::ValidationError("--range-correction", "expected 'fit' or three numbers C0,C1,C2, got '" + text + "'");
-    c(n++) = v;
-  }
-  if (n != 3)
-    throw CLI::ValidationError("--range-correction", "expected 'fit' or three numbers C0,C1,C2, got '" + text + "'");
-  return c;
-}
-
-// "fit" or seconds, |delay| <= 2 s.
-double parseCommandDelay(const std::string& text) {
-  char* end = nullptr;
-  const double v = std::strtod(text.c_str(), &end);
-  if (text.empty() || *end != '\0' || !std::isfinite(v) || std::fabs(v) > 2.0)
-    throw CLI::ValidationError("--command-delay", "expected 'fit' or a delay in seconds within +-2, got '" + text + "'");
-  return v;
-}
-
 void runImportMrclam(const ImportMrclamOptions& o) {
   MrclamImportConfig config;
   config.robot = o.robot;
@@ -74,13 +45,14 @@ void runImportMrclam(const ImportMrclamOptions& o) {
     config.range_correction = CorrectionSource::Fit;
   } else if (o.range_correction) {
     config.range_correction = CorrectionSource::Given;
-    config.given_range_correction.c = parseRangeCorrection(*o.range_correction);
+    const std::vector<double> c = parseNumbers(*o.range_correction, 3, "--range-correction", "'fit' or three numbers C0,C1,C2");
+    config.given_range_correction.c = Eigen::Vector3d(c[0], c[1], c[2]);
   }
   if (o.command_delay == "fit") {
     config.command_delay = CorrectionSource::Fit;
   } else if (o.command_delay) {
     config.command_delay = CorrectionSource::Given;
-    config.given_command_delay_s = parseCommandDelay(*o.command_delay);
+    config.given_command_delay_s = parseDelaySeconds(*o.command_delay, "--command-delay");
   }
   if (o.sigma_range_mm > 0) config.sigma_range_mm = o.sigma_range_mm;
   if (o.sigma_bearing_deg > 0) config.sigma_bearing_rad = deg2rad(o.sigma_bearing_deg);

@@ -2,9 +2,12 @@
 // (src/study/real_data_study.h).
 #include <CLI/CLI.hpp>
 #include <memory>
+#include <optional>
+#include <string>
 
 #include "src/study/real_data_study.h"
 #include "tools/stereoloc/cli_common.h"
+#include "tools/stereoloc/localize_common.h"
 
 namespace stereoloc::cli {
 
@@ -52,7 +55,15 @@ void add_realdata_command(CLI::App& app) {
                   "batch,batch_robust,batch_calib,batch_calib_range (_calib: self-calibrating the odometry; "
                   "_calib_range: the odometry and the range sensor)");
   sub->add_option("--csv", o->csv_path, "Also write the table as CSV (units: mm, rad, ms)");
-  sub->callback([o] { runRealDataStudy(*o); });
+  auto delay = std::make_shared<std::optional<std::string>>();
+  sub->add_option("--odometry-delay", *delay,
+                  "Every estimator on the odometry re-timed by this delay, seconds within +-2; 'fit': the delay the "
+                  "batch calibrating odometry and range finds (printed)");
+  sub->callback([o, delay] {
+    RealDataStudyOptions run = *o;
+    run.odometry_delay = parseOdometryDelay(*delay, &run.given_odometry_delay_s);
+    runRealDataStudy(run);
+  });
 }
 
 }  // namespace stereoloc::cli

@@ -6,6 +6,8 @@
 #include <chrono>
 #include <cstdio>
 #include <memory>
+#include <optional>
+#include <string>
 
 #include "solvers/batch_smoother.h"
 #include "src/eval/evaluation.h"
@@ -18,6 +20,11 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double secondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+std::string fixed2(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.2f", v);
+  return b;
+}
 
 // One self-overwriting status line on stderr, at most a few times a second; silent when stderr
 // is not a terminal (logs and pipes get the summary only).
@@ -44,12 +51,19 @@ class ProgressLine {
 void runRefine(const LocalizeArgs& a) {
   MethodOptions o = parseMethodOptions(a);
   parseMethodSpec("batch", o.init);  // usage errors before reading data
+  ProgressLine progress;
   const auto t_load = Clock::now();
   CalibrationHandover handover;
   Dataset d = loadRunDataset(a, o, handover);
   const double load_s = secondsSince(t_load);
+  const auto t_delay = Clock::now();
+  std::optional<OdometryDelayEstimate> fitted_delay;
+  if (o.odometry_delay != OdometryDelayMode::None) {
+    progress.show("refine: odometry delay");
+    d.steps = stepsWithOdometryDelay("batch", d, a.seed, o, &fitted_delay);
+  }
+  const double delay_s = secondsSince(t_delay);
   BatchSmootherConfig c = batchConfigFor("batch", d, a.seed, o);
-  ProgressLine progress;
   char line[128];
   c.progress = [&](const BatchProgress& p) {
     if (p.phase == "solve")
@@ -88,13 +102,15 @@ void runRefine(const LocalizeArgs& a) {
                     d.odometry.wheel_base_mm, handover);
   const double write_s = secondsSince(t_write);
   progress.clear();
+  printOdometryDelay(o, fitted_delay);
   std::printf("batch: %zu estimates for %zu steps written to %s\n", estimates.size(), steps, a.out.c_str());
   std::printf("solve: %d iterations (%s)%s; %d kidnap cut%s kept, %d withdrawn (%d iterations)\n", s.iterations,
               s.converged ? "converged" : "not converged", s.message.empty() ? "" : (": " + s.message).c_str(),
               static_cast<int>(s.cut_steps.size()), s.cut_steps.size() == 1 ? "" : "s", s.withdrawn_cuts,
               s.cut_test_iterations);
-  std::printf("time: load %.2f s, filter pass %.2f s, solve %.2f s (cut tests %.2f s), covariance %.2f s, write %.2f s\n",
-              load_s, s.filter_seconds, s.solve_seconds, s.cut_test_seconds, s.covariance_seconds, write_s);
+  std::printf("time: load %.2f s,%s filter pass %.2f s, solve %.2f s (cut tests %.2f s), covariance %.2f s, write %.2f s\n",
+              load_s, fitted_delay ? (" odometry delay " + fixed2(delay_s) + " s,").c_str() : "", s.filter_seconds,
+              s.solve_seconds, s.cut_test_seconds, s.covariance_seconds, write_s);
   TruthByStep truth_by_step;
   for (size_t i = 0; i < d.groundtruth.size(); ++i)
     if (d.groundtruth[i]) truth_by_step.emplace_hint(truth_by_step.end(), step_numbers[i], *d.groundtruth[i]);

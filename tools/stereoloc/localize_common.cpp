@@ -40,7 +40,37 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   if (!a.calibration_out.empty() && (o.calibration.consider || !o.calibration.any()))
     throw UsageError("--calibration-out: needs --calibrate");
   if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);
+  o.odometry_delay = parseOdometryDelay(a.odometry_delay, &o.given_odometry_delay_s);
+  if (!a.odometry_delay_search.empty()) {
+    if (o.odometry_delay != OdometryDelayMode::Fit) throw UsageError("--odometry-delay-search: needs --odometry-delay fit");
+    const std::vector<double> v = parseNumbers(a.odometry_delay_search, 3, "--odometry-delay-search", "MIN,MAX,STEP");
+    o.odometry_delay_search.min_s = v[0];
+    o.odometry_delay_search.max_s = v[1];
+    o.odometry_delay_search.step_s = v[2];
+    try {
+      o.odometry_delay_search.validate();
+    } catch (const Error& e) {
+      throw UsageError(std::string("--odometry-delay-search: ") + e.what());
+    }
+  }
   return o;
+}
+
+OdometryDelayMode parseOdometryDelay(const std::optional<std::string>& text, double* given_s) {
+  if (!text) return OdometryDelayMode::None;
+  if (*text == "fit") return OdometryDelayMode::Fit;
+  *given_s = parseDelaySeconds(*text, "--odometry-delay");
+  return OdometryDelayMode::Given;
+}
+
+void printOdometryDelay(const MethodOptions& o, const std::optional<OdometryDelayEstimate>& fitted) {
+  if (o.odometry_delay == OdometryDelayMode::Given)
+    std::printf("odometry delay (given): %.3f s\n", o.given_odometry_delay_s);
+  if (fitted) {
+    const OdometryDelaySearch& s = o.odometry_delay_search;
+    std::printf("odometry delay (fitted by the batch): %.3f +- %.3f s (%zu delays tried, %.2f to %.2f s)\n",
+                fitted->delay_s, fitted->sigma_s, fitted->profile.size(), s.min_s, s.max_s);
+  }
 }
 
 void reportCalibration(const std::string& calibration_out, std::FILE* out, const CalibrationEstimate* calibration,
@@ -105,6 +135,7 @@ void runLocalize(const LocalizeArgs& a) {
   CalibrationHandover handover;
   const Dataset d = loadRunDataset(a, o, handover);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
+  printOdometryDelay(o, run.odometry_delay);
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
   if (!a.calibration_out.empty() && !run.calibration)
@@ -186,6 +217,12 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "--calibrate and --consider (docs/realistic_world.md); a rig with other rectified cameras than the "
                   "dataset's needs --frontend images")
       ->check(CLI::ExistingFile);
+  sub->add_option("--odometry-delay", a->odometry_delay,
+                  "The odometry runs this late against the camera (a drive's latency, a clock offset), seconds within "
+                  "+-2; 'fit': the delay at which the batch smoother (with --calibrate's blocks) fits the data best, "
+                  "printed with its standard deviation, before the method runs on the re-timed odometry");
+  sub->add_option("--odometry-delay-search", a->odometry_delay_search,
+                  "With --odometry-delay fit: MIN,MAX,STEP of the delays tried, seconds (default -0.5,1,0.1)");
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
                   "(usable as --rig)");

@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "src/pipeline/frontend_source.h"
@@ -27,6 +28,8 @@ struct LocalizeArgs {
   std::string calibration_out;                // rig YAML with the calibration estimate
   std::string noise_model;                    // UnmodelledNoise YAML (solvers/smoother_common.h)
   std::string rig;                            // rig YAML in place of the dataset's (src/pipeline/rig_handover.h)
+  std::optional<std::string> odometry_delay;   // "fit" or seconds (src/core/odometry_delay.h)
+  std::string odometry_delay_search;          // "MIN,MAX,STEP" seconds (solvers/odometry_delay_profile.h)
 
 };
 
@@ -37,6 +40,11 @@ void printAgainstTruth(const TrajectoryMetrics& metrics);
 // The method options with the parsed --init, --loss, --observation-model and --calibrate;
 // throws UsageError.
 MethodOptions parseMethodOptions(const LocalizeArgs& args);
+// --odometry-delay: none (not given), "fit", or seconds (*given_s); UsageError otherwise.
+OdometryDelayMode parseOdometryDelay(const std::optional<std::string>& text, double* given_s);
+// The line `localize` and `refine` print for the odometry delay: given, or fitted (estimate,
+// standard deviation, the search); nothing without --odometry-delay.
+void printOdometryDelay(const MethodOptions& options, const std::optional<OdometryDelayEstimate>& fitted);
 // --calibrate or --consider (at most one given; "": none) as the self-calibration's blocks, with
 // SelfCalibrationConfig::consider set for --consider; throws UsageError naming the option.
 SelfCalibrationConfig calibrationOptions(const std::string& calibrate, const std::string& consider);

@@ -3,10 +3,13 @@
 
 #include <cmath>
 
+#include "solvers/smoother_common.h"
+#include "src/core/odometry_delay.h"
 #include "src/pipeline/frontend_source.h"
 #include "src/pipeline/methods.h"
 #include "src/pipeline/usage_error.h"
 #include "src/sim/simulator.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
@@ -76,6 +79,58 @@ TEST(Methods, TheEkfConsidersItsCalibration) {
   o.calibration.consider = true;
   EXPECT_THROW(runMethod("window", d, 3, o), UsageError);
   EXPECT_THROW(runMethod("batch", d, 3, o), UsageError);
+}
+
+// A random walk whose odometry runs 0.25 s late (the readings lead the motion).
+Dataset lateOdometryWalk() {
+  SyntheticProblemOptions o;
+  o.steps = 400;
+  o.max_observations = 3;
+  o.max_range = 1800.0;
+  o.sigma_range = 10.0;
+  o.sigma_bearing = 0.01;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 5);
+  Dataset d;
+  d.name = "late odometry walk";
+  d.map = p.map;
+  d.odometry = p.odometry;
+  d.steps = delayOdometry(p.steps, -0.25);
+  for (const Pose2& t : p.truth) d.groundtruth.push_back(t);
+  d.initial_pose = p.truth.front();
+  return d;
+}
+
+double positionRmse(const MethodRun& run, const Dataset& d) {
+  double sum = 0;
+  for (const Estimate& e : run.estimates)
+    sum += (e.pose.translation() - d.groundtruth[static_cast<size_t>(e.step)]->translation()).squaredNorm();
+  return std::sqrt(sum / static_cast<double>(run.estimates.size()));
+}
+
+TEST(Methods, AnOdometryDelayGivenOrFittedByTheBatchRetimesTheStepsOfAnyMethod) {
+  const Dataset d = lateOdometryWalk();
+  MethodOptions o;
+  o.odometry_delay = OdometryDelayMode::Given;
+  o.given_odometry_delay_s = 0.25;
+  Dataset retimed = d;
+  retimed.steps = delayOdometry(d.steps, 0.25);
+  const MethodRun given = runMethod("ekf", d, 3, o), on_retimed = runMethod("ekf", retimed, 3, MethodOptions());
+  ASSERT_EQ(given.estimates.size(), on_retimed.estimates.size());
+  for (size_t k = 0; k < given.estimates.size(); ++k) EXPECT_EQ(given.estimates[k].pose.x, on_retimed.estimates[k].pose.x);
+  EXPECT_FALSE(given.odometry_delay);
+
+  o.odometry_delay = OdometryDelayMode::Fit;
+  o.odometry_delay_search.min_s = 0.0;
+  o.odometry_delay_search.max_s = 0.5;
+  const MethodRun fitted = runMethod("window", d, 3, o);
+  ASSERT_TRUE(fitted.odometry_delay);
+  EXPECT_NEAR(fitted.odometry_delay->delay_s, 0.25, 0.01);
+  EXPECT_LT(positionRmse(fitted, d), 0.8 * positionRmse(runMethod("window", d, 3, MethodOptions()), d));
+  // An unknown method is refused before any solve; a delay the search cannot bracket is an error.
+  EXPECT_THROW(runMethod("kalman", d, 3, o), UsageError);
+  o.odometry_delay_search.min_s = 0.3;
+  o.odometry_delay_search.max_s = 0.8;
+  EXPECT_NE(test::errorOf([&] { runMethod("batch", d, 3, o); }).find("edge of the search"), std::string::npos);
 }
 
 TEST(Methods, FixesCountAttemptedAndFixedSteps) {

@@ -1,0 +1,101 @@
+// The odometry's delay estimated from the data alone (solvers/odometry_delay_profile.h): the
+// profile's vertex and curvature on known costs, its failures, and the batch smoother finding a
+// delay planted in a simulated random walk.
+#include "solvers/odometry_delay_profile.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "solvers/batch_smoother.h"
+#include "solvers/smoother_common.h"
+#include "src/core/odometry_delay.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+using test::errorOf;
+
+TEST(OdometryDelayProfile, AQuadraticCostGivesItsVertexAndCurvature) {
+  int calls = 0;
+  auto cost = [&](double d) {
+    ++calls;
+    return 40.0 + 0.5 * std::pow((d - 0.23) / 0.01, 2);
+  };
+  OdometryDelaySearch search;
+  search.prior_sigma_s = 0;
+  const OdometryDelayEstimate e = profileOdometryDelay(cost, search);
+  EXPECT_NEAR(e.delay_s, 0.23, 1e-9);
+  EXPECT_NEAR(e.sigma_s, 0.01, 1e-9);
+  // The grid (16 delays) and the two half steps around the least; each evaluated once.
+  EXPECT_EQ(calls, 18);
+  ASSERT_EQ(e.profile.size(), 18u);
+  for (size_t i = 1; i < e.profile.size(); ++i) EXPECT_LT(e.profile[i - 1].first, e.profile[i].first);
+  // With the prior, the product of the two Gaussians.
+  search.prior_sigma_s = 0.02;
+  const OdometryDelayEstimate p = profileOdometryDelay(cost, search);
+  const double w = 1 / (0.01 * 0.01) + 1 / (0.02 * 0.02);
+  EXPECT_NEAR(p.delay_s, 0.23 / (0.01 * 0.01) / w, 1e-9);
+  EXPECT_NEAR(p.sigma_s, 1 / std::sqrt(w), 1e-9);
+}
+
+TEST(OdometryDelayProfile, NoInteriorMinimumOrAFlatCostIsAnError) {
+  OdometryDelaySearch search;
+  search.prior_sigma_s = 0;
+  EXPECT_NE(errorOf([&] { profileOdometryDelay([](double d) { return std::pow(d - 1.4, 2); }, search); })
+                .find("edge of the search"),
+            std::string::npos);
+  // A robot at constant speed: the delay changes nothing.
+  EXPECT_NE(errorOf([&] { profileOdometryDelay([](double) { return 1234.0; }, search); }).find("do not determine"),
+            std::string::npos);
+  // Least at a grid delay but higher half a step either side: no curvature to take a sigma from.
+  auto spiky = [](double d) {
+    const double off_grid = std::fabs(d * 10 - std::round(d * 10)) > 1e-6;
+    return off_grid ? 20.0 : 10 * std::fabs(d - 0.2);
+  };
+  EXPECT_NE(errorOf([&] { profileOdometryDelay(spiky, search); }).find("not convex"), std::string::npos);
+  EXPECT_NE(errorOf([&] { profileOdometryDelay([](double) { return std::nan(""); }, search); }).find("not finite"),
+            std::string::npos);
+  search.step_s = 1.0;
+  EXPECT_NE(errorOf([&] { profileOdometryDelay([](double d) { return d * d; }, search); }).find("step_s"),
+            std::string::npos);
+}
+
+TEST(OdometryDelayProfile, TheBatchFindsADelayPlantedInARandomWalk) {
+  SyntheticProblemOptions o;
+  o.steps = 600;
+  o.max_observations = 3;
+  o.max_range = 1800.0;
+  o.sigma_range = 10.0;
+  o.sigma_bearing = 0.01;
+  SyntheticProblem p = makeRandomWalkProblem(o, 4);
+  // The readings lead the motion by 0.25 s (2.5 steps): the odometry runs 0.25 s late.
+  const double planted = 0.25;
+  const std::vector<Step> late = delayOdometry(p.steps, -planted);
+  BatchSmootherConfig c;
+  c.init = knownBelief(p.truth.front(), Eigen::Vector3d(20.0, 20.0, 0.03).cwiseAbs2().asDiagonal());
+  OdometryDelaySearch search;
+  search.min_s = -0.2;
+  search.max_s = 0.7;
+  const OdometryDelayEstimate e = profileOdometryDelay(
+      [&](double delay) { return batchCostWithOdometryDelay(p.map, p.odometry, c, late, delay); }, search);
+  EXPECT_GT(e.sigma_s, 0.0);
+  EXPECT_LT(e.sigma_s, 0.02);
+  EXPECT_LT(std::fabs(e.delay_s - planted), 3 * e.sigma_s) << e.delay_s << " +- " << e.sigma_s;
+  // Re-timed by the estimate, the batch is more accurate than on the late odometry.
+  auto rmse = [&](const std::vector<Step>& steps) {
+    BatchSmoother batch(p.map, p.odometry, c);
+    for (const Step& s : steps) batch.process(s);
+    double sum = 0;
+    const std::vector<Estimate> est = batch.finish();
+    for (const Estimate& x : est)
+      sum += (x.pose.translation() - p.truth[static_cast<size_t>(x.step)].translation()).squaredNorm();
+    return std::sqrt(sum / static_cast<double>(est.size()));
+  };
+  const double as_read = rmse(late), retimed = rmse(delayOdometry(late, e.delay_s));
+  EXPECT_LT(retimed, 0.8 * as_read) << retimed << " against " << as_read;
+}
+
+}  // namespace
+}  // namespace stereoloc
