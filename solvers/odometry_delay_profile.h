@@ -5,7 +5,7 @@
 // A grid over the search interval finds the least cost; a parabola through the points around it
 // (the grid's neighbours and two at half the spacing) gives the estimate at its vertex and the
 // standard deviation from its curvature, cost ~ (delay - estimate)^2 / (2 sigma^2) + const.
-// MR.CLAM's robots: 0.23 s, where the motion capture says 0.25-0.29 s (docs/results.md).
+// MR.CLAM's robots: 0.24 s, where the motion capture says 0.25-0.29 s (docs/results.md).
 //
 // Why a profile rather than a parameter block: the delay moves every step's reading by the
 // difference of the wheel speeds at the interval's ends, a parameter of the odometry stream

@@ -10,6 +10,8 @@
 // range-bearing factors; the EKF, the window and the batch calibrating the odometry (wheel
 // scales and wheel base), and calibrating the odometry and the range sensor (its range factor
 // across the field of view and its bearing offset, the range block of solvers/self_calibration.h).
+// With an odometry delay every estimator runs on the odometry re-timed by it (given, or fitted
+// by the batch calibrating odometry and range, solvers/odometry_delay_profile.h).
 #include <cstdint>
 #include <cstdio>
 #include <string>
