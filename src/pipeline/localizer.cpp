@@ -52,7 +52,8 @@ SlidingWindowConfig realTimeWindowConfig() {
   return c;
 }
 
-Localizer::Localizer(LocalizerConfig config) : config_(std::move(config)) {
+Localizer::Localizer(LocalizerConfig config)
+    : config_(std::move(config)), retimer_(config_.odometry_delay_s) {
   if (!(config_.wheel_scales.allFinite() && (config_.wheel_scales.array() > 0).all()))
     throw Error("localizer: wheel scales must be positive and finite");
   if (config_.replay_steps < 0) throw Error("localizer: replay_steps must be >= 0");
@@ -155,6 +156,9 @@ void Localizer::addStep(const Step& step) {
     throw Error("step " + std::to_string(step.step) + " does not follow step " + std::to_string(newest_step_));
   validateStep(step, "localizer");
   check(step.observations, step.step);
+  // Scaled first, then re-timed, as `localize` re-times the steps its --rig scaled.
+  const WheelIncrements moved = retimer_.next(step.t, step.d_left * config_.wheel_scales[0],
+                                              step.d_right * config_.wheel_scales[1]);
   const long previous = newest_step_;
   std::string failure;
   try {
@@ -163,8 +167,8 @@ void Localizer::addStep(const Step& step) {
     failure = e.what();
   }
   pending_ = step;
-  pending_->d_left *= config_.wheel_scales[0];
-  pending_->d_right *= config_.wheel_scales[1];
+  pending_->d_left = moved.d_left;
+  pending_->d_right = moved.d_right;
   newest_step_ = step.step;
   have_step_ = true;
   if (!failure.empty()) throw Error("step " + std::to_string(previous) + ": " + failure);

@@ -43,6 +43,7 @@
 #include "solvers/particle_filter.h"
 #include "solvers/sliding_window_smoother.h"
 #include "src/core/field_map.h"
+#include "src/core/odometry_delay.h"
 #include "src/core/odometry_model.h"
 #include "src/core/stereo_rig.h"
 #include "src/core/types.h"
@@ -73,6 +74,11 @@ struct LocalizerConfig {
   // Left and right wheel scales (true travel per unit of reading) every step's increments are
   // multiplied by: a wheel calibration handed over from an earlier run (CalibrationHandover).
   Eigen::Vector2d wheel_scales = Eigen::Vector2d::Ones();
+  // s, 0 to 10: the odometry runs this late against the camera (a drive's latency, a clock
+  // offset; fitted offline by `localize --odometry-delay fit`): each step's scaled increments
+  // are re-timed as they come in (OdometryRetimer, src/core/odometry_delay.h), as `localize
+  // --odometry-delay` re-times a dataset.
+  double odometry_delay_s = 0.0;
   InitialBelief init;                // start belief of the estimator; default: wait for a global fix
   LocalizerMethod method = LocalizerMethod::Window;
   SlidingWindowConfig window = realTimeWindowConfig();  // its init is replaced by `init`, its rig by `rig`
@@ -149,6 +155,7 @@ class Localizer {
   ParticleFilter* pf_ = nullptr;             // estimator_, when it is the particle filter
   std::unique_ptr<ImageObserver> observer_;  // created with the first images
   std::optional<Step> pending_;              // the newest step, not processed yet
+  OdometryRetimer retimer_;                  // config_.odometry_delay_s
   // A filter's last processed steps, each with the filter's state before it (replay_steps).
   struct Processed {
     Step step;

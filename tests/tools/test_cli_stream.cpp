@@ -372,6 +372,31 @@ TEST_F(StreamImages, BadInputNeverStopsTheStream) {
 // The filters as the stream's tracker, on a realistic line's images: the self-calibrating and
 // the iterated EKF give exactly `localize`'s estimates (and calibration), the particle filter
 // the same estimates for the same seed; each tracker's options are refused with another.
+// An odometry that runs late: the stream re-times it as it comes in, as localize re-times the
+// dataset; a stream cannot fit the delay, nor undo a negative one.
+TEST(CliStream, TheOdometryDelayGivesTheEstimatesOfLocalize) {
+  test::TempDir dir("stream_delay");
+  const std::string ds = dir.file("ds");
+  const test::CliRun sim = test::runCli("simulate --scenario line --steps 60 --seed 3 --out " + ds);
+  ASSERT_EQ(sim.exit_code, 0) << sim.output;
+  const std::string options = " --method ekf --init global --odometry-delay 0.15";
+  const std::string csv = dir.file("ekf.csv"), plain = dir.file("plain.csv");
+  const test::CliRun loc = test::runCli("localize " + ds + options + " --out " + csv);
+  ASSERT_EQ(loc.exit_code, 0) << loc.output;
+  ASSERT_EQ(test::runCli("localize " + ds + " --method ekf --init global --out " + plain).exit_code, 0);
+  const std::map<long, std::vector<double>> expected = estimateCsv(csv);
+  ASSERT_GT(expected.size(), 40u);
+  EXPECT_GT(worstRelativeDifference(estimateCsv(plain), expected), 0.0);  // the delay changes the estimates
+  const test::CliRun r = test::runCli("stream --from " + ds + options);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(worstRelativeDifference(estimateLines(r.output, false), expected), 0.0);
+  for (const char* bad : {"fit", "-0.1", "2.5"}) {
+    const test::CliRun u = test::runCli("stream --from " + ds + " --method ekf --odometry-delay " + bad);
+    EXPECT_EQ(u.exit_code, 2) << bad << ": " << u.output;
+    EXPECT_NE(u.output.find("--odometry-delay"), std::string::npos) << bad << ": " << u.output;
+  }
+}
+
 TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
   test::TempDir dir("stream_filters");
   const std::string ds = dir.file("ds");

@@ -9,6 +9,7 @@
 // The exit code at the end is 1 if any line was bad.
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -34,6 +35,7 @@ struct StreamArgs {
   bool no_gate = false, smoothed = false;
   std::string frontend = "pixels", frontend_landmarks = "all", frontend_params, observation_model = "pixel_columns";
   std::string calibrate, consider, calibration_out, noise_model;
+  std::optional<std::string> odometry_delay;  // seconds, >= 0
 };
 
 // `d`: the dataset of --from or --setup, on --rig's rig already (useRig); `handover`: what --rig
@@ -97,6 +99,15 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   c.particle_filter.keep_history = false;
   c.seed = a.seed;
   c.replay_steps = a.replay_steps;
+  if (a.odometry_delay) {
+    if (*a.odometry_delay == "fit")
+      throw UsageError("--odometry-delay: a stream cannot fit it (the fit needs the whole run); fit it with `localize` "
+                       "or `refine --odometry-delay fit` and give the seconds");
+    c.odometry_delay_s = parseDelaySeconds(*a.odometry_delay, "--odometry-delay");
+    if (c.odometry_delay_s < 0)
+      throw UsageError("--odometry-delay: a stream is re-timed by a delay >= 0 (a negative one needs the odometry "
+                       "that comes after)");
+  }
   c.frontend = imageFrontendOptions(a.frontend_landmarks, a.frontend_params);
   return c;
 }
@@ -235,6 +246,9 @@ void add_stream_command(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::Range(1, 10000000));
   sub->add_option("--seed", a->seed, "Seed of the particle filter's random stream")->capture_default_str();
+  sub->add_option("--odometry-delay", a->odometry_delay,
+                  "The odometry runs this late against the camera, seconds, 0 to 2 (a drive's latency; `localize "
+                  "--odometry-delay fit` finds it): each step's increments are re-timed as they come in");
   sub->add_option("--replay-steps", a->replay_steps,
                   "Filters: how many processed steps a late observation may go back (each kept with the filter's "
                   "state: the particle filter's about 56 bytes per particle); older ones are too late, and with 0 "

@@ -86,6 +86,38 @@ TEST(OdometryDelay, ARunFromRestToRestKeepsItsTravel) {
   }
 }
 
+TEST(OdometryDelay, TheStreamRetimerGivesTheBatchsReadingsToTheLastBit) {
+  // Uneven step times, equal ones, a reading on a zero-length interval; delays shorter and
+  // longer than a step, and longer than the stream.
+  std::vector<Step> steps;
+  const std::vector<double> t = {0.0, 0.1, 0.13, 0.13, 0.3, 0.31, 0.72, 0.9, 0.9, 1.0, 1.6, 1.65, 2.0};
+  for (size_t k = 0; k < t.size(); ++k) {
+    Step s;
+    s.step = static_cast<long>(k);
+    s.t = t[k];
+    s.d_left = 0.1 + std::sin(3.0 * static_cast<double>(k));
+    s.d_right = 0.7 * std::cos(2.0 * static_cast<double>(k));
+    steps.push_back(s);
+  }
+  for (double delay : {0.0, 0.03, 0.1, 0.13, 0.25, 0.6, 3.0}) {
+    const std::vector<Step> batch = delayOdometry(steps, delay);
+    OdometryRetimer stream(delay);
+    for (size_t k = 0; k < steps.size(); ++k) {
+      const WheelIncrements d = stream.next(steps[k].t, steps[k].d_left, steps[k].d_right);
+      EXPECT_EQ(d.d_left, batch[k].d_left) << delay << " step " << k;
+      EXPECT_EQ(d.d_right, batch[k].d_right) << delay << " step " << k;
+    }
+  }
+  EXPECT_NE(test::errorOf([] { OdometryRetimer r(-0.1); }).find("a negative one needs the steps after"),
+            std::string::npos);
+  OdometryRetimer r(0.2);
+  r.next(1.0, 1.0, 1.0);
+  EXPECT_NE(test::errorOf([&] { r.next(0.5, 1.0, 1.0); }).find("before the previous"), std::string::npos);
+  const WheelIncrements after = r.next(1.1, 2.0, 4.0);  // the refused step changed nothing
+  EXPECT_NEAR(after.d_left, 0.0, 1e-12);                // 0.1 s of the 0.2 s delay: still before the motion
+  EXPECT_NEAR(r.next(1.3, 2.0, 4.0).d_right, 4.0, 1e-12);
+}
+
 TEST(OdometryDelay, BadDelayAndStepsOutOfOrderAreErrors) {
   std::vector<Step> steps = rampSteps(5);
   EXPECT_NE(test::errorOf([&] { delayOdometry(steps, std::nan("")); }).find("not a finite"), std::string::npos);
