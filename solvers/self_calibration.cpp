@@ -132,6 +132,10 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
       w.put(keys[i][1], std::sqrt(range_bearing_covariance(i, i)));
     }
   }
+  if (odometry_delay_s) {
+    w.put("odometry_delay_s", *odometry_delay_s);
+    if (odometry_delay_sigma_s > 0) w.put("odometry_delay_sigma_s", odometry_delay_sigma_s);
+  }
   w.writeAtomically(path);
 }
 
@@ -165,6 +169,12 @@ CalibrationHandover CalibrationHandover::load(const std::string& rig_path) {
     h.head_sigmas = s;
   }
   if (y.has("row_offset_sigma_px")) h.row_offset_sigma_px = positive(y, "row_offset_sigma_px");
+  if (y.has("odometry_delay_s")) {
+    const double d = y.getDouble("odometry_delay_s");
+    if (!(std::fabs(d) <= 2.0)) y.fail("odometry_delay_s", "must be within +-2 s");
+    h.odometry_delay_s = d;
+    if (y.has("odometry_delay_sigma_s")) h.odometry_delay_sigma_s = positive(y, "odometry_delay_sigma_s");
+  }
   return h;
 }
 
@@ -187,6 +197,10 @@ void CalibrationHandover::applyPriors(SelfCalibrationConfig& c, UnmodelledNoise&
 
 CalibrationEstimate CalibrationHandover::carriedOn(const CalibrationEstimate& run) const {
   CalibrationEstimate out = run;
+  if (!run.odometry_delay_s && odometry_delay_s) {
+    out.odometry_delay_s = odometry_delay_s;
+    out.odometry_delay_sigma_s = odometry_delay_sigma_s;
+  }
   if (!wheels) return out;
   if (!run.odometry) {
     out.odometry = true;

@@ -155,6 +155,11 @@ struct CalibrationEstimate {
     double variance = 0.0;  // px^2
   };
   std::vector<FeatureOffset> feature_offsets;
+  // The odometry's delay against the camera the run used (s; src/core/odometry_delay.h): fitted
+  // (sigma > 0, solvers/odometry_delay_profile.h) or given (sigma 0); not part of the rig,
+  // handed over as keys.
+  std::optional<double> odometry_delay_s;
+  double odometry_delay_sigma_s = 0.0;
 
   // The rig a user passes back as --rig: with a stereo estimate, selfCalibratedRig
   // (solvers/self_calibrated_rig.h) — tilt in the mounting, every pixel correction folded into an
@@ -162,7 +167,8 @@ struct CalibrationEstimate {
   // The estimate itself and every standard deviation follow as extra keys the rig reader ignores
   // (tilt_correction_rad, baseline_scale, disparity_offset_px, column_offset_px, focal_ratio,
   // focal_scale, row_offset_px, wheel_scale_left, wheel_scale_right, wheel_base_mm,
-  // range_scale_c0, range_scale_c1, range_scale_c2, bearing_offset_rad, *_sigma).
+  // range_scale_c0, range_scale_c1, range_scale_c2, bearing_offset_rad, odometry_delay_s,
+  // *_sigma).
   void saveAsRig(const std::string& path, const StereoRig& rig) const;
 };
 
@@ -175,14 +181,19 @@ struct CalibrationEstimate {
 // composes the two for the file the run writes. A user may widen the sigmas in the file for a
 // robot whose calibration may have drifted since. A group whose first key is present must be
 // complete (wheels: wheel_scale_left, wheel_scale_right, wheel_base_mm and their *_sigma*; stereo:
-// the six *_sigma* of the head); row_offset_sigma_px stands alone.
+// the six *_sigma* of the head); row_offset_sigma_px stands alone, and odometry_delay_s with its
+// optional odometry_delay_sigma_s.
 struct CalibrationHandover {
   std::optional<Eigen::Vector3d> wheels;        // c_l, c_r (dimensionless), w (mm)
   std::optional<Eigen::Vector3d> wheel_sigmas;  // their standard deviations, same units
   std::optional<CalibrationEstimate::StereoVector> head_sigmas;  // CalibrationEstimate::head's order and units
   std::optional<double> row_offset_sigma_px;
+  // The odometry's delay (s, within +-2) and its sigma (0: given): a run handed the file re-times
+  // its odometry by it unless told another delay.
+  std::optional<double> odometry_delay_s;
+  double odometry_delay_sigma_s = 0.0;
 
-  bool empty() const { return !wheels && !head_sigmas && !row_offset_sigma_px; }
+  bool empty() const { return !wheels && !head_sigmas && !row_offset_sigma_px && !odometry_delay_s; }
   // Reads the keys from a rig YAML; none of them: empty. Errors name the file and the key.
   static CalibrationHandover load(const std::string& rig_path);
   // The priors of a self-calibration from the handed-over sigmas: both wheel scales' the larger
@@ -192,7 +203,8 @@ struct CalibrationHandover {
   void applyPriors(SelfCalibrationConfig& config, UnmodelledNoise& noise) const;
   // The estimate of a run that was handed this calibration, in terms of the raw wheel increments
   // (what the next run needs): its wheel scales multiplied by the handed-over ones (covariance
-  // scaled alike); a run that did not estimate the wheels passes the handed-over estimate on.
+  // scaled alike); a run that did not estimate the wheels passes the handed-over estimate on,
+  // and one without an odometry delay of its own the handed-over delay.
   CalibrationEstimate carriedOn(const CalibrationEstimate& run) const;
 };
 

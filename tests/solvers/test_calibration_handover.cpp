@@ -26,6 +26,8 @@ CalibrationEstimate sampleEstimate() {
                           .asDiagonal();
   e.row_offset_px = 0.8;
   e.row_offset_variance = 0.2 * 0.2;
+  e.odometry_delay_s = 0.24;
+  e.odometry_delay_sigma_s = 0.01;
   return e;
 }
 
@@ -63,6 +65,17 @@ TEST(CalibrationHandover, ReadsBackWhatSaveAsRigWrote) {
   EXPECT_NEAR(((*h.wheel_sigmas) - e.wheels_covariance.diagonal().cwiseSqrt()).norm(), 0.0, 1e-12);
   EXPECT_NEAR(((*h.head_sigmas) - e.head_covariance.diagonal().cwiseSqrt()).norm(), 0.0, 1e-12);
   EXPECT_NEAR(*h.row_offset_sigma_px, 0.2, 1e-12);
+  ASSERT_TRUE(h.odometry_delay_s);
+  EXPECT_DOUBLE_EQ(*h.odometry_delay_s, 0.24);
+  EXPECT_DOUBLE_EQ(h.odometry_delay_sigma_s, 0.01);
+  // A given delay (sigma 0) is written without a sigma and read back as given.
+  CalibrationEstimate given;
+  given.odometry_delay_s = -0.05;
+  given.saveAsRig(dir.file("given.yaml"), StereoRig());
+  const CalibrationHandover g = CalibrationHandover::load(dir.file("given.yaml"));
+  EXPECT_FALSE(g.empty());
+  EXPECT_DOUBLE_EQ(*g.odometry_delay_s, -0.05);
+  EXPECT_EQ(g.odometry_delay_sigma_s, 0.0);
 
   // A rig without the keys (the default rig) hands nothing over.
   StereoRig().save(dir.file("plain.yaml"));
@@ -125,6 +138,15 @@ TEST(CalibrationHandover, CarriesARunsWheelEstimateOnInRawIncrements) {
   EXPECT_DOUBLE_EQ(passed.wheels_covariance(1, 1), 0.003 * 0.003);
   // Nothing handed over: the run's own.
   EXPECT_EQ(CalibrationHandover().carriedOn(run).wheels, run.wheels);
+  // The odometry delay: the run's own, or, without one, the handed-over one with its sigma.
+  h.odometry_delay_s = 0.3;
+  h.odometry_delay_sigma_s = 0.02;
+  EXPECT_DOUBLE_EQ(*h.carriedOn(run).odometry_delay_s, 0.24);
+  CalibrationEstimate undelayed = run;
+  undelayed.odometry_delay_s.reset();
+  const CalibrationEstimate delayed = h.carriedOn(undelayed);
+  EXPECT_DOUBLE_EQ(*delayed.odometry_delay_s, 0.3);
+  EXPECT_DOUBLE_EQ(delayed.odometry_delay_sigma_s, 0.02);
 }
 
 TEST(CalibrationHandover, BadFilesNameTheFileAndTheKey) {
@@ -149,6 +171,9 @@ TEST(CalibrationHandover, BadFilesNameTheFileAndTheKey) {
   expectError(replaced(good, "focal_scale_sigma", ".nan"), "focal_scale_sigma", "");
   expectError(without(good, "disparity_offset_sigma_px"), "disparity_offset_sigma_px", "");
   expectError(replaced(good, "row_offset_sigma_px", "wide"), "row_offset_sigma_px", "");
+  expectError(replaced(good, "odometry_delay_s", "3.5"), "odometry_delay_s", "within +-2 s");
+  expectError(replaced(good, "odometry_delay_s", ".nan"), "odometry_delay_s", "");
+  expectError(replaced(good, "odometry_delay_sigma_s", "-0.01"), "odometry_delay_sigma_s", "positive");
 }
 
 TEST(CalibrationHandover, WheelCalibrationScalesTheIncrements) {

@@ -330,9 +330,14 @@ TEST_F(CliImportRobot1, TheBatchFindsTheOdometryDelayFromTheDataAlone) {
     EXPECT_GT(rmse(plain.output), 0.0) << plain.output;
     EXPECT_LT(rmse(delayed.output), 0.97 * rmse(plain.output)) << method << ": " << delayed.output;
   }
-  const test::CliRun refined = test::runCli("refine " + out + " --calibrate odometry,range --odometry-delay fit --out " + est);
+  const std::string rig = tmp_.file("delay.yaml");
+  const test::CliRun refined = test::runCli("refine " + out + " --calibrate odometry,range --odometry-delay fit " +
+                                            "--calibration-out " + rig + " --out " + est);
   ASSERT_EQ(refined.exit_code, 0) << refined.output;
   EXPECT_NE(refined.output.find("odometry delay (fitted by the batch): 0.2"), std::string::npos) << refined.output;
+  const YamlReader written(rig);
+  EXPECT_NEAR(written.getDouble("odometry_delay_s"), 0.25, 0.07);
+  EXPECT_GT(written.getDouble("odometry_delay_sigma_s"), 0.0);
 }
 
 // Without ground truth: the smoothers and the EKF estimate the camera's range factor across its

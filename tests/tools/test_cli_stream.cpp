@@ -16,6 +16,7 @@
 
 #include "cli_util.h"
 #include "solvers/smoother_common.h"
+#include "src/core/yaml_util.h"
 #include "src/io/dataset.h"
 #include "test_util.h"
 
@@ -395,6 +396,31 @@ TEST(CliStream, TheOdometryDelayGivesTheEstimatesOfLocalize) {
     EXPECT_EQ(u.exit_code, 2) << bad << ": " << u.output;
     EXPECT_NE(u.output.find("--odometry-delay"), std::string::npos) << bad << ": " << u.output;
   }
+
+  // Handed over: the calibration file of a run with the delay carries it to the next runs,
+  // localize and stream alike, and a further calibration carries it on.
+  const std::string rig = dir.file("cal.yaml"), next = dir.file("next.yaml");
+  const test::CliRun cal = test::runCli("localize " + ds + options + " --calibrate odometry --calibration-out " + rig +
+                                        " --out " + dir.file("cal.csv"));
+  ASSERT_EQ(cal.exit_code, 0) << cal.output;
+  EXPECT_DOUBLE_EQ(YamlReader(rig).getDouble("odometry_delay_s"), 0.15);
+  EXPECT_FALSE(YamlReader(rig).has("odometry_delay_sigma_s"));  // given, not estimated
+  const std::string on_rig = " --method ekf --init global --rig " + rig;
+  const test::CliRun handed = test::runCli("localize " + ds + on_rig + " --out " + dir.file("handed.csv"));
+  ASSERT_EQ(handed.exit_code, 0) << handed.output;
+  EXPECT_NE(handed.output.find("odometry delay (handed over by the rig file): 0.150 s"), std::string::npos)
+      << handed.output;
+  const test::CliRun undelayed =
+      test::runCli("localize " + ds + on_rig + " --odometry-delay 0 --out " + dir.file("undelayed.csv"));
+  ASSERT_EQ(undelayed.exit_code, 0) << undelayed.output;
+  EXPECT_GT(worstRelativeDifference(estimateCsv(dir.file("undelayed.csv")), estimateCsv(dir.file("handed.csv"))), 0.0);
+  const test::CliRun streamed = test::runCli("stream --from " + ds + on_rig);
+  ASSERT_EQ(streamed.exit_code, 0) << streamed.output;
+  EXPECT_EQ(worstRelativeDifference(estimateLines(streamed.output, false), estimateCsv(dir.file("handed.csv"))), 0.0);
+  const test::CliRun further = test::runCli("localize " + ds + on_rig + " --calibrate odometry --calibration-out " +
+                                            next + " --out " + dir.file("next.csv"));
+  ASSERT_EQ(further.exit_code, 0) << further.output;
+  EXPECT_DOUBLE_EQ(YamlReader(next).getDouble("odometry_delay_s"), 0.15);
 }
 
 TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {

@@ -89,7 +89,8 @@ void runRefine(const LocalizeArgs& a) {
   std::vector<Step>().swap(d.steps);
   const std::vector<Estimate> estimates = smoother->finish();
   const BatchSummary s = smoother->summary();
-  const CalibrationEstimate calibration = smoother->calibration();
+  CalibrationEstimate calibration = smoother->calibration();
+  recordOdometryDelay(calibration, o, fitted_delay, handover);
   smoother.reset();  // its buffers are not needed for writing and the metrics
   for (const Estimate& e : estimates)
     if (!e.pose.isFinite() || !e.covariance.allFinite())
@@ -102,7 +103,7 @@ void runRefine(const LocalizeArgs& a) {
                     d.odometry.wheel_base_mm, handover);
   const double write_s = secondsSince(t_write);
   progress.clear();
-  printOdometryDelay(o, fitted_delay);
+  printOdometryDelay(o, fitted_delay, handover);
   std::printf("batch: %zu estimates for %zu steps written to %s\n", estimates.size(), steps, a.out.c_str());
   std::printf("solve: %d iterations (%s)%s; %d kidnap cut%s kept, %d withdrawn (%d iterations)\n", s.iterations,
               s.converged ? "converged" : "not converged", s.message.empty() ? "" : (": " + s.message).c_str(),

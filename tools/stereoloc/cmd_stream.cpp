@@ -99,6 +99,12 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   c.particle_filter.keep_history = false;
   c.seed = a.seed;
   c.replay_steps = a.replay_steps;
+  if (!a.odometry_delay && handover.odometry_delay_s) {
+    if (*handover.odometry_delay_s < 0)
+      throw Error(a.rig_path + ": odometry_delay_s: a stream is re-timed by a delay >= 0 (a negative one needs the "
+                  "odometry that comes after)");
+    c.odometry_delay_s = *handover.odometry_delay_s;
+  }
   if (a.odometry_delay) {
     if (*a.odometry_delay == "fit")
       throw UsageError("--odometry-delay: a stream cannot fit it (the fit needs the whole run); fit it with `localize` "
@@ -192,7 +198,13 @@ void runStream(const StreamArgs& a, const CLI::App& sub) {
   }
   // Standard output carries only estimate lines: the calibration's summary goes to stderr (a
   // considered calibration is the given one: nothing to report).
-  const std::optional<CalibrationEstimate> c = loc.calibration();
+  std::optional<CalibrationEstimate> c = loc.calibration();
+  // The delay it ran with (given by --odometry-delay; one the rig file handed over goes on
+  // through carriedOn with its sigma).
+  if (c && a.odometry_delay) {
+    c->odometry_delay_s = loc.config().odometry_delay_s;
+    c->odometry_delay_sigma_s = 0.0;
+  }
   if (c && !loc.config().ekf.calibration.consider)
     reportCalibration(a.calibration_out, stderr, &*c, loc.config().rig,
                       loc.config().method == LocalizerMethod::Ekf ? loc.config().ekf.calibration

@@ -63,9 +63,26 @@ OdometryDelayMode parseOdometryDelay(const std::optional<std::string>& text, dou
   return OdometryDelayMode::Given;
 }
 
-void printOdometryDelay(const MethodOptions& o, const std::optional<OdometryDelayEstimate>& fitted) {
+void recordOdometryDelay(CalibrationEstimate& c, const MethodOptions& o, const std::optional<OdometryDelayEstimate>& fitted,
+                         const CalibrationHandover& handover) {
+  if (fitted) {
+    c.odometry_delay_s = fitted->delay_s;
+    c.odometry_delay_sigma_s = fitted->sigma_s;
+  } else if (o.odometry_delay == OdometryDelayMode::Given &&
+             !(handover.odometry_delay_s && *handover.odometry_delay_s == o.given_odometry_delay_s)) {
+    c.odometry_delay_s = o.given_odometry_delay_s;
+    c.odometry_delay_sigma_s = 0.0;
+  }
+}
+
+void printOdometryDelay(const MethodOptions& o, const std::optional<OdometryDelayEstimate>& fitted,
+                        const CalibrationHandover& handover) {
   if (o.odometry_delay == OdometryDelayMode::Given)
-    std::printf("odometry delay (given): %.3f s\n", o.given_odometry_delay_s);
+    std::printf("odometry delay (%s): %.3f s\n",
+                handover.odometry_delay_s && *handover.odometry_delay_s == o.given_odometry_delay_s
+                    ? "handed over by the rig file"
+                    : "given",
+                o.given_odometry_delay_s);
   if (fitted) {
     const OdometryDelaySearch& s = o.odometry_delay_search;
     std::printf("odometry delay (fitted by the batch): %.3f +- %.3f s (%zu delays tried, %.2f to %.2f s)\n",
@@ -115,6 +132,11 @@ Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHando
   if (!a.rig.empty()) {
     handover = useRig(d, a.rig, mode == FrontendMode::Images);
     handover.applyPriors(o.calibration, o.noise);
+    // The delay the file hands over, unless --odometry-delay says otherwise.
+    if (handover.odometry_delay_s && o.odometry_delay == OdometryDelayMode::None) {
+      o.odometry_delay = OdometryDelayMode::Given;
+      o.given_odometry_delay_s = *handover.odometry_delay_s;
+    }
   }
   if (mode == FrontendMode::Images) {
     const ImageFrontendStats stats =
@@ -135,13 +157,15 @@ void runLocalize(const LocalizeArgs& a) {
   CalibrationHandover handover;
   const Dataset d = loadRunDataset(a, o, handover);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
-  printOdometryDelay(o, run.odometry_delay);
+  printOdometryDelay(o, run.odometry_delay, handover);
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
   if (!a.calibration_out.empty() && !run.calibration)
     throw UsageError("--calibration-out: needs --calibrate with batch, window or ekf");
-  reportCalibration(a.calibration_out, stdout, run.calibration ? &*run.calibration : nullptr, d.rig, o.calibration, d.odometry.wheel_base_mm,
-                    handover);
+  std::optional<CalibrationEstimate> calibration = run.calibration;
+  if (calibration) recordOdometryDelay(*calibration, o, run.odometry_delay, handover);
+  reportCalibration(a.calibration_out, stdout, calibration ? &*calibration : nullptr, d.rig, o.calibration,
+                    d.odometry.wheel_base_mm, handover);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);
   printAgainstTruth(trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth))));

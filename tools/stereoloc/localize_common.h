@@ -42,9 +42,15 @@ void printAgainstTruth(const TrajectoryMetrics& metrics);
 MethodOptions parseMethodOptions(const LocalizeArgs& args);
 // --odometry-delay: none (not given), "fit", or seconds (*given_s); UsageError otherwise.
 OdometryDelayMode parseOdometryDelay(const std::optional<std::string>& text, double* given_s);
-// The line `localize` and `refine` print for the odometry delay: given, or fitted (estimate,
-// standard deviation, the search); nothing without --odometry-delay.
-void printOdometryDelay(const MethodOptions& options, const std::optional<OdometryDelayEstimate>& fitted);
+// The odometry delay the run used, into the calibration estimate it writes (--calibration-out):
+// a fitted one with its sigma, a given one (--odometry-delay S) with sigma 0; a delay the rig
+// file handed over is left for CalibrationHandover::carriedOn to pass on with its own sigma.
+void recordOdometryDelay(CalibrationEstimate& calibration, const MethodOptions& options,
+                         const std::optional<OdometryDelayEstimate>& fitted, const CalibrationHandover& handover);
+// The line `localize` and `refine` print for the odometry delay: given, handed over by the rig
+// file, or fitted (estimate, standard deviation, the search); nothing without a delay.
+void printOdometryDelay(const MethodOptions& options, const std::optional<OdometryDelayEstimate>& fitted,
+                        const CalibrationHandover& handover);
 // --calibrate or --consider (at most one given; "": none) as the self-calibration's blocks, with
 // SelfCalibrationConfig::consider set for --consider; throws UsageError naming the option.
 SelfCalibrationConfig calibrationOptions(const std::string& calibrate, const std::string& consider);
