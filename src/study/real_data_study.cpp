@@ -11,7 +11,6 @@
 #include <sstream>
 
 #include "solvers/batch_smoother.h"
-#include "src/core/odometry_delay.h"
 #include "solvers/ekf.h"
 #include "solvers/initialisation.h"
 #include "solvers/particle_filter.h"
@@ -21,6 +20,7 @@
 #include "src/io/csv.h"
 #include "src/io/dataset.h"
 #include "src/eval/evaluation.h"
+#include "src/core/odometry_delay.h"
 #include "src/core/odometry_model.h"
 #include "src/pipeline/usage_error.h"
 

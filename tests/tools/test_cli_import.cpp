@@ -148,6 +148,12 @@ TEST_F(CliImport, OdometryDelayOptionsOfLocalizeAndRefine) {
   r = test::runCli("refine " + out + " --odometry-delay fit --odometry-delay-search 0,0.1,0.1 --out " + est);
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("step_s"), std::string::npos) << r.output;
+  r = test::runCli("realdata " + out + " --only ekf --odometry-delay 0.25");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("odometry delay (given): 0.250 s"), std::string::npos) << r.output;
+  r = test::runCli("realdata " + out + " --only ekf --odometry-delay 0.25s");
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("--odometry-delay"), std::string::npos) << r.output;
 }
 
 TEST_F(CliImport, UsageAndDataErrors) {
