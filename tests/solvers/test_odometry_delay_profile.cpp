@@ -10,6 +10,7 @@
 #include "solvers/batch_smoother.h"
 #include "solvers/smoother_common.h"
 #include "src/core/odometry_delay.h"
+#include "late_odometry_walk.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -63,16 +64,10 @@ TEST(OdometryDelayProfile, NoInteriorMinimumOrAFlatCostIsAnError) {
 }
 
 TEST(OdometryDelayProfile, TheBatchFindsADelayPlantedInARandomWalk) {
-  SyntheticProblemOptions o;
-  o.steps = 600;
-  o.max_observations = 3;
-  o.max_range = 1800.0;
-  o.sigma_range = 10.0;
-  o.sigma_bearing = 0.01;
-  SyntheticProblem p = makeRandomWalkProblem(o, 4);
   // The readings lead the motion by 0.25 s (2.5 steps): the odometry runs 0.25 s late.
   const double planted = 0.25;
-  const std::vector<Step> late = delayOdometry(p.steps, -planted);
+  const SyntheticProblem p = test::lateOdometryWalk(600, 4, planted);
+  const std::vector<Step>& late = p.steps;
   BatchSmootherConfig c;
   c.init = knownBelief(p.truth.front(), Eigen::Vector3d(20.0, 20.0, 0.03).cwiseAbs2().asDiagonal());
   OdometryDelaySearch search;

@@ -192,64 +192,43 @@ TEST(Localizer, SelfCalibratingEkfGivesTheFiltersEstimatesAndCalibration) {
 }
 
 // A wheel calibration handed over from an earlier run scales the raw increments as they come
-// in: the same estimates as the window fed the scaled steps, through either entry.
-TEST(Localizer, WheelScalesApplyToTheIncomingIncrements) {
+// in, and an odometry that runs late against the camera re-times them: the same estimates as
+// the window fed the steps scaled and re-timed by delayOdometry, through either entry.
+TEST(Localizer, WheelScalesAndTheOdometryDelayApplyToTheIncomingIncrements) {
   SyntheticProblemOptions o;
   o.steps = 60;
   const SyntheticProblem p = makeRandomWalkProblem(o, 8);
-  LocalizerConfig config = windowConfig(p);
-  config.wheel_scales = Eigen::Vector2d(1.03, 0.98);
-  Localizer scaled(config), by_odometry(config);
-  SlidingWindowConfig wc = config.window;
-  wc.init = config.init;
-  SlidingWindowSmoother direct(p.map, p.odometry, wc);
-  for (const Step& s : p.steps) {
-    Step t = s;
-    t.d_left *= 1.03;
-    t.d_right *= 0.98;
-    const Estimate ref = direct.process(t);
-    scaled.addStep(s);
-    expectSame(scaled.estimate(), ref);
-    by_odometry.addOdometry(s.step, s.t, s.d_left, s.d_right);
-    if (!s.observations.empty()) by_odometry.addObservations(s.step, s.observations);
-    expectSame(by_odometry.estimate(), ref);
-  }
-  config.wheel_scales = Eigen::Vector2d(1.0, 0.0);
-  EXPECT_THROW(Localizer bad(config), Error);
-}
-
-// An odometry that runs late against the camera: the Localizer re-times the scaled increments
-// as they come in, giving the estimates of the window fed the steps delayOdometry re-timed.
-TEST(Localizer, TheOdometryDelayRetimesTheIncomingIncrements) {
-  SyntheticProblemOptions o;
-  o.steps = 60;
-  const SyntheticProblem p = makeRandomWalkProblem(o, 8);
-  LocalizerConfig config = windowConfig(p);
-  config.wheel_scales = Eigen::Vector2d(1.03, 0.98);
-  config.odometry_delay_s = 0.25;
-  Localizer delayed(config), by_odometry(config);
   std::vector<Step> scaled = p.steps;
   for (Step& s : scaled) {
     s.d_left *= 1.03;
     s.d_right *= 0.98;
   }
-  const std::vector<Step> retimed = delayOdometry(scaled, 0.25);
-  SlidingWindowConfig wc = config.window;
-  wc.init = config.init;
-  SlidingWindowSmoother direct(p.map, p.odometry, wc);
-  size_t moved = 0;
-  for (size_t k = 0; k < p.steps.size(); ++k) {
-    const Step& s = p.steps[k];
-    if (std::fabs(retimed[k].d_left - scaled[k].d_left) > 1e-6) ++moved;
-    const Estimate ref = direct.process(retimed[k]);
-    delayed.addStep(s);
-    expectSame(delayed.estimate(), ref);
-    by_odometry.addOdometry(s.step, s.t, s.d_left, s.d_right);
-    if (!s.observations.empty()) by_odometry.addObservations(s.step, s.observations);
-    expectSame(by_odometry.estimate(), ref);
+  LocalizerConfig config = windowConfig(p);
+  config.wheel_scales = Eigen::Vector2d(1.03, 0.98);
+  for (double delay : {0.0, 0.25}) {
+    config.odometry_delay_s = delay;
+    Localizer by_step(config), by_odometry(config);
+    const std::vector<Step> retimed = delayOdometry(scaled, delay);
+    SlidingWindowConfig wc = config.window;
+    wc.init = config.init;
+    SlidingWindowSmoother direct(p.map, p.odometry, wc);
+    size_t moved = 0;
+    for (size_t k = 0; k < p.steps.size(); ++k) {
+      const Step& s = p.steps[k];
+      if (std::fabs(retimed[k].d_left - scaled[k].d_left) > 1e-6) ++moved;
+      const Estimate ref = direct.process(retimed[k]);
+      by_step.addStep(s);
+      expectSame(by_step.estimate(), ref);
+      by_odometry.addOdometry(s.step, s.t, s.d_left, s.d_right);
+      if (!s.observations.empty()) by_odometry.addObservations(s.step, s.observations);
+      expectSame(by_odometry.estimate(), ref);
+    }
+    EXPECT_EQ(moved > p.steps.size() / 2, delay > 0) << delay;
   }
-  EXPECT_GT(moved, p.steps.size() / 2);
   config.odometry_delay_s = -0.1;  // would need the steps to come
+  EXPECT_THROW(Localizer bad(config), Error);
+  config.odometry_delay_s = 0.0;
+  config.wheel_scales = Eigen::Vector2d(1.0, 0.0);
   EXPECT_THROW(Localizer bad(config), Error);
 }
 

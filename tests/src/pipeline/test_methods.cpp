@@ -3,12 +3,12 @@
 
 #include <cmath>
 
-#include "solvers/smoother_common.h"
 #include "src/core/odometry_delay.h"
 #include "src/pipeline/frontend_source.h"
 #include "src/pipeline/methods.h"
 #include "src/pipeline/usage_error.h"
 #include "src/sim/simulator.h"
+#include "late_odometry_walk.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -83,18 +83,12 @@ TEST(Methods, TheEkfConsidersItsCalibration) {
 
 // A random walk whose odometry runs 0.25 s late (the readings lead the motion).
 Dataset lateOdometryWalk() {
-  SyntheticProblemOptions o;
-  o.steps = 400;
-  o.max_observations = 3;
-  o.max_range = 1800.0;
-  o.sigma_range = 10.0;
-  o.sigma_bearing = 0.01;
-  const SyntheticProblem p = makeRandomWalkProblem(o, 5);
+  const SyntheticProblem p = test::lateOdometryWalk(400, 5, 0.25);
   Dataset d;
   d.name = "late odometry walk";
   d.map = p.map;
   d.odometry = p.odometry;
-  d.steps = delayOdometry(p.steps, -0.25);
+  d.steps = p.steps;
   for (const Pose2& t : p.truth) d.groundtruth.push_back(t);
   d.initial_pose = p.truth.front();
   return d;
