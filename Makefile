@@ -84,6 +84,12 @@ test-valgrind: build
 	@$(VALGRIND) $(BUILD)/bin/test_solvers_range_calibration \
 	  --gtest_filter='RangeCalibration.WindowAsLongAsTheDataIsTheBatch:RangeCalibration.TheGateSeesTheSightingsThroughTheCalibration' >/dev/null
 	@$(VALGRIND) $(BUILD)/bin/test_core_observation_correlation >/dev/null
+	@echo "valgrind: the odometry's delay: re-timing, the stream's re-timer, the profile"
+	@$(VALGRIND) $(BUILD)/bin/test_core_odometry_delay >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_pipeline_localizer \
+	  --gtest_filter='Localizer.WheelScalesAndTheOdometryDelayApplyToTheIncomingIncrements' >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_solvers_odometry_delay_profile \
+	  --gtest_filter='OdometryDelayProfile.AQuadraticCostGivesItsVertexAndCurvature:OdometryDelayProfile.NoInteriorMinimumOrAFlatCostIsAnError' >/dev/null
 	@echo "valgrind: localize --method ekf --frontend images --rig (the calibrated rig)"
 	@$(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method ekf --frontend images \
 	  --rig $(VG_DIR)/batch-rig.yaml --out $(VG_DIR)/ekf-rig.csv >/dev/null
