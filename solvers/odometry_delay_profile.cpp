@@ -1,6 +1,5 @@
 #include "solvers/odometry_delay_profile.h"
 
-#include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -55,24 +54,23 @@ OdometryDelayEstimate profileOdometryDelay(const std::function<double(double)>& 
   if (best == 0 || best == n - 1)
     throw Error("odometry delay: the batch's cost is least at the edge of the search, " + std::to_string(centre) +
                 " s; widen it");
-  // Least-squares parabola through the five delays around the least: cost = a x^2 + b x + c,
-  // x = delay - centre.
-  Eigen::Matrix<double, 5, 3> A;
-  Eigen::Matrix<double, 5, 1> y;
-  int row = 0;
-  for (double k : {-1.0, -0.5, 0.0, 0.5, 1.0}) {
-    const double d = delay_at(best + k), x = d - centre;
-    A.row(row) << x * x, x, 1.0;
-    y[row] = cost(d) - least;  // about the least, for the conditioning
-    ++row;
-  }
-  const Eigen::Vector3d p = A.colPivHouseholderQr().solve(y);
-  if (!(p[0] > 0))
-    throw Error("odometry delay: the batch's cost is not convex around " + std::to_string(centre) +
+  // Halve the spacing around the least: the least of the grid's best delay and the two half a
+  // step either side, then the parabola through it and its neighbours half a step away (all
+  // evaluated; a cost far from the least, where the batch may settle in another basin, does not
+  // enter).
+  const double below = cost(delay_at(best - 0.5)), above = cost(delay_at(best + 0.5));
+  const double m = below < least && below <= above ? best - 0.5 : (above < least ? best + 0.5 : best);
+  const double c_minus = cost(delay_at(m - 0.5)), c_0 = cost(delay_at(m)), c_plus = cost(delay_at(m + 0.5));
+  const double half = 0.5 * h;
+  const double a = (c_minus - 2 * c_0 + c_plus) / (2 * half * half);  // cost ~ a x^2 + b x + c
+  const double slope = (c_plus - c_minus) / (2 * half);
+  if (!(a > 0))
+    throw Error("odometry delay: the batch's cost is not convex around " + std::to_string(delay_at(m)) +
                 " s; the data do not determine the delay");
   OdometryDelayEstimate e;
-  e.delay_s = centre + std::clamp(-p[1] / (2 * p[0]), -h, h);
-  e.sigma_s = 1.0 / std::sqrt(2 * p[0]);
+  e.delay_s = delay_at(m) + std::clamp(-slope / (2 * a), -half, half);
+  e.profile_sigma_s = 1.0 / std::sqrt(2 * a);
+  e.sigma_s = e.profile_sigma_s;
   e.profile.assign(profile.begin(), profile.end());
   return e;
 }
@@ -82,12 +80,34 @@ double batchCostWithOdometryDelay(const FieldMap& map, const OdometryParams& odo
   BatchSmootherConfig c = config;
   c.compute_covariance = false;  // the cost is all the profile needs
   c.progress = nullptr;
+  c.cut_at_reinitialisation = false;
   BatchSmoother batch(map, odometry, c);
-  for (const Step& s : delayOdometry(steps, delay_s)) batch.process(s);
+  for (Step s : delayOdometry(steps, delay_s)) {
+    s.observations.erase(std::remove_if(s.observations.begin(), s.observations.end(),
+                                        [](const Observation& o) { return o.landmark_id < 0; }),
+                         s.observations.end());
+    batch.process(s);
+  }
   batch.finish();
   if (!batch.summary().solved)
     throw Error("odometry delay: the batch found no solution at a delay of " + std::to_string(delay_s) + " s");
   return batch.summary().final_cost;
+}
+
+OdometryDelayEstimate estimateOdometryDelay(const FieldMap& map, const OdometryParams& odometry,
+                                            const BatchSmootherConfig& config, const std::vector<Step>& steps,
+                                            const OdometryDelaySearch& search) {
+  OdometryDelayEstimate e = profileOdometryDelay(
+      [&](double delay_s) { return batchCostWithOdometryDelay(map, odometry, config, steps, delay_s); }, search);
+  std::vector<double> intervals;
+  for (size_t k = 1; k < steps.size(); ++k)
+    if (steps[k].t > steps[k - 1].t) intervals.push_back(steps[k].t - steps[k - 1].t);
+  if (!intervals.empty()) {
+    std::nth_element(intervals.begin(), intervals.begin() + static_cast<long>(intervals.size() / 2), intervals.end());
+    e.resolution_s = intervals[intervals.size() / 2] / std::sqrt(12.0);
+  }
+  e.sigma_s = std::hypot(e.profile_sigma_s, e.resolution_s);
+  return e;
 }
 
 }  // namespace stereoloc

@@ -2,9 +2,11 @@
 // The odometry's delay against the camera (src/core/odometry_delay.h) estimated from the data
 // alone, by the batch smoother: its least-squares cost as a function of the delay, every pose
 // and calibration parameter re-estimated at each delay (the profile likelihood of the delay).
-// A grid over the search interval finds the least cost; a parabola through the points around it
-// (the grid's neighbours and two at half the spacing) gives the estimate at its vertex and the
-// standard deviation from its curvature, cost ~ (delay - estimate)^2 / (2 sigma^2) + const.
+// A grid over the search interval finds the least cost; around it the spacing is halved (two
+// more solves), and the parabola through the least of the three and its neighbours half a step
+// away gives the estimate at its vertex and a standard deviation from its curvature,
+// cost ~ (delay - estimate)^2 / (2 sigma^2) + const. That one is a statement about noise; the
+// steps' resolution is added to it (OdometryDelayEstimate).
 // MR.CLAM's robots: 0.24 s, where the motion capture says 0.25-0.29 s (docs/results.md).
 //
 // Why a profile rather than a parameter block: the delay moves every step's reading by the
@@ -30,8 +32,13 @@ struct OdometryDelaySearch {
 };
 
 struct OdometryDelayEstimate {
-  double delay_s = 0.0;  // s, the odometry runs this late
-  double sigma_s = 0.0;  // s, from the profile's curvature (the batch's noise model taken as stated)
+  double delay_s = 0.0;          // s, the odometry runs this late
+  double sigma_s = 0.0;          // s, the profile's and the resolution's in quadrature
+  double profile_sigma_s = 0.0;  // s, from the profile's curvature (the batch's noise model as stated)
+  // s, what the steps cannot tell: a reading says how far a wheel went over its step, not when
+  // within it, and the re-timing takes the speed as constant over the step; a delay is resolved
+  // to about a step, uniformly: the median step interval / sqrt(12). 0 from profileOdometryDelay.
+  double resolution_s = 0.0;
   std::vector<std::pair<double, double>> profile;  // (delay s, cost with the prior), by delay
 };
 
@@ -41,8 +48,17 @@ struct OdometryDelayEstimate {
 OdometryDelayEstimate profileOdometryDelay(const std::function<double(double)>& cost_at,
                                            const OdometryDelaySearch& search = {});
 
-// The batch smoother's final cost on `steps` with their odometry delayed by delay_s.
+// The batch smoother's final cost on `steps` with their odometry delayed by delay_s, over the
+// same residuals at every delay: the sightings of identified landmarks only (the solve pairs
+// the others itself, and which it pairs would change with the delay), one unbroken odometry
+// chain (a kidnap cut that the filter pass makes at one delay and not at the next moves the cost
+// by hundreds). Throws stereoloc::Error when the batch finds no solution.
 double batchCostWithOdometryDelay(const FieldMap& map, const OdometryParams& odometry, const BatchSmootherConfig& config,
                                   const std::vector<Step>& steps, double delay_s);
+
+// profileOdometryDelay of batchCostWithOdometryDelay, with the steps' resolution.
+OdometryDelayEstimate estimateOdometryDelay(const FieldMap& map, const OdometryParams& odometry,
+                                            const BatchSmootherConfig& config, const std::vector<Step>& steps,
+                                            const OdometryDelaySearch& search = {});
 
 }  // namespace stereoloc

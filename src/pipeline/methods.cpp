@@ -251,9 +251,7 @@ std::vector<Step> stepsWithOdometryDelay(const std::string& spec, const Dataset&
     if (hasCalibrationSuffix(spec) || hasConsiderSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
     o.calibration.consider = false;
     const BatchSmootherConfig c = batchConfigFor("batch:" + toString(init), d, seed, o);
-    const OdometryDelayEstimate e = profileOdometryDelay(
-        [&](double delay_s) { return batchCostWithOdometryDelay(d.map, d.odometry, c, d.steps, delay_s); },
-        options.odometry_delay_search);
+    const OdometryDelayEstimate e = estimateOdometryDelay(d.map, d.odometry, c, d.steps, options.odometry_delay_search);
     delay = e.delay_s;
     if (fitted) *fitted = e;
   }

@@ -326,11 +326,11 @@ void runRealDataStudy(const RealDataStudyOptions& o) {
     c.init = init;
     c.calibration = SelfCalibrationConfig::parse("odometry,range");
     c.initial_guess = initialGuessFromString(o.batch_guess);
-    const OdometryDelayEstimate e = profileOdometryDelay(
-        [&](double delay_s) { return batchCostWithOdometryDelay(d.map, d.odometry, c, d.steps, delay_s); },
-        o.odometry_delay_search);
-    std::fprintf(o.console, "odometry delay (fitted by the batch calibrating odometry and range): %.3f +- %.3f s\n",
-                 e.delay_s, e.sigma_s);
+    const OdometryDelayEstimate e = estimateOdometryDelay(d.map, d.odometry, c, d.steps, o.odometry_delay_search);
+    std::fprintf(o.console,
+                 "odometry delay (fitted by the batch calibrating odometry and range): %.3f +- %.3f s (profile %.3f s, "
+                 "the steps' resolution %.3f s)\n",
+                 e.delay_s, e.sigma_s, e.profile_sigma_s, e.resolution_s);
     d.steps = delayOdometry(d.steps, e.delay_s);
   }
   std::fflush(o.console);

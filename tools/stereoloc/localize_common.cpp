@@ -85,8 +85,10 @@ void printOdometryDelay(const MethodOptions& o, const std::optional<OdometryDela
                 o.given_odometry_delay_s);
   if (fitted) {
     const OdometryDelaySearch& s = o.odometry_delay_search;
-    std::printf("odometry delay (fitted by the batch): %.3f +- %.3f s (%zu delays tried, %.2f to %.2f s)\n",
-                fitted->delay_s, fitted->sigma_s, fitted->profile.size(), s.min_s, s.max_s);
+    std::printf("odometry delay (fitted by the batch): %.3f +- %.3f s (profile %.3f s, the steps' resolution %.3f s; "
+                "%zu delays tried, %.2f to %.2f s)\n",
+                fitted->delay_s, fitted->sigma_s, fitted->profile_sigma_s, fitted->resolution_s, fitted->profile.size(),
+                s.min_s, s.max_s);
   }
 }
 
