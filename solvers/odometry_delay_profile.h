@@ -11,7 +11,7 @@
 //
 // Why a profile rather than a parameter block: the delay moves every step's reading by the
 // difference of the wheel speeds at the interval's ends, a parameter of the odometry stream
-// rather than of a factor; a dozen batch solves (about 0.2 s each for a 15 minute log) cost
+// rather than of a factor; eighteen batch solves (about 0.3 s each for a 15 minute log) cost
 // less than re-timing the stream inside every odometry factor and its Jacobians.
 #include <functional>
 #include <utility>
