@@ -405,6 +405,9 @@ TEST(CliStream, TheOdometryDelayGivesTheEstimatesOfLocalize) {
   ASSERT_EQ(cal.exit_code, 0) << cal.output;
   EXPECT_DOUBLE_EQ(YamlReader(rig).getDouble("odometry_delay_s"), 0.15);
   EXPECT_FALSE(YamlReader(rig).has("odometry_delay_sigma_s"));  // given, not estimated
+  const test::CliRun check = test::runCli("selfcheck --samples 10 --rig " + rig);
+  ASSERT_EQ(check.exit_code, 0) << check.output;
+  EXPECT_NE(check.output.find("hands over: odometry delay 0.150 s"), std::string::npos) << check.output;
   const std::string on_rig = " --method ekf --init global --rig " + rig;
   const test::CliRun handed = test::runCli("localize " + ds + on_rig + " --out " + dir.file("handed.csv"));
   ASSERT_EQ(handed.exit_code, 0) << handed.output;
