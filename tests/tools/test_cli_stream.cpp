@@ -417,6 +417,10 @@ TEST(CliStream, TheOdometryDelayGivesTheEstimatesOfLocalize) {
       test::runCli("localize " + ds + on_rig + " --odometry-delay 0 --out " + dir.file("undelayed.csv"));
   ASSERT_EQ(undelayed.exit_code, 0) << undelayed.output;
   EXPECT_GT(worstRelativeDifference(estimateCsv(dir.file("undelayed.csv")), estimateCsv(dir.file("handed.csv"))), 0.0);
+  const test::CliRun refined = test::runCli("refine " + ds + " --init global --rig " + rig + " --out " + dir.file("r.csv"));
+  ASSERT_EQ(refined.exit_code, 0) << refined.output;
+  EXPECT_NE(refined.output.find("odometry delay (handed over by the rig file): 0.150 s"), std::string::npos)
+      << refined.output;
   const test::CliRun streamed = test::runCli("stream --from " + ds + on_rig);
   ASSERT_EQ(streamed.exit_code, 0) << streamed.output;
   EXPECT_EQ(worstRelativeDifference(estimateLines(streamed.output, false), estimateCsv(dir.file("handed.csv"))), 0.0);
