@@ -145,6 +145,9 @@ TEST_F(CliImport, OdometryDelayOptionsOfLocalizeAndRefine) {
   r = test::runCli("localize " + out + " --odometry-delay-search 0,1,0.1 --out " + est);
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("needs --odometry-delay fit"), std::string::npos) << r.output;
+  r = test::runCli("localize " + out + " --odometry-delay 0.2 --odometry-delay-profile p.csv --out " + est);
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("--odometry-delay-profile: needs --odometry-delay fit"), std::string::npos) << r.output;
   r = test::runCli("refine " + out + " --odometry-delay fit --odometry-delay-search 0,0.1,0.1 --out " + est);
   EXPECT_EQ(r.exit_code, 2) << r.output;
   EXPECT_NE(r.output.find("step_s"), std::string::npos) << r.output;
@@ -336,14 +339,29 @@ TEST_F(CliImportRobot1, TheBatchFindsTheOdometryDelayFromTheDataAlone) {
     EXPECT_GT(rmse(plain.output), 0.0) << plain.output;
     EXPECT_LT(rmse(delayed.output), 0.97 * rmse(plain.output)) << method << ": " << delayed.output;
   }
-  const std::string rig = tmp_.file("delay.yaml");
-  const test::CliRun refined = test::runCli("refine " + out + " --calibrate odometry,range --odometry-delay fit " +
-                                            "--calibration-out " + rig + " --out " + est);
+  const std::string rig = tmp_.file("delay.yaml"), profile = tmp_.file("profile.csv");
+  const test::CliRun refined =
+      test::runCli("refine " + out + " --calibrate odometry,range --odometry-delay fit --odometry-delay-profile " +
+                   profile + " --calibration-out " + rig + " --out " + est);
   ASSERT_EQ(refined.exit_code, 0) << refined.output;
   EXPECT_NE(refined.output.find("odometry delay (fitted by the batch): 0.2"), std::string::npos) << refined.output;
   const YamlReader written(rig);
   EXPECT_NEAR(written.getDouble("odometry_delay_s"), 0.25, 0.07);
   EXPECT_GT(written.getDouble("odometry_delay_sigma_s"), 0.0);
+  // The profile: one row per solve, least near the estimate.
+  std::ifstream in(profile);
+  std::string line;
+  std::getline(in, line);
+  EXPECT_EQ(line, "delay_s,cost");
+  double least_delay = 0, least = 1e300;
+  int rows = 0;
+  while (std::getline(in, line)) {
+    const double delay = std::stod(line), cost = std::stod(line.substr(line.find(',') + 1));
+    if (cost < least) least = cost, least_delay = delay;
+    ++rows;
+  }
+  EXPECT_EQ(rows, 18);
+  EXPECT_NEAR(least_delay, written.getDouble("odometry_delay_s"), 0.05);
 }
 
 // Without ground truth: the smoothers and the EKF estimate the camera's range factor across its

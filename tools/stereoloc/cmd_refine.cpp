@@ -104,6 +104,7 @@ void runRefine(const LocalizeArgs& a) {
   const double write_s = secondsSince(t_write);
   progress.clear();
   printOdometryDelay(o, fitted_delay, handover);
+  writeOdometryDelayProfile(a.odometry_delay_profile, fitted_delay);
   std::printf("batch: %zu estimates for %zu steps written to %s\n", estimates.size(), steps, a.out.c_str());
   std::printf("solve: %d iterations (%s)%s; %d kidnap cut%s kept, %d withdrawn (%d iterations)\n", s.iterations,
               s.converged ? "converged" : "not converged", s.message.empty() ? "" : (": " + s.message).c_str(),

@@ -6,6 +6,8 @@
 #include <cstdio>
 #include <memory>
 
+#include "src/core/atomic_file.h"
+#include "src/io/csv.h"
 #include "src/io/dataset.h"
 #include "src/io/estimate_io.h"
 #include "src/eval/evaluation.h"
@@ -41,6 +43,8 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
     throw UsageError("--calibration-out: needs --calibrate");
   if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);
   o.odometry_delay = parseOdometryDelay(a.odometry_delay, &o.given_odometry_delay_s);
+  if (!a.odometry_delay_profile.empty() && o.odometry_delay != OdometryDelayMode::Fit)
+    throw UsageError("--odometry-delay-profile: needs --odometry-delay fit");
   if (!a.odometry_delay_search.empty()) {
     if (o.odometry_delay != OdometryDelayMode::Fit) throw UsageError("--odometry-delay-search: needs --odometry-delay fit");
     const std::vector<double> v = parseNumbers(a.odometry_delay_search, 3, "--odometry-delay-search", "MIN,MAX,STEP");
@@ -73,6 +77,13 @@ void recordOdometryDelay(CalibrationEstimate& c, const MethodOptions& o, const s
     c.odometry_delay_s = o.given_odometry_delay_s;
     c.odometry_delay_sigma_s = 0.0;
   }
+}
+
+void writeOdometryDelayProfile(const std::string& path, const std::optional<OdometryDelayEstimate>& fitted) {
+  if (path.empty() || !fitted) return;
+  std::string csv = "delay_s,cost\n";
+  for (const auto& [delay, cost] : fitted->profile) csv += formatDouble(delay) + "," + formatDouble(cost) + "\n";
+  writeFileAtomically(path, csv);
 }
 
 void printOdometryDelay(const MethodOptions& o, const std::optional<OdometryDelayEstimate>& fitted,
@@ -160,6 +171,7 @@ void runLocalize(const LocalizeArgs& a) {
   const Dataset d = loadRunDataset(a, o, handover);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
   printOdometryDelay(o, run.odometry_delay, handover);
+  writeOdometryDelayProfile(a.odometry_delay_profile, run.odometry_delay);
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
   if (!a.calibration_out.empty() && !run.calibration)
@@ -249,6 +261,8 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "printed with its standard deviation, before the method runs on the re-timed odometry");
   sub->add_option("--odometry-delay-search", a->odometry_delay_search,
                   "With --odometry-delay fit: MIN,MAX,STEP of the delays tried, seconds (default -0.5,1,0.1)");
+  sub->add_option("--odometry-delay-profile", a->odometry_delay_profile,
+                  "With --odometry-delay fit: write the batch's cost at every delay tried as CSV delay_s,cost");
   sub->add_option("--calibration-out", a->calibration_out,
                   "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
                   "(usable as --rig)");

@@ -30,6 +30,7 @@ struct LocalizeArgs {
   std::string rig;                            // rig YAML in place of the dataset's (src/pipeline/rig_handover.h)
   std::optional<std::string> odometry_delay;   // "fit" or seconds (src/core/odometry_delay.h)
   std::string odometry_delay_search;          // "MIN,MAX,STEP" seconds (solvers/odometry_delay_profile.h)
+  std::string odometry_delay_profile;         // CSV of the fit's profile (delay_s, cost)
 
 };
 
@@ -51,6 +52,9 @@ void recordOdometryDelay(CalibrationEstimate& calibration, const MethodOptions& 
 // file, or fitted (estimate, standard deviation, the search); nothing without a delay.
 void printOdometryDelay(const MethodOptions& options, const std::optional<OdometryDelayEstimate>& fitted,
                         const CalibrationHandover& handover);
+// Writes --odometry-delay-profile (when given): the fit's profile as CSV `delay_s,cost`, one row
+// per batch solve in the order of the delays (cost: 1/2 sum |r|^2 with the delay's prior).
+void writeOdometryDelayProfile(const std::string& path, const std::optional<OdometryDelayEstimate>& fitted);
 // --calibrate or --consider (at most one given; "": none) as the self-calibration's blocks, with
 // SelfCalibrationConfig::consider set for --consider; throws UsageError naming the option.
 SelfCalibrationConfig calibrationOptions(const std::string& calibrate, const std::string& consider);
