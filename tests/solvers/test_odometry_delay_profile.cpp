@@ -10,7 +10,7 @@
 #include "solvers/batch_smoother.h"
 #include "solvers/smoother_common.h"
 #include "src/core/odometry_delay.h"
-#include "late_odometry_walk.h"
+#include "sighted_walk.h"
 #include "test_util.h"
 
 namespace stereoloc {

@@ -19,6 +19,7 @@
 #include "src/core/numeric_diff.h"
 #include "src/core/stereo_rig.h"
 #include "src/core/yaml_util.h"
+#include "sighted_walk.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -31,12 +32,8 @@ const Eigen::Vector4d kPlanted(0.03, 0.02, -0.4, deg2rad(0.6));
 // A random walk seen through that sensor: each sighting's bearing offset, its range scaled at
 // the bearing it reports.
 SyntheticProblem plantedSensorWalk(int steps, uint64_t seed) {
-  SyntheticProblemOptions o;
-  o.steps = steps;
-  o.max_observations = 3;
-  o.max_range = 1800.0;
+  SyntheticProblemOptions o = test::sightedWalkOptions(steps);
   o.half_fov = 0.6;
-  o.sigma_range = 10.0;
   o.sigma_bearing = deg2rad(0.5);
   SyntheticProblem p = makeRandomWalkProblem(o, seed);
   for (Step& s : p.steps)

@@ -8,7 +8,7 @@
 #include "src/pipeline/methods.h"
 #include "src/pipeline/usage_error.h"
 #include "src/sim/simulator.h"
-#include "late_odometry_walk.h"
+#include "sighted_walk.h"
 #include "test_util.h"
 
 namespace stereoloc {
