@@ -244,6 +244,27 @@ StereoCalibration givenCalibration(const StereoRig& nominal, const DrawnErrors& 
   return c;
 }
 
+StereoCalibration trueCalibration(const StereoRig& nominal, const DrawnErrors& e) {
+  DrawnErrors still = e;  // the head at rest: no roll
+  still.roll_rad.clear();
+  const RawCamera left = trueCamera(nominal, still, 0, 0);
+  const RawCamera right = trueCamera(nominal, still, 1, 0);
+  StereoCalibration c;
+  c.K1 = left.K;
+  c.D1 = left.D;
+  c.K2 = right.K;
+  c.D2 = right.D;
+  // X_raw = R_i X_ideal and the ideal right camera sits at (b, 0, 0) of the ideal left one, so
+  // X_right = R_r (X_left - (b, 0, 0)) with the left raw frame the ideal one (no roll).
+  c.R = right.R * left.R.t();
+  const double b = nominal.params().baseline_mm * (1.0 + e.baseline_rel);
+  c.T = -right.R * (cv::Mat_<double>(3, 1) << b, 0, 0);
+  c.image_size = cv::Size(nominal.params().image_width, nominal.params().image_height);
+  c.source = "true cameras";
+  c.rectify();
+  return c;
+}
+
 StereoRigParams trueRigParams(const StereoRigParams& nominal, const DrawnErrors& e, size_t step) {
   StereoRigParams p = nominal;
   p.baseline_mm *= 1.0 + e.baseline_rel;

@@ -108,6 +108,12 @@ RawCamera trueCamera(const StereoRig& nominal, const DrawnErrors& e, int camera,
 // exact rectified baseline (no extrinsic error is known to the user).
 StereoCalibration givenCalibration(const StereoRig& nominal, const DrawnErrors& e);
 
+// The true raw cameras as an OpenCV stereo calibration, without the steps' vibration: what a
+// perfect calibration of this robot's head would find (K1, D1, K2, D2 of trueCamera; R the right
+// camera's relative rotation, T = -R (b_true, 0, 0)), rectified. The target a checkerboard
+// calibration is scored against.
+StereoCalibration trueCalibration(const StereoRig& nominal, const DrawnErrors& e);
+
 // The rig geometry of the true world at a step (baseline, height, tilt + pitch); image size
 // and pinhole are the nominal ones.
 StereoRigParams trueRigParams(const StereoRigParams& nominal, const DrawnErrors& e, size_t step);

@@ -5,6 +5,8 @@
 #include <memory>
 
 #include "src/io/dataset.h"
+#include "src/sim/calibration_target.h"
+#include "src/sim/error_profile.h"
 #include "src/sim/renderer.h"
 #include "src/sim/simulator.h"
 #include "tools/stereoloc/cli_common.h"
@@ -14,7 +16,7 @@ namespace {
 
 struct SimulateOptions {
   std::string scenario, trial = "0", out, map_path, rig_path, landmarks = "goal_corners", profile = "ideal";
-  int steps = 0, obstacles = 0;
+  int steps = 0, obstacles = 0, calibration_views = 0;
   uint64_t seed = 1;
   bool images = false, force = false, no_compass = false, quantise = false, head_scan = false;
   double encoder_k = SimulationConfig().encoder_k;
@@ -95,9 +97,17 @@ void runSimulate(const SimulateOptions& o) {
       throw UsageError(e.what());
     }
   }
-  if (o.images || !cfg.profile.isIdeal())
+  if (o.images || !cfg.profile.isIdeal() || o.calibration_views > 0)
     extra = [&](const std::string& tmp) {
       if (o.images) writeDatasetImages(d, trace, o.render, o.seed, tmp);
+      if (o.calibration_views > 0) {
+        // What the robot's own cameras see of a checkerboard before the drive.
+        CalibrationViewOptions views;
+        views.views = o.calibration_views;
+        writeCalibrationViews((std::filesystem::path(tmp) / "calibration").string(),
+                              trueCalibration(StereoRig(trace.nominal_rig), trace.errors), CheckerBoard(), views,
+                              o.seed ^ 0x5ca1ab1eULL);
+      }
       // The truth of every drawn error, for scoring what the estimators recover.
       if (!cfg.profile.isIdeal()) trace.errors.save((std::filesystem::path(tmp) / "errors.yaml").string(), cfg.profile);
     };
@@ -153,6 +163,10 @@ void add_simulate_command(CLI::App& app) {
                   "Error profile: ideal (exact world), realistic (calibration, lens, blur, vibration and odometry "
                   "errors; src/sim/error_profile.h) or a profile YAML file")
       ->capture_default_str();
+  sub->add_option("--calibration-views", o->calibration_views,
+                  "Also render N checkerboard pairs (9x6 corners, 15 mm squares) through the true cameras into "
+                  "calibration/, for `stereoloc calibrate`")
+      ->check(CLI::Range(0, 1000));
   sub->add_flag("--head-scan", o->head_scan, "Sweep the head pan (+-30 deg) instead of looking straight ahead");
   sub->callback([o] { runSimulate(*o); });
 }

@@ -1,0 +1,409 @@
+#include "src/calib/stereo_target_calibration.h"
+
+#include <Eigen/Dense>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <algorithm>
+#include <cmath>
+
+#include "src/core/error.h"
+#include "src/core/yaml_util.h"
+
+namespace stereoloc {
+namespace {
+
+cv::Mat grey(const cv::Mat& image) {
+  if (image.channels() == 1) return image;
+  cv::Mat g;
+  cv::cvtColor(image, g, image.channels() == 4 ? cv::COLOR_BGRA2GRAY : cv::COLOR_BGR2GRAY);
+  return g;
+}
+
+// The joint problem's parameters, in the order of its Jacobian's columns:
+//   per camera c: fx, fy (one f when same_focal_axes), cx, cy, the distortion coefficients;
+//   R's rotation vector r and T; per pair v, the board's pose in the left camera, r_v and t_v.
+struct Layout {
+  bool same_focal = false;
+  int distortion = 4;
+  int pairs = 0;
+  int intrinsics() const { return (same_focal ? 3 : 4) + distortion; }
+  int camera(int c) const { return c * intrinsics(); }
+  int relative() const { return 2 * intrinsics(); }
+  int view(int v) const { return relative() + 6 + 6 * v; }
+  int size() const { return view(pairs); }
+};
+
+struct Parameters {
+  cv::Mat K[2], D[2];  // CV_64F; D 1 x distortion
+  cv::Vec3d r, T;
+  std::vector<cv::Vec3d> rv, tv;
+};
+
+// Columns of a projectPoints Jacobian (rvec 3, tvec 3, fx, fy, cx, cy, distortion) for camera c's
+// intrinsics, added into J's rows.
+void addIntrinsics(const cv::Mat& jac, const Layout& L, int c, int row0, Eigen::MatrixXd& J) {
+  const int col = L.camera(c);
+  for (int i = 0; i < jac.rows; ++i) {
+    const double* j = jac.ptr<double>(i);
+    int k = col;
+    if (L.same_focal) {
+      J(row0 + i, k++) += j[6] + j[7];
+    } else {
+      J(row0 + i, k++) += j[6];
+      J(row0 + i, k++) += j[7];
+    }
+    J(row0 + i, k++) += j[8];
+    J(row0 + i, k++) += j[9];
+    for (int d = 0; d < L.distortion; ++d) J(row0 + i, k++) += j[10 + d];
+  }
+}
+
+// One pair's residuals (projected - measured, left then right, x and y per corner) and their
+// Jacobian rows (4 N x L.size()).
+void pairResiduals(const Parameters& p, const Layout& L, int v, const std::vector<cv::Point3f>& object,
+                   const std::vector<cv::Point2f>& left, const std::vector<cv::Point2f>& right, Eigen::VectorXd& e,
+                   Eigen::MatrixXd* J) {
+  const int n = static_cast<int>(object.size());
+  const std::vector<cv::Point3d> X(object.begin(), object.end());  // double in, double out
+  e.resize(4 * n);
+  if (J) J->setZero(4 * n, L.size());
+  std::vector<cv::Point2d> proj;
+  cv::Mat jac;
+  cv::projectPoints(X, p.rv[v], p.tv[v], p.K[0], p.D[0], proj, J ? jac : cv::noArray());
+  for (int i = 0; i < n; ++i) {
+    e(2 * i) = proj[i].x - left[i].x;
+    e(2 * i + 1) = proj[i].y - left[i].y;
+  }
+  if (J) {
+    addIntrinsics(jac, L, 0, 0, *J);
+    for (int i = 0; i < 2 * n; ++i)
+      for (int k = 0; k < 6; ++k) (*J)(i, L.view(v) + k) = jac.at<double>(i, k);
+  }
+  // Right camera: the board in the right frame, X_right = R (R_v X + t_v) + T.
+  cv::Mat r3, t3, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2;
+  cv::composeRT(p.rv[v], p.tv[v], p.r, p.T, r3, t3, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2);
+  cv::projectPoints(X, r3, t3, p.K[1], p.D[1], proj, J ? jac : cv::noArray());
+  for (int i = 0; i < n; ++i) {
+    e(2 * n + 2 * i) = proj[i].x - right[i].x;
+    e(2 * n + 2 * i + 1) = proj[i].y - right[i].y;
+  }
+  if (!J) return;
+  addIntrinsics(jac, L, 1, 2 * n, *J);
+  // J_pose3 = [d/dr3, d/dt3]; chain through composeRT to (r_v, t_v) and (r, T).
+  const cv::Mat jr3 = jac.colRange(0, 3), jt3 = jac.colRange(3, 6);
+  const cv::Mat d_rv = jr3 * dr3dr1 + jt3 * dt3dr1, d_tv = jr3 * dr3dt1 + jt3 * dt3dt1;
+  const cv::Mat d_r = jr3 * dr3dr2 + jt3 * dt3dr2, d_T = jr3 * dr3dt2 + jt3 * dt3dt2;
+  for (int i = 0; i < 2 * n; ++i)
+    for (int k = 0; k < 3; ++k) {
+      (*J)(2 * n + i, L.view(v) + k) = d_rv.at<double>(i, k);
+      (*J)(2 * n + i, L.view(v) + 3 + k) = d_tv.at<double>(i, k);
+      (*J)(2 * n + i, L.relative() + k) = d_r.at<double>(i, k);
+      (*J)(2 * n + i, L.relative() + 3 + k) = d_T.at<double>(i, k);
+    }
+}
+
+Parameters applyStep(const Parameters& p, const Layout& L, const Eigen::VectorXd& dx) {
+  Parameters q = p;
+  for (int c = 0; c < 2; ++c) {
+    q.K[c] = p.K[c].clone();
+    q.D[c] = p.D[c].clone();
+    int k = L.camera(c);
+    if (L.same_focal) {
+      q.K[c].at<double>(0, 0) += dx(k);
+      q.K[c].at<double>(1, 1) += dx(k++);
+    } else {
+      q.K[c].at<double>(0, 0) += dx(k++);
+      q.K[c].at<double>(1, 1) += dx(k++);
+    }
+    q.K[c].at<double>(0, 2) += dx(k++);
+    q.K[c].at<double>(1, 2) += dx(k++);
+    for (int d = 0; d < L.distortion; ++d) q.D[c].at<double>(0, d) += dx(k++);
+  }
+  for (int k = 0; k < 3; ++k) {
+    q.r[k] += dx(L.relative() + k);
+    q.T[k] += dx(L.relative() + 3 + k);
+  }
+  for (int v = 0; v < L.pairs; ++v)
+    for (int k = 0; k < 3; ++k) {
+      q.rv[v][k] += dx(L.view(v) + k);
+      q.tv[v][k] += dx(L.view(v) + 3 + k);
+    }
+  return q;
+}
+
+cv::Mat firstCoefficients(const cv::Mat& D, int n) {
+  cv::Mat out = cv::Mat::zeros(1, n, CV_64F);
+  const cv::Mat flat = D.reshape(1, 1);
+  for (int i = 0; i < n && i < flat.cols; ++i) out.at<double>(0, i) = flat.at<double>(0, i);
+  return out;
+}
+
+}  // namespace
+
+std::vector<cv::Point2f> detectBoardCorners(const cv::Mat& image, const CheckerBoard& board) {
+  std::vector<cv::Point2f> corners;
+  if (image.empty()) return corners;
+  const cv::Mat g = grey(image);
+  const size_t expected = static_cast<size_t>(board.columns) * static_cast<size_t>(board.rows);
+  // Found by the classic detector, or else by the sector-based one (it finds boards the classic
+  // misses, but its own sub-pixel corners were biased on our views: focal lengths ~1 % long,
+  // 2-8 of their sigmas); either way refined by the saddle point of the image gradient.
+  const bool found =
+      cv::findChessboardCorners(g, board.patternSize(), corners, cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE) ||
+      cv::findChessboardCornersSB(g, board.patternSize(), corners, cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_EXHAUSTIVE);
+  if (!found || corners.size() != expected) return {};
+  // The refinement's window must stay inside the corner's four squares: a neighbouring corner's
+  // edge in it would pull the saddle point.
+  double spacing = 1e9;
+  for (int j = 0; j < board.rows; ++j)
+    for (int i = 0; i < board.columns; ++i) {
+      const cv::Point2f& c = corners[static_cast<size_t>(j * board.columns + i)];
+      if (i + 1 < board.columns) spacing = std::min(spacing, cv::norm(c - corners[static_cast<size_t>(j * board.columns + i + 1)]));
+      if (j + 1 < board.rows) spacing = std::min(spacing, cv::norm(c - corners[static_cast<size_t>((j + 1) * board.columns + i)]));
+    }
+  const int half = static_cast<int>(std::clamp(std::floor(0.4 * spacing), 2.0, 7.0));
+  cv::cornerSubPix(g, corners, cv::Size(half, half), cv::Size(-1, -1),
+                   cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-4));
+  return corners;
+}
+
+TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>& pairs, const CheckerBoard& board,
+                                                   const TargetCalibrationOptions& options) {
+  board.validate("calibration board");
+  const int nd = options.distortion_coefficients;
+  if (nd != 4 && nd != 5 && nd != 8)
+    throw Error("calibrate: distortion_coefficients: must be 4, 5 or 8, got " + std::to_string(nd));
+  if (options.min_views < 3)
+    throw Error("calibrate: min_views: at least 3 pairs are needed, got " + std::to_string(options.min_views));
+  if (pairs.empty()) throw Error("calibrate: no image pairs");
+
+  TargetCalibrationResult result;
+  const cv::Size size = pairs.front().left.size();
+  const std::vector<cv::Point3f> object = board.corners();
+  std::vector<std::vector<cv::Point3f>> objects;
+  std::vector<std::vector<cv::Point2f>> left_points, right_points;
+  std::vector<size_t> used_index;
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    const TargetPair& pair = pairs[i];
+    TargetPairResult r;
+    r.name = pair.name;
+    if (pair.left.empty() || pair.right.empty()) throw Error(pair.name + ": an image of the pair is empty");
+    if (pair.left.depth() != CV_8U || pair.right.depth() != CV_8U)
+      throw Error(pair.name + ": images must be 8-bit");
+    if (pair.left.size() != size || pair.right.size() != size)
+      throw Error(pair.name + ": image size " + std::to_string(pair.left.cols) + "x" + std::to_string(pair.left.rows) +
+                  " / " + std::to_string(pair.right.cols) + "x" + std::to_string(pair.right.rows) + " differs from " +
+                  std::to_string(size.width) + "x" + std::to_string(size.height) + " of " + pairs.front().name);
+    std::vector<cv::Point2f> l = detectBoardCorners(pair.left, board), rr = detectBoardCorners(pair.right, board);
+    if (l.empty() || rr.empty()) {
+      r.reason = std::string("board not found in the ") + (l.empty() && rr.empty() ? "left and right images"
+                                                           : l.empty()            ? "left image"
+                                                                                  : "right image");
+      result.pairs.push_back(r);
+      continue;
+    }
+    // The detector may list a board turned by 180 degrees from either end; the right list must
+    // start at the corner the left one starts at (nearly the same view).
+    if (cv::norm(l.front() - rr.front()) > cv::norm(l.front() - rr.back())) std::reverse(rr.begin(), rr.end());
+    r.used = true;
+    result.pairs.push_back(r);
+    objects.push_back(object);
+    left_points.push_back(std::move(l));
+    right_points.push_back(std::move(rr));
+    used_index.push_back(i);
+  }
+  const int V = static_cast<int>(objects.size());
+  if (V < options.min_views) {
+    std::string why;
+    for (const auto& r : result.pairs)
+      if (!r.used) why += (why.empty() ? "" : "; ") + r.name + ": " + r.reason;
+    throw Error("calibrate: " + std::to_string(V) + " of " + std::to_string(pairs.size()) +
+                " pairs show the whole board in both images, " + std::to_string(options.min_views) +
+                " needed" + (why.empty() ? "" : " (" + why + ")"));
+  }
+
+  int flags = 0;
+  if (nd == 4) flags |= cv::CALIB_FIX_K3;
+  if (nd == 8) flags |= cv::CALIB_RATIONAL_MODEL;
+  if (options.same_focal_axes) flags |= cv::CALIB_FIX_ASPECT_RATIO;
+  const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12);
+  Parameters p;
+  std::vector<cv::Mat> rvecs, tvecs, rvecs_right, tvecs_right;
+  for (int c = 0; c < 2; ++c) {
+    p.K[c] = cv::Mat::eye(3, 3, CV_64F);
+    p.D[c] = cv::Mat::zeros(1, nd == 8 ? 8 : 5, CV_64F);
+    cv::calibrateCamera(objects, c == 0 ? left_points : right_points, size, p.K[c], p.D[c],
+                        c == 0 ? rvecs : rvecs_right, c == 0 ? tvecs : tvecs_right, flags, criteria);
+  }
+  cv::Mat R, T, E, F;
+  cv::stereoCalibrate(objects, left_points, right_points, p.K[0], p.D[0], p.K[1], p.D[1], size, R, T, E, F,
+                      flags | cv::CALIB_USE_INTRINSIC_GUESS, criteria);
+  for (int c = 0; c < 2; ++c) p.D[c] = firstCoefficients(p.D[c], nd);
+  cv::Mat rm;
+  cv::Rodrigues(R, rm);
+  p.r = cv::Vec3d(rm.at<double>(0), rm.at<double>(1), rm.at<double>(2));
+  p.T = cv::Vec3d(T.at<double>(0), T.at<double>(1), T.at<double>(2));
+  for (int v = 0; v < V; ++v) {
+    cv::Mat rv, tv;
+    cv::solvePnP(objects[v], left_points[v], p.K[0], p.D[0], rv, tv);
+    p.rv.emplace_back(rv.at<double>(0), rv.at<double>(1), rv.at<double>(2));
+    p.tv.emplace_back(tv.at<double>(0), tv.at<double>(1), tv.at<double>(2));
+  }
+
+  // The joint least squares of both images of every pair over all parameters at once: a few
+  // damped Gauss-Newton steps from OpenCV's solution (whose board poses are the left camera's
+  // alone), so that the covariance below is taken at the joint optimum.
+  Layout L;
+  L.same_focal = options.same_focal_axes;
+  L.distortion = nd;
+  L.pairs = V;
+  const int n = L.size();
+  auto normalEquations = [&](const Parameters& q, Eigen::MatrixXd* H, Eigen::VectorXd* g) {
+    double cost = 0.0;
+    if (H) H->setZero(n, n);
+    if (g) g->setZero(n);
+    Eigen::VectorXd e;
+    Eigen::MatrixXd J;
+    for (int v = 0; v < V; ++v) {
+      pairResiduals(q, L, v, objects[v], left_points[v], right_points[v], e, H ? &J : nullptr);
+      cost += e.squaredNorm();
+      if (H) {
+        H->noalias() += J.transpose() * J;
+        g->noalias() += J.transpose() * e;
+      }
+    }
+    return cost;
+  };
+  Eigen::MatrixXd H;
+  Eigen::VectorXd g;
+  double cost = normalEquations(p, &H, &g);
+  double lambda = 1e-6;
+  for (int it = 0; it < 20; ++it) {
+    Eigen::MatrixXd A = H;
+    A.diagonal() += lambda * H.diagonal().cwiseMax(1e-12);
+    const Eigen::VectorXd dx = A.ldlt().solve(-g);
+    const Parameters q = applyStep(p, L, dx);
+    const double c = normalEquations(q, nullptr, nullptr);
+    if (std::isfinite(c) && c < cost) {
+      const bool done = cost - c < 1e-12 * cost;
+      p = q;
+      cost = normalEquations(p, &H, &g);
+      lambda = std::max(lambda / 10, 1e-12);
+      if (done) break;
+    } else {
+      lambda *= 10;
+      if (lambda > 1e6) break;
+    }
+  }
+
+  const int m = 4 * static_cast<int>(object.size()) * V;
+  if (m <= n) throw Error("calibrate: too few corners for the parameters; take more pairs");
+  const double s2 = cost / (m - n);
+  Eigen::LDLT<Eigen::MatrixXd> ldlt(H);
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || ldlt.vectorD().minCoeff() <= 0.0)
+    throw Error("calibrate: the pairs do not constrain the calibration (the board at too few attitudes); take "
+                "views with the board turned and tilted");
+  const Eigen::MatrixXd Sigma = s2 * ldlt.solve(Eigen::MatrixXd::Identity(n, n));
+  if (!Sigma.allFinite()) throw Error("calibrate: the calibration's covariance is not finite; take more varied views");
+
+  // Standard deviations.
+  auto sd = [&](int i) { return std::sqrt(std::max(Sigma(i, i), 0.0)); };
+  auto sdOf = [&](const Eigen::VectorXd& a) { return std::sqrt(std::max(a.dot(Sigma * a), 0.0)); };
+  TargetCalibrationSigmas& S = result.sigmas;
+  for (int c = 0; c < 2; ++c) {
+    int k = L.camera(c);
+    if (L.same_focal) {
+      S.focal_px[c][0] = S.focal_px[c][1] = sd(k++);
+    } else {
+      S.focal_px[c][0] = sd(k++);
+      S.focal_px[c][1] = sd(k++);
+    }
+    S.principal_px[c][0] = sd(k++);
+    S.principal_px[c][1] = sd(k++);
+    for (int d = 0; d < nd; ++d) S.distortion[c].push_back(sd(k++));
+  }
+  for (int k = 0; k < 3; ++k) {
+    S.rotation_rad[k] = sd(L.relative() + k);
+    S.translation_mm[k] = sd(L.relative() + 3 + k);
+  }
+  const double fx1 = p.K[0].at<double>(0, 0), fx2 = p.K[1].at<double>(0, 0);
+  const double b = cv::norm(p.T);
+  const int fx1_col = L.camera(0), fx2_col = L.camera(1);
+  const int cx1_col = L.camera(0) + (L.same_focal ? 1 : 2), cx2_col = L.camera(1) + (L.same_focal ? 1 : 2);
+  Eigen::VectorXd a = Eigen::VectorXd::Zero(n);
+  for (int k = 0; k < 3; ++k) a(L.relative() + 3 + k) = p.T[k] / b;
+  S.baseline_mm = sdOf(a);
+  S.baseline_scale = S.baseline_mm / b;
+  a.setZero();
+  a(fx1_col) = 1.0 / fx1;
+  S.focal_scale = sdOf(a);
+  a.setZero();
+  a(fx2_col) = 1.0 / fx1;
+  a(fx1_col) = -fx2 / (fx1 * fx1);
+  S.focal_ratio = sdOf(a);
+  // A far point on the left optical axis: u_l = cx1, and X_right ~ (I + [w]x) X_left gives
+  // u_r = cx2 + fx2 w_y, so the disparity at infinity is cx1 - cx2 - fx2 w_y.
+  a.setZero();
+  a(cx1_col) = 1.0;
+  a(cx2_col) = -1.0;
+  a(L.relative() + 1) = -fx2;
+  S.disparity_offset_px = sdOf(a);
+
+  // The result and every pair's reprojection RMS.
+  StereoCalibration& cal = result.calibration;
+  cal.K1 = p.K[0];
+  cal.D1 = p.D[0];
+  cal.K2 = p.K[1];
+  cal.D2 = p.D[1];
+  cv::Rodrigues(cv::Mat(p.r), cal.R);
+  cal.T = cv::Mat(p.T).clone();
+  cal.image_size = size;
+  cal.source = "checkerboard calibration";
+  cal.rectify();
+  cal.validate("calibrate");
+  result.used_pairs = V;
+  result.corners_per_image = static_cast<int>(object.size());
+  result.rms_px = std::sqrt(cost / (m / 2));
+  for (int v = 0; v < V; ++v) {
+    Eigen::VectorXd e;
+    pairResiduals(p, L, v, objects[v], left_points[v], right_points[v], e, nullptr);
+    result.pairs[used_index[static_cast<size_t>(v)]].rms_px = std::sqrt(e.squaredNorm() / (e.size() / 2));
+  }
+  return result;
+}
+
+void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting, const TargetCalibrationResult& result,
+                       double tilt_sigma_rad, double column_offset_sigma_px) {
+  const TargetCalibrationSigmas& S = result.sigmas;
+  const std::pair<const char*, double> sigmas[] = {{"tilt_correction_sigma_rad", tilt_sigma_rad},
+                                                   {"baseline_scale_sigma", S.baseline_scale},
+                                                   {"disparity_offset_sigma_px", S.disparity_offset_px},
+                                                   {"column_offset_sigma_px", column_offset_sigma_px},
+                                                   {"focal_ratio_sigma", S.focal_ratio},
+                                                   {"focal_scale_sigma", S.focal_scale}};
+  for (const auto& [key, value] : sigmas)
+    if (!(value > 0.0) || !std::isfinite(value))
+      throw Error(path + ": " + key + ": must be a positive standard deviation, got " + std::to_string(value));
+  const StereoRig rig(mounting, result.calibration);
+  rig.save(path);
+  // The rig as written, then the sigmas (the rig reader ignores them; CalibrationHandover reads them).
+  YamlReader back(path);
+  YamlWriter w;
+  w.comment("stereoloc rig of a checkerboard-calibrated stereo head (stereoloc calibrate); the calibration's standard "
+            "deviations below are the priors of a self-calibration handed this rig.");
+  for (auto it = back.node().begin(); it != back.node().end(); ++it) {
+    const cv::FileNode n = *it;
+    if (n.isString())
+      w.put(n.name(), static_cast<std::string>(n));
+    else if (n.isInt())
+      w.put(n.name(), static_cast<int>(n));
+    else
+      w.put(n.name(), static_cast<double>(n));
+  }
+  for (const auto& [key, value] : sigmas) w.put(key, value);
+  w.put("calibration_rms_px", result.rms_px);
+  w.put("calibration_pairs", result.used_pairs);
+  w.writeAtomically(path);
+}
+
+}  // namespace stereoloc

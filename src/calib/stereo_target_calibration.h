@@ -1,0 +1,96 @@
+#pragma once
+// Calibrating a stereo head from checkerboard pairs (`stereoloc calibrate`): the OpenCV stereo
+// calibration a rig file names (src/core/stereo_calibration.h), with the standard deviations of
+// what it estimates, so that a self-calibration can start from the calibration's stated
+// uncertainty instead of a guess.
+//
+//   detect      cv::findChessboardCornersSB on each image (sub-pixel corners); a pair is used
+//               when both images show the whole board, its two corner lists put in the same
+//               order (the board's 180-degree turn is ambiguous to the detector)
+//   calibrate   cv::calibrateCamera per camera, then cv::stereoCalibrate refining both cameras
+//               and their relative pose together (CALIB_USE_INTRINSIC_GUESS)
+//   uncertainty the joint problem's Jacobian at the solution (every view's board pose, both
+//               cameras' intrinsics, R and T; from cv::projectPoints and cv::composeRT), and
+//               Sigma = s^2 (J^T J)^-1 with s^2 the residuals' variance per coordinate
+//               (docs/realistic_world.md, "Calibrating the stereo head")
+//
+// What a checkerboard cannot tell: the head's mounting on the robot (height, tilt, the rectified
+// camera's yaw against the robot's heading). Those stay in the rig YAML with their own sigmas.
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "src/core/checker_board.h"
+#include "src/core/stereo_calibration.h"
+#include "src/core/stereo_rig.h"
+
+namespace stereoloc {
+
+struct TargetCalibrationOptions {
+  int distortion_coefficients = 4;  // 4 (k1 k2 p1 p2), 5 (+ k3) or 8 (rational: + k3 k4 k5 k6)
+  bool same_focal_axes = false;     // true: fx = fy per camera (CALIB_FIX_ASPECT_RATIO)
+  int min_views = 6;                // usable pairs needed
+};
+
+// One image pair as handed in: a name for messages (its file) and the two raw images.
+struct TargetPair {
+  std::string name;
+  cv::Mat left, right;  // 8-bit, grey or BGR, both of one size
+};
+
+struct TargetPairResult {
+  std::string name;
+  bool used = false;
+  std::string reason;    // why not used ("" when used)
+  double rms_px = 0.0;   // reprojection RMS over both images after calibration (used pairs)
+};
+
+// Standard deviations (first order) of the calibration's parameters and of the rectified head
+// quantities the smoothers' stereo self-calibration estimates (solvers/self_calibration.h).
+struct TargetCalibrationSigmas {
+  double focal_px[2][2] = {{0, 0}, {0, 0}};      // [camera][fx, fy]
+  double principal_px[2][2] = {{0, 0}, {0, 0}};  // [camera][cx, cy]
+  std::vector<double> distortion[2];             // per camera, OpenCV order
+  double rotation_rad[3] = {0, 0, 0};            // R's rotation vector, per axis
+  double translation_mm[3] = {0, 0, 0};
+  double baseline_mm = 0.0;                      // |T|
+  // Rectified head (solvers/self_calibration.h's q): baseline scale |T| / |T_true|, the right
+  // camera's focal length against the left's (fx2 / fx1), the left's focal scale, and the
+  // disparity error at infinity, d = cx1 - cx2 - fx1 w_y (px) with w the rotation vector of R.
+  double baseline_scale = 0.0;
+  double focal_ratio = 0.0;
+  double focal_scale = 0.0;
+  double disparity_offset_px = 0.0;
+};
+
+struct TargetCalibrationResult {
+  StereoCalibration calibration;  // rectified (R1 ... Q filled)
+  double rms_px = 0.0;            // stereo reprojection RMS over every used corner, px
+  int used_pairs = 0;
+  int corners_per_image = 0;
+  std::vector<TargetPairResult> pairs;  // in the order handed in
+  TargetCalibrationSigmas sigmas;
+};
+
+// Throws Error naming the pair for images of different sizes or types, and for fewer than
+// options.min_views usable pairs (listing why the others were not used); an invalid board or
+// options name the field.
+TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>& pairs, const CheckerBoard& board,
+                                                   const TargetCalibrationOptions& options = TargetCalibrationOptions());
+
+// Writes the rig a calibrated head gives (`calibrate --rig-out`): `mounting`'s height, tilt,
+// offset and noise fields with `result`'s calibration (StereoRig::save, the calibration beside it
+// as <rig stem>_calibration.yml), and the standard deviations a self-calibration takes as its
+// priors when the rig is handed to it (`--rig`; CalibrationHandover in solvers/self_calibration.h):
+// baseline_scale_sigma, disparity_offset_sigma_px, focal_ratio_sigma and focal_scale_sigma from
+// the calibration, tilt_correction_sigma_rad and column_offset_sigma_px from the mounting, which
+// the board does not see (the rectified camera's yaw against the robot's heading is a column
+// offset). Atomic; throws Error for a sigma that is not positive.
+void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting, const TargetCalibrationResult& result,
+                       double tilt_sigma_rad, double column_offset_sigma_px);
+
+// The corners of `board` in one image, in the detector's order (sub-pixel, px); empty when the
+// whole board is not found. Exposed for tests and overlays.
+std::vector<cv::Point2f> detectBoardCorners(const cv::Mat& image, const CheckerBoard& board);
+
+}  // namespace stereoloc

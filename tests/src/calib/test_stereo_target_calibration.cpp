@@ -1,0 +1,195 @@
+#include "src/calib/stereo_target_calibration.h"
+
+#include <gtest/gtest.h>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <cmath>
+#include <random>
+
+#include "solvers/self_calibration.h"
+#include "src/core/error.h"
+#include "src/core/stereo_rig.h"
+#include "src/sim/calibration_target.h"
+#include "src/sim/error_profile.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+// A realistic robot's true cameras (the realistic profile's draw for `seed`).
+StereoCalibration trueCameras(uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  const DrawnErrors e = drawErrors(ErrorProfile::realistic(), 1, rng);
+  return trueCalibration(StereoRig(), e);
+}
+
+std::vector<TargetPair> pairsOf(const std::vector<CalibrationView>& views) {
+  std::vector<TargetPair> pairs;
+  for (size_t i = 0; i < views.size(); ++i) pairs.push_back({"pair " + std::to_string(i), views[i].left, views[i].right});
+  return pairs;
+}
+
+// The rectified disparity at infinity straight ahead of the left camera that rectifying with
+// `estimate` leaves on pairs taken by `truth` (0 for an exact estimate: zero-disparity
+// rectification): a far point's raw pixels through the true cameras, rectified with the estimate.
+double disparityErrorAtInfinity(const StereoCalibration& truth, const StereoCalibration& estimate) {
+  const std::vector<cv::Point3d> far = {cv::Point3d(0, 0, 1e9)};
+  std::vector<cv::Point2d> raw_l, raw_r;
+  cv::projectPoints(far, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), truth.K1, truth.D1, raw_l);
+  cv::Mat rt;
+  cv::Rodrigues(truth.R, rt);
+  cv::projectPoints(far, rt, truth.T, truth.K2, truth.D2, raw_r);
+  std::vector<cv::Point2d> rect_l, rect_r;
+  cv::undistortPoints(raw_l, rect_l, estimate.K1, estimate.D1, estimate.R1, estimate.P1);
+  cv::undistortPoints(raw_r, rect_r, estimate.K2, estimate.D2, estimate.R2, estimate.P2);
+  return rect_l[0].x - rect_r[0].x;
+}
+
+TEST(StereoTargetCalibration, RecoversARealisticHeadBetterThanItsGivenCalibration) {
+  const CheckerBoard board;
+  CalibrationViewOptions options;
+  options.views = 16;
+  const StereoCalibration truth = trueCameras(3);
+  const TargetCalibrationResult r =
+      calibrateStereoFromTargets(pairsOf(renderCalibrationViews(truth, board, options, 11)), board);
+  EXPECT_EQ(r.used_pairs, 16);
+  EXPECT_EQ(r.corners_per_image, 54);
+  EXPECT_LT(r.rms_px, 0.15);
+  for (const TargetPairResult& p : r.pairs) {
+    EXPECT_TRUE(p.used) << p.name << ": " << p.reason;
+    EXPECT_GT(p.rms_px, 0.0);
+    EXPECT_LT(p.rms_px, 0.3);
+  }
+  const StereoCalibration& c = r.calibration;
+  for (int i = 0; i < 2; ++i) {
+    const cv::Mat& K = i == 0 ? c.K1 : c.K2;
+    const cv::Mat& Kt = i == 0 ? truth.K1 : truth.K2;
+    EXPECT_NEAR(K.at<double>(0, 0), Kt.at<double>(0, 0), 4 * r.sigmas.focal_px[i][0]) << "camera " << i;
+    EXPECT_NEAR(K.at<double>(0, 2), Kt.at<double>(0, 2), 4 * r.sigmas.principal_px[i][0]) << "camera " << i;
+    EXPECT_NEAR(K.at<double>(1, 2), Kt.at<double>(1, 2), 4 * r.sigmas.principal_px[i][1]) << "camera " << i;
+    const cv::Mat& D = i == 0 ? c.D1 : c.D2;
+    const cv::Mat& Dt = i == 0 ? truth.D1 : truth.D2;
+    EXPECT_NEAR(D.at<double>(0, 0), Dt.at<double>(0, 0), 4 * r.sigmas.distortion[i][0]) << "camera " << i;
+  }
+  EXPECT_NEAR(cv::norm(c.T), cv::norm(truth.T), 4 * r.sigmas.baseline_mm);
+  // Far better than the realistic profile's given calibration (baseline 1 %, principal points
+  // 1 px, focal lengths 0.5 %), which is what the self-calibration otherwise starts from.
+  EXPECT_LT(r.sigmas.baseline_scale, 0.003);
+  EXPECT_LT(r.sigmas.disparity_offset_px, 0.1);
+  EXPECT_LT(r.sigmas.focal_scale, 0.003);
+  EXPECT_LT(r.sigmas.focal_ratio, 0.003);
+  EXPECT_LT(std::abs(disparityErrorAtInfinity(truth, c)), 4 * r.sigmas.disparity_offset_px);
+}
+
+// The stated standard deviations against the errors over independent robots and view sets:
+// mean z^2 near 1 (over 12 draws a mean z^2 of one parameter above 2.5 has probability ~0.003
+// for honest sigmas; below 0.2 one of ~0.002).
+TEST(StereoTargetCalibration, StatedSigmasMatchTheErrors) {
+  const CheckerBoard board;
+  CalibrationViewOptions options;
+  options.views = 12;
+  const int draws = 12;
+  double z2[6] = {0, 0, 0, 0, 0, 0};
+  for (int s = 1; s <= draws; ++s) {
+    const StereoCalibration truth = trueCameras(static_cast<uint64_t>(s));
+    const TargetCalibrationResult r =
+        calibrateStereoFromTargets(pairsOf(renderCalibrationViews(truth, board, options, 100 + s)), board);
+    const StereoCalibration& c = r.calibration;
+    const double z[6] = {(c.K1.at<double>(0, 0) - truth.K1.at<double>(0, 0)) / r.sigmas.focal_px[0][0],
+                         (c.K1.at<double>(0, 2) - truth.K1.at<double>(0, 2)) / r.sigmas.principal_px[0][0],
+                         (c.K2.at<double>(0, 2) - truth.K2.at<double>(0, 2)) / r.sigmas.principal_px[1][0],
+                         (cv::norm(c.T) - cv::norm(truth.T)) / r.sigmas.baseline_mm,
+                         disparityErrorAtInfinity(truth, c) / r.sigmas.disparity_offset_px,
+                         (c.K2.at<double>(0, 0) / c.K1.at<double>(0, 0) -
+                          truth.K2.at<double>(0, 0) / truth.K1.at<double>(0, 0)) / r.sigmas.focal_ratio};
+    for (int k = 0; k < 6; ++k) z2[k] += z[k] * z[k] / draws;
+  }
+  const char* names[6] = {"fx1", "cx1", "cx2", "baseline", "disparity at infinity", "focal ratio"};
+  for (int k = 0; k < 6; ++k) {
+    EXPECT_LT(z2[k], 2.5) << names[k];
+    EXPECT_GT(z2[k], 0.2) << names[k];
+  }
+}
+
+TEST(StereoTargetCalibration, PairsWithoutTheWholeBoardAreReportedAndLeftOut) {
+  const CheckerBoard board;
+  CalibrationViewOptions options;
+  options.views = 8;
+  std::vector<TargetPair> pairs = pairsOf(renderCalibrationViews(trueCameras(2), board, options, 5));
+  pairs[2].right = cv::Mat(pairs[2].right.size(), CV_8UC1, cv::Scalar(110));  // the board out of view
+  pairs[5].left = cv::Mat(pairs[5].left.size(), CV_8UC1, cv::Scalar(110));
+  TargetCalibrationOptions o;
+  o.min_views = 6;
+  const TargetCalibrationResult r = calibrateStereoFromTargets(pairs, board, o);
+  EXPECT_EQ(r.used_pairs, 6);
+  EXPECT_FALSE(r.pairs[2].used);
+  EXPECT_EQ(r.pairs[2].reason, "board not found in the right image");
+  EXPECT_EQ(r.pairs[5].reason, "board not found in the left image");
+  o.min_views = 7;
+  const std::string e = test::errorOf([&] { calibrateStereoFromTargets(pairs, board, o); });
+  EXPECT_NE(e.find("6 of 8 pairs show the whole board in both images, 7 needed"), std::string::npos) << e;
+  EXPECT_NE(e.find("pair 2: board not found in the right image"), std::string::npos) << e;
+}
+
+TEST(StereoTargetCalibration, BadInputIsAnError) {
+  const CheckerBoard board;
+  CalibrationViewOptions options;
+  options.views = 6;
+  std::vector<TargetPair> pairs = pairsOf(renderCalibrationViews(trueCameras(1), board, options, 3));
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets({}, board); }).find("no image pairs"), std::string::npos);
+  std::vector<TargetPair> resized = pairs;
+  cv::resize(resized[3].right, resized[3].right, cv::Size(160, 120));
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(resized, board); }).find("pair 3: image size"),
+            std::string::npos);
+  std::vector<TargetPair> empty = pairs;
+  empty[1].left = cv::Mat();
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(empty, board); }).find("pair 1: an image of the pair is empty"),
+            std::string::npos);
+  TargetCalibrationOptions o;
+  o.distortion_coefficients = 6;
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(pairs, board, o); }).find("distortion_coefficients"),
+            std::string::npos);
+  CheckerBoard square = board;
+  square.rows = square.columns;
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(pairs, square); }).find("equal sides"), std::string::npos);
+  CheckerBoard no_size = board;
+  no_size.square_mm = 0.0;
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(pairs, no_size); }).find("square_mm"), std::string::npos);
+}
+
+// The rig `calibrate --rig-out` writes: the calibration as its cameras, the mounting kept, and
+// the standard deviations a self-calibration handed the rig takes as its priors.
+TEST(StereoTargetCalibration, TheRigHandsItsSigmasToASelfCalibration) {
+  const CheckerBoard board;
+  CalibrationViewOptions options;
+  options.views = 10;
+  const TargetCalibrationResult r =
+      calibrateStereoFromTargets(pairsOf(renderCalibrationViews(trueCameras(4), board, options, 9)), board);
+  test::TempDir dir;
+  StereoRigParams mounting;
+  mounting.camera_height_mm = 72.5;
+  mounting.tilt_rad = 0.05;
+  saveCalibratedRig(dir.file("rig.yaml"), mounting, r, 0.01, 1.5);
+  const StereoRig rig = StereoRig::load(dir.file("rig.yaml"));
+  EXPECT_DOUBLE_EQ(rig.params().camera_height_mm, 72.5);
+  EXPECT_DOUBLE_EQ(rig.params().tilt_rad, 0.05);
+  ASSERT_TRUE(rig.calibration());
+  EXPECT_NEAR(rig.calibration()->K1.at<double>(0, 0), r.calibration.K1.at<double>(0, 0), 1e-9);
+  EXPECT_NEAR(rig.focal(), r.calibration.rectifiedFocal(), 1e-9);
+  const CalibrationHandover h = CalibrationHandover::load(dir.file("rig.yaml"));
+  ASSERT_TRUE(h.head_sigmas);
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[0], 0.01);
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[1], r.sigmas.baseline_scale);
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[2], r.sigmas.disparity_offset_px);
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[3], 1.5);
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[4], r.sigmas.focal_ratio);
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[5], r.sigmas.focal_scale);
+  EXPECT_FALSE(h.wheels);
+  EXPECT_NE(test::errorOf([&] { saveCalibratedRig(dir.file("bad.yaml"), mounting, r, 0.0, 1.5); })
+                .find("tilt_correction_sigma_rad: must be a positive standard deviation"),
+            std::string::npos);
+}
+
+}  // namespace
+}  // namespace stereoloc

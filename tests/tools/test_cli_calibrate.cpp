@@ -1,0 +1,79 @@
+// `stereoloc calibrate`: a simulated robot's checkerboard pairs (`simulate --calibration-views`)
+// calibrated into a rig that the estimators then run on, and the command's errors.
+#include <gtest/gtest.h>
+
+#include <opencv2/core.hpp>
+#include <filesystem>
+#include <regex>
+
+#include "cli_util.h"
+#include "src/core/stereo_calibration.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+double positionRmse(const std::string& output) {
+  std::smatch m;
+  if (!std::regex_search(output, m, std::regex("position RMSE ([0-9.]+) mm"))) return -1.0;
+  return std::stod(m[1]);
+}
+
+// A realistic robot's given calibration is off by its principal points, focal lengths and
+// baseline; its own cameras' checkerboard pairs give the rig that removes most of that error.
+TEST(CliCalibrate, ARigFromTheRobotsOwnPairsBeatsTheGivenCalibration) {
+  test::TempDir dir;
+  const std::string d = dir.file("run");
+  ASSERT_EQ(test::runCli("simulate --scenario circle --profile realistic --seed 5 --images --calibration-views 12 --out '" +
+                         d + "'")
+                .exit_code,
+            0);
+  const test::CliRun cal = test::runCli("calibrate '" + d + "/calibration' --out '" + dir.file("stereo.yml") +
+                                        "' --rig-out '" + dir.file("rig.yaml") + "' --mounting '" + d + "/rig.yaml'");
+  ASSERT_EQ(cal.exit_code, 0) << cal.output;
+  EXPECT_NE(cal.output.find("pairs: 12 of 12 used, 54 corners per image"), std::string::npos) << cal.output;
+  const StereoCalibration written = StereoCalibration::load(dir.file("stereo.yml"));
+  const StereoCalibration truth = StereoCalibration::load(d + "/calibration/true_calibration.yml");
+  EXPECT_NEAR(cv::norm(written.T), cv::norm(truth.T), 0.2);
+  const test::CliRun given =
+      test::runCli("localize '" + d + "' --method ekf --frontend images --out '" + dir.file("given.csv") + "'");
+  const test::CliRun calibrated = test::runCli("localize '" + d + "' --method ekf --frontend images --rig '" +
+                                               dir.file("rig.yaml") + "' --out '" + dir.file("calibrated.csv") + "'");
+  ASSERT_EQ(given.exit_code, 0) << given.output;
+  ASSERT_EQ(calibrated.exit_code, 0) << calibrated.output;
+  const double before = positionRmse(given.output), after = positionRmse(calibrated.output);
+  ASSERT_GT(before, 0.0) << given.output;
+  ASSERT_GT(after, 0.0) << calibrated.output;
+  EXPECT_LT(after, 0.1 * before) << "given " << before << " mm, calibrated " << after << " mm";
+}
+
+TEST(CliCalibrate, BadInputNamesTheProblem) {
+  test::TempDir dir;
+  const std::string d = dir.file("run");
+  ASSERT_EQ(test::runCli("simulate --scenario spin --steps 2 --calibration-views 4 --out '" + d + "'").exit_code, 0);
+  const std::string pairs = d + "/calibration";
+  const std::string out = " --out '" + dir.file("s.yml") + "'";
+  test::CliRun r = test::runCli("calibrate '" + pairs + "'" + out);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("4 of 4 pairs show the whole board in both images, 6 needed"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("s.yml")));
+  r = test::runCli("calibrate '" + pairs + "' --min-pairs 4 --board 9x" + out);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("--board: expected COLUMNSxROWS"), std::string::npos) << r.output;
+  r = test::runCli("calibrate '" + pairs + "' --min-pairs 4 --board 6x6" + out);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.output.find("equal sides"), std::string::npos) << r.output;
+  r = test::runCli("calibrate '" + pairs + "' --min-pairs 4 --mounting '" + d + "/rig.yaml'" + out);
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  std::filesystem::remove(pairs + "/right_002.png");
+  r = test::runCli("calibrate '" + pairs + "' --min-pairs 3" + out);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find("left_002.png: no right_002.png beside it"), std::string::npos) << r.output;
+  std::filesystem::remove(pairs + "/left_002.png");
+  r = test::runCli("calibrate '" + pairs + "' --min-pairs 3" + out);
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("pairs: 3 of 3 used"), std::string::npos) << r.output;
+}
+
+}  // namespace
+}  // namespace stereoloc

@@ -1,0 +1,162 @@
+// `stereoloc calibrate`: a stereo head's OpenCV calibration from checkerboard pairs
+// (src/calib/stereo_target_calibration.h), and optionally the rig that uses it with the
+// calibration's standard deviations as a self-calibration's priors.
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "solvers/self_calibration.h"
+#include "src/calib/stereo_target_calibration.h"
+#include "src/core/angles.h"
+#include "src/core/stereo_rig.h"
+#include "tools/stereoloc/cli_common.h"
+
+namespace stereoloc::cli {
+namespace {
+
+struct CalibrateOptions {
+  std::string dir, board = "9x6", out, rig_out, mounting;
+  double square_mm = 15.0;
+  int distortion = 4, min_pairs = 6;
+  bool same_focal_axes = false;
+  double tilt_sigma_deg = rad2deg(SelfCalibrationConfig().tilt_sigma_rad);
+  double column_offset_sigma_px = SelfCalibrationConfig().column_offset_sigma_px;
+};
+
+CheckerBoard parseBoard(const std::string& text, double square_mm) {
+  CheckerBoard b;
+  const size_t x = text.find('x');
+  char* end = nullptr;
+  const std::string bad = "--board: expected COLUMNSxROWS inner corners (e.g. 9x6), got '" + text + "'";
+  if (x == std::string::npos) throw UsageError(bad);
+  const std::string c = text.substr(0, x), r = text.substr(x + 1);
+  b.columns = static_cast<int>(std::strtol(c.c_str(), &end, 10));
+  if (c.empty() || *end != '\0') throw UsageError(bad);
+  b.rows = static_cast<int>(std::strtol(r.c_str(), &end, 10));
+  if (r.empty() || *end != '\0') throw UsageError(bad);
+  b.square_mm = square_mm;
+  try {
+    b.validate("--board");
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
+  return b;
+}
+
+// left_<name>.<ext> and right_<name>.<ext> of `dir`, paired by <name>; an image without its
+// partner is an error, not a pair left out.
+std::vector<TargetPair> readPairs(const std::string& dir) {
+  namespace fs = std::filesystem;
+  std::map<std::string, fs::path> left, right;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    if (!entry.is_regular_file()) continue;
+    const std::string name = entry.path().filename().string();
+    if (name.rfind("left_", 0) == 0) left[name.substr(5)] = entry.path();
+    if (name.rfind("right_", 0) == 0) right[name.substr(6)] = entry.path();
+  }
+  for (const auto& [key, path] : left)
+    if (!right.count(key)) throw Error(path.string() + ": no right_" + key + " beside it");
+  for (const auto& [key, path] : right)
+    if (!left.count(key)) throw Error(path.string() + ": no left_" + key + " beside it");
+  if (left.empty()) throw Error(dir + ": no left_*/right_* image pairs");
+  std::vector<TargetPair> pairs;
+  for (const auto& [key, path] : left) {
+    TargetPair p;
+    p.name = path.string();
+    p.left = cv::imread(path.string(), cv::IMREAD_GRAYSCALE);
+    if (p.left.empty()) throw Error(path.string() + ": not a readable image");
+    p.right = cv::imread(right[key].string(), cv::IMREAD_GRAYSCALE);
+    if (p.right.empty()) throw Error(right[key].string() + ": not a readable image");
+    pairs.push_back(std::move(p));
+  }
+  return pairs;
+}
+
+void runCalibrate(const CalibrateOptions& o) {
+  const CheckerBoard board = parseBoard(o.board, o.square_mm);
+  TargetCalibrationOptions options;
+  options.distortion_coefficients = o.distortion;
+  options.same_focal_axes = o.same_focal_axes;
+  options.min_views = o.min_pairs;
+  const TargetCalibrationResult r = calibrateStereoFromTargets(readPairs(o.dir), board, options);
+  const StereoCalibration& c = r.calibration;
+  const TargetCalibrationSigmas& s = r.sigmas;
+  std::printf("pairs: %d of %zu used, %d corners per image, reprojection RMS %.3f px\n", r.used_pairs, r.pairs.size(),
+              r.corners_per_image, r.rms_px);
+  for (const auto& p : r.pairs)
+    if (p.used)
+      std::printf("  %s  %.3f px\n", p.name.c_str(), p.rms_px);
+    else
+      std::printf("  %s  not used: %s\n", p.name.c_str(), p.reason.c_str());
+  for (int i = 0; i < 2; ++i) {
+    const cv::Mat& K = i == 0 ? c.K1 : c.K2;
+    const cv::Mat& D = i == 0 ? c.D1 : c.D2;
+    std::printf("%s camera: fx %.2f ± %.2f  fy %.2f ± %.2f  cx %.2f ± %.2f  cy %.2f ± %.2f px; distortion", i ? "right" : "left",
+                K.at<double>(0, 0), s.focal_px[i][0], K.at<double>(1, 1), s.focal_px[i][1], K.at<double>(0, 2),
+                s.principal_px[i][0], K.at<double>(1, 2), s.principal_px[i][1]);
+    for (int k = 0; k < D.cols; ++k) std::printf(" %.4f ± %.4f", D.at<double>(0, k), s.distortion[i][static_cast<size_t>(k)]);
+    std::printf("\n");
+  }
+  cv::Mat rvec;
+  cv::Rodrigues(c.R, rvec);
+  std::printf("right camera against the left: rotation (%.3f, %.3f, %.3f) ± (%.3f, %.3f, %.3f) deg, baseline %.2f ± %.2f mm\n",
+              rad2deg(rvec.at<double>(0)), rad2deg(rvec.at<double>(1)), rad2deg(rvec.at<double>(2)),
+              rad2deg(s.rotation_rad[0]), rad2deg(s.rotation_rad[1]), rad2deg(s.rotation_rad[2]), cv::norm(c.T),
+              s.baseline_mm);
+  std::printf("rectified: f %.2f px, principal point (%.2f, %.2f) px, baseline %.2f mm\n", c.rectifiedFocal(),
+              c.rectifiedPrincipalU(), c.rectifiedPrincipalV(), c.rectifiedBaseline());
+  std::printf("for a self-calibration: baseline scale ± %.4f, disparity offset ± %.3f px, focal ratio ± %.4f, focal scale ± %.4f\n",
+              s.baseline_scale, s.disparity_offset_px, s.focal_ratio, s.focal_scale);
+  c.save(o.out);
+  std::printf("wrote %s\n", o.out.c_str());
+  if (!o.rig_out.empty()) {
+    const StereoRigParams mounting = o.mounting.empty() ? StereoRigParams() : StereoRig::load(o.mounting).params();
+    saveCalibratedRig(o.rig_out, mounting, r, deg2rad(o.tilt_sigma_deg), o.column_offset_sigma_px);
+    std::printf("wrote %s\n", o.rig_out.c_str());
+  }
+}
+
+}  // namespace
+
+void add_calibrate_command(CLI::App& app) {
+  auto o = std::make_shared<CalibrateOptions>();
+  CLI::App* sub = app.add_subcommand(
+      "calibrate", "Calibrate a stereo head from checkerboard pairs: an OpenCV calibration file and, with --rig-out, the rig");
+  sub->add_option("dir", o->dir, "Folder of left_<name>.png / right_<name>.png pairs (any image format OpenCV reads)")
+      ->required()
+      ->check(CLI::ExistingDirectory);
+  sub->add_option("--board", o->board, "Inner corners per row x per column, unequal (e.g. 9x6)")->capture_default_str();
+  sub->add_option("--square-mm", o->square_mm, "Side of a square, mm")->capture_default_str()->check(CLI::PositiveNumber);
+  sub->add_option("--out", o->out, "Write the OpenCV stereo calibration (M1 D1 M2 D2 R T, R1 ... Q) here")->required();
+  sub->add_option("--distortion", o->distortion, "Distortion coefficients: 4 (k1 k2 p1 p2), 5 (+ k3), 8 (rational)")
+      ->capture_default_str()
+      ->check(CLI::IsMember({4, 5, 8}));
+  sub->add_flag("--same-focal-axes", o->same_focal_axes, "Square pixels: fx = fy per camera");
+  sub->add_option("--min-pairs", o->min_pairs, "Pairs showing the whole board in both images needed")
+      ->capture_default_str()
+      ->check(CLI::Range(3, 100000));
+  CLI::Option* rig_out = sub->add_option(
+      "--rig-out", o->rig_out,
+      "Also write the rig YAML using the calibration, with its standard deviations for a later --calibrate stereo");
+  sub->add_option("--mounting", o->mounting,
+                  "Rig YAML whose mounting (height, tilt, offset) and noise fields the written rig takes (default: "
+                  "the built-in rig's)")
+      ->check(CLI::ExistingFile)
+      ->needs(rig_out);
+  sub->add_option("--tilt-sigma-deg", o->tilt_sigma_deg, "The mounting's tilt uncertainty, deg (the board does not see it)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber)
+      ->needs(rig_out);
+  sub->add_option("--column-offset-sigma-px", o->column_offset_sigma_px,
+                  "The head's yaw on the robot as a column uncertainty, px (the board does not see it)")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber)
+      ->needs(rig_out);
+  sub->callback([o] { runCalibrate(*o); });
+}
+
+}  // namespace stereoloc::cli
