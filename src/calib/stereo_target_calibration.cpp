@@ -349,6 +349,37 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   a(L.relative() + 1) = -fx2;
   S.disparity_offset_px = sdOf(a);
 
+  // The rectified frame's turn: R1 e_z against (r, T), central differences.
+  {
+    StereoCalibration probe;
+    probe.K1 = p.K[0];
+    probe.D1 = p.D[0];
+    probe.K2 = p.K[1];
+    probe.D2 = p.D[1];
+    probe.image_size = size;
+    auto axis = [&](const cv::Vec3d& r, const cv::Vec3d& t) {
+      cv::Rodrigues(cv::Mat(r), probe.R);
+      probe.T = cv::Mat(t).clone();
+      probe.rectify();
+      return cv::Vec3d(probe.R1.at<double>(0, 2), probe.R1.at<double>(1, 2), probe.R1.at<double>(2, 2));
+    };
+    Eigen::VectorXd yaw = Eigen::VectorXd::Zero(n), pitch = Eigen::VectorXd::Zero(n);
+    for (int k = 0; k < 6; ++k) {
+      const double h = k < 3 ? 1e-6 : 1e-5;
+      cv::Vec3d r_plus = p.r, r_minus = p.r, t_plus = p.T, t_minus = p.T;
+      (k < 3 ? r_plus[k] : t_plus[k - 3]) += h;
+      (k < 3 ? r_minus[k] : t_minus[k - 3]) -= h;
+      const cv::Vec3d d = (axis(r_plus, t_plus) - axis(r_minus, t_minus)) / (2 * h);
+      yaw(L.relative() + k) = d[0];
+      pitch(L.relative() + k) = d[1];
+    }
+    cv::Rodrigues(cv::Mat(p.r), probe.R);
+    probe.T = cv::Mat(p.T).clone();
+    probe.rectify();
+    S.column_offset_px = probe.rectifiedFocal() * sdOf(yaw);
+    S.tilt_rad = sdOf(pitch);
+  }
+
   // The result and every pair's reprojection RMS.
   StereoCalibration& cal = result.calibration;
   cal.K1 = p.K[0];
@@ -375,15 +406,19 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
 void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting, const TargetCalibrationResult& result,
                        double tilt_sigma_rad, double column_offset_sigma_px) {
   const TargetCalibrationSigmas& S = result.sigmas;
-  const std::pair<const char*, double> sigmas[] = {{"tilt_correction_sigma_rad", tilt_sigma_rad},
-                                                   {"baseline_scale_sigma", S.baseline_scale},
-                                                   {"disparity_offset_sigma_px", S.disparity_offset_px},
-                                                   {"column_offset_sigma_px", column_offset_sigma_px},
-                                                   {"focal_ratio_sigma", S.focal_ratio},
-                                                   {"focal_scale_sigma", S.focal_scale}};
-  for (const auto& [key, value] : sigmas)
-    if (!(value > 0.0) || !std::isfinite(value))
-      throw Error(path + ": " + key + ": must be a positive standard deviation, got " + std::to_string(value));
+  if (!(tilt_sigma_rad > 0.0) || !std::isfinite(tilt_sigma_rad))
+    throw Error(path + ": tilt_correction_sigma_rad: must be a positive standard deviation, got " +
+                std::to_string(tilt_sigma_rad));
+  if (!(column_offset_sigma_px > 0.0) || !std::isfinite(column_offset_sigma_px))
+    throw Error(path + ": column_offset_sigma_px: must be a positive standard deviation, got " +
+                std::to_string(column_offset_sigma_px));
+  const std::pair<const char*, double> sigmas[] = {
+      {"tilt_correction_sigma_rad", std::hypot(tilt_sigma_rad, S.tilt_rad)},
+      {"baseline_scale_sigma", S.baseline_scale},
+      {"disparity_offset_sigma_px", S.disparity_offset_px},
+      {"column_offset_sigma_px", std::hypot(column_offset_sigma_px, S.column_offset_px)},
+      {"focal_ratio_sigma", S.focal_ratio},
+      {"focal_scale_sigma", S.focal_scale}};
   const StereoRig rig(mounting, result.calibration);
   rig.save(path);
   // The rig as written, then the sigmas (the rig reader ignores them; CalibrationHandover reads them).

@@ -61,6 +61,12 @@ struct TargetCalibrationSigmas {
   double focal_ratio = 0.0;
   double focal_scale = 0.0;
   double disparity_offset_px = 0.0;
+  // The rectified left camera's direction: stereoRectify turns it half the way to the right
+  // camera and lines its x up with T, so errors in R and T turn the frame the rig measures
+  // bearings and tilt in: its yaw as a column offset (px at the rectified focal length) and its
+  // pitch as a tilt (rad). From R1's central differences in R's rotation vector and T.
+  double column_offset_px = 0.0;
+  double tilt_rad = 0.0;
 };
 
 struct TargetCalibrationResult {
@@ -83,9 +89,10 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
 // as <rig stem>_calibration.yml), and the standard deviations a self-calibration takes as its
 // priors when the rig is handed to it (`--rig`; CalibrationHandover in solvers/self_calibration.h):
 // baseline_scale_sigma, disparity_offset_sigma_px, focal_ratio_sigma and focal_scale_sigma from
-// the calibration, tilt_correction_sigma_rad and column_offset_sigma_px from the mounting, which
-// the board does not see (the rectified camera's yaw against the robot's heading is a column
-// offset). Atomic; throws Error for a sigma that is not positive.
+// the calibration; tilt_correction_sigma_rad and column_offset_sigma_px the mounting's, which the
+// board does not see (the head's pitch and yaw on the robot), combined in quadrature with the
+// calibration's own (TargetCalibrationSigmas::tilt_rad, column_offset_px). Atomic; throws Error
+// for a mounting sigma that is not positive.
 void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting, const TargetCalibrationResult& result,
                        double tilt_sigma_rad, double column_offset_sigma_px);
 

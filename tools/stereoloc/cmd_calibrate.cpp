@@ -109,8 +109,9 @@ void runCalibrate(const CalibrateOptions& o) {
               s.baseline_mm);
   std::printf("rectified: f %.2f px, principal point (%.2f, %.2f) px, baseline %.2f mm\n", c.rectifiedFocal(),
               c.rectifiedPrincipalU(), c.rectifiedPrincipalV(), c.rectifiedBaseline());
-  std::printf("for a self-calibration: baseline scale ± %.4f, disparity offset ± %.3f px, focal ratio ± %.4f, focal scale ± %.4f\n",
-              s.baseline_scale, s.disparity_offset_px, s.focal_ratio, s.focal_scale);
+  std::printf("for a self-calibration: baseline scale ± %.4f, disparity offset ± %.3f px, focal ratio ± %.4f, focal scale ± %.4f, "
+              "column offset ± %.2f px, tilt ± %.3f deg (the calibration's part)\n",
+              s.baseline_scale, s.disparity_offset_px, s.focal_ratio, s.focal_scale, s.column_offset_px, rad2deg(s.tilt_rad));
   c.save(o.out);
   std::printf("wrote %s\n", o.out.c_str());
   if (!o.rig_out.empty()) {

@@ -90,23 +90,28 @@ TEST(StereoTargetCalibration, StatedSigmasMatchTheErrors) {
   CalibrationViewOptions options;
   options.views = 12;
   const int draws = 12;
-  double z2[6] = {0, 0, 0, 0, 0, 0};
+  double z2[8] = {0, 0, 0, 0, 0, 0, 0, 0};
   for (int s = 1; s <= draws; ++s) {
     const StereoCalibration truth = trueCameras(static_cast<uint64_t>(s));
     const TargetCalibrationResult r =
         calibrateStereoFromTargets(pairsOf(renderCalibrationViews(truth, board, options, 100 + s)), board);
     const StereoCalibration& c = r.calibration;
-    const double z[6] = {(c.K1.at<double>(0, 0) - truth.K1.at<double>(0, 0)) / r.sigmas.focal_px[0][0],
+    // The rectified frames' forward axes, R1^T e_z: the estimate's turned against the truth's.
+    const double yaw = c.R1.at<double>(0, 2) - truth.R1.at<double>(0, 2);
+    const double pitch = c.R1.at<double>(1, 2) - truth.R1.at<double>(1, 2);
+    const double z[8] = {(c.K1.at<double>(0, 0) - truth.K1.at<double>(0, 0)) / r.sigmas.focal_px[0][0],
                          (c.K1.at<double>(0, 2) - truth.K1.at<double>(0, 2)) / r.sigmas.principal_px[0][0],
                          (c.K2.at<double>(0, 2) - truth.K2.at<double>(0, 2)) / r.sigmas.principal_px[1][0],
                          (cv::norm(c.T) - cv::norm(truth.T)) / r.sigmas.baseline_mm,
                          disparityErrorAtInfinity(truth, c) / r.sigmas.disparity_offset_px,
                          (c.K2.at<double>(0, 0) / c.K1.at<double>(0, 0) -
-                          truth.K2.at<double>(0, 0) / truth.K1.at<double>(0, 0)) / r.sigmas.focal_ratio};
-    for (int k = 0; k < 6; ++k) z2[k] += z[k] * z[k] / draws;
+                          truth.K2.at<double>(0, 0) / truth.K1.at<double>(0, 0)) / r.sigmas.focal_ratio,
+                         c.rectifiedFocal() * yaw / r.sigmas.column_offset_px,
+                         pitch / r.sigmas.tilt_rad};
+    for (int k = 0; k < 8; ++k) z2[k] += z[k] * z[k] / draws;
   }
-  const char* names[6] = {"fx1", "cx1", "cx2", "baseline", "disparity at infinity", "focal ratio"};
-  for (int k = 0; k < 6; ++k) {
+  const char* names[8] = {"fx1", "cx1", "cx2", "baseline", "disparity at infinity", "focal ratio", "column offset", "tilt"};
+  for (int k = 0; k < 8; ++k) {
     EXPECT_LT(z2[k], 2.5) << names[k];
     EXPECT_GT(z2[k], 0.2) << names[k];
   }
@@ -179,10 +184,13 @@ TEST(StereoTargetCalibration, TheRigHandsItsSigmasToASelfCalibration) {
   EXPECT_NEAR(rig.focal(), r.calibration.rectifiedFocal(), 1e-9);
   const CalibrationHandover h = CalibrationHandover::load(dir.file("rig.yaml"));
   ASSERT_TRUE(h.head_sigmas);
-  EXPECT_DOUBLE_EQ((*h.head_sigmas)[0], 0.01);
+  // The mounting's and the calibration's own, in quadrature.
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[0], std::hypot(0.01, r.sigmas.tilt_rad));
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[1], r.sigmas.baseline_scale);
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[2], r.sigmas.disparity_offset_px);
-  EXPECT_DOUBLE_EQ((*h.head_sigmas)[3], 1.5);
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[3], std::hypot(1.5, r.sigmas.column_offset_px));
+  EXPECT_GT(r.sigmas.column_offset_px, 0.0);
+  EXPECT_GT(r.sigmas.tilt_rad, 0.0);
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[4], r.sigmas.focal_ratio);
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[5], r.sigmas.focal_scale);
   EXPECT_FALSE(h.wheels);
