@@ -404,7 +404,7 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
 }
 
 void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting, const TargetCalibrationResult& result,
-                       double tilt_sigma_rad, double column_offset_sigma_px) {
+                       double tilt_sigma_rad, double column_offset_sigma_px, double drive_disparity_sigma_px) {
   const TargetCalibrationSigmas& S = result.sigmas;
   if (!(tilt_sigma_rad > 0.0) || !std::isfinite(tilt_sigma_rad))
     throw Error(path + ": tilt_correction_sigma_rad: must be a positive standard deviation, got " +
@@ -412,10 +412,13 @@ void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting,
   if (!(column_offset_sigma_px > 0.0) || !std::isfinite(column_offset_sigma_px))
     throw Error(path + ": column_offset_sigma_px: must be a positive standard deviation, got " +
                 std::to_string(column_offset_sigma_px));
+  if (!(drive_disparity_sigma_px >= 0.0) || !std::isfinite(drive_disparity_sigma_px))
+    throw Error(path + ": disparity_offset_sigma_px: the drive's part must be >= 0, got " +
+                std::to_string(drive_disparity_sigma_px));
   const std::pair<const char*, double> sigmas[] = {
       {"tilt_correction_sigma_rad", std::hypot(tilt_sigma_rad, S.tilt_rad)},
       {"baseline_scale_sigma", S.baseline_scale},
-      {"disparity_offset_sigma_px", S.disparity_offset_px},
+      {"disparity_offset_sigma_px", std::hypot(S.disparity_offset_px, drive_disparity_sigma_px)},
       {"column_offset_sigma_px", std::hypot(column_offset_sigma_px, S.column_offset_px)},
       {"focal_ratio_sigma", S.focal_ratio},
       {"focal_scale_sigma", S.focal_scale}};

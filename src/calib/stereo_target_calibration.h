@@ -91,10 +91,13 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
 // baseline_scale_sigma, disparity_offset_sigma_px, focal_ratio_sigma and focal_scale_sigma from
 // the calibration; tilt_correction_sigma_rad and column_offset_sigma_px the mounting's, which the
 // board does not see (the head's pitch and yaw on the robot), combined in quadrature with the
-// calibration's own (TargetCalibrationSigmas::tilt_rad, column_offset_px). Atomic; throws Error
-// for a mounting sigma that is not positive.
+// calibration's own (TargetCalibrationSigmas::tilt_rad, column_offset_px); the disparity offset's
+// likewise with `drive_disparity_sigma_px`, what a drive adds that a still board cannot show (two
+// cameras exposing dt apart on a robot turning at w shift the disparity by f w dt; on the
+// realistic world's circle ~0.3 px, and without it the self-calibrations were over-confident,
+// docs/realistic_world.md). Atomic; throws Error for a mounting sigma that is not positive.
 void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting, const TargetCalibrationResult& result,
-                       double tilt_sigma_rad, double column_offset_sigma_px);
+                       double tilt_sigma_rad, double column_offset_sigma_px, double drive_disparity_sigma_px);
 
 // The corners of `board` in one image, in the detector's order (sub-pixel, px); empty when the
 // whole board is not found. Exposed for tests and overlays.

@@ -25,6 +25,7 @@ struct CalibrateOptions {
   bool same_focal_axes = false;
   double tilt_sigma_deg = rad2deg(SelfCalibrationConfig().tilt_sigma_rad);
   double column_offset_sigma_px = SelfCalibrationConfig().column_offset_sigma_px;
+  double drive_disparity_sigma_px = 0.3;
 };
 
 CheckerBoard parseBoard(const std::string& text, double square_mm) {
@@ -116,7 +117,8 @@ void runCalibrate(const CalibrateOptions& o) {
   std::printf("wrote %s\n", o.out.c_str());
   if (!o.rig_out.empty()) {
     const StereoRigParams mounting = o.mounting.empty() ? StereoRigParams() : StereoRig::load(o.mounting).params();
-    saveCalibratedRig(o.rig_out, mounting, r, deg2rad(o.tilt_sigma_deg), o.column_offset_sigma_px);
+    saveCalibratedRig(o.rig_out, mounting, r, deg2rad(o.tilt_sigma_deg), o.column_offset_sigma_px,
+                      o.drive_disparity_sigma_px);
     std::printf("wrote %s\n", o.rig_out.c_str());
   }
 }
@@ -156,6 +158,12 @@ void add_calibrate_command(CLI::App& app) {
                   "The head's yaw on the robot as a column uncertainty, px (the board does not see it)")
       ->capture_default_str()
       ->check(CLI::PositiveNumber)
+      ->needs(rig_out);
+  sub->add_option("--drive-disparity-sigma-px", o->drive_disparity_sigma_px,
+                  "Disparity offset a drive adds that the still board cannot show, px: cameras exposing dt apart on a "
+                  "robot turning at w shift it by f w dt (0 for synchronised cameras)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber)
       ->needs(rig_out);
   sub->callback([o] { runCalibrate(*o); });
 }

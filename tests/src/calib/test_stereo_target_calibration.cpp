@@ -175,7 +175,7 @@ TEST(StereoTargetCalibration, TheRigHandsItsSigmasToASelfCalibration) {
   StereoRigParams mounting;
   mounting.camera_height_mm = 72.5;
   mounting.tilt_rad = 0.05;
-  saveCalibratedRig(dir.file("rig.yaml"), mounting, r, 0.01, 1.5);
+  saveCalibratedRig(dir.file("rig.yaml"), mounting, r, 0.01, 1.5, 0.3);
   const StereoRig rig = StereoRig::load(dir.file("rig.yaml"));
   EXPECT_DOUBLE_EQ(rig.params().camera_height_mm, 72.5);
   EXPECT_DOUBLE_EQ(rig.params().tilt_rad, 0.05);
@@ -187,14 +187,14 @@ TEST(StereoTargetCalibration, TheRigHandsItsSigmasToASelfCalibration) {
   // The mounting's and the calibration's own, in quadrature.
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[0], std::hypot(0.01, r.sigmas.tilt_rad));
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[1], r.sigmas.baseline_scale);
-  EXPECT_DOUBLE_EQ((*h.head_sigmas)[2], r.sigmas.disparity_offset_px);
+  EXPECT_DOUBLE_EQ((*h.head_sigmas)[2], std::hypot(r.sigmas.disparity_offset_px, 0.3));
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[3], std::hypot(1.5, r.sigmas.column_offset_px));
   EXPECT_GT(r.sigmas.column_offset_px, 0.0);
   EXPECT_GT(r.sigmas.tilt_rad, 0.0);
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[4], r.sigmas.focal_ratio);
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[5], r.sigmas.focal_scale);
   EXPECT_FALSE(h.wheels);
-  EXPECT_NE(test::errorOf([&] { saveCalibratedRig(dir.file("bad.yaml"), mounting, r, 0.0, 1.5); })
+  EXPECT_NE(test::errorOf([&] { saveCalibratedRig(dir.file("bad.yaml"), mounting, r, 0.0, 1.5, 0.3); })
                 .find("tilt_correction_sigma_rad: must be a positive standard deviation"),
             std::string::npos);
 }
