@@ -93,6 +93,12 @@ test-valgrind: build
 	@echo "valgrind: localize --method ekf --frontend images --rig (the calibrated rig)"
 	@$(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method ekf --frontend images \
 	  --rig $(VG_DIR)/batch-rig.yaml --out $(VG_DIR)/ekf-rig.csv >/dev/null
+	@echo "valgrind: calibrate from checkerboard pairs (simulate --calibration-views), the joint problem's Jacobian"
+	$(BUILD)/bin/stereoloc simulate --scenario spin --steps 2 --profile realistic --calibration-views 6 \
+	  --out $(VG_DIR)/cal --force >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/stereoloc calibrate $(VG_DIR)/cal/calibration --out $(VG_DIR)/cal/stereo.yml \
+	  --rig-out $(VG_DIR)/cal/rig.yaml >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_calib_stereo_target_problem >/dev/null
 	@echo "valgrind: no errors"
 
 bench: build

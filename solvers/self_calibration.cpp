@@ -87,15 +87,7 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
   YamlWriter w;
   w.comment("stereoloc rig with the self-calibrated stereo head folded in; the estimate, odometry and standard "
             "deviations below.");
-  for (auto it = back.node().begin(); it != back.node().end(); ++it) {
-    const cv::FileNode n = *it;
-    if (n.isString())
-      w.put(n.name(), static_cast<std::string>(n));
-    else if (n.isInt())
-      w.put(n.name(), static_cast<int>(n));
-    else
-      w.put(n.name(), static_cast<double>(n));
-  }
+  w.putScalarsOf(back);
   if (stereo) {
     w.put("tilt_correction_rad", head[0]);
     w.put("tilt_correction_sigma_rad", std::sqrt(head_covariance(0, 0)));

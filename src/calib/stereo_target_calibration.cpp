@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "src/calib/stereo_target_problem.h"
 #include "src/core/error.h"
 #include "src/core/yaml_util.h"
 
@@ -17,118 +18,6 @@ cv::Mat grey(const cv::Mat& image) {
   cv::Mat g;
   cv::cvtColor(image, g, image.channels() == 4 ? cv::COLOR_BGRA2GRAY : cv::COLOR_BGR2GRAY);
   return g;
-}
-
-// The joint problem's parameters, in the order of its Jacobian's columns:
-//   per camera c: fx, fy (one f when same_focal_axes), cx, cy, the distortion coefficients;
-//   R's rotation vector r and T; per pair v, the board's pose in the left camera, r_v and t_v.
-struct Layout {
-  bool same_focal = false;
-  int distortion = 4;
-  int pairs = 0;
-  int intrinsics() const { return (same_focal ? 3 : 4) + distortion; }
-  int camera(int c) const { return c * intrinsics(); }
-  int relative() const { return 2 * intrinsics(); }
-  int view(int v) const { return relative() + 6 + 6 * v; }
-  int size() const { return view(pairs); }
-};
-
-struct Parameters {
-  cv::Mat K[2], D[2];  // CV_64F; D 1 x distortion
-  cv::Vec3d r, T;
-  std::vector<cv::Vec3d> rv, tv;
-};
-
-// Columns of a projectPoints Jacobian (rvec 3, tvec 3, fx, fy, cx, cy, distortion) for camera c's
-// intrinsics, added into J's rows.
-void addIntrinsics(const cv::Mat& jac, const Layout& L, int c, int row0, Eigen::MatrixXd& J) {
-  const int col = L.camera(c);
-  for (int i = 0; i < jac.rows; ++i) {
-    const double* j = jac.ptr<double>(i);
-    int k = col;
-    if (L.same_focal) {
-      J(row0 + i, k++) += j[6] + j[7];
-    } else {
-      J(row0 + i, k++) += j[6];
-      J(row0 + i, k++) += j[7];
-    }
-    J(row0 + i, k++) += j[8];
-    J(row0 + i, k++) += j[9];
-    for (int d = 0; d < L.distortion; ++d) J(row0 + i, k++) += j[10 + d];
-  }
-}
-
-// One pair's residuals (projected - measured, left then right, x and y per corner) and their
-// Jacobian rows (4 N x L.size()).
-void pairResiduals(const Parameters& p, const Layout& L, int v, const std::vector<cv::Point3f>& object,
-                   const std::vector<cv::Point2f>& left, const std::vector<cv::Point2f>& right, Eigen::VectorXd& e,
-                   Eigen::MatrixXd* J) {
-  const int n = static_cast<int>(object.size());
-  const std::vector<cv::Point3d> X(object.begin(), object.end());  // double in, double out
-  e.resize(4 * n);
-  if (J) J->setZero(4 * n, L.size());
-  std::vector<cv::Point2d> proj;
-  cv::Mat jac;
-  cv::projectPoints(X, p.rv[v], p.tv[v], p.K[0], p.D[0], proj, J ? jac : cv::noArray());
-  for (int i = 0; i < n; ++i) {
-    e(2 * i) = proj[i].x - left[i].x;
-    e(2 * i + 1) = proj[i].y - left[i].y;
-  }
-  if (J) {
-    addIntrinsics(jac, L, 0, 0, *J);
-    for (int i = 0; i < 2 * n; ++i)
-      for (int k = 0; k < 6; ++k) (*J)(i, L.view(v) + k) = jac.at<double>(i, k);
-  }
-  // Right camera: the board in the right frame, X_right = R (R_v X + t_v) + T.
-  cv::Mat r3, t3, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2;
-  cv::composeRT(p.rv[v], p.tv[v], p.r, p.T, r3, t3, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2);
-  cv::projectPoints(X, r3, t3, p.K[1], p.D[1], proj, J ? jac : cv::noArray());
-  for (int i = 0; i < n; ++i) {
-    e(2 * n + 2 * i) = proj[i].x - right[i].x;
-    e(2 * n + 2 * i + 1) = proj[i].y - right[i].y;
-  }
-  if (!J) return;
-  addIntrinsics(jac, L, 1, 2 * n, *J);
-  // J_pose3 = [d/dr3, d/dt3]; chain through composeRT to (r_v, t_v) and (r, T).
-  const cv::Mat jr3 = jac.colRange(0, 3), jt3 = jac.colRange(3, 6);
-  const cv::Mat d_rv = jr3 * dr3dr1 + jt3 * dt3dr1, d_tv = jr3 * dr3dt1 + jt3 * dt3dt1;
-  const cv::Mat d_r = jr3 * dr3dr2 + jt3 * dt3dr2, d_T = jr3 * dr3dt2 + jt3 * dt3dt2;
-  for (int i = 0; i < 2 * n; ++i)
-    for (int k = 0; k < 3; ++k) {
-      (*J)(2 * n + i, L.view(v) + k) = d_rv.at<double>(i, k);
-      (*J)(2 * n + i, L.view(v) + 3 + k) = d_tv.at<double>(i, k);
-      (*J)(2 * n + i, L.relative() + k) = d_r.at<double>(i, k);
-      (*J)(2 * n + i, L.relative() + 3 + k) = d_T.at<double>(i, k);
-    }
-}
-
-Parameters applyStep(const Parameters& p, const Layout& L, const Eigen::VectorXd& dx) {
-  Parameters q = p;
-  for (int c = 0; c < 2; ++c) {
-    q.K[c] = p.K[c].clone();
-    q.D[c] = p.D[c].clone();
-    int k = L.camera(c);
-    if (L.same_focal) {
-      q.K[c].at<double>(0, 0) += dx(k);
-      q.K[c].at<double>(1, 1) += dx(k++);
-    } else {
-      q.K[c].at<double>(0, 0) += dx(k++);
-      q.K[c].at<double>(1, 1) += dx(k++);
-    }
-    q.K[c].at<double>(0, 2) += dx(k++);
-    q.K[c].at<double>(1, 2) += dx(k++);
-    for (int d = 0; d < L.distortion; ++d) q.D[c].at<double>(0, d) += dx(k++);
-  }
-  for (int k = 0; k < 3; ++k) {
-    q.r[k] += dx(L.relative() + k);
-    q.T[k] += dx(L.relative() + 3 + k);
-  }
-  for (int v = 0; v < L.pairs; ++v)
-    for (int k = 0; k < 3; ++k) {
-      q.rv[v][k] += dx(L.view(v) + k);
-      q.tv[v][k] += dx(L.view(v) + 3 + k);
-    }
-  return q;
 }
 
 cv::Mat firstCoefficients(const cv::Mat& D, int n) {
@@ -227,7 +116,7 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   if (nd == 8) flags |= cv::CALIB_RATIONAL_MODEL;
   if (options.same_focal_axes) flags |= cv::CALIB_FIX_ASPECT_RATIO;
   const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12);
-  Parameters p;
+  StereoTargetParameters p;
   std::vector<cv::Mat> rvecs, tvecs, rvecs_right, tvecs_right;
   for (int c = 0; c < 2; ++c) {
     p.K[c] = cv::Mat::eye(3, 3, CV_64F);
@@ -253,19 +142,20 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   // The joint least squares of both images of every pair over all parameters at once: a few
   // damped Gauss-Newton steps from OpenCV's solution (whose board poses are the left camera's
   // alone), so that the covariance below is taken at the joint optimum.
-  Layout L;
+  StereoTargetLayout L;
   L.same_focal = options.same_focal_axes;
   L.distortion = nd;
   L.pairs = V;
   const int n = L.size();
-  auto normalEquations = [&](const Parameters& q, Eigen::MatrixXd* H, Eigen::VectorXd* g) {
+  const std::vector<cv::Point3d> object3d(object.begin(), object.end());
+  auto normalEquations = [&](const StereoTargetParameters& q, Eigen::MatrixXd* H, Eigen::VectorXd* g) {
     double cost = 0.0;
     if (H) H->setZero(n, n);
     if (g) g->setZero(n);
     Eigen::VectorXd e;
     Eigen::MatrixXd J;
     for (int v = 0; v < V; ++v) {
-      pairResiduals(q, L, v, objects[v], left_points[v], right_points[v], e, H ? &J : nullptr);
+      stereoTargetResiduals(q, L, v, object3d, left_points[v], right_points[v], e, H ? &J : nullptr);
       cost += e.squaredNorm();
       if (H) {
         H->noalias() += J.transpose() * J;
@@ -282,7 +172,7 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
     Eigen::MatrixXd A = H;
     A.diagonal() += lambda * H.diagonal().cwiseMax(1e-12);
     const Eigen::VectorXd dx = A.ldlt().solve(-g);
-    const Parameters q = applyStep(p, L, dx);
+    const StereoTargetParameters q = p.plus(L, dx);
     const double c = normalEquations(q, nullptr, nullptr);
     if (std::isfinite(c) && c < cost) {
       const bool done = cost - c < 1e-12 * cost;
@@ -328,8 +218,8 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   }
   const double fx1 = p.K[0].at<double>(0, 0), fx2 = p.K[1].at<double>(0, 0);
   const double b = cv::norm(p.T);
-  const int fx1_col = L.camera(0), fx2_col = L.camera(1);
-  const int cx1_col = L.camera(0) + (L.same_focal ? 1 : 2), cx2_col = L.camera(1) + (L.same_focal ? 1 : 2);
+  const int fx1_col = L.focalX(0), fx2_col = L.focalX(1);
+  const int cx1_col = L.principalX(0), cx2_col = L.principalX(1);
   Eigen::VectorXd a = Eigen::VectorXd::Zero(n);
   for (int k = 0; k < 3; ++k) a(L.relative() + 3 + k) = p.T[k] / b;
   S.baseline_mm = sdOf(a);
@@ -397,7 +287,7 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   result.rms_px = std::sqrt(cost / (m / 2));
   for (int v = 0; v < V; ++v) {
     Eigen::VectorXd e;
-    pairResiduals(p, L, v, objects[v], left_points[v], right_points[v], e, nullptr);
+    stereoTargetResiduals(p, L, v, object3d, left_points[v], right_points[v], e, nullptr);
     result.pairs[used_index[static_cast<size_t>(v)]].rms_px = std::sqrt(e.squaredNorm() / (e.size() / 2));
   }
   return result;
@@ -422,6 +312,10 @@ void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting,
       {"column_offset_sigma_px", std::hypot(column_offset_sigma_px, S.column_offset_px)},
       {"focal_ratio_sigma", S.focal_ratio},
       {"focal_scale_sigma", S.focal_scale}};
+  for (const auto& [key, value] : sigmas)
+    if (!(value > 0.0) || !std::isfinite(value))
+      throw Error(path + ": " + key + ": the calibration states no uncertainty (" + std::to_string(value) +
+                  "); a self-calibration needs a positive prior");
   const StereoRig rig(mounting, result.calibration);
   rig.save(path);
   // The rig as written, then the sigmas (the rig reader ignores them; CalibrationHandover reads them).
@@ -429,15 +323,7 @@ void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting,
   YamlWriter w;
   w.comment("stereoloc rig of a checkerboard-calibrated stereo head (stereoloc calibrate); the calibration's standard "
             "deviations below are the priors of a self-calibration handed this rig.");
-  for (auto it = back.node().begin(); it != back.node().end(); ++it) {
-    const cv::FileNode n = *it;
-    if (n.isString())
-      w.put(n.name(), static_cast<std::string>(n));
-    else if (n.isInt())
-      w.put(n.name(), static_cast<int>(n));
-    else
-      w.put(n.name(), static_cast<double>(n));
-  }
+  w.putScalarsOf(back);
   for (const auto& [key, value] : sigmas) w.put(key, value);
   w.put("calibration_rms_px", result.rms_px);
   w.put("calibration_pairs", result.used_pairs);

@@ -4,15 +4,15 @@
 // what it estimates, so that a self-calibration can start from the calibration's stated
 // uncertainty instead of a guess.
 //
-//   detect      cv::findChessboardCornersSB on each image (sub-pixel corners); a pair is used
-//               when both images show the whole board, its two corner lists put in the same
-//               order (the board's 180-degree turn is ambiguous to the detector)
-//   calibrate   cv::calibrateCamera per camera, then cv::stereoCalibrate refining both cameras
-//               and their relative pose together (CALIB_USE_INTRINSIC_GUESS)
-//   uncertainty the joint problem's Jacobian at the solution (every view's board pose, both
-//               cameras' intrinsics, R and T; from cv::projectPoints and cv::composeRT), and
-//               Sigma = s^2 (J^T J)^-1 with s^2 the residuals' variance per coordinate
-//               (docs/realistic_world.md, "Calibrating the stereo head")
+//   detect      cv::findChessboardCorners (the sector-based detector where it fails), refined
+//               by cv::cornerSubPix; a pair is used when both images show the whole board, its
+//               two corner lists put in the same order (the board's half turn is ambiguous to
+//               the detector)
+//   calibrate   cv::calibrateCamera per camera, cv::stereoCalibrate for both together, then a few
+//               damped Gauss-Newton steps of the joint problem (src/calib/stereo_target_problem.h:
+//               both images of every pair, both cameras' intrinsics, R, T and every board pose)
+//   uncertainty Sigma = s^2 (J^T J)^-1 at that optimum, s^2 the residuals' variance per
+//               coordinate (docs/realistic_world.md, "Calibrating the stereo head")
 //
 // What a checkerboard cannot tell: the head's mounting on the robot (height, tilt, the rectified
 // camera's yaw against the robot's heading). Those stay in the rig YAML with their own sigmas.

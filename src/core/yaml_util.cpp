@@ -103,6 +103,18 @@ void YamlWriter::comment(const std::string& text) { fs_.writeComment(text); }
 
 std::string YamlWriter::str() { return fs_.releaseAndGetString(); }
 
+void YamlWriter::putScalarsOf(const YamlNode& node) {
+  for (auto it = node.node().begin(); it != node.node().end(); ++it) {
+    const cv::FileNode n = *it;
+    if (n.isString())
+      put(n.name(), static_cast<std::string>(n));
+    else if (n.isInt())
+      put(n.name(), static_cast<int>(n));
+    else if (n.isReal())
+      put(n.name(), static_cast<double>(n));
+  }
+}
+
 void YamlWriter::writeAtomically(const std::string& path) { writeFileAtomically(path, str()); }
 
 }  // namespace stereoloc

@@ -56,6 +56,9 @@ class YamlWriter {
   void put(const std::string& key, const T& value) {
     fs_ << key << value;
   }
+  // Every scalar key of `node` (strings, integers, reals), in its order: a file rewritten with
+  // keys appended (a rig with the standard deviations it hands over).
+  void putScalarsOf(const YamlNode& node);
   std::string str();
   void writeAtomically(const std::string& path);
 
