@@ -4,7 +4,7 @@
 
 #include <opencv2/core.hpp>
 #include <filesystem>
-#include <regex>
+#include <cstdlib>
 
 #include "cli_util.h"
 #include "src/core/stereo_calibration.h"
@@ -13,10 +13,12 @@
 namespace stereoloc {
 namespace {
 
+// localize's "position RMSE X mm"; -1 when absent.
 double positionRmse(const std::string& output) {
-  std::smatch m;
-  if (!std::regex_search(output, m, std::regex("position RMSE ([0-9.]+) mm"))) return -1.0;
-  return std::stod(m[1]);
+  const std::string key = "position RMSE ";
+  const size_t at = output.find(key);
+  if (at == std::string::npos) return -1.0;
+  return std::strtod(output.c_str() + at + key.size(), nullptr);
 }
 
 // A realistic robot's given calibration is off by its principal points, focal lengths and
