@@ -239,6 +239,50 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   a(L.relative() + 1) = -fx2;
   S.disparity_offset_px = sdOf(a);
 
+  // Where a ray lands at the image's corners: J_pixel_intrinsics Sigma J^T.
+  for (int c = 0; c < 2; ++c) {
+    const int ni = L.intrinsics();
+    const Eigen::MatrixXd block = Sigma.block(L.camera(c), L.camera(c), ni, ni);
+    // The four corners and, last, the principal point: what the corners' landing adds to the
+    // whole image's shift.
+    const std::vector<cv::Point2d> corners = {{0.0, 0.0},
+                                              {size.width - 1.0, 0.0},
+                                              {0.0, size.height - 1.0},
+                                              {size.width - 1.0, size.height - 1.0},
+                                              {p.K[c].at<double>(0, 2), p.K[c].at<double>(1, 2)}};
+    std::vector<cv::Point2d> rays;
+    cv::undistortPoints(corners, rays, p.K[c], p.D[c], cv::noArray(), cv::noArray(),
+                        cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
+    std::vector<cv::Point3d> X;
+    for (const auto& q : rays) X.emplace_back(q.x, q.y, 1.0);
+    std::vector<cv::Point2d> back;
+    cv::Mat jac;
+    cv::projectPoints(X, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), p.K[c], p.D[c], back, jac);
+    std::vector<Eigen::MatrixXd> As;
+    for (int i = 0; i < 5; ++i) {
+      Eigen::MatrixXd A = Eigen::MatrixXd::Zero(2, ni);
+      for (int row = 0; row < 2; ++row) {
+        const double* j = jac.ptr<double>(2 * i + row);
+        int k = 0;
+        if (L.same_focal) {
+          A(row, k++) = j[6] + j[7];
+        } else {
+          A(row, k++) = j[6];
+          A(row, k++) = j[7];
+        }
+        A(row, k++) = j[8];
+        A(row, k++) = j[9];
+        for (int d = 0; d < nd; ++d) A(row, k++) = j[10 + d];
+      }
+      As.push_back(A);
+    }
+    for (int i = 0; i < 4; ++i) {
+      const Eigen::MatrixXd A = As[static_cast<size_t>(i)] - As[4];
+      const Eigen::Matrix2d cov = A * block * A.transpose();
+      S.image_corner_px[c] = std::max(S.image_corner_px[c], std::sqrt(std::max(cov(0, 0), cov(1, 1))));
+    }
+  }
+
   // The rectified frame's turn: R1 e_z against (r, T), central differences.
   {
     StereoCalibration probe;

@@ -61,6 +61,13 @@ struct TargetCalibrationSigmas {
   double focal_ratio = 0.0;
   double focal_scale = 0.0;
   double disparity_offset_px = 0.0;
+  // Per camera, where a ray lands at the image's corners relative to one at its principal point
+  // (the largest standard deviation of the four, px; cv::projectPoints' Jacobian in the camera's
+  // intrinsics): the lens model is fitted where the board's corners were and extrapolated
+  // beyond, so views that miss the image's edges leave it wide (`calibrate` warns above
+  // kEdgeWarningPx).
+  double image_corner_px[2] = {0.0, 0.0};
+  static constexpr double kEdgeWarningPx = 1.0;
   // The rectified left camera's direction: stereoRectify turns it half the way to the right
   // camera and lines its x up with T, so errors in R and T turn the frame the rig measures
   // bearings and tilt in: its yaw as a column offset (px at the rectified focal length) and its

@@ -143,8 +143,9 @@ std::vector<CalibrationView> renderCalibrationViews(const StereoCalibration& tru
     bool placed = false;
     for (int attempt = 0; attempt < o.max_attempts_per_view && !placed; ++attempt) {
       const double z = o.min_distance_mm + unit(rng) * (o.max_distance_mm - o.min_distance_mm);
-      // The board's centre anywhere in the middle half of the left image.
-      const double u = cx + (unit(rng) - 0.5) * 0.5 * size.width, w = cy + (unit(rng) - 0.5) * 0.5 * size.height;
+      // The board's centre anywhere in the left image (a pose that puts part of the board outside
+      // either image is drawn again): views near the edges and corners, where the lens bends most.
+      const double u = (unit(rng) - 0.5) * size.width + cx, w = (unit(rng) - 0.5) * size.height + cy;
       const cv::Vec3d c(z * (u - cx) / fx, z * (w - cy) / fy, z);
       const cv::Matx33d R = rotation((2 * unit(rng) - 1) * o.max_tilt_rad, (2 * unit(rng) - 1) * o.max_tilt_rad,
                                      (2 * unit(rng) - 1) * o.max_spin_rad);

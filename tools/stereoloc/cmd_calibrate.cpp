@@ -102,6 +102,13 @@ void runCalibrate(const CalibrateOptions& o) {
     for (int k = 0; k < D.cols; ++k) std::printf(" %.4f ± %.4f", D.at<double>(0, k), s.distortion[i][static_cast<size_t>(k)]);
     std::printf("\n");
   }
+  std::printf("the lens at the image's corners (relative to its centre): ± %.2f px (left), ± %.2f px (right)\n",
+              s.image_corner_px[0], s.image_corner_px[1]);
+  if (std::max(s.image_corner_px[0], s.image_corner_px[1]) > TargetCalibrationSigmas::kEdgeWarningPx)
+    std::fprintf(stderr,
+                 "stereoloc: warning: the lens is known to worse than %.1f px at the image's corners: add views with the "
+                 "board near the edges and corners\n",
+                 TargetCalibrationSigmas::kEdgeWarningPx);
   cv::Mat rvec;
   cv::Rodrigues(c.R, rvec);
   std::printf("right camera against the left: rotation (%.3f, %.3f, %.3f) ± (%.3f, %.3f, %.3f) deg, baseline %.2f ± %.2f mm\n",

@@ -117,6 +117,27 @@ TEST(StereoTargetCalibration, StatedSigmasMatchTheErrors) {
   }
 }
 
+// Views spread over the image against views of a far, small board: the lens at the image's
+// corners is known far worse from the second, and the calibration says so.
+TEST(StereoTargetCalibration, TheLensAtTheImageCornersIsAsWellKnownAsTheViewsReachThem) {
+  const CheckerBoard board;
+  const StereoCalibration truth = trueCameras(6);
+  CalibrationViewOptions spread;
+  spread.views = 16;
+  const TargetCalibrationResult wide =
+      calibrateStereoFromTargets(pairsOf(renderCalibrationViews(truth, board, spread, 2)), board);
+  CalibrationViewOptions far = spread;
+  far.views = 8;
+  far.min_distance_mm = 500.0;
+  far.max_distance_mm = 550.0;
+  const TargetCalibrationResult narrow =
+      calibrateStereoFromTargets(pairsOf(renderCalibrationViews(truth, board, far, 2)), board);
+  for (int c = 0; c < 2; ++c) {
+    EXPECT_LT(wide.sigmas.image_corner_px[c], TargetCalibrationSigmas::kEdgeWarningPx) << "camera " << c;
+    EXPECT_GT(narrow.sigmas.image_corner_px[c], TargetCalibrationSigmas::kEdgeWarningPx) << "camera " << c;
+  }
+}
+
 TEST(StereoTargetCalibration, PairsWithoutTheWholeBoardAreReportedAndLeftOut) {
   const CheckerBoard board;
   CalibrationViewOptions options;
