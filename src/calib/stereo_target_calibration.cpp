@@ -27,6 +27,232 @@ cv::Mat firstCoefficients(const cv::Mat& D, int n) {
   return out;
 }
 
+// The pairs whose images both show the whole board, their corners in the same order; every
+// pair's outcome appended to `outcome`.
+struct Detections {
+  std::vector<cv::Point3f> object;
+  std::vector<std::vector<cv::Point2f>> left, right;
+  std::vector<size_t> index;  // of each used pair in the pairs handed in
+};
+
+Detections detectPairs(const std::vector<TargetPair>& pairs, const CheckerBoard& board,
+                       std::vector<TargetPairResult>& outcome) {
+  Detections out;
+  out.object = board.corners();
+  const cv::Size size = pairs.front().left.size();
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    const TargetPair& pair = pairs[i];
+    TargetPairResult r;
+    r.name = pair.name;
+    if (pair.left.empty() || pair.right.empty()) throw Error(pair.name + ": an image of the pair is empty");
+    if (pair.left.depth() != CV_8U || pair.right.depth() != CV_8U) throw Error(pair.name + ": images must be 8-bit");
+    if (pair.left.size() != size || pair.right.size() != size)
+      throw Error(pair.name + ": image size " + std::to_string(pair.left.cols) + "x" + std::to_string(pair.left.rows) +
+                  " / " + std::to_string(pair.right.cols) + "x" + std::to_string(pair.right.rows) + " differs from " +
+                  std::to_string(size.width) + "x" + std::to_string(size.height) + " of " + pairs.front().name);
+    std::vector<cv::Point2f> l = detectBoardCorners(pair.left, board), rr = detectBoardCorners(pair.right, board);
+    if (l.empty() || rr.empty()) {
+      r.reason = std::string("board not found in the ") + (l.empty() && rr.empty() ? "left and right images"
+                                                           : l.empty()            ? "left image"
+                                                                                  : "right image");
+      outcome.push_back(r);
+      continue;
+    }
+    // The detector may list a board turned by 180 degrees from either end; the right list must
+    // start at the corner the left one starts at (nearly the same view).
+    if (cv::norm(l.front() - rr.front()) > cv::norm(l.front() - rr.back())) std::reverse(rr.begin(), rr.end());
+    r.used = true;
+    outcome.push_back(r);
+    out.left.push_back(std::move(l));
+    out.right.push_back(std::move(rr));
+    out.index.push_back(i);
+  }
+  return out;
+}
+
+// OpenCV's estimate: each camera alone, then both together; the board poses the left camera's.
+StereoTargetParameters openCvEstimate(const Detections& found, cv::Size size, const TargetCalibrationOptions& options) {
+  const int nd = options.distortion_coefficients;
+  int flags = 0;
+  if (nd == 4) flags |= cv::CALIB_FIX_K3;
+  if (nd == 8) flags |= cv::CALIB_RATIONAL_MODEL;
+  if (options.same_focal_axes) flags |= cv::CALIB_FIX_ASPECT_RATIO;
+  const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12);
+  const std::vector<std::vector<cv::Point3f>> objects(found.left.size(), found.object);
+  StereoTargetParameters p;
+  for (int c = 0; c < 2; ++c) {
+    p.K[c] = cv::Mat::eye(3, 3, CV_64F);
+    p.D[c] = cv::Mat::zeros(1, nd == 8 ? 8 : 5, CV_64F);
+    cv::calibrateCamera(objects, c == 0 ? found.left : found.right, size, p.K[c], p.D[c], cv::noArray(), cv::noArray(),
+                        flags, criteria);
+  }
+  cv::Mat R, T, E, F;
+  cv::stereoCalibrate(objects, found.left, found.right, p.K[0], p.D[0], p.K[1], p.D[1], size, R, T, E, F,
+                      flags | cv::CALIB_USE_INTRINSIC_GUESS, criteria);
+  for (int c = 0; c < 2; ++c) p.D[c] = firstCoefficients(p.D[c], nd);
+  cv::Mat rm;
+  cv::Rodrigues(R, rm);
+  p.r = cv::Vec3d(rm.at<double>(0), rm.at<double>(1), rm.at<double>(2));
+  p.T = cv::Vec3d(T.at<double>(0), T.at<double>(1), T.at<double>(2));
+  for (size_t v = 0; v < objects.size(); ++v) {
+    cv::Mat rv, tv;
+    cv::solvePnP(objects[v], found.left[v], p.K[0], p.D[0], rv, tv);
+    p.rv.emplace_back(rv.at<double>(0), rv.at<double>(1), rv.at<double>(2));
+    p.tv.emplace_back(tv.at<double>(0), tv.at<double>(1), tv.at<double>(2));
+  }
+  return p;
+}
+
+struct JointSolution {
+  double cost = 0.0;  // sum of squared residuals, px^2
+  Eigen::MatrixXd H;  // J^T J at the solution
+};
+
+// The joint least squares of both images of every pair over all parameters at once: damped
+// Gauss-Newton steps from OpenCV's solution (whose board poses are the left camera's alone), so
+// that the covariance is taken at the joint optimum. `p` is moved to the solution.
+JointSolution refineJointly(StereoTargetParameters& p, const StereoTargetLayout& L, const std::vector<cv::Point3d>& object,
+                            const Detections& found) {
+  const int n = L.size();
+  auto normalEquations = [&](const StereoTargetParameters& q, Eigen::MatrixXd* H, Eigen::VectorXd* g) {
+    double cost = 0.0;
+    if (H) H->setZero(n, n);
+    if (g) g->setZero(n);
+    Eigen::VectorXd e;
+    Eigen::MatrixXd J;
+    for (int v = 0; v < L.pairs; ++v) {
+      stereoTargetResiduals(q, L, v, object, found.left[static_cast<size_t>(v)], found.right[static_cast<size_t>(v)], e,
+                            H ? &J : nullptr);
+      cost += e.squaredNorm();
+      if (H) {
+        H->noalias() += J.transpose() * J;
+        g->noalias() += J.transpose() * e;
+      }
+    }
+    return cost;
+  };
+  JointSolution s;
+  Eigen::VectorXd g;
+  s.cost = normalEquations(p, &s.H, &g);
+  double lambda = 1e-6;
+  for (int it = 0; it < 20; ++it) {
+    Eigen::MatrixXd A = s.H;
+    A.diagonal() += lambda * s.H.diagonal().cwiseMax(1e-12);
+    const Eigen::VectorXd dx = A.ldlt().solve(-g);
+    const StereoTargetParameters q = p.plus(L, dx);
+    const double c = normalEquations(q, nullptr, nullptr);
+    if (std::isfinite(c) && c < s.cost) {
+      const bool done = s.cost - c < 1e-12 * s.cost;
+      p = q;
+      s.cost = normalEquations(p, &s.H, &g);
+      lambda = std::max(lambda / 10, 1e-12);
+      if (done) break;
+    } else {
+      lambda *= 10;
+      if (lambda > 1e6) break;
+    }
+  }
+  return s;
+}
+
+// Sigma = s^2 (J^T J)^-1, s^2 the residuals' variance per coordinate.
+Eigen::MatrixXd covarianceOf(const JointSolution& joint, const StereoTargetLayout& L, size_t corners) {
+  const int n = L.size();
+  const int m = 4 * static_cast<int>(corners) * L.pairs;
+  if (m <= n) throw Error("calibrate: too few corners for the parameters; take more pairs");
+  const double s2 = joint.cost / (m - n);
+  Eigen::LDLT<Eigen::MatrixXd> ldlt(joint.H);
+  if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || ldlt.vectorD().minCoeff() <= 0.0)
+    throw Error("calibrate: the pairs do not constrain the calibration (the board at too few attitudes); take "
+                "views with the board turned and tilted");
+  const Eigen::MatrixXd Sigma = s2 * ldlt.solve(Eigen::MatrixXd::Identity(n, n));
+  if (!Sigma.allFinite()) throw Error("calibrate: the calibration's covariance is not finite; take more varied views");
+  return Sigma;
+}
+
+// Where a ray lands at the image's corners relative to one at the principal point: the largest
+// standard deviation of the four, J_pixel_intrinsics Sigma J^T.
+double imageCornerSigma(const StereoTargetParameters& p, const StereoTargetLayout& L, int c, const Eigen::MatrixXd& Sigma,
+                        cv::Size size) {
+  const int ni = L.intrinsics();
+  const Eigen::MatrixXd block = Sigma.block(L.camera(c), L.camera(c), ni, ni);
+  const std::vector<cv::Point2d> pixels = {{0.0, 0.0},
+                                           {size.width - 1.0, 0.0},
+                                           {0.0, size.height - 1.0},
+                                           {size.width - 1.0, size.height - 1.0},
+                                           {p.K[c].at<double>(0, 2), p.K[c].at<double>(1, 2)}};
+  std::vector<cv::Point2d> rays;
+  cv::undistortPoints(pixels, rays, p.K[c], p.D[c], cv::noArray(), cv::noArray(),
+                      cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
+  std::vector<cv::Point3d> X;
+  for (const auto& q : rays) X.emplace_back(q.x, q.y, 1.0);
+  std::vector<cv::Point2d> back;
+  cv::Mat jac;
+  cv::projectPoints(X, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), p.K[c], p.D[c], back, jac);
+  const Eigen::MatrixXd A = intrinsicColumns(jac, L);  // 10 x ni; rows 8-9 the principal point's
+  double worst = 0.0;
+  for (int i = 0; i < 4; ++i) {
+    const Eigen::MatrixXd relative = A.middleRows(2 * i, 2) - A.middleRows(8, 2);
+    const Eigen::Matrix2d cov = relative * block * relative.transpose();
+    worst = std::max(worst, std::sqrt(std::max(cov(0, 0), cov(1, 1))));
+  }
+  return worst;
+}
+
+// The rectified head's standard deviations (TargetCalibrationSigmas' comment gives each).
+void headSigmas(const StereoTargetParameters& p, const StereoTargetLayout& L, const Eigen::MatrixXd& Sigma, cv::Size size,
+                TargetCalibrationSigmas& S) {
+  const int n = L.size();
+  auto sdOf = [&](const Eigen::VectorXd& a) { return std::sqrt(std::max(a.dot(Sigma * a), 0.0)); };
+  const double fx1 = p.K[0].at<double>(0, 0), fx2 = p.K[1].at<double>(0, 0);
+  const double b = cv::norm(p.T);
+  Eigen::VectorXd a = Eigen::VectorXd::Zero(n);
+  for (int k = 0; k < 3; ++k) a(L.relative() + 3 + k) = p.T[k] / b;
+  S.baseline_mm = sdOf(a);
+  S.baseline_scale = S.baseline_mm / b;
+  a.setZero();
+  a(L.focalX(0)) = 1.0 / fx1;
+  S.focal_scale = sdOf(a);
+  a.setZero();
+  a(L.focalX(1)) = 1.0 / fx1;
+  a(L.focalX(0)) = -fx2 / (fx1 * fx1);
+  S.focal_ratio = sdOf(a);
+  // A far point on the left optical axis: u_l = cx1, and X_right ~ (I + [w]x) X_left gives
+  // u_r = cx2 + fx2 w_y, so the disparity at infinity is cx1 - cx2 - fx2 w_y.
+  a.setZero();
+  a(L.principalX(0)) = 1.0;
+  a(L.principalX(1)) = -1.0;
+  a(L.relative() + 1) = -fx2;
+  S.disparity_offset_px = sdOf(a);
+
+  // The rectified frame's turn: R1 e_z against (r, T), central differences.
+  StereoCalibration probe;
+  probe.K1 = p.K[0];
+  probe.D1 = p.D[0];
+  probe.K2 = p.K[1];
+  probe.D2 = p.D[1];
+  probe.image_size = size;
+  auto axis = [&](const cv::Vec3d& r, const cv::Vec3d& t) {
+    cv::Rodrigues(cv::Mat(r), probe.R);
+    probe.T = cv::Mat(t).clone();
+    probe.rectify();
+    return cv::Vec3d(probe.R1.at<double>(0, 2), probe.R1.at<double>(1, 2), probe.R1.at<double>(2, 2));
+  };
+  Eigen::VectorXd yaw = Eigen::VectorXd::Zero(n), pitch = Eigen::VectorXd::Zero(n);
+  for (int k = 0; k < 6; ++k) {
+    const double h = k < 3 ? 1e-6 : 1e-5;
+    cv::Vec3d r_plus = p.r, r_minus = p.r, t_plus = p.T, t_minus = p.T;
+    (k < 3 ? r_plus[k] : t_plus[k - 3]) += h;
+    (k < 3 ? r_minus[k] : t_minus[k - 3]) -= h;
+    const cv::Vec3d d = (axis(r_plus, t_plus) - axis(r_minus, t_minus)) / (2 * h);
+    yaw(L.relative() + k) = d[0];
+    pitch(L.relative() + k) = d[1];
+  }
+  axis(p.r, p.T);
+  S.column_offset_px = probe.rectifiedFocal() * sdOf(yaw);
+  S.tilt_rad = sdOf(pitch);
+}
+
 }  // namespace
 
 std::vector<cv::Point2f> detectBoardCorners(const cv::Mat& image, const CheckerBoard& board) {
@@ -68,40 +294,8 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
 
   TargetCalibrationResult result;
   const cv::Size size = pairs.front().left.size();
-  const std::vector<cv::Point3f> object = board.corners();
-  std::vector<std::vector<cv::Point3f>> objects;
-  std::vector<std::vector<cv::Point2f>> left_points, right_points;
-  std::vector<size_t> used_index;
-  for (size_t i = 0; i < pairs.size(); ++i) {
-    const TargetPair& pair = pairs[i];
-    TargetPairResult r;
-    r.name = pair.name;
-    if (pair.left.empty() || pair.right.empty()) throw Error(pair.name + ": an image of the pair is empty");
-    if (pair.left.depth() != CV_8U || pair.right.depth() != CV_8U)
-      throw Error(pair.name + ": images must be 8-bit");
-    if (pair.left.size() != size || pair.right.size() != size)
-      throw Error(pair.name + ": image size " + std::to_string(pair.left.cols) + "x" + std::to_string(pair.left.rows) +
-                  " / " + std::to_string(pair.right.cols) + "x" + std::to_string(pair.right.rows) + " differs from " +
-                  std::to_string(size.width) + "x" + std::to_string(size.height) + " of " + pairs.front().name);
-    std::vector<cv::Point2f> l = detectBoardCorners(pair.left, board), rr = detectBoardCorners(pair.right, board);
-    if (l.empty() || rr.empty()) {
-      r.reason = std::string("board not found in the ") + (l.empty() && rr.empty() ? "left and right images"
-                                                           : l.empty()            ? "left image"
-                                                                                  : "right image");
-      result.pairs.push_back(r);
-      continue;
-    }
-    // The detector may list a board turned by 180 degrees from either end; the right list must
-    // start at the corner the left one starts at (nearly the same view).
-    if (cv::norm(l.front() - rr.front()) > cv::norm(l.front() - rr.back())) std::reverse(rr.begin(), rr.end());
-    r.used = true;
-    result.pairs.push_back(r);
-    objects.push_back(object);
-    left_points.push_back(std::move(l));
-    right_points.push_back(std::move(rr));
-    used_index.push_back(i);
-  }
-  const int V = static_cast<int>(objects.size());
+  const Detections found = detectPairs(pairs, board, result.pairs);
+  const int V = static_cast<int>(found.left.size());
   if (V < options.min_views) {
     std::string why;
     for (const auto& r : result.pairs)
@@ -111,95 +305,18 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
                 " needed" + (why.empty() ? "" : " (" + why + ")"));
   }
 
-  int flags = 0;
-  if (nd == 4) flags |= cv::CALIB_FIX_K3;
-  if (nd == 8) flags |= cv::CALIB_RATIONAL_MODEL;
-  if (options.same_focal_axes) flags |= cv::CALIB_FIX_ASPECT_RATIO;
-  const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12);
-  StereoTargetParameters p;
-  std::vector<cv::Mat> rvecs, tvecs, rvecs_right, tvecs_right;
-  for (int c = 0; c < 2; ++c) {
-    p.K[c] = cv::Mat::eye(3, 3, CV_64F);
-    p.D[c] = cv::Mat::zeros(1, nd == 8 ? 8 : 5, CV_64F);
-    cv::calibrateCamera(objects, c == 0 ? left_points : right_points, size, p.K[c], p.D[c],
-                        c == 0 ? rvecs : rvecs_right, c == 0 ? tvecs : tvecs_right, flags, criteria);
-  }
-  cv::Mat R, T, E, F;
-  cv::stereoCalibrate(objects, left_points, right_points, p.K[0], p.D[0], p.K[1], p.D[1], size, R, T, E, F,
-                      flags | cv::CALIB_USE_INTRINSIC_GUESS, criteria);
-  for (int c = 0; c < 2; ++c) p.D[c] = firstCoefficients(p.D[c], nd);
-  cv::Mat rm;
-  cv::Rodrigues(R, rm);
-  p.r = cv::Vec3d(rm.at<double>(0), rm.at<double>(1), rm.at<double>(2));
-  p.T = cv::Vec3d(T.at<double>(0), T.at<double>(1), T.at<double>(2));
-  for (int v = 0; v < V; ++v) {
-    cv::Mat rv, tv;
-    cv::solvePnP(objects[v], left_points[v], p.K[0], p.D[0], rv, tv);
-    p.rv.emplace_back(rv.at<double>(0), rv.at<double>(1), rv.at<double>(2));
-    p.tv.emplace_back(tv.at<double>(0), tv.at<double>(1), tv.at<double>(2));
-  }
-
-  // The joint least squares of both images of every pair over all parameters at once: a few
-  // damped Gauss-Newton steps from OpenCV's solution (whose board poses are the left camera's
-  // alone), so that the covariance below is taken at the joint optimum.
   StereoTargetLayout L;
   L.same_focal = options.same_focal_axes;
   L.distortion = nd;
   L.pairs = V;
-  const int n = L.size();
-  const std::vector<cv::Point3d> object3d(object.begin(), object.end());
-  auto normalEquations = [&](const StereoTargetParameters& q, Eigen::MatrixXd* H, Eigen::VectorXd* g) {
-    double cost = 0.0;
-    if (H) H->setZero(n, n);
-    if (g) g->setZero(n);
-    Eigen::VectorXd e;
-    Eigen::MatrixXd J;
-    for (int v = 0; v < V; ++v) {
-      stereoTargetResiduals(q, L, v, object3d, left_points[v], right_points[v], e, H ? &J : nullptr);
-      cost += e.squaredNorm();
-      if (H) {
-        H->noalias() += J.transpose() * J;
-        g->noalias() += J.transpose() * e;
-      }
-    }
-    return cost;
-  };
-  Eigen::MatrixXd H;
-  Eigen::VectorXd g;
-  double cost = normalEquations(p, &H, &g);
-  double lambda = 1e-6;
-  for (int it = 0; it < 20; ++it) {
-    Eigen::MatrixXd A = H;
-    A.diagonal() += lambda * H.diagonal().cwiseMax(1e-12);
-    const Eigen::VectorXd dx = A.ldlt().solve(-g);
-    const StereoTargetParameters q = p.plus(L, dx);
-    const double c = normalEquations(q, nullptr, nullptr);
-    if (std::isfinite(c) && c < cost) {
-      const bool done = cost - c < 1e-12 * cost;
-      p = q;
-      cost = normalEquations(p, &H, &g);
-      lambda = std::max(lambda / 10, 1e-12);
-      if (done) break;
-    } else {
-      lambda *= 10;
-      if (lambda > 1e6) break;
-    }
-  }
-
-  const int m = 4 * static_cast<int>(object.size()) * V;
-  if (m <= n) throw Error("calibrate: too few corners for the parameters; take more pairs");
-  const double s2 = cost / (m - n);
-  Eigen::LDLT<Eigen::MatrixXd> ldlt(H);
-  if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || ldlt.vectorD().minCoeff() <= 0.0)
-    throw Error("calibrate: the pairs do not constrain the calibration (the board at too few attitudes); take "
-                "views with the board turned and tilted");
-  const Eigen::MatrixXd Sigma = s2 * ldlt.solve(Eigen::MatrixXd::Identity(n, n));
-  if (!Sigma.allFinite()) throw Error("calibrate: the calibration's covariance is not finite; take more varied views");
+  const std::vector<cv::Point3d> object(found.object.begin(), found.object.end());
+  StereoTargetParameters p = openCvEstimate(found, size, options);
+  const JointSolution joint = refineJointly(p, L, object, found);
+  const Eigen::MatrixXd Sigma = covarianceOf(joint, L, object.size());
 
   // Standard deviations.
-  auto sd = [&](int i) { return std::sqrt(std::max(Sigma(i, i), 0.0)); };
-  auto sdOf = [&](const Eigen::VectorXd& a) { return std::sqrt(std::max(a.dot(Sigma * a), 0.0)); };
   TargetCalibrationSigmas& S = result.sigmas;
+  auto sd = [&](int i) { return std::sqrt(std::max(Sigma(i, i), 0.0)); };
   for (int c = 0; c < 2; ++c) {
     int k = L.camera(c);
     if (L.same_focal) {
@@ -211,108 +328,13 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
     S.principal_px[c][0] = sd(k++);
     S.principal_px[c][1] = sd(k++);
     for (int d = 0; d < nd; ++d) S.distortion[c].push_back(sd(k++));
+    S.image_corner_px[c] = imageCornerSigma(p, L, c, Sigma, size);
   }
   for (int k = 0; k < 3; ++k) {
     S.rotation_rad[k] = sd(L.relative() + k);
     S.translation_mm[k] = sd(L.relative() + 3 + k);
   }
-  const double fx1 = p.K[0].at<double>(0, 0), fx2 = p.K[1].at<double>(0, 0);
-  const double b = cv::norm(p.T);
-  const int fx1_col = L.focalX(0), fx2_col = L.focalX(1);
-  const int cx1_col = L.principalX(0), cx2_col = L.principalX(1);
-  Eigen::VectorXd a = Eigen::VectorXd::Zero(n);
-  for (int k = 0; k < 3; ++k) a(L.relative() + 3 + k) = p.T[k] / b;
-  S.baseline_mm = sdOf(a);
-  S.baseline_scale = S.baseline_mm / b;
-  a.setZero();
-  a(fx1_col) = 1.0 / fx1;
-  S.focal_scale = sdOf(a);
-  a.setZero();
-  a(fx2_col) = 1.0 / fx1;
-  a(fx1_col) = -fx2 / (fx1 * fx1);
-  S.focal_ratio = sdOf(a);
-  // A far point on the left optical axis: u_l = cx1, and X_right ~ (I + [w]x) X_left gives
-  // u_r = cx2 + fx2 w_y, so the disparity at infinity is cx1 - cx2 - fx2 w_y.
-  a.setZero();
-  a(cx1_col) = 1.0;
-  a(cx2_col) = -1.0;
-  a(L.relative() + 1) = -fx2;
-  S.disparity_offset_px = sdOf(a);
-
-  // Where a ray lands at the image's corners: J_pixel_intrinsics Sigma J^T.
-  for (int c = 0; c < 2; ++c) {
-    const int ni = L.intrinsics();
-    const Eigen::MatrixXd block = Sigma.block(L.camera(c), L.camera(c), ni, ni);
-    // The four corners and, last, the principal point: what the corners' landing adds to the
-    // whole image's shift.
-    const std::vector<cv::Point2d> corners = {{0.0, 0.0},
-                                              {size.width - 1.0, 0.0},
-                                              {0.0, size.height - 1.0},
-                                              {size.width - 1.0, size.height - 1.0},
-                                              {p.K[c].at<double>(0, 2), p.K[c].at<double>(1, 2)}};
-    std::vector<cv::Point2d> rays;
-    cv::undistortPoints(corners, rays, p.K[c], p.D[c], cv::noArray(), cv::noArray(),
-                        cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
-    std::vector<cv::Point3d> X;
-    for (const auto& q : rays) X.emplace_back(q.x, q.y, 1.0);
-    std::vector<cv::Point2d> back;
-    cv::Mat jac;
-    cv::projectPoints(X, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), p.K[c], p.D[c], back, jac);
-    std::vector<Eigen::MatrixXd> As;
-    for (int i = 0; i < 5; ++i) {
-      Eigen::MatrixXd A = Eigen::MatrixXd::Zero(2, ni);
-      for (int row = 0; row < 2; ++row) {
-        const double* j = jac.ptr<double>(2 * i + row);
-        int k = 0;
-        if (L.same_focal) {
-          A(row, k++) = j[6] + j[7];
-        } else {
-          A(row, k++) = j[6];
-          A(row, k++) = j[7];
-        }
-        A(row, k++) = j[8];
-        A(row, k++) = j[9];
-        for (int d = 0; d < nd; ++d) A(row, k++) = j[10 + d];
-      }
-      As.push_back(A);
-    }
-    for (int i = 0; i < 4; ++i) {
-      const Eigen::MatrixXd A = As[static_cast<size_t>(i)] - As[4];
-      const Eigen::Matrix2d cov = A * block * A.transpose();
-      S.image_corner_px[c] = std::max(S.image_corner_px[c], std::sqrt(std::max(cov(0, 0), cov(1, 1))));
-    }
-  }
-
-  // The rectified frame's turn: R1 e_z against (r, T), central differences.
-  {
-    StereoCalibration probe;
-    probe.K1 = p.K[0];
-    probe.D1 = p.D[0];
-    probe.K2 = p.K[1];
-    probe.D2 = p.D[1];
-    probe.image_size = size;
-    auto axis = [&](const cv::Vec3d& r, const cv::Vec3d& t) {
-      cv::Rodrigues(cv::Mat(r), probe.R);
-      probe.T = cv::Mat(t).clone();
-      probe.rectify();
-      return cv::Vec3d(probe.R1.at<double>(0, 2), probe.R1.at<double>(1, 2), probe.R1.at<double>(2, 2));
-    };
-    Eigen::VectorXd yaw = Eigen::VectorXd::Zero(n), pitch = Eigen::VectorXd::Zero(n);
-    for (int k = 0; k < 6; ++k) {
-      const double h = k < 3 ? 1e-6 : 1e-5;
-      cv::Vec3d r_plus = p.r, r_minus = p.r, t_plus = p.T, t_minus = p.T;
-      (k < 3 ? r_plus[k] : t_plus[k - 3]) += h;
-      (k < 3 ? r_minus[k] : t_minus[k - 3]) -= h;
-      const cv::Vec3d d = (axis(r_plus, t_plus) - axis(r_minus, t_minus)) / (2 * h);
-      yaw(L.relative() + k) = d[0];
-      pitch(L.relative() + k) = d[1];
-    }
-    cv::Rodrigues(cv::Mat(p.r), probe.R);
-    probe.T = cv::Mat(p.T).clone();
-    probe.rectify();
-    S.column_offset_px = probe.rectifiedFocal() * sdOf(yaw);
-    S.tilt_rad = sdOf(pitch);
-  }
+  headSigmas(p, L, Sigma, size, S);
 
   // The result and every pair's reprojection RMS.
   StereoCalibration& cal = result.calibration;
@@ -328,11 +350,12 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   cal.validate("calibrate");
   result.used_pairs = V;
   result.corners_per_image = static_cast<int>(object.size());
-  result.rms_px = std::sqrt(cost / (m / 2));
+  result.rms_px = std::sqrt(joint.cost / (2.0 * static_cast<double>(object.size()) * V));
   for (int v = 0; v < V; ++v) {
     Eigen::VectorXd e;
-    stereoTargetResiduals(p, L, v, object3d, left_points[v], right_points[v], e, nullptr);
-    result.pairs[used_index[static_cast<size_t>(v)]].rms_px = std::sqrt(e.squaredNorm() / (e.size() / 2));
+    stereoTargetResiduals(p, L, v, object, found.left[static_cast<size_t>(v)], found.right[static_cast<size_t>(v)], e,
+                          nullptr);
+    result.pairs[found.index[static_cast<size_t>(v)]].rms_px = std::sqrt(e.squaredNorm() / (e.size() / 2));
   }
   return result;
 }

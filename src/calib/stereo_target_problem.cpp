@@ -3,28 +3,23 @@
 #include <opencv2/calib3d.hpp>
 
 namespace stereoloc {
-namespace {
-
-// Columns of a projectPoints Jacobian (rvec 3, tvec 3, fx, fy, cx, cy, distortion) for camera c's
-// intrinsics, added into J's rows.
-void addIntrinsics(const cv::Mat& jac, const StereoTargetLayout& L, int c, int row0, Eigen::MatrixXd& J) {
-  const int col = L.camera(c);
+Eigen::MatrixXd intrinsicColumns(const cv::Mat& jac, const StereoTargetLayout& L) {
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(jac.rows, L.intrinsics());
   for (int i = 0; i < jac.rows; ++i) {
     const double* j = jac.ptr<double>(i);
-    int k = col;
+    int k = 0;
     if (L.same_focal) {
-      J(row0 + i, k++) += j[6] + j[7];
+      A(i, k++) = j[6] + j[7];
     } else {
-      J(row0 + i, k++) += j[6];
-      J(row0 + i, k++) += j[7];
+      A(i, k++) = j[6];
+      A(i, k++) = j[7];
     }
-    J(row0 + i, k++) += j[8];
-    J(row0 + i, k++) += j[9];
-    for (int d = 0; d < L.distortion; ++d) J(row0 + i, k++) += j[10 + d];
+    A(i, k++) = j[8];
+    A(i, k++) = j[9];
+    for (int d = 0; d < L.distortion; ++d) A(i, k++) = j[10 + d];
   }
+  return A;
 }
-
-}  // namespace
 
 void stereoTargetResiduals(const StereoTargetParameters& p, const StereoTargetLayout& L, int v,
                            const std::vector<cv::Point3d>& X, const std::vector<cv::Point2f>& left,
@@ -40,7 +35,7 @@ void stereoTargetResiduals(const StereoTargetParameters& p, const StereoTargetLa
     e(2 * i + 1) = proj[i].y - left[i].y;
   }
   if (J) {
-    addIntrinsics(jac, L, 0, 0, *J);
+    J->block(0, L.camera(0), 2 * n, L.intrinsics()) = intrinsicColumns(jac, L);
     for (int i = 0; i < 2 * n; ++i)
       for (int k = 0; k < 6; ++k) (*J)(i, L.view(v) + k) = jac.at<double>(i, k);
   }
@@ -53,7 +48,7 @@ void stereoTargetResiduals(const StereoTargetParameters& p, const StereoTargetLa
     e(2 * n + 2 * i + 1) = proj[i].y - right[i].y;
   }
   if (!J) return;
-  addIntrinsics(jac, L, 1, 2 * n, *J);
+  J->block(2 * n, L.camera(1), 2 * n, L.intrinsics()) = intrinsicColumns(jac, L);
   // J_pose3 = [d/dr3, d/dt3]; chain through composeRT to (r_v, t_v) and (r, T).
   const cv::Mat jr3 = jac.colRange(0, 3), jt3 = jac.colRange(3, 6);
   const cv::Mat d_rv = jr3 * dr3dr1 + jt3 * dt3dr1, d_tv = jr3 * dr3dt1 + jt3 * dt3dt1;

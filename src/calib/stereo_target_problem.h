@@ -41,6 +41,10 @@ struct StereoTargetParameters {
   StereoTargetParameters plus(const StereoTargetLayout& layout, const Eigen::VectorXd& dx) const;
 };
 
+// The columns of a cv::projectPoints Jacobian (rvec 3, tvec 3, fx, fy, cx, cy, distortion) in
+// the layout's order for one camera's intrinsics (fx + fy when same_focal): rows x intrinsics().
+Eigen::MatrixXd intrinsicColumns(const cv::Mat& projection_jacobian, const StereoTargetLayout& layout);
+
 // Pair v's residuals e (projected - measured, px: left then right, x and y per corner, 4 N) and,
 // with J non-null, J_residual_parameters (4 N x layout.size()).
 void stereoTargetResiduals(const StereoTargetParameters& p, const StereoTargetLayout& layout, int v,
