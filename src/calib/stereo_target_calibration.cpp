@@ -59,8 +59,9 @@ Detections detectPairs(const std::vector<TargetPair>& pairs, const CheckerBoard&
       continue;
     }
     // The detector may list a board turned by 180 degrees from either end; the right list must
-    // start at the corner the left one starts at (nearly the same view).
-    if (cv::norm(l.front() - rr.front()) > cv::norm(l.front() - rr.back())) std::reverse(rr.begin(), rr.end());
+    // run the way the left one does. Both cameras see the board from nearly the same direction,
+    // so its first-to-last diagonal points the same way in both images whatever the disparity.
+    if ((l.back() - l.front()).dot(rr.back() - rr.front()) < 0.0f) std::reverse(rr.begin(), rr.end());
     r.used = true;
     outcome.push_back(r);
     out.left.push_back(std::move(l));

@@ -82,6 +82,25 @@ TEST(StereoTargetCalibration, RecoversARealisticHeadBetterThanItsGivenCalibratio
   EXPECT_LT(std::abs(disparityErrorAtInfinity(truth, c)), 4 * r.sigmas.disparity_offset_px);
 }
 
+// A wide head: the board's image moves by more than half its diagonal between the cameras, and
+// the two corner lists still pair corner with corner.
+TEST(StereoTargetCalibration, AWideBaselinePairsTheCornersRight) {
+  StereoCalibration wide = trueCameras(2);
+  wide.T = (cv::Mat_<double>(3, 1) << -90.0, 0.0, 0.0);
+  wide.rectify();
+  const CheckerBoard board;
+  CalibrationViewOptions options;
+  options.views = 10;
+  options.min_distance_mm = 300.0;
+  options.max_distance_mm = 450.0;
+  options.max_attempts_per_view = 2000;
+  const TargetCalibrationResult r =
+      calibrateStereoFromTargets(pairsOf(renderCalibrationViews(wide, board, options, 4)), board);
+  EXPECT_EQ(r.used_pairs, 10);
+  EXPECT_LT(r.rms_px, 0.15);
+  EXPECT_NEAR(cv::norm(r.calibration.T), 90.0, 4 * r.sigmas.baseline_mm);
+}
+
 // The stated standard deviations against the errors over independent robots and view sets:
 // mean z^2 near 1 (over 12 draws a mean z^2 of one parameter above 2.5 has probability ~0.003
 // for honest sigmas; below 0.2 one of ~0.002).
