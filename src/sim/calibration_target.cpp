@@ -47,7 +47,7 @@ cv::Mat renderCamera(const std::vector<cv::Point2d>& rays, cv::Size size, int s,
   const cv::Vec3d n(R(0, 2), R(1, 2), R(2, 2));  // board normal in the camera frame
   const double nt = n.dot(t);
   const cv::Matx33d Rt = R.t();
-  std::normal_distribution<double> noise(0.0, o.noise_sigma);
+  std::normal_distribution<double> noise(0.0, o.noise_sigma > 0 ? o.noise_sigma : 1.0);  // drawn only when > 0
   cv::Mat image(size, CV_8UC1);
   size_t k = 0;
   std::vector<double> row(static_cast<size_t>(size.width));

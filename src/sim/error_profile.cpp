@@ -244,7 +244,7 @@ StereoCalibration givenCalibration(const StereoRig& nominal, const DrawnErrors& 
   return c;
 }
 
-StereoCalibration trueCalibration(const StereoRig& nominal, const DrawnErrors& e) {
+StereoCalibration trueCameraCalibration(const StereoRig& nominal, const DrawnErrors& e) {
   DrawnErrors still = e;  // the head at rest: no roll
   still.roll_rad.clear();
   const RawCamera left = trueCamera(nominal, still, 0, 0);

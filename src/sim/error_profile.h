@@ -112,7 +112,7 @@ StereoCalibration givenCalibration(const StereoRig& nominal, const DrawnErrors& 
 // perfect calibration of this robot's head would find (K1, D1, K2, D2 of trueCamera; R the right
 // camera's relative rotation, T = -R (b_true, 0, 0)), rectified. The target a checkerboard
 // calibration is scored against.
-StereoCalibration trueCalibration(const StereoRig& nominal, const DrawnErrors& e);
+StereoCalibration trueCameraCalibration(const StereoRig& nominal, const DrawnErrors& e);
 
 // The rig geometry of the true world at a step (baseline, height, tilt + pitch); image size
 // and pinhole are the nominal ones.

@@ -105,7 +105,7 @@ void runSimulate(const SimulateOptions& o) {
         CalibrationViewOptions views;
         views.views = o.calibration_views;
         writeCalibrationViews((std::filesystem::path(tmp) / "calibration").string(),
-                              trueCalibration(StereoRig(trace.nominal_rig), trace.errors), CheckerBoard(), views,
+                              trueCameraCalibration(StereoRig(trace.nominal_rig), trace.errors), CheckerBoard(), views,
                               o.seed ^ 0x5ca1ab1eULL);
       }
       // The truth of every drawn error, for scoring what the estimators recover.

@@ -21,7 +21,7 @@ namespace {
 StereoCalibration trueCameras(uint64_t seed) {
   std::mt19937_64 rng(seed);
   const DrawnErrors e = drawErrors(ErrorProfile::realistic(), 1, rng);
-  return trueCalibration(StereoRig(), e);
+  return trueCameraCalibration(StereoRig(), e);
 }
 
 std::vector<TargetPair> pairsOf(const std::vector<CalibrationView>& views) {

@@ -19,7 +19,7 @@ StereoCalibration realisticCameras(uint64_t seed, DrawnErrors* drawn = nullptr) 
   std::mt19937_64 rng(seed);
   const DrawnErrors e = drawErrors(ErrorProfile::realistic(), 1, rng);
   if (drawn) *drawn = e;
-  return trueCalibration(StereoRig(), e);
+  return trueCameraCalibration(StereoRig(), e);
 }
 
 // Board corners through a camera, in the detector's order up to the board's half turn.
