@@ -254,6 +254,106 @@ void headSigmas(const StereoTargetParameters& p, const StereoTargetLayout& L, co
   S.tilt_rad = sdOf(pitch);
 }
 
+// Every standard deviation `result.sigmas` states, from one covariance of the parameters.
+TargetCalibrationSigmas sigmasOf(const StereoTargetParameters& p, const StereoTargetLayout& L, const Eigen::MatrixXd& Sigma,
+                                 cv::Size size) {
+  TargetCalibrationSigmas S;
+  auto sd = [&](int i) { return std::sqrt(std::max(Sigma(i, i), 0.0)); };
+  for (int c = 0; c < 2; ++c) {
+    int k = L.camera(c);
+    if (L.same_focal) {
+      S.focal_px[c][0] = S.focal_px[c][1] = sd(k++);
+    } else {
+      S.focal_px[c][0] = sd(k++);
+      S.focal_px[c][1] = sd(k++);
+    }
+    S.principal_px[c][0] = sd(k++);
+    S.principal_px[c][1] = sd(k++);
+    for (int d = 0; d < L.distortion; ++d) S.distortion[c].push_back(sd(k++));
+    S.image_corner_px[c] = imageCornerSigma(p, L, c, Sigma, size);
+  }
+  for (int k = 0; k < 3; ++k) {
+    S.rotation_rad[k] = sd(L.relative() + k);
+    S.translation_mm[k] = sd(L.relative() + 3 + k);
+  }
+  headSigmas(p, L, Sigma, size, S);
+  return S;
+}
+
+// Each standard deviation the larger of a's and b's.
+TargetCalibrationSigmas largerOf(const TargetCalibrationSigmas& a, const TargetCalibrationSigmas& b) {
+  TargetCalibrationSigmas out = a;
+  auto pick = [](double& o, double v) { o = std::max(o, v); };
+  for (int c = 0; c < 2; ++c) {
+    for (int k = 0; k < 2; ++k) {
+      pick(out.focal_px[c][k], b.focal_px[c][k]);
+      pick(out.principal_px[c][k], b.principal_px[c][k]);
+    }
+    for (size_t d = 0; d < out.distortion[c].size(); ++d) pick(out.distortion[c][d], b.distortion[c][d]);
+    pick(out.image_corner_px[c], b.image_corner_px[c]);
+  }
+  for (int k = 0; k < 3; ++k) {
+    pick(out.rotation_rad[k], b.rotation_rad[k]);
+    pick(out.translation_mm[k], b.translation_mm[k]);
+  }
+  for (auto field : {&TargetCalibrationSigmas::baseline_mm, &TargetCalibrationSigmas::baseline_scale,
+                     &TargetCalibrationSigmas::focal_ratio, &TargetCalibrationSigmas::focal_scale,
+                     &TargetCalibrationSigmas::disparity_offset_px, &TargetCalibrationSigmas::column_offset_px,
+                     &TargetCalibrationSigmas::tilt_rad})
+    pick(out.*field, b.*field);
+  return out;
+}
+
+// The cameras' parameters (intrinsics, r, T: every parameter but the board poses) in the
+// layout's order.
+Eigen::VectorXd cameraParameters(const StereoTargetParameters& p, const StereoTargetLayout& L) {
+  Eigen::VectorXd x(L.relative() + 6);
+  for (int c = 0; c < 2; ++c) {
+    int k = L.camera(c);
+    x(k++) = p.K[c].at<double>(0, 0);
+    if (!L.same_focal) x(k++) = p.K[c].at<double>(1, 1);
+    x(k++) = p.K[c].at<double>(0, 2);
+    x(k++) = p.K[c].at<double>(1, 2);
+    for (int d = 0; d < L.distortion; ++d) x(k++) = p.D[c].at<double>(0, d);
+  }
+  for (int k = 0; k < 3; ++k) {
+    x(L.relative() + k) = p.r[k];
+    x(L.relative() + 3 + k) = p.T[k];
+  }
+  return x;
+}
+
+// The spread of the cameras' parameters over the pairs: leave-one-pair-out (jackknife)
+// covariance, (V-1)/V sum_v (x_(v) - mean)(x_(v) - mean)^T, each x_(v) the joint optimum
+// without pair v, started from `p` (the optimum with all). It sees what the fit's covariance
+// cannot: errors shared by a view's corners (a board that is not flat or not printed to
+// scale, lighting, the lens model's misfit where that view's corners lie), which the fit
+// counts as independent corners. Board-pose rows and columns are zero.
+Eigen::MatrixXd pairSpreadCovariance(const StereoTargetParameters& p, const StereoTargetLayout& L,
+                                     const std::vector<cv::Point3d>& object, const Detections& found) {
+  const int V = L.pairs, m = L.relative() + 6;
+  std::vector<Eigen::VectorXd> x;
+  for (int v = 0; v < V; ++v) {
+    StereoTargetParameters q = p;
+    q.rv.erase(q.rv.begin() + v);
+    q.tv.erase(q.tv.begin() + v);
+    Detections d = found;
+    d.left.erase(d.left.begin() + v);
+    d.right.erase(d.right.begin() + v);
+    StereoTargetLayout Lq = L;
+    Lq.pairs = V - 1;
+    refineJointly(q, Lq, object, d);
+    x.push_back(cameraParameters(q, Lq));
+  }
+  Eigen::VectorXd mean = Eigen::VectorXd::Zero(m);
+  for (const auto& xv : x) mean += xv / V;
+  Eigen::MatrixXd C = Eigen::MatrixXd::Zero(L.size(), L.size());
+  for (const auto& xv : x) C.topLeftCorner(m, m) += (xv - mean) * (xv - mean).transpose();
+  C *= static_cast<double>(V - 1) / V;
+  if (!C.allFinite()) throw Error("calibrate: a calibration without one of the pairs did not converge; take more pairs");
+  return C;
+}
+
 }  // namespace
 
 std::vector<cv::Point2f> detectBoardCorners(const cv::Mat& image, const CheckerBoard& board) {
@@ -314,28 +414,9 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   StereoTargetParameters p = openCvEstimate(found, size, options);
   const JointSolution joint = refineJointly(p, L, object, found);
   const Eigen::MatrixXd Sigma = covarianceOf(joint, L, object.size());
-
-  // Standard deviations.
-  TargetCalibrationSigmas& S = result.sigmas;
-  auto sd = [&](int i) { return std::sqrt(std::max(Sigma(i, i), 0.0)); };
-  for (int c = 0; c < 2; ++c) {
-    int k = L.camera(c);
-    if (L.same_focal) {
-      S.focal_px[c][0] = S.focal_px[c][1] = sd(k++);
-    } else {
-      S.focal_px[c][0] = sd(k++);
-      S.focal_px[c][1] = sd(k++);
-    }
-    S.principal_px[c][0] = sd(k++);
-    S.principal_px[c][1] = sd(k++);
-    for (int d = 0; d < nd; ++d) S.distortion[c].push_back(sd(k++));
-    S.image_corner_px[c] = imageCornerSigma(p, L, c, Sigma, size);
-  }
-  for (int k = 0; k < 3; ++k) {
-    S.rotation_rad[k] = sd(L.relative() + k);
-    S.translation_mm[k] = sd(L.relative() + 3 + k);
-  }
-  headSigmas(p, L, Sigma, size, S);
+  result.fit_sigmas = sigmasOf(p, L, Sigma, size);
+  result.pair_spread_sigmas = sigmasOf(p, L, pairSpreadCovariance(p, L, object, found), size);
+  result.sigmas = largerOf(result.fit_sigmas, result.pair_spread_sigmas);
 
   // The result and every pair's reprojection RMS.
   StereoCalibration& cal = result.calibration;

@@ -11,8 +11,11 @@
 //   calibrate   cv::calibrateCamera per camera, cv::stereoCalibrate for both together, then a few
 //               damped Gauss-Newton steps of the joint problem (src/calib/stereo_target_problem.h:
 //               both images of every pair, both cameras' intrinsics, R, T and every board pose)
-//   uncertainty Sigma = s^2 (J^T J)^-1 at that optimum, s^2 the residuals' variance per
-//               coordinate (docs/realistic_world.md, "Calibrating the stereo head")
+//   uncertainty each standard deviation the larger of the fit's, Sigma = s^2 (J^T J)^-1 at that
+//               optimum (s^2 the residuals' variance per coordinate), and the pairs' spread,
+//               leave-one-pair-out (jackknife): on real photographs a view's corner errors are
+//               not independent, and the fit's alone was 1.8 times too small (docs/
+//               realistic_world.md, "Calibrating the stereo head")
 //
 // What a checkerboard cannot tell: the head's mounting on the robot (height, tilt, the rectified
 // camera's yaw against the robot's heading). Those stay in the rig YAML with their own sigmas.
@@ -82,7 +85,9 @@ struct TargetCalibrationResult {
   int used_pairs = 0;
   int corners_per_image = 0;
   std::vector<TargetPairResult> pairs;  // in the order handed in
-  TargetCalibrationSigmas sigmas;
+  TargetCalibrationSigmas sigmas;              // stated: each the larger of the two below
+  TargetCalibrationSigmas fit_sigmas;          // the fit's covariance, s^2 (J^T J)^-1
+  TargetCalibrationSigmas pair_spread_sigmas;  // the leave-one-pair-out (jackknife) covariance
 };
 
 // Throws Error naming the pair for images of different sizes or types, and for fewer than

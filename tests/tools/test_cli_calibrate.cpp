@@ -4,6 +4,7 @@
 
 #include <opencv2/core.hpp>
 #include <filesystem>
+#include <fstream>
 #include <cstdlib>
 
 #include "cli_util.h"
@@ -70,11 +71,37 @@ TEST(CliCalibrate, BadInputNamesTheProblem) {
   std::filesystem::remove(pairs + "/right_002.png");
   r = test::runCli("calibrate '" + pairs + "' --min-pairs 3" + out);
   EXPECT_EQ(r.exit_code, 1);
-  EXPECT_NE(r.output.find("left_002.png: no right_002.png beside it"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("left_002.png: no right image with the key '002.png' beside it"), std::string::npos) << r.output;
   std::filesystem::remove(pairs + "/left_002.png");
   r = test::runCli("calibrate '" + pairs + "' --min-pairs 3" + out);
   EXPECT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("pairs: 3 of 3 used"), std::string::npos) << r.output;
+}
+
+// Real photographs through OpenCV's image list: every pair used, the spread of the pairs
+// reported, the lens warning where no view reached the image's corners, and a list that
+// cannot be paired named.
+TEST(CliCalibrate, OpenCvsSamplePhotographsThroughItsImageList) {
+  test::TempDir dir;
+  const std::string list = std::string(STEREOLOC_DATA_DIR) + "/real/checkerboard/stereo_calib.xml";
+  test::CliRun r = test::runCli("calibrate '" + list + "' --square-mm 1 --out '" + dir.file("s.yml") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("pairs: 13 of 13 used, 54 corners per image"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("each the larger of the fit's and the pairs' spread"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("warning: the lens model is uncertain"), std::string::npos) << r.output;
+  const StereoCalibration c = StereoCalibration::load(dir.file("s.yml"));
+  EXPECT_NEAR(c.K1.at<double>(0, 0), 533.7, 3.0);
+  EXPECT_NEAR(cv::norm(c.T), 3.33, 0.03);
+
+  const std::string odd = dir.file("odd.yml");
+  {
+    std::ofstream f(odd);
+    f << "%YAML:1.0\n---\nimagelist:\n  - a.png\n  - b.png\n  - c.png\n";
+  }
+  r = test::runCli("calibrate '" + odd + "' --out '" + dir.file("t.yml") + "'");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.output.find(odd + ": the imagelist has an odd number of names (3)"), std::string::npos) << r.output;
+  EXPECT_FALSE(std::filesystem::exists(dir.file("t.yml")));
 }
 
 }  // namespace

@@ -3,14 +3,12 @@
 // calibration's standard deviations as a self-calibration's priors.
 #include <algorithm>
 #include <cstdio>
-#include <filesystem>
-#include <map>
 #include <memory>
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "solvers/self_calibration.h"
 #include "src/calib/stereo_target_calibration.h"
+#include "src/calib/target_pairs.h"
 #include "src/core/angles.h"
 #include "src/core/stereo_rig.h"
 #include "tools/stereoloc/cli_common.h"
@@ -19,7 +17,7 @@ namespace stereoloc::cli {
 namespace {
 
 struct CalibrateOptions {
-  std::string dir, board = "9x6", out, rig_out, mounting;
+  std::string source, board = "9x6", out, rig_out, mounting;
   double square_mm = 15.0;
   int distortion = 4, min_pairs = 6;
   bool same_focal_axes = false;
@@ -48,42 +46,13 @@ CheckerBoard parseBoard(const std::string& text, double square_mm) {
   return b;
 }
 
-// left_<name>.<ext> and right_<name>.<ext> of `dir`, paired by <name>; an image without its
-// partner is an error, not a pair left out.
-std::vector<TargetPair> readPairs(const std::string& dir) {
-  namespace fs = std::filesystem;
-  std::map<std::string, fs::path> left, right;
-  for (const auto& entry : fs::directory_iterator(dir)) {
-    if (!entry.is_regular_file()) continue;
-    const std::string name = entry.path().filename().string();
-    if (name.rfind("left_", 0) == 0) left[name.substr(5)] = entry.path();
-    if (name.rfind("right_", 0) == 0) right[name.substr(6)] = entry.path();
-  }
-  for (const auto& [key, path] : left)
-    if (!right.count(key)) throw Error(path.string() + ": no right_" + key + " beside it");
-  for (const auto& [key, path] : right)
-    if (!left.count(key)) throw Error(path.string() + ": no left_" + key + " beside it");
-  if (left.empty()) throw Error(dir + ": no left_*/right_* image pairs");
-  std::vector<TargetPair> pairs;
-  for (const auto& [key, path] : left) {
-    TargetPair p;
-    p.name = path.string();
-    p.left = cv::imread(path.string(), cv::IMREAD_GRAYSCALE);
-    if (p.left.empty()) throw Error(path.string() + ": not a readable image");
-    p.right = cv::imread(right[key].string(), cv::IMREAD_GRAYSCALE);
-    if (p.right.empty()) throw Error(right[key].string() + ": not a readable image");
-    pairs.push_back(std::move(p));
-  }
-  return pairs;
-}
-
 void runCalibrate(const CalibrateOptions& o) {
   const CheckerBoard board = parseBoard(o.board, o.square_mm);
   TargetCalibrationOptions options;
   options.distortion_coefficients = o.distortion;
   options.same_focal_axes = o.same_focal_axes;
   options.min_views = o.min_pairs;
-  const TargetCalibrationResult r = calibrateStereoFromTargets(readPairs(o.dir), board, options);
+  const TargetCalibrationResult r = calibrateStereoFromTargets(readTargetPairs(o.source), board, options);
   const StereoCalibration& c = r.calibration;
   const TargetCalibrationSigmas& s = r.sigmas;
   std::printf("pairs: %d of %zu used, %d corners per image, reprojection RMS %.3f px\n", r.used_pairs, r.pairs.size(),
@@ -106,12 +75,12 @@ void runCalibrate(const CalibrateOptions& o) {
               s.image_corner_px[0], s.image_corner_px[1]);
   if (std::max(s.image_corner_px[0], s.image_corner_px[1]) > TargetCalibrationSigmas::kEdgeWarningPx)
     std::fprintf(stderr,
-                 "stereoloc: warning: the lens is known to worse than %.1f px at the image's corners: add views with the "
-                 "board near the edges and corners\n",
+                 "stereoloc: warning: the lens model is uncertain by more than %.1f px at the image's corners: add views "
+                 "with the board near the edges and corners\n",
                  TargetCalibrationSigmas::kEdgeWarningPx);
   cv::Mat rvec;
   cv::Rodrigues(c.R, rvec);
-  std::printf("right camera against the left: rotation (%.3f, %.3f, %.3f) ± (%.3f, %.3f, %.3f) deg, baseline %.2f ± %.2f mm\n",
+  std::printf("right camera against the left: rotation (%.3f, %.3f, %.3f) ± (%.3f, %.3f, %.3f) deg, baseline %.3f ± %.3f mm\n",
               rad2deg(rvec.at<double>(0)), rad2deg(rvec.at<double>(1)), rad2deg(rvec.at<double>(2)),
               rad2deg(s.rotation_rad[0]), rad2deg(s.rotation_rad[1]), rad2deg(s.rotation_rad[2]), cv::norm(c.T),
               s.baseline_mm);
@@ -120,6 +89,11 @@ void runCalibrate(const CalibrateOptions& o) {
   std::printf("for a self-calibration: baseline scale ± %.4f, disparity offset ± %.3f px, focal ratio ± %.4f, focal scale ± %.4f, "
               "column offset ± %.2f px, tilt ± %.3f deg (the calibration's part)\n",
               s.baseline_scale, s.disparity_offset_px, s.focal_ratio, s.focal_scale, s.column_offset_px, rad2deg(s.tilt_rad));
+  const TargetCalibrationSigmas &fit = r.fit_sigmas, &spread = r.pair_spread_sigmas;
+  std::printf("standard deviations: each the larger of the fit's and the pairs' spread (leave one pair out); the spread is "
+              "%.1fx the fit's on the baseline, %.1fx on the left focal length, %.1fx on the disparity offset\n",
+              spread.baseline_mm / fit.baseline_mm, spread.focal_px[0][0] / fit.focal_px[0][0],
+              spread.disparity_offset_px / fit.disparity_offset_px);
   c.save(o.out);
   std::printf("wrote %s\n", o.out.c_str());
   if (!o.rig_out.empty()) {
@@ -136,9 +110,11 @@ void add_calibrate_command(CLI::App& app) {
   auto o = std::make_shared<CalibrateOptions>();
   CLI::App* sub = app.add_subcommand(
       "calibrate", "Calibrate a stereo head from checkerboard pairs: an OpenCV calibration file and, with --rig-out, the rig");
-  sub->add_option("dir", o->dir, "Folder of left_<name>.png / right_<name>.png pairs (any image format OpenCV reads)")
+  sub->add_option("pairs", o->source,
+                  "Folder of left<key>/right<key> images (left_01.png + right_01.png, left01.jpg + right01.jpg), or an "
+                  "OpenCV image list (left and right alternating, as stereo_calib.cpp reads)")
       ->required()
-      ->check(CLI::ExistingDirectory);
+      ->check(CLI::ExistingPath);
   sub->add_option("--board", o->board, "Inner corners per row x per column, unequal (e.g. 9x6)")->capture_default_str();
   sub->add_option("--square-mm", o->square_mm, "Side of a square, mm")->capture_default_str()->check(CLI::PositiveNumber);
   sub->add_option("--out", o->out, "Write the OpenCV stereo calibration (M1 D1 M2 D2 R T, R1 ... Q) here")->required();
