@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include "src/calib/stereo_target_problem.h"
 #include "src/core/error.h"
@@ -71,25 +72,98 @@ Detections detectPairs(const std::vector<TargetPair>& pairs, const CheckerBoard&
   return out;
 }
 
-// OpenCV's estimate: each camera alone, then both together; the board poses the left camera's.
-StereoTargetParameters openCvEstimate(const Detections& found, cv::Size size, const TargetCalibrationOptions& options) {
-  const int nd = options.distortion_coefficients;
+int openCvFlags(const TargetCalibrationOptions& options) {
   int flags = 0;
-  if (nd == 4) flags |= cv::CALIB_FIX_K3;
-  if (nd == 8) flags |= cv::CALIB_RATIONAL_MODEL;
+  if (options.distortion_coefficients == 4) flags |= cv::CALIB_FIX_K3;
+  if (options.distortion_coefficients == 8) flags |= cv::CALIB_RATIONAL_MODEL;
   if (options.same_focal_axes) flags |= cv::CALIB_FIX_ASPECT_RATIO;
-  const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12);
+  return flags;
+}
+
+const cv::TermCriteria kOpenCvCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12);
+
+// One camera calibrated alone (cv::calibrateCamera) and the board's pose in each of its views.
+struct MonocularCalibration {
+  cv::Mat K, D;
+  std::vector<cv::Mat> rvecs, tvecs;
+};
+
+MonocularCalibration calibrateCamera(const std::vector<cv::Point3f>& object,
+                                     const std::vector<std::vector<cv::Point2f>>& corners, cv::Size size,
+                                     const TargetCalibrationOptions& options) {
+  MonocularCalibration m;
+  m.K = cv::Mat::eye(3, 3, CV_64F);
+  m.D = cv::Mat::zeros(1, options.distortion_coefficients == 8 ? 8 : 5, CV_64F);
+  const std::vector<std::vector<cv::Point3f>> objects(corners.size(), object);
+  cv::calibrateCamera(objects, corners, size, m.K, m.D, m.rvecs, m.tvecs, openCvFlags(options), kOpenCvCriteria);
+  return m;
+}
+
+// Each pair's stereo consistency, judged apart from the others: the right camera's pose
+// against the left from that pair's two monocular board poses, R_v = R_r R_l^T and
+// T_v = t_r - R_v t_l; their median over the pairs (per component) the head's geometry; and
+// the RMS distance (px) of the pair's right corners from where the board's pose in the left
+// image and that geometry put them. A pair that does not fit the others spoils every joint
+// fit, but not the pairs' median.
+std::vector<double> stereoConsistencyPx(const MonocularCalibration& left, const MonocularCalibration& right,
+                                        const Detections& found) {
+  const size_t V = found.left.size();
+  std::vector<cv::Vec3d> w(V), T(V);
+  for (size_t v = 0; v < V; ++v) {
+    cv::Mat Rl, Rr;
+    cv::Rodrigues(left.rvecs[v], Rl);
+    cv::Rodrigues(right.rvecs[v], Rr);
+    const cv::Mat R = Rr * Rl.t();
+    const cv::Mat t = right.tvecs[v] - R * left.tvecs[v];
+    cv::Mat rv;
+    cv::Rodrigues(R, rv);
+    for (int k = 0; k < 3; ++k) {
+      w[v][k] = rv.at<double>(k);
+      T[v][k] = t.at<double>(k);
+    }
+  }
+  auto median = [](std::vector<double> x) {
+    std::nth_element(x.begin(), x.begin() + static_cast<std::ptrdiff_t>(x.size() / 2), x.end());
+    return x[x.size() / 2];
+  };
+  cv::Vec3d w_med, T_med;
+  for (int k = 0; k < 3; ++k) {
+    std::vector<double> wk, Tk;
+    for (size_t v = 0; v < V; ++v) {
+      wk.push_back(w[v][k]);
+      Tk.push_back(T[v][k]);
+    }
+    w_med[k] = median(wk);
+    T_med[k] = median(Tk);
+  }
+  const std::vector<cv::Point3f> object = found.object;
+  std::vector<double> rms;
+  for (size_t v = 0; v < V; ++v) {
+    cv::Mat r_right, t_right;
+    cv::composeRT(left.rvecs[v], left.tvecs[v], cv::Mat(w_med), cv::Mat(T_med), r_right, t_right);
+    std::vector<cv::Point2f> predicted;
+    cv::projectPoints(object, r_right, t_right, right.K, right.D, predicted);
+    double sum = 0.0;
+    for (size_t i = 0; i < predicted.size(); ++i) sum += std::pow(cv::norm(predicted[i] - found.right[v][i]), 2);
+    rms.push_back(std::sqrt(sum / static_cast<double>(predicted.size())));
+  }
+  return rms;
+}
+
+// OpenCV's estimate: both cameras together (cv::stereoCalibrate) from each one's own; the board
+// poses the left camera's.
+StereoTargetParameters openCvEstimate(const Detections& found, const MonocularCalibration mono[2], cv::Size size,
+                                      const TargetCalibrationOptions& options) {
+  const int nd = options.distortion_coefficients;
   const std::vector<std::vector<cv::Point3f>> objects(found.left.size(), found.object);
   StereoTargetParameters p;
   for (int c = 0; c < 2; ++c) {
-    p.K[c] = cv::Mat::eye(3, 3, CV_64F);
-    p.D[c] = cv::Mat::zeros(1, nd == 8 ? 8 : 5, CV_64F);
-    cv::calibrateCamera(objects, c == 0 ? found.left : found.right, size, p.K[c], p.D[c], cv::noArray(), cv::noArray(),
-                        flags, criteria);
+    p.K[c] = mono[c].K.clone();
+    p.D[c] = mono[c].D.clone();
   }
   cv::Mat R, T, E, F;
   cv::stereoCalibrate(objects, found.left, found.right, p.K[0], p.D[0], p.K[1], p.D[1], size, R, T, E, F,
-                      flags | cv::CALIB_USE_INTRINSIC_GUESS, criteria);
+                      openCvFlags(options) | cv::CALIB_USE_INTRINSIC_GUESS, kOpenCvCriteria);
   for (int c = 0; c < 2; ++c) p.D[c] = firstCoefficients(p.D[c], nd);
   cv::Mat rm;
   cv::Rodrigues(R, rm);
@@ -254,6 +328,19 @@ void headSigmas(const StereoTargetParameters& p, const StereoTargetLayout& L, co
   S.tilt_rad = sdOf(pitch);
 }
 
+// Each pair's reprojection RMS over both images, px.
+std::vector<double> pairRms(const StereoTargetParameters& p, const StereoTargetLayout& L,
+                            const std::vector<cv::Point3d>& object, const Detections& found) {
+  std::vector<double> rms;
+  for (int v = 0; v < L.pairs; ++v) {
+    Eigen::VectorXd e;
+    stereoTargetResiduals(p, L, v, object, found.left[static_cast<size_t>(v)], found.right[static_cast<size_t>(v)], e,
+                          nullptr);
+    rms.push_back(std::sqrt(e.squaredNorm() / static_cast<double>(e.size() / 2)));
+  }
+  return rms;
+}
+
 // Every standard deviation `result.sigmas` states, from one covariance of the parameters.
 TargetCalibrationSigmas sigmasOf(const StereoTargetParameters& p, const StereoTargetLayout& L, const Eigen::MatrixXd& Sigma,
                                  cv::Size size) {
@@ -323,17 +410,12 @@ Eigen::VectorXd cameraParameters(const StereoTargetParameters& p, const StereoTa
   return x;
 }
 
-// The spread of the cameras' parameters over the pairs: leave-one-pair-out (jackknife)
-// covariance, (V-1)/V sum_v (x_(v) - mean)(x_(v) - mean)^T, each x_(v) the joint optimum
-// without pair v, started from `p` (the optimum with all). It sees what the fit's covariance
-// cannot: errors shared by a view's corners (a board that is not flat or not printed to
-// scale, lighting, the lens model's misfit where that view's corners lie), which the fit
-// counts as independent corners. Board-pose rows and columns are zero.
-Eigen::MatrixXd pairSpreadCovariance(const StereoTargetParameters& p, const StereoTargetLayout& L,
-                                     const std::vector<cv::Point3d>& object, const Detections& found) {
-  const int V = L.pairs, m = L.relative() + 6;
-  std::vector<Eigen::VectorXd> x;
-  for (int v = 0; v < V; ++v) {
+// The joint optimum without each pair in turn (a few Gauss-Newton steps from `p`, the optimum
+// with all; board poses those of the pairs kept).
+std::vector<StereoTargetParameters> leaveOnePairOut(const StereoTargetParameters& p, const StereoTargetLayout& L,
+                                                    const std::vector<cv::Point3d>& object, const Detections& found) {
+  std::vector<StereoTargetParameters> fits;
+  for (int v = 0; v < L.pairs; ++v) {
     StereoTargetParameters q = p;
     q.rv.erase(q.rv.begin() + v);
     q.tv.erase(q.tv.begin() + v);
@@ -341,10 +423,23 @@ Eigen::MatrixXd pairSpreadCovariance(const StereoTargetParameters& p, const Ster
     d.left.erase(d.left.begin() + v);
     d.right.erase(d.right.begin() + v);
     StereoTargetLayout Lq = L;
-    Lq.pairs = V - 1;
+    Lq.pairs = L.pairs - 1;
     refineJointly(q, Lq, object, d);
-    x.push_back(cameraParameters(q, Lq));
+    fits.push_back(std::move(q));
   }
+  return fits;
+}
+
+// The spread of the cameras' parameters over the pairs: leave-one-pair-out (jackknife)
+// covariance, (V-1)/V sum_v (x_(v) - mean)(x_(v) - mean)^T, x_(v) the cameras' parameters of
+// the optimum without pair v. It sees what the fit's covariance cannot: errors shared by a
+// view's corners (a board that is not flat or not printed to scale, lighting, the lens model's
+// misfit where that view's corners lie), which the fit counts as independent corners.
+// Board-pose rows and columns are zero.
+Eigen::MatrixXd pairSpreadCovariance(const std::vector<StereoTargetParameters>& fits, const StereoTargetLayout& L) {
+  const int V = L.pairs, m = L.relative() + 6;
+  std::vector<Eigen::VectorXd> x;
+  for (const auto& q : fits) x.push_back(cameraParameters(q, L));
   Eigen::VectorXd mean = Eigen::VectorXd::Zero(m);
   for (const auto& xv : x) mean += xv / V;
   Eigen::MatrixXd C = Eigen::MatrixXd::Zero(L.size(), L.size());
@@ -392,11 +487,14 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   if (options.min_views < 3)
     throw Error("calibrate: min_views: at least 3 pairs are needed, got " + std::to_string(options.min_views));
   if (pairs.empty()) throw Error("calibrate: no image pairs");
+  if (options.outlier_factor < 0.0 || !std::isfinite(options.outlier_factor))
+    throw Error("calibrate: outlier_factor: must be >= 0 (0: keep every pair), got " +
+                std::to_string(options.outlier_factor));
 
   TargetCalibrationResult result;
   const cv::Size size = pairs.front().left.size();
-  const Detections found = detectPairs(pairs, board, result.pairs);
-  const int V = static_cast<int>(found.left.size());
+  Detections found = detectPairs(pairs, board, result.pairs);
+  int V = static_cast<int>(found.left.size());
   if (V < options.min_views) {
     std::string why;
     for (const auto& r : result.pairs)
@@ -406,16 +504,53 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
                 " needed" + (why.empty() ? "" : " (" + why + ")"));
   }
 
+  // Pairs that do not fit the others (a board the detector misread, a blurred pair, or one
+  // whose cameras exposed apart while the board moved) are left out, the worst first, while
+  // more than min_views remain.
+  MonocularCalibration mono[2] = {calibrateCamera(found.object, found.left, size, options),
+                                  calibrateCamera(found.object, found.right, size, options)};
+  if (options.outlier_factor > 0.0) {
+    const std::vector<double> rms = stereoConsistencyPx(mono[0], mono[1], found);
+    std::vector<double> sorted = rms;
+    std::nth_element(sorted.begin(), sorted.begin() + V / 2, sorted.end());
+    const double median = sorted[static_cast<size_t>(V / 2)];
+    const double limit = std::max(options.outlier_factor * median, TargetCalibrationOptions::kOutlierFloorPx);
+    std::vector<size_t> order(rms.size());
+    for (size_t v = 0; v < order.size(); ++v) order[v] = v;
+    std::sort(order.begin(), order.end(), [&](size_t i, size_t j) { return rms[i] > rms[j]; });
+    std::vector<bool> drop(rms.size(), false);
+    for (size_t k = 0; k < order.size() && rms[order[k]] > limit && V > options.min_views; ++k) {
+      drop[order[k]] = true;
+      --V;
+      TargetPairResult& out = result.pairs[found.index[order[k]]];
+      out.used = false;
+      out.rms_px = rms[order[k]];
+      char why[200];
+      std::snprintf(why, sizeof why,
+                    "does not fit the others: its right corners lie %.2f px RMS from where its left image and the "
+                    "pairs' median stereo geometry put them, over %.1f times the pairs' median (%.2f px)",
+                    rms[order[k]], options.outlier_factor, median);
+      out.reason = why;
+    }
+    for (size_t v = drop.size(); v-- > 0;)
+      if (drop[v]) {
+        found.left.erase(found.left.begin() + static_cast<std::ptrdiff_t>(v));
+        found.right.erase(found.right.begin() + static_cast<std::ptrdiff_t>(v));
+        found.index.erase(found.index.begin() + static_cast<std::ptrdiff_t>(v));
+      }
+  }
+
   StereoTargetLayout L;
   L.same_focal = options.same_focal_axes;
   L.distortion = nd;
   L.pairs = V;
   const std::vector<cv::Point3d> object(found.object.begin(), found.object.end());
-  StereoTargetParameters p = openCvEstimate(found, size, options);
+  StereoTargetParameters p = openCvEstimate(found, mono, size, options);
   const JointSolution joint = refineJointly(p, L, object, found);
+  const std::vector<StereoTargetParameters> without = leaveOnePairOut(p, L, object, found);
   const Eigen::MatrixXd Sigma = covarianceOf(joint, L, object.size());
   result.fit_sigmas = sigmasOf(p, L, Sigma, size);
-  result.pair_spread_sigmas = sigmasOf(p, L, pairSpreadCovariance(p, L, object, found), size);
+  result.pair_spread_sigmas = sigmasOf(p, L, pairSpreadCovariance(without, L), size);
   result.sigmas = largerOf(result.fit_sigmas, result.pair_spread_sigmas);
 
   // The result and every pair's reprojection RMS.
@@ -433,12 +568,8 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   result.used_pairs = V;
   result.corners_per_image = static_cast<int>(object.size());
   result.rms_px = std::sqrt(joint.cost / (2.0 * static_cast<double>(object.size()) * V));
-  for (int v = 0; v < V; ++v) {
-    Eigen::VectorXd e;
-    stereoTargetResiduals(p, L, v, object, found.left[static_cast<size_t>(v)], found.right[static_cast<size_t>(v)], e,
-                          nullptr);
-    result.pairs[found.index[static_cast<size_t>(v)]].rms_px = std::sqrt(e.squaredNorm() / (e.size() / 2));
-  }
+  const std::vector<double> rms = pairRms(p, L, object, found);
+  for (size_t v = 0; v < rms.size(); ++v) result.pairs[found.index[v]].rms_px = rms[v];
   return result;
 }
 

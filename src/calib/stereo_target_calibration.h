@@ -10,7 +10,9 @@
 //               the detector)
 //   calibrate   cv::calibrateCamera per camera, cv::stereoCalibrate for both together, then a few
 //               damped Gauss-Newton steps of the joint problem (src/calib/stereo_target_problem.h:
-//               both images of every pair, both cameras' intrinsics, R, T and every board pose)
+//               both images of every pair, both cameras' intrinsics, R, T and every board pose);
+//               before it, pairs whose two images do not fit the others' stereo geometry are
+//               left out
 //   uncertainty each standard deviation the larger of the fit's, Sigma = s^2 (J^T J)^-1 at that
 //               optimum (s^2 the residuals' variance per coordinate), and the pairs' spread,
 //               leave-one-pair-out (jackknife): on real photographs a view's corner errors are
@@ -33,6 +35,12 @@ struct TargetCalibrationOptions {
   int distortion_coefficients = 4;  // 4 (k1 k2 p1 p2), 5 (+ k3) or 8 (rational: + k3 k4 k5 k6)
   bool same_focal_axes = false;     // true: fx = fy per camera (CALIB_FIX_ASPECT_RATIO)
   int min_views = 6;                // usable pairs needed
+  // A pair whose right corners lie further than outlier_factor times the pairs' median (and
+  // kOutlierFloorPx) from where its left image and the pairs' median stereo geometry put them
+  // is left out, the worst first, while more than min_views remain; 0 keeps every pair the
+  // detector found.
+  double outlier_factor = 3.0;
+  static constexpr double kOutlierFloorPx = 0.5;
 };
 
 // One image pair as handed in: a name for messages (its file) and the two raw images.

@@ -20,6 +20,7 @@ struct CalibrateOptions {
   std::string source, board = "9x6", out, rig_out, mounting;
   double square_mm = 15.0;
   int distortion = 4, min_pairs = 6;
+  double outlier_factor = TargetCalibrationOptions().outlier_factor;
   bool same_focal_axes = false;
   double tilt_sigma_deg = rad2deg(SelfCalibrationConfig().tilt_sigma_rad);
   double column_offset_sigma_px = SelfCalibrationConfig().column_offset_sigma_px;
@@ -52,6 +53,7 @@ void runCalibrate(const CalibrateOptions& o) {
   options.distortion_coefficients = o.distortion;
   options.same_focal_axes = o.same_focal_axes;
   options.min_views = o.min_pairs;
+  options.outlier_factor = o.outlier_factor;
   const TargetCalibrationResult r = calibrateStereoFromTargets(readTargetPairs(o.source), board, options);
   const StereoCalibration& c = r.calibration;
   const TargetCalibrationSigmas& s = r.sigmas;
@@ -125,6 +127,12 @@ void add_calibrate_command(CLI::App& app) {
   sub->add_option("--min-pairs", o->min_pairs, "Pairs showing the whole board in both images needed")
       ->capture_default_str()
       ->check(CLI::Range(3, 100000));
+  sub->add_option("--outlier-factor", o->outlier_factor,
+                  "Leave out a pair whose right corners lie further than this many times the pairs' median (and 0.5 px) "
+                  "from where its left image and the pairs' median stereo geometry put them, the worst first, while more "
+                  "than --min-pairs remain; 0 keeps every pair")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
   CLI::Option* rig_out = sub->add_option(
       "--rig-out", o->rig_out,
       "Also write the rig YAML using the calibration, with its standard deviations for a later --calibrate stereo");

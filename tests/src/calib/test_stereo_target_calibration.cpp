@@ -188,6 +188,51 @@ TEST(StereoTargetCalibration, PairsWithoutTheWholeBoardAreReportedAndLeftOut) {
   EXPECT_NE(e.find("pair 2: board not found in the right image"), std::string::npos) << e;
 }
 
+// A pair whose right image belongs to another pair (two unsynchronised exposures of a moving
+// board look alike) shows the whole board in both images but does not fit the others: it is
+// left out, and the calibration is the one of the other pairs.
+TEST(StereoTargetCalibration, APairThatDoesNotFitTheOthersIsLeftOut) {
+  const CheckerBoard board;
+  CalibrationViewOptions options;
+  options.views = 9;
+  std::vector<TargetPair> pairs = pairsOf(renderCalibrationViews(trueCameras(3), board, options, 7));
+  std::vector<TargetPair> good = pairs;
+  good.erase(good.begin() + 4);
+  pairs[4].right = pairs[5].right.clone();
+  TargetCalibrationOptions o;
+  o.min_views = 6;
+  const TargetCalibrationResult r = calibrateStereoFromTargets(pairs, board, o);
+  const TargetCalibrationResult expected = calibrateStereoFromTargets(good, board, o);
+  EXPECT_EQ(r.used_pairs, 8);
+  EXPECT_FALSE(r.pairs[4].used);
+  EXPECT_GT(r.pairs[4].rms_px, 3.0);
+  EXPECT_EQ(r.pairs[4].reason.rfind("does not fit the others: its right corners lie ", 0), 0u) << r.pairs[4].reason;
+  EXPECT_NE(r.pairs[4].reason.find("over 3.0 times the pairs' median"), std::string::npos) << r.pairs[4].reason;
+  EXPECT_NEAR(r.calibration.K1.at<double>(0, 0), expected.calibration.K1.at<double>(0, 0), 1e-9);
+  EXPECT_NEAR(cv::norm(r.calibration.T - expected.calibration.T), 0.0, 1e-9);
+  EXPECT_NEAR(r.rms_px, expected.rms_px, 1e-12);
+  // Kept, it spoils the calibration.
+  o.outlier_factor = 0.0;
+  const TargetCalibrationResult kept = calibrateStereoFromTargets(pairs, board, o);
+  EXPECT_EQ(kept.used_pairs, 9);
+  EXPECT_GT(kept.rms_px, 5.0 * r.rms_px);
+  // Never below min_views.
+  o.outlier_factor = 3.0;
+  o.min_views = 9;
+  EXPECT_EQ(calibrateStereoFromTargets(pairs, board, o).used_pairs, 9);
+  // Two such pairs are found as well: each is judged against the pairs' median geometry, which
+  // they do not move.
+  std::vector<TargetPair> two = pairs;
+  two[7].right = pairs[1].right.clone();
+  o.min_views = 6;
+  const TargetCalibrationResult r2 = calibrateStereoFromTargets(two, board, o);
+  EXPECT_EQ(r2.used_pairs, 7);
+  EXPECT_FALSE(r2.pairs[4].used);
+  EXPECT_FALSE(r2.pairs[7].used);
+  o.outlier_factor = -1.0;
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(pairs, board, o); }).find("outlier_factor"), std::string::npos);
+}
+
 TEST(StereoTargetCalibration, BadInputIsAnError) {
   const CheckerBoard board;
   CalibrationViewOptions options;
