@@ -64,6 +64,8 @@ Detections detectPairs(const std::vector<TargetPair>& pairs, const CheckerBoard&
     // so its first-to-last diagonal points the same way in both images whatever the disparity.
     if ((l.back() - l.front()).dot(rr.back() - rr.front()) < 0.0f) std::reverse(rr.begin(), rr.end());
     r.used = true;
+    r.left_corners = l;
+    r.right_corners = rr;
     outcome.push_back(r);
     out.left.push_back(std::move(l));
     out.right.push_back(std::move(rr));
@@ -570,6 +572,14 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
   result.rms_px = std::sqrt(joint.cost / (2.0 * static_cast<double>(object.size()) * V));
   const std::vector<double> rms = pairRms(p, L, object, found);
   for (size_t v = 0; v < rms.size(); ++v) result.pairs[found.index[v]].rms_px = rms[v];
+  double row_sq = 0.0;
+  for (size_t v = 0; v < found.left.size(); ++v) {
+    std::vector<cv::Point2f> l, r;
+    cv::undistortPoints(found.left[v], l, cal.K1, cal.D1, cal.R1, cal.P1);
+    cv::undistortPoints(found.right[v], r, cal.K2, cal.D2, cal.R2, cal.P2);
+    for (size_t k = 0; k < l.size(); ++k) row_sq += std::pow(l[k].y - r[k].y, 2);
+  }
+  result.rectified_row_rms_px = std::sqrt(row_sq / (static_cast<double>(object.size()) * V));
   return result;
 }
 

@@ -54,6 +54,8 @@ struct TargetPairResult {
   bool used = false;
   std::string reason;    // why not used ("" when used)
   double rms_px = 0.0;   // reprojection RMS over both images after calibration (used pairs)
+  // The board's corners in the raw images (px), in one order in both, when both show it.
+  std::vector<cv::Point2f> left_corners, right_corners;
 };
 
 // Standard deviations (first order) of the calibration's parameters and of the rectified head
@@ -90,6 +92,9 @@ struct TargetCalibrationSigmas {
 struct TargetCalibrationResult {
   StereoCalibration calibration;  // rectified (R1 ... Q filled)
   double rms_px = 0.0;            // stereo reprojection RMS over every used corner, px
+  // How far apart in row a used corner's two images are once rectified with the calibration
+  // (RMS, px): what stereo matching along rows needs near zero.
+  double rectified_row_rms_px = 0.0;
   int used_pairs = 0;
   int corners_per_image = 0;
   std::vector<TargetPairResult> pairs;  // in the order handed in

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <filesystem>
 #include <fstream>
 #include <cstdlib>
@@ -84,14 +85,19 @@ TEST(CliCalibrate, BadInputNamesTheProblem) {
 TEST(CliCalibrate, OpenCvsSamplePhotographsThroughItsImageList) {
   test::TempDir dir;
   const std::string list = std::string(STEREOLOC_DATA_DIR) + "/real/checkerboard/stereo_calib.xml";
-  test::CliRun r = test::runCli("calibrate '" + list + "' --square-mm 1 --out '" + dir.file("s.yml") + "'");
+  test::CliRun r = test::runCli("calibrate '" + list + "' --square-mm 1 --out '" + dir.file("s.yml") + "' --overlay '" +
+                                dir.file("overlay") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("pairs: 13 of 13 used, 54 corners per image"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("each the larger of the fit's and the pairs' spread"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("warning: the lens model is uncertain"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("a corner's two images 0.14"), std::string::npos) << r.output;
   const StereoCalibration c = StereoCalibration::load(dir.file("s.yml"));
   EXPECT_NEAR(c.K1.at<double>(0, 0), 533.7, 3.0);
   EXPECT_NEAR(cv::norm(c.T), 3.33, 0.03);
+  EXPECT_NE(r.output.find("wrote 13 rectified pairs to"), std::string::npos) << r.output;
+  const cv::Mat overlay = cv::imread(dir.file("overlay/rectified_left11.png"));
+  EXPECT_EQ(overlay.size(), cv::Size(1280, 480));
 
   const std::string odd = dir.file("odd.yml");
   {

@@ -3,13 +3,17 @@
 // calibration's standard deviations as a self-calibration's priors.
 #include <algorithm>
 #include <cstdio>
+#include <filesystem>
 #include <memory>
 #include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "solvers/self_calibration.h"
+#include "src/calib/rectified_view.h"
 #include "src/calib/stereo_target_calibration.h"
 #include "src/calib/target_pairs.h"
 #include "src/core/angles.h"
+#include "src/core/atomic_file.h"
 #include "src/core/stereo_rig.h"
 #include "tools/stereoloc/cli_common.h"
 
@@ -17,7 +21,7 @@ namespace stereoloc::cli {
 namespace {
 
 struct CalibrateOptions {
-  std::string source, board = "9x6", out, rig_out, mounting;
+  std::string source, board = "9x6", out, rig_out, mounting, overlay;
   double square_mm = 15.0;
   int distortion = 4, min_pairs = 6;
   double outlier_factor = TargetCalibrationOptions().outlier_factor;
@@ -47,6 +51,28 @@ CheckerBoard parseBoard(const std::string& text, double square_mm) {
   return b;
 }
 
+// Every used pair rectified side by side with its corners marked, as DIR/rectified_<left image's
+// stem>.png.
+void writeOverlays(const std::string& dir, const StereoCalibration& c, const std::vector<TargetPair>& pairs,
+                   const TargetCalibrationResult& r) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) throw Error(dir + ": cannot create the overlay folder (" + ec.message() + ")");
+  const RectifiedView view(c);
+  int written = 0;
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    const TargetPairResult& p = r.pairs[i];
+    if (!p.used) continue;
+    const cv::Mat image = view.draw(pairs[i].left, pairs[i].right, p.left_corners, p.right_corners);
+    std::vector<uchar> png;
+    const std::string path = (std::filesystem::path(dir) / ("rectified_" + std::filesystem::path(p.name).stem().string() + ".png")).string();
+    if (!cv::imencode(".png", image, png)) throw Error(path + ": cannot encode the overlay");
+    writeFileAtomically(path, std::string(png.begin(), png.end()));
+    ++written;
+  }
+  std::printf("wrote %d rectified pairs to %s\n", written, dir.c_str());
+}
+
 void runCalibrate(const CalibrateOptions& o) {
   const CheckerBoard board = parseBoard(o.board, o.square_mm);
   TargetCalibrationOptions options;
@@ -54,7 +80,8 @@ void runCalibrate(const CalibrateOptions& o) {
   options.same_focal_axes = o.same_focal_axes;
   options.min_views = o.min_pairs;
   options.outlier_factor = o.outlier_factor;
-  const TargetCalibrationResult r = calibrateStereoFromTargets(readTargetPairs(o.source), board, options);
+  const std::vector<TargetPair> pairs = readTargetPairs(o.source);
+  const TargetCalibrationResult r = calibrateStereoFromTargets(pairs, board, options);
   const StereoCalibration& c = r.calibration;
   const TargetCalibrationSigmas& s = r.sigmas;
   std::printf("pairs: %d of %zu used, %d corners per image, reprojection RMS %.3f px\n", r.used_pairs, r.pairs.size(),
@@ -86,8 +113,10 @@ void runCalibrate(const CalibrateOptions& o) {
               rad2deg(rvec.at<double>(0)), rad2deg(rvec.at<double>(1)), rad2deg(rvec.at<double>(2)),
               rad2deg(s.rotation_rad[0]), rad2deg(s.rotation_rad[1]), rad2deg(s.rotation_rad[2]), cv::norm(c.T),
               s.baseline_mm);
-  std::printf("rectified: f %.2f px, principal point (%.2f, %.2f) px, baseline %.2f mm\n", c.rectifiedFocal(),
-              c.rectifiedPrincipalU(), c.rectifiedPrincipalV(), c.rectifiedBaseline());
+  std::printf("rectified: f %.2f px, principal point (%.2f, %.2f) px, baseline %.2f mm; a corner's two images %.3f px "
+              "apart in row (RMS)\n",
+              c.rectifiedFocal(), c.rectifiedPrincipalU(), c.rectifiedPrincipalV(), c.rectifiedBaseline(),
+              r.rectified_row_rms_px);
   std::printf("for a self-calibration: baseline scale ± %.4f, disparity offset ± %.3f px, focal ratio ± %.4f, focal scale ± %.4f, "
               "column offset ± %.2f px, tilt ± %.3f deg (the calibration's part)\n",
               s.baseline_scale, s.disparity_offset_px, s.focal_ratio, s.focal_scale, s.column_offset_px, rad2deg(s.tilt_rad));
@@ -98,6 +127,7 @@ void runCalibrate(const CalibrateOptions& o) {
               spread.disparity_offset_px / fit.disparity_offset_px);
   c.save(o.out);
   std::printf("wrote %s\n", o.out.c_str());
+  if (!o.overlay.empty()) writeOverlays(o.overlay, c, pairs, r);
   if (!o.rig_out.empty()) {
     const StereoRigParams mounting = o.mounting.empty() ? StereoRigParams() : StereoRig::load(o.mounting).params();
     saveCalibratedRig(o.rig_out, mounting, r, deg2rad(o.tilt_sigma_deg), o.column_offset_sigma_px,
@@ -133,6 +163,9 @@ void add_calibrate_command(CLI::App& app) {
                   "than --min-pairs remain; 0 keeps every pair")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
+  sub->add_option("--overlay", o->overlay,
+                  "Also write every used pair rectified side by side, rows marked every 16 px and the board's corners "
+                  "circled, to this folder (rectified_<left image>.png): a corner's two circles on one row");
   CLI::Option* rig_out = sub->add_option(
       "--rig-out", o->rig_out,
       "Also write the rig YAML using the calibration, with its standard deviations for a later --calibrate stereo");

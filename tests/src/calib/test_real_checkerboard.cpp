@@ -86,6 +86,7 @@ TEST(RealCheckerboard, RectifiedCornersShareTheirRowsAndTriangulateTheBoard) {
       }
   }
   const double row_rms = std::sqrt(row_sq / rows), side_rms = std::sqrt(side_sq / sides);
+  EXPECT_NEAR(allPairs().rectified_row_rms_px, row_rms, 1e-6);
   std::printf("rectified row difference RMS %.3f px, triangulated square side RMS error %.4f squares\n", row_rms, side_rms);
   EXPECT_LT(row_rms, 0.5);
   EXPECT_LT(side_rms, 0.05);
