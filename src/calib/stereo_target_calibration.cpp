@@ -28,6 +28,11 @@ cv::Mat firstCoefficients(const cv::Mat& D, int n) {
   return out;
 }
 
+double median(std::vector<double> x) {
+  std::nth_element(x.begin(), x.begin() + static_cast<std::ptrdiff_t>(x.size() / 2), x.end());
+  return x[x.size() / 2];
+}
+
 // The pairs whose images both show the whole board, their corners in the same order; every
 // pair's outcome appended to `outcome`.
 struct Detections {
@@ -124,10 +129,6 @@ std::vector<double> stereoConsistencyPx(const MonocularCalibration& left, const 
       T[v][k] = t.at<double>(k);
     }
   }
-  auto median = [](std::vector<double> x) {
-    std::nth_element(x.begin(), x.begin() + static_cast<std::ptrdiff_t>(x.size() / 2), x.end());
-    return x[x.size() / 2];
-  };
   cv::Vec3d w_med, T_med;
   for (int k = 0; k < 3; ++k) {
     std::vector<double> wk, Tk;
@@ -150,6 +151,43 @@ std::vector<double> stereoConsistencyPx(const MonocularCalibration& left, const 
     rms.push_back(std::sqrt(sum / static_cast<double>(predicted.size())));
   }
   return rms;
+}
+
+// Leaves out the pairs that do not fit the others (a board the detector misread, a blurred
+// pair, or one whose cameras exposed apart while the board moved): those whose stereo
+// consistency (stereoConsistencyPx) is over outlier_factor times the pairs' median and
+// kOutlierFloorPx, the worst first, while more than min_views remain; each one's outcome says
+// why. Returns the pairs kept. `mono`'s board poses are those of the pairs handed in.
+int leaveOutInconsistentPairs(const MonocularCalibration mono[2], const TargetCalibrationOptions& options,
+                              Detections& found, std::vector<TargetPairResult>& outcome) {
+  const std::vector<double> rms = stereoConsistencyPx(mono[0], mono[1], found);
+  const double typical = median(rms);
+  const double limit = std::max(options.outlier_factor * typical, TargetCalibrationOptions::kOutlierFloorPx);
+  std::vector<size_t> order(rms.size());
+  for (size_t v = 0; v < order.size(); ++v) order[v] = v;
+  std::stable_sort(order.begin(), order.end(), [&](size_t i, size_t j) { return rms[i] > rms[j]; });
+  int kept = static_cast<int>(rms.size());
+  std::vector<bool> drop(rms.size(), false);
+  for (size_t k = 0; k < order.size() && rms[order[k]] > limit && kept > options.min_views; ++k) {
+    drop[order[k]] = true;
+    --kept;
+    TargetPairResult& out = outcome[found.index[order[k]]];
+    out.used = false;
+    out.rms_px = rms[order[k]];
+    char why[200];
+    std::snprintf(why, sizeof why,
+                  "does not fit the others: its right corners lie %.2f px RMS from where its left image and the "
+                  "pairs' median stereo geometry put them, over %.1f times the pairs' median (%.2f px)",
+                  rms[order[k]], options.outlier_factor, typical);
+    out.reason = why;
+  }
+  for (size_t v = drop.size(); v-- > 0;)
+    if (drop[v]) {
+      found.left.erase(found.left.begin() + static_cast<std::ptrdiff_t>(v));
+      found.right.erase(found.right.begin() + static_cast<std::ptrdiff_t>(v));
+      found.index.erase(found.index.begin() + static_cast<std::ptrdiff_t>(v));
+    }
+  return kept;
 }
 
 // OpenCV's estimate: both cameras together (cv::stereoCalibrate) from each one's own; the board
@@ -506,41 +544,11 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
                 " needed" + (why.empty() ? "" : " (" + why + ")"));
   }
 
-  // Pairs that do not fit the others (a board the detector misread, a blurred pair, or one
-  // whose cameras exposed apart while the board moved) are left out, the worst first, while
-  // more than min_views remain.
-  MonocularCalibration mono[2] = {calibrateCamera(found.object, found.left, size, options),
-                                  calibrateCamera(found.object, found.right, size, options)};
-  if (options.outlier_factor > 0.0) {
-    const std::vector<double> rms = stereoConsistencyPx(mono[0], mono[1], found);
-    std::vector<double> sorted = rms;
-    std::nth_element(sorted.begin(), sorted.begin() + V / 2, sorted.end());
-    const double median = sorted[static_cast<size_t>(V / 2)];
-    const double limit = std::max(options.outlier_factor * median, TargetCalibrationOptions::kOutlierFloorPx);
-    std::vector<size_t> order(rms.size());
-    for (size_t v = 0; v < order.size(); ++v) order[v] = v;
-    std::sort(order.begin(), order.end(), [&](size_t i, size_t j) { return rms[i] > rms[j]; });
-    std::vector<bool> drop(rms.size(), false);
-    for (size_t k = 0; k < order.size() && rms[order[k]] > limit && V > options.min_views; ++k) {
-      drop[order[k]] = true;
-      --V;
-      TargetPairResult& out = result.pairs[found.index[order[k]]];
-      out.used = false;
-      out.rms_px = rms[order[k]];
-      char why[200];
-      std::snprintf(why, sizeof why,
-                    "does not fit the others: its right corners lie %.2f px RMS from where its left image and the "
-                    "pairs' median stereo geometry put them, over %.1f times the pairs' median (%.2f px)",
-                    rms[order[k]], options.outlier_factor, median);
-      out.reason = why;
-    }
-    for (size_t v = drop.size(); v-- > 0;)
-      if (drop[v]) {
-        found.left.erase(found.left.begin() + static_cast<std::ptrdiff_t>(v));
-        found.right.erase(found.right.begin() + static_cast<std::ptrdiff_t>(v));
-        found.index.erase(found.index.begin() + static_cast<std::ptrdiff_t>(v));
-      }
-  }
+  // Each camera alone first: OpenCV's stereo estimate starts from them, and a pair's stereo
+  // consistency is judged from its two monocular board poses.
+  const MonocularCalibration mono[2] = {calibrateCamera(found.object, found.left, size, options),
+                                        calibrateCamera(found.object, found.right, size, options)};
+  if (options.outlier_factor > 0.0) V = leaveOutInconsistentPairs(mono, options, found, result.pairs);
 
   StereoTargetLayout L;
   L.same_focal = options.same_focal_axes;
