@@ -99,10 +99,11 @@ test-valgrind: build
 	@$(VALGRIND) $(BUILD)/bin/stereoloc calibrate $(VG_DIR)/cal/calibration --out $(VG_DIR)/cal/stereo.yml \
 	  --rig-out $(VG_DIR)/cal/rig.yaml >/dev/null
 	@$(VALGRIND) $(BUILD)/bin/test_calib_stereo_target_problem >/dev/null
-	@echo "valgrind: calibrate on real photographs through OpenCV's image list; finding pairs on disk"
+	@echo "valgrind: calibrate on real photographs through OpenCV's image list, with overlays; finding pairs on disk"
 	@$(VALGRIND) $(BUILD)/bin/stereoloc calibrate data/real/checkerboard/stereo_calib.xml --square-mm 1 \
-	  --out $(VG_DIR)/cal/real.yml >/dev/null
+	  --out $(VG_DIR)/cal/real.yml --overlay $(VG_DIR)/cal/overlay >/dev/null
 	@$(VALGRIND) $(BUILD)/bin/test_calib_target_pairs >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_calib_rectified_view >/dev/null
 	@echo "valgrind: no errors"
 
 bench: build
