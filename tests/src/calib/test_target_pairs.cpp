@@ -19,62 +19,60 @@ void writeImage(const std::string& path, int value) {
 
 int valueOf(const cv::Mat& image) { return image.at<uint8_t>(0, 0); }
 
+// The pair holds the images written with these values.
+void expectPair(const TargetPair& pair, int left, int right) {
+  EXPECT_EQ(valueOf(pair.left), left) << pair.name;
+  EXPECT_EQ(valueOf(pair.right), right) << pair.name;
+}
+
+void writePair(const test::TempDir& dir, const std::string& left, const std::string& right, int value) {
+  writeImage(dir.file(left), value);
+  writeImage(dir.file(right), value + 1);
+}
+
 void writeText(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
 
 TEST(TargetPairs, AFolderPairsLeftAndRightByTheirKey) {
   test::TempDir dir;
-  writeImage(dir.file("left_b.png"), 10);
-  writeImage(dir.file("right_b.png"), 11);
-  writeImage(dir.file("left_a.png"), 20);
-  writeImage(dir.file("right_a.png"), 21);
+  writePair(dir, "left_b.png", "right_b.png", 10);
+  writePair(dir, "left_a.png", "right_a.png", 20);
   writeText(dir.file("left_notes.txt"), "not an image");
   writeText(dir.file("README"), "");
   const std::vector<TargetPair> pairs = readTargetPairs(dir.path());
   ASSERT_EQ(pairs.size(), 2u);
   EXPECT_EQ(pairs[0].name, dir.file("left_a.png"));
-  EXPECT_EQ(valueOf(pairs[0].left), 20);
-  EXPECT_EQ(valueOf(pairs[0].right), 21);
-  EXPECT_EQ(valueOf(pairs[1].left), 10);
-  EXPECT_EQ(valueOf(pairs[1].right), 11);
+  expectPair(pairs[0], 20, 21);
+  expectPair(pairs[1], 10, 11);
   EXPECT_EQ(pairs[0].left.type(), CV_8UC1);
 }
 
 TEST(TargetPairs, OpenCvSampleNamesPairWithoutASeparator) {
   test::TempDir dir;
-  writeImage(dir.file("left01.png"), 1);
-  writeImage(dir.file("right01.png"), 2);
-  writeImage(dir.file("Left-02.png"), 3);
-  writeImage(dir.file("RIGHT02.png"), 4);
+  writePair(dir, "left01.png", "right01.png", 1);
+  writePair(dir, "Left-02.png", "RIGHT02.png", 3);
   const std::vector<TargetPair> pairs = readTargetPairs(dir.path());
   ASSERT_EQ(pairs.size(), 2u);
-  EXPECT_EQ(valueOf(pairs[0].left), 1);
-  EXPECT_EQ(valueOf(pairs[0].right), 2);
-  EXPECT_EQ(valueOf(pairs[1].left), 3);
-  EXPECT_EQ(valueOf(pairs[1].right), 4);
+  expectPair(pairs[0], 1, 2);
+  expectPair(pairs[1], 3, 4);
 }
 
 TEST(TargetPairs, AnImageListAlternatesLeftAndRightRelativeToItsFolder) {
   test::TempDir dir;
   std::filesystem::create_directories(dir.file("img"));
-  writeImage(dir.file("img/l1.png"), 5);
-  writeImage(dir.file("img/r1.png"), 6);
-  writeImage(dir.file("img/l2.png"), 7);
-  writeImage(dir.file("img/r2.png"), 8);
+  writePair(dir, "img/l1.png", "img/r1.png", 5);
+  writePair(dir, "img/l2.png", "img/r2.png", 7);
   writeText(dir.file("list.xml"),
             "<?xml version=\"1.0\"?>\n<opencv_storage>\n<imagelist>\n\"img/l2.png\"\n\"img/r2.png\"\n\"img/l1.png\"\n"
             "\"img/r1.png\"\n</imagelist>\n</opencv_storage>\n");
   std::vector<TargetPair> pairs = readTargetPairs(dir.file("list.xml"));
   ASSERT_EQ(pairs.size(), 2u);
-  EXPECT_EQ(valueOf(pairs[0].left), 7);
-  EXPECT_EQ(valueOf(pairs[0].right), 8);
-  EXPECT_EQ(valueOf(pairs[1].left), 5);
-  EXPECT_EQ(valueOf(pairs[1].right), 6);
+  expectPair(pairs[0], 7, 8);
+  expectPair(pairs[1], 5, 6);
   // YAML, the sequence under another name.
   writeText(dir.file("list.yml"), "%YAML:1.0\n---\nimages:\n  - img/l1.png\n  - img/r1.png\n");
   pairs = readTargetPairs(dir.file("list.yml"));
   ASSERT_EQ(pairs.size(), 1u);
-  EXPECT_EQ(valueOf(pairs[0].left), 5);
-  EXPECT_EQ(valueOf(pairs[0].right), 6);
+  expectPair(pairs[0], 5, 6);
 }
 
 TEST(TargetPairs, WhatCannotBePairedOrReadIsNamed) {
