@@ -41,6 +41,8 @@ void SelfCalibrationConfig::validate() const {
   pos(column_offset_sigma_px, "column_offset_sigma_px");
   pos(focal_ratio_sigma, "focal_ratio_sigma");
   pos(focal_scale_sigma, "focal_scale_sigma");
+  if (!(drive_disparity_sigma_px >= 0.0) || !std::isfinite(drive_disparity_sigma_px))
+    throw Error("self-calibration: drive_disparity_sigma_px must be >= 0");
   pos(range_scale_sigma, "range_scale_sigma");
   pos(range_scale_slope_sigma, "range_scale_slope_sigma");
   pos(range_scale_curvature_sigma, "range_scale_curvature_sigma");
@@ -79,7 +81,10 @@ PriorDistance furthestFromPrior(const CalibrationEstimate& e, const SelfCalibrat
   return out;
 }
 
-void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& rig) const {
+void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& rig, double drive_disparity_sigma_px) const {
+  if (!(drive_disparity_sigma_px >= 0.0) || !std::isfinite(drive_disparity_sigma_px))
+    throw Error(path + ": disparity_offset_sigma_px: the drive's part must be >= 0, got " +
+                std::to_string(drive_disparity_sigma_px));
   const StereoRig out = stereo ? selfCalibratedRig(rig, *this) : rig;
   out.save(path);
   // The estimate's own keys, appended as cv::FileStorage YAML (the rig reader ignores them).
@@ -94,7 +99,7 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
     w.put("baseline_scale", head[1]);
     w.put("baseline_scale_sigma", std::sqrt(head_covariance(1, 1)));
     w.put("disparity_offset_px", head[2]);
-    w.put("disparity_offset_sigma_px", std::sqrt(head_covariance(2, 2)));
+    w.put("disparity_offset_sigma_px", std::hypot(std::sqrt(head_covariance(2, 2)), drive_disparity_sigma_px));
     w.put("column_offset_px", head[3]);
     w.put("column_offset_sigma_px", std::sqrt(head_covariance(3, 3)));
     w.put("focal_ratio", head[4]);

@@ -86,6 +86,13 @@ struct SelfCalibrationConfig {
   double focal_ratio_sigma = 0.014;         // dimensionless
   // The left camera's focal length: 0.5 % per camera.
   double focal_scale_sigma = 0.01;          // dimensionless
+  // What a drive adds to the disparity offset that another drive does not share: two cameras
+  // exposing dt apart on a robot turning at w shift every disparity by f w dt (the realistic
+  // world's circle: ~0.3 px), which the estimated offset absorbs for that drive's motion only.
+  // Added in quadrature to the offset's standard deviation handed to the next run
+  // (CalibrationEstimate::saveAsRig), as `calibrate --rig-out` does; 0 for cameras exposing
+  // together.
+  double drive_disparity_sigma_px = 0.3;    // px
   // The range block's priors: a range sensor's scale error of a few per cent (MR.CLAM's barcode
   // camera: +2.6 and +5.2 % on axis, docs/results.md), its change across the field of view
   // (there -0.46 and -0.51 per rad^2) and a bearing offset of a degree.
@@ -168,8 +175,10 @@ struct CalibrationEstimate {
   // (tilt_correction_rad, baseline_scale, disparity_offset_px, column_offset_px, focal_ratio,
   // focal_scale, row_offset_px, wheel_scale_left, wheel_scale_right, wheel_base_mm,
   // range_scale_c0, range_scale_c1, range_scale_c2, bearing_offset_rad, odometry_delay_s,
-  // *_sigma).
-  void saveAsRig(const std::string& path, const StereoRig& rig) const;
+  // *_sigma). The disparity offset's standard deviation is handed over with
+  // `drive_disparity_sigma_px` (SelfCalibrationConfig) added in quadrature; throws Error for a
+  // negative one.
+  void saveAsRig(const std::string& path, const StereoRig& rig, double drive_disparity_sigma_px) const;
 };
 
 // What a rig file written by CalibrationEstimate::saveAsRig hands to the next run besides the

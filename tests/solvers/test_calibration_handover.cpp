@@ -58,12 +58,21 @@ std::string replaced(std::string text, const std::string& key, const std::string
 TEST(CalibrationHandover, ReadsBackWhatSaveAsRigWrote) {
   test::TempDir dir;
   const CalibrationEstimate e = sampleEstimate();
-  e.saveAsRig(dir.file("rig.yaml"), StereoRig());
+  e.saveAsRig(dir.file("rig.yaml"), StereoRig(), 0.0);
   const CalibrationHandover h = CalibrationHandover::load(dir.file("rig.yaml"));
   ASSERT_TRUE(h.wheels && h.wheel_sigmas && h.head_sigmas && h.row_offset_sigma_px);
   EXPECT_NEAR(((*h.wheels) - e.wheels).norm(), 0.0, 1e-12);
   EXPECT_NEAR(((*h.wheel_sigmas) - e.wheels_covariance.diagonal().cwiseSqrt()).norm(), 0.0, 1e-12);
   EXPECT_NEAR(((*h.head_sigmas) - e.head_covariance.diagonal().cwiseSqrt()).norm(), 0.0, 1e-12);
+  // The drive's part of the disparity offset, which the next drive does not share, is added to
+  // its sigma alone.
+  e.saveAsRig(dir.file("drive.yaml"), StereoRig(), 0.3);
+  const CalibrationHandover d = CalibrationHandover::load(dir.file("drive.yaml"));
+  CalibrationEstimate::StereoVector expected = e.head_covariance.diagonal().cwiseSqrt();
+  expected[2] = std::hypot(expected[2], 0.3);
+  EXPECT_NEAR(((*d.head_sigmas) - expected).norm(), 0.0, 1e-12);
+  EXPECT_NE(test::errorOf([&] { e.saveAsRig(dir.file("bad.yaml"), StereoRig(), -0.1); }).find("the drive's part must be >= 0"),
+            std::string::npos);
   EXPECT_NEAR(*h.row_offset_sigma_px, 0.2, 1e-12);
   ASSERT_TRUE(h.odometry_delay_s);
   EXPECT_DOUBLE_EQ(*h.odometry_delay_s, 0.24);
@@ -71,7 +80,7 @@ TEST(CalibrationHandover, ReadsBackWhatSaveAsRigWrote) {
   // A given delay (sigma 0) is written without a sigma and read back as given.
   CalibrationEstimate given;
   given.odometry_delay_s = -0.05;
-  given.saveAsRig(dir.file("given.yaml"), StereoRig());
+  given.saveAsRig(dir.file("given.yaml"), StereoRig(), 0.3);
   const CalibrationHandover g = CalibrationHandover::load(dir.file("given.yaml"));
   EXPECT_FALSE(g.empty());
   EXPECT_DOUBLE_EQ(*g.odometry_delay_s, -0.05);
@@ -151,7 +160,7 @@ TEST(CalibrationHandover, CarriesARunsWheelEstimateOnInRawIncrements) {
 
 TEST(CalibrationHandover, BadFilesNameTheFileAndTheKey) {
   test::TempDir dir;
-  sampleEstimate().saveAsRig(dir.file("rig.yaml"), StereoRig());
+  sampleEstimate().saveAsRig(dir.file("rig.yaml"), StereoRig(), 0.0);
   const std::string good = readText(dir.file("rig.yaml"));
   auto expectError = [&](const std::string& text, const std::string& key, const std::string& what) {
     writeText(dir.file("bad.yaml"), text);

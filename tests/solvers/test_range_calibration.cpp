@@ -197,7 +197,7 @@ TEST(RangeCalibration, FurthestFromPriorAndTheRigFileNameTheRangeBlock) {
   EXPECT_EQ(far.parameter, "range_scale_c2");
   EXPECT_NEAR(far.sigmas, 3.2, 1e-12);
   test::TempDir dir("range_rig");
-  e.saveAsRig(dir.file("rig.yaml"), StereoRig());
+  e.saveAsRig(dir.file("rig.yaml"), StereoRig(), 0.0);
   const YamlReader y(dir.file("rig.yaml"));
   EXPECT_DOUBLE_EQ(y.getDouble("range_scale_c2"), -1.6);
   EXPECT_DOUBLE_EQ(y.getDouble("range_scale_c2_sigma"), 0.01);

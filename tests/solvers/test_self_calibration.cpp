@@ -188,7 +188,7 @@ TEST(SelfCalibration, RecoversPlantedParametersOnALongRun) {
 
   // The written rig carries the estimate and reads back as a rig.
   test::TempDir dir;
-  c.saveAsRig(dir.file("rig.yaml"), d.rig);
+  c.saveAsRig(dir.file("rig.yaml"), d.rig, 0.0);
   const StereoRig back = StereoRig::load(dir.file("rig.yaml"));
   EXPECT_NEAR(back.params().tilt_rad, d.rig.params().tilt_rad + c.head[0], 1e-12);
   EXPECT_NEAR(back.params().baseline_mm, d.rig.params().baseline_mm * c.head[1], 1e-9);

@@ -92,6 +92,26 @@ TEST_F(RigHandover, SelfcheckShowsWhatTheFileHandsOver) {
   EXPECT_EQ(plain.output.find("hands over"), std::string::npos) << plain.output;
 }
 
+// The disparity offset a drive estimates holds for its own motion (cameras exposing apart on a
+// turning robot shift it by f w dt): its handed-over sigma carries that drive's part in
+// quadrature, 0.3 px by default.
+TEST_F(RigHandover, TheDisparityOffsetIsHandedOverWithTheDrivesPart) {
+  const std::string exact = dir_->file("exact.yaml");
+  const test::CliRun r = test::runCli("refine " + dir_->file("line") + " --frontend images --calibrate odometry,stereo " +
+                                      "--noise-model " + noise() + " --calibration-out " + exact +
+                                      " --drive-disparity-sigma-px 0 --out " + out());
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const double posterior = YamlReader(exact).getDouble("disparity_offset_sigma_px");
+  const double handed = YamlReader(rig()).getDouble("disparity_offset_sigma_px");
+  EXPECT_GT(posterior, 0.0);
+  EXPECT_NEAR(handed, std::hypot(posterior, 0.3), 1e-9);
+  EXPECT_NEAR(YamlReader(rig()).getDouble("disparity_offset_px"), YamlReader(exact).getDouble("disparity_offset_px"), 1e-12);
+  const test::CliRun alone =
+      test::runCli("refine " + dir_->file("line") + " --drive-disparity-sigma-px 0.5 --out " + out());
+  EXPECT_EQ(alone.exit_code, 2) << alone.output;
+  EXPECT_NE(alone.output.find("--calibration-out"), std::string::npos) << alone.output;
+}
+
 // A further self-calibration starts from the handed-over estimate and its sigmas; the rig it
 // writes carries the wheels on in raw increments, within 3 sigma of the robot's true wheels.
 TEST_F(RigHandover, AFurtherCalibrationCarriesTheWheelsOn) {

@@ -28,7 +28,7 @@ struct CalibrateOptions {
   bool same_focal_axes = false;
   double tilt_sigma_deg = rad2deg(SelfCalibrationConfig().tilt_sigma_rad);
   double column_offset_sigma_px = SelfCalibrationConfig().column_offset_sigma_px;
-  double drive_disparity_sigma_px = 0.3;
+  double drive_disparity_sigma_px = SelfCalibrationConfig().drive_disparity_sigma_px;
 };
 
 CheckerBoard parseBoard(const std::string& text, double square_mm) {

@@ -35,6 +35,7 @@ struct StreamArgs {
   bool no_gate = false, smoothed = false;
   std::string frontend = "pixels", frontend_landmarks = "all", frontend_params, observation_model = "pixel_columns";
   std::string calibrate, consider, calibration_out, noise_model;
+  double drive_disparity_sigma_px = SelfCalibrationConfig().drive_disparity_sigma_px;
   std::optional<std::string> odometry_delay;  // seconds, >= 0
 };
 
@@ -73,6 +74,7 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
     throw UsageError(std::string("--observation-model: ") + e.what());
   }
   SelfCalibrationConfig calibration = calibrationOptions(a.calibrate, a.consider);
+  calibration.drive_disparity_sigma_px = a.drive_disparity_sigma_px;
   const bool calibrating = calibration.any() && !calibration.consider;
 
   if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
@@ -281,9 +283,16 @@ void add_stream_command(CLI::App& app) {
                   "YAML of the noise the rig and odometry do not state, for the window and ekf with --calibrate or "
                   "--consider (see `localize --help`)")
       ->check(CLI::ExistingFile);
-  sub->add_option("--calibration-out", a->calibration_out,
-                  "With --calibrate: after the input ends, write the rig YAML with the tracker's calibration estimate "
-                  "and its standard deviations (usable as --rig)");
+  CLI::Option* calibration_out =
+      sub->add_option("--calibration-out", a->calibration_out,
+                      "With --calibrate: after the input ends, write the rig YAML with the tracker's calibration "
+                      "estimate and its standard deviations (usable as --rig)");
+  sub->add_option("--drive-disparity-sigma-px", a->drive_disparity_sigma_px,
+                  "With --calibration-out: the disparity offset's part that another drive does not share, px, added to "
+                  "its handed-over standard deviation (see `localize --help`)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber)
+      ->needs(calibration_out);
   sub->callback([a, sub] { runStream(*a, *sub); });
 }
 

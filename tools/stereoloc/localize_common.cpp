@@ -41,6 +41,7 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   o.calibration = calibrationOptions(a.calibrate, a.consider);
   if (!a.calibration_out.empty() && (o.calibration.consider || !o.calibration.any()))
     throw UsageError("--calibration-out: needs --calibrate");
+  o.calibration.drive_disparity_sigma_px = a.drive_disparity_sigma_px;
   if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);
   o.odometry_delay = parseOdometryDelay(a.odometry_delay, &o.given_odometry_delay_s);
   if (!a.odometry_delay_profile.empty() && o.odometry_delay != OdometryDelayMode::Fit)
@@ -108,7 +109,7 @@ void reportCalibration(const std::string& calibration_out, std::FILE* out, const
                        const CalibrationHandover& handover) {
   if (!calibration) return;
   const CalibrationEstimate c = handover.carriedOn(*calibration);
-  if (!calibration_out.empty()) c.saveAsRig(calibration_out, rig);
+  if (!calibration_out.empty()) c.saveAsRig(calibration_out, rig, config.drive_disparity_sigma_px);
   auto sd = [](double variance) { return std::sqrt(std::max(variance, 0.0)); };
   if (c.odometry)
     std::fprintf(out, "calibration: wheel scales %.5f +- %.5f, %.5f +- %.5f, wheel base %.2f +- %.2f mm\n", c.wheels[0],
@@ -263,9 +264,16 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "With --odometry-delay fit: MIN,MAX,STEP of the delays tried, seconds (default -0.5,1,0.1)");
   sub->add_option("--odometry-delay-profile", a->odometry_delay_profile,
                   "With --odometry-delay fit: write the batch's cost at every delay tried as CSV delay_s,cost");
-  sub->add_option("--calibration-out", a->calibration_out,
-                  "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations "
-                  "(usable as --rig)");
+  CLI::Option* calibration_out = sub->add_option(
+      "--calibration-out", a->calibration_out,
+      "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations (usable as --rig)");
+  sub->add_option("--drive-disparity-sigma-px", a->drive_disparity_sigma_px,
+                  "With --calibration-out: the disparity offset's part that another drive does not share, px, added to "
+                  "its handed-over standard deviation: cameras exposing dt apart on a robot turning at w shift it by "
+                  "f w dt (0 for cameras exposing together)")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber)
+      ->needs(calibration_out);
 }
 
 }  // namespace stereoloc::cli
