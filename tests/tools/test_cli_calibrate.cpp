@@ -79,6 +79,23 @@ TEST(CliCalibrate, BadInputNamesTheProblem) {
   EXPECT_NE(r.output.find("pairs: 3 of 3 used"), std::string::npos) << r.output;
 }
 
+// The overlays show every pair, the ones left out under their own name, to see why.
+TEST(CliCalibrate, OverlaysShowThePairsLeftOutToo) {
+  test::TempDir dir;
+  const std::string d = dir.file("run");
+  ASSERT_EQ(test::runCli("simulate --scenario spin --steps 2 --calibration-views 7 --out '" + d + "'").exit_code, 0);
+  const std::string pairs = d + "/calibration";
+  ASSERT_TRUE(cv::imwrite(pairs + "/right_003.png", cv::Mat(240, 320, CV_8UC1, cv::Scalar(110))));
+  const test::CliRun r = test::runCli("calibrate '" + pairs + "' --out '" + dir.file("s.yml") + "' --overlay '" +
+                                      dir.file("overlay") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("pairs: 6 of 7 used"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("wrote 7 rectified pairs (1 of them left out) to"), std::string::npos) << r.output;
+  EXPECT_EQ(cv::imread(dir.file("overlay/left_out_left_003.png")).size(), cv::Size(640, 240));
+  EXPECT_EQ(cv::imread(dir.file("overlay/rectified_left_000.png")).size(), cv::Size(640, 240));
+  EXPECT_FALSE(std::filesystem::exists(dir.file("overlay/rectified_left_003.png")));
+}
+
 // Real photographs through OpenCV's image list: every pair used, the spread of the pairs
 // reported, the lens warning where no view reached the image's corners, and a list that
 // cannot be paired named.
@@ -95,7 +112,7 @@ TEST(CliCalibrate, OpenCvsSamplePhotographsThroughItsImageList) {
   const StereoCalibration c = StereoCalibration::load(dir.file("s.yml"));
   EXPECT_NEAR(c.K1.at<double>(0, 0), 533.7, 3.0);
   EXPECT_NEAR(cv::norm(c.T), 3.33, 0.03);
-  EXPECT_NE(r.output.find("wrote 13 rectified pairs to"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("wrote 13 rectified pairs (0 of them left out) to"), std::string::npos) << r.output;
   const cv::Mat overlay = cv::imread(dir.file("overlay/rectified_left11.png"));
   EXPECT_EQ(overlay.size(), cv::Size(1280, 480));
 

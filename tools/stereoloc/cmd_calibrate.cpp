@@ -51,26 +51,27 @@ CheckerBoard parseBoard(const std::string& text, double square_mm) {
   return b;
 }
 
-// Every used pair rectified side by side with its corners marked, as DIR/rectified_<left image's
-// stem>.png.
+// Every pair rectified side by side with the corners found in it marked, as
+// DIR/rectified_<left image's stem>.png, or left_out_<stem>.png for a pair the calibration did
+// not use (to see why).
 void writeOverlays(const std::string& dir, const StereoCalibration& c, const std::vector<TargetPair>& pairs,
                    const TargetCalibrationResult& r) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) throw Error(dir + ": cannot create the overlay folder (" + ec.message() + ")");
   const RectifiedView view(c);
-  int written = 0;
+  int used = 0, left_out = 0;
   for (size_t i = 0; i < pairs.size(); ++i) {
     const TargetPairResult& p = r.pairs[i];
-    if (!p.used) continue;
     const cv::Mat image = view.draw(pairs[i].left, pairs[i].right, p.left_corners, p.right_corners);
     std::vector<uchar> png;
-    const std::string path = (std::filesystem::path(dir) / ("rectified_" + std::filesystem::path(p.name).stem().string() + ".png")).string();
+    const std::string name = (p.used ? "rectified_" : "left_out_") + std::filesystem::path(p.name).stem().string() + ".png";
+    const std::string path = (std::filesystem::path(dir) / name).string();
     if (!cv::imencode(".png", image, png)) throw Error(path + ": cannot encode the overlay");
     writeFileAtomically(path, std::string(png.begin(), png.end()));
-    ++written;
+    ++(p.used ? used : left_out);
   }
-  std::printf("wrote %d rectified pairs to %s\n", written, dir.c_str());
+  std::printf("wrote %d rectified pairs (%d of them left out) to %s\n", used + left_out, left_out, dir.c_str());
 }
 
 void runCalibrate(const CalibrateOptions& o) {
@@ -164,8 +165,9 @@ void add_calibrate_command(CLI::App& app) {
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   sub->add_option("--overlay", o->overlay,
-                  "Also write every used pair rectified side by side, rows marked every 16 px and the board's corners "
-                  "circled, to this folder (rectified_<left image>.png): a corner's two circles on one row");
+                  "Also write every pair rectified side by side, rows marked every 16 px and the board's corners "
+                  "circled, to this folder (rectified_<left image>.png; left_out_<left image>.png for the pairs not "
+                  "used): a corner's two circles on one row");
   CLI::Option* rig_out = sub->add_option(
       "--rig-out", o->rig_out,
       "Also write the rig YAML using the calibration, with its standard deviations for a later --calibrate stereo");
