@@ -64,10 +64,7 @@ Detections detectPairs(const std::vector<TargetPair>& pairs, const CheckerBoard&
       outcome.push_back(r);
       continue;
     }
-    // The detector may list a board turned by 180 degrees from either end; the right list must
-    // run the way the left one does. Both cameras see the board from nearly the same direction,
-    // so its first-to-last diagonal points the same way in both images whatever the disparity.
-    if ((l.back() - l.front()).dot(rr.back() - rr.front()) < 0.0f) std::reverse(rr.begin(), rr.end());
+    orderLike(l, rr);
     r.used = true;
     r.left_corners = l;
     r.right_corners = rr;
@@ -490,6 +487,12 @@ Eigen::MatrixXd pairSpreadCovariance(const std::vector<StereoTargetParameters>& 
 }
 
 }  // namespace
+
+void orderLike(const std::vector<cv::Point2f>& reference, std::vector<cv::Point2f>& corners) {
+  if (reference.empty() || corners.empty()) return;
+  if ((reference.back() - reference.front()).dot(corners.back() - corners.front()) < 0.0f)
+    std::reverse(corners.begin(), corners.end());
+}
 
 std::vector<cv::Point2f> detectBoardCorners(const cv::Mat& image, const CheckerBoard& board) {
   std::vector<cv::Point2f> corners;

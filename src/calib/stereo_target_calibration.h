@@ -128,4 +128,10 @@ void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting,
 // whole board is not found. Exposed for tests and overlays.
 std::vector<cv::Point2f> detectBoardCorners(const cv::Mat& image, const CheckerBoard& board);
 
+// Reverses `corners` (one board's, as detectBoardCorners gives them) when they run the other way
+// from `reference`, another image's of the same board: the detector may list a board from either
+// end, and two views from nearly the same direction show its first-to-last diagonal pointing the
+// same way whatever the disparity.
+void orderLike(const std::vector<cv::Point2f>& reference, std::vector<cv::Point2f>& corners);
+
 }  // namespace stereoloc

@@ -32,11 +32,11 @@ TEST(RectifyReal, ABoardsCornersShareTheirRowsInTheRectifiedPhotographs) {
     std::vector<cv::Point2f> r = detectBoardCorners(rectifier.right(), board);
     if (l.empty() || r.empty()) continue;  // the rectified view is cropped: a board near the edge leaves it
     ++found;
-    if ((l.back() - l.front()).dot(r.back() - r.front()) < 0.0f) std::reverse(r.begin(), r.end());
+    orderLike(l, r);
     // The raw corners mapped by OpenCV, in the same order.
     std::vector<cv::Point2f> raw_l = detectBoardCorners(pair.left, board), mapped;
     ASSERT_EQ(raw_l.size(), l.size()) << pair.name;
-    if ((raw_l.back() - raw_l.front()).dot(l.back() - l.front()) < 0.0f) std::reverse(raw_l.begin(), raw_l.end());
+    orderLike(l, raw_l);
     cv::undistortPoints(raw_l, mapped, c.K1, c.D1, c.R1, c.P1);
     for (size_t k = 0; k < l.size(); ++k) {
       row_sq += std::pow(l[k].y - r[k].y, 2);

@@ -61,11 +61,9 @@ TEST(RealCheckerboard, RectifiedCornersShareTheirRowsAndTriangulateTheBoard) {
   const StereoCalibration& c = allPairs().calibration;
   double row_sq = 0.0, side_sq = 0.0;
   int rows = 0, sides = 0;
-  for (const TargetPair& pair : samplePairs()) {
-    const std::vector<cv::Point2f> l = detectBoardCorners(pair.left, sampleBoard());
-    std::vector<cv::Point2f> r = detectBoardCorners(pair.right, sampleBoard());
+  for (const TargetPairResult& pair : allPairs().pairs) {
+    const std::vector<cv::Point2f>&l = pair.left_corners, &r = pair.right_corners;
     ASSERT_FALSE(l.empty() || r.empty()) << pair.name;
-    if ((l.back() - l.front()).dot(r.back() - r.front()) < 0.0f) std::reverse(r.begin(), r.end());
     std::vector<cv::Point2f> lr, rr;
     cv::undistortPoints(l, lr, c.K1, c.D1, c.R1, c.P1);
     cv::undistortPoints(r, rr, c.K2, c.D2, c.R2, c.P2);
