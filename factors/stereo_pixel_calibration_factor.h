@@ -58,7 +58,11 @@
 // (pitch, yaw, roll: f (x y, x^2, -y) on its column; the yaw's constant f is the disparity
 // offset delta_d, which reaches the right column with the raw gain, so the yaw keeps
 // f (x^2 - (A_00 f_raw / f - 1))). e is whitened: parameter i is e_i sigma_i with the sigmas
-// given at creation, so its prior is the identity and a zero sigma switches a term off. Only
+// given at creation, so its prior is the identity and a zero sigma switches a term off. Its last
+// entry is the error dt of the right camera's exposure offset (s; src/core/exposure_offset.h):
+// the right column is projected from the pose the robot reaches in dt at the image's body rate
+// (v, w) (given at creation; ahead by v dt along the heading, turned by w dt), which is exact
+// for the rectified camera because it moves rigidly with the robot, and zero at rest. Only
 // columns move.
 // Row offset (factors/stereo_pixel_row_calibration_factor.h): a fourth block dv (px), the rows'
 // misalignment of the rectified pair (the right camera's row minus the left's for one scene
@@ -79,6 +83,7 @@
 
 #include "factors/stereo_pixel_factor.h"
 #include "src/core/error.h"
+#include "src/core/exposure_offset.h"
 #include "src/core/stereo_rig.h"
 
 namespace stereoloc {
@@ -86,8 +91,10 @@ namespace stereoloc {
 namespace stereo_pixel_calibration {
 
 // e = (dk1, dk2, dp1, dp2 of the left camera, the same of the right, the right camera's pitch,
-// yaw, roll): lens terms dimensionless, rotations rad.
-inline constexpr int kImageErrorSize = 11;
+// yaw, roll, the error of the right camera's exposure offset): lens terms dimensionless,
+// rotations rad, the exposure offset s.
+inline constexpr int kImageErrorSize = 12;
+inline constexpr int kExposureOffsetEntry = 11;
 using ImageErrorVector = Eigen::Matrix<double, kImageErrorSize, 1>;
 
 // OpenCV's distortion of a normalised point (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4]]]), with the
@@ -116,14 +123,29 @@ struct ColumnResponse {
   bool image = false;                // the image-error block e
   double lens[2][4] = {{0, 0, 0, 0}, {0, 0, 0, 0}};  // per unit e_i (sigma_i included)
   double rotation[3] = {0, 0, 0};    // right column per unit e_8..e_10 (sigma included)
+  // The robot's motion during the exposure offset's error per unit e_11 (sigma included): ahead
+  // (mm) and turned (rad) at the right exposure.
+  double exposure_ahead_mm = 0;
+  double exposure_turn_rad = 0;
 };
 
-// `sigmas` null: no image-error block.
-inline ColumnResponse columnResponse(const StereoRig& rig, const StereoPixels& px, const ImageErrorVector* sigmas) {
+// Throws Error naming `who` unless the body rate is finite.
+inline void checkRate(const char* who, const BodyRate& rate) {
+  if (!(std::isfinite(rate.forward_mm_s) && std::isfinite(rate.yaw_rad_s)))
+    throw Error(std::string(who) + ": body rate must be finite");
+}
+
+// `sigmas` null: no image-error block. `rate`: the robot's motion at the image (bodyRate).
+inline ColumnResponse columnResponse(const StereoRig& rig, const StereoPixels& px, const ImageErrorVector* sigmas,
+                                     const BodyRate& rate) {
   ColumnResponse out;
   const StereoCalibration* cal = rig.calibration().get();
   out.raw = cal && cal->needsRemap();
   out.image = sigmas != nullptr;
+  if (out.image) {
+    out.exposure_ahead_mm = rate.forward_mm_s * (*sigmas)[kExposureOffsetEntry];
+    out.exposure_turn_rad = rate.yaw_rad_s * (*sigmas)[kExposureOffsetEntry];
+  }
   if (!out.raw && !out.image) return out;
   const double f = rig.focal(), ou = rig.principalU(), ov = rig.principalV();
   const double u[2] = {px.u_left, px.u_right}, v[2] = {px.v_left, px.v_right};
@@ -193,9 +215,10 @@ class StereoPixelCalibrationModel {
  public:
   StereoPixelCalibrationModel(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                               double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals,
-                              const stereo_pixel_calibration::ImageErrorVector* image_sigmas, double slide_gain = 0.0)
+                              const stereo_pixel_calibration::ImageErrorVector* image_sigmas, const BodyRate& rate,
+                              double slide_gain = 0.0)
       : landmark_(landmark), sqrt_info_(sqrt_information), rows_(residuals == PixelResiduals::All),
-        response_(stereo_pixel_calibration::columnResponse(rig, pixels, image_sigmas)), slide_gain_(slide_gain) {
+        response_(stereo_pixel_calibration::columnResponse(rig, pixels, image_sigmas, rate)), slide_gain_(slide_gain) {
     pan_cos_ = std::cos(pan);
     pan_sin_ = std::sin(pan);
     t_ = Eigen::Vector3d(rig.params().offset_x_mm, 0.0, rig.params().camera_height_mm);
@@ -221,24 +244,40 @@ class StereoPixelCalibrationModel {
   bool evaluate(const T* pose, const T* calib, const T* image, const T* row, const T* offset, T* residual) const {
     using std::cos;
     using std::sin;
-    // C0: R(theta)^T (l_xy - t_xy), height unchanged; C1: Rz(pan)^T; then minus the offset t.
-    const T dx = T(landmark_[0]) - pose[0], dy = T(landmark_[1]) - pose[1];
-    const T c = cos(pose[2]), s = sin(pose[2]);
-    const T x0 = c * dx + s * dy, y0 = -s * dx + c * dy;
-    const T x1 = T(pan_cos_) * x0 + T(pan_sin_) * y0 - T(t_[0]);
-    const T y1 = -T(pan_sin_) * x0 + T(pan_cos_) * y0;
-    const T z1 = T(landmark_[2]) - T(t_[2]);
-    // C2 = R_y(beta)^T C1 (stereo_rig.h: R_tilt = [c 0 s; 0 1 0; -s 0 c]).
+    const stereo_pixel_calibration::ColumnResponse& g = response_;
     const T beta = T(tilt_) + calib[0];
     const T cb = cos(beta), sb = sin(beta);
-    const T x2 = cb * x1 - sb * z1, z2 = sb * x1 + cb * z1;
+    const T z1 = T(landmark_[2]) - T(t_[2]);
+    // The landmark in C2 seen from the robot at (x + ax, y + ay) with heading `heading`: C0 =
+    // R(heading)^T (l_xy - t_xy), height unchanged; C1 = Rz(pan)^T C0 minus the offset t; C2 =
+    // R_y(beta)^T C1 (stereo_rig.h: R_tilt = [c 0 s; 0 1 0; -s 0 c]). Returns (x2, y1 = y2, z2).
+    auto inC2 = [&](const T& heading, const T& ax, const T& ay, T* x2, T* y1, T* z2) {
+      const T c = cos(heading), s = sin(heading);
+      const T dx = T(landmark_[0]) - pose[0] - ax, dy = T(landmark_[1]) - pose[1] - ay;
+      const T x0 = c * dx + s * dy, y0 = -s * dx + c * dy;
+      const T x1 = T(pan_cos_) * x0 + T(pan_sin_) * y0 - T(t_[0]);
+      *y1 = -T(pan_sin_) * x0 + T(pan_cos_) * y0;
+      *x2 = cb * x1 - sb * z1;
+      *z2 = sb * x1 + cb * z1;
+    };
+    T x2, y1, z2;
+    inC2(pose[2], T(0.0), T(0.0), &x2, &y1, &z2);
     if (!(x2 > T(stereo_pixel::kMinDepth))) return false;
+    // The right camera exposes at the pose the robot reaches in the exposure offset's error
+    // (src/core/exposure_offset.h): ahead by v dt along its heading, turned by w dt, dt = sigma e_11.
+    T x2r = x2, y1r = y1;
+    if (image && (g.exposure_ahead_mm != 0.0 || g.exposure_turn_rad != 0.0)) {
+      const T e = image[stereo_pixel_calibration::kExposureOffsetEntry];
+      const T ahead = T(g.exposure_ahead_mm) * e;
+      T z2r;
+      inC2(pose[2] + T(g.exposure_turn_rad) * e, ahead * cos(pose[2]), ahead * sin(pose[2]), &x2r, &y1r, &z2r);
+      if (!(x2r > T(stereo_pixel::kMinDepth))) return false;
+    }
     const T hb = calib[1] * T(half_baseline_);
     const T f = T(f_) * (T(1.0) + calib[5]);
     // Columns relative to o_u.
     T cl = calib[3] + 0.5 * calib[2] - f * (y1 - hb) / x2;
-    T cr = calib[3] - 0.5 * calib[2] - f * (T(1.0) + calib[4]) * (y1 + hb) / x2;
-    const stereo_pixel_calibration::ColumnResponse& g = response_;
+    T cr = calib[3] - 0.5 * calib[2] - f * (T(1.0) + calib[4]) * (y1r + hb) / x2r;
     if (g.raw) {
       // Raw principal points and focal lengths through the rectification (file comment).
       const T psi_right = (T(1.0) + calib[5]) * (T(1.0) + calib[4]) - T(1.0);
@@ -280,7 +319,7 @@ class StereoPixelCalibrationModel {
 struct StereoPixelCalibrationFactor {
   StereoPixelCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals)
-      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, nullptr) {}
+      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, nullptr, BodyRate()) {}
 
   template <typename T>
   bool operator()(const T* pose, const T* calib, T* residual) const {

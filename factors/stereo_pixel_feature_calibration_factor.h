@@ -23,8 +23,9 @@ struct StereoPixelFeatureCalibrationFactor {
   using ImageErrorVector = stereo_pixel_calibration::ImageErrorVector;
   StereoPixelFeatureCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                       double slide_gain, double pan, const Eigen::Matrix4d& sqrt_information,
-                                      PixelResiduals residuals, const ImageErrorVector* image_sigmas)
-      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, image_sigmas, slide_gain) {}
+                                      PixelResiduals residuals, const ImageErrorVector* image_sigmas,
+                                  const BodyRate& rate)
+      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, image_sigmas, rate, slide_gain) {}
 
   // Without the image block: (pose, q, dv, (b_c, b_d)).
   template <typename T>
@@ -40,19 +41,22 @@ struct StereoPixelFeatureCalibrationFactor {
   static constexpr int kOffsetSize = 2;
 
   // `slide_gain`: the observation's (finite); `image_sigmas`: the image block's sigmas (each
-  // finite and >= 0), or null for the factor without the image block.
+  // finite and >= 0), or null for the factor without the image block; `rate`: the robot's
+  // motion at the image (bodyRate), for the image block's exposure offset.
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double slide_gain, double pan, const Eigen::Matrix4d& pixel_covariance,
-                                     PixelResiduals residuals, const ImageErrorVector* image_sigmas) {
+                                     PixelResiduals residuals, const ImageErrorVector* image_sigmas,
+                                     const BodyRate& rate) {
     constexpr const char* kWho = "stereo pixel feature calibration factor";
     stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    stereo_pixel_calibration::checkRate(kWho, rate);
     if (!std::isfinite(slide_gain)) throw Error(std::string(kWho) + ": slide gain must be finite");
     if (image_sigmas && !(image_sigmas->allFinite() && image_sigmas->minCoeff() >= 0))
       throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
     auto* functor = new StereoPixelFeatureCalibrationFactor(
         rig, landmark, pixels, slide_gain, pan,
         stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals,
-        image_sigmas);
+        image_sigmas, rate);
     constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
     constexpr int kE = stereo_pixel_calibration::kImageErrorSize;
     constexpr int kB = kOffsetSize;

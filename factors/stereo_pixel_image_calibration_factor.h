@@ -1,7 +1,7 @@
 #pragma once
 // The stereo pixel calibration factor with a third block: the images' fixed errors e (the lens
-// distortion estimate's error of each camera, the right camera's rotation against the left),
-// the same in every image of a run. Residuals, frames, units and the model of e: see
+// distortion estimate's error of each camera, the right camera's rotation against the left, the
+// error of the right camera's exposure offset), the same in every image of a run. Residuals, frames, units and the model of e: see
 // factors/stereo_pixel_calibration_factor.h ("Image errors"); e is whitened (parameter i is
 // e_i sigma_i), so its prior is the identity. The batch smoother estimates e with the stereo
 // block when SelfCalibrationConfig::image_errors is on.
@@ -18,8 +18,8 @@ struct StereoPixelImageCalibrationFactor {
   using ImageErrorVector = stereo_pixel_calibration::ImageErrorVector;
   StereoPixelImageCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                     double pan, const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals,
-                                    const ImageErrorVector& sigmas)
-      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, &sigmas) {}
+                                    const ImageErrorVector& sigmas, const BodyRate& rate)
+      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, &sigmas, rate) {}
 
   template <typename T>
   bool operator()(const T* pose, const T* calib, const T* image, T* residual) const {
@@ -28,17 +28,20 @@ struct StereoPixelImageCalibrationFactor {
 
   static constexpr int kImageErrorSize = stereo_pixel_calibration::kImageErrorSize;
 
-  // Blocks: pose (3), stereo calibration q (6), whitened image errors e (11). `sigmas`: the
-  // 1-sigma of each image error (>= 0; the lens terms dimensionless, the rotations rad).
+  // Blocks: pose (3), stereo calibration q (6), whitened image errors e (12). `sigmas`: the
+  // 1-sigma of each image error (>= 0; the lens terms dimensionless, the rotations rad, the
+  // exposure offset s); `rate`: the robot's motion at the image (bodyRate).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals,
-                                     const ImageErrorVector& sigmas) {
+                                     const ImageErrorVector& sigmas, const BodyRate& rate) {
     constexpr const char* kWho = "stereo pixel image calibration factor";
     stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    stereo_pixel_calibration::checkRate(kWho, rate);
     if (!(sigmas.allFinite() && sigmas.minCoeff() >= 0)) throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
     auto* functor = new StereoPixelImageCalibrationFactor(
         rig, landmark, pixels, pan,
-        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals, sigmas);
+        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals, sigmas,
+        rate);
     constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
     if (residuals == PixelResiduals::All)
       return new ceres::AutoDiffCostFunction<StereoPixelImageCalibrationFactor, 4, 3, kQ, kImageErrorSize>(functor);

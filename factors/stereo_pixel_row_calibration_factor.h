@@ -3,7 +3,7 @@
 // own: residuals, frames and units as factors/stereo_pixel_calibration_factor.h, whose "Row
 // offset" paragraph gives the model: the right column moves by s dv, s the observation's slide
 // gain (Observation::slide_gain). Blocks: pose (3), stereo calibration q (6), optionally the
-// whitened image errors e (11, factors/stereo_pixel_image_calibration_factor.h), and dv (1, px).
+// whitened image errors e (12, factors/stereo_pixel_image_calibration_factor.h), and dv (1, px).
 // The batch smoother and the sliding window estimate dv when the noise model states the rows'
 // misalignment (UnmodelledNoise::row_offset_sigma_px, rowOffsetSigma in
 // solvers/self_calibration.h), with that sigma as its prior.
@@ -22,8 +22,9 @@ struct StereoPixelRowCalibrationFactor {
   using ImageErrorVector = stereo_pixel_calibration::ImageErrorVector;
   StereoPixelRowCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                   double slide_gain, double pan, const Eigen::Matrix4d& sqrt_information,
-                                  PixelResiduals residuals, const ImageErrorVector* image_sigmas)
-      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, image_sigmas, slide_gain) {}
+                                  PixelResiduals residuals, const ImageErrorVector* image_sigmas,
+                                  const BodyRate& rate)
+      : model_(rig, landmark, pixels, pan, sqrt_information, residuals, image_sigmas, rate, slide_gain) {}
 
   // Without the image block: (pose, q, dv).
   template <typename T>
@@ -39,19 +40,22 @@ struct StereoPixelRowCalibrationFactor {
   static constexpr int kRowSize = 1;
 
   // `slide_gain`: the observation's (finite); `image_sigmas`: the image block's sigmas (each
-  // finite and >= 0), or null for the factor without the image block.
+  // finite and >= 0), or null for the factor without the image block; `rate`: the robot's
+  // motion at the image (bodyRate), for the image block's exposure offset.
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double slide_gain, double pan, const Eigen::Matrix4d& pixel_covariance,
-                                     PixelResiduals residuals, const ImageErrorVector* image_sigmas) {
+                                     PixelResiduals residuals, const ImageErrorVector* image_sigmas,
+                                     const BodyRate& rate) {
     constexpr const char* kWho = "stereo pixel row calibration factor";
     stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
+    stereo_pixel_calibration::checkRate(kWho, rate);
     if (!std::isfinite(slide_gain)) throw Error(std::string(kWho) + ": slide gain must be finite");
     if (image_sigmas && !(image_sigmas->allFinite() && image_sigmas->minCoeff() >= 0))
       throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
     auto* functor = new StereoPixelRowCalibrationFactor(
         rig, landmark, pixels, slide_gain, pan,
         stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals,
-        image_sigmas);
+        image_sigmas, rate);
     constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
     constexpr int kE = stereo_pixel_calibration::kImageErrorSize;
     using F = StereoPixelRowCalibrationFactor;

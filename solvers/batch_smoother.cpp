@@ -210,6 +210,8 @@ void BatchSmoother::buffer(const Step& step) {
   b.d_left = step.d_left;
   b.d_right = step.d_right;
   b.noise = noise_travel_.next(step.d_left, step.d_right);
+  b.rate = bodyRate(step.d_left, step.d_right, step.t - last_t_, odometry_.wheel_base_mm);
+  last_t_ = step.t;
   if (step.compass) {
     b.compass = *step.compass;
     b.compass_sigma = step.compass_sigma;

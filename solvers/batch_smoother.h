@@ -35,7 +35,9 @@
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -47,6 +49,7 @@
 #include "solvers/smoother_common.h"
 #include "solvers/data_association.h"
 #include "src/core/estimator.h"
+#include "src/core/exposure_offset.h"
 #include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
 
@@ -245,11 +248,18 @@ class BatchSmoother : public Estimator {
     WheelIncrements noise;                          // mm, the travel of (B.6) (NoiseTravel)
     double compass = 0, compass_sigma = 0;          // rad; compass_sigma 0: no reading
     size_t observations_end = 0;                    // observations_[end of the previous step, this)
+    BodyRate rate;                                  // at the step's images (bodyRate)
   };
   class StepFactorSource;
   class Solve;  // one solve of the buffered steps (solvers/batch_solve.cpp)
   void buffer(const Step& step);
   size_t observationsBegin(size_t index) const { return index == 0 ? 0 : steps_[index - 1].observations_end; }
+  // The buffered step observation o (index into observations_) belongs to.
+  const BufferedStep& stepOf(size_t o) const {
+    return *std::upper_bound(steps_.begin(), steps_.end(), o,
+                             [](size_t i, const BufferedStep& b) { return i < b.observations_end; });
+  }
+  double last_t_ = std::numeric_limits<double>::quiet_NaN();  // s, of the last buffered step
   std::vector<BufferedStep> steps_;
   NoiseTravel noise_travel_{odometry_.readings};  // of every buffered step in order
   std::vector<Observation> observations_;  // of all buffered steps in order, identified

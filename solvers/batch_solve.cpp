@@ -148,6 +148,7 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       const Eigen::Matrix4d C =
           calibratedPixelCovariance(obs, landmark, model, image_sigmas_.has_value(), row_sigma_.has_value(), offset);
       const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
+      const BodyRate& rate = b_.stepOf(o).rate;
       const int joined = sizes_[static_cast<size_t>(stereo_block_)];
       if (offset) {
         // (q, [e,] dv, (b_c, b_d)) at their places in the joined block (globalFactors).
@@ -164,19 +165,20 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
         indices.push_back({feature->second[0], feature->second[1]});
         return {std::make_unique<JoinedGlobalBlocks>(
                     StereoPixelFeatureCalibrationFactor::Create(model.rig, landmark.position, *obs.pixels,
-                                                                obs.slide_gain, obs.head_pan, C, residuals, image),
+                                                                obs.slide_gain, obs.head_pan, C, residuals, image,
+                                                                rate),
                     std::move(indices), joined),
                 true, stereo_block_};
       }
       if (row_sigma_)
         return {std::make_unique<JoinedGlobalBlocks>(
                     StereoPixelRowCalibrationFactor::Create(model.rig, landmark.position, *obs.pixels, obs.slide_gain,
-                                                            obs.head_pan, C, residuals, image),
+                                                            obs.head_pan, C, residuals, image, rate),
                     std::vector<std::vector<int>>{}, joined),
                 true, stereo_block_};
       if (image_sigmas_)
         return {std::make_unique<JoinedGlobalBlocks>(StereoPixelImageCalibrationFactor::Create(
-                    model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals, *image_sigmas_)),
+                    model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals, *image_sigmas_, rate)),
                 true, stereo_block_};
       return {std::unique_ptr<ceres::CostFunction>(StereoPixelCalibrationFactor::Create(
                   model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals)),

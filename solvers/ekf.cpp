@@ -406,6 +406,8 @@ Estimate Ekf::process(const Step& step) {
   const bool first = !have_step_;
   have_step_ = true;
   last_step_ = step.step;
+  step_rate_ = bodyRate(step.d_left, step.d_right, step.t - last_t_, odometry_.wheel_base_mm);
+  last_t_ = step.t;
   updates_.clear();
   Estimate e = makeEstimate(step, advance(step, first));
   if (!config_.keep_history) estimates_.clear();
@@ -505,13 +507,13 @@ std::optional<Ekf::JointInnovation> Ekf::pixelInnovation(const Observation& obs,
   std::unique_ptr<ceres::CostFunction> f;
   if (feature_at >= 0)
     f.reset(StereoPixelFeatureCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.slide_gain,
-                                                        obs.head_pan, C_px, kColumns, image_sigmas));
+                                                        obs.head_pan, C_px, kColumns, image_sigmas, step_rate_));
   else if (row_at_ >= 0)
     f.reset(StereoPixelRowCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.slide_gain,
-                                                    obs.head_pan, C_px, kColumns, image_sigmas));
+                                                    obs.head_pan, C_px, kColumns, image_sigmas, step_rate_));
   else if (image_sigmas)
     f.reset(StereoPixelImageCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.head_pan, C_px,
-                                                      kColumns, *image_sigmas));
+                                                      kColumns, *image_sigmas, step_rate_));
   else
     f.reset(StereoPixelCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.head_pan, C_px, kColumns));
   const double pose[3] = {pose_.x, pose_.y, pose_.theta};

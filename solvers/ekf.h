@@ -61,6 +61,7 @@
 // covariance, so the pose's covariance is honest about them (docs/estimators.md, "A filter that
 // considers its calibration").
 #include <Eigen/Core>
+#include <limits>
 #include <map>
 #include <string>
 #include <optional>
@@ -74,6 +75,7 @@
 #include "solvers/iterated_update.h"
 #include "solvers/validation_gate.h"
 #include "src/core/estimator.h"
+#include "src/core/exposure_offset.h"
 #include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
 
@@ -282,6 +284,9 @@ class Ekf : public Estimator {
   bool lost_ = false;
   bool have_step_ = false;
   long last_step_ = 0;
+  // The time of the last processed step (s) and the rate of the step being processed (bodyRate).
+  double last_t_ = std::numeric_limits<double>::quiet_NaN();
+  BodyRate step_rate_;
   std::vector<EkfUpdateRecord> updates_;
   std::vector<Estimate> estimates_;
   HypothesisBank bank_;

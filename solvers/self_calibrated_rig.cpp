@@ -62,6 +62,8 @@ StereoRig selfCalibratedRig(const StereoRig& given, const CalibrationEstimate& e
   }
   StereoRigParams p = g;
   p.tilt_rad += dbeta;
+  // The exposure offset's error is relative to the given rig's offset.
+  if (e.image) p.exposure_offset_s += e.image_errors[stereo_pixel_calibration::kExposureOffsetEntry];
   return StereoRig(p, c);
 }
 

@@ -110,6 +110,9 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
       w.put("row_offset_px", row_offset_px);
       w.put("row_offset_sigma_px", std::sqrt(row_offset_variance));
     }
+    constexpr int kExposure = stereo_pixel_calibration::kExposureOffsetEntry;
+    if (image && image_covariance(kExposure, kExposure) > 0)
+      w.put("exposure_offset_sigma_s", std::sqrt(image_covariance(kExposure, kExposure)));
   }
   if (odometry) {
     w.put("wheel_scale_left", wheels[0]);
@@ -166,6 +169,7 @@ CalibrationHandover CalibrationHandover::load(const std::string& rig_path) {
     h.head_sigmas = s;
   }
   if (y.has("row_offset_sigma_px")) h.row_offset_sigma_px = positive(y, "row_offset_sigma_px");
+  if (y.has("exposure_offset_sigma_s")) h.exposure_offset_sigma_s = positive(y, "exposure_offset_sigma_s");
   if (y.has("odometry_delay_s")) {
     const double d = y.getDouble("odometry_delay_s");
     if (!(std::fabs(d) <= 2.0)) y.fail("odometry_delay_s", "must be within +-2 s");
@@ -190,6 +194,8 @@ void CalibrationHandover::applyPriors(SelfCalibrationConfig& c, UnmodelledNoise&
     c.focal_scale_sigma = s[5];
   }
   if (row_offset_sigma_px && noise.row_offset_sigma_px > 0) noise.row_offset_sigma_px = *row_offset_sigma_px;
+  if (exposure_offset_sigma_s && noise.exposure_offset_sigma_s > 0)
+    noise.exposure_offset_sigma_s = *exposure_offset_sigma_s;
 }
 
 CalibrationEstimate CalibrationHandover::carriedOn(const CalibrationEstimate& run) const {
@@ -225,12 +231,14 @@ void applyWheelCalibration(Dataset& d, const Eigen::Vector3d& wheels) {
 std::optional<CalibrationEstimate::ImageVector> imageErrorSigmas(const SelfCalibrationConfig& config,
                                                                  const UnmodelledNoise& noise) {
   if (!config.stereo || !config.image_errors) return std::nullopt;
-  if (!(noise.k1_sigma > 0 || noise.k2_sigma > 0 || noise.tangential_sigma > 0 || noise.relative_rotation_sigma_rad > 0))
+  if (!(noise.k1_sigma > 0 || noise.k2_sigma > 0 || noise.tangential_sigma > 0 ||
+        noise.relative_rotation_sigma_rad > 0 || noise.exposure_offset_sigma_s > 0))
     return std::nullopt;
   CalibrationEstimate::ImageVector s;
   for (int c = 0; c < 2; ++c)
     s.segment<4>(4 * c) << noise.k1_sigma, noise.k2_sigma, noise.tangential_sigma, noise.tangential_sigma;
-  s.tail<3>().setConstant(noise.relative_rotation_sigma_rad);
+  s.segment<3>(8).setConstant(noise.relative_rotation_sigma_rad);
+  s[stereo_pixel_calibration::kExposureOffsetEntry] = noise.exposure_offset_sigma_s;
   return s;
 }
 

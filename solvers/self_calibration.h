@@ -11,8 +11,9 @@
 //             entering every pixel factor
 //             (factors/stereo_pixel_calibration_factor.h); observations without pixels stay
 //             range-bearing factors, which do not see q
-//   image     e = the error of each camera's calibrated lens distortion (dk1, dk2, dp1, dp2) and
-//             the right camera's rotation against the left (pitch, yaw, roll), with the stereo
+//   image     e = the error of each camera's calibrated lens distortion (dk1, dk2, dp1, dp2),
+//             the right camera's rotation against the left (pitch, yaw, roll) and the error of
+//             its exposure offset (src/core/exposure_offset.h), with the stereo
 //             block when the noise model (UnmodelledNoise) states their sigmas (batch, window, EKF;
 //             SelfCalibrationConfig::image_errors; factors/stereo_pixel_image_calibration_factor.h)
 //   row       dv = the rectified rows' misalignment (px), with the stereo block when the noise
@@ -134,8 +135,9 @@ struct CalibrationEstimate {
   using StereoMatrix = Eigen::Matrix<double, 6, 6>;
   StereoVector head = (StereoVector() << 0, 1, 0, 0, 0, 0).finished();
   StereoMatrix head_covariance = StereoMatrix::Zero();
-  // The image block (imageErrorSigmas), in its units (dimensionless lens terms, rad): left
-  // dk1 dk2 dp1 dp2, right dk1 dk2 dp1 dp2, right pitch yaw roll.
+  // The image block (imageErrorSigmas), in its units (dimensionless lens terms, rad, s): left
+  // dk1 dk2 dp1 dp2, right dk1 dk2 dp1 dp2, right pitch yaw roll, the exposure offset's error
+  // against the rig's (src/core/exposure_offset.h).
   bool image = false;
   using ImageVector = stereo_pixel_calibration::ImageErrorVector;
   using ImageMatrix = Eigen::Matrix<double, stereo_pixel_calibration::kImageErrorSize, stereo_pixel_calibration::kImageErrorSize>;
@@ -173,7 +175,7 @@ struct CalibrationEstimate {
   // OpenCV calibration written beside it — so the frontend measures with the calibrated cameras.
   // The estimate itself and every standard deviation follow as extra keys the rig reader ignores
   // (tilt_correction_rad, baseline_scale, disparity_offset_px, column_offset_px, focal_ratio,
-  // focal_scale, row_offset_px, wheel_scale_left, wheel_scale_right, wheel_base_mm,
+  // focal_scale, row_offset_px, exposure_offset_sigma_s (the offset itself is the rig's key), wheel_scale_left, wheel_scale_right, wheel_base_mm,
   // range_scale_c0, range_scale_c1, range_scale_c2, bearing_offset_rad, odometry_delay_s,
   // *_sigma). The disparity offset's standard deviation is handed over with
   // `drive_disparity_sigma_px` (SelfCalibrationConfig) added in quadrature; throws Error for a
@@ -190,25 +192,29 @@ struct CalibrationEstimate {
 // composes the two for the file the run writes. A user may widen the sigmas in the file for a
 // robot whose calibration may have drifted since. A group whose first key is present must be
 // complete (wheels: wheel_scale_left, wheel_scale_right, wheel_base_mm and their *_sigma*; stereo:
-// the six *_sigma* of the head); row_offset_sigma_px stands alone, and odometry_delay_s with its
-// optional odometry_delay_sigma_s.
+// the six *_sigma* of the head); row_offset_sigma_px and exposure_offset_sigma_s stand alone, and
+// odometry_delay_s with its optional odometry_delay_sigma_s. (The exposure offset itself is the
+// rig's: StereoRigParams::exposure_offset_s.)
 struct CalibrationHandover {
   std::optional<Eigen::Vector3d> wheels;        // c_l, c_r (dimensionless), w (mm)
   std::optional<Eigen::Vector3d> wheel_sigmas;  // their standard deviations, same units
   std::optional<CalibrationEstimate::StereoVector> head_sigmas;  // CalibrationEstimate::head's order and units
   std::optional<double> row_offset_sigma_px;
+  std::optional<double> exposure_offset_sigma_s;  // s
   // The odometry's delay (s, within +-2) and its sigma (0: given): a run handed the file re-times
   // its odometry by it unless told another delay.
   std::optional<double> odometry_delay_s;
   double odometry_delay_sigma_s = 0.0;
 
-  bool empty() const { return !wheels && !head_sigmas && !row_offset_sigma_px && !odometry_delay_s; }
+  bool empty() const {
+    return !wheels && !head_sigmas && !row_offset_sigma_px && !exposure_offset_sigma_s && !odometry_delay_s;
+  }
   // Reads the keys from a rig YAML; none of them: empty. Errors name the file and the key.
   static CalibrationHandover load(const std::string& rig_path);
   // The priors of a self-calibration from the handed-over sigmas: both wheel scales' the larger
   // of the two, the wheel base's relative to the handed-over wheel base, the head's one by one;
-  // the row offset's replaces the noise model's when that states one (otherwise the row block is
-  // not estimated). Parameters the file does not hand over keep `config`'s priors.
+  // the row offset's and the exposure offset's replace the noise model's when that states one
+  // (otherwise the row block, or the image block's exposure entry, is not estimated). Parameters the file does not hand over keep `config`'s priors.
   void applyPriors(SelfCalibrationConfig& config, UnmodelledNoise& noise) const;
   // The estimate of a run that was handed this calibration, in terms of the raw wheel increments
   // (what the next run needs): its wheel scales multiplied by the handed-over ones (covariance
@@ -247,7 +253,8 @@ PriorDistance furthestFromPrior(const CalibrationEstimate& estimate, const SelfC
                                 double nominal_wheel_base_mm);
 
 // The sigmas of the image block (CalibrationEstimate::image_errors' order) that `noise` states:
-// k1_sigma, k2_sigma, tangential_sigma per camera, relative_rotation_sigma_rad per axis; nullopt
+// k1_sigma, k2_sigma, tangential_sigma per camera, relative_rotation_sigma_rad per axis,
+// exposure_offset_sigma_s; nullopt
 // without the stereo block, with image_errors off, or when the noise model states none of them.
 std::optional<CalibrationEstimate::ImageVector> imageErrorSigmas(const SelfCalibrationConfig& config,
                                                                  const UnmodelledNoise& noise);

@@ -440,6 +440,7 @@ void SlidingWindowSmoother::startWindow(const Step& step, const Pose2& pose, con
   auto node = std::make_unique<Node>();
   node->step = step.step;
   node->t = step.t;
+  node->rate = step_rate_;
   node->x = {pose.x, pose.y, pose.theta};
   node->status = status;
   node->covariance = 0.5 * (covariance + covariance.transpose());
@@ -914,7 +915,7 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
     if (feature) {
       ceres::CostFunction* cost = StereoPixelFeatureCalibrationFactor::Create(
           config_.observation_model.rig, lm->position, *measured.pixels, measured.slide_gain, measured.head_pan, C,
-          residuals, image);
+          residuals, image, node->rate);
       std::vector<int> entries;
       if (feature->sigma.column > 0) entries.push_back(0);
       if (feature->sigma.disparity > 0) entries.push_back(1);
@@ -923,7 +924,8 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
       addFactor(cost, {node}, true, std::move(blocks));
     } else {
       addFactor(StereoPixelRowCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
-                                                        measured.slide_gain, measured.head_pan, C, residuals, image),
+                                                        measured.slide_gain, measured.head_pan, C, residuals, image,
+                                                        node->rate),
                 {node}, true, std::move(blocks));
     }
   } else if (config_.calibration.stereo && measured.pixels) {
@@ -933,7 +935,7 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
         calibratedPixelCovariance(measured, *lm, config_.observation_model, image_sigmas_ && image_free_);
     if (image_sigmas_)
       addFactor(StereoPixelImageCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
-                                                          measured.head_pan, C, residuals, *image_sigmas_),
+                                                          measured.head_pan, C, residuals, *image_sigmas_, node->rate),
                 {node}, true, {head_block_, image_block_});
     else
       addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
@@ -1121,6 +1123,7 @@ SlidingWindowSmoother::Node* SlidingWindowSmoother::promote(size_t k_index, size
   node->d_left = m.d_left;
   node->d_right = m.d_right;
   node->noise = m.noise;
+  node->rate = m.rate;
   const Pose2 p = compose(poseOf(k->x), m.rel);
   node->x = {p.x, p.y, p.theta};
   // The steps after it, composed from it as process() does after a keyframe.
@@ -1250,6 +1253,9 @@ bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation
   const std::optional<PoseFix> fix = globalFix(at);
   if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
   const std::vector<RecentStep> after(it + 1, recent_.end());
+  const double before_t = it == recent_.begin() ? std::numeric_limits<double>::quiet_NaN() : (it - 1)->step.t;
+  step_rate_ = bodyRate(at.d_left, at.d_right, at.t - before_t, odometry_.wheel_base_mm);
+  last_t_ = at.t;
   recent_.erase(it + 1, recent_.end());  // track() takes them again
   finaliseWindow();
   while (!history_.empty() && history_.back().step >= step) history_.pop_back();  // replaced below
@@ -1301,6 +1307,8 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
   const bool first = !have_step_;
   have_step_ = true;
   last_step_ = step.step;
+  step_rate_ = bodyRate(step.d_left, step.d_right, step.t - last_t_, odometry_.wheel_base_mm);
+  last_t_ = step.t;
   ++stats_.steps;
   image_free_ = image_sigmas_ && stats_.steps > config_.image_errors_after_steps;
   keepForRestart(step, noise);
@@ -1392,6 +1400,7 @@ Estimate SlidingWindowSmoother::recordIntermediate(const Step& step, const Wheel
   m.d_left = step.d_left;
   m.d_right = step.d_right;
   m.noise = noise;
+  m.rate = step_rate_;
   nodes_.back()->after.push_back(m);
   return stepEstimate(step, b.pose, b.P, m.status);
 }
@@ -1405,6 +1414,7 @@ void SlidingWindowSmoother::appendKeyframe(const Step& step, const WheelIncremen
   node->d_left = step.d_left;
   node->d_right = step.d_right;
   node->noise = noise;
+  node->rate = step_rate_;
   Node* n = node.get();
   nodes_.push_back(std::move(node));
   problem_->AddParameterBlock(n->x.data(), 3, &manifold_);

@@ -45,6 +45,7 @@
 #include <Eigen/Core>
 #include <array>
 #include <deque>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -60,6 +61,7 @@
 #include "solvers/validation_gate.h"
 #include "solvers/data_association.h"
 #include "src/core/estimator.h"
+#include "src/core/exposure_offset.h"
 #include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
 
@@ -228,6 +230,7 @@ class SlidingWindowSmoother : public Estimator {
     double d_left = 0.0, d_right = 0.0;    // this step's wheel increments (mm), for insertLate
     WheelIncrements noise;                 // mm, their travel of (B.6) (NoiseTravel)
     Eigen::Matrix3d rel_wheels = Eigen::Matrix3d::Zero();  // d rel / d wheel calibration
+    BodyRate rate;                         // at the step's images (bodyRate)
   };
   struct Node {
     long step = 0;
@@ -247,6 +250,7 @@ class SlidingWindowSmoother : public Estimator {
     Eigen::Matrix3d rel_to_next_covariance = Eigen::Matrix3d::Zero();
     double d_left = 0.0, d_right = 0.0;  // this step's wheel increments (mm), for insertLate
     WheelIncrements noise;               // mm, their travel of (B.6) (NoiseTravel)
+    BodyRate rate;                       // at the step's images (bodyRate)
     std::vector<Observation> gated;      // observations the gate rejected here (reanchor, retestGated)
     std::vector<int> landmarks;          // the landmarks of the observations fused here
     std::optional<std::pair<double, double>> gated_compass;  // a gated reading and its sigma (rad)
@@ -425,6 +429,9 @@ class SlidingWindowSmoother : public Estimator {
   bool have_step_ = false;
   bool finished_ = false;
   long last_step_ = 0;
+  // The time of the step tracked last (s) and the rate of the step being tracked (bodyRate).
+  double last_t_ = std::numeric_limits<double>::quiet_NaN();
+  BodyRate step_rate_;
   std::vector<Estimate> history_;
   SlidingWindowStats stats_;
   std::unique_ptr<ceres::LossFunction> loss_;  // nullptr: no robust loss

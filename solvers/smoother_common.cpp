@@ -82,6 +82,7 @@ const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
     {"marking_feature_column_sigma_px", &UnmodelledNoise::marking_feature_column_sigma_px},
     {"intersection_feature_column_sigma_px", &UnmodelledNoise::intersection_feature_column_sigma_px},
     {"slip_rel_sigma", &UnmodelledNoise::slip_rel_sigma},
+    {"exposure_offset_sigma_s", &UnmodelledNoise::exposure_offset_sigma_s},
 };
 }  // namespace
 

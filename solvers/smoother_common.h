@@ -90,6 +90,12 @@ struct UnmodelledNoise {
   double goal_feature_column_sigma_px = 0.0;
   double marking_feature_column_sigma_px = 0.0;
   double intersection_feature_column_sigma_px = 0.0;
+  // The error of the rig's exposure offset (StereoRigParams::exposure_offset_s), s: the right
+  // image is taken that much earlier or later than the rig says, which while the robot moves
+  // shifts its columns by the motion of that interval (src/core/exposure_offset.h). It depends
+  // on the motion, so it is not pixel noise: the stereo self-calibration estimates it as the
+  // image block's last entry with this prior; without the image block it is not modelled.
+  double exposure_offset_sigma_s = 0.0;
   // Wheel slip: a wheel's increment's error sigma as a fraction of the increment, added in
   // quadrature to (B.6)'s k |d| (slip on a fraction p of the steps, one wheel at a time, reading
   // (1 + s) times the motion: sqrt(p / 2 E[s^2])).

@@ -33,6 +33,8 @@ StereoRig::StereoRig(const StereoRigParams& p) : params_(p) {
   if (!std::isfinite(p.offset_x_mm)) throw Error("stereo rig: offset_x_mm must be finite");
   if (!(std::isfinite(p.tilt_rad) && std::fabs(p.tilt_rad) < kPi / 2))
     throw Error("stereo rig: tilt_rad must be in (-pi/2, pi/2)");
+  if (!(std::isfinite(p.exposure_offset_s) && std::fabs(p.exposure_offset_s) <= 0.1))
+    throw Error("stereo rig: exposure_offset_s must be within +-0.1 s");
   if (p.focal_px > 0) {
     positive(p.focal_px, "focal_px");
     f_ = p.focal_px;
@@ -77,6 +79,7 @@ StereoRig StereoRig::load(const std::string& path) {
   p.pixel_sigma = in.getDouble("pixel_sigma", p.pixel_sigma);
   p.min_disparity_px = in.getDouble("min_disparity_px", p.min_disparity_px);
   p.max_range_mm = in.getDouble("max_range_mm", p.max_range_mm);
+  p.exposure_offset_s = in.getDouble("exposure_offset_s", p.exposure_offset_s);
   std::optional<StereoCalibration> calibration;
   if (in.has("calibration_file")) {
     const std::filesystem::path dir = std::filesystem::path(path).parent_path();
@@ -133,6 +136,7 @@ void StereoRig::save(const std::string& path) const {
   out.put("pixel_sigma", params_.pixel_sigma);
   out.put("min_disparity_px", params_.min_disparity_px);
   out.put("max_range_mm", params_.max_range_mm);
+  if (params_.exposure_offset_s != 0.0) out.put("exposure_offset_s", params_.exposure_offset_s);
   out.writeAtomically(path);
 }
 

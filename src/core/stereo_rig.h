@@ -59,6 +59,9 @@ struct StereoRigParams {
   double pixel_sigma = 0.5;                     // sigma_uu of (5.28), px
   double min_disparity_px = 0.5;                // smaller disparities are not triangulated
   double max_range_mm = 2500.0;                 // landmarks further away are not "visible"
+  // s, the right camera's exposure after the left's (negative: before); 0 for cameras triggered
+  // together. Within +-0.1 s. Its effect while the robot moves: src/core/exposure_offset.h.
+  double exposure_offset_s = 0.0;
 };
 
 class StereoRig {

@@ -1,5 +1,6 @@
 #include "src/pipeline/localizer.h"
 
+#include <algorithm>
 #include <chrono>
 #include <utility>
 
@@ -7,6 +8,11 @@
 #include "src/core/error.h"
 
 namespace stereoloc {
+namespace {
+// Steps whose body rate is kept for observations handed over late: 10 s of odometry at 100 Hz,
+// longer than any estimator keeps steps to insert or replay them.
+constexpr size_t kRatesKept = 1000;
+}  // namespace
 
 // Adds the wall time of one public call to the running total.
 class Localizer::Timer {
@@ -166,9 +172,13 @@ void Localizer::addStep(const Step& step) {
   } catch (const Error& e) {  // reported, but the new step is still taken
     failure = e.what();
   }
+  rates_.emplace_back(step.step, bodyRate(moved.d_left, moved.d_right, step.t - rate_t_, config_.odometry.wheel_base_mm));
+  rate_t_ = step.t;
+  if (rates_.size() > kRatesKept) rates_.pop_front();
   pending_ = step;
   pending_->d_left = moved.d_left;
   pending_->d_right = moved.d_right;
+  pending_->observations = synchronised(step.step, step.observations);
   newest_step_ = step.step;
   have_step_ = true;
   if (!failure.empty()) throw Error("step " + std::to_string(previous) + ": " + failure);
@@ -189,12 +199,13 @@ ObservationDelivery Localizer::deliver(long step, const std::vector<Observation>
     throw Error("observations of step " + std::to_string(step) + " before its odometry" +
                 (have_step_ ? " (the newest step is " + std::to_string(newest_step_) + ")" : ""));
   check(observations, step);
+  const std::vector<Observation> now = synchronised(step, observations);
   if (pending_ && pending_->step == step) {
-    pending_->observations.insert(pending_->observations.end(), observations.begin(), observations.end());
+    pending_->observations.insert(pending_->observations.end(), now.begin(), now.end());
     return ObservationDelivery::WithStep;
   }
-  if (!window_) return replay(step, observations);
-  const LateObservationResult r = window_->insertLate(step, observations);
+  if (!window_) return replay(step, now);
+  const LateObservationResult r = window_->insertLate(step, now);
   switch (r.status) {
     case LateObservationStatus::Inserted:
       // The newest estimate is the window's; a waiting step is processed on top of it.
@@ -204,6 +215,23 @@ ObservationDelivery Localizer::deliver(long step, const std::vector<Observation>
     case LateObservationStatus::NotTracking: return ObservationDelivery::NotTracking;
   }
   return ObservationDelivery::TooLate;
+}
+
+std::vector<Observation> Localizer::synchronised(long step, const std::vector<Observation>& observations) const {
+  if (config_.rig.params().exposure_offset_s == 0.0) return observations;
+  const auto at = std::find_if(rates_.rbegin(), rates_.rend(), [step](const auto& r) { return r.first == step; });
+  // Older than the rates kept: too late for every estimator's buffer as well.
+  if (at == rates_.rend()) return observations;
+  std::vector<Observation> out;
+  out.reserve(observations.size());
+  for (size_t i = 0; i < observations.size(); ++i) {
+    try {
+      out.push_back(synchronisedObservation(config_.rig, observations[i], at->second));
+    } catch (const GeometryError& e) {
+      throw Error("step " + std::to_string(step) + ": observation " + std::to_string(i) + ": " + e.what());
+    }
+  }
+  return out;
 }
 
 ObservationDelivery Localizer::addObservations(long step, const std::vector<Observation>& observations) {

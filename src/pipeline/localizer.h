@@ -33,15 +33,18 @@
 // Not thread-safe: one Localizer per thread. Deterministic: same calls, same results.
 #include <opencv2/core/mat.hpp>
 #include <deque>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <variant>
 #include <vector>
 
 #include "solvers/ekf.h"
 #include "solvers/particle_filter.h"
 #include "solvers/sliding_window_smoother.h"
+#include "src/core/exposure_offset.h"
 #include "src/core/field_map.h"
 #include "src/core/odometry_delay.h"
 #include "src/core/odometry_model.h"
@@ -155,6 +158,11 @@ class Localizer {
   ParticleFilter* pf_ = nullptr;             // estimator_, when it is the particle filter
   std::unique_ptr<ImageObserver> observer_;  // created with the first images
   std::optional<Step> pending_;              // the newest step, not processed yet
+  // The body rate of the recent steps (bodyRate of their re-timed increments), for the rig's
+  // exposure offset (synchronisedObservation) on observations handed over late.
+  std::deque<std::pair<long, BodyRate>> rates_;
+  double rate_t_ = std::numeric_limits<double>::quiet_NaN();  // s, of the newest step
+  std::vector<Observation> synchronised(long step, const std::vector<Observation>& observations) const;
   OdometryRetimer retimer_;                  // config_.odometry_delay_s
   // A filter's last processed steps, each with the filter's state before it (replay_steps).
   struct Processed {

@@ -3,8 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 
 #include "src/core/error.h"
+#include "src/core/exposure_offset.h"
 
 namespace stereoloc {
 namespace {
@@ -61,6 +63,22 @@ CalibrationHandover useRig(Dataset& d, const std::string& rig_path, bool images_
   d.rig = rig;
   if (handover.wheels) applyWheelCalibration(d, *handover.wheels);
   return handover;
+}
+
+void synchroniseExposures(Dataset& d) {
+  if (d.rig.params().exposure_offset_s == 0.0) return;
+  double previous_t = std::numeric_limits<double>::quiet_NaN();
+  for (Step& s : d.steps) {
+    const BodyRate rate = bodyRate(s.d_left, s.d_right, s.t - previous_t, d.odometry.wheel_base_mm);
+    previous_t = s.t;
+    for (size_t i = 0; i < s.observations.size(); ++i) {
+      try {
+        s.observations[i] = synchronisedObservation(d.rig, s.observations[i], rate);
+      } catch (const GeometryError& e) {
+        throw Error("step " + std::to_string(s.step) + ": observation " + std::to_string(i) + ": " + e.what());
+      }
+    }
+  }
 }
 
 }  // namespace stereoloc

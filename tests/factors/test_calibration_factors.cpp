@@ -393,9 +393,12 @@ StereoPixels throughRawCameras(const StereoRig& rig, const Eigen::Vector3d& p_ro
 // which the pixel calibration factors are checked.
 stereo_pixel_calibration::ImageErrorVector checkedImageSigmas() {
   stereo_pixel_calibration::ImageErrorVector sigma;
-  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
+  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017, 0.003;
   return sigma;
 }
+
+// A robot driving and turning at its image, for the image block's exposure offset.
+constexpr BodyRate kRate{250.0, 0.8};  // mm/s, rad/s
 
 // Four random sightings on each rig (plain, tilted, with a rectification map) and residual mode,
 // each handed to check(rig, mode, sighting, pan, pose p, calibration q, image errors e, uniform)
@@ -413,7 +416,7 @@ void forEachCalibrationCase(std::uint64_t seed, Check check) {
         const test::Sighting s = test::sight(rig, pose, pan, 900 + 400 * U(rng), 0.45 * U(rng), 60 + 60 * U(rng));
         const double p[3] = {pose.x, pose.y, pose.theta};
         const double q[6] = {0.004, 1.01, -0.9, 0.4, -0.005, 0.008};
-        double e[11];
+        double e[12];
         for (double& v : e) v = 1.5 * U(rng);
         check(rig, mode, s, pan, p, q, e, uniform);
       }
@@ -425,9 +428,9 @@ TEST(StereoPixelImageCalibrationFactor, ZeroImageErrorsEqualTheCalibrationFactor
   const stereo_pixel_calibration::ImageErrorVector sigma = checkedImageSigmas();
   forEachCalibrationCase(11, [&](const StereoRig& rig, PixelResiduals mode, const test::Sighting& s, double pan,
                                  const double* p, const double* q, const double* e, auto&) {
-    const double zero[11] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+    const double zero[12] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
     std::unique_ptr<ceres::CostFunction> image(
-        StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode, sigma));
+        StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode, sigma, kRate));
     std::unique_ptr<ceres::CostFunction> calib(
         StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode));
     EXPECT_LT((evaluate(*image, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
@@ -466,15 +469,16 @@ TEST(StereoPixelImageCalibrationFactor, PredictsTheRectifiedPixelsOfErroneousRaw
   const double left = dl * f / f_raw, right = dr * f / f_raw + f * yaw;
   const double q[6] = {0.0, 1.0, left - right, 0.5 * (left + right), phi, psi};
   stereo_pixel_calibration::ImageErrorVector sigma;
-  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
-  double e[11];
+  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017, 0.003;
+  double e[12];
   for (int c = 0; c < 2; ++c)
     for (int j = 0; j < 4; ++j) e[4 * c + j] = lens[c][j] / sigma[4 * c + j];
   // Pitch moves the right column by -f x y, roll by -f y (OpenCV's rotation vector).
   e[8] = -pitch / sigma[8];
   e[9] = yaw / sigma[9];
   e[10] = roll / sigma[10];
-  const double zero[11] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+  e[11] = 0.0;  // the robot stands: no exposure offset's shift
+  const double zero[12] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
   const Pose2 pose(100.0, -50.0, 0.3);
   const double p[3] = {pose.x, pose.y, pose.theta};
   double worst = 0, worst_without_image = 0, largest_gain = 0;
@@ -488,10 +492,10 @@ TEST(StereoPixelImageCalibrationFactor, PredictsTheRectifiedPixelsOfErroneousRaw
           continue;
         const Eigen::Vector3d landmark(world.x(), world.y(), height);
         std::unique_ptr<ceres::CostFunction> factor(StereoPixelImageCalibrationFactor::Create(
-            rig, landmark, px, 0.0, Eigen::Matrix4d::Identity(), PixelResiduals::Columns, sigma));
+            rig, landmark, px, 0.0, Eigen::Matrix4d::Identity(), PixelResiduals::Columns, sigma, BodyRate()));
         worst = std::max(worst, evaluate(*factor, {p, q, e}).cwiseAbs().maxCoeff());
         worst_without_image = std::max(worst_without_image, evaluate(*factor, {p, q, zero}).cwiseAbs().maxCoeff());
-        const auto response = stereo_pixel_calibration::columnResponse(rig, px, nullptr);
+        const auto response = stereo_pixel_calibration::columnResponse(rig, px, nullptr, BodyRate());
         largest_gain = std::max({largest_gain, std::fabs(response.offset[0]), std::fabs(response.offset[1])});
       }
   EXPECT_LT(worst, 0.02);                 // px
@@ -517,12 +521,12 @@ TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSli
     const double gain = 1.5 * uniform(), zero[1] = {0.0}, dv[1] = {1.4 * uniform()};
     const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
     std::unique_ptr<ceres::CostFunction> row(
-        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr, kRate));
     std::unique_ptr<ceres::CostFunction> row_image(
-        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma));
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma, kRate));
     std::unique_ptr<ceres::CostFunction> calib(StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode));
     std::unique_ptr<ceres::CostFunction> image(
-        StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode, sigma));
+        StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode, sigma, kRate));
     EXPECT_LT((evaluate(*row, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
     EXPECT_LT((evaluate(*row_image, {p, q, e, zero}) - evaluate(*image, {p, q, e})).norm(), 1e-12);
     // The frontend's right column slid by s dv: dv explains it, the same residual as unslid
@@ -531,7 +535,7 @@ TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSli
     StereoPixels slid = s.pixels;
     slid.u_right += gain * dv[0];
     std::unique_ptr<ceres::CostFunction> row_slid(
-        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, slid, gain, pan, C, mode, nullptr));
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, slid, gain, pan, C, mode, nullptr, kRate));
     const double tolerance = rig.calibration() ? 0.02 : 1e-9;
     EXPECT_LT((evaluate(*row_slid, {p, q, dv}) - evaluate(*calib, {p, q})).norm(), tolerance);
     EXPECT_GT((evaluate(*row_slid, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 0.5 * std::fabs(gain * dv[0]));
@@ -542,7 +546,7 @@ TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSli
   });
   const test::Sighting s = test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60);
   EXPECT_THROW(StereoPixelRowCalibrationFactor::Create(StereoRig(), s.landmark, s.pixels, std::nan(""), 0.0,
-                                                       Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr),
+                                                       Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr, kRate),
                Error);
 }
 
@@ -565,20 +569,20 @@ TEST(StereoPixelFeatureCalibrationFactor, ZeroOffsetEqualsTheRowFactorOffsetIsEx
                  b[2] = {0.5 * uniform(), 0.8 * uniform()};
     const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
     std::unique_ptr<ceres::CostFunction> feature(
-        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
+        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr, kRate));
     std::unique_ptr<ceres::CostFunction> feature_image(
-        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma));
+        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma, kRate));
     std::unique_ptr<ceres::CostFunction> row(
-        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr));
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr, kRate));
     std::unique_ptr<ceres::CostFunction> row_image(
-        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma));
+        StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma, kRate));
     EXPECT_LT((evaluate(*feature, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(), 1e-12);
     EXPECT_LT((evaluate(*feature_image, {p, q, e, dv, zero}) - evaluate(*row_image, {p, q, e, dv})).norm(), 1e-12);
     StereoPixels moved = s.pixels;
     moved.u_left += b[0];
     moved.u_right += b[0] + b[1];
     std::unique_ptr<ceres::CostFunction> feature_moved(
-        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, moved, gain, pan, C, mode, nullptr));
+        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, moved, gain, pan, C, mode, nullptr, kRate));
     const double tolerance = rig.calibration() ? 0.02 : 1e-9;
     EXPECT_LT((evaluate(*feature_moved, {p, q, dv, b}) - evaluate(*row, {p, q, dv})).norm(), tolerance);
     EXPECT_GT((evaluate(*feature_moved, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(),
@@ -590,7 +594,7 @@ TEST(StereoPixelFeatureCalibrationFactor, ZeroOffsetEqualsTheRowFactorOffsetIsEx
   });
   const test::Sighting s = test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60);
   EXPECT_THROW(StereoPixelFeatureCalibrationFactor::Create(StereoRig(), s.landmark, s.pixels, std::nan(""), 0.0,
-                                                           Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr),
+                                                           Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr, kRate),
                Error);
 }
 
@@ -628,7 +632,7 @@ TEST(JoinedGlobalBlocks, ScattersTheInnerBlocksAndHoldsUnmappedEntriesAtZero) {
     const double gain = 1.5 * uniform(), dv[1] = {1.4 * uniform()}, b[2] = {0.4 * uniform(), 0.0};
     const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
     ceres::CostFunction* inner =
-        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr);
+        StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr, kRate);
     const Eigen::VectorXd direct = evaluate(*inner, {p, q, dv, b});
     // g = [dv, q (6), unused, b_c]; b_d held at zero.
     std::vector<std::vector<int>> indices{{1, 2, 3, 4, 5, 6}, {0}, {8, -1}};
@@ -642,7 +646,7 @@ TEST(JoinedGlobalBlocks, ScattersTheInnerBlocksAndHoldsUnmappedEntriesAtZero) {
   EXPECT_THROW(JoinedGlobalBlocks(StereoPixelFeatureCalibrationFactor::Create(
                                       StereoRig(), test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60).landmark,
                                       test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60).pixels, 0.0, 0.0,
-                                      Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr),
+                                      Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr, kRate),
                                   {{0, 1, 2, 3, 4, 5}, {6}}),
                Error);
 }
@@ -659,7 +663,7 @@ TEST(HeldEntries, KeepsTheStatedEntriesOfTheLastBlockAndHoldsTheOthersAtZero) {
     for (const bool image : {false, true}) {
       auto inner = [&] {
         return StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode,
-                                                           image ? &sigmas : nullptr);
+                                                           image ? &sigmas : nullptr, kRate);
       };
       const std::unique_ptr<ceres::CostFunction> direct_cost(inner());
       const double b_c[1] = {b[0]};
@@ -682,11 +686,56 @@ TEST(HeldEntries, KeepsTheStatedEntriesOfTheLastBlockAndHoldsTheOthersAtZero) {
   auto factor = [] {
     const test::Sighting s = test::sight(StereoRig(), Pose2(), 0.0, 900, 0.1, 60);
     return StereoPixelFeatureCalibrationFactor::Create(StereoRig(), s.landmark, s.pixels, 0.0, 0.0,
-                                                       Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr);
+                                                       Eigen::Matrix4d::Identity(), PixelResiduals::All, nullptr, kRate);
   };
   EXPECT_THROW(HeldEntries(factor(), {}), Error);
   EXPECT_THROW(HeldEntries(factor(), {1, 0}), Error);
   EXPECT_THROW(HeldEntries(factor(), {2}), Error);
+}
+
+}  // namespace
+}  // namespace stereoloc
+
+namespace stereoloc {
+namespace {
+
+// The image block's exposure offset: a right column measured dt after the left on a moving
+// robot (src/core/exposure_offset.h's rightColumnAfter, the rig's own geometry) is explained by
+// e_11 = dt / sigma, to rounding, on rigs with and without tilt and rectification map; at rest
+// the entry does nothing.
+TEST(StereoPixelImageCalibrationFactor, TheExposureOffsetExplainsARightColumnTakenLater) {
+  const stereo_pixel_calibration::ImageErrorVector sigma = checkedImageSigmas();
+  const double q[6] = {0, 1, 0, 0, 0, 0};
+  const double dt = 0.004;  // s
+  for (const StereoRig& rig : {StereoRig(), tiltedRig(), distortedRig()}) {
+    const Pose2 pose(200.0, -100.0, 0.4);
+    const double p[3] = {pose.x, pose.y, pose.theta};
+    for (double bearing : {-0.4, 0.0, 0.3}) {
+      const test::Sighting s = test::sight(rig, pose, 0.1, 1100, bearing, 60);
+      StereoPixels later = s.pixels;
+      later.u_right = rightColumnAfter(rig, s.pixels, 0.1, kRate, dt);
+      ASSERT_GT(std::fabs(later.u_right - s.pixels.u_right), 0.5);
+      const double zero[12] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+      double e[12] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
+      std::unique_ptr<ceres::CostFunction> at(StereoPixelImageCalibrationFactor::Create(
+          rig, s.landmark, s.pixels, 0.1, Eigen::Matrix4d::Identity(), PixelResiduals::All, sigma, kRate));
+      std::unique_ptr<ceres::CostFunction> taken_later(StereoPixelImageCalibrationFactor::Create(
+          rig, s.landmark, later, 0.1, Eigen::Matrix4d::Identity(), PixelResiduals::All, sigma, kRate));
+      std::unique_ptr<ceres::CostFunction> standing(StereoPixelImageCalibrationFactor::Create(
+          rig, s.landmark, later, 0.1, Eigen::Matrix4d::Identity(), PixelResiduals::All, sigma, BodyRate()));
+      const Eigen::VectorXd without = evaluate(*taken_later, {p, q, e});
+      const Eigen::VectorXd still = evaluate(*standing, {p, q, e});
+      e[stereo_pixel_calibration::kExposureOffsetEntry] = dt / sigma[stereo_pixel_calibration::kExposureOffsetEntry];
+      EXPECT_LT((evaluate(*taken_later, {p, q, e}) - evaluate(*at, {p, q, zero})).norm(), 1e-6);
+      EXPECT_GT(without.norm(), 0.5);
+      EXPECT_LT((evaluate(*standing, {p, q, e}) - still).norm(), 1e-12);
+    }
+  }
+  EXPECT_THROW(StereoPixelImageCalibrationFactor::Create(StereoRig(), Eigen::Vector3d(1000, 0, 60),
+                                                         *StereoRig().project(Eigen::Vector3d(1000, 0, 60), 0.0), 0.0,
+                                                         Eigen::Matrix4d::Identity(), PixelResiduals::All, sigma,
+                                                         BodyRate{std::nan(""), 0.0}),
+               Error);
 }
 
 }  // namespace

@@ -94,13 +94,15 @@ TEST(SelfCalibratedRig, FoldsTheImageBlockAsTheImageFactorSeesIt) {
   e.stereo = true;
   e.head << 0.0, 1.008, 1.1, -0.6, 0.005, -0.004;
   e.image = true;
-  e.image_errors << 0.01, -0.004, 0.0003, -0.0002, -0.008, 0.005, -0.0002, 0.0003, 0.0015, -0.0012, 0.0017;
+  e.image_errors << 0.01, -0.004, 0.0003, -0.0002, -0.008, 0.005, -0.0002, 0.0003, 0.0015, -0.0012, 0.0017, 0.002;
   const StereoRig rig = selfCalibratedRig(given_rig, e);
   const StereoCalibration& truth = *rig.calibration();
+  // The exposure offset's error goes to the rig's offset (the given rig's is zero).
+  EXPECT_DOUBLE_EQ(rig.params().exposure_offset_s, 0.002);
   EXPECT_NEAR(rig.focal(), given_rig.focal(), 1e-12);
   EXPECT_NEAR(rig.principalU(), given_rig.principalU(), 1e-12);
   stereo_pixel_calibration::ImageErrorVector sigma;
-  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017;
+  sigma << 0.01, 0.005, 0.0003, 0.0003, 0.01, 0.005, 0.0003, 0.0003, 0.0017, 0.0017, 0.0017, 0.003;
   const stereo_pixel_calibration::ImageErrorVector whitened = e.image_errors.cwiseQuotient(sigma);
   const double hb = 0.5 * given_rig.params().baseline_mm;
   const double pose[3] = {0.0, 0.0, 0.0};
@@ -115,7 +117,7 @@ TEST(SelfCalibratedRig, FoldsTheImageBlockAsTheImageFactorSeesIt) {
                                      -p.y + given_rig.params().camera_height_mm);
       const StereoPixels px{l.x, l.y, r.x, r.y};
       std::unique_ptr<ceres::CostFunction> f(StereoPixelImageCalibrationFactor::Create(
-          given_rig, landmark, px, 0.0, Eigen::Matrix4d::Identity(), PixelResiduals::Columns, sigma));
+          given_rig, landmark, px, 0.0, Eigen::Matrix4d::Identity(), PixelResiduals::Columns, sigma, BodyRate()));
       const double* blocks[3] = {pose, e.head.data(), whitened.data()};
       Eigen::Vector2d res;
       ASSERT_TRUE(f->Evaluate(blocks, res.data(), nullptr));

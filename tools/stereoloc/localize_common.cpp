@@ -157,6 +157,7 @@ Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHando
         observeDatasetImages(d, a.dataset, imageFrontendOptions(a.frontend_landmarks, a.frontend_params));
     std::printf("%s\n", frontendSummary(stats).c_str());
   }
+  synchroniseExposures(d);
   return d;
 }
 

@@ -1,0 +1,51 @@
+#pragma once
+// Two cameras that do not expose together. The right camera of an unsynchronised head exposes
+// `StereoRigParams::exposure_offset_s` after the left (negative: before); while the robot moves,
+// its image is taken from another pose, so every disparity carries the motion of that interval:
+// turning at w, a column shift of about f (1 + x^2) w dt (0.87 px at 0.63 rad/s and 5 ms, a tenth
+// of a landmark's disparity at 1 m), which no constant disparity offset can take once the turn
+// rate changes. The robot's rate at a step comes from its odometry (bodyRate); the right column
+// is moved to the left camera's instant with the rig's offset (synchronisedPixels), and a
+// self-calibration estimates what remains of the offset with the same motion model
+// (factors/stereo_pixel_calibration_factor.h, the image block's last entry).
+// Frames and units: robot frame C0 (x ahead, y left), mm, s, rad; pixels rectified.
+#include "src/core/stereo_rig.h"
+#include "src/core/types.h"
+
+namespace stereoloc {
+
+// The robot's motion at an image: forward speed (mm/s) and turn rate (rad/s, counter-clockwise).
+struct BodyRate {
+  double forward_mm_s = 0.0;
+  double yaw_rad_s = 0.0;
+};
+
+// The rate of a step's wheel increments (mm) over the interval since the previous step, dt (s),
+// for wheel base w (mm): ((d_l + d_r) / (2 dt), (d_r - d_l) / (w dt)) (B.1, B.2). The image of a
+// step is taken at its end, so this is the rate just before it; a camera exposing after the
+// left sees the next interval's, the same while the motion is steady. Zero when dt is not a
+// positive finite number (NaN: the first step, without a previous one). Throws Error for a
+// non-finite increment or w <= 0.
+BodyRate bodyRate(double d_left, double d_right, double dt_s, double wheel_base_mm);
+
+// The right image's column of a point seen at rectified `px` (head pan `pan`) had the right
+// camera exposed `dt_s` later than the left on a robot moving at `rate`: the point triangulated
+// from `px`, seen from the pose the robot reaches in dt (ahead by v dt, turned by w dt),
+// projected into the right camera. The difference to px.u_right is the shift the offset causes.
+// Throws GeometryError when `px` cannot be triangulated or the moved point is behind the camera.
+double rightColumnAfter(const StereoRig& rig, const StereoPixels& px, double pan, const BodyRate& rate, double dt_s);
+
+// `px` with the right column moved to the left camera's instant, for a rig whose right camera
+// exposes rig.params().exposure_offset_s after the left: the column u_r whose
+// rightColumnAfter(offset) is the measured one. The pixels unchanged when the offset or the rate
+// is zero. Throws GeometryError as
+// rightColumnAfter.
+StereoPixels synchronisedPixels(const StereoRig& rig, const StereoPixels& px, double pan, const BodyRate& rate);
+
+// `obs` measured on `rig` at `rate`, its right column moved to the left camera's instant
+// (synchronisedPixels) and range, bearing and R triangulated again (observationFromPixels, with
+// its own pixel covariance and slide gain). Unchanged without pixels, when the rig's offset is
+// zero or the robot is at rest. Throws GeometryError as synchronisedPixels.
+Observation synchronisedObservation(const StereoRig& rig, const Observation& obs, const BodyRate& rate);
+
+}  // namespace stereoloc

@@ -1,0 +1,104 @@
+#include "src/core/exposure_offset.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "src/core/angles.h"
+#include "src/core/atomic_file.h"
+#include "src/core/error.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+StereoRig tiltedRig(double exposure_offset_s) {
+  StereoRigParams p;
+  p.tilt_rad = deg2rad(12);
+  p.offset_x_mm = 15;
+  p.exposure_offset_s = exposure_offset_s;
+  return StereoRig(p);
+}
+
+TEST(BodyRate, IsTheStepsWheelIncrementsOverItsInterval) {
+  const BodyRate r = bodyRate(8.0, 12.0, 0.1, 80.0);
+  EXPECT_DOUBLE_EQ(r.forward_mm_s, 100.0);  // (8 + 12) / 2 mm in 0.1 s
+  EXPECT_DOUBLE_EQ(r.yaw_rad_s, 0.5);       // (12 - 8) / 80 rad in 0.1 s
+  // Without a previous step (NaN) or an interval: unknown, taken as at rest.
+  for (double dt : {std::nan(""), 0.0, -0.1}) {
+    const BodyRate z = bodyRate(8.0, 12.0, dt, 80.0);
+    EXPECT_EQ(z.forward_mm_s, 0.0);
+    EXPECT_EQ(z.yaw_rad_s, 0.0);
+  }
+  EXPECT_THROW(bodyRate(std::nan(""), 1.0, 0.1, 80.0), Error);
+  EXPECT_THROW(bodyRate(1.0, 1.0, 0.1, 0.0), Error);
+}
+
+// At dt = 0 the right column is the projection's; a turn of w dt moves it by about
+// f (1 + x^2) w dt to the right (the scene turns against the robot), and driving ahead moves it
+// away from the image centre by its distance from the centre times v dt / depth.
+TEST(ExposureOffset, RightColumnAfterFollowsTheMotion) {
+  const StereoRig rig = tiltedRig(0.0);
+  const Eigen::Vector3d point(1000.0, 40.0, 30.0);
+  const StereoPixels px = *rig.project(point, 0.1);
+  EXPECT_NEAR(rightColumnAfter(rig, px, 0.1, BodyRate{300.0, 1.0}, 0.0), px.u_right, 1e-9);
+  const double dt = 1e-4;
+  const double turned = rightColumnAfter(rig, px, 0.1, BodyRate{0.0, 1.0}, dt) - px.u_right;
+  const double xr = (px.u_right - rig.principalU()) / rig.focal();
+  EXPECT_NEAR(turned, rig.focal() * (1 + xr * xr) * dt, 0.05 * rig.focal() * dt);  // the tilt bends it a little
+  // Ahead, on a level head looking straight ahead: x falls by v dt, u_r - o_u = -f (y + b/2) / x grows.
+  const StereoRig level;
+  const StereoPixels side = *level.project(Eigen::Vector3d(1000.0, 300.0, 30.0), 0.0);
+  const double ahead = rightColumnAfter(level, side, 0.0, BodyRate{300.0, 0.0}, dt) - side.u_right;
+  EXPECT_NEAR(ahead, (side.u_right - level.principalU()) * 300.0 * dt / 1000.0, 1e-3 * std::fabs(ahead));
+}
+
+// The right camera of a head exposing 4 ms after the left, on a turning, driving robot: its
+// columns as measured are moved back to the left camera's instant, to 1e-4 px, and the
+// observation's range follows.
+TEST(ExposureOffset, SynchronisedPixelsUndoTheOffset) {
+  const double tau = 0.004;
+  const StereoRig rig = tiltedRig(tau);
+  const BodyRate rate{250.0, 1.2};
+  for (const Eigen::Vector3d& point : {Eigen::Vector3d(600, -150, 0), Eigen::Vector3d(1500, 300, 30),
+                                      Eigen::Vector3d(900, 0, 150)}) {
+    const StereoPixels truth = *rig.project(point, -0.05);
+    StereoPixels measured = truth;
+    measured.u_right = rightColumnAfter(rig, truth, -0.05, rate, tau);
+    EXPECT_GT(std::fabs(measured.u_right - truth.u_right), 1.0);  // px: not small against the disparity
+    const StereoPixels back = synchronisedPixels(rig, measured, -0.05, rate);
+    EXPECT_NEAR(back.u_right, truth.u_right, 1e-4);
+    EXPECT_EQ(back.u_left, truth.u_left);
+    EXPECT_EQ(back.v_right, truth.v_right);
+
+    Observation o = observationFromPixels(rig, 4, LandmarkType::GoalCorner, measured, -0.05, 0.3);
+    o.slide_gain = 0.7;
+    const Observation s = synchronisedObservation(rig, o, rate);
+    EXPECT_NEAR(s.range, std::hypot(point.x(), point.y()), 0.01 * s.range);
+    EXPECT_GT(std::fabs(o.range - s.range), 0.01 * s.range);
+    EXPECT_EQ(s.slide_gain, 0.7);
+    EXPECT_EQ(s.landmark_id, 4);
+    EXPECT_TRUE(s.pixel_covariance.isApprox(o.pixel_covariance));
+    // Nothing to do at rest, on a synchronised head, or without pixels.
+    EXPECT_EQ(synchronisedObservation(rig, o, BodyRate()).pixels->u_right, o.pixels->u_right);
+    EXPECT_EQ(synchronisedObservation(tiltedRig(0.0), o, rate).pixels->u_right, o.pixels->u_right);
+    const Observation rb = observationFromRangeBearing(1, LandmarkType::Point, 800, 0.1, 10, 0.01);
+    EXPECT_EQ(synchronisedObservation(rig, rb, rate).range, rb.range);
+  }
+}
+
+TEST(ExposureOffset, IsARigKeyWithItsRange) {
+  test::TempDir dir;
+  tiltedRig(-0.003).save(dir.file("rig.yaml"));
+  EXPECT_DOUBLE_EQ(StereoRig::load(dir.file("rig.yaml")).params().exposure_offset_s, -0.003);
+  // A synchronised head's file does not carry the key; it reads back as 0.
+  tiltedRig(0.0).save(dir.file("sync.yaml"));
+  EXPECT_EQ(StereoRig::load(dir.file("sync.yaml")).params().exposure_offset_s, 0.0);
+  writeFileAtomically(dir.file("bad.yaml"), "%YAML:1.0\n---\nexposure_offset_s: 0.5\n");
+  const std::string error = test::errorOf([&] { StereoRig::load(dir.file("bad.yaml")); });
+  EXPECT_NE(error.find("bad.yaml"), std::string::npos) << error;
+  EXPECT_NE(error.find("exposure_offset_s"), std::string::npos) << error;
+}
+
+}  // namespace
+}  // namespace stereoloc
