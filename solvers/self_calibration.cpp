@@ -99,7 +99,11 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
     w.put("baseline_scale", head[1]);
     w.put("baseline_scale_sigma", std::sqrt(head_covariance(1, 1)));
     w.put("disparity_offset_px", head[2]);
-    w.put("disparity_offset_sigma_px", std::hypot(std::sqrt(head_covariance(2, 2)), drive_disparity_sigma_px));
+    constexpr int kExposure = stereo_pixel_calibration::kExposureOffsetEntry;
+    const bool exposure_estimated = image && image_covariance(kExposure, kExposure) > 0;
+    // The drive's part of the offset, unless the exposure offset took it (see the header).
+    w.put("disparity_offset_sigma_px",
+          std::hypot(std::sqrt(head_covariance(2, 2)), exposure_estimated ? 0.0 : drive_disparity_sigma_px));
     w.put("column_offset_px", head[3]);
     w.put("column_offset_sigma_px", std::sqrt(head_covariance(3, 3)));
     w.put("focal_ratio", head[4]);
@@ -110,9 +114,7 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
       w.put("row_offset_px", row_offset_px);
       w.put("row_offset_sigma_px", std::sqrt(row_offset_variance));
     }
-    constexpr int kExposure = stereo_pixel_calibration::kExposureOffsetEntry;
-    if (image && image_covariance(kExposure, kExposure) > 0)
-      w.put("exposure_offset_sigma_s", std::sqrt(image_covariance(kExposure, kExposure)));
+    if (exposure_estimated) w.put("exposure_offset_sigma_s", std::sqrt(image_covariance(kExposure, kExposure)));
   }
   if (odometry) {
     w.put("wheel_scale_left", wheels[0]);

@@ -217,8 +217,9 @@ PlantedOffsets plantFeatureOffsets(Dataset& d, double dv, double column_sigma, d
 
 // With feature offsets: each landmark's (b_c, b_d), a global block of the window from its first
 // sighting, is the batch's too, estimate and variance (goal corners: b_c alone).
-// With `image_block`, the noise model also states the lens estimate's and the cameras' relative
-// rotation errors of the realistic profile, which both then estimate as the image block.
+// With `image_block`, the noise model also states the lens estimate's, the cameras' relative
+// rotation and the exposure offset's errors of the realistic profile, which both then estimate
+// as the image block.
 void expectWindowIsBatchWithFeatureOffsets(bool image_block) {
   SimulationConfig sc;
   sc.profile = ErrorProfile::realistic();
@@ -232,6 +233,8 @@ void expectWindowIsBatchWithFeatureOffsets(bool image_block) {
     planted.noise.k2_sigma = r.k2_estimate_sigma;
     planted.noise.tangential_sigma = r.tangential_estimate_sigma;
     planted.noise.relative_rotation_sigma_rad = r.relative_rotation_sigma_rad;
+    // and the exposure offset's, whose factors take each step's body rate
+    planted.noise.exposure_offset_sigma_s = r.exposure_offset_max_s / std::sqrt(3.0);
   }
   const auto [cb, calibration] = expectWholeDataWindowIsBatch(d, planted.noise);
   const CalibrationEstimate* cw = &calibration;

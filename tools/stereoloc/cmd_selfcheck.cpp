@@ -40,6 +40,8 @@ void printHandover(const CalibrationHandover& h) {
                 rad2deg(s[0]), s[1], s[2], s[3], s[4], s[5]);
   }
   if (h.row_offset_sigma_px) std::printf("hands over: row offset prior %.2f px\n", *h.row_offset_sigma_px);
+  if (h.exposure_offset_sigma_s)
+    std::printf("hands over: exposure offset prior %.2f ms\n", 1e3 * *h.exposure_offset_sigma_s);
   if (h.odometry_delay_s) {
     if (h.odometry_delay_sigma_s > 0)
       std::printf("hands over: odometry delay %.3f +- %.3f s\n", *h.odometry_delay_s, h.odometry_delay_sigma_s);

@@ -271,7 +271,8 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--drive-disparity-sigma-px", a->drive_disparity_sigma_px,
                   "With --calibration-out: the disparity offset's part that another drive does not share, px, added to "
                   "its handed-over standard deviation: cameras exposing dt apart on a robot turning at w shift it by "
-                  "f w dt (0 for cameras exposing together)")
+                  "f w dt (0 for cameras exposing together; not added when the noise model's exposure_offset_sigma_s "
+                  "had the exposure offset estimated)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber)
       ->needs(calibration_out);
