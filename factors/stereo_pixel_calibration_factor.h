@@ -135,6 +135,19 @@ inline void checkRate(const char* who, const BodyRate& rate) {
     throw Error(std::string(who) + ": body rate must be finite");
 }
 
+// The pixel covariance of an image-block factor with the exposure offset's rate noise: the right
+// column moves by about f (1 + x_r^2) w dt for the block's dt (prior sigma sigma_dt) at turn rate
+// w, and w is known to rate.yaw_sigma_rad_s only; a model that took it as exact would read the
+// rate's noise as information on dt. (f (1 + x_r^2) yaw_sigma sigma_dt)^2 joins u_r's variance.
+inline Eigen::Matrix4d withExposureRateNoise(const Eigen::Matrix4d& C, const StereoRig& rig, const StereoPixels& px,
+                                             const ImageErrorVector& sigmas, const BodyRate& rate) {
+  const double x = (px.u_right - rig.principalU()) / rig.focal();
+  const double g = rig.focal() * (1.0 + x * x) * rate.yaw_sigma_rad_s * sigmas[kExposureOffsetEntry];
+  Eigen::Matrix4d out = C;
+  out(2, 2) += g * g;
+  return out;
+}
+
 // `sigmas` null: no image-error block. `rate`: the robot's motion at the image (bodyRate).
 inline ColumnResponse columnResponse(const StereoRig& rig, const StereoPixels& px, const ImageErrorVector* sigmas,
                                      const BodyRate& rate) {

@@ -55,8 +55,12 @@ struct StereoPixelFeatureCalibrationFactor {
       throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
     auto* functor = new StereoPixelFeatureCalibrationFactor(
         rig, landmark, pixels, slide_gain, pan,
-        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals,
-        image_sigmas, rate);
+        stereo_pixel::sqrtInformation(
+            kWho,
+            image_sigmas ? stereo_pixel_calibration::withExposureRateNoise(pixel_covariance, rig, pixels, *image_sigmas, rate)
+                         : pixel_covariance,
+            residuals == PixelResiduals::All),
+        residuals, image_sigmas, rate);
     constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
     constexpr int kE = stereo_pixel_calibration::kImageErrorSize;
     constexpr int kB = kOffsetSize;

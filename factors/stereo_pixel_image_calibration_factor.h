@@ -40,8 +40,10 @@ struct StereoPixelImageCalibrationFactor {
     if (!(sigmas.allFinite() && sigmas.minCoeff() >= 0)) throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
     auto* functor = new StereoPixelImageCalibrationFactor(
         rig, landmark, pixels, pan,
-        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals, sigmas,
-        rate);
+        stereo_pixel::sqrtInformation(
+            kWho, stereo_pixel_calibration::withExposureRateNoise(pixel_covariance, rig, pixels, sigmas, rate),
+            residuals == PixelResiduals::All),
+        residuals, sigmas, rate);
     constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
     if (residuals == PixelResiduals::All)
       return new ceres::AutoDiffCostFunction<StereoPixelImageCalibrationFactor, 4, 3, kQ, kImageErrorSize>(functor);

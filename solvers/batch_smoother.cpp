@@ -210,8 +210,7 @@ void BatchSmoother::buffer(const Step& step) {
   b.d_left = step.d_left;
   b.d_right = step.d_right;
   b.noise = noise_travel_.next(step.d_left, step.d_right);
-  b.rate = bodyRate(step.d_left, step.d_right, step.t - last_t_, odometry_.wheel_base_mm);
-  last_t_ = step.t;
+  b.rate = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
   if (step.compass) {
     b.compass = *step.compass;
     b.compass_sigma = step.compass_sigma;

@@ -37,7 +37,6 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <functional>
-#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -259,7 +258,7 @@ class BatchSmoother : public Estimator {
     return *std::upper_bound(steps_.begin(), steps_.end(), o,
                              [](size_t i, const BufferedStep& b) { return i < b.observations_end; });
   }
-  double last_t_ = std::numeric_limits<double>::quiet_NaN();  // s, of the last buffered step
+  std::optional<BodyRateTracker> rate_tracker_;  // the steps' body rates (made at the first step)
   std::vector<BufferedStep> steps_;
   NoiseTravel noise_travel_{odometry_.readings};  // of every buffered step in order
   std::vector<Observation> observations_;  // of all buffered steps in order, identified

@@ -406,8 +406,7 @@ Estimate Ekf::process(const Step& step) {
   const bool first = !have_step_;
   have_step_ = true;
   last_step_ = step.step;
-  step_rate_ = bodyRate(step.d_left, step.d_right, step.t - last_t_, odometry_.wheel_base_mm);
-  last_t_ = step.t;
+  step_rate_ = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
   updates_.clear();
   Estimate e = makeEstimate(step, advance(step, first));
   if (!config_.keep_history) estimates_.clear();
@@ -739,6 +738,7 @@ Ekf::State Ekf::saveState() const {
   s.have_step = have_step_;
   s.localised = localised_;
   s.last_step = last_step_;
+  s.rate_tracker = rate_tracker_;
   s.estimates = estimates_.size();
   return s;
 }
@@ -754,6 +754,7 @@ void Ekf::restoreState(const State& s) {
   have_step_ = s.have_step;
   localised_ = s.localised;
   last_step_ = s.last_step;
+  rate_tracker_ = s.rate_tracker;
   if (config_.keep_history && estimates_.size() > s.estimates) estimates_.resize(s.estimates);
   updates_.clear();
 }

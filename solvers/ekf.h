@@ -61,7 +61,6 @@
 // covariance, so the pose's covariance is honest about them (docs/estimators.md, "A filter that
 // considers its calibration").
 #include <Eigen/Core>
-#include <limits>
 #include <map>
 #include <string>
 #include <optional>
@@ -284,8 +283,9 @@ class Ekf : public Estimator {
   bool lost_ = false;
   bool have_step_ = false;
   long last_step_ = 0;
-  // The time of the last processed step (s) and the rate of the step being processed (bodyRate).
-  double last_t_ = std::numeric_limits<double>::quiet_NaN();
+  // The steps' body rates (made at the first step; part of State) and the rate of the step
+  // being processed.
+  std::optional<BodyRateTracker> rate_tracker_;
   BodyRate step_rate_;
   std::vector<EkfUpdateRecord> updates_;
   std::vector<Estimate> estimates_;
@@ -326,6 +326,7 @@ class Ekf : public Estimator {
     std::vector<PoseHypothesis> hypotheses;
     bool initialised = false, lost = false, have_step = false, localised = false;
     long last_step = 0;
+    std::optional<BodyRateTracker> rate_tracker;
     size_t estimates = 0;
   };
 };

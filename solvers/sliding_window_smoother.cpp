@@ -1253,9 +1253,10 @@ bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation
   const std::optional<PoseFix> fix = globalFix(at);
   if (!fix || !fix->pose.isFinite() || !positiveDefinite(fix->covariance)) return false;
   const std::vector<RecentStep> after(it + 1, recent_.end());
-  const double before_t = it == recent_.begin() ? std::numeric_limits<double>::quiet_NaN() : (it - 1)->step.t;
-  step_rate_ = bodyRate(at.d_left, at.d_right, at.t - before_t, odometry_.wheel_base_mm);
-  last_t_ = at.t;
+  // The body rates again from the kept steps up to `at`; track() adds the later ones.
+  rate_tracker_.reset();
+  for (auto s = recent_.begin(); s != it + 1; ++s)
+    step_rate_ = stepBodyRate(rate_tracker_, s->step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
   recent_.erase(it + 1, recent_.end());  // track() takes them again
   finaliseWindow();
   while (!history_.empty() && history_.back().step >= step) history_.pop_back();  // replaced below
@@ -1307,8 +1308,7 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
   const bool first = !have_step_;
   have_step_ = true;
   last_step_ = step.step;
-  step_rate_ = bodyRate(step.d_left, step.d_right, step.t - last_t_, odometry_.wheel_base_mm);
-  last_t_ = step.t;
+  step_rate_ = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
   ++stats_.steps;
   image_free_ = image_sigmas_ && stats_.steps > config_.image_errors_after_steps;
   keepForRestart(step, noise);

@@ -45,7 +45,6 @@
 #include <Eigen/Core>
 #include <array>
 #include <deque>
-#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -429,8 +428,8 @@ class SlidingWindowSmoother : public Estimator {
   bool have_step_ = false;
   bool finished_ = false;
   long last_step_ = 0;
-  // The time of the step tracked last (s) and the rate of the step being tracked (bodyRate).
-  double last_t_ = std::numeric_limits<double>::quiet_NaN();
+  // The steps' body rates (made at the first step) and the rate of the step being tracked.
+  std::optional<BodyRateTracker> rate_tracker_;
   BodyRate step_rate_;
   std::vector<Estimate> history_;
   SlidingWindowStats stats_;

@@ -153,6 +153,13 @@ Eigen::Matrix4d unmodelledPixelCovariance(const StereoRig& rig, const StereoPixe
   return 0.5 * (C + C.transpose());
 }
 
+BodyRate stepBodyRate(std::optional<BodyRateTracker>& tracker, const Step& step, const OdometryParams& params,
+                      double slip_rel_sigma) {
+  if (!tracker) tracker.emplace(params.wheel_base_mm);
+  const OdometryParams p = withSlip(params, step.d_left, step.d_right, slip_rel_sigma);
+  return tracker->add(step.t, step.d_left, step.d_right, stepRotationVariance(step.d_left, step.d_right, p));
+}
+
 OdometryParams withSlip(const OdometryParams& params, double d_left, double d_right, double slip_rel_sigma) {
   OdometryParams p = params;
   const double d = std::max(std::fabs(d_left), std::fabs(d_right));

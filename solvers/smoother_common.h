@@ -8,9 +8,11 @@
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "src/core/exposure_offset.h"
 #include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
 #include "src/core/pose2.h"
@@ -117,6 +119,11 @@ Eigen::Matrix4d unmodelledPixelCovariance(const StereoRig& rig, const StereoPixe
 // The odometry parameters of one step with the slip term: each wheel's variance grows by
 // (slip_rel_sigma d)^2; as the floor of both wheels, it takes the larger increment's.
 OdometryParams withSlip(const OdometryParams& params, double d_left, double d_right, double slip_rel_sigma);
+
+// The body rate at `step` (src/core/exposure_offset.h) from `tracker`, made with the odometry's
+// wheel base at the first step; the step's rotation variance is the odometry's with the slip term.
+BodyRate stepBodyRate(std::optional<BodyRateTracker>& tracker, const Step& step, const OdometryParams& params,
+                      double slip_rel_sigma);
 
 struct ObservationModelConfig {
   ObservationModel model = ObservationModel::RangeBearing;

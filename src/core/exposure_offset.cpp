@@ -16,6 +16,39 @@ BodyRate bodyRate(double d_left, double d_right, double dt_s, double wheel_base_
   return r;
 }
 
+double stepRotationVariance(double d_left, double d_right, const OdometryParams& params) {
+  const Eigen::Matrix2d C = wheelCovariance(d_left, d_right, params);
+  return (C(0, 0) + C(1, 1)) / (params.wheel_base_mm * params.wheel_base_mm);
+}
+
+BodyRateTracker::BodyRateTracker(double wheel_base_mm, double window_s)
+    : wheel_base_mm_(wheel_base_mm), window_s_(window_s) {
+  if (!(std::isfinite(wheel_base_mm) && wheel_base_mm > 0)) throw Error("body rate: wheel base must be positive");
+  if (!(std::isfinite(window_s) && window_s > 0)) throw Error("body rate: window must be a positive time");
+}
+
+BodyRate BodyRateTracker::add(double t_s, double d_left, double d_right, double rotation_variance) {
+  if (!(std::isfinite(t_s) && std::isfinite(d_left) && std::isfinite(d_right) && std::isfinite(rotation_variance) &&
+        rotation_variance >= 0))
+    throw Error("body rate: time, wheel increments and rotation variance must be finite");
+  if (!recent_.empty() && !(t_s > recent_.back().t)) throw Error("body rate: step times must increase");
+  recent_.push_back({t_s, d_left, d_right, rotation_variance});
+  // Keep the steps inside the window and the one before them, whose time opens the interval.
+  while (recent_.size() > 2 && t_s - recent_[1].t >= window_s_) recent_.erase(recent_.begin());
+  BodyRate r;
+  if (recent_.size() < 2) return r;
+  double dl = 0, dr = 0, var = 0;
+  for (size_t i = 1; i < recent_.size(); ++i) {
+    dl += recent_[i].d_left;
+    dr += recent_[i].d_right;
+    var += recent_[i].rotation_variance;
+  }
+  const double T = t_s - recent_.front().t;
+  r = bodyRate(dl, dr, T, wheel_base_mm_);
+  r.yaw_sigma_rad_s = std::sqrt(var) / T;
+  return r;
+}
+
 double rightColumnAfter(const StereoRig& rig, const StereoPixels& px, double pan, const BodyRate& rate, double dt_s) {
   const Eigen::Vector3d p = rig.triangulate(px, pan);
   // The robot after dt: ahead by v dt, turned by w dt (the arc's sideways part, v w dt^2 / 2, is
@@ -46,9 +79,16 @@ StereoPixels synchronisedPixels(const StereoRig& rig, const StereoPixels& px, do
 Observation synchronisedObservation(const StereoRig& rig, const Observation& obs, const BodyRate& rate) {
   if (!obs.pixels || rig.params().exposure_offset_s == 0.0 || (rate.forward_mm_s == 0.0 && rate.yaw_rad_s == 0.0))
     return obs;
+  // The turn rate is known to yaw_sigma: the correction's error, shift per rad/s times it,
+  // joins the right column's variance.
+  const double tau = rig.params().exposure_offset_s;
+  const BodyRate unit{0.0, 1.0, 0.0};
+  const double per_rate = rightColumnAfter(rig, *obs.pixels, obs.head_pan, unit, tau) -
+                          rightColumnAfter(rig, *obs.pixels, obs.head_pan, unit, 0.0);
+  Eigen::Matrix4d C = obs.pixel_covariance;
+  C(2, 2) += per_rate * per_rate * rate.yaw_sigma_rad_s * rate.yaw_sigma_rad_s;
   Observation out = observationFromPixels(rig, obs.landmark_id, obs.type,
-                                          synchronisedPixels(rig, *obs.pixels, obs.head_pan, rate), obs.head_pan,
-                                          obs.pixel_covariance);
+                                          synchronisedPixels(rig, *obs.pixels, obs.head_pan, rate), obs.head_pan, C);
   out.slide_gain = obs.slide_gain;
   return out;
 }

@@ -172,8 +172,9 @@ void Localizer::addStep(const Step& step) {
   } catch (const Error& e) {  // reported, but the new step is still taken
     failure = e.what();
   }
-  rates_.emplace_back(step.step, bodyRate(moved.d_left, moved.d_right, step.t - rate_t_, config_.odometry.wheel_base_mm));
-  rate_t_ = step.t;
+  if (!rate_tracker_) rate_tracker_.emplace(config_.odometry.wheel_base_mm);
+  rates_.emplace_back(step.step, rate_tracker_->add(step.t, moved.d_left, moved.d_right,
+                                                    stepRotationVariance(moved.d_left, moved.d_right, config_.odometry)));
   if (rates_.size() > kRatesKept) rates_.pop_front();
   pending_ = step;
   pending_->d_left = moved.d_left;

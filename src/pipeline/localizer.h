@@ -33,7 +33,6 @@
 // Not thread-safe: one Localizer per thread. Deterministic: same calls, same results.
 #include <opencv2/core/mat.hpp>
 #include <deque>
-#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -158,10 +157,10 @@ class Localizer {
   ParticleFilter* pf_ = nullptr;             // estimator_, when it is the particle filter
   std::unique_ptr<ImageObserver> observer_;  // created with the first images
   std::optional<Step> pending_;              // the newest step, not processed yet
-  // The body rate of the recent steps (bodyRate of their re-timed increments), for the rig's
-  // exposure offset (synchronisedObservation) on observations handed over late.
+  // The body rate of the recent steps (BodyRateTracker on their re-timed increments), for the
+  // rig's exposure offset (synchronisedObservation) on observations handed over late.
   std::deque<std::pair<long, BodyRate>> rates_;
-  double rate_t_ = std::numeric_limits<double>::quiet_NaN();  // s, of the newest step
+  std::optional<BodyRateTracker> rate_tracker_;
   std::vector<Observation> synchronised(long step, const std::vector<Observation>& observations) const;
   OdometryRetimer retimer_;                  // config_.odometry_delay_s
   // A filter's last processed steps, each with the filter's state before it (replay_steps).

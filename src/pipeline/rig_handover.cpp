@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <limits>
 
 #include "src/core/error.h"
 #include "src/core/exposure_offset.h"
@@ -67,10 +66,9 @@ CalibrationHandover useRig(Dataset& d, const std::string& rig_path, bool images_
 
 void synchroniseExposures(Dataset& d) {
   if (d.rig.params().exposure_offset_s == 0.0) return;
-  double previous_t = std::numeric_limits<double>::quiet_NaN();
+  BodyRateTracker rates(d.odometry.wheel_base_mm);
   for (Step& s : d.steps) {
-    const BodyRate rate = bodyRate(s.d_left, s.d_right, s.t - previous_t, d.odometry.wheel_base_mm);
-    previous_t = s.t;
+    const BodyRate rate = rates.add(s.t, s.d_left, s.d_right, stepRotationVariance(s.d_left, s.d_right, d.odometry));
     for (size_t i = 0; i < s.observations.size(); ++i) {
       try {
         s.observations[i] = synchronisedObservation(d.rig, s.observations[i], rate);

@@ -22,8 +22,8 @@ CalibrationHandover useRig(Dataset& dataset, const std::string& rig_path, bool i
 
 // For a rig whose right camera exposes apart from the left (StereoRigParams::exposure_offset_s,
 // src/core/exposure_offset.h): every pixel observation of `dataset` moved to the left camera's
-// instant with its step's body rate (bodyRate of its wheel increments over the time since the
-// previous step, the dataset's wheel base) and triangulated again. Nothing changes for a rig
+// instant with its step's body rate (BodyRateTracker on the dataset's odometry, whose stated
+// wheel noise gives the rate's) and triangulated again. Nothing changes for a rig
 // without an offset. Call it once, after the observations are final (useRig, the frontend);
 // throws Error naming the step and observation where one cannot be triangulated.
 void synchroniseExposures(Dataset& dataset);

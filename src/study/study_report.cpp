@@ -120,11 +120,14 @@ std::string calibrationFigures(const StudyConfig& c, const std::string& scenario
   constexpr int K = kCalibrationParameterCount;
   const std::array<double, K> truth = trueCalibration(d, trace);
   const char* names[K] = {"wheel scale left", "wheel scale right", "wheel base [mm]", "tilt correction [deg]",
-                          "baseline scale", "focal scale"};
+                          "baseline scale", "focal scale", "exposure offset [ms]"};
+  // Figures in the names' units: the tilt in degrees, the exposure offset in ms.
+  const double scales[K] = {1, 1, 1, rad2deg(1.0), 1, 1, 1e3};
   for (const std::string& m : c.methods) {
     if (!hasCalibrationSuffix(m) || d.steps.size() < 10) continue;
     std::vector<double> n_steps;
     std::array<std::vector<double>, K> est, lo, hi;
+    std::array<bool, K> estimated{};
     const size_t N = d.steps.size();
     for (int k = 1; k <= 10; ++k) {
       const size_t n = std::max<size_t>(5, N * static_cast<size_t>(k) / 10);
@@ -138,23 +141,22 @@ std::string calibrationFigures(const StudyConfig& c, const std::string& scenario
         continue;  // too few observations on a short prefix to fix the problem
       }
       if (!run.calibration) continue;
-      const CalibrationEstimate& ce = *run.calibration;
-      const double v[K] = {ce.wheels[0], ce.wheels[1], ce.wheels[2], ce.head[0], ce.head[1], ce.head[5]};
-      const double var[K] = {ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
-                             ce.head_covariance(0, 0),   ce.head_covariance(1, 1),   ce.head_covariance(5, 5)};
+      const CalibrationValues cv = calibrationValues(*run.calibration, d.rig);
       n_steps.push_back(static_cast<double>(n));
-      for (int i = 0; i < K; ++i) {
-        const double scale = i == 3 ? rad2deg(1.0) : 1.0, sd = std::sqrt(std::max(0.0, var[i]));
-        est[i].push_back(v[i] * scale);
-        lo[i].push_back((v[i] - 3 * sd) * scale);
-        hi[i].push_back((v[i] + 3 * sd) * scale);
+      for (size_t i = 0; i < K; ++i) {
+        const double sd = std::sqrt(std::max(0.0, cv.variance[i]));
+        est[i].push_back(cv.value[i] * scales[i]);
+        lo[i].push_back((cv.value[i] - 3 * sd) * scales[i]);
+        hi[i].push_back((cv.value[i] + 3 * sd) * scales[i]);
+        estimated[i] = estimated[i] || cv.estimated[i];
       }
     }
     if (n_steps.empty()) continue;
     std::string safe = scenario + profileFileTag(profile) + "_" + m + "_calibration";
     std::replace(safe.begin(), safe.end(), ':', '_');
-    for (int i = 0; i < K; ++i) {
-      const double scale = i == 3 ? rad2deg(1.0) : 1.0;
+    for (size_t i = 0; i < K; ++i) {
+      if (!estimated[i]) continue;
+      const double scale = scales[i];
       Plot p(scenario + profileTitleTag(profile) + ": " + m + " " + names[i] + " on the first n steps (trial 0)",
              "steps used", names[i], 900, 360);
       p.band(n_steps, lo[i], hi[i], "+-3 sigma", plotColor(1));

@@ -87,15 +87,16 @@ inline constexpr const char* kStepHeader =
 struct CalibrationRow {
   std::string scenario, profile = "ideal", method, parameter;
   int trial = 0;
-  double truth = 0, estimate = 0, sigma = 0;  // parameter units (wheel base mm, tilt rad)
+  double truth = 0, estimate = 0, sigma = 0;  // parameter units (wheel base mm, tilt rad, exposure offset s)
 };
 
 inline constexpr const char* kCalibrationHeader = "scenario,profile,trial,method,parameter,truth,estimate,sigma";
 
 // The parameters in calibration.csv's order.
-inline constexpr int kCalibrationParameterCount = 6;
+inline constexpr int kCalibrationParameterCount = 7;
 inline constexpr const char* kCalibrationParameters[kCalibrationParameterCount] = {
-    "wheel_scale_left", "wheel_scale_right", "wheel_base_mm", "tilt_correction_rad", "baseline_scale", "focal_scale"};
+    "wheel_scale_left", "wheel_scale_right", "wheel_base_mm", "tilt_correction_rad", "baseline_scale", "focal_scale",
+    "exposure_offset_s"};
 
 // A trial has converged when every position error over the thesis's second window (steps
 // 80-100, Table 6.14) is at most this, mm: about ten times the trackers' error there.

@@ -136,7 +136,20 @@ long firstSightingStep(const Dataset& d) {
 std::array<double, kCalibrationParameterCount> trueCalibration(const Dataset& d, const SimulationTrace& trace) {
   const DrawnErrors& e = trace.errors;
   return {1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], d.odometry.wheel_base_mm * (1 + e.wheel_base_rel),
-          e.tilt_rad, 1 + e.baseline_rel, e.focal_rel[0]};
+          e.tilt_rad, 1 + e.baseline_rel, e.focal_rel[0], e.exposure_offset_s};
+}
+
+CalibrationValues calibrationValues(const CalibrationEstimate& ce, const StereoRig& rig) {
+  constexpr int kExposure = stereo_pixel_calibration::kExposureOffsetEntry;
+  const bool exposure = ce.image && ce.image_covariance(kExposure, kExposure) > 0;
+  CalibrationValues c;
+  c.value = {ce.wheels[0], ce.wheels[1], ce.wheels[2], ce.head[0], ce.head[1], ce.head[5],
+             rig.params().exposure_offset_s + (ce.image ? ce.image_errors[kExposure] : 0.0)};
+  c.variance = {ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
+                ce.head_covariance(0, 0),   ce.head_covariance(1, 1),   ce.head_covariance(5, 5),
+                exposure ? ce.image_covariance(kExposure, kExposure) : 0.0};
+  c.estimated = {ce.odometry, ce.odometry, ce.odometry, ce.stereo, ce.stereo, ce.stereo, exposure};
+  return c;
 }
 
 MethodOptions methodOptionsFor(const StudyConfig& c, const std::string& profile, const Dataset& d) {
@@ -169,25 +182,18 @@ TrialOutput runTrial(const StudyConfig& c, const std::string& profile, const std
       out.failures.push_back(method + ": " + e.what());
     }
     if (run.calibration) {
-      const CalibrationEstimate& ce = *run.calibration;
-      const double v[kCalibrationParameterCount] = {ce.wheels[0], ce.wheels[1], ce.wheels[2],
-                                                    ce.head[0],   ce.head[1],   ce.head[5]};
-      const double var[kCalibrationParameterCount] = {
-          ce.wheels_covariance(0, 0), ce.wheels_covariance(1, 1), ce.wheels_covariance(2, 2),
-          ce.head_covariance(0, 0),   ce.head_covariance(1, 1),   ce.head_covariance(5, 5)};
-      const bool estimated[kCalibrationParameterCount] = {ce.odometry, ce.odometry, ce.odometry,
-                                                          ce.stereo,   ce.stereo,   ce.stereo};
-      for (int i = 0; i < kCalibrationParameterCount; ++i) {
-        if (!estimated[i]) continue;
+      const CalibrationValues cv = calibrationValues(*run.calibration, d.rig);
+      for (size_t i = 0; i < kCalibrationParameterCount; ++i) {
+        if (!cv.estimated[i]) continue;
         CalibrationRow cr;
         cr.scenario = scenario;
         cr.profile = profile;
         cr.trial = trial;
         cr.method = method;
         cr.parameter = kCalibrationParameters[i];
-        cr.truth = truth_calibration[static_cast<size_t>(i)];
-        cr.estimate = v[i];
-        cr.sigma = std::sqrt(std::max(0.0, var[i]));
+        cr.truth = truth_calibration[i];
+        cr.estimate = cv.value[i];
+        cr.sigma = std::sqrt(std::max(0.0, cv.variance[i]));
         out.calibration.push_back(cr);
       }
     }

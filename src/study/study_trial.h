@@ -35,9 +35,17 @@ struct TrialOutput {
 
 // The calibration of the world a trace drew, in the parameters of solvers/self_calibration.h
 // (kCalibrationParameters): wheel scales c_l, c_r, wheel base w (mm), tilt correction dbeta
-// (rad), baseline scale k, focal scale psi (the left camera's focal length error). The ideal
-// world's is the nominal one.
+// (rad), baseline scale k, focal scale psi (the left camera's focal length error), the right
+// camera's exposure offset (s). The ideal world's is the nominal one.
 std::array<double, kCalibrationParameterCount> trueCalibration(const Dataset& d, const SimulationTrace& trace);
+
+// An estimate in the same parameters: values, variances, and which of them the run estimated
+// (the exposure offset: the rig's plus the image block's entry, where its sigma was stated).
+struct CalibrationValues {
+  std::array<double, kCalibrationParameterCount> value{}, variance{};
+  std::array<bool, kCalibrationParameterCount> estimated{};
+};
+CalibrationValues calibrationValues(const CalibrationEstimate& estimate, const StereoRig& rig);
 
 // The study's method options in the world of `profile`: its stated sigmas as the noise model
 // and calibration priors (applyErrorProfile, src/pipeline/methods.h) on the dataset's rig.

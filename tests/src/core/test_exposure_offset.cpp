@@ -34,6 +34,32 @@ TEST(BodyRate, IsTheStepsWheelIncrementsOverItsInterval) {
   EXPECT_THROW(bodyRate(1.0, 1.0, 0.1, 0.0), Error);
 }
 
+// The rate over the last half second of steps, and its error from the steps' rotation
+// variances; the first step has no interval.
+TEST(BodyRateTracker, AveragesTheLastWindowOfSteps) {
+  BodyRateTracker tracker(80.0, 0.5);
+  const BodyRate first = tracker.add(0.0, 1.0, 3.0, 1e-4);
+  EXPECT_EQ(first.yaw_rad_s, 0.0);
+  EXPECT_EQ(first.yaw_sigma_rad_s, 0.0);
+  BodyRate r;
+  for (int k = 1; k <= 10; ++k) r = tracker.add(0.1 * k, k <= 5 ? 8.0 : 4.0, 12.0, 1e-4);
+  // Steps 6-10 (0.5 s): (12 - 4) / 80 rad per 0.1 s, (4 + 12) / 2 mm per 0.1 s.
+  EXPECT_NEAR(r.yaw_rad_s, 1.0, 1e-12);
+  EXPECT_NEAR(r.forward_mm_s, 80.0, 1e-9);
+  EXPECT_NEAR(r.yaw_sigma_rad_s, std::sqrt(5 * 1e-4) / 0.5, 1e-12);
+  // A turn's start is seen over the window: one step into it, a fifth of it.
+  BodyRateTracker turning(80.0, 0.5);
+  for (int k = 0; k <= 5; ++k) turning.add(0.1 * k, 10.0, 10.0, 0.0);
+  EXPECT_NEAR(turning.add(0.6, 6.0, 14.0, 0.0).yaw_rad_s, 0.2, 1e-12);
+  EXPECT_THROW(turning.add(0.6, 1.0, 1.0, 0.0), Error);  // time must increase
+  EXPECT_THROW(turning.add(0.7, std::nan(""), 1.0, 0.0), Error);
+  EXPECT_THROW(BodyRateTracker(80.0, 0.0), Error);
+  // The rotation variance of a step from its wheels' (B.6).
+  OdometryParams p;
+  p.wheel_base_mm = 80.0;
+  EXPECT_NEAR(stepRotationVariance(10.0, 20.0, p), (p.k_left * 10.0 + p.k_right * 20.0) / 6400.0, 1e-15);
+}
+
 // At dt = 0 the right column is the projection's; a turn of w dt moves it by about
 // f (1 + x^2) w dt to the right (the scene turns against the robot), and driving ahead moves it
 // away from the image centre by its distance from the centre times v dt / depth.
@@ -78,7 +104,13 @@ TEST(ExposureOffset, SynchronisedPixelsUndoTheOffset) {
     EXPECT_GT(std::fabs(o.range - s.range), 0.01 * s.range);
     EXPECT_EQ(s.slide_gain, 0.7);
     EXPECT_EQ(s.landmark_id, 4);
-    EXPECT_TRUE(s.pixel_covariance.isApprox(o.pixel_covariance));
+    EXPECT_TRUE(s.pixel_covariance.isApprox(o.pixel_covariance));  // a rate known exactly
+    // The turn rate's error joins u_r's variance: a correction of f w dt known to yaw_sigma.
+    const BodyRate uncertain{rate.forward_mm_s, rate.yaw_rad_s, 0.2};
+    const Observation noisy = synchronisedObservation(rig, o, uncertain);
+    const double extra = noisy.pixel_covariance(2, 2) - o.pixel_covariance(2, 2);
+    EXPECT_NEAR(std::sqrt(extra), rig.focal() * 0.2 * tau, 0.3 * rig.focal() * 0.2 * tau);
+    EXPECT_EQ(noisy.pixel_covariance(0, 0), o.pixel_covariance(0, 0));
     // Nothing to do at rest, on a synchronised head, or without pixels.
     EXPECT_EQ(synchronisedObservation(rig, o, BodyRate()).pixels->u_right, o.pixels->u_right);
     EXPECT_EQ(synchronisedObservation(tiltedRig(0.0), o, rate).pixels->u_right, o.pixels->u_right);
