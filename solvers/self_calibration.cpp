@@ -101,9 +101,11 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
     w.put("disparity_offset_px", head[2]);
     constexpr int kExposure = stereo_pixel_calibration::kExposureOffsetEntry;
     const bool exposure_estimated = image && image_covariance(kExposure, kExposure) > 0;
-    // The drive's part of the offset, unless the exposure offset took it (see the header).
+    // The drive's part of the offset, unless the exposure offset is modelled: estimated, or
+    // stated by the rig, whose pixels were then moved to one instant (see the header).
+    const bool exposure_modelled = exposure_estimated || rig.params().exposure_offset_s != 0.0;
     w.put("disparity_offset_sigma_px",
-          std::hypot(std::sqrt(head_covariance(2, 2)), exposure_estimated ? 0.0 : drive_disparity_sigma_px));
+          std::hypot(std::sqrt(head_covariance(2, 2)), exposure_modelled ? 0.0 : drive_disparity_sigma_px));
     w.put("column_offset_px", head[3]);
     w.put("column_offset_sigma_px", std::sqrt(head_covariance(3, 3)));
     w.put("focal_ratio", head[4]);

@@ -91,9 +91,10 @@ struct SelfCalibrationConfig {
   // exposing dt apart on a robot turning at w shift every disparity by f w dt (the realistic
   // world's circle: ~0.3 px), which the estimated offset absorbs for that drive's motion only.
   // Added in quadrature to the offset's standard deviation handed to the next run
-  // (CalibrationEstimate::saveAsRig), as `calibrate --rig-out` does, unless the run estimated
-  // the exposure offset (the image block's last entry), which models that part; 0 for cameras
-  // exposing together.
+  // (CalibrationEstimate::saveAsRig), as `calibrate --rig-out` does, unless the exposure offset
+  // models that part: the rig states it (StereoRigParams::exposure_offset_s, the pixels moved to
+  // one instant) or the run estimated it (the image block's last entry); 0 for cameras exposing
+  // together.
   double drive_disparity_sigma_px = 0.3;    // px
   // The range block's priors: a range sensor's scale error of a few per cent (MR.CLAM's barcode
   // camera: +2.6 and +5.2 % on axis, docs/results.md), its change across the field of view
@@ -180,7 +181,7 @@ struct CalibrationEstimate {
   // range_scale_c0, range_scale_c1, range_scale_c2, bearing_offset_rad, odometry_delay_s,
   // *_sigma). The disparity offset's standard deviation is handed over with
   // `drive_disparity_sigma_px` (SelfCalibrationConfig) added in quadrature unless the exposure
-  // offset was estimated (its motion term is then in the model); throws Error for a
+  // offset is modelled (stated by `rig` or estimated); throws Error for a
   // negative one.
   void saveAsRig(const std::string& path, const StereoRig& rig, double drive_disparity_sigma_px) const;
 };

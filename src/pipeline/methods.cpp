@@ -200,8 +200,6 @@ void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o)
   n.pitch_sigma_rad = p.pitch_sigma_rad;
   n.roll_sigma_rad = p.roll_sigma_rad;
   n.relative_rotation_sigma_rad = p.relative_rotation_sigma_rad;
-  // The exposure offset, uniform in +-max: sigma max / sqrt(3).
-  n.exposure_offset_sigma_s = p.exposure_offset_max_s / std::sqrt(3.0);
   // Rows of the rectified pair misaligned by the principal points' v difference and f times the
   // relative pitch; the frontend's marking features slide along their markings with it.
   const double row = std::hypot(std::sqrt(2.0) * p.principal_sigma_px, focal_px * p.relative_rotation_sigma_rad);
