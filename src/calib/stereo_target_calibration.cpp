@@ -609,7 +609,10 @@ void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting,
   const std::pair<const char*, double> sigmas[] = {
       {"tilt_correction_sigma_rad", std::hypot(tilt_sigma_rad, S.tilt_rad)},
       {"baseline_scale_sigma", S.baseline_scale},
-      {"disparity_offset_sigma_px", std::hypot(S.disparity_offset_px, drive_disparity_sigma_px)},
+      // A mounting that states the cameras' exposure offset has each pair moved to one instant:
+      // no drive's part then (src/core/exposure_offset.h).
+      {"disparity_offset_sigma_px",
+       std::hypot(S.disparity_offset_px, mounting.exposure_offset_s != 0.0 ? 0.0 : drive_disparity_sigma_px)},
       {"column_offset_sigma_px", std::hypot(column_offset_sigma_px, S.column_offset_px)},
       {"focal_ratio_sigma", S.focal_ratio},
       {"focal_scale_sigma", S.focal_scale}};

@@ -120,7 +120,9 @@ TargetCalibrationResult calibrateStereoFromTargets(const std::vector<TargetPair>
 // likewise with `drive_disparity_sigma_px`, what a drive adds that a still board cannot show (two
 // cameras exposing dt apart on a robot turning at w shift the disparity by f w dt; on the
 // realistic world's circle ~0.3 px, and without it the self-calibrations were over-confident,
-// docs/realistic_world.md). Atomic; throws Error for a mounting sigma that is not positive.
+// docs/realistic_world.md), unless the mounting states the cameras' exposure offset
+// (StereoRigParams::exposure_offset_s: the pairs are then moved to one instant), which the rig
+// keeps. Atomic; throws Error for a mounting sigma that is not positive.
 void saveCalibratedRig(const std::string& path, const StereoRigParams& mounting, const TargetCalibrationResult& result,
                        double tilt_sigma_rad, double column_offset_sigma_px, double drive_disparity_sigma_px);
 

@@ -293,6 +293,13 @@ TEST(StereoTargetCalibration, TheRigHandsItsSigmasToASelfCalibration) {
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[4], r.sigmas.focal_ratio);
   EXPECT_DOUBLE_EQ((*h.head_sigmas)[5], r.sigmas.focal_scale);
   EXPECT_FALSE(h.wheels);
+  // A mounting that states the cameras' exposure offset keeps it, and the disparity offset has
+  // no drive's part: the pairs are moved to one instant.
+  StereoRigParams unsynchronised = mounting;
+  unsynchronised.exposure_offset_s = 0.0036;
+  saveCalibratedRig(dir.file("timed.yaml"), unsynchronised, r, 0.01, 1.5, 0.3);
+  EXPECT_DOUBLE_EQ(StereoRig::load(dir.file("timed.yaml")).params().exposure_offset_s, 0.0036);
+  EXPECT_DOUBLE_EQ((*CalibrationHandover::load(dir.file("timed.yaml")).head_sigmas)[2], r.sigmas.disparity_offset_px);
   EXPECT_NE(test::errorOf([&] { saveCalibratedRig(dir.file("bad.yaml"), mounting, r, 0.0, 1.5, 0.3); })
                 .find("tilt_correction_sigma_rad: must be a positive standard deviation"),
             std::string::npos);
