@@ -31,7 +31,9 @@ BodyRate BodyRateTracker::add(double t_s, double d_left, double d_right, double 
   if (!(std::isfinite(t_s) && std::isfinite(d_left) && std::isfinite(d_right) && std::isfinite(rotation_variance) &&
         rotation_variance >= 0))
     throw Error("body rate: time, wheel increments and rotation variance must be finite");
-  if (!recent_.empty() && !(t_s > recent_.back().t)) throw Error("body rate: step times must increase");
+  if (!recent_.empty() && t_s < recent_.back().t)
+    throw Error("body rate: step time " + std::to_string(t_s) + " s is before the previous step's " +
+                std::to_string(recent_.back().t) + " s");
   recent_.push_back({t_s, d_left, d_right, rotation_variance});
   // Keep the steps inside the window and the one before them, whose time opens the interval.
   while (recent_.size() > 2 && t_s - recent_[1].t >= window_s_) recent_.erase(recent_.begin());
@@ -44,6 +46,7 @@ BodyRate BodyRateTracker::add(double t_s, double d_left, double d_right, double 
     var += recent_[i].rotation_variance;
   }
   const double T = t_s - recent_.front().t;
+  if (!(T > 0)) return r;  // steps at one time (a dataset's t may repeat): no interval
   r = bodyRate(dl, dr, T, wheel_base_mm_);
   r.yaw_sigma_rad_s = std::sqrt(var) / T;
   return r;

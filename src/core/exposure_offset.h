@@ -46,10 +46,10 @@ class BodyRateTracker {
   static constexpr double kDefaultWindowS = 0.5;
   // `window_s` > 0 (s); throws Error otherwise or for w <= 0 (mm).
   explicit BodyRateTracker(double wheel_base_mm, double window_s = kDefaultWindowS);
-  // The step at time t (s, increasing; NaN-free) with its wheel increments (mm) and the variance
-  // of its rotation (rad^2, >= 0): the rate over the steps of the last window_s, at least this
-  // one. The first step has no interval: its rate is zero. Throws Error for non-finite input or
-  // a time that does not increase.
+  // The step at time t (s, not before the previous step's) with its wheel increments (mm) and
+  // the variance of its rotation (rad^2, >= 0): the rate over the steps of the last window_s, at
+  // least this one. The first step, and steps at the time of all kept ones, have no interval:
+  // their rate is zero. Throws Error for non-finite input or a time before the previous one.
   BodyRate add(double t_s, double d_left, double d_right, double rotation_variance);
 
  private:

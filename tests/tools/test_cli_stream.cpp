@@ -513,3 +513,39 @@ TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
 
 }  // namespace
 }  // namespace stereoloc
+
+namespace stereoloc {
+namespace {
+
+// A rig that states the cameras' exposure offset: the stream moves each right column to the left
+// camera's instant with the turn rate of the odometry it has received, as localize does with the
+// dataset's, so both give the same estimates; the offset changes them.
+TEST(CliStream, TheExposureOffsetGivesTheEstimatesOfLocalize) {
+  test::TempDir dir("stream_exposure");
+  const std::string ds = dir.file("ds");
+  const test::CliRun sim = test::runCli("simulate --scenario circle --steps 60 --seed 3 --out " + ds);
+  ASSERT_EQ(sim.exit_code, 0) << sim.output;
+  const std::string rig = dir.file("timed.yaml");
+  std::filesystem::copy_file(ds + "/rig.yaml", rig);
+  std::ofstream(rig, std::ios::app) << "exposure_offset_s: 0.004\n";
+  const std::string options = " --method ekf --init global";
+  const std::string csv = dir.file("ekf.csv"), plain = dir.file("plain.csv");
+  const test::CliRun loc = test::runCli("localize " + ds + options + " --rig " + rig + " --out " + csv);
+  ASSERT_EQ(loc.exit_code, 0) << loc.output;
+  ASSERT_EQ(test::runCli("localize " + ds + options + " --out " + plain).exit_code, 0);
+  const std::map<long, std::vector<double>> expected = estimateCsv(csv);
+  ASSERT_GT(expected.size(), 30u);
+  EXPECT_GT(worstRelativeDifference(estimateCsv(plain), expected), 1e-6);  // the offset changes the estimates
+  const test::CliRun r = test::runCli("stream --from " + ds + options + " --rig " + rig);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(worstRelativeDifference(estimateLines(r.output, false), expected), 0.0);
+  // An offset out of range is an error naming the file and the key.
+  std::ofstream(dir.file("bad.yaml")) << "%YAML:1.0\n---\nexposure_offset_s: 0.3\n";
+  const test::CliRun bad = test::runCli("localize " + ds + options + " --rig " + dir.file("bad.yaml") + " --out " + csv);
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.output.find("bad.yaml"), std::string::npos) << bad.output;
+  EXPECT_NE(bad.output.find("exposure_offset_s"), std::string::npos) << bad.output;
+}
+
+}  // namespace
+}  // namespace stereoloc

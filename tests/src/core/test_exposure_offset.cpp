@@ -51,7 +51,10 @@ TEST(BodyRateTracker, AveragesTheLastWindowOfSteps) {
   BodyRateTracker turning(80.0, 0.5);
   for (int k = 0; k <= 5; ++k) turning.add(0.1 * k, 10.0, 10.0, 0.0);
   EXPECT_NEAR(turning.add(0.6, 6.0, 14.0, 0.0).yaw_rad_s, 0.2, 1e-12);
-  EXPECT_THROW(turning.add(0.6, 1.0, 1.0, 0.0), Error);  // time must increase
+  EXPECT_THROW(turning.add(0.5, 1.0, 1.0, 0.0), Error);  // before the previous step
+  BodyRateTracker still(80.0, 0.5);
+  still.add(1.0, 0.0, 0.0, 0.0);
+  EXPECT_EQ(still.add(1.0, 2.0, 4.0, 1e-4).yaw_sigma_rad_s, 0.0);  // a repeated time: no interval
   EXPECT_THROW(turning.add(0.7, std::nan(""), 1.0, 0.0), Error);
   EXPECT_THROW(BodyRateTracker(80.0, 0.0), Error);
   // The rotation variance of a step from its wheels' (B.6).
