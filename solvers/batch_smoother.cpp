@@ -210,7 +210,8 @@ void BatchSmoother::buffer(const Step& step) {
   b.d_left = step.d_left;
   b.d_right = step.d_right;
   b.noise = noise_travel_.next(step.d_left, step.d_right);
-  b.rate = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
+  if (config_.calibration.stereo)  // the image block's exposure offset is the rate's only reader
+    b.rate = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
   if (step.compass) {
     b.compass = *step.compass;
     b.compass_sigma = step.compass_sigma;

@@ -406,7 +406,8 @@ Estimate Ekf::process(const Step& step) {
   const bool first = !have_step_;
   have_step_ = true;
   last_step_ = step.step;
-  step_rate_ = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
+  if (image_sigmas_)  // the image block's exposure offset is the rate's only reader
+    step_rate_ = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
   updates_.clear();
   Estimate e = makeEstimate(step, advance(step, first));
   if (!config_.keep_history) estimates_.clear();

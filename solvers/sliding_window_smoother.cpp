@@ -1255,7 +1255,7 @@ bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation
   const std::vector<RecentStep> after(it + 1, recent_.end());
   // The body rates again from the kept steps up to `at`; track() adds the later ones.
   rate_tracker_.reset();
-  for (auto s = recent_.begin(); s != it + 1; ++s)
+  for (auto s = recent_.begin(); image_sigmas_ && s != it + 1; ++s)
     step_rate_ = stepBodyRate(rate_tracker_, s->step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
   recent_.erase(it + 1, recent_.end());  // track() takes them again
   finaliseWindow();
@@ -1308,7 +1308,8 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
   const bool first = !have_step_;
   have_step_ = true;
   last_step_ = step.step;
-  step_rate_ = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
+  if (image_sigmas_)  // the image block's exposure offset is the rate's only reader
+    step_rate_ = stepBodyRate(rate_tracker_, step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
   ++stats_.steps;
   image_free_ = image_sigmas_ && stats_.steps > config_.image_errors_after_steps;
   keepForRestart(step, noise);

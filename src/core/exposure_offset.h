@@ -4,16 +4,17 @@
 // its image is taken from another pose, so every disparity carries the motion of that interval:
 // turning at w, a column shift of about f (1 + x^2) w dt (0.87 px at 0.63 rad/s and 5 ms, a tenth
 // of a landmark's disparity at 1 m), which no constant disparity offset can take once the turn
-// rate changes. The robot's rate at a step comes from its odometry (bodyRate); the right column
-// is moved to the left camera's instant with the rig's offset (synchronisedPixels), and a
-// self-calibration estimates what remains of the offset with the same motion model
-// (factors/stereo_pixel_calibration_factor.h, the image block's last entry).
+// rate changes. The robot's rate at a step comes from its odometry (BodyRateTracker); the right
+// column is moved to the left camera's instant with the rig's offset (synchronisedPixels), and a
+// self-calibration may estimate what remains of the offset with the same motion model
+// (factors/stereo_pixel_calibration_factor.h, the image block's last entry; opt-in, see
+// docs/realistic_world.md, "Cameras that do not expose together").
 // Frames and units: robot frame C0 (x ahead, y left), mm, s, rad; pixels rectified.
+#include <vector>
+
 #include "src/core/odometry_model.h"
 #include "src/core/stereo_rig.h"
 #include "src/core/types.h"
-
-#include <vector>
 
 namespace stereoloc {
 
@@ -70,8 +71,7 @@ double rightColumnAfter(const StereoRig& rig, const StereoPixels& px, double pan
 // `px` with the right column moved to the left camera's instant, for a rig whose right camera
 // exposes rig.params().exposure_offset_s after the left: the column u_r whose
 // rightColumnAfter(offset) is the measured one. The pixels unchanged when the offset or the rate
-// is zero. Throws GeometryError as
-// rightColumnAfter.
+// is zero. Throws GeometryError as rightColumnAfter.
 StereoPixels synchronisedPixels(const StereoRig& rig, const StereoPixels& px, double pan, const BodyRate& rate);
 
 // `obs` measured on `rig` at `rate`, its right column moved to the left camera's instant

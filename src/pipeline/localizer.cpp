@@ -172,10 +172,13 @@ void Localizer::addStep(const Step& step) {
   } catch (const Error& e) {  // reported, but the new step is still taken
     failure = e.what();
   }
-  if (!rate_tracker_) rate_tracker_.emplace(config_.odometry.wheel_base_mm);
-  rates_.emplace_back(step.step, rate_tracker_->add(step.t, moved.d_left, moved.d_right,
-                                                    stepRotationVariance(moved.d_left, moved.d_right, config_.odometry)));
-  if (rates_.size() > kRatesKept) rates_.pop_front();
+  if (config_.rig.params().exposure_offset_s != 0.0) {  // the rates only the offset needs
+    if (!rate_tracker_) rate_tracker_.emplace(config_.odometry.wheel_base_mm);
+    rates_.emplace_back(step.step,
+                        rate_tracker_->add(step.t, moved.d_left, moved.d_right,
+                                           stepRotationVariance(moved.d_left, moved.d_right, config_.odometry)));
+    if (rates_.size() > kRatesKept) rates_.pop_front();
+  }
   pending_ = step;
   pending_->d_left = moved.d_left;
   pending_->d_right = moved.d_right;
