@@ -148,6 +148,21 @@ inline Eigen::Matrix4d withExposureRateNoise(const Eigen::Matrix4d& C, const Ste
   return out;
 }
 
+// The checks and whitening of a factor with an optional image block (`sigmas` null: none): the
+// body rate finite, the sigmas finite and >= 0 (Error naming `who`), and the upper square-root
+// information of the pixel covariance, with the exposure offset's rate noise when the block is
+// there (withExposureRateNoise).
+inline Eigen::Matrix4d imageBlockSqrtInformation(const char* who, const StereoRig& rig, const StereoPixels& px,
+                                                 const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals,
+                                                 const ImageErrorVector* sigmas, const BodyRate& rate) {
+  checkRate(who, rate);
+  if (sigmas && !(sigmas->allFinite() && sigmas->minCoeff() >= 0))
+    throw Error(std::string(who) + ": image error sigmas must be finite and >= 0");
+  return stereo_pixel::sqrtInformation(
+      who, sigmas ? withExposureRateNoise(pixel_covariance, rig, px, *sigmas, rate) : pixel_covariance,
+      residuals == PixelResiduals::All);
+}
+
 // `sigmas` null: no image-error block. `rate`: the robot's motion at the image (bodyRate).
 inline ColumnResponse columnResponse(const StereoRig& rig, const StereoPixels& px, const ImageErrorVector* sigmas,
                                      const BodyRate& rate) {

@@ -36,13 +36,9 @@ struct StereoPixelImageCalibrationFactor {
                                      const ImageErrorVector& sigmas, const BodyRate& rate) {
     constexpr const char* kWho = "stereo pixel image calibration factor";
     stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
-    stereo_pixel_calibration::checkRate(kWho, rate);
-    if (!(sigmas.allFinite() && sigmas.minCoeff() >= 0)) throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
     auto* functor = new StereoPixelImageCalibrationFactor(
         rig, landmark, pixels, pan,
-        stereo_pixel::sqrtInformation(
-            kWho, stereo_pixel_calibration::withExposureRateNoise(pixel_covariance, rig, pixels, sigmas, rate),
-            residuals == PixelResiduals::All),
+        stereo_pixel_calibration::imageBlockSqrtInformation(kWho, rig, pixels, pixel_covariance, residuals, &sigmas, rate),
         residuals, sigmas, rate);
     constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
     if (residuals == PixelResiduals::All)

@@ -48,17 +48,11 @@ struct StereoPixelRowCalibrationFactor {
                                      const BodyRate& rate) {
     constexpr const char* kWho = "stereo pixel row calibration factor";
     stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
-    stereo_pixel_calibration::checkRate(kWho, rate);
     if (!std::isfinite(slide_gain)) throw Error(std::string(kWho) + ": slide gain must be finite");
-    if (image_sigmas && !(image_sigmas->allFinite() && image_sigmas->minCoeff() >= 0))
-      throw Error(std::string(kWho) + ": image error sigmas must be finite and >= 0");
     auto* functor = new StereoPixelRowCalibrationFactor(
         rig, landmark, pixels, slide_gain, pan,
-        stereo_pixel::sqrtInformation(
-            kWho,
-            image_sigmas ? stereo_pixel_calibration::withExposureRateNoise(pixel_covariance, rig, pixels, *image_sigmas, rate)
-                         : pixel_covariance,
-            residuals == PixelResiduals::All),
+        stereo_pixel_calibration::imageBlockSqrtInformation(kWho, rig, pixels, pixel_covariance, residuals, image_sigmas,
+                                                            rate),
         residuals, image_sigmas, rate);
     constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
     constexpr int kE = stereo_pixel_calibration::kImageErrorSize;
