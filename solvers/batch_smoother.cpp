@@ -207,6 +207,7 @@ EstimateStatus BatchSmoother::continueChain(Step& step, const Estimate* filtered
 void BatchSmoother::buffer(const Step& step) {
   BufferedStep b;
   b.step = step.step;
+  b.t = step.t;
   b.d_left = step.d_left;
   b.d_right = step.d_right;
   b.noise = noise_travel_.next(step.d_left, step.d_right);

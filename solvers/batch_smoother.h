@@ -81,6 +81,13 @@ enum class BatchSolver {
 std::string toString(BatchSolver solver);                    // "chain", "ceres"
 BatchSolver batchSolverFromString(const std::string& name);  // throws stereoloc::Error
 
+// Where the image factors that estimate the cameras' exposure offset take each image's body
+// rate from (solvers/batch_solve.cpp, ratesFromSolution).
+enum class BodyRateSource {
+  Odometry,       // the wheels' rate over the last 0.5 s (BodyRateTracker), as the window and EKF
+  SmoothedPoses,  // solved with the odometry's first, then again with the solution's poses' rate
+};
+
 // Where a long solve is, for a progress display (BatchSmootherConfig::progress).
 struct BatchProgress {
   std::string phase;   // "solve" (iteration of a full-chain solve), "cut test", "covariance"
@@ -145,6 +152,11 @@ struct BatchSmootherConfig {
   // the stereo block every pixel factor (needs a pixel observation model). Only the part's
   // switches and prior sigmas are used here. The filter pass runs with the nominal calibration.
   SelfCalibrationConfig calibration;
+  // With the exposure offset estimated (the image block and observation_model.unmodelled.
+  // exposure_offset_sigma_s > 0): where its factors take each image's body rate from. The
+  // wheels' rate keeps part of their noise and lags the turns, and the offset fitted against it
+  // as if exact comes out shrunk and over-confident (docs/realistic_world.md).
+  BodyRateSource exposure_rate = BodyRateSource::SmoothedPoses;
   // With the stereo calibration: the observations the filter pass paired (landmark_id -1 in the
   // input) are left out of a first solve on the identified landmarks, then paired again at each
   // solution with its calibration until no pairing changes (at most 3 passes); one the solution
@@ -243,11 +255,12 @@ class BatchSmoother : public Estimator {
   // held once here, without a vector per step.
   struct BufferedStep {
     long step = 0;
+    double t = 0;                                   // s
     double d_left = 0, d_right = 0;                 // mm
     WheelIncrements noise;                          // mm, the travel of (B.6) (NoiseTravel)
     double compass = 0, compass_sigma = 0;          // rad; compass_sigma 0: no reading
     size_t observations_end = 0;                    // observations_[end of the previous step, this)
-    BodyRate rate;                                  // at the step's images (bodyRate)
+    BodyRate rate;  // at the step's images: the odometry's (bodyRate), then the smoothed poses'
   };
   class StepFactorSource;
   class Solve;  // one solve of the buffered steps (solvers/batch_solve.cpp)

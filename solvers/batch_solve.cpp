@@ -29,6 +29,7 @@
 #include "factors/pose_prior_factor.h"
 #include "solvers/calibrated_models.h"
 #include "solvers/chain_solver.h"
+#include "src/core/angles.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
 #include "src/core/measurement_model.h"
@@ -392,6 +393,8 @@ class BatchSmoother::Solve {
   void setCuts(const std::vector<Cut>& cuts, bool cut);
   double solveRange(size_t lo, size_t hi, bool full, bool may_fail = false);
   double solveAll();
+  bool ratesFromPoses() const;  // BodyRateSource::SmoothedPoses, with the exposure offset estimated
+  void ratesFromSolution();
   double varianceFactor(double cut_cost) const;
   int placeCuts();
   Guess saveGuess() const;
@@ -511,6 +514,10 @@ void BatchSmoother::Solve::run() {
     active_ = &chain_;
     active_loss_ = loss_.get();
     if (reassociate_passes_) reassociate();
+    cost_ = solveAll();
+  }
+  if (ratesFromPoses()) {
+    ratesFromSolution();
     cost_ = solveAll();
   }
   cost_ = solveReassociating(cost_);
@@ -666,6 +673,48 @@ double BatchSmoother::Solve::solveAll() {
   double c = solveRange(0, n_, true);
   while (admitLeftOut() > 0) c = solveRange(0, n_, true);
   return c;
+}
+
+bool BatchSmoother::Solve::ratesFromPoses() const {
+  const auto& sigmas = source_.imageSigmas();
+  return b_.config_.exposure_rate == BodyRateSource::SmoothedPoses && sigmas && (*sigmas)[stereo_pixel_calibration::kExposureOffsetEntry] > 0;
+}
+
+// The image factors that estimate the exposure offset project the right column from the pose
+// the robot reaches in the offset at the image's body rate. The odometry's rate (0.5 s average of
+// the wheels, BodyRateTracker) lags the turns and keeps part of the wheels' noise, and the offset
+// fitted against it as if exact comes out shrunk towards zero and over-confident (errors in
+// variables; docs/realistic_world.md). Once a solution exists, each step's rate is the smoothed
+// poses' central difference around it (one-sided at an end or a cut): the poses are fitted to the
+// sightings as well as to the odometry, and the difference does not lag. A second round from the
+// solution this gives moves the offset by less than a tenth of its sigma, so there is one. The
+// rate's sigma is that of the odometry's rotation over the span alone, an upper bound of the
+// smoothed difference's.
+void BatchSmoother::Solve::ratesFromSolution() {
+  std::vector<char> cut_into(n_, 0);  // the odometry factor into pose i is cut
+  for (const Cut& c : b_.cuts_)
+    if (c.index > first_ && c.index - first_ < n_) cut_into[c.index - first_] = 1;
+  const double slip = b_.config_.observation_model.unmodelled.slip_rel_sigma;
+  for (size_t i = 0; i < n_; ++i) {
+    const size_t a = i > 0 && !cut_into[i] ? i - 1 : i;
+    const size_t b = i + 1 < n_ && !cut_into[i + 1] ? i + 1 : i;
+    if (a == b) continue;  // a pose alone in its segment keeps the odometry's rate
+    const double dt = b_.steps_[first_ + b].t - b_.steps_[first_ + a].t;
+    if (!(dt > 0)) continue;
+    const Pose2 pa = poseAt(a), pb = poseAt(b);
+    const double turn = wrapAngle(pb.theta - pa.theta);
+    const double mid = pa.theta + 0.5 * turn;
+    double rotation_variance = 0;
+    for (size_t k = a + 1; k <= b; ++k) {
+      const BufferedStep& st = b_.steps_[first_ + k];
+      rotation_variance +=
+          stepRotationVariance(st.d_left, st.d_right, withSlip(b_.odometry_, st.d_left, st.d_right, slip));
+    }
+    BodyRate& rate = b_.steps_[first_ + i].rate;
+    rate.forward_mm_s = ((pb.x - pa.x) * std::cos(mid) + (pb.y - pa.y) * std::sin(mid)) / dt;
+    rate.yaw_rad_s = turn / dt;
+    rate.yaw_sigma_rad_s = std::sqrt(rotation_variance) / dt;
+  }
 }
 
 // Residual variance factor of the cut model at `cut_cost` (2 cost / (m - parameters), m the

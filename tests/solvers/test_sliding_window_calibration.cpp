@@ -115,8 +115,10 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
 // covariances to 1e-6 and returns both calibrations (the batch's first).
 std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch(const Dataset& d,
                                                                                 const UnmodelledNoise& noise) {
-  // The image block (when the noise model states its errors) from the first step, as the batch.
+  // The image block (when the noise model states its errors) from the first step, as the batch;
+  // the exposure offset's factors at the wheels' body rate, as the window in real time.
   BatchSmootherConfig bc;
+  bc.exposure_rate = BodyRateSource::Odometry;
   bc.init = knownBelief(*d.groundtruth.front(), kP0);
   bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
   bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
