@@ -100,6 +100,7 @@ std::vector<Field> fields(FrontendParams& p) {
       {"goals", "max_transition_px", Field::Int, &p.goals.max_transition_px},
       {"goals", "min_rows", Field::Int, &p.goals.min_rows},
       {"goals", "outlier_px", Field::Double, &p.goals.outlier_px},
+      {"goals", "min_right_row_fraction", Field::Double, &p.goals.min_right_row_fraction},
       {"stereo", "min_range_mm", Field::Double, &p.stereo.min_range_mm},
       {"stereo", "max_range_mm", Field::Double, &p.stereo.max_range_mm},
       {"stereo", "patch_radius", Field::Int, &p.stereo.patch_radius},
@@ -189,6 +190,8 @@ void FrontendParams::validate() const {
   need(corners.arm_min_contrast > 0 && corners.arm_min_contrast <= 1, "corners.arm_min_contrast", "must be in (0, 1]");
   need(goals.coarse_step >= 1, "goals.coarse_step", "must be at least 1");
   need(goals.min_rows >= 1, "goals.min_rows", "must be at least 1");
+  need(goals.min_right_row_fraction >= 0 && goals.min_right_row_fraction <= 1, "goals.min_right_row_fraction",
+       "must be in [0, 1]");
   need(goals.max_transition_px >= 1, "goals.max_transition_px", "must be at least 1");
   need(stereo.min_range_mm > 0, "stereo.min_range_mm", "must be positive");
   need(stereo.patch_radius >= 1 && stereo.patch_radius <= 15, "stereo.patch_radius", "must be in [1, 15]");

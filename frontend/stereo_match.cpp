@@ -43,6 +43,7 @@ std::optional<double> matchGoalEdge(const cv::Mat& right_bgr, const GoalEdge& le
   double d, v;
   int rows;
   if (!robustColumn(tr, gp, d, v, rows, scratch)) return std::nullopt;
+  if (rows < gp.min_right_row_fraction * left.rows) return std::nullopt;
   if (d < range.min || d > range.max) return std::nullopt;
   return left.u - d;
 }

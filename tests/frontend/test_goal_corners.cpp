@@ -93,3 +93,33 @@ TEST(GoalCorners, StereoMatchFindsTheRightColumn) {
                              scratch)
                    .has_value());
 }
+
+// A goal corner the right camera does not see (beyond its border), where a few rows of another
+// white/colour transition (a wall's top edge) lie in the search range: not matched on them.
+TEST(GoalCorners, StereoMatchNeedsTheLeftEdgesRows) {
+  const StereoRig rig;
+  const DisparityRange range = validDisparities(rig, StereoParams());
+  const cv::Mat left = bands(140.3, 400.0, kWhite, kBlue, kWhite, 100, 170);
+  cv::Mat right = bands(-10.0, 400.0, kWhite, kBlue, kWhite, 100, 170);
+  for (int y = 100; y < 106; ++y)  // the wall's top edge crossing the rows of the goal's top
+    for (int x = 0; x < 120; ++x) right.at<cv::Vec3b>(y, x) = kWhite;
+  std::vector<GoalEdge> edges;
+  std::vector<float> scratch;
+  std::vector<Transition> tr;
+  detectGoalEdges(left, GoalParams(), edges, scratch);
+  ASSERT_EQ(edges.size(), 1u);
+  EXPECT_EQ(edges[0].rows, 70);
+  EXPECT_FALSE(matchGoalEdge(right, edges[0], range, GoalParams(), tr, scratch).has_value());
+  GoalParams any_rows;
+  any_rows.min_right_row_fraction = 0.0;  // what the few rows alone would give
+  const auto wrong = matchGoalEdge(right, edges[0], range, any_rows, tr, scratch);
+  ASSERT_TRUE(wrong.has_value());
+  EXPECT_NEAR(*wrong, 120.0, 0.5);
+  // Seen on 45 of its 70 rows, it is matched.
+  right = bands(140.3 - 20.0, 400.0, kWhite, kBlue, kWhite, 100, 170);
+  for (int y = 100; y < 125; ++y)
+    for (int x = 0; x < 320; ++x) right.at<cv::Vec3b>(y, x) = kDark;
+  const auto ur = matchGoalEdge(right, edges[0], range, GoalParams(), tr, scratch);
+  ASSERT_TRUE(ur.has_value());
+  EXPECT_NEAR(edges[0].u - *ur, 20.0, 0.05);
+}
