@@ -677,7 +677,8 @@ double BatchSmoother::Solve::solveAll() {
 
 bool BatchSmoother::Solve::ratesFromPoses() const {
   const auto& sigmas = source_.imageSigmas();
-  return b_.config_.exposure_rate == BodyRateSource::SmoothedPoses && sigmas && (*sigmas)[stereo_pixel_calibration::kExposureOffsetEntry] > 0;
+  return b_.config_.exposure_rate == BodyRateSource::SmoothedPoses && sigmas &&
+         (*sigmas)[stereo_pixel_calibration::kExposureOffsetEntry] > 0;
 }
 
 // The image factors that estimate the exposure offset project the right column from the pose
