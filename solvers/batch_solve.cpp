@@ -703,7 +703,7 @@ void BatchSmoother::Solve::ratesFromSolution() {
     const double dt = b_.steps_[first_ + b].t - b_.steps_[first_ + a].t;
     if (!(dt > 0)) continue;
     const Pose2 pa = poseAt(a), pb = poseAt(b);
-    const double turn = wrapAngle(pb.theta - pa.theta);
+    const double turn = angleDiff(pb.theta, pa.theta);
     const double mid = pa.theta + 0.5 * turn;
     double rotation_variance = 0;
     for (size_t k = a + 1; k <= b; ++k) {
