@@ -500,9 +500,11 @@ std::optional<PoseFix> SlidingWindowSmoother::globalFix(const Step& step) const 
       calibrated.observations.push_back(o);
       continue;
     }
+    Landmark kind;
+    kind.type = o.type;
     try {
       calibrated.observations.push_back(calibratedObservation(
-          o, config_.observation_model.rig, head_, headCovariance(), pixelCovarianceFor(o, Landmark(), config_.observation_model)));
+          o, config_.observation_model.rig, head_, headCovariance(), pixelCovarianceFor(o, kind, config_.observation_model)));
     } catch (const GeometryError&) {
     }
   }
@@ -805,7 +807,9 @@ std::string toString(LateObservationStatus status) {
 std::vector<Observation> SlidingWindowSmoother::gateViews(const Observation& measured) const {
   std::vector<Observation> views;
   if (config_.calibration.stereo && measured.pixels) {
-    const Eigen::Matrix4d C_px = pixelCovarianceFor(measured, Landmark(), config_.observation_model);
+    Landmark kind;  // the pixel noise of the sighting's kind (a marking corner's disparity slides)
+    kind.type = measured.type;
+    const Eigen::Matrix4d C_px = pixelCovarianceFor(measured, kind, config_.observation_model, rowBlock());
     const StereoBlock sig = stereoPriorSigma(config_.calibration);
     const std::pair<StereoBlock, CalibrationEstimate::StereoMatrix> calibrations[2] = {
         {head_, headCovariance()}, {CalibrationEstimate().head, sig.cwiseAbs2().asDiagonal()}};

@@ -572,6 +572,53 @@ TEST(SlidingWindowCalibration, LearnsADisparityOffsetTheGivenCalibrationGatesOut
   EXPECT_LT(std::sqrt(sse / static_cast<double>(est.size())), 15.0);
 }
 
+// The number of a junction's sightings the window fuses, from a pose known to a millimetre on a
+// rig known to a hundredth of a pixel, when the right image finds it `disparity_error_px` left
+// of its true column and its kind's stated disparity noise is 3 px.
+long fusedJunctionSightings(double disparity_error_px) {
+  const FieldMap map = FieldMap::miroSot();
+  const StereoRig rig;
+  const auto junction = std::find_if(map.landmarks().begin(), map.landmarks().end(),
+                                     [](const Landmark& l) { return l.type == LandmarkType::Junction; });
+  EXPECT_NE(junction, map.landmarks().end());
+  // 350 mm from it, facing it from the field's centre side.
+  const Eigen::Vector2d towards = junction->xy().normalized();
+  const Eigen::Vector2d at = junction->xy() - 350.0 * towards;
+  const Pose2 pose(at.x(), at.y(), std::atan2(towards.y(), towards.x()));
+  const Eigen::Vector2d local = transformToLocal(pose, junction->xy());
+  std::optional<StereoPixels> px = rig.project(Eigen::Vector3d(local.x(), local.y(), junction->position.z()), 0.0);
+  EXPECT_TRUE(px.has_value());
+  if (!px) return -1;
+  px->u_right -= disparity_error_px;
+  SlidingWindowConfig c;
+  c.window = 5;
+  c.init = knownBelief(pose, Eigen::Vector3d(1.0, 1.0, 1e-3).cwiseAbs2().asDiagonal());
+  c.observation_model = {ObservationModel::PixelColumns, rig};
+  c.observation_model.unmodelled.marking_disparity_sigma_px = 3.0;
+  c.calibration = SelfCalibrationConfig::parse("stereo");
+  c.calibration.tilt_sigma_rad = 1e-5;
+  c.calibration.baseline_scale_sigma = 1e-5;
+  c.calibration.disparity_offset_sigma_px = 0.01;
+  c.calibration.column_offset_sigma_px = 0.01;
+  c.calibration.focal_ratio_sigma = 1e-5;
+  c.calibration.focal_scale_sigma = 1e-5;
+  SlidingWindowSmoother win(map, OdometryParams(), c);
+  Step s;
+  s.observations = {observationFromPixels(rig, -1, LandmarkType::Junction, *px, 0.0, 0.5)};
+  win.process(s);
+  return win.stats().accepted_observations;
+}
+
+TEST(SlidingWindowCalibration, GatesASightingWithTheDisparityNoiseOfItsKind) {
+  // The gate and the association see a sighting with the pixel noise its factor states: a
+  // marking's corner is found on the left's row and slides along the marking in the right
+  // image, so 5 px off in disparity is within its noise (d^2 about 3), although 7 times the
+  // 0.7 px the columns' own noise gives a disparity. 15 px off it is gated (d^2 about 24).
+  EXPECT_EQ(fusedJunctionSightings(0.0), 1);
+  EXPECT_EQ(fusedJunctionSightings(5.0), 1);
+  EXPECT_EQ(fusedJunctionSightings(15.0), 0);
+}
+
 TEST(SlidingWindowCalibration, CalibratedStepJacobianMatchesCentralDifferences) {
   // A chain of steps through one wheel calibration: a curve, a straight step (alpha near 0, the
   // series branch), a turn on the spot (v = 0) and a reverse arc.
