@@ -3,7 +3,7 @@
 // further block: residuals, frames and units as factors/stereo_pixel_calibration_factor.h, the
 // left column moved by b_c and the right by s dv + b_c + b_d (s the observation's slide gain, dv
 // the rows' misalignment). Blocks: pose (3), stereo calibration q (6), optionally the whitened
-// image errors e (11), dv (1, px) and (b_c, b_d) (2, px). A feature's column error (its bearing)
+// image errors e (12), dv (1, px) and (b_c, b_d) (2, px). A feature's column error (its bearing)
 // and, for a feature matched along a marking, its u_r error about s dv repeat from sighting to
 // sighting (the same edges, similar views, the same misalignment); the batch smoother gives each
 // feature these offsets, zero-mean with the noise model's sigmas (featureOffsetSigmas in
@@ -24,7 +24,7 @@ struct StereoPixelFeatureCalibrationFactor {
   StereoPixelFeatureCalibrationFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                       double slide_gain, double pan, const Eigen::Matrix4d& sqrt_information,
                                       PixelResiduals residuals, const ImageErrorVector* image_sigmas,
-                                  const BodyRate& rate)
+                                      const BodyRate& rate)
       : model_(rig, landmark, pixels, pan, sqrt_information, residuals, image_sigmas, rate, slide_gain) {}
 
   // Without the image block: (pose, q, dv, (b_c, b_d)).

@@ -145,7 +145,7 @@ struct SlidingWindowConfig {
   // With the image block (calibration.image_errors and a noise model that states its errors):
   // the steps after which the window estimates it. Before, the block stays at its prior mean and
   // the sightings keep its errors as pixel noise: fitted to a window's first few sightings its
-  // eleven parameters, weakly determined, can with the stereo block settle the first poses
+  // twelve parameters, weakly determined, can with the stereo block settle the first poses
   // tens of mm off, which the marginal prior then keeps (docs/realistic_world.md). 0: from the
   // first step (then a window as long as the data is the batch).
   int image_errors_after_steps = 20;
