@@ -203,6 +203,7 @@ struct BatchSummary {
   std::vector<long> cut_steps;    // steps whose odometry factor was cut (kidnap), in order
   std::vector<long> reinit_steps; // the filter's re-initialisation step of each kept cut
   int withdrawn_cuts = 0;         // candidate cuts rejected by the likelihood-ratio test
+  int cut_outliers = 0;           // ... of them, for a single sighting left out (an outlier) instead
   std::string message;            // the solver's termination message / covariance failure reason
 };
 

@@ -194,6 +194,11 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   // Whether observation o's factor can be evaluated with pose i at `pose` and the global blocks
   // at `globals` (a pixel factor cannot when the landmark is behind the cameras).
   bool evaluable(size_t o, const double* pose, const std::vector<double>& globals) const {
+    double cost;
+    return observationCost(o, pose, globals, &cost);
+  }
+  // Observation o's 1/2 |r|^2 (whitened, no robust loss) there; false where not evaluable.
+  bool observationCost(size_t o, const double* pose, const std::vector<double>& globals, double* cost) const {
     const ChainFactor f = observationFactor(o);
     const double* params[2] = {pose, nullptr};
     if (f.global >= 0) {
@@ -202,9 +207,10 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       params[1] = globals.data() + offset;
     }
     const int m = f.cost->num_residuals();
-    std::vector<double> r(static_cast<size_t>(m));
-    if (!f.cost->Evaluate(params, r.data(), nullptr)) return false;
-    return std::all_of(r.begin(), r.end(), [](double v) { return std::isfinite(v); });
+    Eigen::VectorXd r(m);
+    if (!f.cost->Evaluate(params, r.data(), nullptr) || !r.allFinite()) return false;
+    *cost = 0.5 * r.squaredNorm();
+    return true;
   }
   // Observation o (index into observations_) is left out of the problem (true) or in it.
   void setLeftOut(size_t o, bool left_out) { left_out_[o] = left_out ? 1 : 0; }
@@ -412,6 +418,10 @@ class BatchSmoother::Solve {
   // Whether the data keep cut c (re-initialised at r, in the segment [seg_lo, seg_hi)); x_ is
   // left at the cut solution when kept, at the restored one when not.
   bool cutHoldsUp(size_t c, size_t r, size_t seg_lo, size_t seg_hi, double threshold, double variance_factor);
+  // With x_ at the joined solution of [lo, hi) (the cut restored): whether the cut's evidence
+  // falls to `threshold` or below without the sighting that solution fits worst; that sighting
+  // then stays out of the problem and x_ at the joined solution without it.
+  bool outlierExplainsCut(size_t lo, size_t hi, double base, double threshold, double variance_factor);
   void testCuts();
   bool moveCutToFix(size_t c, size_t a, size_t seg_lo, size_t seg_hi, size_t r);
   void joinImplausibleCuts();
@@ -440,6 +450,7 @@ class BatchSmoother::Solve {
   long residuals_ = 3;  // of the factors as last counted (countFactors)
   double cost_ = 0;     // of the last full solve
   int withdrawn_ = 0;
+  std::vector<uint8_t> outlier_;  // per observation: left out as the one wrong sighting behind a cut
   // With the stereo calibration estimated, the unidentified observations are paired again at
   // the solution (reassociate).
   bool reassociate_passes_ = false;
@@ -483,7 +494,7 @@ BatchSmoother::Solve::Solve(BatchSmoother& smoother, BatchSummary* summary)
       n_(smoother.steps_.size() - first_), x_(poseVector(smoother.guess_, first_)),
       loss_(makeLossFunction(smoother.config_.loss)), source_(smoother, first_, n_),
       globals_(source_.nominalGlobals()), chain_(source_, loss_.get(), &globals_), active_(&chain_),
-      active_loss_(loss_.get()) {
+      active_loss_(loss_.get()), outlier_(smoother.observations_.size(), 0) {
   if (b_.config_.initial_guess == InitialGuess::Filter && b_.given_.empty()) b_.smoothGuess(first_, &x_);
   lm_.max_iterations = b_.config_.max_iterations;
   lm_.function_tolerance = b_.config_.function_tolerance;
@@ -585,7 +596,7 @@ int BatchSmoother::Solve::admitLeftOut() {
   int admitted = 0;
   if (s_.observations_left_out_at_guess == 0) return admitted;
   forEachObservation([&](size_t i, size_t o) {
-    if (source_.leftOut(o) && source_.evaluable(o, &x_[3 * i], globals_)) {
+    if (source_.leftOut(o) && !outlier_[o] && source_.evaluable(o, &x_[3 * i], globals_)) {
       source_.setLeftOut(o, false);
       ++admitted;
     }
@@ -1009,10 +1020,44 @@ bool BatchSmoother::Solve::cutHoldsUp(size_t c, size_t r, size_t seg_lo, size_t 
     };
     const bool exact = (lo == seg_lo || !edgeMoved(lo)) && (hi == seg_hi || !edgeMoved(hi - 1));
     if (evidence <= threshold) return false;
+    if (exact && outlierExplainsCut(lo, hi, base, threshold, variance_factor)) return false;
     std::copy(keep.begin(), keep.end(), x_.begin() + static_cast<long>(3 * lo));
     source_.setCut(c, true);
     if (exact) return true;
   }
+}
+
+// A cut lets the poses after it start again anywhere: evidence for it that a single wrong
+// sighting gives is no evidence of a kidnap. One sighting left out (2 residuals) is a smaller
+// change of model than a cut (3 parameters), so where the joined chain without the sighting
+// it fits worst is within the threshold of the cut model with it, the sighting goes and the
+// cut with it. A frontend's false stereo match at the first pose, sharp and 10 px off in
+// disparity, otherwise kept a cut after that pose and left the pose at the false range.
+bool BatchSmoother::Solve::outlierExplainsCut(size_t lo, size_t hi, double base, double threshold,
+                                              double variance_factor) {
+  size_t worst = 0;
+  double worst_cost = -1.0;
+  for (size_t i = lo; i < hi; ++i)
+    for (size_t o = b_.observationsBegin(first_ + i); o < b_.steps_[first_ + i].observations_end; ++o) {
+      double cost = 0;
+      if (b_.observations_[o].landmark_id < 0 || source_.leftOut(o) ||
+          !source_.observationCost(o, &x_[3 * i], globals_, &cost) || cost <= worst_cost)
+        continue;
+      worst_cost = cost;
+      worst = o;
+    }
+  if (worst_cost < 0) return false;
+  const std::vector<double> joined(x_.begin() + static_cast<long>(3 * lo), x_.begin() + static_cast<long>(3 * hi));
+  source_.setLeftOut(worst, true);
+  const double restored = solveRange(lo, hi, false, true);
+  if (2.0 * (restored - base) / variance_factor <= threshold) {
+    outlier_[worst] = 1;
+    ++s_.cut_outliers;
+    return true;
+  }
+  source_.setLeftOut(worst, false);
+  std::copy(joined.begin(), joined.end(), x_.begin() + static_cast<long>(3 * lo));
+  return false;
 }
 
 void BatchSmoother::Solve::testCuts() {

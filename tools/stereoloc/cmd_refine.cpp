@@ -106,9 +106,10 @@ void runRefine(const LocalizeArgs& a) {
   printOdometryDelay(o, fitted_delay, handover);
   writeOdometryDelayProfile(a.odometry_delay_profile, fitted_delay);
   std::printf("batch: %zu estimates for %zu steps written to %s\n", estimates.size(), steps, a.out.c_str());
-  std::printf("solve: %d iterations (%s)%s; %d kidnap cut%s kept, %d withdrawn (%d iterations)\n", s.iterations,
-              s.converged ? "converged" : "not converged", s.message.empty() ? "" : (": " + s.message).c_str(),
-              static_cast<int>(s.cut_steps.size()), s.cut_steps.size() == 1 ? "" : "s", s.withdrawn_cuts,
+  std::printf("solve: %d iterations (%s)%s; %d kidnap cut%s kept, %d withdrawn (%d of them for one sighting left out; "
+              "%d iterations)\n",
+              s.iterations, s.converged ? "converged" : "not converged", s.message.empty() ? "" : (": " + s.message).c_str(),
+              static_cast<int>(s.cut_steps.size()), s.cut_steps.size() == 1 ? "" : "s", s.withdrawn_cuts, s.cut_outliers,
               s.cut_test_iterations);
   std::printf("time: load %.2f s,%s filter pass %.2f s, solve %.2f s (cut tests %.2f s), covariance %.2f s, write %.2f s\n",
               load_s, fitted_delay ? (" odometry delay " + fixed2(delay_s) + " s,").c_str() : "", s.filter_seconds,
