@@ -622,7 +622,7 @@ void BatchSmoother::Solve::countFactors() {
   }
   residuals_ -= 3;  // counted with the unary factors of pose 0
   s_.observations_left_out = 0;
-  forEachObservation([&](size_t, size_t o) { s_.observations_left_out += source_.leftOut(o) ? 1 : 0; });
+  forEachObservation([&](size_t, size_t o) { s_.observations_left_out += source_.leftOut(o) && !outlier_[o] ? 1 : 0; });
 }
 
 void BatchSmoother::Solve::setCuts(const std::vector<Cut>& cuts, bool cut) {

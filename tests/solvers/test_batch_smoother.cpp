@@ -406,6 +406,7 @@ TEST(BatchSmoother, OneFalseSightingAtTheFirstPoseIsLeftOutNotCut) {
       << "the test needs the filter's loss and a candidate cut";
   EXPECT_TRUE(s.cut_steps.empty());
   EXPECT_EQ(s.cut_outliers, 1);
+  EXPECT_EQ(s.observations_left_out, 0);  // counts those not evaluable, not the outlier
   EXPECT_EQ(s.segments, 1);
   for (size_t k = 0; k < first + 10; ++k)
     EXPECT_LT((est[k].pose.translation() - d.groundtruth[k]->translation()).norm(), 10.0) << "step " << k;
