@@ -1,6 +1,6 @@
 // Batch smoother: accuracy against dead reckoning, exact covariance on a prediction-only chain,
 // determinism across thread counts, rank deficiency, robust loss with outliers, initialisation,
-// self-calibration against Ceres.
+// kidnap cuts (and a cut one false sighting asks for), self-calibration against Ceres.
 #include <gtest/gtest.h>
 
 #include <Eigen/Cholesky>

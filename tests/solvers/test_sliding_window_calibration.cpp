@@ -3,7 +3,8 @@
 // the per-feature offsets too; a short window carries the calibration's information through its
 // marginal prior (it recovers the planted wheel and stereo errors on a realistic run, and its
 // calibration covariance shrinks as data come) and estimates planted feature offsets; the block
-// marginal prior factor against central differences.
+// marginal prior factor against central differences; the gate sees a sighting with its kind's
+// pixel noise.
 #include <gtest/gtest.h>
 
 #include <Eigen/Cholesky>
