@@ -5,7 +5,7 @@
 //
 // theta: heading of the pose (x, y, theta) in the world frame, rad; z: measured heading, rad;
 // sigma: its standard deviation, rad (the 1x1 upper square-root information is 1 / sigma).
-#include <ceres/autodiff_cost_function.h>
+#include <ceres/cost_function.h>
 
 #include <cmath>
 
@@ -23,11 +23,7 @@ struct CompassFactor {
     return true;
   }
 
-  static ceres::CostFunction* Create(double heading, double sigma) {
-    if (!std::isfinite(heading)) throw Error("compass factor: heading is not finite");
-    if (!(std::isfinite(sigma) && sigma > 0)) throw Error("compass factor: sigma must be a positive number");
-    return new ceres::AutoDiffCostFunction<CompassFactor, 1, 3>(new CompassFactor(heading, sigma));
-  }
+  static ceres::CostFunction* Create(double heading, double sigma);
 
  private:
   double z_;

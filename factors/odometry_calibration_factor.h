@@ -29,7 +29,7 @@
 // 1500-step random walk with the simulator's encoder noise: +2.7 mm on 77 mm, 8 sigma).
 // h / sin h uses its series for |h| < 1e-4, so straight lines and turns on the spot (L = 0)
 // are both smooth.
-#include <ceres/autodiff_cost_function.h>
+#include <ceres/cost_function.h>
 
 #include <Eigen/Core>
 #include <cmath>
@@ -73,23 +73,7 @@ struct OdometryCalibrationFactor {
   // Blocks: previous pose (3), current pose (3), calibration (c_l, c_r, w) (3).
   // noise_travel: t (mm); params: the odometry model at t (slip included).
   static ceres::CostFunction* Create(double m_left, double m_right, const WheelIncrements& noise_travel,
-                                     const OdometryParams& params) {
-    params.validate();
-    Eigen::Matrix2d S = wheelCovariance(noise_travel.d_left, noise_travel.d_right, params);
-    const double fx = params.control_variance_floor.x();
-    const double ft = params.control_variance_floor.z() * 0.25 * params.wheel_base_mm * params.wheel_base_mm;
-    S += fx * Eigen::Matrix2d::Ones();
-    S += ft * (Eigen::Matrix2d() << 1.0, -1.0, -1.0, 1.0).finished();
-    const double lat = params.control_variance_floor.y();
-    if (!(std::isfinite(m_left) && std::isfinite(m_right) && std::isfinite(noise_travel.d_left) &&
-          std::isfinite(noise_travel.d_right) && S(0, 0) > 0 && S(1, 1) > 0 &&
-          S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0) > 0 && lat > 0))
-      throw Error(
-          "odometry calibration factor: readings and noise travel must be finite, the wheel covariance positive definite and the "
-          "lateral floor positive");
-    return new ceres::AutoDiffCostFunction<OdometryCalibrationFactor, 3, 3, 3, 3>(new OdometryCalibrationFactor(
-        m_left, m_right, sqrtInformationUpper<2>(S, "odometry calibration factor: wheel covariance"), std::sqrt(lat)));
-  }
+                                     const OdometryParams& params);
 
  private:
   double m_left_, m_right_;

@@ -10,7 +10,7 @@
 // control variance floor), so |r|^2 is the Mahalanobis distance of the odometry error.
 // At p_k = p_{k-1} (+) u_k the residual is zero and its Jacobians are -S J2^-1 J1 and S J2^-1
 // (B.18, B.19), which is what makes the Schur complement of this factor the EKF prediction.
-#include <ceres/autodiff_cost_function.h>
+#include <ceres/cost_function.h>
 
 #include <Eigen/Core>
 
@@ -35,14 +35,9 @@ struct OdometryFactor {
   }
 
   // From a relative pose measurement u (mm, mm, rad) and its covariance U.
-  static ceres::CostFunction* Create(const Eigen::Vector3d& u, const Eigen::Matrix3d& covariance) {
-    return new ceres::AutoDiffCostFunction<OdometryFactor, 3, 3, 3>(
-        new OdometryFactor(u, sqrtInformationUpper<3>(covariance, "odometry covariance U")));
-  }
+  static ceres::CostFunction* Create(const Eigen::Vector3d& u, const Eigen::Matrix3d& covariance);
   // From the wheel increments of one step (mm), with the odometry model of src/core/odometry_model.h.
-  static ceres::CostFunction* Create(double d_left, double d_right, const OdometryParams& params) {
-    return Create(controlVector(d_left, d_right, params.wheel_base_mm), controlCovariance(d_left, d_right, params));
-  }
+  static ceres::CostFunction* Create(double d_left, double d_right, const OdometryParams& params);
 
   const Eigen::Vector3d& u() const { return u_; }
 

@@ -33,9 +33,7 @@ class PosePriorFactor final : public ceres::SizedCostFunction<3, 3> {
     return true;
   }
 
-  static ceres::CostFunction* Create(const Pose2& mean, const Eigen::Matrix3d& covariance) {
-    return new PosePriorFactor(mean, sqrtInformationUpper<3>(covariance, "pose prior covariance"));
-  }
+  static ceres::CostFunction* Create(const Pose2& mean, const Eigen::Matrix3d& covariance);
 
  private:
   Pose2 mean_;

@@ -13,7 +13,7 @@
 // coefficients (those of `import mrclam --range-correction`, which divides a range by the same
 // factor) and the bearing offset; nominal 0. S: upper square-root information of R.
 // Evaluation fails when the pose coincides with the landmark (bearing undefined).
-#include <ceres/autodiff_cost_function.h>
+#include <ceres/cost_function.h>
 
 #include <Eigen/Core>
 
@@ -41,10 +41,7 @@ struct RangeBearingCalibrationFactor {
 
   // landmark (mm), z = (range mm, bearing rad), covariance R of z.
   static ceres::CostFunction* Create(const Eigen::Vector2d& landmark, const Eigen::Vector2d& z,
-                                     const Eigen::Matrix2d& covariance) {
-    return new ceres::AutoDiffCostFunction<RangeBearingCalibrationFactor, 2, 3, kCalibrationSize>(
-        new RangeBearingCalibrationFactor(landmark, z, sqrtInformationUpper<2>(covariance, "range-bearing covariance R")));
-  }
+                                     const Eigen::Matrix2d& covariance);
 
  private:
   Eigen::Vector2d landmark_;

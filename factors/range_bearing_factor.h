@@ -10,7 +10,7 @@
 // linearises, so the factor and the EKF update share one model. Evaluation fails (returns
 // false, Ceres then shrinks the step) when the pose coincides with the landmark, where the
 // bearing is undefined.
-#include <ceres/autodiff_cost_function.h>
+#include <ceres/cost_function.h>
 
 #include <Eigen/Core>
 
@@ -59,10 +59,7 @@ struct RangeBearingFactor {
 
   // landmark (mm), z = (range mm, bearing rad), covariance R of z.
   static ceres::CostFunction* Create(const Eigen::Vector2d& landmark, const Eigen::Vector2d& z,
-                                     const Eigen::Matrix2d& covariance) {
-    return new ceres::AutoDiffCostFunction<RangeBearingFactor, 2, 3>(
-        new RangeBearingFactor(landmark, z, sqrtInformationUpper<2>(covariance, "range-bearing covariance R")));
-  }
+                                     const Eigen::Matrix2d& covariance);
 
  private:
   Eigen::Vector2d landmark_;

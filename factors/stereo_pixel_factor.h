@@ -30,9 +30,8 @@
 //
 // Evaluation fails (returns false, Ceres then shrinks the step) when the landmark is not in
 // front of the cameras at the evaluated pose.
-#include <ceres/autodiff_cost_function.h>
+#include <ceres/cost_function.h>
 
-#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <cmath>
 #include <string>
@@ -58,21 +57,7 @@ inline constexpr double kMinDepth = 1e-6;  // mm, as StereoRig::project
 // The upper square-root information S of the residuals (see the file comment): 4x4 with rows,
 // else the 2x2 of (u_l, u_r) in the top-left corner (the rest zero). Throws stereoloc::Error
 // "<who>: ..." unless C is finite, symmetric and positive definite.
-inline Eigen::Matrix4d sqrtInformation(const char* who, const Eigen::Matrix4d& C, bool rows) {
-  checkPixelCovariance(C, who);
-  Eigen::Matrix4d S = Eigen::Matrix4d::Zero();
-  if (rows) {
-    const Eigen::Matrix4d info = Eigen::LLT<Eigen::Matrix4d>(C).solve(Eigen::Matrix4d::Identity());
-    S = Eigen::LLT<Eigen::Matrix4d>(0.5 * (info + info.transpose())).matrixU();
-  } else {
-    Eigen::Matrix2d C2;
-    C2 << C(0, 0), C(0, 2), C(2, 0), C(2, 2);
-    const Eigen::Matrix2d info = Eigen::LLT<Eigen::Matrix2d>(C2).solve(Eigen::Matrix2d::Identity());
-    S.topLeftCorner<2, 2>() = Eigen::LLT<Eigen::Matrix2d>(0.5 * (info + info.transpose())).matrixU();
-  }
-  if (!S.allFinite()) throw Error(std::string(who) + ": pixel covariance is not positive definite");
-  return S;
-}
+Eigen::Matrix4d sqrtInformation(const char* who, const Eigen::Matrix4d& C, bool rows);
 
 template <typename T>
 bool whitenedResiduals(const T& x2, const T& y2, const T& z2, const T& half_baseline, double f, double ou, double ov,
@@ -98,17 +83,10 @@ bool whitenedResiduals(const T& x2, const T& y2, const T& z2, const T& half_base
 }
 
 // Throws stereoloc::Error "<who>: ..." unless the pixels, pan and landmark are finite.
-inline void checkInputs(const char* who, const StereoPixels& pixels, double pan, const Eigen::Vector3d& landmark) {
-  if (!(std::isfinite(pixels.u_left) && std::isfinite(pixels.v_left) && std::isfinite(pixels.u_right) &&
-        std::isfinite(pixels.v_right) && std::isfinite(pan) && landmark.allFinite()))
-    throw Error(std::string(who) + ": pixels, pan and landmark must be finite");
-}
+void checkInputs(const char* who, const StereoPixels& pixels, double pan, const Eigen::Vector3d& landmark);
 
 // C from a scalar sigma (the thesis's 5.28), with the scalar overloads' error message.
-inline Eigen::Matrix4d covarianceFromSigma(const char* who, double sigma) {
-  if (!(std::isfinite(sigma) && sigma > 0)) throw Error(std::string(who) + ": sigma must be a positive number");
-  return sigma * sigma * Eigen::Matrix4d::Identity();
-}
+Eigen::Matrix4d covarianceFromSigma(const char* who, double sigma);
 }  // namespace stereo_pixel
 
 struct StereoPixelFactor {
@@ -116,21 +94,7 @@ struct StereoPixelFactor {
   // pan at the time of the images (rad); sqrt_information: S of the file comment
   // (stereo_pixel::sqrtInformation).
   StereoPixelFactor(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels, double pan,
-                    const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals)
-      : landmark_(landmark), sqrt_info_(sqrt_information), rows_(residuals == PixelResiduals::All) {
-    // p_C2 = R_tilt^T (Rz(pan)^T p_C0 - t), t = (x_c, 0, h): a constant affine map per observation.
-    const double c = std::cos(pan), s = std::sin(pan);
-    Eigen::Matrix3d Rz_T;
-    Rz_T << c, s, 0, -s, c, 0, 0, 0, 1;
-    M_ = rig.tiltRotation().transpose() * Rz_T;
-    m_ = rig.tiltRotation().transpose() *
-         Eigen::Vector3d(rig.params().offset_x_mm, 0.0, rig.params().camera_height_mm);
-    f_ = rig.focal();
-    ou_ = rig.principalU();
-    ov_ = rig.principalV();
-    half_baseline_ = 0.5 * rig.params().baseline_mm;
-    z_ << pixels.u_left, pixels.v_left, pixels.u_right, pixels.v_right;
-  }
+                    const Eigen::Matrix4d& sqrt_information, PixelResiduals residuals);
 
   template <typename T>
   bool operator()(const T* pose, T* residual) const {
@@ -149,21 +113,10 @@ struct StereoPixelFactor {
 
   // pixel_covariance: C of the file comment (px^2, symmetric positive definite).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                                     double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals) {
-    constexpr const char* kWho = "stereo pixel factor";
-    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
-    auto* functor = new StereoPixelFactor(
-        rig, landmark, pixels, pan,
-        stereo_pixel::sqrtInformation(kWho, pixel_covariance, residuals == PixelResiduals::All), residuals);
-    if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<StereoPixelFactor, 4, 3>(functor);
-    return new ceres::AutoDiffCostFunction<StereoPixelFactor, 2, 3>(functor);
-  }
+                                     double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals);
   // The same with independent pixels of noise sigma (px, > 0): C = sigma^2 I.
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
-                                     double pan, double sigma, PixelResiduals residuals) {
-    return Create(rig, landmark, pixels, pan, stereo_pixel::covarianceFromSigma("stereo pixel factor", sigma),
-                  residuals);
-  }
+                                     double pan, double sigma, PixelResiduals residuals);
 
   static constexpr double kMinDepth = stereo_pixel::kMinDepth;
 

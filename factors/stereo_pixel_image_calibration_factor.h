@@ -5,7 +5,7 @@
 // factors/stereo_pixel_calibration_factor.h ("Image errors"); e is whitened (parameter i is
 // e_i sigma_i), so its prior is the identity. The batch smoother estimates e with the stereo
 // block when SelfCalibrationConfig::image_errors is on.
-#include <ceres/autodiff_cost_function.h>
+#include <ceres/cost_function.h>
 
 #include <Eigen/Core>
 #include <string>
@@ -33,18 +33,7 @@ struct StereoPixelImageCalibrationFactor {
   // exposure offset s); `rate`: the robot's motion at the image (bodyRate).
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double pan, const Eigen::Matrix4d& pixel_covariance, PixelResiduals residuals,
-                                     const ImageErrorVector& sigmas, const BodyRate& rate) {
-    constexpr const char* kWho = "stereo pixel image calibration factor";
-    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
-    auto* functor = new StereoPixelImageCalibrationFactor(
-        rig, landmark, pixels, pan,
-        stereo_pixel_calibration::imageBlockSqrtInformation(kWho, rig, pixels, pixel_covariance, residuals, &sigmas, rate),
-        residuals, sigmas, rate);
-    constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
-    if (residuals == PixelResiduals::All)
-      return new ceres::AutoDiffCostFunction<StereoPixelImageCalibrationFactor, 4, 3, kQ, kImageErrorSize>(functor);
-    return new ceres::AutoDiffCostFunction<StereoPixelImageCalibrationFactor, 2, 3, kQ, kImageErrorSize>(functor);
-  }
+                                     const ImageErrorVector& sigmas, const BodyRate& rate);
 
  private:
   StereoPixelCalibrationModel model_;

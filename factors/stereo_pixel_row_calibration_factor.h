@@ -7,7 +7,7 @@
 // The batch smoother and the sliding window estimate dv when the noise model states the rows'
 // misalignment (UnmodelledNoise::row_offset_sigma_px, rowOffsetSigma in
 // solvers/self_calibration.h), with that sigma as its prior.
-#include <ceres/autodiff_cost_function.h>
+#include <ceres/cost_function.h>
 
 #include <Eigen/Core>
 #include <cmath>
@@ -45,25 +45,7 @@ struct StereoPixelRowCalibrationFactor {
   static ceres::CostFunction* Create(const StereoRig& rig, const Eigen::Vector3d& landmark, const StereoPixels& pixels,
                                      double slide_gain, double pan, const Eigen::Matrix4d& pixel_covariance,
                                      PixelResiduals residuals, const ImageErrorVector* image_sigmas,
-                                     const BodyRate& rate) {
-    constexpr const char* kWho = "stereo pixel row calibration factor";
-    stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
-    if (!std::isfinite(slide_gain)) throw Error(std::string(kWho) + ": slide gain must be finite");
-    auto* functor = new StereoPixelRowCalibrationFactor(
-        rig, landmark, pixels, slide_gain, pan,
-        stereo_pixel_calibration::imageBlockSqrtInformation(kWho, rig, pixels, pixel_covariance, residuals, image_sigmas,
-                                                            rate),
-        residuals, image_sigmas, rate);
-    constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
-    constexpr int kE = stereo_pixel_calibration::kImageErrorSize;
-    using F = StereoPixelRowCalibrationFactor;
-    if (image_sigmas) {
-      if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<F, 4, 3, kQ, kE, kRowSize>(functor);
-      return new ceres::AutoDiffCostFunction<F, 2, 3, kQ, kE, kRowSize>(functor);
-    }
-    if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<F, 4, 3, kQ, kRowSize>(functor);
-    return new ceres::AutoDiffCostFunction<F, 2, 3, kQ, kRowSize>(functor);
-  }
+                                     const BodyRate& rate);
 
  private:
   StereoPixelCalibrationModel model_;
