@@ -310,136 +310,156 @@ double orderingSignificance(double psi1, double psi2, double sigma_difference) {
 
 namespace {
 
-TwoCircleSolution solveTwoCirclesImpl(const Vector8d& x, const Matrix8d& x_cov, int side,
-                                      const GlobalFixOptions& options, const InverseRange& inverse_range) {
-  if (!x.allFinite() || !x_cov.allFinite()) throw Error("two-circle fix: input is not finite");
-  if (side != 1 && side != -1) throw Error("two-circle fix: side must be +1 or -1");
-  TwoCircleSolution sol;
-  const Eigen::Vector2d c1 = x.segment<2>(0), c2 = x.segment<2>(4);
-  const double r1 = x(2), r2 = x(6);
-  if (!(r1 > 0.0 && r2 > 0.0)) return sol;  // Degenerate: a range must be positive
-  const double scale = std::max({1.0, r1, r2});
-  const Eigen::Vector2d baseline = c2 - c1;
-  const double d = baseline.norm();
-  if (d <= 1e-9 * scale) return sol;  // Degenerate: concentric circles / coincident landmarks
-  const Eigen::Vector2d e = baseline / d;
-  const Eigen::Vector2d n(-e.y(), e.x());
-  // (4.3), (4.4) in the baseline frame: p = c1 + a e + side h n.
-  const double a = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d);
-  const double h2 = r1 * r1 - a * a;
-  const double tangent_tol = 1e-9 * scale;
+// The two circles' geometry in the baseline frame c1 -> c2 (4.3, 4.4): the intersections are
+// c1 + a e +- h n with h^2 = h2.
+struct BaselineFrame {
+  Eigen::Vector2d c1, c2, e, n;
+  double r1 = 0, r2 = 0, d = 0, a = 0, h2 = 0;
+  double scale = 1;         // the geometry's size, for the degeneracy tolerances (mm)
+  double tangent_tol = 0;   // |h| below it: tangent circles (mm)
+};
 
-  if (h2 > tangent_tol * tangent_tol) {
-    const double h = std::sqrt(h2);
-    const Eigen::Vector2d p = c1 + a * e + side * h * n;
-    // Implicit differentiation of |p - c_i|^2 = r_i^2: (p - c_i)^T (dp - dc_i) = r_i dr_i.
-    Eigen::Matrix2d A;
-    A.row(0) = (p - c1).transpose();
-    A.row(1) = (p - c2).transpose();
-    Eigen::Matrix<double, 2, 8> B = Eigen::Matrix<double, 2, 8>::Zero();
-    B.block<1, 2>(0, 0) = (p - c1).transpose();
-    B(0, 2) = r1;
-    B.block<1, 2>(1, 4) = (p - c2).transpose();
-    B(1, 6) = r2;
-    const Eigen::Matrix<double, 2, 8> J_p_x = A.inverse() * B;  // |det A| = d h > 0
+// d p / d x at the intersection p: implicit differentiation of |p - c_i|^2 = r_i^2,
+// (p - c_i)^T (dp - dc_i) = r_i dr_i; |det A| = d h > 0.
+Eigen::Matrix<double, 2, 8> intersectionJacobian(const BaselineFrame& g, const Eigen::Vector2d& p) {
+  Eigen::Matrix2d A;
+  A.row(0) = (p - g.c1).transpose();
+  A.row(1) = (p - g.c2).transpose();
+  Eigen::Matrix<double, 2, 8> B = Eigen::Matrix<double, 2, 8>::Zero();
+  B.block<1, 2>(0, 0) = (p - g.c1).transpose();
+  B(0, 2) = g.r1;
+  B.block<1, 2>(1, 4) = (p - g.c2).transpose();
+  B(1, 6) = g.r2;
+  return A.inverse() * B;
+}
 
-    // (4.6) for each landmark: theta_i = atan2(c_i - p) - psi_i.
-    Eigen::Matrix<double, 2, 8> J_t_x = Eigen::Matrix<double, 2, 8>::Zero();
-    double theta_i[2];
-    for (int i = 0; i < 2; ++i) {
-      const Eigen::Vector2d ci = x.segment<2>(4 * i);
-      const Eigen::Vector2d q = ci - p;
-      const Eigen::RowVector2d g = atan2Gradient(q);
-      theta_i[i] = wrapAngle(std::atan2(q.y(), q.x()) - x(4 * i + 3));
-      J_t_x.row(i) = -g * J_p_x;
-      J_t_x.block<1, 2>(i, 4 * i) += g;
-      J_t_x(i, 4 * i + 3) -= 1.0;
-    }
-    // Best linear unbiased combination of the two (correlated) headings.
-    // Measured (fixstudy, lines with fixed orientation, linear subset, 36000 fixes): these
-    // weights are evaluated at the noisy estimate, where both headings are dominated by the same
-    // position error, so they vary from fix to fix with the noise (|w - 1/2| ~ 0.4); that makes
-    // the 3-dof mean NEES 3.055 (the fix-averaged covariance gives 2.95: the excess is the
-    // correlation of each fix's heading variance with its error, not a biased covariance).
-    // Weights under the bearing noise alone (the heading given the position) give 2.94 but a
-    // larger heading error, RMS 3.38 -> 3.66 deg there and 11.0 -> 16.4 deg over all fixes;
-    // recomputing the weights at each sigma point gives 3.14. The BLUE weights are kept.
-    const Eigen::Matrix2d C = J_t_x * x_cov * J_t_x.transpose();
-    Eigen::Vector2d w(0.5, 0.5);
-    Eigen::LDLT<Eigen::Matrix2d> ldlt(0.5 * (C + C.transpose()));
-    if (ldlt.info() == Eigen::Success && ldlt.isPositive() && ldlt.vectorD().minCoeff() > 0) {
-      const Eigen::Vector2d ci1 = ldlt.solve(Eigen::Vector2d::Ones());
-      const double sum = ci1.sum();
-      if (std::isfinite(sum) && sum > 0) w = ci1 / sum;
-    }
-    const double theta = wrapAngle(theta_i[0] + w(1) * angleDiff(theta_i[1], theta_i[0]));
-
-    sol.pose = Pose2(p.x(), p.y(), theta);
-    sol.J_pose_x.topRows<2>() = J_p_x;
-    sol.J_pose_x.row(2) = w(0) * J_t_x.row(0) + w(1) * J_t_x.row(1);
-    sol.covariance = symmetrize(sol.J_pose_x * x_cov * sol.J_pose_x.transpose());  // (4.18)
-    if (options.covariance != FixCovariance::FirstOrder) {
-      // Hessian of theta = sum_i w_i atan2(c_i - p) w.r.t. p; 1/2 tr(H P H P) with P = cov(p).
-      Eigen::Matrix2d H = Eigen::Matrix2d::Zero();
-      for (int i = 0; i < 2; ++i) {
-        const Eigen::Vector2d q = x.segment<2>(4 * i) - p;
-        const double rho4 = q.squaredNorm() * q.squaredNorm();
-        Eigen::Matrix2d Hi;
-        Hi << 2 * q.x() * q.y(), q.y() * q.y() - q.x() * q.x(),  //
-            q.y() * q.y() - q.x() * q.x(), -2 * q.x() * q.y();
-        H += w(i) * Hi / rho4;
-      }
-      const Eigen::Matrix2d P = sol.covariance.topLeftCorner<2, 2>();
-      sol.covariance(2, 2) += 0.5 * (H * P * H * P).trace();
-    }
-    if (options.covariance == FixCovariance::SigmaPoints && !x_cov.isZero(0.0)) {
-      // Propagation space: x with the flagged ranges replaced by 1 / r, covariance T x_cov T^T.
-      Vector8d y = x;
-      Matrix8d T = Matrix8d::Identity();
-      for (int i = 0; i < 2; ++i) {
-        if (!inverse_range[i]) continue;
-        const int k = 4 * i + 2;
-        y(k) = 1.0 / x(k);
-        T(k, k) = -1.0 / (x(k) * x(k));
-      }
-      const auto f = [&](const Vector8d& yy, Pose2* pose) {
-        Vector8d xx = yy;
-        for (int i = 0; i < 2; ++i) {
-          if (!inverse_range[i]) continue;
-          const int k = 4 * i + 2;
-          if (!(yy(k) > 0.0)) return false;  // the sigma point's range went through infinity
-          xx(k) = 1.0 / yy(k);
-        }
-        return twoCirclePose(xx, side, w, pose);
-      };
-      const SigmaPointMse sp = sigmaPointMse<8>(y, Matrix8d(T * x_cov * T.transpose()), sol.pose, f);
-      if (sp.ok) {
-        sol.covariance = sp.mse;
-        sol.nonlinearity = nonlinearityOf(sp);
-      } else {
-        sol.nonlinearity = 1.0;  // keep the second-order covariance
-      }
-    }
-    sol.half_chord = h;
-    sol.status = positiveDefinite(sol.covariance) ? FixStatus::Ok : FixStatus::Degenerate;
-    // A singular covariance (noise-free inputs) is still a valid pose; keep it Ok when the
-    // inputs carry no noise at all, so that exact recovery can be tested.
-    if (sol.status == FixStatus::Degenerate && x_cov.isZero(0.0)) sol.status = FixStatus::Ok;
-    return sol;
+// The best linear unbiased weights of the two (correlated) headings with covariance C; equal
+// weights when C is not positive definite.
+// Measured (fixstudy, lines with fixed orientation, linear subset, 36000 fixes): these
+// weights are evaluated at the noisy estimate, where both headings are dominated by the same
+// position error, so they vary from fix to fix with the noise (|w - 1/2| ~ 0.4); that makes
+// the 3-dof mean NEES 3.055 (the fix-averaged covariance gives 2.95: the excess is the
+// correlation of each fix's heading variance with its error, not a biased covariance).
+// Weights under the bearing noise alone (the heading given the position) give 2.94 but a
+// larger heading error, RMS 3.38 -> 3.66 deg there and 11.0 -> 16.4 deg over all fixes;
+// recomputing the weights at each sigma point gives 3.14. The BLUE weights are kept.
+Eigen::Vector2d headingWeights(const Eigen::Matrix2d& C) {
+  Eigen::Vector2d w(0.5, 0.5);
+  Eigen::LDLT<Eigen::Matrix2d> ldlt(0.5 * (C + C.transpose()));
+  if (ldlt.info() == Eigen::Success && ldlt.isPositive() && ldlt.vectorD().minCoeff() > 0) {
+    const Eigen::Vector2d ci1 = ldlt.solve(Eigen::Vector2d::Ones());
+    const double sum = ci1.sum();
+    if (std::isfinite(sum) && sum > 0) w = ci1 / sum;
   }
+  return w;
+}
 
-  // Tangent or non-intersecting circles: the closed-form Jacobian is singular (dp/dr ~ 1/h).
+// The second-order term of the heading's variance: the Hessian H of theta = sum_i w_i
+// atan2(c_i - p) with respect to p gives 1/2 tr(H P H P), P = cov(p).
+double secondOrderHeadingVariance(const Vector8d& x, const Eigen::Vector2d& p, const Eigen::Vector2d& w,
+                                  const Eigen::Matrix2d& P) {
+  Eigen::Matrix2d H = Eigen::Matrix2d::Zero();
+  for (int i = 0; i < 2; ++i) {
+    const Eigen::Vector2d q = x.segment<2>(4 * i) - p;
+    const double rho4 = q.squaredNorm() * q.squaredNorm();
+    Eigen::Matrix2d Hi;
+    Hi << 2 * q.x() * q.y(), q.y() * q.y() - q.x() * q.x(),  //
+        q.y() * q.y() - q.x() * q.x(), -2 * q.x() * q.y();
+    H += w(i) * Hi / rho4;
+  }
+  return 0.5 * (H * P * H * P).trace();
+}
+
+// The sigma-point covariance of the fix (heading weights w held), propagated in the space of x
+// with the flagged ranges replaced by 1 / r (covariance T x_cov T^T). Sets sol.covariance and
+// sol.nonlinearity, or only the nonlinearity (1: keep the second-order covariance) when a sigma
+// point has no fix.
+void sigmaPointCovariance(const Vector8d& x, const Matrix8d& x_cov, int side, const Eigen::Vector2d& w,
+                          const InverseRange& inverse_range, TwoCircleSolution* sol) {
+  Vector8d y = x;
+  Matrix8d T = Matrix8d::Identity();
+  for (int i = 0; i < 2; ++i) {
+    if (!inverse_range[i]) continue;
+    const int k = 4 * i + 2;
+    y(k) = 1.0 / x(k);
+    T(k, k) = -1.0 / (x(k) * x(k));
+  }
+  const auto f = [&](const Vector8d& yy, Pose2* pose) {
+    Vector8d xx = yy;
+    for (int i = 0; i < 2; ++i) {
+      if (!inverse_range[i]) continue;
+      const int k = 4 * i + 2;
+      if (!(yy(k) > 0.0)) return false;  // the sigma point's range went through infinity
+      xx(k) = 1.0 / yy(k);
+    }
+    return twoCirclePose(xx, side, w, pose);
+  };
+  const SigmaPointMse sp = sigmaPointMse<8>(y, Matrix8d(T * x_cov * T.transpose()), sol->pose, f);
+  if (sp.ok) {
+    sol->covariance = sp.mse;
+    sol->nonlinearity = nonlinearityOf(sp);
+  } else {
+    sol->nonlinearity = 1.0;
+  }
+}
+
+// Circles that meet (h2 above the tangent tolerance): the intersection on `side`, (4.6)'s
+// headings combined, the covariance (4.18) and its refinements.
+TwoCircleSolution intersectingFix(const BaselineFrame& g, const Vector8d& x, const Matrix8d& x_cov, int side,
+                                  const GlobalFixOptions& options, const InverseRange& inverse_range) {
+  TwoCircleSolution sol;
+  const double h = std::sqrt(g.h2);
+  const Eigen::Vector2d p = g.c1 + g.a * g.e + side * h * g.n;
+  const Eigen::Matrix<double, 2, 8> J_p_x = intersectionJacobian(g, p);
+
+  // (4.6) for each landmark: theta_i = atan2(c_i - p) - psi_i.
+  Eigen::Matrix<double, 2, 8> J_t_x = Eigen::Matrix<double, 2, 8>::Zero();
+  double theta_i[2];
+  for (int i = 0; i < 2; ++i) {
+    const Eigen::Vector2d ci = x.segment<2>(4 * i);
+    const Eigen::Vector2d q = ci - p;
+    const Eigen::RowVector2d grad = atan2Gradient(q);
+    theta_i[i] = wrapAngle(std::atan2(q.y(), q.x()) - x(4 * i + 3));
+    J_t_x.row(i) = -grad * J_p_x;
+    J_t_x.block<1, 2>(i, 4 * i) += grad;
+    J_t_x(i, 4 * i + 3) -= 1.0;
+  }
+  const Eigen::Vector2d w = headingWeights(J_t_x * x_cov * J_t_x.transpose());
+  const double theta = wrapAngle(theta_i[0] + w(1) * angleDiff(theta_i[1], theta_i[0]));
+
+  sol.pose = Pose2(p.x(), p.y(), theta);
+  sol.J_pose_x.topRows<2>() = J_p_x;
+  sol.J_pose_x.row(2) = w(0) * J_t_x.row(0) + w(1) * J_t_x.row(1);
+  sol.covariance = symmetrize(sol.J_pose_x * x_cov * sol.J_pose_x.transpose());  // (4.18)
+  if (options.covariance != FixCovariance::FirstOrder)
+    sol.covariance(2, 2) += secondOrderHeadingVariance(x, p, w, sol.covariance.topLeftCorner<2, 2>());
+  if (options.covariance == FixCovariance::SigmaPoints && !x_cov.isZero(0.0))
+    sigmaPointCovariance(x, x_cov, side, w, inverse_range, &sol);
+  sol.half_chord = h;
+  sol.status = positiveDefinite(sol.covariance) ? FixStatus::Ok : FixStatus::Degenerate;
+  // A singular covariance (noise-free inputs) is still a valid pose; keep it Ok when the
+  // inputs carry no noise at all, so that exact recovery can be tested.
+  if (sol.status == FixStatus::Degenerate && x_cov.isZero(0.0)) sol.status = FixStatus::Ok;
+  return sol;
+}
+
+// Tangent or non-intersecting circles, where the closed-form Jacobian is singular (dp/dr ~ 1/h):
+// the tangent point, or the weighted closest point on the baseline, with the heading the
+// circular mean of (4.6) and the covariance from the information of the measurements.
+TwoCircleSolution tangentOrApartFix(const BaselineFrame& g, const Vector8d& x, const Matrix8d& x_cov,
+                                    const GlobalFixOptions& options) {
+  TwoCircleSolution sol;
   Eigen::Vector2d p;
-  if (h2 >= -tangent_tol * tangent_tol) {
-    p = c1 + a * e;  // tangent: one intersection, on the baseline
+  if (g.h2 >= -g.tangent_tol * g.tangent_tol) {
+    p = g.c1 + g.a * g.e;  // tangent: one intersection, on the baseline
     sol.status = FixStatus::Ok;
   } else {
-    const double v_centres = e.dot((x_cov.block<2, 2>(0, 0) + x_cov.block<2, 2>(4, 4)) * e);
-    const double floor = 1e-12 * scale * scale;
+    const double v_centres = g.e.dot((x_cov.block<2, 2>(0, 0) + x_cov.block<2, 2>(4, 4)) * g.e);
+    const double floor = 1e-12 * g.scale * g.scale;
     const double v1 = std::max(floor, x_cov(2, 2) + 0.5 * v_centres);
     const double v2 = std::max(floor, x_cov(6, 6) + 0.5 * v_centres);
-    const auto [t, cost] = closestOnBaseline(d, r1, r2, v1, v2);
-    p = c1 + t * e;
+    const auto [t, cost] = closestOnBaseline(g.d, g.r1, g.r2, v1, v2);
+    p = g.c1 + t * g.e;
     sol.gap_sigma = std::sqrt(cost);
     sol.status = sol.gap_sigma > options.max_gap_sigma ? FixStatus::Degenerate : FixStatus::ApproximateNoIntersection;
     // Circles that do not meet: the noise is as large as the geometry, far from linear.
@@ -449,7 +469,7 @@ TwoCircleSolution solveTwoCirclesImpl(const Vector8d& x, const Matrix8d& x_cov, 
   double sum_s = 0.0, sum_c = 0.0;
   for (int i = 0; i < 2; ++i) {
     const Eigen::Vector2d q = x.segment<2>(4 * i) - p;
-    if (q.norm() <= 1e-9 * scale) continue;
+    if (q.norm() <= 1e-9 * g.scale) continue;
     const double th = std::atan2(q.y(), q.x()) - x(4 * i + 3);
     sum_s += std::sin(th);
     sum_c += std::cos(th);
@@ -473,6 +493,30 @@ TwoCircleSolution solveTwoCirclesImpl(const Vector8d& x, const Matrix8d& x_cov, 
     }
   }
   return sol;
+}
+
+TwoCircleSolution solveTwoCirclesImpl(const Vector8d& x, const Matrix8d& x_cov, int side,
+                                      const GlobalFixOptions& options, const InverseRange& inverse_range) {
+  if (!x.allFinite() || !x_cov.allFinite()) throw Error("two-circle fix: input is not finite");
+  if (side != 1 && side != -1) throw Error("two-circle fix: side must be +1 or -1");
+  BaselineFrame g;
+  g.c1 = x.segment<2>(0);
+  g.c2 = x.segment<2>(4);
+  g.r1 = x(2);
+  g.r2 = x(6);
+  if (!(g.r1 > 0.0 && g.r2 > 0.0)) return {};  // Degenerate: a range must be positive
+  g.scale = std::max({1.0, g.r1, g.r2});
+  const Eigen::Vector2d baseline = g.c2 - g.c1;
+  g.d = baseline.norm();
+  if (g.d <= 1e-9 * g.scale) return {};  // Degenerate: concentric circles / coincident landmarks
+  g.e = baseline / g.d;
+  g.n = Eigen::Vector2d(-g.e.y(), g.e.x());
+  // (4.3), (4.4) in the baseline frame: p = c1 + a e + side h n.
+  g.a = (g.r1 * g.r1 - g.r2 * g.r2 + g.d * g.d) / (2.0 * g.d);
+  g.h2 = g.r1 * g.r1 - g.a * g.a;
+  g.tangent_tol = 1e-9 * g.scale;
+  if (g.h2 > g.tangent_tol * g.tangent_tol) return intersectingFix(g, x, x_cov, side, options, inverse_range);
+  return tangentOrApartFix(g, x, x_cov, options);
 }
 
 }  // namespace
