@@ -241,36 +241,26 @@ Solved solveFrom(const Pose2& start, const std::vector<ObservationCost>& costs, 
 
 namespace {
 
-GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations, const std::vector<Eigen::Vector3d>& landmarks3,
-                               bool heights_known, const std::optional<double>& compass_theta, double compass_sigma,
-                               const GlobalFixOptions& options) {
-  if (observations.size() != landmarks3.size())
-    throw Error("multi fix: " + std::to_string(observations.size()) + " observations but " +
-                std::to_string(landmarks3.size()) + " landmark positions");
-  std::vector<Eigen::Vector2d> landmarks;
-  for (const Eigen::Vector3d& l : landmarks3) landmarks.push_back(l.head<2>());
-  GlobalFix f;
-  f.method = FixMethod::MultiLandmark;
-  for (const Observation& o : observations) f.landmark_ids.push_back(o.landmark_id);
+// Each sighting's cost: the pixel factor where a rig and the landmark's height are known and the
+// sighting has pixels, else range-bearing (inverse range for stereo with
+// GlobalFixOptions::stereo_inverse_range) whitened by its covariance.
+std::vector<ObservationCost> observationCosts(const std::vector<Observation>& observations,
+                                              const std::vector<Eigen::Vector3d>& landmarks3, bool heights_known,
+                                              const GlobalFixOptions& options) {
   const size_t n = observations.size();
-  if (n < 2 || (n < 3 && !compass_theta)) return f;  // NotEnoughLandmarks
-  if (compass_theta && !std::isfinite(*compass_theta)) throw Error("multi fix: compass heading is not finite");
-  if (!(std::isfinite(compass_sigma) && compass_sigma >= 0.0)) throw Error("multi fix: compass sigma must be >= 0");
-  const double sigma_c = std::max(compass_sigma, options.compass_sigma_floor);
-
-  std::vector<Eigen::Matrix2d> S(n);
-  std::vector<bool> inverse(n, false);
-  for (size_t i = 0; i < n; ++i) {
-    if (!(std::isfinite(observations[i].range) && std::isfinite(observations[i].bearing)) ||
-        !landmarks[i].allFinite())
-      throw Error("multi fix: observation " + std::to_string(i) + " is not finite");
-    inverse[i] = options.stereo_inverse_range && observations[i].pixels.has_value() && observations[i].range > 0.0;
-    Eigen::Matrix2d T = Eigen::Matrix2d::Identity();
-    if (inverse[i]) T(0, 0) = -1.0 / (observations[i].range * observations[i].range);
-    S[i] = sqrtInformationUpper<2>(Eigen::Matrix2d(T * observations[i].covariance * T.transpose()),
-                                   "multi fix: observation covariance R");
-  }
   std::vector<ObservationCost> costs(n);
+  for (size_t i = 0; i < n; ++i) {
+    const Observation& o = observations[i];
+    ObservationCost& c = costs[i];
+    c.l2 = landmarks3[i].head<2>();
+    if (!(std::isfinite(o.range) && std::isfinite(o.bearing)) || !c.l2.allFinite())
+      throw Error("multi fix: observation " + std::to_string(i) + " is not finite");
+    c.inverse = options.stereo_inverse_range && o.pixels.has_value() && o.range > 0.0;
+    Eigen::Matrix2d T = Eigen::Matrix2d::Identity();
+    if (c.inverse) T(0, 0) = -1.0 / (o.range * o.range);
+    c.S = sqrtInformationUpper<2>(Eigen::Matrix2d(T * o.covariance * T.transpose()),
+                                  "multi fix: observation covariance R");
+  }
   for (size_t i = 0; i < n; ++i) {
     const Observation& o = observations[i];
     ObservationCost& c = costs[i];
@@ -278,16 +268,20 @@ GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations, con
                o.pixel_covariance.diagonal().minCoeff() > 0.0;
     if (c.pixels && !(landmarks3[i].allFinite() && std::isfinite(o.head_pan)))
       throw Error("multi fix: observation " + std::to_string(i) + ": landmark or head pan is not finite");
-    c.l2 = landmarks[i];
     c.l3 = landmarks3[i];
     c.z = o.z();
-    c.S = S[i];
-    c.inverse = inverse[i];
     c.obs = &o;
   }
+  return costs;
+}
 
-  // Starting points: both intersections of the best-conditioned pair (so the ordering rule is
-  // not needed: the bearings of all landmarks decide), and the best one-landmark fix.
+// Starting points: both intersections of the best-conditioned pair (so the ordering rule is
+// not needed: the bearings of all landmarks decide), and the best one-landmark fix.
+std::vector<Pose2> startingPoses(const std::vector<Observation>& observations,
+                                 const std::vector<Eigen::Vector2d>& landmarks,
+                                 const std::optional<double>& compass_theta, double sigma_c,
+                                 const GlobalFixOptions& options) {
+  const size_t n = observations.size();
   std::vector<Pose2> starts;
   double best_trace = std::numeric_limits<double>::infinity();
   Pose2 pair_pose, mirror_pose;
@@ -327,11 +321,66 @@ GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations, con
     }
     if (best1.status == FixStatus::Ok) starts.push_back(best1.pose);
   }
+  return starts;
+}
+
+// The information J^T W J of the pose at `pose`, with the analytic Jacobian of (5.27) (an
+// inverse-range row is d(1/h_r) = -dh_r / h_r^2) and a pixel residual's Jacobian from its cost
+// function (automatic differentiation of the projection, tested against central differences in
+// tests/factors), plus the compass's. False where a sighting cannot be evaluated at `pose`.
+bool fixInformation(const std::vector<ObservationCost>& costs, const std::optional<StereoRig>& rig,
+                    const Pose2& pose, bool compass, double sigma_c, Eigen::Matrix3d* info_out) {
+  Eigen::Matrix3d info = Eigen::Matrix3d::Zero();
+  for (const ObservationCost& c : costs) {
+    if (c.pixels) {
+      const std::unique_ptr<ceres::CostFunction> cost(c.create(rig));
+      const double x[3] = {pose.x, pose.y, pose.theta};
+      const double* params[] = {x};
+      Eigen::Vector2d r;
+      Eigen::Matrix<double, 2, 3, Eigen::RowMajor> J;
+      double* jac[] = {J.data()};
+      if (!cost->Evaluate(params, r.data(), jac)) return false;
+      info += J.transpose() * J;
+      continue;
+    }
+    Matrix23d H;
+    try {
+      const Eigen::Vector2d h = predictRangeBearing(pose, c.l2, &H);
+      if (c.inverse) H.row(0) *= -1.0 / (h(0) * h(0));
+    } catch (const GeometryError&) {
+      return false;
+    }
+    const Matrix23d SH = c.S * H;
+    info += SH.transpose() * SH;
+  }
+  if (compass) info(2, 2) += 1.0 / (sigma_c * sigma_c);
+  *info_out = 0.5 * (info + info.transpose());
+  return true;
+}
+
+GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations, const std::vector<Eigen::Vector3d>& landmarks3,
+                               bool heights_known, const std::optional<double>& compass_theta, double compass_sigma,
+                               const GlobalFixOptions& options) {
+  if (observations.size() != landmarks3.size())
+    throw Error("multi fix: " + std::to_string(observations.size()) + " observations but " +
+                std::to_string(landmarks3.size()) + " landmark positions");
+  std::vector<Eigen::Vector2d> landmarks;
+  for (const Eigen::Vector3d& l : landmarks3) landmarks.push_back(l.head<2>());
+  GlobalFix f;
+  f.method = FixMethod::MultiLandmark;
+  for (const Observation& o : observations) f.landmark_ids.push_back(o.landmark_id);
+  const size_t n = observations.size();
+  if (n < 2 || (n < 3 && !compass_theta)) return f;  // NotEnoughLandmarks
+  if (compass_theta && !std::isfinite(*compass_theta)) throw Error("multi fix: compass heading is not finite");
+  if (!(std::isfinite(compass_sigma) && compass_sigma >= 0.0)) throw Error("multi fix: compass sigma must be >= 0");
+  const double sigma_c = std::max(compass_sigma, options.compass_sigma_floor);
+  const std::vector<ObservationCost> costs = observationCosts(observations, landmarks3, heights_known, options);
+
+  const std::vector<Pose2> starts = startingPoses(observations, landmarks, compass_theta, sigma_c, options);
   if (starts.empty()) {
     f.status = FixStatus::Degenerate;
     return f;
   }
-
   std::vector<Solved> solved;
   for (const Pose2& s : starts) {
     Solved r = solveFrom(s, costs, options.rig, compass_theta, sigma_c, options.multi_max_iterations);
@@ -344,39 +393,12 @@ GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations, con
   std::sort(solved.begin(), solved.end(), [](const Solved& a, const Solved& b) { return a.chi2 < b.chi2; });
   const Solved& best = solved.front();
 
-  // Covariance (J^T W J)^-1 at the optimum, with the analytic Jacobian of (5.27); an inverse-range
-  // row is d(1/h_r) = -dh_r / h_r^2.
-  // A pixel residual's Jacobian comes from its cost function (automatic differentiation of the
-  // projection, tested against central differences in tests/factors).
-  Eigen::Matrix3d info = Eigen::Matrix3d::Zero();
-  for (size_t i = 0; i < n; ++i) {
-    if (costs[i].pixels) {
-      const std::unique_ptr<ceres::CostFunction> cost(costs[i].create(options.rig));
-      const double pose[3] = {best.pose.x, best.pose.y, best.pose.theta};
-      const double* params[] = {pose};
-      Eigen::Vector2d r;
-      Eigen::Matrix<double, 2, 3, Eigen::RowMajor> J;
-      double* jac[] = {J.data()};
-      if (!cost->Evaluate(params, r.data(), jac)) {
-        f.status = FixStatus::Degenerate;
-        return f;
-      }
-      info += J.transpose() * J;
-      continue;
-    }
-    Matrix23d H;
-    try {
-      const Eigen::Vector2d h = predictRangeBearing(best.pose, landmarks[i], &H);
-      if (inverse[i]) H.row(0) *= -1.0 / (h(0) * h(0));
-    } catch (const GeometryError&) {
-      f.status = FixStatus::Degenerate;
-      return f;
-    }
-    const Matrix23d SH = S[i] * H;
-    info += SH.transpose() * SH;
+  // Covariance (J^T W J)^-1 at the optimum.
+  Eigen::Matrix3d info;
+  if (!fixInformation(costs, options.rig, best.pose, compass_theta.has_value(), sigma_c, &info)) {
+    f.status = FixStatus::Degenerate;
+    return f;
   }
-  if (compass_theta) info(2, 2) += 1.0 / (sigma_c * sigma_c);
-  info = 0.5 * (info + info.transpose());
   Eigen::LLT<Eigen::Matrix3d> llt(info);
   // Rank check relative to the largest eigenvalue (e.g. all landmarks on one line through the robot).
   const double max_diag = info.diagonal().maxCoeff();
