@@ -343,6 +343,82 @@ void ParticleFilter::weight(const std::vector<Observation>& observations, const 
   normalise();
 }
 
+namespace {
+
+// One sighting as the linearised optimal proposal reads it: the measured range, the measured
+// bearing's cosine and sine, the landmark, R, and the log-determinant of the reference density
+// (see proposeAndWeight).
+struct ProposalSighting {
+  double zr, cz, sz, lx, ly;
+  Eigen::Matrix2d R;
+  double log_det_ref;
+};
+
+// One sighting's Kalman step on the particle's proposal N(m, P) (the trig of m's heading in sm,
+// cm, kept current); returns its log-likelihood relative to the reference peak, or log_floor for
+// an outlier, which moves the particle nowhere.
+inline double fuseProposalSighting(const ProposalSighting& z, double log_floor, Eigen::Vector3d& m,
+                                   Eigen::Matrix3d& P, double& sm, double& cm) {
+  const double dx = z.lx - m.x(), dy = z.ly - m.y(), q = dx * dx + dy * dy;
+  if (!(q > 1.0)) return log_floor;  // within 1 mm of the landmark: no bearing; the floored likelihood
+  const double r = std::sqrt(q);
+  // Wrapped bearing innovation in the frame of the measured bearing, as in weight().
+  const double cphi = cm * z.cz - sm * z.sz, sphi = sm * z.cz + cm * z.sz;
+  const Eigen::Vector2d nu(z.zr - r, fast_trig::atan2(sphi * dx - cphi * dy, cphi * dx + sphi * dy));
+  Matrix23d H;  // J_z_pose of predictRangeBearing (5.27) at the particle's prediction
+  H << -dx / r, -dy / r, 0.0, dy / q, -dx / q, -1.0;
+  const Eigen::Matrix<double, 3, 2> PHt = P * H.transpose();
+  const Eigen::Matrix2d S = H * PHt + z.R;
+  const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
+  if (!(det > 0)) return log_floor;
+  Eigen::Matrix2d Si;
+  Si << S(1, 1) / det, -S(0, 1) / det, -S(1, 0) / det, S(0, 0) / det;
+  const double e2 = nu.dot(Si * nu);
+  // log N(nu; 0, S) and the floor, both relative to the reference peak.
+  const double log_l = -0.5 * e2 - 0.5 * (std::log(det) - z.log_det_ref);
+  if (log_l <= log_floor) return log_floor;
+  const Eigen::Matrix<double, 3, 2> K = PHt * Si;
+  m += K * nu;
+  P -= K * PHt.transpose();
+  P = 0.5 * (P + P.transpose());
+  m.z() = wrapAngle(m.z());
+  fast_trig::sinCos(m.z(), &sm, &cm);
+  return log_l;
+}
+
+// The compass's Kalman step on N(m, P), as fuseProposalSighting; compass_ref: the variance of
+// the reference density.
+inline double fuseProposalCompass(double compass, double compass_var, double compass_ref, double log_floor,
+                                  Eigen::Vector3d& m, Eigen::Matrix3d& P) {
+  const double nu = angleDiff(compass, m.z());
+  const double S = P(2, 2) + compass_var;
+  const double log_l = -0.5 * nu * nu / S - 0.5 * std::log(S / compass_ref);
+  if (log_l <= log_floor) return log_floor;
+  const Eigen::Vector3d K = P.col(2) / S;
+  m += K * nu;
+  P -= K * K.transpose() * S;
+  P = 0.5 * (P + P.transpose());
+  m.z() = wrapAngle(m.z());
+  return log_l;
+}
+
+// The lower Cholesky factor of a 3x3 covariance that is positive definite up to round-off
+// (a negative pivot reads as zero).
+inline Eigen::Matrix3d lowerFactor(const Eigen::Matrix3d& P) {
+  Eigen::Matrix3d L = Eigen::Matrix3d::Zero();
+  const double l00 = std::sqrt(std::max(P(0, 0), 0.0));
+  L(0, 0) = l00;
+  L(1, 0) = l00 > 0 ? P(1, 0) / l00 : 0.0;
+  L(2, 0) = l00 > 0 ? P(2, 0) / l00 : 0.0;
+  const double l11 = std::sqrt(std::max(P(1, 1) - L(1, 0) * L(1, 0), 0.0));
+  L(1, 1) = l11;
+  L(2, 1) = l11 > 0 ? (P(2, 1) - L(2, 0) * L(1, 0)) / l11 : 0.0;
+  L(2, 2) = std::sqrt(std::max(P(2, 2) - L(2, 0) * L(2, 0) - L(2, 1) * L(2, 1), 0.0));
+  return L;
+}
+
+}  // namespace
+
 void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& wheels,
                                       const std::vector<Observation>& observations,
                                       const std::vector<Eigen::Vector2d>& landmarks, const std::optional<double>& compass,
@@ -365,12 +441,7 @@ void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& whee
   // predictive density H h^2 C H^T + R at the set's mean (R alone without a kernel, as in
   // weight()). Relative to each particle's own peak it would favour the narrow, re-injected
   // particles over the kernel-widened ones wherever both are outliers.
-  struct Sighting {
-    double zr, cz, sz, lx, ly;
-    Eigen::Matrix2d R;
-    double log_det_ref;
-  };
-  std::vector<Sighting> sightings;
+  std::vector<ProposalSighting> sightings;
   sightings.reserve(observations.size());
   for (size_t k = 0; k < observations.size(); ++k) {
     const Observation& o = observations[k];
@@ -412,68 +483,10 @@ void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& whee
     double cm = 0, sm = 0;
     fast_trig::sinCos(m.z(), &sm, &cm);
     double lw = 0.0;
-    for (const Sighting& z : sightings) {
-      const double dx = z.lx - m.x(), dy = z.ly - m.y(), q = dx * dx + dy * dy;
-      if (!(q > 1.0)) {  // within 1 mm of the landmark: no bearing; the floored likelihood, no correction
-        lw += log_floor;
-        continue;
-      }
-      const double r = std::sqrt(q);
-      // Wrapped bearing innovation in the frame of the measured bearing, as in weight().
-      const double cphi = cm * z.cz - sm * z.sz, sphi = sm * z.cz + cm * z.sz;
-      const Eigen::Vector2d nu(z.zr - r, fast_trig::atan2(sphi * dx - cphi * dy, cphi * dx + sphi * dy));
-      Matrix23d H;  // J_z_pose of predictRangeBearing (5.27) at the particle's prediction
-      H << -dx / r, -dy / r, 0.0, dy / q, -dx / q, -1.0;
-      const Eigen::Matrix<double, 3, 2> PHt = P * H.transpose();
-      const Eigen::Matrix2d S = H * PHt + z.R;
-      const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
-      if (!(det > 0)) {
-        lw += log_floor;
-        continue;
-      }
-      Eigen::Matrix2d Si;
-      Si << S(1, 1) / det, -S(0, 1) / det, -S(1, 0) / det, S(0, 0) / det;
-      const double e2 = nu.dot(Si * nu);
-      // log N(nu; 0, S) and the floor, both relative to the reference peak; a floored
-      // observation is an outlier for this particle and moves it nowhere.
-      const double log_l = -0.5 * e2 - 0.5 * (std::log(det) - z.log_det_ref);
-      if (log_l <= log_floor) {
-        lw += log_floor;
-        continue;
-      }
-      lw += log_l;
-      const Eigen::Matrix<double, 3, 2> K = PHt * Si;
-      m += K * nu;
-      P -= K * PHt.transpose();
-      P = 0.5 * (P + P.transpose());
-      m.z() = wrapAngle(m.z());
-      fast_trig::sinCos(m.z(), &sm, &cm);
-    }
-    if (compass) {
-      const double nu = angleDiff(*compass, m.z());
-      const double S = P(2, 2) + compass_var;
-      const double log_l = -0.5 * nu * nu / S - 0.5 * std::log(S / compass_ref);
-      if (log_l <= log_floor) {
-        lw += log_floor;
-      } else {
-        lw += log_l;
-        const Eigen::Vector3d K = P.col(2) / S;
-        m += K * nu;
-        P -= K * K.transpose() * S;
-        P = 0.5 * (P + P.transpose());
-        m.z() = wrapAngle(m.z());
-      }
-    }
+    for (const ProposalSighting& z : sightings) lw += fuseProposalSighting(z, log_floor, m, P, sm, cm);
+    if (compass) lw += fuseProposalCompass(*compass, compass_var, compass_ref, log_floor, m, P);
     // Draw from N(m, P); P is positive definite (U holds a floor) up to round-off.
-    Eigen::Matrix3d L = Eigen::Matrix3d::Zero();
-    const double l00 = std::sqrt(std::max(P(0, 0), 0.0));
-    L(0, 0) = l00;
-    L(1, 0) = l00 > 0 ? P(1, 0) / l00 : 0.0;
-    L(2, 0) = l00 > 0 ? P(2, 0) / l00 : 0.0;
-    const double l11 = std::sqrt(std::max(P(1, 1) - L(1, 0) * L(1, 0), 0.0));
-    L(1, 1) = l11;
-    L(2, 1) = l11 > 0 ? (P(2, 1) - L(2, 0) * L(1, 0)) / l11 : 0.0;
-    L(2, 2) = std::sqrt(std::max(P(2, 2) - L(2, 0) * L(2, 0) - L(2, 1) * L(2, 1), 0.0));
+    const Eigen::Matrix3d L = lowerFactor(P);
     const double a = normal_(rng_), b = normal_(rng_), c3 = normal_(rng_);
     setParticle(i, m.x() + L(0, 0) * a, m.y() + L(1, 0) * a + L(1, 1) * b,
                 wrapAngle(m.z() + L(2, 0) * a + L(2, 1) * b + L(2, 2) * c3));
