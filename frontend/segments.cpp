@@ -523,13 +523,23 @@ void SegmentExtractor::fillPool(const std::vector<EdgePixel>& edges, const std::
   pool_valid_ = true;
 }
 
-void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::vector<HoughPeak>& peaks,
-                               double rho_step_px, const SegmentParams& prm, std::vector<uint8_t>& used,
-                               std::vector<Segment>& segments, int width, int height) {
-  used.assign(edges.size(), 0);
-  segments.clear();
-  pix_.clear();
-  off_.assign(1, 0);
+// Length beyond an end pixel (x, y) up to the image border along (dx, dy), when it is within
+// the unobserved frame of `frame` px (see segments.h), else 0; none for an unknown image size.
+struct SegmentExtractor::BorderCredit {
+  int width = 0, height = 0;
+  double frame = 0;
+  double operator()(double x, double y, double dx, double dy) const {
+    if (width <= 0 || height <= 0) return 0.0;
+    double t = 1e30;
+    if (dx > 1e-9) t = std::min(t, (width - 0.5 - x) / dx);
+    if (dx < -1e-9) t = std::min(t, (-0.5 - x) / dx);
+    if (dy > 1e-9) t = std::min(t, (height - 0.5 - y) / dy);
+    if (dy < -1e-9) t = std::min(t, (-0.5 - y) / dy);
+    return t <= frame ? std::max(0.0, t) : 0.0;
+  }
+};
+
+void SegmentExtractor::bucketByDirection(const std::vector<EdgePixel>& edges) {
   // Counting sort of the edge pixels by direction bin, so a peak only looks at pixels of
   // nearly its own direction.
   bucket_start_.assign(361, 0);
@@ -556,22 +566,175 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
     box_[2] = std::max<double>(box_[2], e.x);
     box_[3] = std::max<double>(box_[3], e.y);
   }
+}
+
+bool SegmentExtractor::seedLongestRun(const std::vector<EdgePixel>& edges, double theta, const SegmentParams& prm) {
+  const double c = std::cos(theta), s = std::sin(theta);
+  proj_.clear();
+  for (int i : cand_) proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
+  sortByPosition(proj_, keys_, sorted_keys_, key_start_);
+  size_t best_b = 0, best_e = proj_.size(), b = 0;
+  double best_len = -1;
+  for (size_t k = 1; k <= proj_.size(); ++k)
+    if (k == proj_.size() || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
+      if (proj_[k - 1].first - proj_[b].first > best_len) {
+        best_len = proj_[k - 1].first - proj_[b].first;
+        best_b = b;
+        best_e = k;
+      }
+      b = k;
+    }
+  if (best_len < prm.min_piece_px) return false;
+  seed_.clear();
+  for (size_t k = best_b; k < best_e; ++k) seed_.push_back(proj_[k].second);
+  return true;
+}
+
+bool SegmentExtractor::densestBand(const std::vector<EdgePixel>& edges, double theta, double rho, double rho_step_px,
+                                   const SegmentParams& prm, double* shift) {
+  const double bin = 0.5 * prm.band_px, c = std::cos(theta), s = std::sin(theta);
+  const double reach = 0.5 * rho_step_px + 2.0;
+  const int nb = static_cast<int>(std::ceil(2 * reach / bin)) + 1;
+  hist_.assign(static_cast<size_t>(nb), 0);
+  for (int i : cand_) {
+    const int b = static_cast<int>((edges[i].x * c + edges[i].y * s - rho + reach) / bin);
+    if (b >= 0 && b < nb) ++hist_[static_cast<size_t>(b)];
+  }
+  int best = -1, best_n = 0;
+  for (int b = 0; b + 3 < nb; ++b) {
+    const int n = hist_[b] + hist_[b + 1] + hist_[b + 2] + hist_[b + 3];
+    if (n > best_n) {
+      best_n = n;
+      best = b;
+    }
+  }
+  if (best < 0) return false;
+  *shift = (best + 2) * bin - reach;
+  return true;
+}
+
+bool SegmentExtractor::lineMembers(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta,
+                                   double rho, double tol_cos, double min_pixels, const SegmentParams& prm) {
+  // Direction check against the refitted line (the buckets are +-1 bin coarse).
+  const double c = std::cos(theta), s = std::sin(theta), theta_deg = theta * 360.0 / kTwoPi;
+  proj_.clear();
+  for (int i : cand_) {
+    // Pixels whose 1 deg direction bin (the angle rounded) lies a degree inside the
+    // tolerance pass without the exact test: same result, and the float sin and cos per
+    // candidate were 1.3 % of the frontend's instructions.
+    double dd = std::fabs(edges[i].dir_bin - theta_deg);
+    if (dd > 180) dd = 360 - dd;
+    if (dd + 1.0 >= prm.direction_tolerance_deg) {
+      const float a = edges[i].angle;
+      if (std::cos(a) * c + std::sin(a) * s < tol_cos) continue;
+    }
+    proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
+    if (!prm.release_unused) used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
+  }
+  if (proj_.size() < min_pixels) return false;
+  sortByPosition(proj_, keys_, sorted_keys_, key_start_);
+  // Beyond band_px (out to member_band_px) a pixel belongs to the line only where it is the
+  // line's nearest pixel at its position along it (1 px cells): a far edge bent by 1-3 deg
+  // strays up to 1.5 px from one fitted line, while a parallel edge beside it has pixels
+  // at the same positions, nearer ones on the line itself.
+  if (prm.member_band_px > prm.band_px) {
+    size_t out = 0, k = 0;
+    while (k < proj_.size()) {
+      const double cell = std::floor(proj_[k].first);
+      size_t e = k;
+      double dmin = 1e30;
+      for (; e < proj_.size() && std::floor(proj_[e].first) == cell; ++e) {
+        const EdgePixel& q = edges[proj_[e].second];
+        dmin = std::min(dmin, std::fabs(q.x * c + q.y * s - rho));
+      }
+      for (size_t j = k; j < e; ++j) {
+        const EdgePixel& q = edges[proj_[j].second];
+        const double d = std::fabs(q.x * c + q.y * s - rho);
+        if (d <= prm.band_px || d == dmin) proj_[out++] = proj_[j];
+      }
+      k = e;
+    }
+    proj_.resize(out);
+    if (proj_.size() < min_pixels) return false;
+  }
+  return true;
+}
+
+void SegmentExtractor::splitAndEmit(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta,
+                                    double rho, const SegmentParams& prm, const BorderCredit& borderCredit,
+                                    std::vector<Segment>& segments) {
+  const double c = std::cos(theta), s = std::sin(theta);
+  // Split at Gap_min, drop noise pieces, merge under Gap_max.
+  merged.clear();
+  size_t start = 0;
+  auto flush = [&](size_t b, size_t e) {
+    const float t0 = proj_[b].first, t1 = proj_[e - 1].first;
+    if (t1 - t0 < prm.min_piece_px) return;
+    if (!merged.empty() && t0 - merged.back().t1 < prm.gap_max_px) {
+      merged.back().e = e;
+      merged.back().t1 = t1;
+    } else {
+      merged.push_back(Piece{b, e, t0, t1});
+    }
+  };
+  for (size_t k = 1; k <= proj_.size(); ++k)
+    if (k == proj_.size() || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
+      flush(start, k);
+      start = k;
+    }
+  // Point at line coordinate t, and the L_min length of [t0, t1] with the border credit.
+  auto creditedLength = [&](double t0, double t1) {
+    return t1 - t0 + borderCredit(rho * c - t0 * s, rho * s + t0 * c, s, -c) +
+           borderCredit(rho * c - t1 * s, rho * s + t1 * c, -s, c);
+  };
+  for (const Piece& pc : merged) {
+    if (creditedLength(pc.t0, pc.t1) < prm.min_length_px) continue;
+    // Pixels of the piece, excluding the dropped noise pieces inside it.
+    piece_.clear();
+    size_t run = pc.b;
+    for (size_t k = pc.b + 1; k <= pc.e; ++k)
+      if (k == pc.e || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
+        if (proj_[k - 1].first - proj_[run].first >= prm.min_piece_px)
+          for (size_t q = run; q < k; ++q) piece_.push_back(proj_[q].second);
+        run = k;
+      }
+    splitAtBends(edges, piece_.data(), piece_.data() + piece_.size(), theta, prm.straightness_bin_px,
+                 prm.straightness_px, cuts_, bend_scratch_, prm.step_px, prm.tail_px);
+    for (size_t ci = 0; ci + 1 < cuts_.size(); ++ci) {
+      const int* rb = piece_.data() + cuts_[ci];
+      const int* re = piece_.data() + cuts_[ci + 1];
+      if (re - rb < 2) continue;
+      const auto tOf = [&](int i) { return -edges[i].x * s + edges[i].y * c; };
+      const double len = tOf(*(re - 1)) - tOf(*rb);
+      if (creditedLength(tOf(*rb), tOf(*(re - 1))) < prm.min_length_px || (re - rb) < prm.min_density * len) continue;
+      Segment seg;
+      double rms = 0;
+      if (!fitLine(edges, rb, re, theta, seg.theta, seg.rho, &rms)) continue;
+      setExtent(edges, rb, re, seg);
+      seg.rms = rms;
+      segments.push_back(seg);
+      for (const int* q = rb; q != re; ++q) {
+        pix_.push_back(*q);
+        used[*q] = 1;  // Algorithm 2, line 50: remove F from the feature points
+      }
+      off_.push_back(static_cast<int>(pix_.size()));
+    }
+  }
+}
+
+void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::vector<HoughPeak>& peaks,
+                               double rho_step_px, const SegmentParams& prm, std::vector<uint8_t>& used,
+                               std::vector<Segment>& segments, int width, int height) {
+  used.assign(edges.size(), 0);
+  segments.clear();
+  pix_.clear();
+  off_.assign(1, 0);
+  bucketByDirection(edges);
   pool_valid_ = false;
   const int tol_bins = static_cast<int>(std::ceil(prm.direction_tolerance_deg));
   const double tol_cos = std::cos(prm.direction_tolerance_deg * kTwoPi / 360.0);
   const double min_pixels = 0.5 * prm.min_length_px;
-  // Length beyond an end pixel (x, y) up to the image border along (dx, dy), when it is within
-  // the unobserved frame (see segments.h), else 0.
-  const double frame = 2.5 + prm.gap_min_px;
-  auto borderCredit = [&](double x, double y, double dx, double dy) {
-    if (width <= 0 || height <= 0) return 0.0;
-    double t = 1e30;
-    if (dx > 1e-9) t = std::min(t, (width - 0.5 - x) / dx);
-    if (dx < -1e-9) t = std::min(t, (-0.5 - x) / dx);
-    if (dy > 1e-9) t = std::min(t, (height - 0.5 - y) / dy);
-    if (dy < -1e-9) t = std::min(t, (-0.5 - y) / dy);
-    return t <= frame ? std::max(0.0, t) : 0.0;
-  };
+  const BorderCredit border_credit{width, height, 2.5 + prm.gap_min_px};
 
   for (const HoughPeak& peak : peaks) {
     // The peak's pool: the unused pixels of a wider bin range and band around its line, which
@@ -586,153 +749,21 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
       // line. A cell (and its +-1 px margin) often holds pieces of several lines a few degrees
       // apart (a far wall foot, the corner triangle's foot, the goal's foot); a fit through all
       // of them has a compromise angle that none of them fits within the band.
-      {
-        const double c = std::cos(theta), s = std::sin(theta);
-        proj_.clear();
-        for (int i : cand_) proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
-        sortByPosition(proj_, keys_, sorted_keys_, key_start_);
-        size_t best_b = 0, best_e = proj_.size(), b = 0;
-        double best_len = -1;
-        for (size_t k = 1; k <= proj_.size(); ++k)
-          if (k == proj_.size() || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
-            if (proj_[k - 1].first - proj_[b].first > best_len) {
-              best_len = proj_[k - 1].first - proj_[b].first;
-              best_b = b;
-              best_e = k;
-            }
-            b = k;
-          }
-        if (best_len < prm.min_piece_px) break;
-        seed_.clear();
-        for (size_t k = best_b; k < best_e; ++k) seed_.push_back(proj_[k].second);
-      }
+      if (!seedLongestRun(edges, theta, prm)) break;
       bool ok = fitLine(edges, seed_.data(), seed_.data() + seed_.size(), theta, theta, rho);
-      if (ok) {
-        // The densest 2 band_px window of the pixels' distances from the fitted line, in bins of
-        // band_px / 2: parallel edges in the cell are separate clusters, the fit lies between.
-        const double bin = 0.5 * prm.band_px, c = std::cos(theta), s = std::sin(theta);
-        const double reach = 0.5 * rho_step_px + 2.0;
-        const int nb = static_cast<int>(std::ceil(2 * reach / bin)) + 1;
-        hist_.assign(static_cast<size_t>(nb), 0);
-        for (int i : cand_) {
-          const int b = static_cast<int>((edges[i].x * c + edges[i].y * s - rho + reach) / bin);
-          if (b >= 0 && b < nb) ++hist_[static_cast<size_t>(b)];
-        }
-        int best = -1, best_n = 0;
-        for (int b = 0; b + 3 < nb; ++b) {
-          const int n = hist_[b] + hist_[b + 1] + hist_[b + 2] + hist_[b + 3];
-          if (n > best_n) {
-            best_n = n;
-            best = b;
-          }
-        }
-        if (best >= 0) rho += (best + 2) * bin - reach;
-      }
+      // The densest 2 band_px window of the pixels' distances from the fitted line, in bins of
+      // band_px / 2: parallel edges in the cell are separate clusters, the fit lies between.
+      double shift = 0;
+      if (ok && densestBand(edges, theta, rho, rho_step_px, prm, &shift)) rho += shift;
       for (int it = 0; it < std::max(1, prm.refit_iterations) && ok; ++it) {
         collect(edges, used, theta, rho, prm.band_px, tol_bins);
         ok = cand_.size() >= min_pixels && fitLine(edges, cand_.data(), cand_.data() + cand_.size(), theta, theta, rho);
       }
       if (ok) collect(edges, used, theta, rho, std::max(prm.band_px, prm.member_band_px), tol_bins);
       if (!ok || cand_.size() < min_pixels) break;
-      // Direction check against the refitted line (the buckets are +-1 bin coarse).
-      const double c = std::cos(theta), s = std::sin(theta), theta_deg = theta * 360.0 / kTwoPi;
-      proj_.clear();
-      for (int i : cand_) {
-        // Pixels whose 1 deg direction bin (the angle rounded) lies a degree inside the
-        // tolerance pass without the exact test: same result, and the float sin and cos per
-        // candidate were 1.3 % of the frontend's instructions.
-        double dd = std::fabs(edges[i].dir_bin - theta_deg);
-        if (dd > 180) dd = 360 - dd;
-        if (dd + 1.0 >= prm.direction_tolerance_deg) {
-          const float a = edges[i].angle;
-          if (std::cos(a) * c + std::sin(a) * s < tol_cos) continue;
-        }
-        proj_.emplace_back(static_cast<float>(-edges[i].x * s + edges[i].y * c), i);
-        if (!prm.release_unused) used[i] = 1;  // Algorithm 2, line 50: remove F from the feature points
-      }
-      if (proj_.size() < min_pixels) break;
-      sortByPosition(proj_, keys_, sorted_keys_, key_start_);
-      // Beyond band_px (out to member_band_px) a pixel belongs to the line only where it is the
-      // line's nearest pixel at its position along it (1 px cells): a far edge bent by 1-3 deg
-      // strays up to 1.5 px from one fitted line, while a parallel edge beside it has pixels
-      // at the same positions, nearer ones on the line itself.
-      if (prm.member_band_px > prm.band_px) {
-        size_t out = 0, k = 0;
-        while (k < proj_.size()) {
-          const double cell = std::floor(proj_[k].first);
-          size_t e = k;
-          double dmin = 1e30;
-          for (; e < proj_.size() && std::floor(proj_[e].first) == cell; ++e) {
-            const EdgePixel& q = edges[proj_[e].second];
-            dmin = std::min(dmin, std::fabs(q.x * c + q.y * s - rho));
-          }
-          for (size_t j = k; j < e; ++j) {
-            const EdgePixel& q = edges[proj_[j].second];
-            const double d = std::fabs(q.x * c + q.y * s - rho);
-            if (d <= prm.band_px || d == dmin) proj_[out++] = proj_[j];
-          }
-          k = e;
-        }
-        proj_.resize(out);
-        if (proj_.size() < min_pixels) break;
-      }
-      // Split at Gap_min, drop noise pieces, merge under Gap_max.
-      merged.clear();
-      size_t start = 0;
-      auto flush = [&](size_t b, size_t e) {
-        const float t0 = proj_[b].first, t1 = proj_[e - 1].first;
-        if (t1 - t0 < prm.min_piece_px) return;
-        if (!merged.empty() && t0 - merged.back().t1 < prm.gap_max_px) {
-          merged.back().e = e;
-          merged.back().t1 = t1;
-        } else {
-          merged.push_back(Piece{b, e, t0, t1});
-        }
-      };
-      for (size_t k = 1; k <= proj_.size(); ++k)
-        if (k == proj_.size() || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
-          flush(start, k);
-          start = k;
-        }
+      if (!lineMembers(edges, used, theta, rho, tol_cos, min_pixels, prm)) break;
       const size_t found_before = segments.size();
-      // Point at line coordinate t, and the L_min length of [t0, t1] with the border credit.
-      auto creditedLength = [&](double t0, double t1) {
-        return t1 - t0 + borderCredit(rho * c - t0 * s, rho * s + t0 * c, s, -c) +
-               borderCredit(rho * c - t1 * s, rho * s + t1 * c, -s, c);
-      };
-      for (const Piece& pc : merged) {
-        if (creditedLength(pc.t0, pc.t1) < prm.min_length_px) continue;
-        // Pixels of the piece, excluding the dropped noise pieces inside it.
-        piece_.clear();
-        size_t run = pc.b;
-        for (size_t k = pc.b + 1; k <= pc.e; ++k)
-          if (k == pc.e || proj_[k].first - proj_[k - 1].first > prm.gap_min_px) {
-            if (proj_[k - 1].first - proj_[run].first >= prm.min_piece_px)
-              for (size_t q = run; q < k; ++q) piece_.push_back(proj_[q].second);
-            run = k;
-          }
-        splitAtBends(edges, piece_.data(), piece_.data() + piece_.size(), theta, prm.straightness_bin_px,
-                     prm.straightness_px, cuts_, bend_scratch_, prm.step_px, prm.tail_px);
-        for (size_t ci = 0; ci + 1 < cuts_.size(); ++ci) {
-          const int* rb = piece_.data() + cuts_[ci];
-          const int* re = piece_.data() + cuts_[ci + 1];
-          if (re - rb < 2) continue;
-          const auto tOf = [&](int i) { return -edges[i].x * s + edges[i].y * c; };
-          const double len = tOf(*(re - 1)) - tOf(*rb);
-          if (creditedLength(tOf(*rb), tOf(*(re - 1))) < prm.min_length_px || (re - rb) < prm.min_density * len) continue;
-          Segment seg;
-          double rms = 0;
-          if (!fitLine(edges, rb, re, theta, seg.theta, seg.rho, &rms)) continue;
-          setExtent(edges, rb, re, seg);
-          seg.rms = rms;
-          segments.push_back(seg);
-          for (const int* q = rb; q != re; ++q) {
-            pix_.push_back(*q);
-            used[*q] = 1;  // Algorithm 2, line 50: remove F from the feature points
-          }
-          off_.push_back(static_cast<int>(pix_.size()));
-        }
-      }
+      splitAndEmit(edges, used, theta, rho, prm, border_credit, segments);
       if (segments.size() == found_before) break;  // nothing new: the peak is exhausted
     }
   }

@@ -146,6 +146,22 @@ class SegmentExtractor {
                double band, int tol_bins);
   void fillPool(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta, double rho,
                 double band, int tol_bins);
+  // The phases of extract(): the pixels sorted by direction bin (and their bounding box); the
+  // longest gap-free run of the candidates along the peak's line as the fit's seed (false: none
+  // as long as min_piece_px); the shift of rho to the densest band of the candidates (false:
+  // none); the candidates that pass the direction test and the nearest-pixel rule, marked used,
+  // sorted along the line in proj_ (false: fewer than min_pixels); and the pieces of proj_ split
+  // at Gap_min, merged under Gap_max, cut at bends and appended to `segments`.
+  struct BorderCredit;  // the L_min test's credit for an end near the image border (see extract)
+  void bucketByDirection(const std::vector<EdgePixel>& edges);
+  bool seedLongestRun(const std::vector<EdgePixel>& edges, double theta, const SegmentParams& prm);
+  bool densestBand(const std::vector<EdgePixel>& edges, double theta, double rho, double rho_step_px,
+                   const SegmentParams& prm, double* shift);
+  bool lineMembers(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta, double rho,
+                   double tol_cos, double min_pixels, const SegmentParams& prm);
+  void splitAndEmit(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta, double rho,
+                    const SegmentParams& prm, const BorderCredit& border_credit,
+                    std::vector<Segment>& segments);
   // The current peak's candidate pixels (bins pool_b0_ +- pool_tol_bins_, offsets per bin).
   std::vector<int> pool_, pool_off_;
   double pool_theta_ = 0, pool_rho_ = 0, pool_band_ = 0;
