@@ -489,30 +489,172 @@ bool floorPoint(const StereoRig& rig, double u, double v, double& x, double& y) 
   return true;
 }
 
+namespace {
+
+// A segment's line: a marking's edge moved to its centre line, with its extent along it.
+LineFeature lineOfSegment(const Segment& s, int source, const CornerParams& prm) {
+  LineFeature l;
+  const bool marking = s.cls == SegmentClass::Marking;
+  undirect(s.theta, s.rho + (marking ? 0.5 * s.marking_width : 0.0), l.theta, l.rho);
+  const double t1 = along(l.theta, s.x1, s.y1), t2 = along(l.theta, s.x2, s.y2);
+  l.t_min = std::min(t1, t2);
+  l.t_max = std::max(t1, t2);
+  l.marking = marking;
+  l.width = marking ? s.marking_width : 0.0;
+  // Bright above (gradient pointing up the image) and not a stripe: the foot of a wall.
+  l.wall_foot = !marking && std::sin(s.theta) < -std::cos(deg(prm.wall_foot_max_tilt_deg));
+  l.support = s.pixels;
+  l.source = source;
+  return l;
+}
+
+// The other edge of marking line i's stripe: a later marking line of opposite gradient on nearly
+// the same centre line that overlaps it along its length; lines.size() for none. cos_l, sin_l:
+// each line's cos and sin of theta.
+// With piece_gap_px > 0 the partner is the opposite edge that overlaps this one the most: a
+// stripe whose one edge is broken by an occluder has several opposite pieces, and the first
+// one found may be a short piece beyond the occluder, leaving the long piece to become a
+// second centre line.
+size_t oppositeEdge(size_t i, const std::vector<Segment>& segments, const std::vector<LineFeature>& lines,
+                    const std::vector<double>& cos_l, const std::vector<double>& sin_l,
+                    const std::vector<uint8_t>& gone, const CornerParams& prm) {
+  const double opposite_cos = -std::cos(deg(prm.centre_merge_deg));
+  const Segment& a = segments[i];
+  size_t best = lines.size();
+  double best_overlap = -1e30;
+  for (size_t j = i + 1; j < lines.size(); ++j) {
+    if (!lines[j].marking || gone[j]) continue;
+    const Segment& b = segments[j];
+    if (std::cos(a.theta - b.theta) > opposite_cos) continue;
+    const LineFeature& li = lines[i];
+    const LineFeature& lj = lines[j];
+    auto xi = [&](double t) { return li.rho * cos_l[i] - t * sin_l[i]; };  // li.x(t)
+    auto yi = [&](double t) { return li.rho * sin_l[i] + t * cos_l[i]; };  // li.y(t)
+    auto alongJ = [&](double x, double y) { return -x * sin_l[j] + y * cos_l[j]; };  // along(lj.theta, x, y)
+    const double tol = std::max(prm.centre_merge_px, 0.5 * std::max(a.marking_width, b.marking_width));
+    const double tm = 0.5 * (li.t_min + li.t_max);
+    if (std::fabs(xi(tm) * cos_l[j] + yi(tm) * sin_l[j] - lj.rho) > tol) continue;
+    const double u0 = alongJ(xi(li.t_min), yi(li.t_min)), u1 = alongJ(xi(li.t_max), yi(li.t_max));
+    if (std::max(u0, u1) < lj.t_min - prm.delta_px || std::min(u0, u1) > lj.t_max + prm.delta_px) continue;
+    if (prm.piece_gap_px <= 0) return j;  // pieces off: the first opposite edge found
+    const double overlap = std::min(std::max(u0, u1), lj.t_max) - std::max(std::min(u0, u1), lj.t_min);
+    if (overlap > best_overlap) {
+      best_overlap = overlap;
+      best = j;
+    }
+  }
+  return best;
+}
+
+// The centre line of the stripe whose edges are segments a and b (lines li and lj), with li's
+// other fields. v_h: the horizon's row.
+// Midpoints of corresponding edge points. An image row is the image of a floor line
+// parallel to the horizon, along which the projection is affine: a steep stripe's centre
+// is midway between its edges along the row. A flat stripe is crossed along the column,
+// the image of a floor line towards the horizon: there the centre is floorMidRow. The
+// perpendicular midpoints (the edges' bisector) miss the centre line by up to 0.3 px on
+// a stripe seen at the side of the image, towards the image's centre. The extent still
+// comes from the perpendicular midpoints (ex, ey): a row or column runs along a slanted
+// stripe, and its midpoint of an edge's end lies up to half a width beyond the stripe's end.
+LineFeature stripeCentreLine(const Segment& a, const Segment& b, const LineFeature& li, const LineFeature& lj,
+                             double v_h) {
+  double mx[4], my[4], ex[4], ey[4];
+  int n = 0;
+  const bool along_rows = std::fabs(std::cos(a.theta)) >= std::fabs(std::sin(a.theta));
+  for (const Segment* p : {&a, &b}) {
+    const Segment* q = p == &a ? &b : &a;
+    const double qc = std::cos(q->theta), qs = std::sin(q->theta);
+    for (int e = 0; e < 2; ++e) {
+      const double x = e ? p->x2 : p->x1, y = e ? p->y2 : p->y1;
+      const double d = x * qc + y * qs - q->rho;
+      ex[n] = x - 0.5 * d * qc;
+      ey[n] = y - 0.5 * d * qs;
+      if (along_rows) {
+        mx[n] = 0.5 * (x + (q->rho - y * qs) / qc);
+        my[n] = y;
+      } else {
+        mx[n] = x;
+        my[n] = floorMidRow(y, (q->rho - x * qc) / qs, v_h);
+      }
+      ++n;
+    }
+  }
+  double cx = 0, cy = 0;
+  for (int k = 0; k < 4; ++k) {
+    cx += mx[k] / 4;
+    cy += my[k] / 4;
+  }
+  double sxx = 0, sxy = 0, syy = 0;
+  for (int k = 0; k < 4; ++k) {
+    sxx += (mx[k] - cx) * (mx[k] - cx);
+    sxy += (mx[k] - cx) * (my[k] - cy);
+    syy += (my[k] - cy) * (my[k] - cy);
+  }
+  const double phi = 0.5 * std::atan2(2 * sxy, sxx - syy);  // direction of the centre line
+  LineFeature m = li;
+  double th = phi + kPi / 2;  // normal
+  while (th < 0) th += kPi;
+  while (th >= kPi) th -= kPi;
+  m.theta = th;
+  m.rho = cx * std::cos(th) + cy * std::sin(th);
+  // Each end of the centre line lies midway between the two edges' ends when they are
+  // within a stripe width of each other (at an L corner the outer edge runs half a width
+  // past the centre-line corner and the inner edge stops half a width short); further
+  // apart, one edge is broken or occluded there and the longer one tells the extent.
+  double ta[2] = {1e30, -1e30}, tb[2] = {1e30, -1e30};
+  for (int k = 0; k < 4; ++k) {
+    double* t = k < 2 ? ta : tb;
+    const double v = along(th, ex[k], ey[k]);
+    t[0] = std::min(t[0], v);
+    t[1] = std::max(t[1], v);
+  }
+  const double agree = std::max(a.marking_width, b.marking_width) + 1.0;
+  m.t_min = std::fabs(ta[0] - tb[0]) <= agree ? 0.5 * (ta[0] + tb[0]) : std::min(ta[0], tb[0]);
+  m.t_max = std::fabs(ta[1] - tb[1]) <= agree ? 0.5 * (ta[1] + tb[1]) : std::max(ta[1], tb[1]);
+  m.support = li.support + lj.support;
+  m.width = std::max(a.marking_width, b.marking_width);
+  return m;
+}
+
+// Further pieces of either edge of the stripe (segments a = i and b = j) beyond an occluder
+// (collinear with it, within piece_gap_px of the stripe's extent) belong to the same stripe:
+// they extend its centre line m rather than becoming a second one half a width off. Marks them
+// gone.
+void absorbStripePieces(size_t i, size_t j, const std::vector<Segment>& segments, const std::vector<LineFeature>& lines,
+                        const CornerParams& prm, LineFeature& m, std::vector<uint8_t>& gone) {
+  const Segment& a = segments[i];
+  const Segment& b = segments[j];
+  const double th = m.theta;
+  for (size_t k = i + 1; prm.piece_gap_px > 0 && k < lines.size(); ++k) {
+    if (k == j || !lines[k].marking || gone[k]) continue;
+    const Segment& c = segments[k];
+    const Segment& same = std::cos(c.theta - a.theta) > 0 ? a : b;
+    if (std::cos(c.theta - same.theta) < std::cos(deg(prm.centre_merge_deg))) continue;
+    const double sc = std::cos(same.theta), ss = std::sin(same.theta);
+    if (std::fabs(c.x1 * sc + c.y1 * ss - same.rho) > prm.centre_merge_px ||
+        std::fabs(c.x2 * sc + c.y2 * ss - same.rho) > prm.centre_merge_px)
+      continue;
+    const double c0 = along(th, c.x1, c.y1), c1 = along(th, c.x2, c.y2);
+    const double lo = std::min(c0, c1), hi = std::max(c0, c1);
+    if (lo > m.t_max + prm.piece_gap_px || hi < m.t_min - prm.piece_gap_px) continue;
+    m.t_min = std::min(m.t_min, lo);
+    m.t_max = std::max(m.t_max, hi);
+    m.support += lines[k].support;
+    gone[k] = 1;
+  }
+}
+
+}  // namespace
+
 void buildLines(const std::vector<Segment>& segments, const StereoRig& rig, const CornerParams& prm,
                 std::vector<LineFeature>& lines) {
   lines.clear();
   const double v_h = horizonRow(rig);
-  for (size_t i = 0; i < segments.size(); ++i) {
-    const Segment& s = segments[i];
-    LineFeature l;
-    const bool marking = s.cls == SegmentClass::Marking;
-    undirect(s.theta, s.rho + (marking ? 0.5 * s.marking_width : 0.0), l.theta, l.rho);
-    const double t1 = along(l.theta, s.x1, s.y1), t2 = along(l.theta, s.x2, s.y2);
-    l.t_min = std::min(t1, t2);
-    l.t_max = std::max(t1, t2);
-    l.marking = marking;
-    l.width = marking ? s.marking_width : 0.0;
-    // Bright above (gradient pointing up the image) and not a stripe: the foot of a wall.
-    l.wall_foot = !marking && std::sin(s.theta) < -std::cos(deg(prm.wall_foot_max_tilt_deg));
-    l.support = s.pixels;
-    l.source = static_cast<int>(i);
-    lines.push_back(l);
-  }
+  for (size_t i = 0; i < segments.size(); ++i) lines.push_back(lineOfSegment(segments[i], static_cast<int>(i), prm));
   // The two edges of one stripe: opposite gradients, nearly the same centre line. Under
   // perspective they converge, and the centre line's image is not their bisector: it is the line
   // through the midpoints of corresponding points (each edge's end points and the point of the
-  // other edge on the same floor line across the stripe; see the midpoint loop below).
+  // other edge on the same floor line across the stripe; stripeCentreLine).
   std::vector<uint8_t> gone(lines.size(), 0);
   // Each line's cos and sin, for the pair tests (the same values LineFeature::x, y and along()
   // compute; a line's theta changes only when it is the merged line i, after its tests).
@@ -521,132 +663,14 @@ void buildLines(const std::vector<Segment>& segments, const StereoRig& rig, cons
     cos_l[i] = std::cos(lines[i].theta);
     sin_l[i] = std::sin(lines[i].theta);
   }
-  const double opposite_cos = -std::cos(deg(prm.centre_merge_deg));
   for (size_t i = 0; i < lines.size(); ++i) {
     if (!lines[i].marking || gone[i]) continue;
-    const Segment& a = segments[i];
-    // With piece_gap_px > 0 the partner is the opposite edge that overlaps this one the most: a
-    // stripe whose one edge is broken by an occluder has several opposite pieces, and the first
-    // one found may be a short piece beyond the occluder, leaving the long piece to become a
-    // second centre line.
-    size_t best = lines.size();
-    double best_overlap = -1e30;
-    for (size_t j = i + 1; j < lines.size(); ++j) {
-      if (!lines[j].marking || gone[j]) continue;
-      const Segment& b = segments[j];
-      if (std::cos(a.theta - b.theta) > opposite_cos) continue;
-      const LineFeature& li = lines[i];
-      const LineFeature& lj = lines[j];
-      auto xi = [&](double t) { return li.rho * cos_l[i] - t * sin_l[i]; };  // li.x(t)
-      auto yi = [&](double t) { return li.rho * sin_l[i] + t * cos_l[i]; };  // li.y(t)
-      auto alongJ = [&](double x, double y) { return -x * sin_l[j] + y * cos_l[j]; };  // along(lj.theta, x, y)
-      const double tol = std::max(prm.centre_merge_px, 0.5 * std::max(a.marking_width, b.marking_width));
-      const double tm = 0.5 * (li.t_min + li.t_max);
-      if (std::fabs(xi(tm) * cos_l[j] + yi(tm) * sin_l[j] - lj.rho) > tol) continue;
-      const double u0 = alongJ(xi(li.t_min), yi(li.t_min)), u1 = alongJ(xi(li.t_max), yi(li.t_max));
-      if (std::max(u0, u1) < lj.t_min - prm.delta_px || std::min(u0, u1) > lj.t_max + prm.delta_px) continue;
-      if (prm.piece_gap_px <= 0) {  // pieces off: the first opposite edge found
-        best = j;
-        break;
-      }
-      const double overlap = std::min(std::max(u0, u1), lj.t_max) - std::max(std::min(u0, u1), lj.t_min);
-      if (overlap > best_overlap) {
-        best_overlap = overlap;
-        best = j;
-      }
-    }
-    if (best == lines.size()) continue;
-    {
-      const size_t j = best;
-      const Segment& b = segments[j];
-      const LineFeature& li = lines[i];
-      const LineFeature& lj = lines[j];
-      // Midpoints of corresponding edge points. An image row is the image of a floor line
-      // parallel to the horizon, along which the projection is affine: a steep stripe's centre
-      // is midway between its edges along the row. A flat stripe is crossed along the column,
-      // the image of a floor line towards the horizon: there the centre is floorMidRow. The
-      // perpendicular midpoints (the edges' bisector) miss the centre line by up to 0.3 px on
-      // a stripe seen at the side of the image, towards the image's centre. The extent still
-      // comes from the perpendicular midpoints (ex, ey): a row or column runs along a slanted
-      // stripe, and its midpoint of an edge's end lies up to half a width beyond the stripe's end.
-      double mx[4], my[4], ex[4], ey[4];
-      int n = 0;
-      const bool along_rows = std::fabs(std::cos(a.theta)) >= std::fabs(std::sin(a.theta));
-      for (const Segment* p : {&a, &b}) {
-        const Segment* q = p == &a ? &b : &a;
-        const double qc = std::cos(q->theta), qs = std::sin(q->theta);
-        for (int e = 0; e < 2; ++e) {
-          const double x = e ? p->x2 : p->x1, y = e ? p->y2 : p->y1;
-          const double d = x * qc + y * qs - q->rho;
-          ex[n] = x - 0.5 * d * qc;
-          ey[n] = y - 0.5 * d * qs;
-          if (along_rows) {
-            mx[n] = 0.5 * (x + (q->rho - y * qs) / qc);
-            my[n] = y;
-          } else {
-            mx[n] = x;
-            my[n] = floorMidRow(y, (q->rho - x * qc) / qs, v_h);
-          }
-          ++n;
-        }
-      }
-      double cx = 0, cy = 0;
-      for (int k = 0; k < 4; ++k) {
-        cx += mx[k] / 4;
-        cy += my[k] / 4;
-      }
-      double sxx = 0, sxy = 0, syy = 0;
-      for (int k = 0; k < 4; ++k) {
-        sxx += (mx[k] - cx) * (mx[k] - cx);
-        sxy += (mx[k] - cx) * (my[k] - cy);
-        syy += (my[k] - cy) * (my[k] - cy);
-      }
-      const double phi = 0.5 * std::atan2(2 * sxy, sxx - syy);  // direction of the centre line
-      LineFeature m = li;
-      double th = phi + kPi / 2;  // normal
-      while (th < 0) th += kPi;
-      while (th >= kPi) th -= kPi;
-      m.theta = th;
-      m.rho = cx * std::cos(th) + cy * std::sin(th);
-      // Each end of the centre line lies midway between the two edges' ends when they are
-      // within a stripe width of each other (at an L corner the outer edge runs half a width
-      // past the centre-line corner and the inner edge stops half a width short); further
-      // apart, one edge is broken or occluded there and the longer one tells the extent.
-      double ta[2] = {1e30, -1e30}, tb[2] = {1e30, -1e30};
-      for (int k = 0; k < 4; ++k) {
-        double* t = k < 2 ? ta : tb;
-        const double v = along(th, ex[k], ey[k]);
-        t[0] = std::min(t[0], v);
-        t[1] = std::max(t[1], v);
-      }
-      const double agree = std::max(a.marking_width, b.marking_width) + 1.0;
-      m.t_min = std::fabs(ta[0] - tb[0]) <= agree ? 0.5 * (ta[0] + tb[0]) : std::min(ta[0], tb[0]);
-      m.t_max = std::fabs(ta[1] - tb[1]) <= agree ? 0.5 * (ta[1] + tb[1]) : std::max(ta[1], tb[1]);
-      m.support = li.support + lj.support;
-      m.width = std::max(a.marking_width, b.marking_width);
-      // Further pieces of either edge beyond an occluder (collinear with it, within piece_gap_px
-      // of the stripe's extent) belong to the same stripe: they extend the centre line rather than
-      // becoming a second one half a width off.
-      for (size_t k = i + 1; prm.piece_gap_px > 0 && k < lines.size(); ++k) {
-        if (k == j || !lines[k].marking || gone[k]) continue;
-        const Segment& c = segments[k];
-        const Segment& same = std::cos(c.theta - a.theta) > 0 ? a : b;
-        if (std::cos(c.theta - same.theta) < std::cos(deg(prm.centre_merge_deg))) continue;
-        const double sc = std::cos(same.theta), ss = std::sin(same.theta);
-        if (std::fabs(c.x1 * sc + c.y1 * ss - same.rho) > prm.centre_merge_px ||
-            std::fabs(c.x2 * sc + c.y2 * ss - same.rho) > prm.centre_merge_px)
-          continue;
-        const double c0 = along(th, c.x1, c.y1), c1 = along(th, c.x2, c.y2);
-        const double lo = std::min(c0, c1), hi = std::max(c0, c1);
-        if (lo > m.t_max + prm.piece_gap_px || hi < m.t_min - prm.piece_gap_px) continue;
-        m.t_min = std::min(m.t_min, lo);
-        m.t_max = std::max(m.t_max, hi);
-        m.support += lines[k].support;
-        gone[k] = 1;
-      }
-      lines[i] = m;
-      gone[j] = 1;
-    }
+    const size_t j = oppositeEdge(i, segments, lines, cos_l, sin_l, gone, prm);
+    if (j == lines.size()) continue;
+    LineFeature m = stripeCentreLine(segments[i], segments[j], lines[i], lines[j], v_h);
+    absorbStripePieces(i, j, segments, lines, prm, m, gone);
+    lines[i] = m;
+    gone[j] = 1;
   }
   size_t k = 0;
   for (size_t i = 0; i < lines.size(); ++i)
