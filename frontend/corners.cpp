@@ -811,118 +811,112 @@ bool wallAbove(const cv::Mat& luma, const LineFeature& m, const LineFeature& o, 
   return true;
 }
 
-void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& prm,
-                 std::vector<PointFeature>& features, const cv::Mat* luma) {
-  features.clear();
-  const double w = rig.params().image_width, h = rig.params().image_height, v_h = horizonRow(rig);
-  const double min_sin = std::sin(deg(prm.min_image_angle_deg));
-  std::vector<int> counts;
-  auto floorDir = [&](const LineFeature& l, double& dx, double& dy) {
-    double xa, ya, xb, yb;
-    if (!floorPoint(rig, l.x(l.t_min), l.y(l.t_min), xa, ya) || !floorPoint(rig, l.x(l.t_max), l.y(l.t_max), xb, yb))
+namespace {
+
+// The direction of line l's extent on the floor (mm); false where an end is above the horizon
+// or the extent has no length there.
+bool floorDirection(const StereoRig& rig, const LineFeature& l, double& dx, double& dy) {
+  double xa, ya, xb, yb;
+  if (!floorPoint(rig, l.x(l.t_min), l.y(l.t_min), xa, ya) || !floorPoint(rig, l.x(l.t_max), l.y(l.t_max), xb, yb))
+    return false;
+  dx = xb - xa;
+  dy = yb - ya;
+  return std::hypot(dx, dy) > 1e-6;
+}
+
+// The feature where lines a and b meet, if they do inside the image and within delta of both
+// extents and the meeting is a marking corner, an intersection, a junction of two markings or
+// of a marking and a wall foot (Algorithm 4); its type, image point and whether the point was
+// located on the image (an intersection's crossing refined on the luma). luma null: the line
+// geometry alone decides.
+// The image's size and horizon row (px) and the sine of the smallest image angle of two lines
+// that may meet, computed once per image.
+struct MeetingLimits {
+  double w, h, v_h, min_sin;
+};
+
+bool meetingFeature(const LineFeature& a, const LineFeature& b, const StereoRig& rig, const CornerParams& prm,
+                    const cv::Mat* luma, const MeetingLimits& limits, PointFeature* out) {
+  if (!a.marking && !b.marking) return false;
+  const double w = limits.w, h = limits.h, v_h = limits.v_h, min_sin = limits.min_sin;
+  double px, py;
+  if (!crossLines(a, b, min_sin, px, py)) return false;
+  if (px < 0 || py < 0 || px > w - 1 || py > h - 1) return false;
+  const double ta = along(a.theta, px, py), tb = along(b.theta, px, py);
+  if (ta < a.t_min - prm.delta_px || ta > a.t_max + prm.delta_px) return false;
+  if (tb < b.t_min - prm.delta_px || tb > b.t_max + prm.delta_px) return false;
+  // At an L corner of two stripes the outer edge runs past the centre-line corner by half the
+  // other stripe's width over the sine of their image angle, and buildLines ends a centre
+  // line with its longer edge when the two edges' ends disagree; at image angles of 30-40 deg
+  // near the camera that is 7-9 px, past delta (bench seed 6: 2 of 124 corners became
+  // intersections, their centre lines 8.1-9.0 px past the corner). That overshoot, capped at
+  // delta, counts as ending.
+  const double sin_ab = std::fabs(crossSin(a, b));
+  const double over_a = a.marking && b.marking ? std::min(prm.delta_px, 0.5 * b.width / sin_ab) : 0.0;
+  const double over_b = a.marking && b.marking ? std::min(prm.delta_px, 0.5 * a.width / sin_ab) : 0.0;
+  const bool a_ends = ta < a.t_min + prm.delta_px + over_a || ta > a.t_max - prm.delta_px - over_a;
+  const bool b_ends = tb < b.t_min + prm.delta_px + over_b || tb > b.t_max - prm.delta_px - over_b;
+  LandmarkType type;
+  bool located = false;
+  if (a.marking && b.marking) {
+    double ax, ay, bx, by;
+    if (!floorDirection(rig, a, ax, ay) || !floorDirection(rig, b, bx, by)) return false;
+    const double ang = std::acos(std::min(1.0, std::fabs(ax * bx + ay * by) / (std::hypot(ax, ay) * std::hypot(bx, by))));
+    if (a_ends && b_ends) {
+      if (std::fabs(ang - kPi / 2) > deg(prm.corner_angle_tol_deg)) return false;
+      // Both stripes must reach the corner; each is probed from beyond the other stripe.
+      if (luma && (!stripeReaches(*luma, a, ta, prm.probe_start_px + 0.5 * b.width / sin_ab, prm) ||
+                   !stripeReaches(*luma, b, tb, prm.probe_start_px + 0.5 * a.width / sin_ab, prm)))
+        return false;
+      type = LandmarkType::MarkingCorner;
+    } else if (!a_ends && !b_ends) {
+      if (ang < deg(prm.min_crossing_angle_deg)) return false;
+      type = LandmarkType::Intersection;
+      located = luma && refineCrossing(*luma, a, b, v_h, px, py);
+    } else if (prm.marking_junctions) {
+      // One stripe ends on the other, which runs on: a T of two markings (RoboCup fields'
+      // penalty and goal areas, the halfway line on the touch line). Perpendicular on the
+      // floor like an L, and the ending stripe must reach the other.
+      if (std::fabs(ang - kPi / 2) > deg(prm.corner_angle_tol_deg)) return false;
+      const LineFeature& m = a_ends ? a : b;
+      const LineFeature& o = a_ends ? b : a;
+      if (luma && !stripeReaches(*luma, m, a_ends ? ta : tb, prm.probe_start_px + 0.5 * o.width / sin_ab, prm))
+        return false;
+      type = LandmarkType::Junction;
+    } else {
       return false;
-    dx = xb - xa;
-    dy = yb - ya;
-    return std::hypot(dx, dy) > 1e-6;
-  };
-  for (size_t i = 0; i < lines.size(); ++i) {
-    for (size_t j = i + 1; j < lines.size(); ++j) {
-      const LineFeature& a = lines[i];
-      const LineFeature& b = lines[j];
-      if (!a.marking && !b.marking) continue;
-      double px, py;
-      if (!crossLines(a, b, min_sin, px, py)) continue;
-      if (px < 0 || py < 0 || px > w - 1 || py > h - 1) continue;
-      const double ta = along(a.theta, px, py), tb = along(b.theta, px, py);
-      if (ta < a.t_min - prm.delta_px || ta > a.t_max + prm.delta_px) continue;
-      if (tb < b.t_min - prm.delta_px || tb > b.t_max + prm.delta_px) continue;
-      // At an L corner of two stripes the outer edge runs past the centre-line corner by half the
-      // other stripe's width over the sine of their image angle, and buildLines ends a centre
-      // line with its longer edge when the two edges' ends disagree; at image angles of 30-40 deg
-      // near the camera that is 7-9 px, past delta (bench seed 6: 2 of 124 corners became
-      // intersections, their centre lines 8.1-9.0 px past the corner). That overshoot, capped at
-      // delta, counts as ending.
-      const double sin_ab = std::fabs(crossSin(a, b));
-      const double over_a = a.marking && b.marking ? std::min(prm.delta_px, 0.5 * b.width / sin_ab) : 0.0;
-      const double over_b = a.marking && b.marking ? std::min(prm.delta_px, 0.5 * a.width / sin_ab) : 0.0;
-      const bool a_ends = ta < a.t_min + prm.delta_px + over_a || ta > a.t_max - prm.delta_px - over_a;
-      const bool b_ends = tb < b.t_min + prm.delta_px + over_b || tb > b.t_max - prm.delta_px - over_b;
-      LandmarkType type;
-      bool located = false;
-      if (a.marking && b.marking) {
-        double ax, ay, bx, by;
-        if (!floorDir(a, ax, ay) || !floorDir(b, bx, by)) continue;
-        const double ang = std::acos(std::min(1.0, std::fabs(ax * bx + ay * by) / (std::hypot(ax, ay) * std::hypot(bx, by))));
-        if (a_ends && b_ends) {
-          if (std::fabs(ang - kPi / 2) > deg(prm.corner_angle_tol_deg)) continue;
-          // Both stripes must reach the corner; each is probed from beyond the other stripe.
-          if (luma && (!stripeReaches(*luma, a, ta, prm.probe_start_px + 0.5 * b.width / sin_ab, prm) ||
-                       !stripeReaches(*luma, b, tb, prm.probe_start_px + 0.5 * a.width / sin_ab, prm)))
-            continue;
-          type = LandmarkType::MarkingCorner;
-        } else if (!a_ends && !b_ends) {
-          if (ang < deg(prm.min_crossing_angle_deg)) continue;
-          type = LandmarkType::Intersection;
-          located = luma && refineCrossing(*luma, a, b, v_h, px, py);
-        } else if (prm.marking_junctions) {
-          // One stripe ends on the other, which runs on: a T of two markings (RoboCup fields'
-          // penalty and goal areas, the halfway line on the touch line). Perpendicular on the
-          // floor like an L, and the ending stripe must reach the other.
-          if (std::fabs(ang - kPi / 2) > deg(prm.corner_angle_tol_deg)) continue;
-          const LineFeature& m = a_ends ? a : b;
-          const LineFeature& o = a_ends ? b : a;
-          if (luma && !stripeReaches(*luma, m, a_ends ? ta : tb, prm.probe_start_px + 0.5 * o.width / sin_ab, prm))
-            continue;
-          type = LandmarkType::Junction;
-        } else {
-          continue;
-        }
-      } else {
-        const LineFeature& m = a.marking ? a : b;
-        const LineFeature& o = a.marking ? b : a;
-        const bool m_ends = a.marking ? a_ends : b_ends;
-        if (!o.wall_foot || !m_ends) continue;
-        // The marking must lie on the floor side of the wall foot: below the foot's line at the
-        // marking's middle column. (Comparing with the junction's row instead rejected far
-        // markings that run nearly parallel to the image rows and slope up towards the wall.)
-        const double tm = 0.5 * (m.t_min + m.t_max), mx = m.x(tm), my = m.y(tm);
-        const double so = std::sin(o.theta);
-        if (std::fabs(so) < 1e-9 || my < (o.rho - mx * std::cos(o.theta)) / so) continue;
-        // The stripe must run up to the wall foot (a T, Algorithm 4), not stop short of it, and
-        // the foot must have a wall above it.
-        if (luma && (!stripeReaches(*luma, m, a.marking ? ta : tb, prm.probe_start_px, prm) ||
-                     !wallAbove(*luma, m, o, px, py, prm)))
-          continue;
-        type = LandmarkType::Junction;
-      }
-      // Average with an existing feature of the same type nearby (3+ lines meeting).
-      bool merged = false;
-      for (size_t k = 0; k < features.size(); ++k) {
-        PointFeature& f = features[k];
-        if (f.type != type || std::hypot(f.u - px, f.v - py) > prm.merge_px) continue;
-        const double n = counts[k];
-        f.u = (f.u * n + px) / (n + 1);
-        f.v = (f.v * n + py) / (n + 1);
-        f.located_on_image = f.located_on_image && located;
-        ++counts[k];
-        merged = true;
-        break;
-      }
-      if (merged) continue;
-      PointFeature f;
-      f.type = type;
-      f.u = px;
-      f.v = py;
-      f.line_a = static_cast<int>(i);
-      f.line_b = static_cast<int>(j);
-      f.located_on_image = located;
-      features.push_back(f);
-      counts.push_back(1);
     }
+  } else {
+    const LineFeature& m = a.marking ? a : b;
+    const LineFeature& o = a.marking ? b : a;
+    const bool m_ends = a.marking ? a_ends : b_ends;
+    if (!o.wall_foot || !m_ends) return false;
+    // The marking must lie on the floor side of the wall foot: below the foot's line at the
+    // marking's middle column. (Comparing with the junction's row instead rejected far
+    // markings that run nearly parallel to the image rows and slope up towards the wall.)
+    const double tm = 0.5 * (m.t_min + m.t_max), mx = m.x(tm), my = m.y(tm);
+    const double so = std::sin(o.theta);
+    if (std::fabs(so) < 1e-9 || my < (o.rho - mx * std::cos(o.theta)) / so) return false;
+    // The stripe must run up to the wall foot (a T, Algorithm 4), not stop short of it, and
+    // the foot must have a wall above it.
+    if (luma && (!stripeReaches(*luma, m, a.marking ? ta : tb, prm.probe_start_px, prm) ||
+                 !wallAbove(*luma, m, o, px, py, prm)))
+      return false;
+    type = LandmarkType::Junction;
   }
-  if (!luma || prm.arm_length_px <= 0) return;
-  // Free marking ends (no feature within delta, not on the image border): probe for a missing
-  // arm. Run after the pairs so that a corner from two found lines is never duplicated.
+  out->type = type;
+  out->u = px;
+  out->v = py;
+  out->located_on_image = located;
+  return true;
+}
+
+// Free marking ends (no feature within delta, not on the image border): probe for a missing
+// arm, and follow a found arm to the wall foot it meets. Run after the pairs so that a corner
+// from two found lines is never duplicated.
+void probeFreeMarkingEnds(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& prm,
+                          const cv::Mat& luma, std::vector<PointFeature>& features) {
+  const double w = rig.params().image_width, h = rig.params().image_height;
   auto near = [&](double x, double y) {
     for (const PointFeature& f : features)
       if (std::hypot(f.u - x, f.v - y) <= prm.delta_px) return true;
@@ -946,7 +940,7 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
         features.push_back(f);
       };
       double u, v, ax, ay;
-      if (!probeMissingArm(*luma, rig, m, at_max, prm, u, v, &ax, &ay)) continue;
+      if (!probeMissingArm(luma, rig, m, at_max, prm, u, v, &ax, &ay)) continue;
       if (u < 0 || v < 0 || u > w - 1 || v > h - 1 || near(u, v)) continue;
       // The arm lies on the floor: the bright face above a wall foot is no arm (seed 5: a
       // marking ending at a wall took the wall for its arm).
@@ -958,12 +952,49 @@ void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, co
       // (seed 5: 3 of the 5 missed junctions, each beside a corner found this way): follow it
       // to the nearest wall foot it crosses, if it stays bright all the way.
       double jx, jy;
-      if (traceArmToWallFoot(*luma, lines, m, u, v, ax, ay, prm, jx, jy) && !near(jx, jy) && jx >= 0 && jy >= 0 &&
+      if (traceArmToWallFoot(luma, lines, m, u, v, ax, ay, prm, jx, jy) && !near(jx, jy) && jx >= 0 && jy >= 0 &&
           jx <= w - 1 && jy <= h - 1) {
         addFeature(LandmarkType::Junction, jx, jy);
       }
     }
   }
+}
+
+}  // namespace
+
+void findCorners(const std::vector<LineFeature>& lines, const StereoRig& rig, const CornerParams& prm,
+                 std::vector<PointFeature>& features, const cv::Mat* luma) {
+  features.clear();
+  const MeetingLimits limits{static_cast<double>(rig.params().image_width),
+                             static_cast<double>(rig.params().image_height), horizonRow(rig),
+                             std::sin(deg(prm.min_image_angle_deg))};
+  std::vector<int> counts;
+  for (size_t i = 0; i < lines.size(); ++i) {
+    for (size_t j = i + 1; j < lines.size(); ++j) {
+      PointFeature f;
+      if (!meetingFeature(lines[i], lines[j], rig, prm, luma, limits, &f)) continue;
+      // Average with an existing feature of the same type nearby (3+ lines meeting).
+      bool merged = false;
+      for (size_t k = 0; k < features.size(); ++k) {
+        PointFeature& g = features[k];
+        if (g.type != f.type || std::hypot(g.u - f.u, g.v - f.v) > prm.merge_px) continue;
+        const double n = counts[k];
+        g.u = (g.u * n + f.u) / (n + 1);
+        g.v = (g.v * n + f.v) / (n + 1);
+        g.located_on_image = g.located_on_image && f.located_on_image;
+        ++counts[k];
+        merged = true;
+        break;
+      }
+      if (merged) continue;
+      f.line_a = static_cast<int>(i);
+      f.line_b = static_cast<int>(j);
+      features.push_back(f);
+      counts.push_back(1);
+    }
+  }
+  if (!luma || prm.arm_length_px <= 0) return;
+  probeFreeMarkingEnds(lines, rig, prm, *luma, features);
 }
 
 }  // namespace stereoloc::frontend
