@@ -237,10 +237,6 @@ Solved solveFrom(const Pose2& start, const std::vector<ObservationCost>& costs, 
   return s;
 }
 
-}  // namespace
-
-namespace {
-
 // Each sighting's cost: the pixel factor where a rig and the landmark's height are known and the
 // sighting has pixels, else range-bearing (inverse range for stereo with
 // GlobalFixOptions::stereo_inverse_range) whitened by its covariance.
