@@ -208,16 +208,12 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
   splitAtBends(edges, begin, end, theta, bin_px, tol_px, cuts, scratch, step_px, tail_px);
 }
 
-void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
-                  double tol_px, std::vector<int>& cuts, BendScratch& scratch, double step_px, double tail_px) {
-  const int n = static_cast<int>(end - begin);
-  cuts.clear();
-  cuts.push_back(0);
-  if (n < 4 || !(bin_px > 0)) {
-    cuts.push_back(n);
-    return;
-  }
-  const double c = std::cos(theta), s = std::sin(theta);
+namespace {
+
+// The pixels [begin, end) binned along the line (t = along, d = across; cos c, sin s of its
+// normal), bin_px long: each bin's mean (t, d) and its first pixel, in scratch.bins.
+void binAlongLine(const std::vector<EdgePixel>& edges, const int* begin, int n, double c, double s, double bin_px,
+                  BendScratch& scratch) {
   // Bins along t: mean (t, d) and the index of their first pixel.
   std::vector<BendScratch::Bin>& bins = scratch.bins;
   bins.clear();
@@ -241,14 +237,19 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
     }
     bins.push_back(BendScratch::Bin{st / m, sd / m, first});
   }
-  // Douglas-Peucker on the bin means (an explicit stack; kept vertices are the cuts).
+}
+
+// Douglas-Peucker on the bin means (an explicit stack; kept vertices are the cuts): marks the
+// kept bins in scratch.keep and lists in scratch.runs the final runs [first bin, end bin) that
+// the step test must look at (guard: the smaller of the step and tail thresholds in use, 0 for
+// neither test).
+void douglasPeucker(double tol_px, double guard, BendScratch& scratch) {
+  const std::vector<BendScratch::Bin>& bins = scratch.bins;
   std::vector<uint8_t>& keep = scratch.keep;
   keep.assign(bins.size(), 0);
   std::vector<std::pair<int, int>>& stack = scratch.stack;
   stack.assign(1, {0, static_cast<int>(bins.size()) - 1});
   scratch.runs.clear();  // DP's final runs [first bin, end bin) that the step test looks at
-  // The smaller of the step and tail thresholds in use (0: neither test).
-  const double guard = step_px > 0 && tail_px > 0 ? std::min(step_px, tail_px) : std::max(step_px, tail_px);
   while (!stack.empty()) {
     const auto [a, b] = stack.back();
     stack.pop_back();
@@ -277,6 +278,12 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
     stack.push_back({a, at});
     stack.push_back({at, b});
   }
+}
+
+// Marks in scratch.keep the steps and bend tails DP does not see, in the runs it listed.
+void markSteps(double step_px, double tail_px, BendScratch& scratch) {
+  const std::vector<BendScratch::Bin>& bins = scratch.bins;
+  std::vector<std::pair<int, int>>& stack = scratch.stack;
   // Steps DP does not see: a step near one end of a run deviates from the chord between the
   // run's end bins by only (1 - f) h for a step h at the fraction f of the run, and the chord
   // of a stepped pair (a far wall foot and a goal foot 2 px behind it, often with a gap where
@@ -285,72 +292,72 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
   // two lines d(t) fitted to the bin means, accepted when the two lines are more than step_px
   // apart midway between the bins at the split (a bend meets there with no offset),
   // and repeated on both parts. Prefix sums keep it linear in the bins per test.
-  if (!scratch.runs.empty()) {
-    const int nb = static_cast<int>(bins.size());
-    std::vector<double>& ps = scratch.sums;
-    ps.assign(static_cast<size_t>(5 * (nb + 1)), 0.0);  // prefix sums of 1, t, d, tt, td
-    const double tref = bins[0].t;
-    for (int i = 0; i < nb; ++i) {
-      const double t = bins[i].t - tref, d = bins[i].d;
-      double* q = &ps[static_cast<size_t>(5 * i)];
-      q[5] = q[0] + 1;
-      q[6] = q[1] + t;
-      q[7] = q[2] + d;
-      q[8] = q[3] + t * t;
-      q[9] = q[4] + t * d;
-    }
-    // Least-squares line d = a + b t over bins [i, j); its squared residual needs dd too, but
-    // comparing splits only needs sum d^2 - (explained part), and sum d^2 is the same for every
-    // split of one run, so the explained part is maximised instead.
-    auto fit = [&](int i, int j, double& a, double& b) {
-      const double* p = &ps[static_cast<size_t>(5 * i)];
-      const double* r = &ps[static_cast<size_t>(5 * j)];
-      const double m = r[0] - p[0], st = r[1] - p[1], sd = r[2] - p[2], stt = r[3] - p[3], std_ = r[4] - p[4];
-      const double den = m * stt - st * st;
-      b = den > 1e-9 ? (m * std_ - st * sd) / den : 0.0;
-      a = (sd - b * st) / m;
-      return a * sd + b * std_;  // explained: sum d^2 minus the residual
-    };
-    constexpr int kMinBins = 3;  // each side: a line through fewer bin means is not a line
-    std::vector<uint8_t>& cut_at = keep;  // DP's cuts, then the steps
-    stack.swap(scratch.runs);
-    while (!stack.empty()) {
-      const auto [a, b] = stack.back();
-      stack.pop_back();
-      if (b - a < 2 * kMinBins) continue;
-      double best = -1e300;
-      int at = -1;
-      for (int s2 = a + kMinBins; s2 + kMinBins <= b; ++s2) {
-        double a1, b1, a2, b2;
-        const double e = fit(a, s2, a1, b1) + fit(s2, b, a2, b2);
-        if (e > best) {
-          best = e;
-          at = s2;
-        }
-      }
-      if (at < 0) continue;
-      double a1, b1, a2, b2;
-      fit(a, at, a1, b1);
-      fit(at, b, a2, b2);
-      const double tm = 0.5 * (bins[at - 1].t + bins[at].t) - tref;
-      bool split = step_px > 0 && std::fabs(a1 + b1 * tm - a2 - b2 * tm) > step_px;
-      if (!split && tail_px > 0) {
-        // The shorter side's outer bin against the longer side's line, extended: the tail of a
-        // bend, which leaves DP's chord by only half as much in the middle of a run.
-        const bool first_short = at - a < b - at;
-        const double to = (first_short ? bins[a].t : bins[b - 1].t) - tref;
-        const double dev = first_short ? a1 + b1 * to - a2 - b2 * to : a2 + b2 * to - a1 - b1 * to;
-        split = std::fabs(dev) > tail_px;
-      }
-      if (!split) continue;
-      cut_at[at] = 1;
-      stack.push_back({a, at});
-      stack.push_back({at, b});
-    }
+  const int nb = static_cast<int>(bins.size());
+  std::vector<double>& ps = scratch.sums;
+  ps.assign(static_cast<size_t>(5 * (nb + 1)), 0.0);  // prefix sums of 1, t, d, tt, td
+  const double tref = bins[0].t;
+  for (int i = 0; i < nb; ++i) {
+    const double t = bins[i].t - tref, d = bins[i].d;
+    double* q = &ps[static_cast<size_t>(5 * i)];
+    q[5] = q[0] + 1;
+    q[6] = q[1] + t;
+    q[7] = q[2] + d;
+    q[8] = q[3] + t * t;
+    q[9] = q[4] + t * d;
   }
-  for (size_t i = 1; i + 1 < bins.size(); ++i)
-    if (keep[i]) cuts.push_back(bins[i].first);
-  cuts.push_back(n);
+  // Least-squares line d = a + b t over bins [i, j); its squared residual needs dd too, but
+  // comparing splits only needs sum d^2 - (explained part), and sum d^2 is the same for every
+  // split of one run, so the explained part is maximised instead.
+  auto fit = [&](int i, int j, double& a, double& b) {
+    const double* p = &ps[static_cast<size_t>(5 * i)];
+    const double* r = &ps[static_cast<size_t>(5 * j)];
+    const double m = r[0] - p[0], st = r[1] - p[1], sd = r[2] - p[2], stt = r[3] - p[3], std_ = r[4] - p[4];
+    const double den = m * stt - st * st;
+    b = den > 1e-9 ? (m * std_ - st * sd) / den : 0.0;
+    a = (sd - b * st) / m;
+    return a * sd + b * std_;  // explained: sum d^2 minus the residual
+  };
+  constexpr int kMinBins = 3;  // each side: a line through fewer bin means is not a line
+  std::vector<uint8_t>& cut_at = scratch.keep;  // DP's cuts, then the steps
+  stack.swap(scratch.runs);
+  while (!stack.empty()) {
+    const auto [a, b] = stack.back();
+    stack.pop_back();
+    if (b - a < 2 * kMinBins) continue;
+    double best = -1e300;
+    int at = -1;
+    for (int s2 = a + kMinBins; s2 + kMinBins <= b; ++s2) {
+      double a1, b1, a2, b2;
+      const double e = fit(a, s2, a1, b1) + fit(s2, b, a2, b2);
+      if (e > best) {
+        best = e;
+        at = s2;
+      }
+    }
+    if (at < 0) continue;
+    double a1, b1, a2, b2;
+    fit(a, at, a1, b1);
+    fit(at, b, a2, b2);
+    const double tm = 0.5 * (bins[at - 1].t + bins[at].t) - tref;
+    bool split = step_px > 0 && std::fabs(a1 + b1 * tm - a2 - b2 * tm) > step_px;
+    if (!split && tail_px > 0) {
+      // The shorter side's outer bin against the longer side's line, extended: the tail of a
+      // bend, which leaves DP's chord by only half as much in the middle of a run.
+      const bool first_short = at - a < b - at;
+      const double to = (first_short ? bins[a].t : bins[b - 1].t) - tref;
+      const double dev = first_short ? a1 + b1 * to - a2 - b2 * to : a2 + b2 * to - a1 - b1 * to;
+      split = std::fabs(dev) > tail_px;
+    }
+    if (!split) continue;
+    cut_at[at] = 1;
+    stack.push_back({a, at});
+    stack.push_back({at, b});
+  }
+}
+
+// Moves each inner cut of the pixels at `begin` to where the runs beside it explain them best.
+void refineCuts(const std::vector<EdgePixel>& edges, const int* begin, double theta, double c, double s, double bin_px,
+                std::vector<int>& cuts) {
   // The polyline vertex is only bin-accurate, and at a shallow bend a bin error is several px
   // along the line: move each cut to where the two runs' own lines explain the pixels best
   // (least total |residual|, lines fitted away from the cut, search within +-2 bins).
@@ -384,6 +391,30 @@ void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const i
     }
     cuts[ci] = at;
   }
+}
+
+}  // namespace
+
+void splitAtBends(const std::vector<EdgePixel>& edges, const int* begin, const int* end, double theta, double bin_px,
+                  double tol_px, std::vector<int>& cuts, BendScratch& scratch, double step_px, double tail_px) {
+  const int n = static_cast<int>(end - begin);
+  cuts.clear();
+  cuts.push_back(0);
+  if (n < 4 || !(bin_px > 0)) {
+    cuts.push_back(n);
+    return;
+  }
+  const double c = std::cos(theta), s = std::sin(theta);
+  binAlongLine(edges, begin, n, c, s, bin_px, scratch);
+  // The smaller of the step and tail thresholds in use (0: neither test).
+  const double guard = step_px > 0 && tail_px > 0 ? std::min(step_px, tail_px) : std::max(step_px, tail_px);
+  douglasPeucker(tol_px, guard, scratch);
+  if (!scratch.runs.empty()) markSteps(step_px, tail_px, scratch);
+  const std::vector<BendScratch::Bin>& bins = scratch.bins;
+  for (size_t i = 1; i + 1 < bins.size(); ++i)
+    if (scratch.keep[i]) cuts.push_back(bins[i].first);
+  cuts.push_back(n);
+  refineCuts(edges, begin, theta, c, s, bin_px, cuts);
 }
 
 void SegmentExtractor::collect(const std::vector<EdgePixel>& edges, const std::vector<uint8_t>& used, double theta,
