@@ -362,6 +362,61 @@ bool borderedMarginalCovariances(const BorderedSystem& h, std::vector<Eigen::Mat
   return true;
 }
 
+namespace {
+
+// The largest absolute entry of the system's gradient (the global blocks' too with `globals`).
+double gradientMax(const BorderedSystem& h, bool globals) {
+  double gmax = 0;
+  for (const Eigen::Vector3d& gi : h.g) gmax = std::max(gmax, gi.cwiseAbs().maxCoeff());
+  if (globals) gmax = std::max(gmax, h.gc.cwiseAbs().maxCoeff());
+  return gmax;
+}
+
+// The Levenberg-Marquardt step at `damping`: the poses' dx (len of them) and, with `globals`, the
+// global blocks' dc (dxv: the poses' step stacked). False when the damped system is singular.
+bool dampedStep(BorderedSystem& h, size_t len, bool globals, double damping, std::vector<Eigen::Matrix3d>* G,
+                std::vector<Eigen::Vector3d>* dx, Eigen::VectorXd* rhs_x, Eigen::VectorXd* dxv, Eigen::VectorXd* dc) {
+  if (globals) {
+    rhs_x->resize(3 * static_cast<Eigen::Index>(len));
+    for (size_t j = 0; j < len; ++j) rhs_x->segment<3>(3 * static_cast<Eigen::Index>(j)) = -h.g[j];
+    const bool ok = solveBorderedBlockTridiagonal(h, *rhs_x, -h.gc, damping, dxv, dc);
+    if (ok) {
+      dx->resize(len);
+      for (size_t j = 0; j < len; ++j) (*dx)[j] = dxv->segment<3>(3 * static_cast<Eigen::Index>(j));
+    }
+    return ok;
+  }
+  for (Eigen::Vector3d& gi : h.g) gi = -gi;  // the right-hand side, restored below
+  const bool ok = solveBlockTridiagonal(h.D, h.B, h.g, damping, G, dx);
+  for (Eigen::Vector3d& gi : h.g) gi = -gi;
+  return ok;
+}
+
+// The decrease of the undamped quadratic model, -(g^T dx + 1/2 dx^T H dx), and the squared norms
+// of the step and of the point it starts from (`saved`: the poses' values, `saved_globals` the
+// global blocks').
+double modelDecrease(const BorderedSystem& h, size_t len, bool globals, const std::vector<Eigen::Vector3d>& dx,
+                     const Eigen::VectorXd& dxv, const Eigen::VectorXd& dc, const std::vector<double>& saved,
+                     const std::vector<double>& saved_globals, double* dx_norm2, double* x_norm2) {
+  double quad = 0, lin = 0;
+  for (size_t j = 0; j < len; ++j) {
+    lin += h.g[j].dot(dx[j]);
+    quad += dx[j].dot(h.D[j] * dx[j]);
+    if (j > 0) quad += 2.0 * dx[j - 1].dot(h.B[j] * dx[j]);
+    *dx_norm2 += dx[j].squaredNorm();
+    for (int k = 0; k < 3; ++k) *x_norm2 += saved[3 * j + k] * saved[3 * j + k];
+  }
+  if (globals) {
+    lin += h.gc.dot(dc);
+    quad += 2.0 * dxv.dot(h.E * dc) + dc.dot(h.C * dc);
+    *dx_norm2 += dc.squaredNorm();
+    for (double v : saved_globals) *x_norm2 += v * v;
+  }
+  return -(lin + 0.5 * quad);
+}
+
+}  // namespace
+
 ChainSolverSummary ChainProblem::solve(size_t lo, size_t hi, std::vector<double>* xp,
                                        const ChainSolverOptions& options) const {
   ChainSolverSummary s;
@@ -395,10 +450,7 @@ ChainSolverSummary ChainProblem::solve(size_t lo, size_t hi, std::vector<double>
   const std::vector<double> no_globals;
   std::vector<double> saved_globals = globals ? *globals_ : no_globals;
   while (true) {
-    double gmax = 0;
-    for (const Eigen::Vector3d& gi : h.g) gmax = std::max(gmax, gi.cwiseAbs().maxCoeff());
-    if (globals) gmax = std::max(gmax, h.gc.cwiseAbs().maxCoeff());
-    if (gmax <= options.gradient_tolerance) {
+    if (gradientMax(h, globals) <= options.gradient_tolerance) {
       s.converged = true;
       s.message = "gradient tolerance reached";
       break;
@@ -408,38 +460,10 @@ ChainSolverSummary ChainProblem::solve(size_t lo, size_t hi, std::vector<double>
       break;
     }
     ++s.iterations;
-    bool step_ok = false;
-    if (globals) {
-      rhs_x.resize(3 * static_cast<Eigen::Index>(len));
-      for (size_t j = 0; j < len; ++j) rhs_x.segment<3>(3 * static_cast<Eigen::Index>(j)) = -h.g[j];
-      step_ok = solveBorderedBlockTridiagonal(h, rhs_x, -h.gc, damping, &dxv, &dc);
-      if (step_ok) {
-        dx.resize(len);
-        for (size_t j = 0; j < len; ++j) dx[j] = dxv.segment<3>(3 * static_cast<Eigen::Index>(j));
-      }
-    } else {
-      for (Eigen::Vector3d& gi : h.g) gi = -gi;  // the right-hand side, restored below
-      step_ok = solveBlockTridiagonal(h.D, h.B, h.g, damping, &G, &dx);
-      for (Eigen::Vector3d& gi : h.g) gi = -gi;
-    }
+    bool step_ok = dampedStep(h, len, globals, damping, &G, &dx, &rhs_x, &dxv, &dc);
     double model_decrease = 0, dx_norm2 = 0, x_norm2 = 0;
     if (step_ok) {
-      // Decrease of the undamped quadratic model: -(g^T dx + 1/2 dx^T H dx).
-      double quad = 0, lin = 0;
-      for (size_t j = 0; j < len; ++j) {
-        lin += h.g[j].dot(dx[j]);
-        quad += dx[j].dot(h.D[j] * dx[j]);
-        if (j > 0) quad += 2.0 * dx[j - 1].dot(h.B[j] * dx[j]);
-        dx_norm2 += dx[j].squaredNorm();
-        for (int k = 0; k < 3; ++k) x_norm2 += saved[3 * j + k] * saved[3 * j + k];
-      }
-      if (globals) {
-        lin += h.gc.dot(dc);
-        quad += 2.0 * dxv.dot(h.E * dc) + dc.dot(h.C * dc);
-        dx_norm2 += dc.squaredNorm();
-        for (double v : saved_globals) x_norm2 += v * v;
-      }
-      model_decrease = -(lin + 0.5 * quad);
+      model_decrease = modelDecrease(h, len, globals, dx, dxv, dc, saved, saved_globals, &dx_norm2, &x_norm2);
       if (std::sqrt(dx_norm2) <= options.parameter_tolerance * (std::sqrt(x_norm2) + options.parameter_tolerance)) {
         s.converged = true;
         s.message = "parameter tolerance reached";
