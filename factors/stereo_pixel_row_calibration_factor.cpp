@@ -1,6 +1,6 @@
 #include "factors/stereo_pixel_row_calibration_factor.h"
 
-#include <ceres/autodiff_cost_function.h>
+#include "factors/slide_gain_factor_create.h"
 
 namespace stereoloc {
 
@@ -10,23 +10,9 @@ ceres::CostFunction* StereoPixelRowCalibrationFactor::Create(const StereoRig& ri
                                                              PixelResiduals residuals,
                                                              const ImageErrorVector* image_sigmas,
                                                              const BodyRate& rate) {
-  constexpr const char* kWho = "stereo pixel row calibration factor";
-  stereo_pixel::checkInputs(kWho, pixels, pan, landmark);
-  if (!std::isfinite(slide_gain)) throw Error(std::string(kWho) + ": slide gain must be finite");
-  auto* functor =
-      new StereoPixelRowCalibrationFactor(rig, landmark, pixels, slide_gain, pan,
-                                          stereo_pixel_calibration::imageBlockSqrtInformation(
-                                              kWho, rig, pixels, pixel_covariance, residuals, image_sigmas, rate),
-                                          residuals, image_sigmas, rate);
-  constexpr int kQ = StereoPixelCalibrationFactor::kCalibrationSize;
-  constexpr int kE = stereo_pixel_calibration::kImageErrorSize;
-  using F = StereoPixelRowCalibrationFactor;
-  if (image_sigmas) {
-    if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<F, 4, 3, kQ, kE, kRowSize>(functor);
-    return new ceres::AutoDiffCostFunction<F, 2, 3, kQ, kE, kRowSize>(functor);
-  }
-  if (residuals == PixelResiduals::All) return new ceres::AutoDiffCostFunction<F, 4, 3, kQ, kRowSize>(functor);
-  return new ceres::AutoDiffCostFunction<F, 2, 3, kQ, kRowSize>(functor);
+  return stereo_pixel_calibration::createWithSlideGain<StereoPixelRowCalibrationFactor, kRowSize>(
+      "stereo pixel row calibration factor", rig, landmark, pixels, slide_gain, pan, pixel_covariance, residuals,
+      image_sigmas, rate);
 }
 
 }  // namespace stereoloc
