@@ -528,8 +528,8 @@ size_t oppositeEdge(size_t i, const std::vector<Segment>& segments, const std::v
     if (std::cos(a.theta - b.theta) > opposite_cos) continue;
     const LineFeature& li = lines[i];
     const LineFeature& lj = lines[j];
-    auto xi = [&](double t) { return li.rho * cos_l[i] - t * sin_l[i]; };  // li.x(t)
-    auto yi = [&](double t) { return li.rho * sin_l[i] + t * cos_l[i]; };  // li.y(t)
+    auto xi = [&](double t) { return li.rho * cos_l[i] - t * sin_l[i]; };            // li.x(t)
+    auto yi = [&](double t) { return li.rho * sin_l[i] + t * cos_l[i]; };            // li.y(t)
     auto alongJ = [&](double x, double y) { return -x * sin_l[j] + y * cos_l[j]; };  // along(lj.theta, x, y)
     const double tol = std::max(prm.centre_merge_px, 0.5 * std::max(a.marking_width, b.marking_width));
     const double tm = 0.5 * (li.t_min + li.t_max);
@@ -861,7 +861,8 @@ bool meetingFeature(const LineFeature& a, const LineFeature& b, const StereoRig&
   if (a.marking && b.marking) {
     double ax, ay, bx, by;
     if (!floorDirection(rig, a, ax, ay) || !floorDirection(rig, b, bx, by)) return false;
-    const double ang = std::acos(std::min(1.0, std::fabs(ax * bx + ay * by) / (std::hypot(ax, ay) * std::hypot(bx, by))));
+    const double ang =
+        std::acos(std::min(1.0, std::fabs(ax * bx + ay * by) / (std::hypot(ax, ay) * std::hypot(bx, by))));
     if (a_ends && b_ends) {
       if (std::fabs(ang - kPi / 2) > deg(prm.corner_angle_tol_deg)) return false;
       // Both stripes must reach the corner; each is probed from beyond the other stripe.

@@ -317,7 +317,7 @@ void markSteps(double step_px, double tail_px, BendScratch& scratch) {
     a = (sd - b * st) / m;
     return a * sd + b * std_;  // explained: sum d^2 minus the residual
   };
-  constexpr int kMinBins = 3;  // each side: a line through fewer bin means is not a line
+  constexpr int kMinBins = 3;                   // each side: a line through fewer bin means is not a line
   std::vector<uint8_t>& cut_at = scratch.keep;  // DP's cuts, then the steps
   stack.swap(scratch.runs);
   while (!stack.empty()) {

@@ -160,8 +160,7 @@ class SegmentExtractor {
   bool lineMembers(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta, double rho,
                    double tol_cos, double min_pixels, const SegmentParams& prm);
   void splitAndEmit(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta, double rho,
-                    const SegmentParams& prm, const BorderCredit& border_credit,
-                    std::vector<Segment>& segments);
+                    const SegmentParams& prm, const BorderCredit& border_credit, std::vector<Segment>& segments);
   // The current peak's candidate pixels (bins pool_b0_ +- pool_tol_bins_, offsets per bin).
   std::vector<int> pool_, pool_off_;
   double pool_theta_ = 0, pool_rho_ = 0, pool_band_ = 0;

@@ -152,7 +152,8 @@ bool trimStripe(LineFeature& l, const StripeSamples& ss, const StripeEndParams& 
   const double kin0 = std::max(-1.0, std::min(tin0 - l.t_min, static_cast<double>(n)));
   const double kin1 = std::max(-1.0, std::min(tin1 - l.t_min, static_cast<double>(n)));
   for (int k = 0; k < n; ++k) {
-    const double t = l.t_min + k, x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;  // LineFeature::x/y without 4 trig calls
+    // LineFeature::x/y without 4 trig calls
+    const double t = l.t_min + k, x = l.rho * nx - t * ny, y = l.rho * ny + t * nx;
     float c, s1, s2;
     if (k >= kin0 && k <= kin1) {
       c = sampleLuma.interior(x, y);

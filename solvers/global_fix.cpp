@@ -315,8 +315,8 @@ namespace {
 struct BaselineFrame {
   Eigen::Vector2d c1, c2, e, n;
   double r1 = 0, r2 = 0, d = 0, a = 0, h2 = 0;
-  double scale = 1;         // the geometry's size, for the degeneracy tolerances (mm)
-  double tangent_tol = 0;   // |h| below it: tangent circles (mm)
+  double scale = 1;        // the geometry's size, for the degeneracy tolerances (mm)
+  double tangent_tol = 0;  // |h| below it: tangent circles (mm)
 };
 
 // d p / d x at the intersection p: implicit differentiation of |p - c_i|^2 = r_i^2,

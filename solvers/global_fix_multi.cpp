@@ -324,8 +324,8 @@ std::vector<Pose2> startingPoses(const std::vector<Observation>& observations,
 // inverse-range row is d(1/h_r) = -dh_r / h_r^2) and a pixel residual's Jacobian from its cost
 // function (automatic differentiation of the projection, tested against central differences in
 // tests/factors), plus the compass's. False where a sighting cannot be evaluated at `pose`.
-bool fixInformation(const std::vector<ObservationCost>& costs, const std::optional<StereoRig>& rig,
-                    const Pose2& pose, bool compass, double sigma_c, Eigen::Matrix3d* info_out) {
+bool fixInformation(const std::vector<ObservationCost>& costs, const std::optional<StereoRig>& rig, const Pose2& pose,
+                    bool compass, double sigma_c, Eigen::Matrix3d* info_out) {
   Eigen::Matrix3d info = Eigen::Matrix3d::Zero();
   for (const ObservationCost& c : costs) {
     if (c.pixels) {
@@ -354,8 +354,9 @@ bool fixInformation(const std::vector<ObservationCost>& costs, const std::option
   return true;
 }
 
-GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations, const std::vector<Eigen::Vector3d>& landmarks3,
-                               bool heights_known, const std::optional<double>& compass_theta, double compass_sigma,
+GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations,
+                               const std::vector<Eigen::Vector3d>& landmarks3, bool heights_known,
+                               const std::optional<double>& compass_theta, double compass_sigma,
                                const GlobalFixOptions& options) {
   if (observations.size() != landmarks3.size())
     throw Error("multi fix: " + std::to_string(observations.size()) + " observations but " +

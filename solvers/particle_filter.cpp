@@ -357,8 +357,8 @@ struct ProposalSighting {
 // One sighting's Kalman step on the particle's proposal N(m, P) (the trig of m's heading in sm,
 // cm, kept current); returns its log-likelihood relative to the reference peak, or log_floor for
 // an outlier, which moves the particle nowhere.
-inline double fuseProposalSighting(const ProposalSighting& z, double log_floor, Eigen::Vector3d& m,
-                                   Eigen::Matrix3d& P, double& sm, double& cm) {
+inline double fuseProposalSighting(const ProposalSighting& z, double log_floor, Eigen::Vector3d& m, Eigen::Matrix3d& P,
+                                   double& sm, double& cm) {
   const double dx = z.lx - m.x(), dy = z.ly - m.y(), q = dx * dx + dy * dy;
   if (!(q > 1.0)) return log_floor;  // within 1 mm of the landmark: no bearing; the floored likelihood
   const double r = std::sqrt(q);
