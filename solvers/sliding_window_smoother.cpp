@@ -852,6 +852,68 @@ std::vector<Observation> SlidingWindowSmoother::gateViews(const Observation& mea
   return views;
 }
 
+const Landmark* SlidingWindowSmoother::landmarkOf(const Observation& measured, const Observation& view,
+                                                  const Pose2& pose, const Eigen::Matrix3d& P, std::vector<int>& used) {
+  if (measured.landmark_id >= 0) return map_.find(measured.landmark_id);
+  const AssociationResult a =
+      associate(view, pose, P, map_, config_.association, config_.association.exclusive ? used : std::vector<int>{});
+  if (a.landmark_id < 0) return nullptr;
+  used.push_back(a.landmark_id);
+  return &map_.at(a.landmark_id);
+}
+
+void SlidingWindowSmoother::addObservationFactor(const Observation& measured, const Landmark& lm, Node* node) {
+  if (config_.calibration.stereo && measured.pixels && rowBlock()) {
+    const PixelResiduals residuals =
+        config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+    // With the feature's offsets estimated, their constant leaves the white pixel noise: it
+    // repeats over the feature's sightings, and as white noise it would be averaged down as if
+    // it did not (the calibration's covariance then too small).
+    const FeatureBlock* feature = featureBlock(lm);
+    // Until the image block is free its errors stay in the pixel noise too.
+    const Eigen::Matrix4d C = calibratedPixelCovariance(measured, lm, config_.observation_model,
+                                                        image_sigmas_ && image_free_, true, feature != nullptr);
+    const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
+    std::vector<Calib> blocks{head_block_};
+    if (image) blocks.push_back(image_block_);
+    blocks.push_back(row_block_);
+    if (feature) {
+      ceres::CostFunction* cost = StereoPixelFeatureCalibrationFactor::Create(
+          config_.observation_model.rig, lm.position, *measured.pixels, measured.slide_gain, measured.head_pan, C,
+          residuals, image, node->rate);
+      std::vector<int> entries;
+      if (feature->sigma.column > 0) entries.push_back(0);
+      if (feature->sigma.disparity > 0) entries.push_back(1);
+      if (entries.size() < StereoPixelFeatureCalibrationFactor::kOffsetSize) cost = new HeldEntries(cost, entries);
+      blocks.push_back(feature->block);
+      addFactor(cost, {node}, true, std::move(blocks));
+    } else {
+      addFactor(StereoPixelRowCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
+                                                        measured.slide_gain, measured.head_pan, C, residuals, image,
+                                                        node->rate),
+                {node}, true, std::move(blocks));
+    }
+  } else if (config_.calibration.stereo && measured.pixels) {
+    const PixelResiduals residuals =
+        config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+    const Eigen::Matrix4d C =
+        calibratedPixelCovariance(measured, lm, config_.observation_model, image_sigmas_ && image_free_);
+    if (image_sigmas_)
+      addFactor(StereoPixelImageCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
+                                                          measured.head_pan, C, residuals, *image_sigmas_, node->rate),
+                {node}, true, {head_block_, image_block_});
+    else
+      addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
+                                                     measured.head_pan, C, residuals),
+                {node}, true, {head_block_});
+  } else if (config_.calibration.range && isRangeBearingFactor(measured, config_.observation_model)) {
+    addFactor(RangeBearingCalibrationFactor::Create(lm.xy(), measured.z(), measured.covariance), {node}, true,
+              {range_block_});
+  } else {
+    addFactor(makeObservationFactor(measured, lm, config_.observation_model), {node}, true);
+  }
+}
+
 bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* node, Pose2& pose, Eigen::Matrix3d& P,
                                             std::vector<int>& used, ObservationTest test, double* e2) {
   // With the stereo head self-calibrated, gate, association and the belief update see the
@@ -865,17 +927,7 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
   // gates out the landmark that would separate them.
   const std::vector<Observation> views = gateViews(measured);
   if (views.empty()) return false;
-  const Landmark* lm = nullptr;
-  if (measured.landmark_id >= 0) {
-    lm = map_.find(measured.landmark_id);
-  } else {
-    const AssociationResult a = associate(views.front(), pose, P, map_, config_.association,
-                                          config_.association.exclusive ? used : std::vector<int>{});
-    if (a.landmark_id >= 0) {
-      lm = &map_.at(a.landmark_id);
-      used.push_back(a.landmark_id);
-    }
-  }
+  const Landmark* lm = landmarkOf(measured, views.front(), pose, P, used);
   if (!lm) return false;
   Matrix23d Hz;
   Eigen::Vector2d zhat;
@@ -902,55 +954,7 @@ bool SlidingWindowSmoother::fuseObservation(const Observation& measured, Node* n
     }
   }
   if (!obs) return false;
-  if (config_.calibration.stereo && measured.pixels && rowBlock()) {
-    const PixelResiduals residuals =
-        config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    // With the feature's offsets estimated, their constant leaves the white pixel noise: it
-    // repeats over the feature's sightings, and as white noise it would be averaged down as if
-    // it did not (the calibration's covariance then too small).
-    const FeatureBlock* feature = featureBlock(*lm);
-    // Until the image block is free its errors stay in the pixel noise too.
-    const Eigen::Matrix4d C = calibratedPixelCovariance(measured, *lm, config_.observation_model,
-                                                        image_sigmas_ && image_free_, true, feature != nullptr);
-    const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
-    std::vector<Calib> blocks{head_block_};
-    if (image) blocks.push_back(image_block_);
-    blocks.push_back(row_block_);
-    if (feature) {
-      ceres::CostFunction* cost = StereoPixelFeatureCalibrationFactor::Create(
-          config_.observation_model.rig, lm->position, *measured.pixels, measured.slide_gain, measured.head_pan, C,
-          residuals, image, node->rate);
-      std::vector<int> entries;
-      if (feature->sigma.column > 0) entries.push_back(0);
-      if (feature->sigma.disparity > 0) entries.push_back(1);
-      if (entries.size() < StereoPixelFeatureCalibrationFactor::kOffsetSize) cost = new HeldEntries(cost, entries);
-      blocks.push_back(feature->block);
-      addFactor(cost, {node}, true, std::move(blocks));
-    } else {
-      addFactor(StereoPixelRowCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
-                                                        measured.slide_gain, measured.head_pan, C, residuals, image,
-                                                        node->rate),
-                {node}, true, std::move(blocks));
-    }
-  } else if (config_.calibration.stereo && measured.pixels) {
-    const PixelResiduals residuals =
-        config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    const Eigen::Matrix4d C =
-        calibratedPixelCovariance(measured, *lm, config_.observation_model, image_sigmas_ && image_free_);
-    if (image_sigmas_)
-      addFactor(StereoPixelImageCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
-                                                          measured.head_pan, C, residuals, *image_sigmas_, node->rate),
-                {node}, true, {head_block_, image_block_});
-    else
-      addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm->position, *measured.pixels,
-                                                     measured.head_pan, C, residuals),
-                {node}, true, {head_block_});
-  } else if (config_.calibration.range && isRangeBearingFactor(measured, config_.observation_model)) {
-    addFactor(RangeBearingCalibrationFactor::Create(lm->xy(), measured.z(), measured.covariance), {node}, true,
-              {range_block_});
-  } else {
-    addFactor(makeObservationFactor(measured, *lm, config_.observation_model), {node}, true);
-  }
+  addObservationFactor(measured, *lm, node);
   node->landmarks.push_back(lm->id);
   // The belief for the next gate test, as the EKF's sequential update (5.15), (5.17).
   const Eigen::Matrix<double, 3, 2> K = PHt * Sinv;

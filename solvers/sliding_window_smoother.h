@@ -349,6 +349,14 @@ class SlidingWindowSmoother : public Estimator {
   // When fused, *e2 (if given) is its e^2 at the belief it was fused at.
   bool fuseObservation(const Observation& obs, Node* node, Pose2& pose, Eigen::Matrix3d& P, std::vector<int>& used,
                        ObservationTest test = ObservationTest::Gate, double* e2 = nullptr);
+  // The landmark of an identified sighting, or the one `view` associates with at the belief
+  // (pose, P) (appended to `used`); null for none.
+  const Landmark* landmarkOf(const Observation& measured, const Observation& view, const Pose2& pose,
+                             const Eigen::Matrix3d& P, std::vector<int>& used);
+  // The factor of a fused sighting of `lm` at `node`: through the stereo calibration's blocks
+  // (head, image, row, the feature's offsets) or the range calibration's when estimated, else
+  // the plain observation factor.
+  void addObservationFactor(const Observation& measured, const Landmark& lm, Node* node);
   // The newest pose's compass and observations of `step`, tested jointly as the EKF does (Ekf::
   // process): fused in order from the prediction (pred, P_pred), each at the belief the earlier
   // ones left, while the sum of their e^2 fails the chi-square gate of the summed degrees of
