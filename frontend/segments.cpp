@@ -645,9 +645,10 @@ bool SegmentExtractor::densestBand(const std::vector<EdgePixel>& edges, double t
 }
 
 bool SegmentExtractor::lineMembers(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta,
-                                   double rho, double tol_cos, double min_pixels, const SegmentParams& prm) {
+                                   double c, double s, double rho, double tol_cos, double min_pixels,
+                                   const SegmentParams& prm) {
   // Direction check against the refitted line (the buckets are +-1 bin coarse).
-  const double c = std::cos(theta), s = std::sin(theta), theta_deg = theta * 360.0 / kTwoPi;
+  const double theta_deg = theta * 360.0 / kTwoPi;
   proj_.clear();
   for (int i : cand_) {
     // Pixels whose 1 deg direction bin (the angle rounded) lies a degree inside the
@@ -692,9 +693,8 @@ bool SegmentExtractor::lineMembers(const std::vector<EdgePixel>& edges, std::vec
 }
 
 void SegmentExtractor::splitAndEmit(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta,
-                                    double rho, const SegmentParams& prm, const BorderCredit& borderCredit,
-                                    std::vector<Segment>& segments) {
-  const double c = std::cos(theta), s = std::sin(theta);
+                                    double c, double s, double rho, const SegmentParams& prm,
+                                    const BorderCredit& borderCredit, std::vector<Segment>& segments) {
   // Split at Gap_min, drop noise pieces, merge under Gap_max.
   merged.clear();
   size_t start = 0;
@@ -792,9 +792,10 @@ void SegmentExtractor::extract(const std::vector<EdgePixel>& edges, const std::v
       }
       if (ok) collect(edges, used, theta, rho, std::max(prm.band_px, prm.member_band_px), tol_bins);
       if (!ok || cand_.size() < min_pixels) break;
-      if (!lineMembers(edges, used, theta, rho, tol_cos, min_pixels, prm)) break;
+      const double c = std::cos(theta), s = std::sin(theta);
+      if (!lineMembers(edges, used, theta, c, s, rho, tol_cos, min_pixels, prm)) break;
       const size_t found_before = segments.size();
-      splitAndEmit(edges, used, theta, rho, prm, border_credit, segments);
+      splitAndEmit(edges, used, theta, c, s, rho, prm, border_credit, segments);
       if (segments.size() == found_before) break;  // nothing new: the peak is exhausted
     }
   }

@@ -157,10 +157,12 @@ class SegmentExtractor {
   bool seedLongestRun(const std::vector<EdgePixel>& edges, double theta, const SegmentParams& prm);
   bool densestBand(const std::vector<EdgePixel>& edges, double theta, double rho, double rho_step_px,
                    const SegmentParams& prm, double* shift);
-  bool lineMembers(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta, double rho,
-                   double tol_cos, double min_pixels, const SegmentParams& prm);
-  void splitAndEmit(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta, double rho,
-                    const SegmentParams& prm, const BorderCredit& border_credit, std::vector<Segment>& segments);
+  // (c, s: cos and sin of theta, computed once for both.)
+  bool lineMembers(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta, double c, double s,
+                   double rho, double tol_cos, double min_pixels, const SegmentParams& prm);
+  void splitAndEmit(const std::vector<EdgePixel>& edges, std::vector<uint8_t>& used, double theta, double c, double s,
+                    double rho, const SegmentParams& prm, const BorderCredit& border_credit,
+                    std::vector<Segment>& segments);
   // The current peak's candidate pixels (bins pool_b0_ +- pool_tol_bins_, offsets per bin).
   std::vector<int> pool_, pool_off_;
   double pool_theta_ = 0, pool_rho_ = 0, pool_band_ = 0;

@@ -129,11 +129,12 @@ struct StripeSamples {
   double nx, ny, off, tin0, tin1;
 };
 
-// The trim (StripeEndParams::enabled): moves an end of l inwards to where the stripe is present
-// along the line, judged against the line's median contrast. Its samples stay in sc (the
-// extension reuses the first ones). False when the line gives no verdict (too few samples, too
-// little contrast, no stripe along it): then it is left as it is and not extended either.
-bool trimStripe(LineFeature& l, const StripeSamples& ss, const StripeEndParams& prm, StripeEndScratch& sc) {
+// The trim (StripeEndParams::enabled), on n samples at l.t_min + k: moves an end of l inwards to
+// where the stripe is present along the line, judged against the line's median contrast. Its
+// samples stay in sc (the extension reuses the first ones). False when the line gives no verdict
+// (too few samples, too little contrast, no stripe along it): then it is left as it is and not
+// extended either.
+bool trimStripe(LineFeature& l, int n, const StripeSamples& ss, const StripeEndParams& prm, StripeEndScratch& sc) {
   const LumaSampler& sampleLuma = ss.luma;
   const double nx = ss.nx, ny = ss.ny, off = ss.off, tin0 = ss.tin0, tin1 = ss.tin1;
   auto& centre = sc.centre;
@@ -142,7 +143,6 @@ bool trimStripe(LineFeature& l, const StripeSamples& ss, const StripeEndParams& 
   auto& contrast = sc.contrast;
   auto& floor = sc.floor;
   auto& present = sc.present;
-  const int n = static_cast<int>(std::floor(l.t_max - l.t_min)) + 1;
   centre.assign(n, -1.0f);
   dark.assign(n, -1.0f);
   bright.assign(n, -1.0f);
@@ -300,7 +300,7 @@ void trimStripeEnds(const cv::Mat& luma, const StripeEndParams& prm, std::vector
     if (prm.enabled) {
       n_trim = static_cast<int>(std::floor(l.t_max - l.t_min)) + 1;
       t_trim = l.t_min;
-      if (!trimStripe(l, ss, prm, sc)) continue;
+      if (!trimStripe(l, n_trim, ss, prm, sc)) continue;
     }
     if (extend) extendStripe(l, ss, prm, n_trim, t_trim, sc);
   }
