@@ -1,5 +1,6 @@
 #include "src/core/stereo_calibration.h"
 
+#include <algorithm>
 #include <cmath>
 #include <optional>
 #include <opencv2/calib3d.hpp>
@@ -63,6 +64,21 @@ void checkDistortion(const std::string& where, const std::string& key, const cv:
   if (!allFinite(D)) fail(where, key, "not finite (NaN or inf)");
 }
 
+// cv::stereoRectify's rectified projections: P = [f 0 cx tx; 0 f cy ty; 0 0 1 0]; what the
+// checks of validate() do not compare across P1 and P2 (skew, the last row, the left camera at
+// the origin) is checked here.
+void checkRectifiedProjection(const std::string& where, const std::string& key, const cv::Mat& P, bool left) {
+  checkShape(where, key, P, 3, 4);
+  const double px = 1e-9 * std::max(1.0, std::fabs(P.at<double>(0, 0)));  // tolerance of a pixel-scaled entry
+  const auto small = [](double v, double tol) { return std::fabs(v) <= tol; };
+  const bool form = small(P.at<double>(0, 1), px) && small(P.at<double>(1, 0), px) && small(P.at<double>(2, 0), 1e-9) &&
+                    small(P.at<double>(2, 1), 1e-9) && small(P.at<double>(2, 3), 1e-9) &&
+                    small(P.at<double>(2, 2) - 1.0, 1e-9);
+  if (!form) fail(where, key, "not a rectified projection (expected [f 0 cx tx; 0 f cy ty; 0 0 1 0])");
+  if (left && !(small(P.at<double>(0, 3), px) && small(P.at<double>(1, 3), px)))
+    fail(where, key, "the left rectified camera must be at the origin (P1(0,3) = P1(1,3) = 0)");
+}
+
 bool isIdentity(const cv::Mat& R) { return cv::norm(R - cv::Mat::eye(3, 3, CV_64F), cv::NORM_INF) < 1e-12; }
 
 }  // namespace
@@ -78,8 +94,8 @@ void StereoCalibration::validate(const std::string& where) const {
   if (!(image_size.width >= 8 && image_size.height >= 8)) fail(where, "image_size", "must be at least 8 x 8 px");
   checkRotation(where, "R1", R1);
   checkRotation(where, "R2", R2);
-  checkShape(where, "P1", P1, 3, 4);
-  checkShape(where, "P2", P2, 3, 4);
+  checkRectifiedProjection(where, "P1", P1, true);
+  checkRectifiedProjection(where, "P2", P2, false);
   if (!Q.empty()) checkShape(where, "Q", Q, 4, 4);
   // The rig model has one focal length and one principal point for both rectified images and
   // the right camera on the rectified x axis: the zero-disparity form of cv::stereoRectify.

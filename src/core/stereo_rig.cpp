@@ -97,14 +97,29 @@ StereoRig StereoRig::load(const std::string& path) {
         in.fail(key, std::to_string(in.getInt(key)) + " differs from the calibration's image_size (" +
                          std::to_string(value) + ")");
   } else {
-    p.image_width = in.getInt("image_width", p.image_width);
-    p.image_height = in.getInt("image_height", p.image_height);
+    // The cameras' geometry has no default a real head could rely on: a file that lost a key
+    // (cut short, edited) must not load as the thesis's rig.
+    for (const char* k : {"image_width", "image_height", "baseline_mm"})
+      if (!in.has(k)) in.fail(k, "missing");
+    if (!in.has("focal_px") && !in.has("hfov_rad")) in.fail("focal_px", "missing (neither focal_px nor hfov_rad)");
+    p.image_width = in.getInt("image_width");
+    p.image_height = in.getInt("image_height");
     p.hfov_rad = in.getDouble("hfov_rad", p.hfov_rad);
     p.focal_px = in.getDouble("focal_px", p.focal_px);
     p.principal_u = in.getDouble("principal_u", p.principal_u);
     p.principal_v = in.getDouble("principal_v", p.principal_v);
-    p.baseline_mm = in.getDouble("baseline_mm", p.baseline_mm);
+    p.baseline_mm = in.getDouble("baseline_mm");
+    // In the struct a non-positive focal length or a negative principal point asks for the
+    // default; written in a file it is an error.
+    if (in.has("focal_px") && !(p.focal_px > 0)) in.fail("focal_px", "must be positive");
+    if (in.has("hfov_rad") && !(p.hfov_rad > 0 && p.hfov_rad < kPi)) in.fail("hfov_rad", "must be in (0, pi)");
+    if (in.has("principal_u") && !(p.principal_u >= 0 && p.principal_u <= p.image_width - 1))
+      in.fail("principal_u", "must lie in the image, [0, image_width - 1]");
+    if (in.has("principal_v") && !(p.principal_v >= 0 && p.principal_v <= p.image_height - 1))
+      in.fail("principal_v", "must lie in the image, [0, image_height - 1]");
   }
+  for (const char* k : {"camera_height_mm", "tilt_rad"})
+    if (!in.has(k)) in.fail(k, "missing (the head's mounting, appendix A)");
   try {
     return calibration ? StereoRig(p, *calibration) : StereoRig(p);
   } catch (const Error& e) {

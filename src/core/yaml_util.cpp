@@ -76,17 +76,34 @@ bool YamlNode::getBool(const std::string& key, bool fallback) const {
 }
 
 namespace {
+// OpenCV 4.6's YAML parser reports "FILE(LINE): reason" in the exception's function name and the
+// parser's function in its error text; the line is what a user needs.
+std::string yamlParseError(const std::string& path, const cv::Exception& e) {
+  const std::string prefix = path + "(";
+  if (e.code == cv::Error::StsParseError && e.func.rfind(prefix, 0) == 0) {
+    const size_t close = e.func.find("): ", prefix.size());
+    if (close != std::string::npos) {
+      const std::string line = e.func.substr(prefix.size(), close - prefix.size());
+      if (!line.empty() && line.find_first_not_of("0123456789") == std::string::npos)
+        return path + ":" + line + ": YAML parse error: " + e.func.substr(close + 3);
+    }
+  }
+  std::string msg = e.err.empty() ? std::string(e.what()) : e.err;
+  for (char& c : msg)
+    if (c == '\n') c = ' ';
+  return path + ": YAML parse error: " + msg;
+}
+
 cv::FileStorage openForReading(const std::string& path) {
   if (!std::filesystem::is_regular_file(path)) throw Error(path + ": cannot open (no such file)");
+  std::error_code ec;
+  if (std::filesystem::file_size(path, ec) == 0 && !ec) throw Error(path + ": empty file (expected YAML)");
   try {
     cv::FileStorage fs(path, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML);
     if (!fs.isOpened()) throw Error(path + ": cannot open as YAML");
     return fs;
   } catch (const cv::Exception& e) {
-    std::string msg = e.err.empty() ? std::string(e.what()) : e.err;
-    for (char& c : msg)
-      if (c == '\n') c = ' ';
-    throw Error(path + ": YAML parse error: " + msg);
+    throw Error(yamlParseError(path, e));
   }
 }
 }  // namespace

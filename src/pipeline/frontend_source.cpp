@@ -122,6 +122,15 @@ cv::Mat readStereoImage(const std::string& path, const StereoRig& rig, const std
   return img;
 }
 
+size_t checkDatasetImages(const Dataset& d, const std::string& dir) {
+  if (!d.has_images) return 0;
+  for (const Step& s : d.steps)
+    for (const char* side : {"left", "right"})
+      readStereoImage((std::filesystem::path(dir) / imageFileName(side, s.step)).string(), d.rig,
+                      std::string(side) + " image");
+  return d.steps.size();
+}
+
 ImageFrontendStats observeDatasetImages(Dataset& d, const std::string& dir, const ImageFrontendOptions& options) {
   if (!d.has_images)
     throw Error(dir + ": dataset has no images (dataset.yaml has_images is 0; write them with `stereoloc simulate --images`)");

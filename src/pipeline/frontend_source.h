@@ -97,6 +97,11 @@ cv::Mat readColourImage(const std::string& path, const std::string& what = "imag
 // The same, of the rig's size (raw images when the rig's calibration rectifies them).
 cv::Mat readStereoImage(const std::string& path, const StereoRig& rig, const std::string& what = "image");
 
+// Reads every stereo pair of a dataset with images (readStereoImage: decodable, colour, the rig's
+// size) and returns how many; the first unusable one throws stereoloc::Error naming its file.
+// A dataset without images has none (0).
+size_t checkDatasetImages(const Dataset& dataset, const std::string& dir);
+
 // Replaces the observations of every step of a dataset by the frontend's observations on its
 // images (DIR/images/left_NNNNNN.png, right_NNNNNN.png). Throws stereoloc::Error naming the
 // dataset when it has no images, or naming the file when an image is missing or unusable.

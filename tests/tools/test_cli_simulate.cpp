@@ -82,11 +82,17 @@ TEST_F(CliSimulate, ImagesWithGroundTruth) {
   EXPECT_NE(readFile(root + "/i/images/truth_000000.json").find("\"goal_corner\""), std::string::npos);
   const Result i = run("info " + root + "/i");
   EXPECT_EQ(i.code, 0) << i.out;
-  EXPECT_NE(i.out.find("images: present"), std::string::npos) << i.out;
+  EXPECT_NE(i.out.find("images: 3 stereo pairs, every one readable"), std::string::npos) << i.out;
   fs::remove(root + "/i/images/right_000001.png");
   const Result bad = run("info " + root + "/i");
   EXPECT_EQ(bad.code, 1);
   EXPECT_NE(bad.out.find("right_000001.png"), std::string::npos) << bad.out;
+  // An image that is there but does not decode is as bad as a missing one.
+  fs::copy_file(root + "/i/images/left_000001.png", root + "/i/images/right_000001.png");
+  std::ofstream(root + "/i/images/left_000002.png", std::ios::trunc) << "not a png";
+  const Result corrupt = run("info " + root + "/i");
+  EXPECT_EQ(corrupt.code, 1);
+  EXPECT_NE(corrupt.out.find("left_000002.png"), std::string::npos) << corrupt.out;
 }
 
 TEST_F(CliSimulate, UsageAndDataErrors) {

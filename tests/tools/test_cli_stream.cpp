@@ -540,7 +540,8 @@ TEST(CliStream, TheExposureOffsetGivesTheEstimatesOfLocalize) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_EQ(worstRelativeDifference(estimateLines(r.output, false), expected), 0.0);
   // An offset out of range is an error naming the file and the key.
-  std::ofstream(dir.file("bad.yaml")) << "%YAML:1.0\n---\nexposure_offset_s: 0.3\n";
+  std::filesystem::copy_file(ds + "/rig.yaml", dir.file("bad.yaml"));
+  std::ofstream(dir.file("bad.yaml"), std::ios::app) << "exposure_offset_s: 0.3\n";
   const test::CliRun bad = test::runCli("localize " + ds + options + " --rig " + dir.file("bad.yaml") + " --out " + csv);
   EXPECT_NE(bad.exit_code, 0);
   EXPECT_NE(bad.output.find("bad.yaml"), std::string::npos) << bad.output;

@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "src/io/dataset.h"
+#include "src/pipeline/frontend_source.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {
@@ -49,14 +50,18 @@ void runInfo(const std::string& dir) {
   if (d.initial_pose)
     std::printf("  initial pose: [%.1f %.1f %.2f deg]\n", d.initial_pose->x, d.initial_pose->y,
                 rad2deg(d.initial_pose->theta));
-  std::printf("  images: %s\n", d.has_images ? "present" : "none");
+  if (d.has_images)
+    std::printf("  images: %zu stereo pairs, every one readable, %dx%d px\n", checkDatasetImages(d, dir),
+                d.rig.params().image_width, d.rig.params().image_height);
+  else
+    std::printf("  images: none\n");
 }
 
 }  // namespace
 
 void add_info_command(CLI::App& app) {
   auto dir = std::make_shared<std::string>();
-  CLI::App* sub = app.add_subcommand("info", "Validate a stereoloc dataset and print a summary");
+  CLI::App* sub = app.add_subcommand("info", "Validate a stereoloc dataset (every file, and every image decoded and of the rig's size) and print a summary");
   sub->add_option("DIR", *dir, "Dataset directory")->required();
   sub->callback([dir] { runInfo(*dir); });
 }

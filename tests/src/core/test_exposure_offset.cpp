@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
 
 #include "src/core/angles.h"
 #include "src/core/atomic_file.h"
@@ -129,7 +130,8 @@ TEST(ExposureOffset, IsARigKeyWithItsRange) {
   // A synchronised head's file does not carry the key; it reads back as 0.
   tiltedRig(0.0).save(dir.file("sync.yaml"));
   EXPECT_EQ(StereoRig::load(dir.file("sync.yaml")).params().exposure_offset_s, 0.0);
-  writeFileAtomically(dir.file("bad.yaml"), "%YAML:1.0\n---\nexposure_offset_s: 0.5\n");
+  tiltedRig(0.0).save(dir.file("bad.yaml"));
+  std::ofstream(dir.file("bad.yaml"), std::ios::app) << "exposure_offset_s: 0.5\n";
   const std::string error = test::errorOf([&] { StereoRig::load(dir.file("bad.yaml")); });
   EXPECT_NE(error.find("bad.yaml"), std::string::npos) << error;
   EXPECT_NE(error.find("exposure_offset_s"), std::string::npos) << error;

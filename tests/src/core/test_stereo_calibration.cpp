@@ -156,6 +156,24 @@ TEST(StereoCalibration, BadFilesNameFileAndKey) {
            fs << "D2" << (cv::Mat_<double>(1, 3) << -0.2, 0.1, 0);
          }),
          "D2", "expected 4, 5, 8 or 12 coefficients");
+  // Rectified projections must have cv::stereoRectify's form: a negative last-row entry (a
+  // camera looking backwards) or a left camera off the origin is refused.
+  auto with_projections = [&](cv::Mat P1, cv::Mat P2) {
+    return write([&, P1, P2](cv::FileStorage& fs) {
+      all_but("")(fs);
+      fs << "R1" << c.R1 << "R2" << c.R2 << "P1" << P1 << "P2" << P2;
+    });
+  };
+  cv::Mat flipped = c.P1.clone();
+  flipped.at<double>(2, 2) = -1;
+  expect(with_projections(flipped, c.P2), "P1", "not a rectified projection");
+  cv::Mat skewed = c.P2.clone();
+  skewed.at<double>(0, 1) = 2;
+  expect(with_projections(c.P1, skewed), "P2", "not a rectified projection");
+  cv::Mat moved = c.P1.clone();
+  moved.at<double>(0, 3) = -100;
+  expect(with_projections(moved, c.P2), "P1", "the left rectified camera must be at the origin");
+  EXPECT_NO_THROW(StereoCalibration::load(with_projections(c.P1, c.P2)));
   // A rig whose own image size contradicts the calibration's.
   c.save(dir.file("good.yml"));
   writeText(dir.file("rig.yaml"), "%YAML:1.0\n---\ncalibration_file: good.yml\nimage_width: 640\n");
@@ -165,6 +183,10 @@ TEST(StereoCalibration, BadFilesNameFileAndKey) {
       << e;
   writeText(dir.file("rig2.yaml"), "%YAML:1.0\n---\ncalibration_file: good.yml\nfocal_px: 300\n");
   EXPECT_NE(errorOf([&] { StereoRig::load(dir.file("rig2.yaml")); }).find("focal_px: given by calibration_file"),
+            std::string::npos);
+  // The calibration gives the cameras; the rig file must still give the head's mounting.
+  writeText(dir.file("rig3.yaml"), "%YAML:1.0\n---\ncalibration_file: good.yml\ncamera_height_mm: 70\n");
+  EXPECT_NE(errorOf([&] { StereoRig::load(dir.file("rig3.yaml")); }).find(dir.file("rig3.yaml") + ": tilt_rad: missing"),
             std::string::npos);
 }
 

@@ -1,7 +1,10 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/LU>
+#include <fstream>
+#include <map>
 #include <random>
+#include <sstream>
 
 #include "src/core/atomic_file.h"
 #include "src/core/stereo_rig.h"
@@ -22,7 +25,7 @@ StereoRig tiltedRig() {
 
 }  // namespace
 
-TEST(StereoRig, DefaultsFromIssue) {
+TEST(StereoRig, DefaultsAreTheThesisHead) {
   const StereoRig rig;
   EXPECT_NEAR(rig.focal(), 160.0 / std::tan(deg2rad(30)), 1e-9);
   EXPECT_NEAR(rig.focal(), 277.128, 1e-3);
@@ -175,7 +178,8 @@ TEST(StereoRig, YamlRoundTripAndErrors) {
   const StereoRig shipped = StereoRig::load(std::string(STEREOLOC_DATA_DIR) + "/rig_default.yaml");
   EXPECT_DOUBLE_EQ(shipped.focal(), StereoRig().focal());
   // Bad value: the error names the file and the key.
-  writeFileAtomically(dir.file("bad.yaml"), "%YAML:1.0\n---\nbaseline_mm: -3\n");
+  writeFileAtomically(dir.file("bad.yaml"), "%YAML:1.0\n---\nimage_width: 320\nimage_height: 240\nfocal_px: 277\n"
+                                            "baseline_mm: -3\ncamera_height_mm: 70\ntilt_rad: 0\n");
   try {
     StereoRig::load(dir.file("bad.yaml"));
     FAIL() << "expected an error";
@@ -186,6 +190,45 @@ TEST(StereoRig, YamlRoundTripAndErrors) {
   writeFileAtomically(dir.file("nan.yaml"), "%YAML:1.0\n---\nfocal_px: .nan\n");
   EXPECT_THROW(StereoRig::load(dir.file("nan.yaml")), Error);
   EXPECT_THROW(StereoRig::load(dir.file("missing.yaml")), Error);
+}
+
+// A rig file states the cameras' geometry and the head's mounting: a key lost from it (a file
+// cut short, an edit) is an error naming the key, not the thesis's default; a value the struct
+// reads as "use the default" (focal_px <= 0, a negative principal point) is an error in a file.
+TEST(StereoRig, FileMustStateGeometryAndMounting) {
+  test::TempDir dir;
+  tiltedRig().save(dir.file("rig.yaml"));
+  std::ostringstream text;
+  text << std::ifstream(dir.file("rig.yaml")).rdbuf();
+  const std::string good = text.str();
+  // The error of the file with each key of `edits` replaced by its value ("": line removed).
+  auto edited = [&](const std::map<std::string, std::string>& edits) {
+    std::string out;
+    std::istringstream in(good);
+    for (std::string line; std::getline(in, line);) {
+      const auto it = edits.find(line.substr(0, line.find(':')));
+      if (it == edits.end()) out += line + "\n";
+      else if (!it->second.empty()) out += it->first + ": " + it->second + "\n";
+    }
+    writeFileAtomically(dir.file("edited.yaml"), out);
+    return test::errorOf([&] { StereoRig::load(dir.file("edited.yaml")); });
+  };
+  auto withLine = [&](const std::string& key, const std::string& value) { return edited({{key, value}}); };
+  const std::string where = dir.file("edited.yaml") + ": ";
+  for (const char* key : {"image_width", "image_height", "baseline_mm", "camera_height_mm", "tilt_rad"})
+    EXPECT_NE(withLine(key, "").find(where + key + ": missing"), std::string::npos) << key;
+  // Either focal_px or hfov_rad gives the focal length.
+  EXPECT_EQ(withLine("focal_px", ""), "");
+  EXPECT_EQ(withLine("hfov_rad", ""), "");
+  EXPECT_NE(edited({{"focal_px", ""}, {"hfov_rad", ""}}).find(where + "focal_px: missing (neither focal_px nor hfov_rad)"),
+            std::string::npos);
+  EXPECT_NE(withLine("focal_px", "-1").find(where + "focal_px: must be positive"), std::string::npos);
+  EXPECT_NE(withLine("hfov_rad", "-1").find(where + "hfov_rad: must be in (0, pi)"), std::string::npos);
+  EXPECT_NE(withLine("principal_u", "-1").find(where + "principal_u: must lie in the image"), std::string::npos);
+  EXPECT_NE(withLine("principal_v", "240").find(where + "principal_v: must lie in the image"), std::string::npos);
+  // The optional keys take their documented defaults.
+  EXPECT_EQ(withLine("max_range_mm", ""), "");
+  EXPECT_DOUBLE_EQ(StereoRig::load(dir.file("edited.yaml")).params().max_range_mm, StereoRigParams().max_range_mm);
 }
 
 TEST(Observation, FromPixelsCarriesRangeBearingAndCovariance) {
