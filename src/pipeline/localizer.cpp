@@ -161,6 +161,9 @@ void Localizer::addStep(const Step& step) {
   if (have_step_ && step.step <= newest_step_)
     throw Error("step " + std::to_string(step.step) + " does not follow step " + std::to_string(newest_step_));
   validateStep(step, "localizer");
+  if (have_step_ && step.t < newest_t_)
+    throw Error("step " + std::to_string(step.step) + ": t " + std::to_string(step.t) + " s is earlier than step " +
+                std::to_string(newest_step_) + "'s " + std::to_string(newest_t_) + " s");
   check(step.observations, step.step);
   // Scaled first, then re-timed, as `localize` re-times the steps its --rig scaled.
   const WheelIncrements moved = retimer_.next(step.t, step.d_left * config_.wheel_scales[0],
@@ -184,6 +187,7 @@ void Localizer::addStep(const Step& step) {
   pending_->d_right = moved.d_right;
   pending_->observations = synchronised(step.step, step.observations);
   newest_step_ = step.step;
+  newest_t_ = step.t;
   have_step_ = true;
   if (!failure.empty()) throw Error("step " + std::to_string(previous) + ": " + failure);
 }

@@ -20,8 +20,8 @@
 // steps since again with them (as robot_localization replays its filter), for the last
 // replay_steps steps.
 //
-// Errors: bad input (a step that does not follow the newest, non-finite values, an unknown
-// landmark id, an unreadable or wrong-size image) throws stereoloc::Error with one line and
+// Errors: bad input (a step that does not follow the newest or has an earlier time, non-finite
+// values, an unknown landmark id, an unreadable or wrong-size image) throws stereoloc::Error with one line and
 // changes nothing, so the caller can go on: an unreadable image loses the frame, not the
 // step's odometry.
 // Memory: bounded by the window W when window.keep_history is false, constant with the
@@ -171,6 +171,7 @@ class Localizer {
   std::deque<Processed> processed_;
   Estimate last_;                            // the newest estimate
   long newest_step_ = -1;
+  double newest_t_ = 0.0;  // s, of newest_step_
   bool have_step_ = false;
   bool finished_ = false;
   double running_ms_ = 0;  // time spent since the previous estimate()

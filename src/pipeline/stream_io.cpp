@@ -71,6 +71,9 @@ class JsonParser {
           ws();
           if (i_ >= s_.size() || s_[i_] != '"') fail("expected a key string");
           std::string key = string();
+          // Which of two equal keys counts is left open by JSON; here neither does.
+          for (const auto& kv : v.obj)
+            if (kv.first == key) fail("duplicate key \"" + key + "\"");
           ws();
           if (i_ >= s_.size() || s_[i_] != ':') fail("expected ':' after key \"" + key + "\"");
           ++i_;
@@ -120,14 +123,39 @@ class JsonParser {
       v.kind = Json::Null;
     } else {
       v.kind = Json::Number;
-      const char* begin = s_.c_str() + i_;
-      char* end = nullptr;
-      v.num = std::strtod(begin, &end);
-      if (end == begin) fail("expected a value");
-      i_ += static_cast<size_t>(end - begin);
+      const size_t length = numberLength();
+      if (length == 0) fail("expected a value");
+      v.num = std::strtod(s_.substr(i_, length).c_str(), nullptr);
+      i_ += length;
     }
     --depth_;
     return v;
+  }
+  // Characters of the JSON number at i_: -?(0|[1-9][0-9]*)(.[0-9]+)?([eE][+-]?[0-9]+)?; 0 when
+  // there is none (strtod alone would also take "nan", "inf", hex, ".5" and "+1").
+  size_t numberLength() const {
+    size_t k = i_;
+    auto digits = [&] {
+      const size_t from = k;
+      while (k < s_.size() && s_[k] >= '0' && s_[k] <= '9') ++k;
+      return k - from;
+    };
+    if (k < s_.size() && s_[k] == '-') ++k;
+    if (k < s_.size() && s_[k] == '0') {
+      ++k;
+    } else if (digits() == 0) {
+      return 0;
+    }
+    if (k < s_.size() && s_[k] == '.') {
+      ++k;
+      if (digits() == 0) return 0;
+    }
+    if (k < s_.size() && (s_[k] == 'e' || s_[k] == 'E')) {
+      ++k;
+      if (k < s_.size() && (s_[k] == '+' || s_[k] == '-')) ++k;
+      if (digits() == 0) return 0;
+    }
+    return k - i_;
   }
   std::string string() {
     ++i_;  // opening quote

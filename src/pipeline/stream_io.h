@@ -14,6 +14,9 @@
 // upper triangle row by row in the order u_l, v_l, u_r, v_r); range, bearing and R then come
 // from the rig (5.26-5.32).
 // "landmark_id" -1 or absent: not identified (associated by the estimator), with an optional "type".
+// "t" (s) may be left out (0); a step's t is never earlier than the step before it. "compass"
+// (with "compass_sigma" or the stream's default), "head_pan" and "obs_step" are optional. Strict
+// JSON: numbers as the JSON grammar writes them (no NaN, inf, hex, ".5" or "+1"), no key twice.
 //
 // Output line: {"step":12,"t":1.2,"x":..,"y":..,"theta":..,"covariance":[9 values, row-major],
 // "status":"tracking","compute_ms":0.84} plus, for a line with late observations,

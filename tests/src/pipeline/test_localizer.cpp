@@ -18,6 +18,7 @@
 #include "src/core/odometry_delay.h"
 #include "src/pipeline/localizer.h"
 #include "src/sim/renderer.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
@@ -360,6 +361,9 @@ TEST(Localizer, BadInputIsRefusedAndChangesNothing) {
   Step nan = p.steps[8];
   nan.d_left = std::nan("");
   EXPECT_THROW(loc.addStep(nan), Error);
+  Step earlier = p.steps[8];  // a later step whose clock went back
+  earlier.t = p.steps[7].t - 0.05;
+  EXPECT_NE(test::errorOf([&] { loc.addStep(earlier); }).find("is earlier than step 7"), std::string::npos);
   std::vector<Observation> unknown = p.steps[7].observations;
   ASSERT_FALSE(unknown.empty());
   unknown[0].landmark_id = 4242;

@@ -82,6 +82,25 @@ TEST(StreamIo, BadLinesSayWhatIsWrong) {
   EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"compass":0.1})").find("compass_sigma"), std::string::npos);
 }
 
+// Strict JSON: a number strtod would read but JSON does not write, or a key given twice, is an
+// error at its column, not a value.
+TEST(StreamIo, NumbersAndKeysAreStrictJson) {
+  for (const char* number : {"NaN", "nan", "Infinity", "inf", "0x10", ".5", "+1", "1.", "1e", "-", "1.e3"}) {
+    const std::string e = errorOf(std::string(R"({"step":3,"d_left":)") + number + R"(,"d_right":1})");
+    EXPECT_EQ(e.rfind("column 2", 0), 0u) << number << ": " << e;  // at the number (column 20) or just after
+  }
+  EXPECT_NE(errorOf(R"({"step":3,"d_left":01,"d_right":1})").find("column 21: expected ',' or '}'"), std::string::npos);
+  for (const char* number : {"0", "-0", "12", "-1.5", "1e3", "1E-3", "2.5e+2", "0.125"})
+    EXPECT_EQ(errorOf(std::string(R"({"step":3,"d_left":)") + number + R"(,"d_right":1})"), "") << number;
+  EXPECT_DOUBLE_EQ(parseStreamLine(R"({"step":3,"d_left":2.5e+2,"d_right":-0.125})", StereoRig(), 0).step.d_left, 250);
+  EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"step":2})").find("duplicate key \"step\""),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"observations":[{"range":800,"range":9,"bearing":0,)"
+                    R"("sigma_range":1,"sigma_bearing":1}]})")
+                .find("duplicate key \"range\""),
+            std::string::npos);
+}
+
 TEST(StreamIo, EstimatesReadBackExactly) {
   Estimate e;
   e.step = 7;
