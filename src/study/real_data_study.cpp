@@ -298,7 +298,23 @@ void writeRowsCsv(const std::string& path, const std::vector<Row>& rows) {
 
 }  // namespace
 
+const std::vector<std::string>& realDataEstimatorKeys() {
+  static const std::vector<std::string> keys = {
+      "dead_reckoning", "ekf", "ekf_calib", "ekf_calib_range", "pf", "window", "window_online", "window_robust",
+      "window_robust_online", "window_calib", "window_calib_online", "window_calib_range", "window_calib_range_online",
+      "batch", "batch_robust", "batch_calib", "batch_calib_range"};
+  return keys;
+}
+
 void runRealDataStudy(const RealDataStudyOptions& o) {
+  if (!o.only.empty()) {
+    std::stringstream ss(o.only);
+    const std::vector<std::string>& keys = realDataEstimatorKeys();
+    for (std::string k; std::getline(ss, k, ',');)
+      if (std::find(keys.begin(), keys.end(), k) == keys.end())
+        throw UsageError("--only: unknown estimator '" + k + "'");
+    if (o.only.back() == ',') throw UsageError("--only: unknown estimator ''");
+  }
   if (o.batch_guess != "filter" && o.batch_guess != "odometry")
     throw UsageError("--batch-guess: expected 'filter' or 'odometry', got '" + o.batch_guess + "'");
   Dataset d = loadRealDataset(o);

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <string>
+#include <vector>
 
 #include "solvers/odometry_delay_profile.h"
 #include "solvers/sliding_window_smoother.h"
@@ -46,6 +47,9 @@ struct RealDataStudyOptions {
   std::FILE* console = stdout;        // settings and the table
   std::FILE* log = stderr;            // per-estimator progress; null: none
 };
+
+// The estimators' keys, in the table's order: what RealDataStudyOptions::only may name.
+const std::vector<std::string>& realDataEstimatorKeys();
 
 // Runs the study: prints the settings and the table to `console`, per-estimator progress to `log`,
 // and writes csv_path when set. Bad options throw UsageError; non-finite estimates Error.

@@ -49,11 +49,11 @@ void add_realdata_command(CLI::App& app) {
   sub->add_option("--batch-guess", o->batch_guess,
                   "Initial guess of the batch smoother: filter (a forward EKF pass) or odometry")
       ->capture_default_str();
+  std::string keys;
+  for (const std::string& k : realDataEstimatorKeys()) keys += (keys.empty() ? "" : ",") + k;
   sub->add_option("--only", o->only,
-                  "Comma-separated subset: dead_reckoning,ekf,ekf_calib,ekf_calib_range,pf,window,window_online,window_robust,"
-                  "window_robust_online,window_calib,window_calib_online,window_calib_range,window_calib_range_online,"
-                  "batch,batch_robust,batch_calib,batch_calib_range (_calib: self-calibrating the odometry; "
-                  "_calib_range: the odometry and the range sensor)");
+                  "Comma-separated subset: " + keys +
+                      " (_calib: self-calibrating the odometry; _calib_range: the odometry and the range sensor)");
   sub->add_option("--csv", o->csv_path, "Also write the table as CSV (units: mm, rad, ms)");
   auto delay = std::make_shared<std::optional<std::string>>();
   sub->add_option("--odometry-delay", *delay,

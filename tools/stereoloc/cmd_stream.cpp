@@ -235,8 +235,9 @@ void add_stream_command(CLI::App& app) {
                   "How the window and ekf with --calibrate use pixel observations: range_bearing, pixel_columns or pixels "
                   "(see `localize --help`); range-bearing observations stay range-bearing")
       ->capture_default_str();
-  sub->add_option("--from", a->from, "Replay a dataset directory instead of reading stdin");
-  sub->add_option("--setup", a->setup, "Map, rig, odometry model and compass sigma of this dataset directory");
+  CLI::Option* from = sub->add_option("--from", a->from, "Replay a dataset directory instead of reading stdin");
+  sub->add_option("--setup", a->setup, "Map, rig, odometry model and compass sigma of this dataset directory (--from has its own)")
+      ->excludes(from);
   sub->add_option("--map", a->map_path, "Map YAML (default: the MiroSot field); ignored with --from/--setup");
   sub->add_option("--rig", a->rig_path,
                   "Stereo rig YAML: the frontend's and pixel observations' calibration, also in place of the rig of "

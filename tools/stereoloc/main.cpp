@@ -5,6 +5,22 @@
 
 #include "tools/stereoloc/cli_common.h"
 
+namespace {
+
+// No option of ours means anything by an empty value (`--csv ''` would otherwise write nothing,
+// silently): refused before any command runs.
+void refuseEmptyValues(const CLI::App& app) {
+  for (const CLI::App* sub : app.get_subcommands()) {
+    for (const CLI::Option* opt : sub->get_options())
+      if (opt->count() > 0 && opt->get_type_size_max() > 0)
+        for (const std::string& value : opt->results())
+          if (value.empty()) throw stereoloc::UsageError(opt->get_name() + ": empty value");
+    refuseEmptyValues(*sub);
+  }
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   using namespace stereoloc::cli;
   CLI::App app{"stereoloc: real-time self-localization of small mobile robots from stereo vision and wheel "
@@ -14,6 +30,7 @@ int main(int argc, char** argv) {
 #define STEREOLOC_COMMAND(name) add_##name##_command(app);
 #include "tools/stereoloc/commands.inc"
 #undef STEREOLOC_COMMAND
+  app.parse_complete_callback([&app] { refuseEmptyValues(app); });
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -1,0 +1,80 @@
+// Usage errors every command shares: an option given an empty value, names a command does not
+// know, options that exclude each other. Each is exit code 2 with one line naming the option,
+// before anything runs or is written.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+
+#include "cli_util.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+class CliUsage : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new test::TempDir("cli_usage");
+    const test::CliRun sim = test::runCli("simulate --scenario line --steps 20 --seed 2 --out " + dataset());
+    ASSERT_EQ(sim.exit_code, 0) << sim.output;
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    dir_ = nullptr;
+  }
+  static std::string dataset() { return dir_->file("line"); }
+  static std::string file(const std::string& name) { return dir_->file(name); }
+  static test::TempDir* dir_;
+};
+test::TempDir* CliUsage::dir_ = nullptr;
+
+size_t lines(const std::string& text) {
+  size_t n = 0;
+  for (char c : text) n += c == '\n';
+  return n;
+}
+
+TEST_F(CliUsage, AnEmptyValueIsRefusedNamingTheOption) {
+  const test::CliRun csv = test::runCli("realdata " + dataset() + " --csv ''");
+  EXPECT_EQ(csv.exit_code, 2);
+  EXPECT_EQ(csv.output, "stereoloc: --csv: empty value (see --help)\n");
+  const test::CliRun out = test::runCli("localize " + dataset() + " --method ekf --out ''");
+  EXPECT_EQ(out.exit_code, 2);
+  EXPECT_NE(out.output.find("--out: empty value"), std::string::npos) << out.output;
+  const test::CliRun positional = test::runCli("info ''");
+  EXPECT_EQ(positional.exit_code, 2);
+  EXPECT_NE(positional.output.find("DIR: empty value"), std::string::npos) << positional.output;
+  // The same options with values run.
+  const test::CliRun flag = test::runCli("localize " + dataset() + " --method ekf --tum " + file("t.txt") +
+                                         " --out " + file("ekf.csv"));
+  EXPECT_EQ(flag.exit_code, 0) << flag.output;
+  EXPECT_TRUE(std::filesystem::exists(file("ekf.csv")));
+}
+
+TEST_F(CliUsage, RealdataRunsOnlyEstimatorsItKnows) {
+  const test::CliRun unknown = test::runCli("realdata " + dataset() + " --only ekf,kalman");
+  EXPECT_EQ(unknown.exit_code, 2);
+  EXPECT_EQ(unknown.output, "stereoloc: --only: unknown estimator 'kalman' (see --help)\n");
+  EXPECT_EQ(test::runCli("realdata " + dataset() + " --only ekf,").exit_code, 2);
+  const test::CliRun known = test::runCli("realdata " + dataset() + " --only ekf,batch_calib --csv " + file("r.csv"));
+  EXPECT_EQ(known.exit_code, 0) << known.output;
+  // Both rows and nothing else: the header and two estimators.
+  std::ifstream in(file("r.csv"));
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(lines(text), 3u) << text;
+  EXPECT_NE(text.find("\nekf,"), std::string::npos) << text;
+  EXPECT_NE(text.find("\nbatch_calib,"), std::string::npos) << text;
+}
+
+TEST_F(CliUsage, StreamTakesItsSetupFromOneDataset) {
+  const test::CliRun both = test::runCli("stream --from " + dataset() + " --setup " + dataset());
+  EXPECT_EQ(both.exit_code, 2);
+  EXPECT_NE(both.output.find("--from excludes --setup"), std::string::npos) << both.output;
+  EXPECT_EQ(lines(both.output), 1u) << both.output;
+}
+
+}  // namespace
+}  // namespace stereoloc
