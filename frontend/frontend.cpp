@@ -195,6 +195,11 @@ void FrontendParams::validate() const {
   need(goals.max_transition_px >= 1, "goals.max_transition_px", "must be at least 1");
   need(stereo.min_range_mm > 0, "stereo.min_range_mm", "must be positive");
   need(stereo.patch_radius >= 1 && stereo.patch_radius <= 15, "stereo.patch_radius", "must be in [1, 15]");
+  need(std::isfinite(stereo.max_range_mm), "stereo.max_range_mm", "must be finite (<= 0: the rig's)");
+  need(std::isfinite(stereo.floor_search_px), "stereo.floor_search_px", "must be finite (<= 0: the full range)");
+  // Scores are zero-mean normalised cross-correlations, in [-1, 1]; a margin between two is in [0, 2].
+  need(stereo.min_zncc >= -1 && stereo.min_zncc <= 1, "stereo.min_zncc", "must be in [-1, 1]");
+  need(stereo.uniqueness >= 0 && stereo.uniqueness <= 2, "stereo.uniqueness", "must be in [0, 2]");
   for (const PixelNoise* pn : {&stereo.corner_noise, &stereo.junction_noise, &stereo.intersection_noise, &stereo.goal_noise}) {
     need(pn->sigma_u > 0 && pn->sigma_v > 0 && pn->sigma_d > 0, "stereo.*_sigma_u/v/d", "must be positive");
     need(std::fabs(pn->corr_ud) < 1, "stereo.*_corr_ud", "must be in (-1, 1)");

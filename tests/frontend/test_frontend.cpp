@@ -96,6 +96,9 @@ TEST(FrontendParams, ErrorsNameFileAndKey) {
   EXPECT_NE(message("hough:\n  theta_step_deg: 7\n").find("theta_step_deg"), std::string::npos);
   EXPECT_NE(message("segments:\n  min_length_px: abc\n").find("min_length_px"), std::string::npos);
   EXPECT_NE(message("hough:\n  rho_step_px: -1\n").find(path), std::string::npos);
+  EXPECT_NE(message("stereo:\n  uniqueness: -0.1\n").find("stereo.uniqueness: must be in [0, 2]"), std::string::npos);
+  EXPECT_NE(message("stereo:\n  min_zncc: 1.5\n").find("stereo.min_zncc: must be in [-1, 1]"), std::string::npos);
+  EXPECT_EQ(message("stereo:\n  floor_search_px: -1\n"), "no error");  // <= 0: the full disparity range
   std::filesystem::remove(path);
 }
 
