@@ -1,6 +1,6 @@
-// Usage errors every command shares: an option given an empty value, names a command does not
-// know, options that exclude each other. Each is exit code 2 with one line naming the option,
-// before anything runs or is written.
+// Usage errors every command shares: an option given an empty value or a number that is not
+// finite, names a command does not know, options that exclude each other. Each is exit code 2
+// with one line naming the option, before anything runs or is written.
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -37,7 +37,7 @@ size_t lines(const std::string& text) {
   return n;
 }
 
-TEST_F(CliUsage, AnEmptyValueIsRefusedNamingTheOption) {
+TEST_F(CliUsage, AnEmptyValueOrANonFiniteNumberIsRefusedNamingTheOption) {
   const test::CliRun csv = test::runCli("realdata " + dataset() + " --csv ''");
   EXPECT_EQ(csv.exit_code, 2);
   EXPECT_EQ(csv.output, "stereoloc: --csv: empty value (see --help)\n");
@@ -47,6 +47,16 @@ TEST_F(CliUsage, AnEmptyValueIsRefusedNamingTheOption) {
   const test::CliRun positional = test::runCli("info ''");
   EXPECT_EQ(positional.exit_code, 2);
   EXPECT_NE(positional.output.find("DIR: empty value"), std::string::npos) << positional.output;
+  for (const char* value : {"nan", "inf", "-inf", "NaN"}) {
+    const test::CliRun pose = test::runCli("stream --from " + dataset() + " --init known --pose 190," + value + ",3");
+    EXPECT_EQ(pose.exit_code, 2) << value;
+    EXPECT_EQ(pose.output, std::string("stereoloc: --pose: '") + value + "' is not a finite number (see --help)\n");
+  }
+  const test::CliRun loss = test::runCli("localize " + dataset() + " --method batch --loss huber --loss-scale nan --out " +
+                                         file("nan.csv"));
+  EXPECT_EQ(loss.exit_code, 2);
+  EXPECT_NE(loss.output.find("--loss-scale: 'nan' is not a finite number"), std::string::npos) << loss.output;
+  EXPECT_FALSE(std::filesystem::exists(file("nan.csv")));
   // The same options with values run.
   const test::CliRun flag = test::runCli("localize " + dataset() + " --method ekf --tum " + file("t.txt") +
                                          " --out " + file("ekf.csv"));

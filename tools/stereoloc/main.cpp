@@ -1,6 +1,8 @@
 // stereoloc — stereo-vision and odometry self-localization in a known map.
 // Thin entry point: every subcommand is registered from its own file (see cli_common.h).
 #include <CLI/CLI.hpp>
+#include <cmath>
+#include <cstdlib>
 #include <iostream>
 
 #include "tools/stereoloc/cli_common.h"
@@ -8,14 +10,20 @@
 namespace {
 
 // No option of ours means anything by an empty value (`--csv ''` would otherwise write nothing,
-// silently): refused before any command runs.
-void refuseEmptyValues(const CLI::App& app) {
+// silently), nor by a number that is not finite (CLI11 reads "nan" and "inf" as numbers):
+// refused before any command runs.
+void refuseEmptyOrNonFiniteValues(const CLI::App& app) {
   for (const CLI::App* sub : app.get_subcommands()) {
-    for (const CLI::Option* opt : sub->get_options())
-      if (opt->count() > 0 && opt->get_type_size_max() > 0)
-        for (const std::string& value : opt->results())
-          if (value.empty()) throw stereoloc::UsageError(opt->get_name() + ": empty value");
-    refuseEmptyValues(*sub);
+    for (const CLI::Option* opt : sub->get_options()) {
+      if (opt->count() == 0 || opt->get_type_size_max() == 0) continue;
+      const bool real = opt->get_type_name().rfind("FLOAT", 0) == 0;
+      for (const std::string& value : opt->results()) {
+        if (value.empty()) throw stereoloc::UsageError(opt->get_name() + ": empty value");
+        if (real && !std::isfinite(std::strtod(value.c_str(), nullptr)))
+          throw stereoloc::UsageError(opt->get_name() + ": '" + value + "' is not a finite number");
+      }
+    }
+    refuseEmptyOrNonFiniteValues(*sub);
   }
 }
 
@@ -30,7 +38,7 @@ int main(int argc, char** argv) {
 #define STEREOLOC_COMMAND(name) add_##name##_command(app);
 #include "tools/stereoloc/commands.inc"
 #undef STEREOLOC_COMMAND
-  app.parse_complete_callback([&app] { refuseEmptyValues(app); });
+  app.parse_complete_callback([&app] { refuseEmptyOrNonFiniteValues(app); });
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
