@@ -141,14 +141,26 @@ void printDataset(const RealDataStudyOptions& o, const Dataset& d, const TruthBy
               d.odometry.control_variance_floor.y(), d.odometry.control_variance_floor.z());
 }
 
-// Every estimator --only asks for, from the same initial belief: a row each.
-std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, const TruthByStep& truth,
-                               const InitialBelief& init, const RobustLossConfig& robust) {
+// What every estimator of the study runs on, and the table its rows go to.
+struct StudyRun {
+  const RealDataStudyOptions& o;
+  const Dataset& d;
+  const TruthByStep& truth;
+  const InitialBelief& init;
   std::vector<Row> rows;
-  auto note = [&o](const Row& r) {
+  void note(const Row& r) const {
     if (o.log) std::fprintf(o.log, "  %-24s done: position RMSE %.0f mm, %.3f ms/step\n", r.label.c_str(),
                  r.metrics.position_rmse, r.ms_per_step);
-  };
+  }
+  // Dead reckoning, the EKF (plain, calibrating the wheels, the wheels and the range sensor) and
+  // the particle filter.
+  void filters();
+  // The window's rows: its smoothed (lag) and its real-time (online) estimates.
+  void windows(const RobustLossConfig& robust);
+  void batches(const RobustLossConfig& robust);
+};
+
+void StudyRun::filters() {
   double ms = 0;
   const size_t n = d.steps.size();
   if (wanted(o, "dead_reckoning")) {
@@ -192,18 +204,26 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
     rows.push_back(evaluate("pf", "PF (" + std::to_string(o.particles) + ")", e, truth, ms, n));
     note(rows.back());
   }
-  // The window and the batch plain, with the robust loss, calibrating the odometry, and
-  // calibrating the odometry and the range sensor.
-  struct Variant {
-    const char *suffix, *calibration;
-    bool robust;
-    std::string label;
-  };
-  const Variant kVariants[] = {{"", "none", false, ""},
-                               {"_robust", "none", true, " " + o.robust},
-                               {"_calib", "odometry", false, ", calibrating odometry"},
-                               {"_calib_range", "odometry,range", false, ", calibrating odometry and range"}};
-  for (const Variant& variant : kVariants) {
+}
+
+// The window and the batch plain, with the robust loss, calibrating the odometry, and
+// calibrating the odometry and the range sensor.
+struct Variant {
+  const char *suffix, *calibration;
+  bool robust;
+  std::string label;
+};
+std::vector<Variant> smootherVariants(const RealDataStudyOptions& o) {
+  return {{"", "none", false, ""},
+          {"_robust", "none", true, " " + o.robust},
+          {"_calib", "odometry", false, ", calibrating odometry"},
+          {"_calib_range", "odometry,range", false, ", calibrating odometry and range"}};
+}
+
+void StudyRun::windows(const RobustLossConfig& robust) {
+  double ms = 0;
+  const size_t n = d.steps.size();
+  for (const Variant& variant : smootherVariants(o)) {
     const std::string key = std::string("window") + variant.suffix;
     if (!wanted(o, key) && !wanted(o, key + "_online")) continue;
     SlidingWindowConfig c;
@@ -230,7 +250,12 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
       note(rows.back());
     }
   }
-  for (const Variant& variant : kVariants) {
+}
+
+void StudyRun::batches(const RobustLossConfig& robust) {
+  double ms = 0;
+  const size_t n = d.steps.size();
+  for (const Variant& variant : smootherVariants(o)) {
     const std::string key = std::string("batch") + variant.suffix;
     if (!wanted(o, key)) continue;
     BatchSmootherConfig c;
@@ -248,7 +273,16 @@ std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, 
                             truth, ms, n));
     note(rows.back());
   }
-  return rows;
+}
+
+// Every estimator --only asks for, from the same initial belief: a row each.
+std::vector<Row> runEstimators(const RealDataStudyOptions& o, const Dataset& d, const TruthByStep& truth,
+                               const InitialBelief& init, const RobustLossConfig& robust) {
+  StudyRun run{o, d, truth, init, {}};
+  run.filters();
+  run.windows(robust);
+  run.batches(robust);
+  return run.rows;
 }
 
 double ekfRmse(const std::vector<Row>& rows) {

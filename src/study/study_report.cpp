@@ -171,15 +171,12 @@ std::string calibrationFigures(const StudyConfig& c, const std::string& scenario
   return md.str();
 }
 
-// Figures for one scenario in one world; returns the markdown that embeds them.
-std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, const std::string& profile,
-                            const std::vector<StepRow>& steps, const RenderCache* cache, const std::string& dir) {
+// Trajectories of trial 0 with 3-sigma ellipses (Figs. 6.26-6.28), every method run again on
+// the re-simulated trial; returns the markdown that embeds the figure.
+std::string trajectoryFigure(const StudyConfig& c, const std::string& scenario, const std::string& profile,
+                             const Dataset& d, const std::string& dir) {
   std::ostringstream md;
-  const std::string ftag = profileFileTag(profile), ttag = profileTitleTag(profile);
-  const std::string base = scenario + ftag;
-  // Trajectories of trial 0 with 3-sigma ellipses (Figs. 6.26-6.28): re-simulated (deterministic).
-  SimulationTrace trace;
-  const Dataset d = simulateTrial(c, profile, scenario, 0, cache, 2, nullptr, &trace);  // the workers are done: both cores render
+  const std::string ttag = profileTitleTag(profile), base = scenario + profileFileTag(profile);
   Plot traj(scenario + ttag + ": trajectories of trial 0 with 3-sigma ellipses", "x [mm]", "y [mm]", 1000, 820);
   traj.setEqualAspect(true);
   drawField(traj, d.map);
@@ -207,8 +204,14 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
   }
   traj.savePng(dir + "/" + base + "_trajectories.png");
   md << "![" << base << " trajectories](" << base << "_trajectories.png)\n\n";
+  return md.str();
+}
 
-  // Error against step with +-3 sigma for x, y, theta (Fig. 5.3), trial 0, first tracker.
+// Error against step with +-3 sigma for x, y, theta (Fig. 5.3), trial 0, the first tracker.
+std::string errorFigures(const StudyConfig& c, const std::string& scenario, const std::string& profile,
+                         const std::vector<StepRow>& steps, const std::string& dir) {
+  std::ostringstream md;
+  const std::string ttag = profileTitleTag(profile), base = scenario + profileFileTag(profile);
   std::string tracker;
   for (const std::string& m : c.methods) {
     const auto [name, init] = parseMethodSpec(m, InitMode::Known);
@@ -245,10 +248,16 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
     }
     md << "\n";
   }
+  return md.str();
+}
 
-  // NEES per step, averaged over trials, with the chi-square band for that many trials.
+// NEES per step, averaged over trials, with the chi-square band for that many trials.
+std::string neesFigure(const StudyConfig& c, const std::string& scenario, const std::string& profile,
+                       const std::vector<StepRow>& steps, const std::string& dir) {
+  std::ostringstream md;
+  const std::string ttag = profileTitleTag(profile), base = scenario + profileFileTag(profile);
   Plot np(scenario + ttag + ": mean NEES per step over trials (3 dof)", "step", "NEES", 900, 480);
-  color = 0;
+  size_t color = 0;
   int max_trials = 0;
   for (const std::string& m : c.methods) {
     std::map<long, std::pair<double, int>> acc;
@@ -276,39 +285,52 @@ std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, c
     np.savePng(dir + "/" + base + "_nees.png");
     md << "![" << base << " NEES](" << base << "_nees.png)\n\n";
   }
-
-  // Kidnap: innovation and e^2 of the EKF (Figs. 5.4, 5.5).
-  md << calibrationFigures(c, scenario, profile, d, trace, dir);
-
-  if (scenario == "kidnap" && profile == c.profiles.front()) {
-    EkfConfig ec;
-    std::mt19937_64 rng(splitmix64(trialSeed(c.seed, scenario, 0)));
-    std::optional<Pose2> truth = d.initial_pose ? d.initial_pose : d.groundtruth.front();
-    ec.init = makeInitialBelief(InitMode::Known, truth, d.map, c.method_options.init_config, rng);
-    Ekf ekf(d.map, d.odometry, ec);
-    std::vector<EkfUpdateRecord> records;
-    for (const Step& s : d.steps) {
-      ekf.process(s);
-      records.insert(records.end(), ekf.lastUpdates().begin(), ekf.lastUpdates().end());
-    }
-    std::vector<double> st, nu_r, nu_b, e2;
-    for (const EkfUpdateRecord& r : records) {
-      if (r.compass) continue;
-      st.push_back(r.step);
-      nu_r.push_back(r.innovation.x());
-      nu_b.push_back(rad2deg(r.innovation.y()));
-      e2.push_back(std::min(r.mahalanobis_squared, 200.0));
-    }
-    Plot pi("kidnap: EKF range innovation (trial 0)", "step", "innovation [mm]", 900, 420);
-    pi.line(st, nu_r, "range innovation", plotColor(0), LineStyle::Points);
-    pi.savePng(dir + "/kidnap_innovation.png");
-    Plot pe("kidnap: EKF squared Mahalanobis distance e^2 (trial 0, clipped at 200)", "step", "e^2", 900, 420);
-    pe.line(st, e2, "e^2", plotColor(3), LineStyle::Points);
-    pe.hline(chi2Quantile(ec.gate.probability, 2), "gate (99 %, 2 dof)", cv::Scalar(0, 0, 200));
-    pe.savePng(dir + "/kidnap_e2.png");
-    md << "![kidnap innovation](kidnap_innovation.png)\n![kidnap e2](kidnap_e2.png)\n\n";
-  }
   return md.str();
+}
+
+// The kidnap's EKF innovation and e^2 (Figs. 5.4, 5.5), trial 0.
+std::string kidnapFigures(const StudyConfig& c, const std::string& scenario, const Dataset& d, const std::string& dir) {
+  std::ostringstream md;
+  EkfConfig ec;
+  std::mt19937_64 rng(splitmix64(trialSeed(c.seed, scenario, 0)));
+  std::optional<Pose2> truth = d.initial_pose ? d.initial_pose : d.groundtruth.front();
+  ec.init = makeInitialBelief(InitMode::Known, truth, d.map, c.method_options.init_config, rng);
+  Ekf ekf(d.map, d.odometry, ec);
+  std::vector<EkfUpdateRecord> records;
+  for (const Step& s : d.steps) {
+    ekf.process(s);
+    records.insert(records.end(), ekf.lastUpdates().begin(), ekf.lastUpdates().end());
+  }
+  std::vector<double> st, nu_r, e2;
+  for (const EkfUpdateRecord& r : records) {
+    if (r.compass) continue;
+    st.push_back(r.step);
+    nu_r.push_back(r.innovation.x());
+    e2.push_back(std::min(r.mahalanobis_squared, 200.0));
+  }
+  Plot pi("kidnap: EKF range innovation (trial 0)", "step", "innovation [mm]", 900, 420);
+  pi.line(st, nu_r, "range innovation", plotColor(0), LineStyle::Points);
+  pi.savePng(dir + "/kidnap_innovation.png");
+  Plot pe("kidnap: EKF squared Mahalanobis distance e^2 (trial 0, clipped at 200)", "step", "e^2", 900, 420);
+  pe.line(st, e2, "e^2", plotColor(3), LineStyle::Points);
+  pe.hline(chi2Quantile(ec.gate.probability, 2), "gate (99 %, 2 dof)", cv::Scalar(0, 0, 200));
+  pe.savePng(dir + "/kidnap_e2.png");
+  md << "![kidnap innovation](kidnap_innovation.png)\n![kidnap e2](kidnap_e2.png)\n\n";
+  return md.str();
+}
+
+// Figures for one scenario in one world; returns the markdown that embeds them.
+std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, const std::string& profile,
+                            const std::vector<StepRow>& steps, const RenderCache* cache, const std::string& dir) {
+  // Trial 0 re-simulated (deterministic).
+  SimulationTrace trace;
+  const Dataset d = simulateTrial(c, profile, scenario, 0, cache, 2, nullptr, &trace);  // the workers are done: both cores render
+  std::string md = trajectoryFigure(c, scenario, profile, d, dir);
+  md += errorFigures(c, scenario, profile, steps, dir);
+  md += neesFigure(c, scenario, profile, steps, dir);
+  md += calibrationFigures(c, scenario, profile, d, trace, dir);
+  if (scenario == "kidnap" && profile == c.profiles.front()) md += kidnapFigures(c, scenario, d, dir);
+  return md;
 }
 
 }  // namespace
