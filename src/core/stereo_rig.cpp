@@ -69,10 +69,11 @@ StereoRig::StereoRig(const StereoRigParams& params, const StereoCalibration& cal
   calibration_ = std::make_shared<const StereoCalibration>(calibration);
 }
 
-StereoRig StereoRig::load(const std::string& path) {
-  YamlReader in(path);
+namespace {
+
+// The robot mounting (appendix A) and the noise fields: ours whichever file holds the cameras.
+StereoRigParams readMounting(const YamlReader& in) {
   StereoRigParams p;
-  // The robot mounting (appendix A) is ours whichever file holds the cameras.
   p.camera_height_mm = in.getDouble("camera_height_mm", p.camera_height_mm);
   p.offset_x_mm = in.getDouble("offset_x_mm", p.offset_x_mm);
   p.tilt_rad = in.getDouble("tilt_rad", p.tilt_rad);
@@ -80,6 +81,32 @@ StereoRig StereoRig::load(const std::string& path) {
   p.min_disparity_px = in.getDouble("min_disparity_px", p.min_disparity_px);
   p.max_range_mm = in.getDouble("max_range_mm", p.max_range_mm);
   p.exposure_offset_s = in.getDouble("exposure_offset_s", p.exposure_offset_s);
+  return p;
+}
+
+// The mounting has no default a robot could rely on.
+void requireMounting(const YamlReader& in) {
+  for (const char* k : {"camera_height_mm", "tilt_rad"})
+    if (!in.has(k)) in.fail(k, "missing (the head's mounting, appendix A)");
+}
+
+}  // namespace
+
+StereoRigParams StereoRig::loadMounting(const std::string& path) {
+  const YamlReader in(path);
+  requireMounting(in);
+  const StereoRigParams p = readMounting(in);
+  try {
+    StereoRig{p};  // the mounting's and noise fields' ranges
+  } catch (const Error& e) {
+    throw Error(path + ": " + e.what());
+  }
+  return p;
+}
+
+StereoRig StereoRig::load(const std::string& path) {
+  YamlReader in(path);
+  StereoRigParams p = readMounting(in);
   std::optional<StereoCalibration> calibration;
   if (in.has("calibration_file")) {
     const std::filesystem::path dir = std::filesystem::path(path).parent_path();
@@ -118,8 +145,7 @@ StereoRig StereoRig::load(const std::string& path) {
     if (in.has("principal_v") && !(p.principal_v >= 0 && p.principal_v <= p.image_height - 1))
       in.fail("principal_v", "must lie in the image, [0, image_height - 1]");
   }
-  for (const char* k : {"camera_height_mm", "tilt_rad"})
-    if (!in.has(k)) in.fail(k, "missing (the head's mounting, appendix A)");
+  requireMounting(in);
   try {
     return calibration ? StereoRig(p, *calibration) : StereoRig(p);
   } catch (const Error& e) {

@@ -79,8 +79,15 @@ class StereoRig {
   // extrinsics.yml pair of OpenCV's stereo_calib sample) names an OpenCV calibration, relative
   // to the rig file's folder; the rig file then must not give focal_px, principal_u/v,
   // baseline_mm or hfov_rad, and an image size it gives must match the calibration's. save()
-  // writes a carried calibration beside the rig as <rig stem>_calibration.yml.
+  // writes a carried calibration beside the rig as <rig stem>_calibration.yml. The cameras'
+  // geometry (unless calibration_file gives it) and the mounting's camera_height_mm and tilt_rad
+  // are required keys (docs/dataset_format.md, "rig.yaml").
   static StereoRig load(const std::string& path);
+  // The mounting and noise fields of a rig file alone (camera_height_mm and tilt_rad required;
+  // offset_x_mm, pixel_sigma, min_disparity_px, max_range_mm, exposure_offset_s optional), for a
+  // head whose cameras come from elsewhere (a checkerboard calibration); camera keys the file
+  // may also give are not read. The camera fields of the result are the defaults.
+  static StereoRigParams loadMounting(const std::string& path);
   void save(const std::string& path) const;
 
   // The OpenCV calibration the rig was built from; null for a plain pinhole rig.

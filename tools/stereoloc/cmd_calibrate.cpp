@@ -130,7 +130,7 @@ void runCalibrate(const CalibrateOptions& o) {
   std::printf("wrote %s\n", o.out.c_str());
   if (!o.overlay.empty()) writeOverlays(o.overlay, c, pairs, r);
   if (!o.rig_out.empty()) {
-    const StereoRigParams mounting = o.mounting.empty() ? StereoRigParams() : StereoRig::load(o.mounting).params();
+    const StereoRigParams mounting = o.mounting.empty() ? StereoRigParams() : StereoRig::loadMounting(o.mounting);
     saveCalibratedRig(o.rig_out, mounting, r, deg2rad(o.tilt_sigma_deg), o.column_offset_sigma_px,
                       o.drive_disparity_sigma_px);
     std::printf("wrote %s\n", o.rig_out.c_str());
@@ -172,8 +172,8 @@ void add_calibrate_command(CLI::App& app) {
       "--rig-out", o->rig_out,
       "Also write the rig YAML using the calibration, with its standard deviations for a later --calibrate stereo");
   sub->add_option("--mounting", o->mounting,
-                  "Rig YAML whose mounting (height, tilt, offset) and noise fields the written rig takes (default: "
-                  "the built-in rig's)")
+                  "Rig YAML, or a file of its mounting keys alone, whose mounting (camera_height_mm and tilt_rad "
+                  "required, offset_x_mm) and noise fields the written rig takes (default: the built-in rig's)")
       ->check(CLI::ExistingFile)
       ->needs(rig_out);
   sub->add_option("--tilt-sigma-deg", o->tilt_sigma_deg, "The mounting's tilt uncertainty, deg (the board does not see it)")

@@ -231,6 +231,30 @@ TEST(StereoRig, FileMustStateGeometryAndMounting) {
   EXPECT_DOUBLE_EQ(StereoRig::load(dir.file("edited.yaml")).params().max_range_mm, StereoRigParams().max_range_mm);
 }
 
+// A mounting file for a head whose cameras come from a checkerboard calibration: the mounting
+// and noise fields alone, the mounting required.
+TEST(StereoRig, MountingAloneLoadsWithoutCameraKeys) {
+  test::TempDir dir;
+  writeFileAtomically(dir.file("m.yaml"), "%YAML:1.0\n---\ncamera_height_mm: 72.5\ntilt_rad: 0.2\npixel_sigma: 0.3\n");
+  const StereoRigParams m = StereoRig::loadMounting(dir.file("m.yaml"));
+  EXPECT_DOUBLE_EQ(m.camera_height_mm, 72.5);
+  EXPECT_DOUBLE_EQ(m.tilt_rad, 0.2);
+  EXPECT_DOUBLE_EQ(m.pixel_sigma, 0.3);
+  EXPECT_DOUBLE_EQ(m.offset_x_mm, 0.0);
+  EXPECT_NE(test::errorOf([&] { StereoRig::load(dir.file("m.yaml")); }).find("image_width: missing"), std::string::npos);
+  writeFileAtomically(dir.file("no_tilt.yaml"), "%YAML:1.0\n---\ncamera_height_mm: 72.5\n");
+  EXPECT_NE(test::errorOf([&] { StereoRig::loadMounting(dir.file("no_tilt.yaml")); })
+                .find(dir.file("no_tilt.yaml") + ": tilt_rad: missing"),
+            std::string::npos);
+  writeFileAtomically(dir.file("bad.yaml"), "%YAML:1.0\n---\ncamera_height_mm: 72.5\ntilt_rad: 2\n");
+  EXPECT_NE(test::errorOf([&] { StereoRig::loadMounting(dir.file("bad.yaml")); })
+                .find(dir.file("bad.yaml") + ": stereo rig: tilt_rad"),
+            std::string::npos);
+  // A whole rig serves as a mounting too.
+  tiltedRig().save(dir.file("rig.yaml"));
+  EXPECT_DOUBLE_EQ(StereoRig::loadMounting(dir.file("rig.yaml")).tilt_rad, tiltedRig().params().tilt_rad);
+}
+
 TEST(Observation, FromPixelsCarriesRangeBearingAndCovariance) {
   const StereoRig rig;
   const auto px = rig.pixelsFromRangeBearing(RangeBearing{700, -0.2}, 25.0, 0.0);
