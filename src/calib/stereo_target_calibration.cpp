@@ -52,10 +52,12 @@ Detections detectPairs(const std::vector<TargetPair>& pairs, const CheckerBoard&
     r.name = pair.name;
     if (pair.left.empty() || pair.right.empty()) throw Error(pair.name + ": an image of the pair is empty");
     if (pair.left.depth() != CV_8U || pair.right.depth() != CV_8U) throw Error(pair.name + ": images must be 8-bit");
-    if (pair.left.size() != size || pair.right.size() != size)
-      throw Error(pair.name + ": image size " + std::to_string(pair.left.cols) + "x" + std::to_string(pair.left.rows) +
-                  " / " + std::to_string(pair.right.cols) + "x" + std::to_string(pair.right.rows) + " differs from " +
-                  std::to_string(size.width) + "x" + std::to_string(size.height) + " of " + pairs.front().name);
+    const auto text = [](const cv::Size& s) { return std::to_string(s.width) + "x" + std::to_string(s.height); };
+    if (pair.left.size() != pair.right.size())
+      throw Error(pair.name + ": the left image is " + text(pair.left.size()) + ", the right " + text(pair.right.size()));
+    if (pair.left.size() != size)
+      throw Error(pair.name + ": image size " + text(pair.left.size()) + " differs from " + text(size) + " of " +
+                  pairs.front().name);
     std::vector<cv::Point2f> l = detectBoardCorners(pair.left, board), rr = detectBoardCorners(pair.right, board);
     if (l.empty() || rr.empty()) {
       r.reason = std::string("board not found in the ") + (l.empty() && rr.empty() ? "left and right images"

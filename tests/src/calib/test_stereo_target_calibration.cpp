@@ -244,7 +244,12 @@ TEST(StereoTargetCalibration, BadInputIsAnError) {
   EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets({}, board); }).find("no image pairs"), std::string::npos);
   std::vector<TargetPair> resized = pairs;
   cv::resize(resized[3].right, resized[3].right, cv::Size(160, 120));
-  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(resized, board); }).find("pair 3: image size"),
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(resized, board); })
+                .find("pair 3: the left image is 320x240, the right 160x120"),
+            std::string::npos);
+  cv::resize(resized[3].left, resized[3].left, cv::Size(160, 120));
+  EXPECT_NE(test::errorOf([&] { calibrateStereoFromTargets(resized, board); })
+                .find("pair 3: image size 160x120 differs from 320x240 of pair 0"),
             std::string::npos);
   std::vector<TargetPair> empty = pairs;
   empty[1].left = cv::Mat();
