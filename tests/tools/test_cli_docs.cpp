@@ -114,6 +114,36 @@ TEST(CliDocs, TheDocsRunCommandsAsTheyAre) {
   EXPECT_GE(n, 20u);
 }
 
+// docs/cli.md's table of commands: every option a synopsis names (`refine DIR [--out F]`,
+// several synopses per row possible) is one its command has.
+TEST(CliDocs, TheCommandTableNamesOptionsTheCommandsHave) {
+  std::istringstream in(readText(std::string(STEREOLOC_SOURCE_DIR) + "/docs/cli.md"));
+  size_t rows = 0;
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("| `", 0) != 0) continue;
+    const std::string cell = line.substr(2, line.find(" | ", 2) - 2);
+    const std::regex synopsis("`([^`]*)`");
+    for (std::sregex_iterator it(cell.begin(), cell.end(), synopsis), end; it != end; ++it) {
+      std::string text = (*it)[1];
+      text = std::regex_replace(text, std::regex(R"([\[\]])"), " ");
+      std::istringstream words(text);
+      std::vector<std::string> w;
+      for (std::string x; words >> x;) w.push_back(x);
+      if (w.empty()) continue;
+      std::string command = w[0];
+      if (w.size() > 1 && ((command == "import" && w[1] == "mrclam") || (command == "study" && w[1] == "merge")))
+        command += " " + w[1];
+      const CommandHelp help = helpOf(command);
+      for (const std::string& x : w) {
+        if (x.rfind("--", 0) != 0) continue;
+        EXPECT_TRUE(help.options.count(x)) << "docs/cli.md: `" << (*it)[1] << "`: " << command << " has no option " << x;
+      }
+      ++rows;
+    }
+  }
+  EXPECT_GE(rows, 15u);
+}
+
 // The check itself: a command without a required option, or with an option its command does
 // not have, is caught.
 TEST(CliDocs, TheCheckFindsAMissingRequiredOptionAndAnUnknownOne) {
