@@ -14,17 +14,21 @@ namespace stereoloc {
 
 SelfCalibrationConfig SelfCalibrationConfig::parse(const std::string& list) {
   SelfCalibrationConfig c;
-  std::stringstream in(list);
-  std::string item;
-  while (std::getline(in, item, ',')) {
+  if (list.empty()) return c;
+  // Split on every comma, so that an empty part ("odometry,", ",") is refused like a misspelt one.
+  for (size_t start = 0;;) {
+    const size_t comma = list.find(',', start);
+    const std::string item = list.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
     if (item == "odometry")
       c.odometry = true;
     else if (item == "stereo")
       c.stereo = true;
     else if (item == "range")
       c.range = true;
-    else if (!(item == "none" || item.empty()))
+    else if (item != "none")
       throw Error("calibrate: unknown part '" + item + "' (expected odometry, stereo and/or range, comma-separated)");
+    if (comma == std::string::npos) break;
+    start = comma + 1;
   }
   return c;
 }

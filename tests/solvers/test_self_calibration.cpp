@@ -78,6 +78,10 @@ TEST(SelfCalibration, ParsesTheList) {
   EXPECT_TRUE(c.odometry && c.stereo);
   EXPECT_FALSE(SelfCalibrationConfig::parse("none").odometry);
   EXPECT_THROW(SelfCalibrationConfig::parse("odometry,lens"), Error);
+  EXPECT_FALSE(SelfCalibrationConfig::parse("").any());  // nothing asked for
+  for (const char* list : {",", "odometry,", ",stereo", "odometry,,range"})
+    EXPECT_NE(test::errorOf([&] { SelfCalibrationConfig::parse(list); }).find("unknown part ''"), std::string::npos)
+        << list;
 }
 
 // Both cameras' focal lengths off (1 % each): the left one's error is the focal scale psi, the

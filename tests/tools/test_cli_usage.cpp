@@ -79,11 +79,19 @@ TEST_F(CliUsage, RealdataRunsOnlyEstimatorsItKnows) {
   EXPECT_NE(text.find("\nbatch_calib,"), std::string::npos) << text;
 }
 
-TEST_F(CliUsage, StreamTakesItsSetupFromOneDataset) {
+TEST_F(CliUsage, StreamTakesItsSetupFromOneSource) {
   const test::CliRun both = test::runCli("stream --from " + dataset() + " --setup " + dataset());
   EXPECT_EQ(both.exit_code, 2);
   EXPECT_NE(both.output.find("--from excludes --setup"), std::string::npos) << both.output;
   EXPECT_EQ(lines(both.output), 1u) << both.output;
+  // The dataset gives the map and the wheel base: one given beside it would be ignored.
+  const test::CliRun map = test::runCli("stream --from " + dataset() + " --map " + std::string(STEREOLOC_DATA_DIR) +
+                                        "/field_mirosot.yaml");
+  EXPECT_EQ(map.exit_code, 2);
+  EXPECT_NE(map.output.find("--from excludes --map"), std::string::npos) << map.output;
+  const test::CliRun wheels = test::runCli("stream --setup " + dataset() + " --wheel-base 80 < /dev/null");
+  EXPECT_EQ(wheels.exit_code, 2);
+  EXPECT_NE(wheels.output.find("--setup excludes --wheel-base"), std::string::npos) << wheels.output;
 }
 
 }  // namespace

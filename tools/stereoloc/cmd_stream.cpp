@@ -236,9 +236,12 @@ void add_stream_command(CLI::App& app) {
                   "(see `localize --help`); range-bearing observations stay range-bearing")
       ->capture_default_str();
   CLI::Option* from = sub->add_option("--from", a->from, "Replay a dataset directory instead of reading stdin");
-  sub->add_option("--setup", a->setup, "Map, rig, odometry model and compass sigma of this dataset directory (--from has its own)")
-      ->excludes(from);
-  sub->add_option("--map", a->map_path, "Map YAML (default: the MiroSot field); ignored with --from/--setup");
+  CLI::Option* setup =
+      sub->add_option("--setup", a->setup, "Map, rig, odometry model and compass sigma of this dataset directory (--from has its own)")
+          ->excludes(from);
+  sub->add_option("--map", a->map_path, "Map YAML (default: the MiroSot field); not with --from/--setup, which have theirs")
+      ->excludes(from)
+      ->excludes(setup);
   sub->add_option("--rig", a->rig_path,
                   "Stereo rig YAML: the frontend's and pixel observations' calibration, also in place of the rig of "
                   "--from/--setup; a rig --calibration-out wrote also hands over its wheel estimate and its standard "
@@ -253,7 +256,12 @@ void add_stream_command(CLI::App& app) {
       ->expected(3)
       ->capture_default_str();
   sub->add_option("--compass-sigma", a->compass_sigma, "Compass sigma (rad) for lines without compass_sigma");
-  sub->add_option("--wheel-base", a->wheel_base, "Wheel base (mm); ignored with --from/--setup and with a --rig that hands over a wheel estimate")->capture_default_str();
+  sub->add_option("--wheel-base", a->wheel_base,
+                  "Wheel base (mm); not with --from/--setup, which have theirs; ignored with a --rig that hands over a "
+                  "wheel estimate")
+      ->capture_default_str()
+      ->excludes(from)
+      ->excludes(setup);
   sub->add_option("--max-iterations", a->max_iterations, "Window: solver iterations per step")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
