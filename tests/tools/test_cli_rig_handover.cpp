@@ -213,6 +213,11 @@ TEST_F(RigHandover, TheStreamScalesTheRobotsIncrements) {
   const test::CliRun bad = test::runCli("stream --setup " + circle() + " --rig " + circle() + "/odometry.csv", lines);
   EXPECT_NE(bad.exit_code, 0);
   EXPECT_NE(bad.output.find("odometry.csv"), std::string::npos) << bad.output;
+  // The rig's wheel estimate is the wheel base: another given beside it would be ignored.
+  const test::CliRun wheels = test::runCli("stream --rig " + rig() + " --wheel-base 80", lines);
+  EXPECT_EQ(wheels.exit_code, 2);
+  EXPECT_NE(wheels.output.find("--wheel-base: the --rig hands over its wheel estimate"), std::string::npos)
+      << wheels.output;
 }
 
 }  // namespace

@@ -167,6 +167,9 @@ void runStream(const StreamArgs& a, const CLI::App& sub) {
   CalibrationHandover handover;
   if (!a.rig_path.empty())
     handover = d ? useRig(*d, a.rig_path, a.frontend == "images" || a.from.empty()) : CalibrationHandover::load(a.rig_path);
+  if (handover.wheels && sub.count("--wheel-base") > 0)
+    throw UsageError("--wheel-base: the --rig hands over its wheel estimate (wheel base " +
+                     std::to_string((*handover.wheels)[2]) + " mm)");
   double compass_sigma = 0;
   Localizer loc(configFrom(a, d.get(), handover, &compass_sigma));
   long bad = 0;
@@ -257,7 +260,7 @@ void add_stream_command(CLI::App& app) {
       ->capture_default_str();
   sub->add_option("--compass-sigma", a->compass_sigma, "Compass sigma (rad) for lines without compass_sigma");
   sub->add_option("--wheel-base", a->wheel_base,
-                  "Wheel base (mm); not with --from/--setup, which have theirs; ignored with a --rig that hands over a "
+                  "Wheel base (mm); not with --from/--setup, which have theirs, nor with a --rig that hands over a "
                   "wheel estimate")
       ->capture_default_str()
       ->excludes(from)
