@@ -160,7 +160,8 @@ TEST(CliLocalize, EveryMethodWritesEstimatesAndTum) {
   test::TempDir dir;
   ASSERT_EQ(test::runCli("simulate --scenario circle --seed 3 --out " + dir.file("d")).exit_code, 0);
   for (const char* m : {"fix1", "fix2", "ekf", "iekf", "pf", "window", "batch", "deadreckoning"}) {
-    const test::CliRun r = test::runCli(std::string("localize ") + dir.file("d") + " --method " + m + " --particles 500 --out " +
+    const std::string particles = std::string(m) == "pf" ? " --particles 500" : "";
+    const test::CliRun r = test::runCli(std::string("localize ") + dir.file("d") + " --method " + m + particles + " --out " +
                                         dir.file(std::string(m) + ".csv") + " --tum " + dir.file(std::string(m) + ".tum"));
     ASSERT_EQ(r.exit_code, 0) << m << ": " << r.output;
     const std::string csv = slurp(dir.file(std::string(m) + ".csv"));
@@ -171,6 +172,17 @@ TEST(CliLocalize, EveryMethodWritesEstimatesAndTum) {
   const test::CliRun refine = test::runCli("refine " + dir.file("d") + " --out " + dir.file("r.csv"));
   EXPECT_EQ(refine.exit_code, 0) << refine.output;
   EXPECT_EQ(slurp(dir.file("r.csv")), slurp(dir.file("batch.csv")));
+  // An option the method does not use is refused, not ignored.
+  const test::CliRun unused = test::runCli("localize " + dir.file("d") + " --method ekf --particles 500 --out " + dir.file("x.csv"));
+  EXPECT_EQ(unused.exit_code, 2);
+  EXPECT_NE(unused.output.find("--particles: for the particle filter only (method 'ekf')"), std::string::npos)
+      << unused.output;
+  for (const char* extra : {"--method ekf --window 5", "--method ekf --loss huber", "--method batch --loss-scale 3",
+                            "--method pf --observation-model pixels", "--method ekf --frontend-params x.yaml",
+                            "--method fix2 --init random", "--method fix1 --seed 3"})
+    EXPECT_EQ(test::runCli("localize " + dir.file("d") + " " + extra + " --out " + dir.file("x.csv")).exit_code, 2) << extra;
+  EXPECT_EQ(test::runCli("refine " + dir.file("d") + " --window 5 --out " + dir.file("x.csv")).exit_code, 2);
+  EXPECT_FALSE(std::filesystem::exists(dir.file("x.csv")));
   EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method magic --out " + dir.file("x.csv")).exit_code, 2);
   EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method ekf:sideways --out " + dir.file("x.csv")).exit_code, 2);
 }

@@ -9,7 +9,10 @@ void add_localize_command(CLI::App& app) {
   auto a = std::make_shared<LocalizeArgs>();
   CLI::App* sub = app.add_subcommand("localize", "Run one estimator over a dataset and write its estimates");
   addLocalizeOptions(sub, a, true);
-  sub->callback([a] { runLocalize(*a); });
+  sub->callback([a, sub] {
+    checkMethodOptions(*a, *sub);
+    runLocalize(*a);
+  });
 }
 
 }  // namespace stereoloc::cli

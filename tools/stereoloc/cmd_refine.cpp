@@ -127,7 +127,10 @@ void add_refine_command(CLI::App& app) {
   a->method = "batch";
   CLI::App* sub = app.add_subcommand("refine", "Offline trajectory refinement with the batch smoother (= localize --method batch)");
   addLocalizeOptions(sub, a, false);
-  sub->callback([a] { runRefine(*a); });
+  sub->callback([a, sub] {
+    checkMethodOptions(*a, *sub);
+    runRefine(*a);
+  });
 }
 
 }  // namespace stereoloc::cli

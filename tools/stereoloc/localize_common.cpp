@@ -161,6 +161,25 @@ Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHando
   return d;
 }
 
+void checkMethodOptions(const LocalizeArgs& a, const CLI::App& sub) {
+  const std::string name = parseMethodSpec(a.method, InitMode::Known).first;
+  const std::string m = " (method '" + a.method + "')";
+  auto refuse = [&](const char* option, bool used, const std::string& who) {
+    const CLI::Option* o = sub.get_option_no_throw(option);  // refine has no --particles, --window
+    if (!used && o && o->count() > 0) throw UsageError(std::string(option) + ": for " + who + " only" + m);
+  };
+  const bool smoother = name == "batch" || name == "window", fix = name == "fix1" || name == "fix2";
+  refuse("--particles", name == "pf", "the particle filter");
+  refuse("--window", name == "window", "the window");
+  refuse("--loss", smoother, "the batch and the window");
+  refuse("--loss-scale", smoother && a.loss != "none", "the batch and the window with --loss huber or cauchy");
+  refuse("--observation-model", smoother || name == "ekf" || name == "iekf", "the smoothers and the EKFs");
+  refuse("--frontend-landmarks", a.frontend == "images", "--frontend images");
+  refuse("--frontend-params", a.frontend == "images", "--frontend images");
+  refuse("--init", !fix, "the trackers");
+  refuse("--seed", !fix, "the trackers");
+}
+
 void runLocalize(const LocalizeArgs& a) {
   MethodOptions o = parseMethodOptions(a);
   const std::string name = parseMethodSpec(a.method, o.init).first;  // usage errors before reading data
@@ -218,8 +237,10 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
         ->capture_default_str();
   sub->add_option("--init", a->init, "Start of the trackers: known (truth + noise), random, or global (first global fix)")
       ->capture_default_str();
-  sub->add_option("--particles", a->options.particles, "Particles of the particle filter")->capture_default_str()->check(CLI::PositiveNumber);
-  sub->add_option("--window", a->options.window, "Window size W of the sliding-window smoother")->capture_default_str()->check(CLI::PositiveNumber);
+  if (method_option) {
+    sub->add_option("--particles", a->options.particles, "Particles of the particle filter")->capture_default_str()->check(CLI::PositiveNumber);
+    sub->add_option("--window", a->options.window, "Window size W of the sliding-window smoother")->capture_default_str()->check(CLI::PositiveNumber);
+  }
   sub->add_option("--loss", a->loss, "Robust loss of the batch and window smoothers' observation factors: none, huber or cauchy (the window then runs without the gate)")->capture_default_str();
   sub->add_option("--observation-model", a->observation_model,
                   "How the batch and window smoothers use stereo observations: range_bearing (the thesis's form), "

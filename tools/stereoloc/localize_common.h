@@ -35,6 +35,9 @@ struct LocalizeArgs {
 
 };
 
+// Each method's options are refused with a method that does not use them (UsageError naming the
+// option), rather than silently ignored.
+void checkMethodOptions(const LocalizeArgs& args, const CLI::App& sub);
 void runLocalize(const LocalizeArgs& args);
 // The line `localize` and `refine` print against the ground truth: RMSE, mean NEES and its
 // position (2 dof) and heading (1 dof) parts; nothing without ground truth.
@@ -72,7 +75,8 @@ void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landm
 // receives what the file hands over, and `options` its priors), then with --frontend images
 // the frontend's observations in place of its own (a one-line summary on stdout).
 Dataset loadRunDataset(const LocalizeArgs& args, MethodOptions& options, CalibrationHandover& handover);
-// Adds the options; `method_option` false for refine (always the batch smoother).
+// Adds the options; `method_option` false for refine (always the batch smoother: no --method,
+// --particles or --window).
 void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& args, bool method_option);
 
 }  // namespace stereoloc::cli
