@@ -1,6 +1,7 @@
 // Usage errors every command shares: an option given an empty value or a number that is not
-// finite, names a command does not know, options that exclude each other. Each is exit code 2
-// with one line naming the option, before anything runs or is written.
+// finite, names a command does not know, options that exclude each other, options the run
+// would not use. Each is exit code 2 with one line naming the option, before anything runs or
+// is written.
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -77,6 +78,31 @@ TEST_F(CliUsage, RealdataRunsOnlyEstimatorsItKnows) {
   EXPECT_EQ(lines(text), 3u) << text;
   EXPECT_NE(text.find("\nekf,"), std::string::npos) << text;
   EXPECT_NE(text.find("\nbatch_calib,"), std::string::npos) << text;
+}
+
+// An image option on a run without images, a pixel option on one without simulated pixels: an
+// error naming the option, before anything runs.
+TEST_F(CliUsage, FrontendOptionsNeedTheFrontend) {
+  const std::pair<std::string, std::string> cases[] = {
+      {"study --frontend pixels --frontend-landmarks goal_corners --trials 1 --scenarios line --out " + file("s"),
+       "--frontend-landmarks: for --frontend images only"},
+      {"study --frontend pixels --image-noise 2 --trials 1 --scenarios line --out " + file("s"),
+       "--image-noise: for --frontend images only"},
+      {"fixstudy --frontend pixels --image-noise 2 --runs 1 --category rect", "--image-noise: for --frontend images"},
+      {"fixstudy --frontend images --pixel-sigma 1 --runs 1 --category rect", "--pixel-sigma: for --frontend pixels"},
+      {"fixstudy --frontend images --calibrate none --runs 1 --category rect",
+       "--calibrate: for --frontend images or both in a world that is not ideal only"},
+      {"stream --from " + dataset() + " --frontend-params " + std::string(STEREOLOC_DATA_DIR) + "/frontend_default.yaml",
+       "--frontend-params: for --frontend images only"},
+      {"localize " + dataset() + " --method ekf --frontend-landmarks all --out " + file("f.csv"),
+       "--frontend-landmarks: for --frontend images only"}};
+  for (const auto& [args, message] : cases) {
+    const test::CliRun r = test::runCli(args);
+    EXPECT_EQ(r.exit_code, 2) << args;
+    EXPECT_NE(r.output.find(message), std::string::npos) << args << ": " << r.output;
+  }
+  EXPECT_FALSE(std::filesystem::exists(file("s")));
+  EXPECT_FALSE(std::filesystem::exists(file("f.csv")));
 }
 
 TEST_F(CliUsage, StreamTakesItsSetupFromOneSource) {

@@ -20,6 +20,15 @@ constexpr int kExitBadData = 1;
 constexpr int kExitUsage = 2;
 using stereoloc::UsageError;  // exit kExitUsage
 
+// An option a run would not use is refused, never silently ignored: UsageError
+// "OPTION: for WHO only" (plus `context`) when `option` was given and `used` is false. An
+// option the command does not have counts as not given.
+inline void refuseUnused(const CLI::App& sub, const char* option, bool used, const std::string& who,
+                         const std::string& context = "") {
+  const CLI::Option* o = sub.get_option_no_throw(option);
+  if (!used && o && o->count() > 0) throw UsageError(std::string(option) + ": for " + who + " only" + context);
+}
+
 // "a,b,c" -> exactly `count` finite numbers; anything else (a missing or extra field, an empty
 // one, a unit after the number) throws UsageError "OPTION: expected EXPECTED, got 'TEXT'".
 inline std::vector<double> parseNumbers(const std::string& text, size_t count, const std::string& option,

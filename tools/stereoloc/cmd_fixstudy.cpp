@@ -63,8 +63,16 @@ void add_fixstudy_command(CLI::App& app) {
       ->check(CLI::NonNegativeNumber);
   sub->add_option("--tables", a->tables, "Thesis tables YAML (default: data/thesis_tables.yaml)")
       ->check(CLI::ExistingFile);
-  sub->callback([a, profile] {
+  sub->callback([a, profile, sub] {
     a->profiles = splitCommaList(*profile);
+    const bool images = a->frontend != "pixels", pixels = a->frontend != "images";
+    refuseUnused(*sub, "--frontend-landmarks", images, "--frontend images or both");
+    refuseUnused(*sub, "--image-noise", images, "--frontend images or both");
+    bool other_world = false;
+    for (const std::string& p : a->profiles) other_world |= p != "ideal";
+    refuseUnused(*sub, "--calibrate", images && other_world, "--frontend images or both in a world that is not ideal");
+    refuseUnused(*sub, "--pixel-sigma", pixels, "--frontend pixels or both");
+    refuseUnused(*sub, "--quantise", pixels, "--frontend pixels or both");
     runFixStudy(*a);
   });
 }

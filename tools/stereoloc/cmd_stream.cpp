@@ -128,9 +128,9 @@ void print(const std::string& line) {
 // Each tracker's options are refused with another tracker, rather than silently ignored.
 void checkMethodOptions(const StreamArgs& a, const CLI::App& sub) {
   const std::string m = "(method '" + a.method + "')";
-  auto refuse = [&](const char* option, const char* who) {
-    if (sub.count(option) > 0) throw UsageError(std::string(option) + ": for " + who + " only " + m);
-  };
+  auto refuse = [&](const char* option, const char* who) { refuseUnused(sub, option, false, who, " " + m); };
+  refuseUnused(sub, "--frontend-landmarks", a.frontend == "images", "--frontend images");
+  refuseUnused(sub, "--frontend-params", a.frontend == "images", "--frontend images");
   if (a.method != "window") {
     refuse("--window", "the window");
     refuse("--max-iterations", "the window");

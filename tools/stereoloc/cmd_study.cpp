@@ -135,9 +135,11 @@ void add_study_command(CLI::App& app) {
     std::printf("merged %zu trial rows from %zu studies; report: %s\n", r.trial_rows, a->merge_dirs.size(), r.report.c_str());
   });
 
-  sub->callback([a, merge] {
+  sub->callback([a, merge, sub] {
     if (merge->parsed()) return;
     if (a->config.out_dir.empty()) throw UsageError("study: --out DIR is required");
+    refuseUnused(*sub, "--frontend-landmarks", a->config.frontend == "images", "--frontend images");
+    refuseUnused(*sub, "--image-noise", a->config.frontend == "images", "--frontend images");
     runFromArgs(*a);
   });
 }

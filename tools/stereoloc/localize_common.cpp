@@ -164,10 +164,7 @@ Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHando
 void checkMethodOptions(const LocalizeArgs& a, const CLI::App& sub) {
   const std::string name = parseMethodSpec(a.method, InitMode::Known).first;
   const std::string m = " (method '" + a.method + "')";
-  auto refuse = [&](const char* option, bool used, const std::string& who) {
-    const CLI::Option* o = sub.get_option_no_throw(option);  // refine has no --particles, --window
-    if (!used && o && o->count() > 0) throw UsageError(std::string(option) + ": for " + who + " only" + m);
-  };
+  auto refuse = [&](const char* option, bool used, const std::string& who) { refuseUnused(sub, option, used, who, m); };
   const bool smoother = name == "batch" || name == "window", fix = name == "fix1" || name == "fix2";
   refuse("--particles", name == "pf", "the particle filter");
   refuse("--window", name == "window", "the window");
