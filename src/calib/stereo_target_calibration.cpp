@@ -54,7 +54,8 @@ Detections detectPairs(const std::vector<TargetPair>& pairs, const CheckerBoard&
     if (pair.left.depth() != CV_8U || pair.right.depth() != CV_8U) throw Error(pair.name + ": images must be 8-bit");
     const auto text = [](const cv::Size& s) { return std::to_string(s.width) + "x" + std::to_string(s.height); };
     if (pair.left.size() != pair.right.size())
-      throw Error(pair.name + ": the left image is " + text(pair.left.size()) + ", the right " + text(pair.right.size()));
+      throw Error(pair.name + ": the left image is " + text(pair.left.size()) + ", the right " +
+                  text(pair.right.size()));
     if (pair.left.size() != size)
       throw Error(pair.name + ": image size " + text(pair.left.size()) + " differs from " + text(size) + " of " +
                   pairs.front().name);

@@ -21,9 +21,9 @@
 // replay_steps steps.
 //
 // Errors: bad input (a step that does not follow the newest or has an earlier time, non-finite
-// values, an unknown landmark id, an unreadable or wrong-size image) throws stereoloc::Error with one line and
-// changes nothing, so the caller can go on: an unreadable image loses the frame, not the
-// step's odometry.
+// values, an unknown landmark id, an unreadable or wrong-size image) throws stereoloc::Error
+// with one line and changes nothing, so the caller can go on: an unreadable image loses the
+// frame, not the step's odometry.
 // Memory: bounded by the window W when window.keep_history is false, constant with the
 // filters when ekf.keep_history / particle_filter.keep_history are (an unbounded stream);
 // otherwise one Estimate per step is kept for smoothedTrajectory().

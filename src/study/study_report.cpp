@@ -322,9 +322,9 @@ std::string kidnapFigures(const StudyConfig& c, const std::string& scenario, con
 // Figures for one scenario in one world; returns the markdown that embeds them.
 std::string scenarioFigures(const StudyConfig& c, const std::string& scenario, const std::string& profile,
                             const std::vector<StepRow>& steps, const RenderCache* cache, const std::string& dir) {
-  // Trial 0 re-simulated (deterministic).
+  // Trial 0 re-simulated (deterministic); the workers are done, so both cores render.
   SimulationTrace trace;
-  const Dataset d = simulateTrial(c, profile, scenario, 0, cache, 2, nullptr, &trace);  // the workers are done: both cores render
+  const Dataset d = simulateTrial(c, profile, scenario, 0, cache, 2, nullptr, &trace);
   std::string md = trajectoryFigure(c, scenario, profile, d, dir);
   md += errorFigures(c, scenario, profile, steps, dir);
   md += neesFigure(c, scenario, profile, steps, dir);
