@@ -4,8 +4,10 @@
 
 #include <Eigen/Core>
 #include <filesystem>
+#include <fstream>
 #include <functional>
 #include <random>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -15,6 +17,14 @@
 #include "src/io/dataset.h"
 
 namespace stereoloc::test {
+
+// The whole file, byte for byte ("" when it cannot be read).
+inline std::string readFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
 
 // A fresh empty directory under the system temp dir, removed at scope exit.
 class TempDir {

@@ -10,6 +10,7 @@
 
 #include "frontend/frontend.h"
 #include "src/core/error.h"
+#include "test_util.h"
 
 using namespace stereoloc;
 using namespace stereoloc::frontend;
@@ -19,11 +20,6 @@ std::string tempFile(const std::string& name) {
   return (std::filesystem::temp_directory_path() / ("stereoloc_fe_" + std::to_string(::getpid()) + "_" + name)).string();
 }
 void writeText(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
-std::string readText(const std::string& path) {
-  std::ifstream in(path);
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
-
 const cv::Vec3b kWhite(235, 235, 235), kYellow(40, 225, 245), kBlue(235, 100, 50);
 
 // A goal (colour between two white walls) on rows 100..129 with its edges at sub-pixel
@@ -74,7 +70,7 @@ TEST(FrontendParams, YamlRoundTripAndShippedDefaultsFile) {
   const std::string shipped = tempFile("shipped.yaml"), defaults = tempFile("defaults.yaml");
   d.save(shipped);
   FrontendParams().save(defaults);
-  EXPECT_EQ(readText(shipped), readText(defaults));
+  EXPECT_EQ(test::readFile(shipped), test::readFile(defaults));
   std::filesystem::remove(shipped);
   std::filesystem::remove(defaults);
 }

@@ -31,11 +31,6 @@ CalibrationEstimate sampleEstimate() {
   return e;
 }
 
-std::string readText(const std::string& path) {
-  std::ifstream in(path);
-  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-}
-
 void writeText(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
 
 // Removes the line of `key` from a YAML text.
@@ -161,7 +156,7 @@ TEST(CalibrationHandover, CarriesARunsWheelEstimateOnInRawIncrements) {
 TEST(CalibrationHandover, BadFilesNameTheFileAndTheKey) {
   test::TempDir dir;
   sampleEstimate().saveAsRig(dir.file("rig.yaml"), StereoRig(), 0.0);
-  const std::string good = readText(dir.file("rig.yaml"));
+  const std::string good = test::readFile(dir.file("rig.yaml"));
   auto expectError = [&](const std::string& text, const std::string& key, const std::string& what) {
     writeText(dir.file("bad.yaml"), text);
     try {

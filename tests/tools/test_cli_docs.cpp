@@ -12,16 +12,10 @@
 #include <vector>
 
 #include "cli_util.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
-
-std::string readText(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 // The shell commands of the ```sh blocks of `markdown` (after `after`, when given) that run the
 // tool ($S ...), continuation lines joined and comments dropped.
@@ -97,7 +91,7 @@ void checkCommands(const std::vector<std::string>& commands, const std::string& 
 }
 
 TEST(CliDocs, TheReadmeTourRunsCommandsAsTheyAre) {
-  const std::string readme = readText(std::string(STEREOLOC_SOURCE_DIR) + "/README.md");
+  const std::string readme = test::readFile(std::string(STEREOLOC_SOURCE_DIR) + "/README.md");
   const std::vector<std::string> tour = toolCommands(readme, "## A five-minute tour");
   EXPECT_GE(tour.size(), 20u);
   checkCommands(tour, "README.md");
@@ -107,7 +101,7 @@ TEST(CliDocs, TheDocsRunCommandsAsTheyAre) {
   size_t n = 0;
   for (const char* page : {"on_a_robot.md", "realistic_world.md", "realtime.md", "cli.md"}) {
     const std::string path = std::string(STEREOLOC_SOURCE_DIR) + "/docs/" + page;
-    const std::vector<std::string> commands = toolCommands(readText(path));
+    const std::vector<std::string> commands = toolCommands(test::readFile(path));
     n += commands.size();
     checkCommands(commands, path);
   }
@@ -117,7 +111,7 @@ TEST(CliDocs, TheDocsRunCommandsAsTheyAre) {
 // docs/cli.md's table of commands: every option a synopsis names (`refine DIR [--out F]`,
 // several synopses per row possible) is one its command has.
 TEST(CliDocs, TheCommandTableNamesOptionsTheCommandsHave) {
-  std::istringstream in(readText(std::string(STEREOLOC_SOURCE_DIR) + "/docs/cli.md"));
+  std::istringstream in(test::readFile(std::string(STEREOLOC_SOURCE_DIR) + "/docs/cli.md"));
   size_t rows = 0;
   for (std::string line; std::getline(in, line);) {
     if (line.rfind("| `", 0) != 0) continue;

@@ -13,13 +13,6 @@
 namespace stereoloc {
 namespace {
 
-std::string readFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
   test::TempDir dir("fixstudy");
   const std::string tables = std::string(STEREOLOC_DATA_DIR) + "/thesis_tables.yaml";
@@ -40,9 +33,9 @@ TEST(CliFixstudy, PrintsBothTablesWithThesisNumbersAndWritesFiles) {
   EXPECT_NE(r.output.find("  holds per fix "), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("3-dof variance"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("band from it ["), std::string::npos) << r.output;  // from the sample variance
-  const std::string txt = readFile(dir.file("fixstudy.txt"));
+  const std::string txt = test::readFile(dir.file("fixstudy.txt"));
   EXPECT_EQ(txt, r.output);
-  const std::string csv = readFile(dir.file("fixes.csv"));
+  const std::string csv = test::readFile(dir.file("fixes.csv"));
   EXPECT_EQ(csv.rfind("category,trial,run,method,compass_sigma_deg,step,status", 0), 0u);
   EXPECT_NE(csv.find("rect,0,0,fix2,,"), std::string::npos);
   EXPECT_NE(csv.find("rect,3,0,fix1,3.5,"), std::string::npos);
@@ -123,7 +116,7 @@ TEST(CliFixstudy, RealisticProfileAddsRangeTableBesideIdeal) {
   EXPECT_GT(ideal_mean, 0.0);
   EXPECT_GT(real_mean, 0.0);
   EXPECT_NE(ideal_mean, real_mean);
-  const std::string csv = readFile(dir.file("fixes.csv"));
+  const std::string csv = test::readFile(dir.file("fixes.csv"));
   EXPECT_NE(csv.find(",frontend,profile\n"), std::string::npos);
   EXPECT_NE(csv.find(",images,realistic\n"), std::string::npos);
   EXPECT_NE(csv.find(",images_self_calibrated,realistic\n"), std::string::npos);

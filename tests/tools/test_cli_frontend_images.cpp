@@ -18,13 +18,6 @@
 namespace stereoloc {
 namespace {
 
-std::string slurp(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 // One small dataset with images shared by the tests: `line` drives towards a goal and sees its
 // corners from the first step (thesis 6.5.2).
 class FrontendImages : public ::testing::Test {
@@ -137,10 +130,10 @@ TEST(StudyImages, RendersRunsTheFrontendAndIsIdenticalWhateverTheThreadCount) {
   EXPECT_NE(one.output.find("report: "), std::string::npos) << one.output;
   const test::CliRun two = test::runCli(args + " --threads 2 --out " + dir.file("two"));
   ASSERT_EQ(two.exit_code, 0) << two.output;
-  EXPECT_EQ(slurp(dir.file("one/steps.csv")), slurp(dir.file("two/steps.csv")));
-  EXPECT_NE(slurp(dir.file("one/report.md")).find("vision frontend"), std::string::npos);
+  EXPECT_EQ(test::readFile(dir.file("one/steps.csv")), test::readFile(dir.file("two/steps.csv")));
+  EXPECT_NE(test::readFile(dir.file("one/report.md")).find("vision frontend"), std::string::npos);
   // Every method produced estimates close to the truth (summary: position RMSE, column 5).
-  std::stringstream summary(slurp(dir.file("one/summary.csv")));
+  std::stringstream summary(test::readFile(dir.file("one/summary.csv")));
   std::string line;
   std::getline(summary, line);
   int rows = 0;

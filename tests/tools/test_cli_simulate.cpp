@@ -8,6 +8,8 @@
 #include <sstream>
 #include <string>
 
+#include "test_util.h"
+
 namespace {
 namespace fs = std::filesystem;
 
@@ -27,13 +29,6 @@ Result run(const std::string& args) {
   const int status = pclose(p);
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
-}
-
-std::string readFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
 }
 
 class CliSimulate : public ::testing::Test {
@@ -62,12 +57,12 @@ TEST_F(CliSimulate, SameSeedByteIdenticalAndRefusesOverwrite) {
   ASSERT_EQ(run("simulate --scenario rect-spin --trial b --seed 9 --obstacles 3 --out " + root + "/a").code, 0);
   ASSERT_EQ(run("simulate --scenario rect-spin --trial 1 --seed 9 --obstacles 3 --out " + root + "/b").code, 0);
   for (const char* f : {"dataset.yaml", "odometry.csv", "observations.csv", "compass.csv", "groundtruth.csv"})
-    EXPECT_EQ(readFile(root + "/a/" + f), readFile(root + "/b/" + f)) << f;
+    EXPECT_EQ(stereoloc::test::readFile(root + "/a/" + f), stereoloc::test::readFile(root + "/b/" + f)) << f;
   const Result again = run("simulate --scenario line --out " + root + "/a");
   EXPECT_EQ(again.code, 2) << again.out;
   EXPECT_NE(again.out.find("--force"), std::string::npos);
   EXPECT_EQ(run("simulate --scenario line --force --out " + root + "/a").code, 0);
-  EXPECT_NE(readFile(root + "/a/dataset.yaml").find("name: line"), std::string::npos);
+  EXPECT_NE(stereoloc::test::readFile(root + "/a/dataset.yaml").find("name: line"), std::string::npos);
 }
 
 TEST_F(CliSimulate, ImagesWithGroundTruth) {
@@ -77,9 +72,9 @@ TEST_F(CliSimulate, ImagesWithGroundTruth) {
   }
   for (const char* f : {"images/left_000000.png", "images/right_000002.png", "images/truth_000001.json"}) {
     EXPECT_TRUE(fs::exists(root + "/i/" + f)) << f;
-    EXPECT_EQ(readFile(root + "/i/" + f), readFile(root + "/j/" + f)) << f;
+    EXPECT_EQ(stereoloc::test::readFile(root + "/i/" + f), stereoloc::test::readFile(root + "/j/" + f)) << f;
   }
-  EXPECT_NE(readFile(root + "/i/images/truth_000000.json").find("\"goal_corner\""), std::string::npos);
+  EXPECT_NE(stereoloc::test::readFile(root + "/i/images/truth_000000.json").find("\"goal_corner\""), std::string::npos);
   const Result i = run("info " + root + "/i");
   EXPECT_EQ(i.code, 0) << i.out;
   EXPECT_NE(i.out.find("images: 3 stereo pairs, every one readable"), std::string::npos) << i.out;

@@ -10,13 +10,6 @@
 namespace stereoloc {
 namespace {
 
-std::string slurp(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 const char* kSmall =
     "study --scenarios circle,spin --methods fix2,ekf,window,batch --trials 4 --seed 7 --no-progress --frontend pixels";
 
@@ -29,11 +22,11 @@ TEST(CliStudy, WritesTablesReportAndFigures) {
   for (const char* f : {"trials.csv", "steps.csv", "summary.csv", "report.md", "circle_trajectories.png", "circle_nees.png",
                         "spin_rmse.png"})
     EXPECT_TRUE(std::filesystem::exists(dir.file(std::string("s/") + f))) << f;
-  const std::string report = slurp(dir.file("s/report.md"));
+  const std::string report = test::readFile(dir.file("s/report.md"));
   EXPECT_NE(report.find("Table 6.14"), std::string::npos);
   EXPECT_NE(report.find("60.41"), std::string::npos) << "thesis EKF known-start mean beside ours";
   // 2 scenarios x 4 methods summary rows + header.
-  const std::string summary = slurp(dir.file("s/summary.csv"));
+  const std::string summary = test::readFile(dir.file("s/summary.csv"));
   EXPECT_EQ(std::count(summary.begin(), summary.end(), '\n'), 9);
 }
 
@@ -42,12 +35,12 @@ TEST(CliStudy, IdenticalWhateverTheThreadCountAndShardedMergeEqualsUnsharded) {
   ASSERT_EQ(test::runCli(std::string(kSmall) + " --threads 1 --out " + dir.file("one")).exit_code, 0);
   ASSERT_EQ(test::runCli(std::string(kSmall) + " --threads 2 --out " + dir.file("two")).exit_code, 0);
   // ms/step is wall-clock, so compare trials.csv without its timing column via steps.csv (all numeric results).
-  EXPECT_EQ(slurp(dir.file("one/steps.csv")), slurp(dir.file("two/steps.csv")));
+  EXPECT_EQ(test::readFile(dir.file("one/steps.csv")), test::readFile(dir.file("two/steps.csv")));
   ASSERT_EQ(test::runCli(std::string(kSmall) + " --shard 0/2 --out " + dir.file("a")).exit_code, 0);
   ASSERT_EQ(test::runCli(std::string(kSmall) + " --shard 1/2 --out " + dir.file("b")).exit_code, 0);
   const test::CliRun m = test::runCli("study merge " + dir.file("a") + " " + dir.file("b") + " --out " + dir.file("m"));
   ASSERT_EQ(m.exit_code, 0) << m.output;
-  EXPECT_EQ(slurp(dir.file("m/steps.csv")), slurp(dir.file("one/steps.csv")));
+  EXPECT_EQ(test::readFile(dir.file("m/steps.csv")), test::readFile(dir.file("one/steps.csv")));
   // Summary columns except ms/step agree exactly.
   auto dropTiming = [](const std::string& csv) {
     std::stringstream in(csv), out;
@@ -63,9 +56,9 @@ TEST(CliStudy, IdenticalWhateverTheThreadCountAndShardedMergeEqualsUnsharded) {
     }
     return out.str();
   };
-  EXPECT_EQ(dropTiming(slurp(dir.file("m/summary.csv"))), dropTiming(slurp(dir.file("one/summary.csv"))));
+  EXPECT_EQ(dropTiming(test::readFile(dir.file("m/summary.csv"))), dropTiming(test::readFile(dir.file("one/summary.csv"))));
   // The observation model is part of the configuration: shards run with another one do not merge.
-  EXPECT_NE(slurp(dir.file("a/study.yaml")).find("observation_model: pixel_columns"), std::string::npos);
+  EXPECT_NE(test::readFile(dir.file("a/study.yaml")).find("observation_model: pixel_columns"), std::string::npos);
   ASSERT_EQ(test::runCli(std::string(kSmall) + " --shard 1/2 --observation-model range_bearing --out " + dir.file("c"))
                 .exit_code,
             0);
@@ -82,15 +75,15 @@ TEST(CliStudy, ProfilesSideBySide) {
   const test::CliRun both = test::runCli(args + " --profile ideal,realistic --out " + dir.file("both"));
   ASSERT_EQ(both.exit_code, 0) << both.output;
   ASSERT_EQ(test::runCli(args + " --out " + dir.file("ideal")).exit_code, 0);
-  const std::string steps_both = slurp(dir.file("both/steps.csv")), steps_ideal = slurp(dir.file("ideal/steps.csv"));
+  const std::string steps_both = test::readFile(dir.file("both/steps.csv")), steps_ideal = test::readFile(dir.file("ideal/steps.csv"));
   EXPECT_EQ(steps_both.rfind("scenario,profile,trial,method,step,", 0), 0u);
   // The ideal rows come first (profile order) and equal the ideal-only study's.
   ASSERT_GT(steps_both.size(), steps_ideal.size());
   EXPECT_EQ(steps_both.substr(0, steps_ideal.size()), steps_ideal);
   EXPECT_NE(steps_both.find("\ncircle,realistic,0,batch:calib,"), std::string::npos);
-  const std::string summary = slurp(dir.file("both/summary.csv"));
+  const std::string summary = test::readFile(dir.file("both/summary.csv"));
   EXPECT_EQ(std::count(summary.begin(), summary.end(), '\n'), 5);  // 2 profiles x 2 methods + header
-  const std::string report = slurp(dir.file("both/report.md"));
+  const std::string report = test::readFile(dir.file("both/report.md"));
   EXPECT_NE(report.find("| RMSE ideal [mm] | NEES ideal | ms/step ideal | RMSE realistic [mm] |"), std::string::npos) << report;
   for (const char* f : {"circle_realistic_trajectories.png", "circle_realistic_batch_calib_calibration_4.png",
                         "circle_batch_calib_calibration_0.png"})
@@ -98,7 +91,7 @@ TEST(CliStudy, ProfilesSideBySide) {
   EXPECT_NE(summary.find("\ncircle,realistic,ekf,2,"), std::string::npos);
   // Every trial's calibration estimate against the drawn truth: 2 profiles x 2 trials x 6
   // parameters (the exposure offset only where a noise model states it: not the profiles').
-  const std::string calibration = slurp(dir.file("both/calibration.csv"));
+  const std::string calibration = test::readFile(dir.file("both/calibration.csv"));
   EXPECT_EQ(calibration.rfind("scenario,profile,trial,method,parameter,truth,estimate,sigma\n", 0), 0u);
   EXPECT_EQ(std::count(calibration.begin(), calibration.end(), '\n'), 25);
   EXPECT_EQ(calibration.find(",exposure_offset_s,"), std::string::npos);
@@ -114,7 +107,7 @@ TEST(CliStudy, TrackingParticleFilterKeepsItsBeliefWhenItWidensBriefly) {
   const test::CliRun r = test::runCli("study --scenarios circle --methods pf --trials 25 --shard 24/25 --seed 1 --no-progress --out " +
                                       dir.file("s"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  const std::string summary = slurp(dir.file("s/summary.csv"));
+  const std::string summary = test::readFile(dir.file("s/summary.csv"));
   const size_t row = summary.find("\ncircle,ideal,pf,1,");
   ASSERT_NE(row, std::string::npos) << summary;
   const double rmse = std::stod(summary.substr(row + std::string("\ncircle,ideal,pf,1,").size()));
@@ -132,7 +125,7 @@ TEST(CliStudy, WindowSmoothsStartsAtThePriorsTailOnImages) {
                                                     "--trials 100 --seed 1 --no-progress --shard ") +
                                         shard + " --out " + dir.file("s"));
     ASSERT_EQ(r.exit_code, 0) << r.output;
-    const std::string summary = slurp(dir.file("s/summary.csv"));
+    const std::string summary = test::readFile(dir.file("s/summary.csv"));
     const std::string key = "\ncircle,ideal,window,1,";
     const size_t row = summary.find(key);
     ASSERT_NE(row, std::string::npos) << summary;
@@ -164,14 +157,14 @@ TEST(CliLocalize, EveryMethodWritesEstimatesAndTum) {
     const test::CliRun r = test::runCli(std::string("localize ") + dir.file("d") + " --method " + m + particles + " --out " +
                                         dir.file(std::string(m) + ".csv") + " --tum " + dir.file(std::string(m) + ".tum"));
     ASSERT_EQ(r.exit_code, 0) << m << ": " << r.output;
-    const std::string csv = slurp(dir.file(std::string(m) + ".csv"));
+    const std::string csv = test::readFile(dir.file(std::string(m) + ".csv"));
     EXPECT_EQ(csv.rfind("step,t,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta\n", 0), 0u) << m;
     EXPECT_GT(std::count(csv.begin(), csv.end(), '\n'), 5) << m;
     EXPECT_EQ(csv.find("nan"), std::string::npos) << m;
   }
   const test::CliRun refine = test::runCli("refine " + dir.file("d") + " --out " + dir.file("r.csv"));
   EXPECT_EQ(refine.exit_code, 0) << refine.output;
-  EXPECT_EQ(slurp(dir.file("r.csv")), slurp(dir.file("batch.csv")));
+  EXPECT_EQ(test::readFile(dir.file("r.csv")), test::readFile(dir.file("batch.csv")));
   // An option the method does not use is refused, not ignored.
   const test::CliRun unused = test::runCli("localize " + dir.file("d") + " --method ekf --particles 500 --out " + dir.file("x.csv"));
   EXPECT_EQ(unused.exit_code, 2);
@@ -202,7 +195,7 @@ TEST(CliLocalize, SmoothersAndTheEkfSelfCalibrateAndWriteARigBack) {
     // A plausible estimate is reported with its furthest parameter, without a warning.
     EXPECT_NE(r.output.find("calibration: furthest from the nominal calibration: "), std::string::npos) << m << ": " << r.output;
     EXPECT_EQ(r.output.find("warning"), std::string::npos) << m << ": " << r.output;
-    const std::string yaml = slurp(rig);
+    const std::string yaml = test::readFile(rig);
     EXPECT_NE(yaml.find("wheel_base_mm"), std::string::npos) << m << ": " << yaml;
     EXPECT_EQ(yaml.find("nan"), std::string::npos) << m;
   }
@@ -241,7 +234,7 @@ TEST(CliLocalize, TheEkfConsidersItsCalibration) {
   EXPECT_EQ(c.output.find("calibration:"), std::string::npos) << c.output;  // nothing estimated
   const test::CliRun m = test::runCli(run + "--method ekf:consider --out " + dir.file("m.csv"));
   ASSERT_EQ(m.exit_code, 0) << m.output;
-  EXPECT_EQ(slurp(dir.file("c.csv")), slurp(dir.file("m.csv")));
+  EXPECT_EQ(test::readFile(dir.file("c.csv")), test::readFile(dir.file("m.csv")));
   const test::CliRun plain = test::runCli("localize " + dir.file("d") + " --method ekf --out " + dir.file("p.csv"));
   ASSERT_EQ(plain.exit_code, 0) << plain.output;
   auto nees = [](const std::string& out) {

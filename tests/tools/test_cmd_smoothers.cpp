@@ -15,13 +15,6 @@
 namespace stereoloc {
 namespace {
 
-std::string readFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 std::vector<std::string> cells(const std::string& row) {
   std::vector<std::string> out;
   std::stringstream ss(row);
@@ -40,7 +33,7 @@ TEST(CliSmoothers, PrintsTheComparisonTableWithFiniteFiguresAboveTheBound) {
   const std::string args = "smoothers --scenarios circle,line --trials 4 --seed 5 --windows 5,20 --particles 500";
   const test::CliRun r = test::runCli(args + " --threads 2 --out " + dir.path());
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  const std::string md = readFile(dir.file("smoothers.md"));
+  const std::string md = test::readFile(dir.file("smoothers.md"));
   ASSERT_FALSE(md.empty());
   EXPECT_NE(r.output.find(md.substr(0, 200)), std::string::npos) << "the table is printed too";
 
@@ -89,7 +82,7 @@ TEST(CliSmoothers, PrintsTheComparisonTableWithFiniteFiguresAboveTheBound) {
   test::TempDir one("smoothers1");
   const test::CliRun r1 = test::runCli(args + " --threads 1 --out " + one.path());
   ASSERT_EQ(r1.exit_code, 0) << r1.output;
-  EXPECT_EQ(readFile(one.file("smoothers.md")), md);
+  EXPECT_EQ(test::readFile(one.file("smoothers.md")), md);
 }
 
 TEST(CliSmoothers, RangeBearingModelComparesWithItsOwnBound) {

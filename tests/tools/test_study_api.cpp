@@ -14,13 +14,6 @@
 namespace stereoloc {
 namespace {
 
-std::string slurp(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 // Drops the 0-based column `col` of every CSV line (the ms_per_step timing).
 std::string withoutColumn(const std::string& csv, size_t col) {
   std::istringstream in(csv);
@@ -86,7 +79,7 @@ TEST(StudyApi, LibraryAndCommandLineWriteTheSameFiles) {
   size_t files = 0;
   for (const auto& e : std::filesystem::directory_iterator(c.out_dir)) {
     const std::string name = e.path().filename().string();
-    const std::string a = slurp(e.path().string()), b = slurp(dir.file("cli/" + name));
+    const std::string a = test::readFile(e.path().string()), b = test::readFile(dir.file("cli/" + name));
     ASSERT_FALSE(b.empty()) << name << " missing from the command line's study";
     ++files;
     if (name == "trials.csv")

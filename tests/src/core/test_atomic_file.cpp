@@ -13,15 +13,6 @@
 
 namespace stereoloc {
 
-namespace {
-std::string slurp(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-}  // namespace
-
 TEST(AtomicFile, InterruptedWriteLeavesPreviousFileIntact) {
   test::TempDir dir;
   const std::string path = dir.file("out.csv");
@@ -31,7 +22,7 @@ TEST(AtomicFile, InterruptedWriteLeavesPreviousFileIntact) {
     f.stream() << "new partial";
     // destroyed without commit(): as if the run was interrupted
   }
-  EXPECT_EQ(slurp(path), "old\n");
+  EXPECT_EQ(test::readFile(path), "old\n");
   size_t files = 0;
   for (const auto& e : std::filesystem::directory_iterator(dir.path())) files += e.is_regular_file();
   EXPECT_EQ(files, 1u) << "temporary file left behind";
@@ -40,7 +31,7 @@ TEST(AtomicFile, InterruptedWriteLeavesPreviousFileIntact) {
     f.stream() << "new\n";
     f.commit();
   }
-  EXPECT_EQ(slurp(path), "new\n");
+  EXPECT_EQ(test::readFile(path), "new\n");
   EXPECT_THROW(writeFileAtomically(dir.file("no/such/dir/x"), "x"), Error);
 }
 
@@ -67,7 +58,7 @@ TEST(AtomicFile, PipesAreWrittenInPlaceAndLinksKept) {
   std::filesystem::create_symlink(dir.file("real.csv"), dir.file("link.csv"));
   writeFileAtomically(dir.file("link.csv"), "new\n");
   EXPECT_TRUE(std::filesystem::is_symlink(dir.file("link.csv")));
-  EXPECT_EQ(slurp(dir.file("real.csv")), "new\n");
+  EXPECT_EQ(test::readFile(dir.file("real.csv")), "new\n");
   EXPECT_THROW(writeFileAtomically(dir.path(), "x"), Error);  // a directory
 }
 

@@ -14,6 +14,7 @@
 #include "src/io/dataset.h"
 #include "src/core/error.h"
 #include "src/sim/simulator.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
@@ -36,13 +37,6 @@ class TempDir {
   std::string path_;
 };
 
-std::string readFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 void writeFile(const std::string& path, const std::string& text) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   out << text;
@@ -50,7 +44,7 @@ void writeFile(const std::string& path, const std::string& text) {
 
 // Replaces line `line` (1-based) of a file.
 void replaceLine(const std::string& path, int line, const std::string& text) {
-  std::istringstream in(readFile(path));
+  std::istringstream in(test::readFile(path));
   std::string out, l;
   for (int i = 1; std::getline(in, l); ++i) out += (i == line ? text : l) + "\n";
   writeFile(path, out);
@@ -127,7 +121,7 @@ TEST(Dataset, PixelRoundTripIsExact) {
   expectSame(d, loadDataset(dir.path()));
   EXPECT_TRUE(fs::exists(dir / "compass.csv"));
   EXPECT_TRUE(fs::exists(dir / "groundtruth.csv"));
-  EXPECT_EQ(readFile(dir / "observations.csv").rfind("step,t,landmark_id,u_left", 0), 0u);
+  EXPECT_EQ(test::readFile(dir / "observations.csv").rfind("step,t,landmark_id,u_left", 0), 0u);
 }
 
 TEST(Dataset, PixelCovarianceRoundTripsAndBadOnesNameTheRow) {
@@ -137,10 +131,10 @@ TEST(Dataset, PixelCovarianceRoundTripsAndBadOnesNameTheRow) {
   for (Step& s : d.steps)
     for (Observation& o : s.observations) o = observationFromPixels(d.rig, o.landmark_id, o.type, *o.pixels, o.head_pan, C);
   saveDataset(d, dir.path(), false);
-  EXPECT_NE(readFile(dir / "observations.csv").find("cov_ul_ul"), std::string::npos);
+  EXPECT_NE(test::readFile(dir / "observations.csv").find("cov_ul_ul"), std::string::npos);
   expectSame(d, loadDataset(dir.path()));
   // A covariance that is not positive definite: one line naming the file, row and column.
-  const std::string text = readFile(dir / "observations.csv");
+  const std::string text = test::readFile(dir / "observations.csv");
   const size_t row2 = text.find('\n') + 1;
   std::string line = text.substr(row2, text.find('\n', row2) - row2);
   std::vector<std::string> cells;
@@ -167,7 +161,7 @@ TEST(Dataset, SlideGainsRoundTripAndBadOnesNameTheRow) {
         o.slide_gain = 0.25 * (k++ % 7) - 0.8;
       }
     saveDataset(d, dir.path(), false);
-    const std::string text = readFile(dir / "observations.csv");
+    const std::string text = test::readFile(dir / "observations.csv");
     EXPECT_NE(text.substr(0, text.find('\n')).find(",slide_gain"), std::string::npos);
     expectSame(d, loadDataset(dir.path()));
     const size_t row2 = text.find('\n') + 1;
@@ -178,7 +172,7 @@ TEST(Dataset, SlideGainsRoundTripAndBadOnesNameTheRow) {
   // Without gains the file keeps the plain header.
   TempDir dir;
   saveDataset(sample(), dir.path(), false);
-  EXPECT_EQ(readFile(dir / "observations.csv").find("slide_gain"), std::string::npos);
+  EXPECT_EQ(test::readFile(dir / "observations.csv").find("slide_gain"), std::string::npos);
 }
 
 TEST(Dataset, RangeBearingRoundTripIsExact) {
@@ -190,7 +184,7 @@ TEST(Dataset, RangeBearingRoundTripIsExact) {
   d.groundtruth[5].reset();  // ground truth may be partial
   d.odometry.readings = OdometryReadings::Commands;
   saveDataset(d, dir.path(), false);
-  EXPECT_EQ(readFile(dir / "observations.csv").rfind("step,t,landmark_id,range,bearing,sigma_range,sigma_bearing\n", 0), 0u);
+  EXPECT_EQ(test::readFile(dir / "observations.csv").rfind("step,t,landmark_id,range,bearing,sigma_range,sigma_bearing\n", 0), 0u);
   expectSame(d, loadDataset(dir.path()));
 }
 
@@ -202,11 +196,11 @@ TEST(Dataset, SameSeedGivesByteIdenticalFiles) {
   size_t files = 0;
   for (const auto& e : fs::directory_iterator(a.path())) {
     const std::string name = e.path().filename().string();
-    EXPECT_EQ(readFile(a / name), readFile(b / name)) << name;
+    EXPECT_EQ(test::readFile(a / name), test::readFile(b / name)) << name;
     ++files;
   }
   EXPECT_EQ(files, 7u);  // dataset.yaml map.yaml rig.yaml odometry compass observations groundtruth
-  EXPECT_NE(readFile(a / "odometry.csv"), readFile(c / "odometry.csv"));
+  EXPECT_NE(test::readFile(a / "odometry.csv"), test::readFile(c / "odometry.csv"));
 }
 
 TEST(Dataset, RefusesNonEmptyDirectoryUnlessForced) {
@@ -266,7 +260,7 @@ TEST_F(Malformed, Infinity) {
 }
 
 TEST_F(Malformed, StepsOutOfOrder) {
-  const std::string odo = readFile(dir / "odometry.csv");
+  const std::string odo = test::readFile(dir / "odometry.csv");
   std::istringstream in(odo);
   std::string header, l2, l3, rest, l;
   std::getline(in, header);
@@ -278,7 +272,7 @@ TEST_F(Malformed, StepsOutOfOrder) {
 }
 
 TEST_F(Malformed, ObservationStepsOutOfOrder) {
-  const std::string obs = readFile(dir / "observations.csv");
+  const std::string obs = test::readFile(dir / "observations.csv");
   std::istringstream in(obs);
   std::string header, l, last;
   std::getline(in, header);
@@ -290,7 +284,7 @@ TEST_F(Malformed, ObservationStepsOutOfOrder) {
 }
 
 TEST_F(Malformed, UnknownLandmarkId) {
-  const std::string obs = readFile(dir / "observations.csv");
+  const std::string obs = test::readFile(dir / "observations.csv");
   std::istringstream in(obs);
   std::string header, first;
   std::getline(in, header);
@@ -317,14 +311,14 @@ TEST_F(Malformed, MissingOdometry) {
 }
 
 TEST_F(Malformed, MissingImages) {
-  std::string y = readFile(dir / "dataset.yaml");
+  std::string y = test::readFile(dir / "dataset.yaml");
   y.replace(y.find("has_images: 0"), 13, "has_images: 1");
   writeFile(dir / "dataset.yaml", y);
   expectError(dir.path(), "has_images", "images/left_000000.png");
 }
 
 TEST_F(Malformed, UnknownOdometryReadings) {
-  std::string y = readFile(dir / "dataset.yaml");
+  std::string y = test::readFile(dir / "dataset.yaml");
   y.replace(y.find("readings: encoders"), 18, "readings: velocity");
   writeFile(dir / "dataset.yaml", y);
   expectError(dir.path(), "readings", "unknown odometry readings 'velocity'");
@@ -336,7 +330,7 @@ TEST_F(Malformed, WrongHeader) {
 }
 
 TEST_F(Malformed, BadYaml) {
-  std::string y = readFile(dir / "dataset.yaml");
+  std::string y = test::readFile(dir / "dataset.yaml");
   y.replace(y.find("format_version: 1"), 17, "format_version: 7");
   writeFile(dir / "dataset.yaml", y);
   expectError(dir.path(), "dataset.yaml", "unsupported version 7");
@@ -344,7 +338,7 @@ TEST_F(Malformed, BadYaml) {
 
 TEST_F(Malformed, PixelSigmaCopyThatDisagreesWithTheRig) {
   // dataset.yaml's noise.pixel_sigma only repeats the rig's: a different one would do nothing.
-  std::string y = readFile(dir / "dataset.yaml");
+  std::string y = test::readFile(dir / "dataset.yaml");
   const size_t at = y.find("pixel_sigma:");
   ASSERT_NE(at, std::string::npos);
   y.replace(at, y.find('\n', at) - at, "pixel_sigma: 0.25");
