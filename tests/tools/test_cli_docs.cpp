@@ -4,8 +4,8 @@
 // newcomer's shell.
 #include <gtest/gtest.h>
 
+#include <cctype>
 #include <fstream>
-#include <regex>
 #include <set>
 #include <sstream>
 #include <string>
@@ -35,14 +35,16 @@ std::vector<std::string> toolCommands(const std::string& markdown, const std::st
     const bool continued = !line.empty() && line.back() == '\\';
     pending += continued ? line.substr(0, line.size() - 1) : line;
     if (continued) continue;
-    // The tool as $S or by name; one line may run several commands ("a && b").
-    const std::regex tool(R"((?:^|[\s'])(?:\$S|stereoloc) )");
-    for (std::sregex_iterator it(pending.begin(), pending.end(), tool), end; it != end; ++it) {
-      const size_t start = static_cast<size_t>(it->position() + it->length());
-      const size_t stop = pending.find("&&", start);
-      std::string command = pending.substr(start, stop == std::string::npos ? std::string::npos : stop - start);
-      command.erase(command.find_last_not_of(" '") + 1);
-      out.push_back(command);
+    // The tool as $S or by name, at the start or after a space or quote; one line may run
+    // several commands ("a && b").
+    for (const std::string& name : {std::string("$S "), std::string("stereoloc ")}) {
+      for (size_t at = pending.find(name); at != std::string::npos; at = pending.find(name, at + 1)) {
+        if (at > 0 && pending[at - 1] != ' ' && pending[at - 1] != '\'') continue;
+        const size_t start = at + name.size(), stop = pending.find("&&", start);
+        std::string command = pending.substr(start, stop == std::string::npos ? std::string::npos : stop - start);
+        command.erase(command.find_last_not_of(" '") + 1);
+        out.push_back(command);
+      }
     }
     pending.clear();
   }
@@ -58,13 +60,21 @@ CommandHelp helpOf(const std::string& command) {
   const test::CliRun r = test::runCli(command + " --help");
   EXPECT_EQ(r.exit_code, 0) << command << ": " << r.output;
   CommandHelp h;
-  const std::regex option(R"(^\s+(?:-\w,)?(--[a-z0-9-]+)\b(.*)$)");
   std::istringstream in(r.output);
   for (std::string line; std::getline(in, line);) {
-    std::smatch m;
-    if (!std::regex_search(line, m, option)) continue;
-    h.options.insert(m[1]);
-    if (m[2].str().find("REQUIRED") != std::string::npos) h.required.insert(m[1]);
+    // An option line: indented, an optional short form ("-h,"), then --name.
+    size_t k = line.find_first_not_of(' ');
+    if (k == 0 || k == std::string::npos) continue;
+    if (line.compare(k, 1, "-") == 0 && line.compare(k, 2, "--") != 0 && line.size() > k + 3 && line[k + 2] == ',')
+      k += 3;
+    if (line.compare(k, 2, "--") != 0) continue;
+    size_t end = k + 2;
+    while (end < line.size() && (std::islower(static_cast<unsigned char>(line[end])) ||
+                                 std::isdigit(static_cast<unsigned char>(line[end])) || line[end] == '-'))
+      ++end;
+    const std::string name = line.substr(k, end - k);
+    h.options.insert(name);
+    if (line.find("REQUIRED", end) != std::string::npos) h.required.insert(name);
   }
   return h;
 }
@@ -116,10 +126,14 @@ TEST(CliDocs, TheCommandTableNamesOptionsTheCommandsHave) {
   for (std::string line; std::getline(in, line);) {
     if (line.rfind("| `", 0) != 0) continue;
     const std::string cell = line.substr(2, line.find(" | ", 2) - 2);
-    const std::regex synopsis("`([^`]*)`");
-    for (std::sregex_iterator it(cell.begin(), cell.end(), synopsis), end; it != end; ++it) {
-      std::string text = (*it)[1];
-      text = std::regex_replace(text, std::regex(R"([\[\]])"), " ");
+    for (size_t open = cell.find('`'); open != std::string::npos; open = cell.find('`', open + 1)) {
+      const size_t close = cell.find('`', open + 1);
+      if (close == std::string::npos) break;
+      const std::string synopsis = cell.substr(open + 1, close - open - 1);
+      open = close;
+      std::string text = synopsis;
+      for (char& c : text)
+        if (c == '[' || c == ']') c = ' ';
       std::istringstream words(text);
       std::vector<std::string> w;
       for (std::string x; words >> x;) w.push_back(x);
@@ -130,7 +144,7 @@ TEST(CliDocs, TheCommandTableNamesOptionsTheCommandsHave) {
       const CommandHelp help = helpOf(command);
       for (const std::string& x : w) {
         if (x.rfind("--", 0) != 0) continue;
-        EXPECT_TRUE(help.options.count(x)) << "docs/cli.md: `" << (*it)[1] << "`: " << command << " has no option " << x;
+        EXPECT_TRUE(help.options.count(x)) << "docs/cli.md: `" << synopsis << "`: " << command << " has no option " << x;
       }
       ++rows;
     }
