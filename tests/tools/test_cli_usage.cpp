@@ -105,6 +105,18 @@ TEST_F(CliUsage, FrontendOptionsNeedTheFrontend) {
   EXPECT_FALSE(std::filesystem::exists(file("f.csv")));
 }
 
+// A study's method options need a listed method that uses them.
+TEST_F(CliUsage, StudyMethodOptionsNeedTheirMethod) {
+  const test::CliRun pf = test::runCli("study --methods ekf,batch --particles 100 --trials 1 --out " + file("s"));
+  EXPECT_EQ(pf.exit_code, 2);
+  EXPECT_EQ(pf.output, "stereoloc: --particles: for studies with the particle filter only (--methods ekf,batch) (see --help)\n");
+  EXPECT_EQ(test::runCli("study --methods ekf,pf:global --window 5 --trials 1 --out " + file("s")).exit_code, 2);
+  EXPECT_FALSE(std::filesystem::exists(file("s")));
+  const test::CliRun ok = test::runCli("study --methods ekf,window:calib --window 5 --frontend pixels --scenarios line "
+                                       "--trials 1 --out " + file("s"));
+  EXPECT_EQ(ok.exit_code, 0) << ok.output;
+}
+
 TEST_F(CliUsage, StreamTakesItsSetupFromOneSource) {
   const test::CliRun both = test::runCli("stream --from " + dataset() + " --setup " + dataset());
   EXPECT_EQ(both.exit_code, 2);

@@ -140,6 +140,16 @@ void add_study_command(CLI::App& app) {
     if (a->config.out_dir.empty()) throw UsageError("study: --out DIR is required");
     refuseUnused(*sub, "--frontend-landmarks", a->config.frontend == "images", "--frontend images");
     refuseUnused(*sub, "--image-noise", a->config.frontend == "images", "--frontend images");
+    bool pf = false, window = false;
+    for (const std::string& m : splitCommaList(a->methods)) {
+      const std::string name = parseMethodSpec(m, InitMode::Known).first;
+      pf |= name == "pf";
+      window |= name == "window";
+    }
+    const std::string listed = " (--methods " + a->methods + ")";
+    for (const char* option : {"--particles", "--pf-proposal", "--pf-kld"})
+      refuseUnused(*sub, option, pf, "studies with the particle filter", listed);
+    refuseUnused(*sub, "--window", window, "studies with the window", listed);
     runFromArgs(*a);
   });
 }
