@@ -99,13 +99,21 @@ std::vector<Estimate> deadReckoning(const std::vector<Step>& steps, const Odomet
   return out;
 }
 
+// The keys of --only, every comma splitting ("ekf," has an empty second key); none when empty.
+std::vector<std::string> onlyKeys(const RealDataStudyOptions& o) {
+  std::vector<std::string> keys;
+  if (o.only.empty()) return keys;
+  for (size_t start = 0;;) {
+    const size_t comma = o.only.find(',', start);
+    keys.push_back(o.only.substr(start, comma == std::string::npos ? std::string::npos : comma - start));
+    if (comma == std::string::npos) return keys;
+    start = comma + 1;
+  }
+}
+
 bool wanted(const RealDataStudyOptions& o, const std::string& key) {
-  if (o.only.empty()) return true;
-  std::stringstream ss(o.only);
-  std::string k;
-  while (std::getline(ss, k, ','))
-    if (k == key) return true;
-  return false;
+  const std::vector<std::string> keys = onlyKeys(o);
+  return keys.empty() || std::find(keys.begin(), keys.end(), key) != keys.end();
 }
 
 }  // namespace
@@ -341,14 +349,9 @@ const std::vector<std::string>& realDataEstimatorKeys() {
 }
 
 void runRealDataStudy(const RealDataStudyOptions& o) {
-  if (!o.only.empty()) {
-    std::stringstream ss(o.only);
-    const std::vector<std::string>& keys = realDataEstimatorKeys();
-    for (std::string k; std::getline(ss, k, ',');)
-      if (std::find(keys.begin(), keys.end(), k) == keys.end())
-        throw UsageError("--only: unknown estimator '" + k + "'");
-    if (o.only.back() == ',') throw UsageError("--only: unknown estimator ''");
-  }
+  const std::vector<std::string>& known = realDataEstimatorKeys();
+  for (const std::string& k : onlyKeys(o))
+    if (std::find(known.begin(), known.end(), k) == known.end()) throw UsageError("--only: unknown estimator '" + k + "'");
   if (o.batch_guess != "filter" && o.batch_guess != "odometry")
     throw UsageError("--batch-guess: expected 'filter' or 'odometry', got '" + o.batch_guess + "'");
   Dataset d = loadRealDataset(o);

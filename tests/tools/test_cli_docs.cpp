@@ -51,6 +51,20 @@ std::vector<std::string> toolCommands(const std::string& markdown, const std::st
   return out;
 }
 
+std::vector<std::string> wordsOf(const std::string& text) {
+  std::istringstream in(text);
+  std::vector<std::string> w;
+  for (std::string x; in >> x;) w.push_back(x);
+  return w;
+}
+
+// The (sub)command a command line's words start with: "refine", or "import mrclam", "study merge".
+std::string commandOf(const std::vector<std::string>& w) {
+  if (w.size() > 1 && ((w[0] == "import" && w[1] == "mrclam") || (w[0] == "study" && w[1] == "merge")))
+    return w[0] + " " + w[1];
+  return w[0];
+}
+
 struct CommandHelp {
   std::set<std::string> options, required;
 };
@@ -82,13 +96,9 @@ CommandHelp helpOf(const std::string& command) {
 void checkCommands(const std::vector<std::string>& commands, const std::string& source) {
   ASSERT_FALSE(commands.empty()) << source;
   for (const std::string& line : commands) {
-    std::istringstream words(line);
-    std::vector<std::string> w;
-    for (std::string x; words >> x;) w.push_back(x);
+    const std::vector<std::string> w = wordsOf(line);
     ASSERT_FALSE(w.empty()) << source;
-    std::string command = w[0];
-    if (w.size() > 1 && ((command == "import" && w[1] == "mrclam") || (command == "study" && w[1] == "merge")))
-      command += " " + w[1];
+    const std::string command = commandOf(w);
     const CommandHelp help = helpOf(command);
     std::set<std::string> used;
     for (const std::string& x : w)
@@ -134,13 +144,9 @@ TEST(CliDocs, TheCommandTableNamesOptionsTheCommandsHave) {
       std::string text = synopsis;
       for (char& c : text)
         if (c == '[' || c == ']') c = ' ';
-      std::istringstream words(text);
-      std::vector<std::string> w;
-      for (std::string x; words >> x;) w.push_back(x);
+      const std::vector<std::string> w = wordsOf(text);
       if (w.empty()) continue;
-      std::string command = w[0];
-      if (w.size() > 1 && ((command == "import" && w[1] == "mrclam") || (command == "study" && w[1] == "merge")))
-        command += " " + w[1];
+      const std::string command = commandOf(w);
       const CommandHelp help = helpOf(command);
       for (const std::string& x : w) {
         if (x.rfind("--", 0) != 0) continue;
