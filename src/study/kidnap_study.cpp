@@ -101,6 +101,11 @@ SimulationConfig kidnapSimulation(const KidnapStudyOptions& o) {
   if (o.seeds < 1) throw UsageError("--seeds must be at least 1");
   if (!(o.gate_probability > 0 && o.gate_probability < 1)) throw UsageError("--gate-probability must be in (0, 1)");
   if (o.lost_after < 1) throw UsageError("--lost-after must be at least 1");
+  const uint64_t last_seed = o.first_seed + static_cast<uint64_t>(o.seeds) - 1;
+  if (o.plot_seed != -1 && (o.plot_seed < 0 || static_cast<uint64_t>(o.plot_seed) < o.first_seed ||
+                            static_cast<uint64_t>(o.plot_seed) > last_seed))
+    throw UsageError("--plot-seed: " + std::to_string(o.plot_seed) + " is not one of the seeds " +
+                     std::to_string(o.first_seed) + ".." + std::to_string(last_seed));
   SimulationConfig sim;
   try {
     sim.landmarks = landmarkSetFromString(o.landmarks);
@@ -155,14 +160,11 @@ struct PlotTraces {
       "observations,accepted,e2_max,gate_threshold\n";
   std::string innovations_csv =
       "run,step,landmark_id,innov_range,innov_bearing,sigma_range,sigma_bearing,e2,gate_threshold,accepted\n";
-  bool written = false;
-
   void add(const Dataset& d, const RunTrace& nogate, const RunTrace& recovery, double threshold) {
     appendTrace(trace_csv, "nogate", d, nogate, threshold);
     appendTrace(trace_csv, "recovery", d, recovery, threshold);
     appendInnovations(innovations_csv, "nogate", nogate, threshold);
     appendInnovations(innovations_csv, "recovery", recovery, threshold);
-    written = true;
   }
 };
 
@@ -225,13 +227,10 @@ void writeOutputs(const KidnapStudyOptions& o, const KidnapSummary& s, const Plo
   if (ec) throw Error(o.out_dir + ": cannot create directory: " + ec.message());
   const std::filesystem::path dir(o.out_dir);
   writeFileAtomically((dir / "kidnap_seeds.csv").string(), s.seeds_csv);
-  if (plot.written) {
-    writeFileAtomically((dir / "kidnap_trace.csv").string(), plot.trace_csv);
-    writeFileAtomically((dir / "kidnap_innovations.csv").string(), plot.innovations_csv);
-  }
-  std::fprintf(o.console, "wrote %s/kidnap_seeds.csv%s\n", o.out_dir.c_str(),
-              plot.written ? ", kidnap_trace.csv, kidnap_innovations.csv (plot seed)"
-                           : " (plot seed not in range: no trace)");
+  writeFileAtomically((dir / "kidnap_trace.csv").string(), plot.trace_csv);
+  writeFileAtomically((dir / "kidnap_innovations.csv").string(), plot.innovations_csv);
+  std::fprintf(o.console, "wrote %s/kidnap_seeds.csv, kidnap_trace.csv, kidnap_innovations.csv (plot seed)\n",
+               o.out_dir.c_str());
 }
 
 }  // namespace

@@ -348,15 +348,26 @@ const std::vector<std::string>& realDataEstimatorKeys() {
   return keys;
 }
 
-void runRealDataStudy(const RealDataStudyOptions& o) {
+bool realDataRunsAny(const RealDataStudyOptions& o, const std::vector<std::string>& prefixes) {
+  for (const std::string& key : realDataEstimatorKeys())
+    for (const std::string& prefix : prefixes)
+      if (key.compare(0, prefix.size(), prefix) == 0 && wanted(o, key)) return true;
+  return false;
+}
+
+void checkRealDataStudyOptions(const RealDataStudyOptions& o) {
   const std::vector<std::string>& known = realDataEstimatorKeys();
   for (const std::string& k : onlyKeys(o))
     if (std::find(known.begin(), known.end(), k) == known.end()) throw UsageError("--only: unknown estimator '" + k + "'");
   if (o.batch_guess != "filter" && o.batch_guess != "odometry")
     throw UsageError("--batch-guess: expected 'filter' or 'odometry', got '" + o.batch_guess + "'");
-  Dataset d = loadRealDataset(o);
   if (o.robust != "huber" && o.robust != "cauchy")
     throw UsageError("--robust: expected 'huber' or 'cauchy', got '" + o.robust + "'");
+}
+
+void runRealDataStudy(const RealDataStudyOptions& o) {
+  checkRealDataStudyOptions(o);
+  Dataset d = loadRealDataset(o);
   RobustLossConfig robust;
   robust.type = robustLossFromString(o.robust);
   robust.scale = o.robust_scale;

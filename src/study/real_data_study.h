@@ -51,6 +51,13 @@ struct RealDataStudyOptions {
 // The estimators' keys, in the table's order: what RealDataStudyOptions::only may name.
 const std::vector<std::string>& realDataEstimatorKeys();
 
+// Whether the study runs an estimator whose key starts with one of `prefixes` (every estimator
+// runs when `only` is empty): which options a run uses, e.g. {"window"} for the window's size.
+bool realDataRunsAny(const RealDataStudyOptions& options, const std::vector<std::string>& prefixes);
+
+// Throws UsageError naming the option for an unknown --only key, --batch-guess or --robust.
+void checkRealDataStudyOptions(const RealDataStudyOptions& options);
+
 // Runs the study: prints the settings and the table to `console`, per-estimator progress to `log`,
 // and writes csv_path when set. Bad options throw UsageError; non-finite estimates Error.
 void runRealDataStudy(const RealDataStudyOptions& options);

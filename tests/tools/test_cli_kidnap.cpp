@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -79,6 +80,15 @@ TEST(CliKidnap, BadArgumentsAreUsageErrors) {
   EXPECT_EQ(test::runCli("kidnap --seeds 0").exit_code, 2);
   EXPECT_EQ(test::runCli("kidnap --gate-probability 1.5").exit_code, 2);
   EXPECT_EQ(test::runCli("kidnap --landmarks trees").exit_code, 2);
+  // A plot seed the study does not run, or without a directory to write its trace to.
+  test::TempDir dir("kidnap_plot_seed");
+  const test::CliRun outside = test::runCli("kidnap --seeds 3 --seed 5 --plot-seed 8 --out " + dir.path());
+  EXPECT_EQ(outside.exit_code, 2);
+  EXPECT_EQ(outside.output, "stereoloc: --plot-seed: 8 is not one of the seeds 5..7 (see --help)\n");
+  const test::CliRun unused = test::runCli("kidnap --seeds 3 --seed 5 --plot-seed 6");
+  EXPECT_EQ(unused.exit_code, 2);
+  EXPECT_EQ(unused.output, "stereoloc: --plot-seed: for --out only (see --help)\n");
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
   const test::CliRun help = test::runCli("kidnap --help");
   EXPECT_EQ(help.exit_code, 0);
   EXPECT_NE(help.output.find("--lost-after"), std::string::npos);

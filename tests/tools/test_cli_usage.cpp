@@ -80,6 +80,38 @@ TEST_F(CliUsage, RealdataRunsOnlyEstimatorsItKnows) {
   EXPECT_NE(text.find("\nbatch_calib,"), std::string::npos) << text;
 }
 
+// An option of an estimator --only leaves out, before anything runs; the same option with its
+// estimator runs.
+TEST_F(CliUsage, RealdataRefusesTheOptionsOfEstimatorsItDoesNotRun) {
+  struct Case {
+    const char *args, *message;
+  };
+  for (const Case& c :
+       {Case{"--only ekf,batch --window 10", "--window: for the window's estimators only"},
+        Case{"--only pf --keyframe-max-steps 3", "--keyframe-max-steps: for the window's estimators only"},
+        Case{"--only batch --no-gate", "--no-gate: for the EKF's and the window's estimators only"},
+        Case{"--only ekf --particles 500", "--particles: for the particle filter only"},
+        Case{"--only ekf --seed 4", "--seed: for the particle filter only"},
+        Case{"--only window,batch --robust cauchy", "--robust: for the robust window and batch only"},
+        Case{"--only window --batch-guess odometry",
+             "--batch-guess: for the batch's estimators and --odometry-delay fit only"}}) {
+    const test::CliRun r = test::runCli("realdata " + dataset() + " " + c.args + " --csv " + file("refused.csv"));
+    EXPECT_EQ(r.exit_code, 2) << c.args;
+    EXPECT_EQ(r.output, std::string("stereoloc: ") + c.message + " (--only lists none) (see --help)\n") << c.args;
+    EXPECT_FALSE(std::filesystem::exists(file("refused.csv"))) << c.args;
+  }
+  // An unknown key is named before an option it would leave unused.
+  EXPECT_EQ(test::runCli("realdata " + dataset() + " --only kalman --window 10").output,
+            "stereoloc: --only: unknown estimator 'kalman' (see --help)\n");
+  for (const char* args : {"--only window_online --window 10 --keyframe-max-steps 3 --window-lost-after 4 --no-gate",
+                           "--only pf --particles 200 --seed 4", "--only batch_robust --robust cauchy --robust-scale 2",
+                           "--only ekf_calib --no-gate", "--only batch_calib --batch-guess odometry",
+                           "--window 10 --particles 200"}) {
+    const test::CliRun r = test::runCli("realdata " + dataset() + " " + args);
+    EXPECT_EQ(r.exit_code, 0) << args << "\n" << r.output;
+  }
+}
+
 // An image option on a run without images, a pixel option on one without simulated pixels: an
 // error naming the option, before anything runs.
 TEST_F(CliUsage, FrontendOptionsNeedTheFrontend) {

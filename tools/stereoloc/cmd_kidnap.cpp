@@ -22,7 +22,10 @@ void add_kidnap_command(CLI::App& app) {
   sub->add_option("--landmarks", o->landmarks, "Simulated landmarks: goal_corners or all")->capture_default_str();
   sub->add_option("--steps", o->steps, "Scenario length in steps (0: the default 200, kidnap at the half)")
       ->capture_default_str()->check(CLI::Range(0, 1000000));
-  sub->callback([o] { runKidnapStudy(*o); });
+  sub->callback([o, sub] {
+    refuseUnused(*sub, "--plot-seed", !o->out_dir.empty(), "--out");
+    runKidnapStudy(*o);
+  });
 }
 
 }  // namespace stereoloc::cli

@@ -4,6 +4,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "src/study/real_data_study.h"
 #include "tools/stereoloc/cli_common.h"
@@ -59,9 +60,21 @@ void add_realdata_command(CLI::App& app) {
   sub->add_option("--odometry-delay", *delay,
                   "Every estimator on the odometry re-timed by this delay, seconds within +-2; 'fit': the delay the "
                   "batch calibrating odometry and range finds (printed)");
-  sub->callback([o, delay] {
+  sub->callback([o, delay, sub] {
     RealDataStudyOptions run = *o;
     run.odometry_delay = parseOdometryDelay(*delay, &run.given_odometry_delay_s);
+    checkRealDataStudyOptions(run);
+    const auto refuse = [&](const char* option, const std::vector<std::string>& prefixes, const std::string& who) {
+      refuseUnused(*sub, option, realDataRunsAny(run, prefixes), who, " (--only lists none)");
+    };
+    for (const char* option : {"--window", "--keyframe-max-steps", "--window-lost-after"})
+      refuse(option, {"window"}, "the window's estimators");
+    refuse("--no-gate", {"ekf", "window"}, "the EKF's and the window's estimators");
+    for (const char* option : {"--particles", "--seed"}) refuse(option, {"pf"}, "the particle filter");
+    for (const char* option : {"--robust", "--robust-scale"})
+      refuse(option, {"window_robust", "batch_robust"}, "the robust window and batch");
+    if (run.odometry_delay != OdometryDelayMode::Fit)
+      refuse("--batch-guess", {"batch"}, "the batch's estimators and --odometry-delay fit");
     runRealDataStudy(run);
   });
 }
