@@ -111,18 +111,22 @@ std::vector<Field> fields(FrontendParams& p) {
       {"stereo", "corner_sigma_v", Field::Double, &p.stereo.corner_noise.sigma_v},
       {"stereo", "corner_sigma_d", Field::Double, &p.stereo.corner_noise.sigma_d},
       {"stereo", "corner_corr_ud", Field::Double, &p.stereo.corner_noise.corr_ud},
+      {"stereo", "corner_single_view_share", Field::Double, &p.stereo.corner_noise.single_view_share},
       {"stereo", "junction_sigma_u", Field::Double, &p.stereo.junction_noise.sigma_u},
       {"stereo", "junction_sigma_v", Field::Double, &p.stereo.junction_noise.sigma_v},
       {"stereo", "junction_sigma_d", Field::Double, &p.stereo.junction_noise.sigma_d},
       {"stereo", "junction_corr_ud", Field::Double, &p.stereo.junction_noise.corr_ud},
+      {"stereo", "junction_single_view_share", Field::Double, &p.stereo.junction_noise.single_view_share},
       {"stereo", "intersection_sigma_u", Field::Double, &p.stereo.intersection_noise.sigma_u},
       {"stereo", "intersection_sigma_v", Field::Double, &p.stereo.intersection_noise.sigma_v},
       {"stereo", "intersection_sigma_d", Field::Double, &p.stereo.intersection_noise.sigma_d},
       {"stereo", "intersection_corr_ud", Field::Double, &p.stereo.intersection_noise.corr_ud},
+      {"stereo", "intersection_single_view_share", Field::Double, &p.stereo.intersection_noise.single_view_share},
       {"stereo", "goal_sigma_u", Field::Double, &p.stereo.goal_noise.sigma_u},
       {"stereo", "goal_sigma_v", Field::Double, &p.stereo.goal_noise.sigma_v},
       {"stereo", "goal_sigma_d", Field::Double, &p.stereo.goal_noise.sigma_d},
       {"stereo", "goal_corr_ud", Field::Double, &p.stereo.goal_noise.corr_ud},
+      {"stereo", "goal_single_view_share", Field::Double, &p.stereo.goal_noise.single_view_share},
   };
 }
 
@@ -203,6 +207,7 @@ void FrontendParams::validate() const {
   for (const PixelNoise* pn : {&stereo.corner_noise, &stereo.junction_noise, &stereo.intersection_noise, &stereo.goal_noise}) {
     need(pn->sigma_u > 0 && pn->sigma_v > 0 && pn->sigma_d > 0, "stereo.*_sigma_u/v/d", "must be positive");
     need(std::fabs(pn->corr_ud) < 1, "stereo.*_corr_ud", "must be in (-1, 1)");
+    need(pn->single_view_share > 0 && pn->single_view_share <= 1, "stereo.*_single_view_share", "must be in (0, 1]");
   }
 }
 
@@ -455,6 +460,9 @@ void Frontend::observationsFromMatches(double head_pan) {
       r.observations.push_back(
           observationFromPixels(rig_, m.feature.landmark_id, m.feature.type, m.pixels, head_pan, C));
       r.observations.back().slide_gain = m.slide_gain;
+      // The resampling's rounding term ((1/32)^2 / 12 px^2) is a view's own, but under 0.5 % of
+      // a goal corner's variance: the kind's share stands for the whole.
+      r.observations.back().single_view_share = params_.stereo.noise(m.feature.type).single_view_share;
     } catch (const GeometryError&) {
       // Disparity below the rig's minimum: cannot be triangulated; not an observation.
     }

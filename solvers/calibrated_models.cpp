@@ -122,6 +122,7 @@ Observation calibratedObservation(const Observation& obs, const StereoRig& rig, 
   out.bearing = c.z(1);
   const Eigen::Matrix2d R = c.J_rb_px * C_px * c.J_rb_px.transpose() + c.J_rb_q * Cq * c.J_rb_q.transpose();
   out.covariance = 0.5 * (R + R.transpose());
+  out.single_view_share = 1.0;  // R holds the calibration's uncertainty, which one view does not shrink
   return out;
 }
 

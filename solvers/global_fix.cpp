@@ -525,8 +525,25 @@ TwoCircleSolution solveTwoCircles(const Vector8d& x, const Matrix8d& x_cov, int 
   return solveTwoCirclesImpl(x, x_cov, side, options, InverseRange{false, false});
 }
 
-GlobalFix fixFromTwoLandmarks(const Observation& a, const Observation& b, const Eigen::Vector2d& landmark_a,
+GlobalFixOptions trackerFixOptions() {
+  GlobalFixOptions o;
+  o.single_view_covariance = false;
+  return o;
+}
+
+Observation fixSighting(const Observation& o, const GlobalFixOptions& options) {
+  Observation out = o;
+  if (options.single_view_covariance && o.single_view_share != 1.0) {
+    out.covariance *= o.single_view_share;
+    out.pixel_covariance *= o.single_view_share;
+    out.single_view_share = 1.0;
+  }
+  return out;
+}
+
+GlobalFix fixFromTwoLandmarks(const Observation& a_stated, const Observation& b_stated, const Eigen::Vector2d& landmark_a,
                               const Eigen::Vector2d& landmark_b, const GlobalFixOptions& options) {
+  const Observation a = fixSighting(a_stated, options), b = fixSighting(b_stated, options);
   const TwoLandmarkProblem prob = makeTwoLandmarkProblem(a, b, landmark_a, landmark_b, options);
   const TwoCircleSolution sol = solveTwoCirclesImpl(prob.x, prob.x_cov, prob.side, options, prob.inverse_range);
   GlobalFix f = toFix(sol, FixMethod::TwoLandmarks, {a.landmark_id, b.landmark_id});
@@ -534,9 +551,10 @@ GlobalFix fixFromTwoLandmarks(const Observation& a, const Observation& b, const 
   return f;
 }
 
-GlobalFix fixFromOneLandmark(const Observation& o, const Eigen::Vector2d& landmark, double compass_theta,
+GlobalFix fixFromOneLandmark(const Observation& o_stated, const Eigen::Vector2d& landmark, double compass_theta,
                              double compass_sigma, const GlobalFixOptions& options) {
-  checkObservation(o, "fix1");
+  checkObservation(o_stated, "fix1");
+  const Observation o = fixSighting(o_stated, options);
   if (!landmark.allFinite()) throw Error("fix1: landmark position is not finite");
   if (!std::isfinite(compass_theta)) throw Error("fix1: compass heading is not finite");
   if (!(std::isfinite(compass_sigma) && compass_sigma >= 0.0)) throw Error("fix1: compass sigma must be >= 0");
@@ -688,14 +706,14 @@ GlobalFix twoLandmarkFixInMap(const Observation& a, const Observation& b, const 
   return f;
 }
 
-// The step's associated sightings and their landmarks.
+// The step's associated sightings, as the fix takes them, and their landmarks.
 struct Sightings {
   std::vector<Observation> obs;
   std::vector<Eigen::Vector2d> lms;
   std::vector<Eigen::Vector3d> lms3;  // with heights, for the multi fix's pixel residual
 };
 
-Sightings associatedSightings(const Step& step, const FieldMap& map) {
+Sightings associatedSightings(const Step& step, const FieldMap& map, const GlobalFixOptions& options) {
   Sightings s;
   for (size_t i = 0; i < step.observations.size(); ++i) {
     const Observation& o = step.observations[i];
@@ -704,7 +722,7 @@ Sightings associatedSightings(const Step& step, const FieldMap& map) {
     if (!l)
       throw Error("global fix: step " + std::to_string(step.step) + ": observations[" + std::to_string(i) +
                   "]: landmark id " + std::to_string(o.landmark_id) + " is not in map '" + map.name() + "'");
-    s.obs.push_back(o);
+    s.obs.push_back(fixSighting(o, options));
     s.lms.push_back(l->xy());
     s.lms3.push_back(l->position);
   }
@@ -779,7 +797,7 @@ void considerOneLandmarkFix(const Sightings& s, double compass, double compass_s
 }  // namespace
 
 GlobalFix globalFix(const Step& step, const FieldMap& map, const GlobalFixOptions& options) {
-  const Sightings s = associatedSightings(step, map);
+  const Sightings s = associatedSightings(step, map, options);
   const size_t n = s.obs.size();
   const bool has_compass = step.compass.has_value();
   if (has_compass && !std::isfinite(*step.compass))

@@ -136,6 +136,12 @@ struct GlobalFixOptions {
   // not depend on the (noisy) disparity, whereas r is skewed and its variance R(0,0) ~ r^4 is
   // evaluated at the noisy range. Observations without pixels (range sensors) keep r.
   bool stereo_inverse_range = true;
+  // A fix on its own (the fix1 and fix2 methods, fixstudy) takes one view's share of each
+  // sighting's covariance (Observation::single_view_share). A tracker that starts from the fix
+  // goes on fusing sightings of the same landmarks, whose errors repeat those the fix used, and
+  // keeps the stated covariance (defaultGlobalFix), so that the fix's sightings count no more
+  // than the later ones. The running fix always keeps it: its two sightings are of one landmark.
+  bool single_view_covariance = true;
   // A fix's linearisation "holds" when its nonlinearity (GlobalFix::nonlinearity) is at most this.
   // Used to split consistency checks (fixstudy, tests); it does not change the fix. 0.05: the
   // second-order bias is below 5 % of the position sigma (its square below 0.25 % of the MSE).
@@ -196,6 +202,15 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
 GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector3d>& landmarks,
                            const std::optional<double>& compass_theta, double compass_sigma,
                            const GlobalFixOptions& options = {});
+
+// The options of a fix that starts or re-anchors a tracker: the sightings' stated covariances
+// (GlobalFixOptions::single_view_covariance).
+GlobalFixOptions trackerFixOptions();
+
+// The sighting as a fix with `options` takes it: the covariances scaled by its single-view share
+// when options.single_view_covariance (and the share then 1, so that scaling twice is scaling
+// once); unchanged otherwise.
+Observation fixSighting(const Observation& observation, const GlobalFixOptions& options);
 
 // ---- The two-circle core, exposed for tests and for other solvers that build virtual circles.
 // Input vector x = (c1x, c1y, r1, psi1, c2x, c2y, r2, psi2): two circle centres (mm, world) with

@@ -52,7 +52,7 @@ struct HypothesisConfig {
   int max_misses = 3;
   double bounds_margin_mm = 100.0;  // a hypothesis this far outside the map bounds is impossible
   AssociationConfig association;    // of a hypothesis's sightings at its own belief
-  GlobalFixOptions fix_options;     // the one-landmark fixes that spawn hypotheses
+  GlobalFixOptions fix_options = trackerFixOptions();  // the one-landmark fixes that spawn hypotheses
 };
 
 struct PoseHypothesis {

@@ -425,6 +425,13 @@ GlobalFix fixFromLandmarksImpl(const std::vector<Observation>& observations,
   return f;
 }
 
+std::vector<Observation> fixSightings(const std::vector<Observation>& observations, const GlobalFixOptions& options) {
+  std::vector<Observation> out;
+  out.reserve(observations.size());
+  for (const Observation& o : observations) out.push_back(fixSighting(o, options));
+  return out;
+}
+
 }  // namespace
 
 GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
@@ -432,13 +439,14 @@ GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const s
                            const GlobalFixOptions& options) {
   std::vector<Eigen::Vector3d> l3;
   for (const Eigen::Vector2d& l : landmarks) l3.emplace_back(l.x(), l.y(), 0.0);
-  return fixFromLandmarksImpl(observations, l3, false, compass_theta, compass_sigma, options);
+  return fixFromLandmarksImpl(fixSightings(observations, options), l3, false, compass_theta, compass_sigma, options);
 }
 
 GlobalFix fixFromLandmarks(const std::vector<Observation>& observations, const std::vector<Eigen::Vector3d>& landmarks,
                            const std::optional<double>& compass_theta, double compass_sigma,
                            const GlobalFixOptions& options) {
-  return fixFromLandmarksImpl(observations, landmarks, true, compass_theta, compass_sigma, options);
+  return fixFromLandmarksImpl(fixSightings(observations, options), landmarks, true, compass_theta, compass_sigma,
+                              options);
 }
 
 }  // namespace stereoloc

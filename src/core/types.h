@@ -33,6 +33,13 @@ struct Observation {
   // describe (measured on realistic images, s dv anticorrelates with their u_right error:
   // docs/realistic_world.md). The self-calibration's row offset enters u_right as s * dv.
   double slide_gain = 0.0;
+  // The share of `covariance` and `pixel_covariance` that one view's own errors make, in (0, 1].
+  // The frontend states a goal corner's noise wider than one view's error because its errors
+  // repeat over consecutive sightings of the same landmark, which a tracker fuses as
+  // independent; a global fix on its own uses each sighting once and takes this share of them
+  // (GlobalFixOptions::single_view_covariance). 1: the covariance is one view's (simulated
+  // pixels, range sensors, a covariance rebuilt with terms of another source).
+  double single_view_share = 1.0;
 
   Eigen::Vector2d z() const { return Eigen::Vector2d(range, bearing); }
 };
@@ -51,8 +58,8 @@ Observation observationFromPixels(const StereoRig& rig, int landmark_id, Landmar
 Observation observationFromRangeBearing(int landmark_id, LandmarkType type, double range, double bearing,
                                         double sigma_range, double sigma_bearing);
 
-// Throws stereoloc::Error "<where>: ..." unless range and bearing are finite and R is symmetric
-// positive definite. Every estimator checks its input observations with this.
+// Throws stereoloc::Error "<where>: ..." unless range and bearing are finite, R is symmetric
+// positive definite and the single-view share lies in (0, 1]. Every estimator checks its input observations with this.
 void validateObservation(const Observation& obs, const std::string& where);
 
 // One time step: odometry since the previous step, optional compass, observations.

@@ -95,6 +95,12 @@ TEST(FrontendParams, ErrorsNameFileAndKey) {
   EXPECT_NE(message("stereo:\n  uniqueness: -0.1\n").find("stereo.uniqueness: must be in [0, 2]"), std::string::npos);
   EXPECT_NE(message("stereo:\n  min_zncc: 1.5\n").find("stereo.min_zncc: must be in [-1, 1]"), std::string::npos);
   EXPECT_EQ(message("stereo:\n  floor_search_px: -1\n"), "no error");  // <= 0: the full disparity range
+  for (const char* share : {"0", "1.5", "-0.25"})
+    EXPECT_NE(message(std::string("stereo:\n  goal_single_view_share: ") + share + "\n")
+                  .find("stereo.*_single_view_share: must be in (0, 1]"),
+              std::string::npos)
+        << share;
+  EXPECT_EQ(message("stereo:\n  corner_single_view_share: 0.5\n"), "no error");
   std::filesystem::remove(path);
 }
 
@@ -150,8 +156,15 @@ TEST(Frontend, GoalCornerObservationsFromASyntheticPair) {
     const RangeBearing rb = rig.rangeBearing(*o.pixels, 0.0);
     EXPECT_NEAR(o.range, rb.range, 1e-9);
     EXPECT_GT(o.covariance(0, 0), 0.0);
+    // Stated for trackers at twice the white sigmas: one view is a quarter of the variance.
+    EXPECT_EQ(o.single_view_share, 0.25);
   }
   EXPECT_NE(r.observations[0].landmark_id, r.observations[1].landmark_id);
+  FrontendParams p;
+  p.stereo.goal_noise.single_view_share = 0.5;
+  Frontend half(rig, map, p);
+  for (const Observation& o : half.process(goalImage(120.3, 200.7, kBlue), goalImage(120.3 - d, 200.7 - d, kBlue)).observations)
+    EXPECT_EQ(o.single_view_share, 0.5);
 }
 
 // Monocular use on a raw image of a calibrated rig: the image is rectified before detection,

@@ -701,6 +701,81 @@ TEST(GlobalFix, SigmaPointNeesIsConsistentWhereLinearisationHolds) {
   std::printf("first order 3-dof mean NEES: fix2 %.2f, fix1 %.2f\n", fo2.s3 / n, fo1.s3 / n);
 }
 
+// A sighting stated at four times one view's variance (single-view share 0.25, as the frontend
+// states its goal corners for the trackers): a fix on its own takes the share and is consistent;
+// a tracker's fix keeps the stated covariance and is too wide. Both exactly as the sightings
+// scaled by hand.
+TEST(GlobalFix, AFixOnItsOwnTakesOneViewsShareWhereATrackerKeepsTheStatedCovariance) {
+  const StereoRig rig;
+  const double sigma_px = 0.5, sigma_c = deg2rad(3.5);
+  const Eigen::Vector3d la(0, 450, 0), lb(0, 850, 0);
+  const Pose2 truth = facing(450, 640, Eigen::Vector2d(0, 650), 0.02);
+  std::mt19937_64 rng(77);
+  std::normal_distribution<double> N(0.0, 1.0);
+  const auto stated = [](Observation o) {
+    o.covariance *= 4.0;
+    o.pixel_covariance *= 4.0;
+    o.single_view_share = 0.25;
+    return o;
+  };
+  const GlobalFixOptions alone;
+  const GlobalFixOptions tracker = trackerFixOptions();
+  EXPECT_TRUE(alone.single_view_covariance);
+  EXPECT_FALSE(tracker.single_view_covariance);
+  const int n = 3000;
+  NeesMoments alone2, alone1, tracker2;
+  for (int i = 0; i < n; ++i) {
+    const auto oa = stereoObservation(rig, 0, truth, la, sigma_px, &rng);
+    const auto ob = stereoObservation(rig, 1, truth, lb, sigma_px, &rng);
+    ASSERT_TRUE(oa && ob);
+    const Observation sa = stated(*oa), sb = stated(*ob);
+    const GlobalFix f2 = fixFromTwoLandmarks(sa, sb, la.head<2>(), lb.head<2>(), alone);
+    ASSERT_EQ(f2.status, FixStatus::Ok);
+    alone2.add(f2, truth);
+    tracker2.add(fixFromTwoLandmarks(sa, sb, la.head<2>(), lb.head<2>(), tracker), truth);
+    const double compass = truth.theta + sigma_c * N(rng);
+    alone1.add(fixFromOneLandmark(sa, la.head<2>(), compass, sigma_c, alone), truth);
+    if (i == 0) {
+      const GlobalFix by_hand = fixFromTwoLandmarks(*oa, *ob, la.head<2>(), lb.head<2>(), alone);
+      EXPECT_EQ(f2.pose.x, by_hand.pose.x);
+      EXPECT_EQ((f2.covariance - by_hand.covariance).cwiseAbs().maxCoeff(), 0.0);
+      Observation wide_a = sa, wide_b = sb;
+      wide_a.single_view_share = wide_b.single_view_share = 1.0;
+      const GlobalFix kept = fixFromTwoLandmarks(wide_a, wide_b, la.head<2>(), lb.head<2>(), alone);
+      EXPECT_EQ((kept.covariance - fixFromTwoLandmarks(sa, sb, la.head<2>(), lb.head<2>(), tracker).covariance)
+                    .cwiseAbs()
+                    .maxCoeff(),
+                0.0);
+      // Scaling twice is scaling once; the step's dispatch takes the same sightings.
+      const Observation once = fixSighting(sa, alone);
+      EXPECT_EQ(once.single_view_share, 1.0);
+      EXPECT_EQ((fixSighting(once, alone).covariance - oa->covariance).cwiseAbs().maxCoeff(), 0.0);
+      EXPECT_EQ(fixSighting(sa, tracker).single_view_share, 0.25);
+      Landmark l0, l1;
+      l0.id = 0;
+      l0.position = la;
+      l1.id = 1;
+      l1.position = lb;
+      const FieldMap map("two corners", Bounds{-100, 0, 1600, 1300}, {l0, l1});
+      Step step;
+      step.observations = {sa, sb};
+      GlobalFixOptions two = alone;
+      two.allow_multi = false;
+      const GlobalFix dispatched = globalFix(step, map, two);
+      EXPECT_EQ((dispatched.covariance - f2.covariance).cwiseAbs().maxCoeff(), 0.0);
+    }
+  }
+  for (const auto& [acc, name] : {std::pair{alone2, "fix2"}, std::pair{alone1, "fix1"}}) {
+    const auto c3 = acc.consistent(3);
+    EXPECT_TRUE(c3) << name;
+    std::printf("%s on its own: %s\n", name, c3.message());
+  }
+  // The stated covariance is four times one view's; its sigma points reach further into the
+  // fix's nonlinearity, so the mean NEES is below 3 / 4.
+  EXPECT_FALSE(tracker2.consistent(3));
+  EXPECT_LT(tracker2.s3 / n, 0.8) << tracker2.consistent(3).message();
+}
+
 // The running fix's inputs span 7 directions (two ranges and bearings, the motion), where the
 // fifth-degree rule has a negative axis weight; its covariance must still come out positive
 // definite (no fallback: nonlinearity < 1) and consistent. With 20 mm range noise the
