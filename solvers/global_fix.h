@@ -64,8 +64,10 @@ FixMethod fixMethodFromString(const std::string& name);  // throws stereoloc::Er
 //                the measurement noise (sigma points at sqrt(3) sigma along each axis and each
 //                pair of axes). Exact for any f that is quadratic in the inputs, including the
 //                squared bias; the stereo range is propagated as inverse range (see
-//                GlobalFixOptions::stereo_inverse_range). Falls back to SecondOrder when the
-//                quadrature does not give a positive-definite matrix.
+//                GlobalFixOptions::stereo_inverse_range). fix1's is exact in the angles and
+//                takes the range by Gauss-Hermite: where the compass is far wider than the
+//                bearing, the fifth-degree rule misses the arc's higher orders. Falls back to
+//                SecondOrder when the quadrature does not give a positive-definite matrix.
 // First order is over-confident for stereo: the bearings are ~100x more precise than the
 // ranges, so the 3x3 covariance is nearly singular and the heading / arc curvature that it
 // drops decides the 3-dof NEES (fixstudy measured mean 3-dof NEES 200-1700).
