@@ -199,7 +199,8 @@ SigmaPointMse oneLandmarkMse(const Eigen::Vector3d& y, const Eigen::Matrix3d& y_
     const double q = z(0) + dq;
     const double r = inverse ? (q > 0.0 ? 1.0 / q : -1.0) : q;
     if (!(r > 0.0)) return res;
-    const double m = z(1) + gain(0) * dq, mt = angleDiff(z(2), f0.theta) + gain(1) * dq;  // theta about the estimate's
+    // The mean of phi, and of theta about the estimate's heading, given q.
+    const double m = z(1) + gain(0) * dq, mt = angleDiff(z(2), f0.theta) + gain(1) * dq;
     const double cm = std::cos(m), sm = std::sin(m), c2m = std::cos(2.0 * m), s2m = std::sin(2.0 * m);
     const double Ec = cm * e1, Es = sm * e1;                              // E[cos phi], E[sin phi]
     const double Ecc = 0.5 * (1.0 + c2m * e2), Ess = 0.5 * (1.0 - c2m * e2), Esc = 0.5 * s2m * e2;
@@ -594,8 +595,9 @@ Observation fixSighting(const Observation& o, const GlobalFixOptions& options) {
   return out;
 }
 
-GlobalFix fixFromTwoLandmarks(const Observation& a_stated, const Observation& b_stated, const Eigen::Vector2d& landmark_a,
-                              const Eigen::Vector2d& landmark_b, const GlobalFixOptions& options) {
+GlobalFix fixFromTwoLandmarks(const Observation& a_stated, const Observation& b_stated,
+                              const Eigen::Vector2d& landmark_a, const Eigen::Vector2d& landmark_b,
+                              const GlobalFixOptions& options) {
   const Observation a = fixSighting(a_stated, options), b = fixSighting(b_stated, options);
   const TwoLandmarkProblem prob = makeTwoLandmarkProblem(a, b, landmark_a, landmark_b, options);
   const TwoCircleSolution sol = solveTwoCirclesImpl(prob.x, prob.x_cov, prob.side, options, prob.inverse_range);

@@ -66,6 +66,7 @@ using GlobalFixFunction = std::function<std::optional<PoseFix>(const Step& step,
 // accept_approximate also ApproximateNoIntersection (range circles that miss by noise, still
 // within max_gap_sigma); Ambiguous, Degenerate and NotEnoughLandmarks never.
 // A fix whose position lies outside the map's bounds is refused: the robot is in the field.
-GlobalFixFunction defaultGlobalFix(const GlobalFixOptions& options = trackerFixOptions(), bool accept_approximate = true);
+GlobalFixFunction defaultGlobalFix(const GlobalFixOptions& options = trackerFixOptions(),
+                                   bool accept_approximate = true);
 
 }  // namespace stereoloc

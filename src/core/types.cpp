@@ -48,7 +48,8 @@ void validateObservation(const Observation& obs, const std::string& where) {
   if (!R.allFinite() || !(R(0, 0) > 0) || !(R(0, 0) * R(1, 1) - R(0, 1) * R(1, 0) > 0) ||
       std::fabs(R(0, 1) - R(1, 0)) > 1e-9 * R.cwiseAbs().maxCoeff())
     throw Error(where + ": covariance R is not symmetric positive definite");
-  if (!(obs.single_view_share > 0 && obs.single_view_share <= 1)) throw Error(where + ": single-view share is not in (0, 1]");
+  if (!(obs.single_view_share > 0 && obs.single_view_share <= 1))
+    throw Error(where + ": single-view share is not in (0, 1]");
 }
 
 std::string toString(EstimateStatus status) {

@@ -59,7 +59,8 @@ Observation observationFromRangeBearing(int landmark_id, LandmarkType type, doub
                                         double sigma_range, double sigma_bearing);
 
 // Throws stereoloc::Error "<where>: ..." unless range and bearing are finite, R is symmetric
-// positive definite and the single-view share lies in (0, 1]. Every estimator checks its input observations with this.
+// positive definite and the single-view share lies in (0, 1]. Every estimator checks its input
+// observations with this.
 void validateObservation(const Observation& obs, const std::string& where);
 
 // One time step: odometry since the previous step, optional compass, observations.

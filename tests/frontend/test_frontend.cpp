@@ -163,8 +163,9 @@ TEST(Frontend, GoalCornerObservationsFromASyntheticPair) {
   FrontendParams p;
   p.stereo.goal_noise.single_view_share = 0.5;
   Frontend half(rig, map, p);
-  for (const Observation& o : half.process(goalImage(120.3, 200.7, kBlue), goalImage(120.3 - d, 200.7 - d, kBlue)).observations)
-    EXPECT_EQ(o.single_view_share, 0.5);
+  const FrontendResult& h = half.process(goalImage(120.3, 200.7, kBlue), goalImage(120.3 - d, 200.7 - d, kBlue));
+  ASSERT_EQ(h.observations.size(), 2u);
+  for (const Observation& o : h.observations) EXPECT_EQ(o.single_view_share, 0.5);
 }
 
 // Monocular use on a raw image of a calibrated rig: the image is rectified before detection,
