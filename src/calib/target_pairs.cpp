@@ -9,6 +9,7 @@
 #include <set>
 
 #include "src/core/error.h"
+#include "src/io/image_file.h"
 
 namespace stereoloc {
 namespace {
@@ -36,9 +37,9 @@ bool keyAfter(const std::string& name, const std::string& prefix, std::string& k
 }
 
 cv::Mat readGrey(const std::string& path, const std::string& where) {
-  cv::Mat image = cv::imread(path, cv::IMREAD_GRAYSCALE);
-  if (image.empty()) throw Error(where + ": not a readable image");
-  return image;
+  ImageRead read = readImageFile(path, cv::IMREAD_GRAYSCALE);
+  if (!read.problem.empty()) throw Error(where + ": cannot read the image (" + read.problem + ")");
+  return read.image;
 }
 
 std::vector<TargetPair> readFolder(const fs::path& folder) {

@@ -13,6 +13,7 @@
 #include "frontend/frontend.h"
 #include "src/core/error.h"
 #include "src/core/gaussian.h"
+#include "src/io/image_file.h"
 #include "src/pipeline/usage_error.h"
 
 namespace stereoloc {
@@ -96,10 +97,9 @@ std::string frontendSummary(const ImageFrontendStats& st) {
 }
 
 cv::Mat readColourImage(const std::string& path, const std::string& what) {
-  // Checked first: OpenCV would print its own warning for a missing file.
-  if (!std::filesystem::is_regular_file(path)) throw Error(path + ": cannot read the " + what + " (no such file)");
-  const cv::Mat img = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (img.empty()) throw Error(path + ": cannot read the " + what + " (unreadable or not an image)");
+  const ImageRead read = readImageFile(path, cv::IMREAD_UNCHANGED);
+  if (!read.problem.empty()) throw Error(path + ": cannot read the " + what + " (" + read.problem + ")");
+  const cv::Mat& img = read.image;
   if (img.depth() != CV_8U)
     throw Error(path + ": the " + what + " has " + (img.depth() == CV_16U ? "16" : "non-8") +
                 "-bit channels; 8-bit BGR is required");

@@ -3,6 +3,8 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <string>
 #include <utility>
 #include <vector>
@@ -68,6 +70,11 @@ TEST(CliDetect, BadInputGivesAOneLineErrorAndExit1) {
     std::FILE* f = std::fopen(d.file("empty.png").c_str(), "w");
     std::fclose(f);
   }
+  {
+    std::ifstream in(d.file("right.png"), std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::ofstream(d.file("cut.png"), std::ios::binary) << bytes.substr(0, bytes.size() / 2);
+  }
   const std::string L = " --left " + d.file("left.png"), R = " --right " + d.file("right.png");
   // Each case with the file and the words its message must hold.
   const std::vector<std::pair<std::string, std::vector<std::string>>> cases = {
@@ -75,7 +82,8 @@ TEST(CliDetect, BadInputGivesAOneLineErrorAndExit1) {
       {"detect --left " + d.file("small.png") + " --right " + d.file("small.png"), {d.file("small.png"), "left image"}},
       {"detect" + L + " --right " + d.file("grey.png"), {d.file("grey.png"), "1 channel"}},
       {"detect" + L + " --right " + d.file("deep.png"), {d.file("deep.png"), "16-bit"}},
-      {"detect" + L + " --right " + d.file("empty.png"), {d.file("empty.png"), "not an image"}},
+      {"detect" + L + " --right " + d.file("empty.png"), {d.file("empty.png"), "empty file"}},
+      {"detect" + L + " --right " + d.file("cut.png"), {d.file("cut.png"), "PNG cut short"}},
       {"detect" + L + " --right " + d.file("missing.png"), {d.file("missing.png"), "no such file"}}};
   for (const auto& [args, words] : cases) {
     const test::CliRun r = test::runCli(args);

@@ -88,7 +88,8 @@ TEST(TargetPairs, WhatCannotBePairedOrReadIsNamed) {
   EXPECT_EQ(test::errorOf([&] { readTargetPairs(dir.path()); }),
             dir.file("right_2.png") + ": no left image with the key '2.png' beside it");
   writeText(dir.file("left_2.png"), "not a png");
-  EXPECT_EQ(test::errorOf([&] { readTargetPairs(dir.path()); }), dir.file("left_2.png") + ": not a readable image");
+  EXPECT_EQ(test::errorOf([&] { readTargetPairs(dir.path()); }),
+            dir.file("left_2.png") + ": cannot read the image (unreadable or not an image)");
 
   writeText(dir.file("odd.xml"),
             "<?xml version=\"1.0\"?>\n<opencv_storage>\n<imagelist>\n\"left_1.png\"\n</imagelist>\n</opencv_storage>\n");
@@ -98,7 +99,7 @@ TEST(TargetPairs, WhatCannotBePairedOrReadIsNamed) {
   EXPECT_EQ(test::errorOf([&] { readTargetPairs(dir.file("empty.yml")); }), dir.file("empty.yml") + ": the imagelist is empty");
   writeText(dir.file("missing.yml"), "%YAML:1.0\n---\nimagelist:\n  - left_1.png\n  - right_9.png\n");
   EXPECT_EQ(test::errorOf([&] { readTargetPairs(dir.file("missing.yml")); }),
-            dir.file("missing.yml") + ": imagelist entry 2 (" + dir.file("right_9.png") + "): not a readable image");
+            dir.file("missing.yml") + ": imagelist entry 2 (" + dir.file("right_9.png") + "): cannot read the image (no such file)");
   writeText(dir.file("numbers.yml"), "%YAML:1.0\n---\nimagelist:\n  - 1\n  - 2\n");
   EXPECT_EQ(test::errorOf([&] { readTargetPairs(dir.file("numbers.yml")); }),
             dir.file("numbers.yml") + ": imagelist entry 1 is not a file name");

@@ -1,0 +1,135 @@
+// Reading image files: sound PNGs and JPEGs decode as cv::imread decodes them, and every
+// cut-short or bit-flipped file is refused with its defect before a codec library sees it.
+#include "src/io/image_file.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+using Bytes = std::vector<unsigned char>;
+
+// A small colour image with structure in it (the codecs compress it to a few hundred bytes).
+cv::Mat pattern() {
+  cv::Mat m(24, 32, CV_8UC3);
+  for (int r = 0; r < m.rows; ++r)
+    for (int c = 0; c < m.cols; ++c) m.at<cv::Vec3b>(r, c) = cv::Vec3b(r * 10, c * 8, (r * c) % 256);
+  return m;
+}
+
+Bytes encode(const std::string& ext, const std::vector<int>& params = {}) {
+  Bytes bytes;
+  EXPECT_TRUE(cv::imencode(ext, pattern(), bytes, params));
+  return bytes;
+}
+
+void writeBytes(const std::string& path, const Bytes& bytes) {
+  std::ofstream(path, std::ios::binary)
+      .write(reinterpret_cast<const char*>(bytes.data()), static_cast<long>(bytes.size()));
+}
+
+bool same(const cv::Mat& a, const cv::Mat& b) {
+  return a.size() == b.size() && a.type() == b.type() && cv::norm(a, b, cv::NORM_INF) == 0;
+}
+
+TEST(ImageFile, SoundFilesDecodeAsImreadDecodesThem) {
+  test::TempDir dir;
+  const std::vector<std::pair<std::string, Bytes>> files = {
+      {"a.png", encode(".png")},
+      {"b.jpg", encode(".jpg")},
+      {"c.jpg", encode(".jpg", {cv::IMWRITE_JPEG_PROGRESSIVE, 1})},
+      {"d.jpg", encode(".jpg", {cv::IMWRITE_JPEG_RST_INTERVAL, 1})},  // restart markers in the scan
+      {"e.bmp", encode(".bmp")}};
+  for (const auto& [name, bytes] : files) {
+    writeBytes(dir.file(name), bytes);
+    EXPECT_EQ(imageContainerDefect(bytes), "") << name;
+    for (const int flags : {cv::IMREAD_UNCHANGED, cv::IMREAD_GRAYSCALE, cv::IMREAD_COLOR}) {
+      const ImageRead r = readImageFile(dir.file(name), flags);
+      EXPECT_EQ(r.problem, "") << name;
+      EXPECT_TRUE(same(r.image, cv::imread(dir.file(name), flags))) << name << " flags " << flags;
+    }
+  }
+  // What follows a JPEG's end-of-image marker (a camera's trailer) is not the image's concern.
+  Bytes trailer = encode(".jpg");
+  trailer.insert(trailer.end(), {'E', 'X', 'T', 'R', 'A', 0xFF, 0xD8});
+  EXPECT_EQ(imageContainerDefect(trailer), "");
+}
+
+// The photographs under data/ (OpenCV's checkerboard samples, the real field images).
+TEST(ImageFile, EveryPhotographUnderDataPassesTheCheck) {
+  size_t checked = 0;
+  for (const auto& entry : std::filesystem::recursive_directory_iterator(STEREOLOC_DATA_DIR)) {
+    const std::string ext = entry.path().extension().string();
+    if (ext != ".png" && ext != ".jpg") continue;
+    const std::string path = entry.path().string();
+    const ImageRead r = readImageFile(path, cv::IMREAD_UNCHANGED);
+    EXPECT_EQ(r.problem, "") << path;
+    EXPECT_TRUE(same(r.image, cv::imread(path, cv::IMREAD_UNCHANGED))) << path;
+    ++checked;
+  }
+  EXPECT_GE(checked, 26u);
+}
+
+TEST(ImageFile, EveryCutShortPngOrJpegIsRefused) {
+  for (const std::string ext : {".png", ".jpg"}) {
+    const Bytes whole = encode(ext);
+    for (size_t n = 1; n < whole.size(); ++n) {
+      const Bytes cut(whole.begin(), whole.begin() + static_cast<long>(n));
+      const std::string defect = imageContainerDefect(cut);
+      // Shorter than a signature, the bytes are no PNG or JPEG at all: the decoder refuses them.
+      if (n < (ext == ".png" ? 8u : 3u)) {
+        EXPECT_TRUE(cv::imdecode(cut, cv::IMREAD_UNCHANGED).empty()) << ext << " " << n;
+        continue;
+      }
+      EXPECT_NE(defect.find("cut short"), std::string::npos) << ext << " cut to " << n << " bytes: '" << defect << "'";
+    }
+  }
+}
+
+TEST(ImageFile, EveryBitFlipInAPngIsRefused) {
+  const Bytes whole = encode(".png");
+  for (size_t at = 8; at < whole.size(); ++at)
+    for (int bit = 0; bit < 8; ++bit) {
+      Bytes flipped = whole;
+      flipped[at] ^= static_cast<unsigned char>(1 << bit);
+      EXPECT_NE(imageContainerDefect(flipped), "") << "byte " << at << " bit " << bit;
+    }
+  Bytes data_flip = whole;
+  data_flip[whole.size() - 20] ^= 0x10;  // the IDAT chunk's last data byte (IEND and IDAT's CRC follow)
+  EXPECT_EQ(imageContainerDefect(data_flip), "corrupt PNG: chunk IDAT at byte 33 fails its CRC");
+}
+
+TEST(ImageFile, ProblemsAreNamed) {
+  test::TempDir dir;
+  EXPECT_EQ(readImageFile(dir.file("absent.png"), cv::IMREAD_UNCHANGED).problem, "no such file");
+  writeBytes(dir.file("empty.png"), {});
+  EXPECT_EQ(readImageFile(dir.file("empty.png"), cv::IMREAD_UNCHANGED).problem, "empty file");
+  writeBytes(dir.file("text.png"), {'n', 'o', 't', ' ', 'a', 'n', ' ', 'i', 'm', 'a', 'g', 'e'});
+  EXPECT_EQ(readImageFile(dir.file("text.png"), cv::IMREAD_UNCHANGED).problem, "unreadable or not an image");
+  EXPECT_EQ(readImageFile(dir.path(), cv::IMREAD_UNCHANGED).problem, "no such file");
+
+  const Bytes png = encode(".png");
+  const Bytes half(png.begin(), png.begin() + static_cast<long>(png.size() / 2));
+  writeBytes(dir.file("half.png"), half);
+  const ImageRead r = readImageFile(dir.file("half.png"), cv::IMREAD_UNCHANGED);
+  EXPECT_TRUE(r.image.empty());
+  EXPECT_EQ(r.problem, "PNG cut short in its IDAT chunk at byte 33");
+
+  const Bytes jpg = encode(".jpg");
+  const Bytes jpg_half(jpg.begin(), jpg.begin() + static_cast<long>(jpg.size() - 10));
+  EXPECT_NE(imageContainerDefect(jpg_half).find("JPEG cut short in the scan at byte"), std::string::npos)
+      << imageContainerDefect(jpg_half);
+  Bytes junk = jpg;
+  const size_t after_app0 = 4 + ((size_t{jpg[4]} << 8) | jpg[5]);  // SOI, then the APP0 segment
+  junk.insert(junk.begin() + static_cast<long>(after_app0), 'x');   // a byte where a marker must stand
+  EXPECT_EQ(imageContainerDefect(junk), "corrupt JPEG: no marker at byte " + std::to_string(after_app0));
+}
+
+}  // namespace
+}  // namespace stereoloc
