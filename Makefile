@@ -8,7 +8,7 @@ DEMO_OUT   ?= out/demo
 PACKAGES := cmake ninja-build g++ pkg-config \
             libceres-dev libeigen3-dev libsuitesparse-dev \
             libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev libopencv-calib3d-dev \
-            libgtest-dev libbenchmark-dev libcli11-dev zlib1g-dev
+            libgtest-dev libbenchmark-dev libcli11-dev zlib1g-dev libjpeg-dev
 
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 

@@ -1,10 +1,16 @@
 #include "src/io/image_file.h"
 
+#include <cstdio>  // jpeglib.h uses FILE without including it
+
+#include <jpeglib.h>
+#include <jerror.h>
 #include <zlib.h>
 
 #include <algorithm>
 #include <cctype>
+#include <csetjmp>
 #include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -80,12 +86,70 @@ std::string jpegDefect(const Bytes& b) {
   }
 }
 
+// libjpeg's error manager, made to stop at an error and at a warning that means corrupt data
+// (it would otherwise print the warning and decode the rest as grey or garbage).
+struct JpegErrors {
+  jpeg_error_mgr manager;  // first: libjpeg hands back a pointer to it
+  std::jmp_buf jump;
+  char message[JMSG_LENGTH_MAX];
+};
+
+[[noreturn]] void stopJpeg(j_common_ptr cinfo) {
+  auto* errors = reinterpret_cast<JpegErrors*>(cinfo->err);
+  (*cinfo->err->format_message)(cinfo, errors->message);
+  std::longjmp(errors->jump, 1);
+}
+
+void onJpegMessage(j_common_ptr cinfo, int level) {
+  if (level >= 0) return;  // trace messages
+  switch (cinfo->err->msg_code) {
+    case JWRN_ARITH_BAD_CODE: case JWRN_BOGUS_PROGRESSION: case JWRN_EXTRANEOUS_DATA: case JWRN_HIT_MARKER:
+    case JWRN_HUFF_BAD_CODE: case JWRN_JPEG_EOF: case JWRN_MUST_RESYNC:
+      stopJpeg(cinfo);
+    default:  // a harmless oddity (an unknown JFIF revision, a bad ICC profile): not corrupt pixels
+      return;
+  }
+}
+
+// Decodes the scan once (at 1/8 scale: the entropy-coded data is read whole at any scale) with
+// libjpeg's corrupt-data warnings as errors. Only locals without destructors live across the
+// setjmp, as longjmp requires.
+std::string jpegScanDefect(const Bytes& b) {
+  jpeg_decompress_struct cinfo;
+  JpegErrors errors;
+  cinfo.err = jpeg_std_error(&errors.manager);
+  errors.manager.error_exit = stopJpeg;
+  errors.manager.emit_message = onJpegMessage;
+  if (setjmp(errors.jump)) {
+    jpeg_destroy_decompress(&cinfo);
+    const char* text = errors.message;
+    static const char kPrefix[] = "Corrupt JPEG data: ";
+    if (std::strncmp(text, kPrefix, sizeof kPrefix - 1) == 0) text += sizeof kPrefix - 1;
+    return std::string("corrupt JPEG: ") + text;
+  }
+  jpeg_create_decompress(&cinfo);
+  jpeg_mem_src(&cinfo, b.data(), static_cast<unsigned long>(b.size()));
+  jpeg_read_header(&cinfo, TRUE);
+  cinfo.scale_num = 1;
+  cinfo.scale_denom = 8;
+  cinfo.dct_method = JDCT_IFAST;
+  cinfo.do_fancy_upsampling = FALSE;
+  jpeg_start_decompress(&cinfo);
+  const JDIMENSION row_samples = cinfo.output_width * static_cast<JDIMENSION>(cinfo.output_components);
+  JSAMPARRAY row = (*cinfo.mem->alloc_sarray)(reinterpret_cast<j_common_ptr>(&cinfo), JPOOL_IMAGE, row_samples, 1);
+  while (cinfo.output_scanline < cinfo.output_height) jpeg_read_scanlines(&cinfo, row, 1);
+  jpeg_finish_decompress(&cinfo);
+  jpeg_destroy_decompress(&cinfo);
+  return "";
+}
+
 }  // namespace
 
 std::string imageContainerDefect(const Bytes& bytes) {
   if (isPng(bytes)) return pngDefect(bytes);
-  if (isJpeg(bytes)) return jpegDefect(bytes);
-  return "";
+  if (!isJpeg(bytes)) return "";
+  const std::string defect = jpegDefect(bytes);
+  return defect.empty() ? jpegScanDefect(bytes) : defect;
 }
 
 ImageRead readImageFile(const std::string& path, int imread_flags) {

@@ -358,7 +358,8 @@ TEST_F(StreamImages, BadInputNeverStopsTheStream) {
   const test::CliRun r = test::runCli("stream --setup " + ds() + " --init global --window 2", dir_->file("bad.jsonl"));
   EXPECT_EQ(r.exit_code, 1) << r.output;
   for (const std::string& where : {"stdin:2: " + dir_->file("missing.png"),
-                                  "stdin:3: " + truncated + ": cannot read the image (PNG cut short", "stdin:4: " + small, std::string("stdin:5: "), std::string("stdin:6: step 1 does not follow"),
+                                  "stdin:3: " + truncated + ": cannot read the image (PNG cut short",
+                                  "stdin:4: " + small, std::string("stdin:5: "), std::string("stdin:6: step 1 does not follow"),
                                   std::string("stdin:8: observations of step 0 are too late")})
     EXPECT_NE(r.output.find(where), std::string::npos) << where << "\n" << r.output;
   // One estimate for every line with usable odometry (the steps of lines 2-4 too), in order.

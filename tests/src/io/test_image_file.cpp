@@ -131,5 +131,20 @@ TEST(ImageFile, ProblemsAreNamed) {
   EXPECT_EQ(imageContainerDefect(junk), "corrupt JPEG: no marker at byte " + std::to_string(after_app0));
 }
 
+// Damage a JPEG's structure cannot show (its scan has no checksum) but libjpeg finds as it
+// decodes: refused with libjpeg's words, where OpenCV would print them and return the image.
+TEST(ImageFile, ScanDataLibjpegFindsCorruptIsRefused) {
+  const Bytes jpg = encode(".jpg");
+  size_t scan = 0;
+  while (!(jpg[scan] == 0xFF && jpg[scan + 1] == 0xDA)) ++scan;
+  const size_t data = scan + 2 + ((size_t{jpg[scan + 2]} << 8) | jpg[scan + 3]);
+  Bytes early(jpg.begin(), jpg.begin() + static_cast<long>((data + jpg.size()) / 2));  // a frame cut off ...
+  early.insert(early.end(), {0xFF, 0xD9});                                             // ... but ended
+  EXPECT_EQ(imageContainerDefect(early), "corrupt JPEG: premature end of data segment");
+  Bytes restart = jpg;
+  restart.insert(restart.begin() + static_cast<long>(data + 40), {0xFF, 0xD3});  // a restart marker out of place
+  EXPECT_NE(imageContainerDefect(restart).find("corrupt JPEG: "), std::string::npos) << imageContainerDefect(restart);
+}
+
 }  // namespace
 }  // namespace stereoloc
