@@ -81,13 +81,6 @@ enum class BatchSolver {
 std::string toString(BatchSolver solver);                    // "chain", "ceres"
 BatchSolver batchSolverFromString(const std::string& name);  // throws stereoloc::Error
 
-// Where the image factors that estimate the cameras' exposure offset take each image's body
-// rate from (solvers/batch_solve.cpp, ratesFromSolution).
-enum class BodyRateSource {
-  Odometry,       // the wheels' rate over the last 0.5 s (BodyRateTracker), as the window and EKF
-  SmoothedPoses,  // solved with the odometry's first, then again with the solution's poses' rate
-};
-
 // Where a long solve is, for a progress display (BatchSmootherConfig::progress).
 struct BatchProgress {
   std::string phase;   // "solve" (iteration of a full-chain solve), "cut test", "covariance"

@@ -862,55 +862,108 @@ const Landmark* SlidingWindowSmoother::landmarkOf(const Observation& measured, c
   return &map_.at(a.landmark_id);
 }
 
-void SlidingWindowSmoother::addObservationFactor(const Observation& measured, const Landmark& lm, Node* node) {
-  if (config_.calibration.stereo && measured.pixels && rowBlock()) {
-    const PixelResiduals residuals =
-        config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+SlidingWindowSmoother::CalibratedCost SlidingWindowSmoother::stereoCalibrationCost(const Observation& measured,
+                                                                                   const Landmark& lm,
+                                                                                   const BodyRate& rate,
+                                                                                   bool image_free) {
+  const PixelResiduals residuals =
+      config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
+  const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
+  CalibratedCost c;
+  if (rowBlock()) {
     // With the feature's offsets estimated, their constant leaves the white pixel noise: it
     // repeats over the feature's sightings, and as white noise it would be averaged down as if
     // it did not (the calibration's covariance then too small).
     const FeatureBlock* feature = featureBlock(lm);
     // Until the image block is free its errors stay in the pixel noise too.
     const Eigen::Matrix4d C = calibratedPixelCovariance(measured, lm, config_.observation_model,
-                                                        image_sigmas_ && image_free_, true, feature != nullptr);
-    const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
-    std::vector<Calib> blocks{head_block_};
-    if (image) blocks.push_back(image_block_);
-    blocks.push_back(row_block_);
+                                                        image_sigmas_ && image_free, true, feature != nullptr);
+    c.blocks = {head_block_};
+    if (image) c.blocks.push_back(image_block_);
+    c.blocks.push_back(row_block_);
     if (feature) {
-      ceres::CostFunction* cost = StereoPixelFeatureCalibrationFactor::Create(
-          config_.observation_model.rig, lm.position, *measured.pixels, measured.slide_gain, measured.head_pan, C,
-          residuals, image, node->rate);
+      c.cost = StereoPixelFeatureCalibrationFactor::Create(config_.observation_model.rig, lm.position,
+                                                           *measured.pixels, measured.slide_gain, measured.head_pan,
+                                                           C, residuals, image, rate);
       std::vector<int> entries;
       if (feature->sigma.column > 0) entries.push_back(0);
       if (feature->sigma.disparity > 0) entries.push_back(1);
-      if (entries.size() < StereoPixelFeatureCalibrationFactor::kOffsetSize) cost = new HeldEntries(cost, entries);
-      blocks.push_back(feature->block);
-      addFactor(cost, {node}, true, std::move(blocks));
+      if (entries.size() < StereoPixelFeatureCalibrationFactor::kOffsetSize) c.cost = new HeldEntries(c.cost, entries);
+      c.blocks.push_back(feature->block);
     } else {
-      addFactor(StereoPixelRowCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
-                                                        measured.slide_gain, measured.head_pan, C, residuals, image,
-                                                        node->rate),
-                {node}, true, std::move(blocks));
+      c.cost = StereoPixelRowCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
+                                                       measured.slide_gain, measured.head_pan, C, residuals, image,
+                                                       rate);
     }
-  } else if (config_.calibration.stereo && measured.pixels) {
-    const PixelResiduals residuals =
-        config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
-    const Eigen::Matrix4d C =
-        calibratedPixelCovariance(measured, lm, config_.observation_model, image_sigmas_ && image_free_);
-    if (image_sigmas_)
-      addFactor(StereoPixelImageCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
-                                                          measured.head_pan, C, residuals, *image_sigmas_, node->rate),
-                {node}, true, {head_block_, image_block_});
-    else
-      addFactor(StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
-                                                     measured.head_pan, C, residuals),
-                {node}, true, {head_block_});
+    return c;
+  }
+  const Eigen::Matrix4d C =
+      calibratedPixelCovariance(measured, lm, config_.observation_model, image_sigmas_ && image_free);
+  if (image) {
+    c.cost = StereoPixelImageCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
+                                                       measured.head_pan, C, residuals, *image, rate);
+    c.blocks = {head_block_, image_block_};
+  } else {
+    c.cost = StereoPixelCalibrationFactor::Create(config_.observation_model.rig, lm.position, *measured.pixels,
+                                                  measured.head_pan, C, residuals);
+    c.blocks = {head_block_};
+  }
+  return c;
+}
+
+void SlidingWindowSmoother::addObservationFactor(const Observation& measured, const Landmark& lm, Node* node) {
+  if (config_.calibration.stereo && measured.pixels) {
+    CalibratedCost c = stereoCalibrationCost(measured, lm, node->rate, image_free_);
+    addFactor(c.cost, {node}, true, std::move(c.blocks));
+    if (exposureRatesFromPoses()) {
+      factors_.back()->rate_sighting = measured;
+      factors_.back()->rate_landmark = &lm;
+      factors_.back()->rate_image_free = image_free_;
+    }
   } else if (config_.calibration.range && isRangeBearingFactor(measured, config_.observation_model)) {
     addFactor(RangeBearingCalibrationFactor::Create(lm.xy(), measured.z(), measured.covariance), {node}, true,
               {range_block_});
   } else {
     addFactor(makeObservationFactor(measured, lm, config_.observation_model), {node}, true);
+  }
+}
+
+bool SlidingWindowSmoother::exposureRatesFromPoses() const {
+  return config_.exposure_rate == BodyRateSource::SmoothedPoses && image_sigmas_ &&
+         (*image_sigmas_)[stereo_pixel_calibration::kExposureOffsetEntry] > 0;
+}
+
+// As the batch's ratesFromSolution (solvers/batch_solve.cpp), over the window's poses: the
+// central difference of the neighbours' estimates, the rate's sigma that of the odometry's
+// rotation between them (an upper bound of the smoothed difference's). Neighbours further apart
+// than the wheels' averaging window would give a rate no better than the wheels': the pose keeps
+// its own.
+void SlidingWindowSmoother::refreshExposureRates() {
+  if (!exposureRatesFromPoses() || nodes_.size() < 3) return;
+  std::vector<char> refreshed(nodes_.size(), 0);
+  for (size_t i = 1; i + 1 < nodes_.size(); ++i) {
+    const Node& a = *nodes_[i - 1];
+    Node& k = *nodes_[i];
+    const Node& b = *nodes_[i + 1];
+    const double dt = b.t - a.t;
+    if (!(dt > 0) || dt > BodyRateTracker::kDefaultWindowS) continue;
+    const double turn = angleDiff(b.x[2], a.x[2]);
+    const double mid = a.x[2] + 0.5 * turn;
+    k.rate.forward_mm_s = ((b.x[0] - a.x[0]) * std::cos(mid) + (b.x[1] - a.x[1]) * std::sin(mid)) / dt;
+    k.rate.yaw_rad_s = turn / dt;
+    k.rate.yaw_sigma_rad_s = std::sqrt(a.rel_to_next_covariance(2, 2) + k.rel_to_next_covariance(2, 2)) / dt;
+    refreshed[i] = 1;
+  }
+  for (size_t i = 0; i < nodes_.size(); ++i) nodes_[i]->slot = static_cast<int>(i);
+  for (const auto& f : factors_) {
+    if (!f->rate_sighting || !refreshed[static_cast<size_t>(f->nodes[0]->slot)]) continue;
+    CalibratedCost c = stereoCalibrationCost(*f->rate_sighting, *f->rate_landmark, f->nodes[0]->rate,
+                                             f->rate_image_free);
+    problem_->RemoveResidualBlock(f->id);
+    f->cost.reset(c.cost);
+    std::vector<double*> blocks{f->nodes[0]->x.data()};
+    for (Calib b : f->calib) blocks.push_back(calibData(b));
+    f->id = problem_->AddResidualBlock(f->cost.get(), f->robust ? loss_.get() : nullptr, blocks);
   }
 }
 
@@ -1356,6 +1409,7 @@ Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& n
     if (std::optional<Estimate> recovered = fuseUnderGate(step, node, b, &fused)) return *recovered;
   }
   node->status = lost_ ? EstimateStatus::Lost : (fused ? EstimateStatus::Tracking : EstimateStatus::Predicted);
+  refreshExposureRates();
   while (static_cast<int>(nodes_.size()) > config_.window) marginaliseOldest();
   solve(config_.max_iterations);
   retestGated();
@@ -1483,7 +1537,10 @@ Estimate SlidingWindowSmoother::recoverFromLoss(const Step& step, const PoseFix&
 
 std::vector<Estimate> SlidingWindowSmoother::finish() {
   if (!finished_) {
-    if (!nodes_.empty() && config_.final_iterations > 0) solve(config_.final_iterations);
+    if (!nodes_.empty() && config_.final_iterations > 0) {
+      refreshExposureRates();
+      solve(config_.final_iterations);
+    }
     finaliseWindow();
     finished_ = true;
   }

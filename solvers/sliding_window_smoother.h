@@ -30,7 +30,10 @@
 // does not reject the sightings that calibrate it. When the noise model states the lens estimate's
 // or the cameras' relative rotation errors, they are the image block (imageErrorSigmas) of the
 // pixel factors as in the batch, estimated after the window's first steps
-// (image_errors_after_steps); the gate keeps them as pixel noise. When the noise model states
+// (image_errors_after_steps); the gate keeps them as pixel noise. With the cameras' exposure
+// offset estimated, each pose's pixel factors are made again before each solve at the central
+// difference of its neighbours' estimates, the body rate the offset acts through
+// (exposure_rate). When the noise model states
 // the rectified rows' misalignment, it is a further global block, the row offset dv (rowOffsetSigma), in the pixel
 // factors of the features the frontend matched along their row (s dv on u_r). With it, a landmark
 // whose constant pixel offsets the noise model states (featureOffsetSigmas, feature_offsets) gets
@@ -149,6 +152,15 @@ struct SlidingWindowConfig {
   // tens of mm off, which the marginal prior then keeps (docs/realistic_world.md). 0: from the
   // first step (then a window as long as the data is the batch).
   int image_errors_after_steps = 20;
+  // With the exposure offset estimated (the image block and observation_model.unmodelled.
+  // exposure_offset_sigma_s > 0): where its factors take each image's body rate from. The
+  // wheels' rate lags the turns and keeps part of their noise, and an offset fitted against it as
+  // if exact comes out shrunk and over-confident; SmoothedPoses re-makes, before each solve, the
+  // factors of every window pose between two others no more than BodyRateTracker's 0.5 s apart
+  // at the central difference of their estimates (the newest pose keeps the wheels' rate until
+  // the next step). Odometry: the wheels' rate throughout (a window as long as the data is then
+  // the batch with the same source).
+  BodyRateSource exposure_rate = BodyRateSource::SmoothedPoses;
 
   void validate() const;             // throws stereoloc::Error naming the field
 };
@@ -284,6 +296,11 @@ class SlidingWindowSmoother : public Estimator {
     ceres::ResidualBlockId id = nullptr;
     bool robust = false;                                // carries robust_loss
     bool odometry = false;                              // the odometry between consecutive poses
+    // A sighting whose factor depends on its pose's body rate (the exposure offset estimated):
+    // what refreshExposureRates re-makes it from.
+    std::optional<Observation> rate_sighting;
+    const Landmark* rate_landmark = nullptr;
+    bool rate_image_free = false;  // made with the image block free (its errors not in the pixel noise)
   };
 
   void startWindow(const Step& step, const Pose2& pose, const Eigen::Matrix3d& covariance, EstimateStatus status);
@@ -357,6 +374,21 @@ class SlidingWindowSmoother : public Estimator {
   // (head, image, row, the feature's offsets) or the range calibration's when estimated, else
   // the plain observation factor.
   void addObservationFactor(const Observation& measured, const Landmark& lm, Node* node);
+  // The stereo self-calibration's pixel factor of a sighting of `lm` taken at body rate `rate`,
+  // and its calibration blocks; `image_free`: the image block is estimated (else its errors are
+  // pixel noise).
+  struct CalibratedCost {
+    ceres::CostFunction* cost = nullptr;
+    std::vector<Calib> blocks;
+  };
+  CalibratedCost stereoCalibrationCost(const Observation& measured, const Landmark& lm, const BodyRate& rate,
+                                       bool image_free);
+  // Whether the pixel factors read their pose's body rate (the exposure offset estimated) and
+  // take it from the smoothed poses (SlidingWindowConfig::exposure_rate).
+  bool exposureRatesFromPoses() const;
+  // SmoothedPoses: each window pose between two others gets their central difference as its body
+  // rate, and its rate-dependent factors are re-made with it (see SlidingWindowConfig).
+  void refreshExposureRates();
   // The newest pose's compass and observations of `step`, tested jointly as the EKF does (Ekf::
   // process): fused in order from the prediction (pred, P_pred), each at the belief the earlier
   // ones left, while the sum of their e^2 fails the chi-square gate of the summed degrees of

@@ -125,6 +125,17 @@ OdometryParams withSlip(const OdometryParams& params, double d_left, double d_ri
 BodyRate stepBodyRate(std::optional<BodyRateTracker>& tracker, const Step& step, const OdometryParams& params,
                       double slip_rel_sigma);
 
+// Where the image factors that estimate the cameras' exposure offset take each image's body
+// rate from (docs/realistic_world.md, "Estimating the offset").
+enum class BodyRateSource {
+  Odometry,       // the wheels' rate over the last 0.5 s (BodyRateTracker), as the EKF
+  // The central difference of the smoothed poses around the image: the batch solves with the
+  // odometry's rate first, then again with its solution's (solvers/batch_solve.cpp,
+  // ratesFromSolution); the window re-makes the factors of each pose between two others at
+  // their latest estimates before it solves (refreshExposureRates).
+  SmoothedPoses,
+};
+
 struct ObservationModelConfig {
   ObservationModel model = ObservationModel::RangeBearing;
   StereoRig rig;  // the rig that took the pixels (Dataset::rig); used by the pixel models

@@ -131,6 +131,7 @@ std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch
 
   SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
   c.observation_model.unmodelled = noise;
+  c.exposure_rate = BodyRateSource::Odometry;
   c.image_errors_after_steps = 0;
   c.gate_enabled = false;
   c.linearisation = WindowLinearisation::Current;
