@@ -61,7 +61,7 @@ std::string pngDefect(const Bytes& b) {
 // marker. What follows EOI (a camera's trailer) is not looked at.
 std::string jpegDefect(const Bytes& b) {
   const size_t n = b.size();
-    size_t at = 2;
+  size_t at = 2;
   for (;;) {
     if (at >= n) return "JPEG cut short" + atByte(at) + ", before its end-of-image marker";
     if (b[at] != 0xFF) return "corrupt JPEG: no marker" + atByte(at);

@@ -444,6 +444,20 @@ TEST(SelfCalibration, RecoversAPlantedExposureOffset) {
   EXPECT_EQ(unstated.exposure_offset_sigma_s, 0.0);
 }
 
+// randomWalk(seed) with wheels noisier by extra_k (mm^2/mm), stated as such.
+Dataset noisyWheelWalk(uint64_t seed, double extra_k) {
+  Dataset d = randomWalk(seed);
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> unit;
+  for (Step& s : d.steps) {
+    s.d_left += std::sqrt(extra_k * std::fabs(s.d_left)) * unit(rng);
+    s.d_right += std::sqrt(extra_k * std::fabs(s.d_right)) * unit(rng);
+  }
+  d.odometry.k_left += extra_k;
+  d.odometry.k_right += extra_k;
+  return d;
+}
+
 // The offset is fitted against each image's turn rate from the smoothed poses, not the wheels'.
 // With wheels five times noisier than the simulator's (k 0.1 mm^2/mm, stated as such) the
 // wheels' rate carries their noise into the fit as if it were the truth and shrinks the offset
@@ -455,15 +469,7 @@ TEST(SelfCalibration, FitsTheExposureOffsetAgainstTheSmoothedPoses) {
   constexpr int k = stereo_pixel_calibration::kExposureOffsetEntry;
   double ratio_poses = 0, ratio_wheels = 0;
   for (uint64_t seed : {9u, 10u, 11u}) {
-    Dataset d = randomWalk(seed);
-    std::mt19937_64 rng(seed);
-    std::normal_distribution<double> unit;
-    for (Step& s : d.steps) {
-      s.d_left += std::sqrt(extra_k * std::fabs(s.d_left)) * unit(rng);
-      s.d_right += std::sqrt(extra_k * std::fabs(s.d_right)) * unit(rng);
-    }
-    d.odometry.k_left += extra_k;
-    d.odometry.k_right += extra_k;
+    Dataset d = noisyWheelWalk(seed, extra_k);
     ASSERT_GT(plantExposureOffset(d, tau), 0.5);  // px
     CalibrationEstimate poses, wheels;
     calibratingBatch(d, 0.005, &poses, BodyRateSource::SmoothedPoses);
@@ -491,15 +497,7 @@ TEST(SelfCalibration, TheWindowFitsTheExposureOffsetAgainstItsSmoothedPoses) {
   constexpr int k = stereo_pixel_calibration::kExposureOffsetEntry;
   double ratio_poses = 0, ratio_wheels = 0;
   for (uint64_t seed : {9u, 10u, 11u}) {
-    Dataset d = randomWalk(seed);
-    std::mt19937_64 rng(seed);
-    std::normal_distribution<double> unit;
-    for (Step& s : d.steps) {
-      s.d_left += std::sqrt(extra_k * std::fabs(s.d_left)) * unit(rng);
-      s.d_right += std::sqrt(extra_k * std::fabs(s.d_right)) * unit(rng);
-    }
-    d.odometry.k_left += extra_k;
-    d.odometry.k_right += extra_k;
+    Dataset d = noisyWheelWalk(seed, extra_k);
     ASSERT_GT(plantExposureOffset(d, tau), 0.5);  // px
     CalibrationEstimate batch, poses, wheels;
     calibratingBatch(d, 0.005, &batch, BodyRateSource::SmoothedPoses);
