@@ -71,6 +71,7 @@
 #include "src/core/pose2.h"
 #include "src/sim/renderer.h"
 #include "src/core/stereo_rig.h"
+#include "src/io/image_file.h"
 
 using namespace stereoloc;
 using namespace stereoloc::frontend;
@@ -1141,8 +1142,9 @@ RealImage loadReal(const std::string& dir, const std::string& name, double lmin)
   RealImage im;
   im.name = name;
   const std::string img_path = dir + "/images/" + name + ".jpg", lab_path = dir + "/labels/" + name + ".txt";
-  im.bgr = cv::imread(img_path, cv::IMREAD_COLOR);
-  if (im.bgr.empty()) throw Error(img_path + ": cannot read the image");
+  ImageRead read = readImageFile(img_path, cv::IMREAD_COLOR);
+  if (!read.problem.empty()) throw Error(img_path + ": cannot read the image (" + read.problem + ")");
+  im.bgr = read.image;
   im.mask = cv::Mat(im.bgr.rows, im.bgr.cols, CV_8UC1, cv::Scalar(0));
   std::ifstream f(lab_path);
   if (!f) throw Error(lab_path + ": cannot open");
