@@ -518,6 +518,21 @@ TEST(SelfCalibration, TheWindowFitsTheExposureOffsetAgainstItsSmoothedPoses) {
   EXPECT_LT(ratio_wheels, 0.95);
 }
 
+// Window poses whose neighbours lie more than the wheels' 0.5 s averaging window apart keep the
+// wheels' rate: with images 0.3 s apart (neighbours 0.6 s) both sources give the same window.
+TEST(SelfCalibration, TheWindowKeepsTheWheelsRateBetweenDistantNeighbours) {
+  Dataset d = randomWalk(9);
+  for (Step& s : d.steps) s.t *= 3.0;
+  ASSERT_GT(plantExposureOffset(d, 0.004), 0.1);  // px
+  CalibrationEstimate poses, wheels;
+  const double rmse_poses = calibratingWindow(d, 0.005, &poses, BodyRateSource::SmoothedPoses);
+  const double rmse_wheels = calibratingWindow(d, 0.005, &wheels, BodyRateSource::Odometry);
+  constexpr int k = stereo_pixel_calibration::kExposureOffsetEntry;
+  ASSERT_TRUE(poses.image && wheels.image);
+  EXPECT_EQ(poses.image_errors[k], wheels.image_errors[k]);
+  EXPECT_EQ(rmse_poses, rmse_wheels);
+}
+
 // Planted constant offsets per feature (its errors repeat from sighting to sighting): a column
 // offset of every feature (both images) and a u_r offset of the marking features, on top of a row
 // misalignment. The batch estimates each within its reported uncertainty, tighter than its prior
