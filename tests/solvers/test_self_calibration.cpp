@@ -462,60 +462,39 @@ Dataset noisyWheelWalk(uint64_t seed, double extra_k) {
 // With wheels five times noisier than the simulator's (k 0.1 mm^2/mm, stated as such) the
 // wheels' rate carries their noise into the fit as if it were the truth and shrinks the offset
 // towards zero by more than its sigma allows; the smoothed poses' rate does not: on three random
-// walks the offset comes out within 2.5 of its sigmas and, on the mean, within 5 % of the planted
-// one.
+// walks the batch's offset comes out within 2.5 of its sigmas and, on the mean, within 5 % of the
+// planted one. The sliding window in real time, its poses' factors re-made at the central
+// difference of their neighbours' estimates before each solve, gives the batch's offset (within a
+// tenth of its sigma); on the wheels' rate it shrinks as the batch's does.
 TEST(SelfCalibration, FitsTheExposureOffsetAgainstTheSmoothedPoses) {
   const double tau = 0.004, extra_k = 0.08;  // s, mm^2/mm
   constexpr int k = stereo_pixel_calibration::kExposureOffsetEntry;
-  double ratio_poses = 0, ratio_wheels = 0;
+  // The batch and the window, each on the smoothed poses' and on the wheels' rate.
+  enum { kBatchPoses, kBatchWheels, kWindowPoses, kWindowWheels, kRuns };
+  std::array<double, kRuns> ratio{};
   for (uint64_t seed : {9u, 10u, 11u}) {
     Dataset d = noisyWheelWalk(seed, extra_k);
     ASSERT_GT(plantExposureOffset(d, tau), 0.5);  // px
-    CalibrationEstimate poses, wheels;
-    calibratingBatch(d, 0.005, &poses, BodyRateSource::SmoothedPoses);
-    calibratingBatch(d, 0.005, &wheels, BodyRateSource::Odometry);
-    ASSERT_TRUE(poses.image && wheels.image);
-    const double sd = std::sqrt(poses.image_covariance(k, k));
-    std::printf("seed %d: exposure offset %.2f +- %.2f ms at the smoothed poses' rate, %.2f +- %.2f ms at the wheels' "
-                "(planted %.1f)\n",
-                static_cast<int>(seed), 1e3 * poses.image_errors[k], 1e3 * sd, 1e3 * wheels.image_errors[k],
-                1e3 * std::sqrt(wheels.image_covariance(k, k)), 1e3 * tau);
-    EXPECT_NEAR(poses.image_errors[k], tau, 2.5 * sd) << "seed " << seed;
-    ratio_poses += poses.image_errors[k] / tau / 3.0;
-    ratio_wheels += wheels.image_errors[k] / tau / 3.0;
+    std::array<CalibrationEstimate, kRuns> e;
+    calibratingBatch(d, 0.005, &e[kBatchPoses], BodyRateSource::SmoothedPoses);
+    calibratingBatch(d, 0.005, &e[kBatchWheels], BodyRateSource::Odometry);
+    calibratingWindow(d, 0.005, &e[kWindowPoses], BodyRateSource::SmoothedPoses);
+    calibratingWindow(d, 0.005, &e[kWindowWheels], BodyRateSource::Odometry);
+    for (const CalibrationEstimate& c : e) ASSERT_TRUE(c.image);
+    auto ms = [&](int run) { return 1e3 * e[static_cast<size_t>(run)].image_errors[k]; };
+    auto sigma = [&](int run) { return std::sqrt(e[static_cast<size_t>(run)].image_covariance(k, k)); };
+    std::printf("seed %d: exposure offset %.2f +- %.2f ms (batch) and %.2f +- %.2f ms (window) at the smoothed "
+                "poses' rate, %.2f and %.2f ms at the wheels' (planted %.1f)\n",
+                static_cast<int>(seed), ms(kBatchPoses), 1e3 * sigma(kBatchPoses), ms(kWindowPoses),
+                1e3 * sigma(kWindowPoses), ms(kBatchWheels), ms(kWindowWheels), 1e3 * tau);
+    EXPECT_NEAR(ms(kBatchPoses), 1e3 * tau, 2.5e3 * sigma(kBatchPoses)) << "seed " << seed;
+    EXPECT_NEAR(ms(kWindowPoses), ms(kBatchPoses), 0.1e3 * sigma(kWindowPoses)) << "seed " << seed;
+    for (int run = 0; run < kRuns; ++run) ratio[static_cast<size_t>(run)] += ms(run) / (1e3 * tau) / 3.0;
   }
-  EXPECT_NEAR(ratio_poses, 1.0, 0.05);
-  EXPECT_LT(ratio_wheels, 0.95);
-}
-
-// The sliding window in real time, on the same walks: each pose between two others has its
-// factors re-made at the central difference of their estimates before each solve, and the
-// offset comes out as the batch's (within a tenth of its sigma), within 2.5 of its sigmas and,
-// on the mean, within 5 % of the planted one; on the wheels' rate it shrinks as the batch's does.
-TEST(SelfCalibration, TheWindowFitsTheExposureOffsetAgainstItsSmoothedPoses) {
-  const double tau = 0.004, extra_k = 0.08;  // s, mm^2/mm
-  constexpr int k = stereo_pixel_calibration::kExposureOffsetEntry;
-  double ratio_poses = 0, ratio_wheels = 0;
-  for (uint64_t seed : {9u, 10u, 11u}) {
-    Dataset d = noisyWheelWalk(seed, extra_k);
-    ASSERT_GT(plantExposureOffset(d, tau), 0.5);  // px
-    CalibrationEstimate batch, poses, wheels;
-    calibratingBatch(d, 0.005, &batch, BodyRateSource::SmoothedPoses);
-    calibratingWindow(d, 0.005, &poses, BodyRateSource::SmoothedPoses);
-    calibratingWindow(d, 0.005, &wheels, BodyRateSource::Odometry);
-    ASSERT_TRUE(batch.image && poses.image && wheels.image);
-    const double sd = std::sqrt(poses.image_covariance(k, k));
-    std::printf("seed %d: window's exposure offset %.2f +- %.2f ms at the smoothed poses' rate, %.2f +- %.2f ms at "
-                "the wheels'; batch %.2f ms (planted %.1f)\n",
-                static_cast<int>(seed), 1e3 * poses.image_errors[k], 1e3 * sd, 1e3 * wheels.image_errors[k],
-                1e3 * std::sqrt(wheels.image_covariance(k, k)), 1e3 * batch.image_errors[k], 1e3 * tau);
-    EXPECT_NEAR(poses.image_errors[k], batch.image_errors[k], 0.1 * sd) << "seed " << seed;
-    EXPECT_NEAR(poses.image_errors[k], tau, 2.5 * sd) << "seed " << seed;
-    ratio_poses += poses.image_errors[k] / tau / 3.0;
-    ratio_wheels += wheels.image_errors[k] / tau / 3.0;
-  }
-  EXPECT_NEAR(ratio_poses, 1.0, 0.05);
-  EXPECT_LT(ratio_wheels, 0.95);
+  EXPECT_NEAR(ratio[kBatchPoses], 1.0, 0.05);
+  EXPECT_NEAR(ratio[kWindowPoses], 1.0, 0.05);
+  EXPECT_LT(ratio[kBatchWheels], 0.95);
+  EXPECT_LT(ratio[kWindowWheels], 0.95);
 }
 
 // Window poses whose neighbours lie more than the wheels' 0.5 s averaging window apart keep the
