@@ -55,18 +55,25 @@ double plantExposureOffset(Dataset& d, double tau) {
   return largest_shift;
 }
 
-// The batch calibrating the head with the exposure offset's prior sigma_s (0: not estimated),
-// from the true start; returns the position RMSE.
-double calibratingBatch(const Dataset& d, double sigma_s, CalibrationEstimate* estimate,
-                        BodyRateSource rate = BodyRateSource::SmoothedPoses) {
+// The batch's or the window's config for these fits: the true start, pixel columns, the head
+// calibrated with the exposure offset's prior sigma_s (0: not estimated) at body rates from `rate`.
+template <class Config>
+Config exposureFitConfig(const Dataset& d, double sigma_s, BodyRateSource rate) {
   UnmodelledNoise noise;
   noise.exposure_offset_sigma_s = sigma_s;
-  BatchSmootherConfig bc;
-  bc.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
-  bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
-  bc.calibration = SelfCalibrationConfig::parse("stereo");
+  Config c;
+  c.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
+  c.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
+  c.calibration = SelfCalibrationConfig::parse("stereo");
+  c.exposure_rate = rate;
+  return c;
+}
+
+// The batch on them; returns the position RMSE.
+double calibratingBatch(const Dataset& d, double sigma_s, CalibrationEstimate* estimate,
+                        BodyRateSource rate = BodyRateSource::SmoothedPoses) {
+  BatchSmootherConfig bc = exposureFitConfig<BatchSmootherConfig>(d, sigma_s, rate);
   bc.cut_at_reinitialisation = false;
-  bc.exposure_rate = rate;
   BatchSmoother batch(d.map, d.odometry, bc);
   for (const Step& s : d.steps) batch.process(s);
   const std::vector<Estimate> out = batch.finish();
@@ -75,16 +82,9 @@ double calibratingBatch(const Dataset& d, double sigma_s, CalibrationEstimate* e
   return positionRmse(out, d);
 }
 
-// The same with the sliding window (W = 20, real time) and the given body-rate source.
+// The sliding window (W = 20, real time) on them; returns the position RMSE.
 double calibratingWindow(const Dataset& d, double sigma_s, CalibrationEstimate* estimate, BodyRateSource rate) {
-  UnmodelledNoise noise;
-  noise.exposure_offset_sigma_s = sigma_s;
-  SlidingWindowConfig c;
-  c.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
-  c.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
-  c.calibration = SelfCalibrationConfig::parse("stereo");
-  c.exposure_rate = rate;
-  SlidingWindowSmoother window(d.map, d.odometry, c);
+  SlidingWindowSmoother window(d.map, d.odometry, exposureFitConfig<SlidingWindowConfig>(d, sigma_s, rate));
   for (const Step& s : d.steps) window.process(s);
   const std::vector<Estimate> out = window.finish();
   const std::optional<CalibrationEstimate> calibration = window.calibration();
