@@ -713,19 +713,13 @@ void BatchSmoother::Solve::ratesFromSolution() {
     if (a == b) continue;  // a pose alone in its segment keeps the odometry's rate
     const double dt = b_.steps_[first_ + b].t - b_.steps_[first_ + a].t;
     if (!(dt > 0)) continue;
-    const Pose2 pa = poseAt(a), pb = poseAt(b);
-    const double turn = angleDiff(pb.theta, pa.theta);
-    const double mid = pa.theta + 0.5 * turn;
     double rotation_variance = 0;
     for (size_t k = a + 1; k <= b; ++k) {
       const BufferedStep& st = b_.steps_[first_ + k];
       rotation_variance +=
           stepRotationVariance(st.d_left, st.d_right, withSlip(b_.odometry_, st.d_left, st.d_right, slip));
     }
-    BodyRate& rate = b_.steps_[first_ + i].rate;
-    rate.forward_mm_s = ((pb.x - pa.x) * std::cos(mid) + (pb.y - pa.y) * std::sin(mid)) / dt;
-    rate.yaw_rad_s = turn / dt;
-    rate.yaw_sigma_rad_s = std::sqrt(rotation_variance) / dt;
+    b_.steps_[first_ + i].rate = bodyRateBetween(poseAt(a), poseAt(b), dt, rotation_variance);
   }
 }
 

@@ -947,11 +947,8 @@ void SlidingWindowSmoother::refreshExposureRates() {
     const Node& b = *nodes_[i + 1];
     const double dt = b.t - a.t;
     if (!(dt > 0) || dt > BodyRateTracker::kDefaultWindowS) continue;
-    const double turn = angleDiff(b.x[2], a.x[2]);
-    const double mid = a.x[2] + 0.5 * turn;
-    k.rate.forward_mm_s = ((b.x[0] - a.x[0]) * std::cos(mid) + (b.x[1] - a.x[1]) * std::sin(mid)) / dt;
-    k.rate.yaw_rad_s = turn / dt;
-    k.rate.yaw_sigma_rad_s = std::sqrt(a.rel_to_next_covariance(2, 2) + k.rel_to_next_covariance(2, 2)) / dt;
+    k.rate = bodyRateBetween(poseOf(a.x), poseOf(b.x), dt,
+                             a.rel_to_next_covariance(2, 2) + k.rel_to_next_covariance(2, 2));
     refreshed[i] = 1;
   }
   for (size_t i = 0; i < nodes_.size(); ++i) nodes_[i]->slot = static_cast<int>(i);

@@ -2,6 +2,7 @@
 
 #include <cmath>
 
+#include "src/core/angles.h"
 #include "src/core/error.h"
 
 namespace stereoloc {
@@ -13,6 +14,16 @@ BodyRate bodyRate(double d_left, double d_right, double dt_s, double wheel_base_
   if (!(dt_s > 0 && std::isfinite(dt_s))) return r;  // no previous step (NaN), or no interval
   r.forward_mm_s = 0.5 * (d_left + d_right) / dt_s;   // (B.2)
   r.yaw_rad_s = (d_right - d_left) / (wheel_base_mm * dt_s);  // (B.1)
+  return r;
+}
+
+BodyRate bodyRateBetween(const Pose2& a, const Pose2& b, double dt_s, double rotation_variance) {
+  const double turn = angleDiff(b.theta, a.theta);
+  const double mid = a.theta + 0.5 * turn;
+  BodyRate r;
+  r.forward_mm_s = ((b.x - a.x) * std::cos(mid) + (b.y - a.y) * std::sin(mid)) / dt_s;
+  r.yaw_rad_s = turn / dt_s;
+  r.yaw_sigma_rad_s = std::sqrt(rotation_variance) / dt_s;
   return r;
 }
 

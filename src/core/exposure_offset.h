@@ -32,6 +32,11 @@ struct BodyRate {
 // for a non-finite increment or w <= 0.
 BodyRate bodyRate(double d_left, double d_right, double dt_s, double wheel_base_mm);
 
+// The rate between poses a and b dt_s apart (s, > 0): the forward travel along the mean heading
+// and the turn, over dt; the yaw's sigma from the variance of the rotation between them (rad^2).
+// The smoothers' rate at a pose from its neighbours' estimates (central difference).
+BodyRate bodyRateBetween(const Pose2& a, const Pose2& b, double dt_s, double rotation_variance);
+
 // The variance of a step's rotation (rad^2) from its wheels' (B.6): (sigma_l^2 + sigma_r^2) / w^2.
 double stepRotationVariance(double d_left, double d_right, const OdometryParams& params);
 

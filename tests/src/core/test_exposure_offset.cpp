@@ -35,6 +35,22 @@ TEST(BodyRate, IsTheStepsWheelIncrementsOverItsInterval) {
   EXPECT_THROW(bodyRate(1.0, 1.0, 0.1, 0.0), Error);
 }
 
+// Two poses on a circle of radius 500 mm, 0.2 rad of arc apart, 0.4 s: the chord along the mean
+// heading and the turn over the interval, also where the headings straddle +-pi.
+TEST(BodyRate, BetweenTwoPosesIsTheChordAndTheTurnOverTheInterval) {
+  const double R = 500, phi = 0.2, dt = 0.4;
+  for (double theta0 : {0.3, M_PI - 0.1}) {
+    const Pose2 a(100, 200, wrapAngle(theta0));
+    // Counter-clockwise: the centre lies to the left of a's heading.
+    const double cx = a.x - R * std::sin(theta0), cy = a.y + R * std::cos(theta0);
+    const Pose2 b(cx + R * std::sin(theta0 + phi), cy - R * std::cos(theta0 + phi), wrapAngle(theta0 + phi));
+    const BodyRate r = bodyRateBetween(a, b, dt, 4e-4);
+    EXPECT_NEAR(r.forward_mm_s, 2 * R * std::sin(phi / 2) / dt, 1e-9) << theta0;
+    EXPECT_NEAR(r.yaw_rad_s, phi / dt, 1e-12) << theta0;
+    EXPECT_NEAR(r.yaw_sigma_rad_s, 0.02 / dt, 1e-15);
+  }
+}
+
 // The rate over the last half second of steps, and its error from the steps' rotation
 // variances; the first step has no interval.
 TEST(BodyRateTracker, AveragesTheLastWindowOfSteps) {
