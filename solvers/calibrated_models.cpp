@@ -68,6 +68,13 @@ Eigen::Vector3d wheelPriorSigma(const SelfCalibrationConfig& c, double wheel_bas
   return Eigen::Vector3d(c.wheel_scale_sigma, c.wheel_scale_sigma, c.wheel_base_rel_sigma * wheel_base_mm);
 }
 
+Eigen::Vector3d wheelDriftVariance(const UnmodelledNoise& noise, double d_left, double d_right, double wheel_base_mm) {
+  const double s2 = noise.wheel_scale_drift * noise.wheel_scale_drift;
+  const double b = noise.wheel_base_drift * wheel_base_mm;
+  const double l_m = std::fabs(d_left) / 1000.0, r_m = std::fabs(d_right) / 1000.0;  // m
+  return Eigen::Vector3d(s2 * l_m, s2 * r_m, b * b * 0.5 * (l_m + r_m));
+}
+
 CalibratedRangeBearing calibratedRangeBearing(const Observation& obs, const StereoRig& rig,
                                               const CalibrationEstimate::StereoVector& q) {
   if (!obs.pixels) throw Error("calibratedRangeBearing: the observation has no pixels");

@@ -22,6 +22,12 @@ Eigen::Vector3d wheelPriorSigma(const SelfCalibrationConfig& config, double whee
 // The range block's (c0, c1, c2, d_b; RangeBearingCalibrationFactor).
 Eigen::Vector4d rangePriorSigma(const SelfCalibrationConfig& config);
 
+// What a step with wheel increments d_left, d_right (mm) adds to the variances of the wheel
+// block (c_l, c_r, w mm) of a calibration that drifts (UnmodelledNoise::wheel_scale_drift,
+// wheel_base_drift): s^2 |d_l| / 1000, s^2 |d_r| / 1000 and (b w)^2 (|d_l| + |d_r|) / 2000, w
+// the nominal wheel base `wheel_base_mm`.
+Eigen::Vector3d wheelDriftVariance(const UnmodelledNoise& noise, double d_left, double d_right, double wheel_base_mm);
+
 // A range-bearing observation as a sensor with range block k would have reported it with k = 0:
 // range divided by 1 + c0 + c1 b + c2 b^2 (b its measured bearing), bearing less d_b, R's range
 // row and column divided alike, plus the uncertainty of k (covariance Ck) as J Ck J^T (the

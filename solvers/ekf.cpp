@@ -451,6 +451,10 @@ void Ekf::predictCalibrated(double d_left, double d_right) {
   joint_.topRows<3>() = AP;
   joint_.leftCols<3>() = AP.transpose();
   joint_.topLeftCorner<3, 3>() = 0.5 * (pose_block + pose_block.transpose());
+  // A drifting wheel calibration: its random walk over this step's travel (process noise).
+  if (wheels_at_ >= 0 && config_.observation_model.unmodelled.wheelsDrift())
+    joint_.diagonal().segment<3>(wheels_at_) +=
+        wheelDriftVariance(config_.observation_model.unmodelled, d_left, d_right, odometry_.wheel_base_mm);
   pose_ = pred.pose;
   P_ = joint_.topLeftCorner<3, 3>();
 }

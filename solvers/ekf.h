@@ -39,9 +39,11 @@
 // pixel model where the noise model states them, the smoothers' image block e, the row offset
 // dv and each fused feature's offsets b become states beside the pose, x = (p, c, q, e, dv, b),
 // with their priors' covariance and no process noise (constant for a run; a feature's b joins
-// when it is first fused):
+// when it is first fused), but for the wheels when the noise model says they drift:
 //   prediction  p' = p (+) u(c_l d_l, c_r d_r, w),  F = [J1 J_p'c 0; 0 I 0; 0 0 I],
-//               P' = F P F^T + diag(J2 U J2^T, 0, 0)   (solvers/calibrated_models.h)
+//               P' = F P F^T + diag(J2 U J2^T, Q_c, 0)   (solvers/calibrated_models.h;
+//               Q_c = wheelDriftVariance, 0 unless UnmodelledNoise::wheel_scale_drift or
+//               wheel_base_drift)
 //   update      a stereo sighting on its whitened pixel columns r(x) (the smoothers' pixel
 //               factors, factors/stereo_pixel_*calibration_factor.h): nu = -r, H = dr/dx,
 //               R = I, iterated to the MAP of prediction and sighting (the observation model

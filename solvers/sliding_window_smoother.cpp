@@ -589,9 +589,14 @@ bool SlidingWindowSmoother::reanchor(const PoseFix& fix, const Pose2& pred, cons
 SlidingWindowSmoother::Neighbourhood SlidingWindowSmoother::neighbourhoodOf(Node* o) const {
   Neighbourhood nb;
   nb.vars = {o};
+  // A drifting wheel calibration's own prior joins the first marginalisation, so that its
+  // information ages with the rest (marginaliseOldest).
+  const bool drift = wheels_block_ >= 0 && config_.observation_model.unmodelled.wheelsDrift();
   for (size_t i = 0; i < factors_.size(); ++i) {
     const Factor& f = *factors_[i];
-    if (std::find(f.nodes.begin(), f.nodes.end(), o) == f.nodes.end()) continue;
+    const bool wheel_prior =
+        drift && f.nodes.empty() && std::find(f.calib.begin(), f.calib.end(), wheels_block_) != f.calib.end();
+    if (!wheel_prior && std::find(f.nodes.begin(), f.nodes.end(), o) == f.nodes.end()) continue;
     nb.touching.push_back(i);
     for (Node* n : f.nodes)
       if (std::find(nb.vars.begin(), nb.vars.end(), n) == nb.vars.end()) nb.vars.push_back(n);
@@ -642,6 +647,7 @@ void SlidingWindowSmoother::marginaliseOldest() {
     Eigen::MatrixXd Hm;
     Eigen::VectorXd gm;
     schurComplement(nb.H, nb.g, 3, &Hm, &gm);
+    ageWheelInformation(nb, *o, Hm, gm);
     if (nb.calib.empty()) {
       std::vector<Pose2> x0;
       for (Node* n : kept) x0.push_back(poseOf(n->x));
@@ -666,6 +672,23 @@ void SlidingWindowSmoother::marginaliseOldest() {
       if (!n->prior_point) n->prior_point = n->x;
   }
   ++stats_.marginalisations;
+}
+
+void SlidingWindowSmoother::ageWheelInformation(const Neighbourhood& nb, const Node& o, Eigen::MatrixXd& Hm,
+                                                Eigen::VectorXd& gm) const {
+  const UnmodelledNoise& noise = config_.observation_model.unmodelled;
+  const auto wheels = std::find(nb.calib.begin(), nb.calib.end(), wheels_block_);
+  if (!noise.wheelsDrift() || wheels == nb.calib.end() || nodes_.size() < 2) return;
+  // The prior speaks of the wheels at o; the window's factors of the wheels from the next pose
+  // on (one block, constant over the window): the walk over the travel in between.
+  double travel_left = std::fabs(nodes_[1]->d_left), travel_right = std::fabs(nodes_[1]->d_right);
+  for (const Intermediate& m : o.after) {
+    travel_left += std::fabs(m.d_left);
+    travel_right += std::fabs(m.d_right);
+  }
+  int offset = 3 * (static_cast<int>(nb.vars.size()) - 1);
+  for (auto c = nb.calib.begin(); c != wheels; ++c) offset += calibSize(*c);
+  addRandomWalk(Hm, gm, offset, wheelDriftVariance(noise, travel_left, travel_right, odometry_.wheel_base_mm));
 }
 
 void SlidingWindowSmoother::solve(int max_iterations) {

@@ -24,7 +24,9 @@
 // (oldest kept pose, calibration) so the information of marginalised poses on them is carried,
 // and the odometry between keyframes is the calibrated factor of their steps composed
 // (factors/composed_odometry_calibration_factor.h), so W keyframes span as many steps as without
-// calibration. With the stereo block, gate, association and global fixes see each pixel observation
+// calibration. Wheels that drift (UnmodelledNoise::wheel_scale_drift, wheel_base_drift) are one
+// block, constant over the window, whose marginal prior takes the random walk over each
+// marginalised pose's travel (ageWheelInformation), the wheels' own prior with it. With the stereo block, gate, association and global fixes see each pixel observation
 // through the current calibration estimate and its covariance, and a sighting that gates out
 // through the prior calibration (calibratedObservation), so the given calibration's range bias
 // does not reject the sightings that calibrate it. When the noise model states the lens estimate's
@@ -346,6 +348,10 @@ class SlidingWindowSmoother : public Estimator {
     Eigen::VectorXd g;
   };
   Neighbourhood neighbourhoodOf(Node* o) const;
+  // The marginal prior (Hm, gm) of o's neighbourhood `nb` after o's Schur complement, its wheel
+  // block walked over the travel from o to the next window pose when the wheels drift
+  // (UnmodelledNoise::wheel_scale_drift; addRandomWalk).
+  void ageWheelInformation(const Neighbourhood& nb, const Node& o, Eigen::MatrixXd& Hm, Eigen::VectorXd& gm) const;
   void marginaliseOldest();
   void finaliseWindow();                // moves every window pose into the history, clears the problem
   void dropNewest();                    // removes the newest pose and its factors

@@ -83,6 +83,8 @@ const std::pair<const char*, double UnmodelledNoise::*> kNoiseKeys[] = {
     {"intersection_feature_column_sigma_px", &UnmodelledNoise::intersection_feature_column_sigma_px},
     {"slip_rel_sigma", &UnmodelledNoise::slip_rel_sigma},
     {"exposure_offset_sigma_s", &UnmodelledNoise::exposure_offset_sigma_s},
+    {"wheel_scale_drift", &UnmodelledNoise::wheel_scale_drift},
+    {"wheel_base_drift", &UnmodelledNoise::wheel_base_drift},
 };
 }  // namespace
 
@@ -337,6 +339,34 @@ void schurComplement(const Eigen::MatrixXd& H, const Eigen::VectorXd& g, int m, 
   *H_marginal = H.bottomRightCorner(k, k) - Hrm * X;
   *H_marginal = 0.5 * (*H_marginal + H_marginal->transpose());
   *g_marginal = g.tail(k) - X.transpose() * g.head(m);
+}
+
+void addRandomWalk(Eigen::MatrixXd& H, Eigen::VectorXd& g, int offset, const Eigen::VectorXd& variance) {
+  const Eigen::Index n = H.rows(), k = variance.size();
+  if (H.cols() != n || g.size() != n || offset < 0 || offset + k > n)
+    throw Error("addRandomWalk: bad dimensions");
+  std::vector<Eigen::Index> walked;
+  for (Eigen::Index i = 0; i < k; ++i) {
+    if (!(std::isfinite(variance[i]) && variance[i] >= 0))
+      throw Error("addRandomWalk: a variance is negative or not finite");
+    if (variance[i] > 0) walked.push_back(i);
+  }
+  if (walked.empty()) return;
+  const Eigen::Index m = static_cast<Eigen::Index>(walked.size());
+  Eigen::MatrixXd HE(n, m);  // H E
+  Eigen::MatrixXd M(m, m);   // Q^-1 + E^T H E
+  for (Eigen::Index j = 0; j < m; ++j) HE.col(j) = H.col(offset + walked[static_cast<size_t>(j)]);
+  for (Eigen::Index i = 0; i < m; ++i) {
+    for (Eigen::Index j = 0; j < m; ++j) M(i, j) = HE(offset + walked[static_cast<size_t>(i)], j);
+    M(i, i) += 1.0 / variance[walked[static_cast<size_t>(i)]];
+  }
+  const Eigen::LLT<Eigen::MatrixXd> llt(0.5 * (M + M.transpose()));
+  if (llt.info() != Eigen::Success) throw Error("addRandomWalk: the information is not positive semi-definite");
+  Eigen::VectorXd Eg(m);
+  for (Eigen::Index j = 0; j < m; ++j) Eg[j] = g[offset + walked[static_cast<size_t>(j)]];
+  g -= HE * llt.solve(Eg);
+  H -= HE * llt.solve(HE.transpose());
+  H = 0.5 * (H + H.transpose());
 }
 
 }  // namespace stereoloc

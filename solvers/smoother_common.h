@@ -102,6 +102,15 @@ struct UnmodelledNoise {
   // quadrature to (B.6)'s k |d| (slip on a fraction p of the steps, one wheel at a time, reading
   // (1 + s) times the motion: sqrt(p / 2 E[s^2])).
   double slip_rel_sigma = 0.0;
+  // The wheels' calibration wanders during a run (tyres warming and wearing, another floor, a
+  // velocity controller whose scale follows the battery): a random walk with distance. Each
+  // wheel's scale by its own travel, the effective wheel base by the wheels' mean travel,
+  // variance sigma^2 |d| / 1000 mm (wheelDriftVariance, solvers/calibrated_models.h). The
+  // window and the EKF that estimate or consider the wheels let them follow it; the batch
+  // estimates one wheel calibration per run and does not read these.
+  double wheel_scale_drift = 0.0;  // fraction per sqrt(m) of the wheel's travel
+  double wheel_base_drift = 0.0;   // fraction of the wheel base per sqrt(m) of the mean travel
+  bool wheelsDrift() const { return wheel_scale_drift > 0 || wheel_base_drift > 0; }
 
   bool isZero() const;
   void validate() const;  // throws stereoloc::Error naming the field
@@ -196,6 +205,17 @@ bool accumulateNormalEquations(const ceres::CostFunction& cost, const std::vecto
 // determined by their factors: rank deficiency).
 void schurComplement(const Eigen::MatrixXd& H, const Eigen::VectorXd& g, int m, Eigen::MatrixXd* H_marginal,
                      Eigen::VectorXd* g_marginal);
+
+// A Gaussian in information form, quadratic 1/2 dx^T H dx + g^T dx, whose variables
+// offset..offset+k-1 then take a random walk with independent variances `variance` (k of them,
+// >= 0; zero ones stay): the information of the walked variables, with the walk's noise w
+// marginalised out,
+//   H' = H - H E M^-1 E^T H,   g' = g - H E M^-1 E^T g,   M = Q^-1 + E^T H E,
+// E selecting the walked variables, Q = diag of their positive variances. Valid for a singular
+// H (no information in some direction stays none) and the mean unchanged. The sliding window's
+// marginal prior on a drifting wheel calibration (UnmodelledNoise::wheel_scale_drift). Throws
+// stereoloc::Error for bad dimensions or a negative or non-finite variance.
+void addRandomWalk(Eigen::MatrixXd& H, Eigen::VectorXd& g, int offset, const Eigen::VectorXd& variance);
 
 // Marginal covariances of a chain: the poses 0..N-1 linked only to their neighbours, so the
 // information matrix is block tridiagonal with diagonal blocks D_i (3x3) and off-diagonal

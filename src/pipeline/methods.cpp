@@ -214,6 +214,9 @@ void applyErrorProfile(const ErrorProfile& p, double focal_px, MethodOptions& o)
   // p / 2 (a^2 + a b + b^2) / 3.
   const double a = p.slip_min, b = p.slip_max;
   n.slip_rel_sigma = std::sqrt(0.5 * p.slip_probability * (a * a + a * b + b * b) / 3.0);
+  // A wheel scale is the radius's (1 + e): its walk is the radius's.
+  n.wheel_scale_drift = p.wheel_radius_drift;
+  n.wheel_base_drift = p.wheel_base_drift;
   // Priors: the calibration's stated uncertainty. The disparity offset is the principal points'
   // u difference and f times the cameras' relative yaw, the column offset their means; a
   // profile without an error keeps the default prior.

@@ -41,6 +41,8 @@ const Field kFields[] = {
     {"slip_min", &ErrorProfile::slip_min},
     {"slip_max", &ErrorProfile::slip_max},
     {"time_offset_sigma_s", &ErrorProfile::time_offset_sigma_s},
+    {"wheel_radius_drift", &ErrorProfile::wheel_radius_drift},
+    {"wheel_base_drift", &ErrorProfile::wheel_base_drift},
 };
 
 cv::Mat rotationVector(const double* r) {
@@ -132,6 +134,7 @@ void ErrorProfile::validate() const {
   if (exposure_samples < 1 || exposure_samples > 16) throw Error("exposure_samples: must be in 1..16");
   if (focal_rel_sigma > 0.2 || baseline_rel_sigma > 0.2 || wheel_radius_rel_sigma > 0.2 || wheel_base_rel_sigma > 0.2)
     throw Error("relative sigmas must be at most 0.2");
+  if (wheel_radius_drift > 0.1 || wheel_base_drift > 0.1) throw Error("wheel drifts must be at most 0.1 per sqrt(m)");
 }
 
 bool ErrorProfile::isIdeal() const {
@@ -140,7 +143,7 @@ bool ErrorProfile::isIdeal() const {
   return true;
 }
 
-DrawnErrors drawErrors(const ErrorProfile& p, size_t steps, std::mt19937_64& rng) {
+DrawnErrors drawErrors(const ErrorProfile& p, size_t steps, std::mt19937_64& rng, const std::vector<WheelIncrements>& travel) {
   std::normal_distribution<double> N(0.0, 1.0);
   std::uniform_real_distribution<double> U(0.0, 1.0);
   DrawnErrors e;
@@ -184,6 +187,18 @@ DrawnErrors drawErrors(const ErrorProfile& p, size_t steps, std::mt19937_64& rng
       (which < 0.5 ? e.slip_left : e.slip_right)[s] = slip;
     }
   }
+  if (p.wheel_radius_drift > 0 || p.wheel_base_drift > 0) {
+    if (travel.size() != steps) throw Error("drawErrors: a wheel drift needs each step's wheel travel");
+    e.wheel_radius_drift_left.assign(steps, 0.0);
+    e.wheel_radius_drift_right.assign(steps, 0.0);
+    e.wheel_base_drift.assign(steps, 0.0);
+    for (size_t s = 1; s < steps; ++s) {
+      const double l_m = std::fabs(travel[s].d_left) / 1000.0, r_m = std::fabs(travel[s].d_right) / 1000.0;
+      e.wheel_radius_drift_left[s] = e.wheel_radius_drift_left[s - 1] + p.wheel_radius_drift * std::sqrt(l_m) * N(rng);
+      e.wheel_radius_drift_right[s] = e.wheel_radius_drift_right[s - 1] + p.wheel_radius_drift * std::sqrt(r_m) * N(rng);
+      e.wheel_base_drift[s] = e.wheel_base_drift[s - 1] + p.wheel_base_drift * std::sqrt(0.5 * (l_m + r_m)) * N(rng);
+    }
+  }
   return e;
 }
 
@@ -210,6 +225,11 @@ void DrawnErrors::save(const std::string& path, const ErrorProfile& profile) con
   out.put("roll_rad", roll_rad);
   out.put("slip_left", slip_left);
   out.put("slip_right", slip_right);
+  if (!wheel_radius_drift_left.empty()) {
+    out.put("wheel_radius_drift_left", wheel_radius_drift_left);
+    out.put("wheel_radius_drift_right", wheel_radius_drift_right);
+    out.put("wheel_base_drift", wheel_base_drift);
+  }
   out.writeAtomically(path);
 }
 

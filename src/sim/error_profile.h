@@ -29,6 +29,7 @@
 #include <string>
 #include <vector>
 
+#include "src/core/odometry_model.h"
 #include "src/core/stereo_calibration.h"
 #include "src/core/stereo_rig.h"
 
@@ -58,6 +59,12 @@ struct ErrorProfile {
   double slip_probability = 0.0;           // per step
   double slip_min = 0.0, slip_max = 0.0;   // slipping wheel reads (1 + U(min, max)) x its motion
   double time_offset_sigma_s = 0.0;        // s, odometry clock minus image clock
+  // Wheels whose calibration wanders during the run (a random walk with distance, from the drawn
+  // start): each wheel's radius by its own travel, the wheel base by the wheels' mean travel.
+  // Not in `realistic` (0): a drive of the thesis's scenarios is too short for it to matter; a
+  // long run's (UnmodelledNoise::wheel_scale_drift, the estimators' side).
+  double wheel_radius_drift = 0.0;         // fraction per sqrt(m) of the wheel's travel
+  double wheel_base_drift = 0.0;           // fraction per sqrt(m) of the wheels' mean travel
 
   static ErrorProfile ideal();
   static ErrorProfile realistic();
@@ -85,11 +92,18 @@ struct DrawnErrors {
   double time_offset_s = 0.0;
   std::vector<double> pitch_rad, roll_rad;  // per step
   std::vector<double> slip_left, slip_right;  // per step: reading = (1 + slip) x motion
+  // Per step, with a drift: the walk of each wheel's radius and of the wheel base (fractions) on
+  // top of wheel_radius_rel and wheel_base_rel; empty without one.
+  std::vector<double> wheel_radius_drift_left, wheel_radius_drift_right, wheel_base_drift;
 
   void save(const std::string& path, const ErrorProfile& profile) const;  // the dataset's truth
 };
 
-DrawnErrors drawErrors(const ErrorProfile& profile, size_t steps, std::mt19937_64& rng);
+// `travel`: each step's wheel travel (mm, the scenario's motion), which the wheels' drift walks
+// with; needed (one per step) only when the profile has a drift, whose draws come after all
+// others so that a profile without one draws as before. Throws Error for a missing travel.
+DrawnErrors drawErrors(const ErrorProfile& profile, size_t steps, std::mt19937_64& rng,
+                       const std::vector<WheelIncrements>& travel = {});
 
 // Camera matrices of the nominal rectified rig (K of both cameras), OpenCV layout.
 cv::Mat nominalCameraMatrix(const StereoRig& nominal);

@@ -199,6 +199,7 @@ class Simulation {
  private:
   std::string description(uint64_t seed) const;
   void placeObstacles();
+  std::vector<WheelIncrements> scenarioWheelTravel() const;
   void driveWheels(size_t s, Step* st);
   void observe(size_t s, const Scene& world, Step* st);
 
@@ -239,7 +240,7 @@ Simulation::Simulation(const std::string& scenario_name, int trial, const Simula
   nominal_ = d_.rig;
   if (!ideal_) {
     std::mt19937_64 rng_profile(master_());
-    drawn_ = drawErrors(cfg_.profile, n, rng_profile);
+    drawn_ = drawErrors(cfg_.profile, n, rng_profile, scenarioWheelTravel());
     d_.rig = StereoRig(rp_, givenCalibration(nominal_, drawn_));
   }
   d_.odometry = OdometryParams();
@@ -325,6 +326,18 @@ Dataset Simulation::run(SimulationTrace* trace) {
   return std::move(d_);
 }
 
+// Each step's wheel travel on the nominal wheel base, for a wheel drift's walk (empty without one).
+std::vector<WheelIncrements> Simulation::scenarioWheelTravel() const {
+  if (!(cfg_.profile.wheel_radius_drift > 0 || cfg_.profile.wheel_base_drift > 0)) return {};
+  std::vector<WheelIncrements> travel(sc_.poses.size());
+  for (size_t s = 1; s < sc_.poses.size(); ++s) {
+    if (sc_.carried[s]) continue;
+    const Arc arc = arcBetween(sc_.poses[s - 1], sc_.poses[s]);
+    travel[s] = wheelIncrementsForArc(arc.length, arc.dtheta, cfg_.wheel_base_mm);
+  }
+  return travel;
+}
+
 // The wheel increments of step s (none on the first step and while the robot is carried).
 void Simulation::driveWheels(size_t s, Step* st) {
   if (s == 0 || sc_.carried[s]) return;
@@ -335,9 +348,13 @@ void Simulation::driveWheels(size_t s, Step* st) {
     const double clock_shift = drawn_.time_offset_s / cfg_.dt;  // steps
     const Arc arc = arcBetween(poseAtStep(sc_, static_cast<double>(s) - 1.0 + clock_shift),
                                poseAtStep(sc_, static_cast<double>(s) + clock_shift));
-    const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, cfg_.wheel_base_mm * (1.0 + drawn_.wheel_base_rel));
-    const double l = w.d_left / (1.0 + drawn_.wheel_radius_rel[0]) * (1.0 + drawn_.slip_left[s]);
-    const double r = w.d_right / (1.0 + drawn_.wheel_radius_rel[1]) * (1.0 + drawn_.slip_right[s]);
+    const bool drift = !drawn_.wheel_base_drift.empty();
+    const double base_rel = drawn_.wheel_base_rel + (drift ? drawn_.wheel_base_drift[s] : 0.0);
+    const double radius_left = drawn_.wheel_radius_rel[0] + (drift ? drawn_.wheel_radius_drift_left[s] : 0.0);
+    const double radius_right = drawn_.wheel_radius_rel[1] + (drift ? drawn_.wheel_radius_drift_right[s] : 0.0);
+    const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, cfg_.wheel_base_mm * (1.0 + base_rel));
+    const double l = w.d_left / (1.0 + radius_left) * (1.0 + drawn_.slip_left[s]);
+    const double r = w.d_right / (1.0 + radius_right) * (1.0 + drawn_.slip_right[s]);
     st->d_left = l + std::sqrt(cfg_.encoder_k * std::fabs(l)) * N_(rng_encoder_);
     st->d_right = r + std::sqrt(cfg_.encoder_k * std::fabs(r)) * N_(rng_encoder_);
   } else {

@@ -2,6 +2,9 @@
 // data, and the model names.
 #include <gtest/gtest.h>
 
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <cmath>
 #include <fstream>
 #include <memory>
 
@@ -173,6 +176,8 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
   n.goal_feature_column_sigma_px = 0.12;
   n.marking_feature_column_sigma_px = 0.19;
   n.intersection_feature_column_sigma_px = 0.14;
+  n.wheel_scale_drift = 0.002;
+  n.wheel_base_drift = 0.004;
   n.save(dir.file("noise.yaml"));
   const UnmodelledNoise back = UnmodelledNoise::load(dir.file("noise.yaml"));
   EXPECT_EQ(back.k1_sigma, 0.01);
@@ -188,6 +193,9 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
   EXPECT_EQ(back.goal_feature_column_sigma_px, 0.12);
   EXPECT_EQ(back.marking_feature_column_sigma_px, 0.19);
   EXPECT_EQ(back.intersection_feature_column_sigma_px, 0.14);
+  EXPECT_EQ(back.wheel_scale_drift, 0.002);
+  EXPECT_EQ(back.wheel_base_drift, 0.004);
+  EXPECT_TRUE(back.wheelsDrift());
   EXPECT_EQ(back.roll_sigma_rad, 0.0);
   {
     std::ofstream f(dir.file("bad.yaml"));
@@ -200,6 +208,49 @@ TEST(UnmodelledNoise, FileRoundTripAndBadValues) {
     EXPECT_NE(std::string(e.what()).find("roll_sigma_rad"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("bad.yaml"), std::string::npos) << e.what();
   }
+}
+
+// addRandomWalk on a positive definite information is the covariance form: (H^-1 + E Q E^T)^-1,
+// the mean H^-1 g unchanged; variables with zero variance do not walk.
+TEST(RandomWalk, IsTheCovarianceGrownInInformationForm) {
+  Eigen::MatrixXd A(5, 5);
+  A << 4, 1, 0.5, 0, 0.2,  //
+      1, 3, 0.3, 0.1, 0,   //
+      0.5, 0.3, 2, 0.4, 0.1,  //
+      0, 0.1, 0.4, 5, 0.7,  //
+      0.2, 0, 0.1, 0.7, 1;
+  const Eigen::MatrixXd H0 = A * A.transpose();
+  const Eigen::VectorXd g0 = (Eigen::VectorXd(5) << 0.3, -1.2, 0.7, 2.0, -0.4).finished();
+  Eigen::MatrixXd H = H0;
+  Eigen::VectorXd g = g0;
+  const Eigen::Vector3d q(0.5, 0.0, 2.0);  // variables 2, 3, 4; 3 does not walk
+  addRandomWalk(H, g, 2, q);
+  Eigen::MatrixXd Sigma = H0.inverse();
+  Sigma.diagonal().tail<3>() += q;
+  EXPECT_LT((H - Sigma.inverse()).cwiseAbs().maxCoeff(), 1e-9 * H0.cwiseAbs().maxCoeff());
+  EXPECT_LT((H.ldlt().solve(g) - H0.ldlt().solve(g0)).cwiseAbs().maxCoeff(), 1e-9);
+  // Zero variances leave it as it was.
+  Eigen::MatrixXd H2 = H0;
+  Eigen::VectorXd g2 = g0;
+  addRandomWalk(H2, g2, 0, Eigen::Vector2d::Zero());
+  EXPECT_EQ(H2, H0);
+  EXPECT_EQ(g2, g0);
+}
+
+// A singular information (nothing known along one variable, as a wheel base the marginalised
+// poses did not see) stays without information there, and the rest walks as in covariance form.
+TEST(RandomWalk, KeepsADirectionWithoutInformationWithout) {
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(3, 3);
+  H.topLeftCorner<2, 2>() << 4, 1, 1, 2;
+  Eigen::VectorXd g = Eigen::Vector3d(1, -1, 0);
+  const Eigen::Matrix2d Sigma = H.topLeftCorner<2, 2>().inverse() + Eigen::Vector2d(0, 0.25).asDiagonal().toDenseMatrix();
+  addRandomWalk(H, g, 1, Eigen::Vector2d(0.25, 3.0));
+  EXPECT_LT((H.topLeftCorner<2, 2>() - Sigma.inverse()).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT(H.row(2).cwiseAbs().maxCoeff(), 1e-15);
+  EXPECT_LT(std::fabs(g[2]), 1e-15);
+  EXPECT_THROW(addRandomWalk(H, g, 2, Eigen::Vector2d(1, 1)), Error);       // past the end
+  EXPECT_THROW(addRandomWalk(H, g, 0, Eigen::Vector2d(-1, 1)), Error);      // a negative variance
+  EXPECT_THROW(addRandomWalk(H, g, 0, Eigen::Vector2d(NAN, 1)), Error);
 }
 
 }  // namespace

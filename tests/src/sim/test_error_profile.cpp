@@ -148,6 +148,62 @@ TEST(ErrorProfile, SimulatedOdometryCarriesWheelErrors) {
   EXPECT_FALSE(a.rig.calibration());
 }
 
+// A wheel drift: each wheel's radius walks with its own travel (increments N(0, s^2 |d| / 1 m)),
+// the wheel base with the mean travel; the draws come after all others, so the rest of the
+// draw is the profile's without the drift; the simulated readings carry the walked radii.
+TEST(ErrorProfile, WheelDriftWalksWithTheTravelAfterTheOtherDraws) {
+  ErrorProfile p = ErrorProfile::realistic();
+  const ErrorProfile plain = p;
+  p.wheel_radius_drift = 0.003;
+  p.wheel_base_drift = 0.01;
+  const size_t steps = 2000;
+  std::vector<WheelIncrements> travel(steps);
+  for (size_t s = 1; s < steps; ++s) travel[s] = {20.0 + static_cast<double>(s % 7), -5.0 - static_cast<double>(s % 3)};
+  std::mt19937_64 a(9), b(9);
+  const DrawnErrors e = drawErrors(p, steps, a, travel), f = drawErrors(plain, steps, b);
+  EXPECT_EQ(e.wheel_radius_rel[0], f.wheel_radius_rel[0]);
+  EXPECT_EQ(e.slip_left, f.slip_left);
+  EXPECT_EQ(e.roll_rad, f.roll_rad);
+  EXPECT_TRUE(f.wheel_radius_drift_left.empty());
+  ASSERT_EQ(e.wheel_radius_drift_left.size(), steps);
+  EXPECT_EQ(e.wheel_radius_drift_left[0], 0.0);
+  Moments left, right, base;
+  for (size_t s = 1; s < steps; ++s) {
+    const double l = std::fabs(travel[s].d_left) / 1000, r = std::fabs(travel[s].d_right) / 1000;
+    left.add((e.wheel_radius_drift_left[s] - e.wheel_radius_drift_left[s - 1]) / std::sqrt(l));
+    right.add((e.wheel_radius_drift_right[s] - e.wheel_radius_drift_right[s - 1]) / std::sqrt(r));
+    base.add((e.wheel_base_drift[s] - e.wheel_base_drift[s - 1]) / std::sqrt(0.5 * (l + r)));
+  }
+  expectDistribution(left, 0, p.wheel_radius_drift, "left wheel's walk");
+  expectDistribution(right, 0, p.wheel_radius_drift, "right wheel's walk");
+  expectDistribution(base, 0, p.wheel_base_drift, "wheel base's walk");
+  EXPECT_THROW(drawErrors(p, steps, a), Error);  // a drift without the travel
+
+  SimulationConfig cfg;
+  cfg.encoder_k = 0.0;
+  cfg.profile.name = "drifting wheels";
+  cfg.profile.wheel_radius_drift = 0.01;
+  cfg.profile.wheel_base_drift = 0.02;
+  cfg.scenario.steps = 300;
+  SimulationTrace trace;
+  const Dataset d = simulate("random-walk", 0, cfg, 5, &trace);
+  const DrawnErrors& t = trace.errors;
+  ASSERT_EQ(t.wheel_radius_drift_left.size(), d.steps.size());
+  EXPECT_GT(std::fabs(t.wheel_radius_drift_left.back()), 1e-4);
+  for (size_t s = 1; s < d.steps.size(); ++s) {
+    const Arc arc = arcBetween(d.groundtruth[s - 1].value(), d.groundtruth[s].value());
+    const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, cfg.wheel_base_mm * (1 + t.wheel_base_drift[s]));
+    EXPECT_NEAR(d.steps[s].d_left, w.d_left / (1 + t.wheel_radius_drift_left[s]), 1e-9);
+    EXPECT_NEAR(d.steps[s].d_right, w.d_right / (1 + t.wheel_radius_drift_right[s]), 1e-9);
+  }
+  test::TempDir dir;
+  t.save(dir.file("errors.yaml"), cfg.profile);
+  cv::FileStorage fs(dir.file("errors.yaml"), cv::FileStorage::READ);
+  std::vector<double> saved;
+  fs["wheel_radius_drift_left"] >> saved;
+  EXPECT_EQ(saved.size(), d.steps.size());
+}
+
 // Raw images through lens distortion: a landmark's raw truth pixel, undistorted with an exact
 // calibration of the lens, lands where the calibration's rectified rig projects the landmark;
 // and the raw image shows the field where the ideal one does after rectification.

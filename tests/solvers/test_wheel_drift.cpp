@@ -1,0 +1,101 @@
+// Wheels whose calibration drifts (UnmodelledNoise::wheel_scale_drift, wheel_base_drift): the
+// calibrating EKF and sliding window let their wheel estimate take a random walk with the travel
+// (exactly its variance where nothing observes the wheels), and on a long run whose simulated
+// wheels do drift, they follow them within their stated sigmas where the constant-calibration
+// model locks onto an old value.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include "solvers/calibrated_models.h"
+#include "solvers/ekf.h"
+#include "solvers/sliding_window_smoother.h"
+#include "src/sim/error_profile.h"
+#include "src/sim/simulator.h"
+#include "test_util.h"
+
+namespace stereoloc {
+namespace {
+
+const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
+
+UnmodelledNoise drifting(double scale, double base) {
+  UnmodelledNoise n;
+  n.wheel_scale_drift = scale;
+  n.wheel_base_drift = base;
+  return n;
+}
+
+// Odometry alone: nothing observes the wheels, so their variance is the prior's plus the walk.
+SyntheticProblem blindDrive() {
+  SyntheticProblemOptions o;
+  o.steps = 601;
+  o.max_observations = 0;
+  return makeRandomWalkProblem(o, 3);
+}
+
+Eigen::Vector3d walkOver(const std::vector<Step>& steps, long first, long last, const UnmodelledNoise& noise,
+                         double wheel_base_mm) {
+  Eigen::Vector3d v = Eigen::Vector3d::Zero();
+  for (const Step& s : steps)
+    if (s.step >= first && s.step <= last) v += wheelDriftVariance(noise, s.d_left, s.d_right, wheel_base_mm);
+  return v;
+}
+
+TEST(WheelDrift, DriftVarianceGrowsWithEachWheelsTravel) {
+  const Eigen::Vector3d v = wheelDriftVariance(drifting(0.002, 0.01), 30.0, -10.0, 75.0);
+  EXPECT_NEAR(v[0], 0.002 * 0.002 * 0.030, 1e-18);
+  EXPECT_NEAR(v[1], 0.002 * 0.002 * 0.010, 1e-18);
+  EXPECT_NEAR(v[2], 0.75 * 0.75 * 0.020, 1e-15);  // (0.01 x 75 mm)^2 per m of the mean travel
+  EXPECT_EQ(wheelDriftVariance(UnmodelledNoise(), 30.0, -10.0, 75.0), Eigen::Vector3d::Zero());
+}
+
+TEST(WheelDrift, TheFiltersWheelVarianceIsThePriorsPlusTheWalk) {
+  const SyntheticProblem p = blindDrive();
+  for (const bool consider : {false, true}) {
+    EkfConfig c;
+    c.init = knownBelief(p.truth.front(), kP0);
+    c.calibration = SelfCalibrationConfig::parse("odometry");
+    c.calibration.consider = consider;
+    c.observation_model.unmodelled = drifting(0.002, 0.01);
+    Ekf ekf(p.map, p.odometry, c);
+    for (const Step& s : p.steps) ekf.process(s);
+    const Eigen::Vector3d prior = wheelPriorSigma(c.calibration, p.odometry.wheel_base_mm).cwiseAbs2();
+    const Eigen::Vector3d expected =
+        prior + walkOver(p.steps, 1, p.steps.back().step, c.observation_model.unmodelled, p.odometry.wheel_base_mm);
+    const Eigen::Matrix3d got = ekf.calibration()->wheels_covariance;
+    for (int i = 0; i < 3; ++i) EXPECT_NEAR(got(i, i), expected[i], 1e-12 * expected[i]) << i << " consider " << consider;
+    EXPECT_GT(expected[0], 1.5 * prior[0]);  // the walk is not negligible here
+  }
+}
+
+TEST(WheelDrift, TheWindowsMarginalPriorWalksOverTheMarginalisedTravel) {
+  // Keyframes every 10 steps, W = 4: after step 600 the window holds 570..600; the prior has
+  // walked over the travel of steps 1..570, and the window's one block is constant from there.
+  const SyntheticProblem p = blindDrive();
+  SlidingWindowConfig c;
+  c.window = 4;
+  c.keyframe_max_steps = 10;
+  c.init = knownBelief(p.truth.front(), kP0);
+  c.calibration = SelfCalibrationConfig::parse("odometry");
+  c.observation_model.unmodelled = drifting(0.002, 0.01);
+  SlidingWindowSmoother win(p.map, p.odometry, c);
+  for (const Step& s : p.steps) win.process(s);
+  ASSERT_EQ(win.windowSize(), 4);
+  ASSERT_EQ(win.stats().marginalisations, 57);
+  const Eigen::Vector3d prior = wheelPriorSigma(c.calibration, p.odometry.wheel_base_mm).cwiseAbs2();
+  const Eigen::Vector3d expected =
+      prior + walkOver(p.steps, 1, 570, c.observation_model.unmodelled, p.odometry.wheel_base_mm);
+  const Eigen::Matrix3d got = win.calibration()->wheels_covariance;
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(got(i, i), expected[i], 1e-8 * expected[i]) << i;
+  // Without the drift, the prior's variance stays.
+  c.observation_model.unmodelled = UnmodelledNoise();
+  SlidingWindowSmoother fixed(p.map, p.odometry, c);
+  for (const Step& s : p.steps) fixed.process(s);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(fixed.calibration()->wheels_covariance(i, i), prior[i], 1e-8 * prior[i]) << i;
+}
+
+}  // namespace
+}  // namespace stereoloc
