@@ -452,9 +452,12 @@ void Ekf::predictCalibrated(double d_left, double d_right) {
   joint_.leftCols<3>() = AP.transpose();
   joint_.topLeftCorner<3, 3>() = 0.5 * (pose_block + pose_block.transpose());
   // A drifting wheel calibration: its random walk over this step's travel (process noise).
-  if (wheels_at_ >= 0 && config_.observation_model.unmodelled.wheelsDrift())
-    joint_.diagonal().segment<3>(wheels_at_) +=
+  if (wheels_at_ >= 0 && config_.observation_model.unmodelled.wheelsDrift()) {
+    const Eigen::Vector3d walk =
         wheelDriftVariance(config_.observation_model.unmodelled, d_left, d_right, odometry_.wheel_base_mm);
+    joint_.diagonal().segment<3>(wheels_at_) += walk;
+    wheels_walked_ += walk;
+  }
   pose_ = pred.pose;
   P_ = joint_.topLeftCorner<3, 3>();
 }
@@ -744,6 +747,7 @@ Ekf::State Ekf::saveState() const {
   s.localised = localised_;
   s.last_step = last_step_;
   s.rate_tracker = rate_tracker_;
+  s.wheels_walked = wheels_walked_;
   s.estimates = estimates_.size();
   return s;
 }
@@ -760,6 +764,7 @@ void Ekf::restoreState(const State& s) {
   localised_ = s.localised;
   last_step_ = s.last_step;
   rate_tracker_ = s.rate_tracker;
+  wheels_walked_ = s.wheels_walked;
   if (config_.keep_history && estimates_.size() > s.estimates) estimates_.resize(s.estimates);
   updates_.clear();
 }
@@ -771,6 +776,7 @@ std::optional<CalibrationEstimate> Ekf::calibration() const {
     e.odometry = true;
     e.wheels = wheels_;
     e.wheels_covariance = joint_.block<3, 3>(wheels_at_, wheels_at_);
+    e.wheels_walk_variance = wheels_walked_;
   }
   if (head_at_ >= 0) {
     e.stereo = true;

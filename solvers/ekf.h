@@ -288,6 +288,7 @@ class Ekf : public Estimator {
   // The steps' body rates (made at the first step; part of State) and the rate of the step
   // being processed.
   std::optional<BodyRateTracker> rate_tracker_;
+  Eigen::Vector3d wheels_walked_ = Eigen::Vector3d::Zero();  // CalibrationEstimate::wheels_walk_variance
   BodyRate step_rate_;
   std::vector<EkfUpdateRecord> updates_;
   std::vector<Estimate> estimates_;
@@ -329,6 +330,7 @@ class Ekf : public Estimator {
     bool initialised = false, lost = false, have_step = false, localised = false;
     long last_step = 0;
     std::optional<BodyRateTracker> rate_tracker;
+    Eigen::Vector3d wheels_walked = Eigen::Vector3d::Zero();
     size_t estimates = 0;
   };
 };

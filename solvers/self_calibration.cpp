@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include "solvers/batch_smoother.h"
+#include "solvers/calibrated_models.h"
 #include "solvers/self_calibrated_rig.h"
 #include "src/core/error.h"
 #include "src/core/yaml_util.h"
@@ -61,9 +62,10 @@ PriorDistance furthestFromPrior(const CalibrationEstimate& e, const SelfCalibrat
     if (z > out.sigmas || out.parameter.empty()) out = {name, z};
   };
   if (e.odometry) {
-    consider("wheel_scale_left", e.wheels[0], 1.0, c.wheel_scale_sigma);
-    consider("wheel_scale_right", e.wheels[1], 1.0, c.wheel_scale_sigma);
-    consider("wheel_base_mm", e.wheels[2], nominal_wheel_base_mm, c.wheel_base_rel_sigma * nominal_wheel_base_mm);
+    const Eigen::Vector3d prior = wheelPriorSigma(c, nominal_wheel_base_mm).cwiseAbs2() + e.wheels_walk_variance;
+    consider("wheel_scale_left", e.wheels[0], 1.0, std::sqrt(prior[0]));
+    consider("wheel_scale_right", e.wheels[1], 1.0, std::sqrt(prior[1]));
+    consider("wheel_base_mm", e.wheels[2], nominal_wheel_base_mm, std::sqrt(prior[2]));
   }
   if (e.stereo) {
     const CalibrationEstimate::StereoVector nominal = CalibrationEstimate().head;

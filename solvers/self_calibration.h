@@ -132,6 +132,10 @@ struct CalibrationEstimate {
   bool odometry = false, stereo = false, range = false;  // which blocks were estimated
   Eigen::Vector3d wheels = Eigen::Vector3d(1, 1, 75);  // c_l, c_r, w (mm)
   Eigen::Matrix3d wheels_covariance = Eigen::Matrix3d::Zero();
+  // What a drifting wheel calibration (UnmodelledNoise::wheel_scale_drift) walked over the run,
+  // the variances of (c_l, c_r, w) wheelDriftVariance summed over its steps; zero for a constant
+  // one. The prior an estimate is measured against (furthestFromPrior) widens by it.
+  Eigen::Vector3d wheels_walk_variance = Eigen::Vector3d::Zero();
   // dbeta (rad), k, delta_d (px), delta_u (px), phi, psi: factors/stereo_pixel_calibration_factor.h
   using StereoVector = Eigen::Matrix<double, 6, 1>;
   using StereoMatrix = Eigen::Matrix<double, 6, 6>;
@@ -243,7 +247,7 @@ struct SelfCalibrationResult {
 // The named calibration parameter of the estimated blocks (wheel scales, wheel base, tilt
 // correction, baseline scale, disparity and column offsets, focal ratio and scale; the keys of
 // CalibrationEstimate::saveAsRig) that lies furthest from its nominal value, in the prior sigmas
-// of `config`. Beyond about 5 the solve has failed (a wrong data association, a false kidnap cut)
+// of `config` (the wheels' widened by the estimate's wheels_walk_variance). Beyond about 5 the solve has failed (a wrong data association, a false kidnap cut)
 // or the prior is wrong; the batch acts on it (docs/estimators.md, "Where a cut goes"), and the
 // CLI reports it. `nominal_wheel_base_mm`: the odometry model's wheel base. Empty parameter and 0
 // when no block was estimated.

@@ -289,7 +289,10 @@ std::optional<CalibrationEstimate> SlidingWindowSmoother::calibration() const {
   e.stereo = config_.calibration.stereo;
   e.wheels = wheels_;
   e.head = head_;
-  if (e.odometry) e.wheels_covariance = calib_covariance_.block<3, 3>(calibOffset(wheels_block_), calibOffset(wheels_block_));
+  if (e.odometry) {
+    e.wheels_covariance = calib_covariance_.block<3, 3>(calibOffset(wheels_block_), calibOffset(wheels_block_));
+    e.wheels_walk_variance = wheels_walked_;
+  }
   if (e.stereo) e.head_covariance = headCovariance();
   if (image_sigmas_) {
     const int k = calibOffset(image_block_), m = calibSize(image_block_);
@@ -1382,6 +1385,9 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
       throw Error("sliding window: step " + std::to_string(step.step) + ": observation " + std::to_string(i) +
                   ": unknown landmark id " + std::to_string(id));
   }
+  if (have_step_ && wheels_block_ >= 0 && config_.observation_model.unmodelled.wheelsDrift())
+    wheels_walked_ += wheelDriftVariance(config_.observation_model.unmodelled, step.d_left, step.d_right,
+                                         odometry_.wheel_base_mm);
   return track(step, noise_travel_.next(step.d_left, step.d_right));
 }
 

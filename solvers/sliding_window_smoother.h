@@ -511,6 +511,7 @@ class SlidingWindowSmoother : public Estimator {
   std::unordered_map<int, size_t> feature_index_;  // landmark id -> features_ index
   std::vector<CalibBlock> calib_;
   int calib_dim_ = 0;
+  Eigen::Vector3d wheels_walked_ = Eigen::Vector3d::Zero();  // CalibrationEstimate::wheels_walk_variance
   Calib wheels_block_ = -1, head_block_ = -1, image_block_ = -1, row_block_ = -1,
         range_block_ = -1;  // -1: not estimated
   Eigen::MatrixXd calib_covariance_;

@@ -68,6 +68,7 @@ TEST(WheelDrift, TheFiltersWheelVarianceIsThePriorsPlusTheWalk) {
     const Eigen::Matrix3d got = ekf.calibration()->wheels_covariance;
     for (int i = 0; i < 3; ++i) EXPECT_NEAR(got(i, i), expected[i], 1e-12 * expected[i]) << i << " consider " << consider;
     EXPECT_GT(expected[0], 1.5 * prior[0]);  // the walk is not negligible here
+    EXPECT_LT((ekf.calibration()->wheels_walk_variance - (expected - prior)).cwiseAbs().maxCoeff(), 1e-12 * expected[2]);
   }
 }
 
@@ -90,11 +91,29 @@ TEST(WheelDrift, TheWindowsMarginalPriorWalksOverTheMarginalisedTravel) {
       prior + walkOver(p.steps, 1, 570, c.observation_model.unmodelled, p.odometry.wheel_base_mm);
   const Eigen::Matrix3d got = win.calibration()->wheels_covariance;
   for (int i = 0; i < 3; ++i) EXPECT_NEAR(got(i, i), expected[i], 1e-8 * expected[i]) << i;
+  // What the run walked, for the report: the whole run's travel.
+  const Eigen::Vector3d walked =
+      walkOver(p.steps, 1, p.steps.back().step, c.observation_model.unmodelled, p.odometry.wheel_base_mm);
+  EXPECT_LT((win.calibration()->wheels_walk_variance - walked).cwiseAbs().maxCoeff(), 1e-12 * walked[2]);
   // Without the drift, the prior's variance stays.
   c.observation_model.unmodelled = UnmodelledNoise();
   SlidingWindowSmoother fixed(p.map, p.odometry, c);
   for (const Step& s : p.steps) fixed.process(s);
   for (int i = 0; i < 3; ++i) EXPECT_NEAR(fixed.calibration()->wheels_covariance(i, i), prior[i], 1e-8 * prior[i]) << i;
+}
+
+// An estimate that walked away from the nominal wheels is measured against the prior widened
+// by the walk, not flagged as a failed solve.
+TEST(WheelDrift, TheWalkWidensThePriorAnEstimateIsMeasuredAgainst) {
+  const SelfCalibrationConfig c = SelfCalibrationConfig::parse("odometry");  // wheel scale sigma 0.01
+  CalibrationEstimate e;
+  e.odometry = true;
+  e.wheels = Eigen::Vector3d(1.06, 1.0, 75.0);
+  EXPECT_NEAR(furthestFromPrior(e, c, 75.0).sigmas, 6.0, 1e-9);
+  e.wheels_walk_variance = Eigen::Vector3d(0.0003, 0.0003, 0.0);
+  const PriorDistance d = furthestFromPrior(e, c, 75.0);
+  EXPECT_EQ(d.parameter, "wheel_scale_left");
+  EXPECT_NEAR(d.sigmas, 3.0, 1e-9);  // 0.06 / sqrt(0.01^2 + 0.0003)
 }
 
 }  // namespace

@@ -99,6 +99,7 @@ void runRefine(const LocalizeArgs& a) {
   const auto t_write = Clock::now();
   writeEstimatesCsv(a.out, estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, estimates);
+  noteConstantWheelsInTheBatch(o);
   reportCalibration(a.calibration_out, stdout, o.calibration.any() ? &calibration : nullptr, d.rig, o.calibration,
                     d.odometry.wheel_base_mm, handover);
   const double write_s = secondsSince(t_write);

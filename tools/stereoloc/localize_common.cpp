@@ -104,6 +104,12 @@ void printOdometryDelay(const MethodOptions& o, const std::optional<OdometryDela
   }
 }
 
+void noteConstantWheelsInTheBatch(const MethodOptions& o) {
+  if (o.calibration.odometry && o.noise.wheelsDrift())
+    std::printf("calibration: the batch estimates one wheel calibration for the whole run; the noise model's wheel "
+                "drift is for the window and the EKF\n");
+}
+
 void reportCalibration(const std::string& calibration_out, std::FILE* out, const CalibrationEstimate* calibration,
                        const StereoRig& rig, const SelfCalibrationConfig& config, double nominal_wheel_base_mm,
                        const CalibrationHandover& handover) {
@@ -196,6 +202,7 @@ void runLocalize(const LocalizeArgs& a) {
     throw UsageError("--calibration-out: needs --calibrate with batch, window or ekf");
   std::optional<CalibrationEstimate> calibration = run.calibration;
   if (calibration) recordOdometryDelay(*calibration, o, run.odometry_delay, handover);
+  if (name == "batch") noteConstantWheelsInTheBatch(o);
   reportCalibration(a.calibration_out, stdout, calibration ? &*calibration : nullptr, d.rig, o.calibration,
                     d.odometry.wheel_base_mm, handover);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),

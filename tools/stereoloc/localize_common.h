@@ -62,6 +62,9 @@ void writeOdometryDelayProfile(const std::string& path, const std::optional<Odom
 // --calibrate or --consider (at most one given; "": none) as the self-calibration's blocks, with
 // SelfCalibrationConfig::consider set for --consider; throws UsageError naming the option.
 SelfCalibrationConfig calibrationOptions(const std::string& calibrate, const std::string& consider);
+// The batch holds the wheel calibration constant over the run: says so on stdout when `o` asks it
+// to calibrate the wheels with a noise model whose wheels drift (the window and EKF follow that).
+void noteConstantWheelsInTheBatch(const MethodOptions& o);
 // Writes `calibration_out` (--calibration-out, when not empty) and prints the estimate to `out`
 // (calibration null: no --calibrate, and --calibration-out is then a usage error): the run's,
 // carried on from the calibration --rig handed over (CalibrationHandover::carriedOn), and how
