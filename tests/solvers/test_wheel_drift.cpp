@@ -1,8 +1,8 @@
 // Wheels whose calibration drifts (UnmodelledNoise::wheel_scale_drift, wheel_base_drift): the
 // calibrating EKF and sliding window let their wheel estimate take a random walk with the travel
-// (exactly its variance where nothing observes the wheels), and on a long run whose simulated
-// wheels do drift, they follow them within their stated sigmas where the constant-calibration
-// model locks onto an old value.
+// (exactly its variance where nothing observes the wheels); on a drive whose simulated wheels do
+// drift, the EKF follows them within its stated sigmas where the constant-calibration model locks
+// onto an old value; the report measures an estimate against the walked prior.
 #include <gtest/gtest.h>
 
 #include <cmath>
