@@ -275,7 +275,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--noise-model", a->noise_model,
                   "Batch, window and ekf with --calibrate or --consider (the other methods refuse it): YAML of the "
                   "noise the rig and odometry do not state (lens distortion estimate error, camera vibration, wheel "
-                  "slip; data/noise_realistic.yaml, docs/realistic_world.md)");
+                  "slip, wheels that drift over a long run; data/noise_realistic.yaml, docs/realistic_world.md)");
   sub->add_option("--rig", a->rig,
                   "Stereo rig YAML in place of the dataset's, e.g. one --calibration-out wrote: its wheel estimate "
                   "scales the wheel increments and sets the wheel base, its standard deviations are the priors of "
