@@ -247,9 +247,9 @@ struct SelfCalibrationResult {
 // The named calibration parameter of the estimated blocks (wheel scales, wheel base, tilt
 // correction, baseline scale, disparity and column offsets, focal ratio and scale; the keys of
 // CalibrationEstimate::saveAsRig) that lies furthest from its nominal value, in the prior sigmas
-// of `config` (the wheels' widened by the estimate's wheels_walk_variance). Beyond about 5 the solve has failed (a wrong data association, a false kidnap cut)
-// or the prior is wrong; the batch acts on it (docs/estimators.md, "Where a cut goes"), and the
-// CLI reports it. `nominal_wheel_base_mm`: the odometry model's wheel base. Empty parameter and 0
+// of `config` (the wheels' widened by the estimate's wheels_walk_variance). Beyond about 5 the
+// solve has failed (a wrong data association, a false kidnap cut) or the prior is wrong; the
+// batch acts on it (docs/estimators.md, "Where a cut goes"), and the CLI reports it. `nominal_wheel_base_mm`: the odometry model's wheel base. Empty parameter and 0
 // when no block was estimated.
 constexpr double kImplausiblePriorSigmas = 5.0;
 struct PriorDistance {

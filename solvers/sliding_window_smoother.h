@@ -26,7 +26,8 @@
 // (factors/composed_odometry_calibration_factor.h), so W keyframes span as many steps as without
 // calibration. Wheels that drift (UnmodelledNoise::wheel_scale_drift, wheel_base_drift) are one
 // block, constant over the window, whose marginal prior takes the random walk over each
-// marginalised pose's travel (ageWheelInformation), the wheels' own prior with it. With the stereo block, gate, association and global fixes see each pixel observation
+// marginalised pose's travel (ageWheelInformation), the wheels' own prior with it. With the
+// stereo block, gate, association and global fixes see each pixel observation
 // through the current calibration estimate and its covariance, and a sighting that gates out
 // through the prior calibration (calibratedObservation), so the given calibration's range bias
 // does not reject the sightings that calibrate it. When the noise model states the lens estimate's

@@ -134,7 +134,8 @@ void ErrorProfile::validate() const {
   if (exposure_samples < 1 || exposure_samples > 16) throw Error("exposure_samples: must be in 1..16");
   if (focal_rel_sigma > 0.2 || baseline_rel_sigma > 0.2 || wheel_radius_rel_sigma > 0.2 || wheel_base_rel_sigma > 0.2)
     throw Error("relative sigmas must be at most 0.2");
-  if (wheel_radius_drift > 0.1 || wheel_base_drift > 0.1) throw Error("wheel drifts must be at most 0.1 per sqrt(m)");
+  if (wheel_radius_drift > 0.1) throw Error("wheel_radius_drift: must be at most 0.1 per sqrt(m)");
+  if (wheel_base_drift > 0.1) throw Error("wheel_base_drift: must be at most 0.1 per sqrt(m)");
 }
 
 bool ErrorProfile::isIdeal() const {

@@ -239,7 +239,7 @@ TEST(RandomWalk, IsTheCovarianceGrownInInformationForm) {
 
 // A singular information (nothing known along one variable, as a wheel base the marginalised
 // poses did not see) stays without information there, and the rest walks as in covariance form.
-TEST(RandomWalk, KeepsADirectionWithoutInformationWithout) {
+TEST(RandomWalk, ADirectionWithoutInformationStaysWithout) {
   Eigen::MatrixXd H = Eigen::MatrixXd::Zero(3, 3);
   H.topLeftCorner<2, 2>() << 4, 1, 1, 2;
   Eigen::VectorXd g = Eigen::Vector3d(1, -1, 0);

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <fstream>
 #include <functional>
+#include <string>
 
 #include <opencv2/calib3d.hpp>
 
@@ -178,6 +179,14 @@ TEST(ErrorProfile, WheelDriftWalksWithTheTravelAfterTheOtherDraws) {
   expectDistribution(right, 0, p.wheel_radius_drift, "right wheel's walk");
   expectDistribution(base, 0, p.wheel_base_drift, "wheel base's walk");
   EXPECT_THROW(drawErrors(p, steps, a), Error);  // a drift without the travel
+  ErrorProfile bad = p;
+  bad.wheel_base_drift = 0.2;
+  try {
+    bad.validate();
+    FAIL() << "a wheel base drift of 0.2 per sqrt(m) was accepted";
+  } catch (const Error& err) {
+    EXPECT_NE(std::string(err.what()).find("wheel_base_drift"), std::string::npos) << err.what();
+  }
 
   SimulationConfig cfg;
   cfg.encoder_k = 0.0;
