@@ -609,8 +609,8 @@ namespace {
 
 // The dynamic prior whitens each entry by its sigma; its Jacobian is the inverse sigmas.
 TEST(DiagonalPriorFactor, WhitensEachEntryAndJacobianMatches) {
-  const Eigen::VectorXd mean = (Eigen::VectorXd(4) << 1.0, 0.0, -2.0, 0.5).finished();
-  const Eigen::VectorXd sigma = (Eigen::VectorXd(4) << 0.1, 2.0, 0.5, 1.0).finished();
+  const Eigen::VectorXd mean = Eigen::Vector4d(1.0, 0.0, -2.0, 0.5);
+  const Eigen::VectorXd sigma = Eigen::Vector4d(0.1, 2.0, 0.5, 1.0);
   DiagonalPriorFactor f(mean, sigma);
   const double c[4] = {1.2, -1.0, -2.0, 0.0};
   const Eigen::VectorXd r = evaluate(f, {c});
