@@ -6,6 +6,8 @@
 
 #include "solvers/batch_smoother.h"
 #include "solvers/ekf.h"
+#include "solvers/calibrated_models.h"
+#include "solvers/considered_fix.h"
 #include "solvers/global_fix.h"
 #include "solvers/particle_filter.h"
 #include "solvers/sliding_window_smoother.h"
@@ -91,8 +93,11 @@ MethodRun runDeadReckoning(const Dataset& d, const InitialBelief& init) {
 }
 
 // Global fixes alone, every step on its own (thesis 6.3, 6.4).
-MethodRun runFixes(const Dataset& d, bool one_landmark) {
+// With calibration.consider the stereo block's priors enter each fix (solvers/considered_fix.h).
+MethodRun runFixes(const Dataset& d, bool one_landmark, const SelfCalibrationConfig& calibration) {
   MethodRun run;
+  CalibrationEstimate::StereoMatrix Cq = CalibrationEstimate::StereoMatrix::Zero();
+  if (calibration.consider) Cq.diagonal() = stereoPriorSigma(calibration).cwiseAbs2();
   GlobalFixOptions fo;
   fo.allow_one_landmark = one_landmark;
   fo.allow_two_landmarks = !one_landmark;
@@ -105,7 +110,8 @@ MethodRun runFixes(const Dataset& d, bool one_landmark) {
     for (const Observation& o : st.observations) identified += o.landmark_id >= 0 ? 1 : 0;
     if (identified == 0) continue;
     ++run.attempted_steps;
-    const GlobalFix fix = globalFix(st, d.map, fo);
+    GlobalFix fix = globalFix(st, d.map, fo);
+    if (calibration.consider) fix = considerStereoCalibration(fix, st, d.map, fo, d.rig, Cq);
     if (fix.status != FixStatus::Ok) continue;
     ++run.fixed_steps;
     run.estimates.push_back(stepEstimate(s, fix.pose, fix.covariance, EstimateStatus::Tracking));
@@ -123,6 +129,8 @@ void requirePixelModelForStereoCalibration(const MethodOptions& o) {
 }  // namespace
 
 bool selfCalibrates(const std::string& name) { return name == "batch" || name == "window" || name == "ekf"; }
+
+bool considers(const std::string& name) { return name == "ekf" || name == "fix1" || name == "fix2"; }
 
 const std::vector<std::string>& methodNames() {
   static const std::vector<std::string> names = {"fix1", "fix2", "ekf", "iekf", "pf", "window", "batch", "deadreckoning"};
@@ -164,8 +172,8 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, I
   if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
   if (hasCalibrationSuffix(full_spec) && !selfCalibrates(name))
     throw UsageError("method '" + full_spec + "': only " + kSelfCalibratingText + " self-calibrate");
-  if (hasConsiderSuffix(full_spec) && name != "ekf")
-    throw UsageError("method '" + full_spec + "': only ekf considers its calibration");
+  if (hasConsiderSuffix(full_spec) && !considers(name))
+    throw UsageError("method '" + full_spec + "': only " + kConsideringText + " consider their calibration");
   InitMode init = default_init;
   if (colon != std::string::npos) {
     try {
@@ -276,16 +284,20 @@ namespace {
 MethodRun runMethodOnSteps(const std::string& spec, const Dataset& d, uint64_t seed, const MethodOptions& options) {
   const auto [name, init_mode] = parseMethodSpec(spec, options.init);
   MethodOptions o = options;
+  const bool fix = name == "fix1" || name == "fix2";
   if (hasCalibrationSuffix(spec) || hasConsiderSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
   if (hasConsiderSuffix(spec)) o.calibration.consider = true;
+  if (fix && hasConsiderSuffix(spec)) o.calibration.odometry = false;  // a fix has no odometry
   std::mt19937_64 rng(seed);
   MethodRun run;
-  if (o.calibration.any() && !selfCalibrates(name))
+  if (o.calibration.any() && !o.calibration.consider && !selfCalibrates(name))
     throw UsageError("--calibrate: only " + kSelfCalibratingText + " self-calibrate (method '" + spec + "')");
-  if (o.calibration.consider && name != "ekf")
-    throw UsageError("--consider: only ekf considers its calibration (method '" + spec + "')");
-  if (name == "fix1" || name == "fix2") {
-    run = runFixes(d, name == "fix1");
+  if (o.calibration.consider && !considers(name))
+    throw UsageError("--consider: only " + kConsideringText + " consider their calibration (method '" + spec + "')");
+  if (fix && o.calibration.consider && (o.calibration.odometry || o.calibration.range || !o.calibration.stereo))
+    throw UsageError("--consider: a fix considers the stereo block only (method '" + spec + "')");
+  if (fix) {
+    run = runFixes(d, name == "fix1", o.calibration);
   } else if (name == "deadreckoning") {
     run = runDeadReckoning(d, beliefFor(init_mode, d, o, rng));
   } else if (name == "ekf" || name == "iekf") {

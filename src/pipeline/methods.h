@@ -82,11 +82,15 @@ constexpr int kIteratedEkfIterations = 10;
 // for errors.
 bool selfCalibrates(const std::string& name);
 inline const std::string kSelfCalibratingText = "batch, window and ekf";
+// Whether the method `name` can consider its calibration (SelfCalibrationConfig::consider): the
+// EKF (all its blocks) and the fixes (the stereo block, solvers/considered_fix.h).
+bool considers(const std::string& name);
+inline const std::string kConsideringText = "ekf, fix1 and fix2";
 
 // A spec may end in ":calib" ("batch:calib", "window:known:calib", "ekf:calib"): the method with
 // odometry and stereo self-calibration (MethodOptions::calibration), for the studies' calibrated
-// variants; or, for the EKF, in ":consider" ("ekf:consider"): the same blocks considered, not
-// estimated (SelfCalibrationConfig::consider).
+// variants; or, for the EKF and the fixes, in ":consider" ("ekf:consider", "fix2:consider"): the
+// same blocks considered, not estimated (SelfCalibrationConfig::consider; a fix the stereo block).
 bool hasCalibrationSuffix(const std::string& spec);  // ":calib"
 bool hasConsiderSuffix(const std::string& spec);     // ":consider"
 std::string withoutCalibrationSuffix(const std::string& spec);  // without either

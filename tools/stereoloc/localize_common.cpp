@@ -265,7 +265,8 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
     sub->add_option("--consider", a->consider,
                     "ekf: the blocks of --calibrate (odometry, stereo, range, comma-separated) considered, not estimated: "
                     "the calibration stays as given (or as --rig hands it over), its stated uncertainty enters the "
-                    "covariance (a Schmidt-Kalman filter; the method ekf:consider in studies)");
+                    "covariance (a Schmidt-Kalman filter; the method ekf:consider in studies); fix1 and fix2: stereo "
+                    "only, each fix's covariance gains the calibration's (fix2:consider in studies)");
   sub->add_option("--pixel-sigma", a->options.pixel_sigma,
                   "Batch and window pixel models, ekf with --calibrate or --consider stereo (the other methods "
                   "refuse it): pixel noise [px] replacing the observations' own (0: theirs); about 1 px for the "

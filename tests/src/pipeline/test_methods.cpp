@@ -1,6 +1,8 @@
 // The method registry and the frontend source through the library API.
 #include <gtest/gtest.h>
 
+#include <Eigen/Eigenvalues>
+
 #include <cmath>
 
 #include "src/core/odometry_delay.h"
@@ -79,6 +81,31 @@ TEST(Methods, TheEkfConsidersItsCalibration) {
   o.calibration.consider = true;
   EXPECT_THROW(runMethod("window", d, 3, o), UsageError);
   EXPECT_THROW(runMethod("batch", d, 3, o), UsageError);
+}
+
+TEST(Methods, TheFixesConsiderTheStereoCalibration) {
+  // fix2:consider: fix2's poses with covariances that hold the stereo block's priors.
+  const Dataset d = circle(200);
+  const MethodRun plain = runMethod("fix2", d, 3, MethodOptions()), considered = runMethod("fix2:consider", d, 3, MethodOptions());
+  ASSERT_GE(plain.estimates.size(), 5u);
+  ASSERT_EQ(considered.estimates.size(), plain.estimates.size());
+  EXPECT_FALSE(considered.calibration);
+  for (size_t k = 0; k < plain.estimates.size(); ++k) {
+    EXPECT_EQ(considered.estimates[k].pose.x, plain.estimates[k].pose.x);
+    const Eigen::Matrix3d added = considered.estimates[k].covariance - plain.estimates[k].covariance;
+    EXPECT_GT(added.trace(), 0.0) << "step " << k;
+    EXPECT_GE(Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(added).eigenvalues().minCoeff(), -1e-9 * added.trace());
+  }
+  EXPECT_EQ(parseMethodSpec("fix1:consider", InitMode::Known).first, "fix1");
+  MethodOptions o;
+  o.calibration = SelfCalibrationConfig::parse("stereo");
+  o.calibration.consider = true;
+  EXPECT_EQ(runMethod("fix2", d, 3, o).estimates.size(), plain.estimates.size());
+  o.calibration = SelfCalibrationConfig::parse("odometry,stereo");
+  o.calibration.consider = true;
+  EXPECT_THROW(runMethod("fix2", d, 3, o), UsageError);  // a fix has no odometry to consider
+  o.calibration = SelfCalibrationConfig::parse("stereo");
+  EXPECT_THROW(runMethod("fix2", d, 3, o), UsageError);  // estimated: fixes do not self-calibrate
 }
 
 // A random walk whose odometry runs 0.25 s late (the readings lead the motion).
