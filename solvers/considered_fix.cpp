@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <cmath>
 #include <optional>
+#include <vector>
 
 #include "solvers/calibrated_models.h"
 #include "src/core/angles.h"
@@ -12,19 +13,24 @@ namespace stereoloc {
 
 namespace {
 
+// Whether the fix reads this sighting through the stereo calibration.
+bool seenThroughCalibration(const Observation& o) { return o.pixels.has_value() && o.landmark_id >= 0; }
+
 // The step's identified stereo sightings as the cameras of calibration q see them: each one's
-// range and bearing moved by what q changes in them (the rig's own triangulation at the nominal
-// q), its covariance kept. Nullopt when a sighting cannot be triangulated through q.
-std::optional<Step> seenThrough(const Step& step, const StereoRig& rig, const CalibrationEstimate::StereoVector& q) {
-  static const CalibrationEstimate::StereoVector kNominal = CalibrationEstimate{}.head;
+// range and bearing moved by what q changes in them from z0 (the rig's own triangulation at the
+// nominal q, one per such sighting in order), its covariance kept. Nullopt when a sighting cannot
+// be triangulated through q.
+std::optional<Step> seenThrough(const Step& step, const std::vector<Eigen::Vector2d>& z0, const StereoRig& rig,
+                                const CalibrationEstimate::StereoVector& q) {
   Step out = step;
+  size_t k = 0;
   try {
     for (Observation& o : out.observations) {
-      if (!o.pixels || o.landmark_id < 0) continue;
-      const Eigen::Vector2d z0 = calibratedRangeBearing(o, rig, kNominal).z;
+      if (!seenThroughCalibration(o)) continue;
       const Eigen::Vector2d z = calibratedRangeBearing(o, rig, q).z;
-      o.range += z[0] - z0[0];
-      o.bearing = wrapAngle(o.bearing + wrapAngle(z[1] - z0[1]));
+      o.range += z[0] - z0[k][0];
+      o.bearing = wrapAngle(o.bearing + wrapAngle(z[1] - z0[k][1]));
+      ++k;
     }
   } catch (const GeometryError&) {
     return std::nullopt;
@@ -33,10 +39,11 @@ std::optional<Step> seenThrough(const Step& step, const StereoRig& rig, const Ca
 }
 
 // The fix through calibration q when it is the same fix (method and landmarks) as `fix`.
-std::optional<Eigen::Vector3d> sameFixThrough(const GlobalFix& fix, const Step& step, const FieldMap& map,
+std::optional<Eigen::Vector3d> sameFixThrough(const GlobalFix& fix, const Step& step,
+                                              const std::vector<Eigen::Vector2d>& z0, const FieldMap& map,
                                               const GlobalFixOptions& options, const StereoRig& rig,
                                               const CalibrationEstimate::StereoVector& q) {
-  const std::optional<Step> seen = seenThrough(step, rig, q);
+  const std::optional<Step> seen = seenThrough(step, z0, rig, q);
   if (!seen) return std::nullopt;
   const GlobalFix moved = globalFix(*seen, map, options);
   if (!moved.hasPose() || moved.method != fix.method || moved.landmark_ids != fix.landmark_ids)
@@ -54,6 +61,15 @@ GlobalFix considerStereoCalibration(const GlobalFix& fix, const Step& step, cons
   if (!fix.hasPose() || Cq.isZero(0.0)) return fix;
   const CalibrationEstimate::StereoVector nominal = CalibrationEstimate{}.head;
   const Eigen::Vector3d at(fix.pose.x, fix.pose.y, fix.pose.theta);
+  std::vector<Eigen::Vector2d> z0;
+  try {
+    for (const Observation& o : step.observations)
+      if (seenThroughCalibration(o)) z0.push_back(calibratedRangeBearing(o, rig, nominal).z);
+  } catch (const GeometryError&) {  // not triangulated at the given calibration: no fix to move
+    GlobalFix out = fix;
+    out.status = FixStatus::Degenerate;
+    return out;
+  }
   // Sigma points at +-sqrt(3) sigma along the principal axes of Cq; the mean squared change of
   // the fix about it, as the fix's own covariance is taken (FixCovariance::SigmaPoints).
   const Eigen::SelfAdjointEigenSolver<CalibrationEstimate::StereoMatrix> axes(0.5 * (Cq + Cq.transpose()));
@@ -67,7 +83,7 @@ GlobalFix considerStereoCalibration(const GlobalFix& fix, const Step& step, cons
       bool ok = true;
       for (int side = 0; side < 2 && ok; ++side) {
         const std::optional<Eigen::Vector3d> moved =
-            sameFixThrough(fix, step, map, options, rig, nominal + (side == 0 ? h : -h) * axis);
+            sameFixThrough(fix, step, z0, map, options, rig, nominal + (side == 0 ? h : -h) * axis);
         ok = moved.has_value();
         if (ok) {
           d[side] = (*moved - at) / h;  // per sigma along the axis
