@@ -63,6 +63,49 @@ FieldMap::FieldMap(std::string name, Bounds bounds, std::vector<Landmark> landma
   }
 }
 
+const FieldDimension kFieldDimensions[kFieldDimensionCount] = {
+    {"length", &FieldGeometry::length},
+    {"width", &FieldGeometry::width},
+    {"goal_width", &FieldGeometry::goal_width},
+    {"corner_triangle", &FieldGeometry::corner_triangle},
+    {"centre_circle_radius", &FieldGeometry::centre_circle_radius},
+    {"goal_area_depth", &FieldGeometry::goal_area_depth},
+    {"goal_area_width", &FieldGeometry::goal_area_width},
+    {"penalty_area_depth", &FieldGeometry::penalty_area_depth},
+    {"penalty_area_width", &FieldGeometry::penalty_area_width},
+};
+
+bool derivesFromGeometry(const FieldMap& map) {
+  if (!map.geometry()) return false;
+  const FieldMap derived = FieldMap::miroSot(*map.geometry());
+  if (derived.landmarks().size() != map.landmarks().size()) return false;
+  for (size_t i = 0; i < map.landmarks().size(); ++i) {
+    const Landmark &a = map.landmarks()[i], &b = derived.landmarks()[i];
+    if (a.id != b.id || a.type != b.type || (a.position - b.position).norm() > 1e-6) return false;
+  }
+  return true;
+}
+
+FieldMap FieldMap::withDimensionChange(const Eigen::Matrix<double, kFieldDimensionCount, 1>& change) const {
+  if (!derivesFromGeometry(*this))
+    throw Error("map '" + name_ + "': " +
+                (geometry_ ? "has landmarks of its own, not those its field geometry derives" : "has no field geometry"));
+  if (!change.allFinite()) throw Error("map '" + name_ + "': a field dimension change is not finite");
+  FieldGeometry g = *geometry_;
+  for (int k = 0; k < kFieldDimensionCount; ++k) g.*kFieldDimensions[k].ptr += change[k];
+  std::vector<Landmark> landmarks = miroSot(g).landmarks();
+  for (size_t i = 0; i < landmarks.size(); ++i) landmarks[i].name = landmarks_[i].name;
+  return FieldMap(name_, Bounds{-g.goal_depth, 0.0, g.length + g.goal_depth, g.width}, std::move(landmarks), g);
+}
+
+Eigen::Matrix<double, 2, kFieldDimensionCount> FieldMap::landmarkFieldJacobian(int id) const {
+  const Eigen::Vector2d at = this->at(id).xy();
+  Eigen::Matrix<double, 2, kFieldDimensionCount> J;
+  for (int k = 0; k < kFieldDimensionCount; ++k)  // exact: the positions are linear in the dimensions
+    J.col(k) = withDimensionChange(Eigen::Matrix<double, kFieldDimensionCount, 1>::Unit(k)).at(id).xy() - at;
+  return J;
+}
+
 FieldMap FieldMap::miroSot(const FieldGeometry& g) {
   std::vector<Landmark> lms;
   auto add = [&](LandmarkType type, const std::string& name, double x, double y, double z, bool unique,

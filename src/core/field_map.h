@@ -61,6 +61,22 @@ struct Bounds {
   }
 };
 
+// The dimensions of a MiroSot field that place its landmarks, by their FieldGeometry names: the
+// walls' length and width, the goal mouths, the painted markings (goal depth, wall height and
+// line width move no landmark). What a field built by hand gets wrong (the simulator's
+// field_dimension_sigma_mm) and the batch smoother can estimate (`--calibrate field`).
+struct FieldDimension {
+  const char* name;
+  double FieldGeometry::*ptr;
+};
+constexpr int kFieldDimensionCount = 9;
+extern const FieldDimension kFieldDimensions[kFieldDimensionCount];
+
+class FieldMap;
+// Whether `map` is FieldMap::miroSot of its own geometry (same ids, types and positions): only
+// then do its landmarks follow its dimensions.
+bool derivesFromGeometry(const FieldMap& map);
+
 class FieldMap {
  public:
   FieldMap() = default;
@@ -77,6 +93,12 @@ class FieldMap {
   void save(const std::string& path) const;
 
   const std::string& name() const { return name_; }
+  // The same field with each of kFieldDimensions changed by `change` (mm), the landmarks keeping
+  // their ids and names. Throws Error unless derivesFromGeometry().
+  FieldMap withDimensionChange(const Eigen::Matrix<double, kFieldDimensionCount, 1>& change) const;
+  // d(x, y)/d(dimensions) of landmark `id` (exact: a MiroSot field's landmarks are linear in its
+  // dimensions). Throws Error unless derivesFromGeometry() and for an unknown id.
+  Eigen::Matrix<double, 2, kFieldDimensionCount> landmarkFieldJacobian(int id) const;
   const Bounds& bounds() const { return bounds_; }
   const std::vector<Landmark>& landmarks() const { return landmarks_; }
   const std::optional<FieldGeometry>& geometry() const { return geometry_; }

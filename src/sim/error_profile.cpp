@@ -43,6 +43,7 @@ const Field kFields[] = {
     {"time_offset_sigma_s", &ErrorProfile::time_offset_sigma_s},
     {"wheel_radius_drift", &ErrorProfile::wheel_radius_drift},
     {"wheel_base_drift", &ErrorProfile::wheel_base_drift},
+    {"field_dimension_sigma_mm", &ErrorProfile::field_dimension_sigma_mm},
 };
 
 cv::Mat rotationVector(const double* r) {
@@ -136,6 +137,8 @@ void ErrorProfile::validate() const {
     throw Error("relative sigmas must be at most 0.2");
   if (wheel_radius_drift > 0.1) throw Error("wheel_radius_drift: must be at most 0.1 per sqrt(m)");
   if (wheel_base_drift > 0.1) throw Error("wheel_base_drift: must be at most 0.1 per sqrt(m)");
+  // Beyond a few centimetres the field is another field, not an error of this one.
+  if (field_dimension_sigma_mm > 20) throw Error("field_dimension_sigma_mm: must be at most 20 mm");
 }
 
 bool ErrorProfile::isIdeal() const {
@@ -200,7 +203,20 @@ DrawnErrors drawErrors(const ErrorProfile& p, size_t steps, std::mt19937_64& rng
       e.wheel_base_drift[s] = e.wheel_base_drift[s - 1] + p.wheel_base_drift * std::sqrt(0.5 * (l_m + r_m)) * N(rng);
     }
   }
+  if (p.field_dimension_sigma_mm > 0)
+    for (int k = 0; k < kFieldDimensionCount; ++k) e.field_dimension_mm.push_back(p.field_dimension_sigma_mm * N(rng));
   return e;
+}
+
+FieldMap trueFieldMap(const FieldMap& given, const DrawnErrors& e) {
+  if (e.field_dimension_mm.empty()) return given;
+  if (e.field_dimension_mm.size() != static_cast<size_t>(kFieldDimensionCount))
+    throw Error("trueFieldMap: " + std::to_string(e.field_dimension_mm.size()) + " field dimension errors, expected " +
+                std::to_string(kFieldDimensionCount));
+  if (!derivesFromGeometry(given))
+    throw Error("a field dimension error needs the map its MiroSot field geometry derives; map '" + given.name() +
+                (given.geometry() ? "' has landmarks of its own" : "' has no field geometry"));
+  return given.withDimensionChange(Eigen::Map<const Eigen::Matrix<double, kFieldDimensionCount, 1>>(e.field_dimension_mm.data()));
 }
 
 void DrawnErrors::save(const std::string& path, const ErrorProfile& profile) const {
@@ -231,6 +247,8 @@ void DrawnErrors::save(const std::string& path, const ErrorProfile& profile) con
     out.put("wheel_radius_drift_right", wheel_radius_drift_right);
     out.put("wheel_base_drift", wheel_base_drift);
   }
+  for (size_t k = 0; k < field_dimension_mm.size() && k < static_cast<size_t>(kFieldDimensionCount); ++k)
+    out.put(std::string("field_") + kFieldDimensions[k].name + "_mm", field_dimension_mm[k]);
   out.writeAtomically(path);
 }
 

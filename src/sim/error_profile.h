@@ -22,6 +22,9 @@
 //              (the contact line of a 5 mm wide tyre moves by ~1.5 mm on 75 mm), slip on 2 % of
 //              the steps with the slipping wheel's reading 10-30 % too large, odometry/image
 //              time offset 5 ms (typical small diff-drive robots).
+//   field      not in `realistic` (0): a field built and painted by hand has each of its
+//              dimensions off by a few mm (field_dimension_sigma_mm; data/profile_hand_built_field.yaml
+//              states 2 mm, typical of a hand-built field: no rule or source gives a tolerance).
 // Sigmas are 1-sigma of zero-mean Gaussians unless stated otherwise. Units: rad, mm, px, s;
 // relative errors as fractions.
 #include <cstdint>
@@ -29,6 +32,7 @@
 #include <string>
 #include <vector>
 
+#include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
 #include "src/core/stereo_calibration.h"
 #include "src/core/stereo_rig.h"
@@ -65,6 +69,11 @@ struct ErrorProfile {
   // long run's (UnmodelledNoise::wheel_scale_drift, the estimators' side).
   double wheel_radius_drift = 0.0;         // fraction per sqrt(m) of the wheel's travel
   double wheel_base_drift = 0.0;           // fraction per sqrt(m) of the wheels' mean travel
+  // The field the robot drives on against the map it is given (a map with MiroSot field
+  // geometry): each of the dimensions kFieldDimensions names is off by this, per dataset, and
+  // the true landmarks follow from the true dimensions (FieldMap::miroSot). Drawn after all
+  // others, so that a profile without it draws as before.
+  double field_dimension_sigma_mm = 0.0;   // mm
 
   static ErrorProfile ideal();
   static ErrorProfile realistic();
@@ -95,9 +104,18 @@ struct DrawnErrors {
   // Per step, with a drift: the walk of each wheel's radius and of the wheel base (fractions) on
   // top of wheel_radius_rel and wheel_base_rel; empty without one.
   std::vector<double> wheel_radius_drift_left, wheel_radius_drift_right, wheel_base_drift;
+  // True minus given field dimension (mm), one per kFieldDimensions entry (src/core/field_map.h);
+  // empty without a field error.
+  std::vector<double> field_dimension_mm;
 
   void save(const std::string& path, const ErrorProfile& profile) const;  // the dataset's truth
 };
+
+// The field the world is built on: `given` itself without a field error; otherwise the MiroSot
+// field of the given geometry with each dimension off by its drawn error, with the given
+// landmarks' ids and names. Throws Error when a field error is drawn and `given` is not the
+// field its geometry derives (a map without geometry, or with landmarks of its own).
+FieldMap trueFieldMap(const FieldMap& given, const DrawnErrors& e);
 
 // `travel`: each step's wheel travel (mm, the scenario's motion), which the wheels' drift walks
 // with; needed (one per step) only when the profile has a drift, whose draws come after all

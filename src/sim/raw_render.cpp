@@ -41,7 +41,7 @@ Pose2 exposurePose(const Scenario& sc, double step) {
 
 RawPairRenderer::RawPairRenderer(const FieldMap& map, const StereoRigParams& nominal, const ErrorProfile& profile,
                                  const DrawnErrors& errors, const RenderOptions& options, double dt)
-    : map_(map), nominal_(nominal), nominal_rig_(nominal), profile_(profile), errors_(errors), options_(options), dt_(dt) {
+    : map_(trueFieldMap(map, errors)), nominal_(nominal), nominal_rig_(nominal), profile_(profile), errors_(errors), options_(options), dt_(dt) {
   options_.validate();
   const int W = nominal.image_width, H = nominal.image_height;
   std::vector<cv::Point2d> raw;

@@ -27,6 +27,7 @@
 
 namespace stereoloc {
 
+// `map` is the given map; the world is built on trueFieldMap(map, errors).
 class RawPairRenderer {
  public:
   static constexpr int kMarginPx = 32;

@@ -216,6 +216,7 @@ class Simulation {
   Dataset d_;
   StereoRig nominal_;
   DrawnErrors drawn_;
+  FieldMap true_map_;  // the field the world is built on (the given map unless the field is off)
   std::vector<Obstacle> obstacles_;
   std::vector<double> obstacle_dir_;
   // Per-kind model: C per landmark type and its lower Cholesky factor (C = L L^T).
@@ -243,6 +244,7 @@ Simulation::Simulation(const std::string& scenario_name, int trial, const Simula
     drawn_ = drawErrors(cfg_.profile, n, rng_profile, scenarioWheelTravel());
     d_.rig = StereoRig(rp_, givenCalibration(nominal_, drawn_));
   }
+  true_map_ = trueFieldMap(cfg_.map, drawn_);
   d_.odometry = OdometryParams();
   d_.odometry.wheel_base_mm = cfg_.wheel_base_mm;
   d_.odometry.k_left = d_.odometry.k_right = cfg_.encoder_k;
@@ -302,7 +304,7 @@ Dataset Simulation::run(SimulationTrace* trace) {
     trace->nominal_rig = rp_;
   }
   const size_t n = sc_.poses.size();
-  const Scene static_scene = cfg_.map.geometry().has_value() ? Scene::fromMap(cfg_.map) : Scene();
+  const Scene static_scene = true_map_.geometry().has_value() ? Scene::fromMap(true_map_) : Scene();
   d_.steps.resize(n);
   d_.groundtruth.resize(n);
   for (size_t s = 0; s < n; ++s) {
@@ -320,7 +322,7 @@ Dataset Simulation::run(SimulationTrace* trace) {
     if (!obstacles_.empty())
       moveObstacles(obstacles_, obstacle_dir_, *cfg_.map.geometry(), pose, cfg_.obstacle_speed, rng_obstacles_);
     if (trace) trace->obstacles.push_back(obstacles_);
-    const Scene scene = obstacles_.empty() ? Scene() : Scene::fromMap(cfg_.map, obstacles_);
+    const Scene scene = obstacles_.empty() ? Scene() : Scene::fromMap(true_map_, obstacles_);
     observe(s, obstacles_.empty() ? static_scene : scene, &st);
   }
   return std::move(d_);
@@ -370,8 +372,8 @@ void Simulation::driveWheels(size_t s, Step* st) {
 void Simulation::observe(size_t s, const Scene& world, Step* st) {
   const Pose2& pose = sc_.poses[s];
   const StereoRig true_rig(trueRigParams(nominal_.params(), drawn_, s));
-  for (const VisibleLandmark& v : visibleLandmarks(d_.map, d_.rig, world, pose, st->head_pan, cfg_.landmarks)) {
-    const Landmark& landmark = d_.map.at(v.id);
+  for (const VisibleLandmark& v : visibleLandmarks(true_map_, d_.rig, world, pose, st->head_pan, cfg_.landmarks)) {
+    const Landmark& landmark = true_map_.at(v.id);
     StereoPixels px = v.pixels;
     if (!ideal_) {
       const Eigen::Vector2d local = transformToLocal(pose, landmark.xy());

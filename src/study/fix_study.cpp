@@ -368,7 +368,8 @@ struct TrialRange {
   double bias = NAN, mean_abs = NAN;
 };
 
-TrialRange addRanges(RangeStats& r, const Dataset& visible, const Dataset& images) {
+// `true_map`: the field the world was built on (trueFieldMap), which the true ranges are to.
+TrialRange addRanges(RangeStats& r, const Dataset& visible, const Dataset& images, const FieldMap& true_map) {
   const size_t first = r.signed_norm.size();
   for (size_t k = 0; k < images.steps.size() && k < visible.steps.size(); ++k) {
     if (k >= images.groundtruth.size() || !images.groundtruth[k]) continue;
@@ -387,7 +388,7 @@ TrialRange addRanges(RangeStats& r, const Dataset& visible, const Dataset& image
         continue;
       }
       ++r.detected;
-      const double range = (images.map.at(o.landmark_id).xy() - truth.translation()).norm();
+      const double range = (true_map.at(o.landmark_id).xy() - truth.translation()).norm();
       r.abs_err.push_back(std::fabs(o.range - range));
       r.norm_err.push_back(std::fabs(o.range - range) / range);
       r.signed_norm.push_back((o.range - range) / range);
@@ -790,7 +791,7 @@ CategoryBuckets FixStudy::runCategory(const std::string& cat, size_t ci, int tri
               fstats_.merge(observePairs(image_data, raw_pairs, first_use ? ms_raw_render : 0.0, fo_));
             }
             if (!ideal_only_) {
-              const TrialRange tr = addRanges(ranges_[mi], sim, image_data);
+              const TrialRange tr = addRanges(ranges_[mi], sim, image_data, trueFieldMap(sim.map, trace.errors));
               if (trial_csv_ && !ideal_world)
                 trial_csv_->stream() << trialRangeRow(cat, trial, run, a_.profiles[w], gs_[mi].calibrated, tr,
                                                       trace.errors, estimate);

@@ -5,11 +5,13 @@
 #include <cmath>
 #include <fstream>
 #include <functional>
+#include <iterator>
 #include <string>
 
 #include <opencv2/calib3d.hpp>
 
 #include "src/core/error.h"
+#include "src/core/measurement_model.h"
 #include "src/sim/raw_render.h"
 #include "src/sim/simulator.h"
 #include "test_util.h"
@@ -107,6 +109,17 @@ TEST(ErrorProfile, FilesRoundTripAndShippedRealisticMatchesBuiltIn) {
     EXPECT_DOUBLE_EQ(p->time_offset_sigma_s, r.time_offset_sigma_s);
     EXPECT_EQ(p->exposure_samples, r.exposure_samples);
   }
+  // The hand-built field's profile is the realistic one on a field 2 mm off.
+  const ErrorProfile field = ErrorProfile::named(std::string(STEREOLOC_DATA_DIR) + "/profile_hand_built_field.yaml");
+  EXPECT_EQ(field.name, "hand_built_field");
+  EXPECT_EQ(field.field_dimension_sigma_mm, 2.0);
+  ErrorProfile same = field;
+  same.name = r.name;
+  same.field_dimension_sigma_mm = 0.0;
+  test::TempDir other;
+  same.save(other.file("a.yaml"));
+  r.save(other.file("b.yaml"));
+  EXPECT_EQ(test::readFile(other.file("a.yaml")), test::readFile(other.file("b.yaml")));
   EXPECT_TRUE(ErrorProfile::named("ideal").isIdeal());
   EXPECT_FALSE(r.isIdeal());
   std::ofstream(dir.file("bad.yaml")) << "%YAML:1.0\n---\nfocal_rel_sigma: 0.01\nwheel_bse_rel_sigma: 0.02\n";
@@ -213,16 +226,117 @@ TEST(ErrorProfile, WheelDriftWalksWithTheTravelAfterTheOtherDraws) {
   EXPECT_EQ(saved.size(), d.steps.size());
 }
 
+// A hand-built field: its dimensions drawn after every other error, the true landmarks where
+// the true dimensions put them, and the simulated robot seeing the true field, not the map.
+TEST(ErrorProfile, FieldDimensionsDrawAfterTheOtherErrorsAndMoveTheLandmarks) {
+  ErrorProfile p = ErrorProfile::realistic();
+  const ErrorProfile plain = p;
+  p.field_dimension_sigma_mm = 2.0;
+  Moments dims;
+  for (uint64_t seed = 0; seed < 500; ++seed) {
+    std::mt19937_64 a(seed), b(seed);
+    const DrawnErrors e = drawErrors(p, 3, a), f = drawErrors(plain, 3, b);
+    if (seed == 0) {
+      EXPECT_EQ(e.tilt_rad, f.tilt_rad);
+      EXPECT_EQ(e.roll_rad, f.roll_rad);
+      EXPECT_EQ(e.slip_right, f.slip_right);
+      EXPECT_TRUE(f.field_dimension_mm.empty());
+    }
+    ASSERT_EQ(e.field_dimension_mm.size(), std::size(kFieldDimensions));
+    for (double v : e.field_dimension_mm) dims.add(v);
+  }
+  expectDistribution(dims, 0.0, 2.0, "field dimensions");
+
+  DrawnErrors e;
+  e.field_dimension_mm.assign(std::size(kFieldDimensions), 0.0);
+  e.field_dimension_mm[0] = 8.0;   // length
+  e.field_dimension_mm[1] = -6.0;  // width
+  e.field_dimension_mm[2] = 4.0;   // goal width
+  e.field_dimension_mm[4] = 3.0;   // centre circle radius
+  e.field_dimension_mm[7] = -5.0;  // penalty area depth
+  const FieldMap given = FieldMap::miroSot();
+  const FieldMap truth = trueFieldMap(given, e);
+  ASSERT_EQ(truth.landmarks().size(), given.landmarks().size());
+  auto at = [](const FieldMap& m, const std::string& name) {
+    for (const Landmark& l : m.landmarks())
+      if (l.name == name) return Eigen::Vector3d(l.position);
+    ADD_FAILURE() << "no landmark " << name;
+    return Eigen::Vector3d(Eigen::Vector3d::Zero());
+  };
+  const FieldGeometry g;
+  const double W = g.width - 6.0, L = g.length + 8.0;
+  EXPECT_NEAR(at(truth, "yellow_goal_y850").x(), L, 1e-9);
+  EXPECT_NEAR(at(truth, "yellow_goal_y850").y(), 0.5 * (W + g.goal_width + 4.0), 1e-9);
+  EXPECT_NEAR(at(truth, "halfway_junction_y1300").x(), 0.5 * L, 1e-9);
+  EXPECT_NEAR(at(truth, "halfway_junction_y1300").y(), W, 1e-9);
+  EXPECT_NEAR(at(truth, "halfway_circle_y400").y(), 0.5 * W - (g.centre_circle_radius + 3.0), 1e-9);
+  EXPECT_NEAR(at(truth, "yellow_penalty_area_corner_y250").x(), L - (g.penalty_area_depth - 5.0), 1e-9);
+  for (size_t i = 0; i < given.landmarks().size(); ++i) {
+    EXPECT_EQ(truth.landmarks()[i].id, given.landmarks()[i].id);
+    EXPECT_EQ(truth.landmarks()[i].name, given.landmarks()[i].name);
+  }
+  const FieldMap same = trueFieldMap(given, DrawnErrors());
+  for (size_t i = 0; i < given.landmarks().size(); ++i)
+    EXPECT_EQ(same.landmarks()[i].position, given.landmarks()[i].position);
+  // Only a map its geometry derives can be moved by its dimensions.
+  std::vector<Landmark> own = given.landmarks();
+  own[3].position.x() += 1.0;
+  const FieldMap edited("edited", given.bounds(), own, *given.geometry());
+  const FieldMap bare("bare", given.bounds(), given.landmarks());
+  for (const FieldMap* m : {&edited, &bare}) {
+    try {
+      trueFieldMap(*m, e);
+      FAIL() << m->name() << " was moved";
+    } catch (const Error& err) {
+      EXPECT_NE(std::string(err.what()).find("'" + m->name() + "'"), std::string::npos) << err.what();
+    }
+  }
+  ErrorProfile bad = p;
+  bad.field_dimension_sigma_mm = 25.0;
+  EXPECT_THROW(bad.validate(), Error);
+
+  // Noise-free sightings of a field 20 mm off: where the true field has the landmarks.
+  SimulationConfig cfg;
+  cfg.encoder_k = 0.0;
+  cfg.pixel_sigma = 0.0;
+  cfg.landmarks = LandmarkSet::All;
+  cfg.profile.name = "field only";
+  cfg.profile.field_dimension_sigma_mm = 20.0;
+  SimulationTrace trace;
+  const Dataset d = simulate("circle", 0, cfg, 4, &trace);
+  const FieldMap world = trueFieldMap(d.map, trace.errors);
+  double moved = 0;
+  size_t count = 0;
+  for (size_t s = 0; s < d.steps.size(); ++s)
+    for (const Observation& o : d.steps[s].observations) {
+      const Eigen::Vector2d z = predictRangeBearing(*d.groundtruth[s], world.at(o.landmark_id).xy());
+      EXPECT_NEAR(o.range, z.x(), 1e-4 * z.x());
+      EXPECT_NEAR(angleDiff(o.bearing, z.y()), 0, 1e-5);
+      moved = std::max(moved, (world.at(o.landmark_id).xy() - d.map.at(o.landmark_id).xy()).norm());
+      ++count;
+    }
+  EXPECT_GT(count, 50u);
+  EXPECT_GT(moved, 10.0);
+  test::TempDir dir;
+  trace.errors.save(dir.file("errors.yaml"), cfg.profile);
+  cv::FileStorage fs(dir.file("errors.yaml"), cv::FileStorage::READ);
+  EXPECT_EQ(static_cast<double>(fs["field_length_mm"]), trace.errors.field_dimension_mm[0]);
+  EXPECT_EQ(static_cast<double>(fs["field_penalty_area_width_mm"]), trace.errors.field_dimension_mm[8]);
+}
+
 // Raw images through lens distortion: a landmark's raw truth pixel, undistorted with an exact
-// calibration of the lens, lands where the calibration's rectified rig projects the landmark;
-// and the raw image shows the field where the ideal one does after rectification.
+// calibration of the lens, lands where the calibration's rectified rig projects the landmark of
+// the field the world is built on (its dimensions off by 10 mm here).
 TEST(RawPairRenderer, RawTruthUndistortsOntoTheRectifiedProjection) {
   ErrorProfile p;
   p.name = "lens";
   p.k1_mean = -0.2;
   p.k2_mean = 0.05;
+  p.field_dimension_sigma_mm = 10.0;
   std::mt19937_64 rng(3);
   const DrawnErrors e = drawErrors(p, 1, rng);
+  const FieldMap world = trueFieldMap(FieldMap::miroSot(), e);
+  ASSERT_GT(std::fabs(e.field_dimension_mm[0]), 1.0);
   const StereoRig nominal;
   const StereoCalibration given = givenCalibration(nominal, e);
   const StereoRig rectified(nominal.params(), given);
@@ -239,7 +353,7 @@ TEST(RawPairRenderer, RawTruthUndistortsOntoTheRectifiedProjection) {
     std::vector<cv::Point2d> in{{l.pixel.x(), l.pixel.y()}}, out;
     cv::undistortPoints(in, out, given.K1, given.D1, given.R1, given.P1,
                         cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 50, 1e-12));
-    const Landmark lm = FieldMap::miroSot().at(l.id);  // a copy: the map is a temporary
+    const Landmark& lm = world.at(l.id);
     const Eigen::Vector2d local = transformToLocal(sc.poses[0], lm.xy());
     const auto px = rectified.project(Eigen::Vector3d(local.x(), local.y(), lm.position.z()), 0.0);
     ASSERT_TRUE(px);
