@@ -17,6 +17,7 @@
 
 #include "factors/calibration_prior_factor.h"
 #include "factors/compass_factor.h"
+#include "factors/field_shifted_factor.h"
 #include "factors/joined_global_blocks.h"
 #include "factors/odometry_calibration_factor.h"
 #include "factors/range_bearing_calibration_factor.h"
@@ -116,6 +117,14 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
         at[0] = f.sigma.column > 0 ? next++ : -1;
         at[1] = f.sigma.disparity > 0 ? next++ : -1;
       }
+      if (b_.config_.calibration.field) {
+        if (!derivesFromGeometry(b_.map_))
+          throw Error("batch smoother: --calibrate field needs a MiroSot map as its field geometry derives it; map '" +
+                      b_.map_.name() + "' is not");
+        field_index_ = next;
+        next += kFieldDimensionCount;
+        for (const Landmark& l : b_.map_.landmarks()) field_jacobian_[l.id] = b_.map_.landmarkFieldJacobian(l.id);
+      }
       sizes_.push_back(next);
     }
     if (b_.config_.calibration.range) {
@@ -150,7 +159,14 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
           calibratedPixelCovariance(obs, landmark, model, image_sigmas_.has_value(), row_sigma_.has_value(), offset);
       const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
       const BodyRate& rate = b_.stepOf(o).rate;
-      const int joined = sizes_[static_cast<size_t>(stereo_block_)];
+      // The field's entries close the joined block; the inner factor sees the block before them.
+      const int joined = field_index_ >= 0 ? field_index_ : sizes_[static_cast<size_t>(stereo_block_)];
+      const auto withField = [&](ChainFactor f) {
+        if (field_index_ < 0) return f;
+        f.cost = std::make_unique<FieldShiftedFactor>(f.cost.release(), field_jacobian_.at(obs.landmark_id), field_index_,
+                                                      sizes_[static_cast<size_t>(stereo_block_)]);
+        return f;
+      };
       if (offset) {
         // (q, [e,] dv, (b_c, b_d)) at their places in the joined block (globalFactors).
         const int m = image_sigmas_ ? kImage : 0;
@@ -164,26 +180,26 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
         if (image_sigmas_) indices.push_back(range(kStereo, kImage));
         indices.push_back({kStereo + m});
         indices.push_back({feature->second[0], feature->second[1]});
-        return {std::make_unique<JoinedGlobalBlocks>(
+        return withField({std::make_unique<JoinedGlobalBlocks>(
                     StereoPixelFeatureCalibrationFactor::Create(model.rig, landmark.position, *obs.pixels,
                                                                 obs.slide_gain, obs.head_pan, C, residuals, image,
                                                                 rate),
                     std::move(indices), joined),
-                true, stereo_block_};
+                true, stereo_block_});
       }
       if (row_sigma_)
-        return {std::make_unique<JoinedGlobalBlocks>(
+        return withField({std::make_unique<JoinedGlobalBlocks>(
                     StereoPixelRowCalibrationFactor::Create(model.rig, landmark.position, *obs.pixels, obs.slide_gain,
                                                             obs.head_pan, C, residuals, image, rate),
                     std::vector<std::vector<int>>{}, joined),
-                true, stereo_block_};
+                true, stereo_block_});
       if (image_sigmas_)
-        return {std::make_unique<JoinedGlobalBlocks>(StereoPixelImageCalibrationFactor::Create(
+        return withField({std::make_unique<JoinedGlobalBlocks>(StereoPixelImageCalibrationFactor::Create(
                     model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals, *image_sigmas_, rate)),
-                true, stereo_block_};
-      return {std::unique_ptr<ceres::CostFunction>(StereoPixelCalibrationFactor::Create(
+                true, stereo_block_});
+      return withField({std::unique_ptr<ceres::CostFunction>(StereoPixelCalibrationFactor::Create(
                   model.rig, landmark.position, *obs.pixels, obs.head_pan, C, residuals)),
-              true, stereo_block_};
+              true, stereo_block_});
     }
     if (range_block_ >= 0 && isRangeBearingFactor(obs, model))
       return {std::unique_ptr<ceres::CostFunction>(
@@ -240,21 +256,22 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       CalibrationEstimate::StereoVector sigma;
       sigma << c.tilt_sigma_rad, c.baseline_scale_sigma, c.disparity_offset_sigma_px, c.column_offset_sigma_px,
           c.focal_ratio_sigma, c.focal_scale_sigma;
-      if (row_sigma_) {
-        // The joined block (q, [e,] dv, b_1..b_K): e whitened (prior the identity), dv and the
-        // feature offsets with their stated sigmas.
+      if (row_sigma_ || field_index_ >= 0) {
+        // The joined block (q, [e,] [dv, b_1..b_K,] [f]): e whitened (prior the identity), dv,
+        // the feature offsets and the field's dimensions with their stated sigmas.
         const int m = image_sigmas_ ? kImage : 0;
         const int size = sizes_[static_cast<size_t>(stereo_block_)];
         Eigen::VectorXd joined = Eigen::VectorXd::Zero(size), sd(size);
         joined.head<kStereo>() = nominalHead();
         sd.head<kStereo>() = sigma;
         sd.segment(kStereo, m).setOnes();
-        sd[kStereo + m] = *row_sigma_;
+        if (row_sigma_) sd[kStereo + m] = *row_sigma_;
         for (const FeatureOffsetPrior& f : features_) {
           const std::array<int, 2>& at = feature_index_.at(f.landmark_id);
           if (at[0] >= 0) sd[at[0]] = f.sigma.column;
           if (at[1] >= 0) sd[at[1]] = f.sigma.disparity;
         }
+        if (field_index_ >= 0) sd.segment(field_index_, kFieldDimensionCount).setConstant(c.field_dimension_sigma_mm);
         out->push_back({std::make_unique<DiagonalPriorFactor>(joined, sd), false, stereo_block_});
       } else if (image_sigmas_) {
         // The image block is whitened (StereoPixelImageCalibrationFactor): its prior is the identity.
@@ -300,6 +317,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   std::array<int, 2> featureIndices(int landmark_id) const { return feature_index_.at(landmark_id); }
   // The row block's prior sigma (px), when estimated.
   const std::optional<double>& rowSigma() const { return row_sigma_; }
+  // Where the field's dimensions sit in the stereo block; -1 when not estimated.
+  int fieldIndex() const { return field_index_; }
   int odometryBlock() const { return odometry_block_; }
   int stereoBlock() const { return stereo_block_; }
   int rangeBlock() const { return range_block_; }
@@ -319,6 +338,8 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
   std::optional<double> row_sigma_;
   std::vector<FeatureOffsetPrior> features_;
   std::unordered_map<int, std::array<int, 2>> feature_index_;  // landmark id -> (column, u_r) index or -1
+  int field_index_ = -1;  // of the field's dimensions in the stereo block
+  std::unordered_map<int, FieldShiftedFactor::LandmarkJacobian> field_jacobian_;  // landmark id -> d(x, y)/d f
   Eigen::Vector3d nominalWheels() const { return Eigen::Vector3d(1.0, 1.0, b_.odometry_.wheel_base_mm); }
   static CalibrationEstimate::StereoVector nominalHead() { return CalibrationEstimate().head; }
   static constexpr int kStereo = StereoPixelCalibrationFactor::kCalibrationSize;
@@ -1307,6 +1328,12 @@ void BatchSmoother::Solve::writeCalibration(const Eigen::MatrixXd& global_covari
           }
           cal.feature_offsets.push_back(e);
         }
+      }
+      if (source_.fieldIndex() >= 0) {
+        const Eigen::Index f = offset + source_.fieldIndex();
+        cal.field = true;
+        cal.field_dimensions_mm = c.segment<kFieldDimensionCount>(f);
+        cal.field_covariance = global_covariance.block<kFieldDimensionCount, kFieldDimensionCount>(f, f);
       }
       offset += source_.blockSize(source_.stereoBlock());
     }

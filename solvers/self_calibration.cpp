@@ -26,8 +26,10 @@ SelfCalibrationConfig SelfCalibrationConfig::parse(const std::string& list) {
       c.stereo = true;
     else if (item == "range")
       c.range = true;
+    else if (item == "field")
+      c.field = true;
     else if (item != "none")
-      throw Error("calibrate: unknown part '" + item + "' (expected odometry, stereo and/or range, comma-separated)");
+      throw Error("calibrate: unknown part '" + item + "' (expected odometry, stereo, range and/or field, comma-separated)");
     if (comma == std::string::npos) break;
     start = comma + 1;
   }
@@ -52,6 +54,9 @@ void SelfCalibrationConfig::validate() const {
   pos(range_scale_slope_sigma, "range_scale_slope_sigma");
   pos(range_scale_curvature_sigma, "range_scale_curvature_sigma");
   pos(bearing_offset_sigma_rad, "bearing_offset_sigma_rad");
+  pos(field_dimension_sigma_mm, "field_dimension_sigma_mm");
+  if (field && !stereo) throw Error("self-calibration: the field block rides on the stereo block (calibrate stereo,field)");
+  if (field && consider) throw Error("self-calibration: the field block is estimated by the batch smoother, not considered");
   if (max_iterations < 1) throw Error("self-calibration: max_iterations must be at least 1");
 }
 
@@ -84,6 +89,9 @@ PriorDistance furthestFromPrior(const CalibrationEstimate& e, const SelfCalibrat
                                                     {"bearing_offset_rad", c.bearing_offset_sigma_rad}};
     for (int i = 0; i < 4; ++i) consider(range[i].first, e.range_bearing[i], 0.0, range[i].second);
   }
+  if (e.field)
+    for (int k = 0; k < kFieldDimensionCount; ++k)
+      consider(kFieldDimensions[k].name, e.field_dimensions_mm[k], 0.0, c.field_dimension_sigma_mm);
   return out;
 }
 
@@ -142,6 +150,13 @@ void CalibrationEstimate::saveAsRig(const std::string& path, const StereoRig& ri
       w.put(keys[i][1], std::sqrt(range_bearing_covariance(i, i)));
     }
   }
+  if (field)
+    for (int k = 0; k < kFieldDimensionCount; ++k) {
+      // The change of the field's dimension, not the dimension: a property of the field, which the
+      // rig reader ignores and a map built with it would take (FieldMap::withDimensionChange).
+      w.put(std::string("field_") + kFieldDimensions[k].name + "_mm", field_dimensions_mm[k]);
+      w.put(std::string("field_") + kFieldDimensions[k].name + "_sigma_mm", std::sqrt(field_covariance(k, k)));
+    }
   if (odometry_delay_s) {
     w.put("odometry_delay_s", *odometry_delay_s);
     if (odometry_delay_sigma_s > 0) w.put("odometry_delay_sigma_s", odometry_delay_sigma_s);

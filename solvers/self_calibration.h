@@ -22,6 +22,9 @@
 //   range     k = (c0, c1, c2, d_b): a range-bearing sensor's range factor 1 + c0 + c1 b + c2 b^2
 //             at the measured bearing b and its bearing offset, in every factor of an observation
 //             without pixels (batch, window, EKF; factors/range_bearing_calibration_factor.h)
+//   field     f = the change of the field's nine dimensions (mm; kFieldDimensions of
+//             src/core/field_map.h), with the stereo block, in the batch only: every pixel factor
+//             sees its landmark where the changed field puts it (factors/field_shifted_factor.h)
 //   features  b_j = constant offsets (px) of each feature j's column (both images) and u_r, with
 //             the row block when the noise model states them (batch, window, EKF)
 //             (UnmodelledNoise::*_feature_offset_sigma_px, *_feature_column_sigma_px;
@@ -54,6 +57,7 @@
 #include "solvers/initialisation.h"
 #include "solvers/smoother_common.h"
 #include "src/core/angles.h"
+#include "src/core/field_map.h"
 #include "src/core/odometry_model.h"
 #include "src/core/stereo_rig.h"
 #include "src/core/types.h"
@@ -67,6 +71,9 @@ struct SelfCalibrationConfig {
   // Estimate a range-bearing sensor's range factor and bearing offset (batch, window, EKF; the
   // observations not seen through the stereo block; RangeBearingCalibrationFactor).
   bool range = false;
+  // With the stereo block, the batch only: estimate the field's dimensions (a field built by hand
+  // is a few mm off the map's; the map must be FieldMap::miroSot of its geometry).
+  bool field = false;
   // The EKF only: the blocks above (and the image, row and feature blocks they bring) are
   // considered, not estimated: a Schmidt-Kalman filter, whose gain leaves them at the given
   // calibration while their uncertainty (the priors below) enters every covariance. For a robot
@@ -103,6 +110,8 @@ struct SelfCalibrationConfig {
   double range_scale_slope_sigma = 0.05;        // c1, 1/rad
   double range_scale_curvature_sigma = 0.5;     // c2, 1/rad^2
   double bearing_offset_sigma_rad = deg2rad(1.0);  // d_b, rad
+  // The field's prior: twice the hand-built field's 2 mm per dimension (data/profile_hand_built_field.yaml).
+  double field_dimension_sigma_mm = 4.0;        // mm, per dimension
   // With the stereo block, in the batch, the window and the EKF (pixel model): estimate the
   // image errors the noise model states (lens estimate, relative rotation) as the image block
   // instead of adding them to the pixel noise. The window's gate keeps them as pixel noise, and
@@ -121,8 +130,8 @@ struct SelfCalibrationConfig {
   bool use_compass = true;
   int max_iterations = 100;
 
-  // "" or "none", or a comma-separated list of odometry, stereo and range (any order); throws
-  // stereoloc::Error.
+  // "" or "none", or a comma-separated list of odometry, stereo, range and field (any order);
+  // throws stereoloc::Error.
   static SelfCalibrationConfig parse(const std::string& list);
   void validate() const;
   bool any() const { return odometry || stereo || range; }  // a block is estimated or considered
@@ -130,6 +139,13 @@ struct SelfCalibrationConfig {
 
 struct CalibrationEstimate {
   bool odometry = false, stereo = false, range = false;  // which blocks were estimated
+  // The field block: the change of each of kFieldDimensions (mm) and its covariance (mm^2); not
+  // part of the rig (a property of the field), written by saveAsRig as keys field_<name>_mm.
+  bool field = false;
+  using FieldVector = Eigen::Matrix<double, kFieldDimensionCount, 1>;
+  FieldVector field_dimensions_mm = FieldVector::Zero();
+  Eigen::Matrix<double, kFieldDimensionCount, kFieldDimensionCount> field_covariance =
+      Eigen::Matrix<double, kFieldDimensionCount, kFieldDimensionCount>::Zero();
   Eigen::Vector3d wheels = Eigen::Vector3d(1, 1, 75);  // c_l, c_r, w (mm)
   Eigen::Matrix3d wheels_covariance = Eigen::Matrix3d::Zero();
   // What a drifting wheel calibration (UnmodelledNoise::wheel_scale_drift) walked over the run,

@@ -109,6 +109,8 @@ void SlidingWindowConfig::validate() const {
   if (!(restart_min_evidence >= 0)) throw Error("sliding window: restart_min_evidence must be >= 0");
   makeLossFunction(robust_loss);  // validates the scale
   calibration.validate();
+  if (calibration.field)
+    throw Error("sliding window: the field's dimensions are estimated by the batch smoother only (calibrate field)");
   if (calibration.consider)
     throw Error("sliding window: calibration.consider is the EKF's (a Schmidt gain); the smoothers estimate the calibration");
 }

@@ -149,15 +149,18 @@ bool endsWith(const std::string& s, const std::string& suffix) {
   return s.size() > suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
-const std::string kCalibSuffix = ":calib", kConsiderSuffix = ":consider";
+const std::string kCalibSuffix = ":calib", kConsiderSuffix = ":consider", kFieldSuffix = ":calib-field";
 
 }  // namespace
 
-bool hasCalibrationSuffix(const std::string& spec) { return endsWith(spec, kCalibSuffix); }
+bool hasCalibrationSuffix(const std::string& spec) { return endsWith(spec, kCalibSuffix) || hasFieldSuffix(spec); }
+
+bool hasFieldSuffix(const std::string& spec) { return endsWith(spec, kFieldSuffix); }
 
 bool hasConsiderSuffix(const std::string& spec) { return endsWith(spec, kConsiderSuffix); }
 
 std::string withoutCalibrationSuffix(const std::string& spec) {
+  if (hasFieldSuffix(spec)) return spec.substr(0, spec.size() - kFieldSuffix.size());
   if (hasCalibrationSuffix(spec)) return spec.substr(0, spec.size() - kCalibSuffix.size());
   if (hasConsiderSuffix(spec)) return spec.substr(0, spec.size() - kConsiderSuffix.size());
   return spec;
@@ -172,6 +175,8 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, I
   if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
   if (hasCalibrationSuffix(full_spec) && !selfCalibrates(name))
     throw UsageError("method '" + full_spec + "': only " + kSelfCalibratingText + " self-calibrate");
+  if (hasFieldSuffix(full_spec) && name != "batch")
+    throw UsageError("method '" + full_spec + "': only batch estimates the field's dimensions");
   if (hasConsiderSuffix(full_spec) && !considers(name))
     throw UsageError("method '" + full_spec + "': only " + kConsideringText + " consider their calibration");
   InitMode init = default_init;
@@ -260,6 +265,7 @@ std::vector<Step> stepsWithOdometryDelay(const std::string& spec, const Dataset&
     // consider, the batch estimates).
     MethodOptions o = options;
     if (hasCalibrationSuffix(spec) || hasConsiderSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
+    if (hasFieldSuffix(spec)) o.calibration.field = true;
     o.calibration.consider = false;
     const BatchSmootherConfig c = batchConfigFor("batch:" + toString(init), d, seed, o);
     const OdometryDelayEstimate e = estimateOdometryDelay(d.map, d.odometry, c, d.steps, options.odometry_delay_search);
@@ -286,6 +292,7 @@ MethodRun runMethodOnSteps(const std::string& spec, const Dataset& d, uint64_t s
   MethodOptions o = options;
   const bool fix = name == "fix1" || name == "fix2";
   if (hasCalibrationSuffix(spec) || hasConsiderSuffix(spec)) o.calibration.odometry = o.calibration.stereo = true;
+  if (hasFieldSuffix(spec)) o.calibration.field = true;
   if (hasConsiderSuffix(spec)) o.calibration.consider = true;
   if (fix && hasConsiderSuffix(spec)) o.calibration.odometry = false;  // a fix has no odometry
   std::mt19937_64 rng(seed);
