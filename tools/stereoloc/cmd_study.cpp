@@ -78,7 +78,8 @@ void add_study_command(CLI::App& app) {
                       "; append :known, :random or :global to choose the start (e.g. ekf:random), and :calib "
                       "for odometry and stereo self-calibration (batch:calib, window:calib, ekf:calib) or, for the "
                       "EKF and the fixes, :consider for the same calibration considered, not estimated "
-                      "(ekf:consider; fix1:consider and fix2:consider the stereo block)")
+                      "(ekf:consider; fix1:consider and fix2:consider the stereo block); batch:calib-field also estimates "
+                      "the field's dimensions")
       ->capture_default_str();
   sub->add_option("--profile", a->profiles,
                   "Comma-separated error profiles of the simulated world: ideal (exact), realistic (calibration, lens, "
