@@ -235,7 +235,7 @@ TEST(RangeCalibration, TheListParses) {
   EXPECT_FALSE(c.stereo);
   EXPECT_TRUE(c.any());
   EXPECT_FALSE(SelfCalibrationConfig::parse("none").any());
-  EXPECT_NE(test::errorOf([] { SelfCalibrationConfig::parse("rang"); }).find("odometry, stereo and/or range"),
+  EXPECT_NE(test::errorOf([] { SelfCalibrationConfig::parse("rang"); }).find("odometry, stereo, range and/or field"),
             std::string::npos);
 }
 
