@@ -163,8 +163,14 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
       const int joined = field_index_ >= 0 ? field_index_ : sizes_[static_cast<size_t>(stereo_block_)];
       const auto withField = [&](ChainFactor f) {
         if (field_index_ < 0) return f;
-        f.cost = std::make_unique<FieldShiftedFactor>(f.cost.release(), field_jacobian_.at(obs.landmark_id), field_index_,
-                                                      sizes_[static_cast<size_t>(stereo_block_)]);
+        // (pose, g) -> (pose, g, f) -> (pose, [g f]): f at its place in the joined block.
+        const int g = f.cost->parameter_block_sizes()[1];
+        std::vector<std::vector<int>> indices(2);
+        for (int i = 0; i < g; ++i) indices[0].push_back(i);
+        for (int i = 0; i < kFieldDimensionCount; ++i) indices[1].push_back(field_index_ + i);
+        f.cost = std::make_unique<JoinedGlobalBlocks>(
+            new FieldShiftedFactor(f.cost.release(), field_jacobian_.at(obs.landmark_id)), std::move(indices),
+            sizes_[static_cast<size_t>(stereo_block_)]);
         return f;
       };
       if (offset) {

@@ -58,7 +58,7 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
   if (cal.any()) {
     cal.validate();
     if (config_.max_iterations > 1) throw Error("ekf: the iterated update (max_iterations > 1) does not self-calibrate");
-    if (cal.field) throw Error("ekf: the field's dimensions are estimated by the batch smoother only (calibrate field)");
+    if (cal.field) throw Error("ekf: the field's dimensions are estimated by the smoothers only (calibrate field)");
     int n = 3;
     wheels_[2] = odometry_.wheel_base_mm;
     if (cal.odometry) wheels_at_ = std::exchange(n, n + 3);

@@ -10,6 +10,7 @@
 #include <memory>
 #include <utility>
 
+#include "factors/field_shifted_factor.h"
 #include "factors/block_marginal_prior_factor.h"
 #include "factors/calibration_prior_factor.h"
 #include "factors/compass_factor.h"
@@ -109,8 +110,6 @@ void SlidingWindowConfig::validate() const {
   if (!(restart_min_evidence >= 0)) throw Error("sliding window: restart_min_evidence must be >= 0");
   makeLossFunction(robust_loss);  // validates the scale
   calibration.validate();
-  if (calibration.field)
-    throw Error("sliding window: the field's dimensions are estimated by the batch smoother only (calibrate field)");
   if (calibration.consider)
     throw Error("sliding window: calibration.consider is the EKF's (a Schmidt gain); the smoothers estimate the calibration");
 }
@@ -147,6 +146,13 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   if (image_sigmas_) image_block_ = addCalibBlock(image_.data(), CalibrationEstimate::ImageVector::RowsAtCompileTime);
   if (row_sigma_) row_block_ = addCalibBlock(&row_, 1);
   if (cal.range) range_block_ = addCalibBlock(range_.data(), RangeBearingCalibrationFactor::kCalibrationSize);
+  if (cal.field) {
+    if (!derivesFromGeometry(map_))
+      throw Error("sliding window: --calibrate field needs a MiroSot map as its field geometry derives it; map '" +
+                  map_.name() + "' is not");
+    field_block_ = addCalibBlock(field_.data(), kFieldDimensionCount);
+    for (const Landmark& l : map_.landmarks()) field_jacobian_[l.id] = map_.landmarkFieldJacobian(l.id);
+  }
   for (const FeatureOffsetPrior& f : featureOffsetSigmas(map_, cal, config_.observation_model.unmodelled))
     feature_sigmas_[f.landmark_id] = f.sigma;
   // With calibration blocks every factor is linearised at the current estimate: each factor's
@@ -190,6 +196,14 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
     addFactor(CalibrationPriorFactor<k>::Create(range_, sig.cwiseAbs2().asDiagonal().toDenseMatrix()), {}, false,
               {range_block_});
     calib_covariance_.diagonal().segment<k>(calibOffset(range_block_)) = sig.cwiseAbs2();
+  }
+  if (cal.field) {
+    constexpr int k = kFieldDimensionCount;
+    const double var = cal.field_dimension_sigma_mm * cal.field_dimension_sigma_mm;
+    addFactor(CalibrationPriorFactor<k>::Create(Eigen::Matrix<double, k, 1>::Zero(),
+                                                Eigen::Matrix<double, k, k>::Identity() * var),
+              {}, false, {field_block_});
+    calib_covariance_.diagonal().segment<k>(calibOffset(field_block_)).setConstant(var);
   }
 }
 
@@ -301,6 +315,12 @@ std::optional<CalibrationEstimate> SlidingWindowSmoother::calibration() const {
     e.image = true;
     e.image_errors = image_sigmas_->cwiseProduct(image_);
     e.image_covariance = image_sigmas_->asDiagonal() * calib_covariance_.block(k, k, m, m) * image_sigmas_->asDiagonal();
+  }
+  if (field_block_ >= 0) {
+    const int k = calibOffset(field_block_);
+    e.field = true;
+    e.field_dimensions_mm = field_;
+    e.field_covariance = calib_covariance_.block<kFieldDimensionCount, kFieldDimensionCount>(k, k);
   }
   if (config_.calibration.range) {
     constexpr int k = RangeBearingCalibrationFactor::kCalibrationSize;
@@ -898,6 +918,14 @@ SlidingWindowSmoother::CalibratedCost SlidingWindowSmoother::stereoCalibrationCo
       config_.observation_model.model == ObservationModel::Pixels ? PixelResiduals::All : PixelResiduals::Columns;
   const auto* image = image_sigmas_ ? &*image_sigmas_ : nullptr;
   CalibratedCost c;
+  // The field's change moves the landmark (factors/field_shifted_factor.h): one more block.
+  const auto withField = [&](CalibratedCost& out) {
+    if (field_block_ >= 0) {
+      out.cost = new FieldShiftedFactor(out.cost, field_jacobian_.at(lm.id));
+      out.blocks.push_back(field_block_);
+    }
+    return out;
+  };
   if (rowBlock()) {
     // With the feature's offsets estimated, their constant leaves the white pixel noise: it
     // repeats over the feature's sightings, and as white noise it would be averaged down as if
@@ -923,7 +951,7 @@ SlidingWindowSmoother::CalibratedCost SlidingWindowSmoother::stereoCalibrationCo
                                                        measured.slide_gain, measured.head_pan, C, residuals, image,
                                                        rate);
     }
-    return c;
+    return withField(c);
   }
   const Eigen::Matrix4d C =
       calibratedPixelCovariance(measured, lm, config_.observation_model, image_sigmas_ && image_free);
@@ -936,7 +964,7 @@ SlidingWindowSmoother::CalibratedCost SlidingWindowSmoother::stereoCalibrationCo
                                                   measured.head_pan, C, residuals);
     c.blocks = {head_block_};
   }
-  return c;
+  return withField(c);
 }
 
 void SlidingWindowSmoother::addObservationFactor(const Observation& measured, const Landmark& lm, Node* node) {

@@ -513,8 +513,12 @@ class SlidingWindowSmoother : public Estimator {
   std::vector<CalibBlock> calib_;
   int calib_dim_ = 0;
   Eigen::Vector3d wheels_walked_ = Eigen::Vector3d::Zero();  // CalibrationEstimate::wheels_walk_variance
-  Calib wheels_block_ = -1, head_block_ = -1, image_block_ = -1, row_block_ = -1,
-        range_block_ = -1;  // -1: not estimated
+  Calib wheels_block_ = -1, head_block_ = -1, image_block_ = -1, row_block_ = -1, range_block_ = -1,
+        field_block_ = -1;  // -1: not estimated
+  // The field block (SelfCalibrationConfig::field): the change of the field's dimensions (mm),
+  // and each landmark's d(x, y)/d(dimensions).
+  Eigen::Matrix<double, kFieldDimensionCount, 1> field_ = Eigen::Matrix<double, kFieldDimensionCount, 1>::Zero();
+  std::unordered_map<int, Eigen::Matrix<double, 2, kFieldDimensionCount>> field_jacobian_;
   Eigen::MatrixXd calib_covariance_;
   WindowLinearisation linearisation_ = WindowLinearisation::PriorPoint;  // in effect
 };

@@ -8,6 +8,7 @@
 #include <memory>
 #include <vector>
 
+#include "factors/calibration_prior_factor.h"
 #include "factors/factor_check.h"
 #include "factors/range_bearing_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
@@ -48,32 +49,27 @@ TEST(FieldShiftedFactor, SeesTheLandmarkWhereTheChangedFieldPutsIt) {
     z.u_left += 0.3;
     z.v_right -= 0.2;
     const FieldShiftedFactor::LandmarkJacobian J = map.landmarkFieldJacobian(l.id);
-    // A factor on the pose alone; the field after two unused entries of the joined block.
-    std::vector<double> joined(2 + kFieldDimensionCount, 0.0);
-    std::copy(f.data(), f.data() + kFieldDimensionCount, joined.begin() + 2);
-    const FieldShiftedFactor shifted(StereoPixelFactor::Create(rig, l.position, z, 0.0, 0.5, PixelResiduals::All), J,
-                                     2, static_cast<int>(joined.size()));
+    // A factor on the pose alone.
+    const FieldShiftedFactor shifted(StereoPixelFactor::Create(rig, l.position, z, 0.0, 0.5, PixelResiduals::All), J);
     std::unique_ptr<ceres::CostFunction> moved(
         StereoPixelFactor::Create(rig, changed.at(l.id).position, z, 0.0, 0.5, PixelResiduals::All));
     Eigen::VectorXd a, b;
-    residualOf(shifted, {pose, joined.data()}, &a);
+    residualOf(shifted, {pose, f.data()}, &a);
     residualOf(*moved, {pose}, &b);
     EXPECT_LT((a - b).norm(), 1e-9 * (1 + b.norm())) << l.name;
-    const FactorCheck c = checkFactorJacobians(shifted, {pose, joined.data()});
+    const FactorCheck c = checkFactorJacobians(shifted, {pose, f.data()});
     EXPECT_TRUE(c.ok) << l.name << ": " << c.message;
 
     // A factor with the stereo calibration block, the field after it.
-    std::vector<double> g = {0.002, 1.01, 0.3, -0.2, 0.001, -0.002};
-    g.insert(g.end(), f.data(), f.data() + kFieldDimensionCount);
+    const double g[6] = {0.002, 1.01, 0.3, -0.2, 0.001, -0.002};
     const FieldShiftedFactor calibrated(
-        StereoPixelCalibrationFactor::Create(rig, l.position, z, 0.0, 0.5, PixelResiduals::All), J, 6,
-        static_cast<int>(g.size()));
+        StereoPixelCalibrationFactor::Create(rig, l.position, z, 0.0, 0.5, PixelResiduals::All), J);
     std::unique_ptr<ceres::CostFunction> moved_calibrated(
         StereoPixelCalibrationFactor::Create(rig, changed.at(l.id).position, z, 0.0, 0.5, PixelResiduals::All));
-    residualOf(calibrated, {pose, g.data()}, &a);
-    residualOf(*moved_calibrated, {pose, g.data()}, &b);
+    residualOf(calibrated, {pose, g, f.data()}, &a);
+    residualOf(*moved_calibrated, {pose, g}, &b);
     EXPECT_LT((a - b).norm(), 1e-9 * (1 + b.norm())) << l.name;
-    const FactorCheck cc = checkFactorJacobians(calibrated, {pose, g.data()});
+    const FactorCheck cc = checkFactorJacobians(calibrated, {pose, g, f.data()});
     EXPECT_TRUE(cc.ok) << l.name << ": " << cc.message;
     ++checked;
   }
@@ -87,8 +83,7 @@ TEST(FieldShiftedFactor, RangeBearingAndBadWrapping) {
   const double pose[3] = {400.0, 300.0, -2.9};
   const Eigen::Vector2d z = predictRangeBearing(Pose2(pose[0], pose[1], pose[2]), l.xy()) + Eigen::Vector2d(3.0, 0.01);
   const Eigen::Matrix2d R = Eigen::Vector2d(25.0, 1e-4).asDiagonal();
-  const FieldShiftedFactor shifted(RangeBearingFactor::Create(l.xy(), z, R), map.landmarkFieldJacobian(l.id), 0,
-                                   kFieldDimensionCount);
+  const FieldShiftedFactor shifted(RangeBearingFactor::Create(l.xy(), z, R), map.landmarkFieldJacobian(l.id));
   std::unique_ptr<ceres::CostFunction> moved(RangeBearingFactor::Create(map.withDimensionChange(f).at(l.id).xy(), z, R));
   Eigen::VectorXd a, b;
   residualOf(shifted, {pose, f.data()}, &a);
@@ -96,13 +91,11 @@ TEST(FieldShiftedFactor, RangeBearingAndBadWrapping) {
   EXPECT_LT((a - b).norm(), 1e-9 * (1 + b.norm()));
   const FactorCheck c = checkFactorJacobians(shifted, {pose, f.data()});
   EXPECT_TRUE(c.ok) << c.message;
-  // The field must follow the inner block and fit in the joined block.
-  const StereoRig rig;
-  EXPECT_THROW(FieldShiftedFactor(StereoPixelCalibrationFactor::Create(rig, l.position, StereoPixels{100, 100, 90, 100},
-                                                                       0.0, 0.5, PixelResiduals::All),
-                                  map.landmarkFieldJacobian(l.id), 3, 20),
+  // The inner factor's first block must be the pose.
+  EXPECT_THROW(FieldShiftedFactor(CalibrationPriorFactor<6>::Create(Eigen::Matrix<double, 6, 1>::Zero(),
+                                                                    Eigen::Matrix<double, 6, 6>::Identity()),
+                                  map.landmarkFieldJacobian(l.id)),
                Error);
-  EXPECT_THROW(FieldShiftedFactor(RangeBearingFactor::Create(l.xy(), z, R), map.landmarkFieldJacobian(l.id), 0, 5), Error);
   // Only a map its geometry derives has a field Jacobian.
   std::vector<Landmark> own = map.landmarks();
   own[0].position.x() += 1.0;
