@@ -56,7 +56,7 @@ void SelfCalibrationConfig::validate() const {
   pos(bearing_offset_sigma_rad, "bearing_offset_sigma_rad");
   pos(field_dimension_sigma_mm, "field_dimension_sigma_mm");
   if (field && !stereo) throw Error("self-calibration: the field block rides on the stereo block (calibrate stereo,field)");
-  if (field && consider) throw Error("self-calibration: the field block is estimated by the batch smoother, not considered");
+  if (field && consider) throw Error("self-calibration: the field block is estimated by the smoothers, not considered");
   if (max_iterations < 1) throw Error("self-calibration: max_iterations must be at least 1");
 }
 
@@ -90,8 +90,10 @@ PriorDistance furthestFromPrior(const CalibrationEstimate& e, const SelfCalibrat
     for (int i = 0; i < 4; ++i) consider(range[i].first, e.range_bearing[i], 0.0, range[i].second);
   }
   if (e.field)
-    for (int k = 0; k < kFieldDimensionCount; ++k)
-      consider(kFieldDimensions[k].name, e.field_dimensions_mm[k], 0.0, c.field_dimension_sigma_mm);
+    for (int k = 0; k < kFieldDimensionCount; ++k) {
+      const std::string name = std::string("field_") + kFieldDimensions[k].name + "_mm";
+      consider(name.c_str(), e.field_dimensions_mm[k], 0.0, c.field_dimension_sigma_mm);
+    }
   return out;
 }
 

@@ -23,7 +23,7 @@
 //             at the measured bearing b and its bearing offset, in every factor of an observation
 //             without pixels (batch, window, EKF; factors/range_bearing_calibration_factor.h)
 //   field     f = the change of the field's nine dimensions (mm; kFieldDimensions of
-//             src/core/field_map.h), with the stereo block, in the batch only: every pixel factor
+//             src/core/field_map.h), with the stereo block, in the batch and the window: every pixel factor
 //             sees its landmark where the changed field puts it (factors/field_shifted_factor.h)
 //   features  b_j = constant offsets (px) of each feature j's column (both images) and u_r, with
 //             the row block when the noise model states them (batch, window, EKF)
@@ -71,7 +71,7 @@ struct SelfCalibrationConfig {
   // Estimate a range-bearing sensor's range factor and bearing offset (batch, window, EKF; the
   // observations not seen through the stereo block; RangeBearingCalibrationFactor).
   bool range = false;
-  // With the stereo block, the batch only: estimate the field's dimensions (a field built by hand
+  // With the stereo block, the batch and the window: estimate the field's dimensions (a field built by hand
   // is a few mm off the map's; the map must be FieldMap::miroSot of its geometry).
   bool field = false;
   // The EKF only: the blocks above (and the image, row and feature blocks they bring) are

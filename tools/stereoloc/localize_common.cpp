@@ -260,7 +260,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "Batch, window and ekf: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline "
                   "scale, disparity and column offsets, focal errors; the smoothers need a pixel observation model) or "
                   "both, with priors from the stated uncertainty; all three also range (a range-bearing sensor's range "
-                  "factor 1 + c0 + c1 b + c2 b^2 at bearing b and its bearing offset); the batch with stereo also field "
+                  "factor 1 + c0 + c1 b + c2 b^2 at bearing b and its bearing offset); batch and window with stereo also field "
                   "(the change of the MiroSot field's nine dimensions: a field built by hand), comma-separated");
   if (method_option)
     sub->add_option("--consider", a->consider,
