@@ -17,6 +17,7 @@
 #include "src/pipeline/usage_error.h"
 #include "src/sim/simulator.h"
 #include "test_util.h"
+#include "whole_data_window.h"
 
 namespace stereoloc {
 namespace {
@@ -78,10 +79,6 @@ Dataset handBuiltFieldRun(uint64_t seed, int steps, SimulationTrace* trace) {
   return d;
 }
 
-double relDiff(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
-  return (a - b).cwiseAbs().maxCoeff() / std::max(1e-300, b.cwiseAbs().maxCoeff());
-}
-
 TEST(FieldCalibration, WindowAsLongAsTheDataIsTheBatch) {
   const Dataset d = handBuiltFieldRun(3, 200, nullptr);
   const Eigen::Matrix3d P0 = Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal();
@@ -99,31 +96,21 @@ TEST(FieldCalibration, WindowAsLongAsTheDataIsTheBatch) {
   const std::vector<Estimate> eb = b.finish();
 
   SlidingWindowConfig c;
-  c.window = static_cast<int>(d.steps.size());
   c.init = bc.init;
   c.observation_model = bc.observation_model;
   c.calibration = bc.calibration;
-  c.gate_enabled = false;
-  c.linearisation = WindowLinearisation::Current;
-  c.final_iterations = 100;
-  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
+  test::solveAsTheBatch(c, d.steps.size());
   SlidingWindowSmoother win(d.map, d.odometry, c);
   for (const Step& s : d.steps) win.process(s);
-  const std::vector<Estimate> ew = win.finish();
-  ASSERT_EQ(ew.size(), eb.size());
-  double pose = 0, cov = 0;
-  for (size_t i = 0; i < ew.size(); ++i) {
-    pose = std::max(pose, minus(ew[i].pose, eb[i].pose).cwiseAbs().maxCoeff());
-    cov = std::max(cov, relDiff(ew[i].covariance, eb[i].covariance));
-  }
-  EXPECT_LT(pose, 1e-6);
-  EXPECT_LT(cov, 1e-6);
+  const test::SolutionGap gap = test::solutionGap(win.finish(), eb);
+  EXPECT_LT(gap.pose, 1e-6);
+  EXPECT_LT(gap.covariance, 1e-6);
   const std::optional<CalibrationEstimate> cw = win.calibration();
   ASSERT_TRUE(cw.has_value());
   const CalibrationEstimate cb = b.calibration();
   ASSERT_TRUE(cw->field && cb.field);
   EXPECT_LT((cw->field_dimensions_mm - cb.field_dimensions_mm).cwiseAbs().maxCoeff(), 1e-6);
-  EXPECT_LT(relDiff(cw->field_covariance, cb.field_covariance), 1e-6);
+  EXPECT_LT(test::relativeDifference(cw->field_covariance, cb.field_covariance), 1e-6);
   EXPECT_GT(cb.field_dimensions_mm.cwiseAbs().maxCoeff(), 0.1);  // the data moved it
 }
 

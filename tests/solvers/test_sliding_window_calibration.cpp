@@ -25,6 +25,7 @@
 #include "solvers/sliding_window_smoother.h"
 #include "src/sim/simulator.h"
 #include "test_util.h"
+#include "whole_data_window.h"
 
 namespace stereoloc {
 namespace {
@@ -60,10 +61,6 @@ SlidingWindowConfig calibratingWindow(const Dataset& d, int window) {
   return c;
 }
 
-double relDiff(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
-  return (a - b).cwiseAbs().maxCoeff() / std::max(1e-300, b.cwiseAbs().maxCoeff());
-}
-
 TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
   const Dataset d = realisticRun(3, "random-walk", 200);
   // Both solved to the limit of double precision, so that only the formulation could differ.
@@ -79,34 +76,24 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
   batch.trajectory = b.finish();
   batch.calibration = b.calibration();
 
-  SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
-  c.gate_enabled = false;
-  c.linearisation = WindowLinearisation::Current;  // covariances at the optimum, as ceres::Covariance
-  c.final_iterations = 100;
-  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
+  SlidingWindowConfig c = calibratingWindow(d, 1);
+  test::solveAsTheBatch(c, d.steps.size());
   SlidingWindowSmoother win(d.map, d.odometry, c);
   for (const Step& s : d.steps) win.process(s);
-  const std::vector<Estimate> ew = win.finish();
+  const test::SolutionGap gap = test::solutionGap(win.finish(), batch.trajectory);
   EXPECT_EQ(win.stats().marginalisations, 0);
-  ASSERT_EQ(ew.size(), batch.trajectory.size());
-  double pose = 0, cov = 0;
-  for (size_t i = 0; i < ew.size(); ++i) {
-    ASSERT_EQ(ew[i].step, batch.trajectory[i].step);
-    pose = std::max(pose, minus(ew[i].pose, batch.trajectory[i].pose).cwiseAbs().maxCoeff());
-    cov = std::max(cov, relDiff(ew[i].covariance, batch.trajectory[i].covariance));
-  }
   // mm and rad. 200 steps: on shorter walks the focal scale's correlation with the baseline scale
   // and the column offset leaves the normal equations so flat that both solvers stop some 1e-6 mm
   // apart at these tolerances.
-  EXPECT_LT(pose, 1e-6);
-  EXPECT_LT(cov, 1e-6);
+  EXPECT_LT(gap.pose, 1e-6);
+  EXPECT_LT(gap.covariance, 1e-6);
   const std::optional<CalibrationEstimate> cw = win.calibration();
   ASSERT_TRUE(cw.has_value());
   const CalibrationEstimate& cb = batch.calibration;
   EXPECT_LT((cw->wheels - cb.wheels).cwiseAbs().maxCoeff(), 1e-6);
   EXPECT_LT((cw->head - cb.head).cwiseAbs().maxCoeff(), 1e-6);
-  EXPECT_LT(relDiff(cw->wheels_covariance, cb.wheels_covariance), 1e-6);
-  EXPECT_LT(relDiff(cw->head_covariance, cb.head_covariance), 1e-6);
+  EXPECT_LT(test::relativeDifference(cw->wheels_covariance, cb.wheels_covariance), 1e-6);
+  EXPECT_LT(test::relativeDifference(cw->head_covariance, cb.head_covariance), 1e-6);
   // The estimate moved off the nominal calibration (the realistic profile plants errors).
   EXPECT_GT((cw->wheels - Eigen::Vector3d(1, 1, d.odometry.wheel_base_mm)).cwiseAbs().maxCoeff(), 1e-4);
 }
@@ -129,25 +116,16 @@ std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch
   for (const Step& s : d.steps) b.process(s);
   const std::vector<Estimate> eb = b.finish();
 
-  SlidingWindowConfig c = calibratingWindow(d, static_cast<int>(d.steps.size()));
+  SlidingWindowConfig c = calibratingWindow(d, 1);
   c.observation_model.unmodelled = noise;
   c.exposure_rate = BodyRateSource::Odometry;
   c.image_errors_after_steps = 0;
-  c.gate_enabled = false;
-  c.linearisation = WindowLinearisation::Current;
-  c.final_iterations = 100;
-  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
+  test::solveAsTheBatch(c, d.steps.size());
   SlidingWindowSmoother win(d.map, d.odometry, c);
   for (const Step& s : d.steps) win.process(s);
-  const std::vector<Estimate> ew = win.finish();
-  EXPECT_EQ(ew.size(), eb.size());
-  double pose = 0, cov = 0;
-  for (size_t i = 0; i < std::min(ew.size(), eb.size()); ++i) {
-    pose = std::max(pose, minus(ew[i].pose, eb[i].pose).cwiseAbs().maxCoeff());
-    cov = std::max(cov, relDiff(ew[i].covariance, eb[i].covariance));
-  }
-  EXPECT_LT(pose, 1e-6);
-  EXPECT_LT(cov, 1e-6);
+  const test::SolutionGap gap = test::solutionGap(win.finish(), eb);
+  EXPECT_LT(gap.pose, 1e-6);
+  EXPECT_LT(gap.covariance, 1e-6);
   const std::optional<CalibrationEstimate> cw = win.calibration();
   EXPECT_TRUE(cw.has_value());
   return {b.calibration(), cw.value_or(CalibrationEstimate())};
@@ -247,7 +225,7 @@ void expectWindowIsBatchWithFeatureOffsets(bool image_block) {
   ASSERT_TRUE(cw->row);
   EXPECT_LT((cw->wheels - cb.wheels).cwiseAbs().maxCoeff(), 1e-6);
   EXPECT_LT((cw->head - cb.head).cwiseAbs().maxCoeff(), 1e-6);
-  EXPECT_LT(relDiff(cw->head_covariance, cb.head_covariance), 1e-6);
+  EXPECT_LT(test::relativeDifference(cw->head_covariance, cb.head_covariance), 1e-6);
   EXPECT_NEAR(cw->row_offset_px, cb.row_offset_px, 1e-6);
   EXPECT_NEAR(cw->row_offset_variance, cb.row_offset_variance, 1e-6 * cb.row_offset_variance);
   ASSERT_EQ(cb.image, image_block);
@@ -255,7 +233,7 @@ void expectWindowIsBatchWithFeatureOffsets(bool image_block) {
   if (image_block) {
     EXPECT_GT(cb.image_errors.cwiseAbs().maxCoeff(), 0.0);
     EXPECT_LT((cw->image_errors - cb.image_errors).cwiseAbs().maxCoeff(), 1e-6 * cb.image_errors.cwiseAbs().maxCoeff());
-    EXPECT_LT(relDiff(cw->image_covariance, cb.image_covariance), 1e-6);
+    EXPECT_LT(test::relativeDifference(cw->image_covariance, cb.image_covariance), 1e-6);
   }
   // The window lists the features it fused: those seen, each with the batch's estimate.
   std::set<int> seen;
