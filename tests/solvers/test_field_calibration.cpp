@@ -8,6 +8,8 @@
 #include <cmath>
 #include <vector>
 
+#include <opencv2/core.hpp>
+
 #include "solvers/batch_smoother.h"
 #include "solvers/ekf.h"
 #include "solvers/self_calibration.h"
