@@ -1,12 +1,18 @@
 // `localize` and `refine` with a noise model whose wheels drift (UnmodelledNoise::
 // wheel_scale_drift): the batch, which holds one wheel calibration for the run, says so in one
-// line; the window and the EKF, which follow the drift, do not.
+// line; the window and the EKF, which follow the drift, do not. A field measured by the field
+// block is written as the next drive's map.
 #include <gtest/gtest.h>
 
 #include <fstream>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
 #include <string>
 
 #include "cli_util.h"
+#include "src/core/field_map.h"
+#include "src/io/dataset.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -36,6 +42,36 @@ TEST(CliLocalize, TheBatchSaysItHoldsDriftingWheelsConstant) {
     EXPECT_EQ(r.output.find(note), std::string::npos) << r.output;
     EXPECT_NE(r.output.find("calibration: wheel scales"), std::string::npos) << r.output;
   }
+}
+
+TEST(CliLocalize, TheMeasuredFieldIsTheNextDrivesMap) {
+  test::TempDir dir("cli_localize_field");
+  const std::string ds = dir.file("ds");
+  const test::CliRun sim = test::runCli("simulate --scenario circle --steps 60 --seed 2 --profile " +
+                                        std::string(STEREOLOC_DATA_DIR) + "/profile_hand_built_field.yaml --out " + ds);
+  ASSERT_EQ(sim.exit_code, 0) << sim.output;
+  for (const std::string method : {"batch", "window"}) {
+    const std::string map = dir.file(method + "_map.yaml"), rig = dir.file(method + "_rig.yaml");
+    const test::CliRun r = test::runCli("localize " + ds + " --method " + method +
+                                        " --calibrate odometry,stereo,field --calibration-out " + rig + " --field-out " +
+                                        map + " --out " + dir.file("est.csv"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    // The map carries the estimate the rig file states.
+    cv::FileStorage fs(rig, cv::FileStorage::READ);
+    Eigen::Matrix<double, kFieldDimensionCount, 1> change;
+    for (int k = 0; k < kFieldDimensionCount; ++k)
+      change[k] = static_cast<double>(fs[std::string("field_") + kFieldDimensions[k].name + "_mm"]);
+    EXPECT_GT(change.cwiseAbs().maxCoeff(), 0.0) << method;
+    const FieldMap measured = FieldMap::load(map), expected = loadDataset(ds).map.withDimensionChange(change);
+    ASSERT_EQ(measured.landmarks().size(), expected.landmarks().size());
+    for (size_t i = 0; i < expected.landmarks().size(); ++i)
+      EXPECT_LT((measured.landmarks()[i].position - expected.landmarks()[i].position).norm(), 1e-9) << method;
+    EXPECT_TRUE(derivesFromGeometry(measured));  // a field the next drive can measure again
+  }
+  const test::CliRun without = test::runCli("localize " + ds + " --method batch --calibrate odometry,stereo --field-out " +
+                                            dir.file("m.yaml") + " --out " + dir.file("est.csv"));
+  EXPECT_EQ(without.exit_code, 2) << without.output;
+  EXPECT_NE(without.output.find("--field-out"), std::string::npos) << without.output;
 }
 
 }  // namespace

@@ -41,6 +41,7 @@ MethodOptions parseMethodOptions(const LocalizeArgs& a) {
   o.calibration = calibrationOptions(a.calibrate, a.consider);
   if (!a.calibration_out.empty() && (o.calibration.consider || !o.calibration.any()))
     throw UsageError("--calibration-out: needs --calibrate");
+  if (!a.field_out.empty() && !o.calibration.field) throw UsageError("--field-out: needs --calibrate with field");
   o.calibration.drive_disparity_sigma_px = a.drive_disparity_sigma_px;
   if (!a.noise_model.empty()) o.noise = UnmodelledNoise::load(a.noise_model);
   o.odometry_delay = parseOdometryDelay(a.odometry_delay, &o.given_odometry_delay_s);
@@ -205,6 +206,11 @@ void runLocalize(const LocalizeArgs& a) {
   if (name == "batch") noteConstantWheelsInTheBatch(o);
   reportCalibration(a.calibration_out, stdout, calibration ? &*calibration : nullptr, d.rig, o.calibration,
                     d.odometry.wheel_base_mm, handover);
+  if (!a.field_out.empty() && calibration && calibration->field) {
+    // The field as measured: the next drive's map (the dataset's map.yaml, or `stream --map`).
+    d.map.withDimensionChange(calibration->field_dimensions_mm).save(a.field_out);
+    std::printf("field: the map with the estimated dimensions written to %s\n", a.field_out.c_str());
+  }
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);
   printAgainstTruth(trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth))));
@@ -295,6 +301,9 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   CLI::Option* calibration_out = sub->add_option(
       "--calibration-out", a->calibration_out,
       "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations (usable as --rig)");
+  sub->add_option("--field-out", a->field_out,
+                  "With --calibrate ...,field (batch, window): write the field map with the estimated dimensions, the "
+                  "map of the next drive on this field");
   sub->add_option("--drive-disparity-sigma-px", a->drive_disparity_sigma_px,
                   "With --calibration-out: the disparity offset's part that another drive does not share, px, added to "
                   "its handed-over standard deviation: cameras exposing dt apart on a robot turning at w shift it by "

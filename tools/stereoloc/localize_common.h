@@ -26,6 +26,7 @@ struct LocalizeArgs {
   std::string calibrate;                      // "", "odometry", "stereo", "odometry,stereo"
   std::string consider;                       // the same blocks considered, not estimated (ekf)
   std::string calibration_out;                // rig YAML with the calibration estimate
+  std::string field_out;                      // map YAML of the field the field block measured
   double drive_disparity_sigma_px = SelfCalibrationConfig().drive_disparity_sigma_px;  // px, added to its offset's sigma
   std::string noise_model;                    // UnmodelledNoise YAML (solvers/smoother_common.h)
   std::string rig;                            // rig YAML in place of the dataset's (src/pipeline/rig_handover.h)
