@@ -10,11 +10,11 @@
 #include <memory>
 #include <utility>
 
-#include "factors/field_shifted_factor.h"
 #include "factors/block_marginal_prior_factor.h"
 #include "factors/calibration_prior_factor.h"
 #include "factors/compass_factor.h"
 #include "factors/composed_odometry_calibration_factor.h"
+#include "factors/field_shifted_factor.h"
 #include "factors/held_entries.h"
 #include "factors/marginal_prior_factor.h"
 #include "factors/odometry_calibration_factor.h"
