@@ -118,7 +118,7 @@ TEST(FieldCalibration, WindowAsLongAsTheDataIsTheBatch) {
 
 TEST(FieldCalibration, RealTimeWindowRecoversTheField) {
   SimulationTrace trace;
-  const Dataset d = handBuiltFieldRun(5, 1500, &trace);
+  const Dataset d = handBuiltFieldRun(5, 700, &trace);
   SlidingWindowConfig c;
   c.window = 20;
   c.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
