@@ -5,11 +5,19 @@
 #include <algorithm>
 #include <vector>
 
+#include "solvers/batch_smoother.h"
 #include "solvers/sliding_window_smoother.h"
 #include "src/core/estimator.h"
 #include "src/core/pose2.h"
 
 namespace stereoloc::test {
+
+// The batch it is compared with: no kidnap cuts, solved to the limit of double precision, so that
+// only the formulation could differ.
+inline void solveToTheLimit(BatchSmootherConfig& c) {
+  c.cut_at_reinitialisation = false;
+  c.function_tolerance = c.parameter_tolerance = c.gradient_tolerance = 1e-16;
+}
 
 // A window over all `steps` that solves the batch's problem: no gate, linearised at the current
 // estimate (covariances at the optimum, as the batch's), solved to the limit of double precision.

@@ -91,8 +91,7 @@ TEST(FieldCalibration, WindowAsLongAsTheDataIsTheBatch) {
   // A prior of 1 mm: with the default 4 mm, the dimensions 200 steps hardly see leave the normal
   // equations so flat that the two solvers stop some 1e-6 mm apart (400 steps: within 1e-6).
   bc.calibration.field_dimension_sigma_mm = 1.0;
-  bc.cut_at_reinitialisation = false;
-  bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
+  test::solveToTheLimit(bc);
   BatchSmoother b(d.map, d.odometry, bc);
   for (const Step& s : d.steps) b.process(s);
   const std::vector<Estimate> eb = b.finish();

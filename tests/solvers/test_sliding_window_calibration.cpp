@@ -68,8 +68,7 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
   bc.init = knownBelief(*d.groundtruth.front(), kP0);
   bc.observation_model = {ObservationModel::PixelColumns, d.rig};
   bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
-  bc.cut_at_reinitialisation = false;
-  bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
+  test::solveToTheLimit(bc);
   BatchSmoother b(d.map, d.odometry, bc);
   for (const Step& s : d.steps) b.process(s);
   SelfCalibrationResult batch;
@@ -110,8 +109,7 @@ std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch
   bc.init = knownBelief(*d.groundtruth.front(), kP0);
   bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
   bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
-  bc.cut_at_reinitialisation = false;
-  bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
+  test::solveToTheLimit(bc);
   BatchSmoother b(d.map, d.odometry, bc);
   for (const Step& s : d.steps) b.process(s);
   const std::vector<Estimate> eb = b.finish();
