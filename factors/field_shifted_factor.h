@@ -7,7 +7,7 @@
 // x = (x, y, theta) the robot pose in the world frame (mm, mm, rad); b_1..b_k the inner factor's
 // calibration blocks, passed through; f the change of the nine field dimensions (mm,
 // kFieldDimensions of src/core/field_map.h), one more block after them; J_l = d(landmark x, y)/d f
-// (FieldMap::landmarkFieldJacobian).
+// (FieldMap::fieldJacobians).
 // Why a shifted pose: every sighting model here sees the landmark only through its position
 // relative to the robot in the world frame, l - p, so moving the landmark by J_l f is moving
 // the robot by -J_l f: the inner factor is used as it is, whatever its calibration blocks.

@@ -123,7 +123,7 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
                       b_.map_.name() + "' is not");
         field_index_ = next;
         next += kFieldDimensionCount;
-        for (const Landmark& l : b_.map_.landmarks()) field_jacobian_[l.id] = b_.map_.landmarkFieldJacobian(l.id);
+        field_jacobian_ = b_.map_.fieldJacobians();
       }
       sizes_.push_back(next);
     }

@@ -151,7 +151,7 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
       throw Error("sliding window: --calibrate field needs a MiroSot map as its field geometry derives it; map '" +
                   map_.name() + "' is not");
     field_block_ = addCalibBlock(field_.data(), kFieldDimensionCount);
-    for (const Landmark& l : map_.landmarks()) field_jacobian_[l.id] = map_.landmarkFieldJacobian(l.id);
+    field_jacobian_ = map_.fieldJacobians();
   }
   for (const FeatureOffsetPrior& f : featureOffsetSigmas(map_, cal, config_.observation_model.unmodelled))
     feature_sigmas_[f.landmark_id] = f.sigma;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Core>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -64,6 +65,15 @@ inline void keepIdentifiedSightings(Dataset& d) {
       if (o.landmark_id >= 0) kept.push_back(o);
     s.observations = kept;
   }
+}
+
+// Position RMSE (mm) of estimates of a dataset's steps 0..n-1 against its ground truth, which
+// every one of those steps must have.
+inline double positionRmse(const std::vector<Estimate>& estimates, const Dataset& d) {
+  double s = 0;
+  for (size_t k = 0; k < estimates.size(); ++k)
+    s += (estimates[k].pose.translation() - d.groundtruth.at(k).value().translation()).squaredNorm();
+  return std::sqrt(s / static_cast<double>(estimates.size()));
 }
 
 // Runs `kept` and `newest` (the same filter, `newest` without history) over `steps`: the same

@@ -98,11 +98,13 @@ FieldMap FieldMap::withDimensionChange(const Eigen::Matrix<double, kFieldDimensi
   return FieldMap(name_, Bounds{-g.goal_depth, 0.0, g.length + g.goal_depth, g.width}, std::move(landmarks), g);
 }
 
-Eigen::Matrix<double, 2, kFieldDimensionCount> FieldMap::landmarkFieldJacobian(int id) const {
-  const Eigen::Vector2d at = this->at(id).xy();
-  Eigen::Matrix<double, 2, kFieldDimensionCount> J;
-  for (int k = 0; k < kFieldDimensionCount; ++k)  // exact: the positions are linear in the dimensions
-    J.col(k) = withDimensionChange(Eigen::Matrix<double, kFieldDimensionCount, 1>::Unit(k)).at(id).xy() - at;
+std::unordered_map<int, Eigen::Matrix<double, 2, kFieldDimensionCount>> FieldMap::fieldJacobians() const {
+  std::unordered_map<int, Eigen::Matrix<double, 2, kFieldDimensionCount>> J;
+  for (int k = 0; k < kFieldDimensionCount; ++k) {  // exact: the positions are linear in the dimensions
+    const FieldMap moved = withDimensionChange(Eigen::Matrix<double, kFieldDimensionCount, 1>::Unit(k));
+    for (size_t i = 0; i < landmarks_.size(); ++i)
+      J[landmarks_[i].id].col(k) = moved.landmarks()[i].xy() - landmarks_[i].xy();
+  }
   return J;
 }
 

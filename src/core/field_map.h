@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 #include <optional>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 namespace stereoloc {
@@ -96,9 +97,9 @@ class FieldMap {
   // The same field with each of kFieldDimensions changed by `change` (mm), the landmarks keeping
   // their ids and names. Throws Error unless derivesFromGeometry().
   FieldMap withDimensionChange(const Eigen::Matrix<double, kFieldDimensionCount, 1>& change) const;
-  // d(x, y)/d(dimensions) of landmark `id` (exact: a MiroSot field's landmarks are linear in its
-  // dimensions). Throws Error unless derivesFromGeometry() and for an unknown id.
-  Eigen::Matrix<double, 2, kFieldDimensionCount> landmarkFieldJacobian(int id) const;
+  // d(x, y)/d(dimensions) of every landmark, by id (exact: a MiroSot field's landmarks are
+  // linear in its dimensions). Throws Error unless derivesFromGeometry().
+  std::unordered_map<int, Eigen::Matrix<double, 2, kFieldDimensionCount>> fieldJacobians() const;
   const Bounds& bounds() const { return bounds_; }
   const std::vector<Landmark>& landmarks() const { return landmarks_; }
   const std::optional<FieldGeometry>& geometry() const { return geometry_; }

@@ -213,10 +213,12 @@ FieldMap trueFieldMap(const FieldMap& given, const DrawnErrors& e) {
   if (e.field_dimension_mm.size() != static_cast<size_t>(kFieldDimensionCount))
     throw Error("trueFieldMap: " + std::to_string(e.field_dimension_mm.size()) + " field dimension errors, expected " +
                 std::to_string(kFieldDimensionCount));
-  if (!derivesFromGeometry(given))
-    throw Error("a field dimension error needs the map its MiroSot field geometry derives; map '" + given.name() +
-                (given.geometry() ? "' has landmarks of its own" : "' has no field geometry"));
-  return given.withDimensionChange(Eigen::Map<const Eigen::Matrix<double, kFieldDimensionCount, 1>>(e.field_dimension_mm.data()));
+  try {
+    return given.withDimensionChange(
+        Eigen::Map<const Eigen::Matrix<double, kFieldDimensionCount, 1>>(e.field_dimension_mm.data()));
+  } catch (const Error& err) {
+    throw Error(std::string("a field dimension error needs the map its MiroSot field geometry derives: ") + err.what());
+  }
 }
 
 void DrawnErrors::save(const std::string& path, const ErrorProfile& profile) const {

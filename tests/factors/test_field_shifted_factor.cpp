@@ -48,7 +48,7 @@ TEST(FieldShiftedFactor, SeesTheLandmarkWhereTheChangedFieldPutsIt) {
     StereoPixels z = *px;
     z.u_left += 0.3;
     z.v_right -= 0.2;
-    const FieldShiftedFactor::LandmarkJacobian J = map.landmarkFieldJacobian(l.id);
+    const FieldShiftedFactor::LandmarkJacobian J = map.fieldJacobians().at(l.id);
     // A factor on the pose alone.
     const FieldShiftedFactor shifted(StereoPixelFactor::Create(rig, l.position, z, 0.0, 0.5, PixelResiduals::All), J);
     std::unique_ptr<ceres::CostFunction> moved(
@@ -83,7 +83,7 @@ TEST(FieldShiftedFactor, RangeBearingAndBadWrapping) {
   const double pose[3] = {400.0, 300.0, -2.9};
   const Eigen::Vector2d z = predictRangeBearing(Pose2(pose[0], pose[1], pose[2]), l.xy()) + Eigen::Vector2d(3.0, 0.01);
   const Eigen::Matrix2d R = Eigen::Vector2d(25.0, 1e-4).asDiagonal();
-  const FieldShiftedFactor shifted(RangeBearingFactor::Create(l.xy(), z, R), map.landmarkFieldJacobian(l.id));
+  const FieldShiftedFactor shifted(RangeBearingFactor::Create(l.xy(), z, R), map.fieldJacobians().at(l.id));
   std::unique_ptr<ceres::CostFunction> moved(RangeBearingFactor::Create(map.withDimensionChange(f).at(l.id).xy(), z, R));
   Eigen::VectorXd a, b;
   residualOf(shifted, {pose, f.data()}, &a);
@@ -94,14 +94,14 @@ TEST(FieldShiftedFactor, RangeBearingAndBadWrapping) {
   // The inner factor's first block must be the pose.
   EXPECT_THROW(FieldShiftedFactor(CalibrationPriorFactor<6>::Create(Eigen::Matrix<double, 6, 1>::Zero(),
                                                                     Eigen::Matrix<double, 6, 6>::Identity()),
-                                  map.landmarkFieldJacobian(l.id)),
+                                  map.fieldJacobians().at(l.id)),
                Error);
   // Only a map its geometry derives has a field Jacobian.
   std::vector<Landmark> own = map.landmarks();
   own[0].position.x() += 1.0;
   const FieldMap edited("edited", map.bounds(), own, *map.geometry());
-  EXPECT_THROW(edited.landmarkFieldJacobian(0), Error);
-  EXPECT_THROW(map.landmarkFieldJacobian(999), Error);
+  EXPECT_THROW(edited.fieldJacobians(), Error);
+  EXPECT_EQ(map.fieldJacobians().size(), map.landmarks().size());
 }
 
 }  // namespace

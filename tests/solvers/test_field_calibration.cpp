@@ -24,12 +24,6 @@
 namespace stereoloc {
 namespace {
 
-double positionRmse(const std::vector<Estimate>& est, const Dataset& d) {
-  double s = 0;
-  for (size_t k = 0; k < est.size(); ++k) s += (est[k].pose.translation() - d.groundtruth[k]->translation()).squaredNorm();
-  return std::sqrt(s / static_cast<double>(est.size()));
-}
-
 TEST(FieldCalibration, RecoversTheFieldsDimensionsOnALongRun) {
   SimulationConfig cfg;
   cfg.landmarks = LandmarkSet::All;
@@ -59,7 +53,7 @@ TEST(FieldCalibration, RecoversTheFieldsDimensionsOnALongRun) {
   EXPECT_GE(determined, 4) << "the run determines too few of the field's dimensions";
   // The poses are better for knowing the field.
   const SelfCalibrationResult off = selfCalibratingBatch(d, start, SelfCalibrationConfig::parse("stereo"));
-  EXPECT_LT(positionRmse(r.trajectory, d), 0.8 * positionRmse(off.trajectory, d));
+  EXPECT_LT(test::positionRmse(r.trajectory, d), 0.8 * test::positionRmse(off.trajectory, d));
   // The estimate is written beside the rig, which still reads back.
   test::TempDir dir;
   c.saveAsRig(dir.file("rig.yaml"), d.rig, 0.0);
@@ -139,7 +133,7 @@ TEST(FieldCalibration, RealTimeWindowRecoversTheField) {
   c.calibration.field = false;
   SlidingWindowSmoother without(d.map, d.odometry, c);
   for (const Step& s : d.steps) without.process(s);
-  EXPECT_LT(positionRmse(with, d), positionRmse(without.finish(), d));
+  EXPECT_LT(test::positionRmse(with, d), test::positionRmse(without.finish(), d));
 }
 
 TEST(FieldCalibration, OnlyTheSmoothersOnAFieldItsDimensionsPlace) {

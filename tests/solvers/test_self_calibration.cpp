@@ -22,12 +22,6 @@
 namespace stereoloc {
 namespace {
 
-double positionRmse(const std::vector<Estimate>& est, const Dataset& d) {
-  double s = 0;
-  for (size_t k = 0; k < est.size(); ++k) s += (est[k].pose.translation() - d.groundtruth[k]->translation()).squaredNorm();
-  return std::sqrt(s / static_cast<double>(est.size()));
-}
-
 // A random walk whose turn rate changes, its sightings identified.
 Dataset randomWalk(uint64_t seed) {
   SimulationConfig sc;
@@ -79,7 +73,7 @@ double calibratingBatch(const Dataset& d, double sigma_s, CalibrationEstimate* e
   const std::vector<Estimate> out = batch.finish();
   EXPECT_EQ(batch.summary().covariance_status, CovarianceStatus::Ok);
   *estimate = batch.calibration();
-  return positionRmse(out, d);
+  return test::positionRmse(out, d);
 }
 
 // The sliding window (W = 20, real time) on them; returns the position RMSE.
@@ -90,7 +84,7 @@ double calibratingWindow(const Dataset& d, double sigma_s, CalibrationEstimate* 
   const std::optional<CalibrationEstimate> calibration = window.calibration();
   EXPECT_TRUE(calibration.has_value());
   *estimate = calibration.value_or(CalibrationEstimate());
-  return positionRmse(out, d);
+  return test::positionRmse(out, d);
 }
 
 TEST(SelfCalibration, ParsesTheList) {
@@ -166,7 +160,7 @@ TEST(SelfCalibration, RecoversTheFocalLengthErrors) {
   none.residuals = PixelResiduals::Columns;
   const SelfCalibrationResult off = selfCalibratingBatch(d, start, none);
   EXPECT_LT(meanNees(r.trajectory), 6.0);
-  EXPECT_LT(positionRmse(r.trajectory, d), 0.8 * positionRmse(off.trajectory, d));
+  EXPECT_LT(test::positionRmse(r.trajectory, d), 0.8 * test::positionRmse(off.trajectory, d));
 }
 
 // Floor markings come unidentified and are paired by the filter pass with the nominal
@@ -195,7 +189,7 @@ TEST(SelfCalibration, PairsTheUnidentifiedMarkingsAtTheCalibratedSolution) {
       c.reassociate_with_calibration = reassociate;
       BatchSmoother b(data.map, data.odometry, c);
       for (const Step& s : data.steps) b.process(s);
-      return positionRmse(b.finish(), data);
+      return test::positionRmse(b.finish(), data);
     };
     const double paired = run(d, true), nominal = run(d, false), known = run(truth, true);
     std::printf("seed %llu: paired again %.2f mm, nominal pairing %.2f mm, true ids %.2f mm\n",
@@ -256,7 +250,7 @@ TEST(SelfCalibration, RecoversPlantedParametersOnALongRun) {
   SelfCalibrationConfig none;
   none.residuals = PixelResiduals::Columns;
   const SelfCalibrationResult off = selfCalibratingBatch(d, start, none);
-  EXPECT_LT(positionRmse(r.trajectory, d), 0.8 * positionRmse(off.trajectory, d));
+  EXPECT_LT(test::positionRmse(r.trajectory, d), 0.8 * test::positionRmse(off.trajectory, d));
 
   // The written rig carries the estimate and reads back as a rig.
   test::TempDir dir;
