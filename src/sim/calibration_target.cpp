@@ -11,6 +11,7 @@
 
 #include "src/core/atomic_file.h"
 #include "src/core/error.h"
+#include "src/core/lens_distortion.h"
 
 namespace stereoloc {
 namespace {
@@ -24,11 +25,7 @@ std::vector<cv::Point2d> sampleRays(const cv::Mat& K, const cv::Mat& D, cv::Size
     for (int b = 0; b < s; ++b)
       for (int u = 0; u < size.width; ++u)
         for (int a = 0; a < s; ++a) pixels.emplace_back(u + (a + 0.5) / s - 0.5, v + (b + 0.5) / s - 0.5);
-  std::vector<cv::Point2d> rays;
-  // Enough iterations that a strong barrel lens's corner rays converge (the default 5 do not).
-  cv::undistortPoints(pixels, rays, K, D, cv::noArray(), cv::noArray(),
-                      cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 100, 1e-12));
-  return rays;
+  return pixelRays(K, D, pixels);
 }
 
 // Grey level of the board (or the scene behind it) at board coordinates (x, y) mm.

@@ -6,6 +6,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "src/core/angles.h"
+#include "src/core/lens_distortion.h"
 #include "src/sim/simulator.h"
 
 namespace stereoloc {
@@ -50,9 +51,7 @@ RawPairRenderer::RawPairRenderer(const FieldMap& map, const StereoRigParams& nom
     for (int u = 0; u < W; ++u) raw.emplace_back(u, v);
   for (int c = 0; c < 2; ++c) {
     const RawCamera cam = trueCamera(nominal_rig_, errors_, c, 0);
-    std::vector<cv::Point2d> n;
-    cv::undistortPoints(raw, n, cam.K, cam.D, cv::noArray(), cv::noArray(),
-                        cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 1e-9));
+    const std::vector<cv::Point2d> n = pixelRays(cam.K, cam.D, raw);
     rays_[c].create(H, W, CV_32FC2);
     for (int v = 0; v < H; ++v)
       for (int u = 0; u < W; ++u) {
