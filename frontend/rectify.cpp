@@ -84,7 +84,7 @@ __attribute__((target("ssse3"))) void blendRows(const Block* blocks, int blocks_
 }
 #endif
 
-double bilinear(const cv::Mat& m, double u, double v) {
+double bilinearOfMap(const cv::Mat& m, double u, double v) {
   const double uc = std::clamp(u, 0.0, m.cols - 1.0), vc = std::clamp(v, 0.0, m.rows - 1.0);
   const int u0 = std::min(static_cast<int>(uc), m.cols - 2), v0 = std::min(static_cast<int>(vc), m.rows - 2);
   const double a = uc - u0, b = vc - v0;
@@ -367,13 +367,13 @@ void Rectifier::remapLumaPixels(int camera, const cv::Mat& raw, int v, int u0, i
 }
 
 double Rectifier::effectiveSigma(int camera, double u, double v, double sigma_px) const {
-  const double s = bilinear(scale_[camera != 0], u, v);
+  const double s = bilinearOfMap(scale_[camera != 0], u, v);
   return std::sqrt(s * s * sigma_px * sigma_px + kMapStep * kMapStep / 12.0);
 }
 
 cv::Point2d Rectifier::rawFromRectified(int camera, double u, double v) const {
   const int i = camera != 0;
-  return {bilinear(map_x_[i], u, v), bilinear(map_y_[i], u, v)};
+  return {bilinearOfMap(map_x_[i], u, v), bilinearOfMap(map_y_[i], u, v)};
 }
 
 }  // namespace stereoloc::frontend

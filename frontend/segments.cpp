@@ -118,7 +118,7 @@ bool fitLine(const std::vector<EdgePixel>& edges, const int* begin, const int* e
 }
 
 namespace {
-double bilinear(const cv::Mat& img, double x, double y) {
+double bilinearLuma(const cv::Mat& img, double x, double y) {
   const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
   if (x0 < 0 || y0 < 0 || x0 + 1 >= img.cols || y0 + 1 >= img.rows) return -1.0;
   const double fx = x - x0, fy = y - y0;
@@ -150,7 +150,7 @@ void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments) {
   for (Segment& s : segments) {
     const double c = std::cos(s.theta), sn = std::sin(s.theta);
     auto contrast = [&](double x, double y) {
-      const double hi = bilinear(luma, x + kSide * c, y + kSide * sn), lo = bilinear(luma, x - kSide * c, y - kSide * sn);
+      const double hi = bilinearLuma(luma, x + kSide * c, y + kSide * sn), lo = bilinearLuma(luma, x - kSide * c, y - kSide * sn);
       return (hi < 0 || lo < 0) ? -1.0 : hi - lo;
     };
     const double len = s.length();

@@ -96,7 +96,7 @@ std::string boundName(const MethodSpec& m) {
 }
 
 // One trial: every method on the same simulated data, each against its bound.
-std::vector<Accumulator> runTrial(const std::string& scenario, int trial, const SmootherStudyConfig& a,
+std::vector<Accumulator> runSmootherTrial(const std::string& scenario, int trial, const SmootherStudyConfig& a,
                                   const std::vector<MethodSpec>& methods, const MethodOptions& options) {
   const uint64_t seed = trialSeed(a.seed, scenario, trial);
   SimulationConfig sim;
@@ -185,7 +185,7 @@ std::vector<int> parseWindows(const std::string& list) {
 
 // Every trial of every scenario on `threads` workers; the sums per scenario and method are
 // added in task order, so the figures do not depend on the thread count.
-std::vector<std::vector<Accumulator>> runTrials(const SmootherStudyConfig& a, const std::vector<std::string>& scenarios,
+std::vector<std::vector<Accumulator>> runSmootherTrials(const SmootherStudyConfig& a, const std::vector<std::string>& scenarios,
                                                 const std::vector<MethodSpec>& methods, const MethodOptions& options) {
   struct Task {
     size_t scenario;
@@ -203,7 +203,7 @@ std::vector<std::vector<Accumulator>> runTrials(const SmootherStudyConfig& a, co
   auto worker = [&] {
     for (size_t k = next++; k < tasks.size(); k = next++) {
       try {
-        results[k] = runTrial(scenarios[tasks[k].scenario], tasks[k].trial, a, methods, options);
+        results[k] = runSmootherTrial(scenarios[tasks[k].scenario], tasks[k].trial, a, methods, options);
       } catch (const std::exception& e) {
         errors[k] = scenarios[tasks[k].scenario] + " trial " + std::to_string(tasks[k].trial) + ": " + e.what();
       }
@@ -333,7 +333,7 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
   } catch (const Error& e) {
     throw UsageError(std::string("--pixel-noise: ") + e.what());
   }
-  const std::string md = formatReport(a, scenarios, methods, options, runTrials(a, scenarios, methods, options));
+  const std::string md = formatReport(a, scenarios, methods, options, runSmootherTrials(a, scenarios, methods, options));
   if (!a.out_dir.empty()) {
     std::error_code ec;
     std::filesystem::create_directories(a.out_dir, ec);
