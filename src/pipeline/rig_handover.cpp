@@ -64,6 +64,21 @@ CalibrationHandover useRig(Dataset& d, const std::string& rig_path, bool images_
   return handover;
 }
 
+void useMap(Dataset& d, const std::string& map_path) {
+  FieldMap map = FieldMap::load(map_path);
+  for (const Step& s : d.steps)
+    for (const Observation& o : s.observations) {
+      if (o.landmark_id < 0) continue;
+      const Landmark* l = map.find(o.landmark_id);
+      const std::string seen = " (the dataset sees it at step " + std::to_string(s.step) + ")";
+      if (!l) throw Error(map_path + ": landmark " + std::to_string(o.landmark_id) + ": not in the map" + seen);
+      if (l->type != o.type)
+        throw Error(map_path + ": landmark " + std::to_string(o.landmark_id) + ": type " + toString(l->type) +
+                    ", the dataset's map has " + toString(o.type) + seen);
+    }
+  d.map = std::move(map);
+}
+
 void synchroniseExposures(Dataset& d) {
   if (d.rig.params().exposure_offset_s == 0.0) return;
   BodyRateTracker rates(d.odometry.wheel_base_mm);

@@ -4,6 +4,8 @@
 // dataset's, and the calibration the file hands over (CalibrationHandover,
 // solvers/self_calibration.h) goes with it: the wheel estimate onto the odometry, its standard
 // deviations as the priors of a further self-calibration (CalibrationHandover::applyPriors).
+// Likewise a map (`localize --map`, `refine --map`), such as the field an earlier run measured
+// (`--field-out`).
 #include <string>
 
 #include "solvers/self_calibration.h"
@@ -19,6 +21,11 @@ namespace stereoloc {
 // are then triangulated again with the new rig's mounting; a rig whose rectified cameras differ
 // throws Error naming the file. Errors of the file itself name the file and the key.
 CalibrationHandover useRig(Dataset& dataset, const std::string& rig_path, bool images_measured_again);
+
+// Replaces `dataset`'s map by the map at `map_path`. Every landmark the dataset's observations
+// name must be in it with the same type (the positions may differ: that is the point); throws
+// Error naming the file, the landmark and a step that sees it otherwise.
+void useMap(Dataset& dataset, const std::string& map_path);
 
 // For a rig whose right camera exposes apart from the left (StereoRigParams::exposure_offset_s,
 // src/core/exposure_offset.h): every pixel observation of `dataset` moved to the left camera's

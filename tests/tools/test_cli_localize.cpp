@@ -1,9 +1,11 @@
 // `localize` and `refine` with a noise model whose wheels drift (UnmodelledNoise::
 // wheel_scale_drift): the batch, which holds one wheel calibration for the run, says so in one
 // line; the window and the EKF, which follow the drift, do not. A field measured by the field
-// block is written as the next drive's map.
+// block is written as the next drive's map, which `--map` runs on.
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <cstdio>
 #include <fstream>
 
 #include <Eigen/Core>
@@ -72,6 +74,44 @@ TEST(CliLocalize, TheMeasuredFieldIsTheNextDrivesMap) {
                                             dir.file("m.yaml") + " --out " + dir.file("est.csv"));
   EXPECT_EQ(without.exit_code, 2) << without.output;
   EXPECT_NE(without.output.find("--field-out"), std::string::npos) << without.output;
+}
+
+double rmseOf(const std::string& output) {
+  const size_t at = output.find("position RMSE ");
+  return at == std::string::npos ? NAN : std::stod(output.substr(at + 14));
+}
+
+// `--map`: the same drive on the map of the field as built (its dimensions from the dataset's
+// truth) is closer to the truth than on the map as drawn, with and without the field block; a
+// map without the landmarks the dataset sees is refused, naming the file.
+TEST(CliLocalize, RunsOnTheMapItIsGiven) {
+  test::TempDir dir("cli_localize_map");
+  const std::string ds = dir.file("ds");
+  const test::CliRun sim = test::runCli("simulate --scenario circle --steps 60 --seed 2 --profile " +
+                                        std::string(STEREOLOC_DATA_DIR) + "/profile_hand_built_field.yaml --out " + ds);
+  ASSERT_EQ(sim.exit_code, 0) << sim.output;
+  cv::FileStorage errors(ds + "/errors.yaml", cv::FileStorage::READ);
+  Eigen::Matrix<double, kFieldDimensionCount, 1> built;
+  for (int k = 0; k < kFieldDimensionCount; ++k)
+    built[k] = static_cast<double>(errors[std::string("field_") + kFieldDimensions[k].name + "_mm"]);
+  ASSERT_GT(built.cwiseAbs().maxCoeff(), 1.0);
+  const std::string as_built = dir.file("as_built.yaml");
+  loadDataset(ds).map.withDimensionChange(built).save(as_built);
+  for (const std::string calibrate : {"odometry,stereo", "odometry,stereo,field"}) {
+    const std::string run = "localize " + ds + " --method batch --calibrate " + calibrate + " --out " + dir.file("e.csv");
+    const test::CliRun drawn = test::runCli(run), measured = test::runCli(run + " --map " + as_built);
+    ASSERT_EQ(drawn.exit_code, 0) << drawn.output;
+    ASSERT_EQ(measured.exit_code, 0) << measured.output;
+    std::printf("%s: position RMSE %.2f mm on the map as drawn, %.2f mm on the field as built\n", calibrate.c_str(),
+                rmseOf(drawn.output), rmseOf(measured.output));
+    EXPECT_LT(rmseOf(measured.output), rmseOf(drawn.output)) << calibrate;
+  }
+  const std::string empty = dir.file("empty.yaml");
+  FieldMap("empty", FieldMap::miroSot().bounds(), {}).save(empty);
+  const test::CliRun refused =
+      test::runCli("localize " + ds + " --method batch --map " + empty + " --out " + dir.file("e.csv"));
+  EXPECT_EQ(refused.exit_code, 1) << refused.output;
+  EXPECT_NE(refused.output.find(empty + ": landmark "), std::string::npos) << refused.output;
 }
 
 }  // namespace

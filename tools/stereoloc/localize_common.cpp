@@ -150,6 +150,7 @@ void reportCalibration(const std::string& calibration_out, std::FILE* out, const
 Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHandover& handover) {
   const FrontendMode mode = frontendModeFromString(a.frontend);
   Dataset d = loadDataset(a.dataset);
+  if (!a.map.empty()) useMap(d, a.map);
   if (!a.rig.empty()) {
     handover = useRig(d, a.rig, mode == FrontendMode::Images);
     handover.applyPriors(o.calibration, o.noise);
@@ -207,7 +208,7 @@ void runLocalize(const LocalizeArgs& a) {
   reportCalibration(a.calibration_out, stdout, calibration ? &*calibration : nullptr, d.rig, o.calibration,
                     d.odometry.wheel_base_mm, handover);
   if (!a.field_out.empty() && calibration && calibration->field) {
-    // The field as measured: the next drive's map (the dataset's map.yaml, or `stream --map`).
+    // The field as measured: the next drive's map (`--map`, `stream --map`).
     d.map.withDimensionChange(calibration->field_dimensions_mm).save(a.field_out);
     std::printf("field: the map with the estimated dimensions written to %s\n", a.field_out.c_str());
   }
@@ -289,6 +290,10 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "scales the wheel increments and sets the wheel base, its standard deviations are the priors of "
                   "--calibrate and --consider (docs/realistic_world.md); a rig with other rectified cameras than the "
                   "dataset's needs --frontend images")
+      ->check(CLI::ExistingFile);
+  sub->add_option("--map", a->map,
+                  "Field map YAML in place of the dataset's, e.g. the field an earlier drive measured (--field-out); "
+                  "every landmark the dataset sees must be in it with its type")
       ->check(CLI::ExistingFile);
   sub->add_option("--odometry-delay", a->odometry_delay,
                   "The odometry runs this late against the camera (a drive's latency, a clock offset), seconds within "

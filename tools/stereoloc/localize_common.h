@@ -30,6 +30,7 @@ struct LocalizeArgs {
   double drive_disparity_sigma_px = SelfCalibrationConfig().drive_disparity_sigma_px;  // px, added to its offset's sigma
   std::string noise_model;                    // UnmodelledNoise YAML (solvers/smoother_common.h)
   std::string rig;                            // rig YAML in place of the dataset's (src/pipeline/rig_handover.h)
+  std::string map;                            // map YAML in place of the dataset's (useMap, same header)
   std::optional<std::string> odometry_delay;   // "fit" or seconds (src/core/odometry_delay.h)
   std::string odometry_delay_search;          // "MIN,MAX,STEP" seconds (solvers/odometry_delay_profile.h)
   std::string odometry_delay_profile;         // CSV of the fit's profile (delay_s, cost)
@@ -75,9 +76,10 @@ void reportCalibration(const std::string& calibration_out, std::FILE* out, const
                        const CalibrationHandover& handover);
 // --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
-// The dataset of localize and refine: loaded, on --rig's rig when given (useRig; `handover`
-// receives what the file hands over, and `options` its priors), then with --frontend images
-// the frontend's observations in place of its own (a one-line summary on stdout).
+// The dataset of localize and refine: loaded, on --map's map when given (useMap), on --rig's rig
+// when given (useRig; `handover` receives what the file hands over, and `options` its priors),
+// then with --frontend images the frontend's observations in place of its own (a one-line
+// summary on stdout).
 Dataset loadRunDataset(const LocalizeArgs& args, MethodOptions& options, CalibrationHandover& handover);
 // Adds the options; `method_option` false for refine (always the batch smoother: no --method,
 // --particles or --window).

@@ -1,10 +1,12 @@
 // A run on a rig of its user's choosing (src/pipeline/rig_handover.h): the rig replaces the
 // dataset's, its handed-over wheel estimate goes onto the odometry, and the dataset's pixel
-// observations are kept only where the new rig has the same rectified cameras.
+// observations are kept only where the new rig has the same rectified cameras. Likewise a map,
+// which must hold every landmark the dataset sees.
 #include "src/pipeline/rig_handover.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 #include <string>
 
@@ -93,6 +95,55 @@ TEST(RigHandover, OtherRectifiedCamerasNeedTheImagesMeasuredAgain) {
   EXPECT_TRUE(h.empty());
   EXPECT_DOUBLE_EQ(d.rig.focal(), p.focal_px);
   EXPECT_DOUBLE_EQ(d.steps[5].d_left, original.steps[5].d_left);
+}
+
+// A field measured 3 mm longer is taken; a map without a landmark the dataset sees, or with
+// it of another type, is refused with the file, the landmark and a step that sees it.
+TEST(MapHandover, TakesAMapWithTheSeenLandmarksAndRefusesOneWithout) {
+  const Dataset original = line();
+  Eigen::Matrix<double, kFieldDimensionCount, 1> change = Eigen::Matrix<double, kFieldDimensionCount, 1>::Zero();
+  change[0] = 3.0;
+  const FieldMap longer = original.map.withDimensionChange(change);
+  test::TempDir dir;
+  longer.save(dir.file("longer.yaml"));
+  Dataset d = original;
+  useMap(d, dir.file("longer.yaml"));
+  ASSERT_EQ(d.map.landmarks().size(), longer.landmarks().size());
+  double moved = 0.0;
+  for (size_t i = 0; i < longer.landmarks().size(); ++i) {
+    EXPECT_EQ(d.map.landmarks()[i].position, longer.landmarks()[i].position);
+    moved = std::max(moved, (d.map.landmarks()[i].position - original.map.landmarks()[i].position).norm());
+  }
+  EXPECT_NEAR(moved, 3.0, 1e-9);  // the far end of the field moves by the change
+
+  // The landmark the dataset sees first, left out, then of another type.
+  const Observation* first = nullptr;
+  for (const Step& s : original.steps)
+    for (const Observation& o : s.observations)
+      if (!first && o.landmark_id >= 0) first = &o;
+  ASSERT_NE(first, nullptr);
+  std::vector<Landmark> without, retyped;
+  for (const Landmark& l : original.map.landmarks()) {
+    if (l.id != first->landmark_id) without.push_back(l);
+    retyped.push_back(l);
+    if (l.id == first->landmark_id)
+      retyped.back().type = l.type == LandmarkType::Junction ? LandmarkType::MarkingCorner : LandmarkType::Junction;
+  }
+  FieldMap("without", original.map.bounds(), without).save(dir.file("without.yaml"));
+  FieldMap("retyped", original.map.bounds(), retyped).save(dir.file("retyped.yaml"));
+  const std::string id = "landmark " + std::to_string(first->landmark_id) + ": ";
+  for (const char* name : {"without.yaml", "retyped.yaml"}) {
+    Dataset refused = original;
+    try {
+      useMap(refused, dir.file(name));
+      ADD_FAILURE() << name << " was taken";
+    } catch (const Error& e) {
+      const std::string m = e.what();
+      EXPECT_EQ(m.rfind(dir.file(name) + ": " + id, 0), 0u) << m;
+      EXPECT_NE(m.find("at step"), std::string::npos) << m;
+    }
+    EXPECT_EQ(refused.map.landmarks().size(), original.map.landmarks().size());  // unchanged after the refusal
+  }
 }
 
 }  // namespace
