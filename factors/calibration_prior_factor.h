@@ -51,25 +51,26 @@ class CalibrationPriorFactor final : public ceres::SizedCostFunction<N, N> {
 // joined stereo block, whose size depends on the map's features).
 class DiagonalPriorFactor final : public ceres::CostFunction {
  public:
-  DiagonalPriorFactor(Eigen::VectorXd mean, const Eigen::VectorXd& sigma)
-      : mean_(std::move(mean)), inverse_sigma_(sigma.cwiseInverse()) {
-    if (!(sigma.size() == mean_.size() && sigma.allFinite() && sigma.minCoeff() > 0))
-      throw Error("calibration prior: one finite sigma > 0 per entry");
-    set_num_residuals(static_cast<int>(mean_.size()));
-    mutable_parameter_block_sizes()->push_back(static_cast<int32_t>(mean_.size()));
-  }
-  bool Evaluate(double const* const* p, double* r, double** J) const override {
-    const Eigen::Index n = mean_.size();
-    Eigen::Map<Eigen::VectorXd>(r, n) = inverse_sigma_.cwiseProduct(Eigen::Map<const Eigen::VectorXd>(p[0], n) - mean_);
-    if (J && J[0]) {
-      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J_r_c(J[0], n, n);
-      J_r_c = inverse_sigma_.asDiagonal();
-    }
-    return true;
-  }
+  // Throws Error unless there is one finite sigma > 0 per entry.
+  DiagonalPriorFactor(const Eigen::VectorXd& mean, const Eigen::VectorXd& sigma);
+  bool Evaluate(double const* const* p, double* r, double** J) const override;
 
  private:
   Eigen::VectorXd mean_, inverse_sigma_;
+};
+
+// The same with a full covariance, of any size: r = S (c - mean), S the upper square-root
+// information (the batch's joined stereo block when the field block's prior is a measured
+// field's covariance, whose dimensions are correlated).
+class DensePriorFactor final : public ceres::CostFunction {
+ public:
+  // Throws Error unless `covariance` is finite, symmetric and positive definite and of mean's size.
+  DensePriorFactor(const Eigen::VectorXd& mean, const Eigen::MatrixXd& covariance);
+  bool Evaluate(double const* const* p, double* r, double** J) const override;
+
+ private:
+  Eigen::VectorXd mean_;
+  Eigen::MatrixXd S_;
 };
 
 }  // namespace stereoloc

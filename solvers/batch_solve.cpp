@@ -277,8 +277,16 @@ class BatchSmoother::StepFactorSource final : public ChainFactorSource {
           if (at[0] >= 0) sd[at[0]] = f.sigma.column;
           if (at[1] >= 0) sd[at[1]] = f.sigma.disparity;
         }
-        if (field_index_ >= 0) sd.segment(field_index_, kFieldDimensionCount).setConstant(c.field_dimension_sigma_mm);
-        out->push_back({std::make_unique<DiagonalPriorFactor>(joined, sd), false, stereo_block_});
+        if (field_index_ < 0) {
+          out->push_back({std::make_unique<DiagonalPriorFactor>(joined, sd), false, stereo_block_});
+        } else {
+          // A measured field's dimensions are correlated: the block's prior is dense there.
+          Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(size, size);
+          covariance.diagonal() = sd.cwiseAbs2();
+          covariance.block<kFieldDimensionCount, kFieldDimensionCount>(field_index_, field_index_) =
+              fieldPriorCovariance(c, b_.map_);
+          out->push_back({std::make_unique<DensePriorFactor>(joined, covariance), false, stereo_block_});
+        }
       } else if (image_sigmas_) {
         // The image block is whitened (StereoPixelImageCalibrationFactor): its prior is the identity.
         Eigen::Matrix<double, kStereo + kImage, 1> joined;
@@ -1340,6 +1348,7 @@ void BatchSmoother::Solve::writeCalibration(const Eigen::MatrixXd& global_covari
         cal.field = true;
         cal.field_dimensions_mm = c.segment<kFieldDimensionCount>(f);
         cal.field_covariance = global_covariance.block<kFieldDimensionCount, kFieldDimensionCount>(f, f);
+        cal.field_prior_sigma_mm = fieldPriorCovariance(b_.config_.calibration, b_.map_).diagonal().cwiseSqrt();
       }
       offset += source_.blockSize(source_.stereoBlock());
     }

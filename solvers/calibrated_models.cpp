@@ -48,6 +48,11 @@ Eigen::Vector4d rangePriorSigma(const SelfCalibrationConfig& c) {
                          c.bearing_offset_sigma_rad);
 }
 
+FieldDimensionMatrix fieldPriorCovariance(const SelfCalibrationConfig& c, const FieldMap& map) {
+  if (map.dimensionCovariance()) return *map.dimensionCovariance();
+  return FieldDimensionMatrix::Identity() * (c.field_dimension_sigma_mm * c.field_dimension_sigma_mm);
+}
+
 Observation withRangeCalibration(const Observation& obs, const Eigen::Vector4d& k, const Eigen::Matrix4d& Ck) {
   const double b = obs.bearing;
   const double f = rangeFactorAt(k.data(), b);

@@ -21,6 +21,10 @@ CalibrationEstimate::StereoVector stereoPriorSigma(const SelfCalibrationConfig& 
 Eigen::Vector3d wheelPriorSigma(const SelfCalibrationConfig& config, double wheel_base_mm);
 // The range block's (c0, c1, c2, d_b; RangeBearingCalibrationFactor).
 Eigen::Vector4d rangePriorSigma(const SelfCalibrationConfig& config);
+// The field block's prior covariance (kFieldDimensions, mm^2): the one `map` states
+// (FieldMap::dimensionCovariance: a field an earlier drive measured), else
+// config.field_dimension_sigma_mm squared on the diagonal.
+FieldDimensionMatrix fieldPriorCovariance(const SelfCalibrationConfig& config, const FieldMap& map);
 
 // What a step with wheel increments d_left, d_right (mm) adds to the variances of the wheel
 // block (c_l, c_r, w mm) of a calibration that drifts (UnmodelledNoise::wheel_scale_drift,

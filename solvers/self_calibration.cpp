@@ -92,7 +92,7 @@ PriorDistance furthestFromPrior(const CalibrationEstimate& e, const SelfCalibrat
   if (e.field)
     for (int k = 0; k < kFieldDimensionCount; ++k) {
       const std::string name = std::string("field_") + kFieldDimensions[k].name + "_mm";
-      consider(name.c_str(), e.field_dimensions_mm[k], 0.0, c.field_dimension_sigma_mm);
+      consider(name.c_str(), e.field_dimensions_mm[k], 0.0, e.field_prior_sigma_mm[k]);
     }
   return out;
 }

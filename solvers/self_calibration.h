@@ -110,7 +110,8 @@ struct SelfCalibrationConfig {
   double range_scale_slope_sigma = 0.05;        // c1, 1/rad
   double range_scale_curvature_sigma = 0.5;     // c2, 1/rad^2
   double bearing_offset_sigma_rad = deg2rad(1.0);  // d_b, rad
-  // The field's prior: twice the hand-built field's 2 mm per dimension (data/profile_hand_built_field.yaml).
+  // The field's prior: twice the hand-built field's 2 mm per dimension (data/profile_hand_built_field.yaml),
+  // on a map that does not state its own (fieldPriorCovariance).
   double field_dimension_sigma_mm = 4.0;        // mm, per dimension
   // With the stereo block, in the batch, the window and the EKF (pixel model): estimate the
   // image errors the noise model states (lens estimate, relative rotation) as the image block
@@ -146,6 +147,7 @@ struct CalibrationEstimate {
   FieldVector field_dimensions_mm = FieldVector::Zero();
   Eigen::Matrix<double, kFieldDimensionCount, kFieldDimensionCount> field_covariance =
       Eigen::Matrix<double, kFieldDimensionCount, kFieldDimensionCount>::Zero();
+  FieldVector field_prior_sigma_mm = FieldVector::Zero();  // the prior's standard deviations (fieldPriorCovariance)
   Eigen::Vector3d wheels = Eigen::Vector3d(1, 1, 75);  // c_l, c_r, w (mm)
   Eigen::Matrix3d wheels_covariance = Eigen::Matrix3d::Zero();
   // What a drifting wheel calibration (UnmodelledNoise::wheel_scale_drift) walked over the run,

@@ -199,11 +199,9 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   }
   if (cal.field) {
     constexpr int k = kFieldDimensionCount;
-    const double var = cal.field_dimension_sigma_mm * cal.field_dimension_sigma_mm;
-    addFactor(CalibrationPriorFactor<k>::Create(Eigen::Matrix<double, k, 1>::Zero(),
-                                                Eigen::Matrix<double, k, k>::Identity() * var),
-              {}, false, {field_block_});
-    calib_covariance_.diagonal().segment<k>(calibOffset(field_block_)).setConstant(var);
+    const FieldDimensionMatrix prior = fieldPriorCovariance(cal, map_);
+    addFactor(CalibrationPriorFactor<k>::Create(FieldDimensionVector::Zero(), prior), {}, false, {field_block_});
+    calib_covariance_.block<k, k>(calibOffset(field_block_), calibOffset(field_block_)) = prior;
   }
 }
 
@@ -321,6 +319,7 @@ std::optional<CalibrationEstimate> SlidingWindowSmoother::calibration() const {
     e.field = true;
     e.field_dimensions_mm = field_;
     e.field_covariance = calib_covariance_.block<kFieldDimensionCount, kFieldDimensionCount>(k, k);
+    e.field_prior_sigma_mm = fieldPriorCovariance(config_.calibration, map_).diagonal().cwiseSqrt();
   }
   if (config_.calibration.range) {
     constexpr int k = RangeBearingCalibrationFactor::kCalibrationSize;

@@ -4,6 +4,7 @@
 #include <set>
 
 #include "src/core/error.h"
+#include "src/core/gaussian.h"
 #include "src/core/yaml_util.h"
 
 namespace stereoloc {
@@ -96,6 +97,20 @@ FieldMap FieldMap::withDimensionChange(const Eigen::Matrix<double, kFieldDimensi
   std::vector<Landmark> landmarks = miroSot(g).landmarks();
   for (size_t i = 0; i < landmarks.size(); ++i) landmarks[i].name = landmarks_[i].name;
   return FieldMap(name_, Bounds{-g.goal_depth, 0.0, g.length + g.goal_depth, g.width}, std::move(landmarks), g);
+}
+
+FieldMap FieldMap::withDimensionCovariance(const FieldDimensionMatrix& covariance_mm2) const {
+  if (!derivesFromGeometry(*this))
+    throw Error("map '" + name_ + "': " +
+                (geometry_ ? "has landmarks of its own, not those its field geometry derives" : "has no field geometry"));
+  try {
+    sqrtInformationUpper<kFieldDimensionCount>(covariance_mm2, "dimension_covariance_mm2");
+  } catch (const Error& e) {
+    throw Error("map '" + name_ + "': " + e.what());
+  }
+  FieldMap out = *this;
+  out.dimension_covariance_ = 0.5 * (covariance_mm2 + covariance_mm2.transpose());
+  return out;
 }
 
 std::unordered_map<int, Eigen::Matrix<double, 2, kFieldDimensionCount>> FieldMap::fieldJacobians() const {
@@ -219,8 +234,26 @@ FieldMap FieldMap::load(const std::string& path) {
     l.unique = n.getBool("unique", false);
     lms.push_back(l);
   }
+  std::optional<FieldDimensionMatrix> covariance;
+  if (in.has("dimension_covariance_mm2")) {
+    const YamlNode n = in.child("dimension_covariance_mm2");
+    if (!geometry) n.fail("", "needs the field's geometry");
+    cv::Mat m;
+    try {
+      n.node() >> m;
+    } catch (const cv::Exception&) {
+      m.release();
+    }
+    if (m.rows != kFieldDimensionCount || m.cols != kFieldDimensionCount || m.type() != CV_64F)
+      n.fail("", "must be a 9 x 9 matrix of reals (the dimensions in kFieldDimensions' order)");
+    FieldDimensionMatrix c;
+    for (int i = 0; i < kFieldDimensionCount; ++i)
+      for (int j = 0; j < kFieldDimensionCount; ++j) c(i, j) = m.at<double>(i, j);
+    covariance = c;
+  }
   try {
-    return FieldMap(name, bounds, std::move(lms), geometry);
+    FieldMap map(name, bounds, std::move(lms), geometry);
+    return covariance ? map.withDimensionCovariance(*covariance) : map;
   } catch (const Error& e) {
     throw Error(path + ": " + e.what());
   }
@@ -241,6 +274,12 @@ void FieldMap::save(const std::string& path) const {
        << "goal_area_depth" << g.goal_area_depth << "goal_area_width" << g.goal_area_width << "penalty_area_depth"
        << g.penalty_area_depth << "penalty_area_width" << g.penalty_area_width << "goal_corner_height"
        << g.goal_corner_height << "}";
+  }
+  if (dimension_covariance_) {
+    cv::Mat m(kFieldDimensionCount, kFieldDimensionCount, CV_64F);
+    for (int i = 0; i < kFieldDimensionCount; ++i)
+      for (int j = 0; j < kFieldDimensionCount; ++j) m.at<double>(i, j) = (*dimension_covariance_)(i, j);
+    fs << "dimension_covariance_mm2" << m;
   }
   fs << "landmarks" << "[";
   for (const Landmark& l : landmarks_) {

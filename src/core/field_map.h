@@ -72,6 +72,8 @@ struct FieldDimension {
 };
 constexpr int kFieldDimensionCount = 9;
 extern const FieldDimension kFieldDimensions[kFieldDimensionCount];
+using FieldDimensionVector = Eigen::Matrix<double, kFieldDimensionCount, 1>;  // mm, in kFieldDimensions' order
+using FieldDimensionMatrix = Eigen::Matrix<double, kFieldDimensionCount, kFieldDimensionCount>;  // mm^2, same order
 
 class FieldMap;
 // Whether `map` is FieldMap::miroSot of its own geometry (same ids, types and positions): only
@@ -97,6 +99,13 @@ class FieldMap {
   // The same field with each of kFieldDimensions changed by `change` (mm), the landmarks keeping
   // their ids and names. Throws Error unless derivesFromGeometry().
   FieldMap withDimensionChange(const Eigen::Matrix<double, kFieldDimensionCount, 1>& change) const;
+  // The same field stating how well its kFieldDimensions are known (their covariance, mm^2;
+  // YAML key dimension_covariance_mm2): a field measured by a drive (`--field-out`), which the
+  // next field calibration takes as its prior (fieldPriorCovariance, solvers/calibrated_models.h).
+  // Throws Error unless derivesFromGeometry() and the covariance is finite, symmetric and
+  // positive definite. withDimensionChange drops it: it describes the field as it was.
+  FieldMap withDimensionCovariance(const FieldDimensionMatrix& covariance_mm2) const;
+  const std::optional<FieldDimensionMatrix>& dimensionCovariance() const { return dimension_covariance_; }
   // d(x, y)/d(dimensions) of every landmark, by id (exact: a MiroSot field's landmarks are
   // linear in its dimensions). Throws Error unless derivesFromGeometry().
   std::unordered_map<int, Eigen::Matrix<double, 2, kFieldDimensionCount>> fieldJacobians() const;
@@ -113,6 +122,7 @@ class FieldMap {
   Bounds bounds_;
   std::vector<Landmark> landmarks_;
   std::optional<FieldGeometry> geometry_;
+  std::optional<FieldDimensionMatrix> dimension_covariance_;
 };
 
 }  // namespace stereoloc

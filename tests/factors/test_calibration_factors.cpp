@@ -624,6 +624,28 @@ TEST(DiagonalPriorFactor, WhitensEachEntryAndJacobianMatches) {
   EXPECT_THROW(DiagonalPriorFactor(mean, Eigen::VectorXd::Ones(3)), Error);
 }
 
+// With a full covariance the squared residual is the Mahalanobis distance, correlations
+// included; the Jacobian is the square-root information.
+TEST(DensePriorFactor, WhitensByTheFullCovarianceAndJacobianMatches) {
+  Eigen::VectorXd mean(3);
+  mean << 1.0, 0.0, -2.0;
+  Eigen::MatrixXd covariance(3, 3);
+  covariance << 4.0, 1.5, 0.2, 1.5, 1.0, -0.3, 0.2, -0.3, 0.5;
+  DensePriorFactor f(mean, covariance);
+  const double c[3] = {1.5, -0.4, -1.1};
+  const Eigen::VectorXd r = evaluate(f, {c});
+  Eigen::VectorXd e(3);
+  for (int i = 0; i < 3; ++i) e[i] = c[i] - mean[i];
+  EXPECT_NEAR(r.squaredNorm(), e.dot(covariance.ldlt().solve(e)), 1e-12);
+  const FactorCheck check = checkFactorJacobians(f, {c});
+  EXPECT_TRUE(check.ok) << check.message;
+  Eigen::MatrixXd singular = covariance;
+  singular.row(1).setZero();
+  singular.col(1).setZero();
+  EXPECT_THROW(DensePriorFactor(mean, singular), Error);
+  EXPECT_THROW(DensePriorFactor(mean, Eigen::MatrixXd::Identity(2, 2)), Error);
+}
+
 // Joined into one global block with entries scattered and one held at zero, the feature factor
 // gives the residual of its own blocks and Jacobians that agree with central differences.
 TEST(JoinedGlobalBlocks, ScattersTheInnerBlocksAndHoldsUnmappedEntriesAtZero) {

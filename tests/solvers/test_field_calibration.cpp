@@ -1,11 +1,13 @@
 // The smoothers' field self-calibration (`--calibrate stereo,field`): on a long run over a field
 // whose dimensions are off, the batch recovers them within their stated uncertainty and
 // localizes better for it, and so does a real-time window; a window as long as the data is the
-// batch; the EKF refuses the block, and so does a map the field's dimensions do not place.
+// batch; a measured map's stated covariance is the block's prior; the EKF refuses the block, and
+// so does a map the field's dimensions do not place.
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -75,6 +77,14 @@ Dataset handBuiltFieldRun(uint64_t seed, int steps, SimulationTrace* trace) {
   return d;
 }
 
+// A field covariance of sigmas about `sigma` mm whose neighbouring dimensions correlate by 0.5.
+FieldDimensionMatrix correlatedCovariance(double sigma) {
+  const FieldDimensionVector sd = FieldDimensionVector::LinSpaced(0.5 * sigma, 1.5 * sigma);
+  FieldDimensionMatrix c = sd.cwiseAbs2().asDiagonal();
+  for (int k = 0; k + 1 < kFieldDimensionCount; ++k) c(k, k + 1) = c(k + 1, k) = 0.5 * sd[k] * sd[k + 1];
+  return c;
+}
+
 TEST(FieldCalibration, WindowAsLongAsTheDataIsTheBatch) {
   const Dataset d = handBuiltFieldRun(3, 200, nullptr);
   const Eigen::Matrix3d P0 = Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal();
@@ -82,11 +92,12 @@ TEST(FieldCalibration, WindowAsLongAsTheDataIsTheBatch) {
   bc.init = knownBelief(*d.groundtruth.front(), P0);
   bc.observation_model = {ObservationModel::PixelColumns, d.rig};
   bc.calibration = SelfCalibrationConfig::parse("odometry,stereo,field");
-  // A prior of 1 mm: with the default 4 mm, the dimensions 200 steps hardly see leave the normal
-  // equations so flat that the two solvers stop some 1e-6 mm apart (400 steps: within 1e-6).
-  bc.calibration.field_dimension_sigma_mm = 1.0;
+  // A prior of about 1 mm with correlated dimensions, as a measured map states it: with the
+  // default 4 mm, the dimensions 200 steps hardly see leave the normal equations so flat that the
+  // two solvers stop some 1e-6 mm apart (400 steps: within 1e-6).
+  const FieldMap map = d.map.withDimensionCovariance(correlatedCovariance(1.0));
   test::solveToTheLimit(bc);
-  BatchSmoother b(d.map, d.odometry, bc);
+  BatchSmoother b(map, d.odometry, bc);
   for (const Step& s : d.steps) b.process(s);
   const std::vector<Estimate> eb = b.finish();
 
@@ -95,7 +106,7 @@ TEST(FieldCalibration, WindowAsLongAsTheDataIsTheBatch) {
   c.observation_model = bc.observation_model;
   c.calibration = bc.calibration;
   test::solveAsTheBatch(c, d.steps.size());
-  SlidingWindowSmoother win(d.map, d.odometry, c);
+  SlidingWindowSmoother win(map, d.odometry, c);
   for (const Step& s : d.steps) win.process(s);
   const test::SolutionGap gap = test::solutionGap(win.finish(), eb);
   EXPECT_LT(gap.pose, 1e-6);
@@ -107,6 +118,56 @@ TEST(FieldCalibration, WindowAsLongAsTheDataIsTheBatch) {
   EXPECT_LT((cw->field_dimensions_mm - cb.field_dimensions_mm).cwiseAbs().maxCoeff(), 1e-6);
   EXPECT_LT(test::relativeDifference(cw->field_covariance, cb.field_covariance), 1e-6);
   EXPECT_GT(cb.field_dimensions_mm.cwiseAbs().maxCoeff(), 0.1);  // the data moved it
+}
+
+// A map that states how well it knows its dimensions (a field an earlier drive measured,
+// `--field-out`) sets the field block's prior, correlations included, in place of the
+// configuration's one sigma: the field's information is then the map's plus the drive's.
+TEST(FieldCalibration, AMeasuredMapsCovarianceIsItsPrior) {
+  const Dataset d = handBuiltFieldRun(3, 40, nullptr);
+  const FieldDimensionMatrix stated = correlatedCovariance(2.5);
+  BatchSmootherConfig bc;
+  bc.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal());
+  bc.observation_model = {ObservationModel::PixelColumns, d.rig};
+  bc.calibration = SelfCalibrationConfig::parse("odometry,stereo,field");
+  bc.calibration.field_dimension_sigma_mm = 8.0;
+  auto field = [&](const FieldMap& map) {
+    BatchSmoother b(map, d.odometry, bc);
+    for (const Step& s : d.steps) b.process(s);
+    b.finish();
+    return b.calibration();
+  };
+  const CalibrationEstimate given = field(d.map), measured = field(d.map.withDimensionCovariance(stated));
+  ASSERT_TRUE(given.field && measured.field);
+  EXPECT_EQ(given.field_prior_sigma_mm, FieldDimensionVector::Constant(8.0));
+  EXPECT_LT((measured.field_prior_sigma_mm - stated.diagonal().cwiseSqrt()).cwiseAbs().maxCoeff(), 1e-12);
+  // The drive's information on the field is what the given run's marginal holds beyond its prior;
+  // with the stated prior in its place the marginal is their sum (up to where the two solves
+  // linearise).
+  const FieldDimensionMatrix data = given.field_covariance.inverse() - FieldDimensionMatrix::Identity() / 64.0;
+  const FieldDimensionMatrix expected = (data + stated.inverse()).inverse();
+  for (int k = 0; k < kFieldDimensionCount; ++k) {
+    const double sd = std::sqrt(measured.field_covariance(k, k));
+    std::printf("%-20s the drive alone %.2f mm, the map %.2f mm: %.3f mm (from the information %.3f mm)\n",
+                kFieldDimensions[k].name, std::sqrt(given.field_covariance(k, k)), std::sqrt(stated(k, k)), sd,
+                std::sqrt(expected(k, k)));
+    EXPECT_LE(sd, std::sqrt(stated(k, k)) * (1 + 1e-9)) << kFieldDimensions[k].name;
+  }
+  EXPECT_LT(test::relativeDifference(measured.field_covariance, expected), 0.02);
+  // How far the estimate went is measured against the stated prior.
+  const PriorDistance far = furthestFromPrior(measured, bc.calibration, d.odometry.wheel_base_mm);
+  for (int k = 0; k < kFieldDimensionCount; ++k)
+    EXPECT_GE(far.sigmas, std::fabs(measured.field_dimensions_mm[k]) / measured.field_prior_sigma_mm[k] - 1e-12);
+  // The sliding window takes it too.
+  SlidingWindowConfig wc;
+  wc.init = bc.init;
+  wc.observation_model = bc.observation_model;
+  wc.calibration = bc.calibration;
+  SlidingWindowSmoother win(d.map.withDimensionCovariance(stated), d.odometry, wc);
+  for (const Step& s : d.steps) win.process(s);
+  win.finish();
+  ASSERT_TRUE(win.calibration() && win.calibration()->field);
+  EXPECT_EQ(win.calibration()->field_prior_sigma_mm, measured.field_prior_sigma_mm);
 }
 
 TEST(FieldCalibration, RealTimeWindowRecoversTheField) {

@@ -69,6 +69,12 @@ TEST(CliLocalize, TheMeasuredFieldIsTheNextDrivesMap) {
     for (size_t i = 0; i < expected.landmarks().size(); ++i)
       EXPECT_LT((measured.landmarks()[i].position - expected.landmarks()[i].position).norm(), 1e-9) << method;
     EXPECT_TRUE(derivesFromGeometry(measured));  // a field the next drive can measure again
+    // ... with the estimate's covariance as its prior.
+    ASSERT_TRUE(measured.dimensionCovariance().has_value()) << method;
+    for (int k = 0; k < kFieldDimensionCount; ++k)
+      EXPECT_NEAR(std::sqrt((*measured.dimensionCovariance())(k, k)),
+                  static_cast<double>(fs[std::string("field_") + kFieldDimensions[k].name + "_sigma_mm"]), 1e-9)
+          << method;
   }
   const test::CliRun without = test::runCli("localize " + ds + " --method batch --calibrate odometry,stereo --field-out " +
                                             dir.file("m.yaml") + " --out " + dir.file("est.csv"));

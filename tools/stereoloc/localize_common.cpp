@@ -208,8 +208,11 @@ void runLocalize(const LocalizeArgs& a) {
   reportCalibration(a.calibration_out, stdout, calibration ? &*calibration : nullptr, d.rig, o.calibration,
                     d.odometry.wheel_base_mm, handover);
   if (!a.field_out.empty() && calibration && calibration->field) {
-    // The field as measured: the next drive's map (`--map`, `stream --map`).
-    d.map.withDimensionChange(calibration->field_dimensions_mm).save(a.field_out);
+    // The field as measured, with how well its dimensions are known: the next drive's map
+    // (`--map`, `stream --map`) and, when it calibrates the field again, its prior.
+    d.map.withDimensionChange(calibration->field_dimensions_mm)
+        .withDimensionCovariance(calibration->field_covariance)
+        .save(a.field_out);
     std::printf("field: the map with the estimated dimensions written to %s\n", a.field_out.c_str());
   }
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
@@ -307,8 +310,9 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
       "--calibration-out", a->calibration_out,
       "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations (usable as --rig)");
   sub->add_option("--field-out", a->field_out,
-                  "With --calibrate ...,field (batch, window): write the field map with the estimated dimensions, the "
-                  "map of the next drive on this field");
+                  "With --calibrate ...,field (batch, window): write the field map with the estimated dimensions and "
+                  "their covariance, the map of the next drive on this field (--map), whose field calibration takes "
+                  "it as its prior");
   sub->add_option("--drive-disparity-sigma-px", a->drive_disparity_sigma_px,
                   "With --calibration-out: the disparity offset's part that another drive does not share, px, added to "
                   "its handed-over standard deviation: cameras exposing dt apart on a robot turning at w shift it by "

@@ -81,6 +81,50 @@ TEST(FieldMap, YamlRoundTripAndShippedFile) {
     EXPECT_EQ(shipped.landmarks()[i].position, m.landmarks()[i].position);
 }
 
+// A measured field states how well it knows its dimensions (their covariance); the file carries
+// it, a changed field no longer does, and one that is not a covariance is an error naming the
+// file and the key.
+TEST(FieldMap, StatesHowWellItKnowsItsDimensions) {
+  test::TempDir dir;
+  FieldDimensionMatrix a = FieldDimensionMatrix::Zero();
+  for (int i = 0; i < kFieldDimensionCount; ++i)
+    for (int j = 0; j <= i; ++j) a(i, j) = 0.3 * (i + 1) - 0.1 * j;
+  const FieldDimensionMatrix covariance = a * a.transpose() + FieldDimensionMatrix::Identity();  // correlated
+  const FieldMap m = FieldMap::miroSot().withDimensionCovariance(covariance);
+  ASSERT_TRUE(m.dimensionCovariance().has_value());
+  EXPECT_EQ(*m.dimensionCovariance(), covariance);
+  EXPECT_FALSE(FieldMap::miroSot().dimensionCovariance().has_value());
+  m.save(dir.file("measured.yaml"));
+  const FieldMap back = FieldMap::load(dir.file("measured.yaml"));
+  ASSERT_TRUE(back.dimensionCovariance().has_value());
+  EXPECT_LT((*back.dimensionCovariance() - covariance).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_FALSE(m.withDimensionChange(FieldDimensionVector::Ones()).dimensionCovariance().has_value());
+
+  FieldDimensionMatrix singular = covariance;
+  singular.row(2).setZero();
+  singular.col(2).setZero();
+  EXPECT_THROW(FieldMap::miroSot().withDimensionCovariance(singular), Error);
+  const FieldMap own("own", FieldMap::miroSot().bounds(), {});
+  EXPECT_THROW(own.withDimensionCovariance(covariance), Error);  // no geometry: no dimensions to know
+
+  FieldMap::miroSot().withDimensionCovariance(FieldDimensionMatrix::Identity()).save(dir.file("unit.yaml"));
+  std::string text = test::readFile(dir.file("unit.yaml"));
+  const size_t at = text.find("data: [ 1.", text.find("dimension_covariance_mm2"));
+  ASSERT_NE(at, std::string::npos) << text;
+  text.replace(at, 10, "data: [ -1.");
+  writeFileAtomically(dir.file("negative.yaml"), text);
+  std::string e = errorOf(dir.file("negative.yaml"));
+  EXPECT_NE(e.find("negative.yaml: "), std::string::npos) << e;
+  EXPECT_NE(e.find("dimension_covariance_mm2: not positive definite"), std::string::npos) << e;
+  text = test::readFile(dir.file("unit.yaml"));
+  text.replace(text.find("rows: 9", text.find("dimension_covariance_mm2")), 7, "rows: 3");
+  text.replace(text.find("cols: 9", text.find("dimension_covariance_mm2")), 7, "cols: 27");
+  writeFileAtomically(dir.file("shape.yaml"), text);
+  e = errorOf(dir.file("shape.yaml"));
+  EXPECT_NE(e.find("shape.yaml: dimension_covariance_mm2"), std::string::npos) << e;
+  EXPECT_NE(e.find("9 x 9"), std::string::npos) << e;
+}
+
 TEST(FieldMap, BadMapsGiveErrorsNamingFileAndKey) {
   test::TempDir dir;
   auto write = [&](const std::string& name, const std::string& body) {
