@@ -150,7 +150,8 @@ void refineEndpoints(const cv::Mat& luma, std::vector<Segment>& segments) {
   for (Segment& s : segments) {
     const double c = std::cos(s.theta), sn = std::sin(s.theta);
     auto contrast = [&](double x, double y) {
-      const double hi = bilinearLuma(luma, x + kSide * c, y + kSide * sn), lo = bilinearLuma(luma, x - kSide * c, y - kSide * sn);
+      const double hi = bilinearLuma(luma, x + kSide * c, y + kSide * sn);
+      const double lo = bilinearLuma(luma, x - kSide * c, y - kSide * sn);
       return (hi < 0 || lo < 0) ? -1.0 : hi - lo;
     };
     const double len = s.length();

@@ -87,10 +87,18 @@ bool derivesFromGeometry(const FieldMap& map) {
   return true;
 }
 
+namespace {
+// Only a field whose geometry places its landmarks has dimensions to change or to know.
+void requireDimensions(const FieldMap& map) {
+  if (!derivesFromGeometry(map))
+    throw Error("map '" + map.name() + "': " +
+                (map.geometry() ? "has landmarks of its own, not those its field geometry derives"
+                                : "has no field geometry"));
+}
+}  // namespace
+
 FieldMap FieldMap::withDimensionChange(const Eigen::Matrix<double, kFieldDimensionCount, 1>& change) const {
-  if (!derivesFromGeometry(*this))
-    throw Error("map '" + name_ + "': " +
-                (geometry_ ? "has landmarks of its own, not those its field geometry derives" : "has no field geometry"));
+  requireDimensions(*this);
   if (!change.allFinite()) throw Error("map '" + name_ + "': a field dimension change is not finite");
   FieldGeometry g = *geometry_;
   for (int k = 0; k < kFieldDimensionCount; ++k) g.*kFieldDimensions[k].ptr += change[k];
@@ -100,9 +108,7 @@ FieldMap FieldMap::withDimensionChange(const Eigen::Matrix<double, kFieldDimensi
 }
 
 FieldMap FieldMap::withDimensionCovariance(const FieldDimensionMatrix& covariance_mm2) const {
-  if (!derivesFromGeometry(*this))
-    throw Error("map '" + name_ + "': " +
-                (geometry_ ? "has landmarks of its own, not those its field geometry derives" : "has no field geometry"));
+  requireDimensions(*this);
   try {
     sqrtInformationUpper<kFieldDimensionCount>(covariance_mm2, "dimension_covariance_mm2");
   } catch (const Error& e) {

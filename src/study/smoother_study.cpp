@@ -97,7 +97,7 @@ std::string boundName(const MethodSpec& m) {
 
 // One trial: every method on the same simulated data, each against its bound.
 std::vector<Accumulator> runSmootherTrial(const std::string& scenario, int trial, const SmootherStudyConfig& a,
-                                  const std::vector<MethodSpec>& methods, const MethodOptions& options) {
+                                         const std::vector<MethodSpec>& methods, const MethodOptions& options) {
   const uint64_t seed = trialSeed(a.seed, scenario, trial);
   SimulationConfig sim;
   sim.pixel_noise = pixelNoiseModelFromString(a.pixel_noise);
@@ -185,8 +185,10 @@ std::vector<int> parseWindows(const std::string& list) {
 
 // Every trial of every scenario on `threads` workers; the sums per scenario and method are
 // added in task order, so the figures do not depend on the thread count.
-std::vector<std::vector<Accumulator>> runSmootherTrials(const SmootherStudyConfig& a, const std::vector<std::string>& scenarios,
-                                                const std::vector<MethodSpec>& methods, const MethodOptions& options) {
+std::vector<std::vector<Accumulator>> runSmootherTrials(const SmootherStudyConfig& a,
+                                                        const std::vector<std::string>& scenarios,
+                                                        const std::vector<MethodSpec>& methods,
+                                                        const MethodOptions& options) {
   struct Task {
     size_t scenario;
     int trial;
@@ -333,7 +335,8 @@ std::string runSmootherStudy(const SmootherStudyConfig& a) {
   } catch (const Error& e) {
     throw UsageError(std::string("--pixel-noise: ") + e.what());
   }
-  const std::string md = formatReport(a, scenarios, methods, options, runSmootherTrials(a, scenarios, methods, options));
+  const std::string md =
+      formatReport(a, scenarios, methods, options, runSmootherTrials(a, scenarios, methods, options));
   if (!a.out_dir.empty()) {
     std::error_code ec;
     std::filesystem::create_directories(a.out_dir, ec);

@@ -104,7 +104,8 @@ TEST(CliLocalize, RunsOnTheMapItIsGiven) {
   const std::string as_built = dir.file("as_built.yaml");
   loadDataset(ds).map.withDimensionChange(built).save(as_built);
   for (const std::string calibrate : {"odometry,stereo", "odometry,stereo,field"}) {
-    const std::string run = "localize " + ds + " --method batch --calibrate " + calibrate + " --out " + dir.file("e.csv");
+    const std::string run =
+        "localize " + ds + " --method batch --calibrate " + calibrate + " --out " + dir.file("e.csv");
     const test::CliRun drawn = test::runCli(run), measured = test::runCli(run + " --map " + as_built);
     ASSERT_EQ(drawn.exit_code, 0) << drawn.output;
     ASSERT_EQ(measured.exit_code, 0) << measured.output;

@@ -44,7 +44,8 @@ TEST(LensDistortion, IsOpenCvsModel) {
 
 TEST(LensDistortion, JacobianMatchesCentralDifferences) {
   for (const cv::Mat& D : lenses())
-    for (const Eigen::Vector2d& x : {Eigen::Vector2d(0.0, 0.0), Eigen::Vector2d(0.7, -0.5), Eigen::Vector2d(-0.3, 0.45)}) {
+    for (const Eigen::Vector2d& x :
+         {Eigen::Vector2d(0.0, 0.0), Eigen::Vector2d(0.7, -0.5), Eigen::Vector2d(-0.3, 0.45)}) {
       Eigen::Matrix2d J_d_x;
       distortNormalized(D, x, &J_d_x);
       const Eigen::Matrix2d numeric =
