@@ -52,11 +52,11 @@ TEST(CliLocalize, TheMeasuredFieldIsTheNextDrivesMap) {
   const test::CliRun sim = test::runCli("simulate --scenario circle --steps 60 --seed 2 --profile " +
                                         std::string(STEREOLOC_DATA_DIR) + "/profile_hand_built_field.yaml --out " + ds);
   ASSERT_EQ(sim.exit_code, 0) << sim.output;
-  for (const std::string method : {"batch", "window"}) {
+  for (const std::string method : {"batch", "window", "refine"}) {
     const std::string map = dir.file(method + "_map.yaml"), rig = dir.file(method + "_rig.yaml");
-    const test::CliRun r = test::runCli("localize " + ds + " --method " + method +
-                                        " --calibrate odometry,stereo,field --calibration-out " + rig + " --field-out " +
-                                        map + " --out " + dir.file("est.csv"));
+    const std::string command = method == "refine" ? "refine " + ds : "localize " + ds + " --method " + method;
+    const test::CliRun r = test::runCli(command + " --calibrate odometry,stereo,field --calibration-out " + rig +
+                                        " --field-out " + map + " --out " + dir.file("est.csv"));
     ASSERT_EQ(r.exit_code, 0) << r.output;
     // The map carries the estimate the rig file states.
     cv::FileStorage fs(rig, cv::FileStorage::READ);

@@ -102,6 +102,7 @@ void runRefine(const LocalizeArgs& a) {
   noteConstantWheelsInTheBatch(o);
   reportCalibration(a.calibration_out, stdout, o.calibration.any() ? &calibration : nullptr, d.rig, o.calibration,
                     d.odometry.wheel_base_mm, handover);
+  writeMeasuredField(a.field_out, d.map, o.calibration.any() ? &calibration : nullptr);
   const double write_s = secondsSince(t_write);
   progress.clear();
   printOdometryDelay(o, fitted_delay, handover);

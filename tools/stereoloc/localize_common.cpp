@@ -147,6 +147,17 @@ void reportCalibration(const std::string& calibration_out, std::FILE* out, const
                  kImplausiblePriorSigmas);
 }
 
+void writeMeasuredField(const std::string& path, const FieldMap& map, const CalibrationEstimate* calibration) {
+  if (path.empty()) return;
+  if (!calibration || !calibration->field) throw UsageError("--field-out: needs --calibrate with field");
+  // The field as measured, with how well its dimensions are known: the next drive's map
+  // (`--map`, `stream --map`) and, when it calibrates the field again, its prior.
+  map.withDimensionChange(calibration->field_dimensions_mm)
+      .withDimensionCovariance(calibration->field_covariance)
+      .save(path);
+  std::printf("field: the map with the estimated dimensions written to %s\n", path.c_str());
+}
+
 Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHandover& handover) {
   const FrontendMode mode = frontendModeFromString(a.frontend);
   Dataset d = loadDataset(a.dataset);
@@ -207,14 +218,7 @@ void runLocalize(const LocalizeArgs& a) {
   if (name == "batch") noteConstantWheelsInTheBatch(o);
   reportCalibration(a.calibration_out, stdout, calibration ? &*calibration : nullptr, d.rig, o.calibration,
                     d.odometry.wheel_base_mm, handover);
-  if (!a.field_out.empty() && calibration && calibration->field) {
-    // The field as measured, with how well its dimensions are known: the next drive's map
-    // (`--map`, `stream --map`) and, when it calibrates the field again, its prior.
-    d.map.withDimensionChange(calibration->field_dimensions_mm)
-        .withDimensionCovariance(calibration->field_covariance)
-        .save(a.field_out);
-    std::printf("field: the map with the estimated dimensions written to %s\n", a.field_out.c_str());
-  }
+  writeMeasuredField(a.field_out, d.map, calibration ? &*calibration : nullptr);
   std::printf("%s: %zu estimates for %zu steps written to %s (%.3f ms/step)\n", a.method.c_str(), run.estimates.size(),
               d.steps.size(), a.out.c_str(), run.ms_per_step);
   printAgainstTruth(trajectoryMetrics(poseErrors(run.estimates, truthByStep(d.steps, d.groundtruth))));

@@ -76,6 +76,9 @@ void reportCalibration(const std::string& calibration_out, std::FILE* out, const
                        const CalibrationHandover& handover);
 // --frontend, --frontend-landmarks, --frontend-params (shared with `stream`).
 void addFrontendOptions(CLI::App* sub, std::string& frontend, std::string& landmarks, std::string& params_path);
+// --field-out: the map of the field as `calibration`'s field block measured it, with the
+// estimate's covariance (nothing when `path` is empty; UsageError without the field block).
+void writeMeasuredField(const std::string& path, const FieldMap& map, const CalibrationEstimate* calibration);
 // The dataset of localize and refine: loaded, on --map's map when given (useMap), on --rig's rig
 // when given (useRig; `handover` receives what the file hands over, and `options` its priors),
 // then with --frontend images the frontend's observations in place of its own (a one-line
