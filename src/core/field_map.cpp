@@ -1,6 +1,7 @@
 #include "src/core/field_map.h"
 
 #include <cmath>
+#include <opencv2/core.hpp>
 #include <set>
 
 #include "src/core/error.h"
