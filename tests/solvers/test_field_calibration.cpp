@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <vector>
 
+#include <Eigen/LU>
 #include <opencv2/core.hpp>
 
 #include "solvers/batch_smoother.h"
