@@ -2,6 +2,7 @@
 // Runs the built `stereoloc` binary and captures its exit code and combined output; reads the
 // CSV files it writes.
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <map>
@@ -29,6 +30,13 @@ inline CliRun runCli(const std::string& args, const std::string& stdin_file = ""
   const int status = pclose(pipe);
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
+}
+
+// The position RMSE (mm) a command prints against the ground truth ("position RMSE 4.2 mm"); NaN
+// when it prints none.
+inline double printedPositionRmse(const std::string& output) {
+  const size_t at = output.find("position RMSE ");
+  return at == std::string::npos ? std::nan("") : std::stod(output.substr(at + 14));
 }
 
 // Rows of a CSV with a header (an estimate CSV, groundtruth.csv): step -> the numeric fields.

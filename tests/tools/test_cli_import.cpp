@@ -321,10 +321,7 @@ TEST_F(CliImportRobot1, CommandDelayFittedAgainstGroundTruthMakesTheSmoothersMor
 TEST_F(CliImportRobot1, TheBatchFindsTheOdometryDelayFromTheDataAlone) {
   const std::string out = tmp_.file("robot1"), est = tmp_.file("est.csv");
   ASSERT_EQ(test::runCli("import mrclam " + sharedDir() + " --robot 1 --out " + out).exit_code, 0);
-  auto rmse = [](const std::string& printed) {
-    const size_t at = printed.find("position RMSE ");
-    return at == std::string::npos ? -1.0 : std::stod(printed.substr(at + 14));
-  };
+  const auto rmse = test::printedPositionRmse;
   for (const std::string method : {"batch", "window"}) {
     const std::string run = "localize " + out + " --method " + method + " --calibrate odometry,range --out " + est;
     const test::CliRun plain = test::runCli(run), delayed = test::runCli(run + " --odometry-delay fit");

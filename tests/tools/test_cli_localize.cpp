@@ -46,12 +46,17 @@ TEST(CliLocalize, TheBatchSaysItHoldsDriftingWheelsConstant) {
   }
 }
 
-TEST(CliLocalize, TheMeasuredFieldIsTheNextDrivesMap) {
-  test::TempDir dir("cli_localize_field");
-  const std::string ds = dir.file("ds");
+// A short drive on a field whose dimensions are off (data/profile_hand_built_field.yaml), into `ds`.
+void simulateHandBuiltField(const std::string& ds) {
   const test::CliRun sim = test::runCli("simulate --scenario circle --steps 60 --seed 2 --profile " +
                                         std::string(STEREOLOC_DATA_DIR) + "/profile_hand_built_field.yaml --out " + ds);
   ASSERT_EQ(sim.exit_code, 0) << sim.output;
+}
+
+TEST(CliLocalize, TheMeasuredFieldIsTheNextDrivesMap) {
+  test::TempDir dir("cli_localize_field");
+  const std::string ds = dir.file("ds");
+  ASSERT_NO_FATAL_FAILURE(simulateHandBuiltField(ds));
   for (const std::string method : {"batch", "window", "refine"}) {
     const std::string map = dir.file(method + "_map.yaml"), rig = dir.file(method + "_rig.yaml");
     const std::string command = method == "refine" ? "refine " + ds : "localize " + ds + " --method " + method;
@@ -82,20 +87,13 @@ TEST(CliLocalize, TheMeasuredFieldIsTheNextDrivesMap) {
   EXPECT_NE(without.output.find("--field-out"), std::string::npos) << without.output;
 }
 
-double rmseOf(const std::string& output) {
-  const size_t at = output.find("position RMSE ");
-  return at == std::string::npos ? NAN : std::stod(output.substr(at + 14));
-}
-
 // `--map`: the same drive on the map of the field as built (its dimensions from the dataset's
 // truth) is closer to the truth than on the map as drawn, with and without the field block; a
 // map without the landmarks the dataset sees is refused, naming the file.
 TEST(CliLocalize, RunsOnTheMapItIsGiven) {
   test::TempDir dir("cli_localize_map");
   const std::string ds = dir.file("ds");
-  const test::CliRun sim = test::runCli("simulate --scenario circle --steps 60 --seed 2 --profile " +
-                                        std::string(STEREOLOC_DATA_DIR) + "/profile_hand_built_field.yaml --out " + ds);
-  ASSERT_EQ(sim.exit_code, 0) << sim.output;
+  ASSERT_NO_FATAL_FAILURE(simulateHandBuiltField(ds));
   cv::FileStorage errors(ds + "/errors.yaml", cv::FileStorage::READ);
   Eigen::Matrix<double, kFieldDimensionCount, 1> built;
   for (int k = 0; k < kFieldDimensionCount; ++k)
@@ -110,8 +108,8 @@ TEST(CliLocalize, RunsOnTheMapItIsGiven) {
     ASSERT_EQ(drawn.exit_code, 0) << drawn.output;
     ASSERT_EQ(measured.exit_code, 0) << measured.output;
     std::printf("%s: position RMSE %.2f mm on the map as drawn, %.2f mm on the field as built\n", calibrate.c_str(),
-                rmseOf(drawn.output), rmseOf(measured.output));
-    EXPECT_LT(rmseOf(measured.output), rmseOf(drawn.output)) << calibrate;
+                test::printedPositionRmse(drawn.output), test::printedPositionRmse(measured.output));
+    EXPECT_LT(test::printedPositionRmse(measured.output), test::printedPositionRmse(drawn.output)) << calibrate;
   }
   const std::string empty = dir.file("empty.yaml");
   FieldMap("empty", FieldMap::miroSot().bounds(), {}).save(empty);

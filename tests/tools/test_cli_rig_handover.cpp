@@ -21,12 +21,6 @@
 namespace stereoloc {
 namespace {
 
-double rmseOf(const std::string& output) {
-  const size_t at = output.find("position RMSE ");
-  if (at == std::string::npos) return NAN;
-  return std::stod(output.substr(at + 14));
-}
-
 // Every JSON line of a stream's output without its compute time (the only field that may differ).
 std::string withoutTimes(const std::string& output) {
   std::stringstream in(output), out;
@@ -76,7 +70,8 @@ TEST_F(RigHandover, TheNextDriveRunsOnTheCalibratedRig) {
                                              " --frontend images --rig " + rig() + " --out " + out());
     ASSERT_EQ(given.exit_code, 0) << given.output;
     ASSERT_EQ(handed.exit_code, 0) << handed.output;
-    EXPECT_LT(rmseOf(handed.output), 0.2 * rmseOf(given.output)) << method << "\n" << given.output << handed.output;
+    EXPECT_LT(test::printedPositionRmse(handed.output), 0.2 * test::printedPositionRmse(given.output))
+        << method << "\n" << given.output << handed.output;
   }
   // The dataset's stored pixels were rectified with its own rig, not the calibrated one.
   const test::CliRun pixels = test::runCli("localize " + circle() + " --method ekf --rig " + rig() + " --out " + out());
