@@ -64,8 +64,12 @@ CalibrationHandover useRig(Dataset& d, const std::string& rig_path, bool images_
   return handover;
 }
 
-void useMap(Dataset& d, const std::string& map_path) {
+void useMap(Dataset& d, const std::string& map_path, bool images_measured_again) {
   FieldMap map = FieldMap::load(map_path);
+  if (images_measured_again) {
+    d.map = std::move(map);
+    return;
+  }
   for (const Step& s : d.steps)
     for (const Observation& o : s.observations) {
       if (o.landmark_id < 0) continue;

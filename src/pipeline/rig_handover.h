@@ -24,8 +24,10 @@ CalibrationHandover useRig(Dataset& dataset, const std::string& rig_path, bool i
 
 // Replaces `dataset`'s map by the map at `map_path`. Every landmark the dataset's observations
 // name must be in it with the same type (the positions may differ: that is the point); throws
-// Error naming the file, the landmark and a step that sees it otherwise.
-void useMap(Dataset& dataset, const std::string& map_path);
+// Error naming the file, the landmark and a step that sees it otherwise. With
+// `images_measured_again` the caller runs the frontend on the dataset's images with the new map
+// afterwards, so the stored observations, to be replaced, are not checked.
+void useMap(Dataset& dataset, const std::string& map_path, bool images_measured_again);
 
 // For a rig whose right camera exposes apart from the left (StereoRigParams::exposure_offset_s,
 // src/core/exposure_offset.h): every pixel observation of `dataset` moved to the left camera's

@@ -161,7 +161,7 @@ void writeMeasuredField(const std::string& path, const FieldMap& map, const Cali
 Dataset loadRunDataset(const LocalizeArgs& a, MethodOptions& o, CalibrationHandover& handover) {
   const FrontendMode mode = frontendModeFromString(a.frontend);
   Dataset d = loadDataset(a.dataset);
-  if (!a.map.empty()) useMap(d, a.map);
+  if (!a.map.empty()) useMap(d, a.map, mode == FrontendMode::Images);
   if (!a.rig.empty()) {
     handover = useRig(d, a.rig, mode == FrontendMode::Images);
     handover.applyPriors(o.calibration, o.noise);

@@ -107,7 +107,7 @@ TEST(MapHandover, TakesAMapWithTheSeenLandmarksAndRefusesOneWithout) {
   test::TempDir dir;
   longer.save(dir.file("longer.yaml"));
   Dataset d = original;
-  useMap(d, dir.file("longer.yaml"));
+  useMap(d, dir.file("longer.yaml"), false);
   ASSERT_EQ(d.map.landmarks().size(), longer.landmarks().size());
   double moved = 0.0;
   for (size_t i = 0; i < longer.landmarks().size(); ++i) {
@@ -135,7 +135,7 @@ TEST(MapHandover, TakesAMapWithTheSeenLandmarksAndRefusesOneWithout) {
   for (const char* name : {"without.yaml", "retyped.yaml"}) {
     Dataset refused = original;
     try {
-      useMap(refused, dir.file(name));
+      useMap(refused, dir.file(name), false);
       ADD_FAILURE() << name << " was taken";
     } catch (const Error& e) {
       const std::string m = e.what();
@@ -143,6 +143,10 @@ TEST(MapHandover, TakesAMapWithTheSeenLandmarksAndRefusesOneWithout) {
       EXPECT_NE(m.find("at step"), std::string::npos) << m;
     }
     EXPECT_EQ(refused.map.landmarks().size(), original.map.landmarks().size());  // unchanged after the refusal
+    // The caller measures the images again on the new map: the stored observations go.
+    Dataset remeasured = original;
+    useMap(remeasured, dir.file(name), true);
+    EXPECT_EQ(remeasured.map.name(), std::string(name).substr(0, std::string(name).find('.')));
   }
 }
 
