@@ -300,7 +300,8 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
       ->check(CLI::ExistingFile);
   sub->add_option("--map", a->map,
                   "Field map YAML in place of the dataset's, e.g. the field an earlier drive measured (--field-out); "
-                  "every landmark the dataset sees must be in it with its type")
+                  "every landmark the dataset's stored observations name must be in it with its type (with --frontend "
+                  "images the frontend identifies the landmarks on it)")
       ->check(CLI::ExistingFile);
   sub->add_option("--odometry-delay", a->odometry_delay,
                   "The odometry runs this late against the camera (a drive's latency, a clock offset), seconds within "
