@@ -9,6 +9,7 @@
 #include <string>
 #include <utility>
 
+#include "factors/field_shifted_factor.h"
 #include "factors/stereo_pixel_calibration_factor.h"
 #include "factors/stereo_pixel_feature_calibration_factor.h"
 #include "factors/stereo_pixel_image_calibration_factor.h"
@@ -58,7 +59,6 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
   if (cal.any()) {
     cal.validate();
     if (config_.max_iterations > 1) throw Error("ekf: the iterated update (max_iterations > 1) does not self-calibrate");
-    if (cal.field) throw Error("ekf: the field's dimensions are estimated by the smoothers only (calibrate field)");
     int n = 3;
     wheels_[2] = odometry_.wheel_base_mm;
     if (cal.odometry) wheels_at_ = std::exchange(n, n + 3);
@@ -71,6 +71,13 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
     if (image_sigmas_) image_at_ = std::exchange(n, n + static_cast<int>(image_.size()));
     const std::optional<double> row_sigma = rowOffsetSigma(cal, noise);
     if (row_sigma) row_at_ = std::exchange(n, n + 1);
+    if (cal.field) {
+      if (!derivesFromGeometry(map_))
+        throw Error("ekf: --calibrate field needs a MiroSot map as its field geometry derives it; map '" + map_.name() +
+                    "' is not");
+      field_at_ = std::exchange(n, n + kFieldDimensionCount);
+      field_jacobian_ = map_.fieldJacobians();
+    }
     if (pixel_model)
       for (const FeatureOffsetPrior& f : featureOffsetSigmas(map_, cal, noise)) feature_sigmas_[f.landmark_id] = f.sigma;
     features_at_ = n;
@@ -80,6 +87,8 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
     if (cal.odometry) joint_.diagonal().segment<3>(wheels_at_) = wheelPriorSigma(cal, wheels_[2]).cwiseAbs2();
     if (cal.stereo) joint_.diagonal().segment<6>(head_at_) = stereoPriorSigma(cal).cwiseAbs2();
     if (cal.range) joint_.diagonal().segment<4>(range_at_) = rangePriorSigma(cal).cwiseAbs2();
+    if (cal.field)
+      joint_.block<kFieldDimensionCount, kFieldDimensionCount>(field_at_, field_at_) = fieldPriorCovariance(cal, map_);
   }
   if (config_.init.mode != InitMode::Global) {
     if (!config_.init.pose.isFinite() || !config_.init.covariance.allFinite())
@@ -511,7 +520,7 @@ std::optional<Ekf::JointInnovation> Ekf::pixelInnovation(const Observation& obs,
       calibratedPixelCovariance(obs, landmark, m, image_at_ >= 0, row_at_ >= 0, feature_at >= 0);
   const auto* image_sigmas = image_sigmas_ ? &*image_sigmas_ : nullptr;
   constexpr auto kColumns = PixelResiduals::Columns;
-  // The blocks of the factor, as the smoothers give them: pose, q, [e], [dv], [(b_c, b_d)].
+  // The blocks of the factor, as the smoothers give them: pose, q, [e], [dv], [(b_c, b_d)], [f].
   std::unique_ptr<ceres::CostFunction> f;
   if (feature_at >= 0)
     f.reset(StereoPixelFeatureCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.slide_gain,
@@ -524,6 +533,9 @@ std::optional<Ekf::JointInnovation> Ekf::pixelInnovation(const Observation& obs,
                                                       kColumns, *image_sigmas, step_rate_));
   else
     f.reset(StereoPixelCalibrationFactor::Create(m.rig, landmark.position, *obs.pixels, obs.head_pan, C_px, kColumns));
+  // The field's change moves the landmark (factors/field_shifted_factor.h): one more block, last.
+  const auto J_l = field_at_ >= 0 ? field_jacobian_.find(landmark.id) : field_jacobian_.end();
+  if (J_l != field_jacobian_.end()) f.reset(new FieldShiftedFactor(f.release(), J_l->second));
   const double pose[3] = {pose_.x, pose_.y, pose_.theta};
   struct Block {
     const double* values;
@@ -533,6 +545,7 @@ std::optional<Ekf::JointInnovation> Ekf::pixelInnovation(const Observation& obs,
   if (image_at_ >= 0) blocks.push_back({image_.data(), image_at_, image_.size()});
   if (row_at_ >= 0) blocks.push_back({&row_, row_at_, 1});
   if (feature_at >= 0) blocks.push_back({offsets_.data() + (feature_at - features_at_), feature_at, 2});
+  if (J_l != field_jacobian_.end()) blocks.push_back({field_.data(), field_at_, kFieldDimensionCount});
   const int k = f->num_residuals();
   using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   std::vector<RowMajor> J;
@@ -586,8 +599,12 @@ std::optional<Ekf::JointInnovation> Ekf::jointInnovation(const Observation& obs,
       found = pixelInnovation(obs, landmark);
     } else if (head_at_ >= 0 && obs.pixels) {
       // The EKF's H is the measurement's: d h / dx = -d nu / dx.
-      const CalibratedSighting c =
-          calibratedSighting(obs, config_.observation_model.rig, pose_, landmark.xy(), head_, row_);
+      // The field's change moves the landmark by J_l f, the robot's opposite move:
+      // d h / d f = d nu / d pose[x, y] J_l.
+      const auto J_l = field_at_ >= 0 ? field_jacobian_.find(landmark.id) : field_jacobian_.end();
+      const bool shifted = J_l != field_jacobian_.end();
+      const Eigen::Vector2d xy = shifted ? Eigen::Vector2d(landmark.xy() + J_l->second * field_) : landmark.xy();
+      const CalibratedSighting c = calibratedSighting(obs, config_.observation_model.rig, pose_, xy, head_, row_);
       const Eigen::Matrix4d C_px = pixelCovarianceFor(obs, landmark, config_.observation_model, row_at_ >= 0);
       JointInnovation g;
       g.nu = c.nu;
@@ -596,6 +613,7 @@ std::optional<Ekf::JointInnovation> Ekf::jointInnovation(const Observation& obs,
       g.H.leftCols<3>() = -c.J_nu_pose;
       g.H.block<2, 6>(0, head_at_) = -c.J_nu_q;
       if (row_at_ >= 0) g.H.col(row_at_) = -c.J_nu_row;
+      if (shifted) g.H.block<2, kFieldDimensionCount>(0, field_at_) = c.J_nu_pose.leftCols<2>() * J_l->second;
       found = g;
     } else {
       Matrix23d H_p;
@@ -720,6 +738,7 @@ Ekf::JointState Ekf::jointPlus(const JointState& x, const Eigen::VectorXd& dx) c
   if (image_at_ >= 0) out.image += dx.segment(image_at_, out.image.size());
   if (row_at_ >= 0) out.row += dx(row_at_);
   if (range_at_ >= 0) out.range += dx.segment<4>(range_at_);
+  if (field_at_ >= 0) out.field += dx.segment<kFieldDimensionCount>(field_at_);
   out.offsets += dx.segment(features_at_, out.offsets.size());
   return out;
 }
@@ -731,6 +750,7 @@ void Ekf::setJointState(const JointState& x) {
   image_ = x.image;
   row_ = x.row;
   range_ = x.range;
+  field_ = x.field;
   offsets_ = x.offsets;
   feature_ids_ = x.feature_ids;
 }
@@ -799,6 +819,12 @@ std::optional<CalibrationEstimate> Ekf::calibration() const {
     e.row = true;
     e.row_offset_px = row_;
     e.row_offset_variance = joint_(row_at_, row_at_);
+  }
+  if (field_at_ >= 0) {
+    e.field = true;
+    e.field_dimensions_mm = field_;
+    e.field_covariance = joint_.block<kFieldDimensionCount, kFieldDimensionCount>(field_at_, field_at_);
+    e.field_prior_sigma_mm = fieldPriorCovariance(config_.calibration, map_).diagonal().cwiseSqrt();
   }
   // In the map's order, as the window's.
   for (const Landmark& l : map_.landmarks()) {

@@ -66,6 +66,7 @@
 #include <map>
 #include <string>
 #include <optional>
+#include <unordered_map>
 #include <vector>
 
 #include "solvers/global_fix_hypotheses.h"
@@ -256,8 +257,9 @@ class Ekf : public Estimator {
     Eigen::VectorXd offsets;
     std::vector<int> feature_ids;  // whose offsets they are (restoring a state drops later ones)
     Eigen::Vector4d range = Eigen::Vector4d::Zero();
+    FieldDimensionVector field = FieldDimensionVector::Zero();
   };
-  JointState jointState() const { return {pose_, wheels_, head_, image_, row_, offsets_, feature_ids_, range_}; }
+  JointState jointState() const { return {pose_, wheels_, head_, image_, row_, offsets_, feature_ids_, range_, field_}; }
   void setJointState(const JointState& x);
   JointState jointPlus(const JointState& x, const Eigen::VectorXd& dx) const;
   // What association sees: with the stereo block, the observation through the current q with
@@ -309,7 +311,11 @@ class Ekf : public Estimator {
   // through the stereo block.
   Eigen::Vector4d range_ = Eigen::Vector4d::Zero();
   bool rangeCalibrated(const Observation& obs) const { return range_at_ >= 0 && !(head_at_ >= 0 && obs.pixels); }
-  int wheels_at_ = -1, head_at_ = -1, image_at_ = -1, row_at_ = -1, range_at_ = -1;
+  // The field block f (the change of the field's nine dimensions, mm; factors/field_shifted_factor.h)
+  // with the stereo block: every pixel sighting sees its landmark at l + J_l f.
+  FieldDimensionVector field_ = FieldDimensionVector::Zero();
+  std::unordered_map<int, Eigen::Matrix<double, 2, kFieldDimensionCount>> field_jacobian_;  // landmark id -> J_l
+  int wheels_at_ = -1, head_at_ = -1, image_at_ = -1, row_at_ = -1, range_at_ = -1, field_at_ = -1;
   // The feature offsets (b_c, b_d) of each landmark fused so far whose offsets the noise model
   // states (featureOffsetSigmas), two states each from features_at_ on, in the order first fused.
   std::map<int, FeatureOffsetSigma> feature_sigmas_;  // by landmark id: the ones that may be added

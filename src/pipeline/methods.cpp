@@ -175,8 +175,8 @@ std::pair<std::string, InitMode> parseMethodSpec(const std::string& full_spec, I
   if (!known) throw UsageError("unknown method '" + name + "' (expected one of " + methodNamesText() + ")");
   if (hasCalibrationSuffix(full_spec) && !selfCalibrates(name))
     throw UsageError("method '" + full_spec + "': only " + kSelfCalibratingText + " self-calibrate");
-  if (hasFieldSuffix(full_spec) && name != "batch" && name != "window")
-    throw UsageError("method '" + full_spec + "': only batch and window estimate the field's dimensions");
+  if (hasFieldSuffix(full_spec) && name != "batch" && name != "window" && name != "ekf")
+    throw UsageError("method '" + full_spec + "': only batch, window and ekf estimate the field's dimensions");
   if (hasConsiderSuffix(full_spec) && !considers(name))
     throw UsageError("method '" + full_spec + "': only " + kConsideringText + " consider their calibration");
   InitMode init = default_init;

@@ -91,8 +91,8 @@ inline const std::string kConsideringText = "ekf, fix1 and fix2";
 // odometry and stereo self-calibration (MethodOptions::calibration), for the studies' calibrated
 // variants; or, for the EKF and the fixes, in ":consider" ("ekf:consider", "fix2:consider"): the
 // same blocks considered, not estimated (SelfCalibrationConfig::consider; a fix the stereo block).
-// ":calib-field" ("batch:calib-field", "window:calib-field"): the smoother also estimating the
-// field's dimensions (SelfCalibrationConfig::field).
+// ":calib-field" ("batch:calib-field", "window:calib-field", "ekf:calib-field"): the method also
+// estimating the field's dimensions (SelfCalibrationConfig::field).
 bool hasCalibrationSuffix(const std::string& spec);  // ":calib" or ":calib-field"
 bool hasFieldSuffix(const std::string& spec);        // ":calib-field"
 bool hasConsiderSuffix(const std::string& spec);     // ":consider"

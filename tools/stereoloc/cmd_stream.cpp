@@ -287,7 +287,7 @@ void add_stream_command(CLI::App& app) {
   sub->add_option("--calibrate", a->calibrate,
                   "Self-calibrate in the window or the EKF: odometry (wheel scales, wheel base), stereo (head tilt, "
                   "baseline scale, pixel offsets, focal ratio; a pixel observation model) or both; both also range "
-                  "(a range-bearing sensor's range factor and bearing offset); the window with stereo also field (the MiroSot "
+                  "(a range-bearing sensor's range factor and bearing offset); with stereo both also field (the MiroSot "
                   "field's nine dimensions), comma-separated");
   sub->add_option("--consider", a->consider,
                   "ekf: the blocks of --calibrate considered, not estimated: the calibration stays as given, its "

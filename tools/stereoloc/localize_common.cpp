@@ -274,7 +274,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "Batch, window and ekf: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline "
                   "scale, disparity and column offsets, focal errors; the smoothers need a pixel observation model) or "
                   "both, with priors from the stated uncertainty; all three also range (a range-bearing sensor's range "
-                  "factor 1 + c0 + c1 b + c2 b^2 at bearing b and its bearing offset); batch and window with stereo also field "
+                  "factor 1 + c0 + c1 b + c2 b^2 at bearing b and its bearing offset); with stereo all three also field "
                   "(the change of the MiroSot field's nine dimensions: a field built by hand), comma-separated");
   if (method_option)
     sub->add_option("--consider", a->consider,
@@ -315,7 +315,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
       "--calibration-out", a->calibration_out,
       "With --calibrate: write the rig YAML with the estimated calibration and its standard deviations (usable as --rig)");
   sub->add_option("--field-out", a->field_out,
-                  "With --calibrate ...,field (batch, window): write the field map with the estimated dimensions and "
+                  "With --calibrate ...,field (batch, window, ekf): write the field map with the estimated dimensions and "
                   "their covariance, the map of the next drive on this field (--map), whose field calibration takes "
                   "it as its prior");
   sub->add_option("--drive-disparity-sigma-px", a->drive_disparity_sigma_px,
