@@ -39,6 +39,10 @@ constexpr int kJointUpdateIterations = 10;
 // SlidingWindowConfig defaults (reanchor_probability, restart_min_evidence).
 constexpr double kReanchorProbability = 0.999;
 constexpr double kRestartMinEvidence = 1000.0;
+// Step of the field's dimensions in Ekf::fixFieldJacobian's central differences (mm): the fix is
+// linear in the landmarks' positions to well below its noise over it, and small enough that no
+// landmark pairing changes.
+constexpr double kFixFieldStepMm = 1.0;
 
 }  // namespace
 
@@ -72,6 +76,10 @@ Ekf::Ekf(const FieldMap& map, const OdometryParams& odometry, EkfConfig config)
     const std::optional<double> row_sigma = rowOffsetSigma(cal, noise);
     if (row_sigma) row_at_ = std::exchange(n, n + 1);
     if (cal.field) {
+      // On range and bearing the field's scale would take the triangulation's range bias, as the
+      // baseline scale does (a field 1 % small on an exact field, ideal images).
+      if (!pixel_model)
+        throw Error("ekf: --calibrate field needs a pixel observation model (pixel_columns or pixels), not range_bearing");
       if (!derivesFromGeometry(map_))
         throw Error("ekf: --calibrate field needs a MiroSot map as its field geometry derives it; map '" + map_.name() +
                     "' is not");
@@ -256,10 +264,45 @@ double Ekf::jointThreshold(int dof) {
 
 bool Ekf::tryGlobalFix(const Step& step) {
   if (!config_.global_fix) return false;
-  const std::optional<PoseFix> fix = config_.global_fix(seenThroughCalibration(step), map_);
+  const Step seen = seenThroughCalibration(step);
+  const std::optional<PoseFix> fix = config_.global_fix(seen, currentMap());
   if (!fix || !fix->pose.isFinite() || !fix->covariance.allFinite()) return false;
-  if (!(calibrating() && initialised_ && reanchor(*fix))) reset(fix->pose, fix->covariance);
+  std::optional<FixFieldJacobian> J_fix_field;
+  if (field_at_ >= 0) {
+    J_fix_field = fixFieldJacobian(seen);
+    if (!J_fix_field) return false;  // a fix that does not say how the field moves it: wait for the next
+  }
+  if (!(calibrating() && initialised_ && reanchor(*fix, J_fix_field))) restartOnFix(*fix, J_fix_field);
   return true;
+}
+
+void Ekf::restartOnFix(const PoseFix& fix, const std::optional<FixFieldJacobian>& J_fix_field) {
+  reset(fix.pose, fix.covariance);
+  if (!J_fix_field) return;
+  // The restarted pose is the fix's, p = fix + J (f - f_hat) - noise: it carries the field's
+  // uncertainty and correlates with it, Cov(p, f) = J P_ff.
+  const FieldDimensionMatrix P_ff = joint_.block<kFieldDimensionCount, kFieldDimensionCount>(field_at_, field_at_);
+  const Eigen::Matrix<double, 3, kFieldDimensionCount> P_pf = *J_fix_field * P_ff;
+  const Eigen::Matrix3d P_pp = fix.covariance + P_pf * J_fix_field->transpose();
+  joint_.topLeftCorner<3, 3>() = 0.5 * (P_pp + P_pp.transpose());
+  joint_.block<3, kFieldDimensionCount>(0, field_at_) = P_pf;
+  joint_.block<kFieldDimensionCount, 3>(field_at_, 0) = P_pf.transpose();
+  P_ = joint_.topLeftCorner<3, 3>();
+}
+
+FieldMap Ekf::currentMap() const { return field_at_ >= 0 ? map_.withDimensionChange(field_) : map_; }
+
+std::optional<Ekf::FixFieldJacobian> Ekf::fixFieldJacobian(const Step& seen) const {
+  FixFieldJacobian J;
+  for (int k = 0; k < kFieldDimensionCount; ++k) {
+    FieldDimensionVector h = FieldDimensionVector::Zero();
+    h[k] = kFixFieldStepMm;
+    const std::optional<PoseFix> hi = config_.global_fix(seen, map_.withDimensionChange(field_ + h));
+    const std::optional<PoseFix> lo = config_.global_fix(seen, map_.withDimensionChange(field_ - h));
+    if (!hi || !lo || !hi->pose.isFinite() || !lo->pose.isFinite()) return std::nullopt;
+    J.col(k) = minus(hi->pose, lo->pose) / (2.0 * kFixFieldStepMm);
+  }
+  return J;
 }
 
 // Self-calibrating: a fix that agrees with the prediction is fused as a measurement of the pose
@@ -268,15 +311,17 @@ bool Ekf::tryGlobalFix(const Step& step) {
 // current wheel estimate disagrees most with the sightings (docs/estimators.md, "Re-anchoring").
 // A fix that disagrees beyond both the chi-square test and the evidence a restart needs (a
 // kidnap) restarts the filter, as the window does.
-bool Ekf::reanchor(const PoseFix& fix) {
+bool Ekf::reanchor(const PoseFix& fix, const std::optional<FixFieldJacobian>& J_fix_field) {
   const Eigen::Vector3d nu = minus(fix.pose, pose_);
-  const Eigen::Matrix3d S = P_ + fix.covariance;
+  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(3, joint_.rows());
+  H.leftCols<3>().setIdentity();
+  // The fix saw the sightings on the field's estimate: it measures p + J (f_hat - f).
+  if (J_fix_field) H.middleCols<kFieldDimensionCount>(field_at_) = -*J_fix_field;
+  const Eigen::Matrix3d S = H * joint_ * H.transpose() + fix.covariance;
   const Eigen::LDLT<Eigen::Matrix3d> ldlt(S);
   if (ldlt.info() != Eigen::Success) return false;
   const double d2 = nu.dot(ldlt.solve(nu));
   if (!(d2 <= std::max(chi2Quantile(kReanchorProbability, 3), kRestartMinEvidence))) return false;
-  Eigen::MatrixXd H = Eigen::MatrixXd::Zero(3, joint_.rows());
-  H.leftCols<3>().setIdentity();
   Eigen::MatrixXd K = joint_ * H.transpose() * S.inverse();
   // The fix saw this step's sightings through the current stereo calibration, so it carries no
   // news of it: the stereo, image, row and feature states (all after head_at_) are considered,
@@ -306,11 +351,16 @@ void Ekf::validateStep(const Step& step) const {
 
 std::optional<EstimateStatus> Ekf::startFromWideBelief(const Step& step, bool first, bool wide) {
   if (wide && !step.observations.empty() && config_.global_fix) {
-    const std::optional<PoseFix> fix = config_.global_fix(seenThroughCalibration(step), map_);
+    const Step seen = seenThroughCalibration(step);
+    const std::optional<PoseFix> fix = config_.global_fix(seen, currentMap());
     if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && spreadOf(fix->covariance) < spreadOf(P_)) {
-      bank_.clear();
-      reset(fix->pose, fix->covariance);  // the fix used this step's observations: no update on top
-      return EstimateStatus::Reinitialised;
+      const std::optional<FixFieldJacobian> J_fix_field =
+          field_at_ >= 0 ? fixFieldJacobian(seen) : std::optional<FixFieldJacobian>();
+      if (field_at_ < 0 || J_fix_field) {
+        bank_.clear();
+        restartOnFix(*fix, J_fix_field);  // the fix used this step's observations: no update on top
+        return EstimateStatus::Reinitialised;
+      }
     }
   }
   // The bank only serves a wide start: once localised, a filter that widens again (a stretch
@@ -599,12 +649,8 @@ std::optional<Ekf::JointInnovation> Ekf::jointInnovation(const Observation& obs,
       found = pixelInnovation(obs, landmark);
     } else if (head_at_ >= 0 && obs.pixels) {
       // The EKF's H is the measurement's: d h / dx = -d nu / dx.
-      // The field's change moves the landmark by J_l f, the robot's opposite move:
-      // d h / d f = d nu / d pose[x, y] J_l.
-      const auto J_l = field_at_ >= 0 ? field_jacobian_.find(landmark.id) : field_jacobian_.end();
-      const bool shifted = J_l != field_jacobian_.end();
-      const Eigen::Vector2d xy = shifted ? Eigen::Vector2d(landmark.xy() + J_l->second * field_) : landmark.xy();
-      const CalibratedSighting c = calibratedSighting(obs, config_.observation_model.rig, pose_, xy, head_, row_);
+      const CalibratedSighting c =
+          calibratedSighting(obs, config_.observation_model.rig, pose_, landmark.xy(), head_, row_);
       const Eigen::Matrix4d C_px = pixelCovarianceFor(obs, landmark, config_.observation_model, row_at_ >= 0);
       JointInnovation g;
       g.nu = c.nu;
@@ -613,7 +659,6 @@ std::optional<Ekf::JointInnovation> Ekf::jointInnovation(const Observation& obs,
       g.H.leftCols<3>() = -c.J_nu_pose;
       g.H.block<2, 6>(0, head_at_) = -c.J_nu_q;
       if (row_at_ >= 0) g.H.col(row_at_) = -c.J_nu_row;
-      if (shifted) g.H.block<2, kFieldDimensionCount>(0, field_at_) = c.J_nu_pose.leftCols<2>() * J_l->second;
       found = g;
     } else {
       Matrix23d H_p;
@@ -709,6 +754,7 @@ void Ekf::considerStates(Eigen::MatrixXd& K) const {
     return;
   }
   if (wheels_at_ >= 0) K.row(wheels_at_ + 2).setZero();
+  if (field_at_ >= 0 && std::getenv("EKF_FIELD_CONSIDER")) K.middleRows(field_at_, kFieldDimensionCount).setZero();
 }
 
 void Ekf::applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,

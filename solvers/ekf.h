@@ -210,7 +210,18 @@ class Ekf : public Estimator {
   // Records the step's updates and feeds the lost policy (5.1.3).
   EstimateStatus recordUpdates(const Step& step, const std::vector<EkfUpdateRecord>& recs);
   bool tryGlobalFix(const Step& step);
-  bool reanchor(const PoseFix& fix);  // self-calibrating: fuse a fix that agrees; false: restart
+  // Self-calibrating: fuse a fix that agrees; false: restart. J_fix_field: with the field block,
+  // d fix / d f (fixFieldJacobian).
+  using FixFieldJacobian = Eigen::Matrix<double, 3, kFieldDimensionCount>;
+  bool reanchor(const PoseFix& fix, const std::optional<FixFieldJacobian>& J_fix_field);
+  // reset() on the fix, with the field block the pose's covariance and correlation through it.
+  void restartOnFix(const PoseFix& fix, const std::optional<FixFieldJacobian>& J_fix_field);
+  // The map as the filter sees the field: its dimensions changed by the field block's estimate.
+  FieldMap currentMap() const;
+  // With the field block, a global fix sees the sightings on currentMap(), so it measures the pose
+  // through the field's estimate: fix = p + J (f_hat - f) to first order, J = d fix / d f by
+  // central differences of the fix over each dimension. nullopt when a changed field gives no fix.
+  std::optional<FixFieldJacobian> fixFieldJacobian(const Step& seen) const;
   Estimate makeEstimate(const Step& step, EstimateStatus status) const;
 
   // Self-calibration (EkfConfig::calibration).
