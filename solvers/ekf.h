@@ -51,7 +51,11 @@
 // with the same gate, Joseph form and joint gating as above; observations without pixels keep
 // their own z and R, through the range block k = (c0, c1, c2, d_b) when it is estimated (a
 // range-bearing sensor's range factor across its field of view and bearing offset,
-// factors/range_bearing_calibration_factor.h; x = (p, c, q, k, e, dv, b)). The wheel base is
+// factors/range_bearing_calibration_factor.h; x = (p, c, q, k, e, dv, b)). With the field block
+// (calibration.field, the `ekf:calib-field` method; a pixel model) the change f of the field's nine
+// dimensions joins before the feature offsets, x = (p, c, q, [k], e, dv, f, b): every pixel
+// sighting sees its landmark at l + J_l f (factors/field_shifted_factor.h), and a global fix,
+// computed on the field's estimate, measures p + J (f_hat - f) with J = d fix / d f. The wheel base is
 // considered, not estimated (its row of K is zero). Every global fix sees the sightings through
 // the current calibration, and a lost filter re-anchors on a fix that agrees with its prediction
 // (fused as a measurement of the pose) instead of restarting there. Why each:

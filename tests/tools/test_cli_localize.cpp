@@ -57,12 +57,13 @@ TEST(CliLocalize, TheMeasuredFieldIsTheNextDrivesMap) {
   test::TempDir dir("cli_localize_field");
   const std::string ds = dir.file("ds");
   ASSERT_NO_FATAL_FAILURE(simulateHandBuiltField(ds));
-  for (const std::string method : {"batch", "window", "refine"}) {
+  for (const std::string method : {"batch", "window", "ekf", "refine"}) {
     const std::string map = dir.file(method + "_map.yaml"), rig = dir.file(method + "_rig.yaml");
     const std::string command = method == "refine" ? "refine " + ds : "localize " + ds + " --method " + method;
     const test::CliRun r = test::runCli(command + " --calibrate odometry,stereo,field --calibration-out " + rig +
                                         " --field-out " + map + " --out " + dir.file("est.csv"));
     ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_NE(r.output.find("calibration: field dimensions' change length "), std::string::npos) << r.output;
     // The map carries the estimate the rig file states.
     cv::FileStorage fs(rig, cv::FileStorage::READ);
     Eigen::Matrix<double, kFieldDimensionCount, 1> change;

@@ -5,8 +5,10 @@
 #include <cmath>
 #include <cstdio>
 #include <memory>
+#include <string>
 
 #include "src/core/atomic_file.h"
+#include "src/core/field_map.h"
 #include "src/io/csv.h"
 #include "src/io/dataset.h"
 #include "src/io/estimate_io.h"
@@ -137,6 +139,17 @@ void reportCalibration(const std::string& calibration_out, std::FILE* out, const
                  c.range_bearing[0], sd(c.range_bearing_covariance(0, 0)), c.range_bearing[1],
                  sd(c.range_bearing_covariance(1, 1)), c.range_bearing[2], sd(c.range_bearing_covariance(2, 2)),
                  rad2deg(c.range_bearing[3]), rad2deg(sd(c.range_bearing_covariance(3, 3))));
+  if (c.field) {
+    std::string line = "calibration: field dimensions' change";
+    for (int k = 0; k < kFieldDimensionCount; ++k) {
+      char part[96];
+      const double tenths = std::round(10.0 * c.field_dimensions_mm[k]) / 10.0 + 0.0;  // no "-0.0"
+      std::snprintf(part, sizeof part, "%s %s %+.1f +- %.1f mm", k ? "," : "", kFieldDimensions[k].name, tenths,
+                    sd(c.field_covariance(k, k)));
+      line += part;
+    }
+    std::fprintf(out, "%s\n", line.c_str());
+  }
   const PriorDistance far = furthestFromPrior(*calibration, config, nominal_wheel_base_mm);
   std::fprintf(out, "calibration: furthest from the nominal calibration: %s, %.1f prior sigmas\n", far.parameter.c_str(),
                far.sigmas);
