@@ -63,8 +63,8 @@
 //
 // Considered calibration (calibration.consider, the `ekf:consider` method): the same joint state
 // with every calibration row of K zero, the Schmidt-Kalman filter. The calibration stays the
-// given one; its uncertainty, the image errors and each feature's offsets still enter every
-// covariance, so the pose's covariance is honest about them (docs/estimators.md, "A filter that
+// given one; its uncertainty, the image errors, each feature's offsets and, with the field block,
+// the field's dimensions still enter every covariance, so the pose's covariance is honest about them (docs/estimators.md, "A filter that
 // considers its calibration").
 #include <Eigen/Core>
 #include <map>

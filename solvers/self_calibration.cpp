@@ -56,7 +56,6 @@ void SelfCalibrationConfig::validate() const {
   pos(bearing_offset_sigma_rad, "bearing_offset_sigma_rad");
   pos(field_dimension_sigma_mm, "field_dimension_sigma_mm");
   if (field && !stereo) throw Error("self-calibration: the field block rides on the stereo block (calibrate stereo,field)");
-  if (field && consider) throw Error("self-calibration: the field block is estimated by the smoothers, not considered");
   if (max_iterations < 1) throw Error("self-calibration: max_iterations must be at least 1");
 }
 

@@ -71,8 +71,8 @@ struct SelfCalibrationConfig {
   // Estimate a range-bearing sensor's range factor and bearing offset (batch, window, EKF; the
   // observations not seen through the stereo block; RangeBearingCalibrationFactor).
   bool range = false;
-  // With the stereo block, the batch and the window: estimate the field's dimensions (a field built by hand
-  // is a few mm off the map's; the map must be FieldMap::miroSot of its geometry).
+  // With the stereo block, the batch, the window and the EKF (a pixel model): estimate the field's dimensions
+  // (a field built by hand is a few mm off the map's; the map must be FieldMap::miroSot of its geometry).
   bool field = false;
   // The EKF only: the blocks above (and the image, row and feature blocks they bring) are
   // considered, not estimated: a Schmidt-Kalman filter, whose gain leaves them at the given

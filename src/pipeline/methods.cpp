@@ -301,7 +301,8 @@ MethodRun runMethodOnSteps(const std::string& spec, const Dataset& d, uint64_t s
     throw UsageError("--calibrate: only " + kSelfCalibratingText + " self-calibrate (method '" + spec + "')");
   if (o.calibration.consider && !considers(name))
     throw UsageError("--consider: only " + kConsideringText + " consider their calibration (method '" + spec + "')");
-  if (fix && o.calibration.consider && (o.calibration.odometry || o.calibration.range || !o.calibration.stereo))
+  if (fix && o.calibration.consider &&
+      (o.calibration.odometry || o.calibration.range || o.calibration.field || !o.calibration.stereo))
     throw UsageError("--consider: a fix considers the stereo block only (method '" + spec + "')");
   if (fix) {
     run = runFixes(d, name == "fix1", o.calibration);

@@ -291,7 +291,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "(the change of the MiroSot field's nine dimensions: a field built by hand), comma-separated");
   if (method_option)
     sub->add_option("--consider", a->consider,
-                    "ekf: the blocks of --calibrate (odometry, stereo, range, comma-separated) considered, not estimated: "
+                    "ekf: the blocks of --calibrate (odometry, stereo, range, field, comma-separated) considered, not estimated: "
                     "the calibration stays as given (or as --rig hands it over), its stated uncertainty enters the "
                     "covariance (a Schmidt-Kalman filter; the method ekf:consider in studies); fix1 and fix2: stereo "
                     "only, each fix's covariance gains the calibration's (fix2:consider in studies)");
