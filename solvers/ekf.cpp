@@ -344,8 +344,7 @@ Estimate Ekf::makeEstimate(const Step& step, EstimateStatus status) const {
 void Ekf::validateStep(const Step& step) const {
   if (have_step_ && step.step <= last_step_)
     throw Error("ekf: step " + std::to_string(step.step) + " does not follow step " + std::to_string(last_step_));
-  if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right))
-    throw Error("ekf: step " + std::to_string(step.step) + ": wheel increment is not finite");
+  validateStepOdometryAndCompass(step, "ekf: step " + std::to_string(step.step));
   for (size_t i = 0; i < step.observations.size(); ++i) checkObservation(step, i, step.observations[i]);
 }
 

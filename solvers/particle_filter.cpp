@@ -752,11 +752,8 @@ void ParticleFilter::validateStep(const Step& step) const {
   if (have_step_ && step.step <= last_step_)
     throw Error("particle filter: step " + std::to_string(step.step) + " does not follow step " +
                 std::to_string(last_step_));
-  if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right))
-    throw Error("particle filter: step " + std::to_string(step.step) + ": wheel increment is not finite");
+  validateStepOdometryAndCompass(step, "particle filter: step " + std::to_string(step.step));
   for (size_t i = 0; i < step.observations.size(); ++i) checkObservation(step, i, step.observations[i]);
-  if (step.compass && config_.use_compass && !(std::isfinite(step.compass_sigma) && step.compass_sigma > 0))
-    throw Error("particle filter: step " + std::to_string(step.step) + ": compass_sigma must be positive");
 }
 
 Estimate ParticleFilter::recordEstimate(const Step& step, EstimateStatus status) {

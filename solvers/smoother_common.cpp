@@ -248,12 +248,7 @@ std::unique_ptr<ceres::LossFunction> makeLossFunction(const RobustLossConfig& co
 
 void validateStep(const Step& step, const std::string& who) {
   const std::string at = who + ": step " + std::to_string(step.step);
-  if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right)) throw Error(at + ": wheel increment is not finite");
-  if (step.compass) {
-    if (!std::isfinite(*step.compass)) throw Error(at + ": compass is not finite");
-    if (!(std::isfinite(step.compass_sigma) && step.compass_sigma > 0))
-      throw Error(at + ": compass_sigma must be a positive number");
-  }
+  validateStepOdometryAndCompass(step, at);
   for (size_t i = 0; i < step.observations.size(); ++i) {
     const Observation& o = step.observations[i];
     const std::string oat = at + ": observation " + std::to_string(i);

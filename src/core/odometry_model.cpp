@@ -10,7 +10,9 @@ void OdometryParams::validate() const {
   auto check = [](bool ok, const char* field) {
     if (!ok) throw Error(std::string("odometry: ") + field + " is out of range");
   };
-  check(std::isfinite(wheel_base_mm) && wheel_base_mm > 0, "wheel_base_mm");
+  // A millimetre to a hundred metres: outside, (B.10)'s 1/w and w^2 are nonsense, not a robot.
+  if (!(wheel_base_mm >= 1.0 && wheel_base_mm <= 1e5))
+    throw Error("odometry: wheel_base_mm " + std::to_string(wheel_base_mm) + " is outside [1, 100000] mm");
   check(std::isfinite(k_left) && k_left >= 0, "k_left");
   check(std::isfinite(k_right) && k_right >= 0, "k_right");
   check(std::isfinite(wheel_variance_floor) && wheel_variance_floor >= 0, "wheel_variance_floor");

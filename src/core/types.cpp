@@ -52,6 +52,18 @@ void validateObservation(const Observation& obs, const std::string& where) {
     throw Error(where + ": single-view share is not in (0, 1]");
 }
 
+bool usableCompassSigma(double sigma_rad) {
+  return sigma_rad >= kMinCompassSigmaRad && sigma_rad <= kMaxCompassSigmaRad;  // false for NaN
+}
+
+void validateStepOdometryAndCompass(const Step& step, const std::string& where) {
+  if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right)) throw Error(where + ": wheel increment is not finite");
+  if (!step.compass) return;
+  if (!std::isfinite(*step.compass)) throw Error(where + ": compass is not finite");
+  if (!usableCompassSigma(step.compass_sigma))
+    throw Error(where + ": compass_sigma " + std::to_string(step.compass_sigma) + " rad is outside [1e-06, 2 pi]");
+}
+
 std::string toString(EstimateStatus status) {
   switch (status) {
     case EstimateStatus::Uninitialised: return "uninitialised";

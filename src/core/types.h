@@ -75,6 +75,17 @@ struct Step {
   std::vector<Observation> observations;
 };
 
+// The compass standard deviations a heading update can weigh (rad): at least a microradian
+// (below it 1/sigma^2 heads for overflow, and no compass is that good) and at most 2 pi (beyond
+// it the reading says nothing). Step::compass_sigma, dataset.yaml's noise.compass_sigma.
+inline constexpr double kMinCompassSigmaRad = 1e-6;
+inline constexpr double kMaxCompassSigmaRad = 6.283185307179586;
+bool usableCompassSigma(double sigma_rad);
+// Throws stereoloc::Error "<where>: ..." unless the step's compass (when it has one) and its
+// sigma are usable and its wheel increments finite. Every estimator checks its input steps' odometry
+// and compass with this.
+void validateStepOdometryAndCompass(const Step& step, const std::string& where);
+
 enum class EstimateStatus {
   Uninitialised,  // no pose yet (e.g. waiting for the first global fix)
   Tracking,       // normal operation

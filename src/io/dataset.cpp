@@ -135,7 +135,8 @@ Dataset readDatasetYaml(const std::string& dir, const YamlReader& y) {
   }
   const YamlNode noise = y.child("noise");
   d.compass_sigma = noise.getDouble("compass_sigma");
-  if (d.compass_sigma < 0) noise.fail("compass_sigma", "must be >= 0");
+  if (d.compass_sigma != 0.0 && !usableCompassSigma(d.compass_sigma))
+    noise.fail("compass_sigma", "must be 0 (no compass) or within [1e-06, 2 pi] rad");
   // A copy of the rig's pixel sigma for readers of the file: one that differs would read as a
   // setting that silently does nothing, so it must agree with the rig.
   if (noise.has("pixel_sigma")) {

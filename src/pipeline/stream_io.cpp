@@ -276,7 +276,8 @@ StreamLine parseStreamLine(const std::string& line, const StereoRig& rig, double
     s.step.compass = optionalNumber(j, "compass", "step");
     if (s.step.compass) {
       s.step.compass_sigma = optionalNumber(j, "compass_sigma", "step").value_or(default_compass_sigma);
-      if (!(s.step.compass_sigma > 0)) throw Error("\"compass\" needs a positive \"compass_sigma\"");
+      if (!usableCompassSigma(s.step.compass_sigma))
+        throw Error("\"compass\" needs a \"compass_sigma\" within [1e-06, 2 pi] rad");
     }
   } else if (!j.get("obs_step")) {
     throw Error("missing \"step\" (odometry) and \"obs_step\" (late observations)");

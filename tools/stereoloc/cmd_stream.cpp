@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "src/core/types.h"
 #include "src/io/dataset.h"
 #include "src/pipeline/localizer.h"
 #include "src/pipeline/methods.h"
@@ -258,11 +259,13 @@ void add_stream_command(CLI::App& app) {
       ->delimiter(',')
       ->expected(3)
       ->capture_default_str();
-  sub->add_option("--compass-sigma", a->compass_sigma, "Compass sigma (rad) for lines without compass_sigma");
+  sub->add_option("--compass-sigma", a->compass_sigma, "Compass sigma (rad) for lines without compass_sigma")
+      ->check(CLI::Range(kMinCompassSigmaRad, kMaxCompassSigmaRad));
   sub->add_option("--wheel-base", a->wheel_base,
                   "Wheel base (mm); not with --from/--setup, which have theirs, nor with a --rig that hands over a "
                   "wheel estimate")
       ->capture_default_str()
+      ->check(CLI::Range(1.0, 1e5))
       ->excludes(from)
       ->excludes(setup);
   sub->add_option("--max-iterations", a->max_iterations, "Window: solver iterations per step")
