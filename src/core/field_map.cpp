@@ -219,7 +219,8 @@ FieldMap FieldMap::load(const std::string& path) {
                           "penalty_area_depth", "penalty_area_width", "goal_corner_height"};
     for (size_t i = 0; i < sizeof(keys) / sizeof(keys[0]); ++i) {
       *fields[i] = g.getDouble(keys[i]);
-      if (!(*fields[i] > 0)) g.fail(keys[i], "must be positive");
+      // Ten metres bound the MiroSot fields (the large league's is 4 m) and what a renderer can grid.
+      if (!(*fields[i] > 0 && *fields[i] <= 10000.0)) g.fail(keys[i], "must be within (0, 10000] mm");
     }
     geometry = fg;
   }

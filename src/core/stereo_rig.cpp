@@ -36,7 +36,8 @@ StereoRig::StereoRig(const StereoRigParams& p) : params_(p) {
   if (!(std::isfinite(p.exposure_offset_s) && std::fabs(p.exposure_offset_s) <= 0.1))
     throw Error("stereo rig: exposure_offset_s must be within +-0.1 s");
   if (p.focal_px > 0) {
-    positive(p.focal_px, "focal_px");
+    // A pixel to a million: below, a camera sees nothing; above, a telescope.
+    if (!(p.focal_px >= 1.0 && p.focal_px <= 1e6)) throw Error("stereo rig: focal_px must be within [1, 1e6] px");
     f_ = p.focal_px;
   } else {
     if (!(std::isfinite(p.hfov_rad) && p.hfov_rad > 0 && p.hfov_rad < kPi))
@@ -138,7 +139,7 @@ StereoRig StereoRig::load(const std::string& path) {
     p.baseline_mm = in.getDouble("baseline_mm");
     // In the struct a non-positive focal length or a negative principal point asks for the
     // default; written in a file it is an error.
-    if (in.has("focal_px") && !(p.focal_px > 0)) in.fail("focal_px", "must be positive");
+    if (in.has("focal_px") && !(p.focal_px >= 1.0 && p.focal_px <= 1e6)) in.fail("focal_px", "must be within [1, 1e6] px");
     if (in.has("hfov_rad") && !(p.hfov_rad > 0 && p.hfov_rad < kPi)) in.fail("hfov_rad", "must be in (0, pi)");
     if (in.has("principal_u") && !(p.principal_u >= 0 && p.principal_u <= p.image_width - 1))
       in.fail("principal_u", "must lie in the image, [0, image_width - 1]");

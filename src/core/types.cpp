@@ -58,6 +58,8 @@ bool usableCompassSigma(double sigma_rad) {
 
 void validateStepOdometryAndCompass(const Step& step, const std::string& where) {
   if (!std::isfinite(step.d_left) || !std::isfinite(step.d_right)) throw Error(where + ": wheel increment is not finite");
+  if (std::fabs(step.d_left) > kMaxWheelIncrementMm || std::fabs(step.d_right) > kMaxWheelIncrementMm)
+    throw Error(where + ": wheel increment beyond 1 km in one step");
   if (!step.compass) return;
   if (!std::isfinite(*step.compass)) throw Error(where + ": compass is not finite");
   if (!usableCompassSigma(step.compass_sigma))

@@ -11,6 +11,9 @@
 namespace stereoloc {
 namespace {
 
+// Characters of an unexpected header an error shows.
+constexpr size_t kShownHeaderChars = 80;
+
 // Splits `line` at the commas into `out`, reusing its strings' storage (rows of a million-line
 // file would otherwise allocate every field anew).
 void split(const std::string& line, std::vector<std::string>* out) {
@@ -91,7 +94,12 @@ size_t CsvReader::expectHeader(const std::vector<std::vector<std::string>>& opti
     if (header_ == options[i]) return i;
   std::string expected;
   for (size_t i = 0; i < options.size(); ++i) expected += (i ? "' or '" : "") + join(options[i]);
-  throw Error(path_ + ":1: expected header '" + expected + "', found '" + join(header_) + "'");
+  // What was found, shortened: a file without line breaks (old Mac endings) is one line.
+  std::string found = join(header_);
+  if (found.size() > kShownHeaderChars) found = found.substr(0, kShownHeaderChars) + "...";
+  for (char& c : found)
+    if (c == '\r') c = ' ';
+  throw Error(path_ + ":1: expected header '" + expected + "', found '" + found + "'");
 }
 
 bool CsvReader::next() {

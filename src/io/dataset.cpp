@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <limits>
 #include <system_error>
 
 #include "src/core/atomic_file.h"
@@ -17,6 +18,9 @@
 namespace stereoloc {
 namespace fs = std::filesystem;
 namespace {
+
+// The largest position coordinate a dataset states (mm): a thousand kilometres.
+constexpr double kMaxPositionMm = 1e9;
 
 const std::vector<std::string> kOdometryHeader = {"step", "t", "d_left", "d_right"};
 const std::vector<std::string> kOdometryPanHeader = {"step", "t", "d_left", "d_right", "head_pan"};
@@ -148,6 +152,8 @@ Dataset readDatasetYaml(const std::string& dir, const YamlReader& y) {
   if (y.has("initial_pose")) {
     const YamlNode p = y.child("initial_pose");
     d.initial_pose = Pose2(p.getDouble("x"), p.getDouble("y"), p.getDouble("theta"));
+    for (const char* key : {"x", "y"})
+      if (std::fabs(p.getDouble(key)) > kMaxPositionMm) p.fail(key, "beyond 1000 km");
   }
   d.has_images = y.getBool("has_images", false);
   return d;
@@ -166,6 +172,8 @@ void readSteps(const std::string& dir, const YamlReader& y, Dataset* dp) {
     s.t = in.getDouble(1);
     s.d_left = in.getDouble(2);
     s.d_right = in.getDouble(3);
+    for (size_t c : {2, 3})
+      if (std::fabs(c == 2 ? s.d_left : s.d_right) > kMaxWheelIncrementMm) in.failColumn(c, "beyond 1 km in one step");
     if (with_pan) s.head_pan = in.getDouble(4);
     if (!d.steps.empty()) {
       if (s.step <= d.steps.back().step)
@@ -217,6 +225,8 @@ void readObservations(const std::string& dir, const YamlReader& y, Dataset* dp) 
     Step& s = d.steps[idx.lookup(in, step, t, true)];
     LandmarkType type = LandmarkType::Point;
     if (id != -1) {
+      if (id < 0 || id > std::numeric_limits<int>::max())
+        in.failColumn(2, "landmark id " + std::to_string(id) + " out of range");
       const Landmark* l = d.map.find(static_cast<int>(id));
       if (!l) in.failColumn(2, "unknown landmark id " + std::to_string(id) + " (not in the map)");
       type = l->type;
@@ -226,6 +236,17 @@ void readObservations(const std::string& dir, const YamlReader& y, Dataset* dp) 
         checkPixelCovariance(covarianceFromUpper(v + kCovarianceColumn - 3), "pixel covariance");
       } catch (const Error& e) {
         in.failColumn(kCovarianceColumn, e.what());
+      }
+    }
+    if (pixels) {
+      // Far outside the image a pixel is no detection (a rectified one lies in it, give or take
+      // a lens's edge): half an image's margin.
+      const int w = d.rig.params().image_width, h = d.rig.params().image_height;
+      for (size_t k = 0; k < 4; ++k) {
+        const double size = k % 2 == 0 ? w : h;
+        if (!(v[k] >= -0.5 * size && v[k] <= 1.5 * size))
+          in.failColumn(3 + k, "pixel " + formatDouble(v[k]) + " lies far outside the " + std::to_string(w) + " x " +
+                                   std::to_string(h) + " image");
       }
     }
     try {
@@ -262,6 +283,8 @@ void readGroundTruth(const std::string& dir, Dataset* dp) {
       const long step = in.getLong(0);
       const double t = in.getDouble(1);
       const Pose2 p(in.getDouble(2), in.getDouble(3), in.getDouble(4));
+      for (size_t c : {2, 3})
+        if (std::fabs(c == 2 ? p.x : p.y) > kMaxPositionMm) in.failColumn(c, "beyond 1000 km");
       d.groundtruth[idx.lookup(in, step, t, false)] = p;
     }
   }

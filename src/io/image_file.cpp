@@ -14,6 +14,8 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <opencv2/core.hpp>
+#include <system_error>
 #include <opencv2/imgcodecs.hpp>
 
 namespace stereoloc {
@@ -155,8 +157,12 @@ std::string imageContainerDefect(const Bytes& bytes) {
 ImageRead readImageFile(const std::string& path, int imread_flags) {
   ImageRead r;
   // Checked first: OpenCV would print its own warning for a missing file.
-  if (!std::filesystem::is_regular_file(path)) {
-    r.problem = "no such file";
+  std::error_code ec;
+  const std::filesystem::file_status status = std::filesystem::status(path, ec);
+  if (!std::filesystem::is_regular_file(status)) {
+    r.problem = std::filesystem::exists(status) ? "not a regular file"
+                : ec && ec != std::errc::no_such_file_or_directory ? ec.message()
+                                                                    : "no such file";
     return r;
   }
   std::ifstream in(path, std::ios::binary);
@@ -175,7 +181,12 @@ ImageRead readImageFile(const std::string& path, int imread_flags) {
   }
   r.problem = imageContainerDefect(bytes);
   if (!r.problem.empty()) return r;
-  r.image = cv::imdecode(bytes, imread_flags);
+  try {
+    r.image = cv::imdecode(bytes, imread_flags);
+  } catch (const cv::Exception& e) {  // a header declaring more pixels than OpenCV decodes, ...
+    r.problem = "not decodable: " + e.err;
+    return r;
+  }
   if (r.image.empty()) r.problem = "unreadable or not an image";
   return r;
 }

@@ -308,7 +308,7 @@ std::string formatReport(const SmootherStudyConfig& a, const std::vector<std::st
 std::string runSmootherStudy(const SmootherStudyConfig& a) {
   if (a.trials < 1) throw UsageError("--trials must be at least 1");
   if (a.threads < 0) throw UsageError("--threads must be >= 0");
-  if (a.particles < 1) throw UsageError("--particles must be at least 1");
+  if (a.particles < 100) throw UsageError("--particles must be at least 100");
   const std::vector<std::string> scenarios = splitCommaList(a.scenarios);
   if (scenarios.empty()) throw UsageError("--scenarios: no scenario given");
   const std::vector<std::string> drivable = {"circle", "line", "spin", "random-walk"};

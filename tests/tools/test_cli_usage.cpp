@@ -8,6 +8,8 @@
 #include <fstream>
 #include <iterator>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "cli_util.h"
 #include "test_util.h"
@@ -63,6 +65,24 @@ TEST_F(CliUsage, AnEmptyValueOrANonFiniteNumberIsRefusedNamingTheOption) {
                                          " --out " + file("ekf.csv"));
   EXPECT_EQ(flag.exit_code, 0) << flag.output;
   EXPECT_TRUE(std::filesystem::exists(file("ekf.csv")));
+}
+
+// Numbers outside what an option means are usage errors naming the option, before anything runs
+// (a blur of a million pixels took minutes, a compass sigma of -1 failed every input line).
+TEST_F(CliUsage, NumbersOutsideTheirMeaningAreRefusedNamingTheOption) {
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"localize " + dataset() + " --method window --window 0 --out " + file("w.csv"), "--window: must be positive, not 0"},
+      {"localize " + dataset() + " --method pf --particles 50 --out " + file("p.csv"), "--particles"},
+      {"simulate --scenario line --steps 3 --images --image-blur 1e6 --force --out " + file("blur"), "--image-blur"},
+      {"stream --from " + dataset() + " --compass-sigma -1", "--compass-sigma"},
+      {"stream --compass-sigma 1e-300", "--compass-sigma"},
+      {"stream --wheel-base 1e-300", "--wheel-base"}};
+  for (const auto& [command, option] : cases) {
+    const test::CliRun r = test::runCli(command);
+    EXPECT_EQ(r.exit_code, 2) << command << "\n" << r.output;
+    EXPECT_EQ(r.output.rfind("stereoloc: " + option, 0), 0u) << r.output;
+    EXPECT_EQ(lines(r.output), 1u) << r.output;
+  }
 }
 
 TEST_F(CliUsage, RealdataRunsOnlyEstimatorsItKnows) {

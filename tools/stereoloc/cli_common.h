@@ -20,6 +20,24 @@ constexpr int kExitBadData = 1;
 constexpr int kExitUsage = 2;
 using stereoloc::UsageError;  // exit kExitUsage
 
+// A positive number, refused with a message that says so: CLI11's PositiveNumber states its
+// range from the smallest double, printed as 0.000000, and so contradicts itself for 0.
+inline CLI::Validator positiveNumber() {
+  return CLI::Validator(
+      [](std::string& value) -> std::string {
+        char* end = nullptr;
+        const double v = std::strtod(value.c_str(), &end);
+        if (end == value.c_str() || *end != '\0') return "'" + value + "' is not a number";
+        if (!std::isfinite(v)) return "'" + value + "' is not a finite number";
+        return v > 0 ? std::string() : "must be positive, not " + value;
+      },
+      "POSITIVE");
+}
+
+// Particles of a particle filter: it re-injects 100 uniform ones on every observed step
+// (ParticleFilterConfig::reinjected), so fewer than 100 cannot be.
+inline CLI::Validator particleCount() { return CLI::Range(100, 10000000); }
+
 // An option a run would not use is refused, never silently ignored: UsageError
 // "OPTION: for WHO only" (plus `context`) when `option` was given and `used` is false. An
 // option the command does not have counts as not given.

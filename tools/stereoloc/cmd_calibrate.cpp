@@ -149,7 +149,7 @@ void add_calibrate_command(CLI::App& app) {
       ->required()
       ->check(CLI::ExistingPath);
   sub->add_option("--board", o->board, "Inner corners per row x per column, unequal (e.g. 9x6)")->capture_default_str();
-  sub->add_option("--square-mm", o->square_mm, "Side of a square, mm")->capture_default_str()->check(CLI::PositiveNumber);
+  sub->add_option("--square-mm", o->square_mm, "Side of a square, mm")->capture_default_str()->check(positiveNumber());
   sub->add_option("--out", o->out, "Write the OpenCV stereo calibration (M1 D1 M2 D2 R T, R1 ... Q) here")->required();
   sub->add_option("--distortion", o->distortion, "Distortion coefficients: 4 (k1 k2 p1 p2), 5 (+ k3), 8 (rational)")
       ->capture_default_str()
@@ -178,12 +178,12 @@ void add_calibrate_command(CLI::App& app) {
       ->needs(rig_out);
   sub->add_option("--tilt-sigma-deg", o->tilt_sigma_deg, "The mounting's tilt uncertainty, deg (the board does not see it)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber)
+      ->check(positiveNumber())
       ->needs(rig_out);
   sub->add_option("--column-offset-sigma-px", o->column_offset_sigma_px,
                   "The head's yaw on the robot as a column uncertainty, px (the board does not see it)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber)
+      ->check(positiveNumber())
       ->needs(rig_out);
   sub->add_option("--drive-disparity-sigma-px", o->drive_disparity_sigma_px,
                   "Disparity offset a drive adds that the still board cannot show, px: cameras exposing dt apart on a "

@@ -3,6 +3,7 @@
 // range-bearing observations (table or JSON).
 #include <cstdio>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "frontend/detection_text.h"
@@ -27,7 +28,12 @@ void writeOverlay(const cv::Mat& img, const frontend::FrontendResult& r, const s
   const cv::Mat big = frontend::drawDetections(img, r, 2);
   std::vector<uchar> buf;
   const std::string ext = path.find('.') != std::string::npos ? path.substr(path.find_last_of('.')) : "";
-  if (ext.empty() || !cv::imencode(ext, big, buf)) throw Error(path + ": cannot encode the overlay (unknown image extension?)");
+  bool encoded = false;
+  try {
+    encoded = !ext.empty() && cv::imencode(ext, big, buf);
+  } catch (const cv::Exception&) {  // OpenCV throws for an extension it has no encoder for
+  }
+  if (!encoded) throw Error(path + ": cannot encode the overlay (unknown image extension?)");
   writeFileAtomically(path, std::string(buf.begin(), buf.end()));
 }
 

@@ -100,20 +100,20 @@ void add_import_command(CLI::App& app) {
       ->check(CLI::Range(0.1, 1000.0));
   m->add_option("--wheel-base", opts->wheel_base_mm, "Wheel base used to turn (v, omega) into wheel travel, mm")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   m->add_option("--sigma-range", opts->sigma_range_mm, "Range sigma, mm (default: estimated against ground truth)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   m->add_option("--sigma-bearing-deg", opts->sigma_bearing_deg,
                 "Bearing sigma, degrees (default: estimated against ground truth)")
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   m->add_option("--odometry-noise-scale", opts->odometry_noise_scale,
                 "Multiplies the odometry noise fitted against ground truth (k and the x, y control floors)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   m->add_option("--odometry-window", opts->odometry_window_s,
                 "Length of the windows over which the odometry noise is fitted against ground truth, s")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   m->add_option("--range-correction", opts->range_correction,
                  "Divide each range by 1 + C0 + C1 b + C2 b^2 (b the bearing, rad): 'fit' fits C against ground truth "
                  "(printed), or give C0,C1,C2 fitted on another run");

@@ -32,21 +32,23 @@ void add_realdata_command(CLI::App& app) {
   sub->add_flag("!--no-gate", o->gate,
                 "EKF and sliding window: no validation gate (every observation fused, never lost); the robust "
                 "window runs without the gate anyway (SlidingWindowConfig::gate_with_robust_loss)");
-  sub->add_option("--particles", o->particles, "Particle filter size")->capture_default_str()->check(CLI::Range(10, 1000000));
+  sub->add_option("--particles", o->particles, "Particle filter size (at least 100)")
+      ->capture_default_str()
+      ->check(particleCount());
   sub->add_option("--seed", o->seed, "Seed of the particle filter")->capture_default_str();
   sub->add_option("--robust", o->robust, "Robust loss of the second window and batch runs: huber or cauchy")->capture_default_str();
   sub->add_option("--robust-scale", o->robust_scale, "Robust loss scale (whitened units)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   sub->add_option("--max-steps", o->max_steps, "Use only the first N steps (0: all)")
       ->capture_default_str()
       ->check(CLI::NonNegativeNumber);
   sub->add_option("--init-sigma-xy", o->init_sigma_xy, "Initial position sigma, mm")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   sub->add_option("--init-sigma-theta-deg", o->init_sigma_theta_deg, "Initial heading sigma, degrees")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   sub->add_option("--batch-guess", o->batch_guess,
                   "Initial guess of the batch smoother: filter (a forward EKF pass) or odometry")
       ->capture_default_str();

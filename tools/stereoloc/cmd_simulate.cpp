@@ -154,7 +154,8 @@ void add_simulate_command(CLI::App& app) {
   sub->add_option("--image-noise", o->render.noise_sigma, "Image sensor noise sigma, grey levels (with --images)")
       ->capture_default_str();
   sub->add_option("--image-blur", o->render.blur_sigma, "Image Gaussian blur sigma, px (with --images)")
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 10.0));
   sub->add_option("--brightness", o->render.brightness, "Added to every image channel, grey levels (bad illumination)")
       ->capture_default_str();
   sub->add_option("--contrast", o->render.contrast, "Image contrast factor about mid-grey (bad illumination)")

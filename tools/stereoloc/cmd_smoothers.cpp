@@ -18,7 +18,7 @@ void add_smoothers_command(CLI::App& app) {
       "RMSE / sqrt(CRLB) (posterior Cramer-Rao bound at the truth), side by side; a markdown table");
   sub->add_option("--scenarios", a->scenarios, "Comma-separated drivable scenarios: circle, line, spin, random-walk")
       ->capture_default_str();
-  sub->add_option("--trials", a->trials, "Trials (seeds) per scenario")->capture_default_str()->check(CLI::PositiveNumber);
+  sub->add_option("--trials", a->trials, "Trials (seeds) per scenario")->capture_default_str()->check(positiveNumber());
   sub->add_option("--seed", a->seed, "Study seed (each trial's seed derives from it, as in `stereoloc study`)")
       ->capture_default_str();
   sub->add_option("--threads", a->threads, "Worker threads (0 = all cores); results do not depend on it")
@@ -34,9 +34,9 @@ void add_smoothers_command(CLI::App& app) {
                   "The simulator's pixel noise: independent (0.5 px per coordinate, the thesis's) or per_kind (the "
                   "vision frontend's correlated (u, v, disparity) model per landmark kind)")
       ->capture_default_str();
-  sub->add_option("--particles", a->particles, "Particles of the particle filter")
+  sub->add_option("--particles", a->particles, "Particles of the particle filter (at least 100)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(particleCount());
   sub->add_option("--out", a->out_dir, "Directory for smoothers.md (created if missing); the table is printed anyway");
   sub->callback([a] {
     std::fputs(runSmootherStudy(*a).c_str(), stdout);

@@ -271,9 +271,9 @@ void add_stream_command(CLI::App& app) {
   sub->add_option("--max-iterations", a->max_iterations, "Window: solver iterations per step")
       ->capture_default_str()
       ->check(CLI::Range(1, 1000));
-  sub->add_option("--particles", a->particles, "Particles of the particle filter")
+  sub->add_option("--particles", a->particles, "Particles of the particle filter (at least 100)")
       ->capture_default_str()
-      ->check(CLI::Range(1, 10000000));
+      ->check(particleCount());
   sub->add_option("--seed", a->seed, "Seed of the particle filter's random stream")->capture_default_str();
   sub->add_option("--odometry-delay", a->odometry_delay,
                   "The odometry runs this late against the camera, seconds, 0 to 2 (a drive's latency; `localize "

@@ -86,7 +86,7 @@ void add_study_command(CLI::App& app) {
                   "blur, vibration and odometry errors; src/sim/error_profile.h) or profile YAML files; every method "
                   "runs in each, side by side in the report")
       ->capture_default_str();
-  sub->add_option("--trials", a->config.trials, "Trials per scenario")->capture_default_str()->check(CLI::PositiveNumber);
+  sub->add_option("--trials", a->config.trials, "Trials per scenario")->capture_default_str()->check(positiveNumber());
   sub->add_option("--seed", a->config.seed, "Study seed (each trial's seed derives from it)")->capture_default_str();
   sub->add_option("--frontend", a->config.frontend,
                   "Observations: images (each step's stereo pair rendered and run through the vision frontend) or "
@@ -107,9 +107,9 @@ void add_study_command(CLI::App& app) {
   sub->add_option("--shard", a->shard, "Run only trials I, I+N, I+2N, ... (0-based I/N); merge with 'study merge'")
       ->capture_default_str();
   sub->add_option("--init", a->init, "Default start of the trackers: known, random or global")->capture_default_str();
-  sub->add_option("--particles", a->config.method_options.particles, "Particles of the particle filter")
+  sub->add_option("--particles", a->config.method_options.particles, "Particles of the particle filter (at least 100)")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(particleCount());
   sub->add_option("--pf-proposal", a->pf_proposal,
                   "Particle filter proposal: linearised_optimal (each particle Kalman-corrected by the observations) or "
                   "prior (Algorithm 6 as printed)")
@@ -118,7 +118,7 @@ void add_study_command(CLI::App& app) {
                 "Particle filter with KLD-sampling: adaptive particle count up to --particles (steps.csv column particles)");
   sub->add_option("--window", a->config.method_options.window, "Window size W of the sliding-window smoother")
       ->capture_default_str()
-      ->check(CLI::PositiveNumber);
+      ->check(positiveNumber());
   sub->add_option("--observation-model", a->observation_model,
                   "How batch and window use the stereo observations: range_bearing (the thesis's form), pixel_columns "
                   "(u_l, u_r: the same data, no conversion bias) or pixels (also the rows)")

@@ -269,8 +269,10 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--init", a->init, "Start of the trackers: known (truth + noise), random, or global (first global fix)")
       ->capture_default_str();
   if (method_option) {
-    sub->add_option("--particles", a->options.particles, "Particles of the particle filter")->capture_default_str()->check(CLI::PositiveNumber);
-    sub->add_option("--window", a->options.window, "Window size W of the sliding-window smoother")->capture_default_str()->check(CLI::PositiveNumber);
+    sub->add_option("--particles", a->options.particles, "Particles of the particle filter (at least 100)")
+        ->capture_default_str()
+        ->check(particleCount());
+    sub->add_option("--window", a->options.window, "Window size W of the sliding-window smoother")->capture_default_str()->check(positiveNumber());
   }
   sub->add_option("--loss", a->loss, "Robust loss of the batch and window smoothers' observation factors: none, huber or cauchy (the window then runs without the gate)")->capture_default_str();
   sub->add_option("--observation-model", a->observation_model,
@@ -278,7 +280,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "pixel_columns (pixel factors on u_l, u_r: the same data, no conversion bias) or pixels (also the "
                   "rows: range from the known camera and landmark heights); observations without pixels stay range-bearing")
       ->capture_default_str();
-  sub->add_option("--loss-scale", a->options.loss_scale, "Robust loss scale in whitened units")->capture_default_str()->check(CLI::PositiveNumber);
+  sub->add_option("--loss-scale", a->options.loss_scale, "Robust loss scale in whitened units")->capture_default_str()->check(positiveNumber());
   sub->add_option("--seed", a->seed, "Seed of the start noise and the particle filter")->capture_default_str();
   sub->add_option("--out", a->out, "Estimates CSV: step,t,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yy,cov_ytheta,cov_thetatheta")->required();
   sub->add_option("--tum", a->tum, "Also write the trajectory in TUM format (metres), e.g. for evo");

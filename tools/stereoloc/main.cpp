@@ -1,6 +1,8 @@
 // stereoloc — stereo-vision and odometry self-localization in a known map.
 // Thin entry point: every subcommand is registered from its own file (see cli_common.h).
 #include <CLI/CLI.hpp>
+#include <glog/logging.h>
+
 #include <cmath>
 #include <cstdlib>
 #include <iostream>
@@ -31,6 +33,11 @@ void refuseEmptyOrNonFiniteValues(const CLI::App& app) {
 
 int main(int argc, char** argv) {
   using namespace stereoloc::cli;
+  // Ceres logs through glog, before our one-line error when a solve fails: only a check failure
+  // (glog's FATAL, a bug) may print, to standard error, and no log file is written.
+  FLAGS_logtostderr = true;
+  FLAGS_minloglevel = google::GLOG_FATAL;
+  google::InitGoogleLogging(argv[0]);
   CLI::App app{"stereoloc: real-time self-localization of small mobile robots from stereo vision and wheel "
                "odometry in a known map (units: mm, rad, s)."};
   app.require_subcommand(1);

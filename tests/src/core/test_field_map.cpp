@@ -149,6 +149,12 @@ TEST(FieldMap, BadMapsGiveErrorsNamingFileAndKey) {
   EXPECT_NE(e.find("outside.yaml"), std::string::npos) << e;
   EXPECT_NE(e.find("outside"), std::string::npos) << e;
 
+  // A field ten kilometres long is no MiroSot field, and no grid a renderer can hold.
+  std::string field = test::readFile(std::string(STEREOLOC_DATA_DIR) + "/field_mirosot.yaml");
+  field.replace(field.find("length: 1500."), 13, "length: 1e9");
+  e = errorOf(write("long.yaml", field));
+  EXPECT_NE(e.find("long.yaml: geometry.length: must be within (0, 10000] mm"), std::string::npos) << e;
+
   e = errorOf(write("type.yaml", std::string(kHeader) + "landmarks:\n   - { id: 1, type: tower, x: 5., y: 5. }\n"));
   EXPECT_NE(e.find("landmarks[0].type"), std::string::npos) << e;
 

@@ -156,8 +156,10 @@ TEST(Odometry, PredictionCompoundsAndPropagates) {
   EXPECT_GT(pred.covariance.trace(), P.trace());
   EXPECT_THROW(controlVector(std::nan(""), 1, kW), Error);
   OdometryParams bad;
-  bad.wheel_base_mm = -1;
-  EXPECT_THROW(bad.validate(), Error);
+  for (const double w : {-1.0, 0.5, 1e-300, 1e6}) {
+    bad.wheel_base_mm = w;
+    EXPECT_THROW(bad.validate(), Error) << w;
+  }
 }
 
 TEST(Odometry, WheelIncrementsForArcInvertsControl) {

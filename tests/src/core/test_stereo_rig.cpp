@@ -222,7 +222,8 @@ TEST(StereoRig, FileMustStateGeometryAndMounting) {
   EXPECT_EQ(withLine("hfov_rad", ""), "");
   EXPECT_NE(edited({{"focal_px", ""}, {"hfov_rad", ""}}).find(where + "focal_px: missing (neither focal_px nor hfov_rad)"),
             std::string::npos);
-  EXPECT_NE(withLine("focal_px", "-1").find(where + "focal_px: must be positive"), std::string::npos);
+  EXPECT_NE(withLine("focal_px", "-1").find(where + "focal_px: must be within [1, 1e6] px"), std::string::npos);
+  EXPECT_NE(withLine("focal_px", "0.5").find(where + "focal_px: must be within [1, 1e6] px"), std::string::npos);
   EXPECT_NE(withLine("hfov_rad", "-1").find(where + "hfov_rad: must be in (0, pi)"), std::string::npos);
   EXPECT_NE(withLine("principal_u", "-1").find(where + "principal_u: must lie in the image"), std::string::npos);
   EXPECT_NE(withLine("principal_v", "240").find(where + "principal_v: must lie in the image"), std::string::npos);

@@ -13,6 +13,32 @@
 namespace stereoloc {
 namespace {
 
+// A step's odometry and compass as every estimator checks them: a compass sigma whose inverse
+// square overflows, or that says nothing, and a wheel increment beyond a kilometre are refused.
+TEST(Step, ValidationRefusesUnusableCompassAndOdometry) {
+  Step s;
+  s.step = 4;
+  s.d_left = 10.0;
+  s.d_right = 11.0;
+  EXPECT_NO_THROW(validateStepOdometryAndCompass(s, "ekf: step 4"));
+  s.compass = 0.3;
+  for (const double sigma : {0.0, 1e-300, 1e-7, 7.0, 1e300, std::nan("")}) {
+    s.compass_sigma = sigma;
+    EXPECT_THROW(validateStepOdometryAndCompass(s, "ekf: step 4"), Error) << sigma;
+  }
+  for (const double sigma : {kMinCompassSigmaRad, 0.05, kMaxCompassSigmaRad}) {
+    s.compass_sigma = sigma;
+    EXPECT_NO_THROW(validateStepOdometryAndCompass(s, "ekf: step 4")) << sigma;
+  }
+  s.d_left = 1e150;
+  try {
+    validateStepOdometryAndCompass(s, "ekf: step 4");
+    ADD_FAILURE() << "a 1e150 mm step was taken";
+  } catch (const Error& e) {
+    EXPECT_EQ(std::string(e.what()), "ekf: step 4: wheel increment beyond 1 km in one step");
+  }
+}
+
 std::string refusal(const Observation& o) {
   try {
     validateObservation(o, "step 7: observations[1]");

@@ -349,6 +349,61 @@ TEST_F(Malformed, PixelSigmaCopyThatDisagreesWithTheRig) {
   expectError(dir.path(), "noise.pixel_sigma", "not a number");
 }
 
+// Finite numbers no robot produces: each refused with its file, line and column, before an
+// estimator turns it into an infinite RMSE, a solver failure or a landmark of another id.
+TEST_F(Malformed, ImplausibleWheelIncrement) {
+  replaceLine(dir / "odometry.csv", 3, "1,0.10000000000000001,1e150,0,0");
+  expectError(dir.path(), "odometry.csv:3:", "beyond 1 km in one step");
+}
+
+TEST_F(Malformed, ImplausibleGroundTruth) {
+  replaceLine(dir / "groundtruth.csv", 2, "0,0,1e308,650,1.5");
+  expectError(dir.path(), "groundtruth.csv:2:", "beyond 1000 km");
+}
+
+TEST_F(Malformed, LandmarkIdBeyondInt) {
+  const std::string obs = test::readFile(dir / "observations.csv");
+  const std::string first = obs.substr(obs.find('\n') + 1, obs.find('\n', obs.find('\n') + 1) - obs.find('\n') - 1);
+  const size_t c1 = first.find(','), c2 = first.find(',', c1 + 1), c3 = first.find(',', c2 + 1);
+  replaceLine(dir / "observations.csv", 2, first.substr(0, c2 + 1) + "4294967299" + first.substr(c3));
+  expectError(dir.path(), "observations.csv:2:", "landmark id 4294967299 out of range");
+}
+
+TEST_F(Malformed, PixelFarOutsideTheImage) {
+  const std::string obs = test::readFile(dir / "observations.csv");
+  ASSERT_EQ(obs.rfind("step,t,landmark_id,u_left,", 0), 0u);
+  const std::string first = obs.substr(obs.find('\n') + 1, obs.find('\n', obs.find('\n') + 1) - obs.find('\n') - 1);
+  const size_t c1 = first.find(','), c2 = first.find(',', c1 + 1), c3 = first.find(',', c2 + 1),
+               c4 = first.find(',', c3 + 1);
+  replaceLine(dir / "observations.csv", 2, first.substr(0, c3 + 1) + "1000000" + first.substr(c4));
+  expectError(dir.path(), "observations.csv:2:", "lies far outside the");
+}
+
+TEST_F(Malformed, CompassSigmaBelowAnyCompass) {
+  std::string y = test::readFile(dir / "dataset.yaml");
+  const size_t at = y.find("compass_sigma:");
+  ASSERT_NE(at, std::string::npos);
+  y.replace(at, y.find('\n', at) - at, "compass_sigma: 1e-300");
+  writeFile(dir / "dataset.yaml", y);
+  expectError(dir.path(), "noise.compass_sigma", "within [1e-06, 2 pi] rad");
+}
+
+TEST_F(Malformed, HeaderWithoutLineBreaksIsShownShort) {
+  std::string odo = test::readFile(dir / "odometry.csv");
+  for (char& c : odo)
+    if (c == '\n') c = '\r';
+  writeFile(dir / "odometry.csv", odo);
+  try {
+    loadDataset(dir.path());
+    FAIL() << "a file without line breaks was read";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("odometry.csv:1: expected header"), std::string::npos) << m;
+    EXPECT_LT(m.size(), 400u) << m;
+    EXPECT_EQ(m.find('\r'), std::string::npos);
+  }
+}
+
 TEST_F(Malformed, TimeMismatch) {
   replaceLine(dir / "compass.csv", 3, "1,0.5,0.1");
   expectError(dir.path(), "compass.csv:3:", "does not match odometry.csv");

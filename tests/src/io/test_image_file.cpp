@@ -3,9 +3,11 @@
 #include "src/io/image_file.h"
 
 #include <gtest/gtest.h>
+#include <zlib.h>
 
 #include <filesystem>
 #include <fstream>
+#include <system_error>
 #include <opencv2/imgcodecs.hpp>
 
 #include "test_util.h"
@@ -112,7 +114,23 @@ TEST(ImageFile, ProblemsAreNamed) {
   EXPECT_EQ(readImageFile(dir.file("empty.png"), cv::IMREAD_UNCHANGED).problem, "empty file");
   writeBytes(dir.file("text.png"), {'n', 'o', 't', ' ', 'a', 'n', ' ', 'i', 'm', 'a', 'g', 'e'});
   EXPECT_EQ(readImageFile(dir.file("text.png"), cv::IMREAD_UNCHANGED).problem, "unreadable or not an image");
-  EXPECT_EQ(readImageFile(dir.path(), cv::IMREAD_UNCHANGED).problem, "no such file");
+  EXPECT_EQ(readImageFile(dir.path(), cv::IMREAD_UNCHANGED).problem, "not a regular file");
+  std::filesystem::create_symlink("loop.png", dir.file("loop.png"));  // a link to itself
+  EXPECT_EQ(readImageFile(dir.file("loop.png"), cv::IMREAD_UNCHANGED).problem,
+            std::make_error_code(std::errc::too_many_symbolic_link_levels).message());
+
+  // A well-formed PNG whose header declares 60000 x 60000 pixels: more than OpenCV decodes.
+  Bytes huge = encode(".png");
+  for (int k = 0; k < 2; ++k)  // IHDR's width and height, big-endian, at bytes 16 and 20
+    for (int b = 0; b < 4; ++b)
+      huge[static_cast<size_t>(16 + 4 * k + b)] = static_cast<unsigned char>((60000u >> (24 - 8 * b)) & 0xff);
+  const uLong crc = crc32(crc32(0L, Z_NULL, 0), huge.data() + 12, 17);  // over IHDR's type and data
+  for (int b = 0; b < 4; ++b)
+    huge[static_cast<size_t>(29 + b)] = static_cast<unsigned char>((crc >> (24 - 8 * b)) & 0xff);
+  ASSERT_EQ(imageContainerDefect(huge), "");
+  writeBytes(dir.file("huge.png"), huge);
+  const std::string huge_problem = readImageFile(dir.file("huge.png"), cv::IMREAD_UNCHANGED).problem;
+  EXPECT_EQ(huge_problem.rfind("not decodable: ", 0), 0u) << huge_problem;
 
   const Bytes png = encode(".png");
   const Bytes half(png.begin(), png.begin() + static_cast<long>(png.size() / 2));

@@ -80,6 +80,12 @@ TEST(StreamIo, BadLinesSayWhatIsWrong) {
                 .find("observations[0]"),
             std::string::npos);
   EXPECT_NE(errorOf(R"({"step":3,"d_left":1,"d_right":1,"compass":0.1})").find("compass_sigma"), std::string::npos);
+  // A sigma whose inverse square overflows, or one that says nothing.
+  for (const char* sigma : {"1e-300", "1e300"})
+    EXPECT_NE(errorOf(std::string(R"({"step":3,"d_left":1,"d_right":1,"compass":0.1,"compass_sigma":)") + sigma + "}")
+                  .find("within [1e-06, 2 pi] rad"),
+              std::string::npos)
+        << sigma;
 }
 
 // Strict JSON: a number strtod would read but JSON does not write, or a key given twice, is an
