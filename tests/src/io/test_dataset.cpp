@@ -50,6 +50,18 @@ void replaceLine(const std::string& path, int line, const std::string& text) {
   writeFile(path, out);
 }
 
+// The first data row of the CSV at `path` with its field `column` (0-based) replaced by `value`.
+void replaceFirstRowField(const std::string& path, size_t column, const std::string& value) {
+  std::istringstream in(test::readFile(path));
+  std::string header, row;
+  std::getline(in, header);
+  std::getline(in, row);
+  size_t begin = 0;
+  for (size_t c = 0; c < column; ++c) begin = row.find(',', begin) + 1;
+  const size_t end = row.find(',', begin);
+  replaceLine(path, 2, row.substr(0, begin) + value + (end == std::string::npos ? "" : row.substr(end)));
+}
+
 Dataset sample(uint64_t seed = 3) {
   SimulationConfig cfg;
   cfg.landmarks = LandmarkSet::All;
@@ -284,14 +296,7 @@ TEST_F(Malformed, ObservationStepsOutOfOrder) {
 }
 
 TEST_F(Malformed, UnknownLandmarkId) {
-  const std::string obs = test::readFile(dir / "observations.csv");
-  std::istringstream in(obs);
-  std::string header, first;
-  std::getline(in, header);
-  std::getline(in, first);
-  // Replace the landmark id (third field) with 999.
-  const size_t c1 = first.find(','), c2 = first.find(',', c1 + 1), c3 = first.find(',', c2 + 1);
-  replaceLine(dir / "observations.csv", 2, first.substr(0, c2 + 1) + "999" + first.substr(c3));
+  replaceFirstRowField(dir / "observations.csv", 2, "999");
   expectError(dir.path(), "observations.csv:2:", "unknown landmark id 999");
 }
 
@@ -362,20 +367,13 @@ TEST_F(Malformed, ImplausibleGroundTruth) {
 }
 
 TEST_F(Malformed, LandmarkIdBeyondInt) {
-  const std::string obs = test::readFile(dir / "observations.csv");
-  const std::string first = obs.substr(obs.find('\n') + 1, obs.find('\n', obs.find('\n') + 1) - obs.find('\n') - 1);
-  const size_t c1 = first.find(','), c2 = first.find(',', c1 + 1), c3 = first.find(',', c2 + 1);
-  replaceLine(dir / "observations.csv", 2, first.substr(0, c2 + 1) + "4294967299" + first.substr(c3));
+  replaceFirstRowField(dir / "observations.csv", 2, "4294967299");
   expectError(dir.path(), "observations.csv:2:", "landmark id 4294967299 out of range");
 }
 
 TEST_F(Malformed, PixelFarOutsideTheImage) {
-  const std::string obs = test::readFile(dir / "observations.csv");
-  ASSERT_EQ(obs.rfind("step,t,landmark_id,u_left,", 0), 0u);
-  const std::string first = obs.substr(obs.find('\n') + 1, obs.find('\n', obs.find('\n') + 1) - obs.find('\n') - 1);
-  const size_t c1 = first.find(','), c2 = first.find(',', c1 + 1), c3 = first.find(',', c2 + 1),
-               c4 = first.find(',', c3 + 1);
-  replaceLine(dir / "observations.csv", 2, first.substr(0, c3 + 1) + "1000000" + first.substr(c4));
+  ASSERT_EQ(test::readFile(dir / "observations.csv").rfind("step,t,landmark_id,u_left,", 0), 0u);
+  replaceFirstRowField(dir / "observations.csv", 3, "1000000");
   expectError(dir.path(), "observations.csv:2:", "lies far outside the");
 }
 
