@@ -76,7 +76,11 @@ TEST_F(CliUsage, NumbersOutsideTheirMeaningAreRefusedNamingTheOption) {
       {"simulate --scenario line --steps 3 --images --image-blur 1e6 --force --out " + file("blur"), "--image-blur"},
       {"stream --from " + dataset() + " --compass-sigma -1", "--compass-sigma"},
       {"stream --compass-sigma 1e-300", "--compass-sigma"},
-      {"stream --wheel-base 1e-300", "--wheel-base"}};
+      {"stream --wheel-base 1e-300", "--wheel-base"},
+      {"stream --pose-sigma 1e300,1,1", "--pose-sigma"},
+      {"localize " + dataset() + " --method batch --pixel-sigma 1e-300 --out " + file("s.csv"), "--pixel-sigma"},
+      {"simulate --scenario line --steps 3 --seed -1 --force --out " + file("seed"), "--seed"},
+      {"simulate --scenario line --steps 3 --seed 18446744073709551616 --force --out " + file("seed"), "--seed"}};
   for (const auto& [command, option] : cases) {
     const test::CliRun r = test::runCli(command);
     EXPECT_EQ(r.exit_code, 2) << command << "\n" << r.output;

@@ -34,6 +34,17 @@ inline CLI::Validator positiveNumber() {
       "POSITIVE");
 }
 
+// A pixel noise sigma (px): 0 where the option means none or the observations' own, otherwise
+// from a thousandth of a pixel (below, its inverse square is no weight a solver can use) to 100.
+inline CLI::Validator pixelSigma() {
+  return CLI::Validator(
+      [](std::string& value) -> std::string {
+        const double v = std::strtod(value.c_str(), nullptr);
+        return v == 0.0 || (v >= 1e-3 && v <= 100.0) ? std::string() : "must be 0 or within [0.001, 100] px, not " + value;
+      },
+      "PX");
+}
+
 // Particles of a particle filter: it re-injects 100 uniform ones on every observed step
 // (ParticleFilterConfig::reinjected), so fewer than 100 cannot be.
 inline CLI::Validator particleCount() { return CLI::Range(100, 10000000); }

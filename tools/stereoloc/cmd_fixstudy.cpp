@@ -23,7 +23,7 @@ void add_fixstudy_command(CLI::App& app) {
       ->check(CLI::IsMember({"fix1", "fix2", "both", "multi", "all"}));
   sub->add_option("--pixel-sigma", a->pixel_sigma, "Gaussian pixel noise on u_l, v_l, u_r, v_r (px)")
       ->capture_default_str()
-      ->check(positiveNumber());
+      ->check(pixelSigma());
   sub->add_flag("--quantise", a->quantise, "Round the noisy pixel coordinates to whole pixels");
   sub->add_option("--covariance", a->covariance,
                   "Covariance of the fixes: first_order (the thesis's (4.15), (4.18)), second_order (plus the dominant "

@@ -142,12 +142,12 @@ void add_simulate_command(CLI::App& app) {
   sub->add_option("--map", o->map_path, "Field map YAML (default: the built-in MiroSot field)")->check(CLI::ExistingFile);
   sub->add_option("--rig", o->rig_path, "Stereo rig YAML (default: the built-in rig)")->check(CLI::ExistingFile);
   sub->add_option("--encoder-k", o->encoder_k, "Wheel encoder variance per mm travelled, mm^2/mm")
-      ->capture_default_str()->check(CLI::NonNegativeNumber);
+      ->capture_default_str()->check(CLI::Range(0.0, 100.0));
   sub->add_flag("--no-compass", o->no_compass, "Do not write compass readings");
   sub->add_option("--compass-sigma", o->compass_sigma_deg, "Compass noise sigma, degrees")
-      ->capture_default_str()->check(CLI::NonNegativeNumber);
+      ->capture_default_str()->check(CLI::Range(0.0, 360.0));
   sub->add_option("--compass-bias", o->compass_bias_deg, "Constant compass bias, degrees")->capture_default_str();
-  sub->add_option("--pixel-sigma", o->pixel_sigma, "Pixel noise sigma, px")->capture_default_str()->check(CLI::NonNegativeNumber);
+  sub->add_option("--pixel-sigma", o->pixel_sigma, "Pixel noise sigma, px")->capture_default_str()->check(pixelSigma());
   sub->add_flag("--quantise", o->quantise, "Round observed pixel coordinates to whole pixels");
   sub->add_option("--landmarks", o->landmarks, "Landmarks the detector reports: goal_corners (thesis) or all")
       ->capture_default_str();

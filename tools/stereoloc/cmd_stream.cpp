@@ -258,7 +258,8 @@ void add_stream_command(CLI::App& app) {
   sub->add_option("--pose-sigma", a->pose_sigma, "Initial sigmas x,y,theta (mm, mm, rad)")
       ->delimiter(',')
       ->expected(3)
-      ->capture_default_str();
+      ->capture_default_str()
+      ->check(CLI::Range(1e-6, 1e6));
   sub->add_option("--compass-sigma", a->compass_sigma, "Compass sigma (rad) for lines without compass_sigma")
       ->check(CLI::Range(kMinCompassSigmaRad, kMaxCompassSigmaRad));
   sub->add_option("--wheel-base", a->wheel_base,

@@ -302,7 +302,7 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                   "refuse it): pixel noise [px] replacing the observations' own (0: theirs); about 1 px for the "
                   "realistic error profile (docs/realistic_world.md)")
       ->capture_default_str()
-      ->check(CLI::NonNegativeNumber);
+      ->check(pixelSigma());
   sub->add_option("--noise-model", a->noise_model,
                   "Batch, window and ekf with --calibrate or --consider (the other methods refuse it): YAML of the "
                   "noise the rig and odometry do not state (lens distortion estimate error, camera vibration, wheel "

@@ -3,6 +3,7 @@
 #include <CLI/CLI.hpp>
 #include <glog/logging.h>
 
+#include <cerrno>
 #include <cmath>
 #include <cstdlib>
 #include <iostream>
@@ -12,17 +13,25 @@
 namespace {
 
 // No option of ours means anything by an empty value (`--csv ''` would otherwise write nothing,
-// silently), nor by a number that is not finite (CLI11 reads "nan" and "inf" as numbers):
-// refused before any command runs.
+// silently), by a number that is not finite (CLI11 reads "nan" and "inf" as numbers), nor by a
+// negative or too large value of an unsigned one (CLI11 reads a seed of -1 as 2^64 - 1 and clamps
+// 2^64 to it): refused before any command runs.
 void refuseEmptyOrNonFiniteValues(const CLI::App& app) {
   for (const CLI::App* sub : app.get_subcommands()) {
     for (const CLI::Option* opt : sub->get_options()) {
       if (opt->count() == 0 || opt->get_type_size_max() == 0) continue;
       const bool real = opt->get_type_name().rfind("FLOAT", 0) == 0;
+      const bool unsigned_integer = opt->get_type_name().rfind("UINT", 0) == 0;
       for (const std::string& value : opt->results()) {
         if (value.empty()) throw stereoloc::UsageError(opt->get_name() + ": empty value");
         if (real && !std::isfinite(std::strtod(value.c_str(), nullptr)))
           throw stereoloc::UsageError(opt->get_name() + ": '" + value + "' is not a finite number");
+        if (unsigned_integer) {
+          errno = 0;
+          std::strtoull(value.c_str(), nullptr, 0);
+          if (value.find('-') != std::string::npos || errno == ERANGE)
+            throw stereoloc::UsageError(opt->get_name() + ": '" + value + "' is not within [0, 2^64 - 1]");
+        }
       }
     }
     refuseEmptyOrNonFiniteValues(*sub);
