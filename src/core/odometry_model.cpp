@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <sstream>
 
 #include "src/core/error.h"
 
@@ -11,8 +12,11 @@ void OdometryParams::validate() const {
     if (!ok) throw Error(std::string("odometry: ") + field + " is out of range");
   };
   // A millimetre to a hundred metres: outside, (B.10)'s 1/w and w^2 are nonsense, not a robot.
-  if (!(wheel_base_mm >= 1.0 && wheel_base_mm <= 1e5))
-    throw Error("odometry: wheel_base_mm " + std::to_string(wheel_base_mm) + " is outside [1, 100000] mm");
+  if (!(wheel_base_mm >= 1.0 && wheel_base_mm <= 1e5)) {
+    std::ostringstream w;  // %g: a 1e-300 stays 1e-300
+    w << wheel_base_mm;
+    throw Error("odometry: wheel_base_mm " + w.str() + " is outside [1, 100000] mm");
+  }
   check(std::isfinite(k_left) && k_left >= 0, "k_left");
   check(std::isfinite(k_right) && k_right >= 0, "k_right");
   check(std::isfinite(wheel_variance_floor) && wheel_variance_floor >= 0, "wheel_variance_floor");

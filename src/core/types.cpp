@@ -1,6 +1,7 @@
 #include "src/core/types.h"
 
 #include <cmath>
+#include <sstream>
 
 #include "src/core/error.h"
 #include "src/core/measurement_model.h"
@@ -62,8 +63,11 @@ void validateStepOdometryAndCompass(const Step& step, const std::string& where) 
     throw Error(where + ": wheel increment beyond 1 km in one step");
   if (!step.compass) return;
   if (!std::isfinite(*step.compass)) throw Error(where + ": compass is not finite");
-  if (!usableCompassSigma(step.compass_sigma))
-    throw Error(where + ": compass_sigma " + std::to_string(step.compass_sigma) + " rad is outside [1e-06, 2 pi]");
+  if (!usableCompassSigma(step.compass_sigma)) {
+    std::ostringstream sigma;  // %g: a 1e-300 stays 1e-300
+    sigma << step.compass_sigma;
+    throw Error(where + ": compass_sigma " + sigma.str() + " rad is outside [1e-06, 2 pi]");
+  }
 }
 
 std::string toString(EstimateStatus status) {

@@ -83,9 +83,9 @@ inline constexpr double kMaxCompassSigmaRad = 6.283185307179586;
 bool usableCompassSigma(double sigma_rad);
 // The largest wheel increment of one step (mm): a kilometre; beyond, (B.10)'s variances overflow.
 inline constexpr double kMaxWheelIncrementMm = 1e6;
-// Throws stereoloc::Error "<where>: ..." unless the step's compass (when it has one) and its
-// sigma are usable and its wheel increments finite. Every estimator checks its input steps' odometry
-// and compass with this.
+// Throws stereoloc::Error "<where>: ..." unless the step's wheel increments are finite and within
+// kMaxWheelIncrementMm and its compass (when it has one) is finite with a usable sigma. Every
+// estimator checks its input steps' odometry and compass with this.
 void validateStepOdometryAndCompass(const Step& step, const std::string& where);
 
 enum class EstimateStatus {

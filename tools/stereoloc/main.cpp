@@ -16,7 +16,7 @@ namespace {
 // silently), by a number that is not finite (CLI11 reads "nan" and "inf" as numbers), nor by a
 // negative or too large value of an unsigned one (CLI11 reads a seed of -1 as 2^64 - 1 and clamps
 // 2^64 to it): refused before any command runs.
-void refuseEmptyOrNonFiniteValues(const CLI::App& app) {
+void refuseValuesNoOptionMeans(const CLI::App& app) {
   for (const CLI::App* sub : app.get_subcommands()) {
     for (const CLI::Option* opt : sub->get_options()) {
       if (opt->count() == 0 || opt->get_type_size_max() == 0) continue;
@@ -34,7 +34,7 @@ void refuseEmptyOrNonFiniteValues(const CLI::App& app) {
         }
       }
     }
-    refuseEmptyOrNonFiniteValues(*sub);
+    refuseValuesNoOptionMeans(*sub);
   }
 }
 
@@ -54,7 +54,7 @@ int main(int argc, char** argv) {
 #define STEREOLOC_COMMAND(name) add_##name##_command(app);
 #include "tools/stereoloc/commands.inc"
 #undef STEREOLOC_COMMAND
-  app.parse_complete_callback([&app] { refuseEmptyOrNonFiniteValues(app); });
+  app.parse_complete_callback([&app] { refuseValuesNoOptionMeans(app); });
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
