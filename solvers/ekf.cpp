@@ -265,7 +265,7 @@ double Ekf::jointThreshold(int dof) {
 bool Ekf::tryGlobalFix(const Step& step) {
   if (!config_.global_fix) return false;
   const Step seen = seenThroughCalibration(step);
-  const std::optional<PoseFix> fix = config_.global_fix(seen, currentMap());
+  const std::optional<PoseFix> fix = fixOnFieldEstimate(seen);
   if (!fix || !fix->pose.isFinite() || !fix->covariance.allFinite()) return false;
   std::optional<FixFieldJacobian> J_fix_field;
   if (field_at_ >= 0) {
@@ -290,7 +290,10 @@ void Ekf::restartOnFix(const PoseFix& fix, const std::optional<FixFieldJacobian>
   P_ = joint_.topLeftCorner<3, 3>();
 }
 
-FieldMap Ekf::currentMap() const { return field_at_ >= 0 ? map_.withDimensionChange(field_) : map_; }
+std::optional<PoseFix> Ekf::fixOnFieldEstimate(const Step& seen) const {
+  if (field_at_ < 0) return config_.global_fix(seen, map_);  // no map to build on the hot path
+  return config_.global_fix(seen, map_.withDimensionChange(field_));
+}
 
 std::optional<Ekf::FixFieldJacobian> Ekf::fixFieldJacobian(const Step& seen) const {
   FixFieldJacobian J;
@@ -351,7 +354,7 @@ void Ekf::validateStep(const Step& step) const {
 std::optional<EstimateStatus> Ekf::startFromWideBelief(const Step& step, bool first, bool wide) {
   if (wide && !step.observations.empty() && config_.global_fix) {
     const Step seen = seenThroughCalibration(step);
-    const std::optional<PoseFix> fix = config_.global_fix(seen, currentMap());
+    const std::optional<PoseFix> fix = fixOnFieldEstimate(seen);
     if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && spreadOf(fix->covariance) < spreadOf(P_)) {
       const std::optional<FixFieldJacobian> J_fix_field =
           field_at_ >= 0 ? fixFieldJacobian(seen) : std::optional<FixFieldJacobian>();

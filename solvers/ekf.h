@@ -64,8 +64,8 @@
 // Considered calibration (calibration.consider, the `ekf:consider` method): the same joint state
 // with every calibration row of K zero, the Schmidt-Kalman filter. The calibration stays the
 // given one; its uncertainty, the image errors, each feature's offsets and, with the field block,
-// the field's dimensions still enter every covariance, so the pose's covariance is honest about them (docs/estimators.md, "A filter that
-// considers its calibration").
+// the field's dimensions still enter every covariance, so the pose's covariance is honest about
+// them (docs/estimators.md, "A filter that considers its calibration").
 #include <Eigen/Core>
 #include <map>
 #include <string>
@@ -220,11 +220,12 @@ class Ekf : public Estimator {
   bool reanchor(const PoseFix& fix, const std::optional<FixFieldJacobian>& J_fix_field);
   // reset() on the fix, with the field block the pose's covariance and correlation through it.
   void restartOnFix(const PoseFix& fix, const std::optional<FixFieldJacobian>& J_fix_field);
-  // The map as the filter sees the field: its dimensions changed by the field block's estimate.
-  FieldMap currentMap() const;
-  // With the field block, a global fix sees the sightings on currentMap(), so it measures the pose
-  // through the field's estimate: fix = p + J (f_hat - f) to first order, J = d fix / d f by
-  // central differences of the fix over each dimension. nullopt when a changed field gives no fix.
+  // The global fix of the sightings `seen` on the map as the filter sees the field: the given map,
+  // or with the field block its dimensions changed by the block's estimate.
+  std::optional<PoseFix> fixOnFieldEstimate(const Step& seen) const;
+  // With the field block a fix (fixOnFieldEstimate) measures the pose through the field's
+  // estimate: fix = p + J (f_hat - f) to first order, J = d fix / d f by central differences of
+  // the fix over each dimension. nullopt when a changed field gives no fix.
   std::optional<FixFieldJacobian> fixFieldJacobian(const Step& seen) const;
   Estimate makeEstimate(const Step& step, EstimateStatus status) const;
 
