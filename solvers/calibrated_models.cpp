@@ -138,6 +138,37 @@ Observation calibratedObservation(const Observation& obs, const StereoRig& rig, 
   return out;
 }
 
+CalibratedColumns::CalibratedColumns(const StereoRig& rig, const Eigen::Vector3d& landmark, double pan)
+    : focal_(rig.focal()), centre_u_(rig.principalU()), baseline_(rig.params().baseline_mm), landmark_(landmark) {
+  // robotToVision is affine: R_tilt^T (R_z(pan)^T p - t).
+  mount_ = rig.robotToVision(Eigen::Vector3d::Zero(), pan);
+  for (int j = 0; j < 3; ++j) robot_to_vision_.col(j) = rig.robotToVision(Eigen::Vector3d::Unit(j), pan) - mount_;
+}
+
+bool CalibratedColumns::operator()(const CalibrationEstimate::StereoVector& q, double x, double y, double cos_theta,
+                                   double sin_theta, Eigen::Vector2d* u, Eigen::Matrix<double, 2, 3>* J_u_pose) const {
+  // The landmark in the robot frame (5.27's rotation), then in C1 and C2.
+  const double dx = landmark_.x() - x, dy = landmark_.y() - y;
+  const Eigen::Vector3d p_robot(cos_theta * dx + sin_theta * dy, -sin_theta * dx + cos_theta * dy, landmark_.z());
+  const Eigen::Vector3d c1 = robot_to_vision_ * p_robot + mount_;
+  const double cb = std::cos(q[0]), sb = std::sin(q[0]);
+  const double x2 = cb * c1.x() - sb * c1.z(), y2 = c1.y();
+  if (!(x2 > 1.0)) return false;
+  const double F = focal_ * (1.0 + q[5]), Fr = F * (1.0 + q[4]), half_kb = 0.5 * q[1] * baseline_;
+  *u = Eigen::Vector2d(centre_u_ + q[3] + 0.5 * q[2] - F * (y2 - half_kb) / x2,
+                       centre_u_ + q[3] - 0.5 * q[2] - Fr * (y2 + half_kb) / x2);
+  if (J_u_pose) {
+    Eigen::Matrix<double, 2, 2> J_u_c2;  // d(u_l, u_r) / d(x2, y2)
+    J_u_c2 << F * (y2 - half_kb) / (x2 * x2), -F / x2, Fr * (y2 + half_kb) / (x2 * x2), -Fr / x2;
+    Eigen::Matrix<double, 2, 3> J_c2_c1;
+    J_c2_c1 << cb, 0.0, -sb, 0.0, 1.0, 0.0;
+    Eigen::Matrix<double, 3, 3> J_robot_pose;  // d p_robot / d(x, y, theta)
+    J_robot_pose << -cos_theta, -sin_theta, p_robot.y(), sin_theta, -cos_theta, -p_robot.x(), 0.0, 0.0, 0.0;
+    *J_u_pose = J_u_c2 * J_c2_c1 * robot_to_vision_ * J_robot_pose;
+  }
+  return true;
+}
+
 PosePrediction predictCalibratedStep(const Pose2& rel, const Eigen::Matrix3d& C, double d_left, double d_right,
                                      const Eigen::Vector3d& wheels, const OdometryParams& params, Eigen::Matrix3d* J_c) {
   OdometryParams p = params;

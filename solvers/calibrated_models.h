@@ -77,6 +77,29 @@ CalibratedSighting calibratedSighting(const Observation& obs, const StereoRig& r
 Observation calibratedObservation(const Observation& obs, const StereoRig& rig, const CalibrationEstimate::StereoVector& q,
                                   const CalibrationEstimate::StereoMatrix& Cq, const Eigen::Matrix4d& C_px);
 
+// The pixel columns (u_l, u_r) in which stereo calibration q (CalibrationEstimate::head) sees a
+// landmark at `landmark` (mm, world; its height included) from pose (x, y, theta): the model of
+// factors/stereo_pixel_calibration_factor.h's columns, with the landmark in the right camera's
+// frame C2 = R_tilt(dbeta)^T C1 (C1 the rig's vision frame at head pan `pan`),
+//   u_l = o_u + delta_u + delta_d/2 - F (y - k b/2) / x,
+//   u_r = o_u + delta_u - delta_d/2 - F (1 + phi) (y + k b/2) / x,   F = f (1 + psi),
+// and J_u_pose = d(u_l, u_r) / d(x, y, theta). What does not depend on the pose or q is done once:
+// the particle filter evaluates it for every particle's own pose and q. operator() returns false
+// when the landmark is not in front of the cameras (x <= 1 mm). At the nominal q it is
+// StereoRig::project.
+class CalibratedColumns {
+ public:
+  CalibratedColumns(const StereoRig& rig, const Eigen::Vector3d& landmark, double pan);
+  bool operator()(const CalibrationEstimate::StereoVector& q, double x, double y, double cos_theta, double sin_theta,
+                  Eigen::Vector2d* u, Eigen::Matrix<double, 2, 3>* J_u_pose = nullptr) const;
+
+ private:
+  double focal_, centre_u_, baseline_;
+  Eigen::Vector3d landmark_;
+  Eigen::Matrix3d robot_to_vision_;  // R_tilt^T R_z(pan)^T (StereoRig::robotToVision)
+  Eigen::Vector3d mount_;            // -R_tilt^T t: the vision frame's offset
+};
+
 // One odometry step through the wheel calibration wheels = (c_l, c_r, w) (factors/
 // odometry_calibration_factor.h): rel (+) u(c_l d_left, c_r d_right, w) with the covariance of
 // (5.9) (U at the scaled increments, `params` giving its noise), and, when J_c is given, the chain

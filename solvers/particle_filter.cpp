@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "src/core/error.h"
+#include "solvers/calibrated_models.h"
 #include "solvers/fast_trig.h"
 #include "src/core/gaussian.h"
 #include "src/core/measurement_model.h"
@@ -131,6 +132,16 @@ void checkObservation(const Step& step, size_t index, const Observation& obs) {
   validateObservation(obs, where(step, index));
 }
 
+// A factor L with L L^T = C for a covariance that is positive semi-definite up to round-off (a
+// prior sigma may be 0: that value is then given).
+template <typename Matrix>
+Matrix semiDefiniteFactor(const Matrix& C) {
+  const Matrix sym = 0.5 * (C + C.transpose());
+  const Eigen::LDLT<Matrix> ldlt(sym);
+  const Matrix L = ldlt.matrixL();
+  return ldlt.transpositionsP().transpose() * L * ldlt.vectorD().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+}
+
 }  // namespace
 
 ParticleFilter::ParticleFilter(const FieldMap& map, const OdometryParams& odometry, ParticleFilterConfig config,
@@ -163,6 +174,7 @@ ParticleFilter::ParticleFilter(const FieldMap& map, const OdometryParams& odomet
   const Bounds& b = map_.bounds();
   if (!(b.xmax > b.xmin && b.ymax > b.ymin)) throw Error("particle filter: map bounds are empty");
   log_floor_ = std::log(config_.likelihood_floor);
+  setUpCalibration();
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
   switch (config_.init.mode) {
     case InitMode::Known: initialiseGaussian(config_.init.pose, config_.init.covariance); break;
@@ -185,6 +197,137 @@ void ParticleFilter::drawGaussian(size_t begin, size_t end, const Pose2& pose, c
     const Eigen::Vector3d d = L * Eigen::Vector3d(a, b, c);
     setParticle(i, pose.x + d.x(), pose.y + d.y(), wrapAngle(pose.theta + d.z()));
   }
+  drawCalibration(begin, end);
+}
+
+void ParticleFilter::setUpCalibration() {
+  const SelfCalibrationConfig& k = config_.calibration;
+  if (k.range || k.field || k.consider)
+    throw Error("particle filter: self-calibrates the odometry and stereo blocks only (range, field and consider are the other estimators')");
+  if (!(config_.calibration_discount > 0 && config_.calibration_discount <= 1))
+    throw Error("particle filter: calibration_discount must be in (0, 1]");
+  if (!k.odometry && !k.stereo) return;
+  k.validate();
+  if (config_.proposal != ParticleProposal::LinearisedOptimal)
+    throw Error("particle filter: self-calibration needs the linearised optimal proposal");
+  if (k.odometry) {
+    wheels_at_ = cal_dim_;
+    cal_dim_ += 3;
+  }
+  if (k.stereo) {
+    head_at_ = cal_dim_;
+    cal_dim_ += 6;
+  }
+  cal_mean_.resize(cal_dim_);
+  Eigen::VectorXd sigma(cal_dim_);
+  if (wheels_at_ >= 0) {
+    cal_mean_.segment<3>(wheels_at_) = Eigen::Vector3d(1.0, 1.0, odometry_.wheel_base_mm);
+    sigma.segment<3>(wheels_at_) = wheelPriorSigma(k, odometry_.wheel_base_mm);
+  }
+  if (head_at_ >= 0) {
+    cal_mean_.segment<6>(head_at_) = CalibrationEstimate().head;
+    sigma.segment<6>(head_at_) = stereoPriorSigma(k);
+  }
+  cal_cov_ = sigma.cwiseAbs2().asDiagonal();
+}
+
+void ParticleFilter::drawCalibration(size_t begin, size_t end) {
+  if (cal_dim_ == 0) return;
+  const size_t K = static_cast<size_t>(cal_dim_);
+  cal_.resize(x_.size() * K);
+  const Eigen::MatrixXd L = semiDefiniteFactor(cal_cov_);
+  Eigen::VectorXd e(cal_dim_);
+  for (size_t i = begin; i < end; ++i) {
+    for (int j = 0; j < cal_dim_; ++j) e(j) = normal_(rng_);
+    Eigen::Map<Eigen::VectorXd>(cal_.data() + i * K, cal_dim_) = cal_mean_ + L * e;
+  }
+}
+
+void ParticleFilter::summariseCalibration() {
+  if (cal_dim_ == 0 || x_.empty()) return;
+  // The joint (pose, calibration) covariance, the pose about mean_ (summarise()), the heading's
+  // deviations wrapped: the kernel moves both together, so it keeps their correlation.
+  const Eigen::Index n = static_cast<Eigen::Index>(x_.size());
+  Eigen::MatrixXd z(3 + cal_dim_, n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const size_t k = static_cast<size_t>(i);
+    z(0, i) = x_[k] - mean_.x;
+    z(1, i) = y_[k] - mean_.y;
+    z(2, i) = angleDiff(th_[k], mean_.theta);
+  }
+  z.bottomRows(cal_dim_) = Eigen::Map<const Eigen::MatrixXd>(cal_.data(), cal_dim_, n);
+  const Eigen::Map<const Eigen::VectorXd> w(w_.data(), n);
+  cal_mean_ = z.bottomRows(cal_dim_) * w;
+  z.bottomRows(cal_dim_).colwise() -= cal_mean_;
+  const Eigen::MatrixXd C = z * w.asDiagonal() * z.transpose();
+  joint_cov_ = 0.5 * (C + C.transpose());
+  cal_cov_ = joint_cov_.bottomRightCorner(cal_dim_, cal_dim_);
+}
+
+void ParticleFilter::jitterCalibration() {
+  if (cal_dim_ == 0 || !(config_.calibration_discount < 1)) return;
+  // Liu and West (2001), sec. 3.3: the kernel locations are shrunk by a towards the mean and the
+  // kernel's variance is h^2 C with h^2 = 1 - a^2, so the mixture keeps the mean m and covariance
+  // C. On the joint (pose, calibration) state: a calibration moved alone would no longer fit its
+  // pose, and the next weights would cull the moved ones, shrinking the calibration's spread.
+  const double delta = config_.calibration_discount, a = (3.0 * delta - 1.0) / (2.0 * delta);
+  const Eigen::MatrixXd L = semiDefiniteFactor(Eigen::MatrixXd((1.0 - a * a) * joint_cov_));
+  const size_t K = static_cast<size_t>(cal_dim_);
+  Eigen::VectorXd e(3 + cal_dim_);
+  for (size_t i = 0; i < x_.size(); ++i) {
+    for (int j = 0; j < 3 + cal_dim_; ++j) e(j) = normal_(rng_);
+    const Eigen::VectorXd d = L * e;
+    setParticle(i, mean_.x + a * (x_[i] - mean_.x) + d(0), mean_.y + a * (y_[i] - mean_.y) + d(1),
+                wrapAngle(mean_.theta + a * angleDiff(th_[i], mean_.theta) + d(2)));
+    Eigen::Map<Eigen::VectorXd> c(cal_.data() + i * K, cal_dim_);
+    c = cal_mean_ + a * (c - cal_mean_) + d.tail(cal_dim_);
+  }
+}
+
+void ParticleFilter::walkWheels(double d_left, double d_right) {
+  const UnmodelledNoise& noise = config_.observation_model.unmodelled;
+  if (wheels_at_ < 0 || !noise.wheelsDrift()) return;
+  const Eigen::Vector3d sd = wheelDriftVariance(noise, d_left, d_right, odometry_.wheel_base_mm).cwiseSqrt();
+  const size_t K = static_cast<size_t>(cal_dim_);
+  for (size_t i = 0; i < x_.size(); ++i) {
+    double* c = cal_.data() + i * K + wheels_at_;
+    for (int j = 0; j < 3; ++j) c[j] += sd(j) * normal_(rng_);
+  }
+}
+
+OdometryParams ParticleFilter::stepOdometry(double d_left, double d_right) const {
+  const double slip = config_.observation_model.unmodelled.slip_rel_sigma;
+  return cal_dim_ > 0 && slip > 0 ? withSlip(odometry_, d_left, d_right, slip) : odometry_;
+}
+
+Observation ParticleFilter::calibratedForGate(const Observation& obs, const Landmark& landmark) const {
+  if (head_at_ < 0) return obs;
+  const Eigen::Matrix4d C_px = pixelCovarianceFor(obs, landmark, config_.observation_model);
+  return calibratedObservation(obs, config_.observation_model.rig, cal_mean_.segment<6>(head_at_),
+                               cal_cov_.block<6, 6>(head_at_, head_at_), C_px);
+}
+
+std::optional<CalibrationEstimate> ParticleFilter::calibration() const {
+  if (cal_dim_ == 0) return std::nullopt;
+  CalibrationEstimate e;
+  e.odometry = wheels_at_ >= 0;
+  e.stereo = head_at_ >= 0;
+  e.wheels = Eigen::Vector3d(1.0, 1.0, odometry_.wheel_base_mm);
+  if (e.odometry) {
+    e.wheels = cal_mean_.segment<3>(wheels_at_);
+    e.wheels_covariance = cal_cov_.block<3, 3>(wheels_at_, wheels_at_);
+  }
+  if (e.stereo) {
+    e.head = cal_mean_.segment<6>(head_at_);
+    e.head_covariance = cal_cov_.block<6, 6>(head_at_, head_at_);
+  }
+  return e;
+}
+
+Eigen::VectorXd ParticleFilter::particleCalibration(int i) const {
+  if (i < 0 || i >= size()) throw Error("particle filter: no particle " + std::to_string(i));
+  if (cal_dim_ == 0) return Eigen::VectorXd();
+  return Eigen::Map<const Eigen::VectorXd>(cal_.data() + static_cast<size_t>(i) * static_cast<size_t>(cal_dim_), cal_dim_);
 }
 
 void ParticleFilter::finishInitialisation() {
@@ -195,6 +338,7 @@ void ParticleFilter::finishInitialisation() {
   initialised_ = true;
   gate_.reset();
   summarise(&mean_, &cov_);
+  summariseCalibration();
 }
 
 void ParticleFilter::initialiseGaussian(const Pose2& pose, const Eigen::Matrix3d& covariance) {
@@ -238,12 +382,14 @@ void ParticleFilter::initialiseUniform() {
     const double x = ux(rng_), y = uy(rng_), t = ut(rng_);
     setParticle(i, x, y, t);
   }
+  drawCalibration(0, n);
   logw_.assign(n, -std::log(static_cast<double>(n)));
   w_.assign(n, 1.0 / static_cast<double>(n));
   uniform_weights_ = true;
   initialised_ = true;
   gate_.reset();
   summarise(&mean_, &cov_);
+  summariseCalibration();
 }
 
 void ParticleFilter::resizeParticles(size_t n) {
@@ -252,12 +398,14 @@ void ParticleFilter::resizeParticles(size_t n) {
   th_.resize(n);
   c_.resize(n);
   s_.resize(n);
+  cal_.resize(n * static_cast<size_t>(cal_dim_));
 }
 
 void ParticleFilter::predict(double d_left, double d_right) {
-  const Eigen::Matrix2d Sv = wheelCovariance(d_left, d_right, odometry_);  // (B.6)
+  const OdometryParams params = stepOdometry(d_left, d_right);
+  const Eigen::Matrix2d Sv = wheelCovariance(d_left, d_right, params);  // (B.6)
   const double sl = std::sqrt(Sv(0, 0)), sr = std::sqrt(Sv(1, 1));
-  const Eigen::Vector3d sf = odometry_.control_variance_floor.cwiseSqrt();
+  const Eigen::Vector3d sf = params.control_variance_floor.cwiseSqrt();
   const double w = odometry_.wheel_base_mm;
   const size_t n = x_.size();
   double* const px = x_.data();
@@ -266,12 +414,15 @@ void ParticleFilter::predict(double d_left, double d_right) {
   double* const pc = c_.data();
   double* const ps = s_.data();
   if (!config_.sample_wheel_increments) {
-    const Eigen::Vector3d u0 = controlVector(d_left, d_right, w);  // (B.4), (B.5)
-    const Eigen::Matrix3d U = controlCovariance(d_left, d_right, odometry_);  // (B.18), floor included
+    const Eigen::Vector3d nominal = controlVector(d_left, d_right, w);  // (B.4), (B.5)
+    const Eigen::Matrix3d U = controlCovariance(d_left, d_right, params);  // (B.18), floor included
     const Eigen::LLT<Eigen::Matrix3d> llt(U);
     if (llt.info() != Eigen::Success) throw Error("particle filter: control covariance is not positive definite");
     const Eigen::Matrix3d L = llt.matrixL();
     for (size_t i = 0; i < n; ++i) {
+      // Through the particle's own wheel calibration (B.8) when it carries one.
+      const double* k = wheels_at_ >= 0 ? wheelsOf(i) : nullptr;
+      const Eigen::Vector3d u0 = k ? controlVector(k[0] * d_left, k[1] * d_right, k[2]) : nominal;
       const double a = normal_(rng_), b = normal_(rng_), c3 = normal_(rng_);
       const double ux = u0.x() + L(0, 0) * a;
       const double uy = u0.y() + L(1, 0) * a + L(1, 1) * b;
@@ -282,12 +433,14 @@ void ParticleFilter::predict(double d_left, double d_right) {
       pt[i] = wrapAngle(pt[i] + ut);
       fast_trig::sinCos(pt[i], &ps[i], &pc[i]);
     }
+    walkWheels(d_left, d_right);
     return;
   }
   for (size_t i = 0; i < n; ++i) {
-    const double dl = sl > 0 ? d_left + sl * normal_(rng_) : d_left;
-    const double dr = sr > 0 ? d_right + sr * normal_(rng_) : d_right;
-    Eigen::Vector3d u = controlVector(dl, dr, w);  // (B.4), (B.5)
+    const double* k = wheels_at_ >= 0 ? wheelsOf(i) : nullptr;
+    const double dl = (k ? k[0] : 1.0) * (sl > 0 ? d_left + sl * normal_(rng_) : d_left);
+    const double dr = (k ? k[1] : 1.0) * (sr > 0 ? d_right + sr * normal_(rng_) : d_right);
+    Eigen::Vector3d u = controlVector(dl, dr, k ? k[2] : w);  // (B.4), (B.5)
     if (sf.x() > 0) u.x() += sf.x() * normal_(rng_);
     if (sf.y() > 0) u.y() += sf.y() * normal_(rng_);
     if (sf.z() > 0) u.z() += sf.z() * normal_(rng_);
@@ -297,6 +450,7 @@ void ParticleFilter::predict(double d_left, double d_right) {
     pt[i] = wrapAngle(pt[i] + u.z());
     fast_trig::sinCos(pt[i], &ps[i], &pc[i]);
   }
+  walkWheels(d_left, d_right);
 }
 
 void ParticleFilter::weight(const std::vector<Observation>& observations, const std::vector<Eigen::Vector2d>& landmarks,
@@ -353,6 +507,39 @@ struct ProposalSighting {
   Eigen::Matrix2d R;
   double log_det_ref;
 };
+
+// A sighting with the stereo block: the measured columns (u_l, u_r), their covariance, the model
+// that predicts them through each particle's calibration, and the reference's log-determinant.
+struct ColumnSighting {
+  CalibratedColumns model;
+  Eigen::Vector2d measured;
+  Eigen::Matrix2d C;
+  double log_det_ref;
+};
+
+// fuseProposalSighting for a column sighting seen through the particle's calibration q.
+inline double fuseColumnSighting(const ColumnSighting& z, const CalibrationEstimate::StereoVector& q, double log_floor,
+                                 Eigen::Vector3d& m, Eigen::Matrix3d& P, double& sm, double& cm) {
+  Eigen::Vector2d h;
+  Eigen::Matrix<double, 2, 3> H;
+  if (!z.model(q, m.x(), m.y(), cm, sm, &h, &H)) return log_floor;  // behind the cameras
+  const Eigen::Vector2d nu = z.measured - h;
+  const Eigen::Matrix<double, 3, 2> PHt = P * H.transpose();
+  const Eigen::Matrix2d S = H * PHt + z.C;
+  const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
+  if (!(det > 0)) return log_floor;
+  Eigen::Matrix2d Si;
+  Si << S(1, 1) / det, -S(0, 1) / det, -S(1, 0) / det, S(0, 0) / det;
+  const double log_l = -0.5 * nu.dot(Si * nu) - 0.5 * (std::log(det) - z.log_det_ref);
+  if (log_l <= log_floor) return log_floor;
+  const Eigen::Matrix<double, 3, 2> K = PHt * Si;
+  m += K * nu;
+  P -= K * PHt.transpose();
+  P = 0.5 * (P + P.transpose());
+  m.z() = wrapAngle(m.z());
+  fast_trig::sinCos(m.z(), &sm, &cm);
+  return log_l;
+}
 
 // One sighting's Kalman step on the particle's proposal N(m, P) (the trig of m's heading in sm,
 // cm, kept current); returns its log-likelihood relative to the reference peak, or log_floor for
@@ -426,9 +613,9 @@ void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& whee
   if (observations.size() != landmarks.size()) throw Error("particle filter: one landmark per observation expected");
   if (compass && (!std::isfinite(*compass) || !(std::isfinite(compass_sigma) && compass_sigma > 0)))
     throw Error("particle filter: compass heading must be finite and its sigma positive");
-  const Eigen::Vector3d u0 = wheels ? controlVector(wheels->x(), wheels->y(), odometry_.wheel_base_mm)  // (B.4), (B.5)
-                                    : Eigen::Vector3d::Zero();
-  const Eigen::Matrix3d U = wheels ? controlCovariance(wheels->x(), wheels->y(), odometry_)  // (B.18), floor included
+  const Eigen::Vector3d nominal_u = wheels ? controlVector(wheels->x(), wheels->y(), odometry_.wheel_base_mm)  // (B.4), (B.5)
+                                           : Eigen::Vector3d::Zero();
+  const Eigen::Matrix3d U = wheels ? controlCovariance(wheels->x(), wheels->y(), stepOdometry(wheels->x(), wheels->y()))  // (B.18), floor included
                                    : Eigen::Matrix3d::Zero();
   const double h = kernel_config.h;
   const Pose2& centre = kernel_config.centre;
@@ -442,9 +629,28 @@ void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& whee
   // weight()). Relative to each particle's own peak it would favour the narrow, re-injected
   // particles over the kernel-widened ones wherever both are outliers.
   std::vector<ProposalSighting> sightings;
+  std::vector<ColumnSighting> column_sightings;
   sightings.reserve(observations.size());
   for (size_t k = 0; k < observations.size(); ++k) {
     const Observation& o = observations[k];
+    if (head_at_ >= 0) {
+      // With the stereo block each particle predicts the columns (u_l, u_r) of the landmark
+      // through its own calibration, as the self-calibrating EKF updates on them: the rows,
+      // which carry the vibration's pitch, are not read, and the landmark's height is the map's.
+      const Landmark& lm = map_.at(o.landmark_id);
+      const Eigen::Matrix4d C_px = pixelCovarianceFor(o, lm, config_.observation_model);
+      Eigen::Matrix2d C;
+      C << C_px(0, 0), C_px(0, 2), C_px(2, 0), C_px(2, 2);
+      ColumnSighting z{CalibratedColumns(config_.observation_model.rig, lm.position, o.head_pan),
+                       Eigen::Vector2d(o.pixels->u_left, o.pixels->u_right), C, std::log(C.determinant())};
+      Eigen::Vector2d u_centre;
+      Eigen::Matrix<double, 2, 3> Hc;
+      if (kernel && z.model(cal_mean_.segment<6>(head_at_), centre.x, centre.y, std::cos(centre.theta),
+                            std::sin(centre.theta), &u_centre, &Hc))
+        z.log_det_ref = std::log((C + Hc * kernel_cov * Hc.transpose()).determinant());
+      column_sightings.push_back(z);
+      continue;
+    }
     Eigen::Matrix2d ref = o.covariance;
     if (kernel) {
       try {
@@ -471,6 +677,8 @@ void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& whee
     // One step's prediction of this particle (B.16): u ~ N(u0, U) enters linearly given the
     // heading, so x_pred ~ N(x (+) u0, G U G^T) exactly, G = blockdiag(rotation(theta), 1).
     const double c0 = c_[i], s0 = s_[i];
+    const double* kw = wheels && wheels_at_ >= 0 ? wheelsOf(i) : nullptr;  // the particle's wheels (B.8)
+    const Eigen::Vector3d u0 = kw ? controlVector(kw[0] * wheels->x(), kw[1] * wheels->y(), kw[2]) : nominal_u;
     Eigen::Vector3d m(x_[i] + c0 * u0.x() - s0 * u0.y(), y_[i] + s0 * u0.x() + c0 * u0.y(), th_[i] + u0.z());
     Eigen::Matrix3d G;
     G << c0, -s0, 0, s0, c0, 0, 0, 0, 1;
@@ -484,6 +692,11 @@ void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& whee
     fast_trig::sinCos(m.z(), &sm, &cm);
     double lw = 0.0;
     for (const ProposalSighting& z : sightings) lw += fuseProposalSighting(z, log_floor, m, P, sm, cm);
+    if (!column_sightings.empty()) {
+      const CalibrationEstimate::StereoVector q =
+          Eigen::Map<const CalibrationEstimate::StereoVector>(cal_.data() + i * static_cast<size_t>(cal_dim_) + head_at_);
+      for (const ColumnSighting& z : column_sightings) lw += fuseColumnSighting(z, q, log_floor, m, P, sm, cm);
+    }
     if (compass) lw += fuseProposalCompass(*compass, compass_var, compass_ref, log_floor, m, P);
     // Draw from N(m, P); P is positive definite (U holds a floor) up to round-off.
     const Eigen::Matrix3d L = lowerFactor(P);
@@ -492,6 +705,7 @@ void ParticleFilter::proposeAndWeight(const std::optional<Eigen::Vector2d>& whee
                 wrapAngle(m.z() + L(2, 0) * a + L(2, 1) * b + L(2, 2) * c3));
     logw_[i] += lw;
   }
+  if (wheels) walkWheels(wheels->x(), wheels->y());
   uniform_weights_ = false;
   normalise();
 }
@@ -554,29 +768,29 @@ void ParticleFilter::resample() {
     idx.resize(taken);
   }
   const int kept = static_cast<int>(idx.size());
-  scratch_x_.resize(x_.size());
-  scratch_y_.resize(y_.size());
-  scratch_th_.resize(th_.size());
-  scratch_c_.resize(c_.size());
-  scratch_s_.resize(s_.size());
+  // The new set may be larger than the old one (KLD-sampling growing back): sized to it first.
+  const size_t K = static_cast<size_t>(cal_dim_);
+  scratch_x_.resize(idx.size());
+  scratch_y_.resize(idx.size());
+  scratch_th_.resize(idx.size());
+  scratch_c_.resize(idx.size());
+  scratch_s_.resize(idx.size());
+  scratch_cal_.resize(idx.size() * K);
   for (size_t i = 0; i < idx.size(); ++i) {
     const size_t j = static_cast<size_t>(idx[i]);
+    std::copy_n(cal_.data() + j * K, K, scratch_cal_.data() + i * K);
     scratch_x_[i] = x_[j];
     scratch_y_[i] = y_[j];
     scratch_th_[i] = th_[j];
     scratch_c_[i] = c_[j];
     scratch_s_[i] = s_[j];
   }
-  scratch_x_.resize(idx.size());
-  scratch_y_.resize(idx.size());
-  scratch_th_.resize(idx.size());
-  scratch_c_.resize(idx.size());
-  scratch_s_.resize(idx.size());
   x_.swap(scratch_x_);
   y_.swap(scratch_y_);
   th_.swap(scratch_th_);
   c_.swap(scratch_c_);
   s_.swap(scratch_s_);
+  cal_.swap(scratch_cal_);
   logw_.assign(x_.size(), -std::log(static_cast<double>(kept)));
   w_.assign(x_.size(), 1.0 / kept);
   uniform_weights_ = true;
@@ -617,6 +831,7 @@ void ParticleFilter::reinject(int count) {
     const size_t i = static_cast<size_t>((start + static_cast<int>(k * stride)) % n);
     const double x = ux(rng_), y = uy(rng_), t = ut(rng_);
     setParticle(i, x, y, t);
+    drawCalibration(i, i + 1);  // from the set's calibration: a kidnap does not change the robot
     logw_[i] = -std::log(static_cast<double>(n));  // Algorithm 6: a new particle weighs 1/N
     fresh_.push_back(static_cast<int>(i));
   }
@@ -659,6 +874,10 @@ void ParticleFilter::saveState(State& s) const {
   s.s = s_;
   s.logw = logw_;
   s.w = w_;
+  s.cal = cal_;
+  s.cal_mean = cal_mean_;
+  s.cal_cov = cal_cov_;
+  s.joint_cov = joint_cov_;
   s.fresh = fresh_;
   s.uniform_weights = uniform_weights_;
   s.initialised = initialised_;
@@ -682,6 +901,10 @@ void ParticleFilter::restoreState(const State& s) {
   s_ = s.s;
   logw_ = s.logw;
   w_ = s.w;
+  cal_ = s.cal;
+  cal_mean_ = s.cal_mean;
+  cal_cov_ = s.cal_cov;
+  joint_cov_ = s.joint_cov;
   fresh_ = s.fresh;
   uniform_weights_ = s.uniform_weights;
   initialised_ = s.initialised;
@@ -694,9 +917,24 @@ void ParticleFilter::restoreState(const State& s) {
   if (config_.keep_history && estimates_.size() > s.estimates) estimates_.resize(s.estimates);
 }
 
+Step ParticleFilter::seenThroughCalibration(const Step& step) const {
+  if (head_at_ < 0) return step;
+  Step out = step;
+  for (Observation& o : out.observations) {
+    Landmark kind;
+    kind.type = o.type;
+    try {
+      o = calibratedForGate(o, kind);
+    } catch (const GeometryError&) {
+      // the set's calibration puts it behind the cameras: the fix takes it as measured
+    }
+  }
+  return out;
+}
+
 bool ParticleFilter::tryGlobalFix(const Step& step) {
   if (!config_.global_fix) return false;
-  const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+  const std::optional<PoseFix> fix = config_.global_fix(seenThroughCalibration(step), map_);
   if (!fix || !fix->pose.isFinite() || !fix->covariance.allFinite()) return false;
   try {
     initialiseGaussian(fix->pose, fix->covariance);
@@ -704,6 +942,31 @@ bool ParticleFilter::tryGlobalFix(const Step& step) {
     return false;  // a fix with an unusable covariance is no fix
   }
   return true;
+}
+
+std::optional<PoseFix> ParticleFilter::reanchoringFix(const Step& step, const StepObservations& used) const {
+  if (cal_dim_ == 0 || !config_.global_fix) return std::nullopt;
+  const std::optional<PoseFix> fix = config_.global_fix(seenThroughCalibration(step), map_);
+  if (!fix || !fix->pose.isFinite() || !fix->covariance.allFinite() ||
+      Eigen::LLT<Eigen::Matrix3d>(fix->covariance).info() != Eigen::Success)
+    return std::nullopt;
+  const Eigen::Vector3d nu = minus(fix->pose, used.predicted);
+  const Eigen::LDLT<Eigen::Matrix3d> ldlt(used.predicted_covariance + fix->covariance);
+  if (ldlt.info() != Eigen::Success) return std::nullopt;
+  // The self-calibrating EKF's bound (solvers/ekf.cpp): the 0.999 gate, at least 1000.
+  const double d2 = nu.dot(ldlt.solve(nu));
+  if (!(d2 <= std::max(chi2Quantile(0.999, 3), 1000.0))) return std::nullopt;
+  return fix;
+}
+
+void ParticleFilter::weightByFix(const PoseFix& fix) {
+  const Eigen::Matrix3d F = (0.5 * (fix.covariance + fix.covariance.transpose())).inverse();
+  for (size_t i = 0; i < x_.size(); ++i) {
+    const Eigen::Vector3d e(fix.pose.x - x_[i], fix.pose.y - y_[i], angleDiff(fix.pose.theta, th_[i]));
+    logw_[i] += std::max(-0.5 * e.dot(F * e), log_floor_);
+  }
+  uniform_weights_ = false;
+  normalise();
 }
 
 Estimate ParticleFilter::process(const Step& step) {
@@ -718,7 +981,8 @@ Estimate ParticleFilter::process(const Step& step) {
   const bool optimal = config_.proposal == ParticleProposal::LinearisedOptimal;
   if (!first && !optimal) predict(step.d_left, step.d_right);
   StepObservations used = identifyObservations(step, first);
-  if (optimal && !used.lost) {
+  const std::optional<PoseFix> anchor = used.lost ? reanchoringFix(step, used) : std::nullopt;
+  if (optimal && (!used.lost || anchor)) {
     // An observation outside the belief's gate is floored for the whole set, so the re-injected
     // particles would weigh as much as the set's and smear the estimate over the field. While
     // not lost it is dropped; once lost, every observation goes to the particles so that the
@@ -734,16 +998,22 @@ Estimate ParticleFilter::process(const Step& step) {
     used.landmarks.resize(kept);
     used.accepted.assign(kept, 1);
   }
-  if (used.lost && tryGlobalFix(step)) return recordEstimate(step, EstimateStatus::Reinitialised);
+  if (used.lost && !anchor && tryGlobalFix(step)) return recordEstimate(step, EstimateStatus::Reinitialised);
   const bool use_compass = step.compass && config_.use_compass;
   const bool observed = !used.observations.empty() || use_compass;
   correct(step, first, used, use_compass);
+  if (anchor) weightByFix(*anchor);
   summarise(&mean_, &cov_);  // (5.37), before resampling: the weighted set is the posterior
-  if (observed) {
+  summariseCalibration();
+  if (observed || anchor) {
     resampleIfDegenerate();
     if (!optimal) reinject(config_.reinjected);
   }
   fresh_.clear();
+  if (anchor) {
+    gate_.reset();
+    return recordEstimate(step, EstimateStatus::Reinitialised);
+  }
   if (used.lost) return recordEstimate(step, EstimateStatus::Lost);
   return recordEstimate(step, observed ? EstimateStatus::Tracking : EstimateStatus::Predicted);
 }
@@ -753,7 +1023,11 @@ void ParticleFilter::validateStep(const Step& step) const {
     throw Error("particle filter: step " + std::to_string(step.step) + " does not follow step " +
                 std::to_string(last_step_));
   validateStepOdometryAndCompass(step, "particle filter: step " + std::to_string(step.step));
-  for (size_t i = 0; i < step.observations.size(); ++i) checkObservation(step, i, step.observations[i]);
+  for (size_t i = 0; i < step.observations.size(); ++i) {
+    checkObservation(step, i, step.observations[i]);
+    if (head_at_ >= 0 && !step.observations[i].pixels)
+      throw Error("particle filter: " + where(step, i) + ": the stereo calibration needs the sighting's pixels");
+  }
 }
 
 Estimate ParticleFilter::recordEstimate(const Step& step, EstimateStatus status) {
@@ -776,7 +1050,7 @@ double positionSpread(const Eigen::Matrix3d& P) { return std::sqrt(std::max(P(0,
 std::optional<EstimateStatus> ParticleFilter::startFromWideBelief(const Step& step, bool first) {
   const bool wide = config_.handover_sigma_mm > 0 && positionSpread(cov_) > config_.handover_sigma_mm;
   if (wide && !step.observations.empty() && config_.global_fix) {
-    const std::optional<PoseFix> fix = config_.global_fix(step, map_);
+    const std::optional<PoseFix> fix = config_.global_fix(seenThroughCalibration(step), map_);
     if (fix && fix->pose.isFinite() && fix->covariance.allFinite() && positionSpread(fix->covariance) < positionSpread(cov_)) {
       try {
         initialiseGaussian(fix->pose, fix->covariance);
@@ -815,10 +1089,16 @@ std::optional<EstimateStatus> ParticleFilter::startFromWideBelief(const Step& st
 // each is tested against the summary's gate (5.20): status only, the likelihood floor handles
 // outliers.
 ParticleFilter::StepObservations ParticleFilter::identifyObservations(const Step& step, bool first) {
-  const PosePrediction prior = first ? PosePrediction{mean_, cov_}
-                                     : predictPose(mean_, cov_, step.d_left, step.d_right, odometry_);
+  PosePrediction prior{mean_, cov_};
+  if (!first && wheels_at_ >= 0) {
+    prior = predictCalibratedStep(mean_, cov_, step.d_left, step.d_right, cal_mean_.segment<3>(wheels_at_),
+                                  stepOdometry(step.d_left, step.d_right));
+  } else if (!first) {
+    prior = predictPose(mean_, cov_, step.d_left, step.d_right, stepOdometry(step.d_left, step.d_right));
+  }
   StepObservations used;
   used.predicted = prior.pose;
+  used.predicted_covariance = prior.covariance;
   std::vector<int> taken;
   for (const Observation& o : step.observations)
     if (o.landmark_id >= 0) taken.push_back(o.landmark_id);
@@ -829,8 +1109,21 @@ ParticleFilter::StepObservations ParticleFilter::identifyObservations(const Step
     if (obs.landmark_id >= 0) {
       lm = map_.find(obs.landmark_id);
       if (!lm) throw Error(where(step, i) + ": unknown landmark id " + std::to_string(obs.landmark_id));
-    } else {
-      const AssociationResult a = associate(obs, prior.pose, prior.covariance, map_, config_.association,
+    }
+    // With the stereo block the gate and the association see the sighting through the set's
+    // calibration; one that puts the pixels at no point there is neither.
+    std::optional<Observation> seen = obs;
+    if (head_at_ >= 0) {
+      Landmark kind;
+      kind.type = obs.type;
+      try {
+        seen = calibratedForGate(obs, lm ? *lm : kind);
+      } catch (const GeometryError&) {
+        seen.reset();
+      }
+    }
+    if (!lm && seen) {
+      const AssociationResult a = associate(*seen, prior.pose, prior.covariance, map_, config_.association,
                                             config_.association.exclusive ? taken : std::vector<int>{});
       if (a.landmark_id >= 0) {
         lm = &map_.at(a.landmark_id);
@@ -845,9 +1138,11 @@ ParticleFilter::StepObservations ParticleFilter::identifyObservations(const Step
     Matrix23d H;
     bool accepted = false;
     try {
-      const Eigen::Vector2d zhat = predictRangeBearing(prior.pose, lm->xy(), &H);
-      const Eigen::Vector2d nu = rangeBearingInnovation(obs.z(), zhat);
-      accepted = gate_.accepts(mahalanobisSquared<2>(nu, H * prior.covariance * H.transpose() + obs.covariance));
+      if (seen) {
+        const Eigen::Vector2d zhat = predictRangeBearing(prior.pose, lm->xy(), &H);
+        const Eigen::Vector2d nu = rangeBearingInnovation(seen->z(), zhat);
+        accepted = gate_.accepts(mahalanobisSquared<2>(nu, H * prior.covariance * H.transpose() + seen->covariance));
+      }
     } catch (const GeometryError&) {
       accepted = false;
     }
@@ -896,6 +1191,7 @@ void ParticleFilter::resampleIfDegenerate() {
   const double ess = effectiveSampleSize();
   if (ess >= config_.resample_ess_fraction * size() + 1e-9) return;
   resample();
+  jitterCalibration();
   if (ess < config_.regularisation_ess_fraction * size()) {
     const double d = 3.0;
     const double h = config_.regularisation_bandwidth >= 0 ? config_.regularisation_bandwidth

@@ -19,6 +19,13 @@
 //   cos/sin of each heading; the bearing innovation is evaluated in the frame of the measured
 //   bearing (an atan2 of cross and dot products, no wrap; see weight()), and the per-particle
 //   sin/cos and atan2 are the inline polynomials of solvers/fast_trig.h instead of libm calls.
+// Self-calibration (ParticleFilterConfig::calibration; `pf:calib`): each particle carries its own
+//   wheel calibration (c_l, c_r, w) and stereo calibration q (CalibrationEstimate::head), drawn
+//   from the priors; it predicts with its wheels and sees each sighting through its q, so the
+//   weights select the calibrations the data agree with and the set's spread holds their
+//   uncertainty. After each resampling the calibrations are moved by Liu and West's kernel
+//   (shrunk towards their weighted mean, so the set keeps its mean and covariance), which keeps
+//   them diverse where copies alone would collapse onto a few values (docs/estimators.md).
 // One std::mt19937_64 owned by the filter, seeded by the constructor: deterministic for a seed.
 #include <Eigen/Core>
 #include <cmath>
@@ -31,6 +38,7 @@
 #include "solvers/fast_trig.h"
 #include "solvers/global_fix_hypotheses.h"
 #include "solvers/initialisation.h"
+#include "solvers/self_calibration.h"
 #include "solvers/validation_gate.h"
 #include "solvers/data_association.h"
 #include "src/core/estimator.h"
@@ -163,6 +171,22 @@ struct ParticleFilterConfig {
   // false: finish() returns only the newest estimate, so memory stays constant on an unbounded
   // stream (the Localizer's); true: one Estimate per step.
   bool keep_history = true;
+  // Self-calibration of the odometry (wheel scales and wheel base, about 1, 1 and the odometry's
+  // wheel base) and of the stereo head (the six corrections of CalibrationEstimate::head, about
+  // the given rig), with the priors `calibration` states; the range and field blocks and
+  // `consider` are the other estimators'. Needs the linearised optimal proposal; the stereo
+  // block needs each sighting's pixels.
+  SelfCalibrationConfig calibration;
+  // With a calibration block: the rig that took the pixels and the pixel noise (its pixel_sigma
+  // and unmodelled terms: the sightings' range-bearing covariance is the pixel covariance pushed
+  // through the triangulation; the model field is not read), and the slip term of the prediction
+  // (unmodelled.slip_rel_sigma, as the self-calibrating EKF's) and the wheels' drift per step.
+  ObservationModelConfig observation_model;
+  // Liu and West's discount factor delta of the calibration kernel (0 < delta <= 1): after each
+  // resampling every calibration moves to m + a (c - m) + N(0, (1 - a^2) C), a = (3 delta - 1) /
+  // (2 delta), m and C the weighted calibrations' mean and covariance; 1: no kernel (copies only).
+  // 0.98 is within the range Liu and West recommend (0.95-0.99).
+  double calibration_discount = 0.98;
 };
 
 // Standard normal deviates by the ziggurat method (Marsaglia & Tsang 2000, 128 layers), drawing
@@ -253,6 +277,12 @@ class ParticleFilter : public Estimator {
   void regularise(const Pose2& mean, const Eigen::Matrix3d& covariance, double h);
   // Weighted mean (circular for theta) and weighted covariance of the current particles.
   void summarise(Pose2* mean, Eigen::Matrix3d* covariance) const;
+  // With a calibration block: the particles' weighted mean and covariance of the wheels and the
+  // stereo head at the last processed step (before its resampling), as the other estimators
+  // report theirs; none without one.
+  std::optional<CalibrationEstimate> calibration() const;
+  // Particle i's calibration: wheels (c_l, c_r, w) then head (6), whichever blocks are on.
+  Eigen::VectorXd particleCalibration(int i) const;
   double effectiveSampleSize() const;
 
   bool initialised() const { return initialised_; }
@@ -265,7 +295,8 @@ class ParticleFilter : public Estimator {
   // Everything a processed step changes, to go back to: restoreState() and then the same steps
   // again give the same estimates, bit for bit, the random stream included (the Localizer
   // replays the steps since a late observation's step this way). finish() then holds no
-  // estimate made after the save. A state holds the particle set: about 56 bytes per particle.
+  // estimate made after the save. A state holds the particle set: about 56 bytes per particle, and
+  // 8 more per calibration value.
   class State;
   State saveState() const;
   // The same into `state`, reusing its buffers (no allocation once they are large enough).
@@ -281,6 +312,7 @@ class ParticleFilter : public Estimator {
     std::vector<char> accepted;
     bool lost = false;  // the gate's consecutive rejections reached GateConfig::lost_after
     Pose2 predicted;    // the previous summary pushed through the step's odometry
+    Eigen::Matrix3d predicted_covariance = Eigen::Matrix3d::Zero();
   };
   void validateStep(const Step& step) const;  // throws stereoloc::Error naming the step
   Estimate recordEstimate(const Step& step, EstimateStatus status);
@@ -289,10 +321,32 @@ class ParticleFilter : public Estimator {
   void correct(const Step& step, bool first, const StepObservations& used, bool use_compass);
   void resampleIfDegenerate();
   bool tryGlobalFix(const Step& step);
+  // A calibrating set that is lost re-anchors, as the self-calibrating EKF does, on a global fix
+  // (seen through its calibration) that is not a kidnap: one within the EKF's re-anchoring
+  // bound of the prediction. The set then keeps its poses and calibrations and is weighted by the
+  // fix; a fix beyond the bound re-draws the set around it (tryGlobalFix).
+  std::optional<PoseFix> reanchoringFix(const Step& step, const StepObservations& used) const;
+  void weightByFix(const PoseFix& fix);
   // Particles [begin, end) drawn from N(pose, covariance); throws stereoloc::Error when it is not
   // finite or not positive semi-definite.
   void drawGaussian(size_t begin, size_t end, const Pose2& pose, const Eigen::Matrix3d& covariance);
   void finishInitialisation();  // uniform weights, summary, gate reset
+  void setUpCalibration();  // the blocks, their layout and priors; throws stereoloc::Error
+  // Calibrations of particles [begin, end) drawn from N(cal_mean_, cal_cov_).
+  void drawCalibration(size_t begin, size_t end);
+  // cal_mean_, cal_cov_ and joint_cov_ from the weighted particles, the pose about mean_.
+  void summariseCalibration();
+  void jitterCalibration();  // Liu and West's kernel on (pose, calibration) about mean_, cal_mean_, joint_cov_
+  // Each particle's wheel calibration takes a step of its random walk (UnmodelledNoise::
+  // wheel_scale_drift) over increments d_left, d_right (mm).
+  void walkWheels(double d_left, double d_right);
+  OdometryParams stepOdometry(double d_left, double d_right) const;  // with the slip term when calibrating
+  const double* wheelsOf(size_t i) const { return cal_.data() + i * static_cast<size_t>(cal_dim_) + wheels_at_; }
+  // The observation as the gate and the association see it: through the set's mean stereo
+  // calibration, its covariance widened by the calibration's spread (calibratedObservation).
+  Observation calibratedForGate(const Observation& obs, const Landmark& landmark) const;
+  // The step with every sighting seen that way, for the global fixes.
+  Step seenThroughCalibration(const Step& step) const;
   void normalise();
   void resizeParticles(size_t n);
   void setParticle(size_t i, double x, double y, double theta) {
@@ -324,6 +378,14 @@ class ParticleFilter : public Estimator {
   std::vector<Estimate> estimates_;
   HypothesisBank bank_;
   bool localised_ = false;  // the belief has been narrower than handover_sigma_mm once
+  // Self-calibration: cal_dim_ values per particle (row i at cal_[i * cal_dim_]), the wheels at
+  // wheels_at_ and the head at head_at_ (-1: not estimated); their weighted mean and covariance
+  // at the last summary (the prior's until the first).
+  int cal_dim_ = 0, wheels_at_ = -1, head_at_ = -1;
+  std::vector<double> cal_, scratch_cal_;
+  Eigen::VectorXd cal_mean_;
+  Eigen::MatrixXd cal_cov_;
+  Eigen::MatrixXd joint_cov_;  // (x, y, theta, calibration), for the kernel
 
  public:
   class State {
@@ -332,7 +394,9 @@ class ParticleFilter : public Estimator {
     std::mt19937_64 rng;
     ZigguratNormal normal;
     ValidationGate gate;
-    std::vector<double> x, y, th, c, s, logw, w;
+    std::vector<double> x, y, th, c, s, logw, w, cal;
+    Eigen::VectorXd cal_mean;
+    Eigen::MatrixXd cal_cov, joint_cov;
     std::vector<int> fresh;
     bool uniform_weights = false, initialised = false, have_step = false, localised = false;
     long last_step = 0;

@@ -85,6 +85,7 @@ Localizer::Localizer(LocalizerConfig config)
     case LocalizerMethod::ParticleFilter: {
       ParticleFilterConfig c = config_.particle_filter;
       c.init = config_.init;
+      c.observation_model.rig = config_.rig;
       auto f = std::make_unique<ParticleFilter>(config_.map, config_.odometry, c, config_.seed);
       pf_ = f.get();
       estimator_ = std::move(f);

@@ -134,6 +134,7 @@ class Localizer {
   // calibration and its prior, Ekf::calibration); nullopt without it or for the particle filter.
   std::optional<CalibrationEstimate> calibration() const {
     if (window_) return window_->calibration();
+    if (pf_) return pf_->calibration();
     return ekf_ ? ekf_->calibration() : std::nullopt;
   }
 

@@ -128,7 +128,9 @@ void requirePixelModelForStereoCalibration(const MethodOptions& o) {
 
 }  // namespace
 
-bool selfCalibrates(const std::string& name) { return name == "batch" || name == "window" || name == "ekf"; }
+bool selfCalibrates(const std::string& name) {
+  return name == "batch" || name == "window" || name == "ekf" || name == "pf";
+}
 
 bool considers(const std::string& name) { return name == "ekf" || name == "fix1" || name == "fix2"; }
 
@@ -319,13 +321,20 @@ MethodRun runMethodOnSteps(const std::string& spec, const Dataset& d, uint64_t s
     run = runEstimator(ekf, d);
     if (!c.calibration.consider) run.calibration = ekf.calibration();  // considered: nothing estimated
   } else if (name == "pf") {
+    if (o.calibration.range || o.calibration.field)
+      throw UsageError("--calibrate: the particle filter self-calibrates odometry and stereo only (method '" + spec + "')");
     ParticleFilterConfig c;
     c.init = beliefFor(init_mode, d, o, rng);
     c.particles = o.particles;
     c.proposal = o.pf_proposal;
     c.kld.enabled = o.pf_kld;
+    c.calibration = o.calibration;
+    c.observation_model = {o.observation_model, d.rig, o.pixel_sigma, o.noise};
+    if (c.calibration.any() && c.proposal != ParticleProposal::LinearisedOptimal)
+      throw UsageError("--calibrate: the particle filter self-calibrates with --pf-proposal linearised_optimal only");
     ParticleFilter pf(d.map, d.odometry, c, rng());
     run = runEstimator(pf, d);
+    run.calibration = pf.calibration();
   } else if (name == "window") {
     SlidingWindowConfig c;
     c.window = o.window;

@@ -36,9 +36,9 @@ struct MethodOptions {
   ObservationModel observation_model = ObservationModel::PixelColumns;
   double loss_scale = 2.0;           // whitened units
   bool gate_enabled = true;          // ekf, window
-  // batch, window and ekf: self-calibration (solvers/self_calibration.h) when either part is on.
+  // batch, window, ekf and pf: self-calibration (solvers/self_calibration.h) when either part is on.
   SelfCalibrationConfig calibration;
-  // Batch and window pixel models, the self-calibrating EKF's stereo update: px, > 0 replaces the observations' own pixel sigma (an
+  // Batch and window pixel models, the self-calibrating EKF's and PF's stereo update: px, > 0 replaces the observations' own pixel sigma (an
   // honest noise for a world with vibration and blur, docs/realistic_world.md); 0 keeps theirs.
   double pixel_sigma = 0.0;
   // Batch, window and the self-calibrating EKF: the errors the rig and odometry do not state
@@ -78,16 +78,16 @@ std::string methodNamesText();
 constexpr int kIteratedEkfIterations = 10;
 
 // Whether the method `name` (without ":init") can self-calibrate (MethodOptions::calibration):
-// the smoothers and the EKF (solvers/ekf.h, "Self-calibration"); kSelfCalibratingText names them
-// for errors.
+// the smoothers, the EKF (solvers/ekf.h, "Self-calibration") and the particle filter (its
+// odometry and stereo blocks); kSelfCalibratingText names them for errors.
 bool selfCalibrates(const std::string& name);
-inline const std::string kSelfCalibratingText = "batch, window and ekf";
+inline const std::string kSelfCalibratingText = "batch, window, ekf and pf";
 // Whether the method `name` can consider its calibration (SelfCalibrationConfig::consider): the
 // EKF (all its blocks) and the fixes (the stereo block, solvers/considered_fix.h).
 bool considers(const std::string& name);
 inline const std::string kConsideringText = "ekf, fix1 and fix2";
 
-// A spec may end in ":calib" ("batch:calib", "window:known:calib", "ekf:calib"): the method with
+// A spec may end in ":calib" ("batch:calib", "window:known:calib", "ekf:calib", "pf:calib"): the method with
 // odometry and stereo self-calibration (MethodOptions::calibration), for the studies' calibrated
 // variants; or, for the EKF and the fixes, in ":consider" ("ekf:consider", "fix2:consider"): the
 // same blocks considered, not estimated (SelfCalibrationConfig::consider; a fix the stereo block).

@@ -21,10 +21,14 @@
 #include "src/core/numeric_diff.h"
 #include "src/sim/error_profile.h"
 #include "src/sim/simulator.h"
+#include "planted_error_world.h"
 #include "test_util.h"
 
 namespace stereoloc {
 namespace {
+
+using test::meanNees;
+using test::plantedErrorWorld;
 
 const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
 
@@ -56,16 +60,6 @@ double positionRmse(const Dataset& d, const std::vector<Estimate>& est) {
     sse += std::pow(est[i].pose.x - t.x, 2) + std::pow(est[i].pose.y - t.y, 2);
   }
   return std::sqrt(sse / static_cast<double>(est.size()));
-}
-
-double meanNees(const Dataset& d, const std::vector<Estimate>& est) {
-  double sum = 0;
-  for (const Estimate& e : est) {
-    const Pose2& t = *d.groundtruth[static_cast<size_t>(e.step)];
-    const Eigen::Vector3d err = minus(e.pose, t);
-    sum += err.dot(e.covariance.ldlt().solve(err));
-  }
-  return sum / static_cast<double>(est.size());
 }
 
 TEST(EkfCalibration, CalibratedSightingJacobiansMatchCentralDifferences) {
@@ -141,22 +135,6 @@ TEST(EkfCalibration, WithVanishingPriorsItIsThePlainEkf) {
   std::optional<CalibrationEstimate> none;
   run(d, knownStart(d), &none);
   EXPECT_FALSE(none);
-}
-
-// A 600-step random walk whose given calibration has wheel radii and base, head tilt, baseline
-// and principal points all wrong; sightings of identified landmarks only.
-Dataset plantedErrorWorld(SimulationTrace* trace) {
-  SimulationConfig sc;
-  sc.profile.name = "modelled";
-  sc.profile.wheel_radius_rel_sigma = 0.01;
-  sc.profile.wheel_base_rel_sigma = 0.03;
-  sc.profile.baseline_rel_sigma = 0.01;
-  sc.profile.tilt_sigma_rad = deg2rad(0.5);
-  sc.profile.principal_sigma_px = 1.0;
-  sc.scenario.steps = 600;
-  Dataset d = simulate("random-walk", 0, sc, 5, trace);
-  test::keepIdentifiedSightings(d);
-  return d;
 }
 
 TEST(EkfCalibration, RecoversPlantedWheelAndStereoErrors) {

@@ -647,6 +647,25 @@ TEST(ParticleFilter, KldSamplingBoundAndAdaptiveSize) {
   EXPECT_THROW(ParticleFilter(map, odo, bad, 1), Error);
 }
 
+TEST(ParticleFilter, KldSamplingGrowsTheSetBackWhenItSpreads) {
+  // A narrow set shrinks to a few hundred particles; spread over the field, its next resampling draws
+  // more particles than it holds.
+  ParticleFilterConfig c;
+  c.kld.enabled = true;
+  c.init = knownBelief(Pose2(0.0, 0.0, 0.0), Eigen::Vector3d(1.0, 1.0, 1e-4).asDiagonal());
+  ParticleFilter pf(FieldMap::miroSot(), OdometryParams(), c, 3);
+  pf.resample();
+  ASSERT_LT(pf.size(), 1000);
+  Pose2 mean;
+  Eigen::Matrix3d covariance;
+  pf.summarise(&mean, &covariance);
+  pf.regularise(mean, Eigen::Vector3d(500.0 * 500.0, 500.0 * 500.0, 1.0).asDiagonal(), 0.9);
+  pf.resample();
+  EXPECT_GT(pf.size(), 1000);
+  EXPECT_LE(pf.size(), c.particles);
+  for (int i = 0; i < pf.size(); ++i) ASSERT_TRUE(std::isfinite(pf.xs()[static_cast<size_t>(i)]));
+}
+
 }  // namespace
 }  // namespace stereoloc
 

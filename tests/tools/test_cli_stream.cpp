@@ -140,8 +140,9 @@ TEST(CliStream, ReplaysADatasetAndPrintsTheSmoothedTrajectory) {
 }
 
 TEST(CliStream, SelfCalibratesAndWritesTheCalibration) {
-  // A realistic line (wrong wheel radii, baseline, tilt, ...) replayed with the window's
-  // self-calibration: the rig YAML with the estimate and its standard deviations is written.
+  // A realistic line (wrong wheel radii, baseline, tilt, ...) replayed with the window's and the
+  // particle filter's self-calibration: the rig YAML with the estimate and its standard
+  // deviations is written.
   test::TempDir dir("stream_calib");
   const test::CliRun sim =
       test::runCli("simulate --scenario line --steps 40 --seed 7 --profile realistic --out " + dir.file("ds"));
@@ -156,6 +157,12 @@ TEST(CliStream, SelfCalibratesAndWritesTheCalibration) {
   const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   for (const char* key : {"wheel_base_mm", "wheel_base_sigma_mm", "baseline_scale", "baseline_scale_sigma"})
     EXPECT_NE(text.find(key), std::string::npos) << key;
+  const test::CliRun pf = test::runCli("stream --from " + dir.file("ds") + " --method pf --particles 500" +
+                                       " --calibrate odometry,stereo --calibration-out " + dir.file("pf.yaml"));
+  ASSERT_EQ(pf.exit_code, 0) << pf.output;
+  EXPECT_EQ(lines(pf.output, "{\"step\":").size(), 40u) << pf.output;
+  EXPECT_NE(pf.output.find("calibration: wheel scales"), std::string::npos) << pf.output;
+  EXPECT_GT(StereoRig::load(dir.file("pf.yaml")).params().baseline_mm, 0.0);
   const test::CliRun usage = test::runCli("stream --from " + dir.file("ds") + " --calibration-out " + dir.file("x.yaml"));
   EXPECT_EQ(usage.exit_code, 2) << usage.output;
   const test::CliRun rb = test::runCli("stream --from " + dir.file("ds") +
@@ -497,7 +504,7 @@ TEST(CliStream, TheFiltersGiveTheEstimatesOfLocalize) {
   EXPECT_NE(lines(a.output, "{\"step\":").back().find("\"status\":\"tracking\""), std::string::npos) << a.output;
 
   const std::vector<std::pair<std::string, std::string>> refused = {
-      {"--method pf --calibrate odometry", "--calibrate"},
+      {"--method pf --calibrate odometry,range", "--calibrate"},
       {"--method iekf --calibrate odometry", "--calibrate"},
       {"--method ekf --window 5", "--window"},
       {"--method ekf --max-iterations 3", "--max-iterations"},

@@ -180,13 +180,14 @@ TEST(CliLocalize, EveryMethodWritesEstimatesAndTum) {
   EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method ekf:sideways --out " + dir.file("x.csv")).exit_code, 2);
 }
 
-// The smoothers and the EKF self-calibrate from the command line and write the estimate as a rig
-// YAML that loads back as a dataset's rig; the other methods refuse the option.
-TEST(CliLocalize, SmoothersAndTheEkfSelfCalibrateAndWriteARigBack) {
+// The smoothers, the EKF and the particle filter self-calibrate from the command line and write
+// the estimate as a rig YAML that loads back as a dataset's rig; the other methods, and blocks a
+// method does not estimate, are refused.
+TEST(CliLocalize, SmoothersAndTheFiltersSelfCalibrateAndWriteARigBack) {
   namespace fs = std::filesystem;
   test::TempDir dir;
   ASSERT_EQ(test::runCli("simulate --scenario circle --seed 5 --steps 60 --profile realistic --out " + dir.file("d")).exit_code, 0);
-  for (const std::string m : {"batch", "window", "ekf"}) {
+  for (const std::string m : {"batch", "window", "ekf", "pf"}) {
     fs::create_directories(dir.file(m));
     const std::string rig = dir.file(m + "/rig.yaml");
     const test::CliRun r = test::runCli("localize " + dir.file("d") + " --method " + m + " --calibrate odometry,stereo --calibration-out " +
@@ -205,7 +206,11 @@ TEST(CliLocalize, SmoothersAndTheEkfSelfCalibrateAndWriteARigBack) {
     fs::copy_file(f.path(), fs::path(dir.file("d")) / f.path().filename(), fs::copy_options::overwrite_existing);
   const test::CliRun again = test::runCli("localize " + dir.file("d") + " --method ekf --out " + dir.file("ekf.csv"));
   EXPECT_EQ(again.exit_code, 0) << again.output;
-  EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method pf --calibrate odometry --out " + dir.file("x.csv")).exit_code, 2);
+  const test::CliRun range =
+      test::runCli("localize " + dir.file("d") + " --method pf --calibrate odometry,range --out " + dir.file("x.csv"));
+  EXPECT_EQ(range.exit_code, 2) << range.output;
+  EXPECT_NE(range.output.find("the particle filter self-calibrates odometry and stereo only"), std::string::npos)
+      << range.output;
   EXPECT_EQ(test::runCli("localize " + dir.file("d") + " --method iekf --calibrate odometry --out " + dir.file("x.csv")).exit_code, 2);
   // Options only the smoothers use are refused for the others, not ignored.
   const std::string noise = std::string(STEREOLOC_DATA_DIR) + "/noise_realistic.yaml";
@@ -213,10 +218,12 @@ TEST(CliLocalize, SmoothersAndTheEkfSelfCalibrateAndWriteARigBack) {
     const test::CliRun r = test::runCli("localize " + dir.file("d") + " --method pf " + option + " --out " + dir.file("x.csv"));
     EXPECT_EQ(r.exit_code, 2) << option << ": " << r.output;
     EXPECT_NE(r.output.find("only the smoothers"), std::string::npos) << r.output;
-    // The self-calibrating EKF takes them.
-    const test::CliRun e = test::runCli("localize " + dir.file("d") + " --method ekf --calibrate odometry,stereo " + option +
-                                        " --out " + dir.file("x.csv"));
-    EXPECT_EQ(e.exit_code, 0) << option << ": " << e.output;
+    // The self-calibrating filters take them.
+    for (const std::string filter : {"ekf", "pf"}) {
+      const test::CliRun e = test::runCli("localize " + dir.file("d") + " --method " + filter +
+                                          " --calibrate odometry,stereo " + option + " --out " + dir.file("x.csv"));
+      EXPECT_EQ(e.exit_code, 0) << filter << " " << option << ": " << e.output;
+    }
   }
 }
 

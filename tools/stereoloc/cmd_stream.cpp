@@ -77,6 +77,8 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   SelfCalibrationConfig calibration = calibrationOptions(a.calibrate, a.consider);
   calibration.drive_disparity_sigma_px = a.drive_disparity_sigma_px;
   const bool calibrating = calibration.any() && !calibration.consider;
+  if (a.method == "pf" && (calibration.range || calibration.field))
+    throw UsageError("--calibrate: the particle filter self-calibrates odometry and stereo only (method 'pf')");
 
   if (calibration.stereo && observation_model.model == ObservationModel::RangeBearing)
     throw UsageError(std::string(calibration.consider ? "--consider" : "--calibrate") +
@@ -99,6 +101,8 @@ LocalizerConfig configFrom(const StreamArgs& a, const Dataset* d, const Calibrat
   // stream runs in constant memory whatever the tracker.
   c.ekf.keep_history = false;
   c.particle_filter.particles = a.particles;
+  c.particle_filter.observation_model = observation_model;
+  c.particle_filter.calibration = calibration;
   c.particle_filter.keep_history = false;
   c.seed = a.seed;
   c.replay_steps = a.replay_steps;
@@ -144,13 +148,13 @@ void checkMethodOptions(const StreamArgs& a, const CLI::App& sub) {
     refuse("--seed", "the particle filter");
   }
   const bool calibrating = !a.calibrate.empty() || !a.consider.empty();
-  if (!a.calibrate.empty() && a.method != "window" && a.method != "ekf")
-    throw UsageError("--calibrate: only the window and ekf self-calibrate " + m);
+  if (!a.calibrate.empty() && a.method != "window" && a.method != "ekf" && a.method != "pf")
+    throw UsageError("--calibrate: only the window, ekf and pf self-calibrate " + m);
   if (a.method != "ekf") refuse("--consider", "ekf");
   if (a.method == "pf") refuse("--no-gate", "the window and the EKFs");
-  if (a.method != "window" && !(a.method == "ekf" && calibrating)) {
-    refuse("--noise-model", "the window and ekf with --calibrate or --consider");
-    refuse("--observation-model", "the window and ekf with --calibrate or --consider");
+  if (a.method != "window" && !((a.method == "ekf" || a.method == "pf") && calibrating)) {
+    refuse("--noise-model", "the window, and ekf and pf with --calibrate or --consider");
+    refuse("--observation-model", "the window, and ekf and pf with --calibrate or --consider");
   }
 }
 
@@ -213,8 +217,9 @@ void runStream(const StreamArgs& a, const CLI::App& sub) {
   }
   if (c && !loc.config().ekf.calibration.consider)
     reportCalibration(a.calibration_out, stderr, &*c, loc.config().rig,
-                      loc.config().method == LocalizerMethod::Ekf ? loc.config().ekf.calibration
-                                                                   : loc.config().window.calibration,
+                      loc.config().method == LocalizerMethod::Ekf              ? loc.config().ekf.calibration
+                      : loc.config().method == LocalizerMethod::ParticleFilter ? loc.config().particle_filter.calibration
+                                                                               : loc.config().window.calibration,
                       loc.config().odometry.wheel_base_mm, handover);
   if (bad > 0) throw Error("stream: " + std::to_string(bad) + " bad line(s) (see the messages above)");
 }
@@ -289,16 +294,16 @@ void add_stream_command(CLI::App& app) {
   sub->add_flag("--smoothed", a->smoothed, "Window: after the input ends, print the smoothed trajectory (\"smoothed\":true)");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
   sub->add_option("--calibrate", a->calibrate,
-                  "Self-calibrate in the window or the EKF: odometry (wheel scales, wheel base), stereo (head tilt, "
-                  "baseline scale, pixel offsets, focal ratio; a pixel observation model) or both; both also range "
-                  "(a range-bearing sensor's range factor and bearing offset); with stereo both also field (the MiroSot "
-                  "field's nine dimensions), comma-separated");
+                  "Self-calibrate in the window, the EKF or the particle filter: odometry (wheel scales, wheel base), "
+                  "stereo (head tilt, baseline scale, pixel offsets, focal ratio; a pixel observation model) or both; "
+                  "the window and the EKF also range (a range-bearing sensor's range factor and bearing offset) and, "
+                  "with stereo, field (the MiroSot field's nine dimensions), comma-separated");
   sub->add_option("--consider", a->consider,
                   "ekf: the blocks of --calibrate considered, not estimated: the calibration stays as given, its "
                   "stated uncertainty enters the covariance (see `localize --help`)");
   sub->add_option("--noise-model", a->noise_model,
-                  "YAML of the noise the rig and odometry do not state, for the window and ekf with --calibrate or "
-                  "--consider (see `localize --help`)")
+                  "YAML of the noise the rig and odometry do not state, for the window, and ekf and pf with "
+                  "--calibrate or --consider (see `localize --help`)")
       ->check(CLI::ExistingFile);
   CLI::Option* calibration_out =
       sub->add_option("--calibration-out", a->calibration_out,

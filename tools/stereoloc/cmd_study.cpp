@@ -76,7 +76,7 @@ void add_study_command(CLI::App& app) {
   sub->add_option("--methods", a->methods,
                   "Comma-separated methods: " + methodNamesText() +
                       "; append :known, :random or :global to choose the start (e.g. ekf:random), and :calib "
-                      "for odometry and stereo self-calibration (batch:calib, window:calib, ekf:calib) or, for the "
+                      "for odometry and stereo self-calibration (batch:calib, window:calib, ekf:calib, pf:calib) or, for the "
                       "EKF and the fixes, :consider for the same calibration considered, not estimated "
                       "(ekf:consider; fix1:consider and fix2:consider the stereo block); batch:calib-field, window:calib-field and ekf:calib-field also estimate "
                       "the field's dimensions")

@@ -212,11 +212,12 @@ void checkMethodOptions(const LocalizeArgs& a, const CLI::App& sub) {
 void runLocalize(const LocalizeArgs& a) {
   MethodOptions o = parseMethodOptions(a);
   const std::string name = parseMethodSpec(a.method, o.init).first;  // usage errors before reading data
-  const bool calibrating_ekf =
-      name == "ekf" && (o.calibration.any() || hasCalibrationSuffix(a.method) || hasConsiderSuffix(a.method));
-  if (name != "batch" && name != "window" && !calibrating_ekf && (!a.noise_model.empty() || o.pixel_sigma > 0))
-    throw UsageError("--noise-model, --pixel-sigma: only the smoothers (batch, window) and ekf with --calibrate or "
-                     "--consider use them (method '" + a.method + "')");
+  const bool calibrating_filter = (name == "ekf" || name == "pf") && (o.calibration.any() ||
+                                                                      hasCalibrationSuffix(a.method) ||
+                                                                      hasConsiderSuffix(a.method));
+  if (name != "batch" && name != "window" && !calibrating_filter && (!a.noise_model.empty() || o.pixel_sigma > 0))
+    throw UsageError("--noise-model, --pixel-sigma: only the smoothers (batch, window), and ekf and pf with "
+                     "--calibrate or --consider use them (method '" + a.method + "')");
   CalibrationHandover handover;
   const Dataset d = loadRunDataset(a, o, handover);
   const MethodRun run = runMethod(a.method, d, a.seed, o);
@@ -225,7 +226,7 @@ void runLocalize(const LocalizeArgs& a) {
   writeEstimatesCsv(a.out, run.estimates);
   if (!a.tum.empty()) writeEstimatesTum(a.tum, run.estimates);
   if (!a.calibration_out.empty() && !run.calibration)
-    throw UsageError("--calibration-out: needs --calibrate with batch, window or ekf");
+    throw UsageError("--calibration-out: needs --calibrate with batch, window, ekf or pf");
   std::optional<CalibrationEstimate> calibration = run.calibration;
   if (calibration) recordOdometryDelay(*calibration, o, run.odometry_delay, handover);
   if (name == "batch") noteConstantWheelsInTheBatch(o);
@@ -286,11 +287,12 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
   sub->add_option("--tum", a->tum, "Also write the trajectory in TUM format (metres), e.g. for evo");
   addFrontendOptions(sub, a->frontend, a->frontend_landmarks, a->frontend_params);
   sub->add_option("--calibrate", a->calibrate,
-                  "Batch, window and ekf: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, baseline "
-                  "scale, disparity and column offsets, focal errors; the smoothers need a pixel observation model) or "
-                  "both, with priors from the stated uncertainty; all three also range (a range-bearing sensor's range "
-                  "factor 1 + c0 + c1 b + c2 b^2 at bearing b and its bearing offset); with stereo all three also field "
-                  "(the change of the MiroSot field's nine dimensions: a field built by hand), comma-separated");
+                  "Batch, window, ekf and pf: self-calibrate odometry (wheel scales, wheel base), stereo (head tilt, "
+                  "baseline scale, disparity and column offsets, focal errors; the smoothers need a pixel observation "
+                  "model, pf each particle its own calibration) or both, with priors from the stated uncertainty; "
+                  "batch, window and ekf also range (a range-bearing sensor's range factor 1 + c0 + c1 b + c2 b^2 at "
+                  "bearing b and its bearing offset) and, with stereo, field (the change of the MiroSot field's nine "
+                  "dimensions: a field built by hand), comma-separated");
   if (method_option)
     sub->add_option("--consider", a->consider,
                     "ekf: the blocks of --calibrate (odometry, stereo, range, field, comma-separated) considered, not estimated: "
@@ -298,13 +300,13 @@ void addLocalizeOptions(CLI::App* sub, const std::shared_ptr<LocalizeArgs>& a, b
                     "covariance (a Schmidt-Kalman filter; the method ekf:consider in studies); fix1 and fix2: stereo "
                     "only, each fix's covariance gains the calibration's (fix2:consider in studies)");
   sub->add_option("--pixel-sigma", a->options.pixel_sigma,
-                  "Batch and window pixel models, ekf with --calibrate or --consider stereo (the other methods "
-                  "refuse it): pixel noise [px] replacing the observations' own (0: theirs); about 1 px for the "
+                  "Batch and window pixel models, ekf with --calibrate or --consider stereo, pf with --calibrate stereo "
+                  "(the other methods refuse it): pixel noise [px] replacing the observations' own (0: theirs); about 1 px for the "
                   "realistic error profile (docs/realistic_world.md)")
       ->capture_default_str()
       ->check(pixelSigma());
   sub->add_option("--noise-model", a->noise_model,
-                  "Batch, window and ekf with --calibrate or --consider (the other methods refuse it): YAML of the "
+                  "Batch, window, and ekf and pf with --calibrate or --consider (the other methods refuse it): YAML of the "
                   "noise the rig and odometry do not state (lens distortion estimate error, camera vibration, wheel "
                   "slip, wheels that drift over a long run; data/noise_realistic.yaml, docs/realistic_world.md)");
   sub->add_option("--rig", a->rig,
