@@ -236,10 +236,11 @@ void ParticleFilter::drawCalibration(size_t begin, size_t end) {
   const size_t K = static_cast<size_t>(cal_dim_);
   cal_.resize(x_.size() * K);
   const Eigen::MatrixXd L = semiDefiniteFactor(cal_cov_);
-  Eigen::VectorXd e(cal_dim_);
+  Eigen::VectorXd e(cal_dim_), d(cal_dim_);
   for (size_t i = begin; i < end; ++i) {
     for (int j = 0; j < cal_dim_; ++j) e(j) = normal_(rng_);
-    Eigen::Map<Eigen::VectorXd>(cal_.data() + i * K, cal_dim_) = cal_mean_ + L * e;
+    d.noalias() = L * e;
+    Eigen::Map<Eigen::VectorXd>(cal_.data() + i * K, cal_dim_) = cal_mean_ + d;
   }
 }
 
@@ -273,10 +274,10 @@ void ParticleFilter::jitterCalibration() {
   const double delta = config_.calibration_discount, a = (3.0 * delta - 1.0) / (2.0 * delta);
   const Eigen::MatrixXd L = semiDefiniteFactor(Eigen::MatrixXd((1.0 - a * a) * joint_cov_));
   const size_t K = static_cast<size_t>(cal_dim_);
-  Eigen::VectorXd e(3 + cal_dim_);
+  Eigen::VectorXd e(3 + cal_dim_), d(3 + cal_dim_);
   for (size_t i = 0; i < x_.size(); ++i) {
     for (int j = 0; j < 3 + cal_dim_; ++j) e(j) = normal_(rng_);
-    const Eigen::VectorXd d = L * e;
+    d.noalias() = L * e;
     setParticle(i, mean_.x + a * (x_[i] - mean_.x) + d(0), mean_.y + a * (y_[i] - mean_.y) + d(1),
                 wrapAngle(mean_.theta + a * angleDiff(th_[i], mean_.theta) + d(2)));
     Eigen::Map<Eigen::VectorXd> c(cal_.data() + i * K, cal_dim_);

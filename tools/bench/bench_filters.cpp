@@ -9,6 +9,9 @@
 //                          as printed), for the cost of the regularisation in the same run
 //   BM_PfStepPriorProposal/N  the odometry model as proposal (Algorithm 6), for the cost of the
 //                          optimal proposal in the same run
+//   BM_PfStepSelfCalibrating/N  the self-calibrating filter (odometry and stereo, pf:calib) on a
+//                          simulated random walk whose sightings carry pixels (up to 4 per step)
+//   BM_PfStepOnPixels/N    the plain filter on the same walk, for the calibration's cost
 //   BM_HypothesisSpawn     the random start's multi-hypothesis bank (solvers/global_fix_hypotheses.h)
 //                          spawned from a step with three unidentified sightings and the compass on
 //                          the MiroSot field (one-landmark fixes over every landmark of each type)
@@ -29,6 +32,7 @@
 #include "solvers/particle_filter.h"
 #include "solvers/smoother_common.h"
 #include "src/core/measurement_model.h"
+#include "src/sim/simulator.h"
 
 namespace stereoloc {
 namespace {
@@ -68,19 +72,19 @@ void BM_EkfPredictUpdate(benchmark::State& state) {
 }
 BENCHMARK(BM_EkfPredictUpdate);
 
+// Filter::process() over `steps`, a fresh filter (built outside the timing) for every pass.
 template <typename Filter, typename Make>
-void runSteps(benchmark::State& state, Make make) {
-  const SyntheticProblem& p = problem();
+void runSteps(benchmark::State& state, const std::vector<Step>& steps, Make make) {
   std::unique_ptr<Filter> f = make();
   size_t k = 0;
   for (auto _ : state) {
-    if (k == p.steps.size()) {  // a fresh filter for the next pass, built outside the timing
+    if (k == steps.size()) {
       state.PauseTiming();
       f = make();
       k = 0;
       state.ResumeTiming();
     }
-    benchmark::DoNotOptimize(f->process(p.steps[k++]));
+    benchmark::DoNotOptimize(f->process(steps[k++]));
   }
   state.SetItemsProcessed(state.iterations());
 }
@@ -89,7 +93,7 @@ void BM_EkfStep(benchmark::State& state) {
   const SyntheticProblem& p = problem();
   EkfConfig c;
   c.init = knownBelief(p.truth[0], kP0);
-  runSteps<Ekf>(state, [&] { return std::make_unique<Ekf>(p.map, p.odometry, c); });
+  runSteps<Ekf>(state, p.steps, [&] { return std::make_unique<Ekf>(p.map, p.odometry, c); });
 }
 BENCHMARK(BM_EkfStep);
 
@@ -104,7 +108,8 @@ void pfStep(benchmark::State& state, ResamplingScheme scheme, double bandwidth =
   c.regularisation_bandwidth = bandwidth;
   c.proposal = proposal;
   uint64_t seed = 1;
-  runSteps<ParticleFilter>(state, [&] { return std::make_unique<ParticleFilter>(p.map, p.odometry, c, seed++); });
+  runSteps<ParticleFilter>(state, p.steps,
+                           [&] { return std::make_unique<ParticleFilter>(p.map, p.odometry, c, seed++); });
 }
 void BM_PfStep(benchmark::State& state) { pfStep(state, ResamplingScheme::Systematic); }
 void BM_PfStepRoulette(benchmark::State& state) { pfStep(state, ResamplingScheme::SortedRoulette); }
@@ -116,6 +121,32 @@ BENCHMARK(BM_PfStep)->Arg(1000)->Arg(3000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PfStepRoulette)->Arg(3000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PfStepUnregularised)->Arg(3000)->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_PfStepPriorProposal)->Arg(3000)->Unit(benchmark::kMicrosecond);
+
+// A simulated random walk whose sightings carry their pixels, the stereo block's input.
+const Dataset& pixelWalk() {
+  static const Dataset d = [] {
+    SimulationConfig sc;
+    sc.scenario.steps = 600;
+    return simulate("random-walk", 0, sc, 5);
+  }();
+  return d;
+}
+
+void pfOnPixels(benchmark::State& state, const std::string& calibrate) {
+  const Dataset& d = pixelWalk();
+  ParticleFilterConfig c;
+  c.init = knownBelief(*d.groundtruth.front(), kP0);
+  c.particles = static_cast<int>(state.range(0));
+  c.calibration = SelfCalibrationConfig::parse(calibrate);
+  c.observation_model.rig = d.rig;
+  uint64_t seed = 1;
+  runSteps<ParticleFilter>(state, d.steps,
+                           [&] { return std::make_unique<ParticleFilter>(d.map, d.odometry, c, seed++); });
+}
+void BM_PfStepSelfCalibrating(benchmark::State& state) { pfOnPixels(state, "odometry,stereo"); }
+void BM_PfStepOnPixels(benchmark::State& state) { pfOnPixels(state, ""); }
+BENCHMARK(BM_PfStepSelfCalibrating)->Arg(3000)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_PfStepOnPixels)->Arg(3000)->Unit(benchmark::kMicrosecond);
 
 // Unidentified sightings of the given MiroSot landmarks from `pose`, with an exact compass.
 Step ambiguousStep(const FieldMap& map, const Pose2& pose, const std::vector<int>& ids) {
@@ -203,6 +234,8 @@ int main(int argc, char** argv) {
   line("PF 3000 sorted roulette", "BM_PfStepRoulette/3000", -1, "");
   line("PF 3000 without regularisation", "BM_PfStepUnregularised/3000", -1, "");
   line("PF 3000 prior (Algorithm 6)", "BM_PfStepPriorProposal/3000", -1, "");
+  line("PF 3000 on pixels", "BM_PfStepOnPixels/3000", -1, "");
+  line("PF 3000 self-calibrating", "BM_PfStepSelfCalibrating/3000", -1, "");
   line("random start: bank spawn", "BM_HypothesisSpawn", -1, "");
   line("random start: bank step", "BM_HypothesisStep", -1, "");
   const double pf = reporter.cpuNs("BM_PfStep/3000"), ekf_step = reporter.cpuNs("BM_EkfStep");
