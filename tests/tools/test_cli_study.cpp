@@ -143,7 +143,8 @@ TEST(CliStudy, UsageErrors) {
   EXPECT_EQ(test::runCli("study --observation-model pixel --out " + dir.file("x")).exit_code, 2);
   EXPECT_EQ(test::runCli("study --profile sunny --out " + dir.file("x")).exit_code, 2);
   EXPECT_EQ(test::runCli("study --profile ideal,ideal --out " + dir.file("x")).exit_code, 2);
-  EXPECT_EQ(test::runCli("study --methods pf:calib --out " + dir.file("x")).exit_code, 2);
+  EXPECT_EQ(test::runCli("study --methods pf:calib-field --out " + dir.file("x")).exit_code, 2);
+  EXPECT_EQ(test::runCli("study --methods iekf:calib --out " + dir.file("x")).exit_code, 2);
   std::filesystem::create_directories(dir.file("full"));
   std::ofstream(dir.file("full/keep")) << "x";
   EXPECT_EQ(test::runCli("study --trials 1 --out " + dir.file("full")).exit_code, 2);

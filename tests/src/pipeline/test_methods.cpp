@@ -44,21 +44,28 @@ TEST(Methods, EveryTrackerGivesOneEstimatePerStepAndIsReproducible) {
   }
 }
 
-TEST(Methods, TheSmoothersAndTheEkfSelfCalibrate) {
+TEST(Methods, TheSmoothersAndTheFiltersSelfCalibrate) {
   const Dataset d = circle(25);
-  for (const std::string spec : {"ekf:calib", "ekf:known:calib", "window:calib", "batch:calib"}) {
+  for (const std::string spec : {"ekf:calib", "ekf:known:calib", "window:calib", "batch:calib", "pf:calib"}) {
     const MethodRun run = runMethod(spec, d, 3, MethodOptions());
     ASSERT_EQ(run.estimates.size(), d.steps.size()) << spec;
     ASSERT_TRUE(run.calibration) << spec;
     EXPECT_TRUE(run.calibration->odometry && run.calibration->stereo) << spec;
   }
   EXPECT_FALSE(runMethod("ekf", d, 3, MethodOptions()).calibration);
-  for (const std::string spec : {"iekf:calib", "pf:calib", "fix2:calib", "deadreckoning:calib"})
+  for (const std::string spec : {"iekf:calib", "pf:calib-field", "fix2:calib", "deadreckoning:calib"})
     EXPECT_THROW(parseMethodSpec(spec, InitMode::Known), UsageError) << spec;
   MethodOptions o;
   o.calibration = SelfCalibrationConfig::parse("odometry");
-  EXPECT_THROW(runMethod("pf", d, 3, o), UsageError);
+  EXPECT_THROW(runMethod("iekf", d, 3, o), UsageError);
   EXPECT_TRUE(runMethod("ekf", d, 3, o).calibration);
+  o.particles = 300;
+  const MethodRun pf = runMethod("pf", d, 3, o);
+  ASSERT_TRUE(pf.calibration);
+  EXPECT_TRUE(pf.calibration->odometry && !pf.calibration->stereo);
+  // The particle filter's blocks are the odometry and the stereo head.
+  o.calibration = SelfCalibrationConfig::parse("odometry,range");
+  EXPECT_THROW(runMethod("pf", d, 3, o), UsageError);
 }
 
 TEST(Methods, TheEkfConsidersItsCalibration) {
