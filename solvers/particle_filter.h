@@ -21,11 +21,13 @@
 //   sin/cos and atan2 are the inline polynomials of solvers/fast_trig.h instead of libm calls.
 // Self-calibration (ParticleFilterConfig::calibration; `pf:calib`): each particle carries its own
 //   wheel calibration (c_l, c_r, w) and stereo calibration q (CalibrationEstimate::head), drawn
-//   from the priors; it predicts with its wheels and sees each sighting through its q, so the
-//   weights select the calibrations the data agree with and the set's spread holds their
-//   uncertainty. After each resampling the calibrations are moved by Liu and West's kernel
-//   (shrunk towards their weighted mean, so the set keeps its mean and covariance), which keeps
-//   them diverse where copies alone would collapse onto a few values (docs/estimators.md).
+//   from the priors; it predicts with its wheels and predicts each sighting's pixel columns
+//   through its q, so the weights select the calibrations the data agree with and the set's
+//   spread holds their uncertainty. After each resampling every (pose, calibration) is moved by
+//   Liu and West's kernel (shrunk towards the weighted mean, so the set keeps its mean and
+//   covariance), which keeps the calibrations diverse where copies alone would collapse onto a
+//   few values. On the realistic world's images it tracks but is over-confident
+//   (docs/estimators.md, the particle filter's "Self-calibration").
 // One std::mt19937_64 owned by the filter, seeded by the constructor: deterministic for a seed.
 #include <Eigen/Core>
 #include <cmath>
@@ -178,14 +180,14 @@ struct ParticleFilterConfig {
   // block needs each sighting's pixels.
   SelfCalibrationConfig calibration;
   // With a calibration block: the rig that took the pixels and the pixel noise (its pixel_sigma
-  // and unmodelled terms: the sightings' range-bearing covariance is the pixel covariance pushed
-  // through the triangulation; the model field is not read), and the slip term of the prediction
-  // (unmodelled.slip_rel_sigma, as the self-calibrating EKF's) and the wheels' drift per step.
+  // and unmodelled terms: the columns' covariance is the column block of pixelCovarianceFor; the
+  // model field is not read), and the slip term of the prediction (unmodelled.slip_rel_sigma, as
+  // the self-calibrating EKF's) and the wheels' drift per step.
   ObservationModelConfig observation_model;
   // Liu and West's discount factor delta of the calibration kernel (0 < delta <= 1): after each
-  // resampling every calibration moves to m + a (c - m) + N(0, (1 - a^2) C), a = (3 delta - 1) /
-  // (2 delta), m and C the weighted calibrations' mean and covariance; 1: no kernel (copies only).
-  // 0.98 is within the range Liu and West recommend (0.95-0.99).
+  // resampling every (pose, calibration) moves to m + a (c - m) + N(0, (1 - a^2) C), a =
+  // (3 delta - 1) / (2 delta), m and C the weighted mean and covariance; 1: no kernel (copies
+  // only). 0.98 is within the range Liu and West recommend (0.95-0.99).
   double calibration_discount = 0.98;
 };
 
