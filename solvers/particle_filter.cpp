@@ -518,20 +518,22 @@ struct ColumnSighting {
   double log_det_ref;
 };
 
-// fuseProposalSighting for a column sighting seen through the particle's calibration q.
-inline double fuseColumnSighting(const ColumnSighting& z, const CalibrationEstimate::StereoVector& q, double log_floor,
-                                 Eigen::Vector3d& m, Eigen::Matrix3d& P, double& sm, double& cm) {
-  Eigen::Vector2d h;
-  Eigen::Matrix<double, 2, 3> H;
-  if (!z.model(q, m.x(), m.y(), cm, sm, &h, &H)) return log_floor;  // behind the cameras
-  const Eigen::Vector2d nu = z.measured - h;
+// The Kalman step of one two-dimensional sighting on the particle's proposal N(m, P) (the trig of
+// m's heading in sm, cm, kept current): innovation nu = z - h(m), H = dh / d pose, noise R;
+// returns its log-likelihood relative to the reference peak (log_det_ref: the log-determinant of
+// the reference density), or log_floor for an outlier, which moves the particle nowhere.
+inline double fuseInnovation(const Eigen::Vector2d& nu, const Matrix23d& H, const Eigen::Matrix2d& R,
+                             double log_det_ref, double log_floor, Eigen::Vector3d& m, Eigen::Matrix3d& P, double& sm,
+                             double& cm) {
   const Eigen::Matrix<double, 3, 2> PHt = P * H.transpose();
-  const Eigen::Matrix2d S = H * PHt + z.C;
+  const Eigen::Matrix2d S = H * PHt + R;
   const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
   if (!(det > 0)) return log_floor;
   Eigen::Matrix2d Si;
   Si << S(1, 1) / det, -S(0, 1) / det, -S(1, 0) / det, S(0, 0) / det;
-  const double log_l = -0.5 * nu.dot(Si * nu) - 0.5 * (std::log(det) - z.log_det_ref);
+  const double e2 = nu.dot(Si * nu);
+  // log N(nu; 0, S) and the floor, both relative to the reference peak.
+  const double log_l = -0.5 * e2 - 0.5 * (std::log(det) - log_det_ref);
   if (log_l <= log_floor) return log_floor;
   const Eigen::Matrix<double, 3, 2> K = PHt * Si;
   m += K * nu;
@@ -542,9 +544,7 @@ inline double fuseColumnSighting(const ColumnSighting& z, const CalibrationEstim
   return log_l;
 }
 
-// One sighting's Kalman step on the particle's proposal N(m, P) (the trig of m's heading in sm,
-// cm, kept current); returns its log-likelihood relative to the reference peak, or log_floor for
-// an outlier, which moves the particle nowhere.
+// A range-bearing sighting's Kalman step (fuseInnovation).
 inline double fuseProposalSighting(const ProposalSighting& z, double log_floor, Eigen::Vector3d& m, Eigen::Matrix3d& P,
                                    double& sm, double& cm) {
   const double dx = z.lx - m.x(), dy = z.ly - m.y(), q = dx * dx + dy * dy;
@@ -555,23 +555,16 @@ inline double fuseProposalSighting(const ProposalSighting& z, double log_floor, 
   const Eigen::Vector2d nu(z.zr - r, fast_trig::atan2(sphi * dx - cphi * dy, cphi * dx + sphi * dy));
   Matrix23d H;  // J_z_pose of predictRangeBearing (5.27) at the particle's prediction
   H << -dx / r, -dy / r, 0.0, dy / q, -dx / q, -1.0;
-  const Eigen::Matrix<double, 3, 2> PHt = P * H.transpose();
-  const Eigen::Matrix2d S = H * PHt + z.R;
-  const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
-  if (!(det > 0)) return log_floor;
-  Eigen::Matrix2d Si;
-  Si << S(1, 1) / det, -S(0, 1) / det, -S(1, 0) / det, S(0, 0) / det;
-  const double e2 = nu.dot(Si * nu);
-  // log N(nu; 0, S) and the floor, both relative to the reference peak.
-  const double log_l = -0.5 * e2 - 0.5 * (std::log(det) - z.log_det_ref);
-  if (log_l <= log_floor) return log_floor;
-  const Eigen::Matrix<double, 3, 2> K = PHt * Si;
-  m += K * nu;
-  P -= K * PHt.transpose();
-  P = 0.5 * (P + P.transpose());
-  m.z() = wrapAngle(m.z());
-  fast_trig::sinCos(m.z(), &sm, &cm);
-  return log_l;
+  return fuseInnovation(nu, H, z.R, z.log_det_ref, log_floor, m, P, sm, cm);
+}
+
+// A column sighting's Kalman step (fuseInnovation), seen through the particle's calibration q.
+inline double fuseColumnSighting(const ColumnSighting& z, const CalibrationEstimate::StereoVector& q, double log_floor,
+                                 Eigen::Vector3d& m, Eigen::Matrix3d& P, double& sm, double& cm) {
+  Eigen::Vector2d h;
+  Matrix23d H;
+  if (!z.model(q, m.x(), m.y(), cm, sm, &h, &H)) return log_floor;  // behind the cameras
+  return fuseInnovation(z.measured - h, H, z.C, z.log_det_ref, log_floor, m, P, sm, cm);
 }
 
 // The compass's Kalman step on N(m, P), as fuseProposalSighting; compass_ref: the variance of
