@@ -119,10 +119,14 @@ std::string calibrationFigures(const StudyConfig& c, const std::string& scenario
   std::ostringstream md;
   constexpr int K = kCalibrationParameterCount;
   const std::array<double, K> truth = trueCalibration(d, trace);
-  const char* names[K] = {"wheel scale left", "wheel scale right", "wheel base [mm]", "tilt correction [deg]",
-                          "baseline scale", "focal scale", "exposure offset [ms]"};
+  std::array<std::string, K> names = {"wheel scale left", "wheel scale right", "wheel base [mm]",
+                                      "tilt correction [deg]", "baseline scale", "focal scale", "exposure offset [ms]"};
   // Figures in the names' units: the tilt in degrees, the exposure offset in ms.
-  const double scales[K] = {1, 1, 1, rad2deg(1.0), 1, 1, 1e3};
+  std::array<double, K> scales = {1, 1, 1, rad2deg(1.0), 1, 1, 1e3};
+  for (int k = 0; k < kFieldDimensionCount; ++k) {
+    names[kFirstFieldCalibrationParameter + k] = std::string("field ") + kFieldDimensions[k].name + " [mm]";
+    scales[kFirstFieldCalibrationParameter + k] = 1.0;
+  }
   for (const std::string& m : c.methods) {
     if (!hasCalibrationSuffix(m) || d.steps.size() < 10) continue;
     std::vector<double> n_steps;

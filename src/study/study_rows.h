@@ -10,6 +10,8 @@
 #include <string>
 #include <vector>
 
+#include "src/core/field_map.h"
+
 namespace stereoloc {
 struct StudyConfig;
 }
@@ -92,11 +94,15 @@ struct CalibrationRow {
 
 inline constexpr const char* kCalibrationHeader = "scenario,profile,trial,method,parameter,truth,estimate,sigma";
 
-// The parameters in calibration.csv's order.
-inline constexpr int kCalibrationParameterCount = 7;
+// The parameters in calibration.csv's order: the rig's, then the field's dimensions (their change
+// against the map, mm, in kFieldDimensions' order; the saveAsRig keys).
+inline constexpr int kCalibrationParameterCount = 7 + kFieldDimensionCount;
 inline constexpr const char* kCalibrationParameters[kCalibrationParameterCount] = {
     "wheel_scale_left", "wheel_scale_right", "wheel_base_mm", "tilt_correction_rad", "baseline_scale", "focal_scale",
-    "exposure_offset_s"};
+    "exposure_offset_s", "field_length_mm", "field_width_mm", "field_goal_width_mm", "field_corner_triangle_mm",
+    "field_centre_circle_radius_mm", "field_goal_area_depth_mm", "field_goal_area_width_mm",
+    "field_penalty_area_depth_mm", "field_penalty_area_width_mm"};
+inline constexpr int kFirstFieldCalibrationParameter = 7;
 
 // A trial has converged when every position error over the thesis's second window (steps
 // 80-100, Table 6.14) is at most this, mm: about ten times the trackers' error there.

@@ -135,8 +135,13 @@ long firstSightingStep(const Dataset& d) {
 
 std::array<double, kCalibrationParameterCount> trueCalibration(const Dataset& d, const SimulationTrace& trace) {
   const DrawnErrors& e = trace.errors;
-  return {1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], d.odometry.wheel_base_mm * (1 + e.wheel_base_rel),
-          e.tilt_rad, 1 + e.baseline_rel, e.focal_rel[0], e.exposure_offset_s};
+  std::array<double, kCalibrationParameterCount> truth{
+      1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], d.odometry.wheel_base_mm * (1 + e.wheel_base_rel),
+      e.tilt_rad, 1 + e.baseline_rel, e.focal_rel[0], e.exposure_offset_s};
+  // A world without a field error has the map's dimensions: 0.
+  for (size_t k = 0; k < e.field_dimension_mm.size() && k < static_cast<size_t>(kFieldDimensionCount); ++k)
+    truth[kFirstFieldCalibrationParameter + k] = e.field_dimension_mm[k];
+  return truth;
 }
 
 CalibrationValues calibrationValues(const CalibrationEstimate& ce, const StereoRig& rig) {
@@ -149,6 +154,11 @@ CalibrationValues calibrationValues(const CalibrationEstimate& ce, const StereoR
                 ce.head_covariance(0, 0),   ce.head_covariance(1, 1),   ce.head_covariance(5, 5),
                 exposure ? ce.image_covariance(kExposure, kExposure) : 0.0};
   c.estimated = {ce.odometry, ce.odometry, ce.odometry, ce.stereo, ce.stereo, ce.stereo, exposure};
+  for (int k = 0; k < kFieldDimensionCount; ++k) {
+    c.value[kFirstFieldCalibrationParameter + k] = ce.field_dimensions_mm[k];
+    c.variance[kFirstFieldCalibrationParameter + k] = ce.field_covariance(k, k);
+    c.estimated[kFirstFieldCalibrationParameter + k] = ce.field;
+  }
   return c;
 }
 

@@ -36,7 +36,8 @@ struct TrialOutput {
 // The calibration of the world a trace drew, in the parameters of solvers/self_calibration.h
 // (kCalibrationParameters): wheel scales c_l, c_r, wheel base w (mm), tilt correction dbeta
 // (rad), baseline scale k, focal scale psi (the left camera's focal length error), the right
-// camera's exposure offset (s). The ideal world's is the nominal one.
+// camera's exposure offset (s), and the field's dimensions' change against the map (mm). The
+// ideal world's is the nominal one.
 std::array<double, kCalibrationParameterCount> trueCalibration(const Dataset& d, const SimulationTrace& trace);
 
 // An estimate in the same parameters: values, variances, and which of them the run estimated

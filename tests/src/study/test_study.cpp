@@ -6,6 +6,7 @@
 #include "src/pipeline/usage_error.h"
 #include "src/study/study.h"
 #include "src/study/study_rows.h"
+#include "src/study/study_trial.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -80,6 +81,34 @@ TEST(StudyRows, SummaryPoolsTrialsBySums) {
   EXPECT_DOUBLE_EQ(s[0].meanNees(), 3.0);  // 12 / 4 estimates
   EXPECT_DOUBLE_EQ(s[0].meanPositionNees(), 2.0);
   EXPECT_DOUBLE_EQ(s[0].meanHeadingNees(), 0.5);
+}
+
+TEST(StudyRows, TheFieldsDimensionsAreCalibrationParameters) {
+  // A field calibration's nine dimensions follow the rig's parameters in calibration.csv, named
+  // as saveAsRig names them, against the field error the world drew (0 where it drew none).
+  CalibrationEstimate e;
+  e.field = true;
+  for (int k = 0; k < kFieldDimensionCount; ++k) {
+    e.field_dimensions_mm[k] = 0.5 * k;
+    e.field_covariance(k, k) = 1.0 + k;
+  }
+  const study::CalibrationValues v = study::calibrationValues(e, StereoRig());
+  for (int k = 0; k < kFieldDimensionCount; ++k) {
+    const int i = study::kFirstFieldCalibrationParameter + k;
+    EXPECT_EQ(std::string(study::kCalibrationParameters[i]), std::string("field_") + kFieldDimensions[k].name + "_mm");
+    EXPECT_TRUE(v.estimated[i]);
+    EXPECT_EQ(v.value[i], 0.5 * k);
+    EXPECT_EQ(v.variance[i], 1.0 + k);
+  }
+  EXPECT_FALSE(v.estimated[0]);  // no wheel block
+  e.field = false;
+  EXPECT_FALSE(study::calibrationValues(e, StereoRig()).estimated[study::kFirstFieldCalibrationParameter]);
+  Dataset d;
+  SimulationTrace trace;
+  EXPECT_EQ(study::trueCalibration(d, trace)[study::kFirstFieldCalibrationParameter + 2], 0.0);
+  trace.errors.field_dimension_mm.assign(kFieldDimensionCount, 0.0);
+  trace.errors.field_dimension_mm[2] = -1.75;
+  EXPECT_EQ(study::trueCalibration(d, trace)[study::kFirstFieldCalibrationParameter + 2], -1.75);
 }
 
 TEST(Study, BadOptionsAreUsageErrorsBeforeAnyFileIsWritten) {
