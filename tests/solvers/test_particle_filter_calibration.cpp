@@ -2,8 +2,8 @@
 // column model is the smoothers' and the EKF's (factors/stereo_pixel_calibration_factor.h) with
 // its pose Jacobian against central differences; on a world whose given calibration is wrong in
 // the ways its blocks model it recovers the calibration within its spread and is consistent where
-// the filter on the given calibration is not; a saved state replays bit for bit; settings it
-// cannot serve are refused.
+// the filter on the given calibration is not; lost, it re-anchors on a fix that agrees and is
+// re-drawn by a kidnap; a saved state replays bit for bit; settings it cannot serve are refused.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -18,6 +18,7 @@
 #include "src/core/angles.h"
 #include "src/core/error.h"
 #include "src/core/numeric_diff.h"
+#include "src/core/odometry_model.h"
 #include "src/sim/simulator.h"
 #include "planted_error_world.h"
 #include "test_util.h"
@@ -123,6 +124,48 @@ TEST(ParticleFilterCalibration, RecoversPlantedWheelAndStereoErrorsAndIsConsiste
   const double nees = meanNees(d, est), nees_given = meanNees(d, given);
   EXPECT_LT(nees, 6.0);
   EXPECT_GT(nees_given, 5.0 * nees) << "calibrating " << nees;
+}
+
+TEST(ParticleFilterCalibration, AFixThatAgreesWeightsTheSetAndAKidnapRedrawsIt) {
+  // Lost after one gross outlier, the calibrating filter asks the global fix service (here: a fix
+  // at a given pose, 100 mm sigma). One near the prediction weights the set, which keeps its
+  // particles and their calibrations (the self-calibrating EKF fuses such a fix); one far away
+  // (a kidnap) re-draws the set around it.
+  SimulationConfig sc;
+  sc.scenario.steps = 40;
+  Dataset d = simulate("circle", 0, sc, 3);
+  for (Step& s : d.steps) s.observations.clear();
+  Step outlier = d.steps[30];
+  Observation o;
+  o.landmark_id = 0;
+  o.range = 50.0;  // mm, far from any pose of the circle
+  o.bearing = 0.0;
+  o.covariance = Eigen::Vector2d(1.0, 1e-4).asDiagonal();
+  outlier.observations = {o};
+  for (const double offset : {20.0, 5000.0}) {
+    ParticleFilterConfig c = calibrating(d, "odometry");
+    c.particles = 500;
+    c.gate.lost_after = 1;
+    const Pose2 target = compose(*d.groundtruth[30], Pose2(offset, 0.0, 0.0));
+    c.global_fix = [&](const Step&, const FieldMap&) {
+      return std::optional<PoseFix>(PoseFix{target, Eigen::Vector3d(100.0, 100.0, 0.1).cwiseAbs2().asDiagonal()});
+    };
+    ParticleFilter pf(d.map, d.odometry, c, 5);
+    Estimate before;
+    for (int k = 0; k < 30; ++k) before = pf.process(d.steps[static_cast<size_t>(k)]);
+    const Estimate e = pf.process(outlier);
+    EXPECT_EQ(e.status, EstimateStatus::Reinitialised) << offset;
+    const Pose2 predicted = predictPose(before.pose, before.covariance, outlier.d_left, outlier.d_right, d.odometry).pose;
+    const double moved = std::hypot(e.pose.x - predicted.x, e.pose.y - predicted.y);
+    if (offset < 100) {
+      EXPECT_LT(moved, 10.0) << "the set stays where it was, one step on";
+      EXPECT_LT(std::sqrt(e.covariance(0, 0)), 50.0) << "its own spread, not the fix's";
+    } else {
+      EXPECT_LT(std::hypot(e.pose.x - target.x, e.pose.y - target.y), 30.0) << "re-drawn around the fix";
+      EXPECT_GT(std::sqrt(e.covariance(0, 0)), 70.0) << "with the fix's spread";
+    }
+    EXPECT_NE(pf.process(d.steps[31]).status, EstimateStatus::Lost) << "the gate starts again";
+  }
 }
 
 TEST(ParticleFilterCalibration, ASavedStateReplaysBitForBit) {
