@@ -178,7 +178,7 @@ void StudyRun::filters() {
   }
   // The EKF, and the EKF calibrating the wheels, and the wheels and the range sensor: what a
   // range-bearing dataset lets it calibrate (no pixels, no stereo head).
-  struct EkfVariant {
+  struct EkfVariant {  // (also the particle filter's variants below)
     const char *key, *label, *calibration;
   };
   for (const EkfVariant& v : {EkfVariant{"ekf", "EKF", "none"},
@@ -203,13 +203,18 @@ void StudyRun::filters() {
     rows.push_back(evaluate(key, v.label, e, truth, ms, n));
     note(rows.back());
   }
-  if (wanted(o, "pf")) {
+  // The particle filter, and the particle filter calibrating the wheels (a calibration per
+  // particle; no stereo head on a range-bearing dataset).
+  for (const EkfVariant& v : {EkfVariant{"pf", "", "none"}, EkfVariant{"pf_calib", ", calibrating odometry", "odometry"}}) {
+    const std::string key = v.key;
+    if (!wanted(o, key)) continue;
     ParticleFilterConfig c;
     c.init = init;
     c.particles = o.particles;
+    c.calibration = SelfCalibrationConfig::parse(v.calibration);
     ParticleFilter pf(d.map, d.odometry, c, o.seed);
     const std::vector<Estimate> e = runEstimator(pf, d.steps, &ms);
-    rows.push_back(evaluate("pf", "PF (" + std::to_string(o.particles) + ")", e, truth, ms, n));
+    rows.push_back(evaluate(key, "PF (" + std::to_string(o.particles) + ")" + v.label, e, truth, ms, n));
     note(rows.back());
   }
 }
@@ -342,7 +347,7 @@ void writeRowsCsv(const std::string& path, const std::vector<Row>& rows) {
 
 const std::vector<std::string>& realDataEstimatorKeys() {
   static const std::vector<std::string> keys = {
-      "dead_reckoning", "ekf", "ekf_calib", "ekf_calib_range", "pf", "window", "window_online", "window_robust",
+      "dead_reckoning", "ekf", "ekf_calib", "ekf_calib_range", "pf", "pf_calib", "window", "window_online", "window_robust",
       "window_robust_online", "window_calib", "window_calib_online", "window_calib_range", "window_calib_range_online",
       "batch", "batch_robust", "batch_calib", "batch_calib_range"};
   return keys;
