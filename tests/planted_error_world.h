@@ -1,6 +1,7 @@
 #pragma once
 // Test helpers for the self-calibrating filters: a simulated drive whose given calibration is
-// wrong in the ways their blocks model, and the mean NEES of a run against its truth.
+// wrong in the ways their blocks model, a drive that loses a filter on one outlier, and the mean
+// NEES of a run against its truth.
 #include <Eigen/Cholesky>
 #include <cmath>
 #include <vector>
@@ -27,6 +28,30 @@ inline Dataset plantedErrorWorld(SimulationTrace* trace) {
   Dataset d = simulate("random-walk", 0, sc, 5, trace);
   keepIdentifiedSightings(d);
   return d;
+}
+
+// A 40-step circle without sightings (and without its compass unless `compass`), and the step 30
+// with one gross outlier instead: a landmark 50 mm ahead, far from any pose of the circle, which
+// a gate with lost_after 1 rejects and so declares the filter lost there.
+struct OutlierDrive {
+  Dataset d;
+  Step outlier;
+};
+inline OutlierDrive outlierDrive(bool compass) {
+  SimulationConfig sc;
+  sc.scenario.steps = 40;
+  OutlierDrive drive{simulate("circle", 0, sc, 3), Step()};
+  for (Step& s : drive.d.steps) s.observations.clear();
+  if (!compass)
+    for (Step& s : drive.d.steps) s.compass.reset();
+  drive.outlier = drive.d.steps[30];
+  Observation o;
+  o.landmark_id = 0;
+  o.range = 50.0;
+  o.bearing = 0.0;
+  o.covariance = Eigen::Vector2d(1.0, 1e-4).asDiagonal();
+  drive.outlier.observations = {o};
+  return drive;
 }
 
 // The mean over the estimates of e^T P^-1 e, e the pose error (x, y, theta) against the truth.

@@ -174,18 +174,9 @@ TEST(EkfCalibration, AFixThatAgreesReanchorsAndAKidnapRestarts) {
   // pose). One near the prediction is fused through the joint state: the pose moves toward it,
   // the wheels learn from the odometry it corrects, the stereo calibration (which the fix saw the
   // sightings through) stays. One far away (a kidnap) restarts the filter at it.
-  SimulationConfig sc;
-  sc.scenario.steps = 40;
-  Dataset d = simulate("circle", 0, sc, 3);
-  for (Step& s : d.steps) s.observations.clear();
-  for (Step& s : d.steps) s.compass.reset();
-  Step outlier = d.steps[30];
-  Observation o;
-  o.landmark_id = 0;
-  o.range = 50.0;  // mm, far from any pose of the circle
-  o.bearing = 0.0;
-  o.covariance = Eigen::Vector2d(1.0, 1e-4).asDiagonal();
-  outlier.observations = {o};
+  const test::OutlierDrive drive = test::outlierDrive(false);
+  const Dataset& d = drive.d;
+  const Step& outlier = drive.outlier;
   for (const double offset : {20.0, 3000.0}) {
     EkfConfig c = calibrating(d, "odometry,stereo");
     c.gate.lost_after = 1;

@@ -131,17 +131,9 @@ TEST(ParticleFilterCalibration, AFixThatAgreesWeightsTheSetAndAKidnapRedrawsIt) 
   // at a given pose, 100 mm sigma). One near the prediction weights the set, which keeps its
   // particles and their calibrations (the self-calibrating EKF fuses such a fix); one far away
   // (a kidnap) re-draws the set around it.
-  SimulationConfig sc;
-  sc.scenario.steps = 40;
-  Dataset d = simulate("circle", 0, sc, 3);
-  for (Step& s : d.steps) s.observations.clear();
-  Step outlier = d.steps[30];
-  Observation o;
-  o.landmark_id = 0;
-  o.range = 50.0;  // mm, far from any pose of the circle
-  o.bearing = 0.0;
-  o.covariance = Eigen::Vector2d(1.0, 1e-4).asDiagonal();
-  outlier.observations = {o};
+  const test::OutlierDrive drive = test::outlierDrive(true);
+  const Dataset& d = drive.d;
+  const Step& outlier = drive.outlier;
   for (const double offset : {20.0, 5000.0}) {
     ParticleFilterConfig c = calibrating(d, "odometry");
     c.particles = 500;
