@@ -1,13 +1,16 @@
 #pragma once
 // Test helpers for the self-calibrating filters: a simulated drive whose given calibration is
-// wrong in the ways their blocks model, a drive that loses a filter on one outlier, and the mean
-// NEES of a run against its truth.
+// wrong in the ways their blocks model, their known-start and calibrating configurations, a drive
+// that loses a filter on one outlier, and the mean NEES of a run against its truth.
 #include <Eigen/Cholesky>
 #include <cmath>
+#include <string>
 #include <vector>
 
 #include "src/core/angles.h"
 #include "src/core/estimator.h"
+#include "solvers/initialisation.h"
+#include "solvers/self_calibration.h"
 #include "src/core/pose2.h"
 #include "src/sim/simulator.h"
 #include "test_util.h"
@@ -28,6 +31,24 @@ inline Dataset plantedErrorWorld(SimulationTrace* trace) {
   Dataset d = simulate("random-walk", 0, sc, 5, trace);
   keepIdentifiedSightings(d);
   return d;
+}
+
+// A filter's configuration (EkfConfig, ParticleFilterConfig) with the known start: the first
+// true pose, 10 mm and 2 degrees of standard deviation.
+template <typename Config>
+Config knownStartConfig(const Dataset& d) {
+  Config c;
+  c.init = knownBelief(*d.groundtruth.front(), Eigen::Vector3d(10.0, 10.0, deg2rad(2.0)).cwiseAbs2().asDiagonal());
+  return c;
+}
+
+// The same self-calibrating the comma-separated `blocks` on the dataset's rig.
+template <typename Config>
+Config calibratingConfig(const Dataset& d, const std::string& blocks) {
+  Config c = knownStartConfig<Config>(d);
+  c.calibration = SelfCalibrationConfig::parse(blocks);
+  c.observation_model.rig = d.rig;
+  return c;
 }
 
 // A 40-step circle without sightings (and without its compass unless `compass`), and the step 30

@@ -30,19 +30,11 @@ namespace {
 using test::meanNees;
 using test::plantedErrorWorld;
 
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
-
-EkfConfig knownStart(const Dataset& d) {
-  EkfConfig c;
-  c.init = knownBelief(*d.groundtruth.front(), kP0);
-  return c;
-}
+EkfConfig knownStart(const Dataset& d) { return test::knownStartConfig<EkfConfig>(d); }
 
 EkfConfig calibrating(const Dataset& d, const std::string& blocks, ObservationModel model = ObservationModel::PixelColumns) {
-  EkfConfig c = knownStart(d);
-  c.calibration = SelfCalibrationConfig::parse(blocks);
+  EkfConfig c = test::calibratingConfig<EkfConfig>(d, blocks);
   c.observation_model.model = model;
-  c.observation_model.rig = d.rig;
   return c;
 }
 

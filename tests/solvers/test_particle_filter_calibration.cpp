@@ -29,19 +29,10 @@ namespace {
 using test::meanNees;
 using test::plantedErrorWorld;
 
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
-
-ParticleFilterConfig knownStart(const Dataset& d) {
-  ParticleFilterConfig c;
-  c.init = knownBelief(*d.groundtruth.front(), kP0);
-  return c;
-}
+ParticleFilterConfig knownStart(const Dataset& d) { return test::knownStartConfig<ParticleFilterConfig>(d); }
 
 ParticleFilterConfig calibrating(const Dataset& d, const std::string& blocks) {
-  ParticleFilterConfig c = knownStart(d);
-  c.calibration = SelfCalibrationConfig::parse(blocks);
-  c.observation_model.rig = d.rig;
-  return c;
+  return test::calibratingConfig<ParticleFilterConfig>(d, blocks);
 }
 
 std::vector<Estimate> run(const Dataset& d, const ParticleFilterConfig& c,
