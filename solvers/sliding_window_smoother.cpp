@@ -41,6 +41,16 @@ bool positiveDefinite(const Eigen::Matrix3d& C) {
 
 Pose2 poseOf(const std::array<double, 3>& x) { return Pose2(x[0], x[1], x[2]); }
 
+// The window's factors own their costs, the smoother its manifold and loss.
+std::unique_ptr<ceres::Problem> emptyProblem() {
+  ceres::Problem::Options popts;
+  popts.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  popts.enable_fast_removal = true;
+  return std::make_unique<ceres::Problem>(popts);
+}
+
 // accumulateNormalEquations (solvers/smoother_common.h) for blocks of any size: `pose` marks the
 // (x, y, theta) blocks, whose angle difference is wrapped; the others are Euclidean.
 bool accumulateBlocks(const ceres::CostFunction& cost, const std::vector<const double*>& current,
@@ -130,12 +140,7 @@ SlidingWindowSmoother::SlidingWindowSmoother(const FieldMap& map, const Odometry
   if (!config_.global_fix) config_.global_fix = defaultGlobalFix();
   if (config_.init.mode != InitMode::Global && (!config_.init.pose.isFinite() || !positiveDefinite(config_.init.covariance)))
     throw Error("sliding window: initial belief is not finite / its covariance not positive definite");
-  ceres::Problem::Options popts;
-  popts.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  popts.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  popts.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  popts.enable_fast_removal = true;
-  problem_ = std::make_unique<ceres::Problem>(popts);
+  problem_ = emptyProblem();
   // The calibration blocks with their priors (solvers/self_calibration.h).
   const SelfCalibrationConfig& cal = config_.calibration;
   wheels_[2] = odometry_.wheel_base_mm;
@@ -499,16 +504,91 @@ void SlidingWindowSmoother::finaliseWindow() {
   for (size_t i = factors_.size(); i-- > 0;) removeFactor(i);
   for (const auto& n : nodes_) problem_->RemoveParameterBlock(n->x.data());
   nodes_.clear();
+  addCalibrationPrior();
+}
+
+void SlidingWindowSmoother::addCalibrationPrior() {
   // The calibration outlives the window: its marginal becomes the prior of the next one.
-  if (calibDim() > 0) {
-    std::vector<BlockMarginalPriorFactor::Block> blocks;
-    for (Calib c : calibBlocks())
-      blocks.push_back({Eigen::Map<const Eigen::VectorXd>(calibData(c), calibSize(c)), false});
-    const Eigen::MatrixXd C = 0.5 * (calib_covariance_ + calib_covariance_.transpose());
-    const Eigen::MatrixXd info = C.llt().solve(Eigen::MatrixXd::Identity(C.rows(), C.cols()));
-    addFactor(BlockMarginalPriorFactor::FromInformation(blocks, info, Eigen::VectorXd::Zero(C.rows())), {}, false,
-              calibBlocks());
+  if (calibDim() == 0) return;
+  std::vector<BlockMarginalPriorFactor::Block> blocks;
+  for (Calib c : calibBlocks())
+    blocks.push_back({Eigen::Map<const Eigen::VectorXd>(calibData(c), calibSize(c)), false});
+  const Eigen::MatrixXd C = 0.5 * (calib_covariance_ + calib_covariance_.transpose());
+  const Eigen::LLT<Eigen::MatrixXd> llt(C);
+  // Every marginal computed is positive definite (computeCovariances refuses the rest); the
+  // diagonal is the fallback should one not be.
+  const Eigen::MatrixXd info =
+      llt.info() == Eigen::Success ? Eigen::MatrixXd(llt.solve(Eigen::MatrixXd::Identity(C.rows(), C.cols())))
+                                   : Eigen::MatrixXd(C.diagonal().cwiseMax(1e-12).cwiseInverse().asDiagonal());
+  addFactor(BlockMarginalPriorFactor::FromInformation(blocks, info, Eigen::VectorXd::Zero(C.rows())), {}, false,
+            calibBlocks());
+}
+
+void SlidingWindowSmoother::takeCheckpoint() {
+  Checkpoint& c = checkpoint_;
+  c.poses.resize(nodes_.size());
+  for (size_t i = 0; i < nodes_.size(); ++i) c.poses[i] = {nodes_[i]->step, nodes_[i]->x, nodes_[i]->covariance};
+  c.calibration.clear();
+  for (const CalibBlock& b : calib_) c.calibration.insert(c.calibration.end(), b.data, b.data + b.size);
+  c.calib_blocks = calib_.size();
+  c.calib_dim = calib_dim_;
+  c.features = features_.size();
+  c.calib_covariance = calib_covariance_;
+}
+
+void SlidingWindowSmoother::abandonWindow(std::optional<long> failed) {
+  const Checkpoint& c = checkpoint_;
+  if (failed && !nodes_.empty() && nodes_.back()->step >= *failed) dropNewest();
+  for (const auto& n : nodes_) {
+    const auto kept = std::find_if(c.poses.begin(), c.poses.end(),
+                                   [&n](const Checkpoint::PoseState& p) { return p.step == n->step; });
+    if (kept == c.poses.end()) continue;
+    n->x = kept->x;
+    n->covariance = kept->covariance;
   }
+  try {
+    computeCovariances(true);
+  } catch (const Error&) {
+    // The window's information is what failed: each pose keeps the marginal it last had, and a
+    // pose that never had one (made by the failed step) the previous pose's composed with the
+    // odometry between them.
+    for (size_t i = 1; i < nodes_.size(); ++i) {
+      Node& n = *nodes_[i];
+      if (positiveDefinite(n.covariance)) continue;
+      const Node& k = *nodes_[i - 1];
+      Matrix3d A1, A2;
+      compose(poseOf(k.x), k.rel_to_next, &A1, &A2);
+      n.covariance = composedCovariance(k, A1, A2, k.rel_to_next_covariance, Matrix3d::Zero());
+    }
+  }
+  for (size_t i = 0; i < nodes_.size(); ++i) {
+    pushHistory(estimateOf(*nodes_[i]));
+    pushIntermediates(*nodes_[i], i + 1 < nodes_.size() ? nodes_[i + 1].get() : nullptr);
+  }
+  // A problem built anew: the failure may have come between a change of it and of ours.
+  problem_ = emptyProblem();
+  factors_.clear();
+  nodes_.clear();
+  while (features_.size() > c.features) {
+    feature_index_.erase(features_.back().landmark_id);
+    features_.pop_back();
+  }
+  calib_.resize(c.calib_blocks);
+  calib_dim_ = c.calib_dim;
+  size_t k = 0;
+  for (const CalibBlock& b : calib_) {
+    std::copy(c.calibration.begin() + static_cast<long>(k), c.calibration.begin() + static_cast<long>(k) + b.size,
+              b.data);
+    k += static_cast<size_t>(b.size);
+    problem_->AddParameterBlock(b.data, b.size);
+  }
+  calib_covariance_ = c.calib_covariance;
+  addCalibrationPrior();
+  lost_ = false;
+  rel_ = Pose2();
+  rel_covariance_.setZero();
+  rel_wheels_.setZero();
+  steps_since_keyframe_ = 0;
 }
 
 std::optional<PoseFix> SlidingWindowSmoother::globalFix(const Step& step) const {
@@ -1295,6 +1375,19 @@ LateObservationResult SlidingWindowSmoother::insertLate(long step, const std::ve
       throw Error("sliding window: step " + std::to_string(step) + ": observation " + std::to_string(i) +
                   ": unknown landmark id " + std::to_string(id));
   }
+  takeCheckpoint();
+  try {
+    return insertChecked(step, observations);
+  } catch (...) {
+    abandonWindow(std::nullopt);
+    throw;
+  }
+}
+
+LateObservationResult SlidingWindowSmoother::insertChecked(long step, const std::vector<Observation>& observations) {
+  Step check;
+  check.step = step;
+  check.observations = observations;
   LateObservationResult result;
   if ((nodes_.empty() || (lost_ && config_.reinitialise_when_lost)) && restartLate(step, observations)) {
     result.status = LateObservationStatus::Inserted;
@@ -1377,7 +1470,23 @@ bool SlidingWindowSmoother::restartLate(long step, const std::vector<Observation
   ++stats_.reinitialisations;
   // The odometry since then, as process() would have taken it after this start.
   const long newest = last_step_;
-  for (const RecentStep& s : after) track(s.step, s.noise);
+  size_t tracked = 0;
+  try {
+    for (; tracked < after.size(); ++tracked) track(after[tracked].step, after[tracked].noise);
+  } catch (...) {
+    // track() kept the failed step for a later restart and took its body rate; the ones after
+    // it are kept here, their rates taken.
+    for (size_t i = tracked + 1; i < after.size(); ++i) {
+      recent_.push_back(after[i]);
+      if (image_sigmas_)
+        step_rate_ =
+            stepBodyRate(rate_tracker_, after[i].step, odometry_, config_.observation_model.unmodelled.slip_rel_sigma);
+    }
+    while (static_cast<int>(recent_.size()) > config_.restart_buffer_steps) recent_.pop_front();
+    stats_.steps -= static_cast<long>(tracked) + 1;
+    last_step_ = newest;
+    throw;
+  }
   stats_.steps -= static_cast<long>(after.size());
   last_step_ = newest;
   return true;
@@ -1417,7 +1526,13 @@ Estimate SlidingWindowSmoother::process(const Step& step) {
   if (have_step_ && wheels_block_ >= 0 && config_.observation_model.unmodelled.wheelsDrift())
     wheels_walked_ += wheelDriftVariance(config_.observation_model.unmodelled, step.d_left, step.d_right,
                                          odometry_.wheel_base_mm);
-  return track(step, noise_travel_.next(step.d_left, step.d_right));
+  takeCheckpoint();
+  try {
+    return track(step, noise_travel_.next(step.d_left, step.d_right));
+  } catch (...) {
+    abandonWindow(step.step);
+    throw;
+  }
 }
 
 Estimate SlidingWindowSmoother::track(const Step& step, const WheelIncrements& noise) {

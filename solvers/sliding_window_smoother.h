@@ -211,7 +211,12 @@ class SlidingWindowSmoother : public Estimator {
   std::string name() const override { return "window"; }
   // The real-time estimate: the newest pose and its marginal covariance after this step.
   // The first processed step is the initial time (its odometry is not applied). Throws
-  // stereoloc::Error on non-increasing step numbers, unknown landmark ids, invalid values.
+  // stereoloc::Error on non-increasing step numbers, unknown landmark ids, invalid values, and
+  // when the step fails halfway (Ceres fails, the window's information is rank deficient, the
+  // global fix throws): the window is then given up as a loss would restart it. Its poses go to
+  // the history as the step found them, the failed step has none, the calibration keeps its
+  // estimate from before the step as the prior of the next window, and processing goes on from
+  // the next global fix.
   Estimate process(const Step& step) override;
   // Solves the final window (final_iterations) and returns one Estimate per processed step:
   // poses that left the window keep their estimate and covariance from the time they were
@@ -219,7 +224,9 @@ class SlidingWindowSmoother : public Estimator {
   std::vector<Estimate> finish() override;
   // Observations of the already processed step `step` (see the header comment): fused at its
   // own pose when it is in the window, then the window is solved again. Throws stereoloc::Error
-  // for a step that was not processed (later than the newest or skipped) or invalid observations.
+  // for a step that was not processed (later than the newest or skipped) or invalid observations,
+  // and when the insertion fails halfway, which gives the window up as process() does (the
+  // processed steps keep their estimates).
   LateObservationResult insertLate(long step, const std::vector<Observation>& observations);
   // The real-time estimate of the newest processed step (the newest keyframe composed with the
   // odometry since it, for a non-keyframe step). Uninitialised before the first pose.
@@ -355,6 +362,7 @@ class SlidingWindowSmoother : public Estimator {
   void ageWheelInformation(const Neighbourhood& nb, const Node& o, Eigen::MatrixXd& Hm, Eigen::VectorXd& gm) const;
   void marginaliseOldest();
   void finaliseWindow();                // moves every window pose into the history, clears the problem
+  void addCalibrationPrior();           // the calibration's marginal as one prior factor (none without)
   void dropNewest();                    // removes the newest pose and its factors
   void solve(int max_iterations);
   void computeCovariances(bool all);    // newest and oldest (or all) marginal covariances
@@ -438,6 +446,7 @@ class SlidingWindowSmoother : public Estimator {
   // Uninitialised or lost: a global fix from late observations of a recent step restarts the
   // window there (see insertLate). False when there is no fix.
   bool restartLate(long step, const std::vector<Observation>& observations);
+  LateObservationResult insertChecked(long step, const std::vector<Observation>& observations);  // insertLate's work
   bool tryGlobalFix(const Step& step, Estimate* out);
   // config_.global_fix on the step; with stereo self-calibration on its observations as the
   // current calibration sees them (calibratedObservation).
@@ -457,6 +466,30 @@ class SlidingWindowSmoother : public Estimator {
   int retestObservations(Node& node);  // its gated observations (retestGated); returns how many were fused
   Estimate estimateOf(const Node& n) const;
   void pushHistory(const Estimate& e);
+  // What a step or an insertion that fails halfway falls back to (abandonWindow): the window
+  // poses' estimates and the calibration as it found them. Member buffers, so that taking it
+  // each step allocates nothing once the window is full.
+  struct Checkpoint {
+    struct PoseState {
+      long step = 0;
+      std::array<double, 3> x{};
+      Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+    };
+    std::vector<PoseState> poses;
+    std::vector<double> calibration;  // calib_'s blocks' values, in order
+    size_t calib_blocks = 0;
+    int calib_dim = 0;
+    size_t features = 0;
+    Eigen::MatrixXd calib_covariance;
+  };
+  void takeCheckpoint();
+  // Gives the window up after a failure halfway through a step (no-throw but for allocation):
+  // the pose of step `failed` is dropped (none: every pose stays), the others go back to the
+  // checkpoint's estimates and move into the history with their marginals in the window (when
+  // its information allows; else as last computed), the calibration is set back to the
+  // checkpoint and becomes the prior of the next window, and the problem is built anew from it,
+  // so that the next step waits for a global fix as after a restart.
+  void abandonWindow(std::optional<long> failed);
 
   FieldMap map_;
   OdometryParams odometry_;
@@ -520,6 +553,7 @@ class SlidingWindowSmoother : public Estimator {
   Eigen::Matrix<double, kFieldDimensionCount, 1> field_ = Eigen::Matrix<double, kFieldDimensionCount, 1>::Zero();
   std::unordered_map<int, Eigen::Matrix<double, 2, kFieldDimensionCount>> field_jacobian_;
   Eigen::MatrixXd calib_covariance_;
+  Checkpoint checkpoint_;
   WindowLinearisation linearisation_ = WindowLinearisation::PriorPoint;  // in effect
 };
 

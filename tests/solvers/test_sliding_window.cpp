@@ -361,6 +361,68 @@ TEST(SlidingWindow, LostTrackingReinitialisesFromGlobalFix) {
   EXPECT_LT((est.back().pose.translation() - p.truth.back().translation()).norm(), 40.0);
 }
 
+TEST(SlidingWindow, AStepThatFailsHalfwayGivesTheWindowUpUntilTheNextFix) {
+  // The kidnap of the test above, and the global fix (a plug-in: a map server, say) fails on the
+  // first call after it: the step that asked fails, after its pose and factors were added. The
+  // window is given up there, its poses kept; the steps after it wait for a fix and go on.
+  SyntheticProblemOptions o;
+  o.steps = 200;
+  SyntheticProblem p = makeRandomWalkProblem(o, 31);
+  const SyntheticProblem q = makeRandomWalkProblem(o, 32);
+  for (size_t k = 100; k < p.steps.size(); ++k) {
+    const long idx = p.steps[k].step;
+    p.steps[k] = q.steps[k];
+    p.steps[k].step = idx;
+    p.truth[k] = q.truth[k];
+  }
+  p.steps[100].d_left = p.steps[100].d_right = 0.0;
+  bool failed_once = false;
+  SlidingWindowConfig wc;
+  wc.init = knownBelief(p.truth[0], kP0);
+  wc.global_fix = [&](const Step& s, const FieldMap&) -> std::optional<PoseFix> {
+    if (s.observations.size() < 2) return std::nullopt;
+    if (!failed_once) {
+      failed_once = true;
+      throw Error("map server: no answer");
+    }
+    return PoseFix{p.truth[static_cast<size_t>(s.step)], Eigen::Vector3d(30.0, 30.0, 0.05).cwiseAbs2().asDiagonal()};
+  };
+  SlidingWindowSmoother win(p.map, p.odometry, wc);
+  long failed = -1;
+  std::vector<Estimate> after;
+  for (const Step& s : p.steps) {
+    try {
+      const Estimate e = win.process(s);
+      if (failed >= 0) after.push_back(e);
+    } catch (const Error& e) {
+      EXPECT_EQ(failed, -1) << "a second failure at step " << s.step;
+      EXPECT_NE(std::string(e.what()).find("map server: no answer"), std::string::npos);
+      failed = s.step;
+      EXPECT_FALSE(win.initialised());
+    }
+  }
+  ASSERT_GE(failed, 100);
+  ASSERT_FALSE(after.empty());
+  // Uninitialised until the next step with a fix, which starts the next window.
+  size_t k = 0;
+  while (k < after.size() && after[k].status == EstimateStatus::Uninitialised) ++k;
+  ASSERT_LT(k, after.size());
+  EXPECT_EQ(after[k].status, EstimateStatus::Reinitialised);
+  EXPECT_GE(win.stats().reinitialisations, 1);
+  const std::vector<Estimate> est = win.finish();
+  ASSERT_EQ(est.size(), p.steps.size() - 1);  // every step but the failed one
+  for (size_t i = 0; i < est.size(); ++i) {
+    const long expected = p.steps[i < static_cast<size_t>(failed) ? i : i + 1].step;
+    ASSERT_EQ(est[i].step, expected);
+    if (est[i].status == EstimateStatus::Uninitialised) continue;
+    EXPECT_TRUE(est[i].pose.isFinite()) << "step " << est[i].step;
+    EXPECT_EQ(Eigen::LLT<Eigen::Matrix3d>(est[i].covariance).info(), Eigen::Success) << "step " << est[i].step;
+  }
+  // Before the kidnap the given-up window's poses are its smoothed ones.
+  for (size_t i = 0; i < 90; ++i) EXPECT_LT((est[i].pose.translation() - p.truth[i].translation()).norm(), 40.0);
+  EXPECT_LT((est.back().pose.translation() - p.truth.back().translation()).norm(), 40.0);
+}
+
 TEST(SlidingWindow, GlobalStartAndErrors) {
   SyntheticProblemOptions o;
   o.steps = 30;

@@ -8,6 +8,7 @@
 #include <map>
 #include <random>
 
+#include "solvers/initialisation.h"
 #include "solvers/sliding_window_smoother.h"
 #include "solvers/smoother_common.h"
 #include "src/core/error.h"
@@ -270,6 +271,52 @@ TEST(SlidingWindowLate, LateObservationsRestartALostWindow) {
   std::vector<Estimate> all = win.finish();
   ASSERT_EQ(all.size(), k + 3);
   for (size_t i = 0; i < all.size(); ++i) EXPECT_EQ(all[i].step, p.steps[i].step);
+}
+
+TEST(SlidingWindowLate, ALateRestartThatFailsKeepsTheProcessedSteps) {
+  // The lost window of the test above, and the global fix its late sightings ask for fails: the
+  // insertion throws, the window is given up with every processed step kept, and the next step
+  // with a fix starts the next one.
+  const SyntheticProblem p = cameraEveryFourthStep(60, 36);
+  size_t k = 40;
+  while (p.steps[k].observations.size() < 2) k += 4;
+  SlidingWindowConfig c = exactConfig(p, 10);
+  c.gate.lost_after = 1;
+  const GlobalFixFunction fix = defaultGlobalFix();
+  bool failed_once = false;
+  c.global_fix = [&](const Step& s, const FieldMap& map) -> std::optional<PoseFix> {
+    if (s.step == p.steps[k].step && !s.observations.empty() && !failed_once) {
+      failed_once = true;
+      throw Error("map server: no answer");
+    }
+    return fix(s, map);
+  };
+  SlidingWindowSmoother win(p.map, p.odometry, c);
+  for (size_t i = 0; i < k; ++i) win.process(p.steps[i]);
+  Step blind = p.steps[k];
+  blind.observations.clear();
+  win.process(blind);
+  std::vector<Observation> outlier = {p.steps[k].observations[0]};
+  outlier[0].range *= 1.5;
+  win.insertLate(blind.step, outlier);
+  ASSERT_TRUE(win.lost());
+  Step s = p.steps[k + 1];
+  s.observations.clear();
+  win.process(s);
+  EXPECT_THROW(win.insertLate(blind.step, p.steps[k].observations), Error);
+  EXPECT_TRUE(failed_once);
+  EXPECT_FALSE(win.initialised());
+  bool restarted = false;
+  for (size_t i = k + 2; i < p.steps.size(); ++i) restarted |= win.process(p.steps[i]).status == EstimateStatus::Reinitialised;
+  EXPECT_TRUE(restarted);
+  const std::vector<Estimate> all = win.finish();
+  ASSERT_EQ(all.size(), p.steps.size());
+  for (size_t i = 0; i < all.size(); ++i) {
+    EXPECT_EQ(all[i].step, p.steps[i].step);
+    if (all[i].status == EstimateStatus::Uninitialised) continue;
+    EXPECT_TRUE(all[i].pose.isFinite()) << "step " << all[i].step;
+    EXPECT_GT(all[i].covariance.determinant(), 0.0) << "step " << all[i].step;
+  }
 }
 
 TEST(SlidingWindowLate, TooLateNotTrackingAndErrors) {
