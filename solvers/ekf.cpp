@@ -756,7 +756,6 @@ void Ekf::considerStates(Eigen::MatrixXd& K) const {
     return;
   }
   if (wheels_at_ >= 0) K.row(wheels_at_ + 2).setZero();
-  if (field_at_ >= 0 && std::getenv("EKF_FIELD_CONSIDER")) K.middleRows(field_at_, kFieldDimensionCount).setZero();
 }
 
 void Ekf::applyJointUpdate(const Eigen::MatrixXd& K, const Eigen::VectorXd& nu, const Eigen::MatrixXd& H,
