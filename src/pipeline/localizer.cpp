@@ -121,24 +121,46 @@ void Localizer::restoreFilterState(const FilterState& state) {
     pf_->restoreState(std::get<ParticleFilter::State>(state));
 }
 
+std::exception_ptr Localizer::processFromSaved(Processed& p) {
+  try {
+    last_ = estimator_->process(p.step);
+    return nullptr;
+  } catch (...) {
+    // A step that fails halfway (a global fix plugged in that throws, say) would leave the
+    // filter half-updated: it goes back to its state before the step and takes the step's
+    // odometry alone, so that the motion still counts. The failure is reported all the same.
+    std::exception_ptr failure = std::current_exception();
+    restoreFilterState(p.before);
+    p.step.observations.clear();
+    p.step.compass.reset();
+    try {
+      last_ = estimator_->process(p.step);
+    } catch (...) {
+      restoreFilterState(p.before);  // not even the odometry: the step is dropped
+    }
+    return failure;
+  }
+}
+
 void Localizer::flush() {
   if (!pending_) return;
   Step step = std::move(*pending_);
   pending_.reset();  // a step the estimator refuses is dropped, not retried with the next one
-  if (window_ || config_.replay_steps == 0) {
-    last_ = estimator_->process(step);
+  if (window_) {
+    last_ = estimator_->process(step);  // a failure halfway gives the window up (its process())
     return;
   }
   // The oldest kept step leaves the replay horizon now; its state's buffers take the new one.
   Processed p;
-  if (processed_.size() >= static_cast<size_t>(config_.replay_steps)) {
+  if (config_.replay_steps > 0 && processed_.size() >= static_cast<size_t>(config_.replay_steps)) {
     p = std::move(processed_.front());
     processed_.pop_front();
   }
   saveFilterState(p.before);
-  last_ = estimator_->process(step);
   p.step = std::move(step);
-  processed_.push_back(std::move(p));
+  const std::exception_ptr failure = processFromSaved(p);
+  if (config_.replay_steps > 0) processed_.push_back(std::move(p));
+  if (failure) std::rethrow_exception(failure);
 }
 
 ObservationDelivery Localizer::replay(long step, const std::vector<Observation>& observations) {
@@ -146,13 +168,16 @@ ObservationDelivery Localizer::replay(long step, const std::vector<Observation>&
   while (from != processed_.end() && from->step.step != step) ++from;
   if (from == processed_.end()) return ObservationDelivery::TooLate;
   // Back to the state before that step, then every step since again, the later ones' states
-  // saved anew.
+  // saved anew; a step that fails is taken with its odometry alone and the replay goes on.
   restoreFilterState(from->before);
   from->step.observations.insert(from->step.observations.end(), observations.begin(), observations.end());
+  std::exception_ptr first_failure;
   for (auto p = from; p != processed_.end(); ++p) {
     if (p != from) saveFilterState(p->before);
-    last_ = estimator_->process(p->step);
+    const std::exception_ptr failure = processFromSaved(*p);
+    if (failure && !first_failure) first_failure = failure;
   }
+  if (first_failure) std::rethrow_exception(first_failure);
   return ObservationDelivery::Inserted;
 }
 

@@ -33,6 +33,7 @@
 // Not thread-safe: one Localizer per thread. Deterministic: same calls, same results.
 #include <opencv2/core/mat.hpp>
 #include <deque>
+#include <exception>
 #include <memory>
 #include <optional>
 #include <string>
@@ -169,6 +170,10 @@ class Localizer {
     Step step;
     FilterState before;
   };
+  // The filter on p.step from the state p.before holds (restored only on a failure): a step
+  // that fails halfway is taken again from there with its odometry alone (p.step loses its
+  // observations and compass) and its exception returned; null when it went through.
+  std::exception_ptr processFromSaved(Processed& p);
   std::deque<Processed> processed_;
   Estimate last_;                            // the newest estimate
   long newest_step_ = -1;

@@ -348,6 +348,68 @@ TEST(Localizer, TheFiltersReplayTheirStepsForLateObservations) {
   }
 }
 
+TEST(Localizer, AFilterStepThatFailsHalfwayIsTakenWithItsOdometryAlone) {
+  // A global start whose fix (a plug-in) has nothing before step 10 and fails on its first call
+  // after: the Localizer reports the failure, takes the step again from the filter's state
+  // before it with its odometry alone, and goes on: every estimate, the failed step's included,
+  // is then that of the same filter fed the step without its sightings.
+  SyntheticProblemOptions o;
+  o.steps = 60;
+  const SyntheticProblem p = makeRandomWalkProblem(o, 12);
+  for (const LocalizerMethod method : {LocalizerMethod::Ekf, LocalizerMethod::ParticleFilter}) {
+    SCOPED_TRACE(toString(method));
+    const GlobalFixFunction fix = defaultGlobalFix();
+    long failed = -1;
+    const GlobalFixFunction late = [&](const Step& s, const FieldMap& map) -> std::optional<PoseFix> {
+      return s.step < 10 ? std::nullopt : fix(s, map);
+    };
+    const auto failingOnce = [&](const Step& s, const FieldMap& map) -> std::optional<PoseFix> {
+      if (failed < 0 && s.step >= 10 && s.observations.size() >= 2) {
+        failed = s.step;
+        throw Error("map server: no answer");
+      }
+      return late(s, map);
+    };
+    for (const int replay_steps : {6, 0}) {
+      SCOPED_TRACE(replay_steps);
+      LocalizerConfig config = windowConfig(p);
+      config.init = InitialBelief();
+      config.method = method;
+      config.replay_steps = replay_steps;
+      config.particle_filter.particles = 300;
+      config.ekf.global_fix = config.particle_filter.global_fix = failingOnce;
+      failed = -1;
+      Localizer failing(config);
+      std::vector<Estimate> out;
+      int errors = 0;
+      for (const Step& s : p.steps) {
+        failing.addStep(s);
+        try {
+          out.push_back(failing.estimate());
+        } catch (const Error& e) {
+          ++errors;
+          EXPECT_NE(std::string(e.what()).find("map server: no answer"), std::string::npos);
+          out.push_back(failing.estimate());  // the step's odometry was taken
+        }
+      }
+      ASSERT_EQ(errors, 1);
+      ASSERT_GE(failed, 10);
+      config.ekf.global_fix = config.particle_filter.global_fix = late;
+      Localizer reference(config);
+      for (size_t k = 0; k < p.steps.size(); ++k) {
+        Step s = p.steps[k];
+        if (s.step == failed) {
+          s.observations.clear();
+          s.compass.reset();
+        }
+        reference.addStep(s);
+        expectSame(out[k], reference.estimate());
+      }
+      EXPECT_EQ(toString(out.back().status), "tracking");
+    }
+  }
+}
+
 TEST(Localizer, BadInputIsRefusedAndChangesNothing) {
   SyntheticProblemOptions o;
   o.steps = 12;
