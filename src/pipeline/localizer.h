@@ -23,7 +23,10 @@
 // Errors: bad input (a step that does not follow the newest or has an earlier time, non-finite
 // values, an unknown landmark id, an unreadable or wrong-size image) throws stereoloc::Error
 // with one line and changes nothing, so the caller can go on: an unreadable image loses the
-// frame, not the step's odometry.
+// frame, not the step's odometry. A step the tracker fails on halfway (a global fix plugged in
+// that throws, the window's information rank deficient) throws too, and the tracker goes on:
+// the window is given up until the next global fix (SlidingWindowSmoother::process), a filter
+// goes back to its state before the step and takes the step's odometry alone.
 // Memory: bounded by the window W when window.keep_history is false, constant with the
 // filters when ekf.keep_history / particle_filter.keep_history are (an unbounded stream);
 // otherwise one Estimate per step is kept for smoothedTrajectory().
