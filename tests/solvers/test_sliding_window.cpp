@@ -321,11 +321,12 @@ TEST(SlidingWindow, LongRunInBoundedWindow) {
   EXPECT_EQ(win.finish().size(), 10u);  // only the final window without history
 }
 
-TEST(SlidingWindow, LostTrackingReinitialisesFromGlobalFix) {
+// A 200-step random walk kidnapped at step 100: the odometry says nothing, the robot is
+// somewhere else.
+SyntheticProblem kidnappedAtStep100() {
   SyntheticProblemOptions o;
   o.steps = 200;
   SyntheticProblem p = makeRandomWalkProblem(o, 31);
-  // Kidnap at step 100: the odometry says nothing, the robot is somewhere else.
   const SyntheticProblem q = makeRandomWalkProblem(o, 32);
   for (size_t k = 100; k < p.steps.size(); ++k) {
     const long idx = p.steps[k].step;
@@ -334,6 +335,11 @@ TEST(SlidingWindow, LostTrackingReinitialisesFromGlobalFix) {
     p.truth[k] = q.truth[k];
   }
   p.steps[100].d_left = p.steps[100].d_right = 0.0;
+  return p;
+}
+
+TEST(SlidingWindow, LostTrackingReinitialisesFromGlobalFix) {
+  const SyntheticProblem p = kidnappedAtStep100();
   int fixes_asked = 0;
   SlidingWindowConfig wc;
   wc.init = knownBelief(p.truth[0], kP0);
@@ -365,17 +371,7 @@ TEST(SlidingWindow, AStepThatFailsHalfwayGivesTheWindowUpUntilTheNextFix) {
   // The kidnap of the test above, and the global fix (a plug-in: a map server, say) fails on the
   // first call after it: the step that asked fails, after its pose and factors were added. The
   // window is given up there, its poses kept; the steps after it wait for a fix and go on.
-  SyntheticProblemOptions o;
-  o.steps = 200;
-  SyntheticProblem p = makeRandomWalkProblem(o, 31);
-  const SyntheticProblem q = makeRandomWalkProblem(o, 32);
-  for (size_t k = 100; k < p.steps.size(); ++k) {
-    const long idx = p.steps[k].step;
-    p.steps[k] = q.steps[k];
-    p.steps[k].step = idx;
-    p.truth[k] = q.truth[k];
-  }
-  p.steps[100].d_left = p.steps[100].d_right = 0.0;
+  const SyntheticProblem p = kidnappedAtStep100();
   bool failed_once = false;
   SlidingWindowConfig wc;
   wc.init = knownBelief(p.truth[0], kP0);

@@ -43,6 +43,30 @@ SimulationConfig wheelErrorWorld(int steps) {
   return sc;
 }
 
+// The wheels' calibration (c_l, c_r, w) the world drew, on the nominal 75 mm wheel base.
+Eigen::Vector3d drawnWheels(const SimulationTrace& trace) {
+  const DrawnErrors& e = trace.errors;
+  return Eigen::Vector3d(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
+}
+
+// The wheel-error world's 400-step walk with sightings of identified landmarks at every fifth
+// step but for a blind stretch from step 150 to 190, no compass, and the odometry noise stated
+// three times too small (the prediction over-confident, as on real data).
+Dataset blindStretchDrive(uint64_t seed, SimulationTrace* trace = nullptr) {
+  Dataset d = simulate("random-walk", 0, wheelErrorWorld(400), seed, trace);
+  for (size_t k = 0; k < d.steps.size(); ++k) {
+    std::vector<Observation> kept;
+    if (k % 5 == 0 && (k < 150 || k > 190))
+      for (const Observation& o : d.steps[k].observations)
+        if (o.landmark_id >= 0) kept.push_back(o);
+    d.steps[k].observations = kept;
+    d.steps[k].compass.reset();
+  }
+  d.odometry.k_left /= 3.0;
+  d.odometry.k_right /= 3.0;
+  return d;
+}
+
 Dataset realisticRun(uint64_t seed, const std::string& scenario, int steps) {
   SimulationConfig sc;
   sc.profile = ErrorProfile::realistic();
@@ -437,8 +461,7 @@ TEST(SlidingWindowCalibration, SparseSightingsKeepTheKeyframeSpanAndRecoverTheWh
     d.steps[k].observations = kept;
     d.steps[k].compass.reset();
   }
-  const DrawnErrors& e = trace.errors;
-  const Eigen::Vector3d truth(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
+  const Eigen::Vector3d truth = drawnWheels(trace);
 
   SlidingWindowConfig plain;
   plain.window = 20;
@@ -687,18 +710,7 @@ TEST(SlidingWindowCalibration, ALossThatIsNoKidnapKeepsTheOdometryAcrossIt) {
   double se_restart = 0, se_default = 0;
   long n = 0, restarts_chi2 = 0;
   for (uint64_t seed = 1; seed <= 6; ++seed) {
-    const SimulationConfig sc = wheelErrorWorld(400);
-    Dataset d = simulate("random-walk", 0, sc, seed);
-    for (size_t k = 0; k < d.steps.size(); ++k) {
-      std::vector<Observation> kept;
-      if (k % 5 == 0 && (k < 150 || k > 190))
-        for (const Observation& o : d.steps[k].observations)
-          if (o.landmark_id >= 0) kept.push_back(o);
-      d.steps[k].observations = kept;
-      d.steps[k].compass.reset();
-    }
-    d.odometry.k_left /= 3.0;
-    d.odometry.k_right /= 3.0;
+    const Dataset d = blindStretchDrive(seed);
     for (const bool chi2_alone : {true, false}) {
       SlidingWindowConfig c;
       c.window = 20;
@@ -733,21 +745,9 @@ TEST(SlidingWindowCalibration, AStepThatFailsHalfwayHandsTheCalibrationToTheNext
   // The loss of the test above, and the global fix fails on the first call (after the step's pose
   // and its calibrated odometry factor were added): the window is given up, and its wheel
   // calibration, as the step found it, is the prior of the window the next fix starts.
-  const SimulationConfig sc = wheelErrorWorld(400);
   SimulationTrace trace;
-  Dataset d = simulate("random-walk", 0, sc, 1, &trace);
-  for (size_t k = 0; k < d.steps.size(); ++k) {
-    std::vector<Observation> kept;
-    if (k % 5 == 0 && (k < 150 || k > 190))
-      for (const Observation& o : d.steps[k].observations)
-        if (o.landmark_id >= 0) kept.push_back(o);
-    d.steps[k].observations = kept;
-    d.steps[k].compass.reset();
-  }
-  d.odometry.k_left /= 3.0;
-  d.odometry.k_right /= 3.0;
-  const DrawnErrors& e = trace.errors;
-  const Eigen::Vector3d truth(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
+  const Dataset d = blindStretchDrive(1, &trace);
+  const Eigen::Vector3d truth = drawnWheels(trace);
   SlidingWindowConfig c;
   c.window = 20;
   c.init = knownBelief(*d.groundtruth.front(), kP0);

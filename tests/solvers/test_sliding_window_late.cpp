@@ -239,20 +239,33 @@ TEST(SlidingWindowLate, MarginalisedWindowStaysCloseToInOrder) {
   EXPECT_LT(positionRmse(run.finished, p.truth), 1.05 * rmse);
 }
 
-TEST(SlidingWindowLate, LateObservationsRestartALostWindow) {
-  const SyntheticProblem p = cameraEveryFourthStep(60, 36);
+// The first camera step from step 40 on with two sightings (a two-landmark fix).
+size_t twoLandmarkStep(const SyntheticProblem& p) {
   size_t k = 40;
-  while (p.steps[k].observations.size() < 2) k += 4;  // a step that gives a two-landmark fix
-  SlidingWindowConfig c = exactConfig(p, 10);
-  c.gate.lost_after = 1;
-  SlidingWindowSmoother win(p.map, p.odometry, c);
+  while (p.steps[k].observations.size() < 2) k += 4;
+  return k;
+}
+
+// Steps 0..k-1 in time, step k's odometry, then one of its sightings late with its range 1.5
+// times too long: with lost_after 1 the gate rejects it and the window is lost at step k.
+// Returns how many the insertion rejected.
+int loseTheWindowAt(SlidingWindowSmoother& win, const SyntheticProblem& p, size_t k) {
   for (size_t i = 0; i < k; ++i) win.process(p.steps[i]);
   Step blind = p.steps[k];
   blind.observations.clear();
   win.process(blind);
   std::vector<Observation> outlier = {p.steps[k].observations[0]};
   outlier[0].range *= 1.5;
-  EXPECT_EQ(win.insertLate(blind.step, outlier).rejected, 1);
+  return win.insertLate(blind.step, outlier).rejected;
+}
+
+TEST(SlidingWindowLate, LateObservationsRestartALostWindow) {
+  const SyntheticProblem p = cameraEveryFourthStep(60, 36);
+  const size_t k = twoLandmarkStep(p);
+  SlidingWindowConfig c = exactConfig(p, 10);
+  c.gate.lost_after = 1;
+  SlidingWindowSmoother win(p.map, p.odometry, c);
+  EXPECT_EQ(loseTheWindowAt(win, p, k), 1);
   ASSERT_TRUE(win.lost());
   for (size_t i = k + 1; i < k + 3; ++i) {
     Step s = p.steps[i];
@@ -260,7 +273,7 @@ TEST(SlidingWindowLate, LateObservationsRestartALostWindow) {
     EXPECT_EQ(toString(win.process(s).status), "lost");  // no in-time observation to restart from
   }
   const long before = win.stats().reinitialisations;
-  const LateObservationResult r = win.insertLate(blind.step, p.steps[k].observations);
+  const LateObservationResult r = win.insertLate(p.steps[k].step, p.steps[k].observations);
   EXPECT_EQ(toString(r.status), "inserted");
   EXPECT_FALSE(win.lost());
   EXPECT_EQ(win.stats().reinitialisations, before + 1);
@@ -278,8 +291,7 @@ TEST(SlidingWindowLate, ALateRestartThatFailsKeepsTheProcessedSteps) {
   // insertion throws, the window is given up with every processed step kept, and the next step
   // with a fix starts the next one.
   const SyntheticProblem p = cameraEveryFourthStep(60, 36);
-  size_t k = 40;
-  while (p.steps[k].observations.size() < 2) k += 4;
+  const size_t k = twoLandmarkStep(p);
   SlidingWindowConfig c = exactConfig(p, 10);
   c.gate.lost_after = 1;
   const GlobalFixFunction fix = defaultGlobalFix();
@@ -292,18 +304,12 @@ TEST(SlidingWindowLate, ALateRestartThatFailsKeepsTheProcessedSteps) {
     return fix(s, map);
   };
   SlidingWindowSmoother win(p.map, p.odometry, c);
-  for (size_t i = 0; i < k; ++i) win.process(p.steps[i]);
-  Step blind = p.steps[k];
-  blind.observations.clear();
-  win.process(blind);
-  std::vector<Observation> outlier = {p.steps[k].observations[0]};
-  outlier[0].range *= 1.5;
-  win.insertLate(blind.step, outlier);
+  EXPECT_EQ(loseTheWindowAt(win, p, k), 1);
   ASSERT_TRUE(win.lost());
   Step s = p.steps[k + 1];
   s.observations.clear();
   win.process(s);
-  EXPECT_THROW(win.insertLate(blind.step, p.steps[k].observations), Error);
+  EXPECT_THROW(win.insertLate(p.steps[k].step, p.steps[k].observations), Error);
   EXPECT_TRUE(failed_once);
   EXPECT_FALSE(win.initialised());
   bool restarted = false;
