@@ -45,7 +45,9 @@
 // average over the sightings as if it did not repeat; the gate ignores these offsets (a fraction
 // of a pixel). Memory is bounded by W, restart_buffer_steps and the landmarks seen (plus one
 // Estimate per step for finish() unless keep_history is off). Derivations: docs/estimators.md,
-// "Smoothers".
+// "Smoothers". Sources: sliding_window_smoother.cpp (a step: prediction, keyframes, gate and
+// factors), sliding_window_marginalisation.cpp (marginal priors, solve, covariances),
+// sliding_window_late.cpp (insertLate), sliding_window_recovery.cpp (lost, fixes, failures).
 #include <ceres/problem.h>
 
 #include <Eigen/Core>
