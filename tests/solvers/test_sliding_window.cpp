@@ -10,6 +10,7 @@
 #include "solvers/sliding_window_smoother.h"
 #include "solvers/smoother_common.h"
 #include "src/core/error.h"
+#include "kidnapped_walk.h"
 
 namespace stereoloc {
 namespace {
@@ -321,25 +322,8 @@ TEST(SlidingWindow, LongRunInBoundedWindow) {
   EXPECT_EQ(win.finish().size(), 10u);  // only the final window without history
 }
 
-// A 200-step random walk kidnapped at step 100: the odometry says nothing, the robot is
-// somewhere else.
-SyntheticProblem kidnappedAtStep100() {
-  SyntheticProblemOptions o;
-  o.steps = 200;
-  SyntheticProblem p = makeRandomWalkProblem(o, 31);
-  const SyntheticProblem q = makeRandomWalkProblem(o, 32);
-  for (size_t k = 100; k < p.steps.size(); ++k) {
-    const long idx = p.steps[k].step;
-    p.steps[k] = q.steps[k];
-    p.steps[k].step = idx;
-    p.truth[k] = q.truth[k];
-  }
-  p.steps[100].d_left = p.steps[100].d_right = 0.0;
-  return p;
-}
-
 TEST(SlidingWindow, LostTrackingReinitialisesFromGlobalFix) {
-  const SyntheticProblem p = kidnappedAtStep100();
+  const SyntheticProblem p = test::kidnappedWalk();
   int fixes_asked = 0;
   SlidingWindowConfig wc;
   wc.init = knownBelief(p.truth[0], kP0);
@@ -371,7 +355,7 @@ TEST(SlidingWindow, AStepThatFailsHalfwayGivesTheWindowUpUntilTheNextFix) {
   // The kidnap of the test above, and the global fix (a plug-in: a map server, say) fails on the
   // first call after it: the step that asked fails, after its pose and factors were added. The
   // window is given up there, its poses kept; the steps after it wait for a fix and go on.
-  const SyntheticProblem p = kidnappedAtStep100();
+  const SyntheticProblem p = test::kidnappedWalk();
   bool failed_once = false;
   SlidingWindowConfig wc;
   wc.init = knownBelief(p.truth[0], kP0);

@@ -18,6 +18,7 @@
 #include "src/core/odometry_delay.h"
 #include "src/pipeline/localizer.h"
 #include "src/sim/renderer.h"
+#include "kidnapped_walk.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -407,6 +408,60 @@ TEST(Localizer, AFilterStepThatFailsHalfwayIsTakenWithItsOdometryAlone) {
       }
       EXPECT_EQ(toString(out.back().status), "tracking");
     }
+  }
+}
+
+TEST(Localizer, AReplayThatFailsHalfwayTakesThatStepWithItsOdometryAlone) {
+  // Every step's sightings arrive two steps late; the robot is kidnapped at step 100, and the
+  // global fix the lost filter asks for (a plug-in) fails on its first call after: the filter
+  // meets it while replaying for late sightings. The delivery reports the failure, the replay
+  // takes that step with its odometry alone and goes on with the steps after it: every estimate
+  // is then that of the same deliveries without the failed step's sightings.
+  const SyntheticProblem p = test::kidnappedWalk();
+  for (const LocalizerMethod method : {LocalizerMethod::Ekf, LocalizerMethod::ParticleFilter}) {
+    SCOPED_TRACE(toString(method));
+    const GlobalFixFunction fix = defaultGlobalFix();
+    long failed = -1;
+    LocalizerConfig config = windowConfig(p);
+    config.method = method;
+    config.replay_steps = 6;
+    config.particle_filter.particles = 300;
+    config.ekf.global_fix = config.particle_filter.global_fix = [&](const Step& s, const FieldMap& map) {
+      if (failed < 0 && s.step >= 100 && s.observations.size() >= 2) {
+        failed = s.step;
+        throw Error("map server: no answer");
+      }
+      return fix(s, map);
+    };
+    const auto feed = [&](Localizer& loc, long skip, int* errors) {
+      std::vector<Estimate> out;
+      for (size_t k = 0; k < p.steps.size(); ++k) {
+        Step odometry = p.steps[k];
+        odometry.observations.clear();
+        loc.addStep(odometry);
+        if (k >= 2 && !p.steps[k - 2].observations.empty() && p.steps[k - 2].step != skip) {
+          try {
+            EXPECT_EQ(loc.addObservations(p.steps[k - 2].step, p.steps[k - 2].observations),
+                      ObservationDelivery::Inserted);
+          } catch (const Error& e) {
+            ++*errors;
+            EXPECT_NE(std::string(e.what()).find("map server: no answer"), std::string::npos);
+          }
+        }
+        out.push_back(loc.estimate());
+      }
+      return out;
+    };
+    int errors = 0;
+    Localizer failing(config);
+    const std::vector<Estimate> a = feed(failing, -1, &errors);
+    ASSERT_EQ(errors, 1);
+    ASSERT_GE(failed, 100);
+    config.ekf.global_fix = config.particle_filter.global_fix = fix;
+    Localizer reference(config);
+    const std::vector<Estimate> b = feed(reference, failed, &errors);
+    EXPECT_EQ(errors, 1);
+    for (size_t k = 0; k < a.size(); ++k) expectSame(a[k], b[k]);
   }
 }
 
