@@ -150,16 +150,22 @@ void Localizer::flush() {
     last_ = estimator_->process(step);  // a failure halfway gives the window up (its process())
     return;
   }
-  // The oldest kept step leaves the replay horizon now; its state's buffers take the new one.
+  // The oldest kept step leaves the replay horizon now; its state's buffers take the new one
+  // (without replay, the one state kept for a failed step's return reuses its own).
   Processed p;
-  if (config_.replay_steps > 0 && processed_.size() >= static_cast<size_t>(config_.replay_steps)) {
+  if (config_.replay_steps == 0) {
+    p = std::move(unreplayed_);
+  } else if (processed_.size() >= static_cast<size_t>(config_.replay_steps)) {
     p = std::move(processed_.front());
     processed_.pop_front();
   }
   saveFilterState(p.before);
   p.step = std::move(step);
   const std::exception_ptr failure = processFromSaved(p);
-  if (config_.replay_steps > 0) processed_.push_back(std::move(p));
+  if (config_.replay_steps == 0)
+    unreplayed_ = std::move(p);
+  else
+    processed_.push_back(std::move(p));
   if (failure) std::rethrow_exception(failure);
 }
 

@@ -178,6 +178,7 @@ class Localizer {
   // observations and compass) and its exception returned; null when it went through.
   std::exception_ptr processFromSaved(Processed& p);
   std::deque<Processed> processed_;
+  Processed unreplayed_;  // with replay_steps 0: the state before the step being processed
   Estimate last_;                            // the newest estimate
   long newest_step_ = -1;
   double newest_t_ = 0.0;  // s, of newest_step_
