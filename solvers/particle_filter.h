@@ -29,6 +29,7 @@
 //   few values. On the realistic world's images it tracks but is over-confident
 //   (docs/estimators.md, the particle filter's "Self-calibration").
 // One std::mt19937_64 owned by the filter, seeded by the constructor: deterministic for a seed.
+// Sources: particle_filter.cpp (the filter), particle_filter_calibration.cpp (self-calibration).
 #include <Eigen/Core>
 #include <cmath>
 #include <cstdint>
