@@ -4,6 +4,7 @@
 #include "solvers/particle_filter.h"
 
 #include <Eigen/Cholesky>
+#include <Eigen/LU>
 #include <cmath>
 #include <optional>
 
