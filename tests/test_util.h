@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -12,8 +13,10 @@
 #include <string>
 #include <vector>
 
+#include "src/core/angles.h"
 #include "src/core/error.h"
 #include "src/core/estimator.h"
+#include "src/core/field_map.h"
 #include "src/core/numeric_diff.h"
 #include "src/io/dataset.h"
 
@@ -74,6 +77,40 @@ inline double positionRmse(const std::vector<Estimate>& estimates, const Dataset
   for (size_t k = 0; k < estimates.size(); ++k)
     s += (estimates[k].pose.translation() - d.groundtruth.at(k).value().translation()).squaredNorm();
   return std::sqrt(s / static_cast<double>(estimates.size()));
+}
+
+// The thesis's random start made ambiguous (section 6.5): a compass reading with 3.5 degrees of
+// noise at every step (noise drawn from `seed`), and every sighting of a landmark that is not
+// unique on the map unidentified.
+inline void ambiguousSightingsWithCompass(std::vector<Step>& steps, const std::vector<Pose2>& truth, const FieldMap& map,
+                                          uint64_t seed) {
+  std::mt19937_64 noise(seed);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  for (size_t k = 0; k < steps.size(); ++k) {
+    Step& s = steps[k];
+    s.compass = wrapAngle(truth[k].theta + deg2rad(3.5) * n01(noise));
+    s.compass_sigma = deg2rad(3.5);
+    for (Observation& o : s.observations)
+      if (!map.at(o.landmark_id).unique) o.landmark_id = -1;
+  }
+}
+
+// Runs `estimator` over `steps`, every estimate finite, and returns the mean position error
+// (mm) against `truth` over steps first sighting + 1 .. 79: Table 6.14's window.
+inline double table614WindowMean(Estimator& estimator, const std::vector<Step>& steps, const std::vector<Pose2>& truth) {
+  double sum = 0;
+  int n = 0, first = -1;
+  for (const Step& s : steps) {
+    const Estimate e = estimator.process(s);
+    EXPECT_TRUE(e.pose.isFinite() && e.covariance.allFinite());
+    if (first < 0 && !s.observations.empty()) first = static_cast<int>(s.step);
+    if (first >= 0 && s.step > first && s.step <= 79) {
+      sum += (e.pose.translation() - truth[static_cast<size_t>(s.step)].translation()).norm();
+      ++n;
+    }
+  }
+  EXPECT_GT(n, 0);
+  return n > 0 ? sum / n : 0.0;
 }
 
 // Runs `kept` and `newest` (the same filter, `newest` without history) over `steps`: the same

@@ -660,34 +660,14 @@ TEST(EkfInit, RandomStartHandsOverToTheGlobalFix) {
 // leaves it above.
 double randomStartWindowMean(const FieldMap& map, const OdometryParams& odo, uint64_t seed, bool hypotheses) {
   SyntheticRun run = circleRun(map, odo, 100, 80 + seed, 10.0, deg2rad(0.5), 900.0);
-  std::mt19937_64 noise(seed);
-  std::normal_distribution<double> n01(0.0, 1.0);
-  for (size_t k = 0; k < run.steps.size(); ++k) {
-    Step& s = run.steps[k];
-    s.compass = wrapAngle(run.truth[k].theta + deg2rad(3.5) * n01(noise));
-    s.compass_sigma = deg2rad(3.5);
-    for (Observation& o : s.observations)
-      if (!map.at(o.landmark_id).unique) o.landmark_id = -1;
-  }
+  test::ambiguousSightingsWithCompass(run.steps, run.truth, map, seed);
   std::mt19937_64 rng(seed);
   EkfConfig cfg;
   cfg.init = makeInitialBelief(InitMode::Random, std::nullopt, map, InitConfig(), rng);
   cfg.gate_enabled = false;
   cfg.multi_hypothesis_start = hypotheses;
   Ekf ekf(map, odo, cfg);
-  double sum = 0;
-  int n = 0, first = -1;
-  for (const Step& s : run.steps) {
-    const Estimate e = ekf.process(s);
-    EXPECT_TRUE(e.pose.isFinite() && e.covariance.allFinite());
-    if (first < 0 && !s.observations.empty()) first = static_cast<int>(s.step);
-    if (first >= 0 && s.step > first && s.step <= 79) {
-      sum += (e.pose.translation() - run.truth[static_cast<size_t>(s.step)].translation()).norm();
-      ++n;
-    }
-  }
-  EXPECT_GT(n, 0);
-  return n > 0 ? sum / n : 0.0;
+  return test::table614WindowMean(ekf, run.steps, run.truth);
 }
 
 TEST(EkfInit, RandomStartConvergesFromAmbiguousSightingsWithTheCompass) {

@@ -720,33 +720,13 @@ TEST(ParticleFilter, RandomStartHandsOverToTheGlobalFix) {
 // goal corner) stays above.
 double randomStartWindowMean(const FieldMap& map, const OdometryParams& odo, uint64_t seed, bool hypotheses) {
   SyntheticRun run = circleRun(map, odo, 80, 80 + seed, 900.0, -1, Eigen::Vector3d::Zero(), 10.0, deg2rad(0.5));
-  std::mt19937_64 noise(seed);
-  std::normal_distribution<double> n01(0.0, 1.0);
-  for (size_t k = 0; k < run.steps.size(); ++k) {
-    Step& s = run.steps[k];
-    s.compass = wrapAngle(run.truth[k].theta + deg2rad(3.5) * n01(noise));
-    s.compass_sigma = deg2rad(3.5);
-    for (Observation& o : s.observations)
-      if (!map.at(o.landmark_id).unique) o.landmark_id = -1;
-  }
+  test::ambiguousSightingsWithCompass(run.steps, run.truth, map, seed);
   ParticleFilterConfig c;
   c.init.mode = InitMode::Random;
   c.particles = 1000;
   c.multi_hypothesis_start = hypotheses;
   ParticleFilter pf(map, odo, c, 40 + seed);
-  double sum = 0;
-  int n = 0, first = -1;
-  for (const Step& s : run.steps) {
-    const Estimate e = pf.process(s);
-    EXPECT_TRUE(e.pose.isFinite() && e.covariance.allFinite());
-    if (first < 0 && !s.observations.empty()) first = static_cast<int>(s.step);
-    if (first >= 0 && s.step > first && s.step <= 79) {
-      sum += positionError(e, run.truth[static_cast<size_t>(s.step)]);
-      ++n;
-    }
-  }
-  EXPECT_GT(n, 0);
-  return n > 0 ? sum / n : 0.0;
+  return test::table614WindowMean(pf, run.steps, run.truth);
 }
 
 TEST(ParticleFilter, RandomStartConvergesFromAmbiguousSightingsWithTheCompass) {
