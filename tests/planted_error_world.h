@@ -17,6 +17,12 @@
 
 namespace stereoloc::test {
 
+// The wheels' calibration (c_l, c_r, w) a simulated world drew, on the nominal 75 mm wheel base.
+inline Eigen::Vector3d drawnWheels(const SimulationTrace& trace) {
+  const DrawnErrors& e = trace.errors;
+  return Eigen::Vector3d(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
+}
+
 // A 600-step random walk whose given calibration has wheel radii and base, head tilt, baseline
 // and principal points all wrong; sightings of identified landmarks only.
 inline Dataset plantedErrorWorld(SimulationTrace* trace) {

@@ -140,7 +140,7 @@ TEST(EkfCalibration, RecoversPlantedWheelAndStereoErrors) {
   std::optional<CalibrationEstimate> cal;
   const std::vector<Estimate> est = run(d, calibrating(d, "odometry,stereo"), &cal);
   ASSERT_TRUE(cal);
-  const Eigen::Vector3d truth(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
+  const Eigen::Vector3d truth = test::drawnWheels(trace);
   for (int i = 0; i < 2; ++i) {
     EXPECT_NEAR(cal->wheels(i), truth(i), 3.0 * std::sqrt(cal->wheels_covariance(i, i))) << "wheel scale " << i;
     EXPECT_LT(std::sqrt(cal->wheels_covariance(i, i)), 0.5 * 0.01) << "the run does not determine wheel scale " << i;

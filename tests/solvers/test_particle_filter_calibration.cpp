@@ -99,7 +99,7 @@ TEST(ParticleFilterCalibration, RecoversPlantedWheelAndStereoErrorsAndIsConsiste
   ASSERT_TRUE(cal);
   EXPECT_TRUE(cal->odometry);
   EXPECT_TRUE(cal->stereo);
-  const Eigen::Vector3d truth(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
+  const Eigen::Vector3d truth = test::drawnWheels(trace);
   for (int i = 0; i < 3; ++i) {
     const double sigma = std::sqrt(cal->wheels_covariance(i, i));
     EXPECT_NEAR(cal->wheels(i), truth(i), 3.0 * sigma) << "wheel parameter " << i;

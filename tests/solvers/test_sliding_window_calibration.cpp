@@ -24,6 +24,7 @@
 #include "solvers/self_calibration.h"
 #include "solvers/sliding_window_smoother.h"
 #include "src/sim/simulator.h"
+#include "planted_error_world.h"
 #include "test_util.h"
 #include "whole_data_window.h"
 
@@ -41,12 +42,6 @@ SimulationConfig wheelErrorWorld(int steps) {
   sc.profile.wheel_base_rel_sigma = 0.03;
   sc.scenario.steps = steps;
   return sc;
-}
-
-// The wheels' calibration (c_l, c_r, w) the world drew, on the nominal 75 mm wheel base.
-Eigen::Vector3d drawnWheels(const SimulationTrace& trace) {
-  const DrawnErrors& e = trace.errors;
-  return Eigen::Vector3d(1 + e.wheel_radius_rel[0], 1 + e.wheel_radius_rel[1], 75.0 * (1 + e.wheel_base_rel));
 }
 
 // The wheel-error world's 400-step walk with sightings of identified landmarks at every fifth
@@ -461,7 +456,7 @@ TEST(SlidingWindowCalibration, SparseSightingsKeepTheKeyframeSpanAndRecoverTheWh
     d.steps[k].observations = kept;
     d.steps[k].compass.reset();
   }
-  const Eigen::Vector3d truth = drawnWheels(trace);
+  const Eigen::Vector3d truth = test::drawnWheels(trace);
 
   SlidingWindowConfig plain;
   plain.window = 20;
@@ -747,7 +742,7 @@ TEST(SlidingWindowCalibration, AStepThatFailsHalfwayHandsTheCalibrationToTheNext
   // calibration, as the step found it, is the prior of the window the next fix starts.
   SimulationTrace trace;
   const Dataset d = blindStretchDrive(1, &trace);
-  const Eigen::Vector3d truth = drawnWheels(trace);
+  const Eigen::Vector3d truth = test::drawnWheels(trace);
   SlidingWindowConfig c;
   c.window = 20;
   c.init = knownBelief(*d.groundtruth.front(), kP0);
