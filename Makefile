@@ -78,17 +78,17 @@ test-valgrind: build
 	@$(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method ekf --frontend images \
 	  --consider odometry,stereo --noise-model data/noise_realistic.yaml --out $(VG_DIR)/ekf-consider.csv >/dev/null
 	@echo "valgrind: the filters going back for late observations (Localizer replay)"
-	@$(VALGRIND) $(BUILD)/bin/test_pipeline_localizer \
+	@$(VALGRIND) $(BUILD)/bin/test_pipeline \
 	  --gtest_filter='Localizer.TheFiltersReplayTheirStepsForLateObservations' >/dev/null
 	@echo "valgrind: a range sensor's calibration in the batch and the window; errors that repeat over sightings"
-	@$(VALGRIND) $(BUILD)/bin/test_solvers_range_calibration \
+	@$(VALGRIND) $(BUILD)/bin/test_solvers \
 	  --gtest_filter='RangeCalibration.WindowAsLongAsTheDataIsTheBatch:RangeCalibration.TheGateSeesTheSightingsThroughTheCalibration' >/dev/null
-	@$(VALGRIND) $(BUILD)/bin/test_core_observation_correlation >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_core --gtest_filter='CorrelatedErrors.*:ErrorCorrelation.*:ErrorCorrelationFit.*' >/dev/null
 	@echo "valgrind: the odometry's delay: re-timing, the stream's re-timer, the profile"
-	@$(VALGRIND) $(BUILD)/bin/test_core_odometry_delay >/dev/null
-	@$(VALGRIND) $(BUILD)/bin/test_pipeline_localizer \
+	@$(VALGRIND) $(BUILD)/bin/test_core --gtest_filter='OdometryDelay.*' >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_pipeline \
 	  --gtest_filter='Localizer.WheelScalesAndTheOdometryDelayApplyToTheIncomingIncrements' >/dev/null
-	@$(VALGRIND) $(BUILD)/bin/test_solvers_odometry_delay_profile \
+	@$(VALGRIND) $(BUILD)/bin/test_solvers \
 	  --gtest_filter='OdometryDelayProfile.AQuadraticCostGivesItsVertexAndCurvature:OdometryDelayProfile.NoInteriorMinimumOrAFlatCostIsAnErrorAndFarCostsDoNotEnter' >/dev/null
 	@echo "valgrind: localize --method ekf --frontend images --rig (the calibrated rig)"
 	@$(VALGRIND) $(BUILD)/bin/stereoloc localize $(VG_DIR)/data --method ekf --frontend images \
@@ -98,12 +98,11 @@ test-valgrind: build
 	  --out $(VG_DIR)/cal --force >/dev/null
 	@$(VALGRIND) $(BUILD)/bin/stereoloc calibrate $(VG_DIR)/cal/calibration --out $(VG_DIR)/cal/stereo.yml \
 	  --rig-out $(VG_DIR)/cal/rig.yaml >/dev/null
-	@$(VALGRIND) $(BUILD)/bin/test_calib_stereo_target_problem >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_calib --gtest_filter='StereoTargetProblem.*' >/dev/null
 	@echo "valgrind: calibrate on real photographs through OpenCV's image list, with overlays; finding pairs on disk"
 	@$(VALGRIND) $(BUILD)/bin/stereoloc calibrate data/real/checkerboard/stereo_calib.xml --square-mm 1 \
 	  --out $(VG_DIR)/cal/real.yml --overlay $(VG_DIR)/cal/overlay >/dev/null
-	@$(VALGRIND) $(BUILD)/bin/test_calib_target_pairs >/dev/null
-	@$(VALGRIND) $(BUILD)/bin/test_calib_rectified_view >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_calib --gtest_filter='TargetPairs.*:RectifiedView.*' >/dev/null
 	@echo "valgrind: cameras that do not expose together (the rig's offset; estimating it in the batch; the stream)"
 	@cp $(VG_DIR)/data/rig.yaml $(VG_DIR)/timed.yaml && echo "exposure_offset_s: 0.004" >> $(VG_DIR)/timed.yaml
 	@{ cat data/noise_realistic.yaml; echo "exposure_offset_sigma_s: 0.003"; } > $(VG_DIR)/noise_exposure.yaml
@@ -111,7 +110,7 @@ test-valgrind: build
 	  --calibrate odometry,stereo --noise-model $(VG_DIR)/noise_exposure.yaml --out $(VG_DIR)/timed.csv >/dev/null
 	@$(VALGRIND) $(BUILD)/bin/stereoloc stream --from $(VG_DIR)/data --method ekf --frontend images \
 	  --rig $(VG_DIR)/timed.yaml --calibrate odometry,stereo --noise-model $(VG_DIR)/noise_exposure.yaml >/dev/null
-	@$(VALGRIND) $(BUILD)/bin/test_core_exposure_offset >/dev/null
+	@$(VALGRIND) $(BUILD)/bin/test_core --gtest_filter='BodyRate.*:BodyRateTracker.*:ExposureOffset.*' >/dev/null
 	@echo "valgrind: no errors"
 
 bench: build

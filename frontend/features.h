@@ -18,11 +18,10 @@
 #include <utility>
 #include <vector>
 
+#include "src/core/angles.h"
 #include "src/core/field_map.h"
 
 namespace stereoloc::frontend {
-
-constexpr double kTwoPi = 6.283185307179586;
 
 // One edge pixel after non-maximum suppression.
 struct EdgePixel {

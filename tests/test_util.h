@@ -1,5 +1,6 @@
 #pragma once
 // Helpers shared by the test programs.
+#include <ceres/cost_function.h>
 #include <gtest/gtest.h>
 
 #include <Eigen/Core>
@@ -21,6 +22,9 @@
 #include "src/io/dataset.h"
 
 namespace stereoloc::test {
+
+// The labelled real photographs and their rig (data/real).
+inline const std::string kRealImagesDir = std::string(STEREOLOC_DATA_DIR) + "/real";
 
 // The whole file, byte for byte ("" when it cannot be read).
 inline std::string readFile(const std::string& path) {
@@ -68,6 +72,27 @@ inline void keepIdentifiedSightings(Dataset& d) {
       if (o.landmark_id >= 0) kept.push_back(o);
     s.observations = kept;
   }
+}
+
+// A simulated run: the steps an estimator is fed and the true pose at each.
+struct SyntheticRun {
+  std::vector<Step> steps;
+  std::vector<Pose2> truth;
+};
+
+// The residuals of `cost` at the parameter blocks `blocks` (the evaluation must succeed).
+inline Eigen::VectorXd evaluateResiduals(const ceres::CostFunction& cost, const std::vector<const double*>& blocks) {
+  Eigen::VectorXd r(cost.num_residuals());
+  EXPECT_TRUE(cost.Evaluate(blocks.data(), r.data(), nullptr));
+  return r;
+}
+
+// Root mean square of the position errors (mm) of estimates against the true poses, index by index.
+inline double positionRmse(const std::vector<Estimate>& estimates, const std::vector<Pose2>& truth) {
+  double s = 0;
+  for (size_t i = 0; i < estimates.size(); ++i)
+    s += (estimates[i].pose.translation() - truth[i].translation()).squaredNorm();
+  return std::sqrt(s / static_cast<double>(estimates.size()));
 }
 
 // Position RMSE (mm) of estimates of a dataset's steps 0..n-1 against its ground truth, which

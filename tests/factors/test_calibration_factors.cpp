@@ -27,15 +27,12 @@
 #include "src/core/pose2.h"
 #include "src/core/stereo_rig.h"
 #include "stereo_sighting.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
 
-Eigen::VectorXd evaluate(const ceres::CostFunction& f, const std::vector<const double*>& blocks) {
-  Eigen::VectorXd r(f.num_residuals());
-  EXPECT_TRUE(f.Evaluate(blocks.data(), r.data(), nullptr));
-  return r;
-}
+using test::evaluateResiduals;
 
 // Readings of a motion with the calibration `cal`: what the encoders report when the wheels
 // roll the arc of (B.1)-(B.5).
@@ -65,7 +62,7 @@ TEST(OdometryCalibrationFactor, ZeroAtTheTrueCalibrationAndJacobiansMatch) {
       const auto [ml, mr] = readings(dl, dr, cal);
       std::unique_ptr<ceres::CostFunction> f(OdometryCalibrationFactor::Create(ml, mr, atReadings(ml, mr), params));
       const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
-      EXPECT_LT(evaluate(*f, {pa, pb, cal}).norm(), 1e-7) << dl << " " << dr;
+      EXPECT_LT(evaluateResiduals(*f, {pa, pb, cal}).norm(), 1e-7) << dl << " " << dr;
       const double pb_off[3] = {b.x + 0.3, b.y - 0.2, b.theta + 0.01};
       const double cal_off[3] = {1.0, 1.003, 75.0};
       for (const double* c : {cal, cal_off}) {
@@ -92,7 +89,7 @@ TEST(OdometryCalibrationFactor, AgreesWithTheControlVectorFactorToFirstOrder) {
   for (const Eigen::Vector3d& delta : {Eigen::Vector3d(0.02 * std::cos(b.theta), 0.02 * std::sin(b.theta), 0.0),
                                        Eigen::Vector3d(0.0, 0.0, 2e-4)}) {
     const double pb[3] = {b.x + delta.x(), b.y + delta.y(), b.theta + delta.z()};
-    const double c2 = evaluate(*calib, {pa, pb, nominal}).squaredNorm(), p2 = evaluate(*plain, {pa, pb}).squaredNorm();
+    const double c2 = evaluateResiduals(*calib, {pa, pb, nominal}).squaredNorm(), p2 = evaluateResiduals(*plain, {pa, pb}).squaredNorm();
     EXPECT_NEAR(c2, p2, 0.05 * p2);
   }
 }
@@ -176,7 +173,7 @@ TEST(ComposedOdometryCalibrationFactor, ZeroAtTheComposedTrueMotionAndJacobiansM
           atReadings(std::vector<std::pair<double, double>>(m.begin(), m.begin() + k)),
           std::vector<OdometryParams>(params.begin(), params.begin() + k)));
       const double pa[3] = {a.x, a.y, a.theta}, pb[3] = {b.x, b.y, b.theta};
-      EXPECT_LT(evaluate(*f, {pa, pb, cal}).norm(), 1e-7) << n << " " << th;
+      EXPECT_LT(evaluateResiduals(*f, {pa, pb, cal}).norm(), 1e-7) << n << " " << th;
       const double pb_off[3] = {b.x + 0.3, b.y - 0.2, b.theta + 0.01};
       const double cal_off[3] = {1.0, 1.003, 75.0};
       for (const double* c : {cal, cal_off}) {
@@ -222,7 +219,7 @@ TEST(ComposedOdometryCalibrationFactor, WeighsWithTheComposedPredictionCovarianc
     const double cal[3] = {c.x(), c.y(), c.z()};
     // betweenT(identity, b + delta) - g = delta, so |r|^2 is delta's Mahalanobis distance.
     const double expected = delta.dot(P.inverse() * delta);
-    EXPECT_NEAR(evaluate(*f, {pa, pb, cal}).squaredNorm(), expected, 1e-9 * expected) << c.transpose();
+    EXPECT_NEAR(evaluateResiduals(*f, {pa, pb, cal}).squaredNorm(), expected, 1e-9 * expected) << c.transpose();
   }
 }
 
@@ -257,7 +254,7 @@ TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobian
         std::unique_ptr<ceres::CostFunction> calib(
             StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.5, mode));
         std::unique_ptr<ceres::CostFunction> plain(StereoPixelFactor::Create(rig, s.landmark, s.pixels, pan, 0.5, mode));
-        EXPECT_LT((evaluate(*calib, {p, nominal}) - evaluate(*plain, {p})).norm(), 1e-9);
+        EXPECT_LT((evaluateResiduals(*calib, {p, nominal}) - evaluateResiduals(*plain, {p})).norm(), 1e-9);
         const double off[6] = {0.01, 1.02, 0.0, 0.0, 0.0, 0.0};
         const double off_px[6] = {-0.008, 0.985, 1.3, -0.7, 0.006, 0.0};
         const double off_f[6] = {0.004, 1.01, -0.9, 0.4, -0.005, 0.008};
@@ -274,7 +271,7 @@ TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobian
         const auto px = truth.project(Eigen::Vector3d(local.x(), local.y(), s.landmark.z()), pan);
         ASSERT_TRUE(px);
         std::unique_ptr<ceres::CostFunction> f(StereoPixelCalibrationFactor::Create(rig, s.landmark, *px, pan, 0.5, mode));
-        EXPECT_LT(evaluate(*f, {p, off}).norm(), 1e-8);
+        EXPECT_LT(evaluateResiduals(*f, {p, off}).norm(), 1e-8);
         // ... and with the pixel offsets, focal ratio and focal scale of `off_px` and `off_f`
         // too: both cameras' focal length is f (1 + psi) (columns and rows), the disparity grows
         // by delta_d, both columns move by delta_u, the right column's distance from o_u scales
@@ -294,7 +291,7 @@ TEST(StereoPixelCalibrationFactor, NominalEqualsPixelFactorTrueIsZeroAndJacobian
           shifted.u_right = tq_rig.principalU() + (1.0 + q[4]) * (shifted.u_right - tq_rig.principalU()) + q[3] - 0.5 * q[2];
           std::unique_ptr<ceres::CostFunction> g(
               StereoPixelCalibrationFactor::Create(rig, s.landmark, shifted, pan, 0.5, mode));
-          EXPECT_LT(evaluate(*g, {p, q}).norm(), 1e-8);
+          EXPECT_LT(evaluateResiduals(*g, {p, q}).norm(), 1e-8);
         }
       }
     }
@@ -314,10 +311,10 @@ TEST(RangeBearingCalibrationFactor, NominalEqualsRangeBearingFactorTrueIsZeroAnd
     std::unique_ptr<ceres::CostFunction> calib(RangeBearingCalibrationFactor::Create(l, z, R));
     std::unique_ptr<ceres::CostFunction> plain(RangeBearingFactor::Create(l, z, R));
     const double p[3] = {truth.x, truth.y, truth.theta};
-    EXPECT_LT(evaluate(*calib, {p, k_true}).norm(), 1e-9);
+    EXPECT_LT(evaluateResiduals(*calib, {p, k_true}).norm(), 1e-9);
     const double k0[4] = {0, 0, 0, 0};
     const double p_off[3] = {truth.x + 30.0, truth.y - 20.0, truth.theta + 0.02};
-    EXPECT_LT((evaluate(*calib, {p_off, k0}) - evaluate(*plain, {p_off})).norm(), 1e-12);
+    EXPECT_LT((evaluateResiduals(*calib, {p_off, k0}) - evaluateResiduals(*plain, {p_off})).norm(), 1e-12);
     for (const double* k : {k0, k_true}) {
       const FactorCheck c = checkFactorJacobians(*calib, {p_off, k});
       EXPECT_TRUE(c.ok) << c.message;
@@ -337,7 +334,7 @@ TEST(CalibrationPriorFactor, WhitensAndJacobianMatches) {
   C << 1e-4, 2e-5, 0, 2e-5, 4e-4, 0, 0, 0, 2.25;
   std::unique_ptr<ceres::CostFunction> f(CalibrationPriorFactor<3>::Create(Eigen::Vector3d(1, 1, 75), C));
   const double c[3] = {1.01, 0.98, 76.5};
-  const Eigen::VectorXd r = evaluate(*f, {c});
+  const Eigen::VectorXd r = evaluateResiduals(*f, {c});
   const Eigen::Vector3d e(0.01, -0.02, 1.5);
   EXPECT_NEAR(r.squaredNorm(), e.dot(C.inverse() * e), 1e-9);
   const FactorCheck chk = checkFactorJacobians(*f, {c});
@@ -433,7 +430,7 @@ TEST(StereoPixelImageCalibrationFactor, ZeroImageErrorsEqualTheCalibrationFactor
         StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode, sigma, kRate));
     std::unique_ptr<ceres::CostFunction> calib(
         StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, 0.3 * Eigen::Matrix4d::Identity(), mode));
-    EXPECT_LT((evaluate(*image, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
+    EXPECT_LT((evaluateResiduals(*image, {p, q, zero}) - evaluateResiduals(*calib, {p, q})).norm(), 1e-12);
     const FactorCheck c = checkFactorJacobians(*image, {p, q, e});
     EXPECT_TRUE(c.ok) << c.message;
     const FactorCheck d = checkFactorJacobians(*calib, {p, q});
@@ -493,8 +490,8 @@ TEST(StereoPixelImageCalibrationFactor, PredictsTheRectifiedPixelsOfErroneousRaw
         const Eigen::Vector3d landmark(world.x(), world.y(), height);
         std::unique_ptr<ceres::CostFunction> factor(StereoPixelImageCalibrationFactor::Create(
             rig, landmark, px, 0.0, Eigen::Matrix4d::Identity(), PixelResiduals::Columns, sigma, BodyRate()));
-        worst = std::max(worst, evaluate(*factor, {p, q, e}).cwiseAbs().maxCoeff());
-        worst_without_image = std::max(worst_without_image, evaluate(*factor, {p, q, zero}).cwiseAbs().maxCoeff());
+        worst = std::max(worst, evaluateResiduals(*factor, {p, q, e}).cwiseAbs().maxCoeff());
+        worst_without_image = std::max(worst_without_image, evaluateResiduals(*factor, {p, q, zero}).cwiseAbs().maxCoeff());
         const auto response = stereo_pixel_calibration::columnResponse(rig, px, nullptr, BodyRate());
         largest_gain = std::max({largest_gain, std::fabs(response.offset[0]), std::fabs(response.offset[1])});
       }
@@ -527,8 +524,8 @@ TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSli
     std::unique_ptr<ceres::CostFunction> calib(StereoPixelCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode));
     std::unique_ptr<ceres::CostFunction> image(
         StereoPixelImageCalibrationFactor::Create(rig, s.landmark, s.pixels, pan, C, mode, sigma, kRate));
-    EXPECT_LT((evaluate(*row, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 1e-12);
-    EXPECT_LT((evaluate(*row_image, {p, q, e, zero}) - evaluate(*image, {p, q, e})).norm(), 1e-12);
+    EXPECT_LT((evaluateResiduals(*row, {p, q, zero}) - evaluateResiduals(*calib, {p, q})).norm(), 1e-12);
+    EXPECT_LT((evaluateResiduals(*row_image, {p, q, e, zero}) - evaluateResiduals(*image, {p, q, e})).norm(), 1e-12);
     // The frontend's right column slid by s dv: dv explains it, the same residual as unslid
     // (exactly where the column gains do not depend on the measured pixels: no image block,
     // no rectification map).
@@ -537,8 +534,8 @@ TEST(StereoPixelRowCalibrationFactor, ZeroRowOffsetEqualsTheCalibrationFactorSli
     std::unique_ptr<ceres::CostFunction> row_slid(
         StereoPixelRowCalibrationFactor::Create(rig, s.landmark, slid, gain, pan, C, mode, nullptr, kRate));
     const double tolerance = rig.calibration() ? 0.02 : 1e-9;
-    EXPECT_LT((evaluate(*row_slid, {p, q, dv}) - evaluate(*calib, {p, q})).norm(), tolerance);
-    EXPECT_GT((evaluate(*row_slid, {p, q, zero}) - evaluate(*calib, {p, q})).norm(), 0.5 * std::fabs(gain * dv[0]));
+    EXPECT_LT((evaluateResiduals(*row_slid, {p, q, dv}) - evaluateResiduals(*calib, {p, q})).norm(), tolerance);
+    EXPECT_GT((evaluateResiduals(*row_slid, {p, q, zero}) - evaluateResiduals(*calib, {p, q})).norm(), 0.5 * std::fabs(gain * dv[0]));
     const FactorCheck a = checkFactorJacobians(*row, {p, q, dv});
     EXPECT_TRUE(a.ok) << a.message;
     const FactorCheck b = checkFactorJacobians(*row_image, {p, q, e, dv});
@@ -576,16 +573,16 @@ TEST(StereoPixelFeatureCalibrationFactor, ZeroOffsetEqualsTheRowFactorOffsetIsEx
         StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr, kRate));
     std::unique_ptr<ceres::CostFunction> row_image(
         StereoPixelRowCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, &sigma, kRate));
-    EXPECT_LT((evaluate(*feature, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(), 1e-12);
-    EXPECT_LT((evaluate(*feature_image, {p, q, e, dv, zero}) - evaluate(*row_image, {p, q, e, dv})).norm(), 1e-12);
+    EXPECT_LT((evaluateResiduals(*feature, {p, q, dv, zero}) - evaluateResiduals(*row, {p, q, dv})).norm(), 1e-12);
+    EXPECT_LT((evaluateResiduals(*feature_image, {p, q, e, dv, zero}) - evaluateResiduals(*row_image, {p, q, e, dv})).norm(), 1e-12);
     StereoPixels moved = s.pixels;
     moved.u_left += b[0];
     moved.u_right += b[0] + b[1];
     std::unique_ptr<ceres::CostFunction> feature_moved(
         StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, moved, gain, pan, C, mode, nullptr, kRate));
     const double tolerance = rig.calibration() ? 0.02 : 1e-9;
-    EXPECT_LT((evaluate(*feature_moved, {p, q, dv, b}) - evaluate(*row, {p, q, dv})).norm(), tolerance);
-    EXPECT_GT((evaluate(*feature_moved, {p, q, dv, zero}) - evaluate(*row, {p, q, dv})).norm(),
+    EXPECT_LT((evaluateResiduals(*feature_moved, {p, q, dv, b}) - evaluateResiduals(*row, {p, q, dv})).norm(), tolerance);
+    EXPECT_GT((evaluateResiduals(*feature_moved, {p, q, dv, zero}) - evaluateResiduals(*row, {p, q, dv})).norm(),
               0.5 * std::max(std::fabs(b[0]), std::fabs(b[1])));
     const FactorCheck c1 = checkFactorJacobians(*feature, {p, q, dv, b});
     EXPECT_TRUE(c1.ok) << c1.message;
@@ -613,7 +610,7 @@ TEST(DiagonalPriorFactor, WhitensEachEntryAndJacobianMatches) {
   const Eigen::VectorXd sigma = Eigen::Vector4d(0.1, 2.0, 0.5, 1.0);
   DiagonalPriorFactor f(mean, sigma);
   const double c[4] = {1.2, -1.0, -2.0, 0.0};
-  const Eigen::VectorXd r = evaluate(f, {c});
+  const Eigen::VectorXd r = evaluateResiduals(f, {c});
   EXPECT_NEAR(r[0], 2.0, 1e-12);
   EXPECT_NEAR(r[1], -0.5, 1e-12);
   EXPECT_NEAR(r[2], 0.0, 1e-12);
@@ -633,7 +630,7 @@ TEST(DensePriorFactor, WhitensByTheFullCovarianceAndJacobianMatches) {
   covariance << 4.0, 1.5, 0.2, 1.5, 1.0, -0.3, 0.2, -0.3, 0.5;
   DensePriorFactor f(mean, covariance);
   const double c[3] = {1.5, -0.4, -1.1};
-  const Eigen::VectorXd r = evaluate(f, {c});
+  const Eigen::VectorXd r = evaluateResiduals(f, {c});
   Eigen::VectorXd e(3);
   for (int i = 0; i < 3; ++i) e[i] = c[i] - mean[i];
   EXPECT_NEAR(r.squaredNorm(), e.dot(covariance.ldlt().solve(e)), 1e-12);
@@ -655,13 +652,13 @@ TEST(JoinedGlobalBlocks, ScattersTheInnerBlocksAndHoldsUnmappedEntriesAtZero) {
     const Eigen::Matrix4d C = 0.3 * Eigen::Matrix4d::Identity();
     ceres::CostFunction* inner =
         StereoPixelFeatureCalibrationFactor::Create(rig, s.landmark, s.pixels, gain, pan, C, mode, nullptr, kRate);
-    const Eigen::VectorXd direct = evaluate(*inner, {p, q, dv, b});
+    const Eigen::VectorXd direct = evaluateResiduals(*inner, {p, q, dv, b});
     // g = [dv, q (6), unused, b_c]; b_d held at zero.
     std::vector<std::vector<int>> indices{{1, 2, 3, 4, 5, 6}, {0}, {8, -1}};
     JoinedGlobalBlocks joined(inner, indices, 10);
     ASSERT_EQ(joined.parameter_block_sizes()[1], 10);
     double g[10] = {dv[0], q[0], q[1], q[2], q[3], q[4], q[5], 0.7, b[0], -0.3};
-    EXPECT_LT((evaluate(joined, {p, g}) - direct).norm(), 1e-12);
+    EXPECT_LT((evaluateResiduals(joined, {p, g}) - direct).norm(), 1e-12);
     const FactorCheck check = checkFactorJacobians(joined, {p, g});
     EXPECT_TRUE(check.ok) << check.message;
   });
@@ -698,11 +695,11 @@ TEST(HeldEntries, KeepsTheStatedEntriesOfTheLastBlockAndHoldsTheOthersAtZero) {
       held.insert(held.end(), {dv, b_c});
       HeldEntries column(inner(), {0});
       ASSERT_EQ(column.parameter_block_sizes().back(), 1);
-      EXPECT_LT((evaluate(column, held) - evaluate(*direct_cost, full)).norm(), 1e-12);
+      EXPECT_LT((evaluateResiduals(column, held) - evaluateResiduals(*direct_cost, full)).norm(), 1e-12);
       const FactorCheck check = checkFactorJacobians(column, held);
       EXPECT_TRUE(check.ok) << check.message;
       HeldEntries both(inner(), {0, 1});
-      EXPECT_LT((evaluate(both, full) - evaluate(*direct_cost, full)).norm(), 1e-12);
+      EXPECT_LT((evaluateResiduals(both, full) - evaluateResiduals(*direct_cost, full)).norm(), 1e-12);
     }
   });
   auto factor = [] {
@@ -745,12 +742,12 @@ TEST(StereoPixelImageCalibrationFactor, TheExposureOffsetExplainsARightColumnTak
           rig, s.landmark, later, 0.1, Eigen::Matrix4d::Identity(), PixelResiduals::All, sigma, kRate));
       std::unique_ptr<ceres::CostFunction> standing(StereoPixelImageCalibrationFactor::Create(
           rig, s.landmark, later, 0.1, Eigen::Matrix4d::Identity(), PixelResiduals::All, sigma, BodyRate()));
-      const Eigen::VectorXd without = evaluate(*taken_later, {p, q, e});
-      const Eigen::VectorXd still = evaluate(*standing, {p, q, e});
+      const Eigen::VectorXd without = evaluateResiduals(*taken_later, {p, q, e});
+      const Eigen::VectorXd still = evaluateResiduals(*standing, {p, q, e});
       e[stereo_pixel_calibration::kExposureOffsetEntry] = dt / sigma[stereo_pixel_calibration::kExposureOffsetEntry];
-      EXPECT_LT((evaluate(*taken_later, {p, q, e}) - evaluate(*at, {p, q, zero})).norm(), 1e-6);
+      EXPECT_LT((evaluateResiduals(*taken_later, {p, q, e}) - evaluateResiduals(*at, {p, q, zero})).norm(), 1e-6);
       EXPECT_GT(without.norm(), 0.5);
-      EXPECT_LT((evaluate(*standing, {p, q, e}) - still).norm(), 1e-12);
+      EXPECT_LT((evaluateResiduals(*standing, {p, q, e}) - still).norm(), 1e-12);
     }
   }
   EXPECT_THROW(StereoPixelImageCalibrationFactor::Create(StereoRig(), Eigen::Vector3d(1000, 0, 60),

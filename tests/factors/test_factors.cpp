@@ -14,34 +14,31 @@
 #include "src/core/measurement_model.h"
 #include "src/core/odometry_model.h"
 #include "src/core/pose2.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
 
 // Headings that exercise the wrap: near +pi, near -pi, and ordinary.
-const double kHeadings[] = {kPi - 1e-7, -kPi + 1e-7, kPi - 0.02, -kPi + 0.03, 0.4, -2.0};
+const double kHeadingsAcrossTheWrap[] = {kPi - 1e-7, -kPi + 1e-7, kPi - 0.02, -kPi + 0.03, 0.4, -2.0};
 
-Eigen::VectorXd evaluate(const ceres::CostFunction& f, const std::vector<const double*>& p) {
-  Eigen::VectorXd r(f.num_residuals());
-  EXPECT_TRUE(f.Evaluate(p.data(), r.data(), nullptr));
-  return r;
-}
+using test::evaluateResiduals;
 
 TEST(OdometryFactor, ZeroAtPredictionAndWhitened) {
   const OdometryParams params;
-  for (double th : kHeadings) {
+  for (double th : kHeadingsAcrossTheWrap) {
     const double a[3] = {300.0, 200.0, th};
     const Eigen::Vector3d u = controlVector(12.0, 18.0, params.wheel_base_mm);
     const Pose2 b = compose(Pose2(a[0], a[1], a[2]), Pose2(u.x(), u.y(), u.z()));
     const double bv[3] = {b.x, b.y, b.theta};
     std::unique_ptr<ceres::CostFunction> f(OdometryFactor::Create(12.0, 18.0, params));
-    EXPECT_LT(evaluate(*f, {a, bv}).norm(), 1e-9) << th;
+    EXPECT_LT(evaluateResiduals(*f, {a, bv}).norm(), 1e-9) << th;
     // An error e gives |r|^2 = e^T U^-1 e.
     const Eigen::Vector3d e(0.5, -0.3, 0.01);
     const Pose2 b2 = compose(Pose2(a[0], a[1], a[2]), Pose2(u.x() + e.x(), u.y() + e.y(), u.z() + e.z()));
     const double b2v[3] = {b2.x, b2.y, b2.theta};
     const Eigen::Matrix3d U = controlCovariance(12.0, 18.0, params);
-    EXPECT_NEAR(evaluate(*f, {a, b2v}).squaredNorm(), e.dot(U.ldlt().solve(e)), 1e-6 * e.dot(U.ldlt().solve(e)));
+    EXPECT_NEAR(evaluateResiduals(*f, {a, b2v}).squaredNorm(), e.dot(U.ldlt().solve(e)), 1e-6 * e.dot(U.ldlt().solve(e)));
   }
 }
 
@@ -49,7 +46,7 @@ TEST(OdometryFactor, JacobiansMatchNumericAndB18B19) {
   const OdometryParams params;
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> U(-1.0, 1.0);
-  for (double th : kHeadings) {
+  for (double th : kHeadingsAcrossTheWrap) {
     for (int i = 0; i < 5; ++i) {
       const double dl = 20 * U(rng), dr = 20 * U(rng);
       std::unique_ptr<ceres::CostFunction> f(OdometryFactor::Create(dl, dr, params));
@@ -83,14 +80,14 @@ TEST(RangeBearingFactor, MatchesMeasurementModelAndWrapsBearing) {
   Eigen::Matrix2d R;
   R << 25.0, 0.02, 0.02, 1e-4;  // correlated on purpose: tests the upper square root
   const Eigen::Matrix2d S = sqrtInformationUpper<2>(R);
-  for (double th : kHeadings) {
+  for (double th : kHeadingsAcrossTheWrap) {
     const double pose[3] = {200.0, 900.0, th};
     Matrix23d Jz;
     const Eigen::Vector2d h = predictRangeBearing(Pose2(pose[0], pose[1], pose[2]), l, &Jz);
     // Measured bearing on the other side of the wrap from the prediction when h(1) ~ +-pi.
     const Eigen::Vector2d z(h(0) + 3.0, wrapAngle(h(1) - 0.004));
     std::unique_ptr<ceres::CostFunction> f(RangeBearingFactor::Create(l, z, R));
-    const Eigen::VectorXd r = evaluate(*f, {pose});
+    const Eigen::VectorXd r = evaluateResiduals(*f, {pose});
     EXPECT_LT((r - S * Eigen::Vector2d(-3.0, 0.004)).norm(), 1e-9) << th;
     const FactorCheck c = checkFactorJacobians(*f, {pose});
     EXPECT_TRUE(c.ok) << "theta " << th << "\n" << c.message;
@@ -111,7 +108,7 @@ TEST(RangeBearingFactor, PredictedBearingNearPi) {
       RangeBearingFactor::Create(l, Eigen::Vector2d(500.0, -kPi + 0.01), Eigen::Vector2d(9.0, 1e-4).asDiagonal()));
   const FactorCheck c = checkFactorJacobians(*f, {pose});
   EXPECT_TRUE(c.ok) << c.message;
-  EXPECT_LT(std::fabs(evaluate(*f, {pose})(1)), 0.011 / 0.01);
+  EXPECT_LT(std::fabs(evaluateResiduals(*f, {pose})(1)), 0.011 / 0.01);
 }
 
 TEST(RangeBearingFactor, CoincidentLandmarkFailsEvaluation) {
@@ -126,8 +123,8 @@ TEST(RangeBearingFactor, CoincidentLandmarkFailsEvaluation) {
 TEST(CompassFactor, WrappedAndJacobian) {
   std::unique_ptr<ceres::CostFunction> f(CompassFactor::Create(-kPi + 0.01, 0.02));
   const double pose[3] = {0.0, 0.0, kPi - 0.01};
-  EXPECT_NEAR(evaluate(*f, {pose})(0), -0.02 / 0.02, 1e-9);
-  for (double th : kHeadings) {
+  EXPECT_NEAR(evaluateResiduals(*f, {pose})(0), -0.02 / 0.02, 1e-9);
+  for (double th : kHeadingsAcrossTheWrap) {
     const double q[3] = {10.0, 20.0, th};
     const FactorCheck c = checkFactorJacobians(*f, {q});
     EXPECT_TRUE(c.ok) << c.message;
@@ -142,8 +139,8 @@ TEST(PosePriorFactor, WhitenedAndJacobian) {
   std::unique_ptr<ceres::CostFunction> f(PosePriorFactor::Create(mean, P));
   const Eigen::Vector3d e(3.0, -2.0, 0.01);
   const double x[3] = {mean.x + e.x(), mean.y + e.y(), wrapAngle(mean.theta + e.z())};
-  EXPECT_NEAR(evaluate(*f, {x}).squaredNorm(), e.dot(P.ldlt().solve(e)), 1e-9);
-  for (double th : kHeadings) {
+  EXPECT_NEAR(evaluateResiduals(*f, {x}).squaredNorm(), e.dot(P.ldlt().solve(e)), 1e-9);
+  for (double th : kHeadingsAcrossTheWrap) {
     const double q[3] = {480.0, 410.0, th};
     const FactorCheck c = checkFactorJacobians(*f, {q});
     EXPECT_TRUE(c.ok) << c.message;
@@ -176,8 +173,8 @@ TEST(MarginalPriorFactor, ReproducesQuadraticModelAndJacobian) {
   const double a2[3] = {x0[0].x, x0[0].y, -kPi + 1e-3};
   Eigen::VectorXd dx = Eigen::VectorXd::Zero(6);
   dx(2) = 2e-3;
-  EXPECT_LT((evaluate(*f, {a2, b}) - (f->sqrtInformation() * dx + f->r0())).norm(), 1e-9);
-  for (double th : kHeadings) {
+  EXPECT_LT((evaluateResiduals(*f, {a2, b}) - (f->sqrtInformation() * dx + f->r0())).norm(), 1e-9);
+  for (double th : kHeadingsAcrossTheWrap) {
     const double q[3] = {12.0, 18.0, th};
     const FactorCheck c = checkFactorJacobians(*f, {q, b});
     EXPECT_TRUE(c.ok) << c.message;

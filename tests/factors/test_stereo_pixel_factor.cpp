@@ -19,7 +19,7 @@
 namespace stereoloc {
 namespace {
 
-StereoRig tiltedRig() {
+StereoRig offCentreTiltedRig() {
   StereoRigParams p;
   p.tilt_rad = 0.25;
   p.offset_x_mm = 20.0;
@@ -33,13 +33,13 @@ using test::evaluateResidual;
 using test::sight;
 using test::Sighting;
 
-const double kHeadings[] = {kPi - 1e-7, -kPi + 1e-7, 0.3, -2.0};
+const double kSightingHeadings[] = {kPi - 1e-7, -kPi + 1e-7, 0.3, -2.0};
 
 TEST(StereoPixelFactor, ZeroAtTheRigProjectionAndWhitened) {
   std::mt19937_64 rng(3);
   std::uniform_real_distribution<double> U(-1.0, 1.0);
-  for (const StereoRig& rig : {StereoRig(), tiltedRig()}) {
-    for (double th : kHeadings) {
+  for (const StereoRig& rig : {StereoRig(), offCentreTiltedRig()}) {
+    for (double th : kSightingHeadings) {
       for (int i = 0; i < 5; ++i) {
         const Pose2 pose(700 * U(rng), 600 * U(rng), th);
         const double pan = 0.5 * U(rng);
@@ -70,8 +70,8 @@ TEST(StereoPixelFactor, ZeroAtTheRigProjectionAndWhitened) {
 TEST(StereoPixelFactor, JacobiansMatchCentralDifferences) {
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<double> U(-1.0, 1.0);
-  for (const StereoRig& rig : {StereoRig(), tiltedRig()}) {
-    for (double th : kHeadings) {
+  for (const StereoRig& rig : {StereoRig(), offCentreTiltedRig()}) {
+    for (double th : kSightingHeadings) {
       for (PixelResiduals which : {PixelResiduals::All, PixelResiduals::Columns}) {
         const Pose2 pose(500 * U(rng), 400 * U(rng), th);
         const double pan = 0.4 * U(rng);
@@ -104,7 +104,7 @@ TEST(StereoPixelFactor, FailsBehindTheCamerasAndRejectsBadInput) {
 }
 
 TEST(StereoPixelFactor, CorrelatedCovarianceWhitensToTheMahalanobisDistance) {
-  const StereoRig rig = tiltedRig();
+  const StereoRig rig = offCentreTiltedRig();
   const Pose2 pose(100, -50, 0.4);
   const Sighting s = sight(rig, pose, 0.2, 700, 0.2, 25.0);
   const double p[3] = {pose.x, pose.y, pose.theta};

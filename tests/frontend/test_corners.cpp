@@ -9,6 +9,7 @@
 
 #include "frontend/frontend.h"
 #include "src/core/error.h"
+#include "synthetic_scene.h"
 #include "test_util.h"
 
 using namespace stereoloc;
@@ -16,65 +17,17 @@ using namespace stereoloc::frontend;
 
 namespace {
 
-struct Strip {  // floor marking in C0 (mm): centreline a -> b, half width
-  Eigen::Vector2d a, b;
-  double hw = 5.0;
-};
-
-struct Ring {  // floor marking in C0 (mm): a circle of the given centre and radius, half width
-  Eigen::Vector2d centre;
-  double radius = 250.0, hw = 5.0;
-};
-
-// Ray-casts a floor scene (dark floor, white strips and rings, optional white region
-// x >= wall_x) into the left or right camera, 4x4 samples per pixel.
-cv::Mat renderFloor(const StereoRig& rig, bool right, const std::vector<Strip>& strips, double wall_x = 1e9,
-                    const std::vector<Ring>& rings = {}) {
-  const int w = rig.params().image_width, h = rig.params().image_height;
-  const double f = rig.focal(), yc = (right ? -0.5 : 0.5) * rig.params().baseline_mm;
-  const Eigen::Vector3d o = rig.visionToRobot(Eigen::Vector3d(0, yc, 0), 0.0);
-  auto dir = [&](double u, double v) -> Eigen::Vector3d {
-    return rig.visionToRobot(Eigen::Vector3d(1.0, yc - (u - rig.principalU()) / f, -(v - rig.principalV()) / f), 0.0) - o;
-  };
-  const Eigen::Vector3d d00 = dir(0, 0), du = dir(1, 0) - d00, dv = dir(0, 1) - d00;
-  auto white = [&](const Eigen::Vector2d& p) {
-    if (p.x() >= wall_x) return true;
-    for (const Ring& r : rings)
-      if (std::fabs((p - r.centre).norm() - r.radius) <= r.hw) return true;
-    for (const Strip& s : strips) {
-      const Eigen::Vector2d t = (s.b - s.a).normalized();
-      const double along = (p - s.a).dot(t), across = std::fabs(t.x() * (p - s.a).y() - t.y() * (p - s.a).x());
-      if (along >= -s.hw && along <= (s.b - s.a).norm() + s.hw && across <= s.hw) return true;
-    }
-    return false;
-  };
-  cv::Mat img(h, w, CV_8UC3);
-  for (int v = 0; v < h; ++v)
-    for (int u = 0; u < w; ++u) {
-      int n = 0;
-      for (int k = 0; k < 16; ++k) {
-        const Eigen::Vector3d d = d00 + (u - 0.5 + (k % 4 + 0.5) / 4) * du + (v - 0.5 + (k / 4 + 0.5) / 4) * dv;
-        if (d.z() >= 0) continue;  // sky: dark
-        const double s = -o.z() / d.z();
-        n += white(Eigen::Vector2d(o.x() + s * d.x(), o.y() + s * d.y())) ? 1 : 0;
-      }
-      const uint8_t g = static_cast<uint8_t>(20 + 210 * n / 16);
-      img.at<cv::Vec3b>(v, u) = cv::Vec3b(g, g, g);
-    }
-  return img;
-}
-
-Eigen::Vector2d pixel(const StereoRig& rig, double x, double y) {
-  const auto p = rig.project(Eigen::Vector3d(x, y, 0.0), 0.0);
-  return Eigen::Vector2d(p->u_left, p->v_left);
-}
+using test::floorPixel;
+using test::renderFloor;
+using test::Ring;
+using test::Strip;
 
 }  // namespace
 
 TEST(Corners, FloorPointInvertsTheProjection) {
   const StereoRig rig;
   for (auto [x, y] : {std::pair{300.0, 40.0}, std::pair{900.0, -200.0}}) {
-    const Eigen::Vector2d px = pixel(rig, x, y);
+    const Eigen::Vector2d px = floorPixel(rig, x, y);
     double fx, fy;
     ASSERT_TRUE(floorPoint(rig, px.x(), px.y(), fx, fy));
     EXPECT_NEAR(fx, x, 1e-6);
@@ -96,7 +49,7 @@ TEST(Corners, LShapeGivesAMarkingCornerOnTheCentreLines) {
   findCorners(lines, rig, fe.params().corners, feats);
   ASSERT_EQ(feats.size(), 1u);
   EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
-  const Eigen::Vector2d truth = pixel(rig, 250, 60);
+  const Eigen::Vector2d truth = floorPixel(rig, 250, 60);
   EXPECT_NEAR(feats[0].u, truth.x(), 0.5);
   EXPECT_NEAR(feats[0].v, truth.y(), 0.5);
   // Both stripes are markings, and each became one centre line.
@@ -116,7 +69,7 @@ TEST(Corners, MarkingEndingOnAWallGivesAJunction) {
   findCorners(lines, rig, fe.params().corners, feats);
   ASSERT_EQ(feats.size(), 1u);
   EXPECT_EQ(feats[0].type, LandmarkType::Junction);
-  const Eigen::Vector2d truth = pixel(rig, 700, -60);
+  const Eigen::Vector2d truth = floorPixel(rig, 700, -60);
   EXPECT_NEAR(feats[0].u, truth.x(), 0.5);
   EXPECT_NEAR(feats[0].v, truth.y(), 0.5);
 }
@@ -133,7 +86,7 @@ TEST(Corners, CrossingGivesAnIntersectionAndShallowAnglesNothing) {
   findCorners(lines, rig, fe.params().corners, feats);
   ASSERT_EQ(feats.size(), 1u);
   EXPECT_EQ(feats[0].type, LandmarkType::Intersection);
-  const Eigen::Vector2d truth = pixel(rig, 400, 0);
+  const Eigen::Vector2d truth = floorPixel(rig, 400, 0);
   EXPECT_NEAR(feats[0].u, truth.x(), 0.5);
   EXPECT_NEAR(feats[0].v, truth.y(), 0.5);
   // Two chords of an arc meeting at 160 deg on the floor are not a corner.
@@ -151,7 +104,7 @@ TEST(Corners, LinesAreClippedToTheImage) {
   std::vector<LineFeature> lines(2);
   // x cos(45) + y sin(45) = rho through (100, 239.5 + 4) and beyond.
   LineFeature& l = lines[0];
-  l.theta = frontend::kTwoPi / 8;
+  l.theta = kTwoPi / 8;
   l.rho = (100 + 243.5) * std::cos(l.theta);
   const double t_out = -100 * std::sin(l.theta) + 243.5 * std::cos(l.theta);
   l.t_min = t_out - 50;
@@ -232,7 +185,7 @@ TEST(Corners, CentreLineOfAnLCornerEndsAtTheCorner) {
   fe.detectSegments(img);
   std::vector<LineFeature> lines;
   buildLines(fe.result().segments, rig, fe.params().corners, lines);
-  const Eigen::Vector2d corner = pixel(rig, 250, 60);
+  const Eigen::Vector2d corner = floorPixel(rig, 250, 60);
   clipLinesToImage(rig.params().image_width, rig.params().image_height, lines);
   snapLineEnds(rig.params().image_width, rig.params().image_height, fe.params().corners, lines);
   int ends_at_corner = 0;
@@ -268,7 +221,7 @@ TEST(Corners, SnapLineEndsAtLAndTMeetings) {
   const std::vector<std::vector<LineFeature>> untouched = {
       {lineThrough(20, 50, 90, 50, false, true), lineThrough(100, 150, 100, 60, true, false)},
       {lineThrough(20, 50, 97, 50, false, true),
-       lineThrough(100, 50, 200, 50 + 100 * std::tan(2 * frontend::kTwoPi / 360), false, true)},
+       lineThrough(100, 50, 200, 50 + 100 * std::tan(2 * kTwoPi / 360), false, true)},
       {lineThrough(20, 50, 200, 50, false, true), lineThrough(100, 150, 100, 10, true, false)}};
   for (const std::vector<LineFeature>& pair : untouched) {
     std::vector<LineFeature> moved = pair;
@@ -412,7 +365,7 @@ TEST(Corners, CentreLineOfAStripeSeenAtTheSideIsTheImageOfItsCentre) {
     ASSERT_EQ(r.lines.size(), 1u);
     const LineFeature& l = r.lines[0];
     ASSERT_TRUE(l.marking);
-    const Eigen::Vector2d a = pixel(rig, 300, y0), b = pixel(rig, 600, y0);
+    const Eigen::Vector2d a = floorPixel(rig, 300, y0), b = floorPixel(rig, 600, y0);
     for (const double v : {170.0, 190.0, 210.0}) {
       const double u = (l.rho - v * std::sin(l.theta)) / std::cos(l.theta);
       EXPECT_NEAR(u, a.x() + (v - a.y()) * (b.x() - a.x()) / (b.y() - a.y()), 0.13) << "row " << v;
@@ -438,7 +391,7 @@ TEST(Corners, CentreLineOfAFlatStripeOnATiltedRigIsTheImageOfItsCentre) {
     ASSERT_EQ(r.lines.size(), 1u);
     const LineFeature& l = r.lines[0];
     ASSERT_TRUE(l.marking);
-    const Eigen::Vector2d c = pixel(rig, x0, 0.0);
+    const Eigen::Vector2d c = floorPixel(rig, x0, 0.0);
     EXPECT_NEAR((l.rho - c.x() * std::cos(l.theta)) / std::sin(l.theta), c.y(), 0.1);
   }
 }
@@ -450,7 +403,7 @@ TEST(Corners, CrossingOfACurvedMarkingIsRefinedWhereTheStripesCross) {
   const cv::Mat img = renderFloor(rig, false, {{{0, 0}, {600, 0}}}, 1e9, {{{0, 0}, 250.0}});
   Frontend fe(rig, FieldMap::miroSot());
   const FrontendResult& r = fe.detectFeatures(img);
-  const Eigen::Vector2d truth = pixel(rig, 250, 0);
+  const Eigen::Vector2d truth = floorPixel(rig, 250, 0);
   ASSERT_EQ(r.features.size(), 1u);
   ASSERT_EQ(r.features[0].type, LandmarkType::Intersection);
   const PointFeature refined = r.features[0];
@@ -470,7 +423,7 @@ TEST(Corners, CrossingOfACurvedMarkingIsRefinedWhereTheStripesCross) {
   ASSERT_EQ(rp.features.size(), 1u);
   findCorners(rp.lines, rig, fe.params().corners, fitted);
   ASSERT_EQ(fitted.size(), 1u);
-  const Eigen::Vector2d truth_plus = pixel(rig, 500, -80);
+  const Eigen::Vector2d truth_plus = floorPixel(rig, 500, -80);
   std::printf("straight crossing: fitted lines miss by (%.3f, %.3f) px, refined by (%.3f, %.3f) px\n",
               fitted[0].u - truth_plus.x(), fitted[0].v - truth_plus.y(), rp.features[0].u - truth_plus.x(),
               rp.features[0].v - truth_plus.y());
@@ -583,7 +536,7 @@ std::vector<LineFeature> linesKeeping(const StereoRig& rig, Frontend& fe, const 
   buildLines(fe.result().segments, rig, fe.params().corners, lines);
   clipLinesToImage(rig.params().image_width, rig.params().image_height, lines);
   snapLineEnds(rig.params().image_width, rig.params().image_height, fe.params().corners, lines);
-  const Eigen::Vector2d k = pixel(rig, keep.x(), keep.y());
+  const Eigen::Vector2d k = floorPixel(rig, keep.x(), keep.y());
   std::vector<LineFeature> out;
   for (const LineFeature& l : lines) {
     const double d = std::fabs(k.x() * std::cos(l.theta) + k.y() * std::sin(l.theta) - l.rho);
@@ -608,7 +561,7 @@ TEST(Corners, ArmProbeFindsAMissingThinArm) {
   Frontend fe(rig, FieldMap::miroSot());
   const CornerParams on = armProbeOn(fe.params().corners);
   cv::Mat luma;
-  const Eigen::Vector2d corner = pixel(rig, 600, 0);
+  const Eigen::Vector2d corner = floorPixel(rig, 600, 0);
   // L: near arm along the view (kept), far thin arm to the left (missing).
   cv::Mat img = renderFloor(rig, false, {{{300, 0}, {600, 0}, 5.0}, {{600, 0}, {600, 200}, 5.0}});
   bgrToLuma(img, luma);
@@ -652,7 +605,7 @@ TEST(Corners, ArmFoundByTheProbeIsTracedToTheWallFoot) {
   std::vector<PointFeature> feats;
   findCorners(lines, rig, on, feats, &luma);
   ASSERT_EQ(feats.size(), 2u);
-  const Eigen::Vector2d corner = pixel(rig, 300, 0), junction = pixel(rig, 450, 0);
+  const Eigen::Vector2d corner = floorPixel(rig, 300, 0), junction = floorPixel(rig, 450, 0);
   EXPECT_EQ(feats[0].type, LandmarkType::MarkingCorner);
   EXPECT_NEAR(feats[0].u, corner.x(), 1.0);
   EXPECT_NEAR(feats[0].v, corner.y(), 1.0);
@@ -701,7 +654,7 @@ TEST(Corners, MarkingEndingOnAMarkingIsAJunctionOnlyWhenAsked) {
       EXPECT_NE(f.type, LandmarkType::MarkingCorner);
       if (f.type != LandmarkType::Junction) continue;
       ++junctions;
-      const Eigen::Vector2d truth = pixel(rig, 300, 0);
+      const Eigen::Vector2d truth = floorPixel(rig, 300, 0);
       EXPECT_NEAR(f.u, truth.x(), 1.0);
       EXPECT_NEAR(f.v, truth.y(), 1.0);
     }

@@ -10,6 +10,7 @@
 
 #include "frontend/frontend.h"
 #include "src/core/error.h"
+#include "synthetic_scene.h"
 #include "test_util.h"
 
 using namespace stereoloc;
@@ -20,7 +21,9 @@ std::string tempFile(const std::string& name) {
   return (std::filesystem::temp_directory_path() / ("stereoloc_fe_" + std::to_string(::getpid()) + "_" + name)).string();
 }
 void writeText(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
-const cv::Vec3b kWhite(235, 235, 235), kYellow(40, 225, 245), kBlue(235, 100, 50);
+using stereoloc::test::kWhite;
+using stereoloc::test::kYellow;
+using stereoloc::test::kBlue;
 
 // A goal (colour between two white walls) on rows 100..129 with its edges at sub-pixel
 // columns a, b (box-filtered), on a dark image.

@@ -10,6 +10,7 @@
 #include "src/core/error.h"
 
 using namespace stereoloc::frontend;
+using stereoloc::kTwoPi;
 
 namespace {
 constexpr double kDeg = kTwoPi / 360.0;

@@ -5,12 +5,16 @@
 
 #include "frontend/goal_corners.h"
 #include "frontend/stereo_match.h"
+#include "synthetic_scene.h"
 
 using namespace stereoloc;
 using namespace stereoloc::frontend;
 
 namespace {
-const cv::Vec3b kWhite(235, 235, 235), kYellow(40, 225, 245), kBlue(235, 100, 50), kDark(25, 25, 25);
+using stereoloc::test::kWhite;
+using stereoloc::test::kYellow;
+using stereoloc::test::kBlue;
+using stereoloc::test::kDark;
 
 cv::Vec3b mix(const cv::Vec3b& a, const cv::Vec3b& b, double t) {
   cv::Vec3b r;

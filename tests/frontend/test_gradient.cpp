@@ -13,6 +13,7 @@
 #include "src/core/error.h"
 
 using namespace stereoloc::frontend;
+using stereoloc::kTwoPi;
 
 namespace {
 // Vertical step edge at sub-pixel column `edge` (dark left, bright right), box-filtered.

@@ -15,18 +15,19 @@
 #include "frontend/frontend.h"
 #include "src/core/field_map.h"
 #include "src/core/stereo_rig.h"
+#include "test_util.h"
 
 namespace stereoloc::frontend {
 namespace {
 
-const std::string kReal = std::string(STEREOLOC_DATA_DIR) + "/real";
+using test::kRealImagesDir;
 
 struct Label {
   double x1, y1, x2, y2, width;
 };
 
 std::vector<Label> markings(const std::string& name) {
-  std::ifstream f(kReal + "/labels/" + name + ".txt");
+  std::ifstream f(kRealImagesDir + "/labels/" + name + ".txt");
   std::vector<Label> out;
   std::string line, kind, kw;
   while (std::getline(f, line)) {
@@ -61,13 +62,13 @@ double coveredByMarkings(const Label& l, const std::vector<LineFeature>& lines) 
 }
 
 double meanCoverage(const FrontendParams& prm) {
-  const StereoRig rig = StereoRig::load(kReal + "/rig.yaml");
+  const StereoRig rig = StereoRig::load(kRealImagesDir + "/rig.yaml");
   Frontend fe(rig, FieldMap::miroSot(), prm);
   double sum = 0;
   int n = 0;
   for (const char* name : {"20190606_r2_cam0_20190606_204349", "20190606_r2_cam0_20190606_204355",
                            "20190606_r2_cam0_20190606_204236", "20190606_r2_cam0_20190606_204550"}) {
-    const cv::Mat img = cv::imread(kReal + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+    const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
     EXPECT_FALSE(img.empty()) << name;
     if (img.empty()) continue;
     const std::vector<LineFeature>& lines = fe.detectFeatures(img).lines;
@@ -82,7 +83,7 @@ double meanCoverage(const FrontendParams& prm) {
 }
 
 TEST(RealImages, LongMarkingsAreFoundAndClassifiedWithTheFieldsMarkingWidth) {
-  const FrontendParams prm = FrontendParams::load(kReal + "/frontend.yaml");
+  const FrontendParams prm = FrontendParams::load(kRealImagesDir + "/frontend.yaml");
   ASSERT_DOUBLE_EQ(prm.classify.marking_width_mm, 125.0);
   const double msl = meanCoverage(prm);
   EXPECT_GE(msl, 0.9) << msl;
@@ -98,15 +99,15 @@ TEST(RealImages, LongMarkingsAreFoundAndClassifiedWithTheFieldsMarkingWidth) {
 // side line on the goal line, one L and one T of the goal area) are found with their type
 // within 1.5 px.
 TEST(RealImages, LabelledCornersAndJunctionsAreFound) {
-  const StereoRig rig = StereoRig::load(kReal + "/rig.yaml");
-  Frontend fe(rig, FieldMap::miroSot(), FrontendParams::load(kReal + "/frontend.yaml"));
+  const StereoRig rig = StereoRig::load(kRealImagesDir + "/rig.yaml");
+  Frontend fe(rig, FieldMap::miroSot(), FrontendParams::load(kRealImagesDir + "/frontend.yaml"));
   int labelled = 0;
   for (const char* name : {"20190606_r2_cam0_20190606_204349", "20190606_r2_cam0_20190606_204355",
                            "20190606_r4_cam0_20190606_212653"}) {
-    const cv::Mat img = cv::imread(kReal + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+    const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
     ASSERT_FALSE(img.empty()) << name;
     const FrontendResult& r = fe.detectFeatures(img);
-    std::ifstream f(kReal + "/labels/" + name + ".txt");
+    std::ifstream f(kRealImagesDir + "/labels/" + name + ".txt");
     std::string line, kind, type;
     while (std::getline(f, line)) {
       std::istringstream in(line);
@@ -128,8 +129,8 @@ TEST(RealImages, LabelledCornersAndJunctionsAreFound) {
 // away most of what lies above the field: of the edge pixels of the whole image, the stands,
 // people and walls above the boundary hold well over a third on these photographs.
 TEST(RealImages, FieldRegionKeepsTheMarkingsAndDropsTheStands) {
-  const StereoRig rig = StereoRig::load(kReal + "/rig.yaml");
-  const FrontendParams prm = FrontendParams::load(kReal + "/frontend.yaml");
+  const StereoRig rig = StereoRig::load(kRealImagesDir + "/rig.yaml");
+  const FrontendParams prm = FrontendParams::load(kRealImagesDir + "/frontend.yaml");
   ASSERT_TRUE(prm.field.enabled);
   FrontendParams whole = prm;
   whole.field.enabled = false;
@@ -138,7 +139,7 @@ TEST(RealImages, FieldRegionKeepsTheMarkingsAndDropsTheStands) {
   int ends = 0;
   for (const char* name : {"20190606_r2_cam0_20190606_204349", "20190606_r2_cam0_20190606_204236",
                            "20190606_r4_cam0_20190606_212312", "20190606_r4_cam0_20190606_212620"}) {
-    const cv::Mat img = cv::imread(kReal + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+    const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
     ASSERT_FALSE(img.empty()) << name;
     fe.detectFeatures(img);
     kept += static_cast<double>(fe.gradient().edges().size());
@@ -165,9 +166,9 @@ namespace {
 // Labelled markings of one photograph with a marking centre line ending within 3 px of both
 // its ends (either order).
 int markingsWithBothEnds(const FrontendParams& prm, const std::string& name) {
-  const StereoRig rig = StereoRig::load(kReal + "/rig.yaml");
+  const StereoRig rig = StereoRig::load(kRealImagesDir + "/rig.yaml");
   Frontend fe(rig, FieldMap::miroSot(), prm);
-  const cv::Mat img = cv::imread(kReal + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+  const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
   EXPECT_FALSE(img.empty()) << name;
   if (img.empty()) return 0;
   const std::vector<LineFeature>& lines = fe.detectFeatures(img).lines;
@@ -192,7 +193,7 @@ int markingsWithBothEnds(const FrontendParams& prm, const std::string& name) {
 // to run on past the robot for 24 px. The stripe-end test ends the line where the stripe stops.
 TEST(RealImages, AStripeEndsWhereTheStripeStopsNotWhereItsEdgeDoes) {
   const char* name = "20190606_r2_cam0_20190606_204410";
-  FrontendParams prm = FrontendParams::load(kReal + "/frontend.yaml");
+  FrontendParams prm = FrontendParams::load(kRealImagesDir + "/frontend.yaml");
   ASSERT_TRUE(prm.ends.enabled);
   EXPECT_EQ(markingsWithBothEnds(prm, name), 2);
   prm.ends.enabled = false;
@@ -207,12 +208,12 @@ namespace {
 // Distance from the labelled corner of `type` nearest to (x, y) in the photograph's labels to
 // the nearest detected feature of that type; 1e9 without one.
 double cornerError(const FrontendParams& prm, const std::string& name, const char* type, double x, double y) {
-  const StereoRig rig = StereoRig::load(kReal + "/rig.yaml");
+  const StereoRig rig = StereoRig::load(kRealImagesDir + "/rig.yaml");
   Frontend fe(rig, FieldMap::miroSot(), prm);
-  const cv::Mat img = cv::imread(kReal + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+  const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
   EXPECT_FALSE(img.empty()) << name;
   if (img.empty()) return 1e9;
-  std::ifstream f(kReal + "/labels/" + name + ".txt");
+  std::ifstream f(kRealImagesDir + "/labels/" + name + ".txt");
   std::string line, kind, t;
   double lx = 0, ly = 0, near = 1e9;
   while (std::getline(f, line)) {
@@ -239,7 +240,7 @@ double cornerError(const FrontendParams& prm, const std::string& name, const cha
 // the other at 15.8 deg. The set's corners.min_image_angle_deg (15) intersects them; the
 // default's 20 does not.
 TEST(RealImages, FarCornersAtSmallImageAnglesAreFound) {
-  FrontendParams prm = FrontendParams::load(kReal + "/frontend.yaml");
+  FrontendParams prm = FrontendParams::load(kRealImagesDir + "/frontend.yaml");
   ASSERT_DOUBLE_EQ(prm.corners.min_image_angle_deg, 15.0);
   EXPECT_LE(cornerError(prm, "20190606_r4_cam0_20190606_212718", "L", 158.0, 82.4), 1.5);
   EXPECT_LE(cornerError(prm, "20190606_r4_cam0_20190606_211855", "T", 206.4, 81.8), 1.5);

@@ -11,6 +11,7 @@
 #include "frontend/segments.h"
 
 using namespace stereoloc::frontend;
+using stereoloc::kTwoPi;
 
 namespace {
 

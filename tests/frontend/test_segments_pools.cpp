@@ -17,11 +17,12 @@
 #include "frontend/gradient.h"
 #include "frontend/peaks.h"
 #include "frontend/segments.h"
+#include "test_util.h"
 
 namespace stereoloc::frontend {
 namespace {
 
-const std::string kReal = std::string(STEREOLOC_DATA_DIR) + "/real";
+using test::kRealImagesDir;
 
 bool sameBits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
 
@@ -61,9 +62,9 @@ size_t compareOn(const cv::Mat& bgr, const FrontendParams& p, const std::string&
 }
 
 TEST(SegmentPools, BranchFreeScanEqualsLinearScanOnPhotographs) {
-  const FrontendParams p = FrontendParams::load(kReal + "/frontend.yaml");
+  const FrontendParams p = FrontendParams::load(kRealImagesDir + "/frontend.yaml");
   std::vector<cv::String> files;
-  cv::glob(kReal + "/images/*.jpg", files);
+  cv::glob(kRealImagesDir + "/images/*.jpg", files);
   ASSERT_GE(files.size(), 64u);
   size_t total = 0;
   for (const cv::String& f : files) {

@@ -4,56 +4,15 @@
 #include <cmath>
 
 #include "frontend/frontend.h"
+#include "synthetic_scene.h"
 
 using namespace stereoloc;
 using namespace stereoloc::frontend;
 
 namespace {
 
-struct Strip {  // floor marking in C0 (mm): centreline a -> b, half width
-  Eigen::Vector2d a, b;
-  double hw = 5.0;
-};
-
-// Ray-casts a floor scene (dark floor, white strips, optional white region x >= wall_x) into
-// the left or right camera, 4x4 samples per pixel.
-cv::Mat renderFloor(const StereoRig& rig, bool right, const std::vector<Strip>& strips, double wall_x = 1e9) {
-  const int w = rig.params().image_width, h = rig.params().image_height;
-  const double f = rig.focal(), yc = (right ? -0.5 : 0.5) * rig.params().baseline_mm;
-  const Eigen::Vector3d o = rig.visionToRobot(Eigen::Vector3d(0, yc, 0), 0.0);
-  auto dir = [&](double u, double v) -> Eigen::Vector3d {
-    return rig.visionToRobot(Eigen::Vector3d(1.0, yc - (u - rig.principalU()) / f, -(v - rig.principalV()) / f), 0.0) - o;
-  };
-  const Eigen::Vector3d d00 = dir(0, 0), du = dir(1, 0) - d00, dv = dir(0, 1) - d00;
-  auto white = [&](const Eigen::Vector2d& p) {
-    if (p.x() >= wall_x) return true;
-    for (const Strip& s : strips) {
-      const Eigen::Vector2d t = (s.b - s.a).normalized();
-      const double along = (p - s.a).dot(t), across = std::fabs(t.x() * (p - s.a).y() - t.y() * (p - s.a).x());
-      if (along >= -s.hw && along <= (s.b - s.a).norm() + s.hw && across <= s.hw) return true;
-    }
-    return false;
-  };
-  cv::Mat img(h, w, CV_8UC3);
-  for (int v = 0; v < h; ++v)
-    for (int u = 0; u < w; ++u) {
-      int n = 0;
-      for (int k = 0; k < 16; ++k) {
-        const Eigen::Vector3d d = d00 + (u - 0.5 + (k % 4 + 0.5) / 4) * du + (v - 0.5 + (k / 4 + 0.5) / 4) * dv;
-        if (d.z() >= 0) continue;  // sky: dark
-        const double s = -o.z() / d.z();
-        n += white(Eigen::Vector2d(o.x() + s * d.x(), o.y() + s * d.y())) ? 1 : 0;
-      }
-      const uint8_t g = static_cast<uint8_t>(20 + 210 * n / 16);
-      img.at<cv::Vec3b>(v, u) = cv::Vec3b(g, g, g);
-    }
-  return img;
-}
-
-[[maybe_unused]] Eigen::Vector2d pixel(const StereoRig& rig, double x, double y) {
-  const auto p = rig.project(Eigen::Vector3d(x, y, 0.0), 0.0);
-  return Eigen::Vector2d(p->u_left, p->v_left);
-}
+using test::renderFloor;
+using test::Strip;
 
 }  // namespace
 

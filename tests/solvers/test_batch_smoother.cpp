@@ -15,6 +15,7 @@
 #include "solvers/smoother_common.h"
 #include "src/core/odometry_model.h"
 #include "src/sim/simulator.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
@@ -25,11 +26,7 @@ BatchSmootherConfig knownStart(const Pose2& pose) {
   return c;
 }
 
-double positionRmse(const std::vector<Estimate>& est, const std::vector<Pose2>& truth) {
-  double s = 0;
-  for (size_t i = 0; i < est.size(); ++i) s += (est[i].pose.translation() - truth[i].translation()).squaredNorm();
-  return std::sqrt(s / static_cast<double>(est.size()));
-}
+using test::positionRmse;
 
 std::vector<Estimate> run(BatchSmoother& b, const std::vector<Step>& steps) {
   for (const Step& s : steps) b.process(s);

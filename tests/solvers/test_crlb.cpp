@@ -26,7 +26,7 @@
 namespace stereoloc {
 namespace {
 
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(20.0, 20.0, 0.05).cwiseAbs2().asDiagonal();
+const Eigen::Matrix3d kCrlbStartCovariance = Eigen::Vector3d(20.0, 20.0, 0.05).cwiseAbs2().asDiagonal();
 
 double relError(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
   return (a - b).cwiseAbs().maxCoeff() / std::max(1e-300, b.cwiseAbs().maxCoeff());
@@ -133,11 +133,11 @@ TEST(Crlb, PixelInformationOfColumnsIsRangeBearingAtTheTruePixels) {
 TEST(Crlb, FilteringBoundEqualsTheKalmanFilterOnALinearGaussianCase) {
   const SyntheticProblem p = exactProblem(80, 3);
   EkfConfig c;
-  c.init = knownBelief(p.truth[0], kP0);
+  c.init = knownBelief(p.truth[0], kCrlbStartCovariance);
   Ekf ekf(p.map, p.odometry, c);
   std::vector<Estimate> est;
   for (const Step& s : p.steps) est.push_back(ekf.process(s));
-  const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0);
+  const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance);
   EXPECT_GT(info.observations_used, 80);
   EXPECT_EQ(info.compass_used, 80);
   const std::vector<Eigen::Matrix3d> bound = filteringBound(info);
@@ -150,7 +150,7 @@ TEST(Crlb, FilteringBoundEqualsTheKalmanFilterOnALinearGaussianCase) {
 
 TEST(Crlb, SmoothingBoundEqualsTheKalmanSmootherOnALinearGaussianCase) {
   const SyntheticProblem p = exactProblem(80, 4);
-  const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0);
+  const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance);
   const std::vector<Eigen::Matrix3d> smooth = smoothingBound(info);
   const std::vector<Eigen::Matrix3d> filt = filteringBound(info);
   // The Rauch-Tung-Striebel smoother in covariance form, from the filter's covariances and the
@@ -170,7 +170,7 @@ TEST(Crlb, SmoothingBoundEqualsTheKalmanSmootherOnALinearGaussianCase) {
   for (size_t k = 0; k < n; ++k) EXPECT_LT(relError(smooth[k], rts[k]), 1e-6) << "pose " << k;
   // The batch smoother started at the truth stays there; its chain covariance is the bound.
   BatchSmootherConfig bc;
-  bc.init = knownBelief(p.truth[0], kP0);
+  bc.init = knownBelief(p.truth[0], kCrlbStartCovariance);
   BatchSmoother batch(p.map, p.odometry, bc);
   for (const Step& s : p.steps) batch.process(s);
   const std::vector<Estimate> est = batch.finish();
@@ -187,7 +187,7 @@ TEST(Crlb, BoundsAreTheMarginalsOfTheDenseInverse) {
   o.compass_sigma = 0.1;
   o.observation_probability = 0.4;  // some steps without observations
   const SyntheticProblem p = makeRandomWalkProblem(o, 8);
-  const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0);
+  const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance);
   const Eigen::MatrixXd full_cov = info.dense().inverse();
   const std::vector<Eigen::Matrix3d> smooth = smoothingBound(info);
   std::vector<Eigen::Matrix3d> D, B, chain;
@@ -202,7 +202,7 @@ TEST(Crlb, BoundsAreTheMarginalsOfTheDenseInverse) {
       const size_t m = std::min(k + static_cast<size_t>(lag), p.steps.size() - 1);
       const std::vector<Step> head(p.steps.begin(), p.steps.begin() + static_cast<long>(m) + 1);
       const std::vector<Pose2> truth(p.truth.begin(), p.truth.begin() + static_cast<long>(m) + 1);
-      const Eigen::MatrixXd cov = trajectoryInformation(head, truth, p.map, p.odometry, kP0).dense().inverse();
+      const Eigen::MatrixXd cov = trajectoryInformation(head, truth, p.map, p.odometry, kCrlbStartCovariance).dense().inverse();
       EXPECT_LT(relError(fixed[k], cov.block<3, 3>(3 * static_cast<long>(k), 3 * static_cast<long>(k))), 1e-8)
           << "lag " << lag << " pose " << k;
     }
@@ -221,7 +221,7 @@ TEST(Crlb, SmoothingBoundIsBelowFixedLagBelowFiltering) {
   SyntheticProblemOptions o;
   o.steps = 150;
   const SyntheticProblem p = makeRandomWalkProblem(o, 21);
-  const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0);
+  const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance);
   const std::vector<Eigen::Matrix3d> smooth = smoothingBound(info), filt = filteringBound(info);
   const std::vector<Eigen::Matrix3d> lag5 = fixedLagBound(info, 5), lag20 = fixedLagBound(info, 20);
   double smooth_trace = 0, filt_trace = 0;
@@ -248,28 +248,28 @@ TEST(Crlb, InformationAdds) {
   CrlbOptions motion, sensing;
   motion.observations = motion.compass = false;
   sensing.prior = sensing.odometry = false;
-  TrajectoryInformation sum = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0, motion);
-  const TrajectoryInformation obs = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0, sensing);
+  TrajectoryInformation sum = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance, motion);
+  const TrajectoryInformation obs = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance, sensing);
   EXPECT_EQ(obs.odometry_cross[10].norm(), 0.0);
   EXPECT_GT(obs.unary[10].norm(), 0.0);
   sum += obs;
-  const TrajectoryInformation all = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0);
+  const TrajectoryInformation all = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance);
   EXPECT_LT(relError(sum.dense(), all.dense()), 1e-14);
   EXPECT_EQ(sum.observations_used, all.observations_used);
   EXPECT_EQ(sum.compass_used, all.compass_used);
   // More information never raises the bound: odometry alone (dead reckoning) bounds from above.
-  const std::vector<Eigen::Matrix3d> dr = smoothingBound(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0, motion));
+  const std::vector<Eigen::Matrix3d> dr = smoothingBound(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance, motion));
   const std::vector<Eigen::Matrix3d> full = smoothingBound(all);
   for (size_t k = 0; k < full.size(); ++k)
     EXPECT_GT(minEigenRelative(dr[k] - full[k], dr[k].cwiseAbs().maxCoeff()), -1e-9) << k;
   // Dead reckoning's bound is the propagated covariance (5.9) with U at the true increments.
-  Eigen::Matrix3d P = kP0;
+  Eigen::Matrix3d P = kCrlbStartCovariance;
   for (size_t k = 1; k < p.steps.size(); ++k) {
     const Arc arc = arcBetween(p.truth[k - 1], p.truth[k]);
     const WheelIncrements w = wheelIncrementsForArc(arc.length, arc.dtheta, p.odometry.wheel_base_mm);
     P = predictPose(p.truth[k - 1], P, w.d_left, w.d_right, p.odometry).covariance;
   }
-  EXPECT_LT(relError(filteringBound(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0, motion)).back(), P),
+  EXPECT_LT(relError(filteringBound(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance, motion)).back(), P),
             1e-6);
   // Observations alone do not determine a pose that sees nothing: singular, reported.
   std::vector<Step> blind = p.steps;
@@ -277,7 +277,7 @@ TEST(Crlb, InformationAdds) {
   CrlbOptions only_observations = sensing;
   only_observations.compass = false;
   try {
-    smoothingBound(trajectoryInformation(blind, p.truth, p.map, p.odometry, kP0, only_observations));
+    smoothingBound(trajectoryInformation(blind, p.truth, p.map, p.odometry, kCrlbStartCovariance, only_observations));
     FAIL() << "a singular information was not reported";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("singular"), std::string::npos) << e.what();
@@ -298,7 +298,7 @@ TEST(Crlb, BatchSmootherAttainsTheSmoothingBoundInMonteCarlo) {
     std::normal_distribution<double> N(0.0, 1.0);
     const Pose2 start = plus(p.truth[0], Eigen::Vector3d(sigma0(0) * N(rng), sigma0(1) * N(rng), sigma0(2) * N(rng)));
     BatchSmootherConfig bc;
-    bc.init = knownBelief(start, kP0);
+    bc.init = knownBelief(start, kCrlbStartCovariance);
     BatchSmoother batch(p.map, p.odometry, bc);
     EkfConfig ec;
     ec.init = bc.init;
@@ -309,7 +309,7 @@ TEST(Crlb, BatchSmootherAttainsTheSmoothingBoundInMonteCarlo) {
       filtered.push_back(ekf.process(s));
     }
     const std::vector<Estimate> smoothed = batch.finish();
-    const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0);
+    const TrajectoryInformation info = trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance);
     const std::vector<Eigen::Matrix3d> sb = smoothingBound(info), fb = filteringBound(info);
     for (size_t k = 0; k < p.steps.size(); ++k) {
       se_batch += (smoothed[k].pose.translation() - p.truth[k].translation()).squaredNorm();
@@ -375,16 +375,16 @@ TEST(Crlb, RejectsBadInput) {
   o.steps = 10;
   SyntheticProblem p = makeRandomWalkProblem(o, 1);
   std::vector<Pose2> short_truth(p.truth.begin(), p.truth.end() - 1);
-  EXPECT_THROW(trajectoryInformation(p.steps, short_truth, p.map, p.odometry, kP0), Error);
-  EXPECT_THROW(trajectoryInformation({}, {}, p.map, p.odometry, kP0), Error);
-  EXPECT_THROW(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, -kP0), Error);
-  EXPECT_THROW(fixedLagBound(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0), -1), Error);
+  EXPECT_THROW(trajectoryInformation(p.steps, short_truth, p.map, p.odometry, kCrlbStartCovariance), Error);
+  EXPECT_THROW(trajectoryInformation({}, {}, p.map, p.odometry, kCrlbStartCovariance), Error);
+  EXPECT_THROW(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, -kCrlbStartCovariance), Error);
+  EXPECT_THROW(fixedLagBound(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance), -1), Error);
   p.steps[3].observations.push_back(observationFromRangeBearing(77, LandmarkType::Point, 500.0, 0.1, 10.0, 0.01));
-  EXPECT_THROW(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0), Error);
+  EXPECT_THROW(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance), Error);
   p.steps[3].observations.back().landmark_id = -1;  // unidentified: not information, counted
-  EXPECT_EQ(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0).observations_skipped, 1);
+  EXPECT_EQ(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance).observations_skipped, 1);
   p.steps[5].step = p.steps[4].step;
-  EXPECT_THROW(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kP0), Error);
+  EXPECT_THROW(trajectoryInformation(p.steps, p.truth, p.map, p.odometry, kCrlbStartCovariance), Error);
   EXPECT_EQ(toString(odometryCovarianceAtFromString("measured")), "measured");
   EXPECT_THROW(odometryCovarianceAtFromString("bogus"), Error);
 }

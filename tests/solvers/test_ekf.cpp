@@ -22,14 +22,11 @@
 namespace stereoloc {
 namespace {
 
+using test::SyntheticRun;
+
 // A small synthetic run: the robot drives a circle (radius 500 mm around (850, 650), one lap in
 // 100 steps, as the thesis's circle trial) with noisy wheels, and sees the landmarks within
 // max_range and a 60 deg field of view with Gaussian range-bearing noise.
-struct SyntheticRun {
-  std::vector<Step> steps;
-  std::vector<Pose2> truth;
-};
-
 SyntheticRun circleRun(const FieldMap& map, const OdometryParams& odo, int n, uint64_t seed, double sigma_r = 10.0,
                        double sigma_b = deg2rad(1.0), double max_range = 900.0) {
   // (Observations closer than 150 mm are not generated: the robot's own body.)
@@ -658,7 +655,7 @@ TEST(EkfInit, RandomStartHandsOverToTheGlobalFix) {
 // ambiguous sightings, so the mean distance over steps first sighting + 1 .. 79 (Table 6.14's
 // window) stays far below 100 mm; waiting for the first identifiable landmark (a goal corner)
 // leaves it above.
-double randomStartWindowMean(const FieldMap& map, const OdometryParams& odo, uint64_t seed, bool hypotheses) {
+double ekfRandomStartWindowMean(const FieldMap& map, const OdometryParams& odo, uint64_t seed, bool hypotheses) {
   SyntheticRun run = circleRun(map, odo, 100, 80 + seed, 10.0, deg2rad(0.5), 900.0);
   test::ambiguousSightingsWithCompass(run.steps, run.truth, map, seed);
   std::mt19937_64 rng(seed);
@@ -676,8 +673,8 @@ TEST(EkfInit, RandomStartConvergesFromAmbiguousSightingsWithTheCompass) {
   double worst_with = 0, mean_without = 0;
   const int runs = 5;
   for (uint64_t seed = 0; seed < runs; ++seed) {
-    worst_with = std::max(worst_with, randomStartWindowMean(map, odo, seed, true));
-    mean_without += randomStartWindowMean(map, odo, seed, false) / runs;
+    worst_with = std::max(worst_with, ekfRandomStartWindowMean(map, odo, seed, true));
+    mean_without += ekfRandomStartWindowMean(map, odo, seed, false) / runs;
   }
   EXPECT_LT(worst_with, 30.0);
   EXPECT_GT(mean_without, 100.0);

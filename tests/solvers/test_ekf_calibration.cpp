@@ -30,15 +30,15 @@ namespace {
 using test::meanNees;
 using test::plantedErrorWorld;
 
-EkfConfig knownStart(const Dataset& d) { return test::knownStartConfig<EkfConfig>(d); }
+EkfConfig ekfKnownStart(const Dataset& d) { return test::knownStartConfig<EkfConfig>(d); }
 
-EkfConfig calibrating(const Dataset& d, const std::string& blocks, ObservationModel model = ObservationModel::PixelColumns) {
+EkfConfig calibratingEkf(const Dataset& d, const std::string& blocks, ObservationModel model = ObservationModel::PixelColumns) {
   EkfConfig c = test::calibratingConfig<EkfConfig>(d, blocks);
   c.observation_model.model = model;
   return c;
 }
 
-std::vector<Estimate> run(const Dataset& d, const EkfConfig& c, std::optional<CalibrationEstimate>* calibration = nullptr) {
+std::vector<Estimate> runEkf(const Dataset& d, const EkfConfig& c, std::optional<CalibrationEstimate>* calibration = nullptr) {
   Ekf ekf(d.map, d.odometry, c);
   for (const Step& s : d.steps) ekf.process(s);
   if (calibration) *calibration = ekf.calibration();
@@ -105,14 +105,14 @@ TEST(EkfCalibration, WithVanishingPriorsItIsThePlainEkf) {
   SimulationConfig sc;
   sc.scenario.steps = 120;
   const Dataset d = simulate("circle", 0, sc, 7);
-  EkfConfig c = calibrating(d, "odometry,stereo", ObservationModel::RangeBearing);
+  EkfConfig c = calibratingEkf(d, "odometry,stereo", ObservationModel::RangeBearing);
   SelfCalibrationConfig& k = c.calibration;
   k.wheel_scale_sigma = k.wheel_base_rel_sigma = k.tilt_sigma_rad = k.baseline_scale_sigma = 1e-12;
   k.disparity_offset_sigma_px = k.column_offset_sigma_px = k.focal_ratio_sigma = k.focal_scale_sigma = 1e-12;
   std::optional<CalibrationEstimate> cal;
-  EkfConfig iterated = knownStart(d);
+  EkfConfig iterated = ekfKnownStart(d);
   iterated.max_iterations = 10;
-  const std::vector<Estimate> a = run(d, iterated), b = run(d, c, &cal);
+  const std::vector<Estimate> a = runEkf(d, iterated), b = runEkf(d, c, &cal);
   ASSERT_EQ(a.size(), b.size());
   for (size_t i = 0; i < a.size(); ++i) {
     EXPECT_LT((minus(a[i].pose, b[i].pose)).cwiseAbs().maxCoeff(), 1e-5) << "step " << i;
@@ -123,9 +123,9 @@ TEST(EkfCalibration, WithVanishingPriorsItIsThePlainEkf) {
   ASSERT_TRUE(cal);
   EXPECT_TRUE(cal->odometry && cal->stereo);
   EXPECT_NEAR(cal->wheels(2), d.odometry.wheel_base_mm, 1e-6);
-  EXPECT_FALSE(run(d, knownStart(d)).empty());
+  EXPECT_FALSE(runEkf(d, ekfKnownStart(d)).empty());
   std::optional<CalibrationEstimate> none;
-  run(d, knownStart(d), &none);
+  runEkf(d, ekfKnownStart(d), &none);
   EXPECT_FALSE(none);
 }
 
@@ -136,9 +136,9 @@ TEST(EkfCalibration, RecoversPlantedWheelAndStereoErrors) {
   SimulationTrace trace;
   const Dataset d = plantedErrorWorld(&trace);
   const DrawnErrors& e = trace.errors;
-  const std::vector<Estimate> given = run(d, knownStart(d));
+  const std::vector<Estimate> given = runEkf(d, ekfKnownStart(d));
   std::optional<CalibrationEstimate> cal;
-  const std::vector<Estimate> est = run(d, calibrating(d, "odometry,stereo"), &cal);
+  const std::vector<Estimate> est = runEkf(d, calibratingEkf(d, "odometry,stereo"), &cal);
   ASSERT_TRUE(cal);
   const Eigen::Vector3d truth = test::drawnWheels(trace);
   for (int i = 0; i < 2; ++i) {
@@ -170,7 +170,7 @@ TEST(EkfCalibration, AFixThatAgreesReanchorsAndAKidnapRestarts) {
   const Dataset& d = drive.d;
   const Step& outlier = drive.outlier;
   for (const double offset : {20.0, 3000.0}) {
-    EkfConfig c = calibrating(d, "odometry,stereo");
+    EkfConfig c = calibratingEkf(d, "odometry,stereo");
     c.gate.lost_after = 1;
     const Pose2 target = compose(*d.groundtruth[30], Pose2(offset, 0.0, 0.0));
     c.global_fix = [&](const Step&, const FieldMap&) {
@@ -210,7 +210,7 @@ Dataset realisticLine(int steps, uint64_t seed) {
 }
 
 EkfConfig withNoiseModel(const Dataset& d, bool feature_offsets) {
-  EkfConfig c = calibrating(d, "odometry,stereo");
+  EkfConfig c = calibratingEkf(d, "odometry,stereo");
   c.observation_model.unmodelled = UnmodelledNoise::load(std::string(STEREOLOC_DATA_DIR) + "/noise_realistic.yaml");
   c.calibration.feature_offsets = feature_offsets;
   return c;
@@ -274,13 +274,13 @@ TEST(EkfCalibration, EstimatesAPlantedFeatureOffset) {
         o.pixels->u_left += 1.0;
         o.pixels->u_right += 1.0;
       }
-  EkfConfig c = calibrating(d, "stereo");
+  EkfConfig c = calibratingEkf(d, "stereo");
   c.observation_model.unmodelled.row_offset_sigma_px = 0.5;
   c.observation_model.unmodelled.goal_feature_column_sigma_px = 1.0;
   std::optional<CalibrationEstimate> with, without;
-  const std::vector<Estimate> a = run(d, c, &with);
+  const std::vector<Estimate> a = runEkf(d, c, &with);
   c.calibration.feature_offsets = false;
-  const std::vector<Estimate> b = run(d, c, &without);
+  const std::vector<Estimate> b = runEkf(d, c, &without);
   ASSERT_TRUE(with && without);
   ASSERT_EQ(with->feature_offsets.size(), 4u);  // the four goal corners
   double others = 0;
@@ -336,7 +336,7 @@ TEST(EkfCalibration, AConsideredCalibrationStaysAsGivenAndMakesTheCovarianceHone
   // exact is not, and it tracks better for it (its gate keeps the sightings the over-confident
   // filter rejects).
   const Dataset d = plantedErrorWorld(nullptr);
-  EkfConfig considering = calibrating(d, "odometry,stereo");
+  EkfConfig considering = calibratingEkf(d, "odometry,stereo");
   considering.calibration.consider = true;
   Ekf ekf(d.map, d.odometry, considering);
   for (const Step& s : d.steps) ekf.process(s);
@@ -350,7 +350,7 @@ TEST(EkfCalibration, AConsideredCalibrationStaysAsGivenAndMakesTheCovarianceHone
   EXPECT_EQ(cal->head, CalibrationEstimate().head);
   EXPECT_NEAR(std::sqrt(cal->head_covariance(1, 1)), k.baseline_scale_sigma, 1e-12);
   EXPECT_NEAR(std::sqrt(cal->head_covariance(2, 2)), k.disparity_offset_sigma_px, 1e-12);
-  const std::vector<Estimate> est = ekf.finish(), given = run(d, knownStart(d));
+  const std::vector<Estimate> est = ekf.finish(), given = runEkf(d, ekfKnownStart(d));
   const double nees = meanNees(d, est), nees_given = meanNees(d, given);
   EXPECT_LT(nees, 4.0);
   EXPECT_GT(nees_given, 5.0 * nees) << "considered " << nees;
@@ -365,10 +365,10 @@ TEST(EkfCalibration, BadSettingsAreRejected) {
   SimulationConfig sc;
   sc.scenario.steps = 5;
   const Dataset d = simulate("circle", 0, sc, 1);
-  EkfConfig c = calibrating(d, "odometry");
+  EkfConfig c = calibratingEkf(d, "odometry");
   c.max_iterations = 3;  // the iterated update does not carry the calibration
   EXPECT_THROW(Ekf(d.map, d.odometry, c), Error);
-  c = calibrating(d, "stereo");
+  c = calibratingEkf(d, "stereo");
   c.calibration.disparity_offset_sigma_px = -1.0;
   EXPECT_THROW(Ekf(d.map, d.odometry, c), Error);
 }

@@ -14,6 +14,7 @@
 #include "src/core/measurement_model.h"
 #include "src/core/numeric_diff.h"
 #include "src/core/stereo_rig.h"
+#include "src/eval/evaluation.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -69,11 +70,6 @@ Pose2 facing(double x, double y, const Eigen::Vector2d& target, double offset = 
 
 double nees(const Pose2& estimate, const Pose2& truth, const Eigen::Matrix3d& cov) {
   return mahalanobisSquared<3>(minus(estimate, truth), cov);
-}
-
-// The 95 % band of the mean NEES over n independent samples of a chi-square(dof) variable.
-std::pair<double, double> neesBand(int n, int dof) {
-  return {chi2Quantile(0.025, n * dof) / n, chi2Quantile(0.975, n * dof) / n};
 }
 
 TEST(GlobalFix, EnumsRoundTripByName) {
@@ -427,7 +423,7 @@ struct NeesAccumulator {
 };
 
 ::testing::AssertionResult inBand(double sum, int n, int dof) {
-  const auto [lo, hi] = neesBand(n, dof);
+  const auto [lo, hi] = neesBand(dof, n);
   const double mean = sum / n;
   if (mean >= lo && mean <= hi) return ::testing::AssertionSuccess();
   return ::testing::AssertionFailure() << "mean NEES " << mean << " outside [" << lo << ", " << hi << "] (" << dof
@@ -560,7 +556,7 @@ TEST(GlobalFix, NeesOfRunningFixMonteCarloIsConsistent) {
     ++count;
   }
   EXPECT_GT(count, 0.99 * n);
-  const auto [lo, hi] = neesBand(count, 3);
+  const auto [lo, hi] = neesBand(3, count);
   EXPECT_GT(sum / count, lo);
   EXPECT_LT(sum / count, hi);
 }
@@ -648,7 +644,7 @@ struct NeesMoments {
   ::testing::AssertionResult consistent(int dof) const {
     const double s = dof == 3 ? s3 : s2, q = dof == 3 ? q3 : q2;
     const double mean = s / n, var = q / n - mean * mean, se = std::sqrt(var / n);
-    const auto [lo, hi] = neesBand(n, dof);
+    const auto [lo, hi] = neesBand(dof, n);
     char buf[240];
     std::snprintf(buf, sizeof(buf), "%d-dof mean NEES %.3f +- %.3f (3 s.e.), variance %.2f (chi-square %d); chi-square "
                   "band of the mean [%.3f, %.3f]", dof, mean, 3 * se, var, 2 * dof, lo, hi);

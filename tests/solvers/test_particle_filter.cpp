@@ -20,17 +20,15 @@
 namespace stereoloc {
 namespace {
 
+using test::SyntheticRun;
+
 // The robot drives a circle (radius 500 mm around (850, 650), one lap in 100 steps) with noisy
 // wheels and sees the landmarks within max_range and a 60 deg field of view. From kidnap_step
 // on, the true pose is displaced by kidnap_offset without the odometry knowing.
-struct SyntheticRun {
-  std::vector<Step> steps;
-  std::vector<Pose2> truth;
-};
-
-SyntheticRun circleRun(const FieldMap& map, const OdometryParams& odo, int n, uint64_t seed, double max_range = 900.0,
-                       int kidnap_step = -1, const Eigen::Vector3d& kidnap_offset = Eigen::Vector3d::Zero(),
-                       double sr = 10.0, double sb = deg2rad(1.0)) {
+SyntheticRun circleRunWithKidnap(const FieldMap& map, const OdometryParams& odo, int n, uint64_t seed,
+                                 double max_range = 900.0, int kidnap_step = -1,
+                                 const Eigen::Vector3d& kidnap_offset = Eigen::Vector3d::Zero(), double sr = 10.0,
+                                 double sb = deg2rad(1.0)) {
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> n01(0.0, 1.0);
   SyntheticRun run;
@@ -207,7 +205,7 @@ TEST(Resampling, SortedRouletteIsUnbiased) {
 TEST(ParticleFilter, ConvergesToTheEkfOnAWellObservedRun) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;
-  const SyntheticRun run = circleRun(map, odo, 60, 31, 2000.0);
+  const SyntheticRun run = circleRunWithKidnap(map, odo, 60, 31, 2000.0);
   const Eigen::Matrix3d P0 = Eigen::Vector3d(400.0, 400.0, 0.003).asDiagonal();
   EkfConfig ec;
   ec.init = knownBelief(run.truth[0], P0);
@@ -245,7 +243,7 @@ TEST(ParticleFilter, ReinjectionRecoversFromAKidnap) {
   const int kidnap = 30;
   for (uint64_t seed : {41u, 44u, 47u}) {
     const SyntheticRun run =
-        circleRun(map, odo, 100, seed, 2000.0, kidnap, Eigen::Vector3d(-350.0, 250.0, 0.0), 40.0, deg2rad(3.0));
+        circleRunWithKidnap(map, odo, 100, seed, 2000.0, kidnap, Eigen::Vector3d(-350.0, 250.0, 0.0), 40.0, deg2rad(3.0));
     auto stepsToRecover = [&](int reinjected, double bandwidth, ParticleProposal proposal = ParticleProposal::Prior) {
       ParticleFilterConfig pc;
       pc.proposal = proposal;
@@ -285,7 +283,7 @@ TEST(ParticleFilter, LostStatusAndGlobalFixRedrawsTheParticles) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;
   const int kidnap = 30;
-  const SyntheticRun run = circleRun(map, odo, 60, 43, 2000.0, kidnap, Eigen::Vector3d(-350.0, 250.0, 0.6));
+  const SyntheticRun run = circleRunWithKidnap(map, odo, 60, 43, 2000.0, kidnap, Eigen::Vector3d(-350.0, 250.0, 0.6));
   ParticleFilterConfig pc;
   pc.init = knownBelief(run.truth[0], Eigen::Vector3d(100.0, 100.0, 0.003).asDiagonal());
   pc.reinjected = 0;
@@ -347,7 +345,7 @@ ParticleFilterConfig knownStart(const SyntheticRun& run, int particles) {
 TEST(ParticleFilter, IsDeterministicForASeed) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;
-  const SyntheticRun run = circleRun(map, odo, 40, 51);
+  const SyntheticRun run = circleRunWithKidnap(map, odo, 40, 51);
   ParticleFilterConfig pc = knownStart(run, 500);
   for (ResamplingScheme scheme : {ResamplingScheme::Systematic, ResamplingScheme::SortedRoulette}) {
     pc.resampling = scheme;
@@ -370,7 +368,7 @@ TEST(ParticleFilter, IsDeterministicForASeed) {
 TEST(ParticleFilter, WithoutHistoryFinishKeepsOnlyTheNewestEstimate) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;
-  const SyntheticRun run = circleRun(map, odo, 30, 52);
+  const SyntheticRun run = circleRunWithKidnap(map, odo, 30, 52);
   ParticleFilterConfig pc = knownStart(run, 300);
   ParticleFilter kept(map, odo, pc, 7);
   pc.keep_history = false;
@@ -382,7 +380,7 @@ TEST(ParticleFilter, InitialisationModes) {
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;
   const SyntheticRun run =
-      circleRun(map, odo, 60, 61, 2000.0, -1, Eigen::Vector3d::Zero(), 40.0, deg2rad(3.0));
+      circleRunWithKidnap(map, odo, 60, 61, 2000.0, -1, Eigen::Vector3d::Zero(), 40.0, deg2rad(3.0));
   // Global: uninitialised until the fix at step 5.
   ParticleFilterConfig g;
   g.particles = 1000;
@@ -623,7 +621,7 @@ TEST(ParticleFilter, KldSamplingBoundAndAdaptiveSize) {
   EXPECT_EQ(kldSampleSize(1, 0.05, 0.99), 1);
   const FieldMap map = FieldMap::miroSot();
   const OdometryParams odo;
-  const SyntheticRun run = circleRun(map, odo, 60, 21);
+  const SyntheticRun run = circleRunWithKidnap(map, odo, 60, 21);
   ParticleFilterConfig c;
   c.kld.enabled = true;
   c.init.mode = InitMode::Random;
@@ -683,7 +681,7 @@ TEST(ParticleFilter, RandomStartHandsOverToTheGlobalFix) {
   double worst = 0;
   const int runs = 4;
   for (uint64_t seed = 0; seed < runs; ++seed) {
-    SyntheticRun run = circleRun(map, odo, 80, 60 + seed, 1500.0, -1, Eigen::Vector3d::Zero(), 10.0, deg2rad(0.5));
+    SyntheticRun run = circleRunWithKidnap(map, odo, 80, 60 + seed, 1500.0, -1, Eigen::Vector3d::Zero(), 10.0, deg2rad(0.5));
     for (Step& s : run.steps)
       for (Observation& o : s.observations)
         if (!map.at(o.landmark_id).unique) o.landmark_id = -1;
@@ -718,8 +716,8 @@ TEST(ParticleFilter, RandomStartHandsOverToTheGlobalFix) {
 // mixture is one mode, so the mean distance over steps first sighting + 1 .. 79 (Table 6.14's
 // window) stays far below 100 mm; a uniform set that waits for the first identifiable landmark (a
 // goal corner) stays above.
-double randomStartWindowMean(const FieldMap& map, const OdometryParams& odo, uint64_t seed, bool hypotheses) {
-  SyntheticRun run = circleRun(map, odo, 80, 80 + seed, 900.0, -1, Eigen::Vector3d::Zero(), 10.0, deg2rad(0.5));
+double pfRandomStartWindowMean(const FieldMap& map, const OdometryParams& odo, uint64_t seed, bool hypotheses) {
+  SyntheticRun run = circleRunWithKidnap(map, odo, 80, 80 + seed, 900.0, -1, Eigen::Vector3d::Zero(), 10.0, deg2rad(0.5));
   test::ambiguousSightingsWithCompass(run.steps, run.truth, map, seed);
   ParticleFilterConfig c;
   c.init.mode = InitMode::Random;
@@ -735,8 +733,8 @@ TEST(ParticleFilter, RandomStartConvergesFromAmbiguousSightingsWithTheCompass) {
   double worst_with = 0, mean_without = 0;
   const int runs = 4;
   for (uint64_t seed = 0; seed < runs; ++seed) {
-    worst_with = std::max(worst_with, randomStartWindowMean(map, odo, seed, true));
-    mean_without += randomStartWindowMean(map, odo, seed, false) / runs;
+    worst_with = std::max(worst_with, pfRandomStartWindowMean(map, odo, seed, true));
+    mean_without += pfRandomStartWindowMean(map, odo, seed, false) / runs;
   }
   EXPECT_LT(worst_with, 30.0);
   EXPECT_GT(mean_without, 100.0);

@@ -29,13 +29,13 @@ namespace {
 using test::meanNees;
 using test::plantedErrorWorld;
 
-ParticleFilterConfig knownStart(const Dataset& d) { return test::knownStartConfig<ParticleFilterConfig>(d); }
+ParticleFilterConfig pfKnownStart(const Dataset& d) { return test::knownStartConfig<ParticleFilterConfig>(d); }
 
-ParticleFilterConfig calibrating(const Dataset& d, const std::string& blocks) {
+ParticleFilterConfig calibratingPf(const Dataset& d, const std::string& blocks) {
   return test::calibratingConfig<ParticleFilterConfig>(d, blocks);
 }
 
-std::vector<Estimate> run(const Dataset& d, const ParticleFilterConfig& c,
+std::vector<Estimate> runPf(const Dataset& d, const ParticleFilterConfig& c,
                           std::optional<CalibrationEstimate>* calibration = nullptr) {
   ParticleFilter pf(d.map, d.odometry, c, 7);
   for (const Step& s : d.steps) pf.process(s);
@@ -93,9 +93,9 @@ TEST(ParticleFilterCalibration, RecoversPlantedWheelAndStereoErrorsAndIsConsiste
   SimulationTrace trace;
   const Dataset d = plantedErrorWorld(&trace);
   const DrawnErrors& e = trace.errors;
-  const std::vector<Estimate> given = run(d, knownStart(d));
+  const std::vector<Estimate> given = runPf(d, pfKnownStart(d));
   std::optional<CalibrationEstimate> cal;
-  const std::vector<Estimate> est = run(d, calibrating(d, "odometry,stereo"), &cal);
+  const std::vector<Estimate> est = runPf(d, calibratingPf(d, "odometry,stereo"), &cal);
   ASSERT_TRUE(cal);
   EXPECT_TRUE(cal->odometry);
   EXPECT_TRUE(cal->stereo);
@@ -126,7 +126,7 @@ TEST(ParticleFilterCalibration, AFixThatAgreesWeightsTheSetAndAKidnapRedrawsIt) 
   const Dataset& d = drive.d;
   const Step& outlier = drive.outlier;
   for (const double offset : {20.0, 5000.0}) {
-    ParticleFilterConfig c = calibrating(d, "odometry");
+    ParticleFilterConfig c = calibratingPf(d, "odometry");
     c.particles = 500;
     c.gate.lost_after = 1;
     const Pose2 target = compose(*d.groundtruth[30], Pose2(offset, 0.0, 0.0));
@@ -154,7 +154,7 @@ TEST(ParticleFilterCalibration, AFixThatAgreesWeightsTheSetAndAKidnapRedrawsIt) 
 TEST(ParticleFilterCalibration, ASavedStateReplaysBitForBit) {
   // The Localizer goes back to a saved state for a late frame: the calibrations are part of it.
   const Dataset d = plantedErrorWorld(nullptr);
-  ParticleFilterConfig c = calibrating(d, "odometry,stereo");
+  ParticleFilterConfig c = calibratingPf(d, "odometry,stereo");
   c.particles = 500;
   ParticleFilter pf(d.map, d.odometry, c, 11);
   const size_t k = 150, end = 260;
@@ -182,20 +182,20 @@ TEST(ParticleFilterCalibration, SettingsItCannotServeAreRefused) {
   const auto refused = [&](const ParticleFilterConfig& c) {
     return test::errorOf([&] { ParticleFilter(d.map, d.odometry, c, 1); });
   };
-  EXPECT_NE(refused(calibrating(d, "odometry,range")).find("odometry and stereo blocks only"), std::string::npos);
-  ParticleFilterConfig field = calibrating(d, "odometry,stereo,field");
+  EXPECT_NE(refused(calibratingPf(d, "odometry,range")).find("odometry and stereo blocks only"), std::string::npos);
+  ParticleFilterConfig field = calibratingPf(d, "odometry,stereo,field");
   EXPECT_NE(refused(field).find("odometry and stereo blocks only"), std::string::npos);
-  ParticleFilterConfig considered = calibrating(d, "stereo");
+  ParticleFilterConfig considered = calibratingPf(d, "stereo");
   considered.calibration.consider = true;
   EXPECT_NE(refused(considered).find("odometry and stereo blocks only"), std::string::npos);
-  ParticleFilterConfig prior = calibrating(d, "odometry");
+  ParticleFilterConfig prior = calibratingPf(d, "odometry");
   prior.proposal = ParticleProposal::Prior;
   EXPECT_NE(refused(prior).find("linearised optimal proposal"), std::string::npos);
-  ParticleFilterConfig discount = calibrating(d, "odometry");
+  ParticleFilterConfig discount = calibratingPf(d, "odometry");
   discount.calibration_discount = 0.0;
   EXPECT_NE(refused(discount).find("calibration_discount"), std::string::npos);
   // The stereo block sees each sighting's pixels; a sighting without them is named.
-  ParticleFilter pf(d.map, d.odometry, calibrating(d, "stereo"), 1);
+  ParticleFilter pf(d.map, d.odometry, calibratingPf(d, "stereo"), 1);
   Step step = d.steps[1];
   ASSERT_FALSE(step.observations.empty());
   step.observations[0].pixels.reset();
@@ -204,7 +204,7 @@ TEST(ParticleFilterCalibration, SettingsItCannotServeAreRefused) {
   EXPECT_NE(error.find("step 1: observation 0: the stereo calibration needs the sighting's pixels"), std::string::npos)
       << error;
   // Without a calibration block the filter reports none, and has none per particle.
-  ParticleFilter plain(d.map, d.odometry, knownStart(d), 1);
+  ParticleFilter plain(d.map, d.odometry, pfKnownStart(d), 1);
   EXPECT_FALSE(plain.calibration());
   EXPECT_EQ(plain.particleCalibration(0).size(), 0);
 }

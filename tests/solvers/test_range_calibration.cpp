@@ -25,7 +25,7 @@
 namespace stereoloc {
 namespace {
 
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(20.0, 20.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
+const Eigen::Matrix3d kRangeStartCovariance = Eigen::Vector3d(20.0, 20.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
 // A sensor that reads 3 % long on its axis, 7 % short 0.5 rad off it, and 0.6 degrees to the left.
 const Eigen::Vector4d kPlanted(0.03, 0.02, -0.4, deg2rad(0.6));
 
@@ -79,7 +79,7 @@ void expectPlantedWithin3Sigma(const CalibrationEstimate& c, const char* who) {
 TEST(RangeCalibration, BatchAndWindowRecoverAPlantedSensorModelFromTheDataAlone) {
   const SyntheticProblem p = plantedSensorWalk(1500, 3);
   BatchSmootherConfig bc;
-  bc.init = knownBelief(p.truth.front(), kP0);
+  bc.init = knownBelief(p.truth.front(), kRangeStartCovariance);
   BatchSmoother plain(p.map, p.odometry, bc);
   const double rmse_plain = rmse(run(plain, p), p.truth);
 
@@ -107,7 +107,7 @@ TEST(RangeCalibration, BatchAndWindowRecoverAPlantedSensorModelFromTheDataAlone)
 TEST(RangeCalibration, WindowAsLongAsTheDataIsTheBatch) {
   const SyntheticProblem p = plantedSensorWalk(150, 4);
   BatchSmootherConfig bc;
-  bc.init = knownBelief(p.truth.front(), kP0);
+  bc.init = knownBelief(p.truth.front(), kRangeStartCovariance);
   bc.calibration = SelfCalibrationConfig::parse("odometry,range");
   bc.cut_at_reinitialisation = false;
   bc.function_tolerance = bc.parameter_tolerance = bc.gradient_tolerance = 1e-16;
@@ -152,7 +152,7 @@ TEST(RangeCalibration, TheGateSeesTheSightingsThroughTheCalibration) {
     }
   SlidingWindowConfig c;
   c.window = 20;
-  c.init = knownBelief(p.truth.front(), kP0);
+  c.init = knownBelief(p.truth.front(), kRangeStartCovariance);
   SlidingWindowSmoother given(p.map, p.odometry, c);
   for (const Step& s : p.steps) given.process(s);
   given.finish();
@@ -208,7 +208,7 @@ TEST(RangeCalibration, FurthestFromPriorAndTheRigFileNameTheRangeBlock) {
 TEST(RangeCalibration, TheEkfEstimatesOrConsidersTheRangeBlock) {
   const SyntheticProblem p = plantedSensorWalk(1500, 3);
   EkfConfig c;
-  c.init = knownBelief(p.truth.front(), kP0);
+  c.init = knownBelief(p.truth.front(), kRangeStartCovariance);
   Ekf plain(p.map, p.odometry, c);
   const double rmse_plain = rmse(run(plain, p), p.truth);
   c.calibration = SelfCalibrationConfig::parse("range");

@@ -5,23 +5,20 @@
 #include <Eigen/Cholesky>
 #include <cmath>
 
+#include "kidnapped_walk.h"
 #include "solvers/batch_smoother.h"
 #include "solvers/ekf.h"
 #include "solvers/sliding_window_smoother.h"
 #include "solvers/smoother_common.h"
 #include "src/core/error.h"
-#include "kidnapped_walk.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
 
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal();
+const Eigen::Matrix3d kWindowStartCovariance = Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal();
 
-double positionRmse(const std::vector<Estimate>& est, const std::vector<Pose2>& truth) {
-  double s = 0;
-  for (size_t i = 0; i < est.size(); ++i) s += (est[i].pose.translation() - truth[i].translation()).squaredNorm();
-  return std::sqrt(s / static_cast<double>(est.size()));
-}
+using test::positionRmse;
 
 TEST(SlidingWindow, WindowOneWithOneGaussNewtonStepIsTheEkf) {
   // At most one update per step (the EKF relinearises between sequential updates; a joint
@@ -39,7 +36,7 @@ TEST(SlidingWindow, WindowOneWithOneGaussNewtonStepIsTheEkf) {
   // factor) and every step a keyframe (keyframe_max_steps = 1): both are the EKF.
   for (int keyframe_max_steps : {SlidingWindowConfig().keyframe_max_steps, 1}) {
     EkfConfig ec;
-    ec.init = knownBelief(p.truth[0], kP0);
+    ec.init = knownBelief(p.truth[0], kWindowStartCovariance);
     Ekf ekf(p.map, p.odometry, ec);
     SlidingWindowConfig wc;
     wc.window = 1;
@@ -101,7 +98,7 @@ TEST(SlidingWindow, WholeTrajectoryWindowEqualsBatch) {
   o.compass_sigma = 0.05;
   const SyntheticProblem p = makeRandomWalkProblem(o, 9);
   BatchSmootherConfig bc;
-  bc.init = knownBelief(p.truth[0], kP0);
+  bc.init = knownBelief(p.truth[0], kWindowStartCovariance);
   // Both solved to the limit of double precision, so that only the formulation could differ.
   bc.function_tolerance = 1e-16;
   bc.parameter_tolerance = 1e-16;
@@ -153,7 +150,7 @@ TEST(SlidingWindow, SmoothsBetterThanFilteringAndMarginalisesConsistently) {
     o.steps = 300;
     const SyntheticProblem p = makeRandomWalkProblem(o, seed);
     SlidingWindowConfig wc;
-    wc.init = knownBelief(p.truth[0], kP0);
+    wc.init = knownBelief(p.truth[0], kWindowStartCovariance);
     SlidingWindowSmoother win(p.map, p.odometry, wc);
     std::vector<Estimate> realtime;
     for (const Step& s : p.steps) {
@@ -187,7 +184,7 @@ TEST(SlidingWindow, KeyframesSpanSparseObservations) {
   for (size_t k = 0; k < p.steps.size(); ++k)
     if (k % 6 != 0) p.steps[k].observations.clear();
   BatchSmootherConfig bc;
-  bc.init = knownBelief(p.truth[0], kP0);
+  bc.init = knownBelief(p.truth[0], kWindowStartCovariance);
   BatchSmoother batch(p.map, p.odometry, bc);
   for (const Step& s : p.steps) batch.process(s);
   const std::vector<Estimate> eb = batch.finish();
@@ -248,7 +245,7 @@ TEST(SlidingWindow, RobustLossResistsOutliers) {
   const SyntheticProblem p = makeRandomWalkProblem(o, 23);
   auto run = [&](RobustLoss type, double scale) {
     SlidingWindowConfig wc;
-    wc.init = knownBelief(p.truth[0], kP0);
+    wc.init = knownBelief(p.truth[0], kWindowStartCovariance);
     wc.gate_enabled = false;
     wc.robust_loss.type = type;
     wc.robust_loss.scale = scale;
@@ -264,7 +261,7 @@ TEST(SlidingWindow, RobustLossResistsOutliers) {
   // With a robust loss the gate is off unless asked for (gate_with_robust_loss).
   for (bool keep_gate : {false, true}) {
     SlidingWindowConfig wc;
-    wc.init = knownBelief(p.truth[0], kP0);
+    wc.init = knownBelief(p.truth[0], kWindowStartCovariance);
     wc.robust_loss.type = RobustLoss::Huber;
     wc.gate_with_robust_loss = keep_gate;
     SlidingWindowSmoother win(p.map, p.odometry, wc);
@@ -286,7 +283,7 @@ TEST(SlidingWindow, BlindStepsGrowTheCovarianceAndRecover) {
   SyntheticProblem p = makeRandomWalkProblem(o, 13);
   for (int k = 50; k < 100; ++k) p.steps[static_cast<size_t>(k)].observations.clear();
   SlidingWindowConfig wc;
-  wc.init = knownBelief(p.truth[0], kP0);
+  wc.init = knownBelief(p.truth[0], kWindowStartCovariance);
   SlidingWindowSmoother win(p.map, p.odometry, wc);
   double last_trace = 0;
   for (const Step& s : p.steps) {
@@ -310,7 +307,7 @@ TEST(SlidingWindow, LongRunInBoundedWindow) {
   SlidingWindowConfig wc;
   wc.window = 10;
   wc.keep_history = false;
-  wc.init = knownBelief(p.truth[0], kP0);
+  wc.init = knownBelief(p.truth[0], kWindowStartCovariance);
   SlidingWindowSmoother win(p.map, p.odometry, wc);
   double worst = 0;
   for (const Step& s : p.steps) {
@@ -326,7 +323,7 @@ TEST(SlidingWindow, LostTrackingReinitialisesFromGlobalFix) {
   const SyntheticProblem p = test::kidnappedWalk();
   int fixes_asked = 0;
   SlidingWindowConfig wc;
-  wc.init = knownBelief(p.truth[0], kP0);
+  wc.init = knownBelief(p.truth[0], kWindowStartCovariance);
   wc.global_fix = [&](const Step& s, const FieldMap&) -> std::optional<PoseFix> {
     ++fixes_asked;
     if (s.observations.size() < 2) return std::nullopt;
@@ -358,7 +355,7 @@ TEST(SlidingWindow, AStepThatFailsHalfwayGivesTheWindowUpUntilTheNextFix) {
   const SyntheticProblem p = test::kidnappedWalk();
   bool failed_once = false;
   SlidingWindowConfig wc;
-  wc.init = knownBelief(p.truth[0], kP0);
+  wc.init = knownBelief(p.truth[0], kWindowStartCovariance);
   wc.global_fix = [&](const Step& s, const FieldMap&) -> std::optional<PoseFix> {
     if (s.observations.size() < 2) return std::nullopt;
     if (!failed_once) {
@@ -410,7 +407,7 @@ TEST(SlidingWindow, GlobalStartAndErrors) {
   SlidingWindowConfig wc;
   wc.global_fix = [&](const Step& s, const FieldMap&) -> std::optional<PoseFix> {
     if (s.step < 5) return std::nullopt;
-    return PoseFix{p.truth[static_cast<size_t>(s.step)], kP0};
+    return PoseFix{p.truth[static_cast<size_t>(s.step)], kWindowStartCovariance};
   };
   SlidingWindowSmoother win(p.map, p.odometry, wc);
   for (const Step& s : p.steps) {
@@ -436,7 +433,7 @@ TEST(SlidingWindow, Deterministic) {
   const SyntheticProblem p = makeRandomWalkProblem(o, 6);
   SlidingWindowConfig wc;
   wc.window = 8;
-  wc.init = knownBelief(p.truth[0], kP0);
+  wc.init = knownBelief(p.truth[0], kWindowStartCovariance);
   SlidingWindowSmoother a(p.map, p.odometry, wc), b(p.map, p.odometry, wc);
   for (const Step& s : p.steps) {
     const Estimate ea = a.process(s), eb = b.process(s);

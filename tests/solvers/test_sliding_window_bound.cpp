@@ -18,7 +18,7 @@ namespace stereoloc {
 namespace {
 
 // The known start's P0 (section 6.5).
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal();
+const Eigen::Matrix3d kBoundStartCovariance = Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal();
 
 struct BoundRun {
   double se = 0, bound = 0;  // summed squared position error and bound trace (mm^2)
@@ -42,7 +42,7 @@ BoundRun runLine(double offset, double reanchor_probability, bool retest_gated =
     const Pose2 truth0 = *d.groundtruth.front();
     SlidingWindowConfig c;
     c.window = 20;
-    c.init = knownBelief(Pose2(truth0.x + offset, truth0.y + offset, truth0.theta), kP0);
+    c.init = knownBelief(Pose2(truth0.x + offset, truth0.y + offset, truth0.theta), kBoundStartCovariance);
     c.observation_model = {ObservationModel::PixelColumns, d.rig};
     c.reanchor_probability = reanchor_probability;
     c.retest_gated = retest_gated;
@@ -54,7 +54,7 @@ BoundRun runLine(double offset, double reanchor_probability, bool retest_gated =
     out.reinitialisations += win.stats().reinitialisations;
     CrlbOptions crlb;
     crlb.observation_model = c.observation_model;
-    const TrajectoryInformation info = trajectoryInformation(d, kP0, crlb);
+    const TrajectoryInformation info = trajectoryInformation(d, kBoundStartCovariance, crlb);
     const std::vector<Eigen::Matrix3d> bound = fixedLagBound(info, c.window - 1);
     const std::vector<PoseError> errors = poseErrors(est, truthByStep(d.steps, d.groundtruth));
     EXPECT_EQ(errors.size(), info.steps.size());
@@ -114,10 +114,10 @@ NeesRun lineNees(int trials, WindowLinearisation linearisation, bool retest_gate
     std::mt19937_64 rng(seed);
     std::normal_distribution<double> N(0.0, 1.0);
     const Pose2 truth0 = *d.groundtruth.front();
-    const Eigen::Vector3d sd = kP0.diagonal().cwiseSqrt();
+    const Eigen::Vector3d sd = kBoundStartCovariance.diagonal().cwiseSqrt();
     SlidingWindowConfig c;
     c.window = 20;
-    c.init = knownBelief(Pose2(truth0.x + sd(0) * N(rng), truth0.y + sd(1) * N(rng), truth0.theta + sd(2) * N(rng)), kP0);
+    c.init = knownBelief(Pose2(truth0.x + sd(0) * N(rng), truth0.y + sd(1) * N(rng), truth0.theta + sd(2) * N(rng)), kBoundStartCovariance);
     c.observation_model = {ObservationModel::PixelColumns, d.rig};
     c.linearisation = linearisation;
     c.retest_gated = retest_gated;

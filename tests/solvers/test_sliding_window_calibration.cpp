@@ -31,7 +31,7 @@
 namespace stereoloc {
 namespace {
 
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal();
+const Eigen::Matrix3d kCalibrationStartCovariance = Eigen::Vector3d(30.0, 30.0, deg2rad(5.0)).cwiseAbs2().asDiagonal();
 
 // A world whose only errors are the wheels' (1 % scales, 3 % wheel base), all landmarks seen.
 SimulationConfig wheelErrorWorld(int steps) {
@@ -74,7 +74,7 @@ Dataset realisticRun(uint64_t seed, const std::string& scenario, int steps) {
 SlidingWindowConfig calibratingWindow(const Dataset& d, int window) {
   SlidingWindowConfig c;
   c.window = window;
-  c.init = knownBelief(*d.groundtruth.front(), kP0);
+  c.init = knownBelief(*d.groundtruth.front(), kCalibrationStartCovariance);
   c.observation_model = {ObservationModel::PixelColumns, d.rig};
   c.calibration = SelfCalibrationConfig::parse("odometry,stereo");
   return c;
@@ -84,7 +84,7 @@ TEST(SlidingWindowCalibration, WindowAsLongAsTheDataIsTheSelfCalibratingBatch) {
   const Dataset d = realisticRun(3, "random-walk", 200);
   // Both solved to the limit of double precision, so that only the formulation could differ.
   BatchSmootherConfig bc;
-  bc.init = knownBelief(*d.groundtruth.front(), kP0);
+  bc.init = knownBelief(*d.groundtruth.front(), kCalibrationStartCovariance);
   bc.observation_model = {ObservationModel::PixelColumns, d.rig};
   bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
   test::solveToTheLimit(bc);
@@ -125,7 +125,7 @@ std::pair<CalibrationEstimate, CalibrationEstimate> expectWholeDataWindowIsBatch
   // the exposure offset's factors at the wheels' body rate, as the window in real time.
   BatchSmootherConfig bc;
   bc.exposure_rate = BodyRateSource::Odometry;
-  bc.init = knownBelief(*d.groundtruth.front(), kP0);
+  bc.init = knownBelief(*d.groundtruth.front(), kCalibrationStartCovariance);
   bc.observation_model = {ObservationModel::PixelColumns, d.rig, 0.0, noise};
   bc.calibration = SelfCalibrationConfig::parse("odometry,stereo");
   test::solveToTheLimit(bc);
@@ -460,7 +460,7 @@ TEST(SlidingWindowCalibration, SparseSightingsKeepTheKeyframeSpanAndRecoverTheWh
 
   SlidingWindowConfig plain;
   plain.window = 20;
-  plain.init = knownBelief(*d.groundtruth.front(), kP0);
+  plain.init = knownBelief(*d.groundtruth.front(), kCalibrationStartCovariance);
   SlidingWindowConfig calibrating = plain;
   calibrating.calibration = SelfCalibrationConfig::parse("odometry");
   SlidingWindowSmoother a(d.map, d.odometry, plain), b(d.map, d.odometry, calibrating);
@@ -665,7 +665,7 @@ TEST(SlidingWindowCalibration, PredictionAcrossABlindStretchIsTheWindowsMarginal
   }
   SlidingWindowConfig predicting;
   predicting.window = 20;
-  predicting.init = knownBelief(*d.groundtruth.front(), kP0);
+  predicting.init = knownBelief(*d.groundtruth.front(), kCalibrationStartCovariance);
   predicting.calibration = SelfCalibrationConfig::parse("odometry");
   predicting.function_tolerance = predicting.parameter_tolerance = predicting.gradient_tolerance = 1e-14;
   SlidingWindowConfig keyframing = predicting;
@@ -709,7 +709,7 @@ TEST(SlidingWindowCalibration, ALossThatIsNoKidnapKeepsTheOdometryAcrossIt) {
     for (const bool chi2_alone : {true, false}) {
       SlidingWindowConfig c;
       c.window = 20;
-      c.init = knownBelief(*d.groundtruth.front(), kP0);
+      c.init = knownBelief(*d.groundtruth.front(), kCalibrationStartCovariance);
       c.calibration = SelfCalibrationConfig::parse("odometry");
       if (chi2_alone) c.restart_min_evidence = 0.0;
       SlidingWindowSmoother w(d.map, d.odometry, c);
@@ -745,7 +745,7 @@ TEST(SlidingWindowCalibration, AStepThatFailsHalfwayHandsTheCalibrationToTheNext
   const Eigen::Vector3d truth = test::drawnWheels(trace);
   SlidingWindowConfig c;
   c.window = 20;
-  c.init = knownBelief(*d.groundtruth.front(), kP0);
+  c.init = knownBelief(*d.groundtruth.front(), kCalibrationStartCovariance);
   c.calibration = SelfCalibrationConfig::parse("odometry");
   const GlobalFixFunction fix = defaultGlobalFix();
   int calls = 0;

@@ -12,11 +12,14 @@
 #include "solvers/sliding_window_smoother.h"
 #include "solvers/smoother_common.h"
 #include "src/core/error.h"
+#include "test_util.h"
 
 namespace stereoloc {
 namespace {
 
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal();
+using test::positionRmse;
+
+const Eigen::Matrix3d kLateStartCovariance = Eigen::Vector3d(10.0, 10.0, 0.02).cwiseAbs2().asDiagonal();
 
 // Observations on every 4th step only (the camera slower than the encoders).
 SyntheticProblem cameraEveryFourthStep(int steps, uint64_t seed) {
@@ -32,7 +35,7 @@ SyntheticProblem cameraEveryFourthStep(int steps, uint64_t seed) {
 SlidingWindowConfig exactConfig(const SyntheticProblem& p, int window) {
   SlidingWindowConfig c;
   c.window = window;
-  c.init = knownBelief(p.truth[0], kP0);
+  c.init = knownBelief(p.truth[0], kLateStartCovariance);
   // Solved to convergence at every step, so that the solution does not depend on the path.
   c.max_iterations = 100;
   c.function_tolerance = 1e-16;
@@ -209,12 +212,6 @@ TEST(SlidingWindowLate, FirstEstimateJacobiansKeepTheInOrderPoses) {
   EXPECT_LT(pose, 1e-6);
   EXPECT_LT(cov, 0.05);
   RecordProperty("max_relative_covariance_difference", std::to_string(cov));
-}
-
-double positionRmse(const std::vector<Estimate>& est, const std::vector<Pose2>& truth) {
-  double s = 0;
-  for (size_t i = 0; i < est.size(); ++i) s += (est[i].pose.translation() - truth[i].translation()).squaredNorm();
-  return std::sqrt(s / static_cast<double>(est.size()));
 }
 
 TEST(SlidingWindowLate, MarginalisedWindowStaysCloseToInOrder) {

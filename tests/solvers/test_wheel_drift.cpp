@@ -19,7 +19,7 @@
 namespace stereoloc {
 namespace {
 
-const Eigen::Matrix3d kP0 = Eigen::Vector3d(10.0, 10.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
+const Eigen::Matrix3d kDriftStartCovariance = Eigen::Vector3d(10.0, 10.0, deg2rad(2.0)).cwiseAbs2().asDiagonal();
 
 UnmodelledNoise drifting(double scale, double base) {
   UnmodelledNoise n;
@@ -56,7 +56,7 @@ TEST(WheelDrift, TheFiltersWheelVarianceIsThePriorsPlusTheWalk) {
   const SyntheticProblem p = blindDrive();
   for (const bool consider : {false, true}) {
     EkfConfig c;
-    c.init = knownBelief(p.truth.front(), kP0);
+    c.init = knownBelief(p.truth.front(), kDriftStartCovariance);
     c.calibration = SelfCalibrationConfig::parse("odometry");
     c.calibration.consider = consider;
     c.observation_model.unmodelled = drifting(0.002, 0.01);
@@ -79,7 +79,7 @@ TEST(WheelDrift, TheWindowsMarginalPriorWalksOverTheMarginalisedTravel) {
   SlidingWindowConfig c;
   c.window = 4;
   c.keyframe_max_steps = 10;
-  c.init = knownBelief(p.truth.front(), kP0);
+  c.init = knownBelief(p.truth.front(), kDriftStartCovariance);
   c.calibration = SelfCalibrationConfig::parse("odometry");
   c.observation_model.unmodelled = drifting(0.002, 0.01);
   SlidingWindowSmoother win(p.map, p.odometry, c);
@@ -129,7 +129,7 @@ TEST(WheelDrift, TheCalibratingFilterFollowsWheelsThatDrift) {
     const Dataset d = simulate("random-walk", 0, sc, seed, &trace);
     for (const bool drift : {false, true}) {
       EkfConfig c;
-      c.init = knownBelief(*d.groundtruth.front(), kP0);
+      c.init = knownBelief(*d.groundtruth.front(), kDriftStartCovariance);
       c.calibration = SelfCalibrationConfig::parse("odometry");
       c.observation_model = {ObservationModel::PixelColumns, d.rig};
       if (drift) c.observation_model.unmodelled = drifting(0.003, 0.0);
