@@ -4,8 +4,8 @@
 // what it estimates, so that a self-calibration can start from the calibration's stated
 // uncertainty instead of a guess.
 //
-//   detect      cv::findChessboardCorners (the sector-based detector where it fails), refined
-//               by cv::cornerSubPix; a pair is used when both images show the whole board, its
+//   detect      cv::findChessboardCorners (global threshold), else the sector-based detector,
+//               else the classic with adaptive thresholds, refined by cv::cornerSubPix; a pair is used when both images show the whole board, its
 //               two corner lists put in the same order (the board's half turn is ambiguous to
 //               the detector)
 //   calibrate   cv::calibrateCamera per camera, cv::stereoCalibrate for both together, then a few
