@@ -5,9 +5,9 @@
 // uncertainty instead of a guess.
 //
 //   detect      cv::findChessboardCorners (global threshold), else the sector-based detector,
-//               else the classic with adaptive thresholds, refined by cv::cornerSubPix; a pair is used when both images show the whole board, its
-//               two corner lists put in the same order (the board's half turn is ambiguous to
-//               the detector)
+//               else the classic with adaptive thresholds, refined by cv::cornerSubPix; a pair
+//               is used when both images show the whole board, its two corner lists put in the
+//               same order (the board's half turn is ambiguous to the detector)
 //   calibrate   cv::calibrateCamera per camera, cv::stereoCalibrate for both together, then a few
 //               damped Gauss-Newton steps of the joint problem (src/calib/stereo_target_problem.h:
 //               both images of every pair, both cameras' intrinsics, R, T and every board pose);
