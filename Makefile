@@ -4,11 +4,12 @@ ASAN_BUILD ?= build-asan
 JOBS       ?= $(shell nproc)
 DEMO_OUT   ?= out/demo
 
-# Debian 12 packages the build needs; installed only when missing.
+# Debian 12 packages the build needs; installed only when missing (libopencv-imgcodecs-dev for
+# the tests alone: OpenCV's decoder is the reference the image reader is compared with).
 PACKAGES := cmake ninja-build g++ pkg-config \
             libceres-dev libeigen3-dev libsuitesparse-dev \
-            libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev libopencv-calib3d-dev \
-            libgtest-dev libbenchmark-dev libcli11-dev zlib1g-dev libjpeg-dev
+            libopencv-core-dev libopencv-imgproc-dev libopencv-calib3d-dev libopencv-imgcodecs-dev \
+            libgtest-dev libbenchmark-dev libcli11-dev zlib1g-dev libjpeg-dev libpng-dev
 
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 

@@ -1,7 +1,6 @@
 #include "src/calib/target_pairs.h"
 
 #include <opencv2/core/persistence.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <algorithm>
 #include <cctype>
 #include <filesystem>
@@ -37,7 +36,7 @@ bool keyAfter(const std::string& name, const std::string& prefix, std::string& k
 }
 
 cv::Mat readGrey(const std::string& path, const std::string& where) {
-  ImageRead read = readImageFile(path, cv::IMREAD_GRAYSCALE);
+  ImageRead read = readImageFile(path, ImageColour::Grey);
   if (!read.problem.empty()) throw Error(where + ": cannot read the image (" + read.problem + ")");
   return read.image;
 }

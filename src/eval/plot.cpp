@@ -6,12 +6,11 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "src/core/angles.h"
-#include "src/core/atomic_file.h"
 #include "src/core/error.h"
+#include "src/io/image_file.h"
 
 namespace stereoloc {
 
@@ -354,9 +353,7 @@ cv::Mat Plot::render() const {
 }
 
 void Plot::savePng(const std::string& path) const {
-  std::vector<uchar> buf;
-  if (!cv::imencode(".png", render(), buf)) throw Error(path + ": PNG encoding failed");
-  writeFileAtomically(path, std::string(buf.begin(), buf.end()));
+  writePngFile(path, render());
 }
 
 void drawField(Plot& plot, const FieldMap& map) {

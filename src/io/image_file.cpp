@@ -1,14 +1,9 @@
 #include "src/io/image_file.h"
 
-#include <cstdio>  // jpeglib.h uses FILE without including it
-
-#include <jpeglib.h>
-#include <jerror.h>
 #include <zlib.h>
 
 #include <algorithm>
 #include <cctype>
-#include <csetjmp>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
@@ -16,7 +11,10 @@
 #include <iterator>
 #include <opencv2/core.hpp>
 #include <system_error>
-#include <opencv2/imgcodecs.hpp>
+
+#include "src/core/atomic_file.h"
+#include "src/core/error.h"
+#include "src/io/image_codec.h"
 
 namespace stereoloc {
 namespace {
@@ -28,13 +26,6 @@ uint32_t bigEndian32(const Bytes& b, size_t at) {
 }
 
 std::string atByte(size_t at) { return " at byte " + std::to_string(at); }
-
-bool isPng(const Bytes& b) {
-  static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  return b.size() >= 8 && std::equal(kSignature, kSignature + 8, b.begin());
-}
-
-bool isJpeg(const Bytes& b) { return b.size() >= 3 && b[0] == 0xFF && b[1] == 0xD8 && b[2] == 0xFF; }
 
 // PNG (ISO/IEC 15948): the signature, then chunks of length (4 bytes, big-endian, < 2^31), type
 // (4 letters), data and the CRC-32 of type and data, IHDR first and IEND last.
@@ -88,75 +79,18 @@ std::string jpegDefect(const Bytes& b) {
   }
 }
 
-// libjpeg's error manager, made to stop at an error and at a warning that means corrupt data
-// (it would otherwise print the warning and decode the rest as grey or garbage).
-struct JpegErrors {
-  jpeg_error_mgr manager;  // first: libjpeg hands back a pointer to it
-  std::jmp_buf jump;
-  char message[JMSG_LENGTH_MAX];
-};
-
-[[noreturn]] void stopJpeg(j_common_ptr cinfo) {
-  auto* errors = reinterpret_cast<JpegErrors*>(cinfo->err);
-  (*cinfo->err->format_message)(cinfo, errors->message);
-  std::longjmp(errors->jump, 1);
-}
-
-void onJpegMessage(j_common_ptr cinfo, int level) {
-  if (level >= 0) return;  // trace messages
-  switch (cinfo->err->msg_code) {
-    case JWRN_ARITH_BAD_CODE: case JWRN_BOGUS_PROGRESSION: case JWRN_EXTRANEOUS_DATA: case JWRN_HIT_MARKER:
-    case JWRN_HUFF_BAD_CODE: case JWRN_JPEG_EOF: case JWRN_MUST_RESYNC:
-      stopJpeg(cinfo);
-    default:  // a harmless oddity (an unknown JFIF revision, a bad ICC profile): not corrupt pixels
-      return;
-  }
-}
-
-// Decodes the scan once (at 1/8 scale: the entropy-coded data is read whole at any scale) with
-// libjpeg's corrupt-data warnings as errors. Only locals without destructors live across the
-// setjmp, as longjmp requires.
-std::string jpegScanDefect(const Bytes& b) {
-  jpeg_decompress_struct cinfo;
-  JpegErrors errors;
-  cinfo.err = jpeg_std_error(&errors.manager);
-  errors.manager.error_exit = stopJpeg;
-  errors.manager.emit_message = onJpegMessage;
-  if (setjmp(errors.jump)) {
-    jpeg_destroy_decompress(&cinfo);
-    const char* text = errors.message;
-    static const char kPrefix[] = "Corrupt JPEG data: ";
-    if (std::strncmp(text, kPrefix, sizeof kPrefix - 1) == 0) text += sizeof kPrefix - 1;
-    return std::string("corrupt JPEG: ") + text;
-  }
-  jpeg_create_decompress(&cinfo);
-  jpeg_mem_src(&cinfo, b.data(), static_cast<unsigned long>(b.size()));
-  jpeg_read_header(&cinfo, TRUE);
-  cinfo.scale_num = 1;
-  cinfo.scale_denom = 8;
-  cinfo.dct_method = JDCT_IFAST;
-  cinfo.do_fancy_upsampling = FALSE;
-  jpeg_start_decompress(&cinfo);
-  const JDIMENSION row_samples = cinfo.output_width * static_cast<JDIMENSION>(cinfo.output_components);
-  JSAMPARRAY row = (*cinfo.mem->alloc_sarray)(reinterpret_cast<j_common_ptr>(&cinfo), JPOOL_IMAGE, row_samples, 1);
-  while (cinfo.output_scanline < cinfo.output_height) jpeg_read_scanlines(&cinfo, row, 1);
-  jpeg_finish_decompress(&cinfo);
-  jpeg_destroy_decompress(&cinfo);
-  return "";
-}
-
 }  // namespace
 
 std::string imageContainerDefect(const Bytes& bytes) {
-  if (isPng(bytes)) return pngDefect(bytes);
-  if (!isJpeg(bytes)) return "";
+  if (isPngImage(bytes)) return pngDefect(bytes);
+  if (!isJpegImage(bytes)) return "";
   const std::string defect = jpegDefect(bytes);
   return defect.empty() ? jpegScanDefect(bytes) : defect;
 }
 
-ImageRead readImageFile(const std::string& path, int imread_flags) {
+ImageRead readImageFile(const std::string& path, ImageColour colour) {
   ImageRead r;
-  // Checked first: OpenCV would print its own warning for a missing file.
+  // Checked first, to say what is wrong with the path itself.
   std::error_code ec;
   const std::filesystem::file_status status = std::filesystem::status(path, ec);
   if (!std::filesystem::is_regular_file(status)) {
@@ -182,13 +116,21 @@ ImageRead readImageFile(const std::string& path, int imread_flags) {
   r.problem = imageContainerDefect(bytes);
   if (!r.problem.empty()) return r;
   try {
-    r.image = cv::imdecode(bytes, imread_flags);
-  } catch (const cv::Exception& e) {  // a header declaring more pixels than OpenCV decodes, ...
-    r.problem = "not decodable: " + e.err;
-    return r;
+    r.image = decodeImage(bytes, colour);
+  } catch (const Error& e) {
+    r.problem = e.what();
   }
-  if (r.image.empty()) r.problem = "unreadable or not an image";
   return r;
+}
+
+void writePngFile(const std::string& path, const cv::Mat& image) {
+  std::vector<unsigned char> png;
+  try {
+    png = encodePng(image);
+  } catch (const Error& e) {
+    throw Error(path + ": " + e.what());
+  }
+  writeFileAtomically(path, std::string(png.begin(), png.end()));
 }
 
 }  // namespace stereoloc

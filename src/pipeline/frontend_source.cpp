@@ -7,7 +7,6 @@
 #include <random>
 #include <thread>
 #include <filesystem>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "frontend/frontend.h"
@@ -97,7 +96,7 @@ std::string frontendSummary(const ImageFrontendStats& st) {
 }
 
 cv::Mat readColourImage(const std::string& path, const std::string& what) {
-  const ImageRead read = readImageFile(path, cv::IMREAD_UNCHANGED);
+  const ImageRead read = readImageFile(path, ImageColour::AsStored);
   if (!read.problem.empty()) throw Error(path + ": cannot read the " + what + " (" + read.problem + ")");
   const cv::Mat& img = read.image;
   if (img.depth() != CV_8U)

@@ -1,7 +1,6 @@
 #include "src/sim/calibration_target.h"
 
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -9,9 +8,9 @@
 #include <random>
 #include <string>
 
-#include "src/core/atomic_file.h"
 #include "src/core/error.h"
 #include "src/core/lens_distortion.h"
+#include "src/io/image_file.h"
 
 namespace stereoloc {
 namespace {
@@ -178,9 +177,7 @@ void writeCalibrationViews(const std::string& dir, const StereoCalibration& trut
     char name[32];
     for (int c = 0; c < 2; ++c) {
       std::snprintf(name, sizeof name, "%s_%03zu.png", c == 0 ? "left" : "right", i);
-      std::vector<uchar> png;
-      cv::imencode(".png", c == 0 ? views[i].left : views[i].right, png);
-      writeFileAtomically((std::filesystem::path(dir) / name).string(), std::string(png.begin(), png.end()));
+      writePngFile((std::filesystem::path(dir) / name).string(), c == 0 ? views[i].left : views[i].right);
     }
   }
   truth.save((std::filesystem::path(dir) / "true_calibration.yml").string());

@@ -7,7 +7,6 @@
 #include <filesystem>
 #include <functional>
 #include <optional>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <thread>
@@ -16,6 +15,7 @@
 #include "src/core/atomic_file.h"
 #include "src/io/csv.h"
 #include "src/io/dataset.h"
+#include "src/io/image_file.h"
 #include "src/core/error.h"
 #include "src/sim/raw_render.h"
 #include "src/sim/simulator.h"
@@ -994,9 +994,7 @@ void writeDatasetImages(const Dataset& d, const SimulationTrace& trace, const Re
                                   : raw->render(trace.scenario, s, trace.obstacles[s], seed + s);
     for (int camera = 0; camera < 2; ++camera) {
       const std::string path = (std::filesystem::path(dir) / imageFileName(camera == 0 ? "left" : "right", st.step)).string();
-      std::vector<uchar> png;
-      if (!cv::imencode(".png", camera == 0 ? im.left : im.right, png)) throw Error(path + ": PNG encoding failed");
-      writeFileAtomically(path, std::string(png.begin(), png.end()));
+      writePngFile(path, camera == 0 ? im.left : im.right);
     }
     writeFileAtomically((std::filesystem::path(dir) / imageFileName("truth", st.step)).string(),
                         truthToJson(im.truth, st.step, W, H));

@@ -7,7 +7,6 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
-#include <opencv2/imgcodecs.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -15,6 +14,7 @@
 #include "frontend/frontend.h"
 #include "src/core/field_map.h"
 #include "src/core/stereo_rig.h"
+#include "src/io/image_file.h"
 #include "test_util.h"
 
 namespace stereoloc::frontend {
@@ -68,7 +68,7 @@ double meanCoverage(const FrontendParams& prm) {
   int n = 0;
   for (const char* name : {"20190606_r2_cam0_20190606_204349", "20190606_r2_cam0_20190606_204355",
                            "20190606_r2_cam0_20190606_204236", "20190606_r2_cam0_20190606_204550"}) {
-    const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+    const cv::Mat img = readImageFile(kRealImagesDir + "/images/" + name + ".jpg", ImageColour::Bgr).image;
     EXPECT_FALSE(img.empty()) << name;
     if (img.empty()) continue;
     const std::vector<LineFeature>& lines = fe.detectFeatures(img).lines;
@@ -104,7 +104,7 @@ TEST(RealImages, LabelledCornersAndJunctionsAreFound) {
   int labelled = 0;
   for (const char* name : {"20190606_r2_cam0_20190606_204349", "20190606_r2_cam0_20190606_204355",
                            "20190606_r4_cam0_20190606_212653"}) {
-    const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+    const cv::Mat img = readImageFile(kRealImagesDir + "/images/" + name + ".jpg", ImageColour::Bgr).image;
     ASSERT_FALSE(img.empty()) << name;
     const FrontendResult& r = fe.detectFeatures(img);
     std::ifstream f(kRealImagesDir + "/labels/" + name + ".txt");
@@ -139,7 +139,7 @@ TEST(RealImages, FieldRegionKeepsTheMarkingsAndDropsTheStands) {
   int ends = 0;
   for (const char* name : {"20190606_r2_cam0_20190606_204349", "20190606_r2_cam0_20190606_204236",
                            "20190606_r4_cam0_20190606_212312", "20190606_r4_cam0_20190606_212620"}) {
-    const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+    const cv::Mat img = readImageFile(kRealImagesDir + "/images/" + name + ".jpg", ImageColour::Bgr).image;
     ASSERT_FALSE(img.empty()) << name;
     fe.detectFeatures(img);
     kept += static_cast<double>(fe.gradient().edges().size());
@@ -168,7 +168,7 @@ namespace {
 int markingsWithBothEnds(const FrontendParams& prm, const std::string& name) {
   const StereoRig rig = StereoRig::load(kRealImagesDir + "/rig.yaml");
   Frontend fe(rig, FieldMap::miroSot(), prm);
-  const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+  const cv::Mat img = readImageFile(kRealImagesDir + "/images/" + name + ".jpg", ImageColour::Bgr).image;
   EXPECT_FALSE(img.empty()) << name;
   if (img.empty()) return 0;
   const std::vector<LineFeature>& lines = fe.detectFeatures(img).lines;
@@ -210,7 +210,7 @@ namespace {
 double cornerError(const FrontendParams& prm, const std::string& name, const char* type, double x, double y) {
   const StereoRig rig = StereoRig::load(kRealImagesDir + "/rig.yaml");
   Frontend fe(rig, FieldMap::miroSot(), prm);
-  const cv::Mat img = cv::imread(kRealImagesDir + "/images/" + name + ".jpg", cv::IMREAD_COLOR);
+  const cv::Mat img = readImageFile(kRealImagesDir + "/images/" + name + ".jpg", ImageColour::Bgr).image;
   EXPECT_FALSE(img.empty()) << name;
   if (img.empty()) return 1e9;
   std::ifstream f(kRealImagesDir + "/labels/" + name + ".txt");

@@ -5,7 +5,6 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <string>
@@ -17,6 +16,7 @@
 #include "frontend/gradient.h"
 #include "frontend/peaks.h"
 #include "frontend/segments.h"
+#include "src/io/image_file.h"
 #include "test_util.h"
 
 namespace stereoloc::frontend {
@@ -68,7 +68,7 @@ TEST(SegmentPools, BranchFreeScanEqualsLinearScanOnPhotographs) {
   ASSERT_GE(files.size(), 64u);
   size_t total = 0;
   for (const cv::String& f : files) {
-    const cv::Mat img = cv::imread(f, cv::IMREAD_COLOR);
+    const cv::Mat img = readImageFile(f, ImageColour::Bgr).image;
     ASSERT_FALSE(img.empty()) << f;
     total += compareOn(img, p, f);
   }

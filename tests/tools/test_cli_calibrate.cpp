@@ -3,13 +3,13 @@
 #include <gtest/gtest.h>
 
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <filesystem>
 #include <fstream>
 #include <cstdlib>
 
 #include "cli_util.h"
 #include "src/core/stereo_calibration.h"
+#include "src/io/image_file.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -85,14 +85,14 @@ TEST(CliCalibrate, OverlaysShowThePairsLeftOutToo) {
   const std::string d = dir.file("run");
   ASSERT_EQ(test::runCli("simulate --scenario spin --steps 2 --calibration-views 7 --out '" + d + "'").exit_code, 0);
   const std::string pairs = d + "/calibration";
-  ASSERT_TRUE(cv::imwrite(pairs + "/right_003.png", cv::Mat(240, 320, CV_8UC1, cv::Scalar(110))));
+  ASSERT_NO_THROW(writePngFile(pairs + "/right_003.png", cv::Mat(240, 320, CV_8UC1, cv::Scalar(110))));
   const test::CliRun r = test::runCli("calibrate '" + pairs + "' --out '" + dir.file("s.yml") + "' --overlay '" +
                                       dir.file("overlay") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("pairs: 6 of 7 used"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("wrote 7 rectified pairs (1 of them left out) to"), std::string::npos) << r.output;
-  EXPECT_EQ(cv::imread(dir.file("overlay/left_out_left_003.png")).size(), cv::Size(640, 240));
-  EXPECT_EQ(cv::imread(dir.file("overlay/rectified_left_000.png")).size(), cv::Size(640, 240));
+  EXPECT_EQ(readImageFile(dir.file("overlay/left_out_left_003.png"), ImageColour::Bgr).image.size(), cv::Size(640, 240));
+  EXPECT_EQ(readImageFile(dir.file("overlay/rectified_left_000.png"), ImageColour::Bgr).image.size(), cv::Size(640, 240));
   EXPECT_FALSE(std::filesystem::exists(dir.file("overlay/rectified_left_003.png")));
 }
 
@@ -113,7 +113,7 @@ TEST(CliCalibrate, OpenCvsSamplePhotographsThroughItsImageList) {
   EXPECT_NEAR(c.K1.at<double>(0, 0), 533.7, 3.0);
   EXPECT_NEAR(cv::norm(c.T), 3.33, 0.03);
   EXPECT_NE(r.output.find("wrote 13 rectified pairs (0 of them left out) to"), std::string::npos) << r.output;
-  const cv::Mat overlay = cv::imread(dir.file("overlay/rectified_left11.png"));
+  const cv::Mat overlay = readImageFile(dir.file("overlay/rectified_left11.png"), ImageColour::Bgr).image;
   EXPECT_EQ(overlay.size(), cv::Size(1280, 480));
 
   const std::string odd = dir.file("odd.yml");

@@ -8,10 +8,10 @@
 #include <string>
 #include <utility>
 #include <vector>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "cli_util.h"
+#include "src/io/image_file.h"
 
 namespace stereoloc {
 namespace {
@@ -37,7 +37,7 @@ void writePair(const TempDir& d) {
     cv::rectangle(img, cv::Rect(0, 100, 320, 20), cv::Scalar(235, 235, 235), cv::FILLED);
     cv::rectangle(img, cv::Rect(130 + shift, 100, 60, 20), cv::Scalar(40, 225, 245), cv::FILLED);
     cv::line(img, cv::Point(60 + shift, 239), cv::Point(150 + shift, 125), cv::Scalar(230, 230, 230), 3, cv::LINE_AA);
-    cv::imwrite(d.file(cam ? "right.png" : "left.png"), img);
+    writePngFile(d.file(cam ? "right.png" : "left.png"), img);
   }
 }
 
@@ -63,9 +63,9 @@ TEST(CliDetect, JsonHasTheDocumentedKeys) {
 TEST(CliDetect, BadInputGivesAOneLineErrorAndExit1) {
   TempDir d;
   writePair(d);
-  cv::imwrite(d.file("small.png"), cv::Mat(120, 160, CV_8UC3, cv::Scalar(10, 10, 10)));
-  cv::imwrite(d.file("grey.png"), cv::Mat(240, 320, CV_8UC1, cv::Scalar(10)));
-  cv::imwrite(d.file("deep.png"), cv::Mat(240, 320, CV_16UC3, cv::Scalar(1000, 1000, 1000)));
+  writePngFile(d.file("small.png"), cv::Mat(120, 160, CV_8UC3, cv::Scalar(10, 10, 10)));
+  writePngFile(d.file("grey.png"), cv::Mat(240, 320, CV_8UC1, cv::Scalar(10)));
+  writePngFile(d.file("deep.png"), cv::Mat(240, 320, CV_16UC3, cv::Scalar(1000, 1000, 1000)));
   {
     std::FILE* f = std::fopen(d.file("empty.png").c_str(), "w");
     std::fclose(f);
@@ -75,6 +75,7 @@ TEST(CliDetect, BadInputGivesAOneLineErrorAndExit1) {
     const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     std::ofstream(d.file("cut.png"), std::ios::binary) << bytes.substr(0, bytes.size() / 2);
   }
+  std::ofstream(d.file("bitmap.bmp"), std::ios::binary) << "BM a bitmap header and pixels";
   const std::string L = " --left " + d.file("left.png"), R = " --right " + d.file("right.png");
   // Each case with the file and the words its message must hold.
   const std::vector<std::pair<std::string, std::vector<std::string>>> cases = {
@@ -84,7 +85,9 @@ TEST(CliDetect, BadInputGivesAOneLineErrorAndExit1) {
       {"detect" + L + " --right " + d.file("deep.png"), {d.file("deep.png"), "16-bit"}},
       {"detect" + L + " --right " + d.file("empty.png"), {d.file("empty.png"), "empty file"}},
       {"detect" + L + " --right " + d.file("cut.png"), {d.file("cut.png"), "PNG cut short"}},
-      {"detect" + L + " --right " + d.file("missing.png"), {d.file("missing.png"), "no such file"}}};
+      {"detect" + L + " --right " + d.file("missing.png"), {d.file("missing.png"), "no such file"}},
+      {"detect" + L + " --right " + d.file("bitmap.bmp"), {d.file("bitmap.bmp"), "not a PNG or JPEG image"}},
+      {"detect" + L + R + " --overlay " + d.file("overlay.jpg"), {d.file("overlay.jpg"), "give a .png path"}}};
   for (const auto& [args, words] : cases) {
     const test::CliRun r = test::runCli(args);
     EXPECT_EQ(r.exit_code, 1) << args << "\n" << r.output;
@@ -103,7 +106,7 @@ TEST(CliDetect, OneImageGivesSegmentsCornersAndAnOverlayWithoutObservations) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("\"marking\": true"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("\"observations\": []"), std::string::npos) << r.output;
-  const cv::Mat ov = cv::imread(d.file("overlay.png"));
+  const cv::Mat ov = readImageFile(d.file("overlay.png"), ImageColour::Bgr).image;
   ASSERT_FALSE(ov.empty());
   EXPECT_EQ(ov.cols, 640);  // drawn at twice the input size
   EXPECT_EQ(ov.rows, 480);
@@ -112,7 +115,7 @@ TEST(CliDetect, OneImageGivesSegmentsCornersAndAnOverlayWithoutObservations) {
 TEST(CliDetect, OneImageBadInputGivesAOneLineError) {
   TempDir d;
   writePair(d);
-  cv::imwrite(d.file("small.png"), cv::Mat(120, 160, CV_8UC3, cv::Scalar(10, 10, 10)));
+  writePngFile(d.file("small.png"), cv::Mat(120, 160, CV_8UC3, cv::Scalar(10, 10, 10)));
   for (const std::string& args : {"detect --image " + d.file("small.png"), "detect --image " + d.file("missing.png")}) {
     const test::CliRun r = test::runCli(args);
     EXPECT_EQ(r.exit_code, 1) << args << "\n" << r.output;

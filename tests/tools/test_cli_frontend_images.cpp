@@ -8,11 +8,11 @@
 #include <fstream>
 #include <map>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <sstream>
 #include <vector>
 
 #include "cli_util.h"
+#include "src/io/image_file.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -97,7 +97,7 @@ TEST(FrontendImagesErrors, MissingUnreadableOrWrongSizeImageIsOneLineNamingTheFi
   ASSERT_EQ(test::runCli("simulate --scenario line --steps 4 --seed 2 --images --out " + dir.file("d")).exit_code, 0);
   const std::string left2 = dir.file("d/images/left_000002.png");
   // Wrong size.
-  cv::imwrite(left2, cv::Mat(100, 120, CV_8UC3, cv::Scalar(0, 128, 0)));
+  writePngFile(left2, cv::Mat(100, 120, CV_8UC3, cv::Scalar(0, 128, 0)));
   test::CliRun r = test::runCli("localize " + dir.file("d") + " --method ekf --frontend images --out " + dir.file("e.csv"));
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("left_000002.png"), std::string::npos) << r.output;

@@ -9,7 +9,6 @@
 #include <limits>
 #include <map>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -18,6 +17,7 @@
 #include "solvers/smoother_common.h"
 #include "src/core/yaml_util.h"
 #include "src/io/dataset.h"
+#include "src/io/image_file.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -349,7 +349,7 @@ TEST_F(StreamImages, BadInputNeverStopsTheStream) {
     const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     std::ofstream(truncated, std::ios::binary) << bytes.substr(0, bytes.size() / 2);
   }
-  cv::imwrite(small, cv::Mat(120, 160, CV_8UC3, cv::Scalar(0, 128, 0)));
+  writePngFile(small, cv::Mat(120, 160, CV_8UC3, cv::Scalar(0, 128, 0)));
   {
     std::ofstream f(dir_->file("bad.jsonl"));
     f << line(d.steps[0], 0, image("left", 0), image("right", 0)) << "\n";

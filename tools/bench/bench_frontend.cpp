@@ -59,7 +59,6 @@
 #include <cstring>
 #include <functional>
 #include <map>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <string>
@@ -1065,8 +1064,8 @@ class PairDumper {
   bool begin(const Pair& p, int pair_index) {
     if (!dir_ || dumped_ >= 6 || (only_ && std::atoi(only_) != pair_index)) return false;
     const std::string base = std::string(dir_) + "/pair" + std::to_string(dumped_++);
-    cv::imwrite(base + "_left.png", p.img.left);
-    cv::imwrite(base + "_right.png", p.img.right);
+    writePngFile(base + "_left.png", p.img.left);
+    writePngFile(base + "_right.png", p.img.right);
     std::FILE* f = std::fopen((base + "_truth.json").c_str(), "w");
     if (f) {
       std::fputs(truthToJson(p.img.truth, 0, p.img.left.cols, p.img.left.rows).c_str(), f);
@@ -1083,7 +1082,7 @@ class PairDumper {
       auto P = [](const Eigen::Vector2d& q) { return cv::Point(static_cast<int>(std::lround(4 * q.x() + 1.5)), static_cast<int>(std::lround(4 * q.y() + 1.5))); };
       for (const Seg& g : level ? gt_e : gt_c) cv::line(big, P(g.a), P(g.b), g.optional ? cv::Scalar(128, 128, 128) : cv::Scalar(255, 0, 0), 1);
       for (const Seg& d : level ? edges : det) cv::line(big, P(d.a), P(d.b), d.marking ? cv::Scalar(0, 0, 255) : cv::Scalar(0, 255, 0), 1);
-      cv::imwrite(std::string(dir_) + "/pair" + std::to_string(dumped_ - 1) + (level ? "_edges.png" : "_lines.png"), big);
+      writePngFile(std::string(dir_) + "/pair" + std::to_string(dumped_ - 1) + (level ? "_edges.png" : "_lines.png"), big);
     }
   }
 
@@ -1142,7 +1141,7 @@ RealImage loadReal(const std::string& dir, const std::string& name, double lmin)
   RealImage im;
   im.name = name;
   const std::string img_path = dir + "/images/" + name + ".jpg", lab_path = dir + "/labels/" + name + ".txt";
-  ImageRead read = readImageFile(img_path, cv::IMREAD_COLOR);
+  ImageRead read = readImageFile(img_path, ImageColour::Bgr);
   if (!read.problem.empty()) throw Error(img_path + ": cannot read the image (" + read.problem + ")");
   im.bgr = read.image;
   im.mask = cv::Mat(im.bgr.rows, im.bgr.cols, CV_8UC1, cv::Scalar(0));

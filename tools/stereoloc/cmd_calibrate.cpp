@@ -6,15 +6,14 @@
 #include <filesystem>
 #include <memory>
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "solvers/self_calibration.h"
 #include "src/calib/rectified_view.h"
 #include "src/calib/stereo_target_calibration.h"
 #include "src/calib/target_pairs.h"
 #include "src/core/angles.h"
-#include "src/core/atomic_file.h"
 #include "src/core/stereo_rig.h"
+#include "src/io/image_file.h"
 #include "tools/stereoloc/cli_common.h"
 
 namespace stereoloc::cli {
@@ -64,11 +63,9 @@ void writeOverlays(const std::string& dir, const StereoCalibration& c, const std
   for (size_t i = 0; i < pairs.size(); ++i) {
     const TargetPairResult& p = r.pairs[i];
     const cv::Mat image = view.draw(pairs[i].left, pairs[i].right, p.left_corners, p.right_corners);
-    std::vector<uchar> png;
     const std::string name = (p.used ? "rectified_" : "left_out_") + std::filesystem::path(p.name).stem().string() + ".png";
     const std::string path = (std::filesystem::path(dir) / name).string();
-    if (!cv::imencode(".png", image, png)) throw Error(path + ": cannot encode the overlay");
-    writeFileAtomically(path, std::string(png.begin(), png.end()));
+    writePngFile(path, image);
     ++(p.used ? used : left_out);
   }
   std::printf("wrote %d rectified pairs (%d of them left out) to %s\n", used + left_out, left_out, dir.c_str());

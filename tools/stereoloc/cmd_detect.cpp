@@ -1,17 +1,19 @@
 // `stereoloc detect`: runs the vision frontend (thesis ch. 3) on one rectified stereo pair (or,
 // with --image, on one monocular image) and prints its segments, point features and
 // range-bearing observations (table or JSON).
+#include <algorithm>
+#include <cctype>
 #include <cstdio>
+#include <filesystem>
 #include <memory>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "frontend/detection_text.h"
 #include "frontend/frontend.h"
 #include "frontend/overlay.h"
-#include "src/core/atomic_file.h"
 #include "src/core/field_map.h"
 #include "src/core/stereo_rig.h"
+#include "src/io/image_file.h"
 #include "src/pipeline/frontend_source.h"
 #include "tools/stereoloc/cli_common.h"
 
@@ -25,16 +27,11 @@ struct DetectOptions {
 };
 
 void writeOverlay(const cv::Mat& img, const frontend::FrontendResult& r, const std::string& path) {
-  const cv::Mat big = frontend::drawDetections(img, r, 2);
-  std::vector<uchar> buf;
-  const std::string ext = path.find('.') != std::string::npos ? path.substr(path.find_last_of('.')) : "";
-  bool encoded = false;
-  try {
-    encoded = !ext.empty() && cv::imencode(ext, big, buf);
-  } catch (const cv::Exception&) {  // OpenCV throws for an extension it has no encoder for
-  }
-  if (!encoded) throw Error(path + ": cannot encode the overlay (unknown image extension?)");
-  writeFileAtomically(path, std::string(buf.begin(), buf.end()));
+  const std::filesystem::path p(path);
+  std::string ext = p.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (ext != ".png") throw Error(path + ": the overlay is written as a PNG image (give a .png path)");
+  writePngFile(path, frontend::drawDetections(img, r, 2));
 }
 
 void runDetect(const DetectOptions& o) {
@@ -73,7 +70,7 @@ void add_detect_command(CLI::App& app) {
       ->check(CLI::ExistingFile);
   sub->add_option("--pan", opts->pan, "Head pan gamma, rad")->capture_default_str();
   sub->add_option("--overlay", opts->overlay,
-                  "Write the (left) image at 2x with the detections drawn: markings red, other edges green, L / T / X / goal "
+                  "Write the (left) image as a PNG at 2x with the detections drawn: markings red, other edges green, L / T / X / goal "
                   "corners as distinct markers, with a legend (like Fig. 6.1)");
   sub->add_flag("--json", opts->json, "Print one JSON object instead of tables");
   sub->callback([opts, image, left] {

@@ -4,9 +4,9 @@
 
 #include <gtest/gtest.h>
 
-#include <opencv2/imgcodecs.hpp>
 #include <fstream>
 
+#include "src/io/image_file.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -14,7 +14,7 @@ namespace {
 
 // An image whose grey value tells it apart.
 void writeImage(const std::string& path, int value) {
-  ASSERT_TRUE(cv::imwrite(path, cv::Mat(12, 16, CV_8UC1, cv::Scalar(value))));
+  ASSERT_NO_THROW(writePngFile(path, cv::Mat(12, 16, CV_8UC1, cv::Scalar(value))));
 }
 
 int valueOf(const cv::Mat& image) { return image.at<uint8_t>(0, 0); }
@@ -89,7 +89,7 @@ TEST(TargetPairs, WhatCannotBePairedOrReadIsNamed) {
             dir.file("right_2.png") + ": no left image with the key '2.png' beside it");
   writeText(dir.file("left_2.png"), "not a png");
   EXPECT_EQ(test::errorOf([&] { readTargetPairs(dir.path()); }),
-            dir.file("left_2.png") + ": cannot read the image (unreadable or not an image)");
+            dir.file("left_2.png") + ": cannot read the image (not a PNG or JPEG image)");
 
   writeText(dir.file("odd.xml"),
             "<?xml version=\"1.0\"?>\n<opencv_storage>\n<imagelist>\n\"left_1.png\"\n</imagelist>\n</opencv_storage>\n");

@@ -1,9 +1,9 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
-#include <opencv2/imgcodecs.hpp>
 
 #include "src/eval/plot.h"
+#include "src/io/image_file.h"
 #include "test_util.h"
 
 namespace stereoloc {
@@ -37,7 +37,7 @@ TEST(Plot, RendersSeriesFieldAndWritesPng) {
   EXPECT_GT(red, 300);
   test::TempDir dir;
   p.savePng(dir.file("p.png"));
-  EXPECT_FALSE(cv::imread(dir.file("p.png")).empty());
+  EXPECT_FALSE(readImageFile(dir.file("p.png"), ImageColour::Bgr).image.empty());
   Plot bars("rmse", "method", "mm");
   bars.bars({"ekf", "batch"}, {30, 12}, plotColor(0));
   EXPECT_FALSE(bars.render().empty());

@@ -1,9 +1,9 @@
+#include "src/io/image_file.h"
 #include "src/sim/calibration_target.h"
 
 #include <gtest/gtest.h>
 
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <filesystem>
 #include <random>
 
@@ -102,7 +102,7 @@ TEST(CalibrationTarget, WritesPairsAndTheirTruth) {
   const StereoCalibration truth = realisticCameras(2);
   writeCalibrationViews(dir.file("cal"), truth, CheckerBoard(), o, 8);
   for (const char* f : {"left_000.png", "right_000.png", "left_002.png", "right_002.png"})
-    EXPECT_FALSE(cv::imread(dir.file(std::string("cal/") + f), cv::IMREAD_UNCHANGED).empty()) << f;
+    EXPECT_FALSE(readImageFile(dir.file(std::string("cal/") + f), ImageColour::AsStored).image.empty()) << f;
   EXPECT_FALSE(std::filesystem::exists(dir.file("cal/left_003.png")));
   const StereoCalibration back = StereoCalibration::load(dir.file("cal/true_calibration.yml"));
   EXPECT_NEAR(back.K1.at<double>(0, 2), truth.K1.at<double>(0, 2), 1e-9);
