@@ -40,7 +40,7 @@ void onPngWarning(png_structp, png_const_charp) {}  // an unknown chunk or the l
 
 void readPngBytes(png_structp png, png_bytep out, png_size_t n) {
   auto* io = static_cast<PngIo*>(png_get_io_ptr(png));
-  if (io->size - io->at < n) png_error(png, "PNG cut short");
+  if (io->size - io->at < n) png_error(png, "cut short");
   std::memcpy(out, io->data + io->at, n);
   io->at += n;
 }

@@ -151,11 +151,14 @@ TEST(ImageFile, ProblemsAreNamed) {
   const ImageRead r = readImageFile(dir.file("half.png"), ImageColour::AsStored);
   EXPECT_TRUE(r.image.empty());
   EXPECT_EQ(r.problem, "PNG cut short in its IDAT chunk at byte 33");
+  // The decoder alone, without the container check, refuses it as well (libpng's error path).
+  EXPECT_EQ(test::errorOf([&] { decodeImage(half, ImageColour::AsStored); }), "PNG: cut short");
 
   const Bytes jpg = encode(".jpg");
   const Bytes jpg_half(jpg.begin(), jpg.begin() + static_cast<long>(jpg.size() - 10));
   EXPECT_NE(imageContainerDefect(jpg_half).find("JPEG cut short in the scan at byte"), std::string::npos)
       << imageContainerDefect(jpg_half);
+  EXPECT_EQ(test::errorOf([&] { decodeImage(jpg_half, ImageColour::Bgr); }).rfind("JPEG: ", 0), 0u);
   Bytes junk = jpg;
   const size_t after_app0 = 4 + ((size_t{jpg[4]} << 8) | jpg[5]);  // SOI, then the APP0 segment
   junk.insert(junk.begin() + static_cast<long>(after_app0), 'x');   // a byte where a marker must stand
