@@ -47,11 +47,13 @@ void readPngBytes(png_structp png, png_bytep out, png_size_t n) {
 
 void writePngBytes(png_structp png, png_bytep data, png_size_t n) {
   auto* io = static_cast<PngIo*>(png_get_io_ptr(png));
+  bool stored = true;
   try {
     io->out->insert(io->out->end(), data, data + n);
-  } catch (...) {  // no C++ exception may cross libpng's C frames
-    png_error(png, "out of memory");
+  } catch (...) {  // no C++ exception may cross libpng's C frames, nor a longjmp leave a handler
+    stored = false;
   }
+  if (!stored) png_error(png, "out of memory");
 }
 
 void flushPng(png_structp) {}
