@@ -250,7 +250,7 @@ cv::Mat decodeImage(const Bytes& bytes, ImageColour colour) {
     image = decodeJpeg(bytes, colour);
   else
     throw Error("not a PNG or JPEG image");
-  if (colour == ImageColour::Grey && image.channels() == 3) cv::cvtColor(image, image, cv::COLOR_BGR2GRAY);
+  // The decoders give grey already when asked for it; a grey image asked for as colour is repeated.
   if (colour == ImageColour::Bgr && image.channels() == 1) cv::cvtColor(image, image, cv::COLOR_GRAY2BGR);
   return image;
 }
